@@ -1,0 +1,253 @@
+"""Scenes: a radar pose, moving targets made of point scatterers, static clutter, ground truth.
+
+World frame: metres, ``x`` lateral (right +), ``y`` along the road away from the radar's foot,
+``z`` up; the road surface is ``z = 0``. The radar's own frame has ``y`` along boresight, ``x`` to the
+right, ``z`` up; :class:`RadarPose` maps between the two (yaw about ``z``, then a downward tilt).
+
+A target's *reference point* is its trajectory point: the centre of the vehicle's footprint at road
+level (``z = 0``), or a pedestrian's feet. Ground truth reports that point, its velocity, the range,
+radial speed and azimuth seen from the radar, the class and the lane.
+
+Targets are sets of scatterers given in the body frame (``x`` right of the heading, ``y`` forward,
+``z`` up) and rotated with the heading; later issues add extended vehicles, pedestrians with swinging
+limbs (time-varying offsets through :meth:`Target.scatterers`) and random traffic.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+#: class names used in ground truth and by the classifier, in a fixed order
+CLASSES: tuple[str, ...] = ("pedestrian", "car", "motorcycle", "truck", "bicycle", "clutter")
+
+
+@dataclass(frozen=True)
+class RadarPose:
+    """Where the radar is and where it looks."""
+
+    x_m: float = 0.0
+    y_m: float = 0.0
+    height_m: float = 6.0
+    yaw_deg: float = 0.0
+    tilt_deg: float = 0.0
+
+    @property
+    def position(self) -> np.ndarray:
+        return np.array([self.x_m, self.y_m, self.height_m])
+
+    def rotation(self) -> np.ndarray:
+        """3x3 matrix whose rows are the radar's x, y (boresight), z axes in world coordinates."""
+        yaw = math.radians(self.yaw_deg)
+        tilt = math.radians(self.tilt_deg)
+        # boresight: heading yaw (clockwise from +y towards +x), tilted down by tilt
+        by = np.array([math.sin(yaw) * math.cos(tilt), math.cos(yaw) * math.cos(tilt), -math.sin(tilt)])
+        bx = np.array([math.cos(yaw), -math.sin(yaw), 0.0])
+        bz = np.cross(bx, by)
+        return np.stack([bx, by, bz])
+
+    def to_radar(self, p_world: np.ndarray) -> np.ndarray:
+        """World points (..., 3) -> radar frame (..., 3)."""
+        return (p_world - self.position) @ self.rotation().T
+
+
+class Trajectory(Protocol):
+    def position(self, t_s: np.ndarray | float) -> np.ndarray: ...
+    def velocity(self, t_s: np.ndarray | float) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class LinearTrajectory:
+    """Constant velocity: ``p(t) = p0 + v (t - t0)``."""
+
+    p0: tuple[float, float, float]
+    v: tuple[float, float, float]
+    t0_s: float = 0.0
+
+    def position(self, t_s):
+        t = np.asarray(t_s, dtype=np.float64)
+        return np.asarray(self.p0) + np.multiply.outer(t - self.t0_s, np.asarray(self.v))
+
+    def velocity(self, t_s):
+        t = np.asarray(t_s, dtype=np.float64)
+        return np.broadcast_to(np.asarray(self.v, dtype=np.float64), t.shape + (3,)).copy()
+
+
+@dataclass
+class Target:
+    """A moving object made of point scatterers.
+
+    ``offsets_m`` (K, 3) in the body frame, ``rcs_m2`` (K,). ``swerling`` 0 keeps the RCS fixed; 1
+    draws a new exponential RCS factor per frame for the whole target (Swerling I); 3 uses a
+    chi-square with 4 degrees of freedom (Swerling III).
+    """
+
+    id: int
+    cls: str
+    trajectory: Trajectory
+    offsets_m: np.ndarray
+    rcs_m2: np.ndarray
+    swerling: int = 0
+    lane: int | None = None
+    t_start_s: float = -math.inf
+    t_end_s: float = math.inf
+
+    def __post_init__(self) -> None:
+        self.offsets_m = np.atleast_2d(np.asarray(self.offsets_m, dtype=np.float64))
+        self.rcs_m2 = np.atleast_1d(np.asarray(self.rcs_m2, dtype=np.float64))
+        if self.offsets_m.shape != (self.rcs_m2.size, 3):
+            raise ValueError(f"target {self.id}: offsets_m must be (K, 3) matching rcs_m2 (K,)")
+        if self.swerling not in (0, 1, 3):
+            raise ValueError(f"target {self.id}: swerling must be 0, 1 or 3")
+
+    def active(self, t_s: float) -> bool:
+        return self.t_start_s <= t_s <= self.t_end_s
+
+    def scatterers(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Body-frame offsets and velocities relative to the reference point at ``t_s``.
+
+        Rigid targets return their fixed offsets and zero relative velocity; articulated targets
+        (pedestrian limbs, wheels) override this.
+        """
+        return self.offsets_m, np.zeros_like(self.offsets_m)
+
+    def heading_rotation(self, t_s: float) -> np.ndarray:
+        """3x3 body -> world rotation from the direction of travel (identity when standing)."""
+        v = np.asarray(self.trajectory.velocity(t_s), dtype=np.float64)
+        speed = math.hypot(v[0], v[1])
+        if speed < 1e-6:
+            fy = np.array([0.0, 1.0, 0.0])
+        else:
+            fy = np.array([v[0] / speed, v[1] / speed, 0.0])
+        fx = np.array([fy[1], -fy[0], 0.0])
+        return np.stack([fx, fy, [0.0, 0.0, 1.0]], axis=1)
+
+
+@dataclass(frozen=True)
+class ScattererSet:
+    """All scatterers of a scene at one instant, flat arrays (K scatterers)."""
+
+    position_m: np.ndarray  # (K, 3) world
+    velocity_mps: np.ndarray  # (K, 3) world
+    rcs_m2: np.ndarray  # (K,)
+    phase_cycles: np.ndarray  # (K,) scattering phase in [0, 1)
+    target_index: np.ndarray  # (K,) index into Scene.targets, -1 for clutter
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """Truth for one frame: one row per target in view of the scene (flat arrays)."""
+
+    t_s: float
+    id: np.ndarray  # (n,) int32
+    cls: tuple[str, ...]
+    lane: np.ndarray  # (n,) int16, -1 when not on a lane
+    position_m: np.ndarray  # (n, 3) world, reference point
+    velocity_mps: np.ndarray  # (n, 3) world
+    range_m: np.ndarray  # (n,) radar to reference point
+    radial_speed_mps: np.ndarray  # (n,) positive receding
+    az_rad: np.ndarray  # (n,) azimuth in the radar frame, positive to the right
+
+    def __len__(self) -> int:
+        return int(self.id.size)
+
+
+@dataclass
+class Clutter:
+    """Static point scatterers (guard rail posts, poles, sign gantries, metal fences)."""
+
+    position_m: np.ndarray
+    rcs_m2: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.position_m = np.asarray(self.position_m, dtype=np.float64).reshape(-1, 3)
+        self.rcs_m2 = np.asarray(self.rcs_m2, dtype=np.float64).reshape(-1)
+
+
+@dataclass
+class Scene:
+    """Radar pose, targets and clutter; deterministic for a given seed."""
+
+    pose: RadarPose
+    targets: list[Target] = field(default_factory=list)
+    clutter: Clutter | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        self._phase: dict[int, np.ndarray] = {}
+
+    def add_target(self, target: Target) -> None:
+        if any(t.id == target.id for t in self.targets):
+            raise ValueError(f"duplicate target id {target.id}")
+        self.targets.append(target)
+
+    def _scatter_phase(self, tid: int, n: int) -> np.ndarray:
+        """Fixed random scattering phase per scatterer (cycles), seeded by (scene seed, target id)."""
+        ph = self._phase.get(tid)
+        if ph is None or ph.size != n:
+            ph = np.random.default_rng([self.seed, tid & 0x7FFFFFFF, 0xFA5E]).random(n)
+            self._phase[tid] = ph
+        return ph
+
+    def scatterers(self, t_s: float, rng: np.random.Generator | None = None) -> ScattererSet:
+        """Every scatterer at time ``t_s``.
+
+        Swerling factors are drawn from ``rng`` (one draw per target per call, i.e. per frame); by
+        default from a generator seeded with the scene seed and the time, so a frame is the same
+        whatever frames were synthesised before it.
+        """
+        if rng is None:
+            rng = np.random.default_rng([self.seed, int(round(t_s * 1e6)), 0x5C])
+        pos, vel, rcs, ph, idx = [], [], [], [], []
+        for k, tg in enumerate(self.targets):
+            if not tg.active(t_s):
+                continue
+            rot = tg.heading_rotation(t_s)
+            off, off_v = tg.scatterers(t_s)
+            p_ref = np.asarray(tg.trajectory.position(t_s), dtype=np.float64)
+            v_ref = np.asarray(tg.trajectory.velocity(t_s), dtype=np.float64)
+            pos.append(p_ref + off @ rot.T)
+            vel.append(v_ref + off_v @ rot.T)
+            r = tg.rcs_m2
+            if tg.swerling == 1:
+                r = r * rng.exponential(1.0)
+            elif tg.swerling == 3:
+                r = r * rng.gamma(2.0, 0.5)
+            rcs.append(r)
+            ph.append(self._scatter_phase(tg.id, r.size))
+            idx.append(np.full(r.size, k, dtype=np.int32))
+        if self.clutter is not None and self.clutter.rcs_m2.size:
+            pos.append(self.clutter.position_m)
+            vel.append(np.zeros_like(self.clutter.position_m))
+            rcs.append(self.clutter.rcs_m2)
+            ph.append(self._scatter_phase(-1, self.clutter.rcs_m2.size))
+            idx.append(np.full(self.clutter.rcs_m2.size, -1, dtype=np.int32))
+        if not pos:
+            z = np.zeros((0, 3))
+            return ScattererSet(z, z.copy(), np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.int32))
+        return ScattererSet(
+            np.concatenate(pos), np.concatenate(vel), np.concatenate(rcs), np.concatenate(ph), np.concatenate(idx)
+        )
+
+    def truth(self, t_s: float) -> GroundTruth:
+        act = [tg for tg in self.targets if tg.active(t_s)]
+        n = len(act)
+        pos = np.array([tg.trajectory.position(t_s) for tg in act], dtype=np.float64).reshape(n, 3)
+        vel = np.array([tg.trajectory.velocity(t_s) for tg in act], dtype=np.float64).reshape(n, 3)
+        rel = self.pose.to_radar(pos)
+        rng = np.linalg.norm(pos - self.pose.position, axis=1)
+        los = (pos - self.pose.position) / np.maximum(rng, 1e-9)[:, None]
+        return GroundTruth(
+            t_s=t_s,
+            id=np.array([tg.id for tg in act], dtype=np.int32),
+            cls=tuple(tg.cls for tg in act),
+            lane=np.array([-1 if tg.lane is None else tg.lane for tg in act], dtype=np.int16),
+            position_m=pos,
+            velocity_mps=vel,
+            range_m=rng,
+            radial_speed_mps=np.einsum("ij,ij->i", los, vel),
+            az_rad=np.arctan2(rel[:, 0], rel[:, 1]),
+        )
