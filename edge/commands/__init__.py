@@ -1,0 +1,1 @@
+"""Subcommands of ``radar-edge`` (see :mod:`edge.cli`)."""

@@ -1,0 +1,24 @@
+"""Argument helpers shared by subcommands."""
+
+from __future__ import annotations
+
+import argparse
+
+from edge.config import Config, load_config, parse_set_option
+
+
+def add_config_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="FILE", help="TOML configuration file (defaults < file < environment < --set)")
+    p.add_argument(
+        "--set",
+        metavar="SECTION.KEY=VALUE",
+        action="append",
+        default=[],
+        help="override one configuration value, e.g. --set loop.error_policy=stop (repeatable)",
+    )
+
+
+def config_from_args(args: argparse.Namespace, extra: dict | None = None) -> Config:
+    overrides = dict(parse_set_option(s) for s in args.set)
+    overrides.update(extra or {})
+    return load_config(args.config, overrides=overrides)

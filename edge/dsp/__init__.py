@@ -1,0 +1,1 @@
+"""Stateless DSP functions: numpy in, numpy out; shapes, axes and units in each docstring."""

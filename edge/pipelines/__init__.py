@@ -1,0 +1,1 @@
+"""Profile pipelines (built by :func:`edge.pipeline.build_pipeline`)."""
