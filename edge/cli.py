@@ -20,6 +20,7 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.info",
     "edge.commands.simulate",
     "edge.commands.replay",
+    "edge.commands.evaluate",
 )
 
 EPILOG = """\

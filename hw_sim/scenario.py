@@ -224,3 +224,15 @@ def load_scenario(name_or_path: str) -> Scenario:
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{src}: not valid TOML: {exc}") from exc
     return parse_scenario(raw, src)
+
+
+#: event-generator scenarios (``single-random``, ``multi-random``...): name -> builder(events, seed)
+#: returning a :class:`Scenario`; registered by the modules that provide them.
+EVENT_SCENARIOS: dict[str, Callable[..., Scenario]] = {}
+
+
+def load_scenario_for_eval(name_or_path: str, events: int | None = None) -> Scenario:
+    """A scenario for ``radar-edge evaluate``: an event generator (takes ``events``) or a file/name."""
+    if name_or_path in EVENT_SCENARIOS:
+        return EVENT_SCENARIOS[name_or_path](events=events)
+    return load_scenario(name_or_path)
