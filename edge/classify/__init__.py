@@ -1,0 +1,1 @@
+"""Classification: features, weighted k-NN, ONNX export and inference."""

@@ -1,0 +1,1 @@
+"""Outputs: Modbus register image and servers, CAN object list."""

@@ -1,0 +1,1 @@
+"""Tracking: thin trackers orchestrating role objects (predict, gate, associate, update, initiate, delete)."""

@@ -1,0 +1,1 @@
+"""Traffic: lanes, per-lane interval statistics, events."""
