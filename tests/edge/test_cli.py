@@ -66,3 +66,29 @@ def test_simulate_list(capsys):
     assert main(["simulate", "--list"]) == 0
     out = capsys.readouterr().out
     assert "highway4" in out and "tavanti-test1" in out
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_run_stops_cleanly_on_signal_with_a_summary(sig):
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    p = subprocess.Popen(
+        [sys.executable, "-m", "edge", "run", "--source", "sim://d2g?loop=1", "--no-outputs", "--status-every", "0.01"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+    )
+    try:
+        # synchronise on the program's own output: wait for the first status line
+        for line in p.stdout:
+            if line.startswith("seq "):
+                break
+        p.send_signal(getattr(signal, sig))
+        out, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0, err
+    assert "stage" in out and "p99/budget" in out and "(stopped)" in out
