@@ -22,6 +22,7 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.replay",
     "edge.commands.evaluate",
     "edge.commands.bench",
+    "edge.commands.soak",
 )
 
 EPILOG = """\
