@@ -35,6 +35,11 @@ from edge.types import FrameResult, LoopHealth
 
 log = logging.getLogger(__name__)
 
+try:
+    from termios import error as _TermiosError
+except ImportError:  # pragma: no cover - not on POSIX
+    _TermiosError = OSError
+
 READ_FCS = (3, 4)
 WRITE_FCS = (6, 16)
 _CFG_REG = {r.offset: r for r in CONFIG.regs}
@@ -45,6 +50,9 @@ LIVE_KEYS = frozenset({"unit_id", "can_enable", "can_sensor_id", "can_output_mas
 
 class OutputError(RuntimeError):
     """An output could not be started (port in use, no such serial port...)."""
+
+
+_START_ERRORS = (OSError, OutputError, ValueError, _TermiosError)
 
 
 class ConfigBlock:
@@ -278,9 +286,10 @@ class ModbusSink:
                 self._servers.append(rtu)
                 log.info("Modbus RTU unit %d on %s %d %d%s%d", self.unit_id, self.cfg.rtu_port,
                          self.cfg.rtu_baudrate, 8, self.cfg.rtu_parity, self.cfg.rtu_stopbits)
-        except (OSError, OutputError) as exc:
+        except _START_ERRORS as exc:  # port in use, no such serial port, settings the tty refuses
             errors.append(exc)
-        ready.set()
+        finally:
+            ready.set()
         try:
             if not errors:
                 while not self._stop.is_set():
