@@ -52,7 +52,7 @@ class OutputError(RuntimeError):
     """An output could not be started (port in use, no such serial port...)."""
 
 
-_START_ERRORS = (OSError, OutputError, ValueError, _TermiosError)
+_START_ERRORS = (OSError, RuntimeError, ValueError, _TermiosError)  # pymodbus: RuntimeError "Could not start listen"
 
 
 class ConfigBlock:
