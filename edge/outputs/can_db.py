@@ -195,7 +195,7 @@ def build_database(sensor_id: int = 0) -> Database:
 
 def dbc_text(sensor_id: int = 0) -> str:
     """The DBC file text (what ``radar-edge dbc`` writes and the package ships for sensor id 0)."""
-    return build_database(sensor_id).as_dbc_string()
+    return build_database(sensor_id).as_dbc_string().replace("\r\n", "\n")  # cantools writes CRLF
 
 
 def load_shipped():

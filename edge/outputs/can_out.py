@@ -6,8 +6,9 @@ owns the bus and a sender thread: ``publish`` only queues the snapshot, so the f
 waits on CAN. Bus-off, ENOBUFS, send errors and a missing interface are counted faults; the sink
 retries opening the bus every ``reconnect_s``.
 
-Rate limit: a token bucket of ``max_bus_load x bitrate / 135`` frames per second (135 bits is an
-8-byte standard frame with worst-case bit stuffing), holding at most 0.25 s of budget. State and
+Rate limit: a token bucket of ``0.9 x max_bus_load x bitrate / 135`` frames per second (135 bits is
+an 8-byte standard frame with worst-case bit stuffing) holding at most 0.1 s of it, so the load over
+any 1 s window stays below ``max_bus_load``. State and
 presence go first, then lane statistics, then the object list, which is truncated to what fits.
 """
 
@@ -32,7 +33,8 @@ from edge.types import FrameResult, LoopHealth, TrackState
 log = logging.getLogger(__name__)
 
 FRAME_BITS_WORST = 135  # 8-byte standard frame incl. worst-case stuffing, ACK, EOF, intermission
-BUCKET_S = 0.25
+BUCKET_S = 0.1  # burst allowance
+RATE_MARGIN = 0.9  # sustained rate, so that rate + burst stays within the limit over any 1 s window
 
 MASK_OBJECTS, MASK_QUALITY, MASK_EXTENDED, MASK_LANE_STATS, MASK_PRESENCE = 1, 2, 4, 8, 16
 
@@ -64,7 +66,7 @@ class CanEncoder:
         self.sensor_id = cfg.sensor_id
         self.mask = (MASK_OBJECTS | (MASK_QUALITY if cfg.send_quality else 0) | (MASK_EXTENDED if cfg.send_extended else 0)
                      | (MASK_LANE_STATS if cfg.send_lane_stats else 0) | (MASK_PRESENCE if cfg.send_presence else 0))
-        self.rate_fps = cfg.max_bus_load * cfg.bitrate / FRAME_BITS_WORST
+        self.rate_fps = RATE_MARGIN * cfg.max_bus_load * cfg.bitrate / FRAME_BITS_WORST
         self.capacity = self.rate_fps * BUCKET_S
         self._tokens = self.capacity
         self._t_ns: int | None = None
