@@ -23,6 +23,8 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.evaluate",
     "edge.commands.bench",
     "edge.commands.soak",
+    "edge.commands.registers",
+    "edge.commands.dbc",
 )
 
 EPILOG = """\

@@ -81,6 +81,9 @@ SECTIONS: dict[str, str] = {
     "source": "edge.config:SourceConfig",
     "loop": "edge.config:LoopConfig",
     "pipeline.minimal": "edge.pipelines.minimal:MinimalConfig",
+    "outputs.modbus": "edge.outputs.config:ModbusConfig",
+    "outputs.can": "edge.outputs.config:CanConfig",
+    "outputs.failsafe": "edge.outputs.config:FailsafeConfig",
     "ops.recorder": "edge.ops.recorder:RecorderConfig",
 }
 
