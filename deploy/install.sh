@@ -123,6 +123,7 @@ say() { printf '%-10s %s\n' "$1" "$2"; }
 sys() {
   if [ "$DRY_RUN" = 1 ]; then say "would run" "$*"; return 0; fi
   if [ "$SYSTEM" = 0 ]; then say "skipped" "$* (--root)"; return 0; fi
+  if ! command -v "$1" >/dev/null 2>&1; then say "skipped" "$* ($1 not installed)"; return 0; fi
   "$@"
 }
 
@@ -238,7 +239,7 @@ step_apt() {
     local missing="" p
     for p in $pkgs; do dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"; done
     [ -n "$missing" ] || { say unchanged "system packages ($pkgs)"; return 0; }
-    sys env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends $missing
+    DEBIAN_FRONTEND=noninteractive sys apt-get install -y -q --no-install-recommends $missing
     CHANGED=1
   else
     sys apt-get install -y --no-install-recommends $pkgs
