@@ -25,6 +25,7 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.soak",
     "edge.commands.registers",
     "edge.commands.dbc",
+    "edge.commands.doctor",
 )
 
 EPILOG = """\

@@ -1,0 +1,530 @@
+"""Installation checks behind ``radar-edge doctor``: every failure comes with the fix.
+
+Each check returns :class:`Check` results (``ok``, ``warn``, ``fail`` or ``skipped`` with the
+reason). Everything the checks look at goes through :class:`System` -- the file-system root (a
+mounted SD card image, or a fake tree in tests), the commands it runs (``ip``, ``vcgencmd``,
+``timedatectl``, ``chronyc``), the user the service runs as, opening the board and binding a TCP
+port -- so the checks are testable without a Raspberry Pi.
+"""
+
+from __future__ import annotations
+
+import glob
+import grp
+import json
+import logging
+import os
+import pwd
+import re
+import shutil
+import socket
+import stat
+import subprocess
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable
+from urllib.parse import urlsplit
+
+log = logging.getLogger(__name__)
+
+SERVICE_USER = "radar-edge"
+DEFAULT_CONFIG = "/etc/radar-edge/radar-edge.toml"
+#: CPU temperature (°C) above which the Pi starts to throttle (soft limit 80 °C, hard 85 °C)
+TEMP_WARN_C = 75.0
+TEMP_FAIL_C = 82.0
+#: ``vcgencmd get_throttled`` bits: (bit, now?, meaning, fix)
+THROTTLE_BITS = (
+    (0, True, "under-voltage now", "use the official supply (5.1 V 3 A for a Pi 4, 5 A for a Pi 5) and a short cable"),
+    (1, True, "ARM frequency capped now", "improve cooling (heatsink, fan, shade the enclosure)"),
+    (2, True, "throttled now", "improve cooling and check the supply"),
+    (3, True, "soft temperature limit active now", "improve cooling (heatsink, fan, shade the enclosure)"),
+    (16, False, "under-voltage has occurred since boot", "use the official supply and a short cable"),
+    (17, False, "ARM frequency capping has occurred since boot", "improve cooling"),
+    (18, False, "throttling has occurred since boot", "improve cooling and check the supply"),
+    (19, False, "soft temperature limit has occurred since boot", "improve cooling"),
+)
+
+
+@dataclass
+class Check:
+    name: str
+    status: str  # ok | warn | fail | skipped
+    detail: str
+    fix: str = ""
+    data: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Access:
+    """Who the checks judge permissions for (the service user when it exists)."""
+
+    user: str
+    uid: int
+    gids: frozenset[int]
+
+
+class System:
+    """The outside world of the checks; override attributes in tests."""
+
+    def __init__(self, root: str | Path = "/", *, user: str | None = None) -> None:
+        self.root = Path(root)
+        self.access = self._access(user)
+
+    # files
+    def path(self, p: str | Path) -> Path:
+        p = Path(p)
+        return self.root / p.relative_to("/") if p.is_absolute() else self.root / p
+
+    def read_text(self, p: str) -> str | None:
+        try:
+            return self.path(p).read_text(encoding="utf-8", errors="replace")
+        except OSError:
+            return None
+
+    def glob(self, pattern: str) -> list[str]:
+        """Absolute (in-root) paths matching ``pattern``."""
+        base = str(self.root).rstrip("/")
+        return sorted("/" + os.path.relpath(p, base) if base else p for p in glob.glob(base + pattern))
+
+    # commands
+    def which(self, name: str) -> bool:
+        return shutil.which(name) is not None
+
+    def run(self, argv: list[str], timeout_s: float = 5.0) -> tuple[int, str]:
+        try:
+            p = subprocess.run(argv, capture_output=True, text=True, timeout=timeout_s)
+        except (OSError, subprocess.SubprocessError) as exc:
+            return 127, str(exc)
+        return p.returncode, p.stdout + p.stderr
+
+    # network / board
+    def tcp_bind(self, host: str, port: int) -> str | None:
+        """None if ``host:port`` can be bound now, else the error."""
+        fam = socket.AF_INET6 if ":" in host else socket.AF_INET
+        with socket.socket(fam, socket.SOCK_STREAM) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                s.bind((host, port))
+            except OSError as exc:
+                return exc.strerror or str(exc)
+        return None
+
+    def probe_board(self, url: str) -> dict[str, Any]:
+        """Open the source, describe it, close it (raises :class:`hal.errors.RadarError`)."""
+        from hal import open_radar
+
+        src = open_radar(url)
+        try:
+            src.open()
+            fe = src.frontend
+            info: dict[str, Any] = {"board": fe.board, "frame_shape": list(fe.frame_shape),
+                                    "frame_period_s": fe.waveform.frame_period_s}
+            eps = getattr(src, "endpoints", None)
+            if eps:
+                info["endpoints"] = dict(eps)
+            tel = getattr(src, "telemetry", None)
+            if isinstance(tel, dict):
+                info.update({k: v for k, v in tel.items() if k in ("firmware", "fw", "endpoints")})
+            try:
+                src.read_frame(timeout=3.0)
+                info["frame"] = "received"
+            except Exception as exc:  # noqa: BLE001 - reported, the check goes on
+                info["frame"] = f"none: {exc}"
+            return info
+        finally:
+            src.close()
+
+    @staticmethod
+    def _access(user: str | None) -> Access:
+        if user is None:
+            try:
+                pwd.getpwnam(SERVICE_USER)
+                user = SERVICE_USER
+            except KeyError:
+                user = pwd.getpwuid(os.getuid()).pw_name if _has_pw(os.getuid()) else str(os.getuid())
+        try:
+            pw = pwd.getpwnam(user)
+        except KeyError:
+            return Access(user, os.getuid(), frozenset(os.getgroups()) | {os.getgid()})
+        gids = {pw.pw_gid} | {g.gr_gid for g in grp.getgrall() if user in g.gr_mem}
+        return Access(user, pw.pw_uid, frozenset(gids))
+
+
+def _has_pw(uid: int) -> bool:
+    try:
+        pwd.getpwuid(uid)
+        return True
+    except KeyError:
+        return False
+
+
+def can_read_write(st: os.stat_result, who: Access) -> bool:
+    if who.uid == 0:
+        return True
+    if st.st_uid == who.uid:
+        return bool(st.st_mode & stat.S_IRUSR and st.st_mode & stat.S_IWUSR)
+    if st.st_gid in who.gids:
+        return bool(st.st_mode & stat.S_IRGRP and st.st_mode & stat.S_IWGRP)
+    return bool(st.st_mode & stat.S_IROTH and st.st_mode & stat.S_IWOTH)
+
+
+def _group_name(gid: int) -> str:
+    try:
+        return grp.getgrgid(gid).gr_name
+    except KeyError:
+        return str(gid)
+
+
+# --- checks ------------------------------------------------------------------------------------------
+def check_config(sys_: System, path: str | None, overrides: dict[str, Any]) -> tuple[list[Check], Any]:
+    from edge.config import ConfigError, load_config
+
+    shown = path or DEFAULT_CONFIG
+    file = None
+    if path is not None:
+        file = path
+    elif sys_.path(DEFAULT_CONFIG).is_file():
+        file = str(sys_.path(DEFAULT_CONFIG))
+    try:
+        cfg = load_config(file, overrides=overrides)
+    except ConfigError as exc:
+        return [Check("config", "fail", f"{shown}: {exc}", f"edit {shown} (compare with radar-edge.example.toml)")], None
+    if file is None:
+        return [Check("config", "warn", f"{shown} not found: using the built-in defaults",
+                      "sudo deploy/install.sh creates it, or pass --config FILE")], cfg
+    return [Check("config", "ok", f"{shown} is valid")], cfg
+
+
+def _serial_port(sys_: System, name: str, dev: str, fix_missing: str) -> Check:
+    p = sys_.path(dev)
+    try:
+        st = p.stat()
+    except OSError:
+        return Check(name, "fail", f"{dev} does not exist", fix_missing)
+    target = os.path.realpath(p) if p.is_symlink() else str(p)
+    shown = dev if target == str(p) else f"{dev} -> {os.path.basename(target)}"
+    who = sys_.access
+    if not can_read_write(st, who):
+        g = _group_name(st.st_gid)
+        return Check(name, "fail", f"{shown}: user {who.user} may not read and write it "
+                     f"(mode {stat.filemode(st.st_mode)}, group {g})",
+                     f"sudo usermod -aG {g} {who.user} (then log in again / restart the service); "
+                     "the udev rule of deploy/install.sh sets group dialout, mode 0660")
+    return Check(name, "ok", f"{shown} readable and writable by {who.user}")
+
+
+def check_source(sys_: System, cfg: Any, open_board: bool) -> list[Check]:
+    url = cfg["source"].url
+    parts = urlsplit(url)
+    out: list[Check] = []
+    if parts.scheme in ("sim",):
+        return [Check("board", "warn", f"source.url = {url!r} is the simulator, not a board",
+                      'set [source] url = "d2g:///dev/radar-d2g" in the configuration')]
+    if parts.scheme == "replay":
+        path = parts.netloc + parts.path
+        ok = sys_.path(path).is_file() if path.startswith("/") else Path(path).is_file()
+        return [Check("board", "ok" if ok else "fail", f"replaying {path}" + ("" if ok else ": file not found"),
+                      "" if ok else "fix source.url")]
+    if parts.scheme != "d2g":
+        return [Check("board", "skipped", f"no checks for source scheme {parts.scheme!r}")]
+    dev = parts.path
+    if parts.netloc == "auto" or not dev:
+        found = sys_.glob("/dev/serial/by-id/*IFX_CDC*") + sys_.glob("/dev/radar-d2g")
+        if not found:
+            return [Check("serial port", "fail", "no Distance2Go found (/dev/serial/by-id/*IFX_CDC*, /dev/radar-d2g)",
+                          "plug the board in (USB), check `lsusb -d 058b:0058`, and that the udev rule "
+                          "/etc/udev/rules.d/99-radar-edge-d2g.rules is installed")]
+        dev = found[0]
+    out.append(_serial_port(sys_, "serial port", dev,
+                            "plug the Distance2Go in and check `lsusb -d 058b:0058` and `dmesg | grep ttyACM`; "
+                            "/dev/radar-d2g comes from the udev rule of deploy/install.sh"))
+    if out[-1].status != "ok":
+        return out
+    if not open_board:
+        out.append(Check("board", "skipped", "not opened (--no-board)"))
+        return out
+    from hal.errors import RadarError
+
+    try:
+        info = sys_.probe_board(url)
+    except RadarError as exc:
+        busy = "busy" in str(exc).lower() or "in use" in str(exc).lower()
+        out.append(Check("board", "fail", f"{url}: {exc}",
+                         "stop the service first (sudo systemctl stop radar-edge)" if busy else
+                         "unplug and replug the board; if it persists, reflash the Radar GUI firmware "
+                         "(an XMC board with other firmware has the same USB id)"))
+        return out
+    except (ImportError, KeyError) as exc:
+        out.append(Check("board", "skipped", f"the d2g backend is not available: {exc}"))
+        return out
+    eps = info.get("endpoints") or {}
+    detail = f"{info.get('board', '?')}; frame {info.get('frame', '?')}"
+    if eps:
+        detail += "; endpoints " + ", ".join(f"{n}:{t}" for t, n in sorted(eps.items(), key=lambda kv: kv[1]))
+    status = "ok" if str(info.get("frame", "")).startswith("received") else "warn"
+    out.append(Check("board", status, detail, "" if status == "ok" else
+                     "the board answers but sends no frames: check the USB cable/power, then unplug and replug",
+                     data=info))
+    return out
+
+
+def check_modbus(sys_: System, cfg: Any) -> list[Check]:
+    try:
+        mb = cfg["outputs.modbus"]
+    except (KeyError, ValueError) as exc:
+        return [Check("modbus", "skipped", f"outputs not available: {exc}")]
+    out = []
+    if mb.rtu_port:
+        c = _serial_port(sys_, "modbus rtu", mb.rtu_port,
+                         "enable the UART: deploy/install.sh --hat (enable_uart=1, dtoverlay=disable-bt in "
+                         "config.txt) and reboot; or fix outputs.modbus.rtu_port")
+        if c.status == "ok":
+            cmdline = sys_.read_text("/proc/cmdline") or ""
+            dev = os.path.basename(mb.rtu_port)
+            m = re.search(r"console=(serial0|ttyAMA0|ttyS0|%s),\d+" % re.escape(dev), cmdline)
+            if m:
+                c = Check("modbus rtu", "fail", f"{mb.rtu_port} is also the serial console ({m.group(0)})",
+                          "remove console=serial0,... from /boot/firmware/cmdline.txt (deploy/install.sh --hat does) "
+                          "and reboot")
+            else:
+                c.detail += f", {mb.rtu_baudrate} baud {mb.rtu_parity}, unit {mb.unit_id}"
+        out.append(c)
+    else:
+        out.append(Check("modbus rtu", "skipped", "off (outputs.modbus.rtu_port is empty)"))
+    if mb.tcp_enabled:
+        port = mb.tcp_port
+        if 0 < port < 1024 and sys_.access.uid != 0:
+            unit = sys_.read_text("/etc/systemd/system/radar-edge.service") or ""
+            if "CAP_NET_BIND_SERVICE" not in re.sub(r"#.*", "", unit):
+                out.append(Check("modbus tcp", "fail", f"port {port} needs CAP_NET_BIND_SERVICE, the unit has none",
+                                 "sudo systemctl edit radar-edge: add CapabilityBoundingSet=CAP_NET_BIND_SERVICE and "
+                                 "AmbientCapabilities=CAP_NET_BIND_SERVICE; or use port 5020"))
+                return out
+        err = sys_.tcp_bind(mb.tcp_host, port) if port else None
+        if err:
+            out.append(Check("modbus tcp", "warn", f"{mb.tcp_host}:{port} cannot be bound now: {err}",
+                             "fine if radar-edge is running (systemctl is-active radar-edge); otherwise find the "
+                             f"other program: sudo ss -ltnp 'sport = :{port}'"))
+        else:
+            out.append(Check("modbus tcp", "ok", f"{mb.tcp_host}:{port} is free"))
+    else:
+        out.append(Check("modbus tcp", "skipped", "off (outputs.modbus.tcp_enabled = false)"))
+    return out
+
+
+def check_can(sys_: System, cfg: Any) -> list[Check]:
+    try:
+        cn = cfg["outputs.can"]
+    except (KeyError, ValueError) as exc:
+        return [Check("can", "skipped", f"outputs not available: {exc}")]
+    if not cn.interface:
+        return [Check("can", "skipped", "off (outputs.can.interface is empty)")]
+    if cn.interface != "socketcan":
+        return [Check("can", "skipped", f"interface {cn.interface!r}: only socketcan is checked")]
+    if not sys_.which("ip"):
+        return [Check("can", "skipped", "`ip` (iproute2) is not installed")]
+    rc, text = sys_.run(["ip", "-details", "-json", "link", "show", cn.channel])
+    up_cmd = (f"sudo ip link set {cn.channel} up type can bitrate {cn.bitrate} restart-ms 100 "
+              f"(permanent: /etc/systemd/network/80-radar-edge-can0.network from deploy/install.sh)")
+    if rc != 0:
+        return [Check("can", "fail", f"no interface {cn.channel}: {text.strip()[:120]}",
+                      "check the MCP2515 overlay in config.txt (dtoverlay=mcp2515-can0,oscillator=...,interrupt=...) "
+                      "matches the HAT's crystal, reboot, and look at `dmesg | grep -i mcp251`")]
+    try:
+        link = json.loads(text)[0]
+    except (ValueError, IndexError, KeyError):
+        return [Check("can", "warn", f"cannot parse `ip -json link show {cn.channel}`", "")]
+    info = (link.get("linkinfo") or {}).get("info_data") or {}
+    flags = link.get("flags") or []
+    bitrate = int((info.get("bittiming") or {}).get("bitrate") or 0)
+    state = info.get("state", "?")
+    restart_ms = info.get("restart_ms")
+    data = {"state": state, "bitrate": bitrate, "restart_ms": restart_ms, "txqlen": link.get("txqlen"),
+            "operstate": link.get("operstate")}
+    if "UP" not in flags:
+        return [Check("can", "fail", f"{cn.channel} is down", up_cmd, data)]
+    if bitrate and bitrate != cn.bitrate:
+        return [Check("can", "fail", f"{cn.channel} runs at {bitrate} bit/s, the configuration says {cn.bitrate}",
+                      f"make them equal: {up_cmd}", data)]
+    if state in ("BUS-OFF", "STOPPED"):
+        return [Check("can", "fail", f"{cn.channel} is {state}",
+                      "check wiring, 120 ohm termination at both ends and the bitrate of the other nodes; "
+                      f"restart-ms recovers bus-off automatically: {up_cmd}", data)]
+    if state in ("ERROR-PASSIVE", "ERROR-WARNING"):
+        return [Check("can", "warn", f"{cn.channel} is {state} (frames are not acknowledged)",
+                      "is another node on the bus? check termination (120 ohm at both ends)", data)]
+    if not restart_ms:
+        return [Check("can", "warn", f"{cn.channel} up at {bitrate} bit/s but restart-ms is 0 (no bus-off recovery)",
+                      up_cmd, data)]
+    return [Check("can", "ok", f"{cn.channel} {state} at {bitrate} bit/s, restart-ms {restart_ms}, "
+                  f"txqueuelen {link.get('txqlen')}", data=data)]
+
+
+def _model_fields(cfg: Any) -> Iterable[tuple[str, str]]:
+    """(dotted key, path) of every configured model file (fields named *model*, *_onnx, *_path ending .onnx)."""
+    import dataclasses
+
+    from edge.config import SECTIONS
+
+    for name in sorted(SECTIONS):
+        try:
+            sec = cfg[name]
+        except Exception:  # noqa: BLE001 - a section whose module is missing is reported by other checks
+            continue
+        for f in dataclasses.fields(sec):
+            v = getattr(sec, f.name)
+            if isinstance(v, str) and v and ("model" in f.name or v.endswith(".onnx")):
+                yield f"{name}.{f.name}", v
+
+
+def check_models(sys_: System, cfg: Any) -> list[Check]:
+    models = list(_model_fields(cfg))
+    if not models:
+        return [Check("model", "skipped", "no model file in the configuration (the active profiles use none)")]
+    out = []
+    for key, path in models:
+        p = Path(path) if not path.startswith("/") else sys_.path(path)
+        if not p.is_file():
+            pkg = Path(__file__).resolve().parents[1] / "data" / path
+            if pkg.is_file():
+                p = pkg
+            else:
+                out.append(Check("model", "fail", f"{key} = {path!r}: file not found",
+                                 "reinstall the package (deploy/install.sh) or train/export the model and fix the path"))
+                continue
+        if p.suffix != ".onnx":
+            out.append(Check("model", "ok", f"{key}: {p} ({p.stat().st_size} bytes)"))
+            continue
+        try:
+            import onnxruntime as ort
+
+            sess = ort.InferenceSession(str(p), providers=["CPUExecutionProvider"])
+        except ImportError as exc:
+            out.append(Check("model", "fail", f"onnxruntime is missing: {exc}", "pip install onnxruntime (deploy/install.sh)"))
+            continue
+        except Exception as exc:  # noqa: BLE001 - onnxruntime raises its own exception types
+            out.append(Check("model", "fail", f"{key}: {p.name} does not load: {exc}", "re-export the model"))
+            continue
+        ins = [(i.name, i.shape, i.type) for i in sess.get_inputs()]
+        outs = [(o.name, o.shape, o.type) for o in sess.get_outputs()]
+        detail = f"{key}: {p.name}; inputs {ins}; outputs {[o[0] for o in outs]}"
+        bad = [i for i in ins if i[2] != "tensor(float)"]
+        if bad:
+            out.append(Check("model", "fail", detail + f"; input type {bad[0][2]}, expected tensor(float)",
+                             "re-export with float32 inputs (radar-edge export-onnx)"))
+        else:
+            out.append(Check("model", "ok", detail, data={"inputs": ins, "outputs": outs}))
+    return out
+
+
+def check_temperature(sys_: System) -> list[Check]:
+    out = []
+    zones = sys_.glob("/sys/class/thermal/thermal_zone*/temp")
+    if zones:
+        raw = (sys_.read_text(zones[0]) or "").strip()
+        try:
+            t = int(raw) / 1000.0
+        except ValueError:
+            out.append(Check("cpu temperature", "skipped", f"cannot read {zones[0]}: {raw!r}"))
+        else:
+            fix = "improve cooling: heatsink or fan, a vented or shaded enclosure"
+            if t >= TEMP_FAIL_C:
+                out.append(Check("cpu temperature", "fail", f"{t:.1f} °C (the Pi throttles from 80-85 °C)", fix))
+            elif t >= TEMP_WARN_C:
+                out.append(Check("cpu temperature", "warn", f"{t:.1f} °C, close to the throttling limit", fix))
+            else:
+                out.append(Check("cpu temperature", "ok", f"{t:.1f} °C", data={"temp_c": t}))
+    else:
+        out.append(Check("cpu temperature", "skipped", "no /sys/class/thermal/thermal_zone*/temp (not a Pi?)"))
+    if not sys_.which("vcgencmd"):
+        out.append(Check("throttling", "skipped", "vcgencmd not installed (Raspberry Pi OS has it in raspi-utils)"))
+        return out
+    rc, text = sys_.run(["vcgencmd", "get_throttled"])
+    m = re.search(r"throttled=(0x[0-9a-fA-F]+)", text)
+    if rc != 0 or m is None:
+        out.append(Check("throttling", "skipped", f"vcgencmd get_throttled failed: {text.strip()[:100]}"))
+        return out
+    bits = int(m.group(1), 16)
+    now = [(what, fix) for b, is_now, what, fix in THROTTLE_BITS if is_now and bits >> b & 1]
+    past = [(what, fix) for b, is_now, what, fix in THROTTLE_BITS if not is_now and bits >> b & 1]
+    if now:
+        out.append(Check("throttling", "fail", f"{m.group(1)}: " + "; ".join(w for w, _ in now), now[0][1]))
+    elif past:
+        out.append(Check("throttling", "warn", f"{m.group(1)}: " + "; ".join(w for w, _ in past), past[0][1]))
+    else:
+        out.append(Check("throttling", "ok", f"{m.group(1)}: no under-voltage or throttling since boot"))
+    return out
+
+
+def check_clock(sys_: System) -> list[Check]:
+    fix = ("sudo timedatectl set-ntp true; make sure the NTP server is reachable (lane statistics and "
+           "recordings carry wall-clock times)")
+    if sys_.which("timedatectl"):
+        rc, text = sys_.run(["timedatectl", "show", "-p", "NTPSynchronized", "-p", "NTP", "--value"])
+        vals = text.split()
+        if rc == 0 and vals:
+            if vals[0] == "yes":
+                return [Check("clock", "ok", "synchronised (timedatectl)")]
+            return [Check("clock", "fail", "not synchronised (timedatectl NTPSynchronized=no)", fix)]
+    if sys_.which("chronyc"):
+        rc, text = sys_.run(["chronyc", "tracking"])
+        m = re.search(r"Leap status\s*:\s*(.+)", text)
+        if rc == 0 and m:
+            if m.group(1).strip() == "Normal":
+                return [Check("clock", "ok", "synchronised (chrony)")]
+            return [Check("clock", "fail", f"chrony leap status {m.group(1).strip()}", "chronyc sources -v; " + fix)]
+    return [Check("clock", "skipped", "neither timedatectl nor chronyc could tell")]
+
+
+def check_recorder(sys_: System, cfg: Any) -> list[Check]:
+    rc = cfg["ops.recorder"]
+    if not rc.enabled:
+        return [Check("recordings", "skipped", "off (ops.recorder.enabled = false)")]
+    d = sys_.path(rc.directory)
+    if not d.is_dir():
+        return [Check("recordings", "fail", f"{rc.directory} does not exist",
+                      f"sudo install -d -o {SERVICE_USER} -g {SERVICE_USER} -m 0750 {rc.directory}")]
+    st = d.stat()
+    who = sys_.access
+    writable = who.uid == 0 or (st.st_uid == who.uid and st.st_mode & stat.S_IWUSR) or (
+        st.st_gid in who.gids and st.st_mode & stat.S_IWGRP)
+    if not writable:
+        return [Check("recordings", "fail", f"{rc.directory} is not writable by {who.user}",
+                      f"sudo chown -R {who.user}: {rc.directory}")]
+    free_mb = shutil.disk_usage(d).free / 1e6
+    used_mb = sum(p.stat().st_size for p in d.glob("*.npz")) / 1e6
+    detail = f"{rc.directory}: {used_mb:.0f} of {rc.quota_mb:.0f} MB used, {free_mb:.0f} MB free"
+    if free_mb < rc.min_free_mb:
+        return [Check("recordings", "fail", detail + f" (< min_free_mb {rc.min_free_mb:.0f}): recording is stopped",
+                      "free space on the SD card, or lower ops.recorder.quota_mb")]
+    if free_mb + used_mb - rc.min_free_mb < rc.quota_mb:
+        return [Check("recordings", "warn", detail + ": the quota does not fit on the disk",
+                      "lower ops.recorder.quota_mb below the free space")]
+    return [Check("recordings", "ok", detail)]
+
+
+def run_checks(sys_: System, config_path: str | None = None, overrides: dict[str, Any] | None = None,
+               *, open_board: bool = True) -> list[Check]:
+    checks, cfg = check_config(sys_, config_path, dict(overrides or {}))
+    if cfg is not None:
+        for fn in (lambda: check_source(sys_, cfg, open_board), lambda: check_modbus(sys_, cfg),
+                   lambda: check_can(sys_, cfg), lambda: check_models(sys_, cfg), lambda: check_recorder(sys_, cfg)):
+            checks.extend(_guard(fn))
+    else:
+        checks.append(Check("outputs", "skipped", "the configuration does not load"))
+    checks.extend(_guard(lambda: check_temperature(sys_)))
+    checks.extend(_guard(lambda: check_clock(sys_)))
+    return checks
+
+
+def _guard(fn: Callable[[], list[Check]]) -> list[Check]:
+    try:
+        return fn()
+    except Exception as exc:  # noqa: BLE001 - one broken check must not hide the others
+        log.debug("check failed", exc_info=True)
+        return [Check("doctor", "fail", f"a check crashed: {type(exc).__name__}: {exc}", "report this as a bug")]
+
+
+def as_json(checks: list[Check]) -> str:
+    return json.dumps({"ok": not any(c.status == "fail" for c in checks), "checks": [asdict(c) for c in checks]},
+                      indent=2, default=str)

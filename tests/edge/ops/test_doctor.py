@@ -1,0 +1,261 @@
+"""radar-edge doctor on a fake file-system root with scripted commands: each failure names its fix."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+from edge.cli import main
+from edge.config import load_config
+from edge.ops import doctor as dr
+from edge.ops.doctor import Access, System
+from hal.errors import DeviceError
+
+DIALOUT = 20
+
+
+class FakeSystem(System):
+    def __init__(self, root, *, uid=1000, gids=(1000,), commands=None, bind_error=None, board=None):
+        super().__init__(root)
+        self.access = Access("radar-edge", uid, frozenset(gids))
+        self.commands = commands or {}
+        self.bind_error = bind_error
+        self.board = board
+        self.bound = []
+
+    def which(self, name):
+        return name in self.commands
+
+    def run(self, argv, timeout_s=5.0):
+        out = self.commands[argv[0]]
+        return out(argv) if callable(out) else out
+
+    def tcp_bind(self, host, port):
+        self.bound.append((host, port))
+        return self.bind_error
+
+    def probe_board(self, url):
+        if isinstance(self.board, Exception):
+            raise self.board
+        return self.board
+
+
+def _dev(root: Path, rel: str, mode=0o660, gid=DIALOUT) -> Path:
+    p = root / rel.lstrip("/")
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text("")
+    os.chmod(p, mode)
+    os.chown(p, 0, gid) if os.geteuid() == 0 else None
+    return p
+
+
+def _cfg(**over):
+    base = {"source.url": "d2g:///dev/radar-d2g"}
+    base.update(over)
+    return load_config(overrides=base, env={})
+
+
+def _by_name(checks, name):
+    (c,) = [c for c in checks if c.name == name]
+    return c
+
+
+needs_chown = pytest.mark.skipif(os.geteuid() != 0, reason="needs root to give the fake device node group dialout")
+
+
+@needs_chown
+def test_serial_port_permissions_judged_for_the_service_user(tmp_path):
+    _dev(tmp_path, "/dev/radar-d2g")
+    board = {"board": "d2g", "frame": "received", "endpoints": {"RBAS": 1, "RADX": 2, "RFMC": 3}}
+    outsider = FakeSystem(tmp_path, gids=(1000,), board=board)
+    c = _by_name(dr.check_source(outsider, _cfg(), True), "serial port")
+    assert c.status == "fail" and "may not read and write" in c.detail
+    assert "usermod -aG" in c.fix and "radar-edge" in c.fix
+    member = FakeSystem(tmp_path, gids=(1000, DIALOUT), board=board)
+    checks = dr.check_source(member, _cfg(), True)
+    assert _by_name(checks, "serial port").status == "ok"
+    b = _by_name(checks, "board")
+    assert b.status == "ok" and "endpoints 1:RBAS, 2:RADX, 3:RFMC" in b.detail
+
+
+def test_missing_board_and_board_errors_have_fixes(tmp_path):
+    c = _by_name(dr.check_source(FakeSystem(tmp_path, uid=0), _cfg(), True), "serial port")
+    assert c.status == "fail" and "lsusb -d 058b:0058" in c.fix
+    _dev(tmp_path, "/dev/radar-d2g")
+    sys_ = FakeSystem(tmp_path, uid=0, board=DeviceError("no radar base endpoint (RBAS) among ['X']: not a Distance2Go"))
+    b = _by_name(dr.check_source(sys_, _cfg(), True), "board")
+    assert b.status == "fail" and "reflash" in b.fix
+    silent = FakeSystem(tmp_path, uid=0, board={"board": "d2g", "frame": "none: timeout"})
+    assert _by_name(dr.check_source(silent, _cfg(), True), "board").status == "warn"
+    assert _by_name(dr.check_source(silent, _cfg(), False), "board").status == "skipped"
+
+
+def test_auto_url_finds_the_board_by_id(tmp_path):
+    target = _dev(tmp_path, "/dev/ttyACM0")
+    link = tmp_path / "dev/serial/by-id/usb-Infineon_IFX_CDC-if00"
+    link.parent.mkdir(parents=True)
+    link.symlink_to(target)
+    checks = dr.check_source(FakeSystem(tmp_path, uid=0, board={"frame": "received"}), _cfg(**{"source.url": "d2g://auto"}), True)
+    c = _by_name(checks, "serial port")
+    assert c.status == "ok" and "usb-Infineon_IFX_CDC-if00 -> ttyACM0" in c.detail
+
+
+def test_rtu_port_that_is_the_serial_console_fails(tmp_path):
+    _dev(tmp_path, "/dev/ttyAMA0")
+    (tmp_path / "proc").mkdir()
+    (tmp_path / "proc/cmdline").write_text("console=serial0,115200 console=tty1 root=/dev/mmcblk0p2\n")
+    cfg = _cfg(**{"outputs.modbus.rtu_port": "/dev/ttyAMA0"})
+    c = _by_name(dr.check_modbus(FakeSystem(tmp_path, uid=0), cfg), "modbus rtu")
+    assert c.status == "fail" and "serial console" in c.detail and "cmdline.txt" in c.fix
+    (tmp_path / "proc/cmdline").write_text("console=tty1 root=/dev/mmcblk0p2\n")
+    c = _by_name(dr.check_modbus(FakeSystem(tmp_path, uid=0), cfg), "modbus rtu")
+    assert c.status == "ok" and "19200 baud E" in c.detail
+
+
+def test_port_502_needs_the_capability(tmp_path):
+    cfg = _cfg(**{"outputs.modbus.tcp_port": 502, "outputs.modbus.tcp_host": "0.0.0.0"})
+    unit = tmp_path / "etc/systemd/system/radar-edge.service"
+    unit.parent.mkdir(parents=True)
+    unit.write_text("[Service]\nCapabilityBoundingSet=\n# CapabilityBoundingSet=CAP_NET_BIND_SERVICE\n")
+    c = _by_name(dr.check_modbus(FakeSystem(tmp_path), cfg), "modbus tcp")
+    assert c.status == "fail" and "AmbientCapabilities=CAP_NET_BIND_SERVICE" in c.fix
+    unit.write_text("[Service]\nCapabilityBoundingSet=CAP_NET_BIND_SERVICE\nAmbientCapabilities=CAP_NET_BIND_SERVICE\n")
+    s = FakeSystem(tmp_path)
+    assert _by_name(dr.check_modbus(s, cfg), "modbus tcp").status == "ok" and s.bound == [("0.0.0.0", 502)]
+    busy = FakeSystem(tmp_path, bind_error="Address already in use")
+    c = _by_name(dr.check_modbus(busy, cfg), "modbus tcp")
+    assert c.status == "warn" and "ss -ltnp" in c.fix
+
+
+def _ip(state="ERROR-ACTIVE", bitrate=500000, restart_ms=100, flags=("NOARP", "UP", "LOWER_UP"), rc=0):
+    link = {"ifname": "can0", "flags": list(flags), "txqlen": 1024, "operstate": "UP",
+            "linkinfo": {"info_kind": "can", "info_data": {"state": state, "restart_ms": restart_ms,
+                                                           "bittiming": {"bitrate": bitrate, "sample_point": "0.875"}}}}
+    return {"ip": (rc, json.dumps([link]) if rc == 0 else 'Device "can0" does not exist.')}
+
+
+@pytest.mark.parametrize(
+    "kw,status,words",
+    [
+        ({}, "ok", "ERROR-ACTIVE at 500000 bit/s, restart-ms 100"),
+        ({"bitrate": 250000}, "fail", "runs at 250000"),
+        ({"state": "BUS-OFF"}, "fail", "BUS-OFF"),
+        ({"state": "ERROR-PASSIVE"}, "warn", "not acknowledged"),
+        ({"flags": ("NOARP",)}, "fail", "is down"),
+        ({"restart_ms": 0}, "warn", "no bus-off recovery"),
+        ({"rc": 1}, "fail", "no interface can0"),
+    ],
+)
+def test_can_interface_state_and_bitrate(tmp_path, kw, status, words):
+    cfg = _cfg(**{"outputs.can.interface": "socketcan"})
+    (c,) = dr.check_can(FakeSystem(tmp_path, commands=_ip(**kw)), cfg)
+    assert c.status == status and words in c.detail
+    if status == "fail":
+        assert c.fix
+
+
+def test_can_skipped_without_ip_or_when_off(tmp_path):
+    assert dr.check_can(FakeSystem(tmp_path), _cfg())[0].status == "skipped"
+    cfg = _cfg(**{"outputs.can.interface": "socketcan"})
+    (c,) = dr.check_can(FakeSystem(tmp_path), cfg)
+    assert c.status == "skipped" and "iproute2" in c.detail
+
+
+@pytest.mark.parametrize("milli_c,status", [("45123\n", "ok"), ("77000\n", "warn"), ("84500\n", "fail")])
+def test_cpu_temperature(tmp_path, milli_c, status):
+    z = tmp_path / "sys/class/thermal/thermal_zone0"
+    z.mkdir(parents=True)
+    (z / "temp").write_text(milli_c)
+    checks = dr.check_temperature(FakeSystem(tmp_path))
+    t = _by_name(checks, "cpu temperature")
+    assert t.status == status and f"{int(milli_c) / 1000:.1f} °C" in t.detail
+    assert _by_name(checks, "throttling").status == "skipped"
+
+
+@pytest.mark.parametrize(
+    "value,status,words",
+    [("0x0", "ok", "no under-voltage"), ("0x50000", "warn", "under-voltage has occurred"),
+     ("0x50005", "fail", "under-voltage now; throttled now")],
+)
+def test_throttling_bits(tmp_path, value, status, words):
+    s = FakeSystem(tmp_path, commands={"vcgencmd": (0, f"throttled={value}\n")})
+    c = _by_name(dr.check_temperature(s), "throttling")
+    assert c.status == status and words in c.detail
+
+
+def test_clock_sync(tmp_path):
+    assert dr.check_clock(FakeSystem(tmp_path, commands={"timedatectl": (0, "yes\nyes\n")}))[0].status == "ok"
+    c = dr.check_clock(FakeSystem(tmp_path, commands={"timedatectl": (0, "no\nyes\n")}))[0]
+    assert c.status == "fail" and "set-ntp true" in c.fix
+    chrony = "Reference ID    : C0A80001\nLeap status     : Normal\n"
+    assert dr.check_clock(FakeSystem(tmp_path, commands={"chronyc": (0, chrony)}))[0].status == "ok"
+    bad = chrony.replace("Normal", "Not synchronised")
+    assert dr.check_clock(FakeSystem(tmp_path, commands={"chronyc": (0, bad)}))[0].status == "fail"
+    assert dr.check_clock(FakeSystem(tmp_path))[0].status == "skipped"
+
+
+def _onnx_model(path: Path, elem_type):
+    onnx = pytest.importorskip("onnx")
+    from onnx import TensorProto, helper
+
+    t = {"float": TensorProto.FLOAT, "int64": TensorProto.INT64}[elem_type]
+    x = helper.make_tensor_value_info("features", t, [None, 4])
+    y = helper.make_tensor_value_info("out", t, [None, 4])
+    g = helper.make_graph([helper.make_node("Identity", ["features"], ["out"])], "g", [x], [y])
+    m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)])
+    m.ir_version = 8
+    onnx.save(m, str(path))
+
+
+def test_model_files_load_and_have_float_inputs(tmp_path, monkeypatch):
+    pytest.importorskip("onnxruntime")
+    good, bad = tmp_path / "good.onnx", tmp_path / "bad.onnx"
+    _onnx_model(good, "float")
+    _onnx_model(bad, "int64")
+    (tmp_path / "broken.onnx").write_bytes(b"not a model")
+    fields = [("a.model_path", str(good)), ("b.model_path", str(bad)), ("c.model_path", str(tmp_path / "broken.onnx")),
+              ("d.model_path", str(tmp_path / "missing.onnx"))]
+    monkeypatch.setattr(dr, "_model_fields", lambda cfg: iter(fields))
+    checks = dr.check_models(FakeSystem("/"), None)
+    assert [c.status for c in checks] == ["ok", "fail", "fail", "fail"]
+    assert "inputs [('features'" in checks[0].detail
+    assert "expected tensor(float)" in checks[1].detail
+    assert "does not load" in checks[2].detail and "file not found" in checks[3].detail
+
+
+def test_recordings_directory(tmp_path):
+    cfg = _cfg(**{"ops.recorder.enabled": True, "ops.recorder.directory": "/var/lib/radar-edge/recordings",
+                  "ops.recorder.min_free_mb": 0, "ops.recorder.quota_mb": 1})
+    c = dr.check_recorder(FakeSystem(tmp_path, uid=0), cfg)[0]
+    assert c.status == "fail" and "install -d" in c.fix
+    (tmp_path / "var/lib/radar-edge/recordings").mkdir(parents=True)
+    assert dr.check_recorder(FakeSystem(tmp_path, uid=0), cfg)[0].status == "ok"
+    huge = _cfg(**{"ops.recorder.enabled": True, "ops.recorder.directory": "/var/lib/radar-edge/recordings",
+                   "ops.recorder.min_free_mb": 1e6})
+    assert dr.check_recorder(FakeSystem(tmp_path, uid=0), huge)[0].status == "fail"
+
+
+def test_bad_config_is_one_failure_with_the_key(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[loop]\nerror_policy = 'explode'\n")
+    checks = dr.run_checks(FakeSystem(tmp_path), str(bad), open_board=False)
+    c = checks[0]
+    assert c.name == "config" and c.status == "fail" and "loop.error_policy" in c.detail
+
+
+def test_cli_json_and_exit_status(tmp_path, capsys):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[source]\nurl = "d2g:///dev/radar-d2g"\n')
+    rc = main(["doctor", "--root", str(tmp_path), "--config", str(cfg), "--no-board", "--json",
+               "--set", "outputs.modbus.tcp_enabled=false"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 1 and out["ok"] is False
+    names = [c["name"] for c in out["checks"]]
+    assert names[:2] == ["config", "serial port"] and "clock" in names and "cpu temperature" in names
+    assert all(c["fix"] for c in out["checks"] if c["status"] == "fail")
+    rc = main(["doctor", "--root", str(tmp_path), "--no-board", "--set", "outputs.modbus.tcp_enabled=false"])
+    text = capsys.readouterr().out
+    assert "checks:" in text and "radar-edge doctor" in text
