@@ -26,6 +26,7 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.registers",
     "edge.commands.dbc",
     "edge.commands.doctor",
+    "edge.commands.plot",
 )
 
 EPILOG = """\

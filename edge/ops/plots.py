@@ -1,0 +1,503 @@
+"""Pictures of a recording (``radar-edge plot``): what the radar saw and what the pipeline made of it.
+
+The recording is replayed through its profile's pipeline (offline, every frame); the figures use
+whatever the results carry and degrade gracefully when a field is absent:
+
+* ``range-time``: range profile of every frame (a waterfall, dB), detections, track ids over time,
+  and the simulated ground truth when the recording has it -- works for every board and profile;
+* ``frame-map``: one frame -- a range-Doppler map (single-segment boards: the Distance2Go, Tavanti
+  Fig. 9) with detections coloured by cluster and track ids, or a range-azimuth map in road
+  coordinates for an array board (the 1x4 SIMO, Lim Fig. 12). A map the pipeline returned in
+  ``FrameResult.intermediates`` is used as is; otherwise the map is computed here;
+* ``road``: detections and track trajectories in road coordinates with the lanes (Lim Figs. 12-14);
+* ``lanes``: lane statistics over time (volume, mean speed, occupancy), or, when the profile does not
+  produce them, detections/tracks/presence per frame.
+
+matplotlib comes from the ``plot`` extra and is imported only here.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import scipy.fft
+import scipy.signal
+
+from edge.types import FrameResult
+from hal.recording import Recording
+from hal.waveform import SPEED_OF_LIGHT_MPS
+
+log = logging.getLogger(__name__)
+
+_DPI = 110
+_TRACK_CMAP = "tab10"
+
+
+class PlotError(RuntimeError):
+    """The figures cannot be made (matplotlib missing, empty recording)."""
+
+
+def require_matplotlib():
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as exc:
+        raise PlotError("radar-edge plot needs matplotlib: pip install 'radar-edge[plot]' "
+                        f"(or pip install matplotlib) -- {exc}") from exc
+    return plt
+
+
+@dataclass
+class Lane:
+    center_x_m: float
+    width_m: float = 3.5
+    direction: str = "toward"
+
+
+@dataclass
+class Replayed:
+    """A recording and the pipeline's result for each of its frames."""
+
+    path: Path
+    recording: Recording
+    profile: str
+    results: list[FrameResult]
+    lanes: list[Lane] = field(default_factory=list)
+
+    @property
+    def t_s(self) -> np.ndarray:
+        """Frame times: simulation time, else receive times, else the frame counter times the period."""
+        rec = self.recording
+        period = rec.frontend.waveform.frame_period_s
+        truth_t = getattr(rec, "_truth", {}).get("t_s")
+        if truth_t is not None and len(truth_t) == len(rec):
+            return np.asarray(truth_t, dtype=np.float64) - float(truth_t[0])
+        t = rec.t_ns.astype(np.float64)
+        # host times of a recording made faster than real time say nothing: use the frame counter
+        if t.size > 1 and (t[-1] - t[0]) / 1e9 >= 0.5 * (t.size - 1) * period:
+            return (t - t[0]) / 1e9
+        seq = rec.seq.astype(np.float64)
+        return (seq - seq[0]) * period
+
+
+def replay(path: str | Path, config: Any, profile: str | None = None, max_frames: int | None = None) -> Replayed:
+    """Run the recording through its pipeline (every frame, no deadlines)."""
+    from edge.pipeline import StageTimer, build_pipeline, resolve_profile
+
+    rec = Recording(path)
+    if len(rec) == 0:
+        raise PlotError(f"{path}: the recording has no frames")
+    fe = rec.frontend
+    prof = resolve_profile(profile or config["loop"].profile, fe.board)
+    pipe = build_pipeline(prof, fe, config)
+    timer = StageTimer(64)
+    results = []
+    n = len(rec) if max_frames is None else min(max_frames, len(rec))
+    from hal.frame import RawFrame
+
+    try:
+        for k in range(n):
+            frame = RawFrame(seq=int(rec.seq[k]), t_ns=int(rec.t_ns[k]), i=rec.i[k], q=rec.q[k], frontend=fe,
+                             truth=rec.truth(k))
+            results.append(pipe.process(frame, timer))
+    finally:
+        pipe.close()
+    return Replayed(Path(path), rec, prof, results, _lanes(rec, pipe))
+
+
+def _lanes(rec: Recording, pipe: Any) -> list[Lane]:
+    """Lanes from the pipeline (``lanes`` with ``center_x_m``) or from the recording's scenario."""
+    for obj in (pipe, getattr(pipe, "traffic", None), getattr(pipe, "lane_model", None)):
+        lanes = getattr(obj, "lanes", None) if obj is not None else None
+        if lanes:
+            try:
+                return [Lane(float(getattr(ln, "center_x_m")), float(getattr(ln, "width_m", 3.5)),
+                             str(getattr(ln, "direction", "toward"))) for ln in lanes]
+            except (AttributeError, TypeError, ValueError):
+                break
+    name = rec.meta.get("scenario")
+    if name:
+        try:
+            from hw_sim.scenario import load_scenario
+
+            sc = load_scenario(name)
+            return [Lane(ln.center_x_m, ln.width_m, ln.direction) for ln in sc.lanes]
+        except Exception as exc:  # noqa: BLE001 - lanes are decoration; any scenario problem just drops them
+            log.debug("no lanes from scenario %s: %s", name, exc)
+    return []
+
+
+# --- maps computed here when the pipeline returns none --------------------------------------------
+def _iq(rec: Recording, k: int) -> np.ndarray:
+    return (rec.i[k].astype(np.float32) + 1j * rec.q[k].astype(np.float32)).astype(np.complex64)
+
+
+def range_axis_m(rec: Recording, n_fft: int) -> np.ndarray:
+    seg = rec.frontend.waveform.segments[0]
+    return (np.arange(n_fft // 2) * seg.sample_rate_hz / n_fft * SPEED_OF_LIGHT_MPS / (2.0 * abs(seg.slope_hz_per_s))).astype(np.float32)
+
+
+def range_profiles_db(rec: Recording, n_fft: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(frames, range bins) dB of the first chirp row's range spectrum, summed over channels; range axis."""
+    fe = rec.frontend
+    n = fe.waveform.n_samples
+    n_fft = n_fft or max(256, int(2 ** np.ceil(np.log2(n))))
+    w = scipy.signal.windows.hann(n, sym=False).astype(np.float32)
+    iq = (rec.i[:, :, 0, :].astype(np.float32) + 1j * rec.q[:, :, 0, :].astype(np.float32)).astype(np.complex64)
+    iq -= iq.mean(axis=-1, keepdims=True)
+    spec = scipy.fft.fft(iq * w, n=n_fft, axis=-1, workers=1)
+    slope = fe.waveform.segments[0].slope_hz_per_s
+    half = spec[..., : n_fft // 2] if slope > 0 else spec[..., ::-1][..., : n_fft // 2]
+    p = (np.abs(half) ** 2).sum(axis=1)
+    return (10 * np.log10(p + 1e-3)).astype(np.float32), range_axis_m(rec, n_fft)
+
+
+def range_doppler_db(rec: Recording, k: int, n_range: int = 256, n_doppler: int = 128):
+    """Range-Doppler map of frame ``k`` (first channel, mean over chirps removed): dB, range m, speed m/s."""
+    seg = rec.frontend.waveform.segments[0]
+    x = _iq(rec, k)[0]  # (chirps, samples)
+    x = x - x.mean(axis=0, keepdims=True)  # static clutter out (two-pulse-like canceller)
+    n_c, n_s = x.shape
+    w = (scipy.signal.windows.hann(n_c, sym=False)[:, None] * scipy.signal.windows.hann(n_s, sym=False)[None, :]).astype(np.float32)
+    r = scipy.fft.fft(x * w, n=n_range, axis=1, workers=1)[:, : n_range // 2]
+    rd = scipy.fft.fftshift(scipy.fft.fft(r, n=n_doppler, axis=0, workers=1), axes=0)
+    lam = SPEED_OF_LIGHT_MPS / (seg.f_start_hz + seg.bandwidth_hz / 2)
+    # slow-time frequency f -> radial speed -lambda f / 2 (positive receding)
+    v = -(np.arange(n_doppler) - n_doppler // 2) / (n_doppler * seg.pri_s) * lam / 2
+    db = 20 * np.log10(np.abs(rd).T + 1e-3)
+    return db.astype(np.float32), range_axis_m(rec, n_range), v.astype(np.float32)
+
+
+def range_azimuth(rec: Recording, k: int, n_range: int = 2048, n_az: int = 64):
+    """Range-azimuth power (dB) of frame ``k`` for an array board: rows range, columns azimuth (rad)."""
+    fe = rec.frontend
+    x = _iq(rec, k)[:, 0, :]  # (rx, samples), first chirp
+    x = x - x.mean(axis=-1, keepdims=True)
+    w = scipy.signal.windows.hann(x.shape[-1], sym=False).astype(np.float32)
+    r = scipy.fft.fft(x * w, n=n_range, axis=-1, workers=1)[:, : n_range // 2]
+    a = scipy.fft.fftshift(scipy.fft.fft(r, n=n_az, axis=0, workers=1), axes=0)  # spatial frequency
+    lam = fe.waveform.wavelength_m
+    u = (np.arange(n_az) - n_az // 2) / n_az * lam / max(fe.rx_spacing_m, 1e-6)  # sin(az)
+    ok = np.abs(u) < 1
+    return (20 * np.log10(np.abs(a[ok]).T + 1e-3)).astype(np.float32), range_axis_m(rec, n_range), np.arcsin(u[ok])
+
+
+def _intermediate_map(res: FrameResult):
+    """A 2-D map the pipeline returned: (array, range axis or None, speed axis or None, name)."""
+    im = res.intermediates or {}
+    for key, val in im.items():
+        arr = getattr(val, "amplitude", val)
+        if isinstance(arr, np.ndarray) and arr.ndim == 2 and min(arr.shape) >= 8:
+            rng = im.get("range_m")
+            spd = im.get("radial_speed_mps")
+            if spd is None and im.get("radial_speed_kmh") is not None:
+                spd = np.asarray(im["radial_speed_kmh"]) / 3.6
+            return arr, rng, spd, key
+    return None
+
+
+def _track_colors(ids):
+    import matplotlib
+
+    cmap = matplotlib.colormaps[_TRACK_CMAP]
+    return {tid: cmap(k % 10) for k, tid in enumerate(sorted(ids))}
+
+
+def _busiest_frame(rep: Replayed) -> int:
+    score = [len(r.tracks) * 100 + len(r.detections) for r in rep.results]
+    return int(np.argmax(score)) if score else 0
+
+
+# --- figures ------------------------------------------------------------------------------------------
+def plot_range_time(rep: Replayed, out: Path) -> Path:
+    plt = require_matplotlib()
+    rec = rep.recording
+    db, rng = range_profiles_db(rec)
+    t = rep.t_s
+    fig, ax = plt.subplots(figsize=(11, 6.5), constrained_layout=True)
+    db = db - np.median(db, axis=1, keepdims=True)  # dB above each frame's noise floor
+    vmax = max(20.0, float(np.percentile(db, 99.8)))
+    im = ax.pcolormesh(t, rng, db.T, shading="nearest", cmap="viridis", vmin=0.0, vmax=vmax, rasterized=True)
+    fig.colorbar(im, ax=ax, label="range spectrum, dB above the frame's median (noise floor)")
+    # detections
+    dt, dr = [], []
+    for k, r in enumerate(rep.results):
+        if len(r.detections):
+            dr.append(r.detections.range_m)
+            dt.append(np.full(len(r.detections), t[k]))
+    if dr:
+        ax.scatter(np.concatenate(dt), np.concatenate(dr), s=4, c="white", alpha=0.35, linewidths=0,
+                   label="detections")
+    # truth
+    if rec.has_truth:
+        truth = {}
+        for k in range(len(rec)):
+            g = rec.truth(k)
+            for tid, r in zip(g.id, g.range_m):
+                truth.setdefault(int(tid), ([], []))
+                truth[int(tid)][0].append(t[k])
+                truth[int(tid)][1].append(r)
+        for n, (tid, (tt, rr)) in enumerate(truth.items()):
+            ax.plot(tt, rr, ls=":", lw=1.0, color="orange",
+                    label="ground truth (true range; a moving target's beat is shifted by its Doppler)" if n == 0 else None)
+    _plot_tracks_over_time(ax, rep, t, lambda s: s.range_m)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("range (m)")
+    ax.set_ylim(0, float(rng[-1]))
+    ax.set_title(f"{rep.path.name}: range over time ({rep.profile} profile, {len(rec)} frames, "
+                 f"{rec.frontend.board})")
+    ax.legend(loc="upper right", fontsize=8, framealpha=0.7)
+    return _save(fig, out)
+
+
+def _plot_tracks_over_time(ax, rep: Replayed, t: np.ndarray, value) -> None:
+    tracks: dict[int, tuple[list, list]] = {}
+    for k, r in enumerate(rep.results):
+        for s in r.tracks:
+            if s.confirmed:
+                tracks.setdefault(s.track_id, ([], []))
+                tracks[s.track_id][0].append(t[k])
+                tracks[s.track_id][1].append(value(s))
+    colors = _track_colors(tracks)
+    for n, (tid, (tt, vv)) in enumerate(tracks.items()):
+        ax.plot(tt, vv, lw=2, color=colors[tid], label="tracks" if n == 0 else None)
+        ax.annotate(f"#{tid}", (tt[-1], vv[-1]), xytext=(3, 3), textcoords="offset points", color=colors[tid],
+                    fontsize=9, fontweight="bold")
+
+
+def plot_frame_map(rep: Replayed, out: Path, k: int | None = None) -> Path:
+    plt = require_matplotlib()
+    rec = rep.recording
+    k = _busiest_frame(rep) if k is None else min(max(k, 0), len(rec) - 1)
+    res = rep.results[k]
+    fe = rec.frontend
+    fig, ax = plt.subplots(figsize=(10, 7), constrained_layout=True)
+    given = _intermediate_map(res)
+    single = len(fe.waveform.segments) == 1 and fe.waveform.n_chirps >= 3
+    det = res.detections
+    if given is not None or single:
+        if given is not None:
+            arr, rng, spd, name = given
+            db = 20 * np.log10(np.abs(arr) + 1e-6) if np.isrealobj(arr) and arr.min() >= 0 else np.asarray(arr)
+            rng = np.asarray(rng) if rng is not None else np.arange(arr.shape[0])
+            spd = np.asarray(spd) if spd is not None else np.arange(arr.shape[1])
+            src = f"pipeline map '{name}'"
+        else:
+            db, rng, spd = range_doppler_db(rec, k)
+            src = "range-Doppler map (computed for the plot)"
+        db = db - float(np.median(db))
+        im = ax.pcolormesh(spd * 3.6, rng, db, shading="nearest", cmap="jet", vmin=0.0,
+                           vmax=max(20.0, float(np.max(db))), rasterized=True)
+        fig.colorbar(im, ax=ax, label="dB above the map's median")
+        if len(det) and np.isfinite(det.radial_speed_mps).any():
+            lab = _cluster_labels(det)
+            ax.scatter(det.radial_speed_mps * 3.6, det.range_m, c=lab, cmap="tab20", s=22, edgecolors="white",
+                       linewidths=0.6, label="detections (colour = cluster)")
+        for s in res.tracks:
+            ax.scatter([s.radial_speed_mps * 3.6], [s.range_m], marker="s", s=90, facecolors="none",
+                       edgecolors="white", linewidths=1.6)
+            ax.annotate(f"#{s.track_id}" + (f" {s.cls}" if s.cls else ""), (s.radial_speed_mps * 3.6, s.range_m),
+                        xytext=(7, 5), textcoords="offset points", color="white", fontsize=10, fontweight="bold")
+        ax.set_xlabel("radial speed (km/h, + receding)")
+        ax.set_ylabel("range (m)")
+        ax.set_title(f"{rep.path.name} frame {k} (seq {res.seq}): {src}, {len(det)} detections, "
+                     f"{len(res.tracks)} tracks")
+    else:
+        db, rng, az = range_azimuth(rec, k)
+        az_deg = np.degrees(az)
+        db = db - float(np.median(db))
+        im = ax.pcolormesh(az_deg, rng, db, shading="nearest", cmap="jet", vmin=0.0,
+                           vmax=max(20.0, float(np.max(db[rng > 5.0]))), rasterized=True)  # not the TX leakage
+        fig.colorbar(im, ax=ax, label="dB above the map's median (noise floor)")
+        # lane edges are curves az = asin(x / r) in this view
+        r = np.linspace(max(float(rng[1]), 1.0), float(rng[-1]), 400)
+        for n, ln in enumerate(rep.lanes):
+            for edge in (ln.center_x_m - ln.width_m / 2, ln.center_x_m + ln.width_m / 2):
+                ok_r = r > abs(edge)
+                ax.plot(np.degrees(np.arcsin(edge / r[ok_r])), r[ok_r], color="white", lw=0.6, ls="--", alpha=0.6)
+        ok = np.isfinite(det.az_rad)
+        if ok.any():
+            ax.scatter(np.degrees(det.az_rad[ok]), det.range_m[ok], s=18, c="white", edgecolors="black",
+                       linewidths=0.5, label="detections")
+        for s in res.tracks:
+            ax.scatter([np.degrees(s.az_rad)], [s.range_m], marker="s", s=80, facecolors="none", edgecolors="white",
+                       linewidths=1.5)
+            ax.annotate(f"#{s.track_id}", (np.degrees(s.az_rad), s.range_m), xytext=(6, 4), textcoords="offset points",
+                        color="white", fontsize=10, fontweight="bold")
+        if rec.has_truth:
+            g = rec.truth(k)
+            ax.scatter(np.degrees(g.az_rad), g.range_m, marker="x", c="white", s=45, linewidths=1.5,
+                       label="ground truth")
+        half = fe.fov_deg / 2 if fe.fov_deg else 60.0
+        ax.set_xlim(-half, half)
+        ax.set_ylim(0, float(rng[-1]))
+        ax.set_xlabel("azimuth (deg, right +)")
+        ax.set_ylabel("range (m)")
+        ax.set_title(f"{rep.path.name} frame {k} (seq {res.seq}): range-azimuth map of the {fe.n_rx} channels "
+                     f"(computed for the plot; dashed: lane edges), {len(det)} detections", fontsize=10)
+        if ok.any() or rec.has_truth:
+            ax.legend(loc="upper right", fontsize=8, facecolor="0.3", labelcolor="white")
+    return _save(fig, out)
+
+
+def _cluster_labels(det) -> np.ndarray:
+    for key in ("cluster", "cluster_id", "label", "labels"):
+        if key in det.extra and len(det.extra[key]) == len(det):
+            return np.asarray(det.extra[key], dtype=np.float64)
+    return np.zeros(len(det))
+
+
+def _draw_lanes(ax, lanes: list[Lane], y_max: float) -> None:
+    for n, ln in enumerate(lanes):
+        lo, hi = ln.center_x_m - ln.width_m / 2, ln.center_x_m + ln.width_m / 2
+        ax.axvspan(lo, hi, color="0.5", alpha=0.10 if n % 2 else 0.16, lw=0)
+        for edge in (lo, hi):
+            ax.axvline(edge, color="0.6", lw=0.8, ls="--")
+        arrow = "↓" if ln.direction == "toward" else "↑"
+        ax.text(ln.center_x_m, y_max * 0.98, f"lane {n} {arrow}", ha="center", va="top", fontsize=8, color="0.25")
+
+
+def plot_road(rep: Replayed, out: Path) -> Path:
+    plt = require_matplotlib()
+    rec = rep.recording
+    fig, ax = plt.subplots(figsize=(8, 10), constrained_layout=True)
+    xs, ys = [], []
+    for r in rep.results:
+        d = r.detections
+        ok = np.isfinite(d.az_rad)
+        if ok.any():
+            xs.append(d.x_m[ok])
+            ys.append(d.y_m[ok])
+    y_max = 10.0
+    if xs:
+        x, y = np.concatenate(xs), np.concatenate(ys)
+        ax.scatter(x, y, s=3, c="0.55", alpha=0.5, linewidths=0, label="detections (all frames)")
+        y_max = max(y_max, float(np.percentile(y, 99.5)) * 1.05)
+    if rec.has_truth:
+        paths: dict[int, list] = {}
+        cls: dict[int, str] = {}
+        for k in range(len(rec)):
+            g = rec.truth(k)
+            for tid, p, c in zip(g.id, g.position_m, g.cls):
+                paths.setdefault(int(tid), []).append(p[:2])
+                cls[int(tid)] = c
+        for n, (tid, pts) in enumerate(paths.items()):
+            p = np.array(pts)
+            ax.plot(p[:, 0], p[:, 1], ls=":", color="darkorange", lw=1.6,
+                    label="ground truth (o start, triangle end)" if n == 0 else None)
+            ax.plot(p[:1, 0], p[:1, 1], "o", color="darkorange", ms=4)
+            ax.plot(p[-1:, 0], p[-1:, 1], marker="^" if p[-1, 1] > p[0, 1] else "v", color="darkorange", ms=6)
+            ax.annotate(f"T{tid} {cls[tid]}", tuple(p[0]), xytext=(4, -10), textcoords="offset points", fontsize=7,
+                        color="darkorange")
+            y_max = max(y_max, float(p[:, 1].max()) * 1.05)
+    tracks: dict[int, list] = {}
+    for r in rep.results:
+        for s in r.tracks:
+            if s.confirmed:
+                tracks.setdefault(s.track_id, []).append((s.x_m, s.y_m, s.cls))
+    colors = _track_colors(tracks)
+    for n, (tid, pts) in enumerate(tracks.items()):
+        p = np.array([q[:2] for q in pts], dtype=float)
+        ax.plot(p[:, 0], p[:, 1], color=colors[tid], lw=2, label="tracks" if n == 0 else None)
+        ax.scatter(p[-1:, 0], p[-1:, 1], color=colors[tid], s=30)
+        cls = pts[-1][2]
+        ax.annotate(f"#{tid}" + (f" {cls}" if cls else ""), tuple(p[-1]), xytext=(4, 4), textcoords="offset points",
+                    color=colors[tid], fontsize=9, fontweight="bold")
+        y_max = max(y_max, float(p[:, 1].max()) * 1.05)
+    _draw_lanes(ax, rep.lanes, y_max)
+    half = max(10.0, max((abs(ln.center_x_m) + ln.width_m for ln in rep.lanes), default=10.0) * 1.4)
+    ax.set_xlim(-half, half)
+    ax.set_ylim(0, y_max)
+    ax.set_xlabel("lateral x (m, right +)")
+    ax.set_ylabel("along the road y (m, from the radar)")
+    notes = []
+    if not xs:
+        notes.append(f"the {rep.profile} profile measures no azimuth: no detection positions")
+    if not tracks:
+        notes.append("no confirmed tracks")
+    ax.set_title(f"{rep.path.name}: road coordinates, {len(rec)} frames" + ("\n" + "; ".join(notes) if notes else ""),
+                 fontsize=10)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="lower right", fontsize=8)
+    return _save(fig, out)
+
+
+def plot_lane_stats(rep: Replayed, out: Path) -> Path:
+    plt = require_matplotlib()
+    stats = [s for r in rep.results for s in r.lane_stats]
+    t = rep.t_s
+    if stats:
+        fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True, constrained_layout=True)
+        t0 = min(s.interval_start_ns for s in stats)
+        lanes = sorted({s.lane for s in stats})
+        for ln in lanes:
+            ss = sorted((s for s in stats if s.lane == ln), key=lambda s: s.interval_start_ns)
+            te = [(s.interval_start_ns - t0) / 1e9 + s.interval_s for s in ss]
+            axes[0].step(te, [s.volume for s in ss], where="post", label=f"lane {ln}")
+            axes[1].plot(te, [s.mean_speed_kmh for s in ss], marker="o", label=f"lane {ln}")
+            axes[2].step(te, [s.occupancy_pct for s in ss], where="post", label=f"lane {ln}")
+        axes[0].set_ylabel("volume (veh/interval)")
+        axes[1].set_ylabel("mean speed (km/h)")
+        axes[2].set_ylabel("occupancy (%)")
+        axes[2].set_xlabel("end of interval (s)")
+        axes[0].legend(ncol=len(lanes), fontsize=8)
+        axes[0].set_title(f"{rep.path.name}: lane statistics per interval ({rep.profile} profile)")
+    else:
+        n_pres = max((len(r.presence) for r in rep.results), default=0)
+        rows = 2 + (1 if n_pres else 0)
+        fig, axes = plt.subplots(rows, 1, figsize=(10, 2.6 * rows + 1), sharex=True, constrained_layout=True)
+        axes[0].plot(t, [len(r.detections) for r in rep.results], lw=1, color="tab:blue")
+        axes[0].set_ylabel("detections")
+        axes[1].plot(t, [sum(s.confirmed for s in r.tracks) for r in rep.results], lw=1.5, color="tab:green")
+        axes[1].set_ylabel("confirmed tracks")
+        from matplotlib.ticker import MaxNLocator
+
+        axes[1].yaxis.set_major_locator(MaxNLocator(integer=True))
+        axes[1].set_ylim(bottom=0, top=max(1, max((sum(s.confirmed for s in r.tracks) for r in rep.results), default=0)) + 0.5)
+        if n_pres:
+            pres = np.array([list(r.presence) + [False] * (n_pres - len(r.presence)) for r in rep.results], dtype=float)
+            axes[2].imshow(pres.T, aspect="auto", interpolation="nearest", cmap="Greens",
+                           extent=(t[0], t[-1] if len(t) > 1 else 1.0, n_pres - 0.5, -0.5))
+            axes[2].set_ylabel("presence by lane")
+        axes[-1].set_xlabel("time (s)")
+        axes[0].set_title(f"{rep.path.name}: per-frame activity ({rep.profile} profile: no lane statistics "
+                          f"in {len(t) * rep.recording.frontend.waveform.frame_period_s:.0f} s)")
+    return _save(fig, out)
+
+
+def _save(fig, out: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=_DPI)
+    plt.close(fig)
+    return out
+
+
+FIGURES = ("range-time", "frame-map", "road", "lanes")
+
+
+def render(rep: Replayed, out_dir: str | Path, which: tuple[str, ...] = FIGURES, frame: int | None = None) -> list[Path]:
+    require_matplotlib()
+    out_dir = Path(out_dir)
+    stem = rep.path.stem
+    made = []
+    for name in which:
+        out = out_dir / f"{stem}-{name}.png"
+        if name == "range-time":
+            made.append(plot_range_time(rep, out))
+        elif name == "frame-map":
+            made.append(plot_frame_map(rep, out, frame))
+        elif name == "road":
+            made.append(plot_road(rep, out))
+        elif name == "lanes":
+            made.append(plot_lane_stats(rep, out))
+        else:
+            raise PlotError(f"unknown figure {name!r}; choose from {', '.join(FIGURES)}")
+    return made
