@@ -33,6 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--profile", choices=("auto", "lane", "surveillance", "minimal"), help="pipeline profile (default: by board)")
     p.add_argument("--no-outputs", action="store_true", help="do not start Modbus/CAN outputs")
     p.add_argument("--status-every", type=float, default=1.0, metavar="S", help="status line period, 0 = none")
+    p.add_argument("--view", action="store_true", help="live terminal table of tracks, lane counters and budget use")
     add_config_arguments(p)
 
 
@@ -63,6 +64,11 @@ def run(args: argparse.Namespace) -> int:
     pipeline = build_pipeline(profile, source.frontend, cfg)
     n_lanes = int(getattr(pipeline, "n_lanes", 0))
     sinks = [] if args.no_outputs else build_sinks(cfg, n_lanes)
+    from edge.ops import attach
+
+    pipeline = attach(cfg, pipeline, sinks, view=getattr(args, "view", False))
+    if getattr(args, "view", False):
+        args.status_every = 0  # the view replaces the status line
     budget_ms = source.frontend.waveform.frame_period_s * 1e3
     status = _Status(args.status_every, budget_ms)
     loop = FrameLoop(
