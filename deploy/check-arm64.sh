@@ -129,6 +129,9 @@ replay() {  # scenario profile
   local scen=$1 profile=$2 rec=/var/tmp/$1.npz
   log "simulate $scen ($FRAMES frames) -> $rec"
   in_root $RE simulate --scenario "$scen" --frames "$FRAMES" --out "$rec"
+  log "replay $rec through the minimal pipeline (runtime baseline)"
+  in_root $RE replay "$rec" --speed 0 --frames "$FRAMES" --profile minimal --no-outputs --status-every 0 \
+    || { log "FAILED: minimal pipeline on $scen"; status=1; }
   log "replay $rec through the $profile profile"
   if in_root $RE replay "$rec" --speed 0 --frames "$FRAMES" --profile "$profile" --no-outputs --status-every 0; then
     log "OK: $profile profile, $FRAMES frames"
@@ -138,6 +141,5 @@ replay() {  # scenario profile
 }
 replay highway4 lane
 replay tavanti-test1 surveillance
-in_root $RE --version 2>/dev/null || true
 log "done (status $status)"
 exit $status

@@ -335,6 +335,7 @@ step_hat() {
 }
 
 step_service() {
+  put_file 0644 /usr/share/doc/radar-edge/README.md <"$HERE/README.md"
   sed "s#/opt/radar-edge/venv#$PREFIX/venv#g" "$HERE/radar-edge.service" | put_file 0644 /etc/systemd/system/radar-edge.service
   sys_soft systemctl daemon-reload
   sys systemctl enable radar-edge.service
@@ -365,6 +366,7 @@ do_uninstall() {
   remove_file /etc/systemd/network/80-radar-edge-can0.network
   remove_file /etc/systemd/network/80-radar-edge-can0.link
   remove_file /etc/radar-edge/radar-edge.example.toml
+  remove_file /usr/share/doc/radar-edge/README.md
   local boot; boot=$(boot_dir)
   [ -n "$boot" ] && set_block "$boot/config.txt" ""
   sys_soft systemctl daemon-reload

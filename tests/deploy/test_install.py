@@ -73,6 +73,7 @@ def test_install_into_root_lays_out_every_file(pi_root):
     assert toml.read_text() == (REPO / "deploy/radar-edge.example.toml").read_text()
     load_config(toml)  # the installed configuration is valid
     assert (pi_root / "var/lib/radar-edge/recordings").is_dir()
+    assert (pi_root / "usr/share/doc/radar-edge/README.md").read_text().startswith("# Installing radar-edge")
     # no system command ran: each is listed as skipped
     for cmd in ("apt-get install", "useradd", "usermod -a -G dialout", "-m venv", "systemctl enable radar-edge.service",
                 "udevadm control --reload"):
