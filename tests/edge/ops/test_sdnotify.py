@@ -165,3 +165,21 @@ def test_watchdog_period_from_environment():
     assert watchdog_period_s({"WATCHDOG_USEC": "10000000", "WATCHDOG_PID": str(os.getpid())}) == 10.0
     assert watchdog_period_s({"WATCHDOG_USEC": "10000000", "WATCHDOG_PID": str(os.getpid() + 1)}) is None
     assert watchdog_period_s({}) is None
+
+
+def test_radar_edge_run_notifies_systemd(notify_socket, monkeypatch):
+    """End to end: `radar-edge run` with $NOTIFY_SOCKET set speaks the protocol (as under systemd)."""
+    from edge.cli import main
+
+    path, rx = notify_socket
+    monkeypatch.setenv("NOTIFY_SOCKET", path)
+    monkeypatch.setenv("WATCHDOG_USEC", "2000000")
+    rc = main(["run", "--source", "sim://d2g?scenario=tavanti-test1&frames=8&realtime=0", "--frames", "8",
+               "--no-outputs", "--status-every", "0"])
+    assert rc == 0
+    msgs = _drain(rx)
+    lines = [ln for m in msgs for ln in m.splitlines()]
+    assert lines[0] == "READY=1"
+    assert "WATCHDOG=1" in lines
+    assert any(ln.startswith("STATUS=running: ") for ln in lines)
+    assert lines[-2:] == ["STOPPING=1", "STATUS=stopping"]
