@@ -68,6 +68,26 @@ SETTLE_S = 400e-6
 DUTY_CYCLE_OVERHEAD_S = 3e-3
 
 
+class SteppedClock:
+    """Firmware time (seconds) that moves only when a test calls :meth:`advance`.
+
+    With it the automatic trigger is deterministic: frame ``k`` is ready once the clock passed
+    ``(k + 1)`` intervals after the trigger started, and GET_FRAME_DATA wait=1 blocks until then.
+    """
+
+    def __init__(self, start_s: float = 0.0) -> None:
+        self._t = start_s
+        self.cond = threading.Condition()
+
+    def now(self) -> float:
+        return self._t
+
+    def advance(self, dt_s: float) -> None:
+        with self.cond:
+            self._t += dt_s
+            self.cond.notify_all()
+
+
 @dataclass
 class Counters:
     """What the emulator has seen and done (tests wait on these through ``wait_for``)."""
@@ -432,6 +452,7 @@ class D2GEmulator:
         endpoints: tuple[str, ...] = DEFAULT_ENDPOINTS,
         quiet_s: float = 0.5,
         power_on_direction: int = 2,
+        clock: SteppedClock | None = None,
     ) -> None:
         from hw_sim.boards import D2G_BOARD
         from hw_sim.scenario import load_scenario
@@ -449,8 +470,13 @@ class D2GEmulator:
         self.port = link or os.path.join(self._tmpdir, "ttyD2G")
         self._interrupt = threading.Event()
         self._cond = threading.Condition()
+        self._stepped = clock
         self.fw = D2GFirmware(
-            self._frame, endpoints=endpoints, wait=self._wait_until, power_on_direction=power_on_direction
+            self._frame,
+            endpoints=endpoints,
+            clock=clock.now if clock is not None else time.monotonic,
+            wait=self._wait_until,
+            power_on_direction=power_on_direction,
         )
         self.counters = self.fw.counters
         self._framer = DeviceFramer(len(endpoints))
@@ -492,6 +518,7 @@ class D2GEmulator:
         if not self._running:
             return
         self._running = False
+        self._interrupt.set()
         self._poke()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
@@ -571,6 +598,14 @@ class D2GEmulator:
                 pass
 
     def _wait_until(self, t: float) -> bool:
+        """Block until firmware time ``t``; False if a fault or a stop interrupted the wait."""
+        if self._stepped is not None:
+            clk = self._stepped
+            while not self._interrupt.is_set():
+                with clk.cond:
+                    if clk.cond.wait_for(lambda: clk.now() >= t, 0.05):
+                        return True
+            return False
         while True:
             dt = t - time.monotonic()
             if dt <= 0:
@@ -650,7 +685,8 @@ class D2GEmulator:
                 continue
             msgs, err = self._framer.feed(data)
             for m in msgs:
-                self._interrupt.clear()
+                if self._running:
+                    self._interrupt.clear()
                 replies = self.fw.handle(m)
                 with self._cond:
                     self._cond.notify_all()
