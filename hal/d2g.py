@@ -155,7 +155,11 @@ class D2GSource(RadarSource):
         base = d2g_frontend()
         wf = base.waveform
         if abs(wf.frame_period_s - self.period_s) > 1e-12:
-            wf = dataclasses.replace(wf, frame_period_s=self.period_s)
+            try:
+                wf = dataclasses.replace(wf, frame_period_s=self.period_s)
+            except ValueError as exc:
+                cpi_ms = wf.segments[0].duration_s * 1e3
+                raise SourceUrlError(f"period_ms={period_ms:g} is shorter than the {cpi_ms:.1f} ms chirp burst: {exc}") from None
         self._frontend = dataclasses.replace(base, waveform=wf) if wf is not base.waveform else base
         _, n_ch, n_s = self._frontend.frame_shape
         self.frame_format = cl.FrameFormat(n_s, n_ch, RX_MASK, SIGNAL_PART_IQ)

@@ -599,6 +599,8 @@ class D2GEmulator:
 
     def _wait_until(self, t: float) -> bool:
         """Block until firmware time ``t``; False if a fault or a stop interrupted the wait."""
+        with self._cond:
+            self._cond.notify_all()  # a request is waiting: let tests see it
         if self._stepped is not None:
             clk = self._stepped
             while not self._interrupt.is_set():
