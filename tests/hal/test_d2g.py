@@ -262,3 +262,44 @@ def test_reconnect_back_off_on_the_injected_clock(monkeypatch):
     assert len(attempts) >= 6
     assert gaps_s[:5] == pytest.approx([0.2, 0.4, 0.4, 0.4, 0.4])  # doubling from 0.1 s, capped at backoff_max_s
     assert src.stats.faults == 1 and src.stats.reconnects == 1
+
+
+# --- the frame loop over the emulated board -------------------------------------------------------
+
+
+@pytest.mark.parametrize("fault", ["garbage", "truncate", "stall", "disconnect"])
+def test_frame_loop_keeps_running_through_each_fault(fault):
+    """The product's frame loop on d2g://: the fault is reported by the source, the loop never sees it."""
+    from edge.loop import FrameLoop
+    from edge.pipelines.minimal import MinimalConfig, MinimalPipeline
+
+    with D2GEmulator("tavanti-test1", seed=1) as emu, open_radar(_url(emu, FAST)) as src:
+        seqs: list[int] = []
+        state = {"injected": False, "recovered": False}
+
+        class FaultSink:
+            def publish(self, result, health):
+                if result is not None:
+                    seqs.append(result.seq)
+                    if len(seqs) == 3 and not state["injected"]:
+                        state["injected"] = True
+                        {"garbage": lambda: emu.inject_garbage(300, seed=5), "truncate": emu.truncate_next_frame,
+                         "stall": emu.stall, "disconnect": emu.disconnect}[fault]()
+                elif state["injected"] and not state["recovered"]:  # the loop saw no frame for a while
+                    state["recovered"] = True
+                    if fault == "stall":
+                        emu.recover()
+                    elif fault == "disconnect":
+                        emu.reconnect()
+
+            def close(self):
+                pass
+
+        loop = FrameLoop(src, MinimalPipeline(src.frontend, MinimalConfig()), sinks=[FaultSink()], read_timeout_s=0.2)
+        summary = loop.run(max_frames=8)
+    assert summary.frames == 8 and summary.errors == 0 and summary.stop_reason == "8 frames"
+    assert seqs == sorted(seqs) and len(set(seqs)) == 8
+    if fault in ("stall", "disconnect"):
+        assert src.stats.faults == 1 and src.stats.reconnects == 1
+    if fault == "truncate":
+        assert src.corrupted_frames == 1
