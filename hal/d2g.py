@@ -203,7 +203,7 @@ class D2GSource(RadarSource):
         link = self._link
         if link is not None and self.endpoints.get(RBAS_TAG):
             try:  # leave the board idle; best effort, the port may already be gone
-                self._pending = False
+                self._drain_pending()
                 self._exchange(self.endpoints[RBAS_TAG], self._trigger_request(0), "stop trigger", self.gap_s + 0.2)
             except DeviceError as exc:
                 log.debug("stopping the trigger at close: %s", exc)
@@ -301,6 +301,14 @@ class D2GSource(RadarSource):
         self.telemetry["endpoints"] = {r.tag: r.number for r in records}
 
     def _configure(self) -> None:
+        try:
+            self._configure_session()
+        except (cl.BusyError, cl.FramingStatusError, cl.UnknownStatusError):
+            raise  # transient: a trigger we could not stop yet, a garbled request
+        except cl.StatusError as exc:
+            raise D2GConfigError(f"the board refused the configuration: {exc}") from exc
+
+    def _configure_session(self) -> None:
         ep = self.endpoints[RBAS_TAG]
         payloads, _ = self._exchange(0, cl.request(0, Ep0.QUERY_FW_INFO), "firmware info")
         fw = next((cl.FirmwareInfo.parse(p.data) for p in payloads if p.endpoint == 0 and p.msg_type == Ep0.QUERY_FW_INFO), None)
@@ -401,6 +409,17 @@ class D2GSource(RadarSource):
                 else:
                     log.debug("%s: ignoring a status from endpoint %d", what, m.endpoint)
 
+    def _drain_pending(self) -> None:
+        """Let an outstanding frame request finish, so that its status is not taken for the next one."""
+        link = self._link
+        ep = self.endpoints[RBAS_TAG]
+        t_end = time.monotonic() + self.period_s + self.gap_s
+        while self._pending and time.monotonic() < t_end:
+            for m in link.read(min(self.gap_s, max(0.0, t_end - time.monotonic()))):
+                if isinstance(m, cl.Status) and m.endpoint in (ep, 0):
+                    self._pending = False
+        self._pending = False
+
     def _note(self, p: cl.Payload) -> None:
         """Keep telemetry from announcements; everything else is skipped."""
         if p.endpoint == self.endpoints.get(RBAS_TAG):
@@ -412,6 +431,8 @@ class D2GSource(RadarSource):
                     self.telemetry["min_interval_us"] = cl.parse_u32_reply(p.data, Rbas.MIN_INTERVAL, "minimum interval")
             except ProtocolError as exc:
                 log.debug("skipping a malformed announcement: %s", exc)
+                return
+        log.debug("announcement from endpoint %d, type 0x%02X (%d bytes)", p.endpoint, p.msg_type, len(p.data))
 
     # --- frames --------------------------------------------------------------------------------
     def _poll_frame(self, t_end: float | None) -> RawRead | None:

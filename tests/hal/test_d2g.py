@@ -124,6 +124,30 @@ def test_period_below_the_minimum_interval_is_refused():
         open_radar("d2g:///dev/ttyACM0?period_ms=20")
 
 
+def test_refused_frame_format_is_a_configuration_error(monkeypatch):
+    import hw_sim.d2g_device as dev
+
+    monkeypatch.setattr(dev, "MAX_CHIRPS", 16)  # a firmware build with a smaller frame buffer
+    with D2GEmulator("tavanti-test1", seed=1) as emu:
+        with pytest.raises(D2GConfigError, match="0x0008"):
+            open_radar(_url(emu)).open()
+
+
+def test_close_with_a_request_outstanding_leaves_the_board_idle():
+    clock = SteppedClock()
+    with D2GEmulator("tavanti-test1", seed=1, clock=clock) as emu:
+        src = open_radar(_url(emu, FAST))
+        with src:
+            with pytest.raises(SourceTimeoutError):
+                src.read_frame(timeout=0.02)  # GET_FRAME_DATA is now waiting in the board
+            clock.advance(PERIOD_S * 1.01)
+        assert emu.fw.trigger_us == 0
+        with src:  # a second session sees no stale reply
+            clock.advance(PERIOD_S * 1.01)
+            assert src.read_frame(timeout=5.0).seq == 0
+            assert src.stats.faults == 0
+
+
 def test_missing_port_raises_device_error(tmp_path):
     src = open_radar(f"d2g://{tmp_path}/ttyNONE")
     with pytest.raises(DeviceError, match="cannot open"):
