@@ -123,8 +123,12 @@ class System:
             if eps:
                 info["endpoints"] = dict(eps)
             tel = getattr(src, "telemetry", None)
-            if isinstance(tel, dict):
-                info.update({k: v for k, v in tel.items() if k in ("firmware", "fw", "endpoints")})
+            if isinstance(tel, dict) and tel.get("firmware") is not None:
+                fw = tel["firmware"]
+                if all(hasattr(fw, a) for a in ("major", "minor", "build")):
+                    info["firmware"] = f"{fw.major}.{fw.minor}.{fw.build} {getattr(fw, 'description', '')}".strip()
+                else:
+                    info["firmware"] = str(fw)
             try:
                 src.read_frame(timeout=3.0)
                 info["frame"] = "received"
@@ -202,7 +206,10 @@ def _serial_port(sys_: System, name: str, dev: str, fix_missing: str) -> Check:
     except OSError:
         return Check(name, "fail", f"{dev} does not exist", fix_missing)
     target = os.path.realpath(p) if p.is_symlink() else str(p)
-    shown = dev if target == str(p) else f"{dev} -> {os.path.basename(target)}"
+    root = str(sys_.root).rstrip("/")
+    if root and target.startswith(root + "/"):
+        target = target[len(root):]
+    shown = dev if target == str(p) else f"{dev} -> {target}"
     who = sys_.access
     if not can_read_write(st, who):
         g = _group_name(st.st_gid)
@@ -259,6 +266,8 @@ def check_source(sys_: System, cfg: Any, open_board: bool) -> list[Check]:
         return out
     eps = info.get("endpoints") or {}
     detail = f"{info.get('board', '?')}; frame {info.get('frame', '?')}"
+    if info.get("firmware"):
+        detail += f"; firmware {info['firmware']}"
     if eps:
         detail += "; endpoints " + ", ".join(f"{n}:{t}" for t, n in sorted(eps.items(), key=lambda kv: kv[1]))
     status = "ok" if str(info.get("frame", "")).startswith("received") else "warn"

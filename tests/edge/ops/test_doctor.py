@@ -100,7 +100,7 @@ def test_auto_url_finds_the_board_by_id(tmp_path):
     link.symlink_to(target)
     checks = dr.check_source(FakeSystem(tmp_path, uid=0, board={"frame": "received"}), _cfg(**{"source.url": "d2g://auto"}), True)
     c = _by_name(checks, "serial port")
-    assert c.status == "ok" and "usb-Infineon_IFX_CDC-if00 -> ttyACM0" in c.detail
+    assert c.status == "ok" and "usb-Infineon_IFX_CDC-if00 -> /dev/ttyACM0" in c.detail
 
 
 def test_rtu_port_that_is_the_serial_console_fails(tmp_path):
@@ -259,3 +259,19 @@ def test_cli_json_and_exit_status(tmp_path, capsys):
     rc = main(["doctor", "--root", str(tmp_path), "--no-board", "--set", "outputs.modbus.tcp_enabled=false"])
     text = capsys.readouterr().out
     assert "checks:" in text and "radar-edge doctor" in text
+
+
+def test_board_check_against_the_emulated_distance2go():
+    """The real probe (open, endpoint list, one frame) on the Distance2Go firmware emulator's pty."""
+    try:
+        from tests.hal.d2g_emulator import emulated_d2g_url
+    except ImportError as exc:  # pragma: no cover - the d2g backend is not in this build
+        pytest.skip(f"the Distance2Go emulator is not available: {exc}")
+    with emulated_d2g_url() as url:
+        cfg = load_config(env={}, overrides={"source.url": url})
+        checks = dr.check_source(System("/", user="root"), cfg, True)
+    assert _by_name(checks, "serial port").status == "ok"
+    b = _by_name(checks, "board")
+    assert b.status == "ok", b.detail
+    assert "RBAS" in b.detail and b.data["frame"] == "received"
+    assert b.data["endpoints"]["RBAS"] >= 1
