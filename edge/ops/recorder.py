@@ -221,7 +221,7 @@ class EventRecorder:
             self._thread = threading.Thread(target=self._writer, name="recorder", daemon=True)
             self._thread.start()
 
-    def flush(self, timeout_s: float | None = None) -> None:
+    def flush(self) -> None:
         """Wait until every queued segment is written (tests, shutdown)."""
         if self._thread is None:
             return
@@ -230,8 +230,8 @@ class EventRecorder:
     def close(self) -> None:
         if self._segment:
             self._finish(self._profile)
+        self._ensure_thread()  # first: the writer must be there to make room in a full queue
         self._queue.put(None)
-        self._ensure_thread()
         self._thread.join(timeout=30.0)
 
     # --- writer thread -----------------------------------------------------------------------------
