@@ -202,6 +202,17 @@ def _intermediate_map(res: FrameResult):
     return None
 
 
+def _default_rd_axes(fe, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Axes of a map laid out as in :mod:`edge.dsp.range_doppler`: rows = positive range half of an
+    ``2 * rows``-point FFT, columns = fftshifted Doppler bins (m, m/s)."""
+    seg = fe.waveform.segments[0]
+    rows, cols = shape
+    rng = np.arange(rows) * seg.sample_rate_hz / (2 * rows) * SPEED_OF_LIGHT_MPS / (2.0 * abs(seg.slope_hz_per_s))
+    lam = fe.waveform.wavelength_m
+    spd = (np.arange(cols) - cols // 2) * lam / (2.0 * cols * seg.pri_s)
+    return rng.astype(np.float32), spd.astype(np.float32)
+
+
 def _track_colors(ids):
     import matplotlib
 
@@ -285,8 +296,9 @@ def plot_frame_map(rep: Replayed, out: Path, k: int | None = None) -> Path:
         if given is not None:
             arr, rng, spd, name = given
             db = 20 * np.log10(np.abs(arr) + 1e-6) if np.isrealobj(arr) and arr.min() >= 0 else np.asarray(arr)
-            rng = np.asarray(rng) if rng is not None else np.arange(arr.shape[0])
-            spd = np.asarray(spd) if spd is not None else np.arange(arr.shape[1])
+            d_rng, d_spd = _default_rd_axes(fe, arr.shape)
+            rng = np.asarray(rng) if rng is not None and len(rng) == arr.shape[0] else d_rng
+            spd = np.asarray(spd) if spd is not None and len(spd) == arr.shape[1] else d_spd
             src = f"pipeline map '{name}'"
         else:
             db, rng, spd = range_doppler_db(rec, k)

@@ -111,3 +111,15 @@ def test_missing_matplotlib_is_a_clear_error(monkeypatch, d2g_rec, tmp_path, cap
     monkeypatch.setattr(builtins, "__import__", no_mpl)
     rc = main(["plot", str(d2g_rec), "--out", str(tmp_path)])
     assert rc == 2 and "pip install 'radar-edge[plot]'" in capsys.readouterr().out
+
+
+def test_default_map_axes_match_the_surveillance_front_end():
+    """A pipeline map without axes is drawn on the axes of edge.dsp.range_doppler's layout."""
+    rd = pytest.importorskip("edge.dsp.range_doppler", reason="surveillance front end not in this build")
+    from hal.waveform import d2g_frontend
+
+    fe = d2g_frontend()
+    proc = rd.RangeDopplerProcessor(fe)
+    rng, spd = plots._default_rd_axes(fe, proc.shape)
+    np.testing.assert_allclose(rng, proc.range_m, rtol=1e-4)
+    np.testing.assert_allclose(spd * 3.6, proc.radial_speed_kmh, rtol=1e-4, atol=1e-4)
