@@ -202,12 +202,14 @@ def _intermediate_map(res: FrameResult):
     return None
 
 
-def _default_rd_axes(fe, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def _default_rd_axes(fe, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray | None]:
     """Axes of a map laid out as in :mod:`edge.dsp.range_doppler`: rows = positive range half of an
     ``2 * rows``-point FFT, columns = fftshifted Doppler bins (m, m/s)."""
     seg = fe.waveform.segments[0]
     rows, cols = shape
     rng = np.arange(rows) * seg.sample_rate_hz / (2 * rows) * SPEED_OF_LIGHT_MPS / (2.0 * abs(seg.slope_hz_per_s))
+    if len(fe.waveform.segments) != 1 or seg.pri_s <= 0:
+        return rng.astype(np.float32), None  # no uniform chirp train: Doppler bins only
     lam = fe.waveform.wavelength_m
     spd = (np.arange(cols) - cols // 2) * lam / (2.0 * cols * seg.pri_s)
     return rng.astype(np.float32), spd.astype(np.float32)
@@ -291,6 +293,7 @@ def plot_frame_map(rep: Replayed, out: Path, k: int | None = None) -> Path:
     fig, ax = plt.subplots(figsize=(10, 7), constrained_layout=True)
     given = _intermediate_map(res)
     single = len(fe.waveform.segments) == 1 and fe.waveform.n_chirps >= 3
+    speed_label = "radial speed (km/h, + receding)"
     det = res.detections
     if given is not None or single:
         if given is not None:
@@ -299,6 +302,9 @@ def plot_frame_map(rep: Replayed, out: Path, k: int | None = None) -> Path:
             d_rng, d_spd = _default_rd_axes(fe, arr.shape)
             rng = np.asarray(rng) if rng is not None and len(rng) == arr.shape[0] else d_rng
             spd = np.asarray(spd) if spd is not None and len(spd) == arr.shape[1] else d_spd
+            if spd is None:
+                spd = (np.arange(arr.shape[1]) - arr.shape[1] // 2) / 3.6  # plotted x 3.6: Doppler bins
+                speed_label = "Doppler bin"
             src = f"pipeline map '{name}'"
         else:
             db, rng, spd = range_doppler_db(rec, k)
@@ -307,16 +313,17 @@ def plot_frame_map(rep: Replayed, out: Path, k: int | None = None) -> Path:
         im = ax.pcolormesh(spd * 3.6, rng, db, shading="nearest", cmap="jet", vmin=0.0,
                            vmax=max(20.0, float(np.max(db))), rasterized=True)
         fig.colorbar(im, ax=ax, label="dB above the map's median")
-        if len(det) and np.isfinite(det.radial_speed_mps).any():
+        overlay = speed_label != "Doppler bin"  # detections/tracks are in km/h: not on a bin axis
+        if overlay and len(det) and np.isfinite(det.radial_speed_mps).any():
             lab = _cluster_labels(det)
             ax.scatter(det.radial_speed_mps * 3.6, det.range_m, c=lab, cmap="tab20", s=22, edgecolors="white",
                        linewidths=0.6, label="detections (colour = cluster)")
-        for s in res.tracks:
+        for s in res.tracks if overlay else ():
             ax.scatter([s.radial_speed_mps * 3.6], [s.range_m], marker="s", s=90, facecolors="none",
                        edgecolors="white", linewidths=1.6)
             ax.annotate(f"#{s.track_id}" + (f" {s.cls}" if s.cls else ""), (s.radial_speed_mps * 3.6, s.range_m),
                         xytext=(7, 5), textcoords="offset points", color="white", fontsize=10, fontweight="bold")
-        ax.set_xlabel("radial speed (km/h, + receding)")
+        ax.set_xlabel(speed_label)
         ax.set_ylabel("range (m)")
         ax.set_title(f"{rep.path.name} frame {k} (seq {res.seq}): {src}, {len(det)} detections, "
                      f"{len(res.tracks)} tracks")
