@@ -386,10 +386,38 @@ def _model_fields(cfg: Any) -> Iterable[tuple[str, str]]:
                 yield f"{name}.{f.name}", v
 
 
+def check_classifier(sys_: System, cfg: Any) -> list[Check]:
+    """The surveillance classifier exactly as the pipeline loads it (``classify.onnx``): file, graph,
+    radar-edge metadata and feature schema."""
+    try:
+        from edge.classify import onnx_runtime as ox
+    except ImportError as exc:
+        return [Check("classifier", "skipped", f"the ONNX classifier is not in this build ({exc})")]
+    try:
+        oc = cfg["classify.onnx"]
+    except (KeyError, ValueError) as exc:
+        return [Check("classifier", "skipped", f"no classify.onnx section: {exc}")]
+    if getattr(oc, "backend", "onnx") != "onnx":
+        return [Check("classifier", "skipped", f"classify.onnx.backend = {oc.backend!r} (no model file)")]
+    path = oc.model or None
+    if path and path.startswith("/"):
+        path = str(sys_.path(path))
+    try:
+        clf = ox.OnnxKnnClassifier(path, threads=1)
+    except ox.ModelError as exc:
+        return [Check("classifier", "fail", str(exc),
+                      "set classify.onnx.model to a model made by `radar-edge export-onnx` with this version, "
+                      "or leave it empty for the packaged default")]
+    return [Check("classifier", "ok",
+                  f"{clf.path.name}: k={clf.k} {clf.metric}, classes {', '.join(clf.classes)}, "
+                  f"{len(clf.feature_names)} features, reference {clf.reference_sha256[:12]}",
+                  data={"path": str(clf.path), "classes": list(clf.classes), "features": list(clf.feature_names)})]
+
+
 def check_models(sys_: System, cfg: Any) -> list[Check]:
-    models = list(_model_fields(cfg))
+    models = [(k, v) for k, v in _model_fields(cfg) if not k.startswith("classify.onnx.")]
     if not models:
-        return [Check("model", "skipped", "no model file in the configuration (the active profiles use none)")]
+        return [Check("model", "skipped", "no other model file in the configuration")]
     out = []
     for key, path in models:
         p = Path(path) if not path.startswith("/") else sys_.path(path)
@@ -517,7 +545,8 @@ def run_checks(sys_: System, config_path: str | None = None, overrides: dict[str
     checks, cfg = check_config(sys_, config_path, dict(overrides or {}))
     if cfg is not None:
         for fn in (lambda: check_source(sys_, cfg, open_board), lambda: check_modbus(sys_, cfg),
-                   lambda: check_can(sys_, cfg), lambda: check_models(sys_, cfg), lambda: check_recorder(sys_, cfg)):
+                   lambda: check_can(sys_, cfg), lambda: check_classifier(sys_, cfg), lambda: check_models(sys_, cfg),
+                   lambda: check_recorder(sys_, cfg)):
             checks.extend(_guard(fn))
     else:
         checks.append(Check("outputs", "skipped", "the configuration does not load"))

@@ -275,3 +275,55 @@ def test_board_check_against_the_emulated_distance2go():
     assert b.status == "ok", b.detail
     assert "RBAS" in b.detail and b.data["frame"] == "received"
     assert b.data["endpoints"]["RBAS"] >= 1
+
+
+class _FakeOnnxModule:
+    """Stands in for edge.classify.onnx_runtime (the contract: OnnxKnnClassifier(path, threads=), ModelError)."""
+
+    class ModelError(ValueError):
+        pass
+
+    class OnnxKnnClassifier:
+        def __init__(self, path, threads=1):
+            if path and "bad" in str(path):
+                raise _FakeOnnxModule.ModelError(f"classifier model {path!r} expects features ['a'], the pipeline extracts ['b']")
+            self.path = Path(path or "/pkg/edge/data/knn_default.onnx")
+            self.k, self.metric = 13, "euclidean"
+            self.classes = ("human", "vehicle")
+            self.feature_names = ("f1", "f2", "f3")
+            self.reference_sha256 = "0123456789abcdef"
+
+
+def test_classifier_check_uses_the_pipelines_loader(monkeypatch, tmp_path):
+    import sys
+    from dataclasses import dataclass, field
+
+    @dataclass(frozen=True)
+    class OnnxConfig:
+        backend: str = field(default="onnx", metadata={"choices": ("onnx", "numpy")})
+        model: str = ""
+        threads: int = 1
+
+    fake = _FakeOnnxModule()
+    fake.OnnxConfig = OnnxConfig
+    monkeypatch.setitem(sys.modules, "edge.classify.onnx_runtime", fake)
+    import edge.classify
+
+    monkeypatch.setattr(edge.classify, "onnx_runtime", fake, raising=False)
+    from edge import config as ec
+
+    monkeypatch.setitem(ec.SECTIONS, "classify.onnx", "edge.classify.onnx_runtime:OnnxConfig")
+    (c,) = dr.check_classifier(FakeSystem(tmp_path), load_config(env={}))
+    assert c.status == "ok" and "knn_default.onnx: k=13 euclidean, classes human, vehicle, 3 features" in c.detail
+    (c,) = dr.check_classifier(FakeSystem(tmp_path), load_config(env={}, overrides={"classify.onnx.model": "/x/bad.onnx"}))
+    assert c.status == "fail" and "expects features" in c.detail and "export-onnx" in c.fix
+    (c,) = dr.check_classifier(FakeSystem(tmp_path), load_config(env={}, overrides={"classify.onnx.backend": "numpy"}))
+    assert c.status == "skipped"
+
+
+def test_classifier_check_on_the_packaged_model():
+    ox = pytest.importorskip("edge.classify.onnx_runtime", reason="the ONNX classifier is not in this build")
+    cfg = load_config(env={})
+    (c,) = dr.check_classifier(System("/"), cfg)
+    assert c.status == "ok", c.detail
+    assert c.data["path"] == str(ox.default_model_path())
