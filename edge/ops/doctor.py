@@ -540,6 +540,30 @@ def check_recorder(sys_: System, cfg: Any) -> list[Check]:
     return [Check("recordings", "ok", detail)]
 
 
+def check_service(sys_: System) -> list[Check]:
+    unit_path = "/etc/systemd/system/radar-edge.service"
+    unit = sys_.read_text(unit_path)
+    if unit is None:
+        return [Check("service", "warn", f"{unit_path} is not installed", "sudo deploy/install.sh")]
+    m = re.search(r"^ExecStart=(\S+)", unit, re.M)
+    exe = m.group(1) if m else ""
+    if exe and not sys_.path(exe).exists():
+        return [Check("service", "fail", f"the unit starts {exe}, which does not exist",
+                      "sudo deploy/install.sh (creates the virtual environment)")]
+    if str(sys_.root) != "/" or not sys_.which("systemctl"):
+        return [Check("service", "ok", f"{unit_path} installed (state not queried)")]
+    _, enabled = sys_.run(["systemctl", "is-enabled", "radar-edge.service"])
+    _, active = sys_.run(["systemctl", "is-active", "radar-edge.service"])
+    enabled, active = enabled.strip().splitlines()[-1:] or ["?"], active.strip().splitlines()[-1:] or ["?"]
+    detail = f"{enabled[0]}, {active[0]}"
+    if active[0] == "failed":
+        return [Check("service", "fail", detail, "journalctl -u radar-edge -n 50 shows why; then "
+                      "sudo systemctl restart radar-edge")]
+    if enabled[0] != "enabled":
+        return [Check("service", "warn", detail, "sudo systemctl enable --now radar-edge")]
+    return [Check("service", "ok", detail)]
+
+
 def run_checks(sys_: System, config_path: str | None = None, overrides: dict[str, Any] | None = None,
                *, open_board: bool = True) -> list[Check]:
     checks, cfg = check_config(sys_, config_path, dict(overrides or {}))
@@ -550,6 +574,7 @@ def run_checks(sys_: System, config_path: str | None = None, overrides: dict[str
             checks.extend(_guard(fn))
     else:
         checks.append(Check("outputs", "skipped", "the configuration does not load"))
+    checks.extend(_guard(lambda: check_service(sys_)))
     checks.extend(_guard(lambda: check_temperature(sys_)))
     checks.extend(_guard(lambda: check_clock(sys_)))
     return checks

@@ -327,3 +327,31 @@ def test_classifier_check_on_the_packaged_model():
     (c,) = dr.check_classifier(System("/"), cfg)
     assert c.status == "ok", c.detail
     assert c.data["path"] == str(ox.default_model_path())
+
+
+def test_service_unit_and_state(tmp_path):
+    (c,) = dr.check_service(FakeSystem(tmp_path))
+    assert c.status == "warn" and c.fix == "sudo deploy/install.sh"
+    unit = tmp_path / "etc/systemd/system/radar-edge.service"
+    unit.parent.mkdir(parents=True)
+    unit.write_text("[Service]\nExecStart=/opt/radar-edge/venv/bin/radar-edge run --config /etc/radar-edge/radar-edge.toml\n")
+    (c,) = dr.check_service(FakeSystem(tmp_path))
+    assert c.status == "fail" and "does not exist" in c.detail
+    exe = tmp_path / "opt/radar-edge/venv/bin/radar-edge"
+    exe.parent.mkdir(parents=True)
+    exe.write_text("#!/bin/sh\n")
+    (c,) = dr.check_service(FakeSystem(tmp_path))
+    assert c.status == "ok" and "not queried" in c.detail
+
+
+def test_service_state_from_systemctl(monkeypatch):
+    answers = {"is-enabled": "enabled\n", "is-active": "failed\n"}
+    s = FakeSystem("/", commands={"systemctl": lambda argv: (0, answers[argv[1]])})
+    monkeypatch.setattr(s, "read_text", lambda p: "[Service]\nExecStart=/bin/sh\n")
+    (c,) = dr.check_service(s)
+    assert c.status == "fail" and c.detail == "enabled, failed" and "journalctl -u radar-edge" in c.fix
+    answers["is-active"] = "active\n"
+    assert dr.check_service(s)[0].status == "ok"
+    answers["is-enabled"] = "disabled\n"
+    (c,) = dr.check_service(s)
+    assert c.status == "warn" and "enable --now" in c.fix

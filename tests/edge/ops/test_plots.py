@@ -123,3 +123,19 @@ def test_default_map_axes_match_the_surveillance_front_end():
     rng, spd = plots._default_rd_axes(fe, proc.shape)
     np.testing.assert_allclose(rng, proc.range_m, rtol=1e-4)
     np.testing.assert_allclose(spd * 3.6, proc.radial_speed_kmh, rtol=1e-4, atol=1e-4)
+
+
+def test_device_recording_without_truth_or_scenario(tmp_path):
+    """What the on-device recorder writes: no ground truth, no scenario, receive times only."""
+    from hal.frame import RawFrame
+
+    with open_radar("sim://d2g?scenario=tavanti-test1&frames=8&realtime=0") as src:
+        w = RecordingWriter(src.frontend, meta={"profile": "surveillance"})
+        for k in range(8):
+            f = src.read_frame(timeout=None)
+            w.add(RawFrame(seq=f.seq, t_ns=1_000_000_000 + k * 200_000_000, i=f.i, q=f.q, frontend=f.frontend))
+    path = w.save(tmp_path / "device.npz")
+    rep = plots.replay(path, load_config(env={}), "minimal")
+    assert not rep.recording.has_truth and rep.lanes == []
+    np.testing.assert_allclose(rep.t_s, np.arange(8) * 0.2)
+    _check_pngs(plots.render(rep, tmp_path / "out"), [f"device-{n}.png" for n in plots.FIGURES])
