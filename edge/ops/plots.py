@@ -19,6 +19,7 @@ matplotlib comes from the ``plot`` extra and is imported only here.
 from __future__ import annotations
 
 import logging
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -192,7 +193,9 @@ def _intermediate_map(res: FrameResult):
     """A 2-D map the pipeline returned: (array, range axis or None, speed axis or None, name)."""
     im = res.intermediates or {}
     for key, val in im.items():
-        arr = getattr(val, "amplitude", val)
+        arr = getattr(val, "amplitude", None)
+        if arr is None and re.search(r"(^|_)(rd|range_doppler|map)(_|$)", key):
+            arr = val  # a plain array named as a map
         if isinstance(arr, np.ndarray) and arr.ndim == 2 and min(arr.shape) >= 8:
             rng = im.get("range_m")
             spd = im.get("radial_speed_mps")
@@ -310,20 +313,39 @@ def plot_frame_map(rep: Replayed, out: Path, k: int | None = None) -> Path:
             db, rng, spd = range_doppler_db(rec, k)
             src = "range-Doppler map (computed for the plot)"
         db = db - float(np.median(db))
-        im = ax.pcolormesh(spd * 3.6, rng, db, shading="nearest", cmap="jet", vmin=0.0,
-                           vmax=max(20.0, float(np.max(db))), rasterized=True)
+        clusters = _cluster_points(res, len(rng), len(spd)) if given is not None else None
+        im = ax.pcolormesh(spd * 3.6, rng, db, shading="nearest", cmap="bone" if clusters is not None else "jet",
+                           vmin=0.0, vmax=max(20.0, float(np.max(db))), rasterized=True)
         fig.colorbar(im, ax=ax, label="dB above the map's median")
         overlay = speed_label != "Doppler bin"  # detections/tracks are in km/h: not on a bin axis
-        if overlay and len(det) and np.isfinite(det.radial_speed_mps).any():
+        if clusters is not None:
+            import matplotlib
+
+            rb, dbin, lab = clusters
+            noise = lab < 0
+            cmap = matplotlib.colormaps["tab10"]
+            if noise.any():
+                ax.scatter(spd[dbin[noise]] * 3.6, rng[rb[noise]], s=2, c="0.75", alpha=0.5, linewidths=0,
+                           label="thresholded cells, no cluster")
+            for n, c in enumerate(np.unique(lab[~noise])):
+                sel = lab == c
+                ax.scatter(spd[dbin[sel]] * 3.6, rng[rb[sel]], s=3, color=cmap(n % 10), alpha=0.55, linewidths=0,
+                           label="cluster cells (colour = cluster)" if n == 0 else None)
+                cx, cy = float(np.median(spd[dbin[sel]] * 3.6)), float(np.median(rng[rb[sel]]))
+                ax.annotate(f"C{c}", (cx, cy), xytext=(-16, -14), textcoords="offset points", fontsize=10,
+                            color=cmap(n % 10), fontweight="bold", path_effects=[_outline()])
+        if overlay and clusters is None and len(det) and np.isfinite(det.radial_speed_mps).any():
             lab = _cluster_labels(det)
             ax.scatter(det.radial_speed_mps * 3.6, det.range_m, c=lab, cmap="tab20", s=22, edgecolors="white",
                        linewidths=0.6, label="detections (colour = cluster)")
         for s in res.tracks if overlay else ():
             ax.scatter([s.radial_speed_mps * 3.6], [s.range_m], marker="s", s=90, facecolors="none",
-                       edgecolors="white", linewidths=1.6)
+                       edgecolors="yellow", linewidths=1.6, label="tracks" if s is res.tracks[0] else None)
             ax.annotate(f"#{s.track_id}" + (f" {s.cls}" if s.cls else ""), (s.radial_speed_mps * 3.6, s.range_m),
-                        xytext=(7, 5), textcoords="offset points", color="white", fontsize=10, fontweight="bold")
+                        xytext=(7, 5), textcoords="offset points", color="yellow", fontsize=10, fontweight="bold")
         ax.set_xlabel(speed_label)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(loc="upper right", fontsize=8, framealpha=0.8)
         ax.set_ylabel("range (m)")
         ax.set_title(f"{rep.path.name} frame {k} (seq {res.seq}): {src}, {len(det)} detections, "
                      f"{len(res.tracks)} tracks")
@@ -365,6 +387,28 @@ def plot_frame_map(rep: Replayed, out: Path, k: int | None = None) -> Path:
     return _save(fig, out)
 
 
+def _outline():
+    from matplotlib import patheffects
+
+    return patheffects.withStroke(linewidth=2.5, foreground="black")
+
+
+def _cluster_points(res: FrameResult, n_range: int, n_doppler: int):
+    """Thresholded map cells and their cluster labels (``range_bin``, ``doppler_bin``, ``labels``), if given."""
+    im = res.intermediates or {}
+    try:
+        rb = np.asarray(im["range_bin"], dtype=np.intp)
+        dbin = np.asarray(im["doppler_bin"], dtype=np.intp)
+        lab = np.asarray(im["labels"], dtype=np.intp)
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not (rb.shape == dbin.shape == lab.shape) or rb.ndim != 1 or rb.size == 0:
+        return None
+    if rb.min() < 0 or rb.max() >= n_range or dbin.min() < 0 or dbin.max() >= n_doppler:
+        return None
+    return rb, dbin, lab
+
+
 def _cluster_labels(det) -> np.ndarray:
     for key in ("cluster", "cluster_id", "label", "labels"):
         if key in det.extra and len(det.extra[key]) == len(det):
@@ -380,6 +424,24 @@ def _draw_lanes(ax, lanes: list[Lane], y_max: float) -> None:
             ax.axvline(edge, color="0.6", lw=0.8, ls="--")
         arrow = "↓" if ln.direction == "toward" else "↑"
         ax.text(ln.center_x_m, y_max * 0.98, f"lane {n} {arrow}", ha="center", va="top", fontsize=8, color="0.25")
+
+
+MIN_LABEL_FRAMES = 10
+
+
+def _track_segments(rep: Replayed) -> dict[tuple[int, int], list]:
+    """Confirmed track states by (id, segment): an id that reappears after a gap (recycled) starts a new segment."""
+    segs: dict[tuple[int, int], list] = {}
+    last: dict[int, tuple[int, int]] = {}  # id -> (frame index, segment number)
+    for k, r in enumerate(rep.results):
+        for s in r.tracks:
+            if not s.confirmed:
+                continue
+            prev = last.get(s.track_id)
+            seg = prev[1] if prev is not None and k - prev[0] <= 1 else (prev[1] + 1 if prev else 0)
+            last[s.track_id] = (k, seg)
+            segs.setdefault((s.track_id, seg), []).append((k, s.x_m, s.y_m, s.cls))
+    return segs
 
 
 def plot_road(rep: Replayed, out: Path) -> Path:
@@ -415,20 +477,22 @@ def plot_road(rep: Replayed, out: Path) -> Path:
             ax.annotate(f"T{tid} {cls[tid]}", tuple(p[0]), xytext=(4, -10), textcoords="offset points", fontsize=7,
                         color="darkorange")
             y_max = max(y_max, float(p[:, 1].max()) * 1.05)
-    tracks: dict[int, list] = {}
-    for r in rep.results:
-        for s in r.tracks:
-            if s.confirmed:
-                tracks.setdefault(s.track_id, []).append((s.x_m, s.y_m, s.cls))
-    colors = _track_colors(tracks)
-    for n, (tid, pts) in enumerate(tracks.items()):
-        p = np.array([q[:2] for q in pts], dtype=float)
-        ax.plot(p[:, 0], p[:, 1], color=colors[tid], lw=2, label="tracks" if n == 0 else None)
-        ax.scatter(p[-1:, 0], p[-1:, 1], color=colors[tid], s=30)
-        cls = pts[-1][2]
-        ax.annotate(f"#{tid}" + (f" {cls}" if cls else ""), tuple(p[-1]), xytext=(4, 4), textcoords="offset points",
-                    color=colors[tid], fontsize=9, fontweight="bold")
+    segs = _track_segments(rep)
+    colors = _track_colors({tid for tid, _ in segs})
+    labelled = 0
+    for n, ((tid, _), pts) in enumerate(segs.items()):
+        p = np.array([(q[1], q[2]) for q in pts], dtype=float)
+        long_enough = len(pts) >= MIN_LABEL_FRAMES
+        ax.plot(p[:, 0], p[:, 1], color=colors[tid], lw=2 if long_enough else 1, alpha=1.0 if long_enough else 0.5,
+                label="tracks" if n == 0 else None)
+        if long_enough:
+            labelled += 1
+            ax.scatter(p[-1:, 0], p[-1:, 1], color=colors[tid], s=30)
+            cls = pts[-1][3]
+            ax.annotate(f"#{tid}" + (f" {cls}" if cls else ""), tuple(p[-1]), xytext=(4, 4),
+                        textcoords="offset points", color=colors[tid], fontsize=9, fontweight="bold")
         y_max = max(y_max, float(p[:, 1].max()) * 1.05)
+    tracks = segs
     _draw_lanes(ax, rep.lanes, y_max)
     half = max(10.0, max((abs(ln.center_x_m) + ln.width_m for ln in rep.lanes), default=10.0) * 1.4)
     ax.set_xlim(-half, half)
@@ -440,6 +504,9 @@ def plot_road(rep: Replayed, out: Path) -> Path:
         notes.append(f"the {rep.profile} profile measures no azimuth: no detection positions")
     if not tracks:
         notes.append("no confirmed tracks")
+    else:
+        notes.append(f"{len(tracks)} confirmed track segments, ids shown for the {labelled} of "
+                     f"at least {MIN_LABEL_FRAMES} frames")
     ax.set_title(f"{rep.path.name}: road coordinates, {len(rec)} frames" + ("\n" + "; ".join(notes) if notes else ""),
                  fontsize=10)
     if ax.get_legend_handles_labels()[0]:
