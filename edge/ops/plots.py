@@ -262,17 +262,17 @@ def plot_range_time(rep: Replayed, out: Path) -> Path:
         for n, (tid, (tt, rr)) in enumerate(truth.items()):
             ax.plot(tt, rr, ls=":", lw=1.0, color="orange",
                     label="ground truth (true range; a moving target's beat is shifted by its Doppler)" if n == 0 else None)
-    _plot_tracks_over_time(ax, rep, t, lambda s: s.range_m)
+    _plot_tracks_over_time(ax, rep, t, lambda s: s.range_m, y_max=float(rng[-1]))
     ax.set_xlabel("time (s)")
     ax.set_ylabel("range (m)")
     ax.set_ylim(0, float(rng[-1]))
     ax.set_title(f"{rep.path.name}: range over time ({rep.profile} profile, {len(rec)} frames, "
                  f"{rec.frontend.board})")
-    ax.legend(loc="upper right", fontsize=8, framealpha=0.7)
+    ax.legend(loc="best", fontsize=8, framealpha=0.7)
     return _save(fig, out)
 
 
-def _plot_tracks_over_time(ax, rep: Replayed, t: np.ndarray, value) -> None:
+def _plot_tracks_over_time(ax, rep: Replayed, t: np.ndarray, value, y_max: float = np.inf) -> None:
     tracks: dict[int, tuple[list, list]] = {}
     for k, r in enumerate(rep.results):
         for s in r.tracks:
@@ -283,8 +283,11 @@ def _plot_tracks_over_time(ax, rep: Replayed, t: np.ndarray, value) -> None:
     colors = _track_colors(tracks)
     for n, (tid, (tt, vv)) in enumerate(tracks.items()):
         ax.plot(tt, vv, lw=2, color=colors[tid], label="tracks" if n == 0 else None)
-        ax.annotate(f"#{tid}", (tt[-1], vv[-1]), xytext=(3, 3), textcoords="offset points", color=colors[tid],
-                    fontsize=9, fontweight="bold")
+        inside = [j for j, v in enumerate(vv) if 0 <= v <= y_max]
+        if inside:  # label the last point still inside the axes
+            j = inside[-1]
+            ax.annotate(f"#{tid}", (tt[j], vv[j]), xytext=(3, 3), textcoords="offset points", color=colors[tid],
+                        fontsize=9, fontweight="bold", path_effects=[_outline()])
 
 
 def plot_frame_map(rep: Replayed, out: Path, k: int | None = None) -> Path:
@@ -551,6 +554,7 @@ def plot_lane_stats(rep: Replayed, out: Path) -> Path:
             axes[2].imshow(pres.T, aspect="auto", interpolation="nearest", cmap="Greens",
                            extent=(t[0], t[-1] if len(t) > 1 else 1.0, n_pres - 0.5, -0.5))
             axes[2].set_ylabel("presence by lane")
+            axes[2].set_yticks(range(n_pres))
         axes[-1].set_xlabel("time (s)")
         axes[0].set_title(f"{rep.path.name}: per-frame activity ({rep.profile} profile: no lane statistics "
                           f"in {len(t) * rep.recording.frontend.waveform.frame_period_s:.0f} s)")
