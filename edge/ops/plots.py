@@ -73,18 +73,21 @@ class Replayed:
 
     @property
     def t_s(self) -> np.ndarray:
-        """Frame times: simulation time, else receive times, else the frame counter times the period."""
-        rec = self.recording
-        period = rec.frontend.waveform.frame_period_s
-        truth_t = getattr(rec, "_truth", {}).get("t_s")
-        if truth_t is not None and len(truth_t) == len(rec):
-            return np.asarray(truth_t, dtype=np.float64) - float(truth_t[0])
-        t = rec.t_ns.astype(np.float64)
-        # host times of a recording made faster than real time say nothing: use the frame counter
-        if t.size > 1 and (t[-1] - t[0]) / 1e9 >= 0.5 * (t.size - 1) * period:
-            return (t - t[0]) / 1e9
-        seq = rec.seq.astype(np.float64)
-        return (seq - seq[0]) * period
+        return frame_times_s(self.recording)
+
+
+def frame_times_s(rec: Recording) -> np.ndarray:
+    """Frame times from the first frame: simulation time, else receive times, else the frame counter
+    times the period (a recording made faster than real time has meaningless host times)."""
+    period = rec.frontend.waveform.frame_period_s
+    truth_t = getattr(rec, "_truth", {}).get("t_s")
+    if truth_t is not None and len(truth_t) == len(rec):
+        return np.asarray(truth_t, dtype=np.float64) - float(truth_t[0])
+    t = rec.t_ns.astype(np.float64)
+    if t.size > 1 and (t[-1] - t[0]) / 1e9 >= 0.5 * (t.size - 1) * period:
+        return (t - t[0]) / 1e9
+    seq = rec.seq.astype(np.float64)
+    return (seq - seq[0]) * period
 
 
 def replay(path: str | Path, config: Any, profile: str | None = None, max_frames: int | None = None) -> Replayed:
@@ -102,9 +105,12 @@ def replay(path: str | Path, config: Any, profile: str | None = None, max_frames
     n = len(rec) if max_frames is None else min(max_frames, len(rec))
     from hal.frame import RawFrame
 
+    # the trackers integrate over frame times: give them the recording's time line, not the host's
+    t0_ns = int(rec.t_ns[0]) if int(rec.t_ns[0]) > 0 else 1_000_000_000
+    t_ns = t0_ns + np.round(frame_times_s(rec) * 1e9).astype(np.int64)
     try:
         for k in range(n):
-            frame = RawFrame(seq=int(rec.seq[k]), t_ns=int(rec.t_ns[k]), i=rec.i[k], q=rec.q[k], frontend=fe,
+            frame = RawFrame(seq=int(rec.seq[k]), t_ns=int(t_ns[k]), i=rec.i[k], q=rec.q[k], frontend=fe,
                              truth=rec.truth(k))
             results.append(pipe.process(frame, timer))
     finally:
@@ -473,12 +479,12 @@ def plot_road(rep: Replayed, out: Path) -> Path:
                 cls[int(tid)] = c
         for n, (tid, pts) in enumerate(paths.items()):
             p = np.array(pts)
-            ax.plot(p[:, 0], p[:, 1], ls=":", color="darkorange", lw=1.6,
+            ax.plot(p[:, 0], p[:, 1], ls=":", color="black", lw=1.4,
                     label="ground truth (o start, triangle end)" if n == 0 else None)
-            ax.plot(p[:1, 0], p[:1, 1], "o", color="darkorange", ms=4)
-            ax.plot(p[-1:, 0], p[-1:, 1], marker="^" if p[-1, 1] > p[0, 1] else "v", color="darkorange", ms=6)
+            ax.plot(p[:1, 0], p[:1, 1], "o", color="black", ms=4)
+            ax.plot(p[-1:, 0], p[-1:, 1], marker="^" if p[-1, 1] > p[0, 1] else "v", color="black", ms=6)
             ax.annotate(f"T{tid} {cls[tid]}", tuple(p[0]), xytext=(4, -10), textcoords="offset points", fontsize=7,
-                        color="darkorange")
+                        color="black")
             y_max = max(y_max, float(p[:, 1].max()) * 1.05)
     segs = _track_segments(rep)
     colors = _track_colors({tid for tid, _ in segs})
