@@ -139,3 +139,24 @@ def test_device_recording_without_truth_or_scenario(tmp_path):
     assert not rep.recording.has_truth and rep.lanes == []
     np.testing.assert_allclose(rep.t_s, np.arange(8) * 0.2)
     _check_pngs(plots.render(rep, tmp_path / "out"), [f"device-{n}.png" for n in plots.FIGURES])
+
+
+def test_pipeline_sees_the_recordings_time_line(d2g_rec, monkeypatch):
+    """Frames reach the pipeline spaced by simulation time, not by the host times of a fast recording."""
+    import edge.pipeline
+    from edge.pipelines.minimal import MinimalConfig, MinimalPipeline
+
+    seen = []
+
+    class Spy(MinimalPipeline):
+        def process(self, frame, timer):
+            seen.append(frame.t_ns)
+            return super().process(frame, timer)
+
+    monkeypatch.setattr(edge.pipeline, "build_pipeline", lambda prof, fe, cfg: Spy(fe, MinimalConfig()))
+    from hal.recording import Recording
+
+    host = np.diff(Recording(d2g_rec).t_ns) / 1e6
+    assert host.mean() < 100  # the fixture was recorded faster than real time
+    plots.replay(d2g_rec, load_config(env={}), "minimal")
+    np.testing.assert_allclose(np.diff(seen) / 1e6, 200.0)
