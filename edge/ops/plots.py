@@ -531,16 +531,27 @@ def plot_lane_stats(rep: Replayed, out: Path) -> Path:
         fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True, constrained_layout=True)
         t0 = min(s.interval_start_ns for s in stats)
         lanes = sorted({s.lane for s in stats})
-        for ln in lanes:
+        width = min(s.interval_s for s in stats) / (len(lanes) + 1)
+        for n, ln in enumerate(lanes):
             ss = sorted((s for s in stats if s.lane == ln), key=lambda s: s.interval_start_ns)
-            te = [(s.interval_start_ns - t0) / 1e9 + s.interval_s for s in ss]
-            axes[0].step(te, [s.volume for s in ss], where="post", label=f"lane {ln}")
-            axes[1].plot(te, [s.mean_speed_kmh for s in ss], marker="o", label=f"lane {ln}")
-            axes[2].step(te, [s.occupancy_pct for s in ss], where="post", label=f"lane {ln}")
+            mid = np.array([(s.interval_start_ns - t0) / 1e9 + s.interval_s / 2 for s in ss])
+            x = mid + (n - (len(lanes) - 1) / 2) * width
+            col = f"C{n % 10}"
+            axes[0].bar(x, [s.volume for s in ss], width=width, color=col, label=f"lane {ln}")
+            spd = np.array([s.mean_speed_kmh for s in ss], dtype=float)
+            p85 = np.array([s.speed_p85_kmh for s in ss], dtype=float)
+            axes[1].plot(mid, spd, marker="o", color=col, label=f"lane {ln} mean")
+            axes[1].plot(mid, p85, marker="^", ls="none", color=col, alpha=0.6)
+            axes[2].bar(x, [s.occupancy_pct for s in ss], width=width, color=col)
+        axes[1].plot([], [], marker="^", ls="none", color="0.4", label="85th percentile")
+        axes[1].legend(fontsize=8, ncol=len(lanes) + 1)
+        from matplotlib.ticker import MaxNLocator
+
+        axes[0].yaxis.set_major_locator(MaxNLocator(integer=True))
         axes[0].set_ylabel("volume (veh/interval)")
-        axes[1].set_ylabel("mean speed (km/h)")
+        axes[1].set_ylabel("speed (km/h)")
         axes[2].set_ylabel("occupancy (%)")
-        axes[2].set_xlabel("end of interval (s)")
+        axes[2].set_xlabel("time (s), each interval centred on its middle")
         axes[0].legend(ncol=len(lanes), fontsize=8)
         axes[0].set_title(f"{rep.path.name}: lane statistics per interval ({rep.profile} profile)")
     else:
