@@ -65,3 +65,19 @@ def test_commented_defaults_in_the_example_are_real_keys_with_the_real_defaults(
             assert built == default, f"[{section}] {key}: example says {raw}, default is {default!r}"
             checked += 1
     assert checked >= 8
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze not installed (apt-get install systemd)")
+def test_systemd_parses_every_directive(tmp_path):
+    """`systemd-analyze verify` reports unknown keys and unparsable values (checked on a bad unit first)."""
+    bad = tmp_path / "bad.service"
+    bad.write_text("[Service]\nExecStart=/bin/true\nFrobnicate=yes\nProtectSystem=sideways\n")
+    p = subprocess.run(["systemd-analyze", "verify", str(bad)], capture_output=True, text=True, timeout=60)
+    if "Unknown key" not in p.stderr + p.stdout:
+        pytest.skip(f"this systemd-analyze does not report unit syntax: {p.stderr.strip()[:200]}")
+    unit = tmp_path / "radar-edge.service"
+    text = UNIT.read_text()
+    unit.write_text(re.sub(r"^ExecStart=\S+", "ExecStart=/bin/true", text, flags=re.M))
+    p = subprocess.run(["systemd-analyze", "verify", str(unit)], capture_output=True, text=True, timeout=60)
+    complaints = [ln for ln in (p.stderr + p.stdout).splitlines() if str(unit) in ln]
+    assert complaints == []
