@@ -139,3 +139,11 @@ def test_refuses_real_root_without_privileges_or_dry_run():
         pytest.skip("running as root: the real-root guard cannot be exercised without installing")
     p = _run(check=False)
     assert p.returncode == 2 and "run as root" in p.stderr
+
+
+def test_arm64_check_script_parses_and_explains_itself():
+    """The full qemu check is run by hand (deploy/check-arm64.sh, ~7 min, root); here: syntax and --help."""
+    script = REPO / "deploy" / "check-arm64.sh"
+    assert subprocess.run(["bash", "-n", str(script)], capture_output=True, timeout=30).returncode == 0
+    p = subprocess.run(["bash", str(script), "--help"], capture_output=True, text=True, timeout=30)
+    assert p.returncode == 0 and "qemu-user-static debootstrap binfmt-support" in p.stdout and "examples:" in p.stdout
