@@ -183,3 +183,44 @@ def test_radar_edge_run_notifies_systemd(notify_socket, monkeypatch):
     assert "WATCHDOG=1" in lines
     assert any(ln.startswith("STATUS=running: ") for ln in lines)
     assert lines[-2:] == ["STOPPING=1", "STATUS=stopping"]
+
+
+def test_watchdog_stops_while_the_emulated_distance2go_stalls(notify_socket):
+    """Real loop, real d2g:// backend, the board emulator stops answering: no WATCHDOG=1 until it is back."""
+    d2g_device = pytest.importorskip("hw_sim.d2g_device", reason="the Distance2Go emulator is not in this build")
+    from edge.pipelines.minimal import MinimalConfig, MinimalPipeline
+    from hal import open_radar
+
+    path, rx = notify_socket
+    log: list[tuple[str, str]] = []  # (phase, message)
+    phase = {"now": "before", "heartbeats": 0}
+    notify = NotifySink(Notifier(path), watchdog_s=0.02)  # ping on every processed frame
+
+    with d2g_device.D2GEmulator("tavanti-test1", seed=1) as emu:
+
+        class Driver:
+            def publish(self, result, health):
+                notify.publish(result, health)
+                log.extend((phase["now"], m) for m in _drain(rx))
+                if result is not None and health.frames == 5 and phase["now"] == "before":
+                    phase["now"] = "stalled"
+                    emu.stall()
+                elif result is None and phase["now"] == "stalled":
+                    phase["heartbeats"] += 1
+                    if phase["heartbeats"] == 4:
+                        phase["now"] = "after"
+                        emu.recover()
+
+            def close(self):
+                notify.close()
+
+        url = f"d2g://{emu.port}?period_ms=50&timeout_s=0.3&gap_s=0.02&backoff_s=0.02&backoff_max_s=0.1"
+        with open_radar(url) as src:
+            loop = FrameLoop(src, MinimalPipeline(src.frontend, MinimalConfig()), LoopConfig(health_period_s=0.1),
+                             sinks=[Driver()], read_timeout_s=0.2)
+            summary = loop.run(max_frames=10)
+    assert summary.frames == 10 and phase["now"] == "after"
+    pings = {p: sum("WATCHDOG=1" in m.splitlines() for ph, m in log if ph == p) for p in ("before", "stalled", "after")}
+    assert pings["before"] >= 3 and pings["after"] >= 1
+    assert pings["stalled"] == 0  # the stall starves the watchdog: systemd would restart the service
+    assert any(ph == "stalled" and "STATUS=" in m for ph, m in log)
