@@ -28,7 +28,7 @@ from typing import Any, Callable
 from edge.outputs.config import BAUD_CODES, CAN_BITRATE_CODES, PARITY_CODES, FailsafeConfig, ModbusConfig
 from edge.outputs.registers import (
     CMD_ADDR, CMD_APPLY, CMD_RESTART_COMMS, CMD_STATUS_ADDR, CONFIG, CONFIG_BASE, CONFIG_SIZE, GENERATION_ADDR,
-    IMAGE_SIZE, MAX_LANES, READ_RANGES, ImageBuilder, Links, config_values, default_config_words,
+    MAX_LANES, READ_RANGES, ImageBuilder, Links, config_values, default_config_words,
 )
 from edge.outputs.state import OutputState
 from edge.types import FrameResult, LoopHealth
@@ -170,7 +170,7 @@ class ModbusSink:
         self._clock_ns = clock_ns
         self._watchdog_period_s = watchdog_period_s
         self._lock = threading.Lock()
-        self._image: list[int] = [0] * IMAGE_SIZE
+        self._image: list[int] = self.builder.initial_image()
         self._watchdog_fired = False
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None

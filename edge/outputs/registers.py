@@ -367,10 +367,18 @@ class ImageBuilder:
             a = LANE_BASE + k * LANE_STRIDE
             base[a: a + LANE_STRIDE] = na_lane
         self._empty_track = _na_block(TRACK)
+        for k in range(TRACK_SLOTS):
+            a = TRACK_BASE + k * TRACK_RECORD
+            base[a: a + TRACK_RECORD] = self._empty_track
+        _write(base, STATUS, 0, {r.name: None for r in STATUS.regs if r.na})  # n/a until the first update
         if config_words is not None:
             base[CONFIG_BASE: CONFIG_BASE + CONFIG_SIZE] = config_words
         self._base = base
         self._lane_cache: list[tuple[Any, list[int]] | None] = [None] * MAX_LANES
+
+    def initial_image(self) -> list[int]:
+        """What the servers show before the first update: identification, everything else n/a or 0."""
+        return list(self._base)
 
     def build(self, snap: Snapshot, config_words: list[int] | None = None) -> list[int]:
         if self._t0_ns is None:

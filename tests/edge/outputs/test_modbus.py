@@ -139,6 +139,9 @@ def test_single_reads_never_tear_and_the_tear_byte_detects_split_reads(tcp_sink,
                       for i, tr in enumerate(make_tracks(rng, 14))]
             tcp_sink.publish(make_result(seq, t, tracks, (False,) * N_LANES), health(t, t, frames=seq))
 
+    # publish frame 0 first: the writer thread may start after our first read
+    tcp_sink.publish(make_result(0, T0, [tr.__class__(**{**tr.__dict__, "x_m": 0.0}) for tr in make_tracks(rng, 14)],
+                                 (False,) * N_LANES), health(T0, T0))
     th = threading.Thread(target=writer)
     th.start()
     try:
