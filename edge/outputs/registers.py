@@ -226,6 +226,8 @@ CONFIG = Block("configuration", CONFIG_BASE, CONFIG_SIZE, (
    writable=True)
 
 BLOCKS: tuple[Block, ...] = (IDENT, STATUS, LANE, TRACK_HDR, TRACK, CONFIG)
+_LANE_OFF = {r.name: r.offset for r in LANE.regs}
+_LANE_IDX = {r.name: i for i, r in enumerate(LANE.regs)}
 IMAGE_SIZE = CONFIG_BASE + CONFIG_SIZE
 #: address ranges (start, end exclusive) the servers answer; everything else is exception 02
 READ_RANGES: tuple[tuple[int, int], ...] = ((0, LANE_BASE + MAX_LANES * LANE_STRIDE), (TRACK_HEADER, TRACK_BASE + TRACK_SLOTS * TRACK_RECORD), (CONFIG_BASE, CONFIG_BASE + CONFIG_SIZE))
@@ -374,7 +376,7 @@ class ImageBuilder:
         if config_words is not None:
             base[CONFIG_BASE: CONFIG_BASE + CONFIG_SIZE] = config_words
         self._base = base
-        self._lane_cache: list[tuple[Any, list[int]] | None] = [None] * MAX_LANES
+        self._lane_cache: list[tuple[Any, bool, list[int]] | None] = [None] * MAX_LANES
 
     def initial_image(self) -> list[int]:
         """What the servers show before the first update: identification, everything else n/a or 0."""
@@ -424,10 +426,9 @@ class ImageBuilder:
     def _lane(self, img: list[int], k: int, snap: Snapshot, now_unix: float) -> None:
         ls = snap.lane_stats[k]
         stale = snap.stats_stale[k]
-        key = (id(ls), stale)
         cached = self._lane_cache[k]
         a = LANE_BASE + k * LANE_STRIDE
-        if cached is None or cached[0] != key:
+        if cached is None or cached[0] is not ls or cached[1] != stale:
             vals: dict[str, Any] = {"lane_id": (k + 1) | (0xFF << 8), "cumulative_volume": snap.cumulative_volume[k],
                                     "wrong_way_count": snap.wrong_way_count[k] & 0xFFFF}
             if ls is None:
@@ -451,15 +452,16 @@ class ImageBuilder:
             for reg in LANE.regs:
                 if reg.name in vals:
                     words[reg.offset: reg.offset + reg.size] = encode(reg, vals[reg.name])
-            self._lane_cache[k] = (key, words)
+            self._lane_cache[k] = (ls, stale, words)
         else:
-            words = cached[1]
+            words = cached[2]
         img[a: a + LANE_STRIDE] = words
         live = (snap.presence[k] << LV_PRESENCE) | (snap.wrong_way[k] << LV_WRONG_WAY) | (stale << LV_STALE)
         live |= (snap.failsafe_presence << LV_FAILSAFE) | ((ls is None) << LV_NO_INTERVAL)
-        img[a + 10] = live
-        cv = snap.cumulative_volume[k]
-        img[a + 11], img[a + 12] = (cv >> 16) & 0xFFFF, cv & 0xFFFF
+        img[a + _LANE_OFF["live"]] = live
+        o = a + _LANE_OFF["cumulative_volume"]
+        img[o: o + 2] = encode(LANE.regs[_LANE_IDX["cumulative_volume"]], snap.cumulative_volume[k])
+        img[a + _LANE_OFF["wrong_way_count"]] = snap.wrong_way_count[k] & 0xFFFF
 
     def _tracks(self, img: list[int], snap: Snapshot) -> None:
         fc = max(snap.frame_seq, 0) & 0xFFFF

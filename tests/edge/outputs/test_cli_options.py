@@ -70,3 +70,38 @@ def test_registers_and_dbc_commands(tmp_path, capsys):
         with pytest.raises(SystemExit):
             main([cmd, "--help"])
         assert "examples:" in capsys.readouterr().out
+
+
+def test_modbus_configuration_apply_reaches_the_can_output(request):
+    import can
+    from pymodbus.client import ModbusTcpClient
+
+    from edge.outputs import registers as R
+    from tests.edge.outputs.helpers import health, make_result
+
+    channel = f"apply-{request.node.name}"
+    rx = can.Bus(interface="virtual", channel=channel)
+    cfg = load_config(env={}, overrides={"outputs.modbus.tcp_port": 0, "outputs.modbus.config_writes": True,
+                                         "outputs.can.interface": "virtual", "outputs.can.channel": channel})
+    sinks = build_sinks(cfg, 1)
+    mb, cs = sinks
+    c = ModbusTcpClient(*mb.tcp_address[:1], port=mb.tcp_address[1], timeout=2, retries=0)
+    try:
+        assert c.connect()
+        assert c.read_holding_registers(R.CONFIG_BASE + 6, count=4, device_id=1).registers == [1, 2, 0, 0b11101]
+        assert not c.write_register(R.CONFIG_BASE + 8, 2, device_id=1).isError()  # sensor id 2
+        assert not c.write_register(R.CMD_ADDR, R.CMD_APPLY, device_id=1).isError()
+        t = 5_000_000_000
+        for s in sinks:
+            s.publish(make_result(1, t, presence=(True,)), health(t, t))
+        ids = set()
+        while 0x62A not in ids:  # the sender thread delivers; recv waits for it (no sleeps)
+            m = rx.recv(timeout=10)
+            assert m is not None, sorted(ids)
+            ids.add(m.arbitration_id)
+        assert 0x60A not in ids and not mb.links.config_pending_restart  # live setting, no restart needed
+    finally:
+        c.close()
+        for s in sinks:
+            s.close()
+        rx.shutdown()
