@@ -21,6 +21,7 @@ import numpy as np
 
 def _poller(port: int, rate_hz: float, active, stop, counter) -> None:
     from pymodbus.client import ModbusTcpClient
+    from pymodbus.exceptions import ModbusException
 
     from edge.outputs.registers import READ_RANGES
 
@@ -31,11 +32,16 @@ def _poller(port: int, rate_hz: float, active, stop, counter) -> None:
         if not active.wait(0.1):
             nxt = time.monotonic()
             continue
-        for a, b in READ_RANGES:
-            for s in range(a, b, 125):
-                r = c.read_holding_registers(s, count=min(125, b - s), device_id=1)
-                if r.isError():
-                    raise RuntimeError(f"poll failed: {r}")
+        try:
+            for a, b in READ_RANGES:
+                for s in range(a, b, 125):
+                    r = c.read_holding_registers(s, count=min(125, b - s), device_id=1)
+                    if r.isError():
+                        raise RuntimeError(f"poll failed: {r}")
+        except ModbusException:
+            if stop.is_set():  # the server went away at the end of the run
+                break
+            raise
         with counter.get_lock():
             counter.value += 1
         nxt += 1.0 / rate_hz

@@ -91,6 +91,7 @@ def test_modbus_configuration_apply_reaches_the_can_output(request):
         assert c.read_holding_registers(R.CONFIG_BASE + 6, count=4, device_id=1).registers == [1, 2, 0, 0b11101]
         assert not c.write_register(R.CONFIG_BASE + 8, 2, device_id=1).isError()  # sensor id 2
         assert not c.write_register(R.CMD_ADDR, R.CMD_APPLY, device_id=1).isError()
+        assert mb.sync()  # the applied configuration reached this side (publish would also pick it up)
         t = 5_000_000_000
         for s in sinks:
             s.publish(make_result(1, t, presence=(True,)), health(t, t))

@@ -43,11 +43,12 @@ class TrackPipeline(ScriptedPipeline):
 class Probe:
     """Reads both outputs right after they published (sinks are called in order)."""
 
-    def __init__(self, client, can_rx, db):
-        self.client, self.rx, self.db = client, can_rx, db
+    def __init__(self, client, can_rx, db, sync):
+        self.client, self.rx, self.db, self.sync = client, can_rx, db, sync
         self.seen = []
 
     def publish(self, result, health):
+        assert self.sync()  # the Modbus server process took the image the output just built
         status = self.client.read_input_registers(R.STATUS.base, count=R.STATUS.size, device_id=1).registers
         lanes = [self.client.read_input_registers(R.LANE_BASE + k * R.LANE_STRIDE, count=R.LANE_STRIDE,
                                                   device_id=1).registers for k in range(N_LANES)]
@@ -71,7 +72,7 @@ def outputs(request):
                  bus_factory=lambda: can.Bus(interface="virtual", channel=channel), threaded=False)
     client = ModbusTcpClient(*mb.tcp_address[:1], port=mb.tcp_address[1], timeout=2, retries=0)
     assert client.connect()
-    yield clk, mb, cs, Probe(client, rx, load_shipped())
+    yield clk, mb, cs, Probe(client, rx, load_shipped(), mb.sync)
     client.close()
     mb.close()
     cs.close()

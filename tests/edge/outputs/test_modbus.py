@@ -27,6 +27,7 @@ def _publish(sink, seq, rng, lanes=False):
     res = make_result(seq, t, make_tracks(rng, 20), (True, False, False, True),
                       make_lane_stats(rng, N_LANES, seq=seq % 256, t_ns=t) if lanes else ())
     sink.publish(res, health(t, t, frames=seq))
+    assert sink.sync()  # the server process has the image (publish itself never waits)
     return res
 
 
@@ -57,7 +58,7 @@ def test_tcp_reads_back_the_image(tcp_sink, client):
                 n = min(125, b - start)
                 rr = fc_read(start, count=n, device_id=1)
                 assert not rr.isError(), rr
-                expect = img[start: start + n] if start < R.CONFIG_BASE else tcp_sink.config.staged[start - R.CONFIG_BASE:][:n]
+                expect = img[start: start + n] if start < R.CONFIG_BASE else tcp_sink.config_words[start - R.CONFIG_BASE:][:n]
                 assert rr.registers == expect
     rr = client.read_input_registers(2, count=2, device_id=1)
     assert client.convert_from_registers(rr.registers, client.DATATYPE.UINT32) == 0x12345678  # word_order="big"
@@ -86,7 +87,7 @@ def test_writes_are_refused_when_config_writes_are_off(client):
 @pytest.mark.parametrize("tcp_sink", [True], indirect=True)
 def test_config_writes_validated_staged_and_applied(tcp_sink, client):
     applied = []
-    tcp_sink._user_on_apply = lambda before, after: applied.append(after)
+    tcp_sink.on_apply = lambda before, after: applied.append(after)
     base = R.CONFIG_BASE
     gen0 = client.read_holding_registers(R.GENERATION_ADDR, count=1, device_id=1).registers[0]
     # telemetry stays read-only; reserved and read-only config registers are illegal addresses
@@ -99,7 +100,7 @@ def test_config_writes_validated_staged_and_applied(tcp_sink, client):
     # staged: visible on read, not applied
     assert not client.write_registers(base + 4, [120, 2], device_id=1).isError()
     assert client.read_holding_registers(base + 4, count=2, device_id=1).registers == [120, 2]
-    assert tcp_sink.config.applied[4] != 120 and not applied
+    assert tcp_sink.sync() and not applied
     # inconsistent lane geometry (x_min >= x_max) is rejected by the apply command
     assert not client.write_registers(base + 10, [50, 0xFFF6, 0, 1], device_id=1).isError()  # 5.0 m .. -1.0 m
     rr = client.write_register(R.CMD_ADDR, R.CMD_APPLY, device_id=1)
@@ -110,9 +111,9 @@ def test_config_writes_validated_staged_and_applied(tcp_sink, client):
     assert not client.write_register(R.CMD_ADDR, R.CMD_APPLY, device_id=1).isError()
     regs = client.read_holding_registers(R.CMD_ADDR, count=3, device_id=1).registers
     assert regs == [0, gen0 + 1, 1]
+    assert tcp_sink.sync()  # the applied configuration reaches the frame loop's side
     assert applied and applied[-1]["interval_s"] == 120 and applied[-1]["lane1_x_min"] == pytest.approx(-3.0)
     assert tcp_sink.unit_id == 17 and tcp_sink.links.config_pending_restart  # interval needs a restart
-    st = client.read_input_registers(R.STATUS.base, count=1, device_id=1).registers[0]
     _publish(tcp_sink, 1, np.random.default_rng(0))
     st = client.read_input_registers(R.STATUS.base, count=1, device_id=1).registers[0]
     assert st & (1 << R.ST_CONFIG_PENDING) and st & (1 << R.ST_WRITES_ENABLED)
@@ -142,6 +143,7 @@ def test_single_reads_never_tear_and_the_tear_byte_detects_split_reads(tcp_sink,
     # publish frame 0 first: the writer thread may start after our first read
     tcp_sink.publish(make_result(0, T0, [tr.__class__(**{**tr.__dict__, "x_m": 0.0}) for tr in make_tracks(rng, 14)],
                                  (False,) * N_LANES), health(T0, T0))
+    assert tcp_sink.sync()
     th = threading.Thread(target=writer)
     th.start()
     try:
@@ -213,7 +215,8 @@ def test_rtu_reads_and_silence_for_other_unit_ids(rtu_sink):
         assert c.read_holding_registers(400, count=1, device_id=3).exception_code == 2
         with pytest.raises(ModbusIOException):
             c.read_holding_registers(0, count=1, device_id=4)  # another device on the line: no reply
-        assert sink.counters["ignored_unit_id"] >= 1
+        sink.request_counters()
+        assert sink.sync() and sink.server_counters["ignored_unit_id"] >= 1
         assert c.read_input_registers(0, count=1, device_id=3).registers == [R.MAP_MAGIC]  # line still in sync
     finally:
         c.close()
