@@ -169,11 +169,11 @@ LANE = Block("lane", LANE_BASE, LANE_STRIDE, (
 TRACK_HDR = Block("track_header", TRACK_HEADER, 8, (
     _r("frame_counter", 0, "u16", "frame counter of the table (low byte repeated in every record)", na=False),
     _r("valid_records", 1, "u16", "records in use (packed from record 0, nearest first)", na=False),
-    _r("frame_time_ms", 2, "u32", "loop time of that frame since the outputs started", "ms", na=False),
+    _r("frame_time_ms", 2, "u32", "loop time of that frame since the outputs started (wraps after 49.7 days)", "ms", na=False),
 ), "Read-only. Offsets 4-7 reserved. One 125-register read from 992 returns the header and 14 records.")
 
 TRACK = Block("track", TRACK_BASE, TRACK_RECORD, (
-    _r("track_id", 0, "u16", "track id (0xFFFF = empty slot); the same id as CAN Obj_ID"),
+    _r("track_id", 0, "u16", "track id (0xFFFF = empty slot); CAN Obj_ID is its low byte"),
     _r("class_lane", 1, "u8x2", "low byte class (ARS408 enum: 0 point/unknown, 1 car, 2 truck/bus, 3 pedestrian, "
        "4 motorcycle, 5 bicycle), high byte lane 1..N (0xFF none)"),
     _r("x", 2, "s16", "lateral position, right +", "m", 0.1),
@@ -466,7 +466,7 @@ class ImageBuilder:
     def _tracks(self, img: list[int], snap: Snapshot) -> None:
         fc = max(snap.frame_seq, 0) & 0xFFFF
         tracks = sorted(snap.tracks, key=lambda t: t.range_m)[:TRACK_SLOTS]
-        t_ms = (snap.frame_t_ns - self._t0_ns) // 1_000_000 if snap.frame_t_ns >= self._t0_ns else 0
+        t_ms = ((snap.frame_t_ns - self._t0_ns) // 1_000_000 if snap.frame_t_ns >= self._t0_ns else 0) & 0xFFFFFFFF
         _write(img, TRACK_HDR, 0, {"frame_counter": fc, "valid_records": len(tracks), "frame_time_ms": t_ms})
         tear = fc & 0xFF
         for k in range(TRACK_SLOTS):
