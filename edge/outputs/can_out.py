@@ -247,8 +247,11 @@ class CanSink:
             self._process(snap, health.t_ns)
             return
         if len(self._queue) >= self.cfg.queue_frames:
-            self._queue.popleft()
-            self.faults["queue_overflow"] += 1
+            try:
+                self._queue.popleft()
+                self.faults["queue_overflow"] += 1
+            except IndexError:  # the sender thread emptied it meanwhile
+                pass
         self._queue.append(snap)
         self._wake.set()
 
@@ -267,8 +270,11 @@ class CanSink:
         while not self._stop.is_set():
             self._wake.wait(0.25)
             self._wake.clear()
-            while self._queue:
-                snap = self._queue.popleft()
+            while True:
+                try:
+                    snap = self._queue.popleft()
+                except IndexError:
+                    break
                 self._process(snap, self._clock_ns())
             self.watchdog()
 
