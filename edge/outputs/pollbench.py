@@ -38,10 +38,8 @@ def _poller(port: int, rate_hz: float, active, stop, counter) -> None:
                     r = c.read_holding_registers(s, count=min(125, b - s), device_id=1)
                     if r.isError():
                         raise RuntimeError(f"poll failed: {r}")
-        except ModbusException:
-            if stop.is_set():  # the server went away at the end of the run
-                break
-            raise
+        except ModbusException:  # the server goes away when the loop ends (before `stop` is set)
+            break
         with counter.get_lock():
             counter.value += 1
         nxt += 1.0 / rate_hz
