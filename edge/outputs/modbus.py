@@ -36,7 +36,7 @@ from typing import Any, Callable
 
 from edge.outputs.config import BAUD_CODES, CAN_BITRATE_CODES, PARITY_CODES, FailsafeConfig, ModbusConfig
 from edge.outputs.registers import (
-    CMD_ADDR, CMD_APPLY, CMD_RESTART_COMMS, CMD_STATUS_ADDR, CONFIG, CONFIG_BASE, CONFIG_SIZE, GENERATION_ADDR,
+    CMD_APPLY, CMD_RESTART_COMMS, CMD_STATUS_ADDR, CONFIG, CONFIG_BASE, CONFIG_SIZE, GENERATION_ADDR,
     MAX_LANES, READ_RANGES, ImageBuilder, Links, config_values, default_config_words,
 )
 from edge.outputs.state import OutputState
