@@ -6,6 +6,10 @@ the last closed interval per lane, and the fail-safe decision. The fail-safe rul
 Modbus and CAN: no frame result for ``stale_after_s`` (measured on the loop's monotonic clock), or
 the loop reporting ``stalled``/``fault``/``stopped``, is a fault; then tracks are cleared, presence
 goes to the configured fail-safe state and lane statistics are flagged stale.
+
+Lane numbering: ``LaneStats.lane``, ``TrackState.lane`` and ``TrafficEvent.lane`` are lane indices
+0..n_lanes-1, the same index as ``FrameResult.presence``; Modbus and CAN publish them as lane
+numbers 1..N.
 """
 
 from __future__ import annotations
