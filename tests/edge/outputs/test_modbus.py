@@ -274,3 +274,25 @@ def test_start_fails_cleanly_for_a_missing_serial_port_and_a_busy_tcp_port(tcp_s
     host, port = tcp_sink.tcp_address
     with pytest.raises(OutputError):
         ModbusSink(ModbusConfig(tcp_host=host, tcp_port=port), 1).start()
+
+
+def test_unit_id_applied_over_tcp_moves_the_rtu_device(pty_pair):
+    cfg = ModbusConfig(tcp_port=0, rtu_port=pty_pair[0], unit_id=3, rtu_parity="N", config_writes=True)
+    sink = ModbusSink(cfg, N_LANES).start()
+    tcp = ModbusTcpClient(*sink.tcp_address[:1], port=sink.tcp_address[1], timeout=2, retries=0)
+    rtu = ModbusSerialClient(pty_pair[1], baudrate=19200, parity="N", bytesize=8, stopbits=1, timeout=0.5, retries=0)
+    try:
+        assert tcp.connect() and rtu.connect()
+        _publish(sink, 5, np.random.default_rng(9))
+        assert rtu.read_input_registers(0, count=1, device_id=3).registers == [R.MAP_MAGIC]
+        assert not tcp.write_register(R.CONFIG_BASE, 9, device_id=1).isError()
+        assert rtu.read_input_registers(0, count=1, device_id=3).registers == [R.MAP_MAGIC]  # staged only
+        assert not tcp.write_register(R.CMD_ADDR, R.CMD_APPLY, device_id=1).isError()
+        assert rtu.read_input_registers(0, count=1, device_id=9).registers == [R.MAP_MAGIC]
+        with pytest.raises(ModbusIOException):
+            rtu.read_input_registers(0, count=1, device_id=3)  # the old id is now another device's
+        assert sink.sync() and sink.unit_id == 9 and not sink.links.config_pending_restart
+    finally:
+        tcp.close()
+        rtu.close()
+        sink.close()
