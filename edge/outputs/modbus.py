@@ -164,7 +164,7 @@ class _Server:
 
     def _applied(self, before: dict[str, Any], after: dict[str, Any]) -> None:
         self.unit_id = int(after["unit_id"])
-        _send(self.conn, ("applied", before, after, self.config.pending_restart()))
+        _send(self.conn, ("applied", before, after, self.config.pending_restart(), list(self.config.applied)))
 
     async def action(self, fc: int, start: int, address: int, count: int, regs: list[int],
                      values: list[int] | list[bool] | None) -> Any:
@@ -299,8 +299,9 @@ class ModbusSink:
     The frame loop's ``publish`` builds the image (the single writer) and hands it to the server
     process as one message on a non-blocking local socket, so Modbus clients never hold the loop's
     interpreter lock and the loop never waits for them (a full socket buffer drops the image and
-    counts it; the next frame sends a newer one). Without :meth:`start` nothing is served and
-    :meth:`image` is the only view (used by unit tests).
+    counts it; the next frame sends a newer one). A watchdog thread faults the image when the loop
+    goes silent and restarts a dead server process (back-off 1-30 s). Without :meth:`start` nothing
+    is served and :meth:`image` is the only view (used by unit tests).
     """
 
     def __init__(
@@ -335,7 +336,9 @@ class ModbusSink:
         self._stop = threading.Event()
         self._watchdog_thread: threading.Thread | None = None
         self.tcp_address: tuple[str, int] | None = None
-        self.counters = {"images_sent": 0, "images_dropped": 0, "watchdog": 0, "applied": 0}
+        self.counters = {"images_sent": 0, "images_dropped": 0, "watchdog": 0, "applied": 0, "server_restarts": 0}
+        self._restart_backoff_s = 0.5
+        self._next_restart_s = 0.0
         self.server_counters: dict[str, int] = {}
         self._ping = 0
 
@@ -403,7 +406,8 @@ class ModbusSink:
 
     def _handle(self, msg: tuple) -> None:
         if msg[0] == "applied":
-            _, before, after, pending = msg
+            _, before, after, pending, words = msg
+            self.config_words = words  # a restarted server process starts from the applied configuration
             self.unit_id = int(after["unit_id"])
             self.links.config_pending_restart = bool(pending)
             self.counters["applied"] += 1
@@ -451,6 +455,12 @@ class ModbusSink:
     def start(self) -> "ModbusSink":
         if not (self.cfg.tcp_enabled or self.cfg.rtu_port):
             return self
+        self._spawn()
+        self._watchdog_thread = threading.Thread(target=self._watch, name="modbus-watchdog", daemon=True)
+        self._watchdog_thread.start()
+        return self
+
+    def _spawn(self) -> None:
         ctx = multiprocessing.get_context("spawn")  # never fork a multi-threaded process
         parent, child = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         for s in (parent, child):
@@ -481,13 +491,37 @@ class ModbusSink:
         parent.setblocking(False)
         self._conn = parent
         self._ship(self._image)
-        self._watchdog_thread = threading.Thread(target=self._watch, name="modbus-watchdog", daemon=True)
-        self._watchdog_thread.start()
-        return self
+
+    def check_server(self, now_s: float | None = None) -> bool:
+        """Restart the server process if it died (with back-off); True when it was restarted.
+
+        Called by the watchdog thread. The restarted servers get the last applied configuration and
+        listen on the configured port (an OS-chosen port 0 may change).
+        """
+        proc = self._proc
+        if proc is None or proc.is_alive() or self._stop.is_set():
+            return False
+        now = time.monotonic() if now_s is None else now_s
+        if now < self._next_restart_s:
+            return False
+        log.error("Modbus server process exited (code %s); restarting it", proc.exitcode)
+        self.counters["server_restarts"] += 1
+        self._restart_backoff_s = min(30.0, max(1.0, 2 * self._restart_backoff_s))
+        self._next_restart_s = now + self._restart_backoff_s
+        conn, self._conn, self._proc = self._conn, None, None
+        if conn is not None:
+            conn.close()
+        try:
+            self._spawn()
+        except OutputError as exc:
+            log.error("Modbus server restart failed: %s (next try in %.0f s)", exc, self._restart_backoff_s)
+            return False
+        return True
 
     def _watch(self) -> None:
         while not self._stop.wait(self._watchdog_period_s):
             self.watchdog()
+            self.check_server()
 
     def _kill(self) -> None:
         if self._proc is not None:

@@ -296,3 +296,33 @@ def test_unit_id_applied_over_tcp_moves_the_rtu_device(pty_pair):
         tcp.close()
         rtu.close()
         sink.close()
+
+
+def test_a_dead_server_process_is_restarted_with_the_applied_configuration():
+    # no watchdog thread racing with the explicit check_server calls below
+    sink = ModbusSink(ModbusConfig(tcp_port=0, config_writes=True), N_LANES, watchdog_period_s=3600.0).start()
+    try:
+        host, port = sink.tcp_address
+        c = ModbusTcpClient(host, port=port, timeout=2, retries=0)
+        assert c.connect()
+        assert not c.write_register(R.CONFIG_BASE + 4, 300, device_id=1).isError()
+        assert not c.write_register(R.CMD_ADDR, R.CMD_APPLY, device_id=1).isError()
+        c.close()
+        assert sink.sync()
+        assert not sink.check_server(now_s=1e9)  # alive: nothing to do
+        sink._proc.kill()  # simulate a crash of the server process
+        sink._proc.join(10)
+        assert not sink.check_server(now_s=-1.0)  # inside the back-off window
+        assert sink.check_server(now_s=1e9) and sink.counters["server_restarts"] == 1
+        _publish(sink, 3, np.random.default_rng(1))
+        host, port = sink.tcp_address  # port 0 in tests: the OS may give another one
+        c = ModbusTcpClient(host, port=port, timeout=2, retries=0)
+        assert c.connect()
+        try:
+            assert c.read_input_registers(R.STATUS.base + 4, count=1, device_id=1).registers == [3]
+            assert c.read_holding_registers(R.CONFIG_BASE + 4, count=1, device_id=1).registers == [300]
+            assert c.read_holding_registers(R.GENERATION_ADDR, count=1, device_id=1).registers == [1]
+        finally:
+            c.close()
+    finally:
+        sink.close()
