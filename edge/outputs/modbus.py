@@ -32,7 +32,7 @@ import select
 import socket
 import threading
 import time
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from edge.outputs.config import BAUD_CODES, CAN_BITRATE_CODES, PARITY_CODES, FailsafeConfig, ModbusConfig
 from edge.outputs.registers import (
@@ -40,7 +40,9 @@ from edge.outputs.registers import (
     MAX_LANES, READ_RANGES, ImageBuilder, Links, config_values, default_config_words,
 )
 from edge.outputs.state import OutputState
-from edge.types import FrameResult, LoopHealth
+
+if TYPE_CHECKING:  # keep the server process free of numpy
+    from edge.types import FrameResult, LoopHealth
 
 log = logging.getLogger(__name__)
 

@@ -16,9 +16,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from edge.outputs.config import FailsafeConfig
-from edge.types import FrameResult, LaneStats, LoopHealth, TrackState
+
+if TYPE_CHECKING:  # no numpy import in the Modbus server process
+    from edge.types import FrameResult, LaneStats, LoopHealth, TrackState
 
 MAX_LANES = 8
 
