@@ -83,7 +83,7 @@ class _Link:
         try:
             self.port.write(data)
             self.port.flush()
-        except Exception as exc:  # noqa: BLE001 - pyserial raises SerialException, OSError or SerialTimeoutException
+        except OSError as exc:  # pyserial's SerialException (and its timeout) derive from OSError
             raise LinkLostError(f"write to {self.port.port} failed: {exc}") from exc
 
     def read(self, max_wait_s: float) -> list[cl.Message]:
@@ -95,7 +95,7 @@ class _Link:
                 n = self.port.in_waiting
                 if n:
                     data += self.port.read(n)
-        except Exception as exc:  # noqa: BLE001 - see send()
+        except OSError as exc:  # see send()
             raise LinkLostError(f"read from {self.port.port} failed: {exc}") from exc
         if not data:
             return []
@@ -105,7 +105,7 @@ class _Link:
     def close(self) -> None:
         try:
             self.port.close()
-        except Exception as exc:  # noqa: BLE001 - closing a vanished port may fail; nothing to recover
+        except OSError as exc:  # closing a vanished port may fail; nothing to recover
             log.debug("closing %s: %s", getattr(self.port, "port", "?"), exc)
 
 
@@ -120,7 +120,9 @@ class D2GSource(RadarSource):
     scheme = "d2g"
     options = {
         "period_ms": Option(_positive, 200.0, "automatic trigger period in ms (Tavanti: 200)"),
-        "timeout_s": Option(_positive, 1.0, "reply timeout in s beyond the frame period before the board counts as stalled"),
+        "timeout_s": Option(
+            _positive, 1.0, "reply timeout in s beyond the frame period before the board counts as stalled"
+        ),
         "gap_s": Option(_positive, 0.05, "silence in s after which a partly received message is abandoned"),
         "backoff_s": Option(_positive, 0.1, "first reconnect back-off in s (doubles per failed attempt)"),
         "backoff_max_s": Option(_positive, 0.5, "longest reconnect back-off in s"),
@@ -138,7 +140,6 @@ class D2GSource(RadarSource):
         backoff_max_s: float = 0.5,
         baud: int = 115200,
         clock: Any = None,
-        serial_factory: Any = None,
     ) -> None:
         self._clock = clock or MonotonicClock()
         super().__init__(clock_ns=self._clock.now_ns)
@@ -151,7 +152,6 @@ class D2GSource(RadarSource):
         self.backoff_s = backoff_s
         self.backoff_max_s = max(backoff_max_s, backoff_s)
         self.baud = baud
-        self._serial_factory = serial_factory
         base = d2g_frontend()
         wf = base.waveform
         if abs(wf.frame_period_s - self.period_s) > 1e-12:
@@ -159,7 +159,9 @@ class D2GSource(RadarSource):
                 wf = dataclasses.replace(wf, frame_period_s=self.period_s)
             except ValueError as exc:
                 cpi_ms = wf.segments[0].duration_s * 1e3
-                raise SourceUrlError(f"period_ms={period_ms:g} is shorter than the {cpi_ms:.1f} ms chirp burst: {exc}") from None
+                raise SourceUrlError(
+                    f"period_ms={period_ms:g} is shorter than the {cpi_ms:.1f} ms chirp burst: {exc}"
+                ) from None
         self._frontend = dataclasses.replace(base, waveform=wf) if wf is not base.waveform else base
         _, n_ch, n_s = self._frontend.frame_shape
         self.frame_format = cl.FrameFormat(n_s, n_ch, RX_MASK, SIGNAL_PART_IQ)
@@ -170,14 +172,14 @@ class D2GSource(RadarSource):
         self.telemetry: dict[str, Any] = {}
         self.corrupted_frames = 0
         self.last_fault: str | None = None
+        self._last_host_seq: int | None = None
         self._reset_session_state()
 
     @classmethod
     def from_url(cls, url: SourceUrl, overrides: dict[str, Any]) -> "D2GSource":
         clock = overrides.pop("clock", None)
-        factory = overrides.pop("serial_factory", None)
         opts = resolve_options(url, cls.options, overrides)
-        return cls(url.target, clock=clock, serial_factory=factory, **opts)
+        return cls(url.target, clock=clock, **opts)
 
     @property
     def frontend(self) -> FrontendInfo:
@@ -234,22 +236,17 @@ class D2GSource(RadarSource):
         self._down = False
         self._attempt = 0
         self._next_attempt_ns = 0
-        if not hasattr(self, "_last_host_seq"):
-            self._last_host_seq: int | None = None
 
     def _open_port(self, path: str) -> _Link:
-        if self._serial_factory is not None:
-            port = self._serial_factory(path, self.baud)
-        else:
-            import serial
+        import serial  # lazy: only this backend needs pyserial
 
-            try:
-                port = serial.Serial(path, baudrate=self.baud, timeout=0, write_timeout=self.timeout_s, exclusive=True)
-            except (serial.SerialException, OSError, ValueError) as exc:
-                raise LinkLostError(f"cannot open {path}: {exc}") from exc
+        try:
+            port = serial.Serial(path, baudrate=self.baud, timeout=0, write_timeout=self.timeout_s, exclusive=True)
+        except (OSError, ValueError) as exc:
+            raise LinkLostError(f"cannot open {path}: {exc}") from exc
         try:
             port.reset_input_buffer()  # stale replies of an earlier session
-        except Exception as exc:  # noqa: BLE001 - pyserial: SerialException or OSError on a vanished port
+        except OSError as exc:  # pyserial's SerialException is an OSError
             port.close()
             raise LinkLostError(f"cannot flush {path}: {exc}") from exc
         return _Link(port, cl.Decoder(max_payload=max(self._frame_len, cl.DEVICE_RX_BUFFER)))
@@ -311,7 +308,8 @@ class D2GSource(RadarSource):
     def _configure_session(self) -> None:
         ep = self.endpoints[RBAS_TAG]
         payloads, _ = self._exchange(0, cl.request(0, Ep0.QUERY_FW_INFO), "firmware info")
-        fw = next((cl.FirmwareInfo.parse(p.data) for p in payloads if p.endpoint == 0 and p.msg_type == Ep0.QUERY_FW_INFO), None)
+        fw_msgs = [p for p in payloads if p.endpoint == 0 and p.msg_type == Ep0.QUERY_FW_INFO]
+        fw = cl.FirmwareInfo.parse(fw_msgs[-1].data) if fw_msgs else None
         self.telemetry["firmware"] = fw
         self._exchange(ep, self._trigger_request(0), "stop trigger")
         payloads, _ = self._exchange(ep, cl.request(ep, Rbas.GET_DEVICE_INFO), "device info")
@@ -331,20 +329,24 @@ class D2GSource(RadarSource):
             self.telemetry["fmcw"] = ramp
             self._check_ramp(ramp)
         payloads, _ = self._exchange(ep, cl.encode_payload(ep, self.frame_format.encode()), "set frame format")
-        payloads, _ = self._exchange(ep, cl.request(ep, Rbas.GET_MIN_INTERVAL), "minimum interval")
-        min_us = self._reply(payloads, ep, Rbas.MIN_INTERVAL, lambda d: cl.parse_u32_reply(d, Rbas.MIN_INTERVAL, "minimum interval"), "minimum interval")
-        payloads, _ = self._exchange(ep, cl.request(ep, Rbas.GET_CHIRP_DURATION), "chirp duration")
-        chirp_ns = self._reply(payloads, ep, Rbas.CHIRP_DURATION, lambda d: cl.parse_u32_reply(d, Rbas.CHIRP_DURATION, "chirp duration"), "chirp duration")
+        min_us = self._get_u32(ep, Rbas.GET_MIN_INTERVAL, Rbas.MIN_INTERVAL, "minimum interval")
+        chirp_ns = self._get_u32(ep, Rbas.GET_CHIRP_DURATION, Rbas.CHIRP_DURATION, "chirp duration")
         self.telemetry.update(min_interval_us=min_us, chirp_duration_ns=chirp_ns, frame_format=self.frame_format)
         seg = self._frontend.waveform.segments[0]
         if abs(chirp_ns * 1e-9 - seg.ramp_s) > 1e-6:
-            log.warning("board chirp duration %.3f ms differs from the front end's %.3f ms", chirp_ns / 1e6, seg.ramp_s * 1e3)
+            log.warning(
+                "board chirp duration %.3f ms differs from the front end's %.3f ms", chirp_ns / 1e6, seg.ramp_s * 1e3
+            )
         period_us = int(round(self.period_s * 1e6))
         if min_us > period_us:
-            raise D2GConfigError(f"the board needs at least {min_us / 1e3:.1f} ms per frame; period_ms={self.period_s * 1e3:g} is too short")
+            raise D2GConfigError(
+                f"the board needs at least {min_us / 1e3:.1f} ms per frame; "
+                f"period_ms={self.period_s * 1e3:g} is too short"
+            )
         self._exchange(ep, self._trigger_request(period_us), "start trigger")
         log.info(
-            "Distance2Go on %s: firmware %s, %s; format %s (was %s); min interval %.1f ms, chirp %.3f ms; trigger every %.1f ms",
+            "Distance2Go on %s: firmware %s, %s; format %s (was %s); min interval %.1f ms, chirp %.3f ms; "
+            "trigger every %.1f ms",
             self.port_path or self.target,
             f"{fw.major}.{fw.minor}.{fw.build} {fw.description!r}" if fw else "?",
             info.description or "no description",
@@ -366,6 +368,10 @@ class D2GSource(RadarSource):
                 "board ramp %d-%d kHz differs from the front end's %.0f-%.0f kHz",
                 ramp.lower_khz, ramp.upper_khz, lo_khz, lo_khz + bw_khz,
             )
+
+    def _get_u32(self, ep: int, request_type: int, reply_type: int, what: str) -> int:
+        payloads, _ = self._exchange(ep, cl.request(ep, request_type), what)
+        return self._reply(payloads, ep, reply_type, lambda d: cl.parse_u32_reply(d, reply_type, what), what)
 
     def _trigger_request(self, interval_us: int) -> bytes:
         ep = self.endpoints[RBAS_TAG]
@@ -428,7 +434,8 @@ class D2GSource(RadarSource):
                     _, mc = cl.parse_sensor_reply(p.data, Rbas.TEMPERATURE, "temperature")
                     self.telemetry["temperature_c"] = mc / 1000.0
                 elif p.msg_type == Rbas.MIN_INTERVAL:
-                    self.telemetry["min_interval_us"] = cl.parse_u32_reply(p.data, Rbas.MIN_INTERVAL, "minimum interval")
+                    us = cl.parse_u32_reply(p.data, Rbas.MIN_INTERVAL, "minimum interval")
+                    self.telemetry["min_interval_us"] = us
             except ProtocolError as exc:
                 log.debug("skipping a malformed announcement: %s", exc)
                 return
