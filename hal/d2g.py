@@ -3,7 +3,7 @@
 ``d2g:///dev/serial/by-id/usb-Infineon_IFX_CDC-if00`` (or the emulator's pty from
 ``python -m hw_sim.d2g_device``), or ``d2g://auto`` to find the board by its USB id 058B:0058 and its
 endpoint list. Options: ``period_ms`` (automatic trigger period, default Tavanti's 200 ms),
-``timeout_s`` (reply timeout), ``gap_s``, ``backoff_s``, ``backoff_max_s``, ``baud``.
+``timeout_s`` (reply timeout), ``gap_s``, ``backoff_s``, ``backoff_max_s``, ``quiet_s``, ``baud``.
 
 Session (``reference/d2g-comlib.md``, "Minimal host session"): discover the endpoints, read the
 firmware and device info, stop any running trigger, set the FMCW direction to up-only if it was
@@ -20,7 +20,9 @@ telemetry (:attr:`D2GSource.telemetry`), announcements of other settings are log
 Faults: an unplugged port, a read or write error, a reply that does not come within the frame period
 plus ``timeout_s``, or an error status are counted in ``stats.faults``; the port is closed and reopened
 with exponential back-off (``backoff_s`` doubling up to ``backoff_max_s``, on the injectable clock),
-the session is configured again and frames resume (``stats.reconnects``). While that happens
+the session is configured again and frames resume (``stats.reconnects``). After a framing error from
+endpoint 0 the board ignores input until its line has been quiet for its timeout (10 s on the sibling
+firmware), so the host then stays silent for ``quiet_s`` before it tries again. While that happens
 ``read_frame`` times out like any source without a frame; it never raises a transient fault into the
 frame loop. A board that refuses the configuration (wrong format, interval below its minimum, no radar
 base endpoint) raises :class:`D2GConfigError`.
@@ -126,6 +128,9 @@ class D2GSource(RadarSource):
         "gap_s": Option(_positive, 0.05, "silence in s after which a partly received message is abandoned"),
         "backoff_s": Option(_positive, 0.1, "first reconnect back-off in s (doubles per failed attempt)"),
         "backoff_max_s": Option(_positive, 0.5, "longest reconnect back-off in s"),
+        "quiet_s": Option(
+            _positive, 10.5, "silence in s after the board reported a framing error (its input timeout is 10 s)"
+        ),
         "baud": Option(int, 115200, "serial baud rate (no effect on the USB virtual port)"),
     }
 
@@ -138,6 +143,7 @@ class D2GSource(RadarSource):
         gap_s: float = 0.05,
         backoff_s: float = 0.1,
         backoff_max_s: float = 0.5,
+        quiet_s: float = 10.5,
         baud: int = 115200,
         clock: Any = None,
     ) -> None:
@@ -151,6 +157,7 @@ class D2GSource(RadarSource):
         self.gap_s = gap_s
         self.backoff_s = backoff_s
         self.backoff_max_s = max(backoff_max_s, backoff_s)
+        self.quiet_s = quiet_s
         self.baud = baud
         base = d2g_frontend()
         wf = base.waveform
@@ -171,6 +178,7 @@ class D2GSource(RadarSource):
         self.endpoints: dict[str, int] = {}
         self.telemetry: dict[str, Any] = {}
         self.corrupted_frames = 0
+        self.failed_attempts = 0  # reconnect attempts that failed, over the source's life
         self.last_fault: str | None = None
         self._last_host_seq: int | None = None
         self._reset_session_state()
@@ -529,9 +537,12 @@ class D2GSource(RadarSource):
         self._drop_link()
         self._down = True
         self._attempt = 0
-        self._next_attempt_ns = self._clock.now_ns() + int(self.backoff_s * 1e9)
+        self._next_attempt_ns = self._clock.now_ns() + int(self._delay_after(exc) * 1e9)
 
-    def _backoff_s(self) -> float:
+    def _delay_after(self, exc: Exception) -> float:
+        """Back-off before the next attempt; after a framing error the board must see a quiet line."""
+        if isinstance(exc, cl.FramingStatusError):
+            return self.quiet_s
         return min(self.backoff_max_s, self.backoff_s * 2.0 ** self._attempt)
 
     def _reconnect_step(self, t_end: float | None) -> bool:
@@ -556,7 +567,8 @@ class D2GSource(RadarSource):
         except (DeviceError, OSError) as exc:
             self._drop_link()
             self._attempt += 1
-            delay = self._backoff_s()
+            self.failed_attempts += 1
+            delay = self._delay_after(exc)
             log.info("reconnect attempt %d failed (%s); next in %.2f s", self._attempt, exc, delay)
             self._next_attempt_ns = self._clock.now_ns() + int(delay * 1e9)
             return False

@@ -364,3 +364,23 @@ def test_pipeline_results_on_d2g_match_sim_d2g():
             assert np.array_equal(getattr(a.detections, name), getattr(b.detections, name), equal_nan=True)
         assert a.tracks == b.tracks and a.classifications == b.classifications and a.events == b.events
     assert sum(len(r.detections) for r in got) > 0
+
+
+def test_framing_error_from_the_board_makes_the_host_wait_for_a_quiet_line():
+    import os
+
+    with D2GEmulator("tavanti-test1", seed=1, quiet_s=0.3) as emu:
+        with open_radar(_url(emu, FAST + "&quiet_s=0.4")) as src:
+            before = src.read_frame(timeout=5.0)
+            fd = os.open(emu.port, os.O_WRONLY | os.O_NOCTTY)  # another writer on the line: a stray byte
+            try:
+                os.write(fd, b"\x77")
+            finally:
+                os.close(fd)
+            assert emu.wait_for(lambda: emu.counters.framing_errors == 1, 5.0)
+            _wait_for_fault(src)
+            assert "BadStartByteError" in src.last_fault
+            after = _read_until(src, lambda f: True)
+            assert after.seq > before.seq
+            assert src.stats.faults == 1 and src.stats.reconnects == 1
+            assert src.failed_attempts == 0  # the host did not talk into the board's quiet time
