@@ -440,7 +440,10 @@ class D2GEmulator:
     """The firmware above on a pseudo-terminal, served by a background thread.
 
     ``port`` is a stable symlink to the current pty slave. Fault injection methods are thread-safe
-    and may be called while a host is connected.
+    and may be called while a host is connected. ``quiet_s`` is the device's input timeout (quiet
+    line after a framing error or an incomplete message): 10 s on the sibling firmware, 0.5 s here
+    so that tests stay fast. ``clock`` (a :class:`SteppedClock`) makes the automatic trigger advance
+    only when a test says so; by default it runs on the host's monotonic time.
     """
 
     def __init__(

@@ -196,3 +196,39 @@ def test_raw_exchange_over_the_pty():
             assert emu.counters.framing_errors == 1
         finally:
             os.close(fd)
+
+
+def test_command_line_prints_the_port_and_serves_until_terminated():
+    import subprocess
+    import sys
+
+    from hal import open_radar
+
+    env = dict(os.environ, PYTHONPATH=os.getcwd())
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hw_sim.d2g_device", "--scenario", "tavanti-test1", "--seed", "2"],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        port = proc.stdout.readline().strip()
+        assert port.endswith("ttyD2G") and os.path.islink(port)
+        with open_radar(f"d2g://{port}?period_ms=50") as src:
+            f = src.read_frame(timeout=10.0)
+        assert f.i.shape == (1, 21, 64)
+    finally:
+        proc.terminate()
+        assert proc.wait(timeout=10) == 0
+    assert not os.path.lexists(port)  # the emulator cleaned up its port link
+
+
+def test_fault_schedule_syntax():
+    from hw_sim.d2g_device import _fault_spec
+
+    assert _fault_spec("stall@40:3") == ("stall", 40, 3.0)
+    assert _fault_spec("garbage@5") == ("garbage", 5, 2.0)
+    import argparse
+
+    with pytest.raises(argparse.ArgumentTypeError, match="KIND@FRAME"):
+        _fault_spec("melt@3")
