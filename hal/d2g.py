@@ -84,7 +84,6 @@ class _Link:
     def send(self, data: bytes) -> None:
         try:
             self.port.write(data)
-            self.port.flush()
         except OSError as exc:  # pyserial's SerialException (and its timeout) derive from OSError
             raise LinkLostError(f"write to {self.port.port} failed: {exc}") from exc
 
