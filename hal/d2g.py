@@ -2,7 +2,8 @@
 
 ``d2g:///dev/serial/by-id/usb-Infineon_IFX_CDC-if00`` (or the emulator's pty from
 ``python -m hw_sim.d2g_device``), or ``d2g://auto`` to find the board by its USB id 058B:0058 and its
-endpoint list. Options: ``period_ms`` (automatic trigger period, default Tavanti's 200 ms),
+endpoint list. Options: ``period_ms`` (automatic trigger period, default Tavanti's 200 ms; the
+front end's ``frame_period_s`` follows it),
 ``timeout_s`` (reply timeout), ``gap_s``, ``backoff_s``, ``backoff_max_s``, ``quiet_s``, ``baud``.
 
 Session (``reference/d2g-comlib.md``, "Minimal host session"): discover the endpoints, read the

@@ -8,6 +8,8 @@ import select
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from hal import comlib as cl
 from hal.comlib import Ep0, Rbas, Rfmc
@@ -232,3 +234,25 @@ def test_fault_schedule_syntax():
 
     with pytest.raises(argparse.ArgumentTypeError, match="KIND@FRAME"):
         _fault_spec("melt@3")
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    requests=st.lists(
+        st.tuples(
+            st.integers(0, 7),
+            st.one_of(st.sampled_from([0x00, 0x01, 0x02, 0x22, 0x30, 0x36, 0x40, 0x41]), st.integers(0, 255)),
+            st.binary(max_size=12),
+        ),
+        max_size=12,
+    )
+)
+def test_fuzz_firmware_answers_every_request_with_one_status(requests):
+    t = FakeTime()
+    fw = D2GFirmware(_zeros, clock=t.now, wait=t.wait)
+    for ep, msg_type, body in requests:
+        t.t += 0.013
+        out = fw.handle(cl.Payload(ep, bytes([msg_type]) + body))
+        msgs = cl.Decoder().feed(b"".join(out))
+        assert isinstance(msgs[-1], cl.Status) and msgs[-1].endpoint == ep
+        assert all(isinstance(m, cl.Payload) for m in msgs[:-1])
