@@ -505,8 +505,7 @@ class D2GSource(RadarSource):
                 raise cl.MalformedMessageError(
                     f"frame of {h.n_rx}x{h.n_chirps}x{h.n_samples}, configured {self._frontend.frame_shape}"
                 )
-        except ProtocolError as exc:
-            self.corrupted_frames += 1
+        except ProtocolError as exc:  # counted when its status arrives without a valid frame
             log.warning("dropping a malformed frame: %s", exc)
             return
         self._frame = (h, i, q)

@@ -489,6 +489,7 @@ class D2GEmulator:
         self._stalled = False
         self._garbage = b""
         self._truncate: int | None = None
+        self._corrupt = False
         self._running = False
         self._thread: threading.Thread | None = None
         self._wake_r, self._wake_w = -1, -1
@@ -552,6 +553,12 @@ class D2GEmulator:
         with self._cond:
             self._truncate = -1 if keep is None else keep
             self.faults_injected.append("truncate")
+
+    def corrupt_next_frame(self) -> None:
+        """Damage the header of the next frame (chirp count) inside an intact message: framing stays valid."""
+        with self._cond:
+            self._corrupt = True
+            self.faults_injected.append("corrupt")
 
     def stall(self) -> None:
         """Stop answering: requests are read and dropped until :meth:`recover`."""
@@ -708,6 +715,10 @@ class D2GEmulator:
             trunc = self._truncate
             out = bytearray(garbage)
             for r in replies:
+                is_frame = len(r) > 64 and r[0] == cl.PAYLOAD_START and r[4] == Rbas.FRAME_DATA
+                if self._corrupt and is_frame:
+                    r = r[:9] + bytes([r[9] ^ 0x01]) + r[10:]  # payload offset 5: num_chirps
+                    self._corrupt = False
                 if trunc is not None and len(r) > 64 and r[4] == Rbas.FRAME_DATA and r[0] == cl.PAYLOAD_START:
                     r = r[: (len(r) // 2 if trunc < 0 else trunc)]
                     trunc = None

@@ -230,6 +230,23 @@ def test_truncated_frame_loses_only_that_frame():
         assert src.corrupted_frames == 1 and src.stats.dropped_frames == 1 and src.stats.faults == 0
 
 
+def test_frame_with_a_damaged_header_is_dropped_and_counted_once():
+    clock = SteppedClock()
+    with D2GEmulator("tavanti-test1", seed=1, clock=clock) as emu, open_radar(_url(emu, FAST)) as src:
+        clock.advance(PERIOD_S * 1.01)
+        assert src.read_frame(timeout=5.0).seq == 0
+        emu.corrupt_next_frame()
+        clock.advance(PERIOD_S)
+        with concurrent.futures.ThreadPoolExecutor(1) as pool:
+            requests = emu.counters.requests
+            fut = pool.submit(src.read_frame, 5.0)
+            assert emu.wait_for(lambda: emu.counters.requests >= requests + 2, 5.0)
+            clock.advance(PERIOD_S)
+            f = fut.result(timeout=10)
+        assert f.seq == 2
+        assert src.corrupted_frames == 1 and src.stats.dropped_frames == 1 and src.stats.faults == 0
+
+
 def test_stalled_board_is_reconnected_after_it_recovers(caplog):
     caplog.set_level(logging.WARNING, logger="hal.d2g")
     with D2GEmulator("tavanti-test1", seed=1) as emu, open_radar(_url(emu, FAST)) as src:
