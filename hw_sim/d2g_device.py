@@ -29,6 +29,7 @@ starts the trigger once, frame number ``n`` is bit-identical to frame ``n`` of
 per acquisition whatever interval the host sets, so a short test interval replays the scene faster.
 
 Faults: :meth:`D2GEmulator.inject_garbage`, :meth:`~D2GEmulator.truncate_next_frame`,
+:meth:`~D2GEmulator.corrupt_next_frame`,
 :meth:`~D2GEmulator.stall` / :meth:`~D2GEmulator.recover`, :meth:`~D2GEmulator.disconnect` /
 :meth:`~D2GEmulator.reconnect` (the pty disappears and comes back behind the same path, with the
 firmware in its power-on state).
@@ -750,7 +751,7 @@ class D2GEmulator:
 
 def _fault_spec(text: str) -> tuple[str, int, float]:
     """``KIND@FRAME[:SECONDS]``, e.g. ``stall@100:3``."""
-    kinds = ("garbage", "truncate", "stall", "disconnect")
+    kinds = ("garbage", "truncate", "corrupt", "stall", "disconnect")
     kind, _, rest = text.partition("@")
     at, _, dur = rest.partition(":")
     if kind not in kinds or not at.isdigit():
@@ -783,7 +784,7 @@ def main(argv: list[str] | None = None) -> int:
         type=_fault_spec,
         action="append",
         default=[],
-        help="KIND@FRAME[:SECONDS]: inject garbage/truncate/stall/disconnect after FRAME served frames; "
+        help="KIND@FRAME[:SECONDS]: inject garbage/truncate/corrupt/stall/disconnect after FRAME served frames; "
         "stall and disconnect last SECONDS (default 2)",
     )
     p.add_argument("-v", "--verbose", action="store_true", help="log every fault and connection")
@@ -805,6 +806,8 @@ def main(argv: list[str] | None = None) -> int:
                     emu.inject_garbage(256, seed=at)
                 elif kind == "truncate":
                     emu.truncate_next_frame()
+                elif kind == "corrupt":
+                    emu.corrupt_next_frame()
                 elif kind == "stall":
                     emu.stall()
                     stop.wait(dur)
