@@ -313,20 +313,37 @@ class D2GSource(RadarSource):
         except cl.StatusError as exc:
             raise D2GConfigError(f"the board refused the configuration: {exc}") from exc
 
+    def _optional(self, what: str, step: Any) -> Any:
+        """Run an informational step; a board that does not know the request only costs a warning."""
+        try:
+            return step()
+        except (cl.InvalidPayloadError, cl.UnknownCommandError, cl.MalformedMessageError) as exc:
+            log.warning("%s not available: %s", what, exc)
+            return None
+
     def _configure_session(self) -> None:
         ep = self.endpoints[RBAS_TAG]
-        payloads, _ = self._exchange(0, cl.request(0, Ep0.QUERY_FW_INFO), "firmware info")
-        fw_msgs = [p for p in payloads if p.endpoint == 0 and p.msg_type == Ep0.QUERY_FW_INFO]
-        fw = cl.FirmwareInfo.parse(fw_msgs[-1].data) if fw_msgs else None
+
+        def firmware() -> cl.FirmwareInfo:
+            payloads, _ = self._exchange(0, cl.request(0, Ep0.QUERY_FW_INFO), "firmware info")
+            return self._reply(payloads, 0, Ep0.QUERY_FW_INFO, cl.FirmwareInfo.parse, "firmware info")
+
+        def device() -> cl.DeviceInfo:
+            payloads, _ = self._exchange(ep, cl.request(ep, Rbas.GET_DEVICE_INFO), "device info")
+            return self._reply(payloads, ep, Rbas.DEVICE_INFO, cl.DeviceInfo.parse, "device info")
+
+        def frame_format() -> cl.FrameFormat:
+            payloads, _ = self._exchange(ep, cl.request(ep, Rbas.GET_FRAME_FORMAT), "frame format")
+            return self._reply(payloads, ep, Rbas.FRAME_FORMAT, cl.FrameFormat.parse, "frame format")
+
+        fw = self._optional("firmware info", firmware)
         self.telemetry["firmware"] = fw
         self._exchange(ep, self._trigger_request(0), "stop trigger")
-        payloads, _ = self._exchange(ep, cl.request(ep, Rbas.GET_DEVICE_INFO), "device info")
-        info = self._reply(payloads, ep, Rbas.DEVICE_INFO, cl.DeviceInfo.parse, "device info")
+        info = self._optional("device info", device)
         self.telemetry["device"] = info
-        if info.n_rx < 1:
+        if info is not None and info.n_rx < 1:
             raise D2GConfigError(f"the board reports {info.n_rx} receive antennas")
-        payloads, _ = self._exchange(ep, cl.request(ep, Rbas.GET_FRAME_FORMAT), "frame format")
-        before = self._reply(payloads, ep, Rbas.FRAME_FORMAT, cl.FrameFormat.parse, "frame format")
+        before = self._optional("frame format", frame_format)
         fm = self.endpoints.get(RFMC_TAG)
         if fm is not None:
             payloads, _ = self._exchange(fm, cl.request(fm, Rfmc.GET_CONFIGURATION), "FMCW configuration")
@@ -336,32 +353,42 @@ class D2GSource(RadarSource):
                 self._exchange(fm, cl.encode_payload(fm, ramp.encode()), "set FMCW direction")
             self.telemetry["fmcw"] = ramp
             self._check_ramp(ramp)
-        payloads, _ = self._exchange(ep, cl.encode_payload(ep, self.frame_format.encode()), "set frame format")
-        min_us = self._get_u32(ep, Rbas.GET_MIN_INTERVAL, Rbas.MIN_INTERVAL, "minimum interval")
-        chirp_ns = self._get_u32(ep, Rbas.GET_CHIRP_DURATION, Rbas.CHIRP_DURATION, "chirp duration")
+        self.telemetry.pop("min_interval_us", None)
+        self._exchange(ep, cl.encode_payload(ep, self.frame_format.encode()), "set frame format")
+        announced = self.telemetry.get("min_interval_us")  # from the announcements after SET_FRAME_FORMAT
+        min_us = self._optional(
+            "minimum interval", lambda: self._get_u32(ep, Rbas.GET_MIN_INTERVAL, Rbas.MIN_INTERVAL, "minimum interval")
+        )
+        min_us = announced if min_us is None else min_us
+        chirp_ns = self._optional(
+            "chirp duration", lambda: self._get_u32(ep, Rbas.GET_CHIRP_DURATION, Rbas.CHIRP_DURATION, "chirp duration")
+        )
         self.telemetry.update(min_interval_us=min_us, chirp_duration_ns=chirp_ns, frame_format=self.frame_format)
         seg = self._frontend.waveform.segments[0]
-        if abs(chirp_ns * 1e-9 - seg.ramp_s) > 1e-6:
+        if chirp_ns is not None and abs(chirp_ns * 1e-9 - seg.ramp_s) > 1e-6:
             log.warning(
                 "board chirp duration %.3f ms differs from the front end's %.3f ms", chirp_ns / 1e6, seg.ramp_s * 1e3
             )
         period_us = int(round(self.period_s * 1e6))
-        if min_us > period_us:
+        if min_us is not None and min_us > period_us:
             raise D2GConfigError(
                 f"the board needs at least {min_us / 1e3:.1f} ms per frame; "
                 f"period_ms={self.period_s * 1e3:g} is too short"
             )
-        self._exchange(ep, self._trigger_request(period_us), "start trigger")
+        try:
+            self._exchange(ep, self._trigger_request(period_us), "start trigger")
+        except cl.FrameIntervalError as exc:
+            raise D2GConfigError(f"period_ms={self.period_s * 1e3:g} is below the board's minimum: {exc}") from exc
         log.info(
-            "Distance2Go on %s: firmware %s, %s; format %s (was %s); min interval %.1f ms, chirp %.3f ms; "
+            "Distance2Go on %s: firmware %s, %s; format %s (was %s); min interval %s ms, chirp %s ms; "
             "trigger every %.1f ms",
             self.port_path or self.target,
             f"{fw.major}.{fw.minor}.{fw.build} {fw.description!r}" if fw else "?",
-            info.description or "no description",
+            (info.description or "no description") if info else "no device info",
             self.frame_format,
             before,
-            min_us / 1e3,
-            chirp_ns / 1e6,
+            "?" if min_us is None else f"{min_us / 1e3:.1f}",
+            "?" if chirp_ns is None else f"{chirp_ns / 1e6:.3f}",
             self.period_s * 1e3,
         )
         self._pending = False

@@ -148,6 +148,25 @@ def test_close_with_a_request_outstanding_leaves_the_board_idle():
             assert src.stats.faults == 0
 
 
+def test_informational_requests_are_optional():
+    """A firmware without firmware info, GET_FRAME_FORMAT, GET_MIN_INTERVAL and GET_CHIRP_DURATION still
+    works: the minimum interval then comes from the announcement after SET_FRAME_FORMAT."""
+    from hal.comlib import Ep0, Rbas
+
+    with D2GEmulator("tavanti-test1", seed=1) as emu:
+        rbas, ep0 = emu.fw._rbas, emu.fw._endpoint0
+        missing = (Rbas.GET_CHIRP_DURATION, Rbas.GET_FRAME_FORMAT, Rbas.GET_MIN_INTERVAL)
+        emu.fw._rbas = lambda d: ([], 0xFFFF) if d[0] in missing else rbas(d)
+        emu.fw._endpoint0 = lambda d: ([], 0xFFFF) if d[0] == Ep0.QUERY_FW_INFO else ep0(d)
+        with open_radar(_url(emu)) as src:
+            assert src.read_frame(timeout=5.0).i.shape == (1, 21, 64)
+            assert src.telemetry["min_interval_us"] == 47_100
+            assert src.telemetry["chirp_duration_ns"] is None and src.telemetry["firmware"] is None
+        emu.fw._rbas = lambda d: ([], 0x0005) if d[0] == Rbas.SET_AUTOMATIC_TRIGGER and d[1:] != bytes(4) else rbas(d)
+        with pytest.raises(D2GConfigError, match="below the board's minimum"):
+            open_radar(_url(emu)).open()
+
+
 def test_missing_port_raises_device_error(tmp_path):
     src = open_radar(f"d2g://{tmp_path}/ttyNONE")
     with pytest.raises(DeviceError, match="cannot open"):
