@@ -271,6 +271,7 @@ class D2GSource(RadarSource):
         for path in candidates:
             self._link = self._open_port(path)
             try:
+                self._drain_quiet()  # stale bytes of an earlier session
                 self._discover()
             except D2GConfigError as exc:  # another XMC board: try the next one
                 last = exc
@@ -290,9 +291,14 @@ class D2GSource(RadarSource):
             raise
 
     def _discover(self) -> None:
-        payloads, _ = self._exchange(0, cl.request(0, Ep0.QUERY_ENDPOINT_INFO), "query endpoints")
-        lists = [p for p in payloads if p.endpoint == 0 and p.msg_type == Ep0.QUERY_ENDPOINT_INFO]
-        if not lists:
+        for attempt in range(2):  # a stale status left on the line by an earlier session can end the first try
+            if attempt:
+                self._drain_quiet()
+            payloads, _ = self._exchange(0, cl.request(0, Ep0.QUERY_ENDPOINT_INFO), "query endpoints")
+            lists = [p for p in payloads if p.endpoint == 0 and p.msg_type == Ep0.QUERY_ENDPOINT_INFO]
+            if lists:
+                break
+        else:
             raise LinkStallError("the endpoint query got a status but no endpoint list")
         records = cl.parse_endpoint_list(lists[-1].data)
         self.endpoints = {r.tag: r.number for r in records}
@@ -449,6 +455,16 @@ class D2GSource(RadarSource):
                     return payloads, m
                 else:
                     log.debug("%s: ignoring a status from endpoint %d", what, m.endpoint)
+
+    def _drain_quiet(self) -> None:
+        """Discard input until the line has been quiet for ``gap_s`` (at most ``timeout_s``)."""
+        link = self._link
+        t_end = time.monotonic() + self.timeout_s
+        while time.monotonic() < t_end:
+            msgs = link.read(self.gap_s)
+            if not msgs and time.monotonic() - link.last_rx >= self.gap_s:
+                break
+        link.decoder.reset()
 
     def _drain_pending(self) -> None:
         """Let an outstanding frame request finish, so that its status is not taken for the next one."""
