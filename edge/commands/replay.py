@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 
 from edge.commands import run as run_cmd
-from edge.commands.common import add_config_arguments
 
 NAME = "replay"
 HELP = "run the pipeline on a recording, at recorded speed or as fast as possible"
@@ -23,12 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", help="recording (.npz)")
     p.add_argument("--speed", type=float, default=1.0, help="playback speed; 0 = as fast as possible (default 1)")
     p.add_argument("--loop", action="store_true", help="start again at the end")
-    p.add_argument("--frames", type=int, default=None, help="stop after N frames")
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
-    p.add_argument("--profile", choices=("auto", "lane", "surveillance", "minimal"), help="pipeline profile")
-    p.add_argument("--no-outputs", action="store_true", help="do not start Modbus/CAN outputs")
-    p.add_argument("--status-every", type=float, default=1.0, metavar="S", help="status line period, 0 = none")
-    add_config_arguments(p)
+    run_cmd.add_loop_arguments(p)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -28,6 +28,11 @@ examples:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--source", metavar="URL", help="radar source URL (default: source.url from the config)")
+    add_loop_arguments(p)
+
+
+def add_loop_arguments(p: argparse.ArgumentParser) -> None:
+    """Options shared by ``run`` and ``replay``."""
     p.add_argument("--frames", type=int, default=None, help="stop after N frames")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--profile", choices=("auto", "lane", "surveillance", "minimal"), help="pipeline profile (default: by board)")
