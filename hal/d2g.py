@@ -2,8 +2,9 @@
 
 ``d2g:///dev/serial/by-id/usb-Infineon_IFX_CDC-if00`` (or the emulator's pty from
 ``python -m hw_sim.d2g_device``), or ``d2g://auto`` to find the board by its USB id 058B:0058 and its
-endpoint list. Options: ``period_ms`` (automatic trigger period, default Tavanti's 200 ms),
-``timeout_s`` (reply timeout), ``gap_s``, ``backoff_s``, ``backoff_max_s``, ``baud``.
+endpoint list. Options: ``period_ms`` (automatic trigger period, default Tavanti's 200 ms; the
+front end's ``frame_period_s`` follows it),
+``timeout_s`` (reply timeout), ``gap_s``, ``backoff_s``, ``backoff_max_s``, ``quiet_s``, ``baud``.
 
 Session (``reference/d2g-comlib.md``, "Minimal host session"): discover the endpoints, read the
 firmware and device info, stop any running trigger, set the FMCW direction to up-only if it was
@@ -20,7 +21,9 @@ telemetry (:attr:`D2GSource.telemetry`), announcements of other settings are log
 Faults: an unplugged port, a read or write error, a reply that does not come within the frame period
 plus ``timeout_s``, or an error status are counted in ``stats.faults``; the port is closed and reopened
 with exponential back-off (``backoff_s`` doubling up to ``backoff_max_s``, on the injectable clock),
-the session is configured again and frames resume (``stats.reconnects``). While that happens
+the session is configured again and frames resume (``stats.reconnects``). After a framing error from
+endpoint 0 the board ignores input until its line has been quiet for its timeout (10 s on the sibling
+firmware), so the host then stays silent for ``quiet_s`` before it tries again. While that happens
 ``read_frame`` times out like any source without a frame; it never raises a transient fault into the
 frame loop. A board that refuses the configuration (wrong format, interval below its minimum, no radar
 base endpoint) raises :class:`D2GConfigError`.
@@ -82,8 +85,7 @@ class _Link:
     def send(self, data: bytes) -> None:
         try:
             self.port.write(data)
-            self.port.flush()
-        except Exception as exc:  # noqa: BLE001 - pyserial raises SerialException, OSError or SerialTimeoutException
+        except OSError as exc:  # pyserial's SerialException (and its timeout) derive from OSError
             raise LinkLostError(f"write to {self.port.port} failed: {exc}") from exc
 
     def read(self, max_wait_s: float) -> list[cl.Message]:
@@ -95,7 +97,7 @@ class _Link:
                 n = self.port.in_waiting
                 if n:
                     data += self.port.read(n)
-        except Exception as exc:  # noqa: BLE001 - see send()
+        except OSError as exc:  # see send()
             raise LinkLostError(f"read from {self.port.port} failed: {exc}") from exc
         if not data:
             return []
@@ -105,7 +107,7 @@ class _Link:
     def close(self) -> None:
         try:
             self.port.close()
-        except Exception as exc:  # noqa: BLE001 - closing a vanished port may fail; nothing to recover
+        except OSError as exc:  # closing a vanished port may fail; nothing to recover
             log.debug("closing %s: %s", getattr(self.port, "port", "?"), exc)
 
 
@@ -120,10 +122,15 @@ class D2GSource(RadarSource):
     scheme = "d2g"
     options = {
         "period_ms": Option(_positive, 200.0, "automatic trigger period in ms (Tavanti: 200)"),
-        "timeout_s": Option(_positive, 1.0, "reply timeout in s beyond the frame period before the board counts as stalled"),
+        "timeout_s": Option(
+            _positive, 1.0, "reply timeout in s beyond the frame period before the board counts as stalled"
+        ),
         "gap_s": Option(_positive, 0.05, "silence in s after which a partly received message is abandoned"),
         "backoff_s": Option(_positive, 0.1, "first reconnect back-off in s (doubles per failed attempt)"),
         "backoff_max_s": Option(_positive, 0.5, "longest reconnect back-off in s"),
+        "quiet_s": Option(
+            _positive, 10.5, "silence in s after the board reported a framing error (its input timeout is 10 s)"
+        ),
         "baud": Option(int, 115200, "serial baud rate (no effect on the USB virtual port)"),
     }
 
@@ -136,9 +143,9 @@ class D2GSource(RadarSource):
         gap_s: float = 0.05,
         backoff_s: float = 0.1,
         backoff_max_s: float = 0.5,
+        quiet_s: float = 10.5,
         baud: int = 115200,
         clock: Any = None,
-        serial_factory: Any = None,
     ) -> None:
         self._clock = clock or MonotonicClock()
         super().__init__(clock_ns=self._clock.now_ns)
@@ -150,8 +157,8 @@ class D2GSource(RadarSource):
         self.gap_s = gap_s
         self.backoff_s = backoff_s
         self.backoff_max_s = max(backoff_max_s, backoff_s)
+        self.quiet_s = quiet_s
         self.baud = baud
-        self._serial_factory = serial_factory
         base = d2g_frontend()
         wf = base.waveform
         if abs(wf.frame_period_s - self.period_s) > 1e-12:
@@ -159,7 +166,9 @@ class D2GSource(RadarSource):
                 wf = dataclasses.replace(wf, frame_period_s=self.period_s)
             except ValueError as exc:
                 cpi_ms = wf.segments[0].duration_s * 1e3
-                raise SourceUrlError(f"period_ms={period_ms:g} is shorter than the {cpi_ms:.1f} ms chirp burst: {exc}") from None
+                raise SourceUrlError(
+                    f"period_ms={period_ms:g} is shorter than the {cpi_ms:.1f} ms chirp burst: {exc}"
+                ) from None
         self._frontend = dataclasses.replace(base, waveform=wf) if wf is not base.waveform else base
         _, n_ch, n_s = self._frontend.frame_shape
         self.frame_format = cl.FrameFormat(n_s, n_ch, RX_MASK, SIGNAL_PART_IQ)
@@ -169,15 +178,16 @@ class D2GSource(RadarSource):
         self.endpoints: dict[str, int] = {}
         self.telemetry: dict[str, Any] = {}
         self.corrupted_frames = 0
+        self.failed_attempts = 0  # reconnect attempts that failed, over the source's life
         self.last_fault: str | None = None
+        self._last_host_seq: int | None = None
         self._reset_session_state()
 
     @classmethod
     def from_url(cls, url: SourceUrl, overrides: dict[str, Any]) -> "D2GSource":
         clock = overrides.pop("clock", None)
-        factory = overrides.pop("serial_factory", None)
         opts = resolve_options(url, cls.options, overrides)
-        return cls(url.target, clock=clock, serial_factory=factory, **opts)
+        return cls(url.target, clock=clock, **opts)
 
     @property
     def frontend(self) -> FrontendInfo:
@@ -234,22 +244,17 @@ class D2GSource(RadarSource):
         self._down = False
         self._attempt = 0
         self._next_attempt_ns = 0
-        if not hasattr(self, "_last_host_seq"):
-            self._last_host_seq: int | None = None
 
     def _open_port(self, path: str) -> _Link:
-        if self._serial_factory is not None:
-            port = self._serial_factory(path, self.baud)
-        else:
-            import serial
+        import serial  # lazy: only this backend needs pyserial
 
-            try:
-                port = serial.Serial(path, baudrate=self.baud, timeout=0, write_timeout=self.timeout_s, exclusive=True)
-            except (serial.SerialException, OSError, ValueError) as exc:
-                raise LinkLostError(f"cannot open {path}: {exc}") from exc
+        try:
+            port = serial.Serial(path, baudrate=self.baud, timeout=0, write_timeout=self.timeout_s, exclusive=True)
+        except (OSError, ValueError) as exc:
+            raise LinkLostError(f"cannot open {path}: {exc}") from exc
         try:
             port.reset_input_buffer()  # stale replies of an earlier session
-        except Exception as exc:  # noqa: BLE001 - pyserial: SerialException or OSError on a vanished port
+        except OSError as exc:  # pyserial's SerialException is an OSError
             port.close()
             raise LinkLostError(f"cannot flush {path}: {exc}") from exc
         return _Link(port, cl.Decoder(max_payload=max(self._frame_len, cl.DEVICE_RX_BUFFER)))
@@ -266,6 +271,7 @@ class D2GSource(RadarSource):
         for path in candidates:
             self._link = self._open_port(path)
             try:
+                self._drain_quiet()  # stale bytes of an earlier session
                 self._discover()
             except D2GConfigError as exc:  # another XMC board: try the next one
                 last = exc
@@ -285,9 +291,14 @@ class D2GSource(RadarSource):
             raise
 
     def _discover(self) -> None:
-        payloads, _ = self._exchange(0, cl.request(0, Ep0.QUERY_ENDPOINT_INFO), "query endpoints")
-        lists = [p for p in payloads if p.endpoint == 0 and p.msg_type == Ep0.QUERY_ENDPOINT_INFO]
-        if not lists:
+        for attempt in range(2):  # a stale status left on the line by an earlier session can end the first try
+            if attempt:
+                self._drain_quiet()
+            payloads, _ = self._exchange(0, cl.request(0, Ep0.QUERY_ENDPOINT_INFO), "query endpoints")
+            lists = [p for p in payloads if p.endpoint == 0 and p.msg_type == Ep0.QUERY_ENDPOINT_INFO]
+            if lists:
+                break
+        else:
             raise LinkStallError("the endpoint query got a status but no endpoint list")
         records = cl.parse_endpoint_list(lists[-1].data)
         self.endpoints = {r.tag: r.number for r in records}
@@ -308,19 +319,37 @@ class D2GSource(RadarSource):
         except cl.StatusError as exc:
             raise D2GConfigError(f"the board refused the configuration: {exc}") from exc
 
+    def _optional(self, what: str, step: Any) -> Any:
+        """Run an informational step; a board that does not know the request only costs a warning."""
+        try:
+            return step()
+        except (cl.InvalidPayloadError, cl.UnknownCommandError, cl.MalformedMessageError) as exc:
+            log.warning("%s not available: %s", what, exc)
+            return None
+
     def _configure_session(self) -> None:
         ep = self.endpoints[RBAS_TAG]
-        payloads, _ = self._exchange(0, cl.request(0, Ep0.QUERY_FW_INFO), "firmware info")
-        fw = next((cl.FirmwareInfo.parse(p.data) for p in payloads if p.endpoint == 0 and p.msg_type == Ep0.QUERY_FW_INFO), None)
+
+        def firmware() -> cl.FirmwareInfo:
+            payloads, _ = self._exchange(0, cl.request(0, Ep0.QUERY_FW_INFO), "firmware info")
+            return self._reply(payloads, 0, Ep0.QUERY_FW_INFO, cl.FirmwareInfo.parse, "firmware info")
+
+        def device() -> cl.DeviceInfo:
+            payloads, _ = self._exchange(ep, cl.request(ep, Rbas.GET_DEVICE_INFO), "device info")
+            return self._reply(payloads, ep, Rbas.DEVICE_INFO, cl.DeviceInfo.parse, "device info")
+
+        def frame_format() -> cl.FrameFormat:
+            payloads, _ = self._exchange(ep, cl.request(ep, Rbas.GET_FRAME_FORMAT), "frame format")
+            return self._reply(payloads, ep, Rbas.FRAME_FORMAT, cl.FrameFormat.parse, "frame format")
+
+        fw = self._optional("firmware info", firmware)
         self.telemetry["firmware"] = fw
         self._exchange(ep, self._trigger_request(0), "stop trigger")
-        payloads, _ = self._exchange(ep, cl.request(ep, Rbas.GET_DEVICE_INFO), "device info")
-        info = self._reply(payloads, ep, Rbas.DEVICE_INFO, cl.DeviceInfo.parse, "device info")
+        info = self._optional("device info", device)
         self.telemetry["device"] = info
-        if info.n_rx < 1:
+        if info is not None and info.n_rx < 1:
             raise D2GConfigError(f"the board reports {info.n_rx} receive antennas")
-        payloads, _ = self._exchange(ep, cl.request(ep, Rbas.GET_FRAME_FORMAT), "frame format")
-        before = self._reply(payloads, ep, Rbas.FRAME_FORMAT, cl.FrameFormat.parse, "frame format")
+        before = self._optional("frame format", frame_format)
         fm = self.endpoints.get(RFMC_TAG)
         if fm is not None:
             payloads, _ = self._exchange(fm, cl.request(fm, Rfmc.GET_CONFIGURATION), "FMCW configuration")
@@ -330,28 +359,42 @@ class D2GSource(RadarSource):
                 self._exchange(fm, cl.encode_payload(fm, ramp.encode()), "set FMCW direction")
             self.telemetry["fmcw"] = ramp
             self._check_ramp(ramp)
-        payloads, _ = self._exchange(ep, cl.encode_payload(ep, self.frame_format.encode()), "set frame format")
-        payloads, _ = self._exchange(ep, cl.request(ep, Rbas.GET_MIN_INTERVAL), "minimum interval")
-        min_us = self._reply(payloads, ep, Rbas.MIN_INTERVAL, lambda d: cl.parse_u32_reply(d, Rbas.MIN_INTERVAL, "minimum interval"), "minimum interval")
-        payloads, _ = self._exchange(ep, cl.request(ep, Rbas.GET_CHIRP_DURATION), "chirp duration")
-        chirp_ns = self._reply(payloads, ep, Rbas.CHIRP_DURATION, lambda d: cl.parse_u32_reply(d, Rbas.CHIRP_DURATION, "chirp duration"), "chirp duration")
+        self.telemetry.pop("min_interval_us", None)
+        self._exchange(ep, cl.encode_payload(ep, self.frame_format.encode()), "set frame format")
+        announced = self.telemetry.get("min_interval_us")  # from the announcements after SET_FRAME_FORMAT
+        min_us = self._optional(
+            "minimum interval", lambda: self._get_u32(ep, Rbas.GET_MIN_INTERVAL, Rbas.MIN_INTERVAL, "minimum interval")
+        )
+        min_us = announced if min_us is None else min_us
+        chirp_ns = self._optional(
+            "chirp duration", lambda: self._get_u32(ep, Rbas.GET_CHIRP_DURATION, Rbas.CHIRP_DURATION, "chirp duration")
+        )
         self.telemetry.update(min_interval_us=min_us, chirp_duration_ns=chirp_ns, frame_format=self.frame_format)
         seg = self._frontend.waveform.segments[0]
-        if abs(chirp_ns * 1e-9 - seg.ramp_s) > 1e-6:
-            log.warning("board chirp duration %.3f ms differs from the front end's %.3f ms", chirp_ns / 1e6, seg.ramp_s * 1e3)
+        if chirp_ns is not None and abs(chirp_ns * 1e-9 - seg.ramp_s) > 1e-6:
+            log.warning(
+                "board chirp duration %.3f ms differs from the front end's %.3f ms", chirp_ns / 1e6, seg.ramp_s * 1e3
+            )
         period_us = int(round(self.period_s * 1e6))
-        if min_us > period_us:
-            raise D2GConfigError(f"the board needs at least {min_us / 1e3:.1f} ms per frame; period_ms={self.period_s * 1e3:g} is too short")
-        self._exchange(ep, self._trigger_request(period_us), "start trigger")
+        if min_us is not None and min_us > period_us:
+            raise D2GConfigError(
+                f"the board needs at least {min_us / 1e3:.1f} ms per frame; "
+                f"period_ms={self.period_s * 1e3:g} is too short"
+            )
+        try:
+            self._exchange(ep, self._trigger_request(period_us), "start trigger")
+        except cl.FrameIntervalError as exc:
+            raise D2GConfigError(f"period_ms={self.period_s * 1e3:g} is below the board's minimum: {exc}") from exc
         log.info(
-            "Distance2Go on %s: firmware %s, %s; format %s (was %s); min interval %.1f ms, chirp %.3f ms; trigger every %.1f ms",
+            "Distance2Go on %s: firmware %s, %s; format %s (was %s); min interval %s ms, chirp %s ms; "
+            "trigger every %.1f ms",
             self.port_path or self.target,
             f"{fw.major}.{fw.minor}.{fw.build} {fw.description!r}" if fw else "?",
-            info.description or "no description",
+            (info.description or "no description") if info else "no device info",
             self.frame_format,
             before,
-            min_us / 1e3,
-            chirp_ns / 1e6,
+            "?" if min_us is None else f"{min_us / 1e3:.1f}",
+            "?" if chirp_ns is None else f"{chirp_ns / 1e6:.3f}",
             self.period_s * 1e3,
         )
         self._pending = False
@@ -366,6 +409,10 @@ class D2GSource(RadarSource):
                 "board ramp %d-%d kHz differs from the front end's %.0f-%.0f kHz",
                 ramp.lower_khz, ramp.upper_khz, lo_khz, lo_khz + bw_khz,
             )
+
+    def _get_u32(self, ep: int, request_type: int, reply_type: int, what: str) -> int:
+        payloads, _ = self._exchange(ep, cl.request(ep, request_type), what)
+        return self._reply(payloads, ep, reply_type, lambda d: cl.parse_u32_reply(d, reply_type, what), what)
 
     def _trigger_request(self, interval_us: int) -> bytes:
         ep = self.endpoints[RBAS_TAG]
@@ -409,6 +456,16 @@ class D2GSource(RadarSource):
                 else:
                     log.debug("%s: ignoring a status from endpoint %d", what, m.endpoint)
 
+    def _drain_quiet(self) -> None:
+        """Discard input until the line has been quiet for ``gap_s`` (at most ``timeout_s``)."""
+        link = self._link
+        t_end = time.monotonic() + self.timeout_s
+        while time.monotonic() < t_end:
+            msgs = link.read(self.gap_s)
+            if not msgs and time.monotonic() - link.last_rx >= self.gap_s:
+                break
+        link.decoder.reset()
+
     def _drain_pending(self) -> None:
         """Let an outstanding frame request finish, so that its status is not taken for the next one."""
         link = self._link
@@ -428,7 +485,8 @@ class D2GSource(RadarSource):
                     _, mc = cl.parse_sensor_reply(p.data, Rbas.TEMPERATURE, "temperature")
                     self.telemetry["temperature_c"] = mc / 1000.0
                 elif p.msg_type == Rbas.MIN_INTERVAL:
-                    self.telemetry["min_interval_us"] = cl.parse_u32_reply(p.data, Rbas.MIN_INTERVAL, "minimum interval")
+                    us = cl.parse_u32_reply(p.data, Rbas.MIN_INTERVAL, "minimum interval")
+                    self.telemetry["min_interval_us"] = us
             except ProtocolError as exc:
                 log.debug("skipping a malformed announcement: %s", exc)
                 return
@@ -490,8 +548,7 @@ class D2GSource(RadarSource):
                 raise cl.MalformedMessageError(
                     f"frame of {h.n_rx}x{h.n_chirps}x{h.n_samples}, configured {self._frontend.frame_shape}"
                 )
-        except ProtocolError as exc:
-            self.corrupted_frames += 1
+        except ProtocolError as exc:  # counted when its status arrives without a valid frame
             log.warning("dropping a malformed frame: %s", exc)
             return
         self._frame = (h, i, q)
@@ -522,9 +579,12 @@ class D2GSource(RadarSource):
         self._drop_link()
         self._down = True
         self._attempt = 0
-        self._next_attempt_ns = self._clock.now_ns() + int(self.backoff_s * 1e9)
+        self._next_attempt_ns = self._clock.now_ns() + int(self._delay_after(exc) * 1e9)
 
-    def _backoff_s(self) -> float:
+    def _delay_after(self, exc: Exception) -> float:
+        """Back-off before the next attempt; after a framing error the board must see a quiet line."""
+        if isinstance(exc, cl.FramingStatusError):
+            return self.quiet_s
         return min(self.backoff_max_s, self.backoff_s * 2.0 ** self._attempt)
 
     def _reconnect_step(self, t_end: float | None) -> bool:
@@ -549,7 +609,8 @@ class D2GSource(RadarSource):
         except (DeviceError, OSError) as exc:
             self._drop_link()
             self._attempt += 1
-            delay = self._backoff_s()
+            self.failed_attempts += 1
+            delay = self._delay_after(exc)
             log.info("reconnect attempt %d failed (%s); next in %.2f s", self._attempt, exc, delay)
             self._next_attempt_ns = self._clock.now_ns() + int(delay * 1e9)
             return False

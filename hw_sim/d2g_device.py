@@ -29,6 +29,7 @@ starts the trigger once, frame number ``n`` is bit-identical to frame ``n`` of
 per acquisition whatever interval the host sets, so a short test interval replays the scene faster.
 
 Faults: :meth:`D2GEmulator.inject_garbage`, :meth:`~D2GEmulator.truncate_next_frame`,
+:meth:`~D2GEmulator.corrupt_next_frame`,
 :meth:`~D2GEmulator.stall` / :meth:`~D2GEmulator.recover`, :meth:`~D2GEmulator.disconnect` /
 :meth:`~D2GEmulator.reconnect` (the pty disappears and comes back behind the same path, with the
 firmware in its power-on state).
@@ -440,7 +441,10 @@ class D2GEmulator:
     """The firmware above on a pseudo-terminal, served by a background thread.
 
     ``port`` is a stable symlink to the current pty slave. Fault injection methods are thread-safe
-    and may be called while a host is connected.
+    and may be called while a host is connected. ``quiet_s`` is the device's input timeout (quiet
+    line after a framing error or an incomplete message): 10 s on the sibling firmware, 0.5 s here
+    so that tests stay fast. ``clock`` (a :class:`SteppedClock`) makes the automatic trigger advance
+    only when a test says so; by default it runs on the host's monotonic time.
     """
 
     def __init__(
@@ -486,6 +490,7 @@ class D2GEmulator:
         self._stalled = False
         self._garbage = b""
         self._truncate: int | None = None
+        self._corrupt = False
         self._running = False
         self._thread: threading.Thread | None = None
         self._wake_r, self._wake_w = -1, -1
@@ -549,6 +554,12 @@ class D2GEmulator:
         with self._cond:
             self._truncate = -1 if keep is None else keep
             self.faults_injected.append("truncate")
+
+    def corrupt_next_frame(self) -> None:
+        """Damage the header of the next frame (chirp count) inside an intact message: framing stays valid."""
+        with self._cond:
+            self._corrupt = True
+            self.faults_injected.append("corrupt")
 
     def stall(self) -> None:
         """Stop answering: requests are read and dropped until :meth:`recover`."""
@@ -705,6 +716,10 @@ class D2GEmulator:
             trunc = self._truncate
             out = bytearray(garbage)
             for r in replies:
+                is_frame = len(r) > 64 and r[0] == cl.PAYLOAD_START and r[4] == Rbas.FRAME_DATA
+                if self._corrupt and is_frame:
+                    r = r[:9] + bytes([r[9] ^ 0x01]) + r[10:]  # payload offset 5: num_chirps
+                    self._corrupt = False
                 if trunc is not None and len(r) > 64 and r[4] == Rbas.FRAME_DATA and r[0] == cl.PAYLOAD_START:
                     r = r[: (len(r) // 2 if trunc < 0 else trunc)]
                     trunc = None
@@ -736,7 +751,7 @@ class D2GEmulator:
 
 def _fault_spec(text: str) -> tuple[str, int, float]:
     """``KIND@FRAME[:SECONDS]``, e.g. ``stall@100:3``."""
-    kinds = ("garbage", "truncate", "stall", "disconnect")
+    kinds = ("garbage", "truncate", "corrupt", "stall", "disconnect")
     kind, _, rest = text.partition("@")
     at, _, dur = rest.partition(":")
     if kind not in kinds or not at.isdigit():
@@ -769,7 +784,7 @@ def main(argv: list[str] | None = None) -> int:
         type=_fault_spec,
         action="append",
         default=[],
-        help="KIND@FRAME[:SECONDS]: inject garbage/truncate/stall/disconnect after FRAME served frames; "
+        help="KIND@FRAME[:SECONDS]: inject garbage/truncate/corrupt/stall/disconnect after FRAME served frames; "
         "stall and disconnect last SECONDS (default 2)",
     )
     p.add_argument("-v", "--verbose", action="store_true", help="log every fault and connection")
@@ -791,6 +806,8 @@ def main(argv: list[str] | None = None) -> int:
                     emu.inject_garbage(256, seed=at)
                 elif kind == "truncate":
                     emu.truncate_next_frame()
+                elif kind == "corrupt":
+                    emu.corrupt_next_frame()
                 elif kind == "stall":
                     emu.stall()
                     stop.wait(dur)

@@ -27,7 +27,7 @@ import can
 from edge.outputs.can_db import BY_NAME, INTERFACE_VERSION, build_database
 from edge.outputs.config import CanConfig, FailsafeConfig
 from edge.outputs.registers import CLASS_COUNT_GROUPS, Links, ars_class, firmware_version
-from edge.outputs.state import ALARM_NONE, ALARM_PIPELINE, ALARM_STOPPED, OutputState, Snapshot, finite
+from edge.outputs.state import ALARM_NONE, ALARM_PIPELINE, ALARM_STOPPED, OutputState, Snapshot
 from edge.types import FrameResult, LoopHealth, TrackState
 
 log = logging.getLogger(__name__)
@@ -39,13 +39,16 @@ RATE_MARGIN = 0.9  # sustained rate, so that rate + burst stays within the limit
 MASK_OBJECTS, MASK_QUALITY, MASK_EXTENDED, MASK_LANE_STATS, MASK_PRESENCE = 1, 2, 4, 8, 16
 
 
-def _clamp_phys(sig, value: float | None, na: bool) -> float:
-    """Physical value inside the signal's raw range (n/a = all-ones raw)."""
-    top = sig.raw_max() - (1 if na else 0)
-    if value is None:
-        return sig.phys(sig.raw_max()) if na else sig.phys(0)
-    raw = round((value - sig.offset) / sig.scale)
-    return sig.phys(min(max(raw, 0), top))
+def _clamp_phys(sig, value: Any) -> float:
+    """Physical value inside the signal's raw range; None/NaN = n/a (all-ones raw) or the raw minimum."""
+    v = None if value is None else float(value)  # numpy scalars too
+    if v is None or not math.isfinite(v):
+        return sig.phys(sig.raw_max()) if sig.na else sig.phys(0)
+    raw = round((v - sig.offset) / sig.scale)
+    return sig.phys(min(max(raw, 0), sig.raw_max() - (1 if sig.na else 0)))
+
+
+_SPECS = {m.name: {s.name: s for s in m.signals} for m in BY_NAME.values()}
 
 
 def dyn_prop(t: TrackState) -> int:
@@ -86,10 +89,12 @@ class CanEncoder:
         self.mask = mask
 
     def _encode(self, name: str, values: dict[str, Any]) -> can.Message:
-        spec = {s.name: s for s in BY_NAME[name].signals}
-        phys = {k: _clamp_phys(spec[k], finite(v) if v is not None else None, spec[k].na) for k, v in values.items()}
+        spec = _SPECS[name]
+        phys = {k: _clamp_phys(spec[k], v) for k, v in values.items()}
         m = self._m[name]
-        return can.Message(arbitration_id=m.frame_id, data=m.encode(phys), is_extended_id=False, dlc=m.length)
+        # values are clamped to the raw range above, so cantools' own range check (strict) is redundant
+        return can.Message(arbitration_id=m.frame_id, data=m.encode(phys, strict=False), is_extended_id=False,
+                           dlc=m.length)
 
     def _refill(self, now_ns: int) -> None:
         if self._t_ns is not None:
@@ -247,8 +252,11 @@ class CanSink:
             self._process(snap, health.t_ns)
             return
         if len(self._queue) >= self.cfg.queue_frames:
-            self._queue.popleft()
-            self.faults["queue_overflow"] += 1
+            try:
+                self._queue.popleft()
+                self.faults["queue_overflow"] += 1
+            except IndexError:  # the sender thread emptied it meanwhile
+                pass
         self._queue.append(snap)
         self._wake.set()
 
@@ -267,8 +275,11 @@ class CanSink:
         while not self._stop.is_set():
             self._wake.wait(0.25)
             self._wake.clear()
-            while self._queue:
-                snap = self._queue.popleft()
+            while True:
+                try:
+                    snap = self._queue.popleft()
+                except IndexError:
+                    break
                 self._process(snap, self._clock_ns())
             self.watchdog()
 

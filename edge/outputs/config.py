@@ -57,8 +57,9 @@ class ModbusConfig:
         default=0, metadata={"doc": "device serial number reported in registers 7-8", "min": 0, "max": 0xFFFFFFFE}
     )
     start_timeout_s: float = field(
-        default=5.0, metadata={"unit": "s", "doc": "give up starting the servers after this long",
-                               "min": 0.1, "max": 60.0},
+        default=30.0, metadata={"unit": "s", "doc": "give up starting the server process after this long "
+                                                    "(about 0.5 s on a PC, several s on a slow board)",
+                                "min": 0.1, "max": 300.0},
     )
 
 

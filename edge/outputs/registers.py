@@ -169,11 +169,11 @@ LANE = Block("lane", LANE_BASE, LANE_STRIDE, (
 TRACK_HDR = Block("track_header", TRACK_HEADER, 8, (
     _r("frame_counter", 0, "u16", "frame counter of the table (low byte repeated in every record)", na=False),
     _r("valid_records", 1, "u16", "records in use (packed from record 0, nearest first)", na=False),
-    _r("frame_time_ms", 2, "u32", "loop time of that frame since the outputs started", "ms", na=False),
+    _r("frame_time_ms", 2, "u32", "loop time of that frame since the outputs started (wraps after 49.7 days)", "ms", na=False),
 ), "Read-only. Offsets 4-7 reserved. One 125-register read from 992 returns the header and 14 records.")
 
 TRACK = Block("track", TRACK_BASE, TRACK_RECORD, (
-    _r("track_id", 0, "u16", "track id (0xFFFF = empty slot); the same id as CAN Obj_ID"),
+    _r("track_id", 0, "u16", "track id (0xFFFF = empty slot); CAN Obj_ID is its low byte"),
     _r("class_lane", 1, "u8x2", "low byte class (ARS408 enum: 0 point/unknown, 1 car, 2 truck/bus, 3 pedestrian, "
        "4 motorcycle, 5 bicycle), high byte lane 1..N (0xFF none)"),
     _r("x", 2, "s16", "lateral position, right +", "m", 0.1),
@@ -226,6 +226,8 @@ CONFIG = Block("configuration", CONFIG_BASE, CONFIG_SIZE, (
    writable=True)
 
 BLOCKS: tuple[Block, ...] = (IDENT, STATUS, LANE, TRACK_HDR, TRACK, CONFIG)
+_LANE_OFF = {r.name: r.offset for r in LANE.regs}
+_LANE_IDX = {r.name: i for i, r in enumerate(LANE.regs)}
 IMAGE_SIZE = CONFIG_BASE + CONFIG_SIZE
 #: address ranges (start, end exclusive) the servers answer; everything else is exception 02
 READ_RANGES: tuple[tuple[int, int], ...] = ((0, LANE_BASE + MAX_LANES * LANE_STRIDE), (TRACK_HEADER, TRACK_BASE + TRACK_SLOTS * TRACK_RECORD), (CONFIG_BASE, CONFIG_BASE + CONFIG_SIZE))
@@ -367,10 +369,18 @@ class ImageBuilder:
             a = LANE_BASE + k * LANE_STRIDE
             base[a: a + LANE_STRIDE] = na_lane
         self._empty_track = _na_block(TRACK)
+        for k in range(TRACK_SLOTS):
+            a = TRACK_BASE + k * TRACK_RECORD
+            base[a: a + TRACK_RECORD] = self._empty_track
+        _write(base, STATUS, 0, {r.name: None for r in STATUS.regs if r.na})  # n/a until the first update
         if config_words is not None:
             base[CONFIG_BASE: CONFIG_BASE + CONFIG_SIZE] = config_words
         self._base = base
-        self._lane_cache: list[tuple[Any, list[int]] | None] = [None] * MAX_LANES
+        self._lane_cache: list[tuple[Any, bool, list[int]] | None] = [None] * MAX_LANES
+
+    def initial_image(self) -> list[int]:
+        """What the servers show before the first update: identification, everything else n/a or 0."""
+        return list(self._base)
 
     def build(self, snap: Snapshot, config_words: list[int] | None = None) -> list[int]:
         if self._t0_ns is None:
@@ -416,10 +426,9 @@ class ImageBuilder:
     def _lane(self, img: list[int], k: int, snap: Snapshot, now_unix: float) -> None:
         ls = snap.lane_stats[k]
         stale = snap.stats_stale[k]
-        key = (id(ls), stale)
         cached = self._lane_cache[k]
         a = LANE_BASE + k * LANE_STRIDE
-        if cached is None or cached[0] != key:
+        if cached is None or cached[0] is not ls or cached[1] != stale:
             vals: dict[str, Any] = {"lane_id": (k + 1) | (0xFF << 8), "cumulative_volume": snap.cumulative_volume[k],
                                     "wrong_way_count": snap.wrong_way_count[k] & 0xFFFF}
             if ls is None:
@@ -443,20 +452,21 @@ class ImageBuilder:
             for reg in LANE.regs:
                 if reg.name in vals:
                     words[reg.offset: reg.offset + reg.size] = encode(reg, vals[reg.name])
-            self._lane_cache[k] = (key, words)
+            self._lane_cache[k] = (ls, stale, words)
         else:
-            words = cached[1]
+            words = cached[2]
         img[a: a + LANE_STRIDE] = words
         live = (snap.presence[k] << LV_PRESENCE) | (snap.wrong_way[k] << LV_WRONG_WAY) | (stale << LV_STALE)
         live |= (snap.failsafe_presence << LV_FAILSAFE) | ((ls is None) << LV_NO_INTERVAL)
-        img[a + 10] = live
-        cv = snap.cumulative_volume[k]
-        img[a + 11], img[a + 12] = (cv >> 16) & 0xFFFF, cv & 0xFFFF
+        img[a + _LANE_OFF["live"]] = live
+        o = a + _LANE_OFF["cumulative_volume"]
+        img[o: o + 2] = encode(LANE.regs[_LANE_IDX["cumulative_volume"]], snap.cumulative_volume[k])
+        img[a + _LANE_OFF["wrong_way_count"]] = snap.wrong_way_count[k] & 0xFFFF
 
     def _tracks(self, img: list[int], snap: Snapshot) -> None:
         fc = max(snap.frame_seq, 0) & 0xFFFF
         tracks = sorted(snap.tracks, key=lambda t: t.range_m)[:TRACK_SLOTS]
-        t_ms = (snap.frame_t_ns - self._t0_ns) // 1_000_000 if snap.frame_t_ns >= self._t0_ns else 0
+        t_ms = ((snap.frame_t_ns - self._t0_ns) // 1_000_000 if snap.frame_t_ns >= self._t0_ns else 0) & 0xFFFFFFFF
         _write(img, TRACK_HDR, 0, {"frame_counter": fc, "valid_records": len(tracks), "frame_time_ms": t_ms})
         tear = fc & 0xFF
         for k in range(TRACK_SLOTS):

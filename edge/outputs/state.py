@@ -6,15 +6,22 @@ the last closed interval per lane, and the fail-safe decision. The fail-safe rul
 Modbus and CAN: no frame result for ``stale_after_s`` (measured on the loop's monotonic clock), or
 the loop reporting ``stalled``/``fault``/``stopped``, is a fault; then tracks are cleared, presence
 goes to the configured fail-safe state and lane statistics are flagged stale.
+
+Lane numbering: ``LaneStats.lane``, ``TrackState.lane`` and ``TrafficEvent.lane`` are lane indices
+0..n_lanes-1, the same index as ``FrameResult.presence``; Modbus and CAN publish them as lane
+numbers 1..N.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from edge.outputs.config import FailsafeConfig
-from edge.types import FrameResult, LaneStats, LoopHealth, TrackState
+
+if TYPE_CHECKING:  # no numpy import in the Modbus server process
+    from edge.types import FrameResult, LaneStats, LoopHealth, TrackState
 
 MAX_LANES = 8
 
@@ -59,7 +66,6 @@ class Snapshot:
     profile: str
     n_lanes: int
     failsafe_presence: bool = False
-    lane_fault: tuple[bool, ...] = field(default=())
 
 
 class OutputState:
@@ -156,7 +162,6 @@ class OutputState:
         else:
             presence, tracks = self._presence, self._tracks
         stale = []
-        lane_fault = []
         for k in range(self.n_lanes):
             ls = self._lane_stats[k]
             if ls is None:
@@ -164,7 +169,6 @@ class OutputState:
             else:
                 limit = self.cfg.stats_stale_intervals * max(float(ls.interval_s), 1e-3) * 1e9
                 stale.append(fault or (now - self._lane_closed_ns[k]) > limit)
-            lane_fault.append(fault)
         snap = Snapshot(
             t_ns=now, health=health, frame_seq=self._last_frame_seq, frame_t_ns=self._last_frame_t,
             new_frame=new_frame, tracks=tracks, presence=presence, wrong_way=wrong,
@@ -172,7 +176,7 @@ class OutputState:
             interval_end_ns=self._interval_end_ns, stats_stale=tuple(stale), cumulative_volume=tuple(self._cum),
             wrong_way_count=tuple(self._ww), fault=fault, alarm=alarm,
             frame_rate_hz=0.0 if fault else self._rate_hz, profile=self._profile, n_lanes=self.n_lanes,
-            failsafe_presence=fault and self.cfg.presence != "hold", lane_fault=tuple(lane_fault),
+            failsafe_presence=fault and self.cfg.presence != "hold",
         )
         if store:
             self._last = snap

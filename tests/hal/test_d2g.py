@@ -148,6 +148,25 @@ def test_close_with_a_request_outstanding_leaves_the_board_idle():
             assert src.stats.faults == 0
 
 
+def test_informational_requests_are_optional():
+    """A firmware without firmware info, GET_FRAME_FORMAT, GET_MIN_INTERVAL and GET_CHIRP_DURATION still
+    works: the minimum interval then comes from the announcement after SET_FRAME_FORMAT."""
+    from hal.comlib import Ep0, Rbas
+
+    with D2GEmulator("tavanti-test1", seed=1) as emu:
+        rbas, ep0 = emu.fw._rbas, emu.fw._endpoint0
+        missing = (Rbas.GET_CHIRP_DURATION, Rbas.GET_FRAME_FORMAT, Rbas.GET_MIN_INTERVAL)
+        emu.fw._rbas = lambda d: ([], 0xFFFF) if d[0] in missing else rbas(d)
+        emu.fw._endpoint0 = lambda d: ([], 0xFFFF) if d[0] == Ep0.QUERY_FW_INFO else ep0(d)
+        with open_radar(_url(emu)) as src:
+            assert src.read_frame(timeout=5.0).i.shape == (1, 21, 64)
+            assert src.telemetry["min_interval_us"] == 47_100
+            assert src.telemetry["chirp_duration_ns"] is None and src.telemetry["firmware"] is None
+        emu.fw._rbas = lambda d: ([], 0x0005) if d[0] == Rbas.SET_AUTOMATIC_TRIGGER and d[1:] != bytes(4) else rbas(d)
+        with pytest.raises(D2GConfigError, match="below the board's minimum"):
+            open_radar(_url(emu)).open()
+
+
 def test_missing_port_raises_device_error(tmp_path):
     src = open_radar(f"d2g://{tmp_path}/ttyNONE")
     with pytest.raises(DeviceError, match="cannot open"):
@@ -223,6 +242,23 @@ def test_truncated_frame_loses_only_that_frame():
             requests = emu.counters.requests
             fut = pool.submit(src.read_frame, 5.0)
             # frame 1 goes out truncated; the host abandons it and asks again (the second request waits)
+            assert emu.wait_for(lambda: emu.counters.requests >= requests + 2, 5.0)
+            clock.advance(PERIOD_S)
+            f = fut.result(timeout=10)
+        assert f.seq == 2
+        assert src.corrupted_frames == 1 and src.stats.dropped_frames == 1 and src.stats.faults == 0
+
+
+def test_frame_with_a_damaged_header_is_dropped_and_counted_once():
+    clock = SteppedClock()
+    with D2GEmulator("tavanti-test1", seed=1, clock=clock) as emu, open_radar(_url(emu, FAST)) as src:
+        clock.advance(PERIOD_S * 1.01)
+        assert src.read_frame(timeout=5.0).seq == 0
+        emu.corrupt_next_frame()
+        clock.advance(PERIOD_S)
+        with concurrent.futures.ThreadPoolExecutor(1) as pool:
+            requests = emu.counters.requests
+            fut = pool.submit(src.read_frame, 5.0)
             assert emu.wait_for(lambda: emu.counters.requests >= requests + 2, 5.0)
             clock.advance(PERIOD_S)
             f = fut.result(timeout=10)
@@ -364,3 +400,23 @@ def test_pipeline_results_on_d2g_match_sim_d2g():
             assert np.array_equal(getattr(a.detections, name), getattr(b.detections, name), equal_nan=True)
         assert a.tracks == b.tracks and a.classifications == b.classifications and a.events == b.events
     assert sum(len(r.detections) for r in got) > 0
+
+
+def test_framing_error_from_the_board_makes_the_host_wait_for_a_quiet_line():
+    import os
+
+    with D2GEmulator("tavanti-test1", seed=1, quiet_s=0.3) as emu:
+        with open_radar(_url(emu, FAST + "&quiet_s=0.4")) as src:
+            before = src.read_frame(timeout=5.0)
+            fd = os.open(emu.port, os.O_WRONLY | os.O_NOCTTY)  # another writer on the line: a stray byte
+            try:
+                os.write(fd, b"\x77")
+            finally:
+                os.close(fd)
+            assert emu.wait_for(lambda: emu.counters.framing_errors == 1, 5.0)
+            _wait_for_fault(src)
+            assert "BadStartByteError" in src.last_fault
+            after = _read_until(src, lambda f: True)
+            assert after.seq > before.seq
+            assert src.stats.faults == 1 and src.stats.reconnects == 1
+            assert src.failed_attempts == 0  # the host did not talk into the board's quiet time

@@ -8,6 +8,8 @@ import select
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from hal import comlib as cl
 from hal.comlib import Ep0, Rbas, Rfmc
@@ -196,3 +198,61 @@ def test_raw_exchange_over_the_pty():
             assert emu.counters.framing_errors == 1
         finally:
             os.close(fd)
+
+
+def test_command_line_prints_the_port_and_serves_until_terminated():
+    import subprocess
+    import sys
+
+    from hal import open_radar
+
+    env = dict(os.environ, PYTHONPATH=os.getcwd())
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hw_sim.d2g_device", "--scenario", "tavanti-test1", "--seed", "2"],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        port = proc.stdout.readline().strip()
+        assert port.endswith("ttyD2G") and os.path.islink(port)
+        with open_radar(f"d2g://{port}?period_ms=50") as src:
+            f = src.read_frame(timeout=10.0)
+        assert f.i.shape == (1, 21, 64)
+    finally:
+        proc.terminate()
+        assert proc.wait(timeout=10) == 0
+    assert not os.path.lexists(port)  # the emulator cleaned up its port link
+
+
+def test_fault_schedule_syntax():
+    from hw_sim.d2g_device import _fault_spec
+
+    assert _fault_spec("stall@40:3") == ("stall", 40, 3.0)
+    assert _fault_spec("garbage@5") == ("garbage", 5, 2.0)
+    import argparse
+
+    with pytest.raises(argparse.ArgumentTypeError, match="KIND@FRAME"):
+        _fault_spec("melt@3")
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    requests=st.lists(
+        st.tuples(
+            st.integers(0, 7),
+            st.one_of(st.sampled_from([0x00, 0x01, 0x02, 0x22, 0x30, 0x36, 0x40, 0x41]), st.integers(0, 255)),
+            st.binary(max_size=12),
+        ),
+        max_size=12,
+    )
+)
+def test_fuzz_firmware_answers_every_request_with_one_status(requests):
+    t = FakeTime()
+    fw = D2GFirmware(_zeros, clock=t.now, wait=t.wait)
+    for ep, msg_type, body in requests:
+        t.t += 0.013
+        out = fw.handle(cl.Payload(ep, bytes([msg_type]) + body))
+        msgs = cl.Decoder().feed(b"".join(out))
+        assert isinstance(msgs[-1], cl.Status) and msgs[-1].endpoint == ep
+        assert all(isinstance(m, cl.Payload) for m in msgs[:-1])

@@ -66,13 +66,15 @@ def test_d2g_doppler_phase_step_across_chirps(v_r):
     sc = _scene((0.0, r, 0.0), (0.0, v_r, 0.0), rcs=1.0)
     board = D2G_BOARD
     seg = board.frontend.waveform.segments[0]
-    lam = board.frontend.waveform.wavelength_m
     x = synthesize_if(board, sc.pose, sc.scatterers(0.0), 0.0, np.random.default_rng(0), noise=False, leakage=False)
     spec = np.fft.fft(x[0], axis=-1)  # (21, 64)
     k = int(np.argmax(np.abs(spec[0, :32])))
     step = np.angle(spec[1:, k] * np.conj(spec[:-1, k]))
-    # phase of f_start*tau advances 2 pi f_s 2 v_r T_PRI / c per chirp (+ the beat's own change)
-    expected = np.angle(np.exp(2j * np.pi * (2 * v_r / lam) * seg.pri_s))
+    # the phase at the range peak is the chirp's mean IF phase; it advances by 2 pi f_mid 2 v_r T_PRI / c
+    # per chirp, with f_mid the transmit frequency at the middle of the sampling window
+    t_mid = seg.sample_offset_s + (seg.n_samples - 1) / seg.sample_rate_hz / 2
+    f_mid = seg.f_start_hz + seg.slope_hz_per_s * t_mid
+    expected = np.angle(np.exp(2j * np.pi * f_mid * 2 * v_r * seg.pri_s / C))
     np.testing.assert_allclose(step, expected, atol=0.02)
 
 

@@ -334,3 +334,20 @@ def test_runtime_settings_from_modbus_apply_on_the_next_cycle(cap):
         assert cap.drain() == []
     finally:
         sink.close()
+
+
+def test_numpy_scalars_and_nan_from_pipelines_encode():
+    from edge.outputs.state import OutputState
+    from edge.types import LaneStats
+
+    enc = CanEncoder(CanConfig(interface="virtual"))
+    st = OutputState(1)
+    ls = LaneStats(0, 0, np.float32(60.0), 4, np.int64(3), np.float32(12.5), np.float32("nan"), np.float32(88.0),
+                   np.float32("nan"), np.float32(1.5), {"car": np.int64(3)})
+    frames = enc.frames(st.update(make_result(1, T0, presence=(True,), lane_stats=(ls,)), health(T0, T0)), T0)
+    db = can_db.load_shipped()
+    a = next(db.decode_message(m.arbitration_id, m.data) for m in frames if m.arbitration_id == 0x690)
+    b = next(db.decode_message(m.arbitration_id, m.data) for m in frames if m.arbitration_id == 0x691)
+    assert a["LaneA_Volume"] == 3 and a["LaneA_Occupancy"] == pytest.approx(12.5)
+    assert a["LaneA_MeanSpeed"] == pytest.approx(6553.5) and b["LaneB_Headway"] == pytest.approx(655.35)  # n/a
+    assert b["LaneB_SpeedP85"] == pytest.approx(88.0) and b["LaneB_Gap"] == pytest.approx(1.5)

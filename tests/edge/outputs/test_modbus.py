@@ -27,6 +27,7 @@ def _publish(sink, seq, rng, lanes=False):
     res = make_result(seq, t, make_tracks(rng, 20), (True, False, False, True),
                       make_lane_stats(rng, N_LANES, seq=seq % 256, t_ns=t) if lanes else ())
     sink.publish(res, health(t, t, frames=seq))
+    assert sink.sync()  # the server process has the image (publish itself never waits)
     return res
 
 
@@ -57,7 +58,7 @@ def test_tcp_reads_back_the_image(tcp_sink, client):
                 n = min(125, b - start)
                 rr = fc_read(start, count=n, device_id=1)
                 assert not rr.isError(), rr
-                expect = img[start: start + n] if start < R.CONFIG_BASE else tcp_sink.config.staged[start - R.CONFIG_BASE:][:n]
+                expect = img[start: start + n] if start < R.CONFIG_BASE else tcp_sink.config_words[start - R.CONFIG_BASE:][:n]
                 assert rr.registers == expect
     rr = client.read_input_registers(2, count=2, device_id=1)
     assert client.convert_from_registers(rr.registers, client.DATATYPE.UINT32) == 0x12345678  # word_order="big"
@@ -86,7 +87,7 @@ def test_writes_are_refused_when_config_writes_are_off(client):
 @pytest.mark.parametrize("tcp_sink", [True], indirect=True)
 def test_config_writes_validated_staged_and_applied(tcp_sink, client):
     applied = []
-    tcp_sink._user_on_apply = lambda before, after: applied.append(after)
+    tcp_sink.on_apply = lambda before, after: applied.append(after)
     base = R.CONFIG_BASE
     gen0 = client.read_holding_registers(R.GENERATION_ADDR, count=1, device_id=1).registers[0]
     # telemetry stays read-only; reserved and read-only config registers are illegal addresses
@@ -99,7 +100,7 @@ def test_config_writes_validated_staged_and_applied(tcp_sink, client):
     # staged: visible on read, not applied
     assert not client.write_registers(base + 4, [120, 2], device_id=1).isError()
     assert client.read_holding_registers(base + 4, count=2, device_id=1).registers == [120, 2]
-    assert tcp_sink.config.applied[4] != 120 and not applied
+    assert tcp_sink.sync() and not applied
     # inconsistent lane geometry (x_min >= x_max) is rejected by the apply command
     assert not client.write_registers(base + 10, [50, 0xFFF6, 0, 1], device_id=1).isError()  # 5.0 m .. -1.0 m
     rr = client.write_register(R.CMD_ADDR, R.CMD_APPLY, device_id=1)
@@ -110,9 +111,9 @@ def test_config_writes_validated_staged_and_applied(tcp_sink, client):
     assert not client.write_register(R.CMD_ADDR, R.CMD_APPLY, device_id=1).isError()
     regs = client.read_holding_registers(R.CMD_ADDR, count=3, device_id=1).registers
     assert regs == [0, gen0 + 1, 1]
+    assert tcp_sink.sync()  # the applied configuration reaches the frame loop's side
     assert applied and applied[-1]["interval_s"] == 120 and applied[-1]["lane1_x_min"] == pytest.approx(-3.0)
     assert tcp_sink.unit_id == 17 and tcp_sink.links.config_pending_restart  # interval needs a restart
-    st = client.read_input_registers(R.STATUS.base, count=1, device_id=1).registers[0]
     _publish(tcp_sink, 1, np.random.default_rng(0))
     st = client.read_input_registers(R.STATUS.base, count=1, device_id=1).registers[0]
     assert st & (1 << R.ST_CONFIG_PENDING) and st & (1 << R.ST_WRITES_ENABLED)
@@ -139,6 +140,10 @@ def test_single_reads_never_tear_and_the_tear_byte_detects_split_reads(tcp_sink,
                       for i, tr in enumerate(make_tracks(rng, 14))]
             tcp_sink.publish(make_result(seq, t, tracks, (False,) * N_LANES), health(t, t, frames=seq))
 
+    # publish frame 0 first: the writer thread may start after our first read
+    tcp_sink.publish(make_result(0, T0, [tr.__class__(**{**tr.__dict__, "x_m": 0.0}) for tr in make_tracks(rng, 14)],
+                                 (False,) * N_LANES), health(T0, T0))
+    assert tcp_sink.sync()
     th = threading.Thread(target=writer)
     th.start()
     try:
@@ -210,7 +215,8 @@ def test_rtu_reads_and_silence_for_other_unit_ids(rtu_sink):
         assert c.read_holding_registers(400, count=1, device_id=3).exception_code == 2
         with pytest.raises(ModbusIOException):
             c.read_holding_registers(0, count=1, device_id=4)  # another device on the line: no reply
-        assert sink.counters["ignored_unit_id"] >= 1
+        sink.request_counters()
+        assert sink.sync() and sink.server_counters["ignored_unit_id"] >= 1
         assert c.read_input_registers(0, count=1, device_id=3).registers == [R.MAP_MAGIC]  # line still in sync
     finally:
         c.close()
@@ -268,3 +274,55 @@ def test_start_fails_cleanly_for_a_missing_serial_port_and_a_busy_tcp_port(tcp_s
     host, port = tcp_sink.tcp_address
     with pytest.raises(OutputError):
         ModbusSink(ModbusConfig(tcp_host=host, tcp_port=port), 1).start()
+
+
+def test_unit_id_applied_over_tcp_moves_the_rtu_device(pty_pair):
+    cfg = ModbusConfig(tcp_port=0, rtu_port=pty_pair[0], unit_id=3, rtu_parity="N", config_writes=True)
+    sink = ModbusSink(cfg, N_LANES).start()
+    tcp = ModbusTcpClient(*sink.tcp_address[:1], port=sink.tcp_address[1], timeout=2, retries=0)
+    rtu = ModbusSerialClient(pty_pair[1], baudrate=19200, parity="N", bytesize=8, stopbits=1, timeout=0.5, retries=0)
+    try:
+        assert tcp.connect() and rtu.connect()
+        _publish(sink, 5, np.random.default_rng(9))
+        assert rtu.read_input_registers(0, count=1, device_id=3).registers == [R.MAP_MAGIC]
+        assert not tcp.write_register(R.CONFIG_BASE, 9, device_id=1).isError()
+        assert rtu.read_input_registers(0, count=1, device_id=3).registers == [R.MAP_MAGIC]  # staged only
+        assert not tcp.write_register(R.CMD_ADDR, R.CMD_APPLY, device_id=1).isError()
+        assert rtu.read_input_registers(0, count=1, device_id=9).registers == [R.MAP_MAGIC]
+        with pytest.raises(ModbusIOException):
+            rtu.read_input_registers(0, count=1, device_id=3)  # the old id is now another device's
+        assert sink.sync() and sink.unit_id == 9 and not sink.links.config_pending_restart
+    finally:
+        tcp.close()
+        rtu.close()
+        sink.close()
+
+
+def test_a_dead_server_process_is_restarted_with_the_applied_configuration():
+    # no watchdog thread racing with the explicit check_server calls below
+    sink = ModbusSink(ModbusConfig(tcp_port=0, config_writes=True), N_LANES, watchdog_period_s=3600.0).start()
+    try:
+        host, port = sink.tcp_address
+        c = ModbusTcpClient(host, port=port, timeout=2, retries=0)
+        assert c.connect()
+        assert not c.write_register(R.CONFIG_BASE + 4, 300, device_id=1).isError()
+        assert not c.write_register(R.CMD_ADDR, R.CMD_APPLY, device_id=1).isError()
+        c.close()
+        assert sink.sync()
+        assert not sink.check_server(now_s=1e9)  # alive: nothing to do
+        sink._proc.kill()  # simulate a crash of the server process
+        sink._proc.join(10)
+        assert not sink.check_server(now_s=-1.0)  # inside the back-off window
+        assert sink.check_server(now_s=1e9) and sink.counters["server_restarts"] == 1
+        _publish(sink, 3, np.random.default_rng(1))
+        host, port = sink.tcp_address  # port 0 in tests: the OS may give another one
+        c = ModbusTcpClient(host, port=port, timeout=2, retries=0)
+        assert c.connect()
+        try:
+            assert c.read_input_registers(R.STATUS.base + 4, count=1, device_id=1).registers == [3]
+            assert c.read_holding_registers(R.CONFIG_BASE + 4, count=1, device_id=1).registers == [300]
+            assert c.read_holding_registers(R.GENERATION_ADDR, count=1, device_id=1).registers == [1]
+        finally:
+            c.close()
+    finally:
+        sink.close()

@@ -175,3 +175,42 @@ def test_builder_returns_a_new_list_every_time():
     a_copy = list(a)
     b.build(st_.update(make_result(2, T0 + PERIOD_NS), health(T0 + PERIOD_NS, T0 + PERIOD_NS)))
     assert a == a_copy  # the previous image is never modified in place (readers may hold it)
+
+
+def test_live_lane_words_update_every_frame_between_intervals():
+    rng = np.random.default_rng(3)
+    st_ = OutputState(2)
+    b = R.ImageBuilder(2, wall_clock=lambda: 0.0, temperature=lambda: None)
+    lanes = make_lane_stats(rng, 2, seq=1)
+    b.build(st_.update(make_result(1, T0, presence=(False, False), lane_stats=lanes), health(T0, T0)))
+    t = T0 + PERIOD_NS
+    img = b.build(st_.update(make_result(2, t, presence=(True, False), events=(wrong_way(3, 1, t),)), health(t, t)))
+    l0, l1 = _decode_instance(img, R.LANE, 0), _decode_instance(img, R.LANE, 1)
+    assert l0["live"] & 1 and not l1["live"] & 1
+    assert l1["live"] & (1 << R.LV_WRONG_WAY) and l1["wrong_way_count"] == 1 and l0["wrong_way_count"] == 0
+    assert l1["volume"] == lanes[1].volume  # the interval's statistics stay until the next one
+    t += PERIOD_NS
+    lanes2 = make_lane_stats(rng, 2, seq=2)
+    img = b.build(st_.update(make_result(3, t, presence=(False, False), lane_stats=lanes2), health(t, t)))
+    l1 = _decode_instance(img, R.LANE, 1)
+    assert l1["volume"] == lanes2[1].volume and l1["cumulative_volume"] == lanes[1].volume + lanes2[1].volume
+    assert l1["interval_seq"] == 2 and not l1["live"] & (1 << R.LV_WRONG_WAY)
+
+
+def test_numpy_scalars_from_pipelines_are_encoded():
+    from edge.types import LaneStats, TrackState
+
+    st_ = OutputState(1)
+    b = R.ImageBuilder(1, wall_clock=lambda: 0.0, temperature=lambda: None)
+    ls = LaneStats(0, 0, np.float32(60.0), np.int64(4), np.int64(3), np.float32(12.5), np.float32("nan"),
+                   np.float32(88.0), np.float32("nan"), np.float32(1.5), {"car": np.int64(3)})
+    tr = TrackState(np.int64(5), np.float32(1.25), np.float32(30.0), np.float32(0.0), np.float32(-20.0),
+                    np.float32(30.03), np.float32(-20.0), np.float32(0.04), 10, 9, lane=np.int64(0), cls="car",
+                    class_probability=np.float32(0.5))
+    img = b.build(st_.update(make_result(1, T0, (tr,), (True,), (ls,)), health(T0, T0)))
+    lane = _decode_instance(img, R.LANE, 0)
+    assert lane["volume"] == 3 and lane["occupancy"] == pytest.approx(12.5) and lane["mean_speed"] is None
+    assert lane["speed_p85"] == pytest.approx(88.0) and lane["headway"] is None and lane["count_car"] == 3
+    rec = _decode_instance(img, R.TRACK, 0)
+    assert rec["track_id"] == 5 and rec["class_lane"] == (1, 1) and rec["vy"] == pytest.approx(-20.0)
+    assert rec["x"] == pytest.approx(1.2, abs=0.11) and rec["prob_tear"] == (50, 1)
