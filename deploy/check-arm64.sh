@@ -8,7 +8,8 @@
 #   3. the radar-edge wheel built on the host + its dependencies downloaded for aarch64/cp311
 #   4. deploy/install.sh --wheels inside the chroot (offline pip, service user, config, udev, unit)
 #   5. radar-edge doctor (reported; no board, no HAT in a chroot), then N-frame replays of a simulated
-#      SIMO recording (lane profile) and a simulated Distance2Go recording (surveillance profile)
+#      SIMO recording (lane profile) and a simulated Distance2Go recording (surveillance profile), and
+#      a run as the service does it (installed configuration, outputs, recorder, service user)
 # Timings inside qemu say nothing about the Pi (emulation is 15-30x slower). Not part of the test
 # suite: it needs root, the network (debootstrap, pip download) and ~6 minutes.
 set -euo pipefail
@@ -141,5 +142,16 @@ replay() {  # scenario profile
 }
 replay highway4 lane
 replay tavanti-test1 surveillance
+
+# as the service runs it: the installed configuration (Modbus TCP, RTU and CAN configured but absent
+# in a chroot -- logged, never fatal -- and the event recorder on), as the service user
+log "service-like run: installed config, outputs and recorder on, as user radar-edge"
+if in_root setpriv --reuid=radar-edge --regid=radar-edge --init-groups env HOME=/var/lib/radar-edge \
+     $RE run --config /etc/radar-edge/radar-edge.toml --source "replay:///var/tmp/tavanti-test1.npz?speed=0" \
+     --frames "$FRAMES" --status-every 0 --set ops.recorder.trigger=tracks --set ops.recorder.min_free_mb=0; then
+  log "OK: service-like run; recordings: $(in_root sh -c 'ls /var/lib/radar-edge/recordings | wc -l')"
+else
+  log "FAILED: service-like run"; status=1
+fi
 log "done (status $status)"
 exit $status
