@@ -61,6 +61,7 @@ class LiveView:
         self._last_stats: dict[int, object] = {}
         self._events: collections.deque[str] = collections.deque(maxlen=6)
         self._started = False
+        self._t0_ns: int | None = None
 
     def publish(self, result: FrameResult | None, health: LoopHealth) -> None:
         self._health = health
@@ -69,11 +70,13 @@ class LiveView:
             for s in result.lane_stats:
                 self._volume[s.lane] += s.volume
                 self._last_stats[s.lane] = s
-            t = result.t_ns / 1e9
+            if self._t0_ns is None:
+                self._t0_ns = result.t_ns
+            t = (result.t_ns - self._t0_ns) / 1e9  # since the view started
             for e in result.events:
-                self._events.append(f"{t:10.1f} s  {e.kind:<16} track #{e.track_id}  lane {e.lane}")
+                self._events.append(f"{t:+9.1f} s  {e.kind:<16} track #{e.track_id}  lane {e.lane}")
             for c in result.classifications:
-                self._events.append(f"{t:10.1f} s  {c.cls:<16} track #{c.track_id}  {c.direction} "
+                self._events.append(f"{t:+9.1f} s  {c.cls:<16} track #{c.track_id}  {c.direction} "
                                     f"{c.mean_radial_speed_kmh:.1f} km/h  p={max(c.probabilities.values(), default=0):.2f}")
         now = self.clock_s()
         if now - self._last_draw < self.period_s:
@@ -102,7 +105,7 @@ class LiveView:
                      f"{'km/h':>7} {'class':<12} {'p':>5} {'age':>5}{RESET}")
         for s in tracks[: self.max_tracks]:
             mark = "" if s.confirmed else f"{DIM}"
-            lines.append(f"{mark}{s.track_id:>4} {_f(s.lane, 'd', 4)} {s.range_m:8.1f} {math.degrees(s.az_rad):7.1f} "
+            lines.append(f"{mark}{s.track_id:>4} {_f(s.lane, 'd', 4)} {s.range_m:8.1f} {_f(math.degrees(s.az_rad), '.1f', 7)} "
                          f"{s.x_m:7.1f} {s.y_m:7.1f} {s.speed_mps * 3.6:7.1f} {(s.cls or '-'):<12} "
                          f"{_f(s.class_probability, '.2f', 5)} {s.age_frames:5d}{RESET if mark else ''}")
         if len(tracks) > self.max_tracks:

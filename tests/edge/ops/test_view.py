@@ -59,8 +59,16 @@ def test_redraws_are_rate_limited_and_show_the_state():
     lanes = {r[0]: r for r in (ln.split() for ln in lines) if len(r) >= 3 and r[1] in ("occupied", "free")}
     assert lanes["0"][:3] == ["0", "occupied", "4"] and lanes["1"][:3] == ["1", "free", "0"]
     assert lanes["2"][:3] == ["2", "occupied", "3"]
-    assert any("wrong_way" in ln and "#3" in ln for ln in lines)
+    assert any("wrong_way" in ln and "#3" in ln and "+0.6 s" in ln for ln in lines)  # frame 60, 10 ms after frame 1
     assert any("human" in ln and "approaching" in ln for ln in lines)
+
+
+def test_unmeasured_azimuth_is_a_dash():
+    view = LiveView(io.StringIO(), clock_s=lambda: 0.0, color=False)
+    t = TrackState(2, 0.0, 11.2, 0.0, 0.6, 11.2, 0.6, float("nan"), 69, 60)
+    view.publish(FrameResult("surveillance", 1, 0, Detections.empty(), tracks=(t,)), _health(1))
+    (row,) = [ln for ln in view.render() if ln.strip().startswith("2 ")]
+    assert row.split()[:4] == ["2", "-", "11.2", "-"]
 
 
 def test_stall_is_shown_and_nothing_is_drawn_before_health():
