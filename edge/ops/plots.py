@@ -510,13 +510,15 @@ def plot_road(rep: Replayed, out: Path) -> Path:
     ax.set_ylabel("along the road y (m, from the radar)")
     notes = []
     if not xs:
-        notes.append(f"the {rep.profile} profile measures no azimuth: no detection positions")
+        notes.append(f"no azimuth in the {rep.profile} profile: no detection positions")
+        if tracks:
+            notes.append("tracks drawn on the boresight at their range")
     if not tracks:
         notes.append("no confirmed tracks")
     else:
         notes.append(f"{len(tracks)} confirmed track segments, ids shown for the {labelled} of "
                      f"at least {MIN_LABEL_FRAMES} frames")
-    ax.set_title(f"{rep.path.name}: road coordinates, {len(rec)} frames" + ("\n" + "; ".join(notes) if notes else ""),
+    ax.set_title(f"{rep.path.name}: road coordinates, {len(rec)} frames" + "".join("\n" + n for n in notes),
                  fontsize=10)
     if ax.get_legend_handles_labels()[0]:
         ax.legend(loc="lower right", fontsize=8)
