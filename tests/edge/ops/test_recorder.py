@@ -182,3 +182,22 @@ def test_recorder_section_is_registered():
     assert cfg["ops.recorder"].quota_mb == 64.0 and cfg["ops.recorder"].enabled
     with pytest.raises(ValueError):
         load_config(overrides={"ops.recorder.trigger": "sometimes"})
+
+
+def test_run_records_and_plot_reads_the_recording(tmp_path, capsys):
+    """End to end: `radar-edge run` with the recorder on writes a recording that `radar-edge plot` draws."""
+    pytest.importorskip("matplotlib")
+    from edge.cli import main
+
+    rec_dir = tmp_path / "recordings"
+    rc = main(["run", "--source", "sim://d2g?scenario=tavanti-test1&frames=12&realtime=0", "--frames", "12",
+               "--no-outputs", "--status-every", "0", "--set", "ops.recorder.enabled=true",
+               "--set", f"ops.recorder.directory={rec_dir}", "--set", "ops.recorder.trigger=always",
+               "--set", "ops.recorder.min_free_mb=0"])
+    assert rc == 0
+    (path,) = sorted(rec_dir.glob("*.npz"))
+    r = Recording(path)
+    assert len(r) == 12 and r.meta["source"].startswith("sim://d2g") and r.meta["trigger"] == ["always"]
+    capsys.readouterr()
+    assert main(["plot", str(path), "--out", str(tmp_path / "png"), "--figure", "range-time", "--profile", "minimal"]) == 0
+    assert (tmp_path / "png" / f"{path.stem}-range-time.png").stat().st_size > 10_000
