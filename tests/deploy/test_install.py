@@ -135,13 +135,22 @@ def test_uninstall_keeps_config_and_recordings_purge_removes_them(pi_root):
 def test_refuses_real_root_without_privileges_or_dry_run():
     import os
 
-    cmd = ["bash", str(INSTALL), "--no-apt"]
-    if os.geteuid() == 0:
-        if shutil.which("setpriv") is None:
-            pytest.skip("running as root without setpriv: cannot run the installer as an ordinary user")
-        cmd = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", *cmd]
-    p = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
-    assert p.returncode == 2 and "run as root" in p.stderr
+    import tempfile
+
+    script = INSTALL
+    cmd = ["bash", str(script), "--no-apt"]
+    with tempfile.TemporaryDirectory() as d:
+        if os.geteuid() == 0:
+            if shutil.which("setpriv") is None:
+                pytest.skip("running as root without setpriv: cannot run the installer as an ordinary user")
+            # a copy the unprivileged user can read wherever the checkout lives
+            os.chmod(d, 0o755)
+            script = Path(d) / "install.sh"
+            shutil.copy(INSTALL, script)
+            os.chmod(script, 0o644)
+            cmd = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", "bash", str(script), "--no-apt"]
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=60, cwd="/")
+    assert p.returncode == 2 and "run as root" in p.stderr, p.stderr
 
 
 def test_arm64_check_script_parses_and_explains_itself():
