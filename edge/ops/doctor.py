@@ -540,6 +540,25 @@ def check_recorder(sys_: System, cfg: Any) -> list[Check]:
     return [Check("recordings", "ok", detail)]
 
 
+def check_user(sys_: System) -> list[Check]:
+    """The service user exists and is in ``dialout`` (the group of the serial ports and the udev rule)."""
+    if str(sys_.root) != "/":
+        return [Check("service user", "skipped", "not checked inside --root")]
+    try:
+        pwd.getpwnam(SERVICE_USER)
+    except KeyError:
+        return [Check("service user", "warn", f"user {SERVICE_USER} does not exist", "sudo deploy/install.sh")]
+    try:
+        dialout = grp.getgrnam("dialout").gr_gid
+    except KeyError:
+        return [Check("service user", "skipped", "no dialout group on this system")]
+    who = System._access(SERVICE_USER)
+    if dialout not in who.gids:
+        return [Check("service user", "fail", f"{SERVICE_USER} is not in the dialout group: no access to serial ports",
+                      f"sudo usermod -aG dialout {SERVICE_USER} && sudo systemctl restart radar-edge")]
+    return [Check("service user", "ok", f"{SERVICE_USER} is in dialout")]
+
+
 def check_service(sys_: System) -> list[Check]:
     unit_path = "/etc/systemd/system/radar-edge.service"
     unit = sys_.read_text(unit_path)
@@ -574,6 +593,7 @@ def run_checks(sys_: System, config_path: str | None = None, overrides: dict[str
             checks.extend(_guard(fn))
     else:
         checks.append(Check("outputs", "skipped", "the configuration does not load"))
+    checks.extend(_guard(lambda: check_user(sys_)))
     checks.extend(_guard(lambda: check_service(sys_)))
     checks.extend(_guard(lambda: check_temperature(sys_)))
     checks.extend(_guard(lambda: check_clock(sys_)))

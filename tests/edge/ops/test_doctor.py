@@ -355,3 +355,28 @@ def test_service_state_from_systemctl(monkeypatch):
     answers["is-enabled"] = "disabled\n"
     (c,) = dr.check_service(s)
     assert c.status == "warn" and "enable --now" in c.fix
+
+
+def test_service_user_in_dialout(monkeypatch):
+    import grp
+    import pwd
+
+    (c,) = dr.check_user(FakeSystem("/tmp"))
+    assert c.status == "skipped"
+    users = {"radar-edge": pwd.struct_passwd(("radar-edge", "x", 999, 999, "", "/var/lib/radar-edge", "/usr/sbin/nologin"))}
+    groups = [grp.struct_group(("dialout", "x", 20, [])), grp.struct_group(("radar-edge", "x", 999, []))]
+
+    def getpwnam(name):
+        if name not in users:
+            raise KeyError(name)
+        return users[name]
+
+    monkeypatch.setattr(dr.pwd, "getpwnam", getpwnam)
+    monkeypatch.setattr(dr.grp, "getgrnam", lambda n: next(g for g in groups if g.gr_name == n))
+    monkeypatch.setattr(dr.grp, "getgrall", lambda: groups)
+    (c,) = dr.check_user(FakeSystem("/"))
+    assert c.status == "fail" and "usermod -aG dialout radar-edge" in c.fix
+    groups[0] = grp.struct_group(("dialout", "x", 20, ["radar-edge"]))
+    assert dr.check_user(FakeSystem("/"))[0].status == "ok"
+    users.clear()
+    assert dr.check_user(FakeSystem("/"))[0].status == "warn"
