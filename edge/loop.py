@@ -12,7 +12,10 @@ time. Three ways of keeping time:
   waited longer than a period before the loop got to it is stale and dropped. Frames the board made
   while the loop was busy are lost in the source's one-frame buffer and counted from the frame
   counter (``source.stats.dropped_frames``).
-* ``pace="none"``: offline (evaluation, benchmarks): every frame is processed, no deadlines.
+* ``pace="none"``: offline (evaluation, benchmarks, replay at speed 0): every frame is processed
+  as fast as possible, no deadlines.
+
+``pace="auto"`` picks ``source`` for sources that pace themselves and ``none`` for the others.
 
 Errors follow an explicit policy (``loop.error_policy``): a source fault either skips the frame,
 reconnects the source with exponential back-off, or stops the loop; a pipeline exception skips the
@@ -109,7 +112,9 @@ class FrameLoop:
         self.sinks = list(sinks)
         self.clock = clock or MonotonicClock()
         if pace == "auto":
-            pace = "source" if source.paces_itself else "loop"
+            # a source that does not pace itself is an offline one (replay at speed 0, simulation
+            # without real time): as fast as possible
+            pace = "source" if source.paces_itself else "none"
         if pace not in ("loop", "source", "none"):
             raise ValueError(f"pace must be 'loop', 'source', 'none' or 'auto', got {pace!r}")
         self.pace = pace

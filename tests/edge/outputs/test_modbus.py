@@ -34,7 +34,10 @@ def _publish(sink, seq, rng, lanes=False):
 @pytest.fixture
 def tcp_sink(request):
     writes = getattr(request, "param", False)
-    sink = ModbusSink(ModbusConfig(tcp_host="127.0.0.1", tcp_port=0, config_writes=writes), N_LANES).start()
+    # the tests publish on a fake timeline starting at T0: the watchdog must use the same clock, or
+    # it sees every published frame as ancient and faults the image while the tests read it
+    sink = ModbusSink(ModbusConfig(tcp_host="127.0.0.1", tcp_port=0, config_writes=writes), N_LANES,
+                      clock_ns=lambda: T0).start()
     yield sink
     sink.close()
 
@@ -161,7 +164,10 @@ def test_single_reads_never_tear_and_the_tear_byte_detects_split_reads(tcp_sink,
             rec = client.read_input_registers(R.TRACK_BASE, count=8, device_id=1).registers
             if rec[2] != hdr % 200:
                 split_mismatch += 1
-                assert rec[7] >> 8 != hdr & 0xFF
+                if rec[7] >> 8 == hdr & 0xFF:
+                    # an 8-bit tear byte cannot tell frames 256 apart (8.5 s at 30 Hz; this writer is
+                    # unthrottled): a match is only allowed when the record's frame is hdr + 256 k
+                    assert any((hdr + 256 * k) % 200 == rec[2] for k in range(1, 26)), (hdr, rec)
         assert len(seen_frames) > 1  # the writer really ran while we read
     finally:
         stop.set()
