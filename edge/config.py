@@ -81,6 +81,7 @@ SECTIONS: dict[str, str] = {
     "source": "edge.config:SourceConfig",
     "loop": "edge.config:LoopConfig",
     "pipeline.minimal": "edge.pipelines.minimal:MinimalConfig",
+    "track.pdaf": "edge.track.config:PdafConfig",
 }
 
 
