@@ -82,6 +82,7 @@ SECTIONS: dict[str, str] = {
     "loop": "edge.config:LoopConfig",
     "pipeline.minimal": "edge.pipelines.minimal:MinimalConfig",
     "track.pdaf": "edge.track.config:PdafConfig",
+    "traffic": "edge.traffic.config:TrafficConfig",
 }
 
 
