@@ -21,6 +21,10 @@ class PdafConfig:
     prob_gate: float = field(
         default=0.99, metadata={"doc": "P_G of eq. 17: probability the gate holds the true detection; sets gamma",
                                 "min": 0.5, "max": 0.99999})
+    init_exclusion_prob: float = field(
+        default=0.99999, metadata={"doc": "a detection inside this (wider) chi-square gate of an existing track "
+                                          "never seeds a new track: outliers of a tracked vehicle must not spawn "
+                                          "a duplicate", "min": 0.5, "max": 0.9999999})
     use_radial_speed: bool = field(
         default=True,
         metadata={"doc": "add the measured radial speed to the measurement (EKF row): separates vehicles at the "

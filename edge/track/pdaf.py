@@ -72,14 +72,19 @@ def association_weights(
     prob_detect: float,
     prob_gate: float,
     method: str = "pdaf",
+    allowed: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Association probabilities: ``beta`` (T, M), ``beta0`` (T,), ``gated`` (T, M) bool.
 
     Rows of ``beta`` plus ``beta0`` sum to 1. ``method`` is ``"pdaf"`` (eq. 18) or ``"jpda"``.
+    ``allowed`` (T, M) bool, optional, removes pairs before validation (e.g. tentative tracks may not
+    use detections a confirmed track validated).
     """
     t, m = inn.d2.shape
     n = inn.v.shape[2]
     gated = inn.d2 <= gamma
+    if allowed is not None:
+        gated &= allowed
     m_t = gated.sum(axis=1)
     b = 1.0 - prob_gate * prob_detect
     if m == 0 or t == 0:

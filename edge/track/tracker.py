@@ -167,12 +167,18 @@ class PdaAssociator:
     def __init__(self, cfg: PdafConfig) -> None:
         self.cfg = cfg
         self._gamma = {n: gate_threshold(cfg.prob_gate, n) for n in (2, 3)}
+        self.exclusion_gamma = {n: gate_threshold(max(cfg.init_exclusion_prob, cfg.prob_gate), n) for n in (2, 3)}
 
-    def associate(self, meas: Measurements, zh, h, pp, r):
+    def associate(self, meas: Measurements, zh, h, pp, r, confirmed: np.ndarray):
+        """Confirmed tracks validate first; tentative tracks only see detections no confirmed track
+        validated (a tentative track born from clutter next to a vehicle must not live off its points)."""
         inn = innovations(meas.z, zh, h, pp, r)
         n = meas.z.shape[1]
+        gamma = self._gamma[n]
+        taken = ((inn.d2 <= gamma) & confirmed[:, None]).any(axis=0)
+        allowed = confirmed[:, None] | ~taken[None, :]
         beta, beta0, gated = association_weights(
-            inn, self._gamma[n], self.cfg.prob_detect, self.cfg.prob_gate, self.cfg.association
+            inn, gamma, self.cfg.prob_detect, self.cfg.prob_gate, self.cfg.association, allowed
         )
         return inn, beta, beta0, gated
 
@@ -327,10 +333,10 @@ class PdafTracker:
         if len(tr):
             xp, pp = self.predictor.predict(tr, dt_s)
             zh, h, r = self.measurement_model.at(xp, meas.with_radial_speed)
-            inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r)
+            inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed)
             tr.x, tr.p = self.updater.update(xp, pp, h, inn, beta, beta0)
             hit = gated.any(axis=1)
-            used = gated.any(axis=0)
+            used = (inn.d2 <= self.associator.exclusion_gamma[meas.z.shape[1]]).any(axis=0)
             tr.age += 1
             tr.hits += hit
             tr.misses = np.where(hit, 0, tr.misses + 1).astype(np.int32)

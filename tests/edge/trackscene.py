@@ -55,8 +55,11 @@ def frames(
     clutter_per_frame: float = 0.0,
     clutter_box: tuple[float, float, float, float] = (-15.0, 15.0, 5.0, 250.0),
     frame_ns: int = FRAME_NS,
+    min_y_m: float = 3.0,
+    fov_deg: float = 20.0,
 ):
-    """Yield ``(t_ns, Detections, truth)`` with ``truth`` a list of (index, x, y, vx, vy) per active vehicle."""
+    """Yield ``(t_ns, Detections, truth)`` with ``truth`` a list of (index, x, y, vx, vy) per vehicle in view
+    (beyond ``min_y_m`` and within ``fov_deg`` of boresight)."""
     rng = np.random.default_rng(seed)
     az_sigma = np.radians(az_sigma_deg)
     for k in range(n_frames):
@@ -68,6 +71,8 @@ def frames(
                 continue
             x, y = v.position(t_s)
             vx, vy = v.velocity(t_s)
+            if y < min_y_m or abs(np.degrees(np.arctan2(x, y))) > fov_deg:
+                continue
             truth.append((i, x, y, vx, vy))
             if rng.random() > p_detect:
                 continue
