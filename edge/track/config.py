@@ -59,7 +59,8 @@ class PdafConfig:
     confirm_m: int = field(default=3, metadata={"doc": "M of the M-of-N confirmation", "min": 1, "max": 32})
     confirm_n: int = field(default=5, metadata={"doc": "N of the M-of-N confirmation (frames)", "min": 1, "max": 32})
     confirm_min_speed_mps: float = field(
-        default=1.0, metadata={"unit": "m/s", "doc": "a track confirms only once it has moved this fast: static "
+        default=1.0, metadata={"unit": "m/s", "doc": "a track confirms only once its speed minus two standard deviations "
+                                                     "exceeded this: static "
                                                      "clutter (guard rail, gantry) is held in unpublished tentative "
                                                      "tracks; a vehicle that stops later stays confirmed",
                                "min": 0.0, "max": 50.0})

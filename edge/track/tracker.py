@@ -79,9 +79,9 @@ class TrackTable:
     misses: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
     history: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.uint32))  # bit 0 = this frame hit
     confirmed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
-    max_speed_mps: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    moved: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # was ever surely moving
 
-    _COLUMNS = ("x", "p", "track_id", "age", "hits", "misses", "history", "confirmed", "max_speed_mps")
+    _COLUMNS = ("x", "p", "track_id", "age", "hits", "misses", "history", "confirmed", "moved")
 
     def __len__(self) -> int:
         return int(self.x.shape[0])
@@ -100,7 +100,7 @@ class TrackTable:
         self.misses = np.concatenate([self.misses, np.zeros(k, dtype=np.int32)])
         self.history = np.concatenate([self.history, np.ones(k, dtype=np.uint32)])
         self.confirmed = np.concatenate([self.confirmed, np.zeros(k, dtype=bool)])
-        self.max_speed_mps = np.concatenate([self.max_speed_mps, np.hypot(x[:, 2], x[:, 3])])
+        self.moved = np.concatenate([self.moved, np.zeros(k, dtype=bool)])
 
 
 @dataclass
@@ -246,7 +246,7 @@ class MofNInitiator:
         c = self.cfg
         recent = tracks.history & self._mask_n
         counts = np.array([int(v).bit_count() for v in recent], dtype=np.int32) if len(tracks) else recent
-        ready = ~tracks.confirmed & (counts >= c.confirm_m) & (tracks.max_speed_mps >= c.confirm_min_speed_mps)
+        ready = ~tracks.confirmed & (counts >= c.confirm_m) & tracks.moved
         for i in np.flatnonzero(ready):
             tid = ids.acquire()
             if tid is None:
@@ -341,7 +341,9 @@ class PdafTracker:
             tr.hits += hit
             tr.misses = np.where(hit, 0, tr.misses + 1).astype(np.int32)
             tr.history = ((tr.history << np.uint32(1)) | hit.astype(np.uint32)).astype(np.uint32)
-            tr.max_speed_mps = np.maximum(tr.max_speed_mps, np.hypot(tr.x[:, 2], tr.x[:, 3]))
+            # moving for sure: speed minus two standard deviations of its estimate above the minimum
+            sd_v = np.sqrt(0.5 * (tr.p[:, 2, 2] + tr.p[:, 3, 3]))
+            tr.moved |= np.hypot(tr.x[:, 2], tr.x[:, 3]) - 2.0 * sd_v >= cfg.confirm_min_speed_mps
             self.initiator.confirm(tr, self.ids)
             dead = self.deleter.delete(tr) | self.initiator.tentative_expired(tr)
             for tid in tr.track_id[dead & tr.confirmed]:
