@@ -236,3 +236,7 @@ def load_scenario_for_eval(name_or_path: str, events: int | None = None) -> Scen
     if name_or_path in EVENT_SCENARIOS:
         return EVENT_SCENARIOS[name_or_path](events=events)
     return load_scenario(name_or_path)
+
+
+# the road-traffic generators ([[vehicle]], [[traffic]], [[guardrail]], [[multipath]]) register themselves
+import hw_sim.traffic  # noqa: E402,F401  (import for its side effect, after GENERATORS exists)
