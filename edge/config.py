@@ -81,6 +81,7 @@ SECTIONS: dict[str, str] = {
     "source": "edge.config:SourceConfig",
     "loop": "edge.config:LoopConfig",
     "pipeline.minimal": "edge.pipelines.minimal:MinimalConfig",
+    "pipeline.lane": "edge.pipelines.lane:LaneConfig",
     "track.pdaf": "edge.track.config:PdafConfig",
     "traffic": "edge.traffic.config:TrafficConfig",
 }
