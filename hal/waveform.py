@@ -191,7 +191,7 @@ class RadarCharacteristics:
             ("max unambiguous range", f"{self.max_unambiguous_range_m:.1f} m"),
             (
                 "max radial speed",
-                f"±{self.max_radial_speed_mps:.2f} m/s (±{self.max_radial_speed_mps * 3.6:.1f} km/h)"
+                f"±{self.max_radial_speed_mps:.2f} m/s (±{self.max_radial_speed_mps * 3.6:.2f} km/h)"
                 f" [{self.speed_limit_basis}]",
             ),
             (
