@@ -134,3 +134,16 @@ def pair_beats(
     else:
         r_out = v_out = res = np.zeros(0)
     return Pairs(idx, r_out.astype(np.float32), v_out.astype(np.float32), res.astype(np.float32), n_cand, n_ghost)
+
+
+def nearest_of_clusters(range_m: np.ndarray, v_mps: np.ndarray, x_m: np.ndarray, *, length_m: float,
+                        speed_mps: float, lateral_m: float) -> np.ndarray:
+    """Keep mask ``(n,)``: drop a detection when another one lies at most ``length_m`` nearer in range,
+    within ``speed_mps`` in radial speed and ``lateral_m`` across -- the same vehicle seen further
+    along its body. An extended vehicle then yields its nearest face, the point that stays visible and
+    that the tracker follows (several detections of one body would pull a track between its faces).
+    """
+    r = range_m[:, None] - range_m[None, :]  # r[i, j] > 0: j nearer than i
+    same = (r > 0) & (r <= length_m) & (np.abs(v_mps[:, None] - v_mps[None, :]) <= speed_mps) & (
+        np.abs(x_m[:, None] - x_m[None, :]) <= lateral_m)
+    return ~same.any(axis=1)

@@ -27,7 +27,7 @@ import numpy as np
 from edge.dsp.angle import bartlett, steering_matrix
 from edge.dsp.cfar import os_cfar, os_cfar_scale, reference_index
 from edge.dsp.geometry import polar_to_ground
-from edge.dsp.pairing import PairingModel, pair_beats
+from edge.dsp.pairing import PairingModel, nearest_of_clusters, pair_beats
 from edge.dsp.peaks import interpolate_peak, local_maxima
 from edge.dsp.range_fft import make_window, range_fft, to_complex64
 from edge.pipeline import Pipeline, PipelineError, StageTimer
@@ -51,6 +51,10 @@ class LaneConfig:
     cfar_rank_fraction: float = field(default=0.75, metadata={
         "doc": "rank of the ordered statistic as a fraction of the reference cells (Rohling: 3/4)",
         "min": 0.05, "max": 1.0})
+    cfar_cap_db: float = field(default=12.0, metadata={
+        "unit": "dB", "doc": "the OS-CFAR noise estimate is capped at the segment's median power plus this: "
+               "an extended vehicle (or several) filling the reference window cannot mask itself",
+        "min": 0.0, "max": 100.0})
     min_range_m: float = field(default=5.0, metadata={
         "unit": "m", "doc": "nearest slant range reported (TX->RX leakage and the overpass itself are closer)",
         "min": 0.0, "max": 100.0})
@@ -79,6 +83,15 @@ class LaneConfig:
     target_height_m: float = field(default=0.5, metadata={
         "unit": "m", "doc": "height of the dominant vehicle scatterers (bumper) for the ground projection",
         "min": 0.0, "max": 5.0})
+    cluster_length_m: float = field(default=7.0, metadata={
+        "unit": "m", "doc": "detections at most this much farther than another one with the same radial speed and "
+               "lateral position are the same vehicle's body and dropped (0 = keep every detection)",
+        "min": 0.0, "max": 30.0})
+    cluster_speed_mps: float = field(default=0.6, metadata={
+        "unit": "m/s", "doc": "radial speed difference within which detections can be one vehicle", "min": 0.0, "max": 10.0})
+    cluster_lateral_m: float = field(default=1.5, metadata={
+        "unit": "m", "doc": "lateral difference within which detections can be one vehicle (half a lane)",
+        "min": 0.0, "max": 10.0})
     tracking: bool = field(default=True, metadata={
         "doc": "run the PDAF tracker and the traffic layer (off: detections only)"})
 
@@ -121,6 +134,7 @@ class LanePipeline(Pipeline):
         self._n_ref = 2 * cfg.cfar_train_cells
         self._rank = max(1, min(self._n_ref, int(round(cfg.cfar_rank_fraction * self._n_ref))))
         self.cfar_scale = os_cfar_scale(cfg.cfar_pfa, self._n_ref, self._rank, n_looks=n_rx)
+        self._cap = np.float32(10.0 ** (cfg.cfar_cap_db / 10.0))
         self._ref_index = reference_index(n, cfg.cfar_train_cells, cfg.cfar_guard_cells)
         self._model = PairingModel.from_waveform(wf)
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
@@ -153,7 +167,11 @@ class LanePipeline(Pipeline):
             spec = range_fft(iq, self.window)  # (rx, seg, bin) complex64
             power = (spec.real * spec.real + spec.imag * spec.imag).sum(axis=0)  # (seg, bin) float32
         with timer.stage("cfar"):
-            hit, thr, noise = os_cfar(power, self._ref_index, self._rank, self.cfar_scale)
+            _, _, noise = os_cfar(power, self._ref_index, self._rank, self.cfar_scale)
+            floor = np.partition(power, self.n_bins // 2, axis=-1)[:, self.n_bins // 2]  # median per segment
+            noise = np.minimum(noise, (floor * self._cap)[:, None])
+            thr = noise * np.float32(self.cfar_scale)
+            hit = power > thr
             peaks = local_maxima(power, hit & self._valid)
             freqs, bins = [], []
             for k in range(4):  # four segments
@@ -179,8 +197,12 @@ class LanePipeline(Pipeline):
                 az = snr_db = np.zeros(0, np.float32)
                 aspec = np.zeros((0, self._grid.size), np.float32)
             x, y = polar_to_ground(pairs.range_m, az, cfg.mounting_height_m, cfg.target_height_m)
-            det = Detections(pairs.range_m, pairs.radial_speed_mps, az, snr_db, x, y,
-                             {"pair_residual_hz": pairs.residual_hz})
+            keep = slice(None)
+            if cfg.cluster_length_m > 0 and n_det > 1:
+                keep = nearest_of_clusters(pairs.range_m, pairs.radial_speed_mps, x, length_m=cfg.cluster_length_m,
+                                           speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m)
+            det = Detections(pairs.range_m[keep], pairs.radial_speed_mps[keep], az[keep], snr_db[keep], x[keep],
+                             y[keep], {"pair_residual_hz": pairs.residual_hz[keep]})
         inter = {
             "power": power, "threshold": thr, "noise": noise, "peak_freqs_hz": freqs,
             "n_pair_candidates": pairs.n_candidates, "n_ghosts_rejected": pairs.n_ghosts,
