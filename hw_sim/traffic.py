@@ -45,7 +45,8 @@ TOML tables (units in names; lanes are indices into the scenario's ``[[lane]]`` 
     loss_db = 12.0               # the ghost's RCS is the vehicle's reduced by this
 
 Random vehicles get ids after the largest explicit id. Vehicles in one lane never overtake each other:
-a follower that would catch up inside the road section takes its leader's speed. Traffic is generated
+a follower that would catch up inside the road section takes its leader's speed (so platoons form behind slow
+vehicles, as on a road without overtaking, and the mean speed on the road is below ``speed_kmh_mean``). Traffic is generated
 from before ``t = 0`` so that the road is already populated when the scenario starts. A ghost is a
 :class:`hw_sim.scene.Target` of class ``clutter`` with no lane: a track on it is a false track.
 """
