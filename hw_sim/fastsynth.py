@@ -12,8 +12,9 @@ exponential per scatterer and sample instead of one per scatterer, *element* and
   ramp) use the delay averaged over the array.
 
 The only approximation is the per-element difference of the beat frequency, ``S (tau_m - tau_mean)``,
-below 2 Hz for the 1x4 SIMO array at 24 GHz (d = 1.5 lambda, 200 MHz / 5 ms): at most 0.01 cycle of
-phase at the end of a ramp (``tests/hw_sim/test_fastsynth.py`` bounds the difference to the reference).
+below 2 Hz for the 1x4 SIMO array at 24 GHz (d = 1.5 lambda, 200 MHz / 5 ms): it is applied as a
+constant phase at the middle of the sampling window, leaving a zero-mean phase ramp of at most
++-0.005 cycle across a ramp (``tests/hw_sim/test_traffic.py`` bounds the difference to the reference).
 The element sum is a matrix product ``(R, K) @ (K, N)``; phases of the ``(K, N)`` block are formed in
 float32 (|cycles| < 1000, so the error is below 1e-4 cycle) and evaluated with float32 ``cos``/``sin``; the
 complex product is four real matrix products.
@@ -72,11 +73,13 @@ def synthesize_if_fast(board, pose: RadarPose, scat: ScattererSet, t_frame_s: fl
             rd_tx = np.einsum("kcj,kj->kc", d_tx, vel) / r_tx
             rd_rx = np.einsum("krcj,kj->krc", d_rx, vel) / r_rx
             tau_dot = (rd_tx[:, None, :] + rd_rx) / c  # (K, R, C)
-            a = fs0 * tau - 0.5 * S * tau * tau + ph0[:, None, None]
-            a -= np.floor(a)
-            w = (amp[:, None, None] * np.exp(2j * np.pi * a)).astype(np.complex64)  # (K, R, C)
             tm = tau.mean(axis=1)  # (K, C)
             tdm = tau_dot.mean(axis=1)
+            # per-element beat offset S (tau_m - tau_mean), applied as its phase at mid-window so the
+            # residual is a zero-mean ramp (exact peak phase to first order)
+            a = fs0 * tau - 0.5 * S * tau * tau + ph0[:, None, None] + S * (tau - tm[:, None, :]) * t_n.mean()
+            a -= np.floor(a)
+            w = (amp[:, None, None] * np.exp(2j * np.pi * a)).astype(np.complex64)  # (K, R, C)
             b = (fs0 * tdm + S * tm - S * tm * tdm).astype(np.float32)
             q = (S * tdm - 0.5 * S * tdm * tdm).astype(np.float32)
             t32 = t_n.astype(np.float32)
