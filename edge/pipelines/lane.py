@@ -3,11 +3,13 @@
 Per frame (four chirp segments: fast up, fast down, slow up, slow down; 4 receive channels)::
 
     int16 I/Q -> complex64 -> windowed range FFT (every segment and channel)
+      -> static-clutter map subtracted (exponential average of the complex spectra)
       -> non-coherent integration over the channels -> OS-CFAR per segment -> local maxima,
          sub-bin interpolation -> signed beat frequencies
       -> four-segment pairing (edge.dsp.pairing): range at the frame start and radial speed,
          ghosts of wrong pairings rejected by the slow segments
-      -> Bartlett angle over the 4 channels (calibration vector divided out), the 4 segments as looks
+      -> Bartlett angle over the 4 channels (calibration vector divided out), the 4 segments as looks,
+         each normalised, a segment that disagrees with the others left out (edge.dsp.angle)
       -> ground-plane x/y (edge.dsp.geometry, eq. 16 for a raised radar)
       -> PDAF tracker (edge.track) -> lanes, statistics, events (edge.traffic)
 
@@ -24,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from edge.dsp.angle import bartlett, steering_matrix
+from edge.dsp.angle import bartlett_consensus, steering_matrix
 from edge.dsp.cfar import os_cfar, os_cfar_scale, reference_index
 from edge.dsp.geometry import polar_to_ground
 from edge.dsp.pairing import PairingModel, nearest_of_clusters, pair_beats
@@ -41,6 +43,11 @@ class LaneConfig:
 
     window: str = field(default="hann", metadata={
         "doc": "range window applied before every FFT", "choices": ("hann", "hamming", "blackman", "kaiser", "boxcar")})
+    clutter_map_time_s: float = field(default=20.0, metadata={
+        "unit": "s", "doc": "time constant of the static-clutter map: an exponential average of each channel's "
+               "complex spectrum subtracted before detection (guard rails, gantries, poles and the TX leakage "
+               "vanish; a vehicle standing much longer than this fades too); 0 = off",
+        "min": 0.0, "max": 3600.0})
     cfar_pfa: float = field(default=1e-6, metadata={
         "doc": "design false-alarm probability per cell of the OS-CFAR (sets the threshold scale)",
         "min": 1e-12, "max": 0.1})
@@ -72,6 +79,14 @@ class LaneConfig:
     angle_max_deg: float = field(default=19.0, metadata={
         "unit": "deg", "doc": "Bartlett grid half-width (unambiguous sector of d = 1.5 lambda: 19.47 deg)",
         "min": 1.0, "max": 90.0})
+    angle_outlier_deg: float = field(default=2.0, metadata={
+        "unit": "deg", "doc": "a segment whose own Bartlett maximum is farther than this from the median of the four "
+               "is left out of the angle estimate (another vehicle shares its bin); 90 = keep all",
+        "min": 0.1, "max": 90.0})
+    angle_min_agreeing: int = field(default=3, metadata={
+        "doc": "a pairing is kept only if at least this many of the four segments agree on its angle: the peaks "
+               "of a ghost pairing come from different vehicles and point in different directions",
+        "min": 1, "max": 4})
     calibration_gain: tuple[float, ...] = field(default=(1.0, 1.0, 1.0, 1.0), metadata={
         "doc": "per-channel amplitude of the receive paths (divided out before the angle estimate)",
         "min": 1e-3, "max": 1e3})
@@ -134,6 +149,9 @@ class LanePipeline(Pipeline):
         self._n_ref = 2 * cfg.cfar_train_cells
         self._rank = max(1, min(self._n_ref, int(round(cfg.cfar_rank_fraction * self._n_ref))))
         self.cfar_scale = os_cfar_scale(cfg.cfar_pfa, self._n_ref, self._rank, n_looks=n_rx)
+        period = wf.frame_period_s
+        self._alpha = np.float32(1.0 - math.exp(-period / cfg.clutter_map_time_s)) if cfg.clutter_map_time_s > 0 else 0.0
+        self._background = np.zeros(frontend.frame_shape, dtype=np.complex64)  # (rx, seg, bin) static-clutter map
         self._cap = np.float32(10.0 ** (cfg.cfar_cap_db / 10.0))
         self._ref_index = reference_index(n, cfg.cfar_train_cells, cfg.cfar_guard_cells)
         self._model = PairingModel.from_waveform(wf)
@@ -165,6 +183,11 @@ class LanePipeline(Pipeline):
             iq = to_complex64(frame, self._iq)
         with timer.stage("range_fft"):
             spec = range_fft(iq, self.window)  # (rx, seg, bin) complex64
+            if self._alpha > 0:
+                # the map starts empty and learns with the time constant: initialising it with the first
+                # frame would subtract that frame's vehicles and leave their negative images for minutes
+                self._background += self._alpha * (spec - self._background)
+                spec = spec - self._background
             power = (spec.real * spec.real + spec.imag * spec.imag).sum(axis=0)  # (seg, bin) float32
         with timer.stage("cfar"):
             _, _, noise = os_cfar(power, self._ref_index, self._rank, self.cfar_scale)
@@ -190,17 +213,19 @@ class LanePipeline(Pipeline):
                 pk = np.stack([bins[k][pairs.peak_index[:, k]] for k in range(4)], axis=1)  # (n, 4 seg) bins
                 snaps = spec[:, np.arange(4)[None, :], pk]  # (rx, n, seg)
                 snaps = snaps.transpose(1, 2, 0) * self._inv_cal  # (n, seg, rx)
-                az, aspec = bartlett(snaps, self._steer, self._grid)
+                az, aspec, kept = bartlett_consensus(snaps, self._steer, self._grid, math.radians(cfg.angle_outlier_deg))
                 p0 = power[0, pk[:, 0]]
                 snr_db = (10.0 * np.log10(p0 / np.maximum(noise[0, pk[:, 0]], np.float32(1e-30)))).astype(np.float32)
             else:
                 az = snr_db = np.zeros(0, np.float32)
                 aspec = np.zeros((0, self._grid.size), np.float32)
+                kept = np.zeros((0, 4), bool)
             x, y = polar_to_ground(pairs.range_m, az, cfg.mounting_height_m, cfg.target_height_m)
-            keep = slice(None)
-            if cfg.cluster_length_m > 0 and n_det > 1:
-                keep = nearest_of_clusters(pairs.range_m, pairs.radial_speed_mps, x, length_m=cfg.cluster_length_m,
-                                           speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m)
+            keep = np.flatnonzero(kept.sum(axis=1) >= cfg.angle_min_agreeing) if n_det else np.zeros(0, np.int64)
+            if cfg.cluster_length_m > 0 and keep.size > 1:
+                keep = keep[nearest_of_clusters(pairs.range_m[keep], pairs.radial_speed_mps[keep], x[keep],
+                                                length_m=cfg.cluster_length_m, speed_mps=cfg.cluster_speed_mps,
+                                                lateral_m=cfg.cluster_lateral_m)]
             det = Detections(pairs.range_m[keep], pairs.radial_speed_mps[keep], az[keep], snr_db[keep], x[keep],
                              y[keep], {"pair_residual_hz": pairs.residual_hz[keep]})
         inter = {
