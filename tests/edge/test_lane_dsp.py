@@ -184,3 +184,21 @@ def test_polar_to_ground_reduces_to_eq16_and_handles_height():
     r = math.sqrt(40**2 + 2**2 + 6.5**2)
     x, y = polar_to_ground(np.array([r]), np.array([math.asin(2 / r)]), 7.0, 0.5)
     assert x[0] == pytest.approx(2.0, abs=1e-4) and y[0] == pytest.approx(40.0, abs=1e-3)
+
+
+def test_bartlett_consensus_drops_a_contaminated_segment():
+    """One of four segments also holds a 10 dB stronger vehicle at another angle: the plain Bartlett sum
+    follows the intruder, the consensus estimate keeps the target's angle."""
+    from edge.dsp.angle import bartlett_consensus
+
+    rng = np.random.default_rng(8)
+    grid = np.radians(np.arange(-19.0, 19.0 + 1e-9, 0.25)).astype(np.float32)
+    steer = steering_matrix(4, FE.rx_spacing_m, LAM, grid)
+    snaps = _snapshots(-2.4, 4, 25.0, rng)
+    intruder = 3.0 * _snapshots(6.0, 1, 40.0, rng)[0, 0]
+    snaps[0, 2] += intruder
+    plain, _ = bartlett(snaps, steer, grid)
+    az, _, kept = bartlett_consensus(snaps, steer, grid, math.radians(2.0))
+    assert abs(math.degrees(plain[0]) + 2.4) > 1.0
+    assert abs(math.degrees(az[0]) + 2.4) < 0.15
+    assert kept[0].tolist() == [True, True, False, True]
