@@ -221,7 +221,9 @@ class Scene:
             elif tg.swerling == 3:
                 r = r * rng.gamma(2.0, 0.5)
             rcs.append(r)
-            ph.append(self._scatter_phase(tg.id, r.size))
+            # a target whose micro-motion (vibration, pitch: millimetres at lambda = 12 mm) decorrelates its
+            # glint from frame to frame draws new scattering phases every frame
+            ph.append(rng.random(r.size) if getattr(tg, "glint_decorrelates", False) else self._scatter_phase(tg.id, r.size))
             idx.append(np.full(r.size, k, dtype=np.int32))
         if self.clutter is not None and self.clutter.rcs_m2.size:
             pos.append(self.clutter.position_m)

@@ -18,7 +18,7 @@ TOML tables (units in names; lanes are indices into the scenario's ``[[lane]]`` 
     accel_mps2 = 1.5
     length_m = 4.5               # default: drawn from the body type's range
     rcs_m2 = 10.0                # default: the body type's
-    swerling = 1
+    swerling = 0                 # extra whole-body fluctuation (the glint already fluctuates per frame)
     start_s = 0.0                # active window (default: always)
     end_s = 1e9
 
@@ -123,7 +123,7 @@ def build_vehicle(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generat
             vid, kind, traj, lane=lane, rng=rng,
             t_start_s=_num(spec, "start_s", -math.inf, where) if "start_s" in spec else -math.inf,
             t_end_s=_num(spec, "end_s", math.inf, where) if "end_s" in spec else math.inf,
-            length_m=spec.get("length_m"), rcs_m2=spec.get("rcs_m2"), swerling=int(spec.get("swerling", 1)),
+            length_m=spec.get("length_m"), rcs_m2=spec.get("rcs_m2"), swerling=int(spec.get("swerling", 0)),
             lane_switch=switch,
         )
         scene.add_target(veh)

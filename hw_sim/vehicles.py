@@ -9,9 +9,14 @@ A vehicle is a :class:`hw_sim.scene.Target` whose scatterers spread over its foo
 
 Shares of the class RCS: near face 70 %, sides 25 %, far face 5 %. Class-typical total RCS at 24 GHz
 (front/rear aspect, literature values rounded): motorcycle 2 m^2, car 10 m^2 (Lim's design target),
-van 20 m^2, truck/bus 50 m^2. Fluctuation is Swerling I (one exponential draw per frame for the whole
-vehicle), which also produces the occasional missed detection of a real sensor: a Swerling I target
-stays below a fifth of its mean RCS in 18 % of frames.
+van 20 m^2, truck/bus 50 m^2.
+
+Fluctuation: a vehicle's scatterers get new random scattering phases every frame (millimetres of
+vibration and pitch decorrelate the glint between 33 ms frames at lambda = 12 mm), so the three
+near-face scatterers add up differently each frame: the echo fluctuates like a Swerling III/I target
+and produces the occasional missed detection of a real sensor (the face is below a fifth of its mean
+power in about 10 % of frames). Keeping the phases fixed instead would freeze a vehicle in a deep
+glint null for seconds. ``swerling = 1`` adds a whole-body exponential factor on top (default 0).
 
 Reference point (ground truth, DESIGN §3): the centre of the footprint at road level. Because a radar
 measures the face it sees, :attr:`Vehicle.near_face_offset_m` gives the body-frame ``y`` of the
@@ -143,6 +148,7 @@ class Vehicle(Target):
     near_face_offset_m: float = 0.0
     lane_switch: tuple[tuple[float, int], ...] = field(default_factory=tuple)
     heading_sign: int = -1  # direction of travel along world y, fixes the heading while standing
+    glint_decorrelates: bool = True  # new scattering phases every frame (see module docstring)
 
     def lane_at(self, t_s: float) -> int | None:
         lane = self.lane
@@ -178,7 +184,7 @@ def make_vehicle(
     t_end_s: float = math.inf,
     length_m: float | None = None,
     rcs_m2: float | None = None,
-    swerling: int = 1,
+    swerling: int = 0,
     lane_switch: tuple[tuple[float, int], ...] = (),
 ) -> Vehicle:
     """Build a :class:`Vehicle` of body type ``kind`` (length drawn from the type's range)."""

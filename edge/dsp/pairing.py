@@ -21,7 +21,9 @@ Pairing (vectorised over all candidate pairs):
 3. each candidate predicts where it must appear in the slow up and slow down segments (eqs. 13-14);
    it is confirmed only if a slow peak lies within ``tolerance_hz`` of both predictions -- a ghost
    (a wrong fast pairing) predicts slow beats where no target is;
-4. confirmed candidates are accepted greedily by smallest slow mismatch, each fast peak used once;
+4. confirmed candidates are accepted greedily by smallest slow mismatch; a candidate sharing more than
+   ``max_shared`` of its four peaks with already accepted pairs is dropped (with 0, every peak is used
+   once; with 1, two vehicles whose beats coincide in one segment both survive);
 5. ``(R0, v)`` is refined by least squares over the four measured frequencies.
 """
 
@@ -90,6 +92,7 @@ def pair_beats(
     max_range_m: float,
     max_speed_mps: float,
     tolerance_hz: tuple[float, float],
+    max_shared: int = 1,
 ) -> Pairs:
     """Pair the peaks of the four segments.
 
@@ -115,13 +118,16 @@ def pair_beats(
     n_ghost = int(n_cand - conf.sum())
     i0, i1, j2, j3 = i0[conf], i1[conf], j2[conf], j3[conf]
     cost = (d2[conf] / tolerance_hz[0]) ** 2 + (d3[conf] / tolerance_hz[1]) ** 2
-    # greedy one-to-one on the fast peaks, best slow agreement first (a handful of candidates)
-    used0 = np.zeros(f0.size, bool)
-    used1 = np.zeros(f1.size, bool)
+    # greedy, best slow agreement first (a handful of candidates): a candidate may share at most
+    # ``max_shared`` of its four peaks with pairs already accepted (two vehicles whose beats coincide in
+    # one segment are both kept; the cross-pairings of one vehicle's scatterers share two or more)
+    used = [np.zeros(f.size, bool) for f in (f0, f1, f2, f3)]
     keep = []
     for n in np.argsort(cost, kind="stable"):
-        if not used0[i0[n]] and not used1[i1[n]]:
-            used0[i0[n]] = used1[i1[n]] = True
+        pk = (i0[n], i1[n], j2[n], j3[n])
+        if sum(bool(u[k]) for u, k in zip(used, pk)) <= max_shared:
+            for u, k in zip(used, pk):
+                u[k] = True
             keep.append(n)
     keep = np.asarray(keep, dtype=np.int64)
     idx = np.stack([i0[keep], i1[keep], j2[keep], j3[keep]], axis=1) if keep.size else np.zeros((0, 4), np.int64)

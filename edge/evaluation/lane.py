@@ -124,6 +124,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     closed_eps: list[list[int]] = []
     lane_ok = lane_n = 0
     range_bins: dict[int, list[float]] = {}
+    pd_bins: dict[int, list[int]] = {}  # range bin -> [in view, detected, tracked]
     measured_volume = np.zeros(n_lanes, dtype=np.int64)
     true_volume = np.zeros(n_lanes, dtype=np.int64)
     prev_s: dict[int, float] = {}
@@ -190,13 +191,17 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             if not in_view[j]:
                 continue
             a.n_view += 1
+            rb = pd_bins.setdefault(int(ground_rng[j] // RANGE_BIN_M), [0, 0, 0])
+            rb[0] += 1
             a.lanes.append(int(lanes[j]))
             a.dir_true += float(tr.radial_speed_mps[veh[j]])
             if det_xy.shape[0] and np.min(np.linalg.norm(det_xy - ref[j], axis=1)) <= gate[j]:
                 a.n_raw += 1
+                rb[1] += 1
             k = assigned_track[j]
             if k < 0:
                 continue
+            rb[2] += 1
             t = tracks[k]
             a.n_hit += 1
             e2 = float(np.sum((tpos[k] - ref[j]) ** 2))
@@ -273,6 +278,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         "volume_measured_per_lane": [int(v) for v in measured_volume],
         "rmse_by_range_m": {f"{int(k * RANGE_BIN_M)}-{int((k + 1) * RANGE_BIN_M)}": float(math.sqrt(np.mean(v)))
                             for k, v in sorted(range_bins.items())},
+        "detection_probability_by_range": {
+            f"{int(k * RANGE_BIN_M)}-{int((k + 1) * RANGE_BIN_M)}": {"tracked": v[2] / v[0], "raw": v[1] / v[0]}
+            for k, v in sorted(pd_bins.items())},
         "vehicles_in_view": len(targets),
         "estimated_yaw_deg": math.degrees(pipe.traffic.yaw_rad) if pipe.traffic is not None else None,
         "classification_accuracy": None,

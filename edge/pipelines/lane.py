@@ -74,6 +74,9 @@ class LaneConfig:
     pair_tolerance_bins: float = field(default=0.6, metadata={
         "doc": "a fast pairing is confirmed when slow-segment peaks lie within this many slow-segment bins "
                "of both predictions (ghost rejection)", "min": 0.05, "max": 5.0})
+    pair_max_shared_peaks: int = field(default=1, metadata={
+        "doc": "a pairing may share this many of its four peaks with better pairings (vehicles whose beats "
+               "coincide in one segment); 0 = every peak belongs to one pairing", "min": 0, "max": 3})
     angle_step_deg: float = field(default=0.25, metadata={
         "unit": "deg", "doc": "Bartlett grid step (refined by a parabola)", "min": 0.01, "max": 2.0})
     angle_max_deg: float = field(default=19.0, metadata={
@@ -206,7 +209,8 @@ class LanePipeline(Pipeline):
                 bins.append(b)
         with timer.stage("pairing"):
             pairs = pair_beats(tuple(freqs), self._model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
-                               max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self._tol)
+                               max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self._tol,
+                               max_shared=cfg.pair_max_shared_peaks)
         with timer.stage("angle"):
             n_det = pairs.range_m.size
             if n_det:
