@@ -80,8 +80,9 @@ class TrackTable:
     history: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.uint32))  # bit 0 = this frame hit
     confirmed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     moved: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # was ever surely moving
+    ext_var: np.ndarray = field(default_factory=lambda: np.zeros(0))  # along-heading detection spread, m^2
 
-    _COLUMNS = ("x", "p", "track_id", "age", "hits", "misses", "history", "confirmed", "moved")
+    _COLUMNS = ("x", "p", "track_id", "age", "hits", "misses", "history", "confirmed", "moved", "ext_var")
 
     def __len__(self) -> int:
         return int(self.x.shape[0])
@@ -90,7 +91,7 @@ class TrackTable:
         for c in self._COLUMNS:
             setattr(self, c, getattr(self, c)[mask])
 
-    def append(self, x: np.ndarray, p: np.ndarray) -> None:
+    def append(self, x: np.ndarray, p: np.ndarray, ext_var: float) -> None:
         k = x.shape[0]
         self.x = np.concatenate([self.x, x])
         self.p = np.concatenate([self.p, p])
@@ -101,6 +102,7 @@ class TrackTable:
         self.history = np.concatenate([self.history, np.ones(k, dtype=np.uint32)])
         self.confirmed = np.concatenate([self.confirmed, np.zeros(k, dtype=bool)])
         self.moved = np.concatenate([self.moved, np.zeros(k, dtype=bool)])
+        self.ext_var = np.concatenate([self.ext_var, np.full(k, ext_var)])
 
 
 @dataclass
@@ -142,23 +144,61 @@ class CvPredictor:
         return kalman.predict(tracks.x, tracks.p, f, q)
 
 
+def heading(xp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit heading (T, 2) and weight (T,) in [0, 1] (0 when standing, 1 from 1 m/s)."""
+    sp = np.hypot(xp[:, 2], xp[:, 3])
+    u = xp[:, 2:4] / np.maximum(sp, 1e-9)[:, None]
+    return u, np.clip(sp, 0.0, 1.0)
+
+
+def extent_cov(xp: np.ndarray, ext_var: np.ndarray) -> np.ndarray:
+    """(T, 2, 2) spread of an extended vehicle's detections: ``ext_var`` along the heading
+    (isotropic while the heading is unknown)."""
+    u, w = heading(xp)
+    uu = u[:, :, None] * u[:, None, :]
+    iso = np.eye(2)[None] * (1.0 - w)[:, None, None]
+    return ext_var[:, None, None] * (w[:, None, None] * uu + iso)
+
+
 class MeasurementModel:
-    """``z_hat``, ``H`` and ``R`` per track at its prediction."""
+    """``z_hat``, ``H`` and ``R`` per track at its prediction.
+
+    ``R`` of the position is the converted polar noise plus the spread of an extended vehicle's
+    detections: ``extent_sigma_m`` across, and the track's learned variance ``ext_var`` along its
+    heading (isotropic while the track is slower than 1 m/s and the heading is unknown).
+    """
 
     def __init__(self, cfg: PdafConfig) -> None:
         self.cfg = cfg
         self._az_sigma_rad = math.radians(cfg.azimuth_sigma_deg)
 
-    def at(self, xp: np.ndarray, with_radial_speed: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def at(self, xp: np.ndarray, with_radial_speed: bool, ext_var: np.ndarray | None = None):
         c = self.cfg
         zh, h = kalman.measurement_prediction(xp, with_radial_speed)
         rp = kalman.polar_position_noise(xp[:, :2], c.range_sigma_m, self._az_sigma_rad, c.extent_sigma_m)
+        if ext_var is not None:
+            rp += extent_cov(xp, ext_var)
         n = zh.shape[1]
         r = np.zeros((xp.shape[0], n, n))
         r[:, :2, :2] = rp
         if n == 3:
             r[:, 2, 2] = c.radial_speed_sigma_mps**2
         return zh, h, r
+
+    def update_extent(self, xp, ext_var, inn: Innovations, beta: np.ndarray, h: np.ndarray, pp: np.ndarray,
+                      rp: np.ndarray) -> np.ndarray:
+        """Learn the along-heading spread from the weighted along-heading innovations of this frame."""
+        c = self.cfg
+        u, w = heading(xp)
+        a = (inn.v[:, :, :2] * u[:, None, :]).sum(axis=2)  # (T, M) along-heading innovation
+        wsum = beta.sum(axis=1)
+        ok = (wsum > 0.5) & (w >= 1.0)
+        m2 = (beta * a * a).sum(axis=1) / np.maximum(wsum, 1e-12)
+        # other contributions along the heading: prediction spread and sensor noise
+        hph = (h[:, :2, :] @ pp @ h[:, :2, :].transpose(0, 2, 1)) + rp
+        other = np.einsum("ti,tij,tj->t", u, hph, u)
+        sample = np.clip(m2 - other, 0.0, c.extent_max_sigma_m**2)
+        return np.where(ok, (1.0 - c.extent_alpha) * ext_var + c.extent_alpha * sample, ext_var)
 
 
 class PdaAssociator:
@@ -169,14 +209,16 @@ class PdaAssociator:
         self._gamma = {n: gate_threshold(cfg.prob_gate, n) for n in (2, 3)}
         self.exclusion_gamma = {n: gate_threshold(max(cfg.init_exclusion_prob, cfg.prob_gate), n) for n in (2, 3)}
 
-    def associate(self, meas: Measurements, zh, h, pp, r, confirmed: np.ndarray):
-        """Confirmed tracks validate first; tentative tracks only see detections no confirmed track
-        validated (a tentative track born from clutter next to a vehicle must not live off its points)."""
+    def associate(self, meas: Measurements, zh, h, pp, r, confirmed: np.ndarray, seniority: np.ndarray):
+        """Confirmed tracks share detections (PDAF/JPDA); a tentative track only sees detections that no
+        more senior track validated (confirmed first, then more hits): a tentative track born from clutter
+        next to a vehicle, or a second seed on the same vehicle, must not live off its points."""
         inn = innovations(meas.z, zh, h, pp, r)
         n = meas.z.shape[1]
         gamma = self._gamma[n]
-        taken = ((inn.d2 <= gamma) & confirmed[:, None]).any(axis=0)
-        allowed = confirmed[:, None] | ~taken[None, :]
+        rank = np.where(confirmed, np.inf, seniority.astype(float))
+        owner = np.where(inn.d2 <= gamma, rank[:, None], -np.inf).max(axis=0) if len(rank) else rank
+        allowed = confirmed[:, None] | (rank[:, None] >= owner[None, :])
         beta, beta0, gated = association_weights(
             inn, gamma, self.cfg.prob_detect, self.cfg.prob_gate, self.cfg.association, allowed
         )
@@ -188,10 +230,28 @@ class PdaUpdater:
         return combined_update(xp, pp, h, inn, beta, beta0)
 
 
-def _box_close(a_xy: np.ndarray, b_xy: np.ndarray, lat_m: float, along_m: float) -> np.ndarray:
-    """(A, B) bool: points closer than the box half-sizes in x and y."""
+def _box_close(a_xy: np.ndarray, b_xy: np.ndarray, lat_m, along_m) -> np.ndarray:
+    """(A, B) bool: points closer than the box half-sizes in x and y (scalars or (A,) per row)."""
     d = a_xy[:, None, :] - b_xy[None, :, :]
-    return (np.abs(d[..., 0]) < lat_m) & (np.abs(d[..., 1]) < along_m)
+    lat = np.asarray(lat_m, dtype=float)
+    lat = lat[:, None] if lat.ndim else lat
+    along = np.asarray(along_m, dtype=float)
+    along = along[:, None] if along.ndim else along
+    return (np.abs(d[..., 0]) < lat) & (np.abs(d[..., 1]) < along)
+
+
+def same_vehicle_lateral_m(cfg: PdafConfig, xy: np.ndarray) -> np.ndarray:
+    """(N,) lateral distance within which points at ``xy`` may be one vehicle (grows with range)."""
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    lat = cfg.merge_lateral_sigmas * r * math.radians(cfg.azimuth_sigma_deg)
+    return np.clip(lat, cfg.merge_lateral_m, max(cfg.merge_lateral_m, cfg.merge_lateral_max_m))
+
+
+def same_vehicle_along_m(cfg: PdafConfig, tracks: "TrackTable") -> np.ndarray:
+    """(T,) along-boresight distance within which a point still belongs to the track's vehicle."""
+    sp = np.hypot(tracks.x[:, 2], tracks.x[:, 3])
+    return np.maximum(np.maximum(cfg.merge_along_m, cfg.merge_headway_s * sp),
+                      cfg.merge_extent_factor * np.sqrt(tracks.ext_var))
 
 
 class MofNInitiator:
@@ -208,14 +268,17 @@ class MofNInitiator:
         rho = np.hypot(z[:, 0], z[:, 1])
         cand = ~used & (rho >= c.min_range_m) & (rho <= c.max_range_m)
         if len(tracks):
-            near = _box_close(tracks.x[:, :2], z[:, :2], c.merge_lateral_m, c.merge_along_m).any(axis=0)
+            near = _box_close(tracks.x[:, :2], z[:, :2], same_vehicle_lateral_m(c, tracks.x[:, :2]),
+                              same_vehicle_along_m(c, tracks)).any(axis=0)
             cand &= ~near
         idx = np.flatnonzero(cand)
         if idx.size == 0:
             return 0
         # one seed per vehicle: drop a candidate when a stronger one lies in its merge box
         zc, snr = z[idx], meas.snr_db[idx]
-        close = _box_close(zc[:, :2], zc[:, :2], c.merge_lateral_m, c.merge_along_m)
+        close = _box_close(zc[:, :2], zc[:, :2], same_vehicle_lateral_m(c, zc[:, :2]), c.init_merge_along_m)
+        if meas.with_radial_speed:  # detections of one vehicle share its radial speed
+            close &= np.abs(zc[:, None, 2] - zc[None, :, 2]) < c.merge_speed_mps
         order = np.arange(idx.size)
         stronger = (snr[None, :] > snr[:, None]) | ((snr[None, :] == snr[:, None]) & (order[None, :] < order[:, None]))
         seeds = zc[~(close & stronger).any(axis=1)]
@@ -239,7 +302,7 @@ class MofNInitiator:
             p0[:, 3, 3] = np.where(ok, c.init_along_speed_sigma_mps**2, c.init_speed_sigma_mps**2)
         else:
             p0[:, 2, 2] = p0[:, 3, 3] = c.init_speed_sigma_mps**2
-        tracks.append(x0, p0)
+        tracks.append(x0, p0, c.extent_along_sigma_m**2)
         return k
 
     def confirm(self, tracks: TrackTable, ids: IdPool) -> None:
@@ -268,6 +331,7 @@ class TrackDeleter:
 
     def __init__(self, cfg: PdafConfig) -> None:
         self.cfg = cfg
+        self._state_gamma = gate_threshold(cfg.merge_state_prob, 4)
 
     def delete(self, tracks: TrackTable) -> np.ndarray:
         c = self.cfg
@@ -284,9 +348,27 @@ class TrackDeleter:
         out = np.zeros(t, dtype=bool)
         if t < 2:
             return out
-        close = _box_close(tracks.x[:, :2], tracks.x[:, :2], c.merge_lateral_m, c.merge_along_m)
+        d = tracks.x[:, None, :2] - tracks.x[None, :, :2]
+        reach = same_vehicle_along_m(c, tracks)
+        along = np.maximum(reach[:, None], reach[None, :])
+        # filtered positions are accurate across: the fixed lateral limit (not the range-scaled one of seeds)
+        close = (np.abs(d[..., 0]) < c.merge_lateral_m) & (np.abs(d[..., 1]) < along)
         dv = np.hypot(tracks.x[:, None, 2] - tracks.x[None, :, 2], tracks.x[:, None, 3] - tracks.x[None, :, 3])
+        # or statistically the same state: (xa - xb)' (Pa + Pb)^-1 (xa - xb) below the chi-square gate
+        # (evaluated only for pairs with similar velocity that are not already close, upper triangle)
         pair = close & (dv < c.merge_speed_mps)
+        cand = np.triu((dv < c.merge_speed_mps) & ~close, 1)
+        ia, ib = np.nonzero(cand)
+        if ia.size:
+            dx = tracks.x[ia] - tracks.x[ib]
+            psum = tracks.p[ia] + tracks.p[ib]
+            # positions of one extended vehicle also differ by where on it each track sits
+            ext = extent_cov(tracks.x, tracks.ext_var)
+            psum[:, :2, :2] += ext[ia] + ext[ib]
+            d2 = (dx[:, None, :] @ np.linalg.solve(psum, dx[:, :, None]))[:, 0, 0]
+            hit = d2 < self._state_gamma
+            pair[ia[hit], ib[hit]] = True
+            pair[ib[hit], ia[hit]] = True
         np.fill_diagonal(pair, False)
         if not pair.any():
             return out
@@ -302,7 +384,7 @@ class PdafTracker:
 
     One :meth:`step` per frame::
 
-        predict -> associate (gate, beta) -> update -> confirm -> delete -> initiate -> publish
+        predict -> associate (gate, beta) -> update -> delete -> confirm -> initiate -> publish
     """
 
     def __init__(self, config: PdafConfig | None = None) -> None:
@@ -332,9 +414,12 @@ class PdafTracker:
         used = np.zeros(m, dtype=bool)
         if len(tr):
             xp, pp = self.predictor.predict(tr, dt_s)
-            zh, h, r = self.measurement_model.at(xp, meas.with_radial_speed)
-            inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed)
+            zh, h, r = self.measurement_model.at(xp, meas.with_radial_speed, tr.ext_var)
+            inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits)
             tr.x, tr.p = self.updater.update(xp, pp, h, inn, beta, beta0)
+            if cfg.extent_alpha > 0 and m:
+                r_sensor = r[:, :2, :2] - extent_cov(xp, tr.ext_var)
+                tr.ext_var = self.measurement_model.update_extent(xp, tr.ext_var, inn, beta, h, pp, r_sensor)
             hit = gated.any(axis=1)
             used = (inn.d2 <= self.associator.exclusion_gamma[meas.z.shape[1]]).any(axis=0)
             tr.age += 1
@@ -344,11 +429,11 @@ class PdafTracker:
             # moving for sure: speed minus two standard deviations of its estimate above the minimum
             sd_v = np.sqrt(0.5 * (tr.p[:, 2, 2] + tr.p[:, 3, 3]))
             tr.moved |= np.hypot(tr.x[:, 2], tr.x[:, 3]) - 2.0 * sd_v >= cfg.confirm_min_speed_mps
-            self.initiator.confirm(tr, self.ids)
             dead = self.deleter.delete(tr) | self.initiator.tentative_expired(tr)
             for tid in tr.track_id[dead & tr.confirmed]:
                 self.ids.release(int(tid))
             tr.keep(~dead)
+            self.initiator.confirm(tr, self.ids)  # after duplicates are gone: no id is spent on one
             self.intermediates = {"gated": gated, "beta0": beta0, "d2": inn.d2}
         else:
             self.intermediates = {}

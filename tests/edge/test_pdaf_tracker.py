@@ -139,7 +139,8 @@ def test_sixty_four_simultaneous_tracks():
     for lane_x in (-8.75, -5.25, -1.75, 1.75, 5.25, 8.75, 12.25, -12.25):
         for k in range(8):
             vehicles.append(Vehicle(lane_x, 30.0 + 25.0 * k + rng.uniform(-3, 3), 0.0, rng.uniform(15, 30)))
-    hist, ids, tr = _run(vehicles, 60, seed=9, p_detect=0.95, fov_deg=25.0, range_sigma_m=0.1, az_sigma_deg=0.2)
+    cfg = PdafConfig(range_sigma_m=0.1, azimuth_sigma_deg=0.2)  # the sensor model of this scene
+    hist, ids, tr = _run(vehicles, 60, cfg, seed=9, p_detect=0.95, fov_deg=25.0, range_sigma_m=0.1, az_sigma_deg=0.2)
     last = tr.published()
     assert len(last) == 64 and len({o.track_id for o in last}) == 64
 
