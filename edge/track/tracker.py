@@ -185,18 +185,19 @@ class MeasurementModel:
             r[:, 2, 2] = c.radial_speed_sigma_mps**2
         return zh, h, r
 
-    def update_extent(self, xp, ext_var, inn: Innovations, beta: np.ndarray, h: np.ndarray, pp: np.ndarray,
-                      rp: np.ndarray) -> np.ndarray:
-        """Learn the along-heading spread from the weighted along-heading innovations of this frame."""
+    def update_extent(self, xp, ext_var, inn: Innovations, beta: np.ndarray) -> np.ndarray:
+        """Learn the along-heading spread from the weighted along-heading innovations of this frame:
+        ``E[a^2] - u' (H P H' + R_sensor) u``, ``R_sensor`` = ``S`` without the extent term."""
         c = self.cfg
         u, w = heading(xp)
-        a = (inn.v[:, :, :2] * u[:, None, :]).sum(axis=2)  # (T, M) along-heading innovation
+        a = inn.v[:, :, 0] * u[:, None, 0] + inn.v[:, :, 1] * u[:, None, 1]  # (T, M) along-heading innovation
         wsum = beta.sum(axis=1)
         ok = (wsum > 0.5) & (w >= 1.0)
         m2 = (beta * a * a).sum(axis=1) / np.maximum(wsum, 1e-12)
-        # other contributions along the heading: prediction spread and sensor noise
-        hph = (h[:, :2, :] @ pp @ h[:, :2, :].transpose(0, 2, 1)) + rp
-        other = np.einsum("ti,tij,tj->t", u, hph, u)
+        s2 = inn.s[:, :2, :2]
+        along_s = u[:, 0] * (s2[:, 0, 0] * u[:, 0] + s2[:, 0, 1] * u[:, 1]) + u[:, 1] * (
+            s2[:, 1, 0] * u[:, 0] + s2[:, 1, 1] * u[:, 1])
+        other = along_s - ext_var  # for moving tracks (w = 1) the extent adds exactly ext_var along u
         sample = np.clip(m2 - other, 0.0, c.extent_max_sigma_m**2)
         return np.where(ok, (1.0 - c.extent_alpha) * ext_var + c.extent_alpha * sample, ext_var)
 
@@ -342,40 +343,44 @@ class TrackDeleter:
         return dead | self.duplicates(tracks)
 
     def duplicates(self, tracks: TrackTable) -> np.ndarray:
-        """Of two tracks on one vehicle, drop the junior (unconfirmed first, then fewer hits, then younger)."""
+        """Of two tracks on one vehicle, drop the junior (unconfirmed first, then fewer hits, then younger).
+
+        Two tracks are one vehicle when their velocities agree within ``merge_speed_mps`` and either their
+        positions are within the same-vehicle box or their states are statistically indistinguishable
+        (position covariances widened by the vehicles' along-heading spread)."""
         c = self.cfg
         t = len(tracks)
         out = np.zeros(t, dtype=bool)
         if t < 2:
             return out
-        d = tracks.x[:, None, :2] - tracks.x[None, :, :2]
+        x = tracks.x
+        ia, ib = np.triu_indices(t, 1)
+        dv = np.hypot(x[ia, 2] - x[ib, 2], x[ia, 3] - x[ib, 3])
+        keep = dv < c.merge_speed_mps
+        ia, ib = ia[keep], ib[keep]
+        if ia.size == 0:
+            return out
         reach = same_vehicle_along_m(c, tracks)
-        along = np.maximum(reach[:, None], reach[None, :])
-        # filtered positions are accurate across: the fixed lateral limit (not the range-scaled one of seeds)
-        close = (np.abs(d[..., 0]) < c.merge_lateral_m) & (np.abs(d[..., 1]) < along)
-        dv = np.hypot(tracks.x[:, None, 2] - tracks.x[None, :, 2], tracks.x[:, None, 3] - tracks.x[None, :, 3])
-        # or statistically the same state: (xa - xb)' (Pa + Pb)^-1 (xa - xb) below the chi-square gate
-        # (evaluated only for pairs with similar velocity that are not already close, upper triangle)
-        pair = close & (dv < c.merge_speed_mps)
-        cand = np.triu((dv < c.merge_speed_mps) & ~close, 1)
-        ia, ib = np.nonzero(cand)
-        if ia.size:
-            dx = tracks.x[ia] - tracks.x[ib]
-            psum = tracks.p[ia] + tracks.p[ib]
-            # positions of one extended vehicle also differ by where on it each track sits
-            ext = extent_cov(tracks.x, tracks.ext_var)
-            psum[:, :2, :2] += ext[ia] + ext[ib]
-            d2 = (dx[:, None, :] @ np.linalg.solve(psum, dx[:, :, None]))[:, 0, 0]
-            hit = d2 < self._state_gamma
-            pair[ia[hit], ib[hit]] = True
-            pair[ib[hit], ia[hit]] = True
-        np.fill_diagonal(pair, False)
-        if not pair.any():
+        dx = x[ia] - x[ib]
+        close = (np.abs(dx[:, 0]) < c.merge_lateral_m) & (np.abs(dx[:, 1]) < np.maximum(reach[ia], reach[ib]))
+        ext = extent_cov(x, tracks.ext_var)
+        pd = np.stack([tracks.p[:, 0, 0] + ext[:, 0, 0], tracks.p[:, 1, 1] + ext[:, 1, 1]], axis=1)  # (T, 2)
+        # a marginal Mahalanobis distance never exceeds the joint one: prune before the 4x4 solves
+        marg = (dx[:, :2] ** 2 < self._state_gamma * (pd[ia] + pd[ib])).all(axis=1)
+        rest = np.flatnonzero(~close & marg)
+        if rest.size:
+            ja, jb = ia[rest], ib[rest]
+            psum = tracks.p[ja] + tracks.p[jb]
+            psum[:, :2, :2] += ext[ja] + ext[jb]
+            d = dx[rest]
+            d2 = (d[:, None, :] @ np.linalg.solve(psum, d[:, :, None]))[:, 0, 0]
+            close[rest] = d2 < self._state_gamma
+        ia, ib = ia[close], ib[close]
+        if ia.size == 0:
             return out
         rank = tracks.confirmed.astype(np.int64) * (1 << 40) + tracks.hits.astype(np.int64) * (1 << 20) + tracks.age
-        junior = rank[:, None] < rank[None, :]
-        tie = (rank[:, None] == rank[None, :]) & (np.arange(t)[:, None] > np.arange(t)[None, :])
-        out = (pair & (junior | tie)).any(axis=1)
+        b_senior = (rank[ib] > rank[ia]) | ((rank[ib] == rank[ia]) & (ib < ia))
+        out[np.where(b_senior, ia, ib)] = True
         return out
 
 
@@ -418,8 +423,7 @@ class PdafTracker:
             inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits)
             tr.x, tr.p = self.updater.update(xp, pp, h, inn, beta, beta0)
             if cfg.extent_alpha > 0 and m:
-                r_sensor = r[:, :2, :2] - extent_cov(xp, tr.ext_var)
-                tr.ext_var = self.measurement_model.update_extent(xp, tr.ext_var, inn, beta, h, pp, r_sensor)
+                tr.ext_var = self.measurement_model.update_extent(xp, tr.ext_var, inn, beta)
             hit = gated.any(axis=1)
             used = (inn.d2 <= self.associator.exclusion_gamma[meas.z.shape[1]]).any(axis=0)
             tr.age += 1
@@ -444,23 +448,16 @@ class PdafTracker:
     def published(self) -> tuple[TrackState, ...]:
         tr = self.tracks
         sel = np.ones(len(tr), dtype=bool) if self.config.publish_tentative else tr.confirmed
-        out = []
-        for i in np.flatnonzero(sel):
-            x, y, vx, vy = (float(v) for v in tr.x[i])
-            rho = math.hypot(x, y)
-            out.append(
-                TrackState(
-                    track_id=int(tr.track_id[i]),
-                    x_m=x,
-                    y_m=y,
-                    vx_mps=vx,
-                    vy_mps=vy,
-                    range_m=rho,
-                    radial_speed_mps=(x * vx + y * vy) / rho if rho > 0 else 0.0,
-                    az_rad=math.atan2(x, y),
-                    age_frames=int(tr.age[i]),
-                    hits=int(tr.hits[i]),
-                    confirmed=bool(tr.confirmed[i]),
-                )
-            )
-        return tuple(out)
+        idx = np.flatnonzero(sel)
+        if idx.size == 0:
+            return ()
+        st = tr.x[idx]
+        rho = np.hypot(st[:, 0], st[:, 1])
+        vr = np.divide(st[:, 0] * st[:, 2] + st[:, 1] * st[:, 3], rho, out=np.zeros_like(rho), where=rho > 0)
+        az = np.arctan2(st[:, 0], st[:, 1])
+        rows = zip(tr.track_id[idx].tolist(), st.tolist(), rho.tolist(), vr.tolist(), az.tolist(),
+                   tr.age[idx].tolist(), tr.hits[idx].tolist(), tr.confirmed[idx].tolist())
+        return tuple(
+            TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf)
+            for tid, (x, y, vx, vy), r, v, a, age, hits, conf in rows
+        )
