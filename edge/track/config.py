@@ -130,5 +130,9 @@ class PdafConfig:
     max_track_id: int = field(
         default=255, metadata={"doc": "published ids are 1..max_track_id, recycled oldest-released first (fits "
                                       "one CAN byte / Modbus register)", "min": 1, "max": 65535})
+    publish_length: bool = field(
+        default=True, metadata={"doc": "publish length_m = sqrt(12) x the learned along-heading spread of a moving "
+                                       "track (uniform scatterers over the length); meaningful only when the "
+                                       "detection chain reports several peaks per vehicle"})
     publish_tentative: bool = field(
         default=False, metadata={"doc": "also publish tentative tracks (confirmed=False, track_id=0)"})

@@ -21,6 +21,28 @@ radial speeds are not all finite fall back to position-only updates.
 
 Tracks are held as a struct of arrays (:class:`TrackTable`): the per-frame work is a handful of
 batched numpy operations over tracks x detections; there is no Python object per detection.
+
+Beyond Lim's single-point PDAF, what a roadside radar needs (all parameters in ``track.pdaf``):
+
+- extended vehicles: a car or truck gives several detections spread over its length; each track
+  learns the along-heading spread of its detections (``ext_var``) and adds it to ``R`` along its
+  heading, so the gate holds the whole vehicle and PDAF averages its points; ``length_m`` is
+  published as ``sqrt(12 ext_var)``;
+- seniority: confirmed tracks share detections (PDAF, or cheap JPDA by default); a tentative track
+  only uses detections no more senior track validated;
+- seeding: detections inside a wide exclusion gate or the same-vehicle box of a track never seed;
+  seeds of one frame within the same-vehicle box (lateral extent growing with range x azimuth sd,
+  same radial speed) give one seed;
+- duplicates: two tracks with the same velocity whose positions fall within the same-vehicle box, or
+  whose states are statistically indistinguishable, are one vehicle: the junior is dropped (before
+  confirmation, so no id is spent on it);
+- confirmation needs M of N hits and a speed surely above ``confirm_min_speed_mps`` (static clutter
+  stays in unpublished tentative tracks that absorb its detections).
+
+Measured on seeded synthetic scenes (tests/edge/trackscene.py): crossing vehicles that swap lanes
+side by side keep their ids with the cheap JPDA down to 1.5 m/s speed difference (PDAF: 6 of 10
+seeds at 1.5 m/s, all at 3 m/s and more); 56 tracks with 117 detections per frame take about
+1.4 ms per frame (p50, one core of the development machine, thread CPU time).
 """
 
 from __future__ import annotations
@@ -455,9 +477,14 @@ class PdafTracker:
         rho = np.hypot(st[:, 0], st[:, 1])
         vr = np.divide(st[:, 0] * st[:, 2] + st[:, 1] * st[:, 3], rho, out=np.zeros_like(rho), where=rho > 0)
         az = np.arctan2(st[:, 0], st[:, 1])
+        if self.config.publish_length:
+            _, w = heading(st)
+            length = [v if ok else None for v, ok in zip(np.sqrt(12.0 * tr.ext_var[idx]).tolist(), (w >= 1.0).tolist())]
+        else:
+            length = [None] * idx.size
         rows = zip(tr.track_id[idx].tolist(), st.tolist(), rho.tolist(), vr.tolist(), az.tolist(),
-                   tr.age[idx].tolist(), tr.hits[idx].tolist(), tr.confirmed[idx].tolist())
+                   tr.age[idx].tolist(), tr.hits[idx].tolist(), tr.confirmed[idx].tolist(), length)
         return tuple(
-            TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf)
-            for tid, (x, y, vx, vy), r, v, a, age, hits, conf in rows
+            TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=ln)
+            for tid, (x, y, vx, vy), r, v, a, age, hits, conf, ln in rows
         )

@@ -157,3 +157,34 @@ def test_empty_frames_and_missed_detections_coast_then_delete():
         assert len(tr.step(Detections.empty(), t_ns + k * FRAME_NS)) == 1  # coasting
     assert tr.step(Detections.empty(), t_ns + 5 * FRAME_NS) == ()
     assert tr.ids.in_use == 0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_extended_vehicles_one_track_each_and_length_estimate(seed):
+    """Cars, a van and a 12 m truck giving 1-3 detections spread over their length per frame."""
+    vehicles = [
+        Vehicle(-5.25, 220.0, 0.0, -27.0, length_m=4.5),
+        Vehicle(-1.75, 160.0, 0.0, -22.0, length_m=12.0),
+        Vehicle(1.75, 20.0, 0.0, 30.0, length_m=8.0),
+        Vehicle(5.25, 40.0, 0.0, 25.0, length_m=4.5),
+    ]
+    tr = PdafTracker()
+    ids = set()
+    per_vehicle: dict[int, list[int]] = {}
+    lengths: dict[int, list[float]] = {}
+    for t_ns, det, truth in frames(vehicles, 300, seed=seed, p_detect=0.9, clutter_per_frame=1.0):
+        out = tr.step(det, t_ns)
+        ids |= {o.track_id for o in out}
+        for i, x, y, _, _ in truth:
+            near = [o for o in out if abs(o.x_m - x) < 1.75 and abs(o.y_m - y) < 8.0]  # half a lane
+            per_vehicle.setdefault(i, []).append(near[0].track_id if len(near) == 1 else -len(near))
+            if len(near) == 1 and near[0].length_m is not None:
+                lengths.setdefault(i, []).append(near[0].length_m)
+    assert len(ids) == 4, f"ids {sorted(ids)}"
+    for i, seq in per_vehicle.items():
+        tail = seq[10:]
+        assert len(set(tail)) == 1 and tail[0] > 0, f"vehicle {i}: {set(tail)}"
+    # the learned length orders the vehicles: truck > van > cars, within a factor of the truth
+    med = {i: float(np.median(v[100:])) for i, v in lengths.items()}
+    assert med[1] > med[2] > max(med[0], med[3])
+    assert 6.0 < med[1] < 14.0 and 5.0 < med[2] < 10.0 and 2.0 < med[3] < 6.0
