@@ -188,3 +188,26 @@ def test_extended_vehicles_one_track_each_and_length_estimate(seed):
     med = {i: float(np.median(v[100:])) for i, v in lengths.items()}
     assert med[1] > med[2] > max(med[0], med[3])
     assert 6.0 < med[1] < 14.0 and 5.0 < med[2] < 10.0 and 2.0 < med[3] < 6.0
+
+
+def test_slant_radial_speed_is_projected_to_the_ground_plane():
+    from edge.track.tracker import Measurements
+
+    # radar 6 m above the road, target on boresight 8 m away on the ground: slant range 10 m
+    det = Detections(np.float32([10.0]), np.float32([-6.0]), np.float32([0.0]), np.float32([20.0]),
+                     np.float32([0.0]), np.float32([8.0]))
+    m = Measurements.from_detections(det, use_radial_speed=True)
+    assert m.with_radial_speed
+    np.testing.assert_allclose(m.z[0], [0.0, 8.0, -6.0 * 10.0 / 8.0], rtol=1e-6)
+    nan = Detections(np.float32([10.0]), np.float32([np.nan]), np.float32([0.0]), np.float32([20.0]),
+                     np.float32([0.0]), np.float32([8.0]))
+    assert not Measurements.from_detections(nan, use_radial_speed=True).with_radial_speed
+
+
+def test_frames_without_radial_speed_fall_back_to_position_only():
+    tr = PdafTracker()
+    for t_ns, det, _ in frames([HIGHWAY[2]], 60, seed=3):
+        det = Detections(det.range_m, np.full_like(det.radial_speed_mps, np.nan), det.az_rad, det.snr_db,
+                         det.x_m, det.y_m)
+        out = tr.step(det, t_ns)
+    assert len(out) == 1 and out[0].vy_mps == pytest.approx(30.0, abs=1.0)
