@@ -57,6 +57,12 @@ class PdafConfig:
     q_along_m2ps3: float = field(
         default=2.0, metadata={"unit": "m^2/s^3", "doc": "white-noise acceleration density along the boresight "
                                                          "(braking, stop-and-go)", "min": 1e-6, "max": 1000.0})
+    seed_min_radial_speed_mps: float = field(
+        default=1.0, metadata={"unit": "m/s", "doc": "detections slower than this (ground radial speed, about 3 sd "
+                                                     "of its noise) never seed a "
+                                                     "track: guard rails, gantries and poles would otherwise fill the "
+                                                     "track table; a vehicle that stops keeps its track (seeding only "
+                                                     "applies when the radial speed is measured)", "min": 0.0, "max": 20.0})
     init_along_speed_sigma_mps: float = field(
         default=2.0, metadata={"unit": "m/s", "doc": "initial along-boresight speed sd when the radial speed seeds it",
                                "min": 0.01, "max": 100.0})
@@ -71,9 +77,13 @@ class PdafConfig:
                                     "noise detections per frame it halved the false tracks of 3 of 5)",
                              "min": 1, "max": 32})
     confirm_n: int = field(default=7, metadata={"doc": "N of the M-of-N confirmation (frames)", "min": 1, "max": 32})
+    moving_prob: float = field(
+        default=0.9999, metadata={"doc": "a track counts as moving once v' P_v^-1 v exceeds the chi-square (2 dof) "
+                                         "quantile of this probability and its speed exceeds confirm_min_speed_mps",
+                                  "min": 0.5, "max": 0.9999999})
     confirm_min_speed_mps: float = field(
-        default=1.0, metadata={"unit": "m/s", "doc": "a track confirms only once its speed minus two standard deviations "
-                                                     "exceeded this: static "
+        default=1.0, metadata={"unit": "m/s", "doc": "a track confirms only once it was surely moving (moving_prob) "
+                                                     "at least this fast: static "
                                                      "clutter (guard rail, gantry) is held in unpublished tentative "
                                                      "tracks; a vehicle that stops later stays confirmed",
                                "min": 0.0, "max": 50.0})

@@ -290,10 +290,16 @@ class MofNInitiator:
         z = meas.z
         rho = np.hypot(z[:, 0], z[:, 1])
         cand = ~used & (rho >= c.min_range_m) & (rho <= c.max_range_m)
-        if len(tracks):
+        if meas.with_radial_speed:
+            cand &= np.abs(z[:, 2]) >= c.seed_min_radial_speed_mps
+        if len(tracks) and cand.any():
             near = _box_close(tracks.x[:, :2], z[:, :2], same_vehicle_lateral_m(c, tracks.x[:, :2]),
-                              same_vehicle_along_m(c, tracks)).any(axis=0)
-            cand &= ~near
+                              same_vehicle_along_m(c, tracks))
+            if meas.with_radial_speed:  # ... and moving like the track
+                rho_t = np.maximum(np.hypot(tracks.x[:, 0], tracks.x[:, 1]), 1e-3)
+                vr_t = (tracks.x[:, 0] * tracks.x[:, 2] + tracks.x[:, 1] * tracks.x[:, 3]) / rho_t
+                near &= np.abs(vr_t[:, None] - z[None, :, 2]) < c.merge_speed_mps
+            cand &= ~near.any(axis=0)
         idx = np.flatnonzero(cand)
         if idx.size == 0:
             return 0
@@ -422,6 +428,7 @@ class PdafTracker:
         self.updater = PdaUpdater()
         self.initiator = MofNInitiator(self.config, self.measurement_model)
         self.deleter = TrackDeleter(self.config)
+        self._moving_gamma = gate_threshold(self.config.moving_prob, 2)
         self.reset()
 
     def reset(self) -> None:
@@ -452,9 +459,10 @@ class PdafTracker:
             tr.hits += hit
             tr.misses = np.where(hit, 0, tr.misses + 1).astype(np.int32)
             tr.history = ((tr.history << np.uint32(1)) | hit.astype(np.uint32)).astype(np.uint32)
-            # moving for sure: speed minus two standard deviations of its estimate above the minimum
-            sd_v = np.sqrt(0.5 * (tr.p[:, 2, 2] + tr.p[:, 3, 3]))
-            tr.moved |= np.hypot(tr.x[:, 2], tr.x[:, 3]) - 2.0 * sd_v >= cfg.confirm_min_speed_mps
+            # moving for sure: the velocity is significantly non-zero (v' P_v^-1 v) and fast enough
+            v = tr.x[:, 2:4]
+            d2v = (v[:, None, :] @ np.linalg.solve(tr.p[:, 2:4, 2:4], v[:, :, None]))[:, 0, 0]
+            tr.moved |= (d2v > self._moving_gamma) & (np.hypot(v[:, 0], v[:, 1]) >= cfg.confirm_min_speed_mps)
             dead = self.deleter.delete(tr) | self.initiator.tentative_expired(tr)
             for tid in tr.track_id[dead & tr.confirmed]:
                 self.ids.release(int(tid))

@@ -130,7 +130,16 @@ def test_static_clutter_never_confirms_but_a_vehicle_that_stops_stays():
     assert all(a == -1 for a, _, _ in hist[0])
     tail = {a for a, _, _ in hist[1][-50:]}
     assert len(tail) == 1 and -1 not in tail
-    assert len(tr.tracks) == 2  # the post is held in an unpublished tentative track (absorbs its detections)
+    assert len(tr.tracks) == 1  # a detection without radial speed never seeds a track
+
+
+def test_static_clutter_without_radial_speed_is_held_in_a_tentative_track():
+    post = Vehicle(8.0, 80.0, 0.0, 0.0)
+    tr = PdafTracker(PdafConfig(use_radial_speed=False))
+    for t_ns, det, _ in frames([post], 100, seed=6, p_detect=0.95):
+        out = tr.step(det, t_ns)
+    assert out == ()
+    assert len(tr.tracks) == 1 and not tr.tracks.confirmed[0]  # absorbs the post's detections, unpublished
 
 
 def test_sixty_four_simultaneous_tracks():
