@@ -250,3 +250,17 @@ def test_tracker_and_monitor_end_to_end_on_a_misaimed_radar():
     assert len(assigned) > 200
     acc = np.mean([a == b for a, b in assigned])
     assert acc >= 0.99, f"lane accuracy {acc:.3f}"
+
+
+def test_sections_load_from_a_toml_file(tmp_path):
+    p = tmp_path / "site.toml"
+    p.write_text('[track.pdaf]\nassociation = "pdaf"\nconfirm_m = 4\n\n[traffic]\nlane_mode = "learned"\n'
+                 'lane_centers_m = [-1.75, 1.75]\nlane_directions = ["toward", "away"]\ninterval_s = 30\n')
+    cfg = load_config(p, env={})
+    assert cfg["track.pdaf"].association == "pdaf" and cfg["track.pdaf"].confirm_m == 4
+    t = cfg["traffic"]
+    assert (t.lane_mode, t.lane_centers_m, t.lane_directions, t.interval_s) == (
+        "learned", (-1.75, 1.75), ("toward", "away"), 30.0)
+    again = tmp_path / "again.toml"
+    again.write_text(cfg.to_toml())
+    assert load_config(again, env={})["traffic"] == t
