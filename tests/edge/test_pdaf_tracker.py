@@ -220,3 +220,14 @@ def test_frames_without_radial_speed_fall_back_to_position_only():
                          det.x_m, det.y_m)
         out = tr.step(det, t_ns)
     assert len(out) == 1 and out[0].vy_mps == pytest.approx(30.0, abs=1.0)
+
+
+@pytest.mark.parametrize("y0_m,v_mps,length_m", [(60.0, -25.0, 0.0), (60.0, -25.0, 4.5), (25.0, 25.0, 4.5)])
+def test_side_by_side_vehicles_get_two_tracks(y0_m, v_mps, length_m):
+    """Two vehicles at equal range and speed in adjacent lanes (3.5 m apart), near enough that the
+    azimuth noise (0.5 deg) separates them: each keeps its own track."""
+    vehicles = [Vehicle(-1.75, y0_m, 0.0, v_mps, length_m=length_m), Vehicle(1.75, y0_m, 0.0, v_mps, length_m=length_m)]
+    hist, ids, _ = _run(vehicles, 60, seed=3, p_detect=0.9, clutter_per_frame=1.0)
+    assert len(ids) == 2
+    own = [{a for a, _, _ in h[12:]} for h in hist.values()]
+    assert all(len(o) == 1 and -1 not in o for o in own) and own[0] != own[1], own
