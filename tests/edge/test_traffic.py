@@ -232,12 +232,24 @@ def test_tracker_and_monitor_end_to_end_on_a_misaimed_radar():
             vx, vy = _world_to_radar(0.0, d * v, yaw)
             vehicles.append(Vehicle(x0, y0, vx, vy, t_start_s=t0, t_end_s=t0 + 165.0 / v))
             lane_of.append(lane)
-    cfg = TrafficConfig(lane_mode="learned", relearn_every_s=5.0, learn_min_samples=1500)
+    cfg = TrafficConfig(lane_mode="learned", relearn_every_s=5.0, learn_min_samples=1500, interval_s=10.0)
     tr, mon = PdafTracker(), TrafficMonitor(cfg)
     assigned = []
+    stats = []
+    prev_s = {}
+    crossings = []  # (t_s, lane) of the true crossings of the detection line
+    learned_ns = None
     for t_ns, det, truth in frames(vehicles, int(42.0 / 0.033), seed=21, p_detect=0.9, clutter_per_frame=1.0,
                                    fov_deg=15.0):
+        for i, x, y, _, _ in truth:
+            s_now = -x * math.sin(yaw) + y * math.cos(yaw)
+            if i in prev_s and (prev_s[i] - cfg.detection_line_m) * (s_now - cfg.detection_line_m) < 0:
+                crossings.append((t_ns * 1e-9, lane_of[i]))
+            prev_s[i] = s_now
         upd = mon.update(tr.step(det, t_ns), t_ns)
+        stats.extend(upd.lane_stats)
+        if learned_ns is None and mon.lanes:
+            learned_ns = t_ns
         if t_ns > 30e9:
             for i, x, y, _, _ in truth:
                 d = [math.hypot(o.x_m - x, o.y_m - y) for o in upd.tracks]
@@ -250,6 +262,14 @@ def test_tracker_and_monitor_end_to_end_on_a_misaimed_radar():
     assert len(assigned) > 200
     acc = np.mean([a == b for a, b in assigned])
     assert acc >= 0.99, f"lane accuracy {acc:.3f}"
+    # per-lane volume of every interval closed once lanes were known equals the true line crossings
+    complete = [st for st in stats if st.interval_start_ns >= learned_ns]
+    assert len(complete) >= 8
+    for st in complete:
+        t0 = st.interval_start_ns * 1e-9
+        true_n = sum(1 for t, lane in crossings if lane == st.lane and t0 <= t < t0 + st.interval_s)
+        assert st.volume == true_n, (st, true_n)
+    assert sum(st.volume for st in complete) >= 10, sum(st.volume for st in complete)
 
 
 def test_sections_load_from_a_toml_file(tmp_path):
