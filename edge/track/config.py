@@ -39,14 +39,30 @@ class PdafConfig:
         default=0.3, metadata={"unit": "m/s", "doc": "radial speed standard deviation (1.2 m/s resolution, "
                                                      "interpolated)", "min": 0.001, "max": 20.0})
     extent_sigma_m: float = field(
-        default=0.3, metadata={"unit": "m", "doc": "isotropic position noise added for extended vehicles (which "
-                                                   "scatterer gives the peak)", "min": 0.0, "max": 10.0})
+        default=0.3, metadata={"unit": "m", "doc": "isotropic position noise added for extended vehicles (across "
+                                                   "the vehicle: which scatterer gives the peak)", "min": 0.0, "max": 10.0})
+    extent_along_sigma_m: float = field(
+        default=1.3, metadata={"unit": "m", "doc": "initial spread of a vehicle's detections along its heading "
+                                                   "(a 4.5 m car seen as scatterers over its length: 4.5/sqrt(12)); "
+                                                   "then learned per track", "min": 0.0, "max": 20.0})
+    extent_alpha: float = field(
+        default=0.05, metadata={"doc": "smoothing factor of the per-track along-heading spread (and length) estimate",
+                                "min": 0.0, "max": 1.0})
+    extent_max_sigma_m: float = field(
+        default=6.0, metadata={"unit": "m", "doc": "upper bound of the learned along-heading spread (a 20 m "
+                                                   "articulated truck: 5.8 m)", "min": 0.1, "max": 50.0})
     q_lateral_m2ps3: float = field(
         default=0.5, metadata={"unit": "m^2/s^3", "doc": "white-noise acceleration density across the boresight "
                                                          "(lane changes)", "min": 1e-6, "max": 1000.0})
     q_along_m2ps3: float = field(
         default=2.0, metadata={"unit": "m^2/s^3", "doc": "white-noise acceleration density along the boresight "
                                                          "(braking, stop-and-go)", "min": 1e-6, "max": 1000.0})
+    seed_min_radial_speed_mps: float = field(
+        default=1.0, metadata={"unit": "m/s", "doc": "detections slower than this (ground radial speed, about 3 sd "
+                                                     "of its noise) never seed a "
+                                                     "track: guard rails, gantries and poles would otherwise fill the "
+                                                     "track table; a vehicle that stops keeps its track (seeding only "
+                                                     "applies when the radial speed is measured)", "min": 0.0, "max": 20.0})
     init_along_speed_sigma_mps: float = field(
         default=2.0, metadata={"unit": "m/s", "doc": "initial along-boresight speed sd when the radial speed seeds it",
                                "min": 0.01, "max": 100.0})
@@ -56,11 +72,18 @@ class PdafConfig:
     init_speed_sigma_mps: float = field(
         default=40.0, metadata={"unit": "m/s", "doc": "initial speed sd when no radial speed is measured",
                                 "min": 0.1, "max": 200.0})
-    confirm_m: int = field(default=3, metadata={"doc": "M of the M-of-N confirmation", "min": 1, "max": 32})
-    confirm_n: int = field(default=5, metadata={"doc": "N of the M-of-N confirmation (frames)", "min": 1, "max": 32})
+    confirm_m: int = field(
+        default=5, metadata={"doc": "M of the M-of-N confirmation (5 of 7 frames = 0.2 s: in seeded runs with 3 "
+                                    "noise detections per frame it halved the false tracks of 3 of 5)",
+                             "min": 1, "max": 32})
+    confirm_n: int = field(default=7, metadata={"doc": "N of the M-of-N confirmation (frames)", "min": 1, "max": 32})
+    moving_prob: float = field(
+        default=0.9999, metadata={"doc": "a track counts as moving once v' P_v^-1 v exceeds the chi-square (2 dof) "
+                                         "quantile of this probability and its speed exceeds confirm_min_speed_mps",
+                                  "min": 0.5, "max": 0.9999999})
     confirm_min_speed_mps: float = field(
-        default=1.0, metadata={"unit": "m/s", "doc": "a track confirms only once its speed minus two standard deviations "
-                                                     "exceeded this: static "
+        default=1.0, metadata={"unit": "m/s", "doc": "a track confirms only once it was surely moving (moving_prob) "
+                                                     "at least this fast: static "
                                                      "clutter (guard rail, gantry) is held in unpublished tentative "
                                                      "tracks; a vehicle that stops later stays confirmed",
                                "min": 0.0, "max": 50.0})
@@ -76,13 +99,39 @@ class PdafConfig:
     max_range_m: float = field(default=320.0, metadata={"unit": "m", "doc": "tracks live within this ground range",
                                                         "min": 1.0, "max": 2000.0})
     merge_lateral_m: float = field(
-        default=1.5, metadata={"unit": "m", "doc": "two tracks closer than this across and merge_along_m along (and "
-                                                   "merge_speed_mps in speed) are one vehicle: the younger is "
-                                                   "dropped; also the init exclusion box around tracks",
+        default=1.5, metadata={"unit": "m", "doc": "two tracks closer than this across and the same-vehicle distance "
+                                                   "along (max of merge_along_m, merge_headway_s x speed, "
+                                                   "merge_extent_factor x spread) and merge_speed_mps in speed are "
+                                                   "one vehicle: the junior is dropped; the same box around a track "
+                                                   "keeps its detections from seeding new tracks",
                                "min": 0.0, "max": 20.0})
+    merge_lateral_sigmas: float = field(
+        default=2.0, metadata={"doc": "for seeding, the lateral same-vehicle distance of raw detections grows "
+                                      "with range to this many azimuth standard deviations (r x sigma_az) ...", "min": 0.0, "max": 10.0})
+    merge_lateral_max_m: float = field(
+        default=3.0, metadata={"unit": "m", "doc": "... but stays below a lane width so vehicles side by side in "
+                                                   "adjacent lanes are never merged", "min": 0.0, "max": 20.0})
     merge_along_m: float = field(
         default=5.0, metadata={"unit": "m", "doc": "along-boresight extent of the merge box (a car length)",
                                "min": 0.0, "max": 50.0})
+    merge_headway_s: float = field(
+        default=0.5, metadata={"unit": "s", "doc": "moving tracks closer along the boresight than this time headway "
+                                                  "(centre to centre, within the lateral/speed limits) are one long "
+                                                  "vehicle seen at front and rear (0.5 s centre to centre leaves "
+                                                  "about 0.3 s bumper to bumper: rare tailgating)",
+                               "min": 0.0, "max": 5.0})
+    merge_extent_factor: float = field(
+        default=2.0, metadata={"doc": "... or closer along than this many learned along-heading spreads (sd) of the "
+                                      "track: a long vehicle's own detections", "min": 0.0, "max": 10.0})
+    init_merge_along_m: float = field(
+        default=10.0, metadata={"unit": "m", "doc": "detections seeding tracks in the same frame within merge_lateral_m "
+                                                    "across and this along give one seed (a truck's front and rear)",
+                                "min": 0.0, "max": 50.0})
+    merge_state_prob: float = field(
+        default=0.99, metadata={"doc": "two tracks whose states (position, velocity) are indistinguishable at this "
+                                       "chi-square probability are also one vehicle (fresh duplicates from the "
+                                       "lateral spread of far detections; settled tracks in adjacent lanes differ)",
+                                "min": 0.5, "max": 0.999999})
     merge_speed_mps: float = field(
         default=2.0, metadata={"unit": "m/s", "doc": "speed difference below which close tracks merge",
                                "min": 0.0, "max": 50.0})
@@ -91,5 +140,9 @@ class PdafConfig:
     max_track_id: int = field(
         default=255, metadata={"doc": "published ids are 1..max_track_id, recycled oldest-released first (fits "
                                       "one CAN byte / Modbus register)", "min": 1, "max": 65535})
+    publish_length: bool = field(
+        default=True, metadata={"doc": "publish length_m = sqrt(12) x the learned along-heading spread of a moving "
+                                       "track (uniform scatterers over the length); meaningful only when the "
+                                       "detection chain reports several peaks per vehicle"})
     publish_tentative: bool = field(
         default=False, metadata={"doc": "also publish tentative tracks (confirmed=False, track_id=0)"})

@@ -61,8 +61,17 @@ def innovations(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, 
     s = 0.5 * (s + s.transpose(0, 2, 1))
     s_inv = np.linalg.inv(s)
     det_s = np.linalg.det(s)
-    v = z[None, :, :] - z_hat[:, None, :]
-    d2 = np.einsum("tmi,tij,tmj->tm", v, s_inv, v)
+    n = z.shape[1]
+    v = np.empty((z_hat.shape[0], z.shape[0], n))
+    for i in range(n):  # per measurement dimension (n <= 3), not per detection
+        np.subtract(z[None, :, i], z_hat[:, i, None], out=v[:, :, i])
+    # d2 = v' S^-1 v expanded over the symmetric n x n terms: cheaper than tiny batched matmuls
+    d2 = np.zeros(v.shape[:2])
+    for i in range(n):
+        vi = v[:, :, i]
+        d2 += s_inv[:, i, i, None] * vi * vi
+        for j in range(i + 1, n):
+            d2 += 2.0 * s_inv[:, i, j, None] * vi * v[:, :, j]
     return Innovations(v, d2, s, s_inv, det_s)
 
 
@@ -112,9 +121,10 @@ def combined_update(
 ) -> tuple[np.ndarray, np.ndarray]:
     """PDAF state estimation: ``xp`` (T, 4), ``pp`` (T, 4, 4) -> posterior (x, P)."""
     k = pp @ h.transpose(0, 2, 1) @ inn.s_inv  # (T, 4, n)
-    vbar = np.einsum("tm,tmi->ti", beta, inn.v)  # (T, n)
-    x = xp + np.einsum("tin,tn->ti", k, vbar)
-    spread = np.einsum("tm,tmi,tmj->tij", beta, inn.v, inn.v) - vbar[:, :, None] * vbar[:, None, :]
+    vbar = (beta[:, None, :] @ inn.v)[:, 0, :]  # (T, n)
+    x = xp + (k @ vbar[:, :, None])[:, :, 0]
+    bv = inn.v * beta[:, :, None]
+    spread = bv.transpose(0, 2, 1) @ inn.v - vbar[:, :, None] * vbar[:, None, :]
     kt = k.transpose(0, 2, 1)
     pc = pp - k @ inn.s @ kt
     w0 = beta0[:, None, None]

@@ -24,7 +24,6 @@ Events: ``wrong_way`` when a track in a lane moves against the lane's direction 
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -59,6 +58,13 @@ class _Memo:
     wrong_emitted: bool = False
     stopped_since_ns: int | None = None
     stopped_emitted: bool = False
+
+
+def _with_lane(tr: TrackState, lane: int | None) -> TrackState:
+    """``dataclasses.replace(tr, lane=lane)`` without its per-call field introspection (hot path)."""
+    d = dict(tr.__dict__)
+    d["lane"] = lane
+    return TrackState(**d)
 
 
 class TrafficMonitor:
@@ -161,7 +167,7 @@ class TrafficMonitor:
                 memo.stopped_emitted = False
             elif speed[j] >= cfg.stopped_speed_mps:
                 memo.stopped_since_ns = None
-            out_tracks[id(tr)] = dataclasses.replace(tr, lane=lane) if tr.lane != lane else tr
+            out_tracks[id(tr)] = _with_lane(tr, lane) if tr.lane != lane else tr
         for tid in [k for k in self._memo if k not in seen]:
             del self._memo[tid]
         for k, p in enumerate(presence):

@@ -130,7 +130,16 @@ def test_static_clutter_never_confirms_but_a_vehicle_that_stops_stays():
     assert all(a == -1 for a, _, _ in hist[0])
     tail = {a for a, _, _ in hist[1][-50:]}
     assert len(tail) == 1 and -1 not in tail
-    assert len(tr.tracks) == 2  # the post is held in an unpublished tentative track (absorbs its detections)
+    assert len(tr.tracks) == 1  # a detection without radial speed never seeds a track
+
+
+def test_static_clutter_without_radial_speed_is_held_in_a_tentative_track():
+    post = Vehicle(8.0, 80.0, 0.0, 0.0)
+    tr = PdafTracker(PdafConfig(use_radial_speed=False))
+    for t_ns, det, _ in frames([post], 100, seed=6, p_detect=0.95):
+        out = tr.step(det, t_ns)
+    assert out == ()
+    assert len(tr.tracks) == 1 and not tr.tracks.confirmed[0]  # absorbs the post's detections, unpublished
 
 
 def test_sixty_four_simultaneous_tracks():
@@ -139,7 +148,8 @@ def test_sixty_four_simultaneous_tracks():
     for lane_x in (-8.75, -5.25, -1.75, 1.75, 5.25, 8.75, 12.25, -12.25):
         for k in range(8):
             vehicles.append(Vehicle(lane_x, 30.0 + 25.0 * k + rng.uniform(-3, 3), 0.0, rng.uniform(15, 30)))
-    hist, ids, tr = _run(vehicles, 60, seed=9, p_detect=0.95, fov_deg=25.0, range_sigma_m=0.1, az_sigma_deg=0.2)
+    cfg = PdafConfig(range_sigma_m=0.1, azimuth_sigma_deg=0.2)  # the sensor model of this scene
+    hist, ids, tr = _run(vehicles, 60, cfg, seed=9, p_detect=0.95, fov_deg=25.0, range_sigma_m=0.1, az_sigma_deg=0.2)
     last = tr.published()
     assert len(last) == 64 and len({o.track_id for o in last}) == 64
 
@@ -156,3 +166,68 @@ def test_empty_frames_and_missed_detections_coast_then_delete():
         assert len(tr.step(Detections.empty(), t_ns + k * FRAME_NS)) == 1  # coasting
     assert tr.step(Detections.empty(), t_ns + 5 * FRAME_NS) == ()
     assert tr.ids.in_use == 0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_extended_vehicles_one_track_each_and_length_estimate(seed):
+    """Cars, a van and a 12 m truck giving 1-3 detections spread over their length per frame."""
+    vehicles = [
+        Vehicle(-5.25, 220.0, 0.0, -27.0, length_m=4.5),
+        Vehicle(-1.75, 160.0, 0.0, -22.0, length_m=12.0),
+        Vehicle(1.75, 20.0, 0.0, 30.0, length_m=8.0),
+        Vehicle(5.25, 40.0, 0.0, 25.0, length_m=4.5),
+    ]
+    tr = PdafTracker()
+    ids = set()
+    per_vehicle: dict[int, list[int]] = {}
+    lengths: dict[int, list[float]] = {}
+    for t_ns, det, truth in frames(vehicles, 300, seed=seed, p_detect=0.9, clutter_per_frame=1.0):
+        out = tr.step(det, t_ns)
+        ids |= {o.track_id for o in out}
+        for i, x, y, _, _ in truth:
+            near = [o for o in out if abs(o.x_m - x) < 1.75 and abs(o.y_m - y) < 8.0]  # half a lane
+            per_vehicle.setdefault(i, []).append(near[0].track_id if len(near) == 1 else -len(near))
+            if len(near) == 1 and near[0].length_m is not None:
+                lengths.setdefault(i, []).append(near[0].length_m)
+    assert len(ids) == 4, f"ids {sorted(ids)}"
+    for i, seq in per_vehicle.items():
+        tail = seq[10:]
+        assert len(set(tail)) == 1 and tail[0] > 0, f"vehicle {i}: {set(tail)}"
+    # the learned length orders the vehicles: truck > van > cars, within a factor of the truth
+    med = {i: float(np.median(v[100:])) for i, v in lengths.items()}
+    assert med[1] > med[2] > max(med[0], med[3])
+    assert 6.0 < med[1] < 14.0 and 5.0 < med[2] < 10.0 and 2.0 < med[3] < 6.0
+
+
+def test_slant_radial_speed_is_projected_to_the_ground_plane():
+    from edge.track.tracker import Measurements
+
+    # radar 6 m above the road, target on boresight 8 m away on the ground: slant range 10 m
+    det = Detections(np.float32([10.0]), np.float32([-6.0]), np.float32([0.0]), np.float32([20.0]),
+                     np.float32([0.0]), np.float32([8.0]))
+    m = Measurements.from_detections(det, use_radial_speed=True)
+    assert m.with_radial_speed
+    np.testing.assert_allclose(m.z[0], [0.0, 8.0, -6.0 * 10.0 / 8.0], rtol=1e-6)
+    nan = Detections(np.float32([10.0]), np.float32([np.nan]), np.float32([0.0]), np.float32([20.0]),
+                     np.float32([0.0]), np.float32([8.0]))
+    assert not Measurements.from_detections(nan, use_radial_speed=True).with_radial_speed
+
+
+def test_frames_without_radial_speed_fall_back_to_position_only():
+    tr = PdafTracker()
+    for t_ns, det, _ in frames([HIGHWAY[2]], 60, seed=3):
+        det = Detections(det.range_m, np.full_like(det.radial_speed_mps, np.nan), det.az_rad, det.snr_db,
+                         det.x_m, det.y_m)
+        out = tr.step(det, t_ns)
+    assert len(out) == 1 and out[0].vy_mps == pytest.approx(30.0, abs=1.0)
+
+
+@pytest.mark.parametrize("y0_m,v_mps,length_m", [(60.0, -25.0, 0.0), (60.0, -25.0, 4.5), (25.0, 25.0, 4.5)])
+def test_side_by_side_vehicles_get_two_tracks(y0_m, v_mps, length_m):
+    """Two vehicles at equal range and speed in adjacent lanes (3.5 m apart), near enough that the
+    azimuth noise (0.5 deg) separates them: each keeps its own track."""
+    vehicles = [Vehicle(-1.75, y0_m, 0.0, v_mps, length_m=length_m), Vehicle(1.75, y0_m, 0.0, v_mps, length_m=length_m)]
+    hist, ids, _ = _run(vehicles, 60, seed=3, p_detect=0.9, clutter_per_frame=1.0)
+    assert len(ids) == 2
+    own = [{a for a, _, _ in h[12:]} for h in hist.values()]
+    assert all(len(o) == 1 and -1 not in o for o in own) and own[0] != own[1], own

@@ -25,6 +25,7 @@ class Vehicle:
     t_start_s: float = 0.0
     t_end_s: float = 1e9
     lane_change: tuple[float, float, float] | None = None  # (t_start_s, duration_s, dx_m)
+    length_m: float = 0.0  # > 0: extended target, 1-3 detections per frame spread along its length
 
     def position(self, t_s: float) -> tuple[float, float]:
         x = self.x0_m + self.vx_mps * t_s
@@ -76,10 +77,16 @@ def frames(
             truth.append((i, x, y, vx, vy))
             if rng.random() > p_detect:
                 continue
-            rho = np.hypot(x, y)
-            r.append(rho + rng.normal(0, range_sigma_m))
-            az.append(np.arctan2(x, y) + rng.normal(0, az_sigma))
-            vr.append((x * vx + y * vy) / rho + rng.normal(0, vr_sigma_mps))
+            pts = [(x, y)]
+            if v.length_m > 0:
+                sp = np.hypot(vx, vy) or 1.0
+                off = rng.uniform(-0.5, 0.5, 1 + min(rng.poisson(1.0), 2)) * v.length_m
+                pts = [(x + o * vx / sp, y + o * vy / sp) for o in off]
+            for px, py in pts:
+                rho = np.hypot(px, py)
+                r.append(rho + rng.normal(0, range_sigma_m))
+                az.append(np.arctan2(px, py) + rng.normal(0, az_sigma))
+                vr.append((px * vx + py * vy) / rho + rng.normal(0, vr_sigma_mps))
         nc = rng.poisson(clutter_per_frame) if clutter_per_frame > 0 else 0
         if nc:
             x0, x1, y0, y1 = clutter_box
