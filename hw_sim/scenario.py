@@ -41,6 +41,10 @@ Schema (every key optional unless marked; units in names)::
     z_m = 1.0
     rcs_m2 = 30.0
 
+Road traffic on the SIMO board adds the tables ``[[vehicle]]`` (extended vehicles with lane changes and
+stop-and-go), ``[[traffic]]`` (random traffic per lane), ``[[guardrail]]`` and ``[[multipath]]``;
+their schema is in :mod:`hw_sim.traffic`.
+
 Built-in scenarios live in ``hw_sim/scenarios/*.toml`` and are named by file stem.
 """
 
