@@ -81,3 +81,16 @@ def os_cfar(power: np.ndarray, ref_index: np.ndarray, rank: int, scale: float) -
     noise = np.partition(ref, rank - 1, axis=-1)[..., rank - 1]
     thr = noise * np.float32(scale)
     return power > thr, thr, noise
+
+
+def os_cfar_at(power: np.ndarray, rows: np.ndarray, cols: np.ndarray, ref_index: np.ndarray, rank: int) -> np.ndarray:
+    """The OS-CFAR noise estimate of :func:`os_cfar` at selected cells only (float32 ``(n,)``).
+
+    ``power``: ``(n_rows, n_bins)``; ``rows``, ``cols``: int ``(n,)`` cells (e.g. the local maxima, the
+    only cells a peak detector can report). Identical to ``os_cfar(...)[2][rows, cols]`` at a fraction
+    of the cost.
+    """
+    if rows.size == 0:
+        return np.zeros(0, np.float32)
+    ref = power[rows[:, None], ref_index[cols]]  # (n, n_ref)
+    return np.partition(ref, rank - 1, axis=-1)[:, rank - 1]

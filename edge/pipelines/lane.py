@@ -14,8 +14,9 @@ Per frame (four chirp segments: fast up, fast down, slow up, slow down; 4 receiv
       -> PDAF tracker (edge.track) -> lanes, statistics, events (edge.traffic)
 
 All parameters are in :class:`LaneConfig` (section ``pipeline.lane``); the tracker and the traffic
-layer read ``track.pdaf`` and ``traffic``. Intermediates for plots: ``power`` (segments x bins, dB),
-``threshold`` (dB), ``peak_freqs_hz`` (per segment), ``pairs`` counts, ``angle_spectrum``.
+layer read ``track.pdaf`` and ``traffic``. Intermediates for plots: ``power`` (segments x bins, linear),
+``threshold`` and ``noise`` (linear; NaN away from local maxima unless ``cfar_full_threshold``),
+``peak_freqs_hz`` (per segment), pairing counts, ``angle_spectrum``.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from edge.dsp.angle import bartlett_consensus, steering_matrix
-from edge.dsp.cfar import os_cfar, os_cfar_scale, reference_index
+from edge.dsp.cfar import os_cfar, os_cfar_at, os_cfar_scale, reference_index
 from edge.dsp.geometry import polar_to_ground
 from edge.dsp.pairing import PairingModel, nearest_of_clusters, pair_beats
 from edge.dsp.peaks import interpolate_peak, local_maxima
@@ -65,6 +66,9 @@ class LaneConfig:
         "unit": "dB", "doc": "the OS-CFAR noise estimate is capped at the segment's median power plus this: "
                "an extended vehicle (or several) filling the reference window cannot mask itself",
         "min": 0.0, "max": 100.0})
+    cfar_full_threshold: bool = field(default=False, metadata={
+        "doc": "compute the OS-CFAR threshold at every bin (for plots); off: only at local maxima, the only cells "
+               "that can become peaks (same detections, a fifth of the work); other bins read NaN"})
     min_range_m: float = field(default=5.0, metadata={
         "unit": "m", "doc": "nearest slant range reported (TX->RX leakage and the overpass itself are closer)",
         "min": 0.0, "max": 100.0})
@@ -197,12 +201,22 @@ class LanePipeline(Pipeline):
                 spec = spec - self._background
             power = (spec.real * spec.real + spec.imag * spec.imag).sum(axis=0)  # (seg, bin) float32
         with timer.stage("cfar"):
-            _, _, noise = os_cfar(power, self._ref_index, self._rank, self.cfar_scale)
             floor = np.partition(power, self.n_bins // 2, axis=-1)[:, self.n_bins // 2]  # median per segment
-            noise = np.minimum(noise, (floor * self._cap)[:, None])
-            thr = noise * np.float32(self.cfar_scale)
-            hit = power > thr
-            peaks = local_maxima(power, hit & self._valid)
+            cap = floor * self._cap  # (4,)
+            if cfg.cfar_full_threshold:  # the whole threshold curve, for plots
+                _, _, noise = os_cfar(power, self._ref_index, self._rank, self.cfar_scale)
+                noise = np.minimum(noise, cap[:, None])
+                thr = noise * np.float32(self.cfar_scale)
+                peaks = local_maxima(power, (power > thr) & self._valid)
+            else:  # only local maxima can be reported: evaluate the ordered statistic there
+                rows, cols = np.nonzero(local_maxima(power, self._valid))
+                nz = np.minimum(os_cfar_at(power, rows, cols, self._ref_index, self._rank), cap[rows])
+                hit = power[rows, cols] > nz * np.float32(self.cfar_scale)
+                peaks = np.zeros(power.shape, bool)
+                peaks[rows[hit], cols[hit]] = True
+                noise = np.full(power.shape, np.nan, np.float32)
+                noise[rows, cols] = nz
+                thr = noise * np.float32(self.cfar_scale)
             freqs, bins = [], []
             for k in range(4):  # four segments
                 b = np.flatnonzero(peaks[k])

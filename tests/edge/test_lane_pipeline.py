@@ -108,3 +108,18 @@ def test_clutter_map_removes_static_posts_and_keeps_the_car():
     static = lambda d: int(np.sum(np.abs(d.radial_speed_mps) < 0.3))  # noqa: E731
     assert static(d_raw) == 2 and static(d_map) == 0
     assert np.sum(np.abs(d_map.radial_speed_mps + 20.0) < 0.5) == 1
+
+
+def test_sparse_cfar_gives_the_same_detections_as_the_full_threshold():
+    sparse = LanePipeline(FE, LaneConfig(tracking=False))
+    full = LanePipeline(FE, LaneConfig(tracking=False, cfar_full_threshold=True))
+    timer = StageTimer()
+    for fr in _single_car_frames(180.0, 5.25, 30.0, n=4):
+        a, ia = sparse.detect(fr, timer)
+        b, ib = full.detect(fr, timer)
+        np.testing.assert_array_equal(a.range_m, b.range_m)
+        np.testing.assert_array_equal(a.az_rad, b.az_rad)
+        assert np.isfinite(ib["threshold"]).all()
+        at = np.isfinite(ia["threshold"])
+        assert 0 < at.sum() < at.size
+        np.testing.assert_allclose(ia["threshold"][at], ib["threshold"][at], rtol=1e-6)
