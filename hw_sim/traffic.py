@@ -9,6 +9,7 @@ TOML tables (units in names; lanes are indices into the scenario's ``[[lane]]`` 
     y_m = 200.0                  # along-road position of the reference point at t = 0 (required)
     speed_kmh = 90.0             # travel speed; the lane's direction sets the sign
     x_offset_m = 0.0             # lateral offset from the lane centre
+    wrong_way = false            # drive against the lane's direction (a wrong-way driver)
     lane_change_to = 2           # optional: target lane of a lane change ...
     lane_change_at_s = 2.0       # ... starting at this time
     lane_change_duration_s = 4.0
@@ -92,6 +93,11 @@ def build_vehicle(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generat
         raise ScenarioError(f"{where}kind must be one of {', '.join(BODY_TYPES)}, got {kind!r}")
     lane = _lane(sc, spec, "lane", where)
     d = _direction(sc, lane)
+    wrong = spec.get("wrong_way", False)
+    if not isinstance(wrong, bool):
+        raise ScenarioError(f"{where}wrong_way must be true or false, got {wrong!r}")
+    if wrong:
+        d = -d
     v = _num(spec, "speed_kmh", 90.0, where) / 3.6
     x0 = sc.lanes[lane].center_x_m + _num(spec, "x_offset_m", 0.0, where)
     y0 = _num(spec, "y_m", where=where)

@@ -128,6 +128,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     measured_volume = np.zeros(n_lanes, dtype=np.int64)
     true_volume = np.zeros(n_lanes, dtype=np.int64)
     prev_s: dict[int, float] = {}
+    events: list[dict] = []
 
     it = range(n_frames)
     if progress:
@@ -144,6 +145,8 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         t2 = time.perf_counter()
         cpu_ms[n] = (time.thread_time() - c1) * 1e3
         sim_ms[n], frame_ms[n] = (t1 - t0) * 1e3, (t2 - t1) * 1e3
+        for ev in res.events:
+            events.append({"kind": ev.kind, "track_id": ev.track_id, "lane": ev.lane, "t_s": round(f.t_s, 3)})
         for ls in res.lane_stats:
             if 0 <= ls.lane < n_lanes:
                 measured_volume[ls.lane] += ls.volume
@@ -283,6 +286,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             for k, v in sorted(pd_bins.items())},
         "vehicles_in_view": len(targets),
         "estimated_yaw_deg": math.degrees(pipe.traffic.yaw_rad) if pipe.traffic is not None else None,
+        "events": events,
         "classification_accuracy": None,
         "confusion_matrix": None,
     }
