@@ -6,7 +6,7 @@ from hal.waveform import d2g_frontend, simo_frontend
 from hw_sim.radio import D2G_RADIO, SIMO_RADIO
 from hw_sim.synth import SimBoard
 
-SIMO_BOARD = SimBoard(frontend=simo_frontend(), radio=SIMO_RADIO)
+SIMO_BOARD = SimBoard(frontend=simo_frontend(), radio=SIMO_RADIO, fast_synthesis=True)
 D2G_BOARD = SimBoard(frontend=d2g_frontend(), radio=D2G_RADIO)
 
 

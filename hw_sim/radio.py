@@ -79,7 +79,11 @@ class RadioModel:
 #: Lim et al. Table 1 antennas and TX power. Elevation beamwidths are not given in the paper; the
 #: series-fed columns make them narrow: 12 deg (TX) and 14 deg (RX) are assumed. NF 12 dB is typical
 #: of 24 GHz MMIC receivers; 12 dB of system loss (radome, feed, processing, fluctuation margin)
-#: makes a 10 m^2 car fall below the OS-CFAR threshold not far beyond 300 m (see the lane issue).
+#: makes a 10 m^2 car fall below the OS-CFAR threshold not far beyond 300 m. Measured with the lane
+#: pipeline's defaults (pfa 1e-3, four segments must pair), radar 7 m up, tilt 1.5 deg, a non-fluctuating
+#: 10 m^2 point target 0.5 m above lane 1 moving 5 m/s, 60 frames per range (2 s, 10 m of travel):
+#: detection probability 1.00 at 290 m, 0.97 at 310 m, 0.92 at 330 m, 0.68 at 350 m, 0.55 at 370 m,
+#: 0.00 at 390 m. Post-FFT SNR of that target is about 21 dB at 150 m (12 dB at 300 m).
 SIMO_RADIO = RadioModel(
     tx_power_dbm=19.7,
     tx=AntennaPattern(gain_dbi=13.6, az_beamwidth_deg=18.56, el_beamwidth_deg=12.0, sidelobe_db=18.8),

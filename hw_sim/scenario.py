@@ -41,6 +41,10 @@ Schema (every key optional unless marked; units in names)::
     z_m = 1.0
     rcs_m2 = 30.0
 
+Road traffic on the SIMO board adds the tables ``[[vehicle]]`` (extended vehicles with lane changes and
+stop-and-go), ``[[traffic]]`` (random traffic per lane), ``[[guardrail]]`` and ``[[multipath]]``;
+their schema is in :mod:`hw_sim.traffic`.
+
 Built-in scenarios live in ``hw_sim/scenarios/*.toml`` and are named by file stem.
 """
 
@@ -236,3 +240,7 @@ def load_scenario_for_eval(name_or_path: str, events: int | None = None) -> Scen
     if name_or_path in EVENT_SCENARIOS:
         return EVENT_SCENARIOS[name_or_path](events=events)
     return load_scenario(name_or_path)
+
+
+# the road-traffic generators ([[vehicle]], [[traffic]], [[guardrail]], [[multipath]]) register themselves
+import hw_sim.traffic  # noqa: E402,F401  (import for its side effect, after GENERATORS exists)

@@ -106,6 +106,10 @@ class Target:
     def active(self, t_s: float) -> bool:
         return self.t_start_s <= t_s <= self.t_end_s
 
+    def lane_at(self, t_s: float) -> int | None:
+        """Lane at ``t_s`` (vehicles that change lanes override this)."""
+        return self.lane
+
     def scatterers(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Body-frame offsets and velocities relative to the reference point at ``t_s``.
 
@@ -217,7 +221,9 @@ class Scene:
             elif tg.swerling == 3:
                 r = r * rng.gamma(2.0, 0.5)
             rcs.append(r)
-            ph.append(self._scatter_phase(tg.id, r.size))
+            # a target whose micro-motion (vibration, pitch: millimetres at lambda = 12 mm) decorrelates its
+            # glint from frame to frame draws new scattering phases every frame
+            ph.append(rng.random(r.size) if getattr(tg, "glint_decorrelates", False) else self._scatter_phase(tg.id, r.size))
             idx.append(np.full(r.size, k, dtype=np.int32))
         if self.clutter is not None and self.clutter.rcs_m2.size:
             pos.append(self.clutter.position_m)
@@ -244,7 +250,7 @@ class Scene:
             t_s=t_s,
             id=np.array([tg.id for tg in act], dtype=np.int32),
             cls=tuple(tg.cls for tg in act),
-            lane=np.array([-1 if tg.lane is None else tg.lane for tg in act], dtype=np.int16),
+            lane=np.array([-1 if (ln := tg.lane_at(t_s)) is None else ln for tg in act], dtype=np.int16),
             position_m=pos,
             velocity_mps=vel,
             range_m=rng,

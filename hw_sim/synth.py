@@ -35,6 +35,9 @@ class SimBoard:
     radio: RadioModel
     #: per-element complex gain errors (amplitude and phase) the calibration must remove; 1 = ideal
     channel_gain: tuple[complex, ...] = ()
+    #: use :func:`hw_sim.fastsynth.synthesize_if_fast` (one exponential per scatterer and sample, not per
+    #: element too); for many-scatterer scenes on multi-element boards
+    fast_synthesis: bool = False
 
     def rx_positions_radar(self) -> np.ndarray:
         n = self.frontend.n_rx
@@ -60,6 +63,10 @@ def synthesize_if(
 
     ``scat`` holds the scatterers at ``t_frame_s``; each moves on a straight line during the frame.
     """
+    if board.fast_synthesis:
+        from hw_sim.fastsynth import synthesize_if_fast
+
+        return synthesize_if_fast(board, pose, scat, t_frame_s, rng, noise=noise, leakage=leakage)
     fe = board.frontend
     wf = fe.waveform
     c = SPEED_OF_LIGHT_MPS

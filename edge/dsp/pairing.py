@@ -1,0 +1,155 @@
+"""Beat-frequency pairing over Lim's four chirp segments (eqs. 5, 8, 13, 14; 9-10 with the typo fixed).
+
+Signed beat frequencies as the complex FFT sees them (hal.waveform conventions: radial speed ``v``
+positive receding, IF ``exp(+j 2 pi (S tau - f_D) t)``, ``f_D = -2 v / lambda``)::
+
+    f_k = S_k * 2 R(t_k) / c + 2 v / lambda,      R(t_k) = R0 + v * t_k
+
+with ``S_k`` the *signed* slope of segment ``k`` (down-chirps put targets at negative frequencies) and
+``t_k`` the middle of segment ``k``'s sampling window measured from the frame start, so ``R0`` is the
+range at the frame start (the time the ground truth refers to). Lim writes the same model per segment
+with ``|S|`` and the sign of the Doppler term flipped for up and down chirps: eq. (9)
+``R = (f1 + f2) c dT / (4 dB)`` and, with the typo of eq. (10) fixed (DESIGN §5),
+``v = (f2 - f1) c / (4 fc)`` in his convention (approach positive); our ``v`` is its negative.
+
+Pairing (vectorised over all candidate pairs):
+
+1. every up peak of the fast up-chirp x every peak of the fast down-chirp gives ``(R0, v)`` by solving
+   the two linear equations (the exact generalisation of eqs. 9-10 that includes the range change
+   between the segments);
+2. candidates outside the configured range and speed limits are dropped;
+3. each candidate predicts where it must appear in the slow up and slow down segments (eqs. 13-14);
+   it is confirmed only if a slow peak lies within ``tolerance_hz`` of both predictions -- a ghost
+   (a wrong fast pairing) predicts slow beats where no target is;
+4. confirmed candidates are accepted greedily by smallest slow mismatch; a candidate sharing more than
+   ``max_shared`` of its four peaks with already accepted pairs is dropped (with 0, every peak is used
+   once; with 1, two vehicles whose beats coincide in one segment both survive);
+5. ``(R0, v)`` is refined by least squares over the four measured frequencies.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hal.waveform import SPEED_OF_LIGHT_MPS
+
+
+@dataclass(frozen=True)
+class PairingModel:
+    """Per-segment coefficients of ``f_k = a_k R0 + b_k v`` (float64, 4 segments in frame order)."""
+
+    a: np.ndarray  # (4,) Hz per metre
+    b: np.ndarray  # (4,) Hz per m/s
+
+    @classmethod
+    def from_waveform(cls, waveform) -> "PairingModel":
+        c = SPEED_OF_LIGHT_MPS
+        lam = waveform.wavelength_m
+        a, b = [], []
+        for s in waveform.segments:
+            t_mid = s.t_start_s + s.sample_offset_s + 0.5 * s.n_samples / s.sample_rate_hz
+            a.append(2.0 * s.slope_hz_per_s / c)
+            b.append(2.0 * s.slope_hz_per_s * t_mid / c + 2.0 / lam)
+        return cls(np.array(a), np.array(b))
+
+    def predict(self, range_m: np.ndarray, v_mps: np.ndarray) -> np.ndarray:
+        """``(..., 4)`` beat frequencies of targets at ``range_m`` with radial speed ``v_mps``."""
+        return range_m[..., None] * self.a + v_mps[..., None] * self.b
+
+
+@dataclass(frozen=True)
+class Pairs:
+    """Accepted pairings: indices into each segment's peak list and the refined range/speed."""
+
+    peak_index: np.ndarray  # (n, 4) int: peak of segment k used by pair n
+    range_m: np.ndarray  # (n,) float32, at the frame start
+    radial_speed_mps: np.ndarray  # (n,) float32, positive receding
+    residual_hz: np.ndarray  # (n,) float32, RMS of the 4-frequency least-squares fit
+    n_candidates: int  # fast pairs inside the limits (for plots/diagnostics)
+    n_ghosts: int  # candidates rejected by the slow segments
+
+
+def _nearest(sorted_f: np.ndarray, order: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index (into the unsorted list) and distance of the nearest peak to each ``f``."""
+    if sorted_f.size == 0:
+        return np.full(f.shape, -1), np.full(f.shape, np.inf)
+    j = np.clip(np.searchsorted(sorted_f, f), 1, max(sorted_f.size - 1, 1))
+    lo = np.clip(j - 1, 0, sorted_f.size - 1)
+    hi = np.clip(j, 0, sorted_f.size - 1)
+    d_lo = np.abs(f - sorted_f[lo])
+    d_hi = np.abs(f - sorted_f[hi])
+    pick = np.where(d_hi < d_lo, hi, lo)
+    return order[pick], np.minimum(d_lo, d_hi)
+
+
+def pair_beats(
+    freqs: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    model: PairingModel,
+    *,
+    min_range_m: float,
+    max_range_m: float,
+    max_speed_mps: float,
+    tolerance_hz: tuple[float, float],
+    max_shared: int = 1,
+) -> Pairs:
+    """Pair the peaks of the four segments.
+
+    ``freqs``: signed beat frequencies (Hz, float64) of the peaks of segments 0..3 (fast up, fast
+    down, slow up, slow down). ``tolerance_hz``: allowed mismatch in the slow up / slow down segment.
+    """
+    f0, f1, f2, f3 = (np.asarray(f, dtype=np.float64) for f in freqs)
+    a, b = model.a, model.b
+    det = a[0] * b[1] - a[1] * b[0]
+    # solve [a0 b0; a1 b1] [R; v] = [f0; f1] for every (up, down) combination
+    F0, F1 = np.meshgrid(f0, f1, indexing="ij")  # (n0, n1)
+    rng = (F0 * b[1] - F1 * b[0]) / det
+    vel = (a[0] * F1 - a[1] * F0) / det
+    ok = (rng >= min_range_m) & (rng <= max_range_m) & (np.abs(vel) <= max_speed_mps)
+    i0, i1 = np.nonzero(ok)
+    n_cand = int(i0.size)
+    rng, vel = rng[i0, i1], vel[i0, i1]
+    pred = model.predict(rng, vel)  # (n, 4)
+    o2, o3 = np.argsort(f2), np.argsort(f3)
+    j2, d2 = _nearest(f2[o2], o2, pred[:, 2])
+    j3, d3 = _nearest(f3[o3], o3, pred[:, 3])
+    conf = (d2 <= tolerance_hz[0]) & (d3 <= tolerance_hz[1])
+    n_ghost = int(n_cand - conf.sum())
+    i0, i1, j2, j3 = i0[conf], i1[conf], j2[conf], j3[conf]
+    cost = (d2[conf] / tolerance_hz[0]) ** 2 + (d3[conf] / tolerance_hz[1]) ** 2
+    # greedy, best slow agreement first (a handful of candidates): a candidate may share at most
+    # ``max_shared`` of its four peaks with pairs already accepted (two vehicles whose beats coincide in
+    # one segment are both kept; the cross-pairings of one vehicle's scatterers share two or more)
+    used = [np.zeros(f.size, bool) for f in (f0, f1, f2, f3)]
+    keep = []
+    for n in np.argsort(cost, kind="stable"):
+        pk = (i0[n], i1[n], j2[n], j3[n])
+        if sum(bool(u[k]) for u, k in zip(used, pk)) <= max_shared:
+            for u, k in zip(used, pk):
+                u[k] = True
+            keep.append(n)
+    keep = np.asarray(keep, dtype=np.int64)
+    idx = np.stack([i0[keep], i1[keep], j2[keep], j3[keep]], axis=1) if keep.size else np.zeros((0, 4), np.int64)
+    if keep.size:
+        fm = np.stack([f0[idx[:, 0]], f1[idx[:, 1]], f2[idx[:, 2]], f3[idx[:, 3]]], axis=1)  # (n, 4)
+        A = np.stack([a, b], axis=1)  # (4, 2)
+        sol, *_ = np.linalg.lstsq(A, fm.T, rcond=None)  # (2, n)
+        res = np.sqrt(np.mean((A @ sol - fm.T) ** 2, axis=0))
+        r_out, v_out = sol[0], sol[1]
+    else:
+        r_out = v_out = res = np.zeros(0)
+    return Pairs(idx, r_out.astype(np.float32), v_out.astype(np.float32), res.astype(np.float32), n_cand, n_ghost)
+
+
+def nearest_of_clusters(range_m: np.ndarray, v_mps: np.ndarray, x_m: np.ndarray, *, length_m: float,
+                        speed_mps: float, lateral_m: float) -> np.ndarray:
+    """Keep mask ``(n,)``: drop a detection when another one lies at most ``length_m`` nearer in range,
+    within ``speed_mps`` in radial speed and ``lateral_m`` across -- the same vehicle seen further
+    along its body. An extended vehicle then yields its nearest face, the point that stays visible and
+    that the tracker follows (several detections of one body would pull a track between its faces).
+    """
+    r = range_m[:, None] - range_m[None, :]  # r[i, j] > 0: j nearer than i
+    same = (r > 0) & (r <= length_m) & (np.abs(v_mps[:, None] - v_mps[None, :]) <= speed_mps) & (
+        np.abs(x_m[:, None] - x_m[None, :]) <= lateral_m)
+    return ~same.any(axis=1)

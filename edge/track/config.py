@@ -1,0 +1,148 @@
+"""Configuration of the lane profile's PDAF tracker (section ``track.pdaf``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class PdafConfig:
+    """Parameters of :class:`edge.track.PdafTracker`; defaults follow Lim et al. §III-B where it gives them."""
+
+    association: str = field(
+        default="jpda",
+        metadata={"doc": "pdaf: Lim eqs. 17-19 per track; jpda: the same weights shared between tracks whose "
+                         "gates hold the same detection (cheap JPDA; identical to pdaf for isolated vehicles, "
+                         "keeps ids when vehicles pass close)", "choices": ("pdaf", "jpda")},
+    )
+    prob_detect: float = field(
+        default=0.9, metadata={"doc": "P_D of eqs. 18-19: probability a tracked vehicle gives a detection in a frame",
+                               "min": 0.05, "max": 0.999})
+    prob_gate: float = field(
+        default=0.99, metadata={"doc": "P_G of eq. 17: probability the gate holds the true detection; sets gamma",
+                                "min": 0.5, "max": 0.99999})
+    init_exclusion_prob: float = field(
+        default=0.99999, metadata={"doc": "a detection inside this (wider) chi-square gate of an existing track "
+                                          "never seeds a new track: outliers of a tracked vehicle must not spawn "
+                                          "a duplicate", "min": 0.5, "max": 0.9999999})
+    use_radial_speed: bool = field(
+        default=True,
+        metadata={"doc": "add the measured radial speed to the measurement (EKF row): separates vehicles at the "
+                         "same position with different speeds and makes velocity converge in a few frames"})
+    range_sigma_m: float = field(
+        default=0.15, metadata={"unit": "m", "doc": "range measurement standard deviation (0.8 m resolution, "
+                                                    "sub-bin interpolation)", "min": 0.001, "max": 10.0})
+    azimuth_sigma_deg: float = field(
+        default=0.5, metadata={"unit": "deg", "doc": "azimuth standard deviation of the Bartlett estimate",
+                               "min": 0.001, "max": 20.0})
+    radial_speed_sigma_mps: float = field(
+        default=0.3, metadata={"unit": "m/s", "doc": "radial speed standard deviation (1.2 m/s resolution, "
+                                                     "interpolated)", "min": 0.001, "max": 20.0})
+    extent_sigma_m: float = field(
+        default=0.3, metadata={"unit": "m", "doc": "isotropic position noise added for extended vehicles (across "
+                                                   "the vehicle: which scatterer gives the peak)", "min": 0.0, "max": 10.0})
+    extent_along_sigma_m: float = field(
+        default=1.3, metadata={"unit": "m", "doc": "initial spread of a vehicle's detections along its heading "
+                                                   "(a 4.5 m car seen as scatterers over its length: 4.5/sqrt(12)); "
+                                                   "then learned per track", "min": 0.0, "max": 20.0})
+    extent_alpha: float = field(
+        default=0.05, metadata={"doc": "smoothing factor of the per-track along-heading spread (and length) estimate",
+                                "min": 0.0, "max": 1.0})
+    extent_max_sigma_m: float = field(
+        default=6.0, metadata={"unit": "m", "doc": "upper bound of the learned along-heading spread (a 20 m "
+                                                   "articulated truck: 5.8 m)", "min": 0.1, "max": 50.0})
+    q_lateral_m2ps3: float = field(
+        default=0.5, metadata={"unit": "m^2/s^3", "doc": "white-noise acceleration density across the boresight "
+                                                         "(lane changes)", "min": 1e-6, "max": 1000.0})
+    q_along_m2ps3: float = field(
+        default=2.0, metadata={"unit": "m^2/s^3", "doc": "white-noise acceleration density along the boresight "
+                                                         "(braking, stop-and-go)", "min": 1e-6, "max": 1000.0})
+    seed_min_radial_speed_mps: float = field(
+        default=1.0, metadata={"unit": "m/s", "doc": "detections slower than this (ground radial speed, about 3 sd "
+                                                     "of its noise) never seed a "
+                                                     "track: guard rails, gantries and poles would otherwise fill the "
+                                                     "track table; a vehicle that stops keeps its track (seeding only "
+                                                     "applies when the radial speed is measured)", "min": 0.0, "max": 20.0})
+    init_along_speed_sigma_mps: float = field(
+        default=2.0, metadata={"unit": "m/s", "doc": "initial along-boresight speed sd when the radial speed seeds it",
+                               "min": 0.01, "max": 100.0})
+    init_lateral_speed_sigma_mps: float = field(
+        default=3.0, metadata={"unit": "m/s", "doc": "initial lateral speed sd (vehicles move along the road; a "
+                                                     "mis-aimed radar sees a few m/s across)", "min": 0.01, "max": 100.0})
+    init_speed_sigma_mps: float = field(
+        default=40.0, metadata={"unit": "m/s", "doc": "initial speed sd when no radial speed is measured",
+                                "min": 0.1, "max": 200.0})
+    confirm_m: int = field(
+        default=5, metadata={"doc": "M of the M-of-N confirmation (5 of 7 frames = 0.2 s: in seeded runs with 3 "
+                                    "noise detections per frame it halved the false tracks of 3 of 5)",
+                             "min": 1, "max": 32})
+    confirm_n: int = field(default=7, metadata={"doc": "N of the M-of-N confirmation (frames)", "min": 1, "max": 32})
+    moving_prob: float = field(
+        default=0.9999, metadata={"doc": "a track counts as moving once v' P_v^-1 v exceeds the chi-square (2 dof) "
+                                         "quantile of this probability and its speed exceeds confirm_min_speed_mps",
+                                  "min": 0.5, "max": 0.9999999})
+    confirm_min_speed_mps: float = field(
+        default=1.0, metadata={"unit": "m/s", "doc": "a track confirms only once it was surely moving (moving_prob) "
+                                                     "at least this fast: static "
+                                                     "clutter (guard rail, gantry) is held in unpublished tentative "
+                                                     "tracks; a vehicle that stops later stays confirmed",
+                               "min": 0.0, "max": 50.0})
+    delete_after_misses: int = field(
+        default=8, metadata={"doc": "consecutive frames without a validated detection before a confirmed track "
+                                    "is deleted (Lim: tracks survive two or three misses; 8 frames = 0.26 s)",
+                             "min": 1, "max": 1000})
+    max_position_sigma_m: float = field(
+        default=8.0, metadata={"unit": "m", "doc": "delete a track whose position sd grows beyond this",
+                               "min": 0.1, "max": 1000.0})
+    min_range_m: float = field(default=2.0, metadata={"unit": "m", "doc": "tracks live beyond this ground range",
+                                                      "min": 0.0, "max": 100.0})
+    max_range_m: float = field(default=320.0, metadata={"unit": "m", "doc": "tracks live within this ground range",
+                                                        "min": 1.0, "max": 2000.0})
+    merge_lateral_m: float = field(
+        default=1.5, metadata={"unit": "m", "doc": "two tracks closer than this across and the same-vehicle distance "
+                                                   "along (max of merge_along_m, merge_headway_s x speed, "
+                                                   "merge_extent_factor x spread) and merge_speed_mps in speed are "
+                                                   "one vehicle: the junior is dropped; the same box around a track "
+                                                   "keeps its detections from seeding new tracks",
+                               "min": 0.0, "max": 20.0})
+    merge_lateral_sigmas: float = field(
+        default=2.0, metadata={"doc": "for seeding, the lateral same-vehicle distance of raw detections grows "
+                                      "with range to this many azimuth standard deviations (r x sigma_az) ...", "min": 0.0, "max": 10.0})
+    merge_lateral_max_m: float = field(
+        default=3.0, metadata={"unit": "m", "doc": "... but stays below a lane width so vehicles side by side in "
+                                                   "adjacent lanes are never merged", "min": 0.0, "max": 20.0})
+    merge_along_m: float = field(
+        default=5.0, metadata={"unit": "m", "doc": "along-boresight extent of the merge box (a car length)",
+                               "min": 0.0, "max": 50.0})
+    merge_headway_s: float = field(
+        default=0.5, metadata={"unit": "s", "doc": "moving tracks closer along the boresight than this time headway "
+                                                  "(centre to centre, within the lateral/speed limits) are one long "
+                                                  "vehicle seen at front and rear (0.5 s centre to centre leaves "
+                                                  "about 0.3 s bumper to bumper: rare tailgating)",
+                               "min": 0.0, "max": 5.0})
+    merge_extent_factor: float = field(
+        default=2.0, metadata={"doc": "... or closer along than this many learned along-heading spreads (sd) of the "
+                                      "track: a long vehicle's own detections", "min": 0.0, "max": 10.0})
+    init_merge_along_m: float = field(
+        default=10.0, metadata={"unit": "m", "doc": "detections seeding tracks in the same frame within merge_lateral_m "
+                                                    "across and this along give one seed (a truck's front and rear)",
+                                "min": 0.0, "max": 50.0})
+    merge_state_prob: float = field(
+        default=0.99, metadata={"doc": "two tracks whose states (position, velocity) are indistinguishable at this "
+                                       "chi-square probability are also one vehicle (fresh duplicates from the "
+                                       "lateral spread of far detections; settled tracks in adjacent lanes differ)",
+                                "min": 0.5, "max": 0.999999})
+    merge_speed_mps: float = field(
+        default=2.0, metadata={"unit": "m/s", "doc": "speed difference below which close tracks merge",
+                               "min": 0.0, "max": 50.0})
+    max_tracks: int = field(default=128, metadata={"doc": "tentative + confirmed tracks held at most", "min": 1,
+                                                   "max": 4096})
+    max_track_id: int = field(
+        default=255, metadata={"doc": "published ids are 1..max_track_id, recycled oldest-released first (fits "
+                                      "one CAN byte / Modbus register)", "min": 1, "max": 65535})
+    publish_length: bool = field(
+        default=True, metadata={"doc": "publish length_m = sqrt(12) x the learned along-heading spread of a moving "
+                                       "track (uniform scatterers over the length); meaningful only when the "
+                                       "detection chain reports several peaks per vehicle"})
+    publish_tentative: bool = field(
+        default=False, metadata={"doc": "also publish tentative tracks (confirmed=False, track_id=0)"})

@@ -1,0 +1,503 @@
+"""The lane profile's multi-target tracker: a thin orchestrator over role objects (after Stone Soup
+``tracker/simple.py``): predict, associate (gate + weights), update, delete, initiate.
+
+Public API (stable; used by ``edge.pipelines.lane``)::
+
+    from edge.track import PdafConfig, PdafTracker
+    tracker = PdafTracker(PdafConfig())            # or cfg.section("track.pdaf")
+    tracks = tracker.step(detections, t_ns)        # tuple[TrackState, ...], confirmed tracks
+    tracker.intermediates                          # arrays of the last step, for plots
+    tracker.reset()
+
+``detections`` is an :class:`edge.types.Detections` (ground-plane ``x_m``, ``y_m``; ``range_m`` and
+``radial_speed_mps`` as measured), ``t_ns`` the frame time (monotonic). Published tracks carry a small
+recycled integer ``track_id`` in ``1..max_track_id`` given at confirmation; ``lane`` and ``cls`` are
+left ``None`` for later stages (:mod:`edge.traffic` fills ``lane``). ``range_m`` of a track is the
+ground range ``hypot(x, y)`` and ``radial_speed_mps`` the ground-plane radial speed.
+
+The measured radial speed is slant (the radar is above the road); it is projected to the ground
+plane with the detection's own range: ``v_ground = v_r * range_m / hypot(x_m, y_m)``. Frames whose
+radial speeds are not all finite fall back to position-only updates.
+
+Tracks are held as a struct of arrays (:class:`TrackTable`): the per-frame work is a handful of
+batched numpy operations over tracks x detections; there is no Python object per detection.
+
+Beyond Lim's single-point PDAF, what a roadside radar needs (all parameters in ``track.pdaf``):
+
+- extended vehicles: a car or truck gives several detections spread over its length; each track
+  learns the along-heading spread of its detections (``ext_var``) and adds it to ``R`` along its
+  heading, so the gate holds the whole vehicle and PDAF averages its points; ``length_m`` is
+  published as ``sqrt(12 ext_var)``;
+- seniority: confirmed tracks share detections (PDAF, or cheap JPDA by default); a tentative track
+  only uses detections no more senior track validated;
+- seeding: detections inside a wide exclusion gate or the same-vehicle box of a track never seed;
+  seeds of one frame within the same-vehicle box (lateral extent growing with range x azimuth sd,
+  same radial speed) give one seed;
+- duplicates: two tracks with the same velocity whose positions fall within the same-vehicle box, or
+  whose states are statistically indistinguishable, are one vehicle: the junior is dropped (before
+  confirmation, so no id is spent on it);
+- confirmation needs M of N hits and a speed surely above ``confirm_min_speed_mps`` (static clutter
+  stays in unpublished tentative tracks that absorb its detections).
+
+Measured on seeded synthetic scenes (tests/edge/trackscene.py): crossing vehicles that swap lanes
+side by side keep their ids with the cheap JPDA down to 1.5 m/s speed difference (PDAF: 6 of 10
+seeds at 1.5 m/s, all at 3 m/s and more); 56 tracks with 117 detections per frame take about
+1.4 ms per frame (p50, one core of the development machine, thread CPU time).
+
+Known limit: two vehicles side by side at the same range and speed are separated only where the
+azimuth noise is well below the lane spacing (tested at 25-60 m with 0.5 deg); far away the seeds
+of the second vehicle fall inside the first track's same-vehicle box and the track sits between
+them until they are resolved (a 4-element array cannot resolve them in angle there anyway).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from edge.track import kalman
+from edge.track.config import PdafConfig
+from edge.track.pdaf import Innovations, association_weights, combined_update, gate_threshold, innovations
+from edge.types import Detections, TrackState
+
+log = logging.getLogger(__name__)
+
+__all__ = ["PdafTracker", "TrackTable", "IdPool"]
+
+
+class IdPool:
+    """Small integer ids ``1..max_id``, handed out lowest-first at start, then oldest-released first
+    (a released id waits as long as possible before it is reused, so consumers do not confuse vehicles)."""
+
+    def __init__(self, max_id: int) -> None:
+        self._free: deque[int] = deque(range(1, max_id + 1))
+        self._used: set[int] = set()
+
+    def acquire(self) -> int | None:
+        if not self._free:
+            return None
+        i = self._free.popleft()
+        self._used.add(i)
+        return i
+
+    def release(self, track_id: int) -> None:
+        if track_id in self._used:
+            self._used.remove(track_id)
+            self._free.append(track_id)
+
+    @property
+    def in_use(self) -> int:
+        return len(self._used)
+
+
+@dataclass
+class TrackTable:
+    """All tracks as columns (row = track). ``track_id`` is 0 until a track is confirmed."""
+
+    x: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    p: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))
+    track_id: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
+    age: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
+    hits: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
+    misses: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
+    history: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.uint32))  # bit 0 = this frame hit
+    confirmed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    moved: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # was ever surely moving
+    ext_var: np.ndarray = field(default_factory=lambda: np.zeros(0))  # along-heading detection spread, m^2
+
+    _COLUMNS = ("x", "p", "track_id", "age", "hits", "misses", "history", "confirmed", "moved", "ext_var")
+
+    def __len__(self) -> int:
+        return int(self.x.shape[0])
+
+    def keep(self, mask: np.ndarray) -> None:
+        for c in self._COLUMNS:
+            setattr(self, c, getattr(self, c)[mask])
+
+    def append(self, x: np.ndarray, p: np.ndarray, ext_var: float) -> None:
+        k = x.shape[0]
+        self.x = np.concatenate([self.x, x])
+        self.p = np.concatenate([self.p, p])
+        self.track_id = np.concatenate([self.track_id, np.zeros(k, dtype=np.int32)])
+        self.age = np.concatenate([self.age, np.ones(k, dtype=np.int32)])
+        self.hits = np.concatenate([self.hits, np.ones(k, dtype=np.int32)])
+        self.misses = np.concatenate([self.misses, np.zeros(k, dtype=np.int32)])
+        self.history = np.concatenate([self.history, np.ones(k, dtype=np.uint32)])
+        self.confirmed = np.concatenate([self.confirmed, np.zeros(k, dtype=bool)])
+        self.moved = np.concatenate([self.moved, np.zeros(k, dtype=bool)])
+        self.ext_var = np.concatenate([self.ext_var, np.full(k, ext_var)])
+
+
+@dataclass
+class Measurements:
+    """One frame's detections as the filter sees them (float64, ground plane)."""
+
+    z: np.ndarray  # (M, n): x, y[, ground radial speed]
+    snr_db: np.ndarray  # (M,)
+    with_radial_speed: bool
+
+    @classmethod
+    def from_detections(cls, det: Detections, use_radial_speed: bool) -> "Measurements":
+        x = det.x_m.astype(np.float64)
+        y = det.y_m.astype(np.float64)
+        ok = np.isfinite(x) & np.isfinite(y)
+        x, y = x[ok], y[ok]
+        snr = det.snr_db.astype(np.float64)[ok]
+        vr = det.radial_speed_mps.astype(np.float64)[ok]
+        rng = det.range_m.astype(np.float64)[ok]
+        use = use_radial_speed and bool(np.all(np.isfinite(vr)) and np.all(np.isfinite(rng)))
+        if use:
+            rho = np.hypot(x, y)
+            ratio = np.divide(rng, rho, out=np.ones_like(rho), where=rho > 1e-6)
+            z = np.stack([x, y, vr * ratio], axis=1)
+        else:
+            z = np.stack([x, y], axis=1)
+        return cls(z, np.nan_to_num(snr, nan=0.0), use)
+
+
+class CvPredictor:
+    """Constant-velocity prediction of every track to the frame time."""
+
+    def __init__(self, cfg: PdafConfig) -> None:
+        self.cfg = cfg
+
+    def predict(self, tracks: TrackTable, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        f = kalman.cv_transition(dt_s)
+        q = kalman.cv_process_noise(dt_s, self.cfg.q_lateral_m2ps3, self.cfg.q_along_m2ps3)
+        return kalman.predict(tracks.x, tracks.p, f, q)
+
+
+def heading(xp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit heading (T, 2) and weight (T,) in [0, 1] (0 when standing, 1 from 1 m/s)."""
+    sp = np.hypot(xp[:, 2], xp[:, 3])
+    u = xp[:, 2:4] / np.maximum(sp, 1e-9)[:, None]
+    return u, np.clip(sp, 0.0, 1.0)
+
+
+def extent_cov(xp: np.ndarray, ext_var: np.ndarray) -> np.ndarray:
+    """(T, 2, 2) spread of an extended vehicle's detections: ``ext_var`` along the heading
+    (isotropic while the heading is unknown)."""
+    u, w = heading(xp)
+    uu = u[:, :, None] * u[:, None, :]
+    iso = np.eye(2)[None] * (1.0 - w)[:, None, None]
+    return ext_var[:, None, None] * (w[:, None, None] * uu + iso)
+
+
+class MeasurementModel:
+    """``z_hat``, ``H`` and ``R`` per track at its prediction.
+
+    ``R`` of the position is the converted polar noise plus the spread of an extended vehicle's
+    detections: ``extent_sigma_m`` across, and the track's learned variance ``ext_var`` along its
+    heading (isotropic while the track is slower than 1 m/s and the heading is unknown).
+    """
+
+    def __init__(self, cfg: PdafConfig) -> None:
+        self.cfg = cfg
+        self._az_sigma_rad = math.radians(cfg.azimuth_sigma_deg)
+
+    def at(self, xp: np.ndarray, with_radial_speed: bool, ext_var: np.ndarray | None = None):
+        c = self.cfg
+        zh, h = kalman.measurement_prediction(xp, with_radial_speed)
+        rp = kalman.polar_position_noise(xp[:, :2], c.range_sigma_m, self._az_sigma_rad, c.extent_sigma_m)
+        if ext_var is not None:
+            rp += extent_cov(xp, ext_var)
+        n = zh.shape[1]
+        r = np.zeros((xp.shape[0], n, n))
+        r[:, :2, :2] = rp
+        if n == 3:
+            r[:, 2, 2] = c.radial_speed_sigma_mps**2
+        return zh, h, r
+
+    def update_extent(self, xp, ext_var, inn: Innovations, beta: np.ndarray) -> np.ndarray:
+        """Learn the along-heading spread from the weighted along-heading innovations of this frame:
+        ``E[a^2] - u' (H P H' + R_sensor) u``, ``R_sensor`` = ``S`` without the extent term."""
+        c = self.cfg
+        u, w = heading(xp)
+        a = inn.v[:, :, 0] * u[:, None, 0] + inn.v[:, :, 1] * u[:, None, 1]  # (T, M) along-heading innovation
+        wsum = beta.sum(axis=1)
+        ok = (wsum > 0.5) & (w >= 1.0)
+        m2 = (beta * a * a).sum(axis=1) / np.maximum(wsum, 1e-12)
+        s2 = inn.s[:, :2, :2]
+        along_s = u[:, 0] * (s2[:, 0, 0] * u[:, 0] + s2[:, 0, 1] * u[:, 1]) + u[:, 1] * (
+            s2[:, 1, 0] * u[:, 0] + s2[:, 1, 1] * u[:, 1])
+        other = along_s - ext_var  # for moving tracks (w = 1) the extent adds exactly ext_var along u
+        sample = np.clip(m2 - other, 0.0, c.extent_max_sigma_m**2)
+        return np.where(ok, (1.0 - c.extent_alpha) * ext_var + c.extent_alpha * sample, ext_var)
+
+
+class PdaAssociator:
+    """Gate (eq. 17) and association probabilities (eqs. 18-19, or cheap JPDA)."""
+
+    def __init__(self, cfg: PdafConfig) -> None:
+        self.cfg = cfg
+        self._gamma = {n: gate_threshold(cfg.prob_gate, n) for n in (2, 3)}
+        self.exclusion_gamma = {n: gate_threshold(max(cfg.init_exclusion_prob, cfg.prob_gate), n) for n in (2, 3)}
+
+    def associate(self, meas: Measurements, zh, h, pp, r, confirmed: np.ndarray, seniority: np.ndarray):
+        """Confirmed tracks share detections (PDAF/JPDA); a tentative track only sees detections that no
+        more senior track validated (confirmed first, then more hits): a tentative track born from clutter
+        next to a vehicle, or a second seed on the same vehicle, must not live off its points."""
+        inn = innovations(meas.z, zh, h, pp, r)
+        n = meas.z.shape[1]
+        gamma = self._gamma[n]
+        rank = np.where(confirmed, np.inf, seniority.astype(float))
+        owner = np.where(inn.d2 <= gamma, rank[:, None], -np.inf).max(axis=0) if len(rank) else rank
+        allowed = confirmed[:, None] | (rank[:, None] >= owner[None, :])
+        beta, beta0, gated = association_weights(
+            inn, gamma, self.cfg.prob_detect, self.cfg.prob_gate, self.cfg.association, allowed
+        )
+        return inn, beta, beta0, gated
+
+
+class PdaUpdater:
+    def update(self, xp, pp, h, inn: Innovations, beta, beta0):
+        return combined_update(xp, pp, h, inn, beta, beta0)
+
+
+def _box_close(a_xy: np.ndarray, b_xy: np.ndarray, lat_m, along_m) -> np.ndarray:
+    """(A, B) bool: points closer than the box half-sizes in x and y (scalars or (A,) per row)."""
+    d = a_xy[:, None, :] - b_xy[None, :, :]
+    lat = np.asarray(lat_m, dtype=float)
+    lat = lat[:, None] if lat.ndim else lat
+    along = np.asarray(along_m, dtype=float)
+    along = along[:, None] if along.ndim else along
+    return (np.abs(d[..., 0]) < lat) & (np.abs(d[..., 1]) < along)
+
+
+def same_vehicle_lateral_m(cfg: PdafConfig, xy: np.ndarray) -> np.ndarray:
+    """(N,) lateral distance within which points at ``xy`` may be one vehicle (grows with range)."""
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    lat = cfg.merge_lateral_sigmas * r * math.radians(cfg.azimuth_sigma_deg)
+    return np.clip(lat, cfg.merge_lateral_m, max(cfg.merge_lateral_m, cfg.merge_lateral_max_m))
+
+
+def same_vehicle_along_m(cfg: PdafConfig, tracks: "TrackTable") -> np.ndarray:
+    """(T,) along-boresight distance within which a point still belongs to the track's vehicle."""
+    sp = np.hypot(tracks.x[:, 2], tracks.x[:, 3])
+    return np.maximum(np.maximum(cfg.merge_along_m, cfg.merge_headway_s * sp),
+                      cfg.merge_extent_factor * np.sqrt(tracks.ext_var))
+
+
+class MofNInitiator:
+    """Tentative tracks from detections no track explains; confirmation after M hits in N frames."""
+
+    def __init__(self, cfg: PdafConfig, meas_model: MeasurementModel) -> None:
+        self.cfg = cfg
+        self.meas_model = meas_model
+        self._mask_n = np.uint32((1 << cfg.confirm_n) - 1)
+
+    def initiate(self, tracks: TrackTable, meas: Measurements, used: np.ndarray) -> int:
+        c = self.cfg
+        z = meas.z
+        rho = np.hypot(z[:, 0], z[:, 1])
+        cand = ~used & (rho >= c.min_range_m) & (rho <= c.max_range_m)
+        if meas.with_radial_speed:
+            cand &= np.abs(z[:, 2]) >= c.seed_min_radial_speed_mps
+        if len(tracks) and cand.any():
+            near = _box_close(tracks.x[:, :2], z[:, :2], same_vehicle_lateral_m(c, tracks.x[:, :2]),
+                              same_vehicle_along_m(c, tracks))
+            if meas.with_radial_speed:  # ... and moving like the track
+                rho_t = np.maximum(np.hypot(tracks.x[:, 0], tracks.x[:, 1]), 1e-3)
+                vr_t = (tracks.x[:, 0] * tracks.x[:, 2] + tracks.x[:, 1] * tracks.x[:, 3]) / rho_t
+                near &= np.abs(vr_t[:, None] - z[None, :, 2]) < c.merge_speed_mps
+            cand &= ~near.any(axis=0)
+        idx = np.flatnonzero(cand)
+        if idx.size == 0:
+            return 0
+        # one seed per vehicle: drop a candidate when a stronger one lies in its merge box
+        zc, snr = z[idx], meas.snr_db[idx]
+        close = _box_close(zc[:, :2], zc[:, :2], same_vehicle_lateral_m(c, zc[:, :2]), c.init_merge_along_m)
+        if meas.with_radial_speed:  # detections of one vehicle share its radial speed
+            close &= np.abs(zc[:, None, 2] - zc[None, :, 2]) < c.merge_speed_mps
+        order = np.arange(idx.size)
+        stronger = (snr[None, :] > snr[:, None]) | ((snr[None, :] == snr[:, None]) & (order[None, :] < order[:, None]))
+        seeds = zc[~(close & stronger).any(axis=1)]
+        room = c.max_tracks - len(tracks)
+        if room <= 0:
+            log.debug("track table full (%d): %d seeds dropped", c.max_tracks, seeds.shape[0])
+            return 0
+        seeds = seeds[:room]
+        k = seeds.shape[0]
+        x0 = np.zeros((k, 4))
+        x0[:, :2] = seeds[:, :2]
+        p0 = np.zeros((k, 4, 4))
+        _, _, r = self.meas_model.at(x0, False)
+        p0[:, :2, :2] = r
+        if meas.with_radial_speed:
+            y = seeds[:, 1]
+            rho_s = np.hypot(seeds[:, 0], y)
+            ok = np.abs(y) > 1.0
+            x0[:, 3] = np.where(ok, seeds[:, 2] * rho_s / np.where(ok, y, 1.0), 0.0)
+            p0[:, 2, 2] = c.init_lateral_speed_sigma_mps**2
+            p0[:, 3, 3] = np.where(ok, c.init_along_speed_sigma_mps**2, c.init_speed_sigma_mps**2)
+        else:
+            p0[:, 2, 2] = p0[:, 3, 3] = c.init_speed_sigma_mps**2
+        tracks.append(x0, p0, c.extent_along_sigma_m**2)
+        return k
+
+    def confirm(self, tracks: TrackTable, ids: IdPool) -> None:
+        c = self.cfg
+        recent = tracks.history & self._mask_n
+        counts = np.array([int(v).bit_count() for v in recent], dtype=np.int32) if len(tracks) else recent
+        ready = ~tracks.confirmed & (counts >= c.confirm_m) & tracks.moved
+        for i in np.flatnonzero(ready):
+            tid = ids.acquire()
+            if tid is None:
+                log.warning("no free track id (max %d): track stays tentative", c.max_track_id)
+                break
+            tracks.track_id[i] = tid
+            tracks.confirmed[i] = True
+
+    def tentative_expired(self, tracks: TrackTable) -> np.ndarray:
+        """Tentative tracks that can no longer reach M hits in their last N frames."""
+        c = self.cfg
+        recent = tracks.history & self._mask_n
+        counts = np.array([int(v).bit_count() for v in recent], dtype=np.int32) if len(tracks) else recent
+        return ~tracks.confirmed & (tracks.age >= c.confirm_n) & (counts < c.confirm_m) & (tracks.misses > 0)
+
+
+class TrackDeleter:
+    """Deletion: misses in a row, diverged covariance, out of the field, duplicates of an older track."""
+
+    def __init__(self, cfg: PdafConfig) -> None:
+        self.cfg = cfg
+        self._state_gamma = gate_threshold(cfg.merge_state_prob, 4)
+
+    def delete(self, tracks: TrackTable) -> np.ndarray:
+        c = self.cfg
+        rho = np.hypot(tracks.x[:, 0], tracks.x[:, 1])
+        sig = np.sqrt(np.maximum(tracks.p[:, 0, 0], tracks.p[:, 1, 1]))
+        dead = (tracks.misses >= c.delete_after_misses) | (sig > c.max_position_sigma_m)
+        dead |= (rho < c.min_range_m) | (rho > c.max_range_m)
+        return dead | self.duplicates(tracks)
+
+    def duplicates(self, tracks: TrackTable) -> np.ndarray:
+        """Of two tracks on one vehicle, drop the junior (unconfirmed first, then fewer hits, then younger).
+
+        Two tracks are one vehicle when their velocities agree within ``merge_speed_mps`` and either their
+        positions are within the same-vehicle box or their states are statistically indistinguishable
+        (position covariances widened by the vehicles' along-heading spread)."""
+        c = self.cfg
+        t = len(tracks)
+        out = np.zeros(t, dtype=bool)
+        if t < 2:
+            return out
+        x = tracks.x
+        ia, ib = np.triu_indices(t, 1)
+        dv = np.hypot(x[ia, 2] - x[ib, 2], x[ia, 3] - x[ib, 3])
+        keep = dv < c.merge_speed_mps
+        ia, ib = ia[keep], ib[keep]
+        if ia.size == 0:
+            return out
+        reach = same_vehicle_along_m(c, tracks)
+        dx = x[ia] - x[ib]
+        close = (np.abs(dx[:, 0]) < c.merge_lateral_m) & (np.abs(dx[:, 1]) < np.maximum(reach[ia], reach[ib]))
+        ext = extent_cov(x, tracks.ext_var)
+        pd = np.stack([tracks.p[:, 0, 0] + ext[:, 0, 0], tracks.p[:, 1, 1] + ext[:, 1, 1]], axis=1)  # (T, 2)
+        # a marginal Mahalanobis distance never exceeds the joint one: prune before the 4x4 solves
+        marg = (dx[:, :2] ** 2 < self._state_gamma * (pd[ia] + pd[ib])).all(axis=1)
+        rest = np.flatnonzero(~close & marg)
+        if rest.size:
+            ja, jb = ia[rest], ib[rest]
+            psum = tracks.p[ja] + tracks.p[jb]
+            psum[:, :2, :2] += ext[ja] + ext[jb]
+            d = dx[rest]
+            d2 = (d[:, None, :] @ np.linalg.solve(psum, d[:, :, None]))[:, 0, 0]
+            close[rest] = d2 < self._state_gamma
+        ia, ib = ia[close], ib[close]
+        if ia.size == 0:
+            return out
+        rank = tracks.confirmed.astype(np.int64) * (1 << 40) + tracks.hits.astype(np.int64) * (1 << 20) + tracks.age
+        b_senior = (rank[ib] > rank[ia]) | ((rank[ib] == rank[ia]) & (ib < ia))
+        out[np.where(b_senior, ia, ib)] = True
+        return out
+
+
+class PdafTracker:
+    """Multi-target PDAF (or cheap JPDA) tracker with a constant-velocity Kalman filter.
+
+    One :meth:`step` per frame::
+
+        predict -> associate (gate, beta) -> update -> delete -> confirm -> initiate -> publish
+    """
+
+    def __init__(self, config: PdafConfig | None = None) -> None:
+        self.config = config or PdafConfig()
+        self.predictor = CvPredictor(self.config)
+        self.measurement_model = MeasurementModel(self.config)
+        self.associator = PdaAssociator(self.config)
+        self.updater = PdaUpdater()
+        self.initiator = MofNInitiator(self.config, self.measurement_model)
+        self.deleter = TrackDeleter(self.config)
+        self._moving_gamma = gate_threshold(self.config.moving_prob, 2)
+        self.reset()
+
+    def reset(self) -> None:
+        self.tracks = TrackTable()
+        self.ids = IdPool(self.config.max_track_id)
+        self.last_t_ns: int | None = None
+        self.intermediates: dict[str, np.ndarray] = {}
+
+    def step(self, detections: Detections, t_ns: int) -> tuple[TrackState, ...]:
+        """Advance all tracks to ``t_ns`` with this frame's detections; return the published tracks."""
+        cfg = self.config
+        meas = Measurements.from_detections(detections, cfg.use_radial_speed)
+        dt_s = 0.0 if self.last_t_ns is None else max((t_ns - self.last_t_ns) * 1e-9, 0.0)
+        self.last_t_ns = t_ns
+        tr = self.tracks
+        m = meas.z.shape[0]
+        used = np.zeros(m, dtype=bool)
+        if len(tr):
+            xp, pp = self.predictor.predict(tr, dt_s)
+            zh, h, r = self.measurement_model.at(xp, meas.with_radial_speed, tr.ext_var)
+            inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits)
+            tr.x, tr.p = self.updater.update(xp, pp, h, inn, beta, beta0)
+            if cfg.extent_alpha > 0 and m:
+                tr.ext_var = self.measurement_model.update_extent(xp, tr.ext_var, inn, beta)
+            hit = gated.any(axis=1)
+            used = (inn.d2 <= self.associator.exclusion_gamma[meas.z.shape[1]]).any(axis=0)
+            tr.age += 1
+            tr.hits += hit
+            tr.misses = np.where(hit, 0, tr.misses + 1).astype(np.int32)
+            tr.history = ((tr.history << np.uint32(1)) | hit.astype(np.uint32)).astype(np.uint32)
+            # moving for sure: the velocity is significantly non-zero (v' P_v^-1 v) and fast enough
+            v = tr.x[:, 2:4]
+            d2v = (v[:, None, :] @ np.linalg.solve(tr.p[:, 2:4, 2:4], v[:, :, None]))[:, 0, 0]
+            tr.moved |= (d2v > self._moving_gamma) & (np.hypot(v[:, 0], v[:, 1]) >= cfg.confirm_min_speed_mps)
+            dead = self.deleter.delete(tr) | self.initiator.tentative_expired(tr)
+            for tid in tr.track_id[dead & tr.confirmed]:
+                self.ids.release(int(tid))
+            tr.keep(~dead)
+            self.initiator.confirm(tr, self.ids)  # after duplicates are gone: no id is spent on one
+            self.intermediates = {"gated": gated, "beta0": beta0, "d2": inn.d2}
+        else:
+            self.intermediates = {}
+        self.initiator.initiate(tr, meas, used)
+        self.intermediates["used"] = used
+        return self.published()
+
+    def published(self) -> tuple[TrackState, ...]:
+        tr = self.tracks
+        sel = np.ones(len(tr), dtype=bool) if self.config.publish_tentative else tr.confirmed
+        idx = np.flatnonzero(sel)
+        if idx.size == 0:
+            return ()
+        st = tr.x[idx]
+        rho = np.hypot(st[:, 0], st[:, 1])
+        vr = np.divide(st[:, 0] * st[:, 2] + st[:, 1] * st[:, 3], rho, out=np.zeros_like(rho), where=rho > 0)
+        az = np.arctan2(st[:, 0], st[:, 1])
+        if self.config.publish_length:
+            _, w = heading(st)
+            length = [v if ok else None for v, ok in zip(np.sqrt(12.0 * tr.ext_var[idx]).tolist(), (w >= 1.0).tolist())]
+        else:
+            length = [None] * idx.size
+        rows = zip(tr.track_id[idx].tolist(), st.tolist(), rho.tolist(), vr.tolist(), az.tolist(),
+                   tr.age[idx].tolist(), tr.hits[idx].tolist(), tr.confirmed[idx].tolist(), length)
+        return tuple(
+            TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=ln)
+            for tid, (x, y, vx, vy), r, v, a, age, hits, conf, ln in rows
+        )

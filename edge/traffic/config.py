@@ -1,0 +1,120 @@
+"""Configuration of the traffic layer (section ``traffic``): lanes, mounting yaw, statistics, events."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class TrafficConfig:
+    """Parameters of :class:`edge.traffic.TrafficMonitor`. Lateral offsets are in the road frame, relative
+    to the radar's foot (right +); along-road distances from the radar's foot."""
+
+    lane_mode: str = field(
+        default="configured",
+        metadata={"doc": "configured: lanes from lane_centers_m/lane_widths_m/lane_directions; learned: lanes "
+                         "from the lateral distribution of confirmed tracks (side-fire style auto-configuration)",
+                  "choices": ("configured", "learned")})
+    lane_centers_m: tuple[float, ...] = field(
+        default=(-5.25, -1.75, 1.75, 5.25),
+        metadata={"unit": "m", "doc": "lane centre offsets across the road (Lim Fig. 11: four 3.5 m lanes); lane "
+                                      "index = position in this list"})
+    lane_widths_m: tuple[float, ...] = field(
+        default=(3.5,), metadata={"unit": "m", "doc": "lane widths (one value = every lane)", "min": 0.5, "max": 20.0})
+    lane_directions: tuple[str, ...] = field(
+        default=("toward", "toward", "away", "away"),
+        metadata={"doc": "direction of travel per lane: toward or away from the radar"})
+    default_lane_width_m: float = field(
+        default=3.5, metadata={"unit": "m", "doc": "width of a learned lane when only one lane is seen",
+                               "min": 0.5, "max": 20.0})
+    mounting_yaw_deg: float = field(
+        default=0.0, metadata={"unit": "deg", "doc": "radar yaw against the road axis (clockwise, as hw_sim "
+                                                     "RadarPose.yaw_deg); used until estimated", "min": -45.0, "max": 45.0})
+    estimate_yaw: bool = field(
+        default=True, metadata={"doc": "estimate the mounting yaw from the direction of straight confirmed tracks"})
+    yaw_min_tracks: int = field(
+        default=8, metadata={"doc": "straight tracks needed before the yaw estimate is used", "min": 1, "max": 10000})
+    yaw_window_tracks: int = field(
+        default=200, metadata={"doc": "most recent straight tracks the yaw is the median of", "min": 1, "max": 100000})
+    yaw_min_track_length_m: float = field(
+        default=40.0, metadata={"unit": "m", "doc": "a track must cover this distance to vote for the yaw",
+                                "min": 1.0, "max": 1000.0})
+    yaw_max_lateral_sd_m: float = field(
+        default=0.8, metadata={"unit": "m", "doc": "a track whose positions scatter more than this across its "
+                                                   "fitted line (a lane change) does not vote", "min": 0.01, "max": 20.0})
+    learn_min_samples: int = field(
+        default=2000, metadata={"doc": "track positions (frames x tracks) before lanes are learned",
+                                "min": 10, "max": 10_000_000})
+    learn_buffer_samples: int = field(
+        default=50000, metadata={"doc": "ring buffer of track positions lanes are learned from (bounded memory)",
+                                 "min": 100, "max": 10_000_000})
+    learn_min_range_m: float = field(
+        default=10.0, metadata={"unit": "m", "doc": "positions nearer than this do not teach lanes", "min": 0.0,
+                                "max": 1000.0})
+    learn_max_range_m: float = field(
+        default=150.0, metadata={"unit": "m", "doc": "positions further than this do not teach lanes (lateral error "
+                                                     "grows with range x azimuth error)", "min": 1.0, "max": 1000.0})
+    learn_bin_m: float = field(default=0.1, metadata={"unit": "m", "doc": "lateral histogram bin", "min": 0.01,
+                                                      "max": 2.0})
+    learn_smooth_m: float = field(
+        default=0.4, metadata={"unit": "m", "doc": "Gaussian smoothing sd of the lateral histogram", "min": 0.0,
+                               "max": 5.0})
+    learn_min_separation_m: float = field(
+        default=2.5, metadata={"unit": "m", "doc": "learned lane centres are at least this far apart", "min": 0.5,
+                               "max": 20.0})
+    learn_peak_fraction: float = field(
+        default=0.1, metadata={"doc": "a histogram peak below this fraction of the highest is not a lane",
+                               "min": 0.0, "max": 1.0})
+    learn_lateral_extent_m: float = field(
+        default=30.0, metadata={"unit": "m", "doc": "lateral half-width searched for lanes", "min": 1.0, "max": 200.0})
+    relearn_every_s: float = field(
+        default=60.0, metadata={"unit": "s", "doc": "re-learn lanes (and use the newest yaw) this often",
+                                "min": 0.1, "max": 86400.0})
+    interval_s: float = field(
+        default=60.0, metadata={"unit": "s", "doc": "statistics interval", "min": 1.0, "max": 86400.0})
+    detection_line_m: float = field(
+        default=50.0, metadata={"unit": "m", "doc": "along-road distance of the virtual detection line (volume, "
+                                                    "speeds, headway are taken where tracks cross it)",
+                                "min": 0.0, "max": 1000.0})
+    presence_zone_m: float = field(
+        default=5.0, metadata={"unit": "m", "doc": "length of the presence zone centred on the detection line "
+                                                   "(occupancy = time a vehicle overlaps it)", "min": 0.1, "max": 100.0})
+    default_vehicle_length_m: float = field(
+        default=4.5, metadata={"unit": "m", "doc": "vehicle length when a track has none (presence, gap)",
+                               "min": 0.5, "max": 30.0})
+    length_class_edges_m: tuple[float, ...] = field(
+        default=(3.0, 5.6, 8.0),
+        metadata={"unit": "m", "doc": "length class boundaries (a track with a class from the classifier counts "
+                                      "under that class instead)", "min": 0.1, "max": 50.0})
+    length_class_names: tuple[str, ...] = field(
+        default=("motorcycle", "car", "van", "truck"),
+        metadata={"doc": "names of the length classes (one more than the edges)"})
+    wrong_way_min_speed_mps: float = field(
+        default=3.0, metadata={"unit": "m/s", "doc": "against the lane direction at least this fast is wrong-way",
+                               "min": 0.1, "max": 100.0})
+    wrong_way_min_frames: int = field(
+        default=15, metadata={"doc": "frames in a row against the lane direction before the event (0.5 s)",
+                              "min": 1, "max": 10000})
+    stopped_speed_mps: float = field(
+        default=1.0, metadata={"unit": "m/s", "doc": "a vehicle slower than this is standing", "min": 0.0, "max": 20.0})
+    stopped_min_s: float = field(
+        default=5.0, metadata={"unit": "s", "doc": "standing this long in a lane raises stopped_vehicle",
+                               "min": 0.0, "max": 3600.0})
+    moving_speed_mps: float = field(
+        default=4.0, metadata={"unit": "m/s", "doc": "a track must have been this fast to count as a vehicle that "
+                                                     "stopped (static clutter never is); also re-arms the event",
+                               "min": 0.0, "max": 100.0})
+
+    def __post_init__(self) -> None:
+        n = len(self.lane_centers_m)
+        if len(self.lane_widths_m) not in (1, n):
+            raise ValueError(f"lane_widths_m needs 1 or {n} values, got {len(self.lane_widths_m)}")
+        if len(self.lane_directions) not in (1, n):
+            raise ValueError(f"lane_directions needs 1 or {n} values, got {len(self.lane_directions)}")
+        bad = [d for d in self.lane_directions if d not in ("toward", "away")]
+        if bad:
+            raise ValueError(f"lane_directions must be toward or away, got {bad}")
+        if len(self.length_class_names) != len(self.length_class_edges_m) + 1:
+            raise ValueError("length_class_names needs one more entry than length_class_edges_m")
+        if list(self.length_class_edges_m) != sorted(self.length_class_edges_m):
+            raise ValueError("length_class_edges_m must be increasing")

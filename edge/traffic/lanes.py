@@ -1,0 +1,190 @@
+"""Lane geometry, the road frame, the mounting-yaw estimate and lane learning.
+
+Road frame: the radar is yawed by ``yaw`` (clockwise from the road axis, as ``hw_sim``'s
+``RadarPose.yaw_deg``), so a point ``(x, y)`` of the radar's ground plane lies at
+
+    u = x cos(yaw) + y sin(yaw)      across the road (right +, from the radar's foot)
+    s = -x sin(yaw) + y cos(yaw)     along the road (away from the radar +)
+
+and the road axis points along ``(-sin(yaw), cos(yaw))`` in radar coordinates.
+
+Yaw estimate: every confirmed track accumulates running sums of its positions (O(1) memory per
+track); when it ends, the principal axis of its position scatter is the direction it drove. Tracks
+that covered at least ``yaw_min_track_length_m`` with a small spread across that axis (no lane change)
+vote; the yaw is the median vote of the last ``yaw_window_tracks``.
+
+Lane learning: positions of confirmed tracks (between ``learn_min_range_m`` and ``learn_max_range_m``)
+go into a bounded ring buffer; a lateral histogram in the road frame, smoothed, gives one peak per
+lane (centre refined as the mean of the samples around the peak); the width is the median spacing of
+neighbouring centres; the direction is the sign of the median along-road speed in that lane. Lanes are
+numbered 0, 1, ... from the most negative offset (left) to the right, like ``[[lane]]`` of a scenario.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Lane", "to_road", "assign_lanes", "YawEstimator", "LaneLearner", "configured_lanes"]
+
+
+@dataclass(frozen=True)
+class Lane:
+    center_m: float
+    width_m: float
+    direction: int  # +1 away from the radar, -1 toward it
+
+    @property
+    def direction_name(self) -> str:
+        return "away" if self.direction > 0 else "toward"
+
+
+def configured_lanes(cfg) -> tuple[Lane, ...]:
+    n = len(cfg.lane_centers_m)
+    widths = cfg.lane_widths_m * n if len(cfg.lane_widths_m) == 1 else cfg.lane_widths_m
+    dirs = cfg.lane_directions * n if len(cfg.lane_directions) == 1 else cfg.lane_directions
+    return tuple(Lane(float(c), float(w), 1 if d == "away" else -1) for c, w, d in zip(cfg.lane_centers_m, widths, dirs))
+
+
+def to_road(x: np.ndarray, y: np.ndarray, yaw_rad: float) -> tuple[np.ndarray, np.ndarray]:
+    """Radar ground-plane coordinates -> road frame ``(u across, s along)``; also for velocities."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    return x * c + y * s, -x * s + y * c
+
+
+def assign_lanes(u: np.ndarray, lanes: tuple[Lane, ...]) -> np.ndarray:
+    """Lane index per lateral offset ``u`` (N,), -1 outside every lane (nearest centre wins on overlaps)."""
+    if not lanes:
+        return np.full(u.shape, -1, dtype=np.int32)
+    c = np.array([ln.center_m for ln in lanes])
+    w = np.array([ln.width_m for ln in lanes])
+    d = np.abs(u[:, None] - c[None, :])
+    k = np.argmin(d, axis=1)
+    inside = d[np.arange(u.size), k] <= 0.5 * w[k]
+    return np.where(inside, k, -1).astype(np.int32)
+
+
+class YawEstimator:
+    """Mounting yaw from the directions of straight tracks (see the module docstring)."""
+
+    def __init__(self, cfg) -> None:
+        self.cfg = cfg
+        self._sums: dict[int, np.ndarray] = {}  # track_id -> [n, sx, sy, sxx, syy, sxy, age]
+        self._votes: deque[float] = deque(maxlen=cfg.yaw_window_tracks)
+
+    def add(self, ids: np.ndarray, age: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
+        """Accumulate this frame's confirmed tracks; tracks that ended (or whose id was recycled) vote."""
+        seen = set()
+        for i, a, xi, yi in zip(ids.tolist(), age.tolist(), x.tolist(), y.tolist()):
+            acc = self._sums.get(i)
+            if acc is not None and a < acc[6]:  # id recycled: the old track ended
+                self._vote(acc)
+                acc = None
+            if acc is None:
+                acc = self._sums[i] = np.zeros(7)
+            acc += (1.0, xi, yi, xi * xi, yi * yi, xi * yi, 0.0)
+            acc[6] = a
+            seen.add(i)
+        for i in [k for k in self._sums if k not in seen]:
+            self._vote(self._sums.pop(i))
+
+    def _vote(self, acc: np.ndarray) -> None:
+        n = acc[0]
+        if n < 3:
+            return
+        mx, my = acc[1] / n, acc[2] / n
+        cxx = acc[3] / n - mx * mx
+        cyy = acc[4] / n - my * my
+        cxy = acc[5] / n - mx * my
+        ev, evec = np.linalg.eigh(np.array([[cxx, cxy], [cxy, cyy]]))
+        major_sd, minor_sd = math.sqrt(max(ev[1], 0.0)), math.sqrt(max(ev[0], 0.0))
+        # a uniform run over length L has sd L / sqrt(12)
+        if major_sd * math.sqrt(12.0) < self.cfg.yaw_min_track_length_m or minor_sd > self.cfg.yaw_max_lateral_sd_m:
+            return
+        ex, ey = evec[:, 1]
+        if ey < 0:
+            ex, ey = -ex, -ey
+        self._votes.append(-math.atan2(ex, ey))  # road axis (-sin yaw, cos yaw)
+
+    @property
+    def n_votes(self) -> int:
+        return len(self._votes)
+
+    def estimate_rad(self) -> float | None:
+        if len(self._votes) < self.cfg.yaw_min_tracks:
+            return None
+        return float(np.median(np.fromiter(self._votes, dtype=float)))
+
+
+class LaneLearner:
+    """Lanes from the lateral distribution of confirmed tracks (see the module docstring)."""
+
+    def __init__(self, cfg) -> None:
+        self.cfg = cfg
+        n = cfg.learn_buffer_samples
+        self._buf = np.zeros((n, 4), dtype=np.float32)  # x, y, vx, vy (radar frame)
+        self._n = 0
+        self._head = 0
+
+    @property
+    def n_samples(self) -> int:
+        return self._n
+
+    def add(self, x: np.ndarray, y: np.ndarray, vx: np.ndarray, vy: np.ndarray) -> None:
+        rho = np.hypot(x, y)
+        keep = (rho >= self.cfg.learn_min_range_m) & (rho <= self.cfg.learn_max_range_m)
+        rows = np.stack([x[keep], y[keep], vx[keep], vy[keep]], axis=1).astype(np.float32)
+        k = rows.shape[0]
+        if k == 0:
+            return
+        cap = self._buf.shape[0]
+        if k >= cap:
+            rows, k = rows[-cap:], cap
+        idx = (self._head + np.arange(k)) % cap
+        self._buf[idx] = rows
+        self._head = (self._head + k) % cap
+        self._n = min(self._n + k, cap)
+
+    def learn(self, yaw_rad: float) -> tuple[Lane, ...]:
+        c = self.cfg
+        if self._n < c.learn_min_samples:
+            return ()
+        d = self._buf[: self._n].astype(np.float64)
+        u, _ = to_road(d[:, 0], d[:, 1], yaw_rad)
+        _, vs = to_road(d[:, 2], d[:, 3], yaw_rad)
+        ext = c.learn_lateral_extent_m
+        edges = np.arange(-ext, ext + c.learn_bin_m, c.learn_bin_m)
+        hist, _ = np.histogram(u, bins=edges)
+        centres = 0.5 * (edges[:-1] + edges[1:])
+        hist = hist.astype(np.float64)
+        if c.learn_smooth_m > 0:
+            half = int(math.ceil(3 * c.learn_smooth_m / c.learn_bin_m))
+            k = np.exp(-0.5 * (np.arange(-half, half + 1) * c.learn_bin_m / c.learn_smooth_m) ** 2)
+            hist = np.convolve(hist, k / k.sum(), mode="same")
+        if hist.max() <= 0:
+            return ()
+        left = np.r_[-np.inf, hist[:-1]]
+        right = np.r_[hist[1:], -np.inf]
+        peaks = np.flatnonzero((hist > left) & (hist >= right) & (hist >= c.learn_peak_fraction * hist.max()))
+        chosen: list[float] = []
+        for i in peaks[np.argsort(-hist[peaks])]:  # strongest first; few peaks
+            if all(abs(centres[i] - p) >= c.learn_min_separation_m for p in chosen):
+                chosen.append(float(centres[i]))
+        chosen.sort()
+        refined = []
+        for p in chosen:
+            sel = np.abs(u - p) <= 0.5 * c.learn_min_separation_m
+            refined.append(float(u[sel].mean()) if sel.any() else p)
+        if len(refined) >= 2:
+            width = float(np.median(np.diff(refined)))
+        else:
+            width = c.default_lane_width_m
+        lanes = []
+        for p in refined:
+            sel = np.abs(u - p) <= 0.5 * width
+            med = float(np.median(vs[sel])) if sel.any() else 1.0
+            lanes.append(Lane(p, width, 1 if med >= 0 else -1))
+        return tuple(lanes)

@@ -1,0 +1,177 @@
+"""The traffic layer of the lane profile: lanes, presence, interval statistics and events per frame.
+
+Public API (stable; used by ``edge.pipelines.lane``)::
+
+    from edge.traffic import TrafficConfig, TrafficMonitor
+    monitor = TrafficMonitor(cfg.section("traffic"))
+    upd = monitor.update(tracks, t_ns)   # tracks: tuple[TrackState, ...] from edge.track
+    upd.tracks        # the same tracks with ``lane`` set (None off every lane)
+    upd.presence      # tuple[bool, ...], one flag per lane: a vehicle overlaps the presence zone
+    upd.lane_stats    # tuple[LaneStats, ...], non-empty on the frame that closes an interval
+    upd.events        # tuple[TrafficEvent, ...]: wrong_way, stopped_vehicle (once per occurrence)
+    monitor.lanes     # current tuple[Lane, ...] (configured or learned; empty until learned)
+    monitor.yaw_rad   # mounting yaw in use (configured until estimated)
+
+Lane indices are 0-based, ordered like the scenario's ``[[lane]]`` tables (left to right when
+learned). Only confirmed tracks are used. Per-track memory is keyed by ``track_id`` and reset when an
+id is recycled (its ``age_frames`` drops).
+
+Events: ``wrong_way`` when a track in a lane moves against the lane's direction faster than
+``wrong_way_min_speed_mps`` for ``wrong_way_min_frames`` frames in a row (once per track);
+``stopped_vehicle`` when a track that once moved faster than ``moving_speed_mps`` stands (slower than
+``stopped_speed_mps``) in a lane for ``stopped_min_s`` (again only after it moved off).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from edge.traffic.config import TrafficConfig
+from edge.traffic.lanes import Lane, LaneLearner, YawEstimator, assign_lanes, configured_lanes, to_road
+from edge.traffic.stats import Crossing, IntervalStatistics
+from edge.types import LaneStats, TrackState, TrafficEvent
+
+log = logging.getLogger(__name__)
+
+__all__ = ["TrafficMonitor", "TrafficUpdate"]
+
+
+@dataclass(frozen=True)
+class TrafficUpdate:
+    tracks: tuple[TrackState, ...]
+    presence: tuple[bool, ...]
+    lane_stats: tuple[LaneStats, ...]
+    events: tuple[TrafficEvent, ...]
+
+
+@dataclass
+class _Memo:
+    age: int
+    s_m: float
+    t_ns: int
+    max_speed_mps: float
+    wrong_frames: int = 0
+    wrong_emitted: bool = False
+    stopped_since_ns: int | None = None
+    stopped_emitted: bool = False
+
+
+def _with_lane(tr: TrackState, lane: int | None) -> TrackState:
+    """``dataclasses.replace(tr, lane=lane)`` without its per-call field introspection (hot path)."""
+    d = dict(tr.__dict__)
+    d["lane"] = lane
+    return TrackState(**d)
+
+
+class TrafficMonitor:
+    def __init__(self, config: TrafficConfig | None = None) -> None:
+        self.config = cfg = config or TrafficConfig()
+        self.yaw_rad = math.radians(cfg.mounting_yaw_deg)
+        self.lanes: tuple[Lane, ...] = configured_lanes(cfg) if cfg.lane_mode == "configured" else ()
+        self.yaw_estimator = YawEstimator(cfg)
+        self.learner = LaneLearner(cfg)
+        self.stats = IntervalStatistics(cfg)
+        self._memo: dict[int, _Memo] = {}
+        self._last_t_ns: int | None = None
+        self._next_learn_ns: int | None = None
+
+    def update(self, tracks: tuple[TrackState, ...], t_ns: int) -> TrafficUpdate:
+        cfg = self.config
+        conf = [t for t in tracks if t.confirmed and t.track_id > 0]
+        dt_ns = 0 if self._last_t_ns is None else max(t_ns - self._last_t_ns, 0)
+        dt_ns = min(dt_ns, 1_000_000_000)  # a stall does not count as occupied time
+        self._last_t_ns = t_ns
+        n = len(conf)
+        ids = np.array([t.track_id for t in conf], dtype=np.int64)
+        age = np.array([t.age_frames for t in conf], dtype=np.int64)
+        x = np.array([t.x_m for t in conf])
+        y = np.array([t.y_m for t in conf])
+        vx = np.array([t.vx_mps for t in conf])
+        vy = np.array([t.vy_mps for t in conf])
+
+        # mounting yaw and lanes
+        if cfg.estimate_yaw:
+            self.yaw_estimator.add(ids, age, x, y)
+            est = self.yaw_estimator.estimate_rad()
+            if est is not None:
+                self.yaw_rad = est
+        if cfg.lane_mode == "learned":
+            self.learner.add(x, y, vx, vy)
+            if self._next_learn_ns is None or t_ns >= self._next_learn_ns:
+                yaw_ready = not cfg.estimate_yaw or self.yaw_estimator.estimate_rad() is not None
+                lanes = self.learner.learn(self.yaw_rad) if yaw_ready else ()
+                if lanes:
+                    self.lanes = lanes
+                    self._next_learn_ns = t_ns + int(cfg.relearn_every_s * 1e9)
+                    log.info("lanes learned: %s (yaw %.2f deg)", [(round(l.center_m, 2), l.direction_name)
+                                                                    for l in lanes], math.degrees(self.yaw_rad))
+
+        lanes = self.lanes
+        n_lanes = len(lanes)
+        closed = self.stats.tick(t_ns, n_lanes)
+
+        u, s = to_road(x, y, self.yaw_rad)
+        _, vs = to_road(vx, vy, self.yaw_rad)
+        speed = np.hypot(vx, vy)
+        lane_idx = assign_lanes(u, lanes)
+        presence = [False] * n_lanes
+        events: list[TrafficEvent] = []
+        out_tracks: dict[int, TrackState] = {}
+        half_zone = 0.5 * cfg.presence_zone_m
+        line = cfg.detection_line_m
+        seen = set()
+        for j, tr in enumerate(conf):
+            tid = int(ids[j])
+            seen.add(tid)
+            k = int(lane_idx[j])
+            lane = k if k >= 0 else None
+            length = tr.length_m if tr.length_m is not None else cfg.default_vehicle_length_m
+            memo = self._memo.get(tid)
+            if memo is None or tr.age_frames < memo.age:
+                memo = self._memo[tid] = _Memo(tr.age_frames, float(s[j]), t_ns, float(speed[j]))
+            else:
+                # detection line crossing (either direction), time interpolated
+                s0, s1 = memo.s_m, float(s[j])
+                crossed = (s0 - line) * (s1 - line) < 0 or (s1 == line and s0 != line)
+                if crossed and lane is not None:
+                    f = (line - s0) / (s1 - s0)
+                    tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))
+                    cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
+                    self.stats.lane(lane).add(Crossing(tc, float(speed[j]), float(length), cls))
+                memo.age, memo.s_m, memo.t_ns = tr.age_frames, s1, t_ns
+                memo.max_speed_mps = max(memo.max_speed_mps, float(speed[j]))
+            if lane is not None:
+                if abs(float(s[j]) - line) <= half_zone + 0.5 * length:
+                    presence[k] = True
+                # wrong way
+                if vs[j] * lanes[k].direction < -cfg.wrong_way_min_speed_mps:
+                    memo.wrong_frames += 1
+                else:
+                    memo.wrong_frames = 0
+                if memo.wrong_frames >= cfg.wrong_way_min_frames and not memo.wrong_emitted:
+                    memo.wrong_emitted = True
+                    events.append(TrafficEvent("wrong_way", tid, lane, t_ns))
+            # stopped vehicle
+            if speed[j] < cfg.stopped_speed_mps and memo.max_speed_mps >= cfg.moving_speed_mps and lane is not None:
+                if memo.stopped_since_ns is None:
+                    memo.stopped_since_ns = t_ns
+                if not memo.stopped_emitted and t_ns - memo.stopped_since_ns >= int(cfg.stopped_min_s * 1e9):
+                    memo.stopped_emitted = True
+                    events.append(TrafficEvent("stopped_vehicle", tid, lane, t_ns))
+            elif speed[j] >= cfg.moving_speed_mps:
+                memo.stopped_since_ns = None
+                memo.stopped_emitted = False
+            elif speed[j] >= cfg.stopped_speed_mps:
+                memo.stopped_since_ns = None
+            out_tracks[id(tr)] = _with_lane(tr, lane) if tr.lane != lane else tr
+        for tid in [k for k in self._memo if k not in seen]:
+            del self._memo[tid]
+        for k, p in enumerate(presence):
+            if p:
+                self.stats.lane(k).occupied_ns += dt_ns
+        published = tuple(out_tracks.get(id(t), t) for t in tracks)
+        return TrafficUpdate(published, tuple(presence), closed, tuple(events))

@@ -1,0 +1,238 @@
+"""Scenario generators for road traffic on the SIMO board (registered in ``hw_sim.scenario.GENERATORS``).
+
+TOML tables (units in names; lanes are indices into the scenario's ``[[lane]]`` list)::
+
+    [[vehicle]]                  # one extended vehicle (hw_sim.vehicles)
+    id = 1                       # required, unique positive integer
+    kind = "car"                 # car | van | truck | bus | motorcycle
+    lane = 1                     # required
+    y_m = 200.0                  # along-road position of the reference point at t = 0 (required)
+    speed_kmh = 90.0             # travel speed; the lane's direction sets the sign
+    x_offset_m = 0.0             # lateral offset from the lane centre
+    wrong_way = false            # drive against the lane's direction (a wrong-way driver)
+    lane_change_to = 2           # optional: target lane of a lane change ...
+    lane_change_at_s = 2.0       # ... starting at this time
+    lane_change_duration_s = 4.0
+    stop_at_s = 3.0              # optional stop-and-go: start braking at this time ...
+    decel_mps2 = 3.0             # ... with this deceleration, stand for ...
+    stop_s = 4.0                 # ... this long, then accelerate back to speed_kmh at
+    accel_mps2 = 1.5
+    length_m = 4.5               # default: drawn from the body type's range
+    rcs_m2 = 10.0                # default: the body type's
+    swerling = 0                 # extra whole-body fluctuation (the glint already fluctuates per frame)
+    start_s = 0.0                # active window (default: always)
+    end_s = 1e9
+
+    [[traffic]]                  # random traffic, per lane
+    lanes = [0, 1, 2, 3]         # default: every lane
+    flow_veh_h = 1200.0          # vehicles per hour and lane
+    speed_kmh_mean = 100.0
+    speed_kmh_sd = 10.0
+    speed_kmh_min = 40.0
+    min_headway_s = 1.2          # time headway is min_headway_s + exponential
+    range_m = 320.0              # vehicles enter/leave this far from the radar
+    mix = { car = 0.72, van = 0.1, truck = 0.12, bus = 0.02, motorcycle = 0.04 }
+
+    [[guardrail]]                # static posts along the road (clutter)
+    x_m = -7.5
+    y_from_m = 5.0
+    y_to_m = 250.0
+    spacing_m = 4.0
+    z_m = 0.75
+    rcs_m2 = 0.5
+
+    [[multipath]]                # optional ghosts: every vehicle mirrored in a vertical reflector
+    plane_x_m = 8.0              # (noise barrier, guard rail) at this lateral position
+    loss_db = 12.0               # the ghost's RCS is the vehicle's reduced by this
+
+Random vehicles get ids after the largest explicit id. Vehicles in one lane never overtake each other:
+a follower that would catch up inside the road section takes its leader's speed (so platoons form behind slow
+vehicles, as on a road without overtaking, and the mean speed on the road is below ``speed_kmh_mean``). Traffic is generated
+from before ``t = 0`` so that the road is already populated when the scenario starts. A ghost is a
+:class:`hw_sim.scene.Target` of class ``clutter`` with no lane: a track on it is a false track.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hw_sim.scenario import GENERATORS, Scenario, ScenarioError, _num
+from hw_sim.scene import Clutter, Scene, Target
+from hw_sim.vehicles import BODY_TYPES, RoadTrajectory, Vehicle, make_vehicle
+
+#: vehicles enter "away" lanes this far behind the radar's foot (under the overpass)
+AWAY_ENTRY_Y_M = -20.0
+DEFAULT_MIX = {"car": 0.72, "van": 0.10, "truck": 0.12, "bus": 0.02, "motorcycle": 0.04}
+
+
+def _lane(sc: Scenario, spec: dict, key: str, where: str) -> int:
+    ln = spec.get(key)
+    if not isinstance(ln, int) or not 0 <= ln < len(sc.lanes):
+        raise ScenarioError(f"{where}{key} must be a lane index 0..{len(sc.lanes) - 1}, got {ln!r}")
+    return ln
+
+
+def _direction(sc: Scenario, lane: int) -> int:
+    return 1 if sc.lanes[lane].direction == "away" else -1
+
+
+def _next_id(scene: Scene) -> int:
+    return max((t.id for t in scene.targets), default=0) + 1
+
+
+def build_vehicle(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generator) -> None:
+    where = f"{sc.source}: vehicle."
+    vid = spec.get("id")
+    if not isinstance(vid, int) or vid <= 0:
+        raise ScenarioError(f"{where}id must be a positive integer, got {vid!r}")
+    kind = spec.get("kind", "car")
+    if kind not in BODY_TYPES:
+        raise ScenarioError(f"{where}kind must be one of {', '.join(BODY_TYPES)}, got {kind!r}")
+    lane = _lane(sc, spec, "lane", where)
+    d = _direction(sc, lane)
+    wrong = spec.get("wrong_way", False)
+    if not isinstance(wrong, bool):
+        raise ScenarioError(f"{where}wrong_way must be true or false, got {wrong!r}")
+    if wrong:
+        d = -d
+    v = _num(spec, "speed_kmh", 90.0, where) / 3.6
+    x0 = sc.lanes[lane].center_x_m + _num(spec, "x_offset_m", 0.0, where)
+    y0 = _num(spec, "y_m", where=where)
+    knots_t, knots_v = [0.0], [v]
+    if "stop_at_s" in spec:
+        t0 = _num(spec, "stop_at_s", where=where)
+        dec = _num(spec, "decel_mps2", 3.0, where)
+        acc = _num(spec, "accel_mps2", 1.5, where)
+        wait = _num(spec, "stop_s", 4.0, where)
+        if dec <= 0 or acc <= 0 or wait < 0:
+            raise ScenarioError(f"{where}decel_mps2 and accel_mps2 must be > 0, stop_s >= 0")
+        t1 = t0 + v / dec
+        t2 = t1 + wait
+        knots_t, knots_v = [min(0.0, t0), t0, t1, t2, t2 + v / acc], [v, v, 0.0, 0.0, v]
+    changes, switch = (), ()
+    if "lane_change_to" in spec:
+        to = _lane(sc, spec, "lane_change_to", where)
+        t_lc = _num(spec, "lane_change_at_s", 0.0, where)
+        dur = _num(spec, "lane_change_duration_s", 4.0, where)
+        if dur <= 0:
+            raise ScenarioError(f"{where}lane_change_duration_s must be > 0")
+        changes = ((t_lc, dur, sc.lanes[to].center_x_m - sc.lanes[lane].center_x_m),)
+        switch = ((t_lc + dur / 2.0, to),)
+    # the trajectory's speed profile is anchored at t = 0 where the vehicle is at y0
+    traj = RoadTrajectory(x0, 0.0, d, tuple(knots_t), tuple(knots_v), changes)
+    traj = RoadTrajectory(x0, y0 - float(traj.position(0.0)[1]), d, tuple(knots_t), tuple(knots_v), changes)
+    try:
+        veh = make_vehicle(
+            vid, kind, traj, lane=lane, rng=rng,
+            t_start_s=_num(spec, "start_s", -math.inf, where) if "start_s" in spec else -math.inf,
+            t_end_s=_num(spec, "end_s", math.inf, where) if "end_s" in spec else math.inf,
+            length_m=spec.get("length_m"), rcs_m2=spec.get("rcs_m2"), swerling=int(spec.get("swerling", 0)),
+            lane_switch=switch,
+        )
+        scene.add_target(veh)
+    except ValueError as exc:
+        raise ScenarioError(f"{where}{exc}") from None
+
+
+def build_traffic(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generator) -> None:
+    where = f"{sc.source}: traffic."
+    if not sc.lanes:
+        raise ScenarioError(f"{where}random traffic needs [[lane]] tables")
+    lanes = spec.get("lanes", list(range(len(sc.lanes))))
+    if not isinstance(lanes, list) or any(not isinstance(x, int) or not 0 <= x < len(sc.lanes) for x in lanes):
+        raise ScenarioError(f"{where}lanes must be a list of lane indices, got {lanes!r}")
+    flow = _num(spec, "flow_veh_h", 1200.0, where)
+    v_mean = _num(spec, "speed_kmh_mean", 100.0, where) / 3.6
+    v_sd = _num(spec, "speed_kmh_sd", 10.0, where) / 3.6
+    v_min = _num(spec, "speed_kmh_min", 40.0, where) / 3.6
+    h_min = _num(spec, "min_headway_s", 1.2, where)
+    r_max = _num(spec, "range_m", 320.0, where)
+    mix = spec.get("mix", DEFAULT_MIX)
+    if not isinstance(mix, dict) or not mix or any(k not in BODY_TYPES for k in mix):
+        raise ScenarioError(f"{where}mix must map vehicle kinds ({', '.join(BODY_TYPES)}) to weights")
+    kinds = list(mix)
+    w = np.array([float(mix[k]) for k in kinds])
+    if flow <= 0 or v_mean <= 0 or h_min <= 0 or (w < 0).any() or w.sum() <= 0:
+        raise ScenarioError(f"{where}flow_veh_h, speed_kmh_mean, min_headway_s and mix weights must be positive")
+    w = w / w.sum()
+    path_m = r_max - AWAY_ENTRY_Y_M
+    t_fill = path_m / max(v_min, 1.0)
+    mean_gap = 3600.0 / flow
+    vid = _next_id(scene)
+    for lane in lanes:
+        d = _direction(sc, lane)
+        y_entry = r_max if d < 0 else AWAY_ENTRY_Y_M
+        x0 = sc.lanes[lane].center_x_m
+        t = -t_fill
+        prev_t, prev_v = None, None
+        while t < sc.duration_s:
+            t += h_min + rng.exponential(max(mean_gap - h_min, 1e-3))
+            v = max(v_min, rng.normal(v_mean, v_sd))
+            if prev_v is not None and v > prev_v:
+                d0 = (t - prev_t) * prev_v  # leader's lead when the follower enters
+                if v * d0 / (v - prev_v) < path_m + 50.0:  # would catch up on the road section
+                    v = prev_v
+            kind = kinds[int(rng.choice(len(kinds), p=w))]
+            traj = RoadTrajectory(x0, y_entry, d, (t,), (v,))
+            veh = make_vehicle(vid, kind, traj, lane=lane, rng=rng, t_start_s=t, t_end_s=t + path_m / v)
+            scene.add_target(veh)
+            vid += 1
+            prev_t, prev_v = t, v
+
+
+def build_guardrail(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generator) -> None:
+    where = f"{sc.source}: guardrail."
+    x = _num(spec, "x_m", where=where)
+    y0, y1 = _num(spec, "y_from_m", 5.0, where), _num(spec, "y_to_m", 250.0, where)
+    step = _num(spec, "spacing_m", 4.0, where)
+    if step <= 0 or y1 < y0:
+        raise ScenarioError(f"{where}spacing_m must be > 0 and y_to_m >= y_from_m")
+    ys = np.arange(y0, y1 + 1e-9, step)
+    pos = np.stack([np.full(ys.size, x), ys, np.full(ys.size, _num(spec, "z_m", 0.75, where))], axis=1)
+    rcs = np.full(ys.size, _num(spec, "rcs_m2", 0.5, where))
+    if scene.clutter is None:
+        scene.clutter = Clutter(pos, rcs)
+    else:
+        scene.clutter = Clutter(np.concatenate([scene.clutter.position_m, pos]), np.concatenate([scene.clutter.rcs_m2, rcs]))
+
+
+@dataclass(frozen=True)
+class MirroredTrajectory:
+    """The image of a trajectory in the vertical plane ``x = plane_x_m``."""
+
+    inner: object
+    plane_x_m: float
+
+    def position(self, t_s):
+        p = np.array(self.inner.position(t_s), dtype=np.float64)
+        p[..., 0] = 2.0 * self.plane_x_m - p[..., 0]
+        return p
+
+    def velocity(self, t_s):
+        v = np.array(self.inner.velocity(t_s), dtype=np.float64)
+        v[..., 0] = -v[..., 0]
+        return v
+
+
+def build_multipath(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generator) -> None:
+    where = f"{sc.source}: multipath."
+    px = _num(spec, "plane_x_m", where=where)
+    gain = 10.0 ** (-_num(spec, "loss_db", 12.0, where) / 10.0)
+    vid = max(_next_id(scene), 1_000_000)
+    for tg in [t for t in scene.targets if isinstance(t, Vehicle)]:
+        scene.add_target(Target(
+            id=vid, cls="clutter", trajectory=MirroredTrajectory(tg.trajectory, px),
+            offsets_m=tg.offsets_m, rcs_m2=tg.rcs_m2 * gain, swerling=tg.swerling, lane=None,
+            t_start_s=tg.t_start_s, t_end_s=tg.t_end_s,
+        ))
+        vid += 1
+
+
+# order matters: explicit vehicles first, random traffic after them, ghosts of all vehicles last
+GENERATORS["vehicle"] = build_vehicle
+GENERATORS["traffic"] = build_traffic
+GENERATORS["guardrail"] = build_guardrail
+GENERATORS["multipath"] = build_multipath

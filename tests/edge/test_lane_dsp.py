@@ -1,0 +1,204 @@
+"""Known-answer tests of the lane profile's DSP: OS-CFAR, peak interpolation, pairing, Bartlett, geometry."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from edge.dsp.angle import bartlett, steering_matrix
+from edge.dsp.cfar import os_cfar, os_cfar_pfa, os_cfar_scale, reference_index
+from edge.dsp.geometry import polar_to_ground
+from edge.dsp.pairing import PairingModel, nearest_of_clusters, pair_beats
+from edge.dsp.peaks import interpolate_peak, local_maxima
+from edge.dsp.range_fft import make_window
+from hal.waveform import simo_frontend
+
+FE = simo_frontend()
+LAM = FE.waveform.wavelength_m
+
+
+# --- OS-CFAR -------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("n_ref,rank,pfa", [(32, 24, 1e-6), (16, 12, 1e-3), (48, 36, 1e-4)])
+def test_os_cfar_pfa_integral_matches_rohling_closed_form(n_ref, rank, pfa):
+    a = os_cfar_scale(pfa, n_ref, rank, n_looks=1)  # closed form inverted
+    assert os_cfar_pfa(a, n_ref, rank, n_looks=1) == pytest.approx(pfa, rel=1e-3)
+
+
+def test_os_cfar_false_alarm_rate_on_noise_matches_design():
+    """Non-coherent sum of 4 channels of complex Gaussian noise: measured Pfa within 15 % of the design."""
+    rng = np.random.default_rng(11)
+    pfa, n_train, guard, n = 1e-3, 16, 2, 1024
+    rank = 24
+    scale = os_cfar_scale(pfa, 2 * n_train, rank, n_looks=4)
+    ref = reference_index(n, n_train, guard)
+    trials = 300
+    x = rng.standard_normal((trials, 4, n), dtype=np.float32) + 1j * rng.standard_normal((trials, 4, n), dtype=np.float32)
+    power = (np.abs(x) ** 2).sum(axis=1).astype(np.float32)  # (trials, n)
+    mask, thr, noise = os_cfar(power, ref, rank, scale)
+    assert thr.dtype == np.float32 and noise.dtype == np.float32
+    measured = mask.mean()
+    expected_sd = math.sqrt(pfa / mask.size)
+    assert abs(measured - pfa) < max(0.15 * pfa, 4 * expected_sd)
+    # a single-look design would be wrong for this noise: it gives a visibly different scale
+    assert os_cfar_scale(pfa, 2 * n_train, rank, n_looks=1) > 1.5 * scale
+
+
+def test_os_cfar_detects_a_tone_and_returns_its_threshold():
+    rng = np.random.default_rng(2)
+    n = 1024
+    p = rng.exponential(1.0, n).astype(np.float32)
+    p[300] = 200.0
+    ref = reference_index(n, 16, 2)
+    mask, thr, _ = os_cfar(p, ref, 24, os_cfar_scale(1e-6, 32, 24))
+    assert mask[300] and thr[300] < 200.0
+    assert mask.sum() <= 2
+
+
+def test_interpolate_peak_hann_within_two_hundredths_of_a_bin():
+    n = 1024
+    w = make_window("hann", n)
+    for true_bin in (100.0, 100.25, 100.5, 233.8):
+        x = (np.exp(2j * np.pi * true_bin * np.arange(n) / n) * w).astype(np.complex64)
+        p = np.abs(np.fft.fft(x)) ** 2
+        p = p.astype(np.float32)
+        k = int(np.argmax(p))
+        assert local_maxima(p, np.ones(n, bool))[k]
+        d = interpolate_peak(p, np.array([k]))[0]
+        assert abs(k + d - true_bin) < 0.02
+
+
+# --- pairing ---------------------------------------------------------------------------------------
+
+MODEL = PairingModel.from_waveform(FE.waveform)
+KW = dict(min_range_m=5.0, max_range_m=330.0, max_speed_mps=70.0, tolerance_hz=(60.0, 60.0))
+
+
+def test_pairing_model_matches_lim_equations_9_and_10_without_migration():
+    """For a target that does not move between segments the model is Lim's eqs. 5/8/13/14 with our signs."""
+    r, v = 123.4, -27.0
+    f = MODEL.predict(np.array([r]), np.array([v]))[0]
+    # Lim writes f1 = S tau - f_d, f2 = S tau + f_d with his approach-positive f_d; the complex FFT of the
+    # down-chirp reads -f2. Range migration (v * t_mid) shifts the range term; remove it to compare.
+    seg = FE.waveform.segments
+    t_mid = [s.t_start_s + 0.5 * s.n_samples / s.sample_rate_hz for s in seg]
+    f_static = f - np.array([2 * s.slope_hz_per_s * v * t / 299_792_458.0 for s, t in zip(seg, t_mid)])
+    f1, f2 = f_static[0], -f_static[1]
+    dT, dB, fc = 5e-3, 200e6, 24.1e9
+    assert (f1 + f2) * 299_792_458.0 * dT / (4 * dB) == pytest.approx(r, abs=1e-6)
+    v_lim = (f2 - f1) * 299_792_458.0 / (4 * fc)  # eq. 10 with the typo fixed: approach positive
+    assert -v_lim == pytest.approx(v, abs=1e-6)
+    f3, f4 = f_static[2], -f_static[3]
+    assert (f3 + f4) * 299_792_458.0 * (2 * dT) / (4 * dB) == pytest.approx(r, abs=1e-6)
+
+
+def test_pairing_rejects_ghosts_of_two_targets_at_swapped_range_and_speed():
+    truth = np.array([[100.0, -25.0], [140.0, 12.0]])
+    # the two wrong fast pairings are real (R, v) solutions inside the limits: ghosts to reject
+    f = MODEL.predict(truth[:, 0], truth[:, 1])  # (2, 4)
+    freqs = tuple(f[::-1, k] if k % 2 else f[:, k] for k in range(4))  # shuffle peak order per segment
+    out = pair_beats(freqs, MODEL, **KW)
+    assert out.n_candidates == 4
+    assert out.n_ghosts == 2
+    got = np.stack([out.range_m, out.radial_speed_mps], axis=1)
+    got = got[np.argsort(got[:, 0])]
+    np.testing.assert_allclose(got, truth, atol=1e-3)
+    # the swapped world (A's range with B's speed and vice versa) is told apart from the first one
+    swapped = np.array([[100.0, 12.0], [140.0, -25.0]])
+    fs = MODEL.predict(swapped[:, 0], swapped[:, 1])
+    out2 = pair_beats(tuple(fs[:, k] for k in range(4)), MODEL, **KW)
+    got2 = np.stack([out2.range_m, out2.radial_speed_mps], axis=1)
+    got2 = got2[np.argsort(got2[:, 0])]
+    np.testing.assert_allclose(got2, swapped, atol=1e-3)
+
+
+def test_pairing_needs_both_slow_segments():
+    f = MODEL.predict(np.array([80.0]), np.array([-20.0]))[0]
+    ok = pair_beats((f[[0]], f[[1]], f[[2]], f[[3]]), MODEL, **KW)
+    assert ok.range_m.size == 1
+    off = pair_beats((f[[0]], f[[1]], f[[2]] + 500.0, f[[3]]), MODEL, **KW)
+    assert off.range_m.size == 0 and off.n_ghosts == 1
+    empty = pair_beats((f[[0]], f[[1]], np.zeros(0), f[[3]]), MODEL, **KW)
+    assert empty.range_m.size == 0
+
+
+def test_pairing_refines_range_and_speed_with_noisy_frequencies():
+    rng = np.random.default_rng(5)
+    r, v = 210.0, 30.0
+    f = MODEL.predict(np.array([r]), np.array([v]))[0] + rng.normal(0, 5.0, 4)  # 5 Hz of noise
+    out = pair_beats(tuple(np.array([x]) for x in f), MODEL, **KW)
+    assert abs(out.range_m[0] - r) < 0.1 and abs(out.radial_speed_mps[0] - v) < 0.1
+
+
+def test_nearest_of_clusters_keeps_the_near_face():
+    r = np.array([100.0, 102.0, 105.0, 100.5, 140.0])
+    v = np.array([-20.0, -20.1, -20.0, -20.0, -20.0])
+    x = np.array([-1.7, -1.6, -1.8, 1.8, -1.7])  # the 4th is in the next lane, the 5th far behind
+    keep = nearest_of_clusters(r, v, x, length_m=7.0, speed_mps=0.6, lateral_m=1.5)
+    assert keep.tolist() == [True, False, False, True, True]
+
+
+# --- angle and geometry ------------------------------------------------------------------------
+
+def _snapshots(az_deg, n_snap, snr_db, rng, gains=None):
+    d = FE.rx_spacing_m
+    m = np.arange(4)
+    a = np.exp(-2j * np.pi * m * d * math.sin(math.radians(az_deg)) / LAM)
+    s = np.exp(2j * np.pi * rng.random(n_snap))[:, None] * a[None, :]
+    if gains is not None:
+        s = s * gains
+    sigma = 10 ** (-snr_db / 20) / math.sqrt(2)
+    s = s + sigma * (rng.standard_normal(s.shape) + 1j * rng.standard_normal(s.shape))
+    return s.astype(np.complex64)[None]
+
+
+@pytest.mark.parametrize("az_deg", [-15.0, -4.2, 0.0, 0.8, 12.5])
+def test_bartlett_angle_within_a_tenth_of_a_degree(az_deg):
+    rng = np.random.default_rng(int(az_deg * 10) + 1000)
+    grid = np.radians(np.arange(-19.0, 19.0 + 1e-9, 0.25)).astype(np.float32)
+    steer = steering_matrix(4, FE.rx_spacing_m, LAM, grid)
+    az, spec = bartlett(_snapshots(az_deg, 4, 30.0, rng), steer, grid)
+    assert spec.dtype == np.float32 and az.dtype == np.float32
+    assert abs(math.degrees(az[0]) - az_deg) < 0.1
+
+
+def test_bartlett_needs_the_calibration_vector():
+    rng = np.random.default_rng(3)
+    gains = np.array([1.0, 0.9 * np.exp(0.5j), 1.1 * np.exp(-0.7j), np.exp(1.2j)])
+    grid = np.radians(np.arange(-19.0, 19.0 + 1e-9, 0.25)).astype(np.float32)
+    steer = steering_matrix(4, FE.rx_spacing_m, LAM, grid)
+    snaps = _snapshots(5.0, 4, 30.0, rng, gains)
+    raw, _ = bartlett(snaps, steer, grid)
+    cal, _ = bartlett((snaps / gains).astype(np.complex64), steer, grid)
+    assert abs(math.degrees(cal[0]) - 5.0) < 0.1
+    assert abs(math.degrees(raw[0]) - 5.0) > 0.5
+
+
+def test_polar_to_ground_reduces_to_eq16_and_handles_height():
+    x, y = polar_to_ground(np.array([100.0]), np.array([math.radians(3.0)]), 0.5, 0.5)
+    assert x[0] == pytest.approx(100 * math.sin(math.radians(3.0)), abs=1e-4)
+    assert y[0] == pytest.approx(100 * math.cos(math.radians(3.0)), abs=1e-3)
+    # radar 7 m above a target 0.5 m high, 40 m ahead on the ground, 2 m to the right
+    r = math.sqrt(40**2 + 2**2 + 6.5**2)
+    x, y = polar_to_ground(np.array([r]), np.array([math.asin(2 / r)]), 7.0, 0.5)
+    assert x[0] == pytest.approx(2.0, abs=1e-4) and y[0] == pytest.approx(40.0, abs=1e-3)
+
+
+def test_bartlett_consensus_drops_a_contaminated_segment():
+    """One of four segments also holds a 10 dB stronger vehicle at another angle: the plain Bartlett sum
+    follows the intruder, the consensus estimate keeps the target's angle."""
+    from edge.dsp.angle import bartlett_consensus
+
+    rng = np.random.default_rng(8)
+    grid = np.radians(np.arange(-19.0, 19.0 + 1e-9, 0.25)).astype(np.float32)
+    steer = steering_matrix(4, FE.rx_spacing_m, LAM, grid)
+    snaps = _snapshots(-2.4, 4, 25.0, rng)
+    intruder = 3.0 * _snapshots(6.0, 1, 40.0, rng)[0, 0]
+    snaps[0, 2] += intruder
+    plain, _ = bartlett(snaps, steer, grid)
+    az, _, kept = bartlett_consensus(snaps, steer, grid, math.radians(2.0))
+    assert abs(math.degrees(plain[0]) + 2.4) > 1.0
+    assert abs(math.degrees(az[0]) + 2.4) < 0.15
+    assert kept[0].tolist() == [True, True, False, True]

@@ -1,0 +1,48 @@
+"""Seeded end-to-end smoke test of ``radar-edge evaluate`` for the lane profile (a short highway4 run)."""
+
+from __future__ import annotations
+
+import json
+
+from edge.cli import main
+from edge.config import load_config
+from edge.evaluation.lane import evaluate
+from hw_sim.scenario import load_scenario
+
+
+def test_highway4_short_run_meets_accuracy_floor():
+    """150 frames (5 s) of highway4: six point vehicles 20-260 m, Swerling I.
+
+    Thresholds: Lim Table 3 reports 0.08-0.14 m RMSE; our mean over 10 s on seeds 1-3 is 0.12-0.13 m
+    with the far cars dominating, so 0.25 m leaves room for the shorter run but catches a biased range
+    or angle (a tenth of a degree of bias at 200 m is 0.35 m). Speed error of a good pairing is below
+    0.2 km/h; 1 km/h is the issue's acceptance figure. Swerling I fading of these point targets and the
+    tracker's 5-of-7 confirmation limit the tracked fraction (0.94-0.97 over 10 s); 0.85 catches a
+    broken detection chain or tracker hand-over.
+    """
+    rep = evaluate(load_scenario("highway4"), seed=11, frames=150, config=load_config(env={}))
+    s = rep["summary"]
+    assert rep["profile"] == "lane" and rep["frames"] == 150 and len(rep["targets"]) == 6
+    assert s["detection_probability"] >= 0.85
+    assert s["position_rmse_m_mean"] <= 0.25
+    assert s["speed_mae_kmh"] <= 1.0
+    assert s["id_switches"] == 0
+    assert s["lane_accuracy"] >= 0.98
+    assert s["false_tracks"] == 0
+    for key in ("p50", "p99", "budget"):
+        assert rep["frame_time_ms"][key] > 0
+    for t in rep["targets"]:
+        assert t["direction_true"] == t["direction_est"]
+
+
+def test_evaluate_command_writes_design_keys(tmp_path, capsys):
+    out = tmp_path / "r.json"
+    rc = main(["evaluate", "--scenario", "single-car", "--frames", "30", "--json", str(out), "--no-progress"])
+    assert rc == 0
+    d = json.loads(out.read_text())
+    for k in ("scenario", "profile", "seed", "frames", "targets", "summary", "frame_time_ms"):
+        assert k in d
+    for k in ("position_rmse_m_mean", "speed_mae_kmh", "detection_probability", "false_tracks_per_min",
+              "id_switches", "lane_accuracy", "count_error_per_lane", "classification_accuracy", "confusion_matrix"):
+        assert k in d["summary"]
+    assert d["summary"]["classification_accuracy"] is None

@@ -1,0 +1,125 @@
+"""The lane pipeline on simulated SIMO frames: accuracy for a single car, dtypes, config, evaluation smoke test."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from edge.config import load_config
+from edge.pipeline import StageTimer, build_pipeline
+from edge.pipelines.lane import LaneConfig, LanePipeline
+from hal.frame import RawFrame
+from hw_sim import SIMO_BOARD, FrameSimulator, RadarPose, Scene, Target
+from hw_sim.scene import LinearTrajectory
+
+FE = SIMO_BOARD.frontend
+
+
+def _single_car_frames(y_m=120.0, x_m=-1.75, vy=-25.0, n=8, seed=4):
+    sc = Scene(RadarPose(height_m=7.0, tilt_deg=1.5), seed=seed)
+    sc.add_target(Target(1, "car", LinearTrajectory((x_m, y_m, 0.5), (0.0, vy, 0.0)), np.zeros((1, 3)),
+                         np.array([10.0]), swerling=0))
+    sim = FrameSimulator(SIMO_BOARD, sc, seed)
+    for k in range(n):
+        f = sim.frame(k)
+        yield RawFrame(k, int(round(f.t_s * 1e9)), f.i, f.q, FE, f.truth)
+
+
+@pytest.mark.parametrize("y_m,x_m,vy", [(60.0, 1.75, 22.0), (120.0, -1.75, -25.0), (250.0, -5.25, -33.0)])
+def test_single_car_range_speed_angle_within_tolerance(y_m, x_m, vy):
+    p = LanePipeline(FE, LaneConfig(mounting_height_m=7.0, tracking=False))
+    timer = StageTimer()
+    errs = []
+    for fr in _single_car_frames(y_m, x_m, vy):
+        det, _ = p.detect(fr, timer)
+        assert len(det) == 1, f"expected exactly one detection, got {len(det)}"
+        tr = fr.truth
+        # the point scatterer sits 0.5 m above the road: compare with its slant range and azimuth
+        errs.append((det.range_m[0] - tr.range_m[0], det.radial_speed_mps[0] - tr.radial_speed_mps[0],
+                     math.degrees(det.az_rad[0] - tr.az_rad[0]), det.x_m[0] - tr.position_m[0, 0],
+                     det.y_m[0] - tr.position_m[0, 1]))
+    e = np.abs(np.array(errs))
+    # 0.75 m bins: a twentieth of a bin in range; 1.2 m/s Doppler resolution: a tenth in speed
+    assert e[:, 0].max() < 0.06
+    assert e[:, 1].max() < 0.1
+    assert e[:, 2].max() < (0.3 if y_m < 200 else 0.6)  # Bartlett over 4 elements, SNR falls with range
+    assert e[:, 4].max() < 0.1  # ground range along the road
+
+
+def test_hot_path_is_single_precision():
+    p = LanePipeline(FE, LaneConfig(mounting_height_m=7.0, tracking=False))
+    fr = next(_single_car_frames())
+    det, inter = p.detect(fr, StageTimer())
+    assert p._iq.dtype == np.complex64
+    assert p.window.dtype == np.float32
+    for k in ("power", "threshold", "noise", "angle_spectrum"):
+        assert inter[k].dtype == np.float32, k
+    for a in (det.range_m, det.radial_speed_mps, det.az_rad, det.snr_db, det.x_m, det.y_m):
+        assert a.dtype == np.float32
+
+
+def test_static_clutter_and_noise_give_no_confirmed_track():
+    """Guard-rail posts only: detections, but the tracker confirms nothing (static) in 60 frames."""
+    sc = Scene(RadarPose(height_m=7.0, tilt_deg=1.5), seed=9)
+    from hw_sim.scene import Clutter
+
+    ys = np.arange(10.0, 150.0, 8.0)
+    sc.clutter = Clutter(np.stack([np.full(ys.size, -7.6), ys, np.full(ys.size, 0.75)], axis=1), np.full(ys.size, 0.5))
+    sim = FrameSimulator(SIMO_BOARD, sc, 9)
+    p = build_pipeline("lane", FE, load_config(env={}))
+    n_det = 0
+    for k in range(60):
+        f = sim.frame(k)
+        res = p.process(RawFrame(k, int(round(f.t_s * 1e9)), f.i, f.q, FE, f.truth), StageTimer())
+        n_det += len(res.detections)
+        assert not [t for t in res.tracks if t.confirmed]
+    assert n_det > 60  # the posts are seen
+
+
+def test_config_section_and_profile_are_registered():
+    cfg = load_config(env={}, overrides={"pipeline.lane.cfar_pfa": "1e-5", "track.pdaf.confirm_m": "2"})
+    assert cfg.section("pipeline.lane").cfar_pfa == 1e-5
+    p = build_pipeline("lane", FE, cfg)
+    assert isinstance(p, LanePipeline) and p.tracker.config.confirm_m == 2
+    with pytest.raises(Exception, match="calibration"):
+        LanePipeline(FE, LaneConfig(calibration_gain=(1.0, 1.0)))
+
+
+def test_clutter_map_removes_static_posts_and_keeps_the_car():
+    """A strong static post at the car's future position: after the map has learned (time constant
+    shortened to 1 s for the test) the post gives no detection, the moving car still does."""
+    from hw_sim.scene import Clutter
+
+    sc = Scene(RadarPose(height_m=7.0, tilt_deg=1.5), seed=3)
+    sc.clutter = Clutter([[-1.75, 80.0, 0.75], [6.0, 40.0, 1.0]], [30.0, 30.0])
+    sc.add_target(Target(1, "car", LinearTrajectory((-1.75, 150.0, 0.5), (0.0, -20.0, 0.0)), np.zeros((1, 3)),
+                         np.array([10.0]), swerling=0))
+    sim = FrameSimulator(SIMO_BOARD, sc, 3)
+    with_map = LanePipeline(FE, LaneConfig(tracking=False, clutter_map_time_s=1.0))
+    without = LanePipeline(FE, LaneConfig(tracking=False, clutter_map_time_s=0.0))
+    timer = StageTimer()
+    for k in range(150):
+        f = sim.frame(k)
+        fr = RawFrame(k, 0, f.i, f.q, FE, f.truth)
+        d_map, _ = with_map.detect(fr, timer)
+        d_raw, _ = without.detect(fr, timer)
+    static = lambda d: int(np.sum(np.abs(d.radial_speed_mps) < 0.3))  # noqa: E731
+    assert static(d_raw) == 2 and static(d_map) == 0
+    assert np.sum(np.abs(d_map.radial_speed_mps + 20.0) < 0.5) == 1
+
+
+def test_sparse_cfar_gives_the_same_detections_as_the_full_threshold():
+    sparse = LanePipeline(FE, LaneConfig(tracking=False))
+    full = LanePipeline(FE, LaneConfig(tracking=False, cfar_full_threshold=True))
+    timer = StageTimer()
+    for fr in _single_car_frames(180.0, 5.25, 30.0, n=4):
+        a, ia = sparse.detect(fr, timer)
+        b, ib = full.detect(fr, timer)
+        np.testing.assert_array_equal(a.range_m, b.range_m)
+        np.testing.assert_array_equal(a.az_rad, b.az_rad)
+        assert np.isfinite(ib["threshold"]).all()
+        at = np.isfinite(ia["threshold"])
+        assert 0 < at.sum() < at.size
+        np.testing.assert_allclose(ia["threshold"][at], ib["threshold"][at], rtol=1e-6)

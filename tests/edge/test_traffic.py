@@ -1,0 +1,286 @@
+"""Traffic layer: hand-computed interval statistics, events, presence, yaw estimate and lane learning."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from edge.config import load_config
+from edge.track import PdafTracker
+from edge.traffic import TrafficConfig, TrafficMonitor
+from edge.traffic.lanes import LaneLearner, YawEstimator, to_road
+from edge.types import TrackState
+from tests.edge.trackscene import Vehicle, frames
+
+DT_NS = 100_000_000  # 10 frames per second keeps the hand computation readable
+
+
+def _ts(tid, x, y, vx, vy, age, length=None, cls=None, confirmed=True):
+    r = math.hypot(x, y)
+    return TrackState(tid, x, y, vx, vy, r, (x * vx + y * vy) / r, math.atan2(x, y), age, age, confirmed,
+                      cls=cls, length_m=length)
+
+
+ONE_LANE = dict(lane_centers_m=(0.0,), lane_widths_m=(3.5,), lane_directions=("away",), estimate_yaw=False)
+
+
+def test_config_section_registered_and_checked():
+    assert load_config(env={})["traffic"] == TrafficConfig()
+    with pytest.raises(ValueError):
+        load_config(env={}, overrides={"traffic.lane_directions": "toward,sideways"})
+    with pytest.raises(ValueError):
+        TrafficConfig(lane_centers_m=(0.0, 3.5), lane_widths_m=(3.5, 3.5, 3.5))
+
+
+def test_interval_statistics_against_hand_computed_values():
+    cfg = TrafficConfig(interval_s=10.0, detection_line_m=50.0, presence_zone_m=5.0, **ONE_LANE)
+    mon = TrafficMonitor(cfg)
+    # (id, speed m/s, crossing time s, length m, class)
+    vehicles = [(1, 20.0, 1.05, 4.5, None), (2, 25.0, 3.05, None, "car"), (3, 10.0, 6.05, 11.0, None)]
+    closed = []
+    presence_frames = 0
+    for k in range(0, 121):
+        t = k * 0.1
+        tracks = []
+        for tid, v, tc, length, cls in vehicles:
+            if abs(t - tc) <= 3.0:
+                age = int(round((t - (tc - 3.0)) / 0.1)) + 1
+                tracks.append(_ts(tid, 0.2, 50.0 + v * (t - tc), 0.0, v, age, length, cls))
+        upd = mon.update(tuple(tracks), k * DT_NS)
+        presence_frames += upd.presence[0]
+        assert all(tr.lane == 0 for tr in upd.tracks)
+        closed.extend(upd.lane_stats)
+    assert len(closed) == 1
+    s = closed[0]
+    assert (s.lane, s.sequence, s.interval_start_ns, s.interval_s) == (0, 0, 0, 10.0)
+    assert s.volume == 3
+    assert s.mean_speed_kmh == pytest.approx((72 + 90 + 36) / 3)
+    assert s.speed_p85_kmh == pytest.approx(72 + 0.7 * 18)  # rank 0.85 * 2 = 1.7 between 72 and 90
+    assert s.headway_s == pytest.approx((2.0 + 3.0) / 2)
+    # gap = headway - leader length / leader speed; vehicle 2 has no length -> default 4.5 m
+    assert s.gap_s == pytest.approx(((2.0 - 4.5 / 20) + (3.0 - 4.5 / 25)) / 2)
+    # presence: |s - 50| <= 2.5 + L/2 -> frames 0.9..1.2 (4), 2.9..3.2 (4), 5.3..6.8 (16) -> 2.4 s of 10 s
+    assert s.occupancy_pct == pytest.approx(24.0)
+    assert presence_frames == 24
+    assert s.class_counts == {"motorcycle": 0, "car": 2, "van": 0, "truck": 1}
+
+
+def test_empty_interval_gives_nan_and_sequence_rolls_over():
+    mon = TrafficMonitor(TrafficConfig(interval_s=1.0, **ONE_LANE))
+    mon.stats.sequence = 65535
+    out = []
+    for k in range(0, 25):
+        out.extend(mon.update((), k * DT_NS).lane_stats)
+    assert [s.sequence for s in out] == [65535, 0]
+    assert [s.interval_start_ns for s in out] == [0, 1_000_000_000]
+    assert out[0].volume == 0 and math.isnan(out[0].mean_speed_kmh) and math.isnan(out[0].headway_s)
+    assert out[0].occupancy_pct == 0.0
+
+
+def test_presence_flags_per_lane():
+    mon = TrafficMonitor(TrafficConfig(detection_line_m=50.0, presence_zone_m=5.0, estimate_yaw=False))
+    upd = mon.update((_ts(1, -1.7, 52.0, 0, -20, 10), _ts(2, 5.3, 80.0, 0, 20, 10)), 0)
+    assert upd.presence == (False, True, False, False)
+    assert [t.lane for t in upd.tracks] == [1, 3]
+    upd = mon.update((_ts(1, 9.5, 52.0, 0, -20, 11),), DT_NS)  # off the road
+    assert upd.presence == (False,) * 4 and upd.tracks[0].lane is None
+
+
+def test_wrong_way_driver_raises_one_event():
+    cfg = TrafficConfig(wrong_way_min_frames=15, estimate_yaw=False)
+    mon = TrafficMonitor(cfg)
+    events = []
+    for k in range(40):
+        y = 100.0 - 25.0 * k * 0.1
+        # lane 3 runs away from the radar: track 7 comes toward it; track 8 drives lane 0 correctly
+        upd = mon.update((_ts(7, 5.25, y, 0.0, -25.0, k + 1), _ts(8, -5.25, y, 0.0, -25.0, k + 1)), k * DT_NS)
+        events.extend((k, e) for e in upd.events)
+    assert len(events) == 1
+    k, e = events[0]
+    assert (e.kind, e.track_id, e.lane, k) == ("wrong_way", 7, 3, 14)
+
+
+def test_stopped_vehicle_event_once_and_not_for_static_clutter():
+    cfg = TrafficConfig(stopped_min_s=5.0, estimate_yaw=False)
+    mon = TrafficMonitor(cfg)
+    events = []
+    for k in range(200):
+        t = k * 0.1
+        v = max(20.0 - 10.0 * t, 0.0)  # stops at t = 2 s
+        y = 30.0 + (20.0 * min(t, 2.0) - 5.0 * min(t, 2.0) ** 2)
+        tracks = (_ts(4, 1.75, y, 0.0, v, k + 1), _ts(5, -5.25, 90.0, 0.0, 0.0, k + 1))  # 5: never moved
+        events.extend((t, e) for e in mon.update(tracks, k * DT_NS).events)
+    assert len(events) == 1
+    t, e = events[0]
+    assert (e.kind, e.track_id, e.lane) == ("stopped_vehicle", 4, 2)
+    assert t == pytest.approx(2.0 + 5.0, abs=0.11)
+
+
+def _world_to_radar(x, y, yaw_rad):
+    return x * math.cos(yaw_rad) - y * math.sin(yaw_rad), x * math.sin(yaw_rad) + y * math.cos(yaw_rad)
+
+
+LANES_X = (-5.25, -1.75, 1.75, 5.25)
+LANES_DIR = (-1, -1, 1, 1)
+
+
+def _synthetic_tracks(yaw_deg, n_per_lane, seed, sd_m=0.25):
+    """Confirmed tracks of vehicles driving straight along the world road, seen by a yawed radar."""
+    rng = np.random.default_rng(seed)
+    yaw = math.radians(yaw_deg)
+    out = []  # (t_ns, tracks)
+    frames_ = {}
+    tid = 0
+    for lane, (cx, d) in enumerate(zip(LANES_X, LANES_DIR)):
+        for j in range(n_per_lane):
+            tid += 1
+            v = rng.uniform(20, 33)
+            t0 = j * 4.0 + rng.uniform(0, 2)
+            x_off = cx + rng.normal(0, 0.3)  # drivers are not on the centre line
+            n = int(150.0 / v / 0.1)
+            for k in range(n):
+                s = 20.0 + v * k * 0.1 if d > 0 else 170.0 - v * k * 0.1
+                xr, yr = _world_to_radar(x_off + rng.normal(0, sd_m), s + rng.normal(0, sd_m), yaw)
+                vxr, vyr = _world_to_radar(0.0, d * v, yaw)
+                kk = int(round(t0 / 0.1)) + k
+                frames_.setdefault(kk, []).append(_ts(tid % 250 + 1, xr, yr, vxr, vyr, k + 1))
+    for kk in sorted(frames_):
+        out.append((kk * DT_NS, tuple(frames_[kk])))
+    return out
+
+
+@pytest.mark.parametrize("yaw_deg", [-4.0, 0.0, 3.0])
+def test_yaw_estimate_and_learned_lanes_from_synthetic_tracks(yaw_deg):
+    cfg = TrafficConfig(lane_mode="learned", relearn_every_s=5.0)
+    mon = TrafficMonitor(cfg)
+    for t_ns, tracks in _synthetic_tracks(yaw_deg, 12, seed=3):
+        upd = mon.update(tracks, t_ns)
+    assert mon.yaw_estimator.n_votes >= 30
+    assert math.degrees(mon.yaw_rad) == pytest.approx(yaw_deg, abs=0.3)
+    assert len(mon.lanes) == 4
+    np.testing.assert_allclose([ln.center_m for ln in mon.lanes], LANES_X, atol=0.3)
+    assert [ln.direction for ln in mon.lanes] == list(LANES_DIR)
+    assert all(3.0 < ln.width_m < 4.0 for ln in mon.lanes)
+    assert upd.presence is not None and len(upd.presence) == 4
+
+
+def _feed(est, tid, u, s, yaw):
+    xr, yr = _world_to_radar(u, s, yaw)
+    for i in range(u.size):
+        est.add(np.array([tid]), np.array([i + 1]), np.array([xr[i]]), np.array([yr[i]]))
+    est.add(np.array([], dtype=int), np.array([], dtype=int), np.array([]), np.array([]))  # track ends
+
+
+def _smoothstep(k, a, b):
+    x = np.clip((k - a) / (b - a), 0.0, 1.0)
+    return 3 * x * x - 2 * x * x * x
+
+
+def test_yaw_estimator_ignores_weaving_and_short_tracks():
+    cfg = TrafficConfig(yaw_min_tracks=1, yaw_min_track_length_m=40.0, yaw_max_lateral_sd_m=0.8)
+    est = YawEstimator(cfg)
+    yaw = math.radians(2.0)
+    k = np.arange(100.0)
+    _feed(est, 1, np.zeros(100), 20 + k, yaw)  # straight, 100 m: votes
+    weave = 3.5 * (_smoothstep(k, 20, 40) - _smoothstep(k, 60, 80))  # out to the next lane and back
+    _feed(est, 2, weave, 20 + k, yaw)
+    _feed(est, 3, np.zeros(100), 20 + 0.2 * k, yaw)  # a 20 m stub
+    assert est.n_votes == 1
+    assert math.degrees(est.estimate_rad()) == pytest.approx(2.0, abs=1e-6)
+
+
+def test_yaw_median_is_robust_to_a_few_lane_changes():
+    cfg = TrafficConfig(yaw_min_tracks=5)
+    est = YawEstimator(cfg)
+    yaw = math.radians(-3.0)
+    k = np.arange(150.0)
+    rng = np.random.default_rng(1)
+    for tid in range(1, 13):
+        u = rng.normal(0, 0.2, k.size)
+        if tid % 4 == 0:  # one in four changes lane (smooth 3.5 m step over 40 m)
+            u = u + 3.5 * _smoothstep(k, 50, 90)
+        _feed(est, tid, u, 20 + k, yaw)
+    assert math.degrees(est.estimate_rad()) == pytest.approx(-3.0, abs=0.1)
+
+
+def test_lane_learner_buffer_is_bounded():
+    cfg = TrafficConfig(learn_buffer_samples=100, learn_min_samples=50)
+    ll = LaneLearner(cfg)
+    for _ in range(10):
+        ll.add(np.full(30, 1.75), np.linspace(20, 100, 30), np.zeros(30), np.full(30, 25.0))
+    assert ll.n_samples == 100
+    lanes = ll.learn(0.0)
+    assert len(lanes) == 1 and lanes[0].center_m == pytest.approx(1.75, abs=0.06) and lanes[0].direction == 1
+
+
+def test_tracker_and_monitor_end_to_end_on_a_misaimed_radar():
+    """Four lanes of traffic, radar yawed by 3 deg: tracker -> monitor learns yaw within 1 deg and lanes
+    within 0.5 m of the true centres, then assigns every vehicle near the line to its lane."""
+    yaw_deg = 3.0
+    yaw = math.radians(yaw_deg)
+    rng = np.random.default_rng(21)
+    vehicles, lane_of = [], []
+    for lane, (cx, d) in enumerate(zip(LANES_X, LANES_DIR)):
+        for j in range(7):
+            v = rng.uniform(22, 32)
+            t0 = j * 5.0 + rng.uniform(0, 2)
+            s0 = 15.0 if d > 0 else 180.0
+            # world position at time t: (cx, s0 + d v (t - t0)); in radar coordinates (linear in t)
+            x0, y0 = _world_to_radar(cx, s0 - d * v * t0, yaw)
+            vx, vy = _world_to_radar(0.0, d * v, yaw)
+            vehicles.append(Vehicle(x0, y0, vx, vy, t_start_s=t0, t_end_s=t0 + 165.0 / v))
+            lane_of.append(lane)
+    cfg = TrafficConfig(lane_mode="learned", relearn_every_s=5.0, learn_min_samples=1500, interval_s=10.0)
+    tr, mon = PdafTracker(), TrafficMonitor(cfg)
+    assigned = []
+    stats = []
+    prev_s = {}
+    crossings = []  # (t_s, lane) of the true crossings of the detection line
+    learned_ns = None
+    for t_ns, det, truth in frames(vehicles, int(42.0 / 0.033), seed=21, p_detect=0.9, clutter_per_frame=1.0,
+                                   fov_deg=15.0):
+        for i, x, y, _, _ in truth:
+            s_now = -x * math.sin(yaw) + y * math.cos(yaw)
+            if i in prev_s and (prev_s[i] - cfg.detection_line_m) * (s_now - cfg.detection_line_m) < 0:
+                crossings.append((t_ns * 1e-9, lane_of[i]))
+            prev_s[i] = s_now
+        upd = mon.update(tr.step(det, t_ns), t_ns)
+        stats.extend(upd.lane_stats)
+        if learned_ns is None and mon.lanes:
+            learned_ns = t_ns
+        if t_ns > 30e9:
+            for i, x, y, _, _ in truth:
+                d = [math.hypot(o.x_m - x, o.y_m - y) for o in upd.tracks]
+                if d and min(d) < 2.0 and 30 < y < 120:
+                    assigned.append((lane_of[i], upd.tracks[int(np.argmin(d))].lane))
+    assert math.degrees(mon.yaw_rad) == pytest.approx(yaw_deg, abs=1.0)
+    assert len(mon.lanes) == 4
+    np.testing.assert_allclose([ln.center_m for ln in mon.lanes], LANES_X, atol=0.5)
+    assert [ln.direction for ln in mon.lanes] == list(LANES_DIR)
+    assert len(assigned) > 200
+    acc = np.mean([a == b for a, b in assigned])
+    assert acc >= 0.99, f"lane accuracy {acc:.3f}"
+    # per-lane volume of every interval closed once lanes were known equals the true line crossings
+    complete = [st for st in stats if st.interval_start_ns >= learned_ns]
+    assert len(complete) >= 8
+    for st in complete:
+        t0 = st.interval_start_ns * 1e-9
+        true_n = sum(1 for t, lane in crossings if lane == st.lane and t0 <= t < t0 + st.interval_s)
+        assert st.volume == true_n, (st, true_n)
+    assert sum(st.volume for st in complete) >= 10, sum(st.volume for st in complete)
+
+
+def test_sections_load_from_a_toml_file(tmp_path):
+    p = tmp_path / "site.toml"
+    p.write_text('[track.pdaf]\nassociation = "pdaf"\nconfirm_m = 4\n\n[traffic]\nlane_mode = "learned"\n'
+                 'lane_centers_m = [-1.75, 1.75]\nlane_directions = ["toward", "away"]\ninterval_s = 30\n')
+    cfg = load_config(p, env={})
+    assert cfg["track.pdaf"].association == "pdaf" and cfg["track.pdaf"].confirm_m == 4
+    t = cfg["traffic"]
+    assert (t.lane_mode, t.lane_centers_m, t.lane_directions, t.interval_s) == (
+        "learned", (-1.75, 1.75), ("toward", "away"), 30.0)
+    again = tmp_path / "again.toml"
+    again.write_text(cfg.to_toml())
+    assert load_config(again, env={})["traffic"] == t
