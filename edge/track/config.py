@@ -150,6 +150,10 @@ class PdafConfig:
     max_track_id: int = field(
         default=255, metadata={"doc": "published ids are 1..max_track_id, recycled oldest-released first (fits "
                                       "one CAN byte / Modbus register)", "min": 1, "max": 65535})
+    publish_max_misses: int = field(
+        default=20, metadata={"doc": "confirmed tracks are published while they missed at most this many frames in a "
+                                     "row (they live on, unpublished, until delete_after_misses, to keep their id)",
+                              "min": 0, "max": 1000})
     publish_length: bool = field(
         default=True, metadata={"doc": "publish length_m = sqrt(12) x the learned along-heading spread of a moving "
                                        "track (uniform scatterers over the length); meaningful only when the "

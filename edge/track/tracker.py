@@ -483,7 +483,8 @@ class PdafTracker:
 
     def published(self) -> tuple[TrackState, ...]:
         tr = self.tracks
-        sel = np.ones(len(tr), dtype=bool) if self.config.publish_tentative else tr.confirmed
+        sel = np.ones(len(tr), dtype=bool) if self.config.publish_tentative else tr.confirmed.copy()
+        sel &= tr.misses <= self.config.publish_max_misses
         idx = np.flatnonzero(sel)
         if idx.size == 0:
             return ()
