@@ -88,8 +88,9 @@ class PdafConfig:
                                                      "tracks; a vehicle that stops later stays confirmed",
                                "min": 0.0, "max": 50.0})
     delete_after_misses: int = field(
-        default=8, metadata={"doc": "consecutive frames without a validated detection before a confirmed track "
-                                    "is deleted (Lim: tracks survive two or three misses; 8 frames = 0.26 s)",
+        default=20, metadata={"doc": "consecutive frames without a validated detection before a track is deleted "
+                                    "(Lim: tracks survive two or three misses; far vehicles are detected in only "
+                                    "half the frames: 20 frames = 0.66 s halved the id switches on highway4-traffic)",
                              "min": 1, "max": 1000})
     max_position_sigma_m: float = field(
         default=8.0, metadata={"unit": "m", "doc": "delete a track whose position sd grows beyond this",
@@ -98,6 +99,10 @@ class PdafConfig:
                                                       "min": 0.0, "max": 100.0})
     max_range_m: float = field(default=320.0, metadata={"unit": "m", "doc": "tracks live within this ground range",
                                                         "min": 1.0, "max": 2000.0})
+    max_azimuth_deg: float = field(
+        default=20.0, metadata={"unit": "deg", "doc": "tracks are deleted once outside this azimuth (the antenna's "
+                                                      "+-15 deg field of view plus a margin): no coasting out of view",
+                                "min": 1.0, "max": 90.0})
     merge_lateral_m: float = field(
         default=1.5, metadata={"unit": "m", "doc": "two tracks closer than this across and the same-vehicle distance "
                                                    "along (max of merge_along_m, merge_headway_s x speed, "
@@ -121,8 +126,8 @@ class PdafConfig:
                                                   "about 0.3 s bumper to bumper: rare tailgating)",
                                "min": 0.0, "max": 5.0})
     merge_extent_factor: float = field(
-        default=2.0, metadata={"doc": "... or closer along than this many learned along-heading spreads (sd) of the "
-                                      "track: a long vehicle's own detections", "min": 0.0, "max": 10.0})
+        default=3.5, metadata={"doc": "... or closer along than this many learned along-heading spreads (sd) of the "
+                                      "track (3.5 ~ sqrt(12): one vehicle length): a long vehicle's own detections", "min": 0.0, "max": 10.0})
     init_merge_along_m: float = field(
         default=10.0, metadata={"unit": "m", "doc": "detections seeding tracks in the same frame within merge_lateral_m "
                                                     "across and this along give one seed (a truck's front and rear)",
@@ -133,13 +138,22 @@ class PdafConfig:
                                        "lateral spread of far detections; settled tracks in adjacent lanes differ)",
                                 "min": 0.5, "max": 0.999999})
     merge_speed_mps: float = field(
-        default=2.0, metadata={"unit": "m/s", "doc": "speed difference below which close tracks merge",
+        default=2.0, metadata={"unit": "m/s", "doc": "speed difference below which close tracks are one vehicle",
                                "min": 0.0, "max": 50.0})
+    seed_merge_speed_mps: float = field(
+        default=5.0, metadata={"unit": "m/s", "doc": "radial-speed difference below which a detection in a track's "
+                                                     "same-vehicle box (or next to a stronger seed) does not seed: "
+                                                     "wrong pairings on a long truck give ghost detections +-4 m/s "
+                                                     "off its speed at its position", "min": 0.0, "max": 50.0})
     max_tracks: int = field(default=128, metadata={"doc": "tentative + confirmed tracks held at most", "min": 1,
                                                    "max": 4096})
     max_track_id: int = field(
         default=255, metadata={"doc": "published ids are 1..max_track_id, recycled oldest-released first (fits "
                                       "one CAN byte / Modbus register)", "min": 1, "max": 65535})
+    publish_max_misses: int = field(
+        default=20, metadata={"doc": "confirmed tracks are published while they missed at most this many frames in a "
+                                     "row (they live on, unpublished, until delete_after_misses, to keep their id)",
+                              "min": 0, "max": 1000})
     publish_length: bool = field(
         default=True, metadata={"doc": "publish length_m = sqrt(12) x the learned along-heading spread of a moving "
                                        "track (uniform scatterers over the length); meaningful only when the "

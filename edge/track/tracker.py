@@ -303,7 +303,7 @@ class MofNInitiator:
             if meas.with_radial_speed:  # ... and moving like the track
                 rho_t = np.maximum(np.hypot(tracks.x[:, 0], tracks.x[:, 1]), 1e-3)
                 vr_t = (tracks.x[:, 0] * tracks.x[:, 2] + tracks.x[:, 1] * tracks.x[:, 3]) / rho_t
-                near &= np.abs(vr_t[:, None] - z[None, :, 2]) < c.merge_speed_mps
+                near &= np.abs(vr_t[:, None] - z[None, :, 2]) < c.seed_merge_speed_mps
             cand &= ~near.any(axis=0)
         idx = np.flatnonzero(cand)
         if idx.size == 0:
@@ -312,7 +312,7 @@ class MofNInitiator:
         zc, snr = z[idx], meas.snr_db[idx]
         close = _box_close(zc[:, :2], zc[:, :2], same_vehicle_lateral_m(c, zc[:, :2]), c.init_merge_along_m)
         if meas.with_radial_speed:  # detections of one vehicle share its radial speed
-            close &= np.abs(zc[:, None, 2] - zc[None, :, 2]) < c.merge_speed_mps
+            close &= np.abs(zc[:, None, 2] - zc[None, :, 2]) < c.seed_merge_speed_mps
         order = np.arange(idx.size)
         stronger = (snr[None, :] > snr[:, None]) | ((snr[None, :] == snr[:, None]) & (order[None, :] < order[:, None]))
         seeds = zc[~(close & stronger).any(axis=1)]
@@ -373,6 +373,7 @@ class TrackDeleter:
         sig = np.sqrt(np.maximum(tracks.p[:, 0, 0], tracks.p[:, 1, 1]))
         dead = (tracks.misses >= c.delete_after_misses) | (sig > c.max_position_sigma_m)
         dead |= (rho < c.min_range_m) | (rho > c.max_range_m)
+        dead |= np.abs(np.arctan2(tracks.x[:, 0], tracks.x[:, 1])) > math.radians(c.max_azimuth_deg)
         return dead | self.duplicates(tracks)
 
     def duplicates(self, tracks: TrackTable) -> np.ndarray:
@@ -482,7 +483,8 @@ class PdafTracker:
 
     def published(self) -> tuple[TrackState, ...]:
         tr = self.tracks
-        sel = np.ones(len(tr), dtype=bool) if self.config.publish_tentative else tr.confirmed
+        sel = np.ones(len(tr), dtype=bool) if self.config.publish_tentative else tr.confirmed.copy()
+        sel &= tr.misses <= self.config.publish_max_misses
         idx = np.flatnonzero(sel)
         if idx.size == 0:
             return ()

@@ -112,7 +112,6 @@ class TrafficMonitor:
 
         lanes = self.lanes
         n_lanes = len(lanes)
-        closed = self.stats.tick(t_ns, n_lanes)
 
         u, s = to_road(x, y, self.yaw_rad)
         _, vs = to_road(vx, vy, self.yaw_rad)
@@ -173,5 +172,6 @@ class TrafficMonitor:
         for k, p in enumerate(presence):
             if p:
                 self.stats.lane(k).occupied_ns += dt_ns
+        closed = self.stats.tick(t_ns, n_lanes)
         published = tuple(out_tracks.get(id(t), t) for t in tracks)
         return TrafficUpdate(published, tuple(presence), closed, tuple(events))

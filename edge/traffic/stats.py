@@ -15,9 +15,11 @@ between two frames; the crossing time is interpolated linearly. Per lane and int
 - ``class_counts``: crossings per class (the classifier's ``cls`` if a track has one, else the
   length class, else ``unknown``).
 
-Intervals start at the first frame and last ``interval_s``; the frame that reaches the end closes
-the interval and emits one :class:`edge.types.LaneStats` per lane with a rolling ``sequence``
-(mod 65536); intervals without frames are skipped, not emitted.
+Intervals start at the first frame and last ``interval_s``; the first frame at or after the end
+closes the interval and emits one :class:`edge.types.LaneStats` per lane with a rolling ``sequence``
+(mod 65536); a crossing belongs to the interval its interpolated time falls in; intervals without
+frames are skipped, not emitted. Statistics are kept per lane index: when learned lanes are
+re-learned with a different count, the interval in progress mixes the two numberings.
 """
 
 from __future__ import annotations
@@ -42,26 +44,26 @@ class Crossing:
 
 @dataclass
 class LaneAccumulator:
-    crossings: list[Crossing] = field(default_factory=list)
-    headways_s: list[float] = field(default_factory=list)
-    gaps_s: list[float] = field(default_factory=list)
+    """Crossings of one lane not yet reported, each with its headway and gap (NaN for the first)."""
+
+    crossings: list[tuple[Crossing, float, float]] = field(default_factory=list)
     occupied_ns: int = 0
     last: Crossing | None = None  # carried over intervals
 
     def add(self, c: Crossing) -> None:
+        h = g = float("nan")
         if self.last is not None and c.t_ns > self.last.t_ns:
             h = (c.t_ns - self.last.t_ns) * 1e-9
-            self.headways_s.append(h)
             clear = self.last.length_m / self.last.speed_mps if self.last.speed_mps > 0 else 0.0
-            self.gaps_s.append(max(h - clear, 0.0))
-        self.crossings.append(c)
+            g = max(h - clear, 0.0)
+        self.crossings.append((c, h, g))
         self.last = c
 
-    def reset(self) -> None:
-        self.crossings.clear()
-        self.headways_s.clear()
-        self.gaps_s.clear()
-        self.occupied_ns = 0
+    def take(self, end_ns: int) -> list[tuple[Crossing, float, float]]:
+        """Remove and return the crossings before ``end_ns`` (later ones belong to the next interval)."""
+        done = [e for e in self.crossings if e[0].t_ns < end_ns]
+        self.crossings = [e for e in self.crossings if e[0].t_ns >= end_ns]
+        return done
 
 
 class IntervalStatistics:
@@ -90,25 +92,32 @@ class IntervalStatistics:
         return acc
 
     def tick(self, t_ns: int, n_lanes: int) -> tuple[LaneStats, ...]:
-        """Call once per frame before adding its data: closes the interval if ``t_ns`` reached its end."""
+        """Call once per frame after adding its data: closes the interval if ``t_ns`` reached its end
+        (crossings interpolated before the end are reported in it, later ones in the next)."""
         if self.start_ns is None:
             self.start_ns = t_ns
             return ()
-        if t_ns < self.start_ns + self.interval_ns:
+        end = self.start_ns + self.interval_ns
+        if t_ns < end:
             return ()
-        out = tuple(self._close(k) for k in range(n_lanes))
-        for acc in self.lanes.values():
-            acc.reset()
+        out = tuple(self._close(k, end) for k in range(n_lanes))
+        for k, acc in self.lanes.items():
+            acc.occupied_ns = 0
+            if k >= n_lanes:
+                acc.take(end)
         self.sequence = (self.sequence + 1) % self.SEQ_MOD
         n = (t_ns - self.start_ns) // self.interval_ns
         self.start_ns += n * self.interval_ns
         return out
 
-    def _close(self, k: int) -> LaneStats:
+    def _close(self, k: int, end_ns: int) -> LaneStats:
         acc = self.lane(k)
-        speeds = np.array([c.speed_mps for c in acc.crossings]) * 3.6
+        done = acc.take(end_ns)
+        speeds = np.array([c.speed_mps for c, _, _ in done]) * 3.6
+        headways = [h for _, h, _ in done if math.isfinite(h)]
+        gaps = [g for _, _, g in done if math.isfinite(g)]
         counts = {name: 0 for name in self.class_names}
-        for c in acc.crossings:
+        for c, _, _ in done:
             counts[c.cls] = counts.get(c.cls, 0) + 1
         nan = float("nan")
         return LaneStats(
@@ -116,11 +125,11 @@ class IntervalStatistics:
             interval_start_ns=int(self.start_ns),
             interval_s=self.cfg.interval_s,
             sequence=self.sequence,
-            volume=len(acc.crossings),
-            occupancy_pct=100.0 * acc.occupied_ns / self.interval_ns,
+            volume=len(done),
+            occupancy_pct=min(100.0 * acc.occupied_ns / self.interval_ns, 100.0),
             mean_speed_kmh=float(speeds.mean()) if speeds.size else nan,
             speed_p85_kmh=float(np.percentile(speeds, 85)) if speeds.size else nan,
-            headway_s=float(np.mean(acc.headways_s)) if acc.headways_s else nan,
-            gap_s=float(np.mean(acc.gaps_s)) if acc.gaps_s else nan,
+            headway_s=float(np.mean(headways)) if headways else nan,
+            gap_s=float(np.mean(gaps)) if gaps else nan,
             class_counts=counts,
         )

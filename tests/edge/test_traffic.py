@@ -284,3 +284,16 @@ def test_sections_load_from_a_toml_file(tmp_path):
     again = tmp_path / "again.toml"
     again.write_text(cfg.to_toml())
     assert load_config(again, env={})["traffic"] == t
+
+
+def test_a_crossing_counts_in_the_interval_of_its_interpolated_time():
+    mon = TrafficMonitor(TrafficConfig(interval_s=1.0, detection_line_m=50.0, **ONE_LANE))
+    out = []
+    for k in range(0, 22):
+        t = k * 0.1
+        tracks = (_ts(1, 0.0, 50.0 + 20.0 * (t - 0.95), 0.0, 20.0, k + 1),  # crosses at 0.95 s
+                  _ts(2, 0.3, 50.0 + 10.0 * (t - 1.05), 0.0, 10.0, k + 1))  # crosses at 1.05 s
+        out.extend(mon.update(tracks, k * DT_NS).lane_stats)
+    assert [(s.interval_start_ns, s.volume) for s in out] == [(0, 1), (1_000_000_000, 1)]
+    assert out[0].mean_speed_kmh == pytest.approx(72.0) and out[1].mean_speed_kmh == pytest.approx(36.0)
+    assert out[1].headway_s == pytest.approx(0.1)  # the previous crossing lies in the previous interval
