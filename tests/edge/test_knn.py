@@ -146,3 +146,44 @@ def test_fit_validation():
         WeightedKNN(CLASSES, metric="cosine")
     with pytest.raises(RuntimeError):
         WeightedKNN(CLASSES).predict(np.zeros((1, 5)))
+
+
+def test_grid_search_cv_scores_equal_sklearn_cross_validation():
+    """Uniform weights: our 3-fold CV table equals scikit-learn's StandardScaler + k-NN on the same folds."""
+    from sklearn.model_selection import cross_val_score
+    from sklearn.pipeline import make_pipeline
+
+    from edge.classify.train import grid_search, stratified_folds
+
+    rng = np.random.default_rng(21)
+    x, y = blobs(rng, [20, 30, 25, 12], spread=3.0)
+    folds = stratified_folds(y, 3, seed=1)
+    assert sorted(np.concatenate(folds).tolist()) == list(range(y.size))
+    for f in folds:  # stratified: every class in every fold
+        assert set(y[f].tolist()) == {0, 1, 2, 3}
+    cv = [(np.setdiff1d(np.arange(y.size), f), f) for f in folds]
+    res = grid_search(x, y, CLASSES, ks=range(1, 31), seed=1, weighting="uniform", score="accuracy")
+    for metric in METRICS:
+        for k in (1, 4, 13, 30):
+            pipe = make_pipeline(sk_pre.StandardScaler(), sk_neighbors.KNeighborsClassifier(
+                n_neighbors=k, algorithm="brute", metric=SK_METRIC[metric]))
+            want = cross_val_score(pipe, x, y, cv=cv).mean()
+            got = res.scores[metric][k - 1]
+            # vote ties go to the lower class index in both (argmax / mode): scores equal exactly
+            assert got == pytest.approx(want, abs=1e-12), (metric, k)
+    best = max((res.scores[m].max(), m) for m in METRICS)
+    assert res.score == pytest.approx(best[0])
+
+
+def test_grid_search_finds_the_informative_k():
+    """Two well-separated classes with 10 % label noise: k = 1 memorises the noise, larger k wins."""
+    from edge.classify.train import grid_search
+
+    rng = np.random.default_rng(8)
+    x = np.concatenate([rng.normal(0, 1, (60, 5)), rng.normal(3, 1, (60, 5))])
+    y = np.repeat([0, 1], 60)
+    flip = rng.choice(120, 12, replace=False)
+    y[flip] = 1 - y[flip]
+    res = grid_search(x, y, CLASSES[:2], ks=range(1, 21), seed=0)
+    assert res.k > 1 and res.score > 0.8
+    assert res.scores["euclidean"][0] < res.score
