@@ -105,6 +105,33 @@ class MapPoints:
         i = np.zeros(0, dtype=np.int32)
         return cls(f, f, f, i, i, i)
 
+    @classmethod
+    def from_map(
+        cls,
+        magnitude: np.ndarray,
+        threshold: float,
+        range_m: np.ndarray,
+        doppler_kmh: np.ndarray,
+        label: np.ndarray | None = None,
+    ) -> "MapPoints":
+        """Cells of a magnitude map ``(n_range, n_doppler)`` at or above ``threshold``.
+
+        ``range_m`` (n_range,) and ``doppler_kmh`` (n_doppler,) are the axes of the map (any bin
+        order, e.g. after ``fftshift``); ``label`` defaults to 0 for every cell (the paper's training
+        signatures: thresholded, not clustered).
+        """
+        mag = np.asarray(magnitude)
+        rb, db = np.nonzero(mag >= threshold)
+        lab = np.zeros(rb.size, dtype=np.int32) if label is None else np.asarray(label, dtype=np.int32)
+        return cls(
+            np.asarray(range_m, dtype=np.float32)[rb],
+            np.asarray(doppler_kmh, dtype=np.float32)[db],
+            mag[rb, db].astype(np.float32),
+            rb.astype(np.int32),
+            db.astype(np.int32),
+            lab,
+        )
+
     @property
     def n_clusters(self) -> int:
         return int(self.label.max()) + 1 if self.label.size else 0

@@ -136,3 +136,17 @@ def test_single_frame_gives_nan_variances():
     x = acc.features()
     assert x[0] == 0.2 and x[2] == 3.0 and np.isnan(x[1]) and np.isnan(x[3]) and np.isnan(x[4])
     assert math.isnan(acc.mean_radial_speed_kmh())
+
+
+def test_map_points_from_map():
+    mag = np.zeros((6, 4), dtype=np.float32)
+    mag[2, 1], mag[3, 1], mag[5, 3] = 2.0, 5.0, 1.9
+    pts_ = MapPoints.from_map(mag, 2.0, np.arange(6) * 0.5, np.array([-2.0, -1.0, 0.0, 1.0]))
+    np.testing.assert_array_equal(pts_.range_bin, [2, 3])
+    np.testing.assert_array_equal(pts_.doppler_bin, [1, 1])
+    np.testing.assert_allclose(pts_.range_m, [1.0, 1.5])
+    np.testing.assert_allclose(pts_.doppler_kmh, [-1.0, -1.0])
+    np.testing.assert_allclose(pts_.amplitude, [2.0, 5.0])
+    assert pts_.n_clusters == 1 and len(pts_) == 2
+    with pytest.raises(ValueError):
+        MapPoints(np.zeros(2), np.zeros(3), np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2))
