@@ -21,6 +21,7 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.simulate",
     "edge.commands.replay",
     "edge.commands.evaluate",
+    "edge.commands.calibrate",
 )
 
 EPILOG = """\
