@@ -10,7 +10,8 @@ Scoring:
 * **Track instances**: a published track id from its first confirmed frame to the
   :class:`~edge.types.ClassifiedEvent` that ends it. An instance is matched to the true target in
   view whose weighted range (below) is nearest over the instance's frames, among the targets for
-  which the mean distance from the track's range to the range extent of their scatterers in view is
+  which the mean distance from the range of the cluster the tracker associated (the filtered range
+  when it coasted; the alpha = 0.19 filter lags fast targets by metres) to the range extent of their scatterers in view is
   within :data:`MATCH_RANGE_M` (the range-Doppler coupling of a 40 km/h car alone shifts a cluster
   by 2 m). Unmatched instances are false tracks.
 * **Per target**: the matched instance with the most frames gives ``predicted_class``, the
@@ -55,6 +56,7 @@ class _Instance:
     event: ClassifiedEvent | None = None
     target: int | None = None
     range_err: list[float] = field(default_factory=list)
+    meas: list[float] = field(default_factory=list)  # range of the cluster the tracker associated
 
 
 def _interval_distance(r: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -107,13 +109,15 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
         fv = frame_view(scene, f.t_s)
         views.append(fv)
         det_r = np.asarray(res.detections.range_m, dtype=float)
-        for tid, lo, hi in zip(fv.id, fv.range_min_m, fv.range_max_m):
+        for tid, lo, hi in zip(fv.id[fv.in_beam], fv.range_min_m[fv.in_beam], fv.range_max_m[fv.in_beam]):
             d = _interval_distance(det_r, lo, hi)
             det_hits.setdefault(int(tid), []).append(bool(d.size and d.min() <= MATCH_RANGE_M))
+        meas = res.intermediates.get("track_cluster_range_m", {})
         for ts in res.tracks:
             inst = open_inst.setdefault(ts.track_id, _Instance(ts.track_id))
             inst.frames.append(n)
             inst.ranges.append(float(ts.range_m))
+            inst.meas.append(meas.get(ts.track_id, float(ts.range_m)))
         close_events(res.classifications, n)
     close_events(pipe.flush(), n_frames)
     done.extend(open_inst.values())  # tracks that never produced an event (should not happen)
@@ -124,7 +128,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
         if not inst.frames:
             continue
         errs: dict[int, list[tuple[float, float]]] = {}
-        for n, r in zip(inst.frames, inst.ranges):
+        for n, r in zip(inst.frames, inst.meas):
             fv = views[n]
             for tid, rw, lo, hi in zip(fv.id, fv.range_m, fv.range_min_m, fv.range_max_m):
                 gap = float(_interval_distance(np.array([r]), lo, hi)[0])
@@ -148,7 +152,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
     for tid, t in truths.items():
         mine = [i for i in done if i.target == tid and i.event is not None]
         tracked_frames = {n for i in done if i.target == tid for n in i.frames}
-        vis_frames = {n for n, fv in enumerate(views) if tid in fv.id}
+        vis_frames = {n for n, fv in enumerate(views) if tid in fv.id[fv.in_beam]}
         row = {
             "id": tid, "event": t.event, "class": t.cls, "lane": None,
             "tracked_fraction": len(tracked_frames & vis_frames) / max(1, len(vis_frames)),
