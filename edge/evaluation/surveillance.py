@@ -159,7 +159,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
             "position_rmse_m": None, "speed_mae_kmh": None, "predicted_class": None,
             "class_probability": None, "direction_true": t.direction, "direction_est": None,
             "mean_radial_speed_kmh_true": round(t.mean_radial_speed_kmh, 3), "mean_radial_speed_kmh_est": None,
-            "n_tracks": len(mine), "visible_frames": t.visible_frames,
+            "n_tracks": len(mine), "visible_frames": t.visible_frames, "features": None,
         }
         ti = labels.index(t.cls) if t.cls in labels else None
         if mine:
@@ -170,6 +170,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
             v_est = float(ev.mean_radial_speed_kmh)
             row.update({
                 "predicted_class": ev.cls, "class_probability": ev.probabilities.get(ev.cls),
+                "features": {k: float(v) for k, v in ev.features.items()},
                 "direction_est": ev.direction, "mean_radial_speed_kmh_est": round(v_est, 3) if np.isfinite(v_est) else None,
                 "position_rmse_m": rm,
                 "speed_mae_kmh": abs(v_est - t.mean_radial_speed_kmh) if np.isfinite(v_est) else None,
