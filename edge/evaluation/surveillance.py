@@ -10,8 +10,8 @@ Scoring:
 * **Track instances**: a published track id from its first confirmed frame to the
   :class:`~edge.types.ClassifiedEvent` that ends it. An instance is matched to the true target in
   view whose weighted range (below) is nearest over the instance's frames, among the targets for
-  which the mean distance from the range of the cluster the tracker associated (the filtered range
-  when it coasted; the alpha = 0.19 filter lags fast targets by metres) to the range extent of their scatterers in view is
+  which the mean distance from the range of the cluster the tracker associated (frames where the
+  track coasted are left out: the alpha = 0.19 filter lags fast targets by metres) to the range extent of their scatterers in view is
   within :data:`MATCH_RANGE_M` (the range-Doppler coupling of a 40 km/h car alone shifts a cluster
   by 2 m). Unmatched instances are false tracks.
 * **Per target**: the matched instance with the most frames gives ``predicted_class``, the
@@ -56,7 +56,7 @@ class _Instance:
     event: ClassifiedEvent | None = None
     target: int | None = None
     range_err: list[float] = field(default_factory=list)
-    meas: list[float] = field(default_factory=list)  # range of the cluster the tracker associated
+    meas: list[float | None] = field(default_factory=list)  # range of the cluster associated (None: coasting)
 
 
 def _interval_distance(r: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -117,7 +117,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
             inst = open_inst.setdefault(ts.track_id, _Instance(ts.track_id))
             inst.frames.append(n)
             inst.ranges.append(float(ts.range_m))
-            inst.meas.append(meas.get(ts.track_id, float(ts.range_m)))
+            inst.meas.append(meas.get(ts.track_id))
         close_events(res.classifications, n)
     close_events(pipe.flush(), n_frames)
     done.extend(open_inst.values())  # tracks that never produced an event (should not happen)
@@ -127,8 +127,11 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
     for inst in done:
         if not inst.frames:
             continue
+        pairs = [(n, r) for n, r in zip(inst.frames, inst.meas) if r is not None]
+        if not pairs:
+            pairs = list(zip(inst.frames, inst.ranges))
         errs: dict[int, list[tuple[float, float]]] = {}
-        for n, r in zip(inst.frames, inst.meas):
+        for n, r in pairs:
             fv = views[n]
             for tid, rw, lo, hi in zip(fv.id, fv.range_m, fv.range_min_m, fv.range_max_m):
                 gap = float(_interval_distance(np.array([r]), lo, hi)[0])
@@ -136,7 +139,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
         best, best_err = None, np.inf
         for tid, e in errs.items():
             err = np.asarray(e)
-            if (len(e) >= MIN_MATCH_OVERLAP * len(inst.frames) and err[:, 1].mean() <= MATCH_RANGE_M
+            if (len(e) >= MIN_MATCH_OVERLAP * len(pairs) and err[:, 1].mean() <= MATCH_RANGE_M
                     and err[:, 0].mean() < best_err):
                 best, best_err = tid, float(err[:, 0].mean())
         if best is not None:
