@@ -2,8 +2,9 @@
 
 The site (Tavanti Fig. 8): the radar stands 1 m high by a straight urban road, looking along it and
 turned :data:`SITE_YAW_DEG` towards it so that the road lies in the 42° main beam; static metallic
-objects (poles, a fence, a parked car, a gate) are in view. Targets move along the road or the
-sidewalks (approaching or receding, heading jittered by a few degrees so aspects vary) or, for some
+objects (poles, a fence, a parked car, a gate) are in view. Targets move along the road lanes
+(x 2-3.5 m and 5-6.5 m) or the sidewalks (x 0.3-1.5 m, three pedestrians in four; 7.5-9 m), approaching
+or receding, heading jittered by up to 2° (vehicles) or 4° (pedestrians) so aspects vary, or, for some
 pedestrians in multi-target events, across the road, entering and leaving the beam sideways.
 
 Bodies (body frame ``x`` right, ``y`` forward, ``z`` up; reference point = footprint centre):
@@ -77,6 +78,9 @@ CLASS_RCS_SPEED: dict[str, tuple[float, float, tuple[float, float]]] = {
     "truck": (60.0, 3.0, (10 / 3.6, 30 / 3.6)),
 }
 JOG_SPEED_MPS = (2.2, 3.3)
+#: pedestrians use the radar's own sidewalk (x 0.3-1.5 m) or, less often, the far one (x 7.5-9 m,
+#: never closer than ~15 m inside the beam: beyond a pedestrian's detection range, as in the paper)
+NEAR_SIDEWALK_PROBABILITY = 0.75
 JOG_PROBABILITY = 0.25
 
 
@@ -194,14 +198,17 @@ class _Path:
 
 
 def _along_road_path(cls: str, speed: float, rng: np.random.Generator, max_duration_s: float) -> _Path:
-    """Approaching or receding along the road/sidewalk, heading jittered by up to 8°."""
+    """Approaching or receding along the road/sidewalk, heading jittered a little (aspect varies)."""
     if cls == "pedestrian":
-        x = float(rng.choice([rng.uniform(0.3, 1.5), rng.uniform(7.5, 9.0)]))
+        near = rng.random() < NEAR_SIDEWALK_PROBABILITY
+        x = float(rng.uniform(0.3, 1.5) if near else rng.uniform(7.5, 9.0))
+        jitter = 4.0
     else:
         x = float(rng.choice([rng.uniform(2.0, 3.5), rng.uniform(5.0, 6.5)]))
+        jitter = 2.0
     y_far, y_near = 27.0, -2.0
     approaching = bool(rng.random() < 0.5)
-    head = math.radians(rng.uniform(-8.0, 8.0))
+    head = math.radians(rng.uniform(-jitter, jitter))
     length = min(y_far - y_near, speed * max_duration_s)  # slow walkers start nearer
     vy = speed * math.cos(head) * (-1.0 if approaching else 1.0)
     vx = speed * math.sin(head)

@@ -213,6 +213,8 @@ def load_scenario(name_or_path: str) -> Scenario:
         src = str(p)
     else:
         res = resources.files("hw_sim").joinpath("scenarios", f"{name_or_path}.toml")
+        if not res.is_file() and name_or_path in EVENT_SCENARIOS:
+            return EVENT_SCENARIOS[name_or_path](events=None)  # an event generator, default events
         if not res.is_file():
             raise ScenarioError(
                 f"unknown scenario {name_or_path!r}; built-in: {', '.join(builtin_names())} (or a path to a .toml file)"
