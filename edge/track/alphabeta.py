@@ -18,7 +18,9 @@ step T = 1 frame). The tracker is a thin orchestrator over role objects, after S
 
 Streaming instead of the paper's batch: a track that misses ``N_u`` frames in a row has left the
 scene, so it *ends* there and then (it is handed back for classification) instead of staying in the
-list with an infinite cost row until the event is over. The end-of-event rule of step 9 ("delete the
+list with an infinite cost row until the event is over. As in step 7, departure is checked before
+the ``th_v`` deletion: a departed track is frozen (its ``age`` no longer grows), so only tracks still
+in the scene are deleted for ``vis / age < th_v``. The end-of-event rule of step 9 ("delete the
 tracks visible in fewer than 3 frames") is applied to every ending track: a track is *seen* in the
 frame that created it plus ``vis`` frames after it, and only tracks seen in at least
 ``min_seen_frames`` frames end as :attr:`TrackerStep.ended`; the others are
@@ -75,6 +77,12 @@ class AlphaBetaConfig:
         metadata={"doc": "what R_gate is measured from: the centroid last assigned to the track (paper, "
                   "step 5) or the predicted position", "choices": ("last_measurement", "prediction")},
     )
+    init_velocity: str = field(
+        default="zero",
+        metadata={"doc": "rates of a new track: zero (paper, step 8) or two_point (set from the first two "
+                  "centroids on the first association, removing the alpha-beta start-up lag)",
+                  "choices": ("zero", "two_point")},
+    )
     max_missed_frames: int = field(
         default=7,
         metadata={"unit": "frames", "doc": "N_u: a track not assigned for this many consecutive frames has left "
@@ -89,6 +97,11 @@ class AlphaBetaConfig:
         default=3,
         metadata={"unit": "frames", "doc": "a track seen in fewer frames (creation frame + vis) is dropped when "
                   "it ends instead of being classified (step 9)", "min": 1, "max": 1000},
+    )
+    publish_coasting_frames: int = field(
+        default=2,
+        metadata={"unit": "frames", "doc": "a confirmed track is published while it has missed at most this many "
+                  "consecutive frames (it stays alive for association until max_missed_frames)", "min": 0, "max": 1000},
     )
     max_track_id: int = field(
         default=255,
@@ -129,6 +142,20 @@ class BenedictBordnerFilter:
     def measurement_of(states: np.ndarray) -> np.ndarray:
         """``C s``: the positions ``(n, 3)`` of states ``(n, 6)``."""
         return np.asarray(states).reshape(-1, 6)[:, POS]
+
+    def two_point(self, first: np.ndarray, second: np.ndarray, frames: np.ndarray) -> np.ndarray:
+        """States at ``second`` with rates ``(second - first) / frames`` (two-point initiation).
+
+        The Doppler rates are taken along the shorter arc of the cylinder, so a centroid crossing the
+        wrap does not get a rate of a whole turn.
+        """
+        a = np.asarray(first, dtype=np.float64).reshape(-1, 3)
+        b = np.asarray(second, dtype=np.float64).reshape(-1, 3)
+        n = np.asarray(frames, dtype=np.float64).reshape(-1, 1)
+        s = np.zeros((a.shape[0], 6))
+        s[:, POS] = b
+        s[:, VEL] = (b - a) / n
+        return self.cylinder.project_states(s)
 
     def update(self, predicted: np.ndarray, measurements: np.ndarray) -> np.ndarray:
         """``N{s + G (m - C s)}``: alpha on positions, beta on rates (eq. 13)."""
@@ -297,6 +324,15 @@ class AlphaBetaTracker:
             if rows.size:
                 new_states[rows] = self.filter.update(pred[rows], cen[cols])
                 used_cols[cols] = True
+                if cfg.init_velocity == "two_point":
+                    first = np.array([self.tracks[i].vis == 0 for i in rows.tolist()], dtype=bool)
+                    if first.any():
+                        r1 = rows[first]
+                        new_states[r1] = self.filter.two_point(
+                            np.stack([self.tracks[i].last_measurement for i in r1.tolist()]),
+                            cen[cols[first]],
+                            np.array([self.tracks[i].age + 1 for i in r1.tolist()], dtype=np.float64),
+                        )
             hit = np.zeros(len(self.tracks), dtype=bool)
             hit[rows] = True
             col_of = dict(zip(rows.tolist(), cols.tolist()))
@@ -312,10 +348,10 @@ class AlphaBetaTracker:
                     assigned[tr.track_id] = col_of[k]
                 else:
                     tr.missed += 1
-                if tr.vis < cfg.visibility_threshold * tr.age:  # vis / age < th_v (age >= 1 here)
-                    dropped.append(tr)
-                elif tr.missed >= cfg.max_missed_frames:
+                if tr.missed >= cfg.max_missed_frames:  # step 7: departed (checked before th_v)
                     (ended if tr.seen_frames >= cfg.min_seen_frames else dropped).append(tr)
+                elif tr.vis < cfg.visibility_threshold * tr.age:  # vis / age < th_v (age >= 1 here)
+                    dropped.append(tr)
                 else:
                     keep.append(tr)
             self.tracks = keep
@@ -346,5 +382,7 @@ class AlphaBetaTracker:
         return ended, dropped
 
     def confirmed(self) -> list[AlphaBetaTrack]:
-        """Open tracks already seen in ``min_seen_frames`` frames (published per frame)."""
-        return [t for t in self.tracks if t.seen_frames >= self.config.min_seen_frames]
+        """Open tracks seen in ``min_seen_frames`` frames and not coasting for more than
+        ``publish_coasting_frames`` (the ones published per frame)."""
+        c = self.config
+        return [t for t in self.tracks if t.seen_frames >= c.min_seen_frames and t.missed <= c.publish_coasting_frames]

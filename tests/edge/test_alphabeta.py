@@ -265,10 +265,20 @@ def test_departure_after_n_u_misses_and_the_three_frame_rule():
     assert (ended, dropped) == ([], []) and len(trk.tracks) == 1
     ended, dropped = _run(trk, [0])
     assert (ended, dropped) == ([1], [])
-    # seen in 3 frames (vis 2): the 7th miss gives vis/age = 2/9 < 0.25 -> deleted, not classified
+    # seen in 3 frames (vis 2): departs at the 7th miss although vis/age = 2/9 < th_v -- departure is
+    # checked first (step 7) and the departed track is frozen, so it ends and is classified
     trk = AlphaBetaTracker(cfg, CYL)
     ended, dropped = _run(trk, [1] * 3 + [0] * 7)
+    assert (ended, dropped) == ([1], [])
+    # seen in 2 frames: departs too, but is dropped (fewer than 3 frames, step 9)
+    trk = AlphaBetaTracker(cfg, CYL)
+    ended, dropped = _run(trk, [1, 1, 0, 0, 0, 0, 0, 0, 0])
     assert (ended, dropped) == ([], [1])
+    # still in the scene with vis/age < th_v: deleted before N_u (vis 1: age 4 -> 1/4 kept, age 5 -> 1/5)
+    trk = AlphaBetaTracker(cfg, CYL)
+    assert _run(trk, [1, 1, 0, 0, 0]) == ([], [])
+    st = trk.step(5, np.zeros((0, 3)))
+    assert [t.track_id for t in st.dropped] == [1] and st.dropped[0].missed == 4
 
 
 def test_close_all_drops_tracks_seen_in_fewer_than_three_frames():
