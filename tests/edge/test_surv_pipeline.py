@@ -86,12 +86,13 @@ def test_streaming_through_hal_source_emits_events_and_tracks(cfg):
     with open_radar("sim://d2g?scenario=tavanti-test1&realtime=0&seed=2") as src:
         pipe = build_pipeline("surveillance", src.frontend, cfg)
         timer = StageTimer()
-        events, max_tracks, n = [], 0, 0
+        events, max_tracks, n, classed = [], 0, 0, []
         for f in src:
             res = pipe.process(f, timer)
             assert res.profile == "surveillance" and res.intermediates["rd_map"].shape == (256, 256)
             events.extend(res.classifications)
             max_tracks = max(max_tracks, len(res.tracks))
+            classed.extend(t for t in res.tracks if t.cls is not None)
             n += 1
         events.extend(pipe.flush())
     assert n == 80
@@ -102,3 +103,23 @@ def test_streaming_through_hal_source_emits_events_and_tracks(cfg):
     assert "approaching" in dirs and "receding" in dirs
     for e in events:
         assert abs(sum(e.probabilities.values()) - 1.0) < 1e-6
+    # live tracks carry a provisional class once they have two frames of features
+    assert classed and all(t.cls in ("pedestrian", "car", "motorcycle", "truck") for t in classed)
+    assert all(0.0 < t.class_probability <= 1.0 for t in classed)
+
+
+def test_evaluate_command_multi_random_json(tmp_path, capsys):
+    """``radar-edge evaluate --scenario multi-random --events N --seed S --json OUT`` (command module)."""
+    import argparse
+
+    from edge.commands import evaluate as cmd
+
+    p = argparse.ArgumentParser()
+    cmd.add_arguments(p)
+    out = tmp_path / "out.json"
+    args = p.parse_args(["--scenario", "multi-random", "--events", "1", "--seed", "1", "--json", str(out), "--no-progress"])
+    assert cmd.run(args) == 0
+    r = json.loads(out.read_text())
+    assert r["scenario"] == "multi-random" and r["seed"] == 1 and r["profile"] == "surveillance"
+    assert r["frames"] == 120 and len(r["targets"]) >= 2
+    assert "classification_accuracy" in capsys.readouterr().out
