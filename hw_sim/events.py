@@ -3,7 +3,8 @@
 The site (Tavanti Fig. 8): the radar stands 1 m high by a straight urban road, looking along it and
 turned :data:`SITE_YAW_DEG` towards it so that the road lies in the 42° main beam; static metallic
 objects (poles, a fence, a parked car, a gate) are in view. Targets move along the road lanes
-(x 2-3.5 m and 5-6.5 m) or the sidewalks (x 0.3-1.5 m, three pedestrians in four; 7.5-9 m), approaching
+(x 2-3.5 m approaching and 5-6.5 m receding, keep-right two-way road, vehicles in one lane at least
+:data:`MIN_HEADWAY_S` apart) or the sidewalks (x 0.3-1.5 m, three pedestrians in four; 7.5-9 m), approaching
 or receding, heading jittered by up to 2° (vehicles) or 4° (pedestrians) so aspects vary, or, for some
 pedestrians in multi-target events, across the road, entering and leaving the beam sideways.
 
@@ -81,6 +82,8 @@ JOG_SPEED_MPS = (2.2, 3.3)
 #: pedestrians use the radar's own sidewalk (x 0.3-1.5 m) or, less often, the far one (x 7.5-9 m,
 #: never closer than ~15 m inside the beam: beyond a pedestrian's detection range, as in the paper)
 NEAR_SIDEWALK_PROBABILITY = 0.75
+#: vehicles entering one lane during an event are at least this far apart in time
+MIN_HEADWAY_S = 2.0
 JOG_PROBABILITY = 0.25
 
 
@@ -195,19 +198,28 @@ class _Path:
     p0: tuple[float, float, float]
     v: tuple[float, float, float]
     duration_s: float
+    lane: int = -1  # vehicles: 0 = near lane (approaching), 1 = far lane (receding); -1 = sidewalk/crossing
 
 
-def _along_road_path(cls: str, speed: float, rng: np.random.Generator, max_duration_s: float) -> _Path:
-    """Approaching or receding along the road/sidewalk, heading jittered a little (aspect varies)."""
+def _along_road_path(
+    cls: str, speed: float, rng: np.random.Generator, max_duration_s: float, lane: int | None = None
+) -> _Path:
+    """Approaching or receding along the road/sidewalk, heading jittered a little (aspect varies).
+
+    Vehicles keep right on the two-way road: the near lane (x 2-3.5 m) carries approaching traffic,
+    the far lane (x 5-6.5 m) receding traffic.
+    """
     if cls == "pedestrian":
         near = rng.random() < NEAR_SIDEWALK_PROBABILITY
         x = float(rng.uniform(0.3, 1.5) if near else rng.uniform(7.5, 9.0))
         jitter = 4.0
+        approaching = bool(rng.random() < 0.5)
     else:
-        x = float(rng.choice([rng.uniform(2.0, 3.5), rng.uniform(5.0, 6.5)]))
+        lane = int(rng.integers(0, 2)) if lane is None else lane
+        x = float(rng.uniform(2.0, 3.5) if lane == 0 else rng.uniform(5.0, 6.5))
         jitter = 2.0
+        approaching = lane == 0
     y_far, y_near = 27.0, -2.0
-    approaching = bool(rng.random() < 0.5)
     head = math.radians(rng.uniform(-jitter, jitter))
     length = min(y_far - y_near, speed * max_duration_s)  # slow walkers start nearer
     vy = speed * math.cos(head) * (-1.0 if approaching else 1.0)
@@ -218,7 +230,7 @@ def _along_road_path(cls: str, speed: float, rng: np.random.Generator, max_durat
     else:
         y0 = y_near
     x0 = x - vx * dur / 2.0  # the lateral drift is centred on the lane
-    return _Path((x0, y0, 0.0), (vx, vy, 0.0), dur)
+    return _Path((x0, y0, 0.0), (vx, vy, 0.0), dur, -1 if cls == "pedestrian" else int(lane))
 
 
 def _crossing_path(speed: float, rng: np.random.Generator) -> _Path:
@@ -236,6 +248,7 @@ def add_event(
 ) -> None:
     """Add the targets of one event (ids ``100 * (event + 1) + k``) inside ``[t0, t0 + slot)``."""
     usable = slot_s - QUIET_S - 0.5
+    lane_starts: dict[int, list[float]] = {0: [], 1: []}
     for k, cls in enumerate(classes):
         speed, _jog = random_speed(cls, rng)
         if cls == "pedestrian" and rng.random() < crossing_probability:
@@ -244,6 +257,19 @@ def add_event(
             path = _along_road_path(cls, speed, rng, usable - stagger_s)
         latest = max(0.0, usable - path.duration_s)
         start = t0_s + 0.5 + float(rng.uniform(0.0, min(stagger_s, latest)))
+        if path.lane >= 0:
+            # vehicles in one lane keep a time headway (they cannot overlap); else take the other lane
+            for lane in (path.lane, 1 - path.lane):
+                if lane != path.lane:
+                    path = _along_road_path(cls, speed, rng, usable - stagger_s, lane=lane)
+                    latest = max(0.0, usable - path.duration_s)
+                for _ in range(8):
+                    if all(abs(start - t) >= MIN_HEADWAY_S for t in lane_starts[lane]):
+                        break
+                    start = t0_s + 0.5 + float(rng.uniform(0.0, min(stagger_s, latest)))
+                if all(abs(start - t) >= MIN_HEADWAY_S for t in lane_starts[lane]):
+                    break
+            lane_starts[path.lane].append(start)
         traj = LinearTrajectory(path.p0, path.v, t0_s=start)
         scene.add_target(
             make_target(cls, 100 * (event + 1) + k, traj, rng, t_start_s=start, t_end_s=start + path.duration_s)
