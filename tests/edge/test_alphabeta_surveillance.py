@@ -122,3 +122,15 @@ def test_event_end_closes_tracks_and_scintillation_is_dropped():
     assert len(out) == 1 and out[0].cls == "car" and out[0].direction == "approaching"
     assert st.segmenter.discarded == 1 and st.segmenter.events == 1
     assert st.dropped == 1  # the scintillation track
+
+
+def test_from_config_loads_the_packaged_reference_set():
+    from edge.config import load_config
+
+    cfg = load_config(env={}, overrides={"classify.knn.k": "5", "track.alphabeta.alpha": "0.3"})
+    st = SurveillanceTracker.from_config(FE, cfg, threshold=2.0)
+    assert st.classifier.k == 5 and st.classifier.classes == DEFAULT_CLASSES
+    assert st.tracker.filter.alpha == 0.3
+    assert st.cylinder.vmax_kmh == pytest.approx(5.348, abs=2e-3)
+    step = st.update(0, MapPoints.empty())
+    assert step.tracks == () and step.classifications == () and not step.event.active
