@@ -61,7 +61,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["SurveillanceStep", "SurveillanceTracker", "UNKNOWN_CLASS"]
 
-#: class reported when a track's features cannot be computed (should not happen for >= 3 frames)
+#: class reported when a track's features cannot be computed, or when classification is off
 UNKNOWN_CLASS = "unknown"
 
 
@@ -89,6 +89,7 @@ class SurveillanceTracker:
         events: EventConfig | None = None,
         features: FeatureConfig | None = None,
         knn: KnnConfig | WeightedKNN | None = None,
+        classify: bool = True,
     ) -> None:
         self.frontend = frontend
         self.frame_period_s = frontend.waveform.frame_period_s
@@ -96,7 +97,10 @@ class SurveillanceTracker:
         self.cylinder = self.extractor.cylinder
         self.tracker = AlphaBetaTracker(tracking or AlphaBetaConfig(), self.cylinder)
         self.segmenter = EventSegmenter(events or EventConfig(), threshold)
-        if isinstance(knn, WeightedKNN):
+        self.classifier: WeightedKNN | None
+        if not classify:
+            self.classifier = None  # features only (building reference sets): cls = "unknown"
+        elif isinstance(knn, WeightedKNN):
             self.classifier = knn
         else:
             kc = knn or KnnConfig()
@@ -172,13 +176,14 @@ class SurveillanceTracker:
         v = spd.mean_radial_speed_kmh() if spd is not None else math.nan
         if not math.isfinite(v):
             v = acc.mean_radial_speed_kmh()
-        names = self.classifier.classes
-        if np.all(np.isfinite(x)):
+        if self.classifier is not None and np.all(np.isfinite(x)):
+            names = self.classifier.classes
             p = self.classifier.predict_proba(x[None, :])[0]
             k = int(np.argmax(p))
             cls, probs = names[k], {n: float(pi) for n, pi in zip(names, p)}
         else:
-            log.warning("track %d ended without finite features (%d frames)", tr.track_id, acc.n)
+            if self.classifier is not None:
+                log.warning("track %d ended without finite features (%d frames)", tr.track_id, acc.n)
             cls, probs = UNKNOWN_CLASS, {}
         self.classified += 1
         feats = {n: float(xi) for n, xi in zip(FEATURE_NAMES, x)}

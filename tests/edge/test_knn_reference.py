@@ -57,3 +57,11 @@ def test_save_load_round_trip_and_errors(tmp_path):
         load_reference_set(tmp_path / "bad.npz")
     with pytest.raises(ReferenceSetError):
         ReferenceSet(np.zeros((3, 4)), np.zeros(3, dtype=int))
+
+
+def test_tracked_signatures_go_through_the_whole_chain():
+    ref = build_reference_set(events_per_class=1, seed=DEFAULT_SEED, signatures="tracked")
+    assert ref.meta["signatures"] == "tracked" and len(ref) >= 2
+    assert np.all(np.isfinite(ref.features))
+    with pytest.raises(ValueError):
+        build_reference_set(events_per_class=1, signatures="clustered")
