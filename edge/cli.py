@@ -21,6 +21,9 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.simulate",
     "edge.commands.replay",
     "edge.commands.evaluate",
+    "edge.commands.bench",
+    "edge.commands.soak",
+    "edge.commands.calibrate",
 )
 
 EPILOG = """\

@@ -9,6 +9,7 @@ from hal.base import RadarSource, RawRead, SourceStats
 from hal.errors import (
     DeviceError,
     FrameFormatError,
+    ProtocolError,
     RadarError,
     RecordingError,
     SourceClosedError,
@@ -36,6 +37,7 @@ __all__ = [
     "FrameFormatError",
     "FrontendInfo",
     "RadarCharacteristics",
+    "ProtocolError",
     "RadarError",
     "RadarSource",
     "RawFrame",

@@ -51,6 +51,10 @@ class RadarSource:
 
     #: URL scheme the backend is registered under (for messages)
     scheme: str = ""
+    #: True when ``read_frame`` blocks until the board's next frame (hardware, real-time simulation,
+    #: paced replay); False when frames come back to back as fast as they are read. The frame loop
+    #: schedules its own deadlines only for sources that do not pace themselves.
+    paces_itself: bool = True
 
     def __init__(self, *, clock_ns: Callable[[], int] = time.monotonic_ns) -> None:
         self._clock_ns = clock_ns

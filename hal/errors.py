@@ -35,5 +35,12 @@ class DeviceError(RadarError):
     """The radar device reported a fault or disappeared (unplug, stall, protocol error)."""
 
 
+class ProtocolError(DeviceError):
+    """The device broke its wire protocol or answered a request with an error status.
+
+    :mod:`hal.comlib` derives one named class per Distance2Go status code from it.
+    """
+
+
 class RecordingError(RadarError):
     """A recording file is missing, corrupt or of an unsupported version."""

@@ -91,6 +91,7 @@ class ReplaySource(RadarSource):
         super().__init__(clock_ns=self._clock.now_ns)
         self.path = path
         self.speed = speed
+        self.paces_itself = speed > 0
         self.loop = loop
         self._rec: Recording | None = None
 

@@ -50,6 +50,7 @@ class SimSource(RadarSource):
         self.scenario_name = scenario or DEFAULT_SCENARIO[board]
         self.seed_opt = seed
         self.realtime = realtime
+        self.paces_itself = realtime
         self.loop = loop
         self.max_frames = frames
         self._sim = None

@@ -81,7 +81,7 @@ class Waveform:
     """What one frame transmits and samples. ``segments`` are in time order."""
 
     name: str
-    carrier_hz: float
+    carrier_hz: float  # reference frequency for the wavelength (the centre, or the paper's f0)
     segments: tuple[ChirpSegment, ...]
     frame_period_s: float
     design_range_m: float = field(default=0.0, metadata={"doc": "range the waveform is designed for"})
@@ -191,7 +191,7 @@ class RadarCharacteristics:
             ("max unambiguous range", f"{self.max_unambiguous_range_m:.1f} m"),
             (
                 "max radial speed",
-                f"±{self.max_radial_speed_mps:.2f} m/s (±{self.max_radial_speed_mps * 3.6:.1f} km/h)"
+                f"±{self.max_radial_speed_mps:.2f} m/s (±{self.max_radial_speed_mps * 3.6:.2f} km/h)"
                 f" [{self.speed_limit_basis}]",
             ),
             (
@@ -299,9 +299,9 @@ def d2g_frontend() -> FrontendInfo:
     bw = 200e6
     t_c = 1.5e-3
     n_s = 64
-    seg = ChirpSegment(
-        +1, t_c, bw, fc - bw / 2, n_s, n_s / t_c, t_start_s=0.0, n_chirps=21, pri_s=2.1e-3
-    )
+    # Tavanti's f0 is where the ramp starts (the board sweeps 24.025-24.225 GHz); the paper's
+    # Table II expressions use lambda0 = c / f0, so f0 is also the waveform's reference frequency
+    seg = ChirpSegment(+1, t_c, bw, fc, n_s, n_s / t_c, t_start_s=0.0, n_chirps=21, pri_s=2.1e-3)
     wf = Waveform("tavanti-d2g", fc, (seg,), frame_period_s=0.2, design_range_m=24.0)
     return FrontendInfo(
         board="d2g",

@@ -2,8 +2,9 @@
 
 The site (Tavanti Fig. 8): the radar stands 1 m high by a straight urban road, looking along it and
 turned :data:`SITE_YAW_DEG` towards it so that the road lies in the 42° main beam; static metallic
-objects (poles, a fence, a parked car, a gate) are in view. Targets move along the road or the
-sidewalks (approaching or receding, heading jittered by a few degrees so aspects vary) or, for some
+objects (poles, a fence, a parked car, a gate) are in view. Targets move along the road lanes
+(x 2-3.5 m and 5-6.5 m) or the sidewalks (x 0.3-1.5 m, three pedestrians in four; 7.5-9 m), approaching
+or receding, heading jittered by up to 2° (vehicles) or 4° (pedestrians) so aspects vary, or, for some
 pedestrians in multi-target events, across the road, entering and leaving the beam sideways.
 
 Bodies (body frame ``x`` right, ``y`` forward, ``z`` up; reference point = footprint centre):
@@ -54,6 +55,9 @@ QUIET_S = 3.0
 #: visibility for ground truth: the D2G's unambiguous range and half its 42° azimuth beamwidth
 VISIBLE_RANGE_M = 24.0
 VISIBLE_HALF_BEAM_DEG = 21.0
+#: sector in which a target can still be seen through the pattern's skirts at short range (two-way
+#: gain down ~30 dB at 45°): tracks there are not false, but truth statistics use the beam above
+SEEN_HALF_SECTOR_DEG = 45.0
 
 #: static metallic objects of the site (x, y, z, rcs): lamp pole, parked car, fence posts, gate
 SITE_CLUTTER: tuple[tuple[float, float, float, float], ...] = (
@@ -74,6 +78,9 @@ CLASS_RCS_SPEED: dict[str, tuple[float, float, tuple[float, float]]] = {
     "truck": (60.0, 3.0, (10 / 3.6, 30 / 3.6)),
 }
 JOG_SPEED_MPS = (2.2, 3.3)
+#: pedestrians use the radar's own sidewalk (x 0.3-1.5 m) or, less often, the far one (x 7.5-9 m,
+#: never closer than ~15 m inside the beam: beyond a pedestrian's detection range, as in the paper)
+NEAR_SIDEWALK_PROBABILITY = 0.75
 JOG_PROBABILITY = 0.25
 
 
@@ -191,14 +198,17 @@ class _Path:
 
 
 def _along_road_path(cls: str, speed: float, rng: np.random.Generator, max_duration_s: float) -> _Path:
-    """Approaching or receding along the road/sidewalk, heading jittered by up to 8°."""
+    """Approaching or receding along the road/sidewalk, heading jittered a little (aspect varies)."""
     if cls == "pedestrian":
-        x = float(rng.choice([rng.uniform(0.3, 1.5), rng.uniform(7.5, 9.0)]))
+        near = rng.random() < NEAR_SIDEWALK_PROBABILITY
+        x = float(rng.uniform(0.3, 1.5) if near else rng.uniform(7.5, 9.0))
+        jitter = 4.0
     else:
         x = float(rng.choice([rng.uniform(2.0, 3.5), rng.uniform(5.0, 6.5)]))
+        jitter = 2.0
     y_far, y_near = 27.0, -2.0
     approaching = bool(rng.random() < 0.5)
-    head = math.radians(rng.uniform(-8.0, 8.0))
+    head = math.radians(rng.uniform(-jitter, jitter))
     length = min(y_far - y_near, speed * max_duration_s)  # slow walkers start nearer
     vy = speed * math.cos(head) * (-1.0 if approaching else 1.0)
     vx = speed * math.sin(head)
@@ -327,10 +337,68 @@ def multi_random(events: int | None = None):
 
 
 def visible(truth: GroundTruth, pose: RadarPose) -> np.ndarray:
-    """(n,) bool: targets inside the D2G's range and half-power azimuth beam at this frame."""
+    """(n,) bool: reference points inside the D2G's range and half-power azimuth beam at this frame."""
     if len(truth) == 0:
         return np.zeros(0, dtype=bool)
     return (truth.range_m <= VISIBLE_RANGE_M) & (np.abs(np.degrees(truth.az_rad)) <= VISIBLE_HALF_BEAM_DEG)
+
+
+@dataclass(frozen=True)
+class FrameView:
+    """Targets with at least one scatterer in view (range <= 24 m, |az| <= 21°) at one instant.
+
+    A 12 m truck whose footprint centre is at 27 m already shows its front face at 21 m, so what the
+    radar can see is judged on the scatterers, not on the reference point. Rows are the targets with
+    scatterers within 24 m and :data:`SEEN_HALF_SECTOR_DEG`; ``in_beam`` marks those with scatterers
+    inside the half-power beam (:data:`VISIBLE_HALF_BEAM_DEG`), which define the truth statistics.
+    ``range_m`` is the RCS/r^4-weighted range of the target's scatterers in the sector (where its
+    cluster's centroid should be), ``range_min_m``/``range_max_m`` their extent.
+    """
+
+    id: np.ndarray  # (n,) int
+    cls: tuple[str, ...]
+    range_m: np.ndarray
+    range_min_m: np.ndarray
+    range_max_m: np.ndarray
+    radial_speed_mps: np.ndarray
+    in_beam: np.ndarray  # (n,) bool
+
+    def __len__(self) -> int:
+        return int(self.id.size)
+
+
+def frame_view(scene: Scene, t_s: float) -> FrameView:
+    """What of the scene is in the Distance2Go's view at ``t_s`` (see :class:`FrameView`)."""
+    sc = scene.scatterers(t_s, np.random.default_rng(0))
+    tix = sc.target_index
+    mov = tix >= 0
+    if not mov.any():
+        z = np.zeros(0)
+        return FrameView(np.zeros(0, dtype=int), (), z, z, z, z, np.zeros(0, dtype=bool))
+    rel = scene.pose.to_radar(sc.position_m[mov])
+    rng = np.linalg.norm(rel, axis=1)
+    az = np.abs(np.degrees(np.arctan2(rel[:, 0], rel[:, 1])))
+    inv = (rng <= VISIBLE_RANGE_M) & (az <= SEEN_HALF_SECTOR_DEG)
+    k = tix[mov][inv]
+    if k.size == 0:
+        z = np.zeros(0)
+        return FrameView(np.zeros(0, dtype=int), (), z, z, z, z, np.zeros(0, dtype=bool))
+    r = rng[inv]
+    w = sc.rcs_m2[mov][inv] / np.maximum(r, 0.5) ** 4
+    u = np.unique(k)
+    idx = np.searchsorted(u, k)
+    wr = np.bincount(idx, w * r) / np.bincount(idx, w)
+    rmin = np.full(u.size, np.inf)
+    rmax = np.full(u.size, -np.inf)
+    np.minimum.at(rmin, idx, r)
+    np.maximum.at(rmax, idx, r)
+    beam = np.bincount(idx, az[inv] <= VISIBLE_HALF_BEAM_DEG, minlength=u.size) > 0
+    tr = scene.truth(t_s)
+    by_id = {int(i): float(v) for i, v in zip(tr.id, tr.radial_speed_mps)}
+    ids = np.array([scene.targets[j].id for j in u], dtype=int)
+    return FrameView(
+        ids, tuple(scene.targets[j].cls for j in u), wr, rmin, rmax, np.array([by_id[int(i)] for i in ids]), beam
+    )
 
 
 @dataclass(frozen=True)
@@ -347,24 +415,23 @@ class TargetTruth:
     last_frame: int
 
 
-def event_truth(scene: Scene, period_s: float, n_frames: int) -> list[TargetTruth]:
-    """Per-target truth over frames ``0..n_frames-1``: class, direction and mean radial speed while visible."""
+def event_truth(scene: Scene, period_s: float, n_frames: int, views: list[FrameView] | None = None) -> list[TargetTruth]:
+    """Per-target truth over frames ``0..n_frames-1``: class, direction and mean radial speed while in view."""
     ids: dict[int, list[tuple[int, float]]] = {}
     cls: dict[int, str] = {}
     for n in range(n_frames):
-        tr = scene.truth(n * period_s)
-        vis = visible(tr, scene.pose)
-        for j in np.flatnonzero(vis):
-            tid = int(tr.id[j])
-            ids.setdefault(tid, []).append((n, float(tr.radial_speed_mps[j])))
-            cls[tid] = tr.cls[j]
+        fv = views[n] if views is not None else frame_view(scene, n * period_s)
+        for j in np.flatnonzero(fv.in_beam):
+            tid = int(fv.id[j])
+            ids.setdefault(tid, []).append((n, float(fv.radial_speed_mps[j])))
+            cls[tid] = fv.cls[j]
     out = []
     for tid, rows in sorted(ids.items()):
         frames = np.array([r[0] for r in rows])
         v = float(np.mean([r[1] for r in rows])) * 3.6
         out.append(
             TargetTruth(
-                id=tid, event=tid // 100 - 1, cls=cls[tid], direction="receding" if v > 0 else "approaching",
+                id=tid, event=max(0, tid // 100 - 1), cls=cls[tid], direction="receding" if v > 0 else "approaching",
                 mean_radial_speed_kmh=v, visible_frames=int(frames.size), first_frame=int(frames.min()),
                 last_frame=int(frames.max()),
             )

@@ -56,8 +56,12 @@ class MinimalPipeline(Pipeline):
             spec = range_fft(iq, self.window)
         with timer.stage("peaks"):
             p = spec.real * spec.real + spec.imag * spec.imag  # (rx, chirp, bin) float32
+            noise = np.median(p, axis=-1, keepdims=True) + np.float32(1e-12)  # noise floor per spectrum
             p = np.where(self._valid[None], p, np.float32(0))
-            noise = np.median(p, axis=-1, keepdims=True) + np.float32(1e-12)
+            # keep local maxima only (a target's main lobe counts once)
+            left = np.roll(p, 1, axis=-1)
+            right = np.roll(p, -1, axis=-1)
+            p = np.where((p >= left) & (p >= right), p, np.float32(0))
             k = min(cfg.n_peaks, p.shape[-1])
             idx = np.argpartition(p, -k, axis=-1)[..., -k:]
             val = np.take_along_axis(p, idx, axis=-1)

@@ -12,8 +12,9 @@ Stages, each timed:
                   (:class:`edge.track.surveillance.SurveillanceTracker`)
 
 Unlike the paper, which records a whole event before processing it, every frame is processed as
-it arrives: a track's class, probabilities, mean radial speed and direction are published as a
-:class:`~edge.types.ClassifiedEvent` on the frame its track ends (``N_u`` misses, or the end of the
+it arrives: every confirmed track carries a provisional class and probability from its features so
+far (``TrackState.cls``, ``class_probability``), and its final class, probabilities, mean radial
+speed and direction are published as a :class:`~edge.types.ClassifiedEvent` on the frame it ends (``N_u`` misses, or the end of the
 event). Detections are one row per cluster: centroid range, ``radial_speed_mps`` NaN (the Doppler
 axis is aliased beyond ±5.4 km/h) with the wrapped Doppler in ``extra["doppler_wrapped_kmh"]``.
 """
@@ -21,7 +22,7 @@ axis is aliased beyond ±5.4 km/h) with the wrapped Doppler in ``extra["doppler_
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -128,14 +129,20 @@ class SurveillancePipeline(Pipeline):
             )
             level = float(m.max())
             step = self.tracker.update(frame.t_ns, pts, level=level)
+            lab = step.intermediates.get("cluster_labels")
+            assoc = {
+                int(tid): float(step.signatures.range_m[lab[j]]) for tid, j in step.tracker.assigned.items()
+            } if lab is not None else {}
             det = self._detections(step, clu.n_clusters)
+            tracks = self._provisional_classes(step.tracks)
         self._last_t_ns = frame.t_ns
-        inter: dict[str, Any] = {"th_rd": cfg.th_rd, "level": level, "n_points": len(clu), "n_clusters": clu.n_clusters}
+        inter: dict[str, Any] = {"th_rd": cfg.th_rd, "level": level, "n_points": len(clu), "n_clusters": clu.n_clusters,
+                                 "track_cluster_range_m": assoc}
         if cfg.keep_map:
             inter.update({"rd_map": m, "range_m": rd.range_m, "radial_speed_kmh": rd.radial_speed_kmh,
                           "range_bin": rb, "doppler_bin": db, "labels": clu.labels})
         return FrameResult(
-            profile=self.profile, seq=frame.seq, t_ns=frame.t_ns, detections=det, tracks=step.tracks,
+            profile=self.profile, seq=frame.seq, t_ns=frame.t_ns, detections=det, tracks=tracks,
             classifications=step.classifications, intermediates=inter,
         )
 
@@ -152,6 +159,34 @@ class SurveillancePipeline(Pipeline):
             np.asarray(sig.range_m)[ok], nan, nan, nan,
             extra={"doppler_wrapped_kmh": v_wrapped, "n_points": np.asarray(sig.n_points)[ok].astype(np.int32)},
         )
+
+    def _provisional_classes(self, tracks: tuple) -> tuple:
+        """Class and probability of each live track from its features so far (eq. 21), so outputs can
+        show a class while the target is in view; the final answer is the track's ClassifiedEvent.
+
+        Uses the tracker's per-track feature accumulators (``SurveillanceTracker._acc``); tracks
+        with fewer than two frames of signatures keep ``cls = None``.
+        """
+        acc = getattr(self.tracker, "_acc", None)
+        clf = getattr(self.tracker, "classifier", None)
+        if not tracks or acc is None or clf is None:
+            return tuple(tracks)
+        rows, feats = [], []
+        for k, ts in enumerate(tracks):
+            a = acc.get(ts.track_id)
+            if a is not None and a.n >= 2:
+                x = a.features()
+                if np.all(np.isfinite(x)):
+                    rows.append(k)
+                    feats.append(x)
+        if not rows:
+            return tuple(tracks)
+        p = clf.predict_proba(np.asarray(feats))
+        best = np.argmax(p, axis=1)
+        out = list(tracks)
+        for k, b, pk in zip(rows, best, p):
+            out[k] = replace(out[k], cls=clf.classes[int(b)], class_probability=float(pk[b]))
+        return tuple(out)
 
     def flush(self) -> tuple[ClassifiedEvent, ...]:
         """End and classify every open track (end of a recording or a scenario)."""

@@ -1,0 +1,228 @@
+"""The frame loop on a fake clock: overruns are counted drops, never drift or a backlog."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from edge.config import LoopConfig
+from edge.loop import FrameLoop
+from edge.pipeline import Pipeline
+from edge.types import Detections, FrameResult
+from hal.base import RadarSource, RawRead
+from hal.clock import FakeClock
+from hal.errors import DeviceError, SourceClosedError
+from hal.waveform import d2g_frontend
+
+PERIOD_NS = 200_000_000
+
+
+class FakeSource(RadarSource):
+    """Non-pacing source: returns the next frame immediately; can inject faults."""
+
+    scheme = "fake"
+    paces_itself = False
+
+    def __init__(self, clock, n_frames=1000, faults=()):
+        super().__init__(clock_ns=clock.now_ns)
+        self._fe = d2g_frontend()
+        self.n = n_frames
+        self.faults = set(faults)
+        self.k = 0
+        self.opens = 0
+        self.buffered_max = 0
+
+    @property
+    def frontend(self):
+        return self._fe
+
+    def _open(self):
+        self.opens += 1
+
+    def _read_raw(self, timeout_s):
+        if self.k >= self.n:
+            raise SourceClosedError("end")
+        k = self.k
+        self.k += 1
+        if k in self.faults:
+            raise DeviceError(f"injected fault at {k}")
+        z = np.zeros(self._fe.frame_shape, dtype=np.int16)
+        return RawRead(seq=k, i=z, q=z)
+
+    def _close(self):
+        pass
+
+
+class ScriptedPipeline(Pipeline):
+    """Takes a scripted amount of (fake) time per frame; may raise."""
+
+    profile = "fake"
+
+    def __init__(self, clock, durations_ms, fail_on=()):
+        super().__init__(d2g_frontend(), None)
+        self.clock = clock
+        self.durations_ms = durations_ms
+        self.fail_on = set(fail_on)
+        self.seen = []
+
+    def process(self, frame, timer):
+        n = len(self.seen)
+        self.seen.append(frame.seq)
+        self.clock.advance_ns(int(self.durations_ms(n) * 1e6))
+        if n in self.fail_on:
+            raise RuntimeError("scripted failure")
+        return FrameResult("fake", frame.seq, frame.t_ns, Detections.empty())
+
+
+class RecordingSink:
+    def __init__(self):
+        self.results = []
+        self.health = []
+        self.closed = False
+
+    def publish(self, result, health):
+        if result is not None:
+            self.results.append(result.seq)
+        self.health.append(health)
+
+    def close(self):
+        self.closed = True
+
+
+def test_deadline_grid_has_no_drift_and_overruns_are_counted_drops():
+    clk = FakeClock()
+    # every 10th frame takes 450 ms (2.25 periods); the others 50 ms
+    pipe = ScriptedPipeline(clk, lambda n: 450.0 if n % 10 == 9 else 50.0)
+    src = FakeSource(clk)
+    sink = RecordingSink()
+    loop = FrameLoop(src, pipe, LoopConfig(), sinks=[sink], clock=clk, pace="loop")
+    t0 = clk.now_ns()
+    summary = loop.run(max_frames=100)
+    ticks = np.array(loop.tick_times_ns)
+    # every tick lies exactly on the grid t0 + k * period: no drift
+    assert np.all((ticks - t0) % PERIOD_NS == 0)
+    assert summary.frames == 100
+    assert summary.overruns == 10
+    # each 450 ms frame overruns its slot and spills into the next two, which are skipped and counted
+    assert summary.dropped_frames == 20
+    # the last processed tick comes after 99 processed and 18 skipped ones (the final overrun's
+    # two skipped ticks follow it)
+    assert (ticks[-1] - t0) // PERIOD_NS == 99 + 18
+    assert len(ticks) == 100
+    # nothing queued: the source was read exactly once per processed frame
+    assert src.k == 100
+    assert sink.results == pipe.seen and sink.closed
+    assert summary.stages["frame"]["p50_ms"] == pytest.approx(50.0)
+    assert summary.stages["frame"]["max_ms"] == pytest.approx(450.0)
+
+
+def test_no_overrun_when_within_budget():
+    clk = FakeClock()
+    loop = FrameLoop(FakeSource(clk), ScriptedPipeline(clk, lambda n: 199.0), clock=clk, pace="loop")
+    s = loop.run(max_frames=50)
+    assert (s.frames, s.overruns, s.dropped_frames) == (50, 0, 0)
+    assert clk.now_ns() - 1_000_000_000 == 49 * PERIOD_NS + 199_000_000
+
+
+def test_source_paced_loop_with_late_reader_counts_source_drops():
+    from hal import open_radar
+
+    clk = FakeClock()
+    src = open_radar("sim://d2g?seed=1&frames=30", clock=clk)
+    pipe = ScriptedPipeline(clk, lambda n: 450.0 if n == 3 else 20.0)
+    loop = FrameLoop(src, pipe, clock=clk)
+    assert loop.pace == "source"
+    s = loop.run()
+    assert s.overruns == 1
+    # frame 3 is read when it completes (4 periods after open) and processed until 6.25 periods:
+    # the board finished frames 4 and 5 meanwhile and kept only the newest, so frame 4 is lost
+    assert s.source_dropped_frames == 1
+    assert pipe.seen[:6] == [0, 1, 2, 3, 5, 6]
+    assert s.frames == 29 and s.stop_reason == "end of source"
+
+
+def test_pipeline_errors_skip_the_frame_and_stop_after_too_many():
+    clk = FakeClock()
+    pipe = ScriptedPipeline(clk, lambda n: 10.0, fail_on={2, 5})
+    sink = RecordingSink()
+    loop = FrameLoop(FakeSource(clk), pipe, LoopConfig(error_policy="skip"), sinks=[sink], clock=clk)
+    s = loop.run(max_frames=10)
+    assert s.errors == 2 and s.frames == 10
+    assert 2 not in sink.results and 5 not in sink.results
+    loop = FrameLoop(
+        FakeSource(clk), ScriptedPipeline(clk, lambda n: 10.0, fail_on=set(range(100))),
+        LoopConfig(error_policy="skip", max_consecutive_errors=3), clock=clk,
+    )
+    s = loop.run(max_frames=10)
+    assert s.errors == 3 and s.stop_reason.startswith("pipeline error")
+
+
+def test_source_fault_policy_reconnect_skip_stop():
+    clk = FakeClock()
+    src = FakeSource(clk, n_frames=20, faults={4, 9})
+    loop = FrameLoop(src, ScriptedPipeline(clk, lambda n: 5.0), LoopConfig(error_policy="reconnect"), clock=clk)
+    s = loop.run()
+    assert s.reconnects == 2 and src.opens == 3 and s.frames == 18 and s.stop_reason == "end of source"
+
+    src = FakeSource(clk, n_frames=20, faults={4})
+    s = FrameLoop(src, ScriptedPipeline(clk, lambda n: 5.0), LoopConfig(error_policy="skip"), clock=clk).run()
+    assert s.reconnects == 0 and src.opens == 1 and s.frames == 19
+
+    src = FakeSource(clk, n_frames=20, faults={4})
+    s = FrameLoop(src, ScriptedPipeline(clk, lambda n: 5.0), LoopConfig(error_policy="stop"), clock=clk).run()
+    assert s.frames == 4 and s.stop_reason.startswith("source error")
+    assert not src.is_open
+
+
+class StallSource(FakeSource):
+    """Delivers 3 frames, then nothing for ``stall_reads`` timeouts (time passes), then ends."""
+
+    def __init__(self, clock, stall_reads):
+        super().__init__(clock)
+        self.clock = clock
+        self.stall_reads = stall_reads
+
+    def _read_raw(self, timeout_s):
+        if self.k < 3:
+            return super()._read_raw(timeout_s)
+        if self.k < 3 + self.stall_reads:
+            self.k += 1
+            self.clock.advance_ns(int(timeout_s * 1e9))
+            return None
+        raise SourceClosedError("end")
+
+
+def test_stalled_source_publishes_health_heartbeats():
+    clk = FakeClock()
+    sink = RecordingSink()
+    cfg = LoopConfig(health_period_s=0.5)
+    loop = FrameLoop(StallSource(clk, stall_reads=8), ScriptedPipeline(clk, lambda n: 1.0), cfg,
+                     sinks=[sink], clock=clk, read_timeout_s=1.0, pace="source")
+    s = loop.run()
+    assert s.frames == 3 and s.timeouts == 8
+    beats = [h for h in sink.health[3:]]
+    # one heartbeat per 0.5 s read timeout while stalled, the state turning "stalled" after 1 s
+    gaps = np.diff([h.t_ns for h in beats[:-1]])
+    assert np.all(gaps <= 500_000_000)
+    first_stalled = next(h for h in beats if h.state == "stalled")
+    # reported within 1.5 s of the last frame (read timeout 1 s + one heartbeat period)
+    assert first_stalled.t_ns - beats[0].last_frame_ns <= 1_500_000_000
+    k = beats.index(first_stalled)
+    assert all(h.state == "running" for h in beats[:k])
+    assert all(h.state == "stalled" for h in beats[k:-1]) and beats[-1].state == "stopped"
+    assert all(h.frames == 3 for h in beats)
+
+
+def test_stop_from_another_context_ends_the_loop():
+    clk = FakeClock()
+    loop_ref = {}
+
+    def dur(n):
+        if n == 4:
+            loop_ref["loop"].stop()
+        return 1.0
+
+    loop = FrameLoop(FakeSource(clk), ScriptedPipeline(clk, dur), clock=clk, pace="loop")
+    loop_ref["loop"] = loop
+    s = loop.run()
+    assert s.frames == 5 and s.stop_reason == "stopped"
