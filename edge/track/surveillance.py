@@ -3,7 +3,7 @@
 :class:`SurveillanceTracker` is what the surveillance pipeline calls after thresholding and DBSCAN::
 
     st = SurveillanceTracker.from_config(frontend, cfg, threshold=th_rd)
-    step = st.update(frame.t_ns, points, level=rd_map_max)   # points: MapPoints with DBSCAN labels
+    step = st.update(frame.t_ns, points, level=rd_map_max, seq=frame.seq)  # points: MapPoints, DBSCAN labels
     step.tracks            # TrackState of the confirmed tracks (seen in >= 3 frames)
     step.classifications   # ClassifiedEvent of every track that ended in this frame
     ...
@@ -110,6 +110,8 @@ class SurveillanceTracker:
         self._speed: dict[int, RadialSpeedEstimator] = {}
         self.classified = 0
         self.dropped = 0
+        self._frames = 0  # update() calls: the sensor clock when no frame counter is given
+        self._seen_t: dict[int, float] = {}  # track id -> sensor time (s) of its last cluster
 
     @classmethod
     def from_config(cls, frontend: FrontendInfo, config: Any, threshold: float) -> "SurveillanceTracker":
@@ -125,8 +127,14 @@ class SurveillanceTracker:
         )
 
     # ------------------------------------------------------------------------------------------
-    def update(self, t_ns: int, points: MapPoints, level: float | None = None) -> SurveillanceStep:
-        """One frame. ``level`` defaults to the largest point amplitude (0 without points)."""
+    def update(self, t_ns: int, points: MapPoints, level: float | None = None, seq: int | None = None) -> SurveillanceStep:
+        """One frame. ``level`` defaults to the largest point amplitude (0 without points).
+
+        ``t_ns`` (host time) stamps the published events. Kinematics (radial speeds, the features'
+        range rates) run on the *sensor* clock, ``seq * frame_period`` with ``seq`` the board's frame
+        counter (gaps = dropped frames) or, when ``seq`` is not given, the number of frames processed:
+        host arrival times are meaningless for a replay at full speed or a source read back to back.
+        """
         if level is None:
             level = float(np.max(points.amplitude)) if len(points) else 0.0
         sig = self.extractor(points)
@@ -141,15 +149,17 @@ class SurveillanceTracker:
         for tid in tstep.created:
             self._acc[tid] = TrackFeatureAccumulator()
             self._speed[tid] = RadialSpeedEstimator(self.cylinder.vmax_kmh)
-        t_s = t_ns * 1e-9
+        t_s = (self._frames if seq is None else int(seq)) * self.frame_period_s
+        self._frames += 1
         for tid, j in tstep.assigned.items():
             lab = labels[j]
             self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab])
             self._speed[tid].add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
+            self._seen_t[tid] = t_s
         seg = self.segmenter.step(t_ns, level)
         if seg.ended or seg.discarded:
             out.extend(self._close_tracks())
-        tracks = tuple(self._track_state(tr, t_ns) for tr in self.tracker.confirmed())
+        tracks = tuple(self._track_state(tr, t_s) for tr in self.tracker.confirmed())
         inter = {"centroids": sig.centroid[valid], "cluster_labels": labels, "level": level}
         return SurveillanceStep(tracks, tuple(out), seg, sig, tstep, inter)
 
@@ -167,11 +177,13 @@ class SurveillanceTracker:
     def _forget(self, track_id: int) -> None:
         self._acc.pop(track_id, None)
         self._speed.pop(track_id, None)
+        self._seen_t.pop(track_id, None)
         self.dropped += 1
 
     def _finish(self, tr: AlphaBetaTrack) -> ClassifiedEvent:
         acc = self._acc.pop(tr.track_id, None) or TrackFeatureAccumulator()
         spd = self._speed.pop(tr.track_id, None)
+        self._seen_t.pop(tr.track_id, None)
         x = acc.features()
         v = spd.mean_radial_speed_kmh() if spd is not None else math.nan
         if not math.isfinite(v):
@@ -199,11 +211,11 @@ class SurveillanceTracker:
             features=feats,
         )
 
-    def _track_state(self, tr: AlphaBetaTrack, t_ns: int) -> TrackState:
+    def _track_state(self, tr: AlphaBetaTrack, t_s: float) -> TrackState:
         spd = self._speed.get(tr.track_id)
         v_kmh = spd.current_radial_speed_kmh() if spd is not None else math.nan
         v = v_kmh / 3.6 if math.isfinite(v_kmh) else float(tr.state[5]) / self.frame_period_s
-        r = max(0.0, float(tr.last_measurement[2]) + v * (t_ns - tr.last_seen_ns) * 1e-9)
+        r = max(0.0, float(tr.last_measurement[2]) + v * (t_s - self._seen_t.get(tr.track_id, t_s)))
         return TrackState(
             track_id=tr.track_id,
             x_m=0.0,
