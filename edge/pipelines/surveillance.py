@@ -104,6 +104,8 @@ class SurveillancePipeline(Pipeline):
         self.tracker = tracker
         self._iq = np.empty(frontend.frame_shape, dtype=np.complex64)
         self._last_t_ns = 0
+        self._period_ns = int(round(frontend.waveform.frame_period_s * 1e9))
+        self._offset_ns = 0
 
     @classmethod
     def from_config(cls, frontend: FrontendInfo, config: Any) -> "SurveillancePipeline":
@@ -128,7 +130,11 @@ class SurveillancePipeline(Pipeline):
                 clu.labels,
             )
             level = float(m.max())
-            step = self.tracker.update(frame.t_ns, pts, level=level)
+            # the tracker's clock is the board's frame counter times the frame period: host receive
+            # times jitter (USB) and mean nothing when a recording is replayed unpaced
+            t_seq = frame.seq * self._period_ns
+            self._offset_ns = frame.t_ns - t_seq
+            step = self.tracker.update(t_seq, pts, level=level)
             lab = step.intermediates.get("cluster_labels")
             assoc = {
                 int(tid): float(step.signatures.range_m[lab[j]]) for tid, j in step.tracker.assigned.items()
@@ -143,7 +149,7 @@ class SurveillancePipeline(Pipeline):
                           "range_bin": rb, "doppler_bin": db, "labels": clu.labels})
         return FrameResult(
             profile=self.profile, seq=frame.seq, t_ns=frame.t_ns, detections=det, tracks=tracks,
-            classifications=step.classifications, intermediates=inter,
+            classifications=self._host_times(step.classifications), intermediates=inter,
         )
 
     def _detections(self, step: Any, n_clusters: int) -> Detections:
@@ -188,9 +194,14 @@ class SurveillancePipeline(Pipeline):
             out[k] = replace(out[k], cls=clf.classes[int(b)], class_probability=float(pk[b]))
         return tuple(out)
 
+    def _host_times(self, events: tuple) -> tuple:
+        """Event times from frame-counter time back to host monotonic time (offset of the last frame)."""
+        off = self._offset_ns
+        return tuple(replace(e, start_ns=e.start_ns + off, end_ns=e.end_ns + off) for e in events)
+
     def flush(self) -> tuple[ClassifiedEvent, ...]:
         """End and classify every open track (end of a recording or a scenario)."""
-        return tuple(self.tracker.close(self._last_t_ns))
+        return self._host_times(tuple(self.tracker.close(self._last_t_ns - self._offset_ns)))
 
     def close(self) -> None:
         out = self.flush()

@@ -77,13 +77,17 @@ def test_rd_peak_at_expected_bin_including_aliased_doppler(rdp, v_mps):
     assert m.shape == (256, 256) and m.dtype == np.float32
     i, j = np.unravel_index(np.argmax(m), m.shape)
     seg = FE.waveform.segments[0]
-    lam = FE.waveform.wavelength_m
+    # the Doppler of a chirp is set by the frequency mid-way through the samples; the map's axis is
+    # scaled with the reference lambda0 = c / f0 (Tavanti Table II), so it reads v * f_mid / f0
+    f_mid = seg.f_start_hz + seg.slope_hz_per_s * (seg.sample_offset_s + seg.n_samples / seg.sample_rate_hz / 2)
+    lam = SPEED_OF_LIGHT_MPS / f_mid
+    v_axis = v_mps * f_mid / FE.waveform.carrier_hz
     # beat = S tau + 2 v / lambda (range-Doppler coupling, DESIGN: receding targets look farther)
     # plus the motion to the middle of the kept chirps 1..20
     r_exp = r0 + (2 * v_mps / lam) * SPEED_OF_LIGHT_MPS / (2 * seg.slope_hz_per_s) + v_mps * 10.5 * seg.pri_s
     assert abs(rdp.range_m[i] - r_exp) <= 1.5 * rdp.range_bin_m
     vmax = characteristics(FE).max_radial_speed_mps * 3.6
-    v_alias = (v_mps * 3.6 + vmax) % (2 * vmax) - vmax
+    v_alias = (v_axis * 3.6 + vmax) % (2 * vmax) - vmax
     d = abs(rdp.radial_speed_kmh[j] - v_alias)
     assert min(d, 2 * vmax - d) <= 1.5 * rdp.doppler_bin_kmh
     if abs(v_mps * 3.6) > vmax:  # really aliased: the map shows a different speed
