@@ -110,7 +110,6 @@ class SurveillanceTracker:
         self._speed: dict[int, RadialSpeedEstimator] = {}
         self.classified = 0
         self.dropped = 0
-        self._frames = 0  # update() calls: the sensor clock when no frame counter is given
         self._seen_t: dict[int, float] = {}  # track id -> sensor time (s) of its last cluster
 
     @classmethod
@@ -130,10 +129,12 @@ class SurveillanceTracker:
     def update(self, t_ns: int, points: MapPoints, level: float | None = None, seq: int | None = None) -> SurveillanceStep:
         """One frame. ``level`` defaults to the largest point amplitude (0 without points).
 
-        ``t_ns`` (host time) stamps the published events. Kinematics (radial speeds, the features'
-        range rates) run on the *sensor* clock, ``seq * frame_period`` with ``seq`` the board's frame
-        counter (gaps = dropped frames) or, when ``seq`` is not given, the number of frames processed:
-        host arrival times are meaningless for a replay at full speed or a source read back to back.
+        Kinematics (radial speeds, the features' range rates) need the *sensor* clock: host arrival
+        times jitter and mean nothing for a replay at full speed. Give either ``seq``, the board's
+        frame counter (time = ``seq * frame_period``, gaps = dropped frames), or a ``t_ns`` that is
+        already on the sensor clock, as :class:`~edge.pipelines.surveillance.SurveillancePipeline`
+        does (``seq * period``, mapped back to host time for its outputs). ``t_ns`` also stamps the
+        tracks' start/end in the :class:`~edge.types.ClassifiedEvent`.
         """
         if level is None:
             level = float(np.max(points.amplitude)) if len(points) else 0.0
@@ -149,8 +150,7 @@ class SurveillanceTracker:
         for tid in tstep.created:
             self._acc[tid] = TrackFeatureAccumulator()
             self._speed[tid] = RadialSpeedEstimator(self.cylinder.vmax_kmh)
-        t_s = (self._frames if seq is None else int(seq)) * self.frame_period_s
-        self._frames += 1
+        t_s = t_ns * 1e-9 if seq is None else int(seq) * self.frame_period_s
         for tid, j in tstep.assigned.items():
             lab = labels[j]
             self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab])
