@@ -3,7 +3,7 @@
 :class:`SurveillanceTracker` is what the surveillance pipeline calls after thresholding and DBSCAN::
 
     st = SurveillanceTracker.from_config(frontend, cfg, threshold=th_rd)
-    step = st.update(frame.t_ns, points, level=rd_map_max)   # points: MapPoints with DBSCAN labels
+    step = st.update(frame.t_ns, points, level=rd_map_max, seq=frame.seq)  # points: MapPoints, DBSCAN labels
     step.tracks            # TrackState of the confirmed tracks (seen in >= 3 frames)
     step.classifications   # ClassifiedEvent of every track that ended in this frame
     ...
@@ -61,7 +61,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["SurveillanceStep", "SurveillanceTracker", "UNKNOWN_CLASS"]
 
-#: class reported when a track's features cannot be computed (should not happen for >= 3 frames)
+#: class reported when a track's features cannot be computed, or when classification is off
 UNKNOWN_CLASS = "unknown"
 
 
@@ -89,6 +89,7 @@ class SurveillanceTracker:
         events: EventConfig | None = None,
         features: FeatureConfig | None = None,
         knn: KnnConfig | WeightedKNN | None = None,
+        classify: bool = True,
     ) -> None:
         self.frontend = frontend
         self.frame_period_s = frontend.waveform.frame_period_s
@@ -96,7 +97,10 @@ class SurveillanceTracker:
         self.cylinder = self.extractor.cylinder
         self.tracker = AlphaBetaTracker(tracking or AlphaBetaConfig(), self.cylinder)
         self.segmenter = EventSegmenter(events or EventConfig(), threshold)
-        if isinstance(knn, WeightedKNN):
+        self.classifier: WeightedKNN | None
+        if not classify:
+            self.classifier = None  # features only (building reference sets): cls = "unknown"
+        elif isinstance(knn, WeightedKNN):
             self.classifier = knn
         else:
             kc = knn or KnnConfig()
@@ -106,6 +110,7 @@ class SurveillanceTracker:
         self._speed: dict[int, RadialSpeedEstimator] = {}
         self.classified = 0
         self.dropped = 0
+        self._seen_t: dict[int, float] = {}  # track id -> sensor time (s) of its last cluster
 
     @classmethod
     def from_config(cls, frontend: FrontendInfo, config: Any, threshold: float) -> "SurveillanceTracker":
@@ -121,8 +126,16 @@ class SurveillanceTracker:
         )
 
     # ------------------------------------------------------------------------------------------
-    def update(self, t_ns: int, points: MapPoints, level: float | None = None) -> SurveillanceStep:
-        """One frame. ``level`` defaults to the largest point amplitude (0 without points)."""
+    def update(self, t_ns: int, points: MapPoints, level: float | None = None, seq: int | None = None) -> SurveillanceStep:
+        """One frame. ``level`` defaults to the largest point amplitude (0 without points).
+
+        Kinematics (radial speeds, the features' range rates) need the *sensor* clock: host arrival
+        times jitter and mean nothing for a replay at full speed. Give either ``seq``, the board's
+        frame counter (time = ``seq * frame_period``, gaps = dropped frames), or a ``t_ns`` that is
+        already on the sensor clock, as :class:`~edge.pipelines.surveillance.SurveillancePipeline`
+        does (``seq * period``, mapped back to host time for its outputs). ``t_ns`` also stamps the
+        tracks' start/end in the :class:`~edge.types.ClassifiedEvent`.
+        """
         if level is None:
             level = float(np.max(points.amplitude)) if len(points) else 0.0
         sig = self.extractor(points)
@@ -137,15 +150,16 @@ class SurveillanceTracker:
         for tid in tstep.created:
             self._acc[tid] = TrackFeatureAccumulator()
             self._speed[tid] = RadialSpeedEstimator(self.cylinder.vmax_kmh)
-        t_s = t_ns * 1e-9
+        t_s = t_ns * 1e-9 if seq is None else int(seq) * self.frame_period_s
         for tid, j in tstep.assigned.items():
             lab = labels[j]
             self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab])
             self._speed[tid].add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
+            self._seen_t[tid] = t_s
         seg = self.segmenter.step(t_ns, level)
         if seg.ended or seg.discarded:
             out.extend(self._close_tracks())
-        tracks = tuple(self._track_state(tr, t_ns) for tr in self.tracker.confirmed())
+        tracks = tuple(self._track_state(tr, t_s) for tr in self.tracker.confirmed())
         inter = {"centroids": sig.centroid[valid], "cluster_labels": labels, "level": level}
         return SurveillanceStep(tracks, tuple(out), seg, sig, tstep, inter)
 
@@ -163,22 +177,25 @@ class SurveillanceTracker:
     def _forget(self, track_id: int) -> None:
         self._acc.pop(track_id, None)
         self._speed.pop(track_id, None)
+        self._seen_t.pop(track_id, None)
         self.dropped += 1
 
     def _finish(self, tr: AlphaBetaTrack) -> ClassifiedEvent:
         acc = self._acc.pop(tr.track_id, None) or TrackFeatureAccumulator()
         spd = self._speed.pop(tr.track_id, None)
+        self._seen_t.pop(tr.track_id, None)
         x = acc.features()
         v = spd.mean_radial_speed_kmh() if spd is not None else math.nan
         if not math.isfinite(v):
             v = acc.mean_radial_speed_kmh()
-        names = self.classifier.classes
-        if np.all(np.isfinite(x)):
+        if self.classifier is not None and np.all(np.isfinite(x)):
+            names = self.classifier.classes
             p = self.classifier.predict_proba(x[None, :])[0]
             k = int(np.argmax(p))
             cls, probs = names[k], {n: float(pi) for n, pi in zip(names, p)}
         else:
-            log.warning("track %d ended without finite features (%d frames)", tr.track_id, acc.n)
+            if self.classifier is not None:
+                log.warning("track %d ended without finite features (%d frames)", tr.track_id, acc.n)
             cls, probs = UNKNOWN_CLASS, {}
         self.classified += 1
         feats = {n: float(xi) for n, xi in zip(FEATURE_NAMES, x)}
@@ -194,11 +211,11 @@ class SurveillanceTracker:
             features=feats,
         )
 
-    def _track_state(self, tr: AlphaBetaTrack, t_ns: int) -> TrackState:
+    def _track_state(self, tr: AlphaBetaTrack, t_s: float) -> TrackState:
         spd = self._speed.get(tr.track_id)
         v_kmh = spd.current_radial_speed_kmh() if spd is not None else math.nan
         v = v_kmh / 3.6 if math.isfinite(v_kmh) else float(tr.state[5]) / self.frame_period_s
-        r = max(0.0, float(tr.last_measurement[2]) + v * (t_ns - tr.last_seen_ns) * 1e-9)
+        r = max(0.0, float(tr.last_measurement[2]) + v * (t_s - self._seen_t.get(tr.track_id, t_s)))
         return TrackState(
             track_id=tr.track_id,
             x_m=0.0,

@@ -150,3 +150,53 @@ def test_map_points_from_map():
     assert pts_.n_clusters == 1 and len(pts_) == 2
     with pytest.raises(ValueError):
         MapPoints(np.zeros(2), np.zeros(3), np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2))
+
+
+# --- radial speed (de-aliased Doppler) -------------------------------------------------------------
+
+from edge.classify.features import RadialSpeedEstimator  # noqa: E402
+
+
+def wrapped(v):
+    return (np.asarray(v) + VMAX) % (2 * VMAX) - VMAX
+
+
+@pytest.mark.parametrize("v_true", [-41.0, -25.0, -9.8, -3.0, 4.7, 12.0, 36.2])
+def test_radial_speed_dealiased_from_doppler_and_range(v_true):
+    rng = np.random.default_rng(int(abs(v_true) * 10))
+    t = np.arange(20) * 0.2
+    r = 12.0 + v_true / 3.6 * t + rng.normal(0, 0.3, t.size)  # noisy centroid range
+    est = RadialSpeedEstimator(VMAX)
+    for tk, rk, vk in zip(t, r, wrapped(v_true + rng.normal(0, 0.2, t.size))):
+        est.add(tk, rk, vk)
+    v = est.speeds_kmh()
+    np.testing.assert_allclose(v, v_true, atol=0.8)  # every frame on the right alias
+    assert est.mean_radial_speed_kmh() == pytest.approx(v_true, abs=0.3)
+    assert est.current_radial_speed_kmh() == pytest.approx(v_true, abs=0.8)
+
+
+def test_radial_speed_robust_to_entry_lag_and_passing_tail():
+    """A truck at -27 km/h: its centroid moves at half the speed while the body enters the beam,
+    and the radial speed falls through zero as it passes the radar; the median stays on -27."""
+    t = np.arange(20) * 0.2
+    v = np.full(20, -27.0)
+    v[-6:] = [-24.0, -21.0, -14.0, -5.0, 4.0, 13.0]  # passing beside the radar
+    rate = v.copy()
+    rate[:6] *= 0.5  # entry: the centroid lags
+    r = 24.0 + np.concatenate([[0.0], np.cumsum(rate[1:] / 3.6 * 0.2)])
+    est = RadialSpeedEstimator(VMAX)
+    for tk, rk, vk in zip(t, r, wrapped(v)):
+        est.add(tk, rk, vk)
+    assert est.mean_radial_speed_kmh() == pytest.approx(-27.0, abs=0.1)
+    # the whole-track least-squares range rate is far off (entry and tail): it would pick a wrong alias
+    assert abs(np.polyfit(t, r, 1)[0] * 3.6 + 27.0) > VMAX
+
+
+def test_radial_speed_needs_two_frames_and_ignores_repeated_times():
+    est = RadialSpeedEstimator(VMAX)
+    assert math.isnan(est.mean_radial_speed_kmh())
+    est.add(0.0, 10.0, 1.0)
+    est.add(0.0, 10.5, 1.0)  # same time: ignored
+    assert len(est) == 1 and math.isnan(est.current_radial_speed_kmh())
+    est.add(0.2, 10.1, 1.0)
+    assert est.mean_radial_speed_kmh() == pytest.approx(1.0)
