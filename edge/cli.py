@@ -28,6 +28,7 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.dbc",
     "edge.commands.doctor",
     "edge.commands.plot",
+    "edge.commands.calibrate",
 )
 
 EPILOG = """\

@@ -88,6 +88,11 @@ SECTIONS: dict[str, str] = {
     "outputs.can": "edge.outputs.config:CanConfig",
     "outputs.failsafe": "edge.outputs.config:FailsafeConfig",
     "ops.recorder": "edge.ops.recorder:RecorderConfig",
+    "pipeline.surveillance": "edge.pipelines.surveillance:SurveillanceConfig",
+    "track.alphabeta": "edge.track.alphabeta:AlphaBetaConfig",
+    "track.events": "edge.track.events:EventConfig",
+    "classify.features": "edge.classify.features:FeatureConfig",
+    "classify.knn": "edge.classify.knn:KnnConfig",
 }
 
 

@@ -23,6 +23,7 @@ from edge.types import FrameResult, FrontendInfo, RawFrame
 PIPELINES: dict[str, str] = {
     "minimal": "edge.pipelines.minimal:MinimalPipeline",
     "lane": "edge.pipelines.lane:LanePipeline",
+    "surveillance": "edge.pipelines.surveillance:SurveillancePipeline",
 }
 
 #: board -> profile used when ``loop.profile = "auto"`` (falls back to "minimal" until it exists)
@@ -126,8 +127,9 @@ def resolve_profile(requested: str, board: str) -> str:
 def build_pipeline(profile: str, frontend: FrontendInfo, config: Any) -> Pipeline:
     """Build the pipeline for ``profile`` with its config section ``pipeline.<profile>``.
 
-    A pipeline that needs further sections (the lane profile reads ``track.pdaf`` and ``traffic``)
-    provides a ``from_config(frontend, config)`` classmethod, which is used instead.
+    A pipeline that also needs other sections (the lane profile reads ``track.pdaf`` and ``traffic``,
+    the surveillance profile its tracker and classifier) provides a classmethod
+    ``from_config(frontend, config)`` taking the whole resolved configuration, used instead.
     """
     cls = pipeline_class(profile)
     if hasattr(cls, "from_config"):

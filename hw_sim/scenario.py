@@ -41,11 +41,23 @@ Schema (every key optional unless marked; units in names)::
     z_m = 1.0
     rcs_m2 = 30.0
 
+    [[d2g_target]]               # a realistic Distance2Go-site body (hw_sim.events): pedestrian with
+    id = 1                       # swinging limbs, car, motorcycle with rider, truck; keys as [[target]]
+    class = "pedestrian"         # (x_m, y_m, vx_mps, vy_mps, start_s, end_s), optional rcs_m2 (total)
+    x_m = 1.0                    # and stride_hz; size and scatterers random per seed
+    y_m = 14.0
+    vy_mps = -1.0
+
+    [[d2g_events]]               # random surveillance events (hw_sim.events), one slot of 24 s each
+    mode = "single"              # "single" (one target, classes balanced) or "multi" (2-4 targets)
+    events = 10
+
 Road traffic on the SIMO board adds the tables ``[[vehicle]]`` (extended vehicles with lane changes and
 stop-and-go), ``[[traffic]]`` (random traffic per lane), ``[[guardrail]]`` and ``[[multipath]]``;
 their schema is in :mod:`hw_sim.traffic`.
 
-Built-in scenarios live in ``hw_sim/scenarios/*.toml`` and are named by file stem.
+Built-in scenarios live in ``hw_sim/scenarios/*.toml`` and are named by file stem; the event
+generators of :data:`EVENT_SCENARIOS` (``single-random``, ``multi-random``) load by name too.
 """
 
 from __future__ import annotations
@@ -217,6 +229,8 @@ def load_scenario(name_or_path: str) -> Scenario:
         src = str(p)
     else:
         res = resources.files("hw_sim").joinpath("scenarios", f"{name_or_path}.toml")
+        if not res.is_file() and name_or_path in EVENT_SCENARIOS:
+            return EVENT_SCENARIOS[name_or_path](events=None)  # an event generator, default events
         if not res.is_file():
             raise ScenarioError(
                 f"unknown scenario {name_or_path!r}; built-in: {', '.join(builtin_names())} (or a path to a .toml file)"

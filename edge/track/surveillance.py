@@ -1,0 +1,231 @@
+"""Surveillance back end, frame by frame: signatures -> alpha-beta tracks -> features -> k-NN.
+
+:class:`SurveillanceTracker` is what the surveillance pipeline calls after thresholding and DBSCAN::
+
+    st = SurveillanceTracker.from_config(frontend, cfg, threshold=th_rd)
+    step = st.update(frame.t_ns, points, level=rd_map_max, seq=frame.seq)  # points: MapPoints, DBSCAN labels
+    step.tracks            # TrackState of the confirmed tracks (seen in >= 3 frames)
+    step.classifications   # ClassifiedEvent of every track that ended in this frame
+    ...
+    st.close(t_ns)         # at stop: end and classify every open track
+
+Per frame it computes the clusters' signatures (:class:`~edge.classify.features.SignatureExtractor`),
+steps the :class:`~edge.track.alphabeta.AlphaBetaTracker` with the cluster centroids, adds each
+assigned cluster's signature to its track's :class:`~edge.classify.features.TrackFeatureAccumulator`,
+and feeds the frame's level to the :class:`~edge.track.events.EventSegmenter`. A track ends when it
+has missed ``N_u`` frames or when the event ends (hysteresis), and is classified there and then
+(streaming, not after the whole event as in the paper): class, eq. 21 probabilities, mean radial
+speed and direction. The speed is the median of the track's per-frame radial speeds, each the
+cluster's wrapped Doppler with its alias chosen by the local range rate of the centroid
+(:class:`~edge.classify.features.RadialSpeedEstimator`, km/h, positive receding); the least-squares
+range rate when that is not available.
+
+Published :class:`~edge.types.TrackState`: tracks seen in at least ``min_seen_frames`` frames and
+not coasting for more than ``publish_coasting_frames`` frames. The alpha-beta state lives on the
+wrapped map and only serves the association (Tavanti §II-D: with ``alpha = 0.19`` it lags a 40 km/h
+car by metres), so the published kinematics come from the measured clusters: ``radial_speed_mps``
+is the unaliased radial speed of the latest frame (wrapped Doppler + alias from the range rate; the
+filtered rate ``u_r`` until two frames exist) and ``range_m`` the last centroid's range moved on by
+that speed over the time since it was seen (never below 0). The Distance2Go has one
+receive channel, so the azimuth is unknown (NaN) and, as in
+:meth:`edge.types.Detections.from_polar`, the target is placed on boresight (``x = 0``, ``y = range``).
+A published id that disappears from ``tracks`` without a :class:`~edge.types.ClassifiedEvent` was
+dropped (``vis / age < th_v``); its id may be reused.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from edge.classify.features import (
+    FEATURE_NAMES,
+    ClusterSignatures,
+    FeatureConfig,
+    MapPoints,
+    RadialSpeedEstimator,
+    SignatureExtractor,
+    TrackFeatureAccumulator,
+)
+from edge.classify.knn import KnnConfig, WeightedKNN
+from edge.classify.reference import load_reference_set
+from edge.track.alphabeta import AlphaBetaConfig, AlphaBetaTrack, AlphaBetaTracker, TrackerStep
+from edge.track.events import EventConfig, EventSegmenter, SegmentStep
+from edge.types import ClassifiedEvent, FrontendInfo, TrackState
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SurveillanceStep", "SurveillanceTracker", "UNKNOWN_CLASS"]
+
+#: class reported when a track's features cannot be computed, or when classification is off
+UNKNOWN_CLASS = "unknown"
+
+
+@dataclass(frozen=True, eq=False)
+class SurveillanceStep:
+    """Result of one frame; ``signatures``, ``tracker`` and ``event`` are intermediates for plots."""
+
+    tracks: tuple[TrackState, ...]
+    classifications: tuple[ClassifiedEvent, ...]
+    event: SegmentStep
+    signatures: ClusterSignatures
+    tracker: TrackerStep
+    intermediates: dict[str, Any] = field(default_factory=dict)
+
+
+class SurveillanceTracker:
+    """See the module docstring. ``threshold`` is th_RD in the map's amplitude unit."""
+
+    def __init__(
+        self,
+        frontend: FrontendInfo,
+        threshold: float,
+        *,
+        tracking: AlphaBetaConfig | None = None,
+        events: EventConfig | None = None,
+        features: FeatureConfig | None = None,
+        knn: KnnConfig | WeightedKNN | None = None,
+        classify: bool = True,
+    ) -> None:
+        self.frontend = frontend
+        self.frame_period_s = frontend.waveform.frame_period_s
+        self.extractor = SignatureExtractor(features or FeatureConfig(), frontend)
+        self.cylinder = self.extractor.cylinder
+        self.tracker = AlphaBetaTracker(tracking or AlphaBetaConfig(), self.cylinder)
+        self.segmenter = EventSegmenter(events or EventConfig(), threshold)
+        self.classifier: WeightedKNN | None
+        if not classify:
+            self.classifier = None  # features only (building reference sets): cls = "unknown"
+        elif isinstance(knn, WeightedKNN):
+            self.classifier = knn
+        else:
+            kc = knn or KnnConfig()
+            ref = load_reference_set(kc.reference_set or None)
+            self.classifier = WeightedKNN.from_reference_set(ref, k=kc.k, metric=kc.metric, weighting=kc.weighting)
+        self._acc: dict[int, TrackFeatureAccumulator] = {}
+        self._speed: dict[int, RadialSpeedEstimator] = {}
+        self.classified = 0
+        self.dropped = 0
+        self._seen_t: dict[int, float] = {}  # track id -> sensor time (s) of its last cluster
+
+    @classmethod
+    def from_config(cls, frontend: FrontendInfo, config: Any, threshold: float) -> "SurveillanceTracker":
+        """Build from a resolved :class:`edge.config.Config` (sections ``track.alphabeta``,
+        ``track.events``, ``classify.features``, ``classify.knn``)."""
+        return cls(
+            frontend,
+            threshold,
+            tracking=config.section("track.alphabeta"),
+            events=config.section("track.events"),
+            features=config.section("classify.features"),
+            knn=config.section("classify.knn"),
+        )
+
+    # ------------------------------------------------------------------------------------------
+    def update(self, t_ns: int, points: MapPoints, level: float | None = None, seq: int | None = None) -> SurveillanceStep:
+        """One frame. ``level`` defaults to the largest point amplitude (0 without points).
+
+        Kinematics (radial speeds, the features' range rates) need the *sensor* clock: host arrival
+        times jitter and mean nothing for a replay at full speed. Give either ``seq``, the board's
+        frame counter (time = ``seq * frame_period``, gaps = dropped frames), or a ``t_ns`` that is
+        already on the sensor clock, as :class:`~edge.pipelines.surveillance.SurveillancePipeline`
+        does (``seq * period``, mapped back to host time for its outputs). ``t_ns`` also stamps the
+        tracks' start/end in the :class:`~edge.types.ClassifiedEvent`.
+        """
+        if level is None:
+            level = float(np.max(points.amplitude)) if len(points) else 0.0
+        sig = self.extractor(points)
+        valid = sig.n_points > 0
+        labels = np.flatnonzero(valid)
+        tstep = self.tracker.step(t_ns, sig.centroid[valid])
+        out: list[ClassifiedEvent] = []
+        for tr in tstep.ended:
+            out.append(self._finish(tr))
+        for tr in tstep.dropped:
+            self._forget(tr.track_id)
+        for tid in tstep.created:
+            self._acc[tid] = TrackFeatureAccumulator()
+            self._speed[tid] = RadialSpeedEstimator(self.cylinder.vmax_kmh)
+        t_s = t_ns * 1e-9 if seq is None else int(seq) * self.frame_period_s
+        for tid, j in tstep.assigned.items():
+            lab = labels[j]
+            self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab])
+            self._speed[tid].add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
+            self._seen_t[tid] = t_s
+        seg = self.segmenter.step(t_ns, level)
+        if seg.ended or seg.discarded:
+            out.extend(self._close_tracks())
+        tracks = tuple(self._track_state(tr, t_s) for tr in self.tracker.confirmed())
+        inter = {"centroids": sig.centroid[valid], "cluster_labels": labels, "level": level}
+        return SurveillanceStep(tracks, tuple(out), seg, sig, tstep, inter)
+
+    def close(self, t_ns: int | None = None) -> tuple[ClassifiedEvent, ...]:
+        """End every open track (stop, or end of a recording) and classify those seen often enough."""
+        return tuple(self._close_tracks())
+
+    # ------------------------------------------------------------------------------------------
+    def _close_tracks(self) -> list[ClassifiedEvent]:
+        ended, dropped = self.tracker.close_all()
+        for tr in dropped:
+            self._forget(tr.track_id)
+        return [self._finish(tr) for tr in ended]
+
+    def _forget(self, track_id: int) -> None:
+        self._acc.pop(track_id, None)
+        self._speed.pop(track_id, None)
+        self._seen_t.pop(track_id, None)
+        self.dropped += 1
+
+    def _finish(self, tr: AlphaBetaTrack) -> ClassifiedEvent:
+        acc = self._acc.pop(tr.track_id, None) or TrackFeatureAccumulator()
+        spd = self._speed.pop(tr.track_id, None)
+        self._seen_t.pop(tr.track_id, None)
+        x = acc.features()
+        v = spd.mean_radial_speed_kmh() if spd is not None else math.nan
+        if not math.isfinite(v):
+            v = acc.mean_radial_speed_kmh()
+        if self.classifier is not None and np.all(np.isfinite(x)):
+            names = self.classifier.classes
+            p = self.classifier.predict_proba(x[None, :])[0]
+            k = int(np.argmax(p))
+            cls, probs = names[k], {n: float(pi) for n, pi in zip(names, p)}
+        else:
+            if self.classifier is not None:
+                log.warning("track %d ended without finite features (%d frames)", tr.track_id, acc.n)
+            cls, probs = UNKNOWN_CLASS, {}
+        self.classified += 1
+        feats = {n: float(xi) for n, xi in zip(FEATURE_NAMES, x)}
+        feats["frames"] = float(acc.n)
+        return ClassifiedEvent(
+            track_id=tr.track_id,
+            cls=cls,
+            probabilities=probs,
+            mean_radial_speed_kmh=float(v),
+            direction="approaching" if v < 0 else "receding",
+            start_ns=int(tr.created_ns),
+            end_ns=int(tr.last_seen_ns),
+            features=feats,
+        )
+
+    def _track_state(self, tr: AlphaBetaTrack, t_s: float) -> TrackState:
+        spd = self._speed.get(tr.track_id)
+        v_kmh = spd.current_radial_speed_kmh() if spd is not None else math.nan
+        v = v_kmh / 3.6 if math.isfinite(v_kmh) else float(tr.state[5]) / self.frame_period_s
+        r = max(0.0, float(tr.last_measurement[2]) + v * (t_s - self._seen_t.get(tr.track_id, t_s)))
+        return TrackState(
+            track_id=tr.track_id,
+            x_m=0.0,
+            y_m=r,
+            vx_mps=0.0,
+            vy_mps=v,
+            range_m=r,
+            radial_speed_mps=v,
+            az_rad=math.nan,
+            age_frames=tr.age,
+            hits=tr.seen_frames,
+            confirmed=True,
+        )

@@ -1,0 +1,478 @@
+"""Surveillance-site targets and random events for the Distance2Go (Tavanti et al. §III).
+
+The site (Tavanti Fig. 8): the radar stands 1 m high by a straight urban road, looking along it and
+turned :data:`SITE_YAW_DEG` towards it so that the road lies in the 42° main beam; static metallic
+objects (poles, a fence, a parked car, a gate) are in view. Targets move along the road lanes
+(x 2-3.5 m approaching and 5-6.5 m receding, keep-right two-way road, vehicles in one lane at least
+:data:`MIN_HEADWAY_S` apart) or the sidewalks (x 0.3-1.5 m, three pedestrians in four; 7.5-9 m), approaching
+or receding, heading jittered by up to 2° (vehicles) or 4° (pedestrians) so aspects vary, or, for some
+pedestrians in multi-target events, across the road, entering and leaving the beam sideways.
+
+Bodies (body frame ``x`` right, ``y`` forward, ``z`` up; reference point = footprint centre):
+
+* pedestrian: :class:`hw_sim.pedestrian.Pedestrian` (torso, head, swinging arms and legs), total RCS
+  about -3 dBsm (lognormal, sigma 2 dB), Swerling I, walking 1.0-1.7 m/s or (one in four) jogging
+  2.2-3.3 m/s;
+* car: 17 scatterers on bumpers, wheel arches, mirrors, doors, roof; 3.8-5.0 m long; about 10 dBsm;
+* motorcycle with rider: 10 scatterers (wheels, fork, engine, tail, rider's torso, helmet, knees);
+  about 5 dBsm;
+* truck/bus: 30-50 scatterers on the front face, both sides at two heights, axles and rear doors;
+  7-12 m long; about 18 dBsm.
+
+Scatterer RCS shares are random per target (gamma-distributed), total RCS lognormal around the class
+mean (sigma 3 dB for vehicles), Swerling III for most vehicles (I for some), speeds uniform in the
+class range. Ground-truth identities: target ``id = 100 * (event + 1) + k``.
+
+Event generators (registered in :data:`hw_sim.scenario.EVENT_SCENARIOS`, ``events=N``):
+
+* ``single-random``: one target per event, classes balanced (each block of four events holds one of
+  each class in random order);
+* ``multi-random``: two to four targets per event, random classes, staggered starts inside the
+  event's slot so they overlap, cross each other and enter/leave the beam at different times.
+
+Each event owns a slot of :data:`SLOT_S` seconds and every target is out of view at least
+:data:`QUIET_S` seconds before the slot ends, so events are separated by an empty scene.
+TOML scenarios can place these bodies explicitly with ``[[d2g_target]]`` tables (see
+:func:`_d2g_target_table`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hw_sim.pedestrian import Pedestrian
+from hw_sim.scene import GroundTruth, LinearTrajectory, RadarPose, Scene, Target
+
+#: the four classes of the surveillance profile (Tavanti), in the order of its confusion matrices
+SURVEILLANCE_CLASSES: tuple[str, ...] = ("car", "pedestrian", "truck", "motorcycle")
+SITE_YAW_DEG = 10.0
+SITE_HEIGHT_M = 1.0
+SLOT_S = 24.0
+QUIET_S = 3.0
+#: visibility for ground truth: the D2G's unambiguous range and half its 42° azimuth beamwidth
+VISIBLE_RANGE_M = 24.0
+VISIBLE_HALF_BEAM_DEG = 21.0
+#: sector in which a target can still be seen through the pattern's skirts at short range (two-way
+#: gain down ~30 dB at 45°): tracks there are not false, but truth statistics use the beam above
+SEEN_HALF_SECTOR_DEG = 45.0
+
+#: static metallic objects of the site (x, y, z, rcs): lamp pole, parked car, fence posts, gate
+SITE_CLUTTER: tuple[tuple[float, float, float, float], ...] = (
+    (-1.5, 4.0, 2.0, 10.0),
+    (4.5, 9.0, 0.8, 20.0),
+    (-2.0, 6.0, 1.0, 3.0),
+    (-2.0, 10.0, 1.0, 3.0),
+    (-2.0, 14.0, 1.0, 3.0),
+    (-2.0, 18.0, 1.0, 3.0),
+    (9.0, 20.0, 1.5, 30.0),
+)
+
+#: class -> (mean total RCS m^2, lognormal sigma dB, speed range m/s)
+CLASS_RCS_SPEED: dict[str, tuple[float, float, tuple[float, float]]] = {
+    "pedestrian": (0.5, 2.0, (1.0, 1.7)),
+    "car": (10.0, 3.0, (15 / 3.6, 40 / 3.6)),
+    "motorcycle": (3.0, 3.0, (15 / 3.6, 45 / 3.6)),
+    "truck": (60.0, 3.0, (10 / 3.6, 30 / 3.6)),
+}
+JOG_SPEED_MPS = (2.2, 3.3)
+#: pedestrians use the radar's own sidewalk (x 0.3-1.5 m) or, less often, the far one (x 7.5-9 m,
+#: never closer than ~15 m inside the beam: beyond a pedestrian's detection range, as in the paper)
+NEAR_SIDEWALK_PROBABILITY = 0.75
+#: vehicles entering one lane during an event are at least this far apart in time
+MIN_HEADWAY_S = 2.0
+JOG_PROBABILITY = 0.25
+
+
+def _shares(rng: np.random.Generator, n: int, total: float, weight: np.ndarray | None = None) -> np.ndarray:
+    s = rng.gamma(2.0, 1.0, n) * (1.0 if weight is None else weight)
+    return total * s / s.sum()
+
+
+def car_body(rng: np.random.Generator, total_rcs_m2: float) -> tuple[np.ndarray, np.ndarray]:
+    length = rng.uniform(3.8, 5.0)
+    width = rng.uniform(1.7, 1.9)
+    height = rng.uniform(1.4, 1.6)
+    l2, w2 = length / 2, width / 2
+    pts = [
+        (0.0, l2, 0.5), (-0.8 * w2, l2 - 0.1, 0.5), (0.8 * w2, l2 - 0.1, 0.5), (0.0, l2 - 0.3, 0.8),
+        (0.0, 0.15 * length, 0.75 * height),
+        (-w2, 0.3 * length, 0.35), (w2, 0.3 * length, 0.35), (-w2, -0.3 * length, 0.35), (w2, -0.3 * length, 0.35),
+        (-w2 - 0.08, 0.2 * length, 1.0), (w2 + 0.08, 0.2 * length, 1.0),
+        (-w2, 0.0, 0.6), (w2, 0.0, 0.6),
+        (0.0, -0.2 * length, height),
+        (0.0, -l2, 0.6), (-0.8 * w2, -l2 + 0.1, 0.8), (0.8 * w2, -l2 + 0.1, 0.8),
+    ]
+    off = np.array(pts)
+    # bumpers and the front/rear faces dominate a car seen nearly head-on or tail-on
+    weight = np.where(np.abs(off[:, 1]) > 0.45 * length, 2.0, 1.0)
+    return off, _shares(rng, len(pts), total_rcs_m2, weight)
+
+
+def motorcycle_body(rng: np.random.Generator, total_rcs_m2: float) -> tuple[np.ndarray, np.ndarray]:
+    length = rng.uniform(1.9, 2.3)
+    l2 = length / 2
+    pts = [
+        (0.0, l2 - 0.15, 0.4), (0.0, l2 - 0.3, 0.9), (0.0, 0.1, 0.5), (0.25, -0.1, 0.45),
+        (0.0, -l2 + 0.2, 0.4), (0.0, -l2 + 0.1, 0.8),
+        (0.0, -0.15, 1.25), (0.0, 0.05, 1.6), (-0.2, 0.2, 0.7), (0.2, 0.2, 0.7),  # rider
+    ]
+    return np.array(pts), _shares(rng, len(pts), total_rcs_m2)
+
+
+def truck_body(rng: np.random.Generator, total_rcs_m2: float) -> tuple[np.ndarray, np.ndarray]:
+    length = rng.uniform(7.0, 12.0)
+    width = rng.uniform(2.3, 2.55)
+    height = rng.uniform(3.0, 3.8)
+    l2, w2 = length / 2, width / 2
+    pts = [(x, l2, z) for x in (-0.8 * w2, 0.0, 0.8 * w2) for z in (0.6, 1.5, 2.4)]  # cab front
+    for y in np.linspace(-l2 + 0.5, l2 - 0.5, max(3, int(length / 1.2))):  # side panels
+        for z in (1.0, 0.65 * height):
+            pts += [(-w2, float(y), z), (w2, float(y), z)]
+    axles = [l2 - 1.2, -l2 + 1.5] + ([-l2 + 2.8] if length > 9.0 else [])
+    pts += [(s * w2, y, 0.5) for y in axles for s in (-1.0, 1.0)]
+    pts += [(x, -l2, z) for x in (-0.6 * w2, 0.6 * w2) for z in (1.0, 0.7 * height)]  # rear doors
+    off = np.array(pts)
+    weight = np.where(np.abs(off[:, 1]) > l2 - 0.05, 3.0, 1.0)
+    return off, _shares(rng, len(pts), total_rcs_m2, weight)
+
+
+BODIES = {"car": car_body, "motorcycle": motorcycle_body, "truck": truck_body}
+
+
+def random_rcs(cls: str, rng: np.random.Generator) -> float:
+    mean, sigma_db, _ = CLASS_RCS_SPEED[cls]
+    return float(mean * 10.0 ** (rng.normal(0.0, sigma_db) / 10.0))
+
+
+def random_speed(cls: str, rng: np.random.Generator) -> tuple[float, bool]:
+    """Speed (m/s) for a class; for pedestrians also whether they jog."""
+    if cls == "pedestrian" and rng.random() < JOG_PROBABILITY:
+        return float(rng.uniform(*JOG_SPEED_MPS)), True
+    lo, hi = CLASS_RCS_SPEED[cls][2]
+    return float(rng.uniform(lo, hi)), False
+
+
+def make_target(
+    cls: str,
+    target_id: int,
+    trajectory: LinearTrajectory,
+    rng: np.random.Generator,
+    *,
+    t_start_s: float,
+    t_end_s: float,
+    total_rcs_m2: float | None = None,
+    stride_hz: float | None = None,
+) -> Target:
+    """A randomised body of class ``cls`` on ``trajectory`` (speed taken from the trajectory)."""
+    rcs = random_rcs(cls, rng) if total_rcs_m2 is None else total_rcs_m2
+    v = np.asarray(trajectory.v, dtype=float)
+    speed = float(math.hypot(v[0], v[1]))
+    if cls == "pedestrian":
+        if stride_hz is None:
+            # stride frequency grows with speed: ~0.9 Hz walking at 1.3 m/s, ~1.4 Hz jogging at 2.8 m/s
+            stride_hz = float(np.clip(0.55 + 0.3 * speed, 0.75, 1.6) * rng.uniform(0.93, 1.07))
+        return Pedestrian.make(
+            target_id, trajectory, total_rcs_m2=rcs, speed_mps=max(speed, 0.1), stride_hz=stride_hz,
+            gait_phase_rad=float(rng.uniform(0, 2 * math.pi)), swerling=1, t_start_s=t_start_s, t_end_s=t_end_s,
+        )
+    try:
+        body = BODIES[cls]
+    except KeyError:
+        raise ValueError(f"no surveillance body for class {cls!r}; expected one of {SURVEILLANCE_CLASSES}") from None
+    off, rcs_k = body(rng, rcs)
+    return Target(
+        id=target_id, cls=cls, trajectory=trajectory, offsets_m=off, rcs_m2=rcs_k,
+        swerling=3 if rng.random() < 0.7 else 1, t_start_s=t_start_s, t_end_s=t_end_s,
+    )
+
+
+# --- random events -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Path:
+    p0: tuple[float, float, float]
+    v: tuple[float, float, float]
+    duration_s: float
+    lane: int = -1  # vehicles: 0 = near lane (approaching), 1 = far lane (receding); -1 = sidewalk/crossing
+
+
+def _along_road_path(
+    cls: str, speed: float, rng: np.random.Generator, max_duration_s: float, lane: int | None = None
+) -> _Path:
+    """Approaching or receding along the road/sidewalk, heading jittered a little (aspect varies).
+
+    Vehicles keep right on the two-way road: the near lane (x 2-3.5 m) carries approaching traffic,
+    the far lane (x 5-6.5 m) receding traffic.
+    """
+    if cls == "pedestrian":
+        near = rng.random() < NEAR_SIDEWALK_PROBABILITY
+        x = float(rng.uniform(0.3, 1.5) if near else rng.uniform(7.5, 9.0))
+        jitter = 4.0
+        approaching = bool(rng.random() < 0.5)
+    else:
+        lane = int(rng.integers(0, 2)) if lane is None else lane
+        x = float(rng.uniform(2.0, 3.5) if lane == 0 else rng.uniform(5.0, 6.5))
+        jitter = 2.0
+        approaching = lane == 0
+    y_far, y_near = 27.0, -2.0
+    head = math.radians(rng.uniform(-jitter, jitter))
+    length = min(y_far - y_near, speed * max_duration_s)  # slow walkers start nearer
+    vy = speed * math.cos(head) * (-1.0 if approaching else 1.0)
+    vx = speed * math.sin(head)
+    dur = length / speed
+    if approaching:
+        y0 = y_near + length * math.cos(head)
+    else:
+        y0 = y_near
+    x0 = x - vx * dur / 2.0  # the lateral drift is centred on the lane
+    return _Path((x0, y0, 0.0), (vx, vy, 0.0), dur, -1 if cls == "pedestrian" else int(lane))
+
+
+def _crossing_path(speed: float, rng: np.random.Generator) -> _Path:
+    """A pedestrian crossing the road in front of the radar, in and out of the beam sideways."""
+    y = float(rng.uniform(5.0, 14.0))
+    left_to_right = bool(rng.random() < 0.5)
+    x0, x1 = (-4.0, 11.0) if left_to_right else (11.0, -4.0)
+    vx = speed if left_to_right else -speed
+    return _Path((x0, y, 0.0), (vx, float(rng.uniform(-0.2, 0.2)), 0.0), abs(x1 - x0) / speed)
+
+
+def add_event(
+    scene: Scene, event: int, classes: list[str], t0_s: float, slot_s: float, rng: np.random.Generator,
+    *, crossing_probability: float = 0.0, stagger_s: float = 0.0,
+) -> None:
+    """Add the targets of one event (ids ``100 * (event + 1) + k``) inside ``[t0, t0 + slot)``."""
+    usable = slot_s - QUIET_S - 0.5
+    lane_starts: dict[int, list[float]] = {0: [], 1: []}
+    for k, cls in enumerate(classes):
+        speed, _jog = random_speed(cls, rng)
+        if cls == "pedestrian" and rng.random() < crossing_probability:
+            path = _crossing_path(speed, rng)
+        else:
+            path = _along_road_path(cls, speed, rng, usable - stagger_s)
+        latest = max(0.0, usable - path.duration_s)
+        start = t0_s + 0.5 + float(rng.uniform(0.0, min(stagger_s, latest)))
+        if path.lane >= 0:
+            # vehicles in one lane keep a time headway (they cannot overlap); else take the other lane
+            for lane in (path.lane, 1 - path.lane):
+                if lane != path.lane:
+                    path = _along_road_path(cls, speed, rng, usable - stagger_s, lane=lane)
+                    latest = max(0.0, usable - path.duration_s)
+                for _ in range(8):
+                    if all(abs(start - t) >= MIN_HEADWAY_S for t in lane_starts[lane]):
+                        break
+                    start = t0_s + 0.5 + float(rng.uniform(0.0, min(stagger_s, latest)))
+                if all(abs(start - t) >= MIN_HEADWAY_S for t in lane_starts[lane]):
+                    break
+            lane_starts[path.lane].append(start)
+        traj = LinearTrajectory(path.p0, path.v, t0_s=start)
+        scene.add_target(
+            make_target(cls, 100 * (event + 1) + k, traj, rng, t_start_s=start, t_end_s=start + path.duration_s)
+        )
+
+
+def _d2g_events_table(scene: Scene, scenario: Any, spec: dict, rng: np.random.Generator) -> None:
+    """``[[d2g_events]]``: ``mode`` (single|multi), ``events``, ``slot_s``, ``first_event``."""
+    from hw_sim.scenario import ScenarioError
+
+    mode = spec.get("mode", "single")
+    n = spec.get("events", 10)
+    slot = float(spec.get("slot_s", SLOT_S))
+    first = int(spec.get("first_event", 0))
+    if mode not in ("single", "multi") or not isinstance(n, int) or n < 1 or slot < 8.0:
+        raise ScenarioError(f"d2g_events: need mode single|multi, events >= 1, slot_s >= 8; got {spec!r}")
+    order: list[str] = []
+    for e in range(n):
+        if mode == "single":
+            if e % len(SURVEILLANCE_CLASSES) == 0:
+                order = list(rng.permutation(SURVEILLANCE_CLASSES))
+            classes = [order[e % len(SURVEILLANCE_CLASSES)]]
+            add_event(scene, first + e, classes, e * slot, slot, rng)
+        else:
+            m = int(rng.integers(2, 5))
+            # pedestrians and motorcycles dominate Tavanti's multi-target events (45/26/20/3)
+            classes = list(rng.choice(SURVEILLANCE_CLASSES, size=m, p=[0.25, 0.4, 0.07, 0.28]))
+            add_event(scene, first + e, classes, e * slot, slot, rng, crossing_probability=0.3, stagger_s=6.0)
+
+
+def _d2g_target_table(scene: Scene, scenario: Any, spec: dict, rng: np.random.Generator) -> None:
+    """``[[d2g_target]]``: one realistic body: ``id``, ``class``, ``x_m``, ``y_m``, ``vx_mps``,
+    ``vy_mps``, ``start_s``, ``end_s``, optional ``rcs_m2`` (total) and ``stride_hz``."""
+    from hw_sim.scenario import ScenarioError, _num
+
+    where = f"{scenario.source}: d2g_target."
+    tid = spec.get("id")
+    if not isinstance(tid, int) or tid <= 0:
+        raise ScenarioError(f"{where}id must be a positive integer, got {tid!r}")
+    cls = spec.get("class")
+    if cls not in SURVEILLANCE_CLASSES:
+        raise ScenarioError(f"{where}class must be one of {SURVEILLANCE_CLASSES}, got {cls!r}")
+    start = _num(spec, "start_s", 0.0, where)
+    traj = LinearTrajectory(
+        (_num(spec, "x_m", where=where), _num(spec, "y_m", where=where), 0.0),
+        (_num(spec, "vx_mps", 0.0, where), _num(spec, "vy_mps", 0.0, where), 0.0),
+        t0_s=start,
+    )
+    rcs = spec.get("rcs_m2")
+    stride = spec.get("stride_hz")
+    scene.add_target(
+        make_target(
+            cls, tid, traj, np.random.default_rng([scene.seed, tid, 0xB0D7]), t_start_s=start,
+            t_end_s=_num(spec, "end_s", 1e9, where), total_rcs_m2=None if rcs is None else float(rcs),
+            stride_hz=None if stride is None else float(stride),
+        )
+    )
+
+
+def site_raw(name: str, description: str, duration_s: float) -> dict[str, Any]:
+    """The raw scenario dict of the surveillance site (radar pose and clutter), no targets yet."""
+    return {
+        "scenario": {"name": name, "board": "d2g", "description": description, "duration_s": duration_s, "seed": 1},
+        "radar": {"height_m": SITE_HEIGHT_M, "yaw_deg": SITE_YAW_DEG},
+        "clutter": [{"x_m": x, "y_m": y, "z_m": z, "rcs_m2": r} for x, y, z, r in SITE_CLUTTER],
+    }
+
+
+def _event_scenario(mode: str, events: int | None):
+    from hw_sim.scenario import parse_scenario
+
+    n = 10 if events is None else int(events)
+    if n < 1:
+        raise ValueError("events must be >= 1")
+    name = f"{mode}-random"
+    what = "one target per event, classes balanced" if mode == "single" else "two to four targets per event"
+    raw = site_raw(name, f"{n} random Distance2Go events ({what}), {SLOT_S:.0f} s each", n * SLOT_S)
+    raw["d2g_events"] = [{"mode": mode, "events": n, "slot_s": SLOT_S}]
+    return parse_scenario(raw, f"generator:{name}")
+
+
+def single_random(events: int | None = None):
+    return _event_scenario("single", events)
+
+
+def multi_random(events: int | None = None):
+    return _event_scenario("multi", events)
+
+
+# --- ground truth per event ----------------------------------------------------------------------
+
+
+def visible(truth: GroundTruth, pose: RadarPose) -> np.ndarray:
+    """(n,) bool: reference points inside the D2G's range and half-power azimuth beam at this frame."""
+    if len(truth) == 0:
+        return np.zeros(0, dtype=bool)
+    return (truth.range_m <= VISIBLE_RANGE_M) & (np.abs(np.degrees(truth.az_rad)) <= VISIBLE_HALF_BEAM_DEG)
+
+
+@dataclass(frozen=True)
+class FrameView:
+    """Targets with at least one scatterer in view (range <= 24 m, |az| <= 21°) at one instant.
+
+    A 12 m truck whose footprint centre is at 27 m already shows its front face at 21 m, so what the
+    radar can see is judged on the scatterers, not on the reference point. Rows are the targets with
+    scatterers within 24 m and :data:`SEEN_HALF_SECTOR_DEG`; ``in_beam`` marks those with scatterers
+    inside the half-power beam (:data:`VISIBLE_HALF_BEAM_DEG`), which define the truth statistics.
+    ``range_m`` is the RCS/r^4-weighted range of the target's scatterers in the sector (where its
+    cluster's centroid should be), ``range_min_m``/``range_max_m`` their extent.
+    """
+
+    id: np.ndarray  # (n,) int
+    cls: tuple[str, ...]
+    range_m: np.ndarray
+    range_min_m: np.ndarray
+    range_max_m: np.ndarray
+    radial_speed_mps: np.ndarray
+    in_beam: np.ndarray  # (n,) bool
+
+    def __len__(self) -> int:
+        return int(self.id.size)
+
+
+def frame_view(scene: Scene, t_s: float) -> FrameView:
+    """What of the scene is in the Distance2Go's view at ``t_s`` (see :class:`FrameView`)."""
+    sc = scene.scatterers(t_s, np.random.default_rng(0))
+    tix = sc.target_index
+    mov = tix >= 0
+    if not mov.any():
+        z = np.zeros(0)
+        return FrameView(np.zeros(0, dtype=int), (), z, z, z, z, np.zeros(0, dtype=bool))
+    rel = scene.pose.to_radar(sc.position_m[mov])
+    rng = np.linalg.norm(rel, axis=1)
+    az = np.abs(np.degrees(np.arctan2(rel[:, 0], rel[:, 1])))
+    inv = (rng <= VISIBLE_RANGE_M) & (az <= SEEN_HALF_SECTOR_DEG)
+    k = tix[mov][inv]
+    if k.size == 0:
+        z = np.zeros(0)
+        return FrameView(np.zeros(0, dtype=int), (), z, z, z, z, np.zeros(0, dtype=bool))
+    r = rng[inv]
+    w = sc.rcs_m2[mov][inv] / np.maximum(r, 0.5) ** 4
+    u = np.unique(k)
+    idx = np.searchsorted(u, k)
+    wr = np.bincount(idx, w * r) / np.bincount(idx, w)
+    rmin = np.full(u.size, np.inf)
+    rmax = np.full(u.size, -np.inf)
+    np.minimum.at(rmin, idx, r)
+    np.maximum.at(rmax, idx, r)
+    beam = np.bincount(idx, az[inv] <= VISIBLE_HALF_BEAM_DEG, minlength=u.size) > 0
+    tr = scene.truth(t_s)
+    by_id = {int(i): float(v) for i, v in zip(tr.id, tr.radial_speed_mps)}
+    ids = np.array([scene.targets[j].id for j in u], dtype=int)
+    return FrameView(
+        ids, tuple(scene.targets[j].cls for j in u), wr, rmin, rmax, np.array([by_id[int(i)] for i in ids]), beam
+    )
+
+
+@dataclass(frozen=True)
+class TargetTruth:
+    """What a passage of one target should produce (Tavanti Tables VIII-X)."""
+
+    id: int
+    event: int
+    cls: str
+    direction: str  # "approaching" | "receding"
+    mean_radial_speed_kmh: float
+    visible_frames: int
+    first_frame: int
+    last_frame: int
+
+
+def event_truth(scene: Scene, period_s: float, n_frames: int, views: list[FrameView] | None = None) -> list[TargetTruth]:
+    """Per-target truth over frames ``0..n_frames-1``: class, direction and mean radial speed while in view."""
+    ids: dict[int, list[tuple[int, float]]] = {}
+    cls: dict[int, str] = {}
+    for n in range(n_frames):
+        fv = views[n] if views is not None else frame_view(scene, n * period_s)
+        for j in np.flatnonzero(fv.in_beam):
+            tid = int(fv.id[j])
+            ids.setdefault(tid, []).append((n, float(fv.radial_speed_mps[j])))
+            cls[tid] = fv.cls[j]
+    out = []
+    for tid, rows in sorted(ids.items()):
+        frames = np.array([r[0] for r in rows])
+        v = float(np.mean([r[1] for r in rows])) * 3.6
+        out.append(
+            TargetTruth(
+                id=tid, event=max(0, tid // 100 - 1), cls=cls[tid], direction="receding" if v > 0 else "approaching",
+                mean_radial_speed_kmh=v, visible_frames=int(frames.size), first_frame=int(frames.min()),
+                last_frame=int(frames.max()),
+            )
+        )
+    return out
+
+
+def register() -> None:
+    """Register the table generators and event scenarios (idempotent)."""
+    from hw_sim.scenario import EVENT_SCENARIOS, GENERATORS
+
+    GENERATORS.setdefault("d2g_events", _d2g_events_table)
+    GENERATORS.setdefault("d2g_target", _d2g_target_table)
+    EVENT_SCENARIOS.setdefault("single-random", single_random)
+    EVENT_SCENARIOS.setdefault("multi-random", multi_random)
+
+
+register()
