@@ -24,6 +24,8 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.bench",
     "edge.commands.soak",
     "edge.commands.calibrate",
+    "edge.commands.registers",
+    "edge.commands.dbc",
 )
 
 EPILOG = """\

@@ -86,6 +86,9 @@ SECTIONS: dict[str, str] = {
     "track.events": "edge.track.events:EventConfig",
     "classify.features": "edge.classify.features:FeatureConfig",
     "classify.knn": "edge.classify.knn:KnnConfig",
+    "outputs.modbus": "edge.outputs.config:ModbusConfig",
+    "outputs.can": "edge.outputs.config:CanConfig",
+    "outputs.failsafe": "edge.outputs.config:FailsafeConfig",
 }
 
 

@@ -8,6 +8,7 @@ import signal
 import sys
 
 from edge.commands.common import add_config_arguments, config_from_args
+from edge.outputs.cli_options import add_output_arguments, output_overrides
 
 NAME = "run"
 HELP = "run the frame loop on a radar source and serve the results (default: simulated SIMO board)"
@@ -23,6 +24,7 @@ examples:
   radar-edge run --source "sim://d2g?scenario=tavanti-test1" --frames 40
   radar-edge run --source replay://highway4.npz?speed=0 --set loop.error_policy=stop
   radar-edge run --config /etc/radar-edge/radar-edge.toml
+  radar-edge run --modbus-tcp 0.0.0.0:502 --modbus-rtu /dev/ttyAMA0 --can socketcan:can0
 """
 
 
@@ -39,6 +41,7 @@ def add_loop_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-outputs", action="store_true", help="do not start Modbus/CAN outputs")
     p.add_argument("--status-every", type=float, default=1.0, metavar="S", help="status line period, 0 = none")
     add_config_arguments(p)
+    add_output_arguments(p)
 
 
 def build_sinks(cfg, n_lanes: int) -> list:
@@ -56,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from edge.pipeline import build_pipeline, resolve_profile
     from hal import open_radar
 
-    extra = {}
+    extra = output_overrides(args)
     if args.source:
         extra["source.url"] = args.source
     if args.profile:

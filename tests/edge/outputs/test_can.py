@@ -1,0 +1,353 @@
+"""CAN output: shipped DBC, cantools round trip over a python-can virtual bus and a log file, an
+independent ARS408 byte-level decoder, cycle framing, rate limit, counted faults, never blocking."""
+
+from __future__ import annotations
+
+import errno
+import math
+import threading
+from pathlib import Path
+
+import can
+import cantools
+import numpy as np
+import pytest
+
+from edge.outputs import can_db
+from edge.outputs.can_out import FRAME_BITS_WORST, CanEncoder, CanSink
+from edge.outputs.config import CanConfig
+from edge.outputs.registers import ars_class
+from tests.edge.outputs.helpers import PERIOD_NS, health, make_lane_stats, make_result, make_tracks
+
+T0 = 2_000_000_000
+N_LANES = 4
+SHIPPED = Path(can_db.__file__).with_name("radar_edge.dbc")
+
+
+class Capture:
+    def __init__(self, channel: str) -> None:
+        self.channel = channel
+        self.rx = can.Bus(interface="virtual", channel=channel)
+
+    def factory(self):
+        return can.Bus(interface="virtual", channel=self.channel)
+
+    def drain(self) -> list[can.Message]:
+        out = []
+        while (m := self.rx.recv(timeout=0)) is not None:
+            out.append(m)
+        return out
+
+
+@pytest.fixture
+def cap(request):
+    c = Capture(f"can-{request.node.name}")
+    yield c
+    c.rx.shutdown()
+
+
+def test_shipped_dbc_equals_the_generated_one():
+    assert SHIPPED.read_text(encoding="utf-8") == can_db.dbc_text(0), "run: radar-edge dbc --out edge/outputs/radar_edge.dbc"
+    db = can_db.load_shipped()
+    assert {m.frame_id for m in db.messages} == {0x201, 0x60A, 0x60B, 0x60C, 0x60D, 0x700, 0x690, 0x691, 0x692, 0x693, 0x694}
+    for m in db.messages:
+        spec = can_db.BY_NAME[m.name]
+        assert m.length == spec.length and len(m.signals) == len(spec.signals)
+        for s in m.signals:
+            assert s.byte_order == "big_endian"
+
+
+def test_sensor_id_offsets_stay_in_their_ranges():
+    for sid in range(8):
+        ids = {m.name: m.id_for(sid) for m in can_db.MESSAGES}
+        assert ids["Obj_1_General"] == 0x60B + 0x10 * sid and ids["RadarState"] == 0x201 + 0x10 * sid
+        assert ids["VersionID"] == 0x700 + 0x10 * sid
+        lane_ids = [v for k, v in ids.items() if not can_db.BY_NAME[k].ars408]
+        assert all(0x690 <= i <= 0x6FF for i in lane_ids)
+        ars = [v for k, v in ids.items() if can_db.BY_NAME[k].ars408]
+        assert not set(lane_ids) & set(ars)
+        assert cantools.database.load_string(can_db.dbc_text(sid), database_format="dbc", strict=True)
+    all_lane = [m.id_for(s) for s in range(8) for m in can_db.MESSAGES if not m.ars408]
+    assert len(all_lane) == len(set(all_lane))  # sensors on one bus never collide
+
+
+def _publish_frames(sink, rng, n, lanes_at=0):
+    published = []
+    for i in range(n):
+        t = T0 + i * PERIOD_NS
+        res = make_result(100 + i, t, make_tracks(rng, 12), (True, False, True, False),
+                          make_lane_stats(rng, N_LANES, seq=42, t_ns=t) if i == lanes_at else ())
+        sink.publish(res, health(t, t, frames=i + 1))
+        published.append(res)
+    return published
+
+
+def _cycles(db, frames):
+    """Group decoded frames into cycles the way ARS408 receivers do: 0x60A flushes, join by Obj_ID."""
+    cycles, cur = [], None
+    for m in frames:
+        if m.arbitration_id == 0x60A:
+            cur = {"hdr": db.decode_message(0x60A, m.data), "60B": {}, "60D": {}, "60C": {}, "order": []}
+            cycles.append(cur)
+        elif m.arbitration_id in (0x60B, 0x60C, 0x60D):
+            d = db.decode_message(m.arbitration_id, m.data, decode_choices=False)
+            cur[f"{m.arbitration_id:X}"][d["Obj_ID"]] = d
+            cur["order"].append(m.arbitration_id)
+    return cycles
+
+
+def _expect_close(got, want, step):
+    assert abs(got - want) <= step / 2 + 1e-6, (got, want)
+
+
+def test_round_trip_through_virtual_bus_and_log_file(cap, tmp_path):
+    sink = CanSink(CanConfig(interface="virtual", channel=cap.channel, send_quality=True), N_LANES,
+                   bus_factory=cap.factory, threaded=False, wall_clock=lambda: 1.75e9)
+    try:
+        published = _publish_frames(sink, np.random.default_rng(21), 5)
+    finally:
+        sink.close()
+    frames = cap.drain()
+    assert sink.faults.total() == 0 and sink.sent == len(frames)
+    log_path = tmp_path / "cycle.log"
+    with can.Logger(str(log_path)) as logger:
+        for m in frames:
+            logger.on_message_received(m)
+    replayed = list(can.LogReader(str(log_path)))
+    assert [(m.arbitration_id, bytes(m.data)) for m in replayed] == [(m.arbitration_id, bytes(m.data)) for m in frames]
+
+    db = can_db.load_shipped()
+    for source in (frames, replayed):
+        cycles = _cycles(db, source)
+        assert len(cycles) == len(published)
+        for cyc, res in zip(cycles, published):
+            assert cyc["hdr"]["Obj_MeasCounter"] == res.seq and cyc["hdr"]["Obj_NofObjects"] == len(res.tracks)
+            order = cyc["order"]
+            assert order == sorted(order)  # all 60B, then 60C, then 60D: the cycle is never interleaved
+            assert len(cyc["60B"]) == len(cyc["60D"]) == len(cyc["60C"]) == len(res.tracks)
+            for t in res.tracks:
+                g, x = cyc["60B"][t.track_id], cyc["60D"][t.track_id]
+                _expect_close(g["Obj_DistLong"], t.y_m, 0.2)
+                _expect_close(g["Obj_DistLat"], -t.x_m, 0.2)
+                _expect_close(g["Obj_VrelLong"], t.vy_mps, 0.25)
+                _expect_close(g["Obj_VrelLat"], -t.vx_mps, 0.25)
+                _expect_close(g["Obj_RCS"], t.rcs_dbsm if t.rcs_dbsm is not None else 0.0, 0.5)
+                assert x["Obj_Class"] == ars_class(t.cls)
+                _expect_close(x["Obj_Length"], t.length_m or 0.0, 0.2)
+    # lane statistics of the closed interval
+    by_id = {}
+    for m in frames:
+        if 0x690 <= m.arbitration_id <= 0x694:
+            by_id.setdefault(m.arbitration_id, []).append(db.decode_message(m.arbitration_id, m.data, decode_choices=False))
+    assert len(by_id[0x690]) == len(by_id[0x691]) == len(by_id[0x692]) == N_LANES
+    assert len(by_id[0x693]) == len(published) and len(by_id[0x694]) == 1
+    assert by_id[0x694][0]["Interval_Sequence"] == 42 and by_id[0x694][0]["Interval_UnixTime"] == 1750000000
+    for a, b, c, ls in zip(by_id[0x690], by_id[0x691], by_id[0x692], published[0].lane_stats):
+        assert a["LaneA_Lane"] == b["LaneB_Lane"] == c["LaneC_Lane"] == ls.lane + 1
+        assert a["LaneA_Volume"] == ls.volume and a["LaneA_Sequence"] == 42
+        _expect_close(a["LaneA_Occupancy"], ls.occupancy_pct, 0.01)
+        for got, want, step in ((a["LaneA_MeanSpeed"], ls.mean_speed_kmh, 0.1), (b["LaneB_SpeedP85"], ls.speed_p85_kmh, 0.1),
+                                (b["LaneB_Headway"], ls.headway_s, 0.01), (b["LaneB_Gap"], ls.gap_s, 0.01)):
+            if math.isnan(want) or (ls.volume == 0 and step == 0.1 and got == a["LaneA_MeanSpeed"]):
+                assert got == pytest.approx(6553.5 if step == 0.1 else 655.35)  # all ones = n/a
+            else:
+                _expect_close(got, want, step)
+        assert c["LaneC_Car"] == ls.class_counts["car"] and c["LaneC_TruckBus"] == ls.class_counts["truck"] + ls.class_counts["bus"]
+        assert c["LaneC_Other"] == ls.class_counts["van"]
+    assert all(p["Presence_Lanes"] == 0b0101 and p["Presence_Failsafe"] == 0 for p in by_id[0x693])
+
+
+def _ars408_decode(arb_id: int, d: bytes) -> dict:
+    """A public-decoder-style ARS408 parser written from the byte tables, independent of cantools."""
+    if arb_id == 0x60A:
+        return {"n": d[0], "counter": (d[1] << 8) | d[2], "iface": d[3] >> 4}
+    if arb_id == 0x60B:
+        return {"id": d[0], "dist_long": ((d[1] << 5) | (d[2] >> 3)) * 0.2 - 500.0,
+                "dist_lat": (((d[2] & 0x07) << 8) | d[3]) * 0.2 - 204.6,
+                "vrel_long": ((d[4] << 2) | (d[5] >> 6)) * 0.25 - 128.0,
+                "vrel_lat": (((d[5] & 0x3F) << 3) | (d[6] >> 5)) * 0.25 - 64.0,
+                "dyn_prop": d[6] & 0x07, "rcs": d[7] * 0.5 - 64.0}
+    if arb_id == 0x60D:
+        return {"id": d[0], "cls": d[3] & 0x07, "length": d[6] * 0.2, "width": d[7] * 0.2}
+    raise KeyError(arb_id)
+
+
+def test_an_independent_ars408_decoder_reads_our_object_list():
+    enc = CanEncoder(CanConfig(interface="virtual", max_bus_load=0.9))
+    from edge.outputs.state import OutputState
+
+    st = OutputState(2)
+    tracks = make_tracks(np.random.default_rng(8), 20)
+    snap = st.update(make_result(0x1A2B, T0, tracks, (False, False)), health(T0, T0))
+    frames = enc.frames(snap, T0)
+    objs = [m for m in frames if m.arbitration_id in (0x60A, 0x60B, 0x60D)]
+    hdr = _ars408_decode(0x60A, bytes(objs[0].data))
+    assert objs[0].arbitration_id == 0x60A and hdr == {"n": 20, "counter": 0x1A2B, "iface": 1}
+    by_id = {t.track_id: t for t in tracks}
+    for m in objs[1:]:
+        d = _ars408_decode(m.arbitration_id, bytes(m.data))
+        t = by_id[d["id"]]
+        if m.arbitration_id == 0x60B:
+            _expect_close(d["dist_long"], t.y_m, 0.2)
+            _expect_close(d["dist_lat"], -t.x_m, 0.2)
+            _expect_close(d["vrel_long"], t.vy_mps, 0.25)
+            _expect_close(d["vrel_lat"], -t.vx_mps, 0.25)
+            assert d["dyn_prop"] in (0, 1, 2, 6)
+            if abs(t.vy_mps) > abs(t.vx_mps) and math.hypot(t.vx_mps, t.vy_mps) > 0.5:
+                assert d["dyn_prop"] == (2 if t.vy_mps < 0 else 0)  # oncoming when approaching
+        else:
+            assert d["cls"] == ars_class(t.cls)
+
+
+def test_rate_limit_keeps_bus_load_below_half_and_truncates_far_objects():
+    cfg = CanConfig(interface="virtual", send_quality=True, send_extended=True, max_bus_load=0.5, bitrate=500_000)
+    enc = CanEncoder(cfg)
+    from edge.outputs.state import OutputState
+
+    st = OutputState(N_LANES)
+    rng = np.random.default_rng(4)
+    period = 50_000_000  # 20 Hz, 200 objects x 3 messages: far above the budget
+    total, seconds = 0, 5.0
+    n = int(seconds * 1e9 / period)
+    per_cycle = []
+    for i in range(n):
+        t = T0 + i * period
+        tracks = make_tracks(rng, 200)
+        lanes = make_lane_stats(rng, N_LANES, seq=i, t_ns=t) if i % 20 == 0 else ()
+        frames = enc.frames(st.update(make_result(i, t, tracks, (True,) * N_LANES, lanes), health(t, t)), t)
+        total += len(frames)
+        per_cycle.append(len(frames))
+        objs = [m for m in frames if m.arbitration_id == 0x60B]
+        hdr = next(m for m in frames if m.arbitration_id == 0x60A)
+        assert hdr.data[0] == len(objs)  # header announces exactly what follows
+        if objs:  # nearest first: what was left out is farther than what was sent
+            sent_ids = {m.data[0] for m in objs}
+            sent = [t_ for t_ in tracks if t_.track_id & 0xFF in sent_ids]
+            left = [t_ for t_ in tracks if t_.track_id & 0xFF not in sent_ids]
+            if left:
+                assert max(t_.range_m for t_ in sent) <= min(t_.range_m for t_ in left) + 1e-6
+    load = total * FRAME_BITS_WORST / (seconds * cfg.bitrate)
+    assert 0.3 < load < 0.5, load  # the budget is used, never exceeded
+    per_s = int(1e9 / period)
+    worst = max(sum(per_cycle[i: i + per_s]) for i in range(len(per_cycle) - per_s + 1))
+    assert worst * FRAME_BITS_WORST / cfg.bitrate < 0.5  # in every 1 s window, including the first
+    assert enc.counters["objects_truncated"] > 0
+
+
+class FailingBus:
+    def __init__(self, error_code: int | None, fail_times: int = 10**9) -> None:
+        self.error_code, self.fail_times, self.sent = error_code, fail_times, []
+
+    def send(self, msg, timeout=None):
+        if self.fail_times > 0:
+            self.fail_times -= 1
+            raise can.CanOperationError("send failed", error_code=self.error_code)
+        self.sent.append(msg)
+
+    def shutdown(self):
+        pass
+
+
+def test_missing_interface_is_a_counted_fault_retried_later():
+    attempts = []
+
+    def factory():
+        attempts.append(1)
+        raise can.CanInterfaceNotImplementedError("no such interface")
+
+    sink = CanSink(CanConfig(interface="socketcan", channel="can9", reconnect_s=2.0), 1, bus_factory=factory,
+                   threaded=False)
+    for i in range(10):  # 10 frames in 0.33 s: one attempt only
+        t = T0 + i * PERIOD_NS
+        sink.publish(make_result(i, t, presence=(False,)), health(t, t))
+    assert len(attempts) == 1 and sink.faults["open_failed"] == 1 and sink.faults["frames_not_sent"] > 0
+    t = T0 + 2_100_000_000
+    sink.publish(make_result(99, t, presence=(False,)), health(t, t))
+    assert len(attempts) == 2 and not sink.links.can_up
+    sink.close()
+
+
+@pytest.mark.parametrize("code,kind", [(errno.ENOBUFS, "enobufs"), (errno.ENETDOWN, "bus_off"), (None, "send_error")])
+def test_send_errors_are_counted_and_never_raise(code, kind):
+    bus = FailingBus(code, fail_times=1)
+    opened = []
+
+    def factory():
+        opened.append(1)
+        return bus
+
+    sink = CanSink(CanConfig(interface="socketcan", reconnect_s=1.0), 2, bus_factory=factory, threaded=False)
+    for i in range(3):
+        t = T0 + i * PERIOD_NS
+        sink.publish(make_result(i, t, make_tracks(np.random.default_rng(i), 4), (True, False)), health(t, t))
+    assert sink.faults[kind] == 1 and sink.faults["frames_not_sent"] > 0
+    if kind == "enobufs":  # the bus stays; only the rest of that cycle is dropped
+        assert len(opened) == 1 and bus.sent and bus.sent[0].arbitration_id == 0x693
+    else:  # bus off / error: closed, nothing sent until reconnect_s, then reopened
+        assert len(opened) == 1 and sink.bus is None and not bus.sent
+        t = T0 + 1_200_000_000
+        sink.publish(make_result(50, t, presence=(True, False)), health(t, t))
+        assert len(opened) == 2 and bus.sent
+    sink.close()
+
+
+def test_publish_never_waits_for_a_stuck_bus():
+    release = threading.Event()
+    entered = threading.Event()
+
+    class StuckBus:
+        def send(self, msg, timeout=None):
+            entered.set()
+            release.wait(30)
+
+        def shutdown(self):
+            pass
+
+    sink = CanSink(CanConfig(interface="socketcan", queue_frames=4), 1, bus_factory=StuckBus).start()
+    try:
+        t = T0
+        sink.publish(make_result(0, t, presence=(False,)), health(t, t))
+        assert entered.wait(10)  # the sender thread is now stuck inside send()
+        for i in range(1, 50):  # would hang here if publish waited on the bus
+            t = T0 + i * PERIOD_NS
+            sink.publish(make_result(i, t, presence=(False,)), health(t, t))
+        assert sink.faults["queue_overflow"] >= 45 - 4
+    finally:
+        release.set()
+        sink.close()
+
+
+def test_runtime_settings_from_modbus_apply_on_the_next_cycle(cap):
+    sink = CanSink(CanConfig(interface="virtual", channel=cap.channel), 1, bus_factory=cap.factory, threaded=False)
+    try:
+        tracks = make_tracks(np.random.default_rng(0), 3)
+        sink.publish(make_result(1, T0, tracks, (True,)), health(T0, T0))
+        assert {0x60B, 0x60D} <= {m.arbitration_id for m in cap.drain()}
+        sink.set_runtime(True, 2, 0b11001)  # sensor id 2, objects + lane stats + presence, no 60C/60D
+        t = T0 + PERIOD_NS
+        sink.publish(make_result(2, t, tracks, (True,)), health(t, t))
+        ids = {m.arbitration_id for m in cap.drain()}
+        assert 0x62B in ids and 0x62A in ids and 0x62D not in ids and 0x60B not in ids and 0x6A3 in ids
+        sink.set_runtime(False, 2, 0b11001)
+        t += PERIOD_NS
+        sink.publish(make_result(3, t, tracks, (True,)), health(t, t))
+        assert cap.drain() == []
+    finally:
+        sink.close()
+
+
+def test_numpy_scalars_and_nan_from_pipelines_encode():
+    from edge.outputs.state import OutputState
+    from edge.types import LaneStats
+
+    enc = CanEncoder(CanConfig(interface="virtual"))
+    st = OutputState(1)
+    ls = LaneStats(0, 0, np.float32(60.0), 4, np.int64(3), np.float32(12.5), np.float32("nan"), np.float32(88.0),
+                   np.float32("nan"), np.float32(1.5), {"car": np.int64(3)})
+    frames = enc.frames(st.update(make_result(1, T0, presence=(True,), lane_stats=(ls,)), health(T0, T0)), T0)
+    db = can_db.load_shipped()
+    a = next(db.decode_message(m.arbitration_id, m.data) for m in frames if m.arbitration_id == 0x690)
+    b = next(db.decode_message(m.arbitration_id, m.data) for m in frames if m.arbitration_id == 0x691)
+    assert a["LaneA_Volume"] == 3 and a["LaneA_Occupancy"] == pytest.approx(12.5)
+    assert a["LaneA_MeanSpeed"] == pytest.approx(6553.5) and b["LaneB_Headway"] == pytest.approx(655.35)  # n/a
+    assert b["LaneB_SpeedP85"] == pytest.approx(88.0) and b["LaneB_Gap"] == pytest.approx(1.5)
