@@ -176,17 +176,22 @@ class SignatureExtractor:
 
     def __call__(self, points: MapPoints, n_clusters: int | None = None) -> ClusterSignatures:
         L = points.n_clusters if n_clusters is None else int(n_clusters)
-        keep = (points.label >= 0) & (points.label < L)
-        lab = np.asarray(points.label)[keep].astype(np.intp)
-        rng = np.asarray(points.range_m, dtype=np.float64)[keep]
-        amp = np.asarray(points.amplitude, dtype=np.float64)[keep]
-        rb = np.asarray(points.range_bin)[keep].astype(np.int64)
-        db = np.asarray(points.doppler_bin)[keep].astype(np.int64)
-        th = self.cylinder.angle_of_speed(np.asarray(points.doppler_kmh, dtype=np.float64)[keep])
+        lab = np.asarray(points.label)
+        rng = np.asarray(points.range_m, dtype=np.float32)
+        amp = np.asarray(points.amplitude, dtype=np.float32)
+        rb = np.asarray(points.range_bin)
+        db = np.asarray(points.doppler_bin)
+        dop = np.asarray(points.doppler_kmh, dtype=np.float32)
+        keep = (lab >= 0) & (lab < L)
+        if not keep.all():
+            lab, rng, amp, rb, db, dop = lab[keep], rng[keep], amp[keep], rb[keep], db[keep], dop[keep]
+        lab = lab.astype(np.intp, copy=False)
+        th = self.cylinder.angle_of_speed(dop).astype(np.float32, copy=False)
+        cos, sin = np.cos(th), np.sin(th)
         n = np.bincount(lab, minlength=L)
         nz = np.maximum(n, 1)
-        c = np.bincount(lab, np.cos(th), minlength=L)
-        s = np.bincount(lab, np.sin(th), minlength=L)
+        c = np.bincount(lab, cos, minlength=L)
+        s = np.bincount(lab, sin, minlength=L)
         rbar = np.hypot(c, s) / nz
         circ = np.where(n > 0, 1.0 - rbar, np.nan)
         mean_r = np.where(n > 0, np.bincount(lab, rng, minlength=L) / nz, np.nan)
@@ -196,30 +201,40 @@ class SignatureExtractor:
         )
         rcs = self._rcs(lab, rng, amp, rb, db, L)
         rcs[n == 0] = np.nan
-        ca = np.bincount(lab, amp * np.cos(th), minlength=L)
-        sa = np.bincount(lab, amp * np.sin(th), minlength=L)
-        dop = np.where(n > 0, self.cylinder.speed_of_angle(np.arctan2(sa, ca)), np.nan)
-        return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop)
+        ca = np.bincount(lab, amp * cos, minlength=L)
+        sa = np.bincount(lab, amp * sin, minlength=L)
+        dop_mean = np.where(n > 0, self.cylinder.speed_of_angle(np.arctan2(sa, ca)), np.nan)
+        return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop_mean)
 
     def _rcs(self, lab, rng, amp, rb, db, L) -> np.ndarray:
-        """Eq. 17: sum over the local range peaks of every Doppler column of each cluster."""
+        """Eq. 17: sum over the local range peaks of every Doppler column of each cluster.
+
+        The range neighbours of a cell are looked up on a dense (range bin, Doppler bin) grid of the
+        frame's cells (no sort): a neighbour counts only if it is a cell of the same cluster.
+        """
         if lab.size == 0:
             return np.zeros(L)
-        order = np.lexsort((rb, db, lab))
-        lab_s, rb_s, db_s, amp_s, rng_s = lab[order], rb[order], db[order], amp[order], rng[order]
-        same = (lab_s[1:] == lab_s[:-1]) & (db_s[1:] == db_s[:-1]) & (rb_s[1:] == rb_s[:-1] + 1)
-        # neighbour below in range (same cluster, same Doppler column, adjacent bin) and above
-        has_lo = np.concatenate([[False], same])
-        has_hi = np.concatenate([same, [False]])
-        lo = np.concatenate([[-np.inf], amp_s[:-1]])
-        hi = np.concatenate([amp_s[1:], [-np.inf]])
-        peak = (~has_lo | (amp_s > lo)) & (~has_hi | (amp_s >= hi))
-        r = rng_s[peak]
+        rb = rb.astype(np.int64, copy=False)
+        db = db.astype(np.int64, copy=False)
+        nd = int(db.max()) + 1
+        size = (int(rb.max()) + 2) * nd
+        key = rb * nd + db
+        amp_g = np.full(size, -np.inf, dtype=np.float32)
+        lab_g = np.full(size, -1, dtype=np.intp)
+        amp_g[key] = amp
+        lab_g[key] = lab
+        lo_k = np.maximum(key - nd, 0)
+        hi_k = key + nd
+        has_lo = (rb > 0) & (lab_g[lo_k] == lab)
+        has_hi = lab_g[hi_k] == lab
+        # a peak is above its lower neighbour and not below its upper one (one peak per plateau)
+        peak = (~has_lo | (amp > amp_g[lo_k])) & (~has_hi | (amp >= amp_g[hi_k]))
+        r = rng[peak].astype(np.float64)
         fb = self.beat_hz(r)
         fc = self.config.if_corner_hz
         comp = np.sqrt(fc * fc + fb * fb) / fb
-        val = np.power(np.maximum(r, 0.0), self.config.range_exponent) / self.n_samples * (amp_s[peak] * comp) ** 2
-        return np.bincount(lab_s[peak], val, minlength=L)
+        val = np.power(np.maximum(r, 0.0), self.config.range_exponent) / self.n_samples * (amp[peak] * comp) ** 2
+        return np.bincount(lab[peak], val, minlength=L)
 
 
 class TrackFeatureAccumulator:

@@ -27,6 +27,13 @@ frame that created it plus ``vis`` frames after it, and only tracks seen in at l
 :attr:`TrackerStep.dropped`. :meth:`AlphaBetaTracker.close_all` ends every open track (end of an
 event, or stop).
 
+Options beyond the paper (defaults keep the paper's behaviour): ``gate_reference = "prediction"``
+measures ``R_gate`` from the predicted position instead of the last centroid; ``init_velocity =
+"two_point"`` sets a new track's rates from its first two centroids (the paper starts them at zero,
+which with ``alpha = 0.19`` lags a 40 km/h car by metres for a second or two);
+``publish_coasting_frames`` limits how long a confirmed track that misses frames is still
+published (:meth:`AlphaBetaTracker.confirmed`).
+
 Everything is vectorised over tracks and centroids; the only Python loop is the greedy assignment,
 at most ``min(tracks, centroids)`` iterations of an ``argmin`` over the cost matrix.
 """
