@@ -81,6 +81,10 @@ SECTIONS: dict[str, str] = {
     "source": "edge.config:SourceConfig",
     "loop": "edge.config:LoopConfig",
     "pipeline.minimal": "edge.pipelines.minimal:MinimalConfig",
+    "track.alphabeta": "edge.track.alphabeta:AlphaBetaConfig",
+    "track.events": "edge.track.events:EventConfig",
+    "classify.features": "edge.classify.features:FeatureConfig",
+    "classify.knn": "edge.classify.knn:KnnConfig",
 }
 
 

@@ -1,0 +1,300 @@
+"""Doppler and RCS signatures of clusters and the feature vector of a track (Tavanti §II-F).
+
+Per frame and cluster (:class:`SignatureExtractor`, vectorised over every point of the frame):
+
+* circular variance of the cluster's Doppler (eq. 18): ``S = 1 - |sum_l exp(j theta_l)| / N`` with
+  ``theta`` the polar angle of each point on the wrapped map (unweighted, as in the paper);
+* the RCS-related quantity of eq. 17: for every Doppler column of the cluster, the local peaks of
+  the range profile inside the cluster's cells contribute
+  ``r^1.8 / N_s * (|M| sqrt(f_c^2 + f_b^2) / f_b)^2`` where ``r`` and ``f_b = 2 mu r / c`` are the
+  peak's range and beat frequency and ``f_c`` is the lower corner frequency of the board's IF
+  amplifier (``classify.features.if_corner_hz``; the factor undoes its first-order high-pass).
+  ``f_b`` is floored at half an FFT bin (``fs / (2 N_s)``) so cells at zero range stay finite;
+* the centroid of the cluster: the mean of its points on the cylinder, projected back onto the
+  surface (the tracker's measurement), and its mean range (for the radial speed).
+
+Per track (:class:`TrackFeatureAccumulator`, constant memory, fed one frame at a time): the feature
+vector of eq. 19,
+
+    x = [E(S), var(S), E(gamma), var(gamma), E(|v_r|)]
+
+with unbiased variances over the frames where the track had a cluster, and ``v_r`` the radial speed
+from the displacement of the centroid's range between consecutive visible frames (km/h, divided by
+the real elapsed time, so a missed frame does not double a speed). The track's mean radial speed
+reported to the user is the least-squares slope of centroid range against time (km/h, positive
+receding). Weighted standardisation (eq. 20) lives in :func:`weighted_standardization`.
+
+A "point" is one cell of the range-Doppler map at or above ``th_RD`` (:class:`MapPoints`); labels
+are cluster indices ``0..L-1`` from DBSCAN (``-1`` = noise, ignored) or all ``0`` for the paper's
+training signatures (thresholded, neither clustered nor tracked).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from edge.track.cylinder import Cylinder
+from edge.types import FrontendInfo
+from hal.waveform import SPEED_OF_LIGHT_MPS, characteristics
+
+__all__ = [
+    "FEATURE_NAMES",
+    "ClusterSignatures",
+    "FeatureConfig",
+    "MapPoints",
+    "SignatureExtractor",
+    "TrackFeatureAccumulator",
+    "weighted_standardization",
+]
+
+#: the five features of eq. 19, in order
+FEATURE_NAMES: tuple[str, ...] = (
+    "circ_var_mean",
+    "circ_var_var",
+    "rcs_mean",
+    "rcs_var",
+    "abs_radial_speed_mean_kmh",
+)
+
+
+@dataclass(frozen=True)
+class FeatureConfig:
+    """Signature extraction (eqs. 17-19)."""
+
+    if_corner_hz: float = field(
+        default=1000.0,
+        metadata={"unit": "Hz", "doc": "f_c of eq. 17: lower (high-pass) corner of the board's IF amplifier; the "
+                  "paper does not give the Distance2Go's value, 1 kHz is an assumption (beat of a target at 1.1 m)",
+                  "min": 0.0, "max": 1e6},
+    )
+    range_exponent: float = field(
+        default=1.8,
+        metadata={"doc": "exponent of r in eq. 17 (2 in free space; 1.8 empirically, Tavanti after [39])",
+                  "min": 0.0, "max": 4.0},
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class MapPoints:
+    """Cells of one range-Doppler map at or above ``th_RD``, columnar (P points).
+
+    ``doppler_kmh`` is the wrapped radial speed of the cell in ``[-v_max, v_max)``, ``amplitude`` the
+    map magnitude ``|M|``, ``range_bin``/``doppler_bin`` the cell indices (zero-padded grid), ``label``
+    the cluster index (``-1`` = noise).
+    """
+
+    range_m: np.ndarray
+    doppler_kmh: np.ndarray
+    amplitude: np.ndarray
+    range_bin: np.ndarray
+    doppler_bin: np.ndarray
+    label: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = np.shape(self.range_m)
+        for name in ("doppler_kmh", "amplitude", "range_bin", "doppler_bin", "label"):
+            if np.shape(getattr(self, name)) != n:
+                raise ValueError(f"MapPoints.{name} has shape {np.shape(getattr(self, name))}, expected {n}")
+
+    @classmethod
+    def empty(cls) -> "MapPoints":
+        f = np.zeros(0, dtype=np.float32)
+        i = np.zeros(0, dtype=np.int32)
+        return cls(f, f, f, i, i, i)
+
+    @classmethod
+    def from_map(
+        cls,
+        magnitude: np.ndarray,
+        threshold: float,
+        range_m: np.ndarray,
+        doppler_kmh: np.ndarray,
+        label: np.ndarray | None = None,
+    ) -> "MapPoints":
+        """Cells of a magnitude map ``(n_range, n_doppler)`` at or above ``threshold``.
+
+        ``range_m`` (n_range,) and ``doppler_kmh`` (n_doppler,) are the axes of the map (any bin
+        order, e.g. after ``fftshift``); ``label`` defaults to 0 for every cell (the paper's training
+        signatures: thresholded, not clustered).
+        """
+        mag = np.asarray(magnitude)
+        rb, db = np.nonzero(mag >= threshold)
+        lab = np.zeros(rb.size, dtype=np.int32) if label is None else np.asarray(label, dtype=np.int32)
+        return cls(
+            np.asarray(range_m, dtype=np.float32)[rb],
+            np.asarray(doppler_kmh, dtype=np.float32)[db],
+            mag[rb, db].astype(np.float32),
+            rb.astype(np.int32),
+            db.astype(np.int32),
+            lab,
+        )
+
+    @property
+    def n_clusters(self) -> int:
+        return int(self.label.max()) + 1 if self.label.size else 0
+
+    def __len__(self) -> int:
+        return int(np.size(self.range_m))
+
+
+@dataclass(frozen=True, eq=False)
+class ClusterSignatures:
+    """Per-cluster results of one frame, ``L`` rows (index = cluster label)."""
+
+    centroid: np.ndarray  # (L, 3) (v', v'' km/h, r m) on the cylinder
+    range_m: np.ndarray  # (L,) mean range of the cluster's points
+    circular_variance: np.ndarray  # (L,) eq. 18
+    rcs: np.ndarray  # (L,) eq. 17
+    n_points: np.ndarray  # (L,) int
+
+    def __len__(self) -> int:
+        return int(self.n_points.size)
+
+
+class SignatureExtractor:
+    """Eqs. 17-18 and cluster centroids for every cluster of a frame at once."""
+
+    def __init__(self, config: FeatureConfig, frontend: FrontendInfo) -> None:
+        self.config = config
+        wf = frontend.waveform
+        seg = wf.segments[0]
+        self.cylinder = Cylinder(characteristics(frontend).max_radial_speed_mps * 3.6)
+        self.n_samples = int(wf.n_samples)
+        self.slope_hz_per_s = abs(seg.slope_hz_per_s)
+        self.fb_floor_hz = seg.sample_rate_hz / (2.0 * self.n_samples)
+
+    def beat_hz(self, range_m: np.ndarray) -> np.ndarray:
+        """Beat frequency of a range (``f_b = 2 mu r / c``), floored at half an FFT bin."""
+        fb = 2.0 * self.slope_hz_per_s * np.asarray(range_m, dtype=np.float64) / SPEED_OF_LIGHT_MPS
+        return np.maximum(fb, self.fb_floor_hz)
+
+    def __call__(self, points: MapPoints, n_clusters: int | None = None) -> ClusterSignatures:
+        L = points.n_clusters if n_clusters is None else int(n_clusters)
+        keep = (points.label >= 0) & (points.label < L)
+        lab = np.asarray(points.label)[keep].astype(np.intp)
+        rng = np.asarray(points.range_m, dtype=np.float64)[keep]
+        amp = np.asarray(points.amplitude, dtype=np.float64)[keep]
+        rb = np.asarray(points.range_bin)[keep].astype(np.int64)
+        db = np.asarray(points.doppler_bin)[keep].astype(np.int64)
+        th = self.cylinder.angle_of_speed(np.asarray(points.doppler_kmh, dtype=np.float64)[keep])
+        n = np.bincount(lab, minlength=L)
+        nz = np.maximum(n, 1)
+        c = np.bincount(lab, np.cos(th), minlength=L)
+        s = np.bincount(lab, np.sin(th), minlength=L)
+        rbar = np.hypot(c, s) / nz
+        circ = np.where(n > 0, 1.0 - rbar, np.nan)
+        mean_r = np.where(n > 0, np.bincount(lab, rng, minlength=L) / nz, np.nan)
+        ang = np.arctan2(s, c)
+        centroid = np.stack(
+            [self.cylinder.radius_kmh * np.cos(ang), self.cylinder.radius_kmh * np.sin(ang), mean_r], axis=1
+        )
+        rcs = self._rcs(lab, rng, amp, rb, db, L)
+        rcs[n == 0] = np.nan
+        return ClusterSignatures(centroid, mean_r, circ, rcs, n)
+
+    def _rcs(self, lab, rng, amp, rb, db, L) -> np.ndarray:
+        """Eq. 17: sum over the local range peaks of every Doppler column of each cluster."""
+        if lab.size == 0:
+            return np.zeros(L)
+        order = np.lexsort((rb, db, lab))
+        lab_s, rb_s, db_s, amp_s, rng_s = lab[order], rb[order], db[order], amp[order], rng[order]
+        same = (lab_s[1:] == lab_s[:-1]) & (db_s[1:] == db_s[:-1]) & (rb_s[1:] == rb_s[:-1] + 1)
+        # neighbour below in range (same cluster, same Doppler column, adjacent bin) and above
+        has_lo = np.concatenate([[False], same])
+        has_hi = np.concatenate([same, [False]])
+        lo = np.concatenate([[-np.inf], amp_s[:-1]])
+        hi = np.concatenate([amp_s[1:], [-np.inf]])
+        peak = (~has_lo | (amp_s > lo)) & (~has_hi | (amp_s >= hi))
+        r = rng_s[peak]
+        fb = self.beat_hz(r)
+        fc = self.config.if_corner_hz
+        comp = np.sqrt(fc * fc + fb * fb) / fb
+        val = np.power(np.maximum(r, 0.0), self.config.range_exponent) / self.n_samples * (amp_s[peak] * comp) ** 2
+        return np.bincount(lab_s[peak], val, minlength=L)
+
+
+class TrackFeatureAccumulator:
+    """Running statistics of one track's per-frame signatures -> the eq. 19 feature vector.
+
+    ``add(t_s, circular_variance, rcs, range_m)`` once per frame where the track has a cluster.
+    Memory is constant (Welford means/variances, least-squares sums), however long the track lives.
+    """
+
+    __slots__ = ("n", "_s_mean", "_s_m2", "_g_mean", "_g_m2", "_t0", "_last_t", "_last_r",
+                 "_abs_v_sum", "_n_v", "_st", "_sr", "_stt", "_str", "first_t_s", "last_t_s")
+
+    def __init__(self) -> None:
+        self.n = 0
+        self._s_mean = self._s_m2 = self._g_mean = self._g_m2 = 0.0
+        self._t0 = self._last_t = self._last_r = 0.0
+        self._abs_v_sum = 0.0
+        self._n_v = 0
+        self._st = self._sr = self._stt = self._str = 0.0
+        self.first_t_s = self.last_t_s = math.nan
+
+    def add(self, t_s: float, circular_variance: float, rcs: float, range_m: float) -> None:
+        t_s, s, g, r = float(t_s), float(circular_variance), float(rcs), float(range_m)
+        if self.n == 0:
+            self._t0 = t_s
+            self.first_t_s = t_s
+        elif t_s > self._last_t:
+            v_kmh = (r - self._last_r) / (t_s - self._last_t) * 3.6
+            self._abs_v_sum += abs(v_kmh)
+            self._n_v += 1
+        self.n += 1
+        d = s - self._s_mean
+        self._s_mean += d / self.n
+        self._s_m2 += d * (s - self._s_mean)
+        d = g - self._g_mean
+        self._g_mean += d / self.n
+        self._g_m2 += d * (g - self._g_mean)
+        tr = t_s - self._t0
+        self._st += tr
+        self._sr += r
+        self._stt += tr * tr
+        self._str += tr * r
+        self._last_t, self._last_r = t_s, r
+        self.last_t_s = t_s
+
+    def features(self) -> np.ndarray:
+        """``(5,)`` float64 in :data:`FEATURE_NAMES` order; NaN where fewer than two frames."""
+        n = self.n
+        var_s = self._s_m2 / (n - 1) if n > 1 else math.nan
+        var_g = self._g_m2 / (n - 1) if n > 1 else math.nan
+        v = self._abs_v_sum / self._n_v if self._n_v else math.nan
+        return np.array([self._s_mean if n else math.nan, var_s, self._g_mean if n else math.nan, var_g, v])
+
+    def mean_radial_speed_kmh(self) -> float:
+        """Least-squares slope of centroid range vs time (km/h, positive receding); NaN below 2 frames."""
+        n = self.n
+        den = n * self._stt - self._st * self._st
+        if n < 2 or den <= 0:
+            return math.nan
+        return (n * self._str - self._st * self._sr) / den * 3.6
+
+
+def weighted_standardization(x: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 20: weighted mean and unbiased (reliability-weights) standard deviation per feature.
+
+    ``x`` (N, F), ``weights`` (N,) non-negative (normalised here to sum 1). Returns ``(mean, scale)``
+    so that ``z = (x - mean) / scale``; the scale is
+    ``sqrt(sum_l w_l (x_l - mean)^2 / (1 - sum_l w_l^2))`` and 1 where a feature is constant.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64).reshape(-1)
+    if x.ndim != 2 or x.shape[0] != w.size:
+        raise ValueError(f"x must be (N, F) with N = len(weights); got {x.shape} and {w.shape}")
+    if np.any(w < 0) or not w.sum() > 0:
+        raise ValueError("weights must be non-negative with a positive sum")
+    w = w / w.sum()
+    mean = w @ x
+    denom = 1.0 - float(np.sum(w * w))
+    if denom <= 0:
+        raise ValueError("weighted standardisation needs at least two observations with weight")
+    var = (w @ (x - mean) ** 2) / denom
+    scale = np.sqrt(var)
+    scale[~(scale > 0)] = 1.0
+    return mean, scale

@@ -1,0 +1,155 @@
+"""Weighted k-nearest-neighbour classification (Tavanti §II-G, eqs. 20-21), numpy only.
+
+:class:`WeightedKNN` is the reference implementation and the test oracle of the exported ONNX
+model:
+
+1. standardise the reference features with the weighted mean and unbiased weighted standard
+   deviation of eq. 20 (weights ``w_l`` summing to 1; class-balancing by default:
+   ``w_l = 1 / (C * n_{y_l})`` with ``C`` the classes present, so every class weighs the same);
+2. distances from a query to all ``N`` reference vectors (Euclidean, Manhattan or Chebyshev);
+3. the ``k`` nearest: ``argsort(kind="stable")``, so among equal distances the lower reference index
+   wins;
+4. ``p(c | z) = sum_{l in D} w_l I(y_l = c) / sum_{l in D} w_l`` (eq. 21); the predicted class is the
+   most probable one, ties going to the lower class index.
+
+Paper defaults (Table III): ``k = 13``, Euclidean. Reference sets are loaded by
+:func:`edge.classify.reference.load_reference_set`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Sequence
+
+import numpy as np
+
+from edge.classify.features import weighted_standardization
+
+if TYPE_CHECKING:  # pragma: no cover
+    from edge.classify.reference import ReferenceSet
+
+__all__ = ["KnnConfig", "METRICS", "WeightedKNN", "class_balanced_weights", "pairwise_distances"]
+
+METRICS: tuple[str, ...] = ("euclidean", "manhattan", "chebyshev")
+
+
+@dataclass(frozen=True)
+class KnnConfig:
+    """The classifier of the surveillance profile (Tavanti Table III)."""
+
+    k: int = field(default=13, metadata={"doc": "number of neighbours (3-fold CV grid search: 13)", "min": 1, "max": 1000})
+    metric: str = field(default="euclidean", metadata={"doc": "distance between standardised features",
+                                                         "choices": METRICS})
+    weighting: str = field(
+        default="balanced",
+        metadata={"doc": "reference weights w_l of eqs. 20-21: balanced = every class weighs the same, uniform = 1/N",
+                  "choices": ("balanced", "uniform")},
+    )
+    reference_set: str = field(
+        default="",
+        metadata={"doc": "reference set .npz (edge.classify.reference format); empty = the packaged default "
+                  "edge/data/reference_set.npz"},
+    )
+
+
+def class_balanced_weights(labels: np.ndarray, n_classes: int | None = None) -> np.ndarray:
+    """``w_l = 1 / (C * n_{y_l})``: each of the ``C`` classes present sums to ``1/C``; total 1."""
+    y = np.asarray(labels, dtype=np.intp).reshape(-1)
+    if y.size == 0:
+        raise ValueError("no labels")
+    counts = np.bincount(y, minlength=n_classes or 0)
+    present = int(np.count_nonzero(counts))
+    return 1.0 / (present * counts[y].astype(np.float64))
+
+
+def pairwise_distances(queries: np.ndarray, refs: np.ndarray, metric: str = "euclidean") -> np.ndarray:
+    """``(Q, F)`` x ``(N, F)`` -> ``(Q, N)`` distances (float64)."""
+    q = np.asarray(queries, dtype=np.float64)
+    r = np.asarray(refs, dtype=np.float64)
+    d = np.abs(q[:, None, :] - r[None, :, :])
+    if metric == "euclidean":
+        return np.sqrt(np.einsum("qnf,qnf->qn", d, d))
+    if metric == "manhattan":
+        return d.sum(axis=-1)
+    if metric == "chebyshev":
+        return d.max(axis=-1)
+    raise ValueError(f"unknown metric {metric!r}; choose one of {', '.join(METRICS)}")
+
+
+class WeightedKNN:
+    """Eqs. 20-21. ``classes`` are names; labels passed to :meth:`fit` are indices into them."""
+
+    def __init__(self, classes: Sequence[str], k: int = 13, metric: str = "euclidean") -> None:
+        if k < 1:
+            raise ValueError(f"k must be at least 1, got {k!r}")
+        if metric not in METRICS:
+            raise ValueError(f"unknown metric {metric!r}; choose one of {', '.join(METRICS)}")
+        self.classes = tuple(classes)
+        self.k = int(k)
+        self.metric = metric
+        self.mean_: np.ndarray | None = None
+        self.scale_: np.ndarray | None = None
+        self.z_: np.ndarray | None = None
+        self.y_: np.ndarray | None = None
+        self.w_: np.ndarray | None = None
+
+    def fit(self, x: np.ndarray, y: np.ndarray, weights: np.ndarray | str = "balanced") -> "WeightedKNN":
+        """Reference features ``x`` (N, F), labels ``y`` (N,), weights (N,) or "balanced"/"uniform"."""
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.intp).reshape(-1)
+        if x.ndim != 2 or x.shape[0] != y.size:
+            raise ValueError(f"x must be (N, F) with N = len(y); got {x.shape} and {y.shape}")
+        if not np.all(np.isfinite(x)):
+            raise ValueError("reference features must be finite")
+        if y.size and (y.min() < 0 or y.max() >= len(self.classes)):
+            raise ValueError(f"labels must be indices into {len(self.classes)} classes")
+        if isinstance(weights, str):
+            if weights == "balanced":
+                w = class_balanced_weights(y, len(self.classes))
+            elif weights == "uniform":
+                w = np.full(y.size, 1.0 / y.size)
+            else:
+                raise ValueError(f"weights must be an array, 'balanced' or 'uniform', got {weights!r}")
+        else:
+            w = np.asarray(weights, dtype=np.float64).reshape(-1)
+            if w.size != y.size or np.any(w < 0) or not w.sum() > 0:
+                raise ValueError("weights must be (N,), non-negative, with a positive sum")
+            w = w / w.sum()
+        self.mean_, self.scale_ = weighted_standardization(x, w)
+        self.z_ = (x - self.mean_) / self.scale_
+        self.y_ = y
+        self.w_ = w
+        return self
+
+    @classmethod
+    def from_reference_set(cls, ref: "ReferenceSet", k: int = 13, metric: str = "euclidean",
+                           weighting: str = "balanced") -> "WeightedKNN":
+        return cls(ref.classes, k=k, metric=metric).fit(ref.features, ref.labels, weighting)
+
+    def _check(self) -> None:
+        if self.z_ is None:
+            raise RuntimeError("WeightedKNN is not fitted")
+
+    def standardize(self, x: np.ndarray) -> np.ndarray:
+        self._check()
+        return (np.atleast_2d(np.asarray(x, dtype=np.float64)) - self.mean_) / self.scale_
+
+    def kneighbors(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(distances, indices)``, both ``(Q, k')`` with ``k' = min(k, N)``; ties -> lower index."""
+        z = self.standardize(x)
+        d = pairwise_distances(z, self.z_, self.metric)
+        kk = min(self.k, d.shape[1])
+        idx = np.argsort(d, axis=1, kind="stable")[:, :kk]
+        return np.take_along_axis(d, idx, axis=1), idx
+
+    def predict_proba(self, x: np.ndarray) -> np.ndarray:
+        """``(Q, C)`` class probabilities of eq. 21."""
+        _, idx = self.kneighbors(x)
+        w = self.w_[idx]  # (Q, k)
+        onehot = self.y_[idx][..., None] == np.arange(len(self.classes))  # (Q, k, C)
+        num = np.einsum("qk,qkc->qc", w, onehot)
+        return num / w.sum(axis=1, keepdims=True)
+
+    def predict(self, x: np.ndarray) -> np.ndarray:
+        """``(Q,)`` class indices (argmax of :meth:`predict_proba`, ties -> lower class index)."""
+        return np.argmax(self.predict_proba(x), axis=1)

@@ -1,0 +1,350 @@
+"""Benedict-Bordner alpha-beta tracking of cluster centroids on the wrapped map (Tavanti §II-D/E).
+
+Measurements are DBSCAN cluster centroids ``m = (v', v'', r)`` on the cylinder of
+:mod:`edge.track.cylinder` (km/h, km/h, m). Each track's state is
+``s = (v', u_v', v'', u_v'', r, u_r)`` (eq. 9, positions and their per-frame rates, normalised time
+step T = 1 frame). The tracker is a thin orchestrator over role objects, after Stone Soup:
+
+* :class:`BenedictBordnerFilter` -- initiate, predict (eq. 12: ``N[A s]``) and update
+  (eq. 13: ``N{s + G (m - C s)}``) with ``beta = alpha^2 / (2 - alpha)``; ``N`` is the cylinder
+  projection of eq. 14.
+* :class:`GreedyAssociator` -- the cost matrix of §II-E step 5 (Euclidean distance between a track's
+  predicted position and a centroid; ``+inf`` when the centroid is farther than ``R_gate`` from the
+  centroid last assigned to the track) and its greedy minimum-cost assignment (steps 5a-5d).
+* :class:`IdPool` -- small integer ids, the smallest free one first, recycled when a track ends.
+* :class:`AlphaBetaTracker` -- steps 2-9 frame by frame: update assigned tracks (``age`` and ``vis``
+  + 1), coast the others (``age`` + 1), retire a track after ``N_u`` consecutive misses, delete it
+  when ``vis / age < th_v``, start a track on every unassigned centroid (``age = vis = 0``).
+
+Streaming instead of the paper's batch: a track that misses ``N_u`` frames in a row has left the
+scene, so it *ends* there and then (it is handed back for classification) instead of staying in the
+list with an infinite cost row until the event is over. The end-of-event rule of step 9 ("delete the
+tracks visible in fewer than 3 frames") is applied to every ending track: a track is *seen* in the
+frame that created it plus ``vis`` frames after it, and only tracks seen in at least
+``min_seen_frames`` frames end as :attr:`TrackerStep.ended`; the others are
+:attr:`TrackerStep.dropped`. :meth:`AlphaBetaTracker.close_all` ends every open track (end of an
+event, or stop).
+
+Everything is vectorised over tracks and centroids; the only Python loop is the greedy assignment,
+at most ``min(tracks, centroids)`` iterations of an ``argmin`` over the cost matrix.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from edge.track.cylinder import Cylinder
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "AlphaBetaConfig",
+    "AlphaBetaTrack",
+    "AlphaBetaTracker",
+    "BenedictBordnerFilter",
+    "GreedyAssociator",
+    "IdPool",
+    "TrackerStep",
+    "benedict_bordner_beta",
+    "greedy_assign",
+]
+
+#: indices of the positions (v', v'', r) and of their rates in a state vector (eq. 9)
+POS = np.array([0, 2, 4])
+VEL = np.array([1, 3, 5])
+
+
+@dataclass(frozen=True)
+class AlphaBetaConfig:
+    """Tracking of cluster centroids on the wrapped map; defaults are Tavanti Table III."""
+
+    alpha: float = field(
+        default=0.19,
+        metadata={"doc": "Benedict-Bordner alpha (beta = alpha^2 / (2 - alpha))", "min": 1e-6, "max": 1.0},
+    )
+    gate_radius: float = field(
+        default=6.0,
+        metadata={"unit": "m | km/h", "doc": "R_gate: largest distance on the wrapped map (range in m, "
+                  "wrapped Doppler in km/h) between a track's last centroid and a new one", "min": 0.0, "max": 100.0},
+    )
+    gate_reference: str = field(
+        default="last_measurement",
+        metadata={"doc": "what R_gate is measured from: the centroid last assigned to the track (paper, "
+                  "step 5) or the predicted position", "choices": ("last_measurement", "prediction")},
+    )
+    max_missed_frames: int = field(
+        default=7,
+        metadata={"unit": "frames", "doc": "N_u: a track not assigned for this many consecutive frames has left "
+                  "the scene and ends", "min": 1, "max": 1000},
+    )
+    visibility_threshold: float = field(
+        default=0.25,
+        metadata={"doc": "th_v: a track with vis / age below this is deleted (scintillation, multi-bounce)",
+                  "min": 0.0, "max": 1.0},
+    )
+    min_seen_frames: int = field(
+        default=3,
+        metadata={"unit": "frames", "doc": "a track seen in fewer frames (creation frame + vis) is dropped when "
+                  "it ends instead of being classified (step 9)", "min": 1, "max": 1000},
+    )
+    max_track_id: int = field(
+        default=255,
+        metadata={"doc": "track ids are 1..max_track_id, smallest free first and recycled (fits CAN/Modbus)",
+                  "min": 1, "max": 65535},
+    )
+
+
+def benedict_bordner_beta(alpha: float) -> float:
+    """``beta = alpha^2 / (2 - alpha)`` (Benedict and Bordner 1962)."""
+    return alpha * alpha / (2.0 - alpha)
+
+
+class BenedictBordnerFilter:
+    """Predictor and updater of eqs. 12-14 on stacked states ``(n, 6)`` (float64)."""
+
+    def __init__(self, alpha: float, cylinder: Cylinder) -> None:
+        if not 0.0 < alpha <= 1.0:
+            raise ValueError(f"alpha must be in (0, 1], got {alpha!r}")
+        self.alpha = float(alpha)
+        self.beta = benedict_bordner_beta(self.alpha)
+        self.cylinder = cylinder
+
+    def initiate(self, measurements: np.ndarray) -> np.ndarray:
+        """Centroids ``(n, 3)`` -> states ``(n, 6)`` = ``(v', 0, v'', 0, r, 0)`` on the cylinder (step 8)."""
+        m = np.asarray(measurements, dtype=np.float64).reshape(-1, 3)
+        s = np.zeros((m.shape[0], 6))
+        s[:, POS] = m
+        return self.cylinder.project_states(s)
+
+    def predict(self, states: np.ndarray) -> np.ndarray:
+        """``N[A s]`` with ``A = diag([[1, 1], [0, 1]])`` per coordinate (T = 1 frame), eq. 12."""
+        s = np.array(states, dtype=np.float64, copy=True).reshape(-1, 6)
+        s[:, POS] += s[:, VEL]
+        return self.cylinder.project_states(s)
+
+    @staticmethod
+    def measurement_of(states: np.ndarray) -> np.ndarray:
+        """``C s``: the positions ``(n, 3)`` of states ``(n, 6)``."""
+        return np.asarray(states).reshape(-1, 6)[:, POS]
+
+    def update(self, predicted: np.ndarray, measurements: np.ndarray) -> np.ndarray:
+        """``N{s + G (m - C s)}``: alpha on positions, beta on rates (eq. 13)."""
+        s = np.array(predicted, dtype=np.float64, copy=True).reshape(-1, 6)
+        resid = np.asarray(measurements, dtype=np.float64).reshape(-1, 3) - s[:, POS]
+        s[:, POS] += self.alpha * resid
+        s[:, VEL] += self.beta * resid
+        return self.cylinder.project_states(s)
+
+
+def greedy_assign(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy minimum-cost assignment of §II-E step 5a-d.
+
+    Repeatedly take the smallest finite entry ``(i, j)`` of ``cost`` (ties: the first in row-major
+    order), pair row ``i`` with column ``j`` and set row ``i`` and column ``j`` to ``+inf``, until no
+    finite entry is left. Returns the paired ``rows`` and ``cols`` (int arrays, in pairing order).
+    """
+    c = np.array(cost, dtype=np.float64, copy=True)
+    if c.ndim != 2:
+        raise ValueError(f"cost must be a 2-D matrix, got shape {c.shape}")
+    rows: list[int] = []
+    cols: list[int] = []
+    if c.size:
+        c[np.isnan(c)] = np.inf
+        for _ in range(min(c.shape)):
+            k = int(np.argmin(c))
+            i, j = divmod(k, c.shape[1])
+            if not np.isfinite(c[i, j]):
+                break
+            rows.append(i)
+            cols.append(j)
+            c[i, :] = np.inf
+            c[:, j] = np.inf
+    return np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)
+
+
+class GreedyAssociator:
+    """Cost matrix with the ``R_gate`` gate (step 5) and :func:`greedy_assign`."""
+
+    def __init__(self, gate_radius: float, gate_reference: str = "last_measurement") -> None:
+        if gate_reference not in ("last_measurement", "prediction"):
+            raise ValueError(f"gate_reference must be 'last_measurement' or 'prediction', got {gate_reference!r}")
+        self.gate_radius = float(gate_radius)
+        self.gate_reference = gate_reference
+
+    def cost_matrix(self, predicted_pos: np.ndarray, last_pos: np.ndarray, centroids: np.ndarray) -> np.ndarray:
+        """``(n_tracks, n_centroids)`` Euclidean distances from the predictions, ``+inf`` outside the gate."""
+        pred = np.asarray(predicted_pos, dtype=np.float64).reshape(-1, 3)
+        cen = np.asarray(centroids, dtype=np.float64).reshape(-1, 3)
+        cost = np.linalg.norm(pred[:, None, :] - cen[None, :, :], axis=-1)
+        if self.gate_reference == "last_measurement":
+            ref = np.asarray(last_pos, dtype=np.float64).reshape(-1, 3)
+            gate_d = np.linalg.norm(ref[:, None, :] - cen[None, :, :], axis=-1)
+        else:
+            gate_d = cost
+        cost[gate_d > self.gate_radius] = np.inf
+        return cost
+
+    def associate(
+        self, predicted_pos: np.ndarray, last_pos: np.ndarray, centroids: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """-> ``(track_rows, centroid_cols, cost)``."""
+        cost = self.cost_matrix(predicted_pos, last_pos, centroids)
+        rows, cols = greedy_assign(cost)
+        return rows, cols, cost
+
+
+class IdPool:
+    """Integer ids ``1..max_id``; :meth:`acquire` returns the smallest free one (``None`` when exhausted)."""
+
+    def __init__(self, max_id: int) -> None:
+        if max_id < 1:
+            raise ValueError("max_id must be at least 1")
+        self.max_id = int(max_id)
+        self._used: set[int] = set()
+
+    def acquire(self) -> int | None:
+        for i in range(1, self.max_id + 1):
+            if i not in self._used:
+                self._used.add(i)
+                return i
+        return None
+
+    def release(self, track_id: int) -> None:
+        self._used.discard(track_id)
+
+    def __len__(self) -> int:
+        return len(self._used)
+
+
+@dataclass
+class AlphaBetaTrack:
+    """One track: filter state and the counters of §II-E (mutable; owned by the tracker)."""
+
+    track_id: int
+    state: np.ndarray  # (6,) float64, (v', u_v', v'', u_v'', r, u_r)
+    last_measurement: np.ndarray  # (3,) the centroid last assigned (or the initiating one)
+    created_ns: int
+    last_seen_ns: int
+    age: int = 0
+    vis: int = 0
+    missed: int = 0  # consecutive frames without a centroid
+
+    @property
+    def seen_frames(self) -> int:
+        """Frames with a centroid: the creation frame plus ``vis``."""
+        return self.vis + 1
+
+
+@dataclass(frozen=True)
+class TrackerStep:
+    """What one :meth:`AlphaBetaTracker.step` did.
+
+    ``assigned`` maps track id -> index of its centroid in this frame, for updated *and* newly
+    created tracks (the creating centroid belongs to the new track). ``ended`` tracks left the scene
+    after being seen often enough (classify them); ``dropped`` tracks were deleted (th_v, too few
+    frames, or no free id). ``cost`` is the gated cost matrix (rows = ``track_ids_before``).
+    """
+
+    assigned: dict[int, int]
+    created: tuple[int, ...]
+    ended: tuple[AlphaBetaTrack, ...]
+    dropped: tuple[AlphaBetaTrack, ...]
+    cost: np.ndarray
+    track_ids_before: tuple[int, ...]
+
+
+class AlphaBetaTracker:
+    """Steps 2-9 of Tavanti §II-E, one call per frame (see the module docstring)."""
+
+    def __init__(
+        self,
+        config: AlphaBetaConfig,
+        cylinder: Cylinder,
+        *,
+        filter: BenedictBordnerFilter | None = None,
+        associator: GreedyAssociator | None = None,
+        ids: IdPool | None = None,
+    ) -> None:
+        self.config = config
+        self.cylinder = cylinder
+        self.filter = filter or BenedictBordnerFilter(config.alpha, cylinder)
+        self.associator = associator or GreedyAssociator(config.gate_radius, config.gate_reference)
+        self.ids = ids or IdPool(config.max_track_id)
+        self.tracks: list[AlphaBetaTrack] = []
+        self.ids_exhausted = 0
+
+    def step(self, t_ns: int, centroids: np.ndarray) -> TrackerStep:
+        """Process the centroids ``(n, 3)`` of one frame (already on the cylinder, or projected here)."""
+        cfg = self.config
+        cen = np.asarray(centroids, dtype=np.float64).reshape(-1, 3)
+        if cen.shape[0]:
+            cen = self.cylinder.project_points(cen)
+        before = tuple(t.track_id for t in self.tracks)
+        assigned: dict[int, int] = {}
+        ended: list[AlphaBetaTrack] = []
+        dropped: list[AlphaBetaTrack] = []
+        cost = np.zeros((len(self.tracks), cen.shape[0]))
+        used_cols = np.zeros(cen.shape[0], dtype=bool)
+        if self.tracks:
+            states = np.stack([t.state for t in self.tracks])
+            pred = self.filter.predict(states)
+            last = np.stack([t.last_measurement for t in self.tracks])
+            rows, cols, cost = self.associator.associate(self.filter.measurement_of(pred), last, cen)
+            new_states = pred
+            if rows.size:
+                new_states[rows] = self.filter.update(pred[rows], cen[cols])
+                used_cols[cols] = True
+            hit = np.zeros(len(self.tracks), dtype=bool)
+            hit[rows] = True
+            col_of = dict(zip(rows.tolist(), cols.tolist()))
+            keep: list[AlphaBetaTrack] = []
+            for k, tr in enumerate(self.tracks):
+                tr.state = new_states[k]
+                tr.age += 1
+                if hit[k]:
+                    tr.vis += 1
+                    tr.missed = 0
+                    tr.last_measurement = cen[col_of[k]]
+                    tr.last_seen_ns = t_ns
+                    assigned[tr.track_id] = col_of[k]
+                else:
+                    tr.missed += 1
+                if tr.vis < cfg.visibility_threshold * tr.age:  # vis / age < th_v (age >= 1 here)
+                    dropped.append(tr)
+                elif tr.missed >= cfg.max_missed_frames:
+                    (ended if tr.seen_frames >= cfg.min_seen_frames else dropped).append(tr)
+                else:
+                    keep.append(tr)
+            self.tracks = keep
+            for tr in ended + dropped:
+                self.ids.release(tr.track_id)
+        created: list[int] = []
+        free = np.flatnonzero(~used_cols)
+        if free.size:
+            states = self.filter.initiate(cen[free])
+            for j, s in zip(free.tolist(), states):
+                tid = self.ids.acquire()
+                if tid is None:
+                    self.ids_exhausted += 1
+                    log.warning("no free track id (max_track_id=%d): centroid %d not tracked", cfg.max_track_id, j)
+                    continue
+                self.tracks.append(AlphaBetaTrack(tid, s, cen[j].copy(), created_ns=t_ns, last_seen_ns=t_ns))
+                assigned[tid] = j
+                created.append(tid)
+        return TrackerStep(assigned, tuple(created), tuple(ended), tuple(dropped), cost, before)
+
+    def close_all(self) -> tuple[tuple[AlphaBetaTrack, ...], tuple[AlphaBetaTrack, ...]]:
+        """End every open track (end of the event, step 9): ``(ended, dropped)``."""
+        ended = tuple(t for t in self.tracks if t.seen_frames >= self.config.min_seen_frames)
+        dropped = tuple(t for t in self.tracks if t.seen_frames < self.config.min_seen_frames)
+        for tr in self.tracks:
+            self.ids.release(tr.track_id)
+        self.tracks = []
+        return ended, dropped
+
+    def confirmed(self) -> list[AlphaBetaTrack]:
+        """Open tracks already seen in ``min_seen_frames`` frames (published per frame)."""
+        return [t for t in self.tracks if t.seen_frames >= self.config.min_seen_frames]

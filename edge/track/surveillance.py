@@ -1,0 +1,192 @@
+"""Surveillance back end, frame by frame: signatures -> alpha-beta tracks -> features -> k-NN.
+
+:class:`SurveillanceTracker` is what the surveillance pipeline calls after thresholding and DBSCAN::
+
+    st = SurveillanceTracker.from_config(frontend, cfg, threshold=th_rd)
+    step = st.update(frame.t_ns, points, level=rd_map_max)   # points: MapPoints with DBSCAN labels
+    step.tracks            # TrackState of the confirmed tracks (seen in >= 3 frames)
+    step.classifications   # ClassifiedEvent of every track that ended in this frame
+    ...
+    st.close(t_ns)         # at stop: end and classify every open track
+
+Per frame it computes the clusters' signatures (:class:`~edge.classify.features.SignatureExtractor`),
+steps the :class:`~edge.track.alphabeta.AlphaBetaTracker` with the cluster centroids, adds each
+assigned cluster's signature to its track's :class:`~edge.classify.features.TrackFeatureAccumulator`,
+and feeds the frame's level to the :class:`~edge.track.events.EventSegmenter`. A track ends when it
+has missed ``N_u`` frames or when the event ends (hysteresis), and is classified there and then
+(streaming, not after the whole event as in the paper): class, eq. 21 probabilities, mean radial
+speed (least-squares slope of the centroid's range, km/h, positive receding) and direction.
+
+Published :class:`~edge.types.TrackState` fields: the Distance2Go has one receive channel, so the
+azimuth is unknown (NaN) and, as in :meth:`edge.types.Detections.from_polar`, the target is placed
+on boresight (``x = 0``, ``y = range``); ``radial_speed_mps`` is the filtered range rate (``u_r`` per
+frame period), unambiguous unlike the wrapped Doppler.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from edge.classify.features import (
+    FEATURE_NAMES,
+    ClusterSignatures,
+    FeatureConfig,
+    MapPoints,
+    SignatureExtractor,
+    TrackFeatureAccumulator,
+)
+from edge.classify.knn import KnnConfig, WeightedKNN
+from edge.classify.reference import load_reference_set
+from edge.track.alphabeta import AlphaBetaConfig, AlphaBetaTrack, AlphaBetaTracker, TrackerStep
+from edge.track.events import EventConfig, EventSegmenter, SegmentStep
+from edge.types import ClassifiedEvent, FrontendInfo, TrackState
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SurveillanceStep", "SurveillanceTracker", "UNKNOWN_CLASS"]
+
+#: class reported when a track's features cannot be computed (should not happen for >= 3 frames)
+UNKNOWN_CLASS = "unknown"
+
+
+@dataclass(frozen=True, eq=False)
+class SurveillanceStep:
+    """Result of one frame; ``signatures``, ``tracker`` and ``event`` are intermediates for plots."""
+
+    tracks: tuple[TrackState, ...]
+    classifications: tuple[ClassifiedEvent, ...]
+    event: SegmentStep
+    signatures: ClusterSignatures
+    tracker: TrackerStep
+    intermediates: dict[str, Any] = field(default_factory=dict)
+
+
+class SurveillanceTracker:
+    """See the module docstring. ``threshold`` is th_RD in the map's amplitude unit."""
+
+    def __init__(
+        self,
+        frontend: FrontendInfo,
+        threshold: float,
+        *,
+        tracking: AlphaBetaConfig | None = None,
+        events: EventConfig | None = None,
+        features: FeatureConfig | None = None,
+        knn: KnnConfig | WeightedKNN | None = None,
+    ) -> None:
+        self.frontend = frontend
+        self.frame_period_s = frontend.waveform.frame_period_s
+        self.extractor = SignatureExtractor(features or FeatureConfig(), frontend)
+        self.cylinder = self.extractor.cylinder
+        self.tracker = AlphaBetaTracker(tracking or AlphaBetaConfig(), self.cylinder)
+        self.segmenter = EventSegmenter(events or EventConfig(), threshold)
+        if isinstance(knn, WeightedKNN):
+            self.classifier = knn
+        else:
+            kc = knn or KnnConfig()
+            ref = load_reference_set(kc.reference_set or None)
+            self.classifier = WeightedKNN.from_reference_set(ref, k=kc.k, metric=kc.metric, weighting=kc.weighting)
+        self._acc: dict[int, TrackFeatureAccumulator] = {}
+        self.classified = 0
+        self.dropped = 0
+
+    @classmethod
+    def from_config(cls, frontend: FrontendInfo, config: Any, threshold: float) -> "SurveillanceTracker":
+        """Build from a resolved :class:`edge.config.Config` (sections ``track.alphabeta``,
+        ``track.events``, ``classify.features``, ``classify.knn``)."""
+        return cls(
+            frontend,
+            threshold,
+            tracking=config.section("track.alphabeta"),
+            events=config.section("track.events"),
+            features=config.section("classify.features"),
+            knn=config.section("classify.knn"),
+        )
+
+    # ------------------------------------------------------------------------------------------
+    def update(self, t_ns: int, points: MapPoints, level: float | None = None) -> SurveillanceStep:
+        """One frame. ``level`` defaults to the largest point amplitude (0 without points)."""
+        if level is None:
+            level = float(np.max(points.amplitude)) if len(points) else 0.0
+        sig = self.extractor(points)
+        valid = sig.n_points > 0
+        labels = np.flatnonzero(valid)
+        tstep = self.tracker.step(t_ns, sig.centroid[valid])
+        out: list[ClassifiedEvent] = []
+        for tr in tstep.ended:
+            out.append(self._finish(tr))
+        for tr in tstep.dropped:
+            self._acc.pop(tr.track_id, None)
+            self.dropped += 1
+        for tid in tstep.created:
+            self._acc[tid] = TrackFeatureAccumulator()
+        t_s = t_ns * 1e-9
+        for tid, j in tstep.assigned.items():
+            lab = labels[j]
+            self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab])
+        seg = self.segmenter.step(t_ns, level)
+        if seg.ended or seg.discarded:
+            out.extend(self._close_tracks())
+        tracks = tuple(self._track_state(tr) for tr in self.tracker.confirmed())
+        inter = {"centroids": sig.centroid[valid], "cluster_labels": labels, "level": level}
+        return SurveillanceStep(tracks, tuple(out), seg, sig, tstep, inter)
+
+    def close(self, t_ns: int | None = None) -> tuple[ClassifiedEvent, ...]:
+        """End every open track (stop, or end of a recording) and classify those seen often enough."""
+        return tuple(self._close_tracks())
+
+    # ------------------------------------------------------------------------------------------
+    def _close_tracks(self) -> list[ClassifiedEvent]:
+        ended, dropped = self.tracker.close_all()
+        for tr in dropped:
+            self._acc.pop(tr.track_id, None)
+            self.dropped += 1
+        return [self._finish(tr) for tr in ended]
+
+    def _finish(self, tr: AlphaBetaTrack) -> ClassifiedEvent:
+        acc = self._acc.pop(tr.track_id, None) or TrackFeatureAccumulator()
+        x = acc.features()
+        v = acc.mean_radial_speed_kmh()
+        names = self.classifier.classes
+        if np.all(np.isfinite(x)):
+            p = self.classifier.predict_proba(x[None, :])[0]
+            k = int(np.argmax(p))
+            cls, probs = names[k], {n: float(pi) for n, pi in zip(names, p)}
+        else:
+            log.warning("track %d ended without finite features (%d frames)", tr.track_id, acc.n)
+            cls, probs = UNKNOWN_CLASS, {}
+        self.classified += 1
+        feats = {n: float(xi) for n, xi in zip(FEATURE_NAMES, x)}
+        feats["frames"] = float(acc.n)
+        return ClassifiedEvent(
+            track_id=tr.track_id,
+            cls=cls,
+            probabilities=probs,
+            mean_radial_speed_kmh=float(v),
+            direction="approaching" if v < 0 else "receding",
+            start_ns=int(tr.created_ns),
+            end_ns=int(tr.last_seen_ns),
+            features=feats,
+        )
+
+    def _track_state(self, tr: AlphaBetaTrack) -> TrackState:
+        r = float(tr.state[4])
+        v = float(tr.state[5]) / self.frame_period_s
+        return TrackState(
+            track_id=tr.track_id,
+            x_m=0.0,
+            y_m=r,
+            vx_mps=0.0,
+            vy_mps=v,
+            range_m=r,
+            radial_speed_mps=v,
+            az_rad=math.nan,
+            age_frames=tr.age,
+            hits=tr.seen_frames,
+            confirmed=True,
+        )

@@ -1,0 +1,119 @@
+"""SurveillanceTracker end to end on synthetic cluster maps: tracks, streaming classification."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from edge.classify.features import MapPoints
+from edge.classify.knn import WeightedKNN
+from edge.classify.reference import DEFAULT_CLASSES
+from edge.track.alphabeta import AlphaBetaConfig
+from edge.track.events import EventConfig
+from edge.track.surveillance import SurveillanceTracker
+from hal.waveform import d2g_frontend
+
+FE = d2g_frontend()
+DR = 24.0 / 256  # m per zero-padded range bin (N_R = 512, positive half)
+VMAX = 5.348
+DV = 2 * VMAX / 256  # km/h per Doppler bin (N_D = 256)
+T = 0.2
+
+#: synthetic "classes": Doppler spread (km/h), peak amplitude, range extent (m)
+KIND = {"pedestrian": (3.0, 4.0, 0.4), "car": (0.6, 30.0, 1.5)}
+
+
+def blob(rng, r, v, kind, label):
+    """Cells of one target: a Gaussian bump around (r, v) on the (range, wrapped Doppler) grid."""
+    sv, amp, sr = KIND[kind]
+    a = amp * rng.exponential(1.0)  # Swerling I
+    rb0, db0 = int(round(r / DR)), int(round((v + VMAX) / DV))
+    nr, nd = int(sr / DR) + 2, int(sv / DV) + 2
+    rb, db = np.meshgrid(np.arange(rb0 - nr, rb0 + nr + 1), np.arange(db0 - nd, db0 + nd + 1), indexing="ij")
+    rb, db = rb.ravel(), db.ravel()
+    val = a * np.exp(-0.5 * (((rb - rb0) * DR / (sr / 2)) ** 2 + ((db - db0) * DV / (sv / 2)) ** 2))
+    keep = (val >= 2.0) & (rb >= 0)
+    rb, db, val = rb[keep], np.mod(db[keep], 256), val[keep]
+    return rb * DR, db * DV - VMAX, val, rb, db, np.full(rb.size, label)
+
+
+def frame_points(rng, targets, t):
+    cols = [blob(rng, r0 + vr * t / 3.6, vd, kind, k) for k, (kind, r0, vr, vd) in enumerate(targets)
+            if 0 < r0 + vr * t / 3.6 < 24]
+    if not cols:
+        return MapPoints.empty()
+    cat = [np.concatenate(c) for c in zip(*cols)]
+    return MapPoints(cat[0].astype(np.float32), cat[1].astype(np.float32), cat[2].astype(np.float32),
+                     cat[3].astype(np.int32), cat[4].astype(np.int32), cat[5].astype(np.int32))
+
+
+def reference_knn(rng):
+    """A tiny reference set from single synthetic events, thresholded (labels all 0) as in the paper."""
+    from edge.classify.features import SignatureExtractor, FeatureConfig, TrackFeatureAccumulator
+
+    ex = SignatureExtractor(FeatureConfig(), FE)
+    xs, ys = [], []
+    for c, kind in enumerate(("pedestrian", "car")):
+        for _ in range(15):
+            vr = rng.uniform(3, 6) if kind == "pedestrian" else rng.uniform(15, 30)
+            vr *= rng.choice([-1, 1])
+            r0 = rng.uniform(8, 16)
+            acc = TrackFeatureAccumulator()
+            for n in range(12):
+                p = frame_points(rng, [(kind, r0, vr, rng.uniform(-VMAX, VMAX))], n * T)
+                if len(p):
+                    sig = ex(p)
+                    acc.add(n * T, sig.circular_variance[0], sig.rcs[0], sig.range_m[0])
+            xs.append(acc.features())
+            ys.append(DEFAULT_CLASSES.index(kind))
+    return WeightedKNN(DEFAULT_CLASSES, k=5).fit(np.array(xs), np.array(ys))
+
+
+def test_two_crossing_targets_are_tracked_and_classified_when_they_end():
+    rng = np.random.default_rng(3)
+    knn = reference_knn(rng)
+    st = SurveillanceTracker(FE, threshold=2.0, knn=knn, tracking=AlphaBetaConfig(), events=EventConfig())
+    # a pedestrian walking away from 4 m at 5 km/h, a car approaching from 23 m at 20 km/h
+    targets = [("pedestrian", 4.0, 5.0, 1.0), ("car", 23.0, -20.0, 2.5)]
+    events, seen_ids = [], set()
+    for n in range(40):
+        t = n * T
+        step = st.update(int(round(t * 1e9)), frame_points(rng, targets, t))
+        seen_ids |= {tr.track_id for tr in step.tracks}
+        for tr in step.tracks:
+            assert tr.hits >= 3 and math.isnan(tr.az_rad) and tr.y_m == tr.range_m
+        events += step.classifications
+    events += st.close()
+    assert seen_ids == {1, 2}
+    by_id = {e.track_id: e for e in events}
+    assert sorted(by_id) == [1, 2] and len(events) == 2
+    ped, car = by_id[1], by_id[2]
+    assert ped.cls == "pedestrian" and ped.direction == "receding"
+    assert car.cls == "car" and car.direction == "approaching"
+    assert ped.mean_radial_speed_kmh == pytest.approx(5.0, abs=1.0)
+    assert car.mean_radial_speed_kmh == pytest.approx(-20.0, abs=1.0)
+    assert sum(ped.probabilities.values()) == pytest.approx(1.0)
+    assert set(ped.probabilities) == set(DEFAULT_CLASSES)
+    # the car leaves the map (range < 0) after ~4.1 s: its track ends after N_u misses, before the end
+    assert car.end_ns < 5e9 and car.start_ns == 0
+    assert ped.features["frames"] >= 10
+
+
+def test_event_end_closes_tracks_and_scintillation_is_dropped():
+    rng = np.random.default_rng(4)
+    st = SurveillanceTracker(FE, threshold=2.0, knn=reference_knn(rng), events=EventConfig(release_frames=3))
+    out, ended_at = [], []
+    # one isolated frame with a blob (scintillation), then a 6-frame passage, then silence
+    frames = [[("car", 10.0, 0.0, 0.0)]] + [[]] * 4 + [[("car", 12.0, -10.0, 1.0)]] * 6 + [[]] * 5
+    for n, tg in enumerate(frames):
+        step = st.update(int(n * T * 1e9), frame_points(rng, tg, (n - 5) * T if tg and n >= 5 else 0.0))
+        out += step.classifications
+        if step.event.ended:
+            ended_at.append(n)
+            assert not st.tracker.tracks
+    assert ended_at == [13]  # third quiet frame after the passage
+    assert len(out) == 1 and out[0].cls == "car" and out[0].direction == "approaching"
+    assert st.segmenter.discarded == 1 and st.segmenter.events == 1
+    assert st.dropped == 1  # the scintillation track

@@ -1,0 +1,152 @@
+"""Cluster signatures (Tavanti eqs. 17-18) and track features (eq. 19) with known values."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import circvar
+
+from edge.classify.features import (
+    FEATURE_NAMES,
+    FeatureConfig,
+    MapPoints,
+    SignatureExtractor,
+    TrackFeatureAccumulator,
+)
+from hal.waveform import SPEED_OF_LIGHT_MPS, d2g_frontend
+
+FE = d2g_frontend()
+CFG = FeatureConfig()
+EX = SignatureExtractor(CFG, FE)
+VMAX = EX.cylinder.vmax_kmh
+
+
+def pts(range_m, v_kmh, amp, rbin, dbin, label):
+    f = lambda a: np.asarray(a, dtype=np.float32)  # noqa: E731
+    i = lambda a: np.asarray(a, dtype=np.int32)  # noqa: E731
+    return MapPoints(f(range_m), f(v_kmh), f(amp), i(rbin), i(dbin), i(label))
+
+
+def test_extractor_constants_from_the_d2g_waveform():
+    assert VMAX == pytest.approx(5.348, abs=2e-3)  # Tavanti Table II: 5.4 km/h
+    assert EX.n_samples == 64
+    assert EX.slope_hz_per_s == pytest.approx(200e6 / 1.5e-3)
+    # f_b = 2 mu r / c: 24 m is the edge of the positive-range half (fs / 2)
+    assert EX.beat_hz(24.0) == pytest.approx(64 / 1.5e-3 / 2, rel=2e-3)
+
+
+def test_circular_variance_known_values_and_scipy():
+    v = np.array([1.0, 1.0, 1.0,  # cluster 0: one Doppler -> S = 0
+                  -VMAX + 0.1, VMAX - 0.1,  # cluster 1: straddles the wrap
+                  -VMAX, -VMAX / 2, 0.0, VMAX / 2])  # cluster 2: evenly around -> S = 1
+    lab = np.array([0, 0, 0, 1, 1, 2, 2, 2, 2])
+    n = v.size
+    sig = EX(pts(np.full(n, 5.0), v, np.ones(n), np.arange(n), np.arange(n), lab))
+    assert sig.circular_variance[0] == pytest.approx(0.0, abs=1e-7)
+    assert sig.circular_variance[1] == pytest.approx(1 - math.cos(math.pi * 0.1 / VMAX), abs=1e-6)
+    assert sig.circular_variance[2] == pytest.approx(1.0, abs=1e-6)
+    for c in range(3):
+        th = np.pi * (v[lab == c].astype(np.float32) + VMAX) / VMAX
+        assert sig.circular_variance[c] == pytest.approx(circvar(th), abs=1e-6)
+    np.testing.assert_array_equal(sig.n_points, [3, 2, 4])
+
+
+def test_centroid_is_on_the_cylinder_across_the_wrap():
+    sig = EX(pts([4.0, 6.0], [VMAX - 0.2, -VMAX + 0.2], [1, 1], [0, 1], [0, 1], [0, 0]))
+    c = sig.centroid[0]
+    assert math.hypot(c[0], c[1]) == pytest.approx(VMAX / math.pi, rel=1e-9)
+    r, v = EX.cylinder.from_cylinder(c)
+    assert float(r) == pytest.approx(5.0) and sig.range_m[0] == pytest.approx(5.0)
+    # the circular mean is at the wrap (+-v_max), not at the arithmetic mean 0
+    assert abs(abs(float(v)) - VMAX) < 1e-4
+
+
+def term(r, a):
+    fb = 2 * (200e6 / 1.5e-3) * r / SPEED_OF_LIGHT_MPS
+    return r**1.8 / 64 * (a * math.sqrt(1000.0**2 + fb**2) / fb) ** 2
+
+
+def test_rcs_sums_local_range_peaks_per_doppler_column():
+    # cluster 0, Doppler column 7: amplitudes along consecutive range bins 10..14 = 1 3 2 5 4
+    #   -> peaks at bins 11 (3) and 13 (5); column 8: bins 20 and 22 (not adjacent) -> both peaks
+    # cluster 1, column 7 (same column as cluster 0, other cells): a plateau 2 2 -> one peak
+    r0 = 0.09375
+    rb = np.array([10, 11, 12, 13, 14, 20, 22, 40, 41])
+    amp = np.array([1, 3, 2, 5, 4, 2, 6, 2, 2], dtype=float)
+    db = np.array([7, 7, 7, 7, 7, 8, 8, 7, 7])
+    lab = np.array([0, 0, 0, 0, 0, 0, 0, 1, 1])
+    rng = rb * r0
+    order = np.random.default_rng(0).permutation(rb.size)  # input order must not matter
+    sig = EX(pts(rng[order], np.zeros(9)[order], amp[order], rb[order], db[order], lab[order]))
+    want0 = term(11 * r0, 3) + term(13 * r0, 5) + term(20 * r0, 2) + term(22 * r0, 6)
+    want1 = term(40 * r0, 2)
+    np.testing.assert_allclose(sig.rcs, [want0, want1], rtol=1e-5)
+
+
+def test_rcs_if_compensation_and_exponent():
+    """Without the IF corner (f_c = 0) the factor is 1: gamma = r^p / N_s |M|^2."""
+    ex = SignatureExtractor(FeatureConfig(if_corner_hz=0.0, range_exponent=2.0), FE)
+    sig = ex(pts([10.0], [0.0], [3.0], [5], [1], [0]))
+    assert sig.rcs[0] == pytest.approx(10.0**2 / 64 * 9.0, rel=1e-6)
+    # the corner boosts close targets more than far ones
+    a = EX(pts([1.0], [0.0], [1.0], [5], [1], [0])).rcs[0] / (1.0**1.8 / 64)
+    b = EX(pts([20.0], [0.0], [1.0], [5], [1], [0])).rcs[0] / (20.0**1.8 / 64)
+    assert a > 1.5 and 1.0 < b < 1.01
+
+
+def test_noise_points_and_empty_frames():
+    sig = EX(pts([5.0, 6.0], [0, 0], [1, 1], [1, 2], [1, 1], [-1, -1]))
+    assert len(sig) == 0
+    sig = EX(MapPoints.empty())
+    assert len(sig) == 0 and sig.centroid.shape == (0, 3)
+
+
+def test_track_features_known_values():
+    rng = np.random.default_rng(1)
+    t = np.array([0.0, 0.2, 0.4, 0.8, 1.0, 1.2])  # frame 0.6 s missed
+    r = 20.0 - 1.5 * t  # 1.5 m/s approaching = -5.4 km/h
+    s = rng.uniform(0, 1, t.size)
+    g = rng.uniform(10, 100, t.size)
+    acc = TrackFeatureAccumulator()
+    for k in range(t.size):
+        acc.add(t[k], s[k], g[k], r[k])
+    x = acc.features()
+    assert len(FEATURE_NAMES) == x.size == 5
+    np.testing.assert_allclose(x, [s.mean(), s.var(ddof=1), g.mean(), g.var(ddof=1), 5.4], rtol=1e-9)
+    assert acc.mean_radial_speed_kmh() == pytest.approx(-5.4, rel=1e-9)
+    assert acc.n == 6
+
+
+def test_radial_speed_mean_of_absolute_values_and_least_squares():
+    t = np.arange(5) * 0.2
+    r = np.array([10.0, 10.2, 10.1, 10.4, 10.3])
+    acc = TrackFeatureAccumulator()
+    for tk, rk in zip(t, r):
+        acc.add(tk, 0.1, 1.0, rk)
+    v = np.diff(r) / 0.2 * 3.6
+    assert acc.features()[4] == pytest.approx(np.abs(v).mean())
+    assert acc.mean_radial_speed_kmh() == pytest.approx(np.polyfit(t, r, 1)[0] * 3.6)
+
+
+def test_single_frame_gives_nan_variances():
+    acc = TrackFeatureAccumulator()
+    acc.add(0.0, 0.2, 3.0, 5.0)
+    x = acc.features()
+    assert x[0] == 0.2 and x[2] == 3.0 and np.isnan(x[1]) and np.isnan(x[3]) and np.isnan(x[4])
+    assert math.isnan(acc.mean_radial_speed_kmh())
+
+
+def test_map_points_from_map():
+    mag = np.zeros((6, 4), dtype=np.float32)
+    mag[2, 1], mag[3, 1], mag[5, 3] = 2.0, 5.0, 1.9
+    pts_ = MapPoints.from_map(mag, 2.0, np.arange(6) * 0.5, np.array([-2.0, -1.0, 0.0, 1.0]))
+    np.testing.assert_array_equal(pts_.range_bin, [2, 3])
+    np.testing.assert_array_equal(pts_.doppler_bin, [1, 1])
+    np.testing.assert_allclose(pts_.range_m, [1.0, 1.5])
+    np.testing.assert_allclose(pts_.doppler_kmh, [-1.0, -1.0])
+    np.testing.assert_allclose(pts_.amplitude, [2.0, 5.0])
+    assert pts_.n_clusters == 1 and len(pts_) == 2
+    with pytest.raises(ValueError):
+        MapPoints(np.zeros(2), np.zeros(3), np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2))
