@@ -23,6 +23,8 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.evaluate",
     "edge.commands.bench",
     "edge.commands.soak",
+    "edge.commands.train",
+    "edge.commands.export_onnx",
 )
 
 EPILOG = """\
