@@ -1,0 +1,42 @@
+"""The classifier of the surveillance pipeline, chosen by configuration.
+
+``classify.onnx.backend = "onnx"`` (default): the ONNX model ``classify.onnx.model`` (empty = the
+packaged ``edge/data/knn_default.onnx``) under onnxruntime -- k, metric and reference set are the
+model's own; ``classify.knn`` is then not used (a differing explicit ``classify.knn.k``/``metric``
+is logged as ignored). ``"numpy"``: the reference k-NN built from ``classify.knn`` (the oracle).
+
+Both have ``classes``, ``predict_proba(x) -> (Q, C)`` and ``predict(x) -> (Q,)``. The default model
+is the default numpy classifier exported (same reference set, k = 13, Euclidean, balanced), so the
+two backends give the same results out of the box.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from edge.classify.knn import KnnConfig, WeightedKNN
+from edge.classify.onnx_runtime import OnnxKnnClassifier
+from edge.classify.reference import DEFAULT_CLASSES, load_reference_set
+
+log = logging.getLogger(__name__)
+
+__all__ = ["build_classifier"]
+
+
+def build_classifier(config: Any, expected_classes: tuple[str, ...] | None = DEFAULT_CLASSES) -> Any:
+    """The classifier for a resolved :class:`edge.config.Config` (loaded now: errors at start)."""
+    oc = config.section("classify.onnx")
+    kc: KnnConfig = config.section("classify.knn")
+    if oc.backend == "numpy":
+        ref = load_reference_set(kc.reference_set or None)
+        log.info("classifier: numpy weighted k-NN, k=%d %s, %d reference vectors", kc.k, kc.metric, len(ref))
+        return WeightedKNN.from_reference_set(ref, k=kc.k, metric=kc.metric, weighting=kc.weighting)
+    model = OnnxKnnClassifier(oc.model or None, threads=oc.threads, expected_classes=expected_classes)
+    origin = getattr(config, "origin", {})
+    for key, mine in (("k", model.k), ("metric", model.metric)):
+        if f"classify.knn.{key}" in origin and getattr(kc, key) != mine:
+            log.warning("classify.knn.%s = %r is ignored: the ONNX model %s has %s = %r (set classify.onnx.backend="
+                        "numpy to use classify.knn, or re-export the model)", key, getattr(kc, key), model.path, key,
+                        mine)
+    return model
