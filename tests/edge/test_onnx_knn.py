@@ -233,3 +233,18 @@ def test_runtime_does_not_import_onnx(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, check=True,
                          env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"})
     assert json.loads(out.stdout.strip().replace("'", '"')) == []
+
+
+@pytest.mark.parametrize("metric", METRICS)
+def test_ties_on_a_large_grid_reference_set(metric, tmp_path):
+    """onnxruntime's TopK may select differently for large inputs (heap vs sort): ties still go to
+    the lower index with 2000 reference vectors on a 3^5 grid (about 8 copies of each point)."""
+    rng = np.random.default_rng(21)
+    z = rng.integers(0, 3, size=(2000, 5)).astype(np.float64)
+    y = rng.integers(0, 4, size=2000)
+    w = rng.integers(1, 5, size=2000).astype(np.float64)
+    for k in (5, 50):
+        knn = WeightedKNN(CLASSES, k=k, metric=metric)
+        knn.mean_, knn.scale_, knn.z_, knn.y_, knn.w_ = np.zeros(5), np.ones(5), z, y, w / w.sum()
+        model = OnnxKnnClassifier(export(knn, tmp_path, f"big{k}.onnx"))
+        assert_parity(knn, model, rng.integers(0, 3, size=(300, 5)))
