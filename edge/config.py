@@ -81,6 +81,7 @@ SECTIONS: dict[str, str] = {
     "source": "edge.config:SourceConfig",
     "loop": "edge.config:LoopConfig",
     "pipeline.minimal": "edge.pipelines.minimal:MinimalConfig",
+    "pipeline.surveillance": "edge.pipelines.surveillance:SurveillanceConfig",
     "track.alphabeta": "edge.track.alphabeta:AlphaBetaConfig",
     "track.events": "edge.track.events:EventConfig",
     "classify.features": "edge.classify.features:FeatureConfig",

@@ -22,6 +22,7 @@ from edge.types import FrameResult, FrontendInfo, RawFrame
 #: profile name -> "module:Class"
 PIPELINES: dict[str, str] = {
     "minimal": "edge.pipelines.minimal:MinimalPipeline",
+    "surveillance": "edge.pipelines.surveillance:SurveillancePipeline",
 }
 
 #: board -> profile used when ``loop.profile = "auto"`` (falls back to "minimal" until it exists)
@@ -123,6 +124,12 @@ def resolve_profile(requested: str, board: str) -> str:
 
 
 def build_pipeline(profile: str, frontend: FrontendInfo, config: Any) -> Pipeline:
-    """Build the pipeline for ``profile`` with its config section ``pipeline.<profile>``."""
+    """Build the pipeline for ``profile`` with its config section ``pipeline.<profile>``.
+
+    A pipeline that also needs other sections (tracker, classifier) provides a classmethod
+    ``from_config(frontend, config)`` taking the whole resolved configuration.
+    """
     cls = pipeline_class(profile)
+    if hasattr(cls, "from_config"):
+        return cls.from_config(frontend, config)
     return cls(frontend, config.section(f"pipeline.{profile}"))

@@ -7,6 +7,7 @@ from hw_sim.boards import SIMO_BOARD, D2G_BOARD, board_for
 from hw_sim.scenario import Scenario, ScenarioError, builtin_names, load_scenario
 from hw_sim.scene import CLASSES, GroundTruth, RadarPose, Scene, Target
 from hw_sim.simulator import FrameSimulator
+from hw_sim import events as _events  # noqa: F401,E402  registers the Distance2Go event generators
 
 __all__ = [
     "CLASSES",

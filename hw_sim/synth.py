@@ -81,11 +81,20 @@ def synthesize_if(
         el = np.arctan2(rel[:, 2], np.hypot(rel[:, 0], rel[:, 1]))
         p_w = board.radio.received_power_w(scat.rcs_m2, rng_m, az, el, lam)
         amp = np.sqrt(p_w) * counts_gain  # (K,)
+        if board.radio.if_highpass_hz > 0:  # first-order IF high-pass before the ADC, at the beat frequency
+            f_b = abs(wf.segments[0].slope_hz_per_s) * 2.0 * rng_m / c
+            amp = amp * f_b / np.sqrt(f_b * f_b + board.radio.if_highpass_hz**2)
         keep = amp > 1e-3 * board.radio.noise_rms_counts  # drop scatterers far below the noise
         pos0, vel, amp, ph0 = scat.position_m[keep], scat.velocity_mps[keep], amp[keep], scat.phase_cycles[keep]
     else:
         pos0 = vel = np.zeros((0, 3))
         amp = ph0 = np.zeros(0)
+    # chirp-to-chirp gain jitter of the static returns (leakage, clutter): what an MTI leaves behind
+    jitter = None
+    if board.radio.static_jitter_dbc > -200:
+        sj = 10.0 ** (board.radio.static_jitter_dbc / 20.0) / np.sqrt(2.0)
+        jitter = 1.0 + sj * (rng.standard_normal(n_ch) + 1j * rng.standard_normal(n_ch))
+        static = ~np.any(vel != 0.0, axis=1)
 
     row = 0
     for seg in wf.segments:
@@ -108,12 +117,17 @@ def synthesize_if(
             cyc = fs0 * tau + S * t_n * tau - 0.5 * S * tau * tau + ph0[:, None, None, None]
             cyc -= np.floor(cyc)
             sig = np.exp(2j * np.pi * cyc) * amp[:, None, None, None]
+            if jitter is not None and static.any():
+                sig[static] *= jitter[None, row : row + seg.n_chirps, None]
             out[:, row : row + seg.n_chirps, :] += sig.sum(axis=0)
         if leakage and board.radio.leakage_power_dbm > -200:
             a_l = np.sqrt(10.0 ** ((board.radio.leakage_power_dbm - 30.0) / 10.0)) * counts_gain
             tau_l = 2.0 * board.radio.leakage_range_m / c
             cyc_l = fs0 * tau_l + S * t_n * tau_l - 0.5 * S * tau_l**2
-            out[:, row : row + seg.n_chirps, :] += a_l * np.exp(2j * np.pi * cyc_l)[None, None, :]
+            leak = a_l * np.exp(2j * np.pi * cyc_l)[None, None, :]
+            if jitter is not None:
+                leak = leak * jitter[None, row : row + seg.n_chirps, None]
+            out[:, row : row + seg.n_chirps, :] += leak
         if noise:
             # receiver gain is fixed; a decimated segment has proportionally less noise bandwidth
             sigma = board.radio.noise_rms_counts * np.sqrt(seg.sample_rate_hz / board.reference_bandwidth_hz())

@@ -1,0 +1,174 @@
+"""DBSCAN on the wrapped range-Doppler map (Tavanti §II-C), exact and vectorised for a Raspberry Pi.
+
+The points to cluster are the bins of one map at or above ``th_RD``, placed on the cylinder of
+eq. (6): ``[v', v'', r]`` with ``v``, ``v'`` in km/h and ``r`` in metres, Euclidean 3-D metric, radius
+``eps`` and ``M`` minimum points (the point itself included, as in scikit-learn). Because the points
+sit on a regular (range bin, Doppler bin) lattice whose Doppler axis is a circle, the distance
+between two bins depends only on their offsets ``(di, dj)``::
+
+    d^2 = (di * dr)^2 + (2 R sin(pi dj / N_D))^2,   R = v_max / pi
+
+so the whole algorithm runs on arrays, with no per-point Python and no callback metric:
+
+1. **Neighbour counts** (core points): one circular (Doppler) / linear (range) convolution of the
+   threshold mask with the 0/1 kernel ``d <= eps``, by real FFT (kernel spectrum precomputed).
+2. **Core connectivity**: core bins that are 8-neighbours on the lattice are always within ``eps``
+   (``eps`` is many bins wide), so ``scipy.ndimage.label`` groups them first. Two such groups belong
+   to the same cluster iff some pair of their points is within ``eps``; the closest pair of two groups
+   is always on their boundaries (a step towards the other group from an interior bin stays in the
+   group and gets closer), so only boundary core bins (plus the Doppler seam columns, which the
+   lattice labelling does not join) go into a KD-tree (``scipy.spatial.cKDTree.query_pairs``) and the
+   groups are merged with ``scipy.sparse.csgraph.connected_components``.
+3. **Border points**: a non-core point joins the cluster of its nearest core point if that point is
+   within ``eps`` (the nearest core point is again a boundary bin: one KD-tree query).
+
+The result equals scikit-learn's ``DBSCAN(eps, min_samples=M)`` on the same 3-D points up to label
+permutation (border points within ``eps`` of two clusters may go to either; scikit-learn picks by
+visiting order, this module by distance).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.fft
+import scipy.ndimage
+import scipy.sparse
+import scipy.sparse.csgraph
+import scipy.spatial
+
+_EPS_TOL = 1e-9  # relative slack so that distances equal to eps count as neighbours (<= eps)
+
+
+@dataclass(frozen=True, eq=False)
+class Clusters:
+    """DBSCAN result for one map, per thresholded point in row-major (range, Doppler) order."""
+
+    range_bin: np.ndarray  # (N,) int
+    doppler_bin: np.ndarray  # (N,) int
+    labels: np.ndarray  # (N,) int32, -1 = noise, clusters 0..n_clusters-1
+    core: np.ndarray  # (N,) bool
+    n_clusters: int
+    neighbour_counts: np.ndarray  # (N,) int32, points within eps (itself included)
+
+    def __len__(self) -> int:
+        return int(self.labels.size)
+
+
+class CylinderDbscan:
+    """DBSCAN with radius ``eps`` and ``min_samples`` on the wrapped lattice of a range-Doppler map.
+
+    ``n_range`` x ``n_doppler`` bins, ``range_bin_m`` metres per range bin, cylinder radius
+    ``radius_kmh = v_max / pi``; Doppler bin ``j`` sits at angle ``2 pi j / n_doppler``.
+    """
+
+    def __init__(
+        self, n_range: int, n_doppler: int, range_bin_m: float, radius_kmh: float, eps: float, min_samples: int
+    ) -> None:
+        if eps <= 0 or min_samples < 1:
+            raise ValueError("DBSCAN needs eps > 0 and min_samples >= 1")
+        self.n_range = int(n_range)
+        self.n_doppler = int(n_doppler)
+        self.range_bin_m = float(range_bin_m)
+        self.radius_kmh = float(radius_kmh)
+        self.eps = float(eps)
+        self.min_samples = int(min_samples)
+        self._r = self.eps * (1.0 + _EPS_TOL)
+        h = min(int(math.floor(self._r / self.range_bin_m)), self.n_range - 1)
+        self._h = h
+        di = np.arange(-h, h + 1) * self.range_bin_m
+        dj = np.arange(self.n_doppler)
+        chord = 2.0 * self.radius_kmh * np.sin(np.pi * dj / self.n_doppler)
+        kern = (di[:, None] ** 2 + chord[None, :] ** 2) <= self._r**2  # (2h+1, n_doppler), offsets mod N_D
+        self._lp = scipy.fft.next_fast_len(self.n_range + h + 1, real=True)
+        k = np.zeros((self._lp, self.n_doppler), dtype=np.float32)
+        k[np.arange(-h, h + 1) % self._lp] = kern
+        self.kernel_size = int(kern.sum())
+        self._kf = scipy.fft.rfft2(k, workers=1)
+        th = 2.0 * np.pi * np.arange(self.n_doppler) / self.n_doppler
+        self._cos = self.radius_kmh * np.cos(th)
+        self._sin = self.radius_kmh * np.sin(th)
+        self._struct = np.ones((3, 3), dtype=bool)
+
+    def coordinates(self, range_bin: np.ndarray, doppler_bin: np.ndarray) -> np.ndarray:
+        """``(N, 3)`` float64 cylinder coordinates ``[v', v'', r]`` of lattice points."""
+        return np.stack(
+            [self._cos[doppler_bin], self._sin[doppler_bin], np.asarray(range_bin) * self.range_bin_m], axis=1
+        )
+
+    def neighbour_counts(self, mask: np.ndarray) -> np.ndarray:
+        """Points of ``mask`` within ``eps`` of every bin (itself included): int32 ``(n_range, n_doppler)``."""
+        mf = scipy.fft.rfft2(mask.astype(np.float32), s=(self._lp, self.n_doppler), workers=1)
+        c = scipy.fft.irfft2(mf * self._kf, s=(self._lp, self.n_doppler), workers=1)[: self.n_range]
+        return np.rint(c).astype(np.int32)
+
+    def fit(self, mask: np.ndarray) -> Clusters:
+        """Cluster the ``True`` bins of ``mask`` (``(n_range, n_doppler)`` bool)."""
+        if mask.shape != (self.n_range, self.n_doppler):
+            raise ValueError(f"mask shape {mask.shape} != {(self.n_range, self.n_doppler)}")
+        ri, dj = np.nonzero(mask)
+        n = ri.size
+        labels = np.full(n, -1, dtype=np.int32)
+        if n == 0:
+            z = np.zeros(0, dtype=np.int32)
+            return Clusters(ri, dj, labels, np.zeros(0, dtype=bool), 0, z)
+        counts_grid = self.neighbour_counts(mask)
+        counts = counts_grid[ri, dj]
+        core_grid = mask & (counts_grid >= self.min_samples)
+        core = core_grid[ri, dj]
+        if not core.any():
+            return Clusters(ri, dj, labels, core, 0, counts)
+        lab_grid, n_lab = scipy.ndimage.label(core_grid, structure=self._struct)
+        # boundary core bins: some 8-neighbour (Doppler wrapping) is not core; plus the seam columns
+        padded = np.concatenate([core_grid[:, -1:], core_grid, core_grid[:, :1]], axis=1)
+        interior = scipy.ndimage.binary_erosion(padded, structure=self._struct, border_value=1)[:, 1:-1]
+        bnd = core_grid & ~interior
+        bnd[:, 0] |= core_grid[:, 0]
+        bnd[:, -1] |= core_grid[:, -1]
+        bi, bj = np.nonzero(bnd)
+        b_lab = lab_grid[bi, bj] - 1
+        tree = scipy.spatial.cKDTree(self.coordinates(bi, bj))
+        if n_lab > 1:
+            pairs = tree.query_pairs(self._r, output_type="ndarray")
+            la, lb = b_lab[pairs[:, 0]], b_lab[pairs[:, 1]]
+            diff = la != lb
+            g = scipy.sparse.coo_matrix(
+                (np.ones(int(diff.sum()), dtype=np.int8), (la[diff], lb[diff])), shape=(n_lab, n_lab)
+            )
+            n_clu, comp = scipy.sparse.csgraph.connected_components(g, directed=False)
+        else:
+            n_clu, comp = 1, np.zeros(1, dtype=np.int32)
+        comp = comp.astype(np.int32)
+        labels[core] = comp[lab_grid[ri[core], dj[core]] - 1]
+        # border points: nearest core point within eps
+        nc = ~core
+        if nc.any():
+            d, idx = tree.query(self.coordinates(ri[nc], dj[nc]), k=1, distance_upper_bound=self._r)
+            ok = np.isfinite(d)
+            lab_nc = np.full(int(nc.sum()), -1, dtype=np.int32)
+            lab_nc[ok] = comp[b_lab[idx[ok]]]
+            labels[nc] = lab_nc
+        return Clusters(ri, dj, labels, core, int(n_clu), counts)
+
+
+def centroids(points: np.ndarray, labels: np.ndarray, n_clusters: int, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per-cluster centroid of cylinder points, projected back on the cylinder.
+
+    ``points`` ``(N, 3)`` ``[v', v'', r]``; returns ``(n_clusters, 3)`` float32 centroids (the mean's polar
+    angle at ``radius``, mean range) and ``(n_clusters,)`` int32 point counts.
+    """
+    keep = labels >= 0
+    lab = labels[keep]
+    cnt = np.bincount(lab, minlength=n_clusters).astype(np.int32)
+    out = np.zeros((n_clusters, 3), dtype=np.float32)
+    if n_clusters == 0:
+        return out, cnt
+    sums = np.stack([np.bincount(lab, weights=points[keep, k], minlength=n_clusters) for k in range(3)], axis=1)
+    mean = sums / np.maximum(cnt, 1)[:, None]
+    ang = np.arctan2(mean[:, 1], mean[:, 0])
+    out[:, 0] = radius * np.cos(ang)
+    out[:, 1] = radius * np.sin(ang)
+    out[:, 2] = mean[:, 2]
+    return out, cnt

@@ -1,0 +1,385 @@
+"""Surveillance-site targets and random events for the Distance2Go (Tavanti et al. §III).
+
+The site (Tavanti Fig. 8): the radar stands 1 m high by a straight urban road, looking along it and
+turned :data:`SITE_YAW_DEG` towards it so that the road lies in the 42° main beam; static metallic
+objects (poles, a fence, a parked car, a gate) are in view. Targets move along the road or the
+sidewalks (approaching or receding, heading jittered by a few degrees so aspects vary) or, for some
+pedestrians in multi-target events, across the road, entering and leaving the beam sideways.
+
+Bodies (body frame ``x`` right, ``y`` forward, ``z`` up; reference point = footprint centre):
+
+* pedestrian: :class:`hw_sim.pedestrian.Pedestrian` (torso, head, swinging arms and legs), total RCS
+  about -3 dBsm (lognormal, sigma 2 dB), Swerling I, walking 1.0-1.7 m/s or (one in four) jogging
+  2.2-3.3 m/s;
+* car: 17 scatterers on bumpers, wheel arches, mirrors, doors, roof; 3.8-5.0 m long; about 10 dBsm;
+* motorcycle with rider: 10 scatterers (wheels, fork, engine, tail, rider's torso, helmet, knees);
+  about 5 dBsm;
+* truck/bus: 30-50 scatterers on the front face, both sides at two heights, axles and rear doors;
+  7-12 m long; about 18 dBsm.
+
+Scatterer RCS shares are random per target (gamma-distributed), total RCS lognormal around the class
+mean (sigma 3 dB for vehicles), Swerling III for most vehicles (I for some), speeds uniform in the
+class range. Ground-truth identities: target ``id = 100 * (event + 1) + k``.
+
+Event generators (registered in :data:`hw_sim.scenario.EVENT_SCENARIOS`, ``events=N``):
+
+* ``single-random``: one target per event, classes balanced (each block of four events holds one of
+  each class in random order);
+* ``multi-random``: two to four targets per event, random classes, staggered starts inside the
+  event's slot so they overlap, cross each other and enter/leave the beam at different times.
+
+Each event owns a slot of :data:`SLOT_S` seconds and every target is out of view at least
+:data:`QUIET_S` seconds before the slot ends, so events are separated by an empty scene.
+TOML scenarios can place these bodies explicitly with ``[[d2g_target]]`` tables (see
+:func:`_d2g_target_table`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hw_sim.pedestrian import Pedestrian
+from hw_sim.scene import GroundTruth, LinearTrajectory, RadarPose, Scene, Target
+
+#: the four classes of the surveillance profile (Tavanti), in the order of its confusion matrices
+SURVEILLANCE_CLASSES: tuple[str, ...] = ("car", "pedestrian", "truck", "motorcycle")
+SITE_YAW_DEG = 10.0
+SITE_HEIGHT_M = 1.0
+SLOT_S = 24.0
+QUIET_S = 3.0
+#: visibility for ground truth: the D2G's unambiguous range and half its 42° azimuth beamwidth
+VISIBLE_RANGE_M = 24.0
+VISIBLE_HALF_BEAM_DEG = 21.0
+
+#: static metallic objects of the site (x, y, z, rcs): lamp pole, parked car, fence posts, gate
+SITE_CLUTTER: tuple[tuple[float, float, float, float], ...] = (
+    (-1.5, 4.0, 2.0, 10.0),
+    (4.5, 9.0, 0.8, 20.0),
+    (-2.0, 6.0, 1.0, 3.0),
+    (-2.0, 10.0, 1.0, 3.0),
+    (-2.0, 14.0, 1.0, 3.0),
+    (-2.0, 18.0, 1.0, 3.0),
+    (9.0, 20.0, 1.5, 30.0),
+)
+
+#: class -> (mean total RCS m^2, lognormal sigma dB, speed range m/s)
+CLASS_RCS_SPEED: dict[str, tuple[float, float, tuple[float, float]]] = {
+    "pedestrian": (0.5, 2.0, (1.0, 1.7)),
+    "car": (10.0, 3.0, (15 / 3.6, 40 / 3.6)),
+    "motorcycle": (3.0, 3.0, (15 / 3.6, 45 / 3.6)),
+    "truck": (60.0, 3.0, (10 / 3.6, 30 / 3.6)),
+}
+JOG_SPEED_MPS = (2.2, 3.3)
+JOG_PROBABILITY = 0.25
+
+
+def _shares(rng: np.random.Generator, n: int, total: float, weight: np.ndarray | None = None) -> np.ndarray:
+    s = rng.gamma(2.0, 1.0, n) * (1.0 if weight is None else weight)
+    return total * s / s.sum()
+
+
+def car_body(rng: np.random.Generator, total_rcs_m2: float) -> tuple[np.ndarray, np.ndarray]:
+    length = rng.uniform(3.8, 5.0)
+    width = rng.uniform(1.7, 1.9)
+    height = rng.uniform(1.4, 1.6)
+    l2, w2 = length / 2, width / 2
+    pts = [
+        (0.0, l2, 0.5), (-0.8 * w2, l2 - 0.1, 0.5), (0.8 * w2, l2 - 0.1, 0.5), (0.0, l2 - 0.3, 0.8),
+        (0.0, 0.15 * length, 0.75 * height),
+        (-w2, 0.3 * length, 0.35), (w2, 0.3 * length, 0.35), (-w2, -0.3 * length, 0.35), (w2, -0.3 * length, 0.35),
+        (-w2 - 0.08, 0.2 * length, 1.0), (w2 + 0.08, 0.2 * length, 1.0),
+        (-w2, 0.0, 0.6), (w2, 0.0, 0.6),
+        (0.0, -0.2 * length, height),
+        (0.0, -l2, 0.6), (-0.8 * w2, -l2 + 0.1, 0.8), (0.8 * w2, -l2 + 0.1, 0.8),
+    ]
+    off = np.array(pts)
+    # bumpers and the front/rear faces dominate a car seen nearly head-on or tail-on
+    weight = np.where(np.abs(off[:, 1]) > 0.45 * length, 2.0, 1.0)
+    return off, _shares(rng, len(pts), total_rcs_m2, weight)
+
+
+def motorcycle_body(rng: np.random.Generator, total_rcs_m2: float) -> tuple[np.ndarray, np.ndarray]:
+    length = rng.uniform(1.9, 2.3)
+    l2 = length / 2
+    pts = [
+        (0.0, l2 - 0.15, 0.4), (0.0, l2 - 0.3, 0.9), (0.0, 0.1, 0.5), (0.25, -0.1, 0.45),
+        (0.0, -l2 + 0.2, 0.4), (0.0, -l2 + 0.1, 0.8),
+        (0.0, -0.15, 1.25), (0.0, 0.05, 1.6), (-0.2, 0.2, 0.7), (0.2, 0.2, 0.7),  # rider
+    ]
+    return np.array(pts), _shares(rng, len(pts), total_rcs_m2)
+
+
+def truck_body(rng: np.random.Generator, total_rcs_m2: float) -> tuple[np.ndarray, np.ndarray]:
+    length = rng.uniform(7.0, 12.0)
+    width = rng.uniform(2.3, 2.55)
+    height = rng.uniform(3.0, 3.8)
+    l2, w2 = length / 2, width / 2
+    pts = [(x, l2, z) for x in (-0.8 * w2, 0.0, 0.8 * w2) for z in (0.6, 1.5, 2.4)]  # cab front
+    for y in np.linspace(-l2 + 0.5, l2 - 0.5, max(3, int(length / 1.2))):  # side panels
+        for z in (1.0, 0.65 * height):
+            pts += [(-w2, float(y), z), (w2, float(y), z)]
+    axles = [l2 - 1.2, -l2 + 1.5] + ([-l2 + 2.8] if length > 9.0 else [])
+    pts += [(s * w2, y, 0.5) for y in axles for s in (-1.0, 1.0)]
+    pts += [(x, -l2, z) for x in (-0.6 * w2, 0.6 * w2) for z in (1.0, 0.7 * height)]  # rear doors
+    off = np.array(pts)
+    weight = np.where(np.abs(off[:, 1]) > l2 - 0.05, 3.0, 1.0)
+    return off, _shares(rng, len(pts), total_rcs_m2, weight)
+
+
+BODIES = {"car": car_body, "motorcycle": motorcycle_body, "truck": truck_body}
+
+
+def random_rcs(cls: str, rng: np.random.Generator) -> float:
+    mean, sigma_db, _ = CLASS_RCS_SPEED[cls]
+    return float(mean * 10.0 ** (rng.normal(0.0, sigma_db) / 10.0))
+
+
+def random_speed(cls: str, rng: np.random.Generator) -> tuple[float, bool]:
+    """Speed (m/s) for a class; for pedestrians also whether they jog."""
+    if cls == "pedestrian" and rng.random() < JOG_PROBABILITY:
+        return float(rng.uniform(*JOG_SPEED_MPS)), True
+    lo, hi = CLASS_RCS_SPEED[cls][2]
+    return float(rng.uniform(lo, hi)), False
+
+
+def make_target(
+    cls: str,
+    target_id: int,
+    trajectory: LinearTrajectory,
+    rng: np.random.Generator,
+    *,
+    t_start_s: float,
+    t_end_s: float,
+    total_rcs_m2: float | None = None,
+    stride_hz: float | None = None,
+) -> Target:
+    """A randomised body of class ``cls`` on ``trajectory`` (speed taken from the trajectory)."""
+    rcs = random_rcs(cls, rng) if total_rcs_m2 is None else total_rcs_m2
+    v = np.asarray(trajectory.v, dtype=float)
+    speed = float(math.hypot(v[0], v[1]))
+    if cls == "pedestrian":
+        if stride_hz is None:
+            # stride frequency grows with speed: ~0.9 Hz walking at 1.3 m/s, ~1.4 Hz jogging at 2.8 m/s
+            stride_hz = float(np.clip(0.55 + 0.3 * speed, 0.75, 1.6) * rng.uniform(0.93, 1.07))
+        return Pedestrian.make(
+            target_id, trajectory, total_rcs_m2=rcs, speed_mps=max(speed, 0.1), stride_hz=stride_hz,
+            gait_phase_rad=float(rng.uniform(0, 2 * math.pi)), swerling=1, t_start_s=t_start_s, t_end_s=t_end_s,
+        )
+    try:
+        body = BODIES[cls]
+    except KeyError:
+        raise ValueError(f"no surveillance body for class {cls!r}; expected one of {SURVEILLANCE_CLASSES}") from None
+    off, rcs_k = body(rng, rcs)
+    return Target(
+        id=target_id, cls=cls, trajectory=trajectory, offsets_m=off, rcs_m2=rcs_k,
+        swerling=3 if rng.random() < 0.7 else 1, t_start_s=t_start_s, t_end_s=t_end_s,
+    )
+
+
+# --- random events -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Path:
+    p0: tuple[float, float, float]
+    v: tuple[float, float, float]
+    duration_s: float
+
+
+def _along_road_path(cls: str, speed: float, rng: np.random.Generator, max_duration_s: float) -> _Path:
+    """Approaching or receding along the road/sidewalk, heading jittered by up to 8°."""
+    if cls == "pedestrian":
+        x = float(rng.choice([rng.uniform(0.3, 1.5), rng.uniform(7.5, 9.0)]))
+    else:
+        x = float(rng.choice([rng.uniform(2.0, 3.5), rng.uniform(5.0, 6.5)]))
+    y_far, y_near = 27.0, -2.0
+    approaching = bool(rng.random() < 0.5)
+    head = math.radians(rng.uniform(-8.0, 8.0))
+    length = min(y_far - y_near, speed * max_duration_s)  # slow walkers start nearer
+    vy = speed * math.cos(head) * (-1.0 if approaching else 1.0)
+    vx = speed * math.sin(head)
+    dur = length / speed
+    if approaching:
+        y0 = y_near + length * math.cos(head)
+    else:
+        y0 = y_near
+    x0 = x - vx * dur / 2.0  # the lateral drift is centred on the lane
+    return _Path((x0, y0, 0.0), (vx, vy, 0.0), dur)
+
+
+def _crossing_path(speed: float, rng: np.random.Generator) -> _Path:
+    """A pedestrian crossing the road in front of the radar, in and out of the beam sideways."""
+    y = float(rng.uniform(5.0, 14.0))
+    left_to_right = bool(rng.random() < 0.5)
+    x0, x1 = (-4.0, 11.0) if left_to_right else (11.0, -4.0)
+    vx = speed if left_to_right else -speed
+    return _Path((x0, y, 0.0), (vx, float(rng.uniform(-0.2, 0.2)), 0.0), abs(x1 - x0) / speed)
+
+
+def add_event(
+    scene: Scene, event: int, classes: list[str], t0_s: float, slot_s: float, rng: np.random.Generator,
+    *, crossing_probability: float = 0.0, stagger_s: float = 0.0,
+) -> None:
+    """Add the targets of one event (ids ``100 * (event + 1) + k``) inside ``[t0, t0 + slot)``."""
+    usable = slot_s - QUIET_S - 0.5
+    for k, cls in enumerate(classes):
+        speed, _jog = random_speed(cls, rng)
+        if cls == "pedestrian" and rng.random() < crossing_probability:
+            path = _crossing_path(speed, rng)
+        else:
+            path = _along_road_path(cls, speed, rng, usable - stagger_s)
+        latest = max(0.0, usable - path.duration_s)
+        start = t0_s + 0.5 + float(rng.uniform(0.0, min(stagger_s, latest)))
+        traj = LinearTrajectory(path.p0, path.v, t0_s=start)
+        scene.add_target(
+            make_target(cls, 100 * (event + 1) + k, traj, rng, t_start_s=start, t_end_s=start + path.duration_s)
+        )
+
+
+def _d2g_events_table(scene: Scene, scenario: Any, spec: dict, rng: np.random.Generator) -> None:
+    """``[[d2g_events]]``: ``mode`` (single|multi), ``events``, ``slot_s``, ``first_event``."""
+    from hw_sim.scenario import ScenarioError
+
+    mode = spec.get("mode", "single")
+    n = spec.get("events", 10)
+    slot = float(spec.get("slot_s", SLOT_S))
+    first = int(spec.get("first_event", 0))
+    if mode not in ("single", "multi") or not isinstance(n, int) or n < 1 or slot < 8.0:
+        raise ScenarioError(f"d2g_events: need mode single|multi, events >= 1, slot_s >= 8; got {spec!r}")
+    order: list[str] = []
+    for e in range(n):
+        if mode == "single":
+            if e % len(SURVEILLANCE_CLASSES) == 0:
+                order = list(rng.permutation(SURVEILLANCE_CLASSES))
+            classes = [order[e % len(SURVEILLANCE_CLASSES)]]
+            add_event(scene, first + e, classes, e * slot, slot, rng)
+        else:
+            m = int(rng.integers(2, 5))
+            # pedestrians and motorcycles dominate Tavanti's multi-target events (45/26/20/3)
+            classes = list(rng.choice(SURVEILLANCE_CLASSES, size=m, p=[0.25, 0.4, 0.07, 0.28]))
+            add_event(scene, first + e, classes, e * slot, slot, rng, crossing_probability=0.3, stagger_s=6.0)
+
+
+def _d2g_target_table(scene: Scene, scenario: Any, spec: dict, rng: np.random.Generator) -> None:
+    """``[[d2g_target]]``: one realistic body: ``id``, ``class``, ``x_m``, ``y_m``, ``vx_mps``,
+    ``vy_mps``, ``start_s``, ``end_s``, optional ``rcs_m2`` (total) and ``stride_hz``."""
+    from hw_sim.scenario import ScenarioError, _num
+
+    where = f"{scenario.source}: d2g_target."
+    tid = spec.get("id")
+    if not isinstance(tid, int) or tid <= 0:
+        raise ScenarioError(f"{where}id must be a positive integer, got {tid!r}")
+    cls = spec.get("class")
+    if cls not in SURVEILLANCE_CLASSES:
+        raise ScenarioError(f"{where}class must be one of {SURVEILLANCE_CLASSES}, got {cls!r}")
+    start = _num(spec, "start_s", 0.0, where)
+    traj = LinearTrajectory(
+        (_num(spec, "x_m", where=where), _num(spec, "y_m", where=where), 0.0),
+        (_num(spec, "vx_mps", 0.0, where), _num(spec, "vy_mps", 0.0, where), 0.0),
+        t0_s=start,
+    )
+    rcs = spec.get("rcs_m2")
+    stride = spec.get("stride_hz")
+    scene.add_target(
+        make_target(
+            cls, tid, traj, np.random.default_rng([scene.seed, tid, 0xB0D7]), t_start_s=start,
+            t_end_s=_num(spec, "end_s", 1e9, where), total_rcs_m2=None if rcs is None else float(rcs),
+            stride_hz=None if stride is None else float(stride),
+        )
+    )
+
+
+def site_raw(name: str, description: str, duration_s: float) -> dict[str, Any]:
+    """The raw scenario dict of the surveillance site (radar pose and clutter), no targets yet."""
+    return {
+        "scenario": {"name": name, "board": "d2g", "description": description, "duration_s": duration_s, "seed": 1},
+        "radar": {"height_m": SITE_HEIGHT_M, "yaw_deg": SITE_YAW_DEG},
+        "clutter": [{"x_m": x, "y_m": y, "z_m": z, "rcs_m2": r} for x, y, z, r in SITE_CLUTTER],
+    }
+
+
+def _event_scenario(mode: str, events: int | None):
+    from hw_sim.scenario import parse_scenario
+
+    n = 10 if events is None else int(events)
+    if n < 1:
+        raise ValueError("events must be >= 1")
+    name = f"{mode}-random"
+    what = "one target per event, classes balanced" if mode == "single" else "two to four targets per event"
+    raw = site_raw(name, f"{n} random Distance2Go events ({what}), {SLOT_S:.0f} s each", n * SLOT_S)
+    raw["d2g_events"] = [{"mode": mode, "events": n, "slot_s": SLOT_S}]
+    return parse_scenario(raw, f"generator:{name}")
+
+
+def single_random(events: int | None = None):
+    return _event_scenario("single", events)
+
+
+def multi_random(events: int | None = None):
+    return _event_scenario("multi", events)
+
+
+# --- ground truth per event ----------------------------------------------------------------------
+
+
+def visible(truth: GroundTruth, pose: RadarPose) -> np.ndarray:
+    """(n,) bool: targets inside the D2G's range and half-power azimuth beam at this frame."""
+    if len(truth) == 0:
+        return np.zeros(0, dtype=bool)
+    return (truth.range_m <= VISIBLE_RANGE_M) & (np.abs(np.degrees(truth.az_rad)) <= VISIBLE_HALF_BEAM_DEG)
+
+
+@dataclass(frozen=True)
+class TargetTruth:
+    """What a passage of one target should produce (Tavanti Tables VIII-X)."""
+
+    id: int
+    event: int
+    cls: str
+    direction: str  # "approaching" | "receding"
+    mean_radial_speed_kmh: float
+    visible_frames: int
+    first_frame: int
+    last_frame: int
+
+
+def event_truth(scene: Scene, period_s: float, n_frames: int) -> list[TargetTruth]:
+    """Per-target truth over frames ``0..n_frames-1``: class, direction and mean radial speed while visible."""
+    ids: dict[int, list[tuple[int, float]]] = {}
+    cls: dict[int, str] = {}
+    for n in range(n_frames):
+        tr = scene.truth(n * period_s)
+        vis = visible(tr, scene.pose)
+        for j in np.flatnonzero(vis):
+            tid = int(tr.id[j])
+            ids.setdefault(tid, []).append((n, float(tr.radial_speed_mps[j])))
+            cls[tid] = tr.cls[j]
+    out = []
+    for tid, rows in sorted(ids.items()):
+        frames = np.array([r[0] for r in rows])
+        v = float(np.mean([r[1] for r in rows])) * 3.6
+        out.append(
+            TargetTruth(
+                id=tid, event=tid // 100 - 1, cls=cls[tid], direction="receding" if v > 0 else "approaching",
+                mean_radial_speed_kmh=v, visible_frames=int(frames.size), first_frame=int(frames.min()),
+                last_frame=int(frames.max()),
+            )
+        )
+    return out
+
+
+def register() -> None:
+    """Register the table generators and event scenarios (idempotent)."""
+    from hw_sim.scenario import EVENT_SCENARIOS, GENERATORS
+
+    GENERATORS.setdefault("d2g_events", _d2g_events_table)
+    GENERATORS.setdefault("d2g_target", _d2g_target_table)
+    EVENT_SCENARIOS.setdefault("single-random", single_random)
+    EVENT_SCENARIOS.setdefault("multi-random", multi_random)
+
+
+register()
