@@ -1,0 +1,137 @@
+"""Labelled feature vectors for training (Tavanti §III-C) from recordings or from the simulator.
+
+The paper builds its reference set from recordings of single-target events whose range-Doppler
+maps are *only thresholded* with ``th_RD`` (neither clustered nor tracked), "to make the learning
+process independent from the clustering and tracking parameters". :func:`event_features` does
+exactly that for one event: every frame goes through the surveillance front end
+(:class:`edge.dsp.range_doppler.RangeDopplerProcessor` with ``pipeline.surveillance``'s K_c, K_sf,
+N_R, N_D), the cells at or above ``th_RD`` form one cluster whose eq. 17/18 signatures feed a
+:class:`~edge.classify.features.TrackFeatureAccumulator`; the eq. 19 vector is the result.
+
+* :func:`recordings_reference_set`: one vector per recording (a site's own data). The class comes
+  from ``label=``, else the parent directory's name (``site/car/*.npz``), else the recording's ground
+  truth when it holds exactly one class.
+* :func:`synthetic_reference_set`: N simulated single-target events (see there).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from edge.classify.features import FEATURE_NAMES, MapPoints, SignatureExtractor, TrackFeatureAccumulator
+from edge.classify.reference import DEFAULT_CLASSES, ReferenceSet
+
+log = logging.getLogger(__name__)
+
+__all__ = ["EventFeatureExtractor", "recordings_reference_set", "synthetic_reference_set"]
+
+
+class EventFeatureExtractor:
+    """Thresholded-map features of one single-target event (frames in, eq. 19 vector out)."""
+
+    def __init__(self, frontend: Any, config: Any) -> None:
+        from edge.dsp.range_doppler import RangeDopplerProcessor
+
+        sc = config.section("pipeline.surveillance")
+        self.th_rd = float(sc.th_rd)
+        self.rd = RangeDopplerProcessor(frontend, k_c=sc.k_c, k_sf=sc.k_sf, n_range_fft=sc.n_range_fft,
+                                        n_doppler_fft=sc.n_doppler_fft)
+        self.extractor = SignatureExtractor(config.section("classify.features"), frontend)
+
+    def __call__(self, frames: Iterable[Any]) -> np.ndarray:
+        acc = TrackFeatureAccumulator()
+        for fr in frames:
+            amp = self.rd.process(fr.iq()).amplitude
+            pts = MapPoints.from_map(amp, self.th_rd, self.rd.range_m, self.rd.radial_speed_kmh)
+            if len(pts) == 0:
+                continue
+            sig = self.extractor(pts, n_clusters=1)
+            acc.add(fr.t_ns * 1e-9, sig.circular_variance[0], sig.rcs[0], sig.range_m[0])
+        return acc.features()
+
+
+def _expand(paths: Sequence[str | Path]) -> list[Path]:
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            out.extend(sorted(p.rglob("*.npz")))
+        elif p.is_file():
+            out.append(p)
+        else:
+            raise FileNotFoundError(f"recording {str(p)!r} not found")
+    if not out:
+        raise ValueError(f"no .npz recordings in {', '.join(map(str, paths))}")
+    return out
+
+
+def _label_of(path: Path, truth_classes: set[str], label: str | None, classes: Sequence[str]) -> str:
+    if label:
+        return label
+    if path.parent.name in classes:
+        return path.parent.name
+    if len(truth_classes) == 1:
+        return next(iter(truth_classes))
+    if truth_classes:
+        raise ValueError(f"{path}: ground truth holds classes {sorted(truth_classes)}; training needs single-target "
+                         "events")
+    raise ValueError(f"{path}: no class: put it in a directory named after its class ({', '.join(classes)}) "
+                     "or pass --label")
+
+
+def recordings_reference_set(
+    paths: Sequence[str | Path],
+    config: Any,
+    *,
+    label: str | None = None,
+    classes: Sequence[str] = DEFAULT_CLASSES,
+    progress: bool = False,
+) -> ReferenceSet:
+    """One feature vector per recording (single-target events, read through ``replay://``);
+    recordings whose target was seen in fewer than two frames are skipped with a warning."""
+    from hal import open_radar
+
+    files = _expand(paths)
+    if label is not None and label not in classes:
+        raise ValueError(f"unknown class {label!r}; classes: {', '.join(classes)}")
+    it: Iterable[Path] = files
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(files, unit="recording", desc="features")
+    feats, labels, names = [], [], []
+    for path in it:
+        truth_classes: set[str] = set()
+
+        def frames(src):
+            for fr in src:
+                if fr.truth is not None:
+                    truth_classes.update(fr.truth.cls)
+                yield fr
+
+        with open_radar(f"replay://{path.resolve()}", speed=0) as src:
+            x = EventFeatureExtractor(src.frontend, config)(frames(src))
+        cls = _label_of(path, truth_classes, label, classes)
+        if cls not in classes:
+            raise ValueError(f"{path}: class {cls!r} is not one of {', '.join(classes)}")
+        if not np.all(np.isfinite(x)):
+            log.warning("%s: target seen in fewer than two frames above th_RD, skipped", path)
+            continue
+        feats.append(x)
+        labels.append(list(classes).index(cls))
+        names.append(str(path))
+    if not feats:
+        raise ValueError("no recording gave a feature vector")
+    return ReferenceSet(np.array(feats), np.array(labels), tuple(classes), FEATURE_NAMES,
+                        meta={"generator": "recordings", "files": names})
+
+
+def synthetic_reference_set(n: int, seed: int, config: Any, *, progress: bool = False) -> ReferenceSet:
+    """``n`` simulated single-target events (classes balanced), seeded: see
+    :mod:`edge.classify.refgen` for the simulation; returns its reference set."""
+    from edge.classify import refgen
+
+    return refgen.build_reference_set(n, seed, config, progress=progress)
