@@ -2,7 +2,7 @@
 
 The paper builds its reference set from recordings of single-target events whose range-Doppler
 maps are *only thresholded* with ``th_RD`` (neither clustered nor tracked), "to make the learning
-process independent from the clustering and tracking parameters". :func:`event_features` does
+process independent from the clustering and tracking parameters". :class:`EventFeatureExtractor` does
 exactly that for one event: every frame goes through the surveillance front end
 (:class:`edge.dsp.range_doppler.RangeDopplerProcessor` with ``pipeline.surveillance``'s K_c, K_sf,
 N_R, N_D), the cells at or above ``th_RD`` form one cluster whose eq. 17/18 signatures feed a
@@ -22,7 +22,7 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from edge.classify.features import FEATURE_NAMES, MapPoints, SignatureExtractor, TrackFeatureAccumulator
+from edge.classify.features import FEATURE_NAMES, MapPoints, SignatureExtractor
 from edge.classify.reference import DEFAULT_CLASSES, ReferenceSet
 
 log = logging.getLogger(__name__)
@@ -31,27 +31,30 @@ __all__ = ["EventFeatureExtractor", "recordings_reference_set", "synthetic_refer
 
 
 class EventFeatureExtractor:
-    """Thresholded-map features of one single-target event (frames in, eq. 19 vector out)."""
+    """Thresholded-map features of one single-target event (frames in, eq. 19 vector out); the
+    accumulation is :func:`edge.classify.refgen.event_signatures`, as for the synthetic set."""
 
-    def __init__(self, frontend: Any, config: Any) -> None:
+    def __init__(self, frontend: Any, config: Any, min_frames: int = 3) -> None:
         from edge.dsp.range_doppler import RangeDopplerProcessor
 
         sc = config.section("pipeline.surveillance")
         self.th_rd = float(sc.th_rd)
+        self.min_frames = int(min_frames)
         self.rd = RangeDopplerProcessor(frontend, k_c=sc.k_c, k_sf=sc.k_sf, n_range_fft=sc.n_range_fft,
                                         n_doppler_fft=sc.n_doppler_fft)
         self.extractor = SignatureExtractor(config.section("classify.features"), frontend)
 
     def __call__(self, frames: Iterable[Any]) -> np.ndarray:
-        acc = TrackFeatureAccumulator()
-        for fr in frames:
-            amp = self.rd.process(fr.iq()).amplitude
-            pts = MapPoints.from_map(amp, self.th_rd, self.rd.range_m, self.rd.radial_speed_kmh)
-            if len(pts) == 0:
-                continue
-            sig = self.extractor(pts, n_clusters=1)
-            acc.add(fr.t_ns * 1e-9, sig.circular_variance[0], sig.rcs[0], sig.range_m[0])
-        return acc.features()
+        """``(5,)``; NaN when the target was above ``th_RD`` in fewer than ``min_frames`` frames."""
+        from edge.classify.refgen import event_signatures
+
+        def points():
+            for fr in frames:
+                amp = self.rd.process(fr.iq()).amplitude
+                yield fr.t_ns * 1e-9, MapPoints.from_map(amp, self.th_rd, self.rd.range_m, self.rd.radial_speed_kmh)
+
+        acc = event_signatures(points(), self.extractor)
+        return acc.features() if acc.n >= self.min_frames else np.full(len(FEATURE_NAMES), np.nan)
 
 
 def _expand(paths: Sequence[str | Path]) -> list[Path]:
@@ -130,8 +133,23 @@ def recordings_reference_set(
 
 
 def synthetic_reference_set(n: int, seed: int, config: Any, *, progress: bool = False) -> ReferenceSet:
-    """``n`` simulated single-target events (classes balanced), seeded: see
-    :mod:`edge.classify.refgen` for the simulation; returns its reference set."""
+    """``n`` simulated single-target events (rounded up to a multiple of the four classes, balanced),
+    seeded: :func:`edge.classify.refgen.build_reference_set` with ``events_per_class = ceil(n / 4)``."""
     from edge.classify import refgen
 
-    return refgen.build_reference_set(n, seed, config, progress=progress)
+    per_class = max(1, -(-int(n) // len(DEFAULT_CLASSES)))
+    bar = None
+    cb = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=per_class * len(DEFAULT_CLASSES), unit="event", desc=f"synthetic events (seed {seed})")
+
+        def cb(done: int, total: int) -> None:
+            bar.update(done - bar.n)
+
+    try:
+        return refgen.build_reference_set(events_per_class=per_class, seed=seed, config=config, progress=cb)
+    finally:
+        if bar is not None:
+            bar.close()
