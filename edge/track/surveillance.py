@@ -40,6 +40,7 @@ from edge.classify.features import (
     SignatureExtractor,
     TrackFeatureAccumulator,
 )
+from edge.classify.classifier import build_classifier
 from edge.classify.knn import KnnConfig, WeightedKNN
 from edge.classify.reference import load_reference_set
 from edge.track.alphabeta import AlphaBetaConfig, AlphaBetaTrack, AlphaBetaTracker, TrackerStep
@@ -85,7 +86,7 @@ class SurveillanceTracker:
         self.cylinder = self.extractor.cylinder
         self.tracker = AlphaBetaTracker(tracking or AlphaBetaConfig(), self.cylinder)
         self.segmenter = EventSegmenter(events or EventConfig(), threshold)
-        if isinstance(knn, WeightedKNN):
+        if knn is not None and not isinstance(knn, KnnConfig):  # WeightedKNN or OnnxKnnClassifier
             self.classifier = knn
         else:
             kc = knn or KnnConfig()
@@ -98,14 +99,15 @@ class SurveillanceTracker:
     @classmethod
     def from_config(cls, frontend: FrontendInfo, config: Any, threshold: float) -> "SurveillanceTracker":
         """Build from a resolved :class:`edge.config.Config` (sections ``track.alphabeta``,
-        ``track.events``, ``classify.features``, ``classify.knn``)."""
+        ``track.events``, ``classify.features``, and ``classify.onnx``/``classify.knn`` for the classifier:
+        :func:`edge.classify.classifier.build_classifier`, the ONNX model by default)."""
         return cls(
             frontend,
             threshold,
             tracking=config.section("track.alphabeta"),
             events=config.section("track.events"),
             features=config.section("classify.features"),
-            knn=config.section("classify.knn"),
+            knn=build_classifier(config),
         )
 
     # ------------------------------------------------------------------------------------------
@@ -155,7 +157,7 @@ class SurveillanceTracker:
         names = self.classifier.classes
         if np.all(np.isfinite(x)):
             p = self.classifier.predict_proba(x[None, :])[0]
-            k = int(np.argmax(p))
+            k = int(self.classifier.predict(x[None, :])[0])  # ties -> lower class, as the ONNX model
             cls, probs = names[k], {n: float(pi) for n, pi in zip(names, p)}
         else:
             log.warning("track %d ended without finite features (%d frames)", tr.track_id, acc.n)
