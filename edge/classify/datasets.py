@@ -93,9 +93,11 @@ def recordings_reference_set(
     classes: Sequence[str] = DEFAULT_CLASSES,
     progress: bool = False,
 ) -> ReferenceSet:
-    """One feature vector per recording (single-target events, read through ``replay://``);
-    recordings whose target was seen in fewer than two frames are skipped with a warning."""
-    from hal import open_radar
+    """One feature vector per recording (single-target events; the recorded timestamps are used, so
+    speeds do not depend on how fast the file is read); recordings whose target was above ``th_RD``
+    in fewer than three frames are skipped with a warning."""
+    from hal.frame import RawFrame
+    from hal.recording import Recording
 
     files = _expand(paths)
     if label is not None and label not in classes:
@@ -106,17 +108,15 @@ def recordings_reference_set(
 
         it = tqdm(files, unit="recording", desc="features")
     feats, labels, names = [], [], []
+    extractor: EventFeatureExtractor | None = None
     for path in it:
-        truth_classes: set[str] = set()
-
-        def frames(src):
-            for fr in src:
-                if fr.truth is not None:
-                    truth_classes.update(fr.truth.cls)
-                yield fr
-
-        with open_radar(f"replay://{path.resolve()}", speed=0) as src:
-            x = EventFeatureExtractor(src.frontend, config)(frames(src))
+        rec = Recording(path)
+        truth_classes = {c for k in range(len(rec)) for c in (getattr(rec.truth(k), "cls", None) or ())}
+        if extractor is None or extractor.rd.frontend != rec.frontend:
+            extractor = EventFeatureExtractor(rec.frontend, config)
+        frames = (RawFrame(seq=int(rec.seq[k]), t_ns=int(rec.t_ns[k]), i=rec.i[k], q=rec.q[k], frontend=rec.frontend)
+                  for k in range(len(rec)))
+        x = extractor(frames)
         cls = _label_of(path, truth_classes, label, classes)
         if cls not in classes:
             raise ValueError(f"{path}: class {cls!r} is not one of {', '.join(classes)}")
