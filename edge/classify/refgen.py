@@ -1,0 +1,172 @@
+"""Synthetic reference set from single-target events of the simulated Distance2Go (Tavanti §III-C).
+
+The paper trains its k-NN on 182 recorded single-target passages whose signatures are *thresholded*
+with ``th_RD`` but neither clustered nor tracked, so that learning does not depend on the DBSCAN and
+tracker parameters. :func:`build_reference_set` does the same on the simulator:
+
+1. the ``single-random`` event generator of :mod:`hw_sim.events` (one randomised pedestrian, car,
+   motorcycle or truck per 24 s slot at the simulated test site, classes balanced) with a seed;
+2. every frame in which the event's target is inside the beam (range <= 24 m, |az| <= 21°,
+   :func:`hw_sim.events.visible`) is synthesised and run through the profile's front end (IIR
+   canceller, Kaiser windows, 512 x 256 map: :class:`edge.dsp.range_doppler.RangeDopplerProcessor`
+   with the ``pipeline.surveillance`` settings);
+3. all cells at or above ``th_RD`` form one signature (label 0) whose circular variance, eq. 17 RCS
+   quantity and centroid range feed a :class:`~edge.classify.features.TrackFeatureAccumulator`;
+   cells closer than ``min_range_m`` (default: one range resolution cell, c / 2B = 0.75 m) are left
+   out: the residue of the TX->RX leakage that the canceller does not remove sits there, and a few
+   such cells would drag the centroid of a target 20 m away to mid-range and fake a radial speed
+   (clustering rejects them in operation: they never reach DBSCAN's ``M`` points);
+4. an event seen in at least ``min_frames`` frames with points gives one labelled feature vector.
+
+Frames outside the target's visibility are not synthesised (the scene is empty then), which keeps a
+build of 4 x 40 events to about a minute.
+
+The packaged default ``edge/data/reference_set.npz`` (the one the surveillance pipeline loads when
+``classify.knn.reference_set`` is empty) is regenerated, from the repository root, with exactly::
+
+    PYTHONPATH=. python -c "from edge.classify.refgen import write_default; write_default()"
+
+which is ``build_reference_set(events_per_class=40, seed=DEFAULT_SEED)`` with the default
+configuration, saved with its generator settings in ``meta``. The seeds used by evaluations and
+tests must differ from :data:`DEFAULT_SEED`.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from edge.classify.features import FeatureConfig, MapPoints, SignatureExtractor, TrackFeatureAccumulator
+from edge.classify.reference import DEFAULT_CLASSES, ReferenceSet, default_reference_path, save_reference_set
+from hal.waveform import characteristics
+
+log = logging.getLogger(__name__)
+
+__all__ = ["DEFAULT_EVENTS_PER_CLASS", "DEFAULT_SEED", "build_reference_set", "event_signatures", "write_default"]
+
+DEFAULT_SEED = 90210
+DEFAULT_EVENTS_PER_CLASS = 40
+REGENERATE_COMMAND = 'PYTHONPATH=. python -c "from edge.classify.refgen import write_default; write_default()"'
+
+
+def event_signatures(
+    frames: Any, extractor: SignatureExtractor, min_range_m: float = 0.0
+) -> TrackFeatureAccumulator:
+    """Accumulate thresholded signatures: ``frames`` yields ``(t_s, MapPoints)`` (labels ignored,
+    cells closer than ``min_range_m`` dropped)."""
+    acc = TrackFeatureAccumulator()
+    for t_s, pts in frames:
+        k = np.asarray(pts.range_m) >= min_range_m
+        if not k.any():
+            continue
+        one = MapPoints(pts.range_m[k], pts.doppler_kmh[k], pts.amplitude[k], pts.range_bin[k],
+                        pts.doppler_bin[k], np.zeros(int(k.sum()), dtype=np.int32))
+        sig = extractor(one, n_clusters=1)
+        acc.add(t_s, sig.circular_variance[0], sig.rcs[0], sig.range_m[0])
+    return acc
+
+
+def build_reference_set(
+    *,
+    events_per_class: int = DEFAULT_EVENTS_PER_CLASS,
+    seed: int = DEFAULT_SEED,
+    config: Any = None,
+    min_frames: int = 3,
+    min_range_m: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> ReferenceSet:
+    """Build a reference set from ``4 * events_per_class`` simulated single-target events.
+
+    ``config`` is a resolved :class:`edge.config.Config` (default: the defaults); its
+    ``pipeline.surveillance`` section sets the front end and ``th_RD``, ``classify.features`` the
+    signatures. ``min_range_m`` defaults to the range resolution ``c / 2B``. ``progress(done, total)``
+    is called after every event.
+    """
+    from edge.config import load_config
+    from edge.dsp.range_doppler import RangeDopplerProcessor
+    from hw_sim.boards import board_for
+    from hw_sim.events import SLOT_S, single_random, visible
+    from hw_sim.simulator import FrameSimulator
+
+    if events_per_class < 1:
+        raise ValueError("events_per_class must be at least 1")
+    cfg = config if config is not None else load_config(env={})
+    sc_cfg = cfg.section("pipeline.surveillance")
+    feat_cfg: FeatureConfig = cfg.section("classify.features")
+    n_events = 4 * events_per_class
+    scenario = single_random(events=n_events)
+    board = board_for(scenario.board)
+    fe = board.frontend
+    scene = scenario.build_scene(seed)
+    sim = FrameSimulator(board, scene, seed)
+    rd = RangeDopplerProcessor(fe, k_c=sc_cfg.k_c, k_sf=sc_cfg.k_sf, n_range_fft=sc_cfg.n_range_fft,
+                               n_doppler_fft=sc_cfg.n_doppler_fft)
+    extractor = SignatureExtractor(feat_cfg, fe)
+    if min_range_m is None:
+        min_range_m = characteristics(fe).range_resolution_m
+    period = fe.waveform.frame_period_s
+    per_slot = int(round(SLOT_S / period))
+    iq = np.empty(fe.frame_shape, dtype=np.complex64)
+    feats: list[np.ndarray] = []
+    labels: list[int] = []
+    skipped: dict[str, int] = {c: 0 for c in DEFAULT_CLASSES}
+    t0 = time.perf_counter()
+
+    def frames_of(event: int, cls_out: list[str]):
+        for n in range(event * per_slot, (event + 1) * per_slot):
+            truth = scene.truth(n * period)
+            vis = visible(truth, scene.pose)
+            if not vis.any():
+                continue
+            cls_out.append(truth.cls[int(np.flatnonzero(vis)[0])])
+            f = sim.frame(n)
+            iq.real = f.i
+            iq.imag = f.q
+            m = rd.process(iq).amplitude
+            yield f.t_s, MapPoints.from_map(m, sc_cfg.th_rd, rd.range_m, rd.radial_speed_kmh)
+
+    for e in range(n_events):
+        seen_cls: list[str] = []
+        acc = event_signatures(frames_of(e, seen_cls), extractor, min_range_m)
+        if seen_cls:
+            cls = seen_cls[0]
+            x = acc.features()
+            if acc.n >= min_frames and np.all(np.isfinite(x)):
+                feats.append(x)
+                labels.append(DEFAULT_CLASSES.index(cls))
+            else:
+                skipped[cls] += 1
+        if progress is not None:
+            progress(e + 1, n_events)
+    elapsed = time.perf_counter() - t0
+    if not feats:
+        raise ValueError("no event produced a signature: check th_RD and the front end")
+    meta = {
+        "generator": "edge.classify.refgen.build_reference_set",
+        "scenario": "single-random",
+        "seed": int(seed),
+        "events_per_class": int(events_per_class),
+        "min_frames": int(min_frames),
+        "min_range_m": float(min_range_m),
+        "skipped_events": skipped,
+        "pipeline.surveillance": {k: getattr(sc_cfg, k) for k in ("k_c", "k_sf", "th_rd", "n_range_fft",
+                                                                  "n_doppler_fft")},
+        "classify.features": {"if_corner_hz": feat_cfg.if_corner_hz, "range_exponent": feat_cfg.range_exponent},
+        "build_seconds": round(elapsed, 1),
+        "command": REGENERATE_COMMAND,
+    }
+    ref = ReferenceSet(np.array(feats), np.array(labels, dtype=np.intp), DEFAULT_CLASSES, meta=meta)
+    log.info("reference set: %s from %d events in %.1f s (skipped %s)", ref.class_counts(), n_events, elapsed, skipped)
+    return ref
+
+
+def write_default(path: str | None = None, **kwargs: Any) -> ReferenceSet:
+    """Build with the defaults and save to the packaged location (or ``path``)."""
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    ref = build_reference_set(**kwargs)
+    out = save_reference_set(ref, path or default_reference_path())
+    log.info("wrote %s", out)
+    return ref
