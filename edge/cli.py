@@ -23,6 +23,7 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.evaluate",
     "edge.commands.bench",
     "edge.commands.soak",
+    "edge.commands.calibrate",
     "edge.commands.train",
     "edge.commands.export_onnx",
 )

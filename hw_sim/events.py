@@ -327,10 +327,64 @@ def multi_random(events: int | None = None):
 
 
 def visible(truth: GroundTruth, pose: RadarPose) -> np.ndarray:
-    """(n,) bool: targets inside the D2G's range and half-power azimuth beam at this frame."""
+    """(n,) bool: reference points inside the D2G's range and half-power azimuth beam at this frame."""
     if len(truth) == 0:
         return np.zeros(0, dtype=bool)
     return (truth.range_m <= VISIBLE_RANGE_M) & (np.abs(np.degrees(truth.az_rad)) <= VISIBLE_HALF_BEAM_DEG)
+
+
+@dataclass(frozen=True)
+class FrameView:
+    """Targets with at least one scatterer in view (range <= 24 m, |az| <= 21°) at one instant.
+
+    A 12 m truck whose footprint centre is at 27 m already shows its front face at 21 m, so what the
+    radar can see is judged on the scatterers, not on the reference point. ``range_m`` is the
+    RCS/r^4-weighted range of the target's scatterers in view (where its cluster's centroid should
+    be), ``range_min_m``/``range_max_m`` their extent.
+    """
+
+    id: np.ndarray  # (n,) int
+    cls: tuple[str, ...]
+    range_m: np.ndarray
+    range_min_m: np.ndarray
+    range_max_m: np.ndarray
+    radial_speed_mps: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.id.size)
+
+
+def frame_view(scene: Scene, t_s: float) -> FrameView:
+    """What of the scene is in the Distance2Go's view at ``t_s`` (see :class:`FrameView`)."""
+    sc = scene.scatterers(t_s, np.random.default_rng(0))
+    tix = sc.target_index
+    mov = tix >= 0
+    if not mov.any():
+        z = np.zeros(0)
+        return FrameView(np.zeros(0, dtype=int), (), z, z, z, z)
+    rel = scene.pose.to_radar(sc.position_m[mov])
+    rng = np.linalg.norm(rel, axis=1)
+    az = np.degrees(np.arctan2(rel[:, 0], rel[:, 1]))
+    inv = (rng <= VISIBLE_RANGE_M) & (np.abs(az) <= VISIBLE_HALF_BEAM_DEG)
+    k = tix[mov][inv]
+    if k.size == 0:
+        z = np.zeros(0)
+        return FrameView(np.zeros(0, dtype=int), (), z, z, z, z)
+    r = rng[inv]
+    w = sc.rcs_m2[mov][inv] / np.maximum(r, 0.5) ** 4
+    u = np.unique(k)
+    idx = np.searchsorted(u, k)
+    wr = np.bincount(idx, w * r) / np.bincount(idx, w)
+    rmin = np.full(u.size, np.inf)
+    rmax = np.full(u.size, -np.inf)
+    np.minimum.at(rmin, idx, r)
+    np.maximum.at(rmax, idx, r)
+    tr = scene.truth(t_s)
+    by_id = {int(i): float(v) for i, v in zip(tr.id, tr.radial_speed_mps)}
+    ids = np.array([scene.targets[j].id for j in u], dtype=int)
+    return FrameView(
+        ids, tuple(scene.targets[j].cls for j in u), wr, rmin, rmax, np.array([by_id[int(i)] for i in ids])
+    )
 
 
 @dataclass(frozen=True)
@@ -347,24 +401,23 @@ class TargetTruth:
     last_frame: int
 
 
-def event_truth(scene: Scene, period_s: float, n_frames: int) -> list[TargetTruth]:
-    """Per-target truth over frames ``0..n_frames-1``: class, direction and mean radial speed while visible."""
+def event_truth(scene: Scene, period_s: float, n_frames: int, views: list[FrameView] | None = None) -> list[TargetTruth]:
+    """Per-target truth over frames ``0..n_frames-1``: class, direction and mean radial speed while in view."""
     ids: dict[int, list[tuple[int, float]]] = {}
     cls: dict[int, str] = {}
     for n in range(n_frames):
-        tr = scene.truth(n * period_s)
-        vis = visible(tr, scene.pose)
-        for j in np.flatnonzero(vis):
-            tid = int(tr.id[j])
-            ids.setdefault(tid, []).append((n, float(tr.radial_speed_mps[j])))
-            cls[tid] = tr.cls[j]
+        fv = views[n] if views is not None else frame_view(scene, n * period_s)
+        for j in range(len(fv)):
+            tid = int(fv.id[j])
+            ids.setdefault(tid, []).append((n, float(fv.radial_speed_mps[j])))
+            cls[tid] = fv.cls[j]
     out = []
     for tid, rows in sorted(ids.items()):
         frames = np.array([r[0] for r in rows])
         v = float(np.mean([r[1] for r in rows])) * 3.6
         out.append(
             TargetTruth(
-                id=tid, event=tid // 100 - 1, cls=cls[tid], direction="receding" if v > 0 else "approaching",
+                id=tid, event=max(0, tid // 100 - 1), cls=cls[tid], direction="receding" if v > 0 else "approaching",
                 mean_radial_speed_kmh=v, visible_frames=int(frames.size), first_frame=int(frames.min()),
                 last_frame=int(frames.max()),
             )

@@ -3,24 +3,25 @@
 The scenario is synthesised frame by frame on the simulated Distance2Go and streamed through
 :class:`~edge.pipelines.surveillance.SurveillancePipeline` without pacing. Ground truth per target
 (:func:`hw_sim.events.event_truth`): class, direction and mean radial speed over the frames where the
-target is inside the beam (range <= 24 m, |azimuth| <= 21°).
+target has scatterers inside the beam (range <= 24 m, |azimuth| <= 21°; :func:`hw_sim.events.frame_view`).
 
 Scoring:
 
 * **Track instances**: a published track id from its first confirmed frame to the
-  :class:`~edge.types.ClassifiedEvent` that ends it. An instance is matched to the visible true
-  target whose range is nearest over the instance's frames, if the mean range error is within
-  :data:`MATCH_RANGE_M` (the truth reference point is the footprint centre; bumpers, the range-Doppler
-  coupling of a 40 km/h car and the cluster extent put the centroid metres away). Unmatched
-  instances are false tracks.
+  :class:`~edge.types.ClassifiedEvent` that ends it. An instance is matched to the true target in
+  view whose weighted range (below) is nearest over the instance's frames, among the targets for
+  which the mean distance from the track's range to the range extent of their scatterers in view is
+  within :data:`MATCH_RANGE_M` (the range-Doppler coupling of a 40 km/h car alone shifts a cluster
+  by 2 m). Unmatched instances are false tracks.
 * **Per target**: the matched instance with the most frames gives ``predicted_class``, the
   estimated mean radial speed and direction; a target without an instance is *missed* (its predicted
   class is null and it counts as an error, as in Tavanti Table VI). ``tracked_fraction`` = visible
   frames with a matched confirmed track / visible frames; ``position_rmse_m`` = range RMSE of the
-  matched track (the Distance2Go measures no azimuth: range only); ``speed_mae_kmh`` = |estimated -
+  matched track against the RCS/r^4-weighted range of the target's scatterers (the Distance2Go
+  measures no azimuth: range only); ``speed_mae_kmh`` = |estimated -
   true| mean radial speed. ``n_tracks`` > 1 means the target's track split (counted in ``id_switches``).
 * **Detection probability before tracking** (Tavanti §III-D-3: 70/84/88/92 %): visible (target,
-  frame) pairs with a DBSCAN cluster centroid within :data:`MATCH_RANGE_M` of the target's range.
+  frame) pairs with a DBSCAN cluster centroid within :data:`MATCH_RANGE_M` of the target's extent.
 * **Confusion matrix**: ``matrix[i][j]`` = targets of true class ``labels[i]`` predicted as
   ``labels[j]``; the last column, ``missed``, counts targets without a track.
 
@@ -42,7 +43,7 @@ from edge.types import ClassifiedEvent, RawFrame
 log = logging.getLogger(__name__)
 
 PROFILE = "surveillance"
-MATCH_RANGE_M = 4.0
+MATCH_RANGE_M = 2.5
 MIN_MATCH_OVERLAP = 0.5
 
 
@@ -56,10 +57,15 @@ class _Instance:
     range_err: list[float] = field(default_factory=list)
 
 
+def _interval_distance(r: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """Distance of ranges ``r`` to the interval ``[lo, hi]`` (0 inside)."""
+    return np.maximum(0.0, np.maximum(lo - r, r - hi))
+
+
 def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int | None, config: Any,
              progress: bool = False) -> dict:
     from hw_sim.boards import board_for
-    from hw_sim.events import SURVEILLANCE_CLASSES, event_truth, visible
+    from hw_sim.events import SURVEILLANCE_CLASSES, event_truth, frame_view
     from hw_sim.simulator import FrameSimulator
 
     s = scenario.seed if seed is None else int(seed)
@@ -73,7 +79,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
     timer = StageTimer(window=max(16, n_frames))
     frame_ms = np.zeros(n_frames)
 
-    truth_rows: list[tuple[np.ndarray, np.ndarray]] = []  # per frame: visible ids, ranges
+    views = []  # per frame: targets in view (ids, weighted range, extent)
     open_inst: dict[int, _Instance] = {}
     done: list[_Instance] = []
     det_hits: dict[int, list[bool]] = {}
@@ -98,13 +104,12 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
         t0 = time.perf_counter_ns()
         res = pipe.process(raw, timer)
         frame_ms[n] = (time.perf_counter_ns() - t0) / 1e6
-        tr = f.truth
-        vis = visible(tr, scene.pose)
-        ids, rngs = tr.id[vis].astype(int), tr.range_m[vis]
-        truth_rows.append((ids, rngs))
+        fv = frame_view(scene, f.t_s)
+        views.append(fv)
         det_r = np.asarray(res.detections.range_m, dtype=float)
-        for tid, r in zip(ids, rngs):
-            det_hits.setdefault(int(tid), []).append(bool(det_r.size and np.min(np.abs(det_r - r)) <= MATCH_RANGE_M))
+        for tid, lo, hi in zip(fv.id, fv.range_min_m, fv.range_max_m):
+            d = _interval_distance(det_r, lo, hi)
+            det_hits.setdefault(int(tid), []).append(bool(d.size and d.min() <= MATCH_RANGE_M))
         for ts in res.tracks:
             inst = open_inst.setdefault(ts.track_id, _Instance(ts.track_id))
             inst.frames.append(n)
@@ -113,23 +118,26 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
     close_events(pipe.flush(), n_frames)
     done.extend(open_inst.values())  # tracks that never produced an event (should not happen)
 
-    truths = {t.id: t for t in event_truth(scene, period, n_frames)}
+    truths = {t.id: t for t in event_truth(scene, period, n_frames, views)}
     # match instances to targets by mean range error over common frames
     for inst in done:
         if not inst.frames:
             continue
-        errs: dict[int, list[float]] = {}
+        errs: dict[int, list[tuple[float, float]]] = {}
         for n, r in zip(inst.frames, inst.ranges):
-            ids, rngs = truth_rows[n]
-            for tid, rt in zip(ids, rngs):
-                errs.setdefault(int(tid), []).append(abs(r - float(rt)))
+            fv = views[n]
+            for tid, rw, lo, hi in zip(fv.id, fv.range_m, fv.range_min_m, fv.range_max_m):
+                gap = float(_interval_distance(np.array([r]), lo, hi)[0])
+                errs.setdefault(int(tid), []).append((abs(r - float(rw)), gap))
         best, best_err = None, np.inf
         for tid, e in errs.items():
-            if len(e) >= MIN_MATCH_OVERLAP * len(inst.frames) and np.mean(e) < best_err:
-                best, best_err = tid, float(np.mean(e))
-        if best is not None and best_err <= MATCH_RANGE_M:
+            err = np.asarray(e)
+            if (len(e) >= MIN_MATCH_OVERLAP * len(inst.frames) and err[:, 1].mean() <= MATCH_RANGE_M
+                    and err[:, 0].mean() < best_err):
+                best, best_err = tid, float(err[:, 0].mean())
+        if best is not None:
             inst.target = best
-            ids_rng = {n: dict(zip(truth_rows[n][0].tolist(), truth_rows[n][1].tolist())) for n in inst.frames}
+            ids_rng = {n: dict(zip(views[n].id.tolist(), views[n].range_m.tolist())) for n in inst.frames}
             inst.range_err = [r - ids_rng[n][best] for n, r in zip(inst.frames, inst.ranges) if best in ids_rng[n]]
 
     labels = list(SURVEILLANCE_CLASSES)
@@ -140,7 +148,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
     for tid, t in truths.items():
         mine = [i for i in done if i.target == tid and i.event is not None]
         tracked_frames = {n for i in done if i.target == tid for n in i.frames}
-        vis_frames = {n for n, (ids, _) in enumerate(truth_rows) if tid in ids}
+        vis_frames = {n for n, fv in enumerate(views) if tid in fv.id}
         row = {
             "id": tid, "event": t.event, "class": t.cls, "lane": None,
             "tracked_fraction": len(tracked_frames & vis_frames) / max(1, len(vis_frames)),
