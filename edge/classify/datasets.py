@@ -34,12 +34,15 @@ class EventFeatureExtractor:
     """Thresholded-map features of one single-target event (frames in, eq. 19 vector out); the
     accumulation is :func:`edge.classify.refgen.event_signatures`, as for the synthetic set."""
 
-    def __init__(self, frontend: Any, config: Any, min_frames: int = 3) -> None:
+    def __init__(self, frontend: Any, config: Any, min_frames: int = 3, min_range_m: float | None = None) -> None:
         from edge.dsp.range_doppler import RangeDopplerProcessor
+        from hal.waveform import characteristics
 
         sc = config.section("pipeline.surveillance")
         self.th_rd = float(sc.th_rd)
         self.min_frames = int(min_frames)
+        # as refgen: cells nearer than one range resolution (leakage residue) are not the target
+        self.min_range_m = characteristics(frontend).range_resolution_m if min_range_m is None else float(min_range_m)
         self.rd = RangeDopplerProcessor(frontend, k_c=sc.k_c, k_sf=sc.k_sf, n_range_fft=sc.n_range_fft,
                                         n_doppler_fft=sc.n_doppler_fft)
         self.extractor = SignatureExtractor(config.section("classify.features"), frontend)
@@ -53,7 +56,7 @@ class EventFeatureExtractor:
                 amp = self.rd.process(fr.iq()).amplitude
                 yield fr.t_ns * 1e-9, MapPoints.from_map(amp, self.th_rd, self.rd.range_m, self.rd.radial_speed_kmh)
 
-        acc = event_signatures(points(), self.extractor)
+        acc = event_signatures(points(), self.extractor, self.min_range_m)
         return acc.features() if acc.n >= self.min_frames else np.full(len(FEATURE_NAMES), np.nan)
 
 

@@ -124,7 +124,8 @@ def _classifications(backend: str, frames: list, fe) -> list:
     return out
 
 
-@pytest.mark.parametrize("scenario,events", [("tavanti-test1", None), ("multi-random", 3)])
+@pytest.mark.parametrize("scenario,events", [("tavanti-test1", None), ("tavanti-test2", None), ("tavanti-test3", None),
+                                             ("multi-random", 3)])
 def test_surveillance_pipeline_identical_with_onnx_and_numpy(scenario, events):
     from hal.frame import RawFrame
     from hw_sim.boards import board_for
