@@ -140,9 +140,12 @@ def run(args: argparse.Namespace) -> int:
     chk = parity_check(knn, model, ref.features, n_random=2000, seed=0)
     rep.extra.update({"model": str(model_path), "model_bytes": res.path.stat().st_size, "parity": chk})
     if not args.no_plot:
-        png = plot_reference_pca(knn, out / "reference_pca.png",
-                                 title=f"reference set ({len(ref)} vectors) on its first principal components")
-        rep.extra["plot"] = str(png)
+        try:
+            png = plot_reference_pca(knn, out / "reference_pca.png",
+                                     title=f"reference set ({len(ref)} vectors) on its first principal components")
+            rep.extra["plot"] = str(png)
+        except ImportError:
+            print("note: matplotlib is not installed (extra `plot`): no reference_pca.png", file=sys.stderr)
     text = format_report(rep)
     (out / "report.txt").write_text(text + "\n", encoding="utf-8")
     (out / "report.json").write_text(json.dumps(rep.as_dict(), indent=2) + "\n", encoding="utf-8")
