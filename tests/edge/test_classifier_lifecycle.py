@@ -64,6 +64,14 @@ def test_recordings_give_the_synthetic_builders_features(tmp_path):
     assert forced.labels.tolist() == [DEFAULT_CLASSES.index("truck")]
     with pytest.raises(ValueError, match="unknown class"):
         recordings_reference_set([tmp_path], cfg, label="tram")
+    # the command on a directory of recordings (2 events per class: 2-fold CV)
+    out = tmp_path / "site-model"
+    assert main(["train", "--recordings", str(tmp_path), "--folds", "2", "--ks", "1-3", "--no-plot", "--no-progress",
+                 "--out", str(out)]) == 0
+    saved = load_reference_set(out / "reference_set.npz")
+    np.testing.assert_array_equal(saved.features, ref_rec.features)
+    assert saved.meta["generator"] == "recordings" and len(saved.meta["files"]) == len(ref_rec)
+    OnnxKnnClassifier(out / "model.onnx", expected_classes=DEFAULT_CLASSES)
 
 
 def test_train_command_on_synthetic_events_is_seeded(tmp_path, capsys):

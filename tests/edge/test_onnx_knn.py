@@ -15,7 +15,7 @@ from edge.classify.knn import METRICS, WeightedKNN
 from edge.classify.onnx_runtime import ModelError, OnnxKnnClassifier, query_latency
 
 onnx = pytest.importorskip("onnx")
-from edge.classify.onnx_export import KnnDefinition, build_model, export_model, reference_set_hash  # noqa: E402
+from edge.classify.onnx_export import KnnDefinition, export_model, reference_set_hash  # noqa: E402
 
 CLASSES = ("pedestrian", "car", "motorcycle", "truck")
 UNITS = np.array([0.1, 0.02, 3e3, 1e7, 15.0])
