@@ -40,3 +40,26 @@ def build_classifier(config: Any, expected_classes: tuple[str, ...] | None = DEF
                         "numpy to use classify.knn, or re-export the model)", key, getattr(kc, key), model.path, key,
                         mine)
     return model
+
+
+def classifier_latency(config: Any, *, queries: int = 2000, batch: int = 1, seed: int = 0) -> dict[str, Any]:
+    """Per-call latency of the configured ONNX model and of the numpy k-NN on the same reference
+    set and parameters (for ``radar-edge bench``): :func:`edge.classify.onnx_runtime.query_latency`
+    plus the model's ``path``, ``k``, ``metric`` and ``reference_size``. The numpy side is rebuilt
+    from ``classify.knn.reference_set`` when its hash matches the model's, else left out (``None``)."""
+    from edge.classify.onnx_runtime import query_latency
+
+    oc = config.section("classify.onnx")
+    kc: KnnConfig = config.section("classify.knn")
+    model = OnnxKnnClassifier(oc.model or None, threads=oc.threads, expected_classes=None)
+    ref = load_reference_set(kc.reference_set or None)
+    knn = None
+    from edge.classify.onnx_export import reference_set_hash  # numpy + hashlib only, no onnx import
+
+    if reference_set_hash(ref.features, ref.labels, ref.classes, ref.feature_names) == model.reference_sha256:
+        knn = WeightedKNN.from_reference_set(ref, k=model.k, metric=model.metric,
+                                             weighting=model.metadata.get("weighting", "balanced"))
+    out = query_latency(model, knn, queries=queries, batch=batch, seed=seed)
+    out.update({"model": str(model.path), "k": model.k, "metric": model.metric,
+                "reference_size": int(model.metadata.get("reference_size", 0)), "threads": oc.threads})
+    return out

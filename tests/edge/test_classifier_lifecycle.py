@@ -159,3 +159,11 @@ def test_surveillance_pipeline_identical_with_onnx_and_numpy(scenario, events):
         assert ea.probabilities.keys() == eb.probabilities.keys()
         for k in ea.probabilities:
             assert ea.probabilities[k] == pytest.approx(eb.probabilities[k], abs=1e-12)
+
+
+def test_classifier_latency_for_bench():
+    from edge.classify.classifier import classifier_latency
+
+    rep = classifier_latency(load_config(env={}), queries=50)
+    assert rep["k"] == 13 and rep["reference_size"] == len(load_reference_set())
+    assert rep["onnxruntime"]["p50_us"] > 0 and rep["numpy"] is not None and rep["numpy"]["p50_us"] > 0
