@@ -178,6 +178,8 @@ class OnnxKnnClassifier:
         q = np.atleast_2d(np.asarray(x, dtype=np.float32))
         if q.ndim != 2 or q.shape[1] != len(self.feature_names):
             raise ValueError(f"features must be (Q, {len(self.feature_names)}); got {np.shape(x)}")
+        if not np.all(np.isfinite(q)):
+            raise ValueError("features must be finite (a track seen in fewer than two frames has NaN variances)")
         return self._session.run(list(names), {self._input: np.ascontiguousarray(q)})
 
     def predict_proba(self, x: np.ndarray) -> np.ndarray:

@@ -60,6 +60,20 @@ def test_parity_on_every_reference_vector_and_10000_random(metric, tmp_path):
     assert len(np.unique(knn.predict(q.astype(np.float32)))) == len(CLASSES)
 
 
+@pytest.mark.parametrize("metric", METRICS)
+def test_parity_on_the_packaged_reference_set(metric, tmp_path):
+    """The shipped synthetic reference set, exported with each metric: every reference vector and
+    10 000 random vectors around it."""
+    from edge.classify.reference import load_reference_set
+
+    ref = load_reference_set()
+    knn = WeightedKNN.from_reference_set(ref, k=13, metric=metric)
+    model = OnnxKnnClassifier(export(knn, tmp_path), expected_classes=ref.classes)
+    assert_parity(knn, model, ref.features)
+    z = np.random.default_rng(5).normal(0, 1.5, size=(10_000, 5))
+    assert_parity(knn, model, z * knn.scale_ + knn.mean_)
+
+
 def grid_knn(metric: str, k: int, seed: int) -> tuple[WeightedKNN, np.ndarray]:
     """A reference set on a small integer grid with duplicated vectors, standardisation set to the
     identity: distances are exact, so many are exactly equal (ties) in both implementations."""
@@ -209,6 +223,10 @@ def test_threads_and_bad_query_shape(tmp_path):
     with pytest.raises(ValueError, match=r"\(Q, 5\)"):
         model.predict(np.zeros((3, 4), dtype=np.float32))
     assert model.predict(x[0]).shape == (1,)  # one vector is one query
+    with pytest.raises(ValueError, match="finite"):
+        model.predict_proba(np.array([[0.1, np.nan, 1e3, 1e6, 20.0]]))
+    with pytest.raises(ValueError, match="finite"):
+        model.predict(np.array([[0.1, 0.01, np.inf, 1e6, 20.0]]))
 
 
 def test_latency_function_reports_both_backends(tmp_path):
