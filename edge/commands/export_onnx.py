@@ -23,7 +23,10 @@ reference vector and --check random vectors (labels equal, probabilities within 
 is an error. Building needs the `onnx` package (extra `train`); running it only onnxruntime.
 
 The packaged default model edge/data/knn_default.onnx is built by exactly:
-  radar-edge export-onnx --out edge/data/knn_default.onnx"""
+  radar-edge export-onnx --out edge/data/knn_default.onnx
+from the packaged synthetic reference set edge/data/reference_set.npz (160 simulated single-target
+events, seed 90210: `radar-edge train --synthetic 160 --seed 90210` rebuilds the same set, same
+SHA-256) with the paper's k = 13, Euclidean, so the ONNX and numpy backends agree by default."""
 EPILOG = """\
 examples:
   radar-edge export-onnx --out edge/data/knn_default.onnx          # the packaged default model

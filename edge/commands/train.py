@@ -36,6 +36,7 @@ of the reference set but not the test set, so they show up as the nearest remain
 EPILOG = """\
 examples:
   radar-edge train --synthetic 200 --seed 1 --out out/train
+  radar-edge train --synthetic 160 --seed 90210 --out out/packaged   # rebuilds edge/data/reference_set.npz exactly
   radar-edge train --recordings site/ --out site-model            # site/car/*.npz, site/pedestrian/*.npz ...
   radar-edge train --reference edge/data/reference_set.npz --drop-class truck \\
                    --test-synthetic 20 --test-seed 7 --out out/no-trucks      # Tavanti Table V
@@ -59,7 +60,8 @@ def _ks(text: str) -> list[int]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--synthetic", type=int, metavar="N", help="simulate N single-target events")
+    src.add_argument("--synthetic", type=int, metavar="N",
+                     help="simulate N single-target events (rounded up to a multiple of 4: classes balanced)")
     src.add_argument("--recordings", nargs="+", metavar="PATH", help="recordings (.npz) or directories of them")
     src.add_argument("--reference", metavar="FILE.npz", help="an existing reference set")
     p.add_argument("--seed", type=int, default=1, help="seed of the synthetic events (default 1)")
