@@ -12,7 +12,7 @@ one whose feature schema or class list differs from what the pipeline expects ra
 (``classify.onnx.threads``), sequential execution, CPU provider. ``onnx`` is not imported here.
 
 With no model configured, :func:`default_model_path` (the packaged ``edge/data/knn_default.onnx``)
-is used; see :mod:`edge.classify.default_model` for the command that rebuilds it.
+is used; it is rebuilt by ``radar-edge export-onnx --out edge/data/knn_default.onnx``.
 """
 
 from __future__ import annotations
