@@ -32,6 +32,7 @@ training signatures (thresholded, neither clustered nor tracked).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,6 +46,7 @@ __all__ = [
     "ClusterSignatures",
     "FeatureConfig",
     "MapPoints",
+    "RadialSpeedEstimator",
     "SignatureExtractor",
     "TrackFeatureAccumulator",
     "weighted_standardization",
@@ -149,6 +151,7 @@ class ClusterSignatures:
     circular_variance: np.ndarray  # (L,) eq. 18
     rcs: np.ndarray  # (L,) eq. 17
     n_points: np.ndarray  # (L,) int
+    doppler_kmh: np.ndarray  # (L,) amplitude-weighted circular mean of the wrapped radial speed
 
     def __len__(self) -> int:
         return int(self.n_points.size)
@@ -193,7 +196,10 @@ class SignatureExtractor:
         )
         rcs = self._rcs(lab, rng, amp, rb, db, L)
         rcs[n == 0] = np.nan
-        return ClusterSignatures(centroid, mean_r, circ, rcs, n)
+        ca = np.bincount(lab, amp * np.cos(th), minlength=L)
+        sa = np.bincount(lab, amp * np.sin(th), minlength=L)
+        dop = np.where(n > 0, self.cylinder.speed_of_angle(np.arctan2(sa, ca)), np.nan)
+        return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop)
 
     def _rcs(self, lab, rng, amp, rb, db, L) -> np.ndarray:
         """Eq. 17: sum over the local range peaks of every Doppler column of each cluster."""
@@ -274,6 +280,86 @@ class TrackFeatureAccumulator:
         if n < 2 or den <= 0:
             return math.nan
         return (n * self._str - self._st * self._sr) / den * 3.6
+
+
+class RadialSpeedEstimator:
+    """Unaliased radial speed of a track from its wrapped Doppler and its range history.
+
+    The Doppler of a cluster (amplitude-weighted circular mean; 0.04 km/h bins) is precise but
+    aliased modulo ``2 v_max`` (10.7 km/h on the Distance2Go); the range rate of the centroid is
+    unambiguous but noisy, and biased low while an extended target enters the beam (more of the body
+    comes into view behind its front) and while it passes beside the radar (the radial speed falls to
+    zero and changes sign). The reference rate ``rho`` is therefore the least-squares slope of the
+    centroid range over the *middle half* of the track's frames (all frames below eight), and each
+    frame's speed is its wrapped Doppler moved by the multiple of ``2 v_max`` nearest to ``rho``:
+    ``v = v_w + 2 v_max round((rho - v_w) / (2 v_max))``, right while the truth is within ``v_max``
+    (about 5 km/h) of ``rho``.
+
+    * :meth:`mean_radial_speed_kmh`: the median of the per-frame speeds (robust to the frames of a
+      target passing beside the radar and to a wrong alias in a frame or two);
+    * :meth:`current_radial_speed_kmh`: the latest frame's speed with ``rho`` from the last
+      ``window_s`` seconds (at least three frames).
+
+    History is bounded (``max_frames``, oldest dropped).
+    """
+
+    def __init__(self, vmax_kmh: float, window_s: float = 1.2, max_frames: int = 1024) -> None:
+        self.vmax_kmh = float(vmax_kmh)
+        self.window_s = float(window_s)
+        self._t: deque[float] = deque(maxlen=max_frames)
+        self._r: deque[float] = deque(maxlen=max_frames)
+        self._v: deque[float] = deque(maxlen=max_frames)
+
+    def add(self, t_s: float, range_m: float, doppler_wrapped_kmh: float) -> None:
+        if math.isfinite(range_m) and math.isfinite(doppler_wrapped_kmh) and (not self._t or t_s > self._t[-1]):
+            self._t.append(float(t_s))
+            self._r.append(float(range_m))
+            self._v.append(float(doppler_wrapped_kmh))
+
+    def __len__(self) -> int:
+        return len(self._t)
+
+    @staticmethod
+    def _slope_kmh(t: np.ndarray, r: np.ndarray) -> float:
+        tc = t - t.mean()
+        den = float(tc @ tc)
+        return float(tc @ (r - r.mean())) / den * 3.6 if den > 0 else math.nan
+
+    def reference_rate_kmh(self) -> float:
+        """Least-squares range rate over the middle half of the frames (km/h); NaN below two."""
+        t, r = np.array(self._t), np.array(self._r)
+        n = t.size
+        if n < 2:
+            return math.nan
+        if n >= 8:
+            lo, hi = n // 4, n - n // 4
+            t, r = t[lo:hi], r[lo:hi]
+        return self._slope_kmh(t, r)
+
+    def dealias(self, doppler_wrapped_kmh, reference_kmh: float) -> np.ndarray:
+        period = 2.0 * self.vmax_kmh
+        vw = np.asarray(doppler_wrapped_kmh, dtype=np.float64)
+        return vw + period * np.round((reference_kmh - vw) / period)
+
+    def speeds_kmh(self) -> np.ndarray:
+        """Per-frame unaliased radial speeds (km/h, positive receding); empty below two frames."""
+        rho = self.reference_rate_kmh()
+        if not math.isfinite(rho):
+            return np.zeros(0)
+        return self.dealias(np.array(self._v), rho)
+
+    def mean_radial_speed_kmh(self) -> float:
+        v = self.speeds_kmh()
+        return float(np.median(v)) if v.size else math.nan
+
+    def current_radial_speed_kmh(self) -> float:
+        n = len(self._t)
+        if n < 2:
+            return math.nan
+        t, r = np.array(self._t), np.array(self._r)
+        k = max(3, int(np.count_nonzero(t >= t[-1] - self.window_s)))
+        rho = self._slope_kmh(t[-k:], r[-k:])
+        return float(self.dealias(self._v[-1], rho)) if math.isfinite(rho) else math.nan
 
 
 def weighted_standardization(x: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

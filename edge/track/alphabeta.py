@@ -90,6 +90,11 @@ class AlphaBetaConfig:
         metadata={"unit": "frames", "doc": "a track seen in fewer frames (creation frame + vis) is dropped when "
                   "it ends instead of being classified (step 9)", "min": 1, "max": 1000},
     )
+    publish_coasting_frames: int = field(
+        default=2,
+        metadata={"unit": "frames", "doc": "a confirmed track is published while it has missed at most this many "
+                  "consecutive frames (it stays alive for association until max_missed_frames)", "min": 0, "max": 1000},
+    )
     max_track_id: int = field(
         default=255,
         metadata={"doc": "track ids are 1..max_track_id, smallest free first and recycled (fits CAN/Modbus)",
@@ -346,5 +351,7 @@ class AlphaBetaTracker:
         return ended, dropped
 
     def confirmed(self) -> list[AlphaBetaTrack]:
-        """Open tracks already seen in ``min_seen_frames`` frames (published per frame)."""
-        return [t for t in self.tracks if t.seen_frames >= self.config.min_seen_frames]
+        """Open tracks seen in ``min_seen_frames`` frames and not coasting for more than
+        ``publish_coasting_frames`` (the ones published per frame)."""
+        c = self.config
+        return [t for t in self.tracks if t.seen_frames >= c.min_seen_frames and t.missed <= c.publish_coasting_frames]

@@ -15,12 +15,22 @@ assigned cluster's signature to its track's :class:`~edge.classify.features.Trac
 and feeds the frame's level to the :class:`~edge.track.events.EventSegmenter`. A track ends when it
 has missed ``N_u`` frames or when the event ends (hysteresis), and is classified there and then
 (streaming, not after the whole event as in the paper): class, eq. 21 probabilities, mean radial
-speed (least-squares slope of the centroid's range, km/h, positive receding) and direction.
+speed and direction. The speed is the median of the track's per-frame radial speeds, each the
+cluster's wrapped Doppler with its alias chosen by the local range rate of the centroid
+(:class:`~edge.classify.features.RadialSpeedEstimator`, km/h, positive receding); the least-squares
+range rate when that is not available.
 
-Published :class:`~edge.types.TrackState` fields: the Distance2Go has one receive channel, so the
-azimuth is unknown (NaN) and, as in :meth:`edge.types.Detections.from_polar`, the target is placed
-on boresight (``x = 0``, ``y = range``); ``radial_speed_mps`` is the filtered range rate (``u_r`` per
-frame period), unambiguous unlike the wrapped Doppler.
+Published :class:`~edge.types.TrackState`: tracks seen in at least ``min_seen_frames`` frames and
+not coasting for more than ``publish_coasting_frames`` frames. The alpha-beta state lives on the
+wrapped map and only serves the association (Tavanti §II-D: with ``alpha = 0.19`` it lags a 40 km/h
+car by metres), so the published kinematics come from the measured clusters: ``radial_speed_mps``
+is the unaliased radial speed of the latest frame (wrapped Doppler + alias from the range rate; the
+filtered rate ``u_r`` until two frames exist) and ``range_m`` the last centroid's range moved on by
+that speed over the time since it was seen (never below 0). The Distance2Go has one
+receive channel, so the azimuth is unknown (NaN) and, as in
+:meth:`edge.types.Detections.from_polar`, the target is placed on boresight (``x = 0``, ``y = range``).
+A published id that disappears from ``tracks`` without a :class:`~edge.types.ClassifiedEvent` was
+dropped (``vis / age < th_v``); its id may be reused.
 """
 
 from __future__ import annotations
@@ -37,6 +47,7 @@ from edge.classify.features import (
     ClusterSignatures,
     FeatureConfig,
     MapPoints,
+    RadialSpeedEstimator,
     SignatureExtractor,
     TrackFeatureAccumulator,
 )
@@ -93,6 +104,7 @@ class SurveillanceTracker:
             ref = load_reference_set(kc.reference_set or None)
             self.classifier = WeightedKNN.from_reference_set(ref, k=kc.k, metric=kc.metric, weighting=kc.weighting)
         self._acc: dict[int, TrackFeatureAccumulator] = {}
+        self._speed: dict[int, RadialSpeedEstimator] = {}
         self.classified = 0
         self.dropped = 0
 
@@ -123,18 +135,19 @@ class SurveillanceTracker:
         for tr in tstep.ended:
             out.append(self._finish(tr))
         for tr in tstep.dropped:
-            self._acc.pop(tr.track_id, None)
-            self.dropped += 1
+            self._forget(tr.track_id)
         for tid in tstep.created:
             self._acc[tid] = TrackFeatureAccumulator()
+            self._speed[tid] = RadialSpeedEstimator(self.cylinder.vmax_kmh)
         t_s = t_ns * 1e-9
         for tid, j in tstep.assigned.items():
             lab = labels[j]
             self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab])
+            self._speed[tid].add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
         seg = self.segmenter.step(t_ns, level)
         if seg.ended or seg.discarded:
             out.extend(self._close_tracks())
-        tracks = tuple(self._track_state(tr) for tr in self.tracker.confirmed())
+        tracks = tuple(self._track_state(tr, t_ns) for tr in self.tracker.confirmed())
         inter = {"centroids": sig.centroid[valid], "cluster_labels": labels, "level": level}
         return SurveillanceStep(tracks, tuple(out), seg, sig, tstep, inter)
 
@@ -146,14 +159,21 @@ class SurveillanceTracker:
     def _close_tracks(self) -> list[ClassifiedEvent]:
         ended, dropped = self.tracker.close_all()
         for tr in dropped:
-            self._acc.pop(tr.track_id, None)
-            self.dropped += 1
+            self._forget(tr.track_id)
         return [self._finish(tr) for tr in ended]
+
+    def _forget(self, track_id: int) -> None:
+        self._acc.pop(track_id, None)
+        self._speed.pop(track_id, None)
+        self.dropped += 1
 
     def _finish(self, tr: AlphaBetaTrack) -> ClassifiedEvent:
         acc = self._acc.pop(tr.track_id, None) or TrackFeatureAccumulator()
+        spd = self._speed.pop(tr.track_id, None)
         x = acc.features()
-        v = acc.mean_radial_speed_kmh()
+        v = spd.mean_radial_speed_kmh() if spd is not None else math.nan
+        if not math.isfinite(v):
+            v = acc.mean_radial_speed_kmh()
         names = self.classifier.classes
         if np.all(np.isfinite(x)):
             p = self.classifier.predict_proba(x[None, :])[0]
@@ -176,9 +196,11 @@ class SurveillanceTracker:
             features=feats,
         )
 
-    def _track_state(self, tr: AlphaBetaTrack) -> TrackState:
-        r = float(tr.state[4])
-        v = float(tr.state[5]) / self.frame_period_s
+    def _track_state(self, tr: AlphaBetaTrack, t_ns: int) -> TrackState:
+        spd = self._speed.get(tr.track_id)
+        v_kmh = spd.current_radial_speed_kmh() if spd is not None else math.nan
+        v = v_kmh / 3.6 if math.isfinite(v_kmh) else float(tr.state[5]) / self.frame_period_s
+        r = max(0.0, float(tr.last_measurement[2]) + v * (t_ns - tr.last_seen_ns) * 1e-9)
         return TrackState(
             track_id=tr.track_id,
             x_m=0.0,

@@ -39,8 +39,13 @@ def blob(rng, r, v, kind, label):
     return rb * DR, db * DV - VMAX, val, rb, db, np.full(rb.size, label)
 
 
+def wrap(v_kmh):
+    return (v_kmh + VMAX) % (2 * VMAX) - VMAX
+
+
 def frame_points(rng, targets, t):
-    cols = [blob(rng, r0 + vr * t / 3.6, vd, kind, k) for k, (kind, r0, vr, vd) in enumerate(targets)
+    """``targets``: (kind, range at t = 0 in m, radial speed km/h, unused); Doppler aliased as on the board."""
+    cols = [blob(rng, r0 + vr * t / 3.6, wrap(vr), kind, k) for k, (kind, r0, vr, _) in enumerate(targets)
             if 0 < r0 + vr * t / 3.6 < 24]
     if not cols:
         return MapPoints.empty()
