@@ -17,8 +17,9 @@ so the whole algorithm runs on arrays, with no per-point Python and no callback 
    to the same cluster iff some pair of their points is within ``eps``; the closest pair of two groups
    is always on their boundaries (a step towards the other group from an interior bin stays in the
    group and gets closer), so only boundary core bins (plus the Doppler seam columns, which the
-   lattice labelling does not join) go into a KD-tree (``scipy.spatial.cKDTree.query_pairs``) and the
-   groups are merged with ``scipy.sparse.csgraph.connected_components``.
+   lattice labelling does not join) are compared: group pairs whose bounding boxes come within
+   ``eps`` are tested with a KD-tree nearest-neighbour query (``scipy.spatial.cKDTree``) and joined
+   by union-find over groups (a loop over groups, never over points).
 3. **Border points**: a non-core point joins the cluster of its nearest core point if that point is
    within ``eps`` (the nearest core point is again a boundary bin: one KD-tree query).
 
@@ -35,8 +36,6 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 import scipy.ndimage
-import scipy.sparse
-import scipy.sparse.csgraph
 import scipy.spatial
 
 _EPS_TOL = 1e-9  # relative slack so that distances equal to eps count as neighbours (<= eps)
@@ -129,18 +128,10 @@ class CylinderDbscan:
         bnd[:, -1] |= core_grid[:, -1]
         bi, bj = np.nonzero(bnd)
         b_lab = lab_grid[bi, bj] - 1
-        tree = scipy.spatial.cKDTree(self.coordinates(bi, bj))
-        if n_lab > 1:
-            pairs = tree.query_pairs(self._r, output_type="ndarray")
-            la, lb = b_lab[pairs[:, 0]], b_lab[pairs[:, 1]]
-            diff = la != lb
-            g = scipy.sparse.coo_matrix(
-                (np.ones(int(diff.sum()), dtype=np.int8), (la[diff], lb[diff])), shape=(n_lab, n_lab)
-            )
-            n_clu, comp = scipy.sparse.csgraph.connected_components(g, directed=False)
-        else:
-            n_clu, comp = 1, np.zeros(1, dtype=np.int32)
-        comp = comp.astype(np.int32)
+        b_xyz = self.coordinates(bi, bj)
+        tree = scipy.spatial.cKDTree(b_xyz)
+        comp = self._merge_groups(b_xyz, b_lab, n_lab) if n_lab > 1 else np.zeros(1, dtype=np.int32)
+        n_clu = int(comp.max()) + 1
         labels[core] = comp[lab_grid[ri[core], dj[core]] - 1]
         # border points: nearest core point within eps
         nc = ~core
@@ -151,6 +142,47 @@ class CylinderDbscan:
             lab_nc[ok] = comp[b_lab[idx[ok]]]
             labels[nc] = lab_nc
         return Clusters(ri, dj, labels, core, int(n_clu), counts)
+
+    def _merge_groups(self, xyz: np.ndarray, lab: np.ndarray, n_lab: int) -> np.ndarray:
+        """Join lattice-connected core groups that come within eps of each other -> dense cluster ids.
+
+        ``xyz``/``lab``: boundary core points and their group (0..n_lab-1). Candidate group pairs are
+        those whose 3-D bounding boxes, grown by eps, overlap (one vectorised test); for each, the
+        smaller group's boundary points query a KD-tree of the larger one's (nearest neighbour within
+        eps). The loop runs over group pairs (a handful of targets and sidelobe islands), never points.
+        """
+        order = np.argsort(lab, kind="stable")
+        xyz, lab = xyz[order], lab[order]
+        starts = np.searchsorted(lab, np.arange(n_lab + 1))
+        lo = np.minimum.reduceat(xyz, starts[:-1], axis=0)
+        hi = np.maximum.reduceat(xyz, starts[:-1], axis=0)
+        gap = np.maximum(0.0, np.maximum(lo[:, None, :] - hi[None, :, :], lo[None, :, :] - hi[:, None, :]))
+        near = np.einsum("ijk,ijk->ij", gap, gap) <= self._r**2
+        ia, ib = np.nonzero(np.triu(near, 1))
+        parent = np.arange(n_lab)
+
+        def find(x: int) -> int:
+            while parent[x] != x:
+                parent[x] = parent[parent[x]]
+                x = parent[x]
+            return x
+
+        trees: dict[int, scipy.spatial.cKDTree] = {}
+        for a, b in zip(ia.tolist(), ib.tolist()):
+            ra, rb = find(a), find(b)
+            if ra == rb:
+                continue
+            na, nb = starts[a + 1] - starts[a], starts[b + 1] - starts[b]
+            small, big = (a, b) if na <= nb else (b, a)
+            t = trees.get(big)
+            if t is None:
+                t = trees[big] = scipy.spatial.cKDTree(xyz[starts[big] : starts[big + 1]])
+            d, _ = t.query(xyz[starts[small] : starts[small + 1]], k=1, distance_upper_bound=self._r)
+            if np.isfinite(d).any():
+                parent[max(ra, rb)] = min(ra, rb)
+        roots = np.array([find(i) for i in range(n_lab)])
+        _, dense = np.unique(roots, return_inverse=True)
+        return dense.astype(np.int32)
 
 
 def centroids(points: np.ndarray, labels: np.ndarray, n_clusters: int, radius: float) -> tuple[np.ndarray, np.ndarray]:

@@ -10,7 +10,8 @@ Scoring:
 * **Track instances**: a published track id from its first confirmed frame to the
   :class:`~edge.types.ClassifiedEvent` that ends it. An instance is matched to the true target in
   view whose weighted range (below) is nearest over the instance's frames, among the targets for
-  which the mean distance from the track's range to the range extent of their scatterers in view is
+  which the mean distance from the range of the cluster the tracker associated (frames where the
+  track coasted are left out: the alpha = 0.19 filter lags fast targets by metres) to the range extent of their scatterers in view is
   within :data:`MATCH_RANGE_M` (the range-Doppler coupling of a 40 km/h car alone shifts a cluster
   by 2 m). Unmatched instances are false tracks.
 * **Per target**: the matched instance with the most frames gives ``predicted_class``, the
@@ -55,6 +56,7 @@ class _Instance:
     event: ClassifiedEvent | None = None
     target: int | None = None
     range_err: list[float] = field(default_factory=list)
+    meas: list[float | None] = field(default_factory=list)  # range of the cluster associated (None: coasting)
 
 
 def _interval_distance(r: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -107,13 +109,15 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
         fv = frame_view(scene, f.t_s)
         views.append(fv)
         det_r = np.asarray(res.detections.range_m, dtype=float)
-        for tid, lo, hi in zip(fv.id, fv.range_min_m, fv.range_max_m):
+        for tid, lo, hi in zip(fv.id[fv.in_beam], fv.range_min_m[fv.in_beam], fv.range_max_m[fv.in_beam]):
             d = _interval_distance(det_r, lo, hi)
             det_hits.setdefault(int(tid), []).append(bool(d.size and d.min() <= MATCH_RANGE_M))
+        meas = res.intermediates.get("track_cluster_range_m", {})
         for ts in res.tracks:
             inst = open_inst.setdefault(ts.track_id, _Instance(ts.track_id))
             inst.frames.append(n)
             inst.ranges.append(float(ts.range_m))
+            inst.meas.append(meas.get(ts.track_id))
         close_events(res.classifications, n)
     close_events(pipe.flush(), n_frames)
     done.extend(open_inst.values())  # tracks that never produced an event (should not happen)
@@ -123,8 +127,11 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
     for inst in done:
         if not inst.frames:
             continue
+        pairs = [(n, r) for n, r in zip(inst.frames, inst.meas) if r is not None]
+        if not pairs:
+            pairs = list(zip(inst.frames, inst.ranges))
         errs: dict[int, list[tuple[float, float]]] = {}
-        for n, r in zip(inst.frames, inst.ranges):
+        for n, r in pairs:
             fv = views[n]
             for tid, rw, lo, hi in zip(fv.id, fv.range_m, fv.range_min_m, fv.range_max_m):
                 gap = float(_interval_distance(np.array([r]), lo, hi)[0])
@@ -132,7 +139,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
         best, best_err = None, np.inf
         for tid, e in errs.items():
             err = np.asarray(e)
-            if (len(e) >= MIN_MATCH_OVERLAP * len(inst.frames) and err[:, 1].mean() <= MATCH_RANGE_M
+            if (len(e) >= MIN_MATCH_OVERLAP * len(pairs) and err[:, 1].mean() <= MATCH_RANGE_M
                     and err[:, 0].mean() < best_err):
                 best, best_err = tid, float(err[:, 0].mean())
         if best is not None:
@@ -148,14 +155,14 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
     for tid, t in truths.items():
         mine = [i for i in done if i.target == tid and i.event is not None]
         tracked_frames = {n for i in done if i.target == tid for n in i.frames}
-        vis_frames = {n for n, fv in enumerate(views) if tid in fv.id}
+        vis_frames = {n for n, fv in enumerate(views) if tid in fv.id[fv.in_beam]}
         row = {
             "id": tid, "event": t.event, "class": t.cls, "lane": None,
             "tracked_fraction": len(tracked_frames & vis_frames) / max(1, len(vis_frames)),
             "position_rmse_m": None, "speed_mae_kmh": None, "predicted_class": None,
             "class_probability": None, "direction_true": t.direction, "direction_est": None,
             "mean_radial_speed_kmh_true": round(t.mean_radial_speed_kmh, 3), "mean_radial_speed_kmh_est": None,
-            "n_tracks": len(mine), "visible_frames": t.visible_frames,
+            "n_tracks": len(mine), "visible_frames": t.visible_frames, "features": None,
         }
         ti = labels.index(t.cls) if t.cls in labels else None
         if mine:
@@ -166,6 +173,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
             v_est = float(ev.mean_radial_speed_kmh)
             row.update({
                 "predicted_class": ev.cls, "class_probability": ev.probabilities.get(ev.cls),
+                "features": {k: float(v) for k, v in ev.features.items()},
                 "direction_est": ev.direction, "mean_radial_speed_kmh_est": round(v_est, 3) if np.isfinite(v_est) else None,
                 "position_rmse_m": rm,
                 "speed_mae_kmh": abs(v_est - t.mean_radial_speed_kmh) if np.isfinite(v_est) else None,

@@ -128,9 +128,14 @@ class SurveillancePipeline(Pipeline):
             )
             level = float(m.max())
             step = self.tracker.update(frame.t_ns, pts, level=level)
+            lab = step.intermediates.get("cluster_labels")
+            assoc = {
+                int(tid): float(step.signatures.range_m[lab[j]]) for tid, j in step.tracker.assigned.items()
+            } if lab is not None else {}
             det = self._detections(step, clu.n_clusters)
         self._last_t_ns = frame.t_ns
-        inter: dict[str, Any] = {"th_rd": cfg.th_rd, "level": level, "n_points": len(clu), "n_clusters": clu.n_clusters}
+        inter: dict[str, Any] = {"th_rd": cfg.th_rd, "level": level, "n_points": len(clu), "n_clusters": clu.n_clusters,
+                                 "track_cluster_range_m": assoc}
         if cfg.keep_map:
             inter.update({"rd_map": m, "range_m": rd.range_m, "radial_speed_kmh": rd.radial_speed_kmh,
                           "range_bin": rb, "doppler_bin": db, "labels": clu.labels})
