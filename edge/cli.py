@@ -29,6 +29,8 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.doctor",
     "edge.commands.plot",
     "edge.commands.calibrate",
+    "edge.commands.train",
+    "edge.commands.export_onnx",
 )
 
 EPILOG = """\

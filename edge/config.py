@@ -93,6 +93,7 @@ SECTIONS: dict[str, str] = {
     "track.events": "edge.track.events:EventConfig",
     "classify.features": "edge.classify.features:FeatureConfig",
     "classify.knn": "edge.classify.knn:KnnConfig",
+    "classify.onnx": "edge.classify.onnx_runtime:OnnxConfig",
 }
 
 

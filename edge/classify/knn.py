@@ -28,9 +28,14 @@ from edge.classify.features import weighted_standardization
 if TYPE_CHECKING:  # pragma: no cover
     from edge.classify.reference import ReferenceSet
 
-__all__ = ["KnnConfig", "METRICS", "WeightedKNN", "class_balanced_weights", "pairwise_distances"]
+__all__ = ["KnnConfig", "METRICS", "PROBABILITY_TIE_TOL", "WeightedKNN", "class_balanced_weights", "pairwise_distances"]
 
 METRICS: tuple[str, ...] = ("euclidean", "manhattan", "chebyshev")
+
+#: class probabilities closer than this are a tie (-> the lower class index). Eq. 21 sums weights
+#: in an implementation-defined order, so equal sums can differ by a few ulp (~1e-16 each); distinct
+#: probabilities of any realistic reference set differ by far more (>= 1/(k * N^2) ~ 1e-7).
+PROBABILITY_TIE_TOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -151,5 +156,8 @@ class WeightedKNN:
         return num / w.sum(axis=1, keepdims=True)
 
     def predict(self, x: np.ndarray) -> np.ndarray:
-        """``(Q,)`` class indices (argmax of :meth:`predict_proba`, ties -> lower class index)."""
-        return np.argmax(self.predict_proba(x), axis=1)
+        """``(Q,)`` class indices: the lowest class whose probability is within
+        :data:`PROBABILITY_TIE_TOL` of the maximum (ties -> lower class index, also when rounding made
+        two mathematically equal sums of weights differ in the last bit)."""
+        p = self.predict_proba(x)
+        return np.argmax(p >= p.max(axis=1, keepdims=True) - PROBABILITY_TIE_TOL, axis=1)

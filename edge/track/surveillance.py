@@ -51,6 +51,7 @@ from edge.classify.features import (
     SignatureExtractor,
     TrackFeatureAccumulator,
 )
+from edge.classify.classifier import build_classifier
 from edge.classify.knn import KnnConfig, WeightedKNN
 from edge.classify.reference import load_reference_set
 from edge.track.alphabeta import AlphaBetaConfig, AlphaBetaTrack, AlphaBetaTracker, TrackerStep
@@ -88,7 +89,7 @@ class SurveillanceTracker:
         tracking: AlphaBetaConfig | None = None,
         events: EventConfig | None = None,
         features: FeatureConfig | None = None,
-        knn: KnnConfig | WeightedKNN | None = None,
+        knn: Any = None,
         classify: bool = True,
     ) -> None:
         self.frontend = frontend
@@ -97,10 +98,10 @@ class SurveillanceTracker:
         self.cylinder = self.extractor.cylinder
         self.tracker = AlphaBetaTracker(tracking or AlphaBetaConfig(), self.cylinder)
         self.segmenter = EventSegmenter(events or EventConfig(), threshold)
-        self.classifier: WeightedKNN | None
+        self.classifier: Any  # WeightedKNN or OnnxKnnClassifier (same predict interface), or None
         if not classify:
             self.classifier = None  # features only (building reference sets): cls = "unknown"
-        elif isinstance(knn, WeightedKNN):
+        elif knn is not None and not isinstance(knn, KnnConfig):  # WeightedKNN or OnnxKnnClassifier
             self.classifier = knn
         else:
             kc = knn or KnnConfig()
@@ -115,14 +116,15 @@ class SurveillanceTracker:
     @classmethod
     def from_config(cls, frontend: FrontendInfo, config: Any, threshold: float) -> "SurveillanceTracker":
         """Build from a resolved :class:`edge.config.Config` (sections ``track.alphabeta``,
-        ``track.events``, ``classify.features``, ``classify.knn``)."""
+        ``track.events``, ``classify.features``, and ``classify.onnx``/``classify.knn`` for the classifier:
+        :func:`edge.classify.classifier.build_classifier`, the ONNX model by default)."""
         return cls(
             frontend,
             threshold,
             tracking=config.section("track.alphabeta"),
             events=config.section("track.events"),
             features=config.section("classify.features"),
-            knn=config.section("classify.knn"),
+            knn=build_classifier(config),
         )
 
     # ------------------------------------------------------------------------------------------
@@ -191,7 +193,7 @@ class SurveillanceTracker:
         if self.classifier is not None and np.all(np.isfinite(x)):
             names = self.classifier.classes
             p = self.classifier.predict_proba(x[None, :])[0]
-            k = int(np.argmax(p))
+            k = int(self.classifier.predict(x[None, :])[0])  # ties -> lower class, as the ONNX model
             cls, probs = names[k], {n: float(pi) for n, pi in zip(names, p)}
         else:
             if self.classifier is not None:

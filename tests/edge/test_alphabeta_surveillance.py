@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from edge.classify.features import MapPoints
-from edge.classify.knn import WeightedKNN
+from edge.classify.knn import KnnConfig, WeightedKNN
 from edge.classify.reference import DEFAULT_CLASSES
 from edge.track.alphabeta import AlphaBetaConfig
 from edge.track.events import EventConfig
@@ -127,9 +127,14 @@ def test_event_end_closes_tracks_and_scintillation_is_dropped():
 def test_from_config_loads_the_packaged_reference_set():
     from edge.config import load_config
 
-    cfg = load_config(env={}, overrides={"classify.knn.k": "5", "track.alphabeta.alpha": "0.3"})
+    # classify.knn applies to the numpy backend; the default ONNX model carries its own k
+    cfg = load_config(env={}, overrides={"classify.onnx.backend": "numpy", "classify.knn.k": "5",
+                                         "track.alphabeta.alpha": "0.3"})
     st = SurveillanceTracker.from_config(FE, cfg, threshold=2.0)
+    assert isinstance(st.classifier, WeightedKNN)
     assert st.classifier.k == 5 and st.classifier.classes == DEFAULT_CLASSES
+    default = SurveillanceTracker.from_config(FE, load_config(env={}), threshold=2.0)
+    assert type(default.classifier).__name__ == "OnnxKnnClassifier" and default.classifier.k == KnnConfig().k
     assert st.tracker.filter.alpha == 0.3
     assert st.cylinder.vmax_kmh == pytest.approx(5.348, abs=2e-3)
     step = st.update(0, MapPoints.empty())
