@@ -7,9 +7,21 @@ Frames are synthesised first (seeded, not timed), then the same frames go, singl
 * the *peer pipeline*: what a user would otherwise glue together for the same job (float64 numpy,
   scikit-learn, Stone Soup), where the profile provides one.
 
-Each profile provides its bound and peer in ``edge.bench.<profile>`` as ``fft_bound(frontend)`` and
-``peer(frontend, config)``, both returning a callable ``f(frame) -> object``. The JSON document has
-the keys of DESIGN §6.
+Each profile provides its bound and peer in ``edge.bench.<profile>`` as ``fft_bound(frontend, config)``
+and ``peer(frontend, config)``, both returning a callable ``f(frame) -> object`` (``peer`` returns
+``None`` when its libraries are missing and says why in the module's ``PEER_UNAVAILABLE``), and
+optionally ``extras(frontend, config) -> dict`` merged into the report (the surveillance profile's
+classifier latency). Stateful callables (product, peer) are warmed on a throw-away instance and
+timed fresh from the first frame.
+
+The JSON document has the keys of DESIGN §6 -- ``{profile, frames, stages: {name: {p50_ms, p99_ms}},
+frame: {p50_ms, p99_ms, budget_ms, p99_budget_fraction}, peak_rss_mb, startup_s, peer: {p99_ms,
+ratio}, fft_bound: {p99_ms, ratio}}`` -- plus ``p50_budget_fraction`` per stage and frame, p50
+figures and ratios, ``peer_unavailable`` (why the peer is missing), ``startup`` (``startup_s``,
+``exit_s``, ``run_peak_rss_mb`` of a fresh ``radar-edge run``) and profile extras. ``peer.ratio`` is
+peer p99 / product p99 (how many times faster the product is); ``fft_bound.ratio`` is product p99 /
+bound p99 (how far above the bound). ``peak_rss_mb`` is the bench process's own (it also holds the
+peer's libraries); ``startup.run_peak_rss_mb`` is the product's.
 """
 
 from __future__ import annotations

@@ -9,6 +9,11 @@ with and without the pollers, and the frames dropped in each half.
 
     python -m edge.outputs.pollbench --duration 60 --rate 20
     python -m edge.outputs.pollbench --duration 60 --clients 4 --rate 0     # flood
+    python -m edge.outputs.pollbench --duration 60 --clients 4 --rate 0 --client-nice 19
+
+On a development machine the clients share the CPU with the device under test; real Modbus masters
+sit on other machines. ``--client-nice 19`` approximates that (the clients get only idle CPU); the
+server process's own work is then what remains of the flood's cost.
 """
 
 from __future__ import annotations
@@ -21,7 +26,11 @@ import time
 import numpy as np
 
 
-def _poller(port: int, rate_hz: float, active, stop, counter) -> None:
+def _poller(port: int, rate_hz: float, active, stop, counter, nice: int = 0) -> None:
+    import os
+
+    if nice:
+        os.nice(nice)  # stands in for a master on another machine: only CPU the device would leave idle
     from pymodbus.client import ModbusTcpClient
     from pymodbus.exceptions import ModbusException
 
@@ -51,7 +60,7 @@ def _poller(port: int, rate_hz: float, active, stop, counter) -> None:
 
 
 def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.0, source: str | None = None,
-            clients: int = 1) -> dict:
+            clients: int = 1, client_nice: int = 0) -> dict:
     from edge.config import load_config
     from edge.loop import FrameLoop
     from edge.outputs import build_sinks
@@ -71,7 +80,8 @@ def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.
     port = sinks[0].tcp_address[1]
     ctx = mp.get_context("spawn")
     active, stop, counter = ctx.Event(), ctx.Event(), ctx.Value("i", 0)
-    procs = [ctx.Process(target=_poller, args=(port, rate_hz, active, stop, counter), daemon=True)
+    procs = [ctx.Process(target=_poller, args=(port, rate_hz, active, stop, counter, client_nice),
+                         daemon=True)
              for _ in range(max(1, clients))]
     for proc in procs:
         proc.start()
@@ -103,7 +113,7 @@ def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.
             if proc.is_alive():
                 proc.terminate()
     out = {"profile": profile, "duration_s": duration_s, "block_s": block_s, "rate_hz": rate_hz,
-           "clients": len(procs), "full_map_polls": counter.value}
+           "clients": len(procs), "client_nice": client_nice, "full_map_polls": counter.value}
     for key, on in (("without_poller", False), ("with_poller", True)):
         a = np.asarray(samples[on], dtype=float)
         a = a[np.isfinite(a)]
@@ -122,9 +132,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rate", type=float, default=20.0,
                    help="full-map polls per second per client (default 20; 0 = as fast as possible, a flood)")
     p.add_argument("--clients", type=int, default=1, help="polling clients, one process each (default 1)")
+    p.add_argument("--client-nice", type=int, default=0, metavar="N",
+                   help="nice value of the client processes (e.g. 19: they stand in for masters on other machines "
+                        "and take only CPU the device would leave idle; default 0)")
     p.add_argument("--source", help="radar source URL (default: source.url of the configuration)")
     a = p.parse_args(argv)
-    print(json.dumps(measure(a.duration, a.block, a.rate, a.source, a.clients), indent=2))
+    print(json.dumps(measure(a.duration, a.block, a.rate, a.source, a.clients, a.client_nice), indent=2))
     return 0
 
 
