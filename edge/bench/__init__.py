@@ -186,6 +186,7 @@ def run_bench(
         "startup_s": None,
         "peer": None,
         "fft_bound": None,
+        "threads_env": {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")},
     }
     hooks = _hooks(profile)
     if hooks is not None and hasattr(hooks, "fft_bound"):

@@ -97,4 +97,8 @@ def report_lines(rep: dict) -> list[str]:
         if st.get("run_peak_rss_mb"):
             line += f", peak RSS {st['run_peak_rss_mb']:.0f} MB"
     out.append(line)
+    env = rep.get("threads_env") or {}
+    if env and not all(v == "1" for v in env.values()):
+        out.append("note: OMP_NUM_THREADS/OPENBLAS_NUM_THREADS are not 1: BLAS may use threads (the service "
+                   "unit sets them to 1; do the same for figures comparable with the device)")
     return out
