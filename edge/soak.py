@@ -97,7 +97,8 @@ class SoakMonitor:
             self.interval_starts[st.lane] = st.interval_start_ns
             counted = sum(st.class_counts.values())
             if st.class_counts and counted != st.volume:
-                self.problems.append(f"lane {st.lane}: class counts {st.class_counts} do not add up to volume {st.volume}")
+                self.problems.append(f"lane {st.lane}: class counts {st.class_counts} do not add up to "
+                                     f"volume {st.volume}")
         step = max(1, self.total_frames // self.samples)
         if self.frames == 1 or self.frames % step == 0:
             self.rss.append((self.frames, rss_mb()))

@@ -60,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
     r = rep["rss_mb"]
     print(f"{rep['frames']} frames ({rep['simulated_hours']:.2f} h of {rep['scenario']}) in {rep['wall_s']:.0f} s, "
           f"{rep['frames_per_s']:.0f} frames/s")
-    print(f"RSS {r['at_10pct']:.1f} MB at 10 %, {r['at_end']:.1f} MB at the end: growth {r['growth_10_to_100pct']:+.2f} MB")
+    print(f"RSS {r['at_10pct']:.1f} MB at 10 %, {r['at_end']:.1f} MB at the end: "
+          f"growth {r['growth_10_to_100pct']:+.2f} MB")
     t = rep["tracks"]
     print(f"tracks: {t['distinct_ids']} distinct ids, max id {t['max_id']}, max concurrent {t['max_concurrent']}, "
           f"ids recycled {t['id_reuses']} times")

@@ -117,7 +117,7 @@ def test_source_stall_garbage_and_disconnect_through_the_loop(lane_frames, polic
                      LoopConfig(error_policy=policy, reconnect_backoff_s=0.5), sinks=[sink], clock=clk,
                      pace="none")
     s = loop.run()
-    # frames consumed by the faulty reads; map read index -> frame index: stalls consume none (3 before read 9, 4 before read 32)
+    # frames consumed by the faulty reads; read index -> frame index: stalls consume none
     faulty_reads = [9, 14, 20, 25, 32]
     lost = {lane_frames[r - sum(1 for k, v in script.items() if v == "stall" and k < r)].seq for r in faulty_reads}
     good = [f.seq for f in lane_frames if f.seq not in lost]
@@ -415,7 +415,8 @@ def test_disk_full_while_recording_is_counted_and_the_loop_keeps_running(lane_fr
     (["run", "--no-outputs", "--set", "track.pdaf.prob_detect=abc"], "track.pdaf.prob_detect"),
     (["run", "--no-outputs", "--set", "outputs.modbus.tcp_port=70000"], "outputs.modbus.tcp_port"),
     (["run", "--no-outputs", "--set", "nosuch.key=1"], "nosuch"),
-    (["bench", "--profile", "lane", "--frames", "12", "--set", "pipeline.lane.window=triangle"], "pipeline.lane.window"),
+    (["bench", "--profile", "lane", "--frames", "12", "--set", "pipeline.lane.window=triangle"],
+     "pipeline.lane.window"),
     (["soak", "--frames", "10", "--set", "traffic.interval_s=0"], "traffic.interval_s"),
 ])
 def test_bad_configuration_values_exit_2_naming_the_key(argv, message, capsys):
