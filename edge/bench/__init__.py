@@ -146,11 +146,14 @@ def run_bench(
     startup: bool = True,
     progress: bool = False,
     peer_frames: int | None = None,
+    repeat: int = 1,
 ) -> dict:
     """Time the product pipeline, the FFT bound and the peer on the same synthesised frames.
 
     ``peer_frames``: frames given to the peer (default: a fifth of ``frames``, at least 30 -- it is
     slow); it always starts from the first frame, like the product, so trackers see the same scene.
+    ``repeat``: time the product and the bound this many times and keep the run with the lowest
+    frame p99 (other processes on the machine only ever add time); the peer runs once.
     """
     board = board_of(profile)
     recorded = synth_frames(board, scenario, seed, frames, progress)
@@ -162,14 +165,20 @@ def run_bench(
     for f in recorded[: min(5, len(recorded))]:
         warm.process(f, StageTimer(16))
     warm.close()
-    pipe = build_pipeline(profile, fe, config)
-    timer = StageTimer(max(16, len(recorded)))
-    frame_ms = np.empty(len(recorded))
-    for k, f in enumerate(recorded):
-        t0 = time.perf_counter_ns()
-        pipe.process(f, timer)
-        frame_ms[k] = (time.perf_counter_ns() - t0) / 1e6
-    pipe.close()
+    best = None
+    for _ in range(max(1, repeat)):  # best of N: other processes only ever add time
+        pipe = build_pipeline(profile, fe, config)
+        timer = StageTimer(max(16, len(recorded)))
+        frame_ms = np.empty(len(recorded))
+        for k, f in enumerate(recorded):
+            t0 = time.perf_counter_ns()
+            pipe.process(f, timer)
+            frame_ms[k] = (time.perf_counter_ns() - t0) / 1e6
+        pipe.close()
+        p99 = float(np.percentile(frame_ms, 99))
+        if best is None or p99 < best[0]:
+            best = (p99, timer, frame_ms)
+    _, timer, frame_ms = best
     stages = {name: _fractions(_percentiles(timer.samples_ms(name)), budget_ms) for name in timer.names()}
     frame = _fractions(_percentiles(frame_ms), budget_ms)
     frame["budget_ms"] = budget_ms
@@ -180,6 +189,7 @@ def run_bench(
         "frames": len(recorded),
         "scenario": scenario or DEFAULT_SCENARIO[board],
         "seed": seed,
+        "repeat": max(1, repeat),
         "stages": stages,
         "frame": frame,
         "peak_rss_mb": None,
@@ -190,8 +200,8 @@ def run_bench(
     }
     hooks = _hooks(profile)
     if hooks is not None and hasattr(hooks, "fft_bound"):
-        t = time_callable(hooks.fft_bound(fe, config), recorded)
-        b = _percentiles(t)
+        runs = [_percentiles(time_callable(hooks.fft_bound(fe, config), recorded)) for _ in range(max(1, repeat))]
+        b = min(runs, key=lambda r: r["p99_ms"])
         out["fft_bound"] = {"p99_ms": b["p99_ms"], "p50_ms": b["p50_ms"], "ratio": frame["p99_ms"] / b["p99_ms"],
                             "p50_ratio": frame["p50_ms"] / b["p50_ms"]}
     if not peer:

@@ -41,9 +41,9 @@ def test_bench_profiles_report_finite_ratios(profile):
     """Lane and surveillance: DESIGN §6 keys, per-stage budget fractions, and finite positive peer and
     FFT-bound ratios (timings themselves are never asserted)."""
     pytest.importorskip("sklearn" if profile == "surveillance" else "stonesoup")
-    rep = run_bench(profile, load_config(env={}), frames=12, seed=4, startup=False, peer_frames=6)
+    rep = run_bench(profile, load_config(env={}), frames=12, seed=4, startup=False, peer_frames=6, repeat=2)
     assert {"profile", "frames", "stages", "frame", "peak_rss_mb", "startup_s", "peer", "fft_bound"} <= set(rep)
-    assert rep["profile"] == profile and rep["frames"] == 12
+    assert rep["profile"] == profile and rep["frames"] == 12 and rep["repeat"] == 2
     budget = rep["frame"]["budget_ms"]
     assert budget == (33.0 if profile == "lane" else 200.0)
     assert set(rep["stages"]) >= {"to_complex", "track"}
