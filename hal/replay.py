@@ -2,11 +2,14 @@
 ``LogReader`` + ``MessageSync``).
 
 ``replay://path/to/rec.npz?speed=1`` replays at the recorded frame rate; ``speed=2`` twice as fast;
-``speed=0`` as fast as the reader asks. ``loop=1`` starts again at the end (frame counters continue).
+``speed=0`` as fast as the reader asks, each frame stamped on the board's timeline (time of opening +
+frame counter x frame period) rather than the host's arrival time. ``loop=1`` starts again at the
+end (frame counters and time continue).
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Iterator
 
 from hal.base import RadarSource, RawRead
@@ -118,15 +121,23 @@ class ReplaySource(RadarSource):
     def _open(self) -> None:
         rec = self.recording
         self._it = iter(RecordingReader(rec, self.loop))
-        self._pacer = Pacer(self._clock, self.speed, int(rec.frontend.waveform.frame_period_s * 1e9))
+        self._period_ns = int(rec.frontend.waveform.frame_period_s * 1e9)
+        self._pacer = Pacer(self._clock, self.speed, self._period_ns)
+        self._t_open_ns = self._clock.now_ns()
 
     def _read_raw(self, timeout_s: float | None) -> RawRead | None:
         if not self._pacer.wait_for_next(timeout_s):
             return None
         try:
-            return next(self._it)
+            raw = next(self._it)
         except StopIteration:
             raise SourceClosedError(f"end of recording {self.path}") from None
+        if self.speed == 0:
+            # as fast as possible, the host clock says nothing about the traffic: stamp the frame on the
+            # board's timeline (open time + frame counter x period) so that trackers, lane statistics and
+            # events see the recorded time, across loops too
+            raw = replace(raw, t_ns=self._t_open_ns + (raw.seq - int(self.recording.seq[0])) * self._period_ns)
+        return raw
 
     def _close(self) -> None:
         self._it = iter(())

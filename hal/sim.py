@@ -2,7 +2,8 @@
 
 Options: ``scenario`` (built-in name or path to a TOML file), ``seed``, ``realtime`` (1: the board
 free-runs on the host clock, a late reader sees the newest frame and counts the ones it missed;
-0: frames come back to back as fast as they are read), ``loop`` (restart the scenario at its end
+0: frames come back to back as fast as they are read, stamped on the board's timeline: time of
+opening + frame counter x period), ``loop`` (restart the scenario at its end
 instead of ending the source), ``frames`` (stop after this many; default: the scenario's duration).
 """
 
@@ -113,7 +114,10 @@ class SimSource(RadarSource):
         self._next = n + 1
         k = n % self._scenario_frames if self.loop else n
         f = self._sim.frame(k)
-        return RawRead(seq=n, i=f.i, q=f.q, truth=f.truth, meta={"sim_t_s": f.t_s})
+        # unpaced, the host clock runs much faster than the board's: stamp the frame on the board's
+        # timeline (open time + n periods) so that trackers and interval statistics see real time
+        t_ns = None if self.realtime else self._t0_ns + n * self._period_ns
+        return RawRead(seq=n, i=f.i, q=f.q, truth=f.truth, t_ns=t_ns, meta={"sim_t_s": f.t_s})
 
     def _close(self) -> None:
         self._sim = None

@@ -7,9 +7,21 @@ Frames are synthesised first (seeded, not timed), then the same frames go, singl
 * the *peer pipeline*: what a user would otherwise glue together for the same job (float64 numpy,
   scikit-learn, Stone Soup), where the profile provides one.
 
-Each profile provides its bound and peer in ``edge.bench.<profile>`` as ``fft_bound(frontend)`` and
-``peer(frontend, config)``, both returning a callable ``f(frame) -> object``. The JSON document has
-the keys of DESIGN §6.
+Each profile provides its bound and peer in ``edge.bench.<profile>`` as ``fft_bound(frontend, config)``
+and ``peer(frontend, config)``, both returning a callable ``f(frame) -> object`` (``peer`` returns
+``None`` when its libraries are missing and says why in the module's ``PEER_UNAVAILABLE``), and
+optionally ``extras(frontend, config) -> dict`` merged into the report (the surveillance profile's
+classifier latency). Stateful callables (product, peer) are warmed on a throw-away instance and
+timed fresh from the first frame.
+
+The JSON document has the keys of DESIGN §6 -- ``{profile, frames, stages: {name: {p50_ms, p99_ms}},
+frame: {p50_ms, p99_ms, budget_ms, p99_budget_fraction}, peak_rss_mb, startup_s, peer: {p99_ms,
+ratio}, fft_bound: {p99_ms, ratio}}`` -- plus ``p50_budget_fraction`` per stage and frame, p50
+figures and ratios, ``peer_unavailable`` (why the peer is missing), ``startup`` (``startup_s``,
+``exit_s``, ``run_peak_rss_mb`` of a fresh ``radar-edge run``) and profile extras. ``peer.ratio`` is
+peer p99 / product p99 (how many times faster the product is); ``fft_bound.ratio`` is product p99 /
+bound p99 (how far above the bound). ``peak_rss_mb`` is the bench process's own (it also holds the
+peer's libraries); ``startup.run_peak_rss_mb`` is the product's.
 """
 
 from __future__ import annotations
@@ -75,7 +87,15 @@ def synth_frames(board: str, scenario: str | None, seed: int, n: int, progress: 
 
 
 def startup_seconds(frames: list) -> float:
-    """Wall time of a fresh ``radar-edge run`` from process start to its first processed frame."""
+    """Wall time of a fresh ``radar-edge run`` from process start to its first published frame."""
+    return startup_run(frames)["startup_s"]
+
+
+def startup_run(frames: list, profile: str | None = None) -> dict[str, float]:
+    """Start a fresh ``radar-edge run`` on a two-frame recording (``--no-outputs``) and measure
+    ``startup_s``, the wall time from spawning the process to the status line of its first processed
+    frame (the line is printed right after the frame is published), ``exit_s`` until the process
+    has exited, and ``run_peak_rss_mb``, that process's peak resident memory (``VmHWM``, Linux)."""
     from hal.recording import RecordingWriter
 
     with tempfile.TemporaryDirectory() as d:
@@ -83,11 +103,36 @@ def startup_seconds(frames: list) -> float:
         for f in frames[:2]:
             w.add(f)
         path = w.save(Path(d) / "startup.npz")
-        cmd = [sys.executable, "-m", "edge", "run", "--source", f"replay://{path}?speed=0", "--frames", "1",
-               "--no-outputs", "--status-every", "0"]
+        args = ["run", "--source", f"replay://{path}?speed=0", "--frames", "2", "--no-outputs",
+                "--status-every", "1000"] + (["--profile", profile] if profile else [])
+        # the child reports its own peak RSS (VmHWM is reset at exec; wait4's ru_maxrss is not: after
+        # fork it starts from the parent's)
+        code = ("import sys\nfrom edge.cli import main\nrc = main(sys.argv[1:])\n"
+                "print(next((l for l in open('/proc/self/status') if l.startswith('VmHWM')), 'VmHWM: 0 kB').strip())\n"
+                "sys.exit(rc)")
+        cmd = [sys.executable, "-c", code, *args]
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
         t0 = time.perf_counter()
-        subprocess.run(cmd, check=True, capture_output=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
-        return time.perf_counter() - t0
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env, text=True)
+        first = None
+        hwm_kb = 0.0
+        for line in proc.stdout or ():
+            if first is None and line.lstrip().startswith("seq "):
+                first = time.perf_counter() - t0
+            elif line.startswith("VmHWM:"):
+                hwm_kb = float(line.split()[1])
+        rc = proc.wait()
+        t_exit = time.perf_counter() - t0
+        if rc != 0:
+            raise RuntimeError(f"radar-edge run for the start-up measurement failed with exit code {rc}")
+    return {"startup_s": first if first is not None else t_exit, "exit_s": t_exit,
+            "run_peak_rss_mb": hwm_kb / 1024.0 or None}
+
+
+def _fractions(p: dict[str, float], budget_ms: float) -> dict[str, float]:
+    p["p50_budget_fraction"] = p["p50_ms"] / budget_ms
+    p["p99_budget_fraction"] = p["p99_ms"] / budget_ms
+    return p
 
 
 def run_bench(
@@ -100,7 +145,16 @@ def run_bench(
     peer: bool = True,
     startup: bool = True,
     progress: bool = False,
+    peer_frames: int | None = None,
+    repeat: int = 1,
 ) -> dict:
+    """Time the product pipeline, the FFT bound and the peer on the same synthesised frames.
+
+    ``peer_frames``: frames given to the peer (default: a fifth of ``frames``, at least 30 -- it is
+    slow); it always starts from the first frame, like the product, so trackers see the same scene.
+    ``repeat``: time the product and the bound this many times and keep the run with the lowest
+    frame p99 (other processes on the machine only ever add time); the peer runs once.
+    """
     board = board_of(profile)
     recorded = synth_frames(board, scenario, seed, frames, progress)
     fe = recorded[0].frontend
@@ -111,47 +165,70 @@ def run_bench(
     for f in recorded[: min(5, len(recorded))]:
         warm.process(f, StageTimer(16))
     warm.close()
-    pipe = build_pipeline(profile, fe, config)
-    timer = StageTimer(max(16, len(recorded)))
-    frame_ms = np.empty(len(recorded))
-    for k, f in enumerate(recorded):
-        t0 = time.perf_counter_ns()
-        pipe.process(f, timer)
-        frame_ms[k] = (time.perf_counter_ns() - t0) / 1e6
-    pipe.close()
-    stages = {name: _percentiles(timer.samples_ms(name)) for name in timer.names()}
-    frame = _percentiles(frame_ms)
+    best = None
+    for _ in range(max(1, repeat)):  # best of N: other processes only ever add time
+        pipe = build_pipeline(profile, fe, config)
+        timer = StageTimer(max(16, len(recorded)))
+        frame_ms = np.empty(len(recorded))
+        for k, f in enumerate(recorded):
+            t0 = time.perf_counter_ns()
+            pipe.process(f, timer)
+            frame_ms[k] = (time.perf_counter_ns() - t0) / 1e6
+        pipe.close()
+        p99 = float(np.percentile(frame_ms, 99))
+        if best is None or p99 < best[0]:
+            best = (p99, timer, frame_ms)
+    _, timer, frame_ms = best
+    stages = {name: _fractions(_percentiles(timer.samples_ms(name)), budget_ms) for name in timer.names()}
+    frame = _fractions(_percentiles(frame_ms), budget_ms)
     frame["budget_ms"] = budget_ms
-    frame["p99_budget_fraction"] = frame["p99_ms"] / budget_ms
+    frame["max_ms"] = float(frame_ms.max())
 
     out: dict[str, Any] = {
         "profile": profile,
         "frames": len(recorded),
         "scenario": scenario or DEFAULT_SCENARIO[board],
         "seed": seed,
+        "repeat": max(1, repeat),
         "stages": stages,
         "frame": frame,
         "peak_rss_mb": None,
         "startup_s": None,
         "peer": None,
         "fft_bound": None,
+        "threads_env": {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")},
     }
     hooks = _hooks(profile)
     if hooks is not None and hasattr(hooks, "fft_bound"):
-        t = time_callable(hooks.fft_bound(fe), recorded)
-        p99 = float(np.percentile(t, 99))
-        out["fft_bound"] = {"p99_ms": p99, "ratio": frame["p99_ms"] / p99}
-    if peer and hooks is not None and hasattr(hooks, "peer"):
+        runs = [_percentiles(time_callable(hooks.fft_bound(fe, config), recorded)) for _ in range(max(1, repeat))]
+        b = min(runs, key=lambda r: r["p99_ms"])
+        out["fft_bound"] = {"p99_ms": b["p99_ms"], "p50_ms": b["p50_ms"], "ratio": frame["p99_ms"] / b["p99_ms"],
+                            "p50_ratio": frame["p50_ms"] / b["p50_ms"]}
+    if not peer:
+        out["peer_unavailable"] = "skipped (--no-peer)"
+    elif hooks is not None and hasattr(hooks, "peer"):
         fn = hooks.peer(fe, config)
         if fn is not None:
-            n_peer = min(len(recorded), max(30, len(recorded) // 5))  # the peer is slow: a subset
-            t = time_callable(fn, recorded[:n_peer])
-            p99 = float(np.percentile(t, 99))
-            out["peer"] = {"p99_ms": p99, "p50_ms": float(np.percentile(t, 50)), "frames": n_peer,
-                           "ratio": p99 / frame["p99_ms"]}
+            n_peer = min(len(recorded), peer_frames or max(30, len(recorded) // 5))
+            for f in recorded[: min(5, n_peer)]:  # warm a throw-away instance (imports, caches), time a fresh one
+                fn(f)
+            fn = hooks.peer(fe, config)
+            t = time_callable(fn, recorded[:n_peer], warmup=0)
+            pp = _percentiles(t)
+            out["peer"] = {"p99_ms": pp["p99_ms"], "p50_ms": pp["p50_ms"], "frames": n_peer,
+                           "ratio": pp["p99_ms"] / frame["p99_ms"], "p50_ratio": pp["p50_ms"] / frame["p50_ms"],
+                           "description": getattr(hooks, "PEER_DESCRIPTION", "")}
+        else:
+            out["peer_unavailable"] = getattr(hooks, "PEER_UNAVAILABLE", None) or "the peer could not be built"
+    else:
+        out["peer_unavailable"] = f"no peer pipeline for profile {profile}"
+    if hooks is not None and hasattr(hooks, "extras"):
+        out.update(hooks.extras(fe, config))
     out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     if startup:
-        out["startup_s"] = startup_seconds(recorded)
+        st = startup_run(recorded, profile)
+        out["startup_s"] = st["startup_s"]
+        out["startup"] = st
     return out
 
 

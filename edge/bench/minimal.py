@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 import scipy.fft
 
+PEER_DESCRIPTION = "float64 numpy FFT with a Hann window and a per-spectrum peak search"
 
-def fft_bound(frontend):
+
+def fft_bound(frontend, config=None):
     """Only the unavoidable transform: one complex64 FFT per channel and chirp."""
     buf = np.empty(frontend.frame_shape, dtype=np.complex64)
 

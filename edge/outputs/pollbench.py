@@ -1,12 +1,19 @@
 """Does a Modbus client polling the whole map slow the frame loop down?
 
 Runs the real frame loop (simulated source, the board's pipeline, the configured outputs with
-Modbus TCP on an OS-chosen port) and a client in another process that reads every readable
-register (7 requests of <= 125 registers) at ``rate_hz``. The client is switched on and off in
-alternating blocks so that slow drifts of the machine's load hit both halves alike; the result is
-the frame-time p50/p99 of frames processed with and without the poller.
+Modbus TCP on an OS-chosen port) and ``clients`` clients, each in its own process, that read every
+readable register (7 requests of <= 125 registers) at ``rate_hz`` (0 = as fast as the server
+answers: a flood). The clients are switched on and off in alternating blocks so that slow drifts of
+the machine's load hit both halves alike; the result is the frame-time p50/p99 of frames processed
+with and without the pollers, and the frames dropped in each half.
 
     python -m edge.outputs.pollbench --duration 60 --rate 20
+    python -m edge.outputs.pollbench --duration 60 --clients 4 --rate 0     # flood
+    python -m edge.outputs.pollbench --duration 60 --clients 4 --rate 0 --client-nice 19
+
+On a development machine the clients share the CPU with the device under test; real Modbus masters
+sit on other machines. ``--client-nice 19`` approximates that (the clients get only idle CPU); the
+server process's own work is then what remains of the flood's cost.
 """
 
 from __future__ import annotations
@@ -19,7 +26,11 @@ import time
 import numpy as np
 
 
-def _poller(port: int, rate_hz: float, active, stop, counter) -> None:
+def _poller(port: int, rate_hz: float, active, stop, counter, nice: int = 0) -> None:
+    import os
+
+    if nice:
+        os.nice(nice)  # stands in for a master on another machine: only CPU the device would leave idle
     from pymodbus.client import ModbusTcpClient
     from pymodbus.exceptions import ModbusException
 
@@ -42,12 +53,14 @@ def _poller(port: int, rate_hz: float, active, stop, counter) -> None:
             break
         with counter.get_lock():
             counter.value += 1
-        nxt += 1.0 / rate_hz
-        time.sleep(max(0.0, nxt - time.monotonic()))
+        if rate_hz > 0:
+            nxt += 1.0 / rate_hz
+            time.sleep(max(0.0, nxt - time.monotonic()))
     c.close()
 
 
-def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.0, source: str | None = None) -> dict:
+def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.0, source: str | None = None,
+            clients: int = 1, client_nice: int = 0) -> dict:
     from edge.config import load_config
     from edge.loop import FrameLoop
     from edge.outputs import build_sinks
@@ -61,21 +74,32 @@ def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.
     src = open_radar(cfg["source"].url)
     profile = resolve_profile(cfg["loop"].profile, src.frontend.board)
     pipe = build_pipeline(profile, src.frontend, cfg)
-    sinks = build_sinks(cfg, int(getattr(pipe, "n_lanes", 0)), strict=True)
+    from edge.soak import lane_count
+
+    sinks = build_sinks(cfg, lane_count(pipe, cfg), strict=True)
     port = sinks[0].tcp_address[1]
     ctx = mp.get_context("spawn")
     active, stop, counter = ctx.Event(), ctx.Event(), ctx.Value("i", 0)
-    proc = ctx.Process(target=_poller, args=(port, rate_hz, active, stop, counter), daemon=True)
-    proc.start()
+    procs = [ctx.Process(target=_poller, args=(port, rate_hz, active, stop, counter, client_nice),
+                         daemon=True)
+             for _ in range(max(1, clients))]
+    for proc in procs:
+        proc.start()
     samples: dict[bool, list[float]] = {True: [], False: []}
+    dropped = {True: 0, False: 0}
+    seen = [0]
     t0 = time.monotonic()
     loop_ref: list = []
 
     def on_result(result) -> None:
+        lp = loop_ref[0]
+        d = lp.counters.dropped_frames + lp.source.stats.dropped_frames
+        dropped[active.is_set()] += d - seen[0]  # drops since the last frame belong to the state they happened in
+        seen[0] = d
         on = int((time.monotonic() - t0) / block_s) % 2 == 1
         if on != active.is_set():
             (active.set if on else active.clear)()
-        samples[active.is_set()].append(loop_ref[0].timer.current.get("frame", float("nan")))
+        samples[active.is_set()].append(lp.timer.current.get("frame", float("nan")))
 
     loop = FrameLoop(src, pipe, cfg["loop"], sinks=sinks, read_timeout_s=cfg["source"].read_timeout_s,
                      on_result=on_result)
@@ -84,16 +108,17 @@ def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.
         loop.run(duration_s=duration_s)
     finally:
         stop.set()
-        proc.join(10)
-        if proc.is_alive():
-            proc.terminate()
+        for proc in procs:
+            proc.join(10)
+            if proc.is_alive():
+                proc.terminate()
     out = {"profile": profile, "duration_s": duration_s, "block_s": block_s, "rate_hz": rate_hz,
-           "full_map_polls": counter.value}
+           "clients": len(procs), "client_nice": client_nice, "full_map_polls": counter.value}
     for key, on in (("without_poller", False), ("with_poller", True)):
         a = np.asarray(samples[on], dtype=float)
         a = a[np.isfinite(a)]
         out[key] = {"frames": int(a.size), "p50_ms": float(np.percentile(a, 50)) if a.size else None,
-                    "p99_ms": float(np.percentile(a, 99)) if a.size else None}
+                    "p99_ms": float(np.percentile(a, 99)) if a.size else None, "dropped_frames": dropped[on]}
     if out["without_poller"]["p99_ms"] and out["with_poller"]["p99_ms"]:
         out["p99_ratio"] = out["with_poller"]["p99_ms"] / out["without_poller"]["p99_ms"]
     return out
@@ -104,10 +129,15 @@ def main(argv: list[str] | None = None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--duration", type=float, default=60.0, help="seconds of frames (default 60)")
     p.add_argument("--block", type=float, default=5.0, help="poller on/off block length in s (default 5)")
-    p.add_argument("--rate", type=float, default=20.0, help="full-map polls per second (default 20)")
+    p.add_argument("--rate", type=float, default=20.0,
+                   help="full-map polls per second per client (default 20; 0 = as fast as possible, a flood)")
+    p.add_argument("--clients", type=int, default=1, help="polling clients, one process each (default 1)")
+    p.add_argument("--client-nice", type=int, default=0, metavar="N",
+                   help="nice value of the client processes (e.g. 19: they stand in for masters on other machines "
+                        "and take only CPU the device would leave idle; default 0)")
     p.add_argument("--source", help="radar source URL (default: source.url of the configuration)")
     a = p.parse_args(argv)
-    print(json.dumps(measure(a.duration, a.block, a.rate, a.source), indent=2))
+    print(json.dumps(measure(a.duration, a.block, a.rate, a.source, a.clients, a.client_nice), indent=2))
     return 0
 
 
