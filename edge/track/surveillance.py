@@ -153,11 +153,19 @@ class SurveillanceTracker:
             self._acc[tid] = TrackFeatureAccumulator()
             self._speed[tid] = RadialSpeedEstimator(self.cylinder.vmax_kmh)
         t_s = t_ns * 1e-9 if seq is None else int(seq) * self.frame_period_s
+        n_aid = self.tracker.config.doppler_range_rate_frames
+        by_id = {tr.track_id: tr for tr in self.tracker.tracks} if n_aid > 0 else {}
         for tid, j in tstep.assigned.items():
             lab = labels[j]
             self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab])
-            self._speed[tid].add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
+            spd = self._speed[tid]
+            spd.add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
             self._seen_t[tid] = t_s
+            tr = by_id.get(tid)
+            if tr is not None and len(spd) >= n_aid:
+                v_kmh = spd.current_radial_speed_kmh()
+                if math.isfinite(v_kmh):  # Doppler-aided range rate (m per frame), see AlphaBetaConfig
+                    tr.state[5] = v_kmh / 3.6 * self.frame_period_s
         seg = self.segmenter.step(t_ns, level)
         if seg.ended or seg.discarded:
             out.extend(self._close_tracks())
