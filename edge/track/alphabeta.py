@@ -126,6 +126,24 @@ class AlphaBetaConfig:
                   "range prediction of fast targets is not left to beta = 0.02; 0 = the paper's alpha-beta rate",
                   "min": 0, "max": 1000},
     )
+    merge_ratio: float = field(
+        default=3.0,
+        metadata={"doc": "beyond the paper: a track's cluster with more than merge_ratio times the median point count "
+                  "of its last merge_history_frames clusters is taken as merged with another target (a car passing a "
+                  "pedestrian): the track counts the frame as seen but keeps its predicted state, and the frame "
+                  "adds nothing to its features and radial speed (set by the surveillance tracker); 0 = off (paper)",
+                  "min": 0.0, "max": 1000.0},
+    )
+    merge_history_frames: int = field(
+        default=5,
+        metadata={"unit": "frames", "doc": "clusters (not merged) whose median point count is a track's own size",
+                  "min": 1, "max": 1000},
+    )
+    merge_max_frames: int = field(
+        default=10,
+        metadata={"unit": "frames", "doc": "after this many merged frames in a row the larger cluster is accepted as "
+                  "the track's own (a target that grew as it came closer)", "min": 1, "max": 1000},
+    )
     max_track_id: int = field(
         default=255,
         metadata={"doc": "track ids are 1..max_track_id, smallest free first and recycled (fits CAN/Modbus)",
@@ -281,6 +299,7 @@ class AlphaBetaTrack:
     age: int = 0
     vis: int = 0
     missed: int = 0  # consecutive frames without a centroid
+    occluded: int = 0  # consecutive frames hidden in another track's (merged) cluster
 
     @property
     def seen_frames(self) -> int:
@@ -304,6 +323,7 @@ class TrackerStep:
     dropped: tuple[AlphaBetaTrack, ...]
     cost: np.ndarray
     track_ids_before: tuple[int, ...]
+    occluded: tuple[int, ...] = ()  # tracks hidden in another track's merged cluster (neither hit nor miss)
 
 
 class AlphaBetaTracker:
@@ -325,6 +345,10 @@ class AlphaBetaTracker:
         self.ids = ids or IdPool(config.max_track_id)
         self.tracks: list[AlphaBetaTrack] = []
         self.ids_exhausted = 0
+        #: optional ``(track, centroid_index) -> bool``: is this unassigned track hidden in that assigned
+        #: centroid's cluster (merged with the track it went to)? Such a frame is neither a hit nor a miss:
+        #: the track coasts on its prediction without counting towards N_u (at most merge_max_frames in a row)
+        self.occlusion_test = None
 
     def step(self, t_ns: int, centroids: np.ndarray) -> TrackerStep:
         """Process the centroids ``(n, 3)`` of one frame (already on the cylinder, or projected here)."""
@@ -334,6 +358,7 @@ class AlphaBetaTracker:
             cen = self.cylinder.project_points(cen)
         before = tuple(t.track_id for t in self.tracks)
         assigned: dict[int, int] = {}
+        occluded: list[int] = []
         ended: list[AlphaBetaTrack] = []
         dropped: list[AlphaBetaTrack] = []
         cost = np.zeros((len(self.tracks), cen.shape[0]))
@@ -369,8 +394,14 @@ class AlphaBetaTracker:
                     tr.last_measurement = cen[col_of[k]]
                     tr.last_seen_ns = t_ns
                     assigned[tr.track_id] = col_of[k]
+                elif self._occluded(tr, pred[k], cen, cols):
+                    tr.occluded += 1
+                    occluded.append(tr.track_id)
                 else:
                     tr.missed += 1
+                    tr.occluded = 0
+                if hit[k]:
+                    tr.occluded = 0
                 if tr.missed >= cfg.max_missed_frames:  # step 7: departed (checked before th_v)
                     (ended if tr.seen_frames >= cfg.min_seen_frames else dropped).append(tr)
                 elif tr.vis < cfg.visibility_threshold * tr.age:  # vis / age < th_v (age >= 1 here)
@@ -393,7 +424,14 @@ class AlphaBetaTracker:
                 self.tracks.append(AlphaBetaTrack(tid, s, cen[j].copy(), created_ns=t_ns, last_seen_ns=t_ns))
                 assigned[tid] = j
                 created.append(tid)
-        return TrackerStep(assigned, tuple(created), tuple(ended), tuple(dropped), cost, before)
+        return TrackerStep(assigned, tuple(created), tuple(ended), tuple(dropped), cost, before, tuple(occluded))
+
+    def _occluded(self, tr: AlphaBetaTrack, pred: np.ndarray, cen: np.ndarray, cols: np.ndarray) -> bool:
+        if self.occlusion_test is None or cols.size == 0 or tr.occluded >= self.config.merge_max_frames:
+            return False
+        d = np.linalg.norm(cen[cols] - pred[POS], axis=1)
+        j = int(np.argmin(d))
+        return bool(d[j] <= self.config.gate_radius) and bool(self.occlusion_test(tr, int(cols[j])))
 
     def close_all(self) -> tuple[tuple[AlphaBetaTrack, ...], tuple[AlphaBetaTrack, ...]]:
         """End every open track (end of the event, step 9): ``(ended, dropped)``."""
