@@ -127,7 +127,7 @@ class AlphaBetaConfig:
                   "min": 0, "max": 1000},
     )
     merge_ratio: float = field(
-        default=3.0,
+        default=6.0,
         metadata={"doc": "beyond the paper: a track's cluster with more than merge_ratio times the median point count "
                   "of its last merge_history_frames clusters is taken as merged with another target (a car passing a "
                   "pedestrian): the track counts the frame as seen but keeps its predicted state, and the frame "
