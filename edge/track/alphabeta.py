@@ -395,6 +395,7 @@ class AlphaBetaTracker:
                     tr.last_seen_ns = t_ns
                     assigned[tr.track_id] = col_of[k]
                 elif self._occluded(tr, pred[k], cen, cols):
+                    tr.age -= 1  # an occluded frame neither ages the track (th_v) nor counts as a miss
                     tr.occluded += 1
                     occluded.append(tr.track_id)
                 else:
