@@ -20,6 +20,16 @@ cluster's wrapped Doppler with its alias chosen by the local range rate of the c
 (:class:`~edge.classify.features.RadialSpeedEstimator`, km/h, positive receding); the least-squares
 range rate when that is not available.
 
+Beyond the paper (``track.alphabeta`` options; 0 restores the paper): once a track has clusters in
+``doppler_range_rate_frames`` frames, its alpha-beta range rate is replaced after every update by its
+current unaliased radial speed, so fast vehicles are predicted where they will be; and a *merge
+guard*: a cluster with more than ``merge_ratio`` times the median point count of the track's last
+clusters is its target merged with another one (a car passing a pedestrian, Tavanti Fig. 9(d)) --
+the track counts the frame as seen but keeps its predicted state and adds nothing to its features
+or speed -- while a track left without a cluster whose prediction lies in such an enlarged cluster is
+*occluded*: it coasts without counting misses or ageing (at most ``merge_max_frames`` frames), so it
+picks its own cluster up again when the targets separate instead of ending and restarting.
+
 Published :class:`~edge.types.TrackState`: tracks seen in at least ``min_seen_frames`` frames and
 not coasting for more than ``publish_coasting_frames`` frames. The alpha-beta state lives on the
 wrapped map and only serves the association (Tavanti §II-D: with ``alpha = 0.19`` it lags a 40 km/h
