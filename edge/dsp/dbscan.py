@@ -11,7 +11,8 @@ between two bins depends only on their offsets ``(di, dj)``::
 so the whole algorithm runs on arrays, with no per-point Python and no callback metric:
 
 1. **Neighbour counts** (core points): one circular (Doppler) / linear (range) convolution of the
-   threshold mask with the 0/1 kernel ``d <= eps``, by real FFT (kernel spectrum precomputed).
+   threshold mask with the 0/1 kernel ``d <= eps``, by real FFT over the rows that hold points
+   (kernel spectra cached per padded length).
 2. **Core connectivity**: core bins that are 8-neighbours on the lattice are always within ``eps``
    (``eps`` is many bins wide), so ``scipy.ndimage.label`` groups them first. Two such groups belong
    to the same cluster iff some pair of their points is within ``eps``; the closest pair of two groups
@@ -81,11 +82,9 @@ class CylinderDbscan:
         dj = np.arange(self.n_doppler)
         chord = 2.0 * self.radius_kmh * np.sin(np.pi * dj / self.n_doppler)
         kern = (di[:, None] ** 2 + chord[None, :] ** 2) <= self._r**2  # (2h+1, n_doppler), offsets mod N_D
-        self._lp = scipy.fft.next_fast_len(self.n_range + h + 1, real=True)
-        k = np.zeros((self._lp, self.n_doppler), dtype=np.float32)
-        k[np.arange(-h, h + 1) % self._lp] = kern
+        self._kern = kern
         self.kernel_size = int(kern.sum())
-        self._kf = scipy.fft.rfft2(k, workers=1)
+        self._kf_cache: dict[int, np.ndarray] = {}
         th = 2.0 * np.pi * np.arange(self.n_doppler) / self.n_doppler
         self._cos = self.radius_kmh * np.cos(th)
         self._sin = self.radius_kmh * np.sin(th)
@@ -97,11 +96,32 @@ class CylinderDbscan:
             [self._cos[doppler_bin], self._sin[doppler_bin], np.asarray(range_bin) * self.range_bin_m], axis=1
         )
 
+    def _kernel_spectrum(self, lp: int) -> np.ndarray:
+        kf = self._kf_cache.get(lp)
+        if kf is None:
+            h = self._h
+            k = np.zeros((lp, self.n_doppler), dtype=np.float32)
+            k[np.arange(-h, h + 1) % lp] = self._kern
+            kf = self._kf_cache[lp] = scipy.fft.rfft2(k, workers=1)
+        return kf
+
     def neighbour_counts(self, mask: np.ndarray) -> np.ndarray:
-        """Points of ``mask`` within ``eps`` of every bin (itself included): int32 ``(n_range, n_doppler)``."""
-        mf = scipy.fft.rfft2(mask.astype(np.float32), s=(self._lp, self.n_doppler), workers=1)
-        c = scipy.fft.irfft2(mf * self._kf, s=(self._lp, self.n_doppler), workers=1)[: self.n_range]
-        return np.rint(c).astype(np.int32)
+        """Points of ``mask`` within ``eps`` of every bin (itself included): int32 ``(n_range, n_doppler)``.
+
+        Only the range rows from the first to the last row with points are transformed (zero-padded by
+        ``h`` rows, the kernel's half height, so the circular convolution does not wrap); rows outside
+        hold no point and their counts are not needed. Kernel spectra are cached per padded length.
+        """
+        rows = np.flatnonzero(mask.any(axis=1))
+        out = np.zeros(mask.shape, dtype=np.int32)
+        if rows.size == 0:
+            return out
+        r0, r1 = int(rows[0]), int(rows[-1]) + 1
+        lp = scipy.fft.next_fast_len(r1 - r0 + self._h + 1, real=True)
+        mf = scipy.fft.rfft2(mask[r0:r1].astype(np.float32), s=(lp, self.n_doppler), workers=1)
+        c = scipy.fft.irfft2(mf * self._kernel_spectrum(lp), s=(lp, self.n_doppler), workers=1)[: r1 - r0]
+        out[r0:r1] = np.rint(c)
+        return out
 
     def fit(self, mask: np.ndarray) -> Clusters:
         """Cluster the ``True`` bins of ``mask`` (``(n_range, n_doppler)`` bool)."""
@@ -121,8 +141,12 @@ class CylinderDbscan:
             return Clusters(ri, dj, labels, core, 0, counts)
         lab_grid, n_lab = scipy.ndimage.label(core_grid, structure=self._struct)
         # boundary core bins: some 8-neighbour (Doppler wrapping) is not core; plus the seam columns
+        # interior = all 8 neighbours core (Doppler wraps, range edges count as core): a 3x3 erosion
+        # as two separable 3-wide ANDs on shifted views (8x faster than ndimage.binary_erosion here)
         padded = np.concatenate([core_grid[:, -1:], core_grid, core_grid[:, :1]], axis=1)
-        interior = scipy.ndimage.binary_erosion(padded, structure=self._struct, border_value=1)[:, 1:-1]
+        padded = np.pad(padded, ((1, 1), (0, 0)), constant_values=True)
+        rows3 = padded[:, :-2] & padded[:, 1:-1] & padded[:, 2:]
+        interior = rows3[:-2] & rows3[1:-1] & rows3[2:]
         bnd = core_grid & ~interior
         bnd[:, 0] |= core_grid[:, 0]
         bnd[:, -1] |= core_grid[:, -1]

@@ -127,3 +127,24 @@ def threshold_map(amplitude: np.ndarray, th_rd: float) -> tuple[np.ndarray, np.n
     """Bins at or above ``th_rd``: (range bins, Doppler bins), int arrays in row-major order."""
     ri, di = np.nonzero(amplitude >= np.float32(th_rd))
     return ri, di
+
+
+def detection_mask(amplitude: np.ndarray, th_rd: float, sidelobe_guard_db: float = 0.0) -> np.ndarray:
+    """Cells of a map ``(n_range, n_doppler)`` that are points: at or above ``th_rd`` and, when
+    ``sidelobe_guard_db > 0``, no more than that many dB below the strongest cell of their range row
+    and of their Doppler column.
+
+    The guard removes the Doppler and range sidelobes of strong echoes: the Kaiser window with
+    ``K_sf = 3`` has a peak sidelobe of about -25 dB, so a car a few metres away (35-45 dB above
+    ``th_RD``) paints its whole range row and Doppler column above the threshold; DBSCAN then joins
+    every target near that range into the car's cluster. A weaker target survives unless it shares
+    the strong echo's range row or Doppler column *and* is more than the guard below it.
+    Two reductions and two comparisons per cell (``(n_range, n_doppler)`` bool).
+    """
+    a = np.asarray(amplitude)
+    mask = a >= np.float32(th_rd)
+    if sidelobe_guard_db > 0:
+        k = np.float32(10.0 ** (-sidelobe_guard_db / 20.0))
+        mask &= a >= a.max(axis=1, keepdims=True) * k
+        mask &= a >= a.max(axis=0, keepdims=True) * k
+    return mask

@@ -29,7 +29,7 @@ import numpy as np
 
 from edge.classify.features import MapPoints
 from edge.dsp.dbscan import CylinderDbscan
-from edge.dsp.range_doppler import RangeDopplerProcessor, threshold_map
+from edge.dsp.range_doppler import RangeDopplerProcessor, detection_mask
 from edge.dsp.range_fft import to_complex64
 from edge.pipeline import Pipeline, PipelineError, StageTimer
 from edge.types import ClassifiedEvent, Detections, FrameResult, FrontendInfo, RawFrame
@@ -54,6 +54,13 @@ class SurveillanceConfig:
         metadata={"unit": "counts", "doc": "th_RD: map bins at or above this are points (map amplitude: a tone of A ADC "
                   "counts reads A); Table III's value, which `radar-edge calibrate` reproduces on the simulated "
                   "site (mean of empty-scene maxima + 3 std)", "min": 1e-6, "max": 1e6},
+    )
+    sidelobe_guard_db: float = field(
+        default=0.0,
+        metadata={"unit": "dB", "doc": "beyond the paper: a cell is a point only if it is at most this far below the "
+                  "strongest cell of its range row and of its Doppler column (removes the sidelobes of strong "
+                  "echoes, which otherwise join nearby targets into one cluster: edge.dsp.range_doppler."
+                  "detection_mask); 0 = off (paper)", "min": 0.0, "max": 120.0},
     )
     eps: float = field(
         default=1.9,
@@ -120,7 +127,7 @@ class SurveillancePipeline(Pipeline):
         with timer.stage("range_doppler"):
             m = rd.process(iq).amplitude
         with timer.stage("threshold"):
-            mask = m >= np.float32(cfg.th_rd)
+            mask = detection_mask(m, cfg.th_rd, cfg.sidelobe_guard_db)
         with timer.stage("dbscan"):
             clu = self.dbscan.fit(mask)
         with timer.stage("track"):

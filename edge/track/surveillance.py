@@ -20,6 +20,16 @@ cluster's wrapped Doppler with its alias chosen by the local range rate of the c
 (:class:`~edge.classify.features.RadialSpeedEstimator`, km/h, positive receding); the least-squares
 range rate when that is not available.
 
+Beyond the paper (``track.alphabeta`` options; 0 restores the paper): once a track has clusters in
+``doppler_range_rate_frames`` frames, its alpha-beta range rate is replaced after every update by its
+current unaliased radial speed, so fast vehicles are predicted where they will be; and a *merge
+guard*: a cluster with more than ``merge_ratio`` times the median point count of the track's last
+clusters is its target merged with another one (a car passing a pedestrian, Tavanti Fig. 9(d)) --
+the track counts the frame as seen but keeps its predicted state and adds nothing to its features
+or speed -- while a track left without a cluster whose prediction lies in such an enlarged cluster is
+*occluded*: it coasts without counting misses or ageing (at most ``merge_max_frames`` frames), so it
+picks its own cluster up again when the targets separate instead of ending and restarting.
+
 Published :class:`~edge.types.TrackState`: tracks seen in at least ``min_seen_frames`` frames and
 not coasting for more than ``publish_coasting_frames`` frames. The alpha-beta state lives on the
 wrapped map and only serves the association (Tavanti §II-D: with ``alpha = 0.19`` it lags a 40 km/h
@@ -37,6 +47,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -97,6 +108,9 @@ class SurveillanceTracker:
         self.extractor = SignatureExtractor(features or FeatureConfig(), frontend)
         self.cylinder = self.extractor.cylinder
         self.tracker = AlphaBetaTracker(tracking or AlphaBetaConfig(), self.cylinder)
+        if self.tracker.config.merge_ratio > 0:
+            self.tracker.occlusion_test = self._hidden_in
+        self._frame_sizes = np.zeros(0, dtype=np.int64)
         self.segmenter = EventSegmenter(events or EventConfig(), threshold)
         self.classifier: Any  # WeightedKNN or OnnxKnnClassifier (same predict interface), or None
         if not classify:
@@ -112,6 +126,9 @@ class SurveillanceTracker:
         self.classified = 0
         self.dropped = 0
         self._seen_t: dict[int, float] = {}  # track id -> sensor time (s) of its last cluster
+        self._size: dict[int, deque] = {}  # track id -> point counts of its last clusters (not merged)
+        self._merged_run: dict[int, int] = {}  # track id -> merged frames in a row
+        self.merged_frames = 0
 
     @classmethod
     def from_config(cls, frontend: FrontendInfo, config: Any, threshold: float) -> "SurveillanceTracker":
@@ -143,6 +160,11 @@ class SurveillanceTracker:
         sig = self.extractor(points)
         valid = sig.n_points > 0
         labels = np.flatnonzero(valid)
+        pred: dict[int, np.ndarray] = {}
+        if self.tracker.config.merge_ratio > 0 and self.tracker.tracks:
+            p = self.tracker.filter.predict(np.stack([tr.state for tr in self.tracker.tracks]))
+            pred = {tr.track_id: p[k] for k, tr in enumerate(self.tracker.tracks)}
+        self._frame_sizes = np.asarray(sig.n_points)[valid]
         tstep = self.tracker.step(t_ns, sig.centroid[valid])
         out: list[ClassifiedEvent] = []
         for tr in tstep.ended:
@@ -150,19 +172,37 @@ class SurveillanceTracker:
         for tr in tstep.dropped:
             self._forget(tr.track_id)
         for tid in tstep.created:
+            self._size[tid] = deque(maxlen=self.tracker.config.merge_history_frames)
+            self._merged_run[tid] = 0
             self._acc[tid] = TrackFeatureAccumulator()
             self._speed[tid] = RadialSpeedEstimator(self.cylinder.vmax_kmh)
         t_s = t_ns * 1e-9 if seq is None else int(seq) * self.frame_period_s
+        n_aid = self.tracker.config.doppler_range_rate_frames
+        by_id = {tr.track_id: tr for tr in self.tracker.tracks}
+        merged: list[int] = []
         for tid, j in tstep.assigned.items():
             lab = labels[j]
+            if self._is_merged(tid, int(sig.n_points[lab])):
+                tr = by_id.get(tid)
+                if tr is not None and tid in pred:  # keep the prediction: the centroid is not this target's
+                    tr.state = pred[tid]
+                    tr.last_measurement = pred[tid][[0, 2, 4]].copy()
+                merged.append(tid)
+                continue
             self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab])
-            self._speed[tid].add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
+            spd = self._speed[tid]
+            spd.add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
             self._seen_t[tid] = t_s
+            tr = by_id.get(tid)
+            if n_aid > 0 and tr is not None and len(spd) >= n_aid:
+                v_kmh = spd.current_radial_speed_kmh()
+                if math.isfinite(v_kmh):  # Doppler-aided range rate (m per frame), see AlphaBetaConfig
+                    tr.state[5] = v_kmh / 3.6 * self.frame_period_s
         seg = self.segmenter.step(t_ns, level)
         if seg.ended or seg.discarded:
             out.extend(self._close_tracks())
         tracks = tuple(self._track_state(tr, t_s) for tr in self.tracker.confirmed())
-        inter = {"centroids": sig.centroid[valid], "cluster_labels": labels, "level": level}
+        inter = {"centroids": sig.centroid[valid], "cluster_labels": labels, "level": level, "merged_tracks": merged}
         return SurveillanceStep(tracks, tuple(out), seg, sig, tstep, inter)
 
     def close(self, t_ns: int | None = None) -> tuple[ClassifiedEvent, ...]:
@@ -176,16 +216,44 @@ class SurveillanceTracker:
             self._forget(tr.track_id)
         return [self._finish(tr) for tr in ended]
 
+    def _hidden_in(self, tr: AlphaBetaTrack, j: int) -> bool:
+        """Occlusion test of the alpha-beta tracker: is cluster ``j`` (an assigned one) large enough,
+        against ``tr``'s own size, to hold ``tr``'s target merged with another?"""
+        hist = self._size.get(tr.track_id)
+        if not hist:
+            return False
+        return float(self._frame_sizes[j]) > self.tracker.config.merge_ratio * float(np.median(hist))
+
+    def _is_merged(self, track_id: int, n_points: int) -> bool:
+        """Is this cluster the track's target merged with another one (``merge_ratio``)? Updates the
+        track's size history."""
+        cfg = self.tracker.config
+        hist = self._size.get(track_id)
+        if hist is None:
+            return False
+        if cfg.merge_ratio > 0 and len(hist) >= 2 and self._merged_run[track_id] < cfg.merge_max_frames:
+            if n_points > cfg.merge_ratio * float(np.median(hist)):
+                self._merged_run[track_id] += 1
+                self.merged_frames += 1
+                return True
+        self._merged_run[track_id] = 0
+        hist.append(n_points)
+        return False
+
     def _forget(self, track_id: int) -> None:
         self._acc.pop(track_id, None)
         self._speed.pop(track_id, None)
         self._seen_t.pop(track_id, None)
+        self._size.pop(track_id, None)
+        self._merged_run.pop(track_id, None)
         self.dropped += 1
 
     def _finish(self, tr: AlphaBetaTrack) -> ClassifiedEvent:
         acc = self._acc.pop(tr.track_id, None) or TrackFeatureAccumulator()
         spd = self._speed.pop(tr.track_id, None)
         self._seen_t.pop(tr.track_id, None)
+        self._size.pop(tr.track_id, None)
+        self._merged_run.pop(tr.track_id, None)
         x = acc.features()
         v = spd.mean_radial_speed_kmh() if spd is not None else math.nan
         if not math.isfinite(v):

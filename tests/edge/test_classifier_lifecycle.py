@@ -18,12 +18,13 @@ onnx = pytest.importorskip("onnx")
 
 
 def write_event_recordings(root: Path, n_events: int, seed: int) -> list[str]:
-    """One recording per single-random event (the frames where its target is in the beam), with
-    truth; returns the classes in event order."""
+    """One recording per single-random event (the frames of its target's passage, as an event
+    trigger records them: :func:`hw_sim.events.frame_view`), with truth; returns the classes in
+    event order."""
     from hal.frame import RawFrame
     from hal.recording import RecordingWriter
     from hw_sim.boards import board_for
-    from hw_sim.events import SLOT_S, single_random, visible
+    from hw_sim.events import SLOT_S, frame_view, single_random
     from hw_sim.simulator import FrameSimulator
 
     scenario = single_random(events=n_events)
@@ -37,8 +38,7 @@ def write_event_recordings(root: Path, n_events: int, seed: int) -> list[str]:
     for e in range(n_events):
         w = RecordingWriter(fe, meta={"event": e, "seed": seed})
         for n in range(e * per_slot, (e + 1) * per_slot):
-            truth = scene.truth(n * period)
-            if not visible(truth, scene.pose).any():
+            if len(frame_view(scene, n * period)) == 0:
                 continue
             f = sim.frame(n)
             w.add(RawFrame(seq=n, t_ns=int(round(f.t_s * 1e9)), i=f.i, q=f.q, frontend=fe, truth=f.truth))

@@ -1,0 +1,141 @@
+"""Beyond-the-paper options of the surveillance chain: sidelobe guard, Doppler-aided range rate,
+merge guard / occlusion, whole-passage reference signatures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from edge.classify.features import MapPoints
+from edge.dsp.range_doppler import detection_mask
+from edge.track.alphabeta import AlphaBetaConfig, AlphaBetaTracker
+from edge.track.cylinder import Cylinder
+from edge.track.surveillance import SurveillanceTracker
+from hal.waveform import d2g_frontend
+
+FE = d2g_frontend()
+VMAX = 5.348
+CYL = Cylinder(VMAX)
+T = 0.2
+
+
+def meas(range_m, v_kmh):
+    return CYL.to_cylinder(np.asarray(range_m, dtype=np.float64), np.asarray(v_kmh, dtype=np.float64), dtype=np.float64)
+
+
+def wrap(v_kmh):
+    return (v_kmh + VMAX) % (2 * VMAX) - VMAX
+
+
+# --- sidelobe guard --------------------------------------------------------------------------------
+
+def test_detection_mask_without_guard_is_the_threshold():
+    rng = np.random.default_rng(0)
+    a = rng.exponential(1.0, (64, 32)).astype(np.float32)
+    np.testing.assert_array_equal(detection_mask(a, 2.0), a >= 2.0)
+    np.testing.assert_array_equal(detection_mask(a, 2.0, 0.0), a >= 2.0)
+
+
+def test_detection_mask_guard_drops_sidelobes_of_a_strong_echo_only():
+    a = np.full((40, 32), 0.1, dtype=np.float32)
+    a[10, :] = 3.0  # Doppler sidelobes of a strong echo: 30 dB below it, above th_RD
+    a[10, 5] = 100.0  # the echo
+    a[30, 20] = 4.0  # a weak target on another range row and Doppler column
+    m = detection_mask(a, 2.0, 25.0)
+    assert m[10, 5] and m[30, 20]
+    assert m[10].sum() == 1  # the row's sidelobes are gone
+    assert (a >= 2.0).sum() == 33 and m.sum() == 2
+
+
+# --- Doppler-aided range rate and merge guard (SurveillanceTracker on hand-made clusters) -----------
+
+def blob(r, v, n, label, amp=5.0):
+    """``n`` cells around (r, wrapped v): a small rectangle on the (range, Doppler) grid."""
+    dr, dv = 24.0 / 256, 2 * VMAX / 256
+    rb0, db0 = int(round(r / dr)), int(round((wrap(v) + VMAX) / dv))
+    w = max(1, int(np.sqrt(n)))
+    k = np.arange(n)
+    rb = rb0 + k // w - (n // w) // 2
+    db = np.mod(db0 + k % w - w // 2, 256)
+    return rb * dr, db * dv - VMAX, np.full(n, amp), rb, db, np.full(n, label)
+
+
+def points(*blobs):
+    cat = [np.concatenate(c) for c in zip(*blobs)]
+    return MapPoints(cat[0].astype(np.float32), cat[1].astype(np.float32), cat[2].astype(np.float32),
+                     cat[3].astype(np.int32), cat[4].astype(np.int32), cat[5].astype(np.int32))
+
+
+def test_doppler_aided_range_rate_follows_a_fast_car():
+    """A 36 km/h car (2 m per frame, Doppler aliased 3 times): after a few frames the track's range rate
+    is the unaliased radial speed, not the slowly converging alpha-beta rate."""
+    v = -36.0
+    out = {}
+    for frames in (0, 4):
+        st = SurveillanceTracker(FE, 2.0, tracking=AlphaBetaConfig(doppler_range_rate_frames=frames), classify=False)
+        for n in range(8):
+            st.update(int(n * T * 1e9), points(blob(22.0 + v / 3.6 * n * T, v, 200, 0)), seq=n)
+        (tr,) = st.tracker.tracks
+        out[frames] = tr.state[5] / T * 3.6
+    assert out[4] == pytest.approx(v, abs=1.0)
+    assert abs(out[0] - v) > abs(out[4] - v)
+
+
+def test_merged_cluster_keeps_the_tracks_prediction_and_hidden_track_survives():
+    """A pedestrian (100 cells) walking away at 2 km/h is joined for 8 frames (more than N_u = 7) by a
+    car's cluster (1500 cells) that swallows it: the pedestrian's track coasts through the merge on its
+    own prediction instead of ending, and its features skip the merged frames."""
+    cfg = AlphaBetaConfig(merge_ratio=6.0, max_missed_frames=7)
+    st = SurveillanceTracker(FE, 2.0, tracking=cfg, classify=False)
+    v_ped = 2.0
+    ped_id = None
+    for n in range(30):
+        r_ped = 8.0 + v_ped / 3.6 * n * T
+        if 10 <= n < 18:  # one merged cluster around the pedestrian
+            pts = points(blob(r_ped + 0.3, 1.0, 1500, 0))
+        else:
+            pts = points(blob(r_ped, v_ped, 100, 0))
+        step = st.update(int(n * T * 1e9), pts, seq=n)
+        if n == 5:
+            (ts,) = step.tracks
+            ped_id = ts.track_id
+        if n >= 5:
+            assert ped_id in {t.track_id for t in st.tracker.tracks}, n
+        assert not step.classifications
+    assert st.merged_frames >= 1
+    acc = st._acc[ped_id]
+    assert acc.n < 30  # merged frames left out of the features
+    (tr,) = st.tracker.tracks
+    assert tr.track_id == ped_id and tr.state[4] == pytest.approx(8.0 + v_ped / 3.6 * 29 * T, abs=0.5)
+
+
+def test_occluded_track_neither_hit_nor_missed():
+    """The tracker-level occlusion hook: a track whose prediction lies in an assigned cluster the test
+    accepts coasts without counting misses (bounded by merge_max_frames)."""
+    cfg = AlphaBetaConfig(max_missed_frames=3, merge_max_frames=4, init_velocity="zero")
+    trk = AlphaBetaTracker(cfg, CYL)
+    for n in range(3):
+        trk.step(n, meas([10.0, 11.0], [2.0, 2.5]))
+    trk.occlusion_test = lambda tr, j: True
+    ids = {t.track_id for t in trk.tracks}
+    ages = {t.track_id: t.age for t in trk.tracks}
+    for n in range(3, 7):  # one cluster only: the other track is hidden in it
+        s = trk.step(n, meas([10.0], [2.0]))
+        assert not s.ended and not s.dropped
+        assert len(s.occluded) == 1
+    assert {t.track_id for t in trk.tracks} == ids
+    hidden = next(t for t in trk.tracks if t.track_id == s.occluded[0])
+    assert hidden.missed == 0 and hidden.age == ages[hidden.track_id]
+    s = trk.step(7, meas([10.0], [2.0]))  # merge_max_frames reached: now it misses
+    assert not s.occluded and hidden.missed == 1
+    trk.occlusion_test = None
+    for n in range(8, 10):
+        s = trk.step(n, meas([10.0], [2.0]))
+    assert [t.track_id for t in s.ended] == [hidden.track_id]
+
+
+def test_reference_frames_option():
+    from edge.classify.refgen import build_reference_set
+
+    with pytest.raises(ValueError):
+        build_reference_set(events_per_class=1, frames="all")
