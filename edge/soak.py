@@ -207,14 +207,21 @@ class ModbusProbe:
 
 def lane_count(pipeline: Any, config: Any) -> int:
     """Lanes the outputs should report: the pipeline's ``n_lanes`` if it has one, else the traffic
-    layer's configured lanes (the lane pipeline exposes them only through ``pipeline.traffic``)."""
+    layer's lanes (the lane pipeline exposes them only through ``pipeline.traffic``); with learned
+    lanes, as many as ``traffic.lane_centers_m`` lists."""
     n = getattr(pipeline, "n_lanes", None)
     if n is not None:
         return int(n)
     traffic = getattr(pipeline, "traffic", None)
-    if traffic is not None and getattr(traffic, "lanes", ()):
+    if traffic is None:
+        return 0
+    if getattr(traffic, "lanes", ()):
         return len(traffic.lanes)
-    return 0
+    # learned lanes are not known at start: the outputs reserve the lanes the configuration expects
+    try:
+        return len(config.section("traffic").lane_centers_m)
+    except (AttributeError, KeyError):
+        return 0
 
 
 def run_soak(

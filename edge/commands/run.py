@@ -70,7 +70,9 @@ def run(args: argparse.Namespace) -> int:
     source = open_radar(cfg["source"].url)
     profile = resolve_profile(cfg["loop"].profile, source.frontend.board)
     pipeline = build_pipeline(profile, source.frontend, cfg)
-    n_lanes = int(getattr(pipeline, "n_lanes", 0))
+    from edge.soak import lane_count
+
+    n_lanes = lane_count(pipeline, cfg)
     sinks = [] if args.no_outputs else build_sinks(cfg, n_lanes)
     from edge.ops import attach
 
