@@ -32,6 +32,7 @@ from edge.dsp.cfar import os_cfar, os_cfar_at, os_cfar_scale, reference_index
 from edge.dsp.geometry import polar_to_ground
 from edge.dsp.pairing import PairingModel, nearest_of_clusters, pair_beats
 from edge.dsp.peaks import interpolate_peak, local_maxima
+from edge.dsp.resolve import CellResolver, ResolverConfig
 from edge.dsp.range_fft import make_window, range_fft, to_complex64
 from edge.pipeline import Pipeline, PipelineError, StageTimer
 from edge.types import Detections, FrameResult, FrontendInfo, RawFrame
@@ -98,6 +99,23 @@ class LaneConfig:
         "doc": "a pairing is kept only if at least this many of the four segments agree on its angle: the peaks "
                "of a ghost pairing come from different vehicles and point in different directions",
         "min": 1, "max": 4})
+    resolve_pairs: bool = field(default=True, metadata={
+        "doc": "split a detection in two when its range-speed cell's spatial covariance, accumulated over frames, "
+               "holds two vehicles at different angles (side by side at the same range and speed; "
+               "edge.dsp.resolve)"})
+    resolve_memory_frames: float = field(default=8.0, metadata={
+        "doc": "memory (frames) of the per-cell covariance: longer resolves farther, shorter lags less",
+        "min": 1.0, "max": 100.0})
+    resolve_min_frames: int = field(default=6, metadata={
+        "doc": "frames a cell must have been followed before it may be split", "min": 2, "max": 100})
+    resolve_min_eig_ratio: float = field(default=0.02, metadata={
+        "doc": "second eigenvalue of the cell covariance relative to the first above which two sources are "
+               "considered (one vehicle's spread scatterers stay below)", "min": 1e-4, "max": 1.0})
+    resolve_min_noise_ratio: float = field(default=8.0, metadata={
+        "doc": "... and relative to the mean of the noise eigenvalues", "min": 1.0, "max": 1e4})
+    resolve_min_lateral_m: float = field(default=2.5, metadata={
+        "unit": "m", "doc": "the two fitted directions must lie at least this far apart across at the cell's range "
+               "(more than one vehicle's width; adjacent lanes are 3.5 m apart)", "min": 0.5, "max": 20.0})
     calibration_gain: tuple[float, ...] = field(default=(1.0, 1.0, 1.0, 1.0), metadata={
         "doc": "per-channel amplitude of the receive paths (divided out before the angle estimate)",
         "min": 1e-3, "max": 1e3})
@@ -128,7 +146,7 @@ def _segment_slopes(fe: FrontendInfo) -> np.ndarray:
 
 class LanePipeline(Pipeline):
     profile = "lane"
-    stages = ("to_complex", "range_fft", "cfar", "pairing", "angle", "track", "traffic")
+    stages = ("to_complex", "range_fft", "cfar", "pairing", "angle", "resolve", "geometry", "track", "traffic")
 
     def __init__(self, frontend: FrontendInfo, config: LaneConfig, track_config: Any = None,
                  traffic_config: Any = None) -> None:
@@ -172,6 +190,13 @@ class LanePipeline(Pipeline):
         self._steer = steering_matrix(n_rx, frontend.rx_spacing_m, wf.wavelength_m, self._grid)
         cal = np.asarray(cfg.calibration_gain) * np.exp(1j * np.radians(cfg.calibration_phase_deg))
         self._inv_cal = (1.0 / cal).astype(np.complex64)
+        self.resolver = None
+        if cfg.resolve_pairs:
+            self.resolver = CellResolver(
+                ResolverConfig(memory_frames=cfg.resolve_memory_frames, min_frames=cfg.resolve_min_frames,
+                               min_eig_ratio=cfg.resolve_min_eig_ratio, min_noise_ratio=cfg.resolve_min_noise_ratio,
+                               min_lateral_m=cfg.resolve_min_lateral_m),
+                self._steer, self._grid, wf.frame_period_s)
         self.tracker = self.traffic = None
         if cfg.tracking:
             from edge.track import PdafConfig, PdafTracker
@@ -242,14 +267,34 @@ class LanePipeline(Pipeline):
                 az = snr_db = np.zeros(0, np.float32)
                 aspec = np.zeros((0, self._grid.size), np.float32)
                 kept = np.zeros((0, 4), bool)
-            x, y = polar_to_ground(pairs.range_m, az, cfg.mounting_height_m, cfg.target_height_m)
             keep = np.flatnonzero(kept.sum(axis=1) >= cfg.angle_min_agreeing) if n_det else np.zeros(0, np.int64)
-            if cfg.cluster_length_m > 0 and keep.size > 1:
-                keep = keep[nearest_of_clusters(pairs.range_m[keep], pairs.radial_speed_mps[keep], x[keep],
-                                                length_m=cfg.cluster_length_m, speed_mps=cfg.cluster_speed_mps,
-                                                lateral_m=cfg.cluster_lateral_m)]
-            det = Detections(pairs.range_m[keep], pairs.radial_speed_mps[keep], az[keep], snr_db[keep], x[keep],
-                             y[keep], {"pair_residual_hz": pairs.residual_hz[keep]})
+            rng, vel, res = pairs.range_m[keep], pairs.radial_speed_mps[keep], pairs.residual_hz[keep]
+            az, snr_db = az[keep], snr_db[keep]
+            pair_of = np.full(keep.size, -1, np.int32)
+        if self.resolver is not None:
+            with timer.stage("resolve"):
+                # only the looks that agreed on the angle (another vehicle may share one segment's bin)
+                looks = snaps[keep] * kept[keep][:, :, None] if n_det else np.zeros((0, 4, self.frontend.n_rx),
+                                                                                    np.complex64)
+                split, ang = self.resolver.step(rng, vel, looks)
+                if split.any():  # each split detection becomes two, one per angle, half the power each
+                    s_idx = np.flatnonzero(split)
+                    az = az.copy()
+                    az[s_idx] = ang[s_idx, 0]
+                    pair_of[s_idx] = s_idx
+                    rng, vel, res = (np.concatenate([a, a[s_idx]]) for a in (rng, vel, res))
+                    az = np.concatenate([az, ang[s_idx, 1]])
+                    snr_db[s_idx] -= np.float32(3.0)
+                    snr_db = np.concatenate([snr_db, snr_db[s_idx]])
+                    pair_of = np.concatenate([pair_of, s_idx.astype(np.int32)])
+        with timer.stage("geometry"):
+            x, y = polar_to_ground(rng, az, cfg.mounting_height_m, cfg.target_height_m)
+            sel = np.arange(rng.size)
+            if cfg.cluster_length_m > 0 and sel.size > 1:
+                sel = sel[nearest_of_clusters(rng, vel, x, length_m=cfg.cluster_length_m,
+                                              speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m)]
+            det = Detections(rng[sel], vel[sel], az[sel], snr_db[sel], x[sel], y[sel],
+                             {"pair_residual_hz": res[sel], "resolved_pair": pair_of[sel]})
         inter = {
             "power": power, "threshold": thr, "noise": noise, "peak_freqs_hz": freqs,
             "n_pair_candidates": pairs.n_candidates, "n_ghosts_rejected": pairs.n_ghosts,
