@@ -23,7 +23,9 @@ Pairing (vectorised over all candidate pairs):
    (a wrong fast pairing) predicts slow beats where no target is;
 4. confirmed candidates are accepted greedily by smallest slow mismatch; a candidate sharing more than
    ``max_shared`` of its four peaks with already accepted pairs is dropped (with 0, every peak is used
-   once; with 1, two vehicles whose beats coincide in one segment both survive);
+   once; with 1, two vehicles whose beats coincide in one segment both survive); an accepted pair that
+   ends up sharing more than ``max_shared`` peaks with the pairs accepted after it is dropped too (a
+   wrong pairing between two scatterers of one long truck, accepted before their true pairs);
 5. ``(R0, v)`` is refined by least squares over the four measured frequencies.
 """
 
@@ -130,6 +132,14 @@ def pair_beats(
                 u[k] = True
             keep.append(n)
     keep = np.asarray(keep, dtype=np.int64)
+    if keep.size > 2 and max_shared > 0:
+        # a wrong pairing on an extended vehicle (the up peak of one scatterer with the down peak of another,
+        # confirmed by other scatterers' slow peaks) may be accepted first; once the true pairs of those
+        # scatterers are in, it shares two or more of its peaks with them: drop it
+        pk = np.stack([i0[keep], i1[keep], j2[keep], j3[keep]], axis=1)  # (k, 4)
+        uses = [np.bincount(pk[:, s], minlength=sz) for s, sz in enumerate((f0.size, f1.size, f2.size, f3.size))]
+        shared = sum((uses[s][pk[:, s]] > 1).astype(np.int64) for s in range(4))
+        keep = keep[shared <= max_shared]
     idx = np.stack([i0[keep], i1[keep], j2[keep], j3[keep]], axis=1) if keep.size else np.zeros((0, 4), np.int64)
     if keep.size:
         fm = np.stack([f0[idx[:, 0]], f1[idx[:, 1]], f2[idx[:, 2]], f3[idx[:, 3]]], axis=1)  # (n, 4)

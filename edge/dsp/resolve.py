@@ -40,7 +40,7 @@ class ResolverConfig:
     memory_frames: float = 8.0
     min_frames: int = 6
     max_misses: int = 6
-    min_eig_ratio: float = 0.02
+    min_eig_ratio: float = 0.05
     min_noise_ratio: float = 8.0
     min_lateral_m: float = 2.5
     min_power_ratio: float = 0.1

@@ -108,7 +108,7 @@ class LaneConfig:
         "min": 1.0, "max": 100.0})
     resolve_min_frames: int = field(default=6, metadata={
         "doc": "frames a cell must have been followed before it may be split", "min": 2, "max": 100})
-    resolve_min_eig_ratio: float = field(default=0.02, metadata={
+    resolve_min_eig_ratio: float = field(default=0.05, metadata={
         "doc": "second eigenvalue of the cell covariance relative to the first above which two sources are "
                "considered (one vehicle's spread scatterers stay below)", "min": 1e-4, "max": 1.0})
     resolve_min_noise_ratio: float = field(default=8.0, metadata={
@@ -116,6 +116,10 @@ class LaneConfig:
     resolve_min_lateral_m: float = field(default=2.5, metadata={
         "unit": "m", "doc": "the two fitted directions must lie at least this far apart across at the cell's range "
                "(more than one vehicle's width; adjacent lanes are 3.5 m apart)", "min": 0.5, "max": 20.0})
+    resolve_boundary_fraction: float = field(default=0.25, metadata={
+        "doc": "when lanes are known (configured or learned), a split is kept only if its two directions lie in "
+               "adjacent lanes and their midpoint within this fraction of the lane spacing from the boundary "
+               "between them (a truck's two sides straddle one lane's centre instead)", "min": 0.0, "max": 1.0})
     calibration_gain: tuple[float, ...] = field(default=(1.0, 1.0, 1.0, 1.0), metadata={
         "doc": "per-channel amplitude of the receive paths (divided out before the angle estimate)",
         "min": 1e-3, "max": 1e3})
@@ -277,6 +281,8 @@ class LanePipeline(Pipeline):
                 looks = snaps[keep] * kept[keep][:, :, None] if n_det else np.zeros((0, 4, self.frontend.n_rx),
                                                                                     np.complex64)
                 split, ang = self.resolver.step(rng, vel, looks)
+                if split.any() and self.traffic is not None and self.traffic.lanes:
+                    split &= self._split_straddles_lanes(rng, ang)
                 if split.any():  # each split detection becomes two, one per angle, half the power each
                     s_idx = np.flatnonzero(split)
                     az = az.copy()
@@ -301,6 +307,27 @@ class LanePipeline(Pipeline):
             "angle_grid_rad": self._grid, "angle_spectrum": aspec,
         }
         return det, inter
+
+    def _split_straddles_lanes(self, range_m: np.ndarray, ang: np.ndarray) -> np.ndarray:
+        """(n,) bool: the two directions of a split lie in adjacent lanes with their midpoint near the
+        boundary between them -- two vehicles side by side. A truck's two sides (2.5 m apart) fit two
+        sources as well as two cars do, but they straddle the centre of one lane."""
+        from edge.traffic.lanes import to_road
+
+        cfg = self.config
+        lanes = self.traffic.lanes
+        centres = np.array([ln.center_m for ln in lanes])
+        u = np.empty(ang.shape)
+        for k in range(2):
+            x, y = polar_to_ground(range_m, np.nan_to_num(ang[:, k]), cfg.mounting_height_m, cfg.target_height_m)
+            u[:, k], _ = to_road(x.astype(np.float64), y.astype(np.float64), self.traffic.yaw_rad)
+        lane = np.argmin(np.abs(u[:, :, None] - centres[None, None, :]), axis=2)  # (n, 2) nearest lane
+        lo, hi = lane.min(axis=1), lane.max(axis=1)
+        ok = (hi - lo) == 1
+        boundary = 0.5 * (centres[lo] + centres[hi])
+        spacing = np.abs(centres[hi] - centres[lo])
+        mid = u.mean(axis=1)
+        return ok & (np.abs(mid - boundary) <= cfg.resolve_boundary_fraction * spacing)
 
     def process(self, frame: RawFrame, timer: StageTimer) -> FrameResult:
         det, inter = self.detect(frame, timer)
