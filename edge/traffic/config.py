@@ -33,11 +33,16 @@ class TrafficConfig:
     estimate_yaw: bool = field(
         default=True, metadata={"doc": "estimate the mounting yaw from the direction of straight confirmed tracks"})
     yaw_min_tracks: int = field(
-        default=8, metadata={"doc": "straight tracks needed before the yaw estimate is used", "min": 1, "max": 10000})
+        default=5, metadata={"doc": "straight tracks needed before the yaw estimate is used (ended ones; at start-up "
+                                    "running ones count too, see yaw_live_min_length_m)", "min": 1, "max": 10000})
     yaw_window_tracks: int = field(
         default=200, metadata={"doc": "most recent straight tracks the yaw is the median of", "min": 1, "max": 100000})
     yaw_min_track_length_m: float = field(
         default=40.0, metadata={"unit": "m", "doc": "a track must cover this distance to vote for the yaw",
+                                "min": 1.0, "max": 1000.0})
+    yaw_live_min_length_m: float = field(
+        default=20.0, metadata={"unit": "m", "doc": "at start-up (fewer than yaw_min_tracks ended tracks), running "
+                                                    "tracks vote once they covered this distance",
                                 "min": 1.0, "max": 1000.0})
     yaw_max_lateral_sd_m: float = field(
         default=0.8, metadata={"unit": "m", "doc": "a track whose positions scatter more than this across its "
