@@ -72,9 +72,16 @@ class CellResolver:
         bh = b.conj().transpose(0, 2, 1)
         proj = b @ np.linalg.inv(bh @ b) @ bh  # (P, rx, rx)
         self._pair_i, self._pair_j = i, j
-        # tr(P R) = sum_kl P_kl R_lk: with R Hermitian, Re tr(P R) = Re sum P_kl conj(R_kl)
-        self._proj_flat = proj.reshape(proj.shape[0], -1).astype(np.complex64)  # (P, rx*rx)
+        # tr(P R) for Hermitian P and R as a real dot product of their upper triangles:
+        # sum_k P_kk R_kk + 2 sum_{k<l} (Re P_kl Re R_kl + Im P_kl Im R_kl)
+        self._iu = np.triu_indices(n_rx, 1)
+        self._pair_feat = self._features(proj, scale_offdiag=1.0)  # (P, n_rx^2) float32
         self._pinv = (np.linalg.inv(bh @ b) @ bh).astype(np.complex64)  # (P, 2, rx): source amplitudes
+        n_grid = grid_rad.size
+        self._pair_index = np.full((n_grid, n_grid), -1, np.int64)
+        self._pair_index[i, j] = np.arange(i.size)
+        # coarse search on every other grid angle, then the 3 x 3 fine neighbours of the best coarse pair
+        self._coarse = np.flatnonzero((i % 2 == 0) & (j % 2 == 0))
         self.reset()
 
     def reset(self) -> None:
@@ -147,6 +154,12 @@ class CellResolver:
             self.cells = _Cells(cc.range_m[o], cc.v_mps[o], cc.cov[o], cc.n[o], cc.misses[o])
         return split, angles
 
+    def _features(self, m: np.ndarray, scale_offdiag: float) -> np.ndarray:
+        """``(k, rx, rx)`` Hermitian -> ``(k, rx^2)`` float32: diagonal, then Re and Im of the upper triangle."""
+        d = np.real(np.diagonal(m, axis1=1, axis2=2))
+        u = m[:, self._iu[0], self._iu[1]]
+        return np.concatenate([d, scale_offdiag * u.real, scale_offdiag * u.imag], axis=1).astype(np.float32)
+
     def _split(self, cov: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Which of the covariances ``(k, rx, rx)`` hold two resolved vehicles, and their angles."""
         cfg = self.cfg
@@ -156,8 +169,16 @@ class CellResolver:
         idx = np.flatnonzero(two)
         if idx.size == 0:
             return idx, np.zeros((0, 2), np.float32)
-        fit = (cov[idx].reshape(idx.size, -1).conj() @ self._proj_flat.T).real  # (k, P)
-        best = np.argmax(fit, axis=1)
+        fr = self._features(cov[idx], scale_offdiag=2.0)  # (k, 16)
+        coarse = self._coarse[np.argmax(fr @ self._pair_feat[self._coarse].T, axis=1)]  # (k,) pair rows
+        ci, cj = self._pair_i[coarse], self._pair_j[coarse]
+        d = np.array([-1, 0, 1])
+        fi = np.clip(ci[:, None, None] + d[None, :, None], 0, self.grid.size - 1)  # (k, 3, 1)
+        fj = np.clip(cj[:, None, None] + d[None, None, :], 0, self.grid.size - 1)  # (k, 1, 3)
+        rows = self._pair_index[fi, fj].reshape(idx.size, -1)  # (k, 9), -1 where i >= j
+        rows = np.where(rows >= 0, rows, coarse[:, None])
+        fine = np.einsum("kf,kpf->kp", fr, self._pair_feat[rows])
+        best = rows[np.arange(idx.size), np.argmax(fine, axis=1)]
         th = np.stack([self.grid[self._pair_i[best]], self.grid[self._pair_j[best]]], axis=1)
         lateral = range_m[idx] * np.abs(np.sin(th[:, 1]) - np.sin(th[:, 0]))
         # powers of the two fitted sources, diag(B+ R B+^H): a vehicle with a brief visitor in one of its
