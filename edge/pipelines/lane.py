@@ -99,6 +99,23 @@ class LaneConfig:
         "doc": "a pairing is kept only if at least this many of the four segments agree on its angle: the peaks "
                "of a ghost pairing come from different vehicles and point in different directions",
         "min": 1, "max": 4})
+    aided_pairing: bool = field(default=True, metadata={
+        "doc": "confirmed tracks that got no pairing look for their own peaks near their predicted beat "
+               "frequencies (near vehicles smear over several bins and the four segments stop agreeing "
+               "within pair_tolerance_bins)"})
+    aided_window_bins: float = field(default=3.0, metadata={
+        "doc": "search half-width around a track's predicted beat frequency, in bins of each segment",
+        "min": 0.5, "max": 20.0})
+    aided_min_segments: int = field(default=4, metadata={
+        "doc": "segments that must hold a peak near the prediction (range and speed are fitted to them). Measured "
+               "on highway4-misaimed seed 11 (90 s): 4 raises the detection probability 0.933 -> 0.934 with "
+               "id switches 13 -> 12; 3 gives 0.936 but 22 id switches (tracks live on other vehicles' peaks)",
+        "min": 2, "max": 4})
+    aided_gate_m: float = field(default=2.5, metadata={
+        "unit": "m", "doc": "fitted range within this of the track's predicted slant range (and an existing "
+               "pairing this close means the track needs no help)", "min": 0.1, "max": 20.0})
+    aided_gate_mps: float = field(default=1.5, metadata={
+        "unit": "m/s", "doc": "... and fitted radial speed within this of the prediction", "min": 0.1, "max": 20.0})
     resolve_pairs: bool = field(default=True, metadata={
         "doc": "split a detection in two when its range-speed cell's spatial covariance, accumulated over frames, "
                "holds two vehicles at different angles (side by side at the same range and speed; "
@@ -258,21 +275,33 @@ class LanePipeline(Pipeline):
             pairs = pair_beats(tuple(freqs), self._model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
                                max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self._tol,
                                max_shared=cfg.pair_max_shared_peaks)
+            p_rng, p_vel, p_res = pairs.range_m, pairs.radial_speed_mps, pairs.residual_hz
+            pk = (np.stack([bins[k][pairs.peak_index[:, k]] for k in range(4)], axis=1) if p_rng.size
+                  else np.zeros((0, 4), np.int64))  # (n, 4 seg) bins
+            n_aided = 0
+            if self.tracker is not None and cfg.aided_pairing and len(self.tracker.tracks):
+                a_bins, a_rng, a_vel, a_res = self._track_aided_pairs(freqs, bins, pairs, frame.t_ns)
+                n_aided = a_rng.size
+                if n_aided:
+                    pk = np.concatenate([pk, a_bins])
+                    p_rng, p_vel, p_res = (np.concatenate([u, w]) for u, w in ((p_rng, a_rng), (p_vel, a_vel),
+                                                                              (p_res, a_res)))
         with timer.stage("angle"):
-            n_det = pairs.range_m.size
+            n_det = p_rng.size
             if n_det:
-                pk = np.stack([bins[k][pairs.peak_index[:, k]] for k in range(4)], axis=1)  # (n, 4 seg) bins
                 snaps = spec[:, np.arange(4)[None, :], pk]  # (rx, n, seg)
                 snaps = snaps.transpose(1, 2, 0) * self._inv_cal  # (n, seg, rx)
                 az, aspec, kept = bartlett_consensus(snaps, self._steer, self._grid, math.radians(cfg.angle_outlier_deg))
                 p0 = power[0, pk[:, 0]]
-                snr_db = (10.0 * np.log10(p0 / np.maximum(noise[0, pk[:, 0]], np.float32(1e-30)))).astype(np.float32)
+                n0 = noise[0, pk[:, 0]]
+                n0 = np.where(np.isfinite(n0), n0, floor[0])  # a track-aided pair may read a non-peak bin
+                snr_db = (10.0 * np.log10(p0 / np.maximum(n0, np.float32(1e-30)))).astype(np.float32)
             else:
                 az = snr_db = np.zeros(0, np.float32)
                 aspec = np.zeros((0, self._grid.size), np.float32)
                 kept = np.zeros((0, 4), bool)
             keep = np.flatnonzero(kept.sum(axis=1) >= cfg.angle_min_agreeing) if n_det else np.zeros(0, np.int64)
-            rng, vel, res = pairs.range_m[keep], pairs.radial_speed_mps[keep], pairs.residual_hz[keep]
+            rng, vel, res = p_rng[keep], p_vel[keep], p_res[keep]
             az, snr_db = az[keep], snr_db[keep]
             pair_of = np.full(keep.size, -1, np.int32)
         if self.resolver is not None:
@@ -303,10 +332,77 @@ class LanePipeline(Pipeline):
                              {"pair_residual_hz": res[sel], "resolved_pair": pair_of[sel]})
         inter = {
             "power": power, "threshold": thr, "noise": noise, "peak_freqs_hz": freqs,
-            "n_pair_candidates": pairs.n_candidates, "n_ghosts_rejected": pairs.n_ghosts,
+            "n_pair_candidates": pairs.n_candidates, "n_ghosts_rejected": pairs.n_ghosts, "n_aided_pairs": n_aided,
             "angle_grid_rad": self._grid, "angle_spectrum": aspec,
         }
         return det, inter
+
+    def _track_aided_pairs(self, freqs, bins, pairs, t_ns: int):
+        """Pairings of confirmed tracks that the four-segment pairing missed (a near vehicle's echo is smeared
+        over several bins by its body, and the peaks of the four segments no longer agree within a bin).
+
+        Each confirmed track without a pairing near it predicts its beat frequency in every segment (slant
+        range and speed from its state at this frame's time); the nearest unused peak within
+        ``aided_window_bins`` is taken in each segment, at least ``aided_min_segments`` must be found, and
+        range and speed are fitted to them by least squares; the fit must lie within ``aided_gate_m`` and
+        ``aided_gate_mps`` of the prediction. A segment without a peak is read at its predicted bin for
+        the angle. Returns ``(bins (m, 4), range_m, v_mps, residual_hz)``."""
+        cfg = self.config
+        tr = self.tracker.tracks
+        empty = (np.zeros((0, 4), np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.float32))
+        sel = np.flatnonzero(tr.confirmed)
+        if sel.size == 0 or self.tracker.last_t_ns is None:
+            return empty
+        dt = max((t_ns - self.tracker.last_t_ns) * 1e-9, 0.0)
+        st = tr.x[sel]
+        x, y = st[:, 0] + st[:, 2] * dt, st[:, 1] + st[:, 3] * dt
+        dz = cfg.mounting_height_m - cfg.target_height_m
+        r_hat = np.sqrt(x * x + y * y + dz * dz)
+        v_hat = (x * st[:, 2] + y * st[:, 3]) / r_hat
+        ok = (r_hat >= cfg.min_range_m) & (r_hat <= cfg.max_range_m) & (np.abs(v_hat) >= 1.0)
+        if pairs.range_m.size:  # already paired
+            near = (np.abs(pairs.range_m[None, :] - r_hat[:, None]) < cfg.aided_gate_m) & (
+                np.abs(pairs.radial_speed_mps[None, :] - v_hat[:, None]) < cfg.aided_gate_mps)
+            ok &= ~near.any(axis=1)
+        idx = np.flatnonzero(ok)
+        if idx.size == 0:
+            return empty
+        r_hat, v_hat = r_hat[idx], v_hat[idx]
+        f_hat = self._model.predict(r_hat, v_hat)  # (m, 4)
+        m = idx.size
+        fsel = np.zeros((m, 4))
+        found = np.zeros((m, 4), bool)
+        out_bins = np.zeros((m, 4), np.int64)
+        for k in range(4):  # four segments; vectorised over tracks
+            fk = freqs[k]
+            used = np.zeros(fk.size, bool)
+            if pairs.range_m.size:
+                used[pairs.peak_index[:, k]] = True
+            pred_bin = np.round(f_hat[:, k] / self._bin_hz[k]).astype(np.int64) % self.n_bins
+            out_bins[:, k] = pred_bin
+            if fk.size == 0:
+                continue
+            d = np.abs(fk[None, :] - f_hat[:, k:k + 1])  # (m, peaks)
+            d[:, used] = np.inf
+            j = np.argmin(d, axis=1)
+            hit = d[np.arange(m), j] <= cfg.aided_window_bins * self._bin_hz[k]
+            found[:, k] = hit
+            fsel[:, k] = np.where(hit, fk[j], 0.0)
+            out_bins[:, k] = np.where(hit, bins[k][j], pred_bin)
+        good = found.sum(axis=1) >= cfg.aided_min_segments
+        if not good.any():
+            return empty
+        A = np.stack([self._model.a, self._model.b], axis=1)  # (4, 2)
+        w = found[good].astype(np.float64)
+        fs = fsel[good]
+        nrm = np.einsum("mk,ki,kj->mij", w, A, A)
+        rhs = np.einsum("mk,ki,mk->mi", w, A, fs)
+        sol = np.linalg.solve(nrm, rhs[:, :, None])[:, :, 0]  # (g, 2): range, speed
+        resid = np.sqrt((w * (fs - sol @ A.T) ** 2).sum(axis=1) / w.sum(axis=1))
+        close = (np.abs(sol[:, 0] - r_hat[good]) < cfg.aided_gate_m) & (np.abs(sol[:, 1] - v_hat[good]) < cfg.aided_gate_mps)
+        g = np.flatnonzero(good)[close]
+        return (out_bins[g], sol[close, 0].astype(np.float32), sol[close, 1].astype(np.float32),
+                resid[close].astype(np.float32))
 
     def _split_straddles_lanes(self, range_m: np.ndarray, ang: np.ndarray) -> np.ndarray:
         """(n,) bool: the two directions of a split lie in adjacent lanes with their midpoint near the
