@@ -108,8 +108,10 @@ class TrackTable:
     confirmed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     moved: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # was ever surely moving
     ext_var: np.ndarray = field(default_factory=lambda: np.zeros(0))  # along-heading detection spread, m^2
+    close_run: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))  # frames next to a twin
 
-    _COLUMNS = ("x", "p", "track_id", "age", "hits", "misses", "history", "confirmed", "moved", "ext_var")
+    _COLUMNS = ("x", "p", "track_id", "age", "hits", "misses", "history", "confirmed", "moved", "ext_var",
+                "close_run")
 
     def __len__(self) -> int:
         return int(self.x.shape[0])
@@ -130,6 +132,7 @@ class TrackTable:
         self.confirmed = np.concatenate([self.confirmed, np.zeros(k, dtype=bool)])
         self.moved = np.concatenate([self.moved, np.zeros(k, dtype=bool)])
         self.ext_var = np.concatenate([self.ext_var, np.full(k, ext_var)])
+        self.close_run = np.concatenate([self.close_run, np.zeros(k, dtype=np.int32)])
 
 
 @dataclass
@@ -392,7 +395,9 @@ class TrackDeleter:
     def duplicates(self, tracks: TrackTable, resolved: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """Of two tracks on one vehicle, drop the junior (unconfirmed first, then fewer hits, then younger).
 
-        Two tracks are one vehicle when their velocities agree within ``merge_speed_mps`` and either their
+        Two tracks are one vehicle when their velocities agree within ``merge_speed_mps`` along their common
+        heading and ``merge_lateral_speed_mps`` across it (or they stayed in the same-vehicle box for
+        ``merge_persist_frames``, whatever their lateral speeds) and either their
         positions are within the same-vehicle box or their states are statistically indistinguishable
         (position covariances widened by the vehicles' along-heading spread)."""
         c = self.cfg
@@ -402,17 +407,35 @@ class TrackDeleter:
             return out
         x = tracks.x
         ia, ib = np.triu_indices(t, 1)
-        dv = np.hypot(x[ia, 2] - x[ib, 2], x[ia, 3] - x[ib, 3])
-        keep = dv < c.merge_speed_mps
+        # speed difference along the pair's common heading, and across it: a duplicate born with a wrong
+        # lateral velocity (a far, noisy seed) drifts onto its vehicle with metres per second across
+        vsum = x[ia, 2:4] + x[ib, 2:4]
+        u = vsum / np.maximum(np.hypot(vsum[:, 0], vsum[:, 1]), 1e-9)[:, None]
+        dvx, dvy = x[ia, 2] - x[ib, 2], x[ia, 3] - x[ib, 3]
+        dv_along = np.abs(dvx * u[:, 0] + dvy * u[:, 1])
+        dv_across = np.abs(dvx * u[:, 1] - dvy * u[:, 0])
+        keep = dv_along < c.merge_speed_mps
         if resolved is not None:  # tracks on the two members of a resolved pair are two vehicles
             pair, det = resolved
             keep &= ~((pair[ia] >= 0) & (pair[ia] == pair[ib]) & (det[ia] != det[ib]))
-        ia, ib = ia[keep], ib[keep]
-        if ia.size == 0:
-            return out
+        ia, ib, dv_across = ia[keep], ib[keep], dv_across[keep]
         reach = same_vehicle_along_m(c, tracks)
         dx = x[ia] - x[ib]
-        close = (np.abs(dx[:, 0]) < c.merge_lateral_m) & (np.abs(dx[:, 1]) < np.maximum(reach[ia], reach[ib]))
+        boxed = (np.abs(dx[:, 0]) < c.merge_lateral_m) & (np.abs(dx[:, 1]) < np.maximum(reach[ia], reach[ib]))
+        # same place, same speed along, but moving apart or together across: two vehicles crossing each
+        # other's path pass through the box within a second; a duplicate stays in it
+        run = np.zeros(t, np.int32)
+        if boxed.any():
+            run[ia[boxed]] = run[ib[boxed]] = 1
+        tracks.close_run = np.where(run > 0, tracks.close_run + 1, 0).astype(np.int32)
+        slow = dv_across < c.merge_lateral_speed_mps
+        lasting = np.minimum(tracks.close_run[ia], tracks.close_run[ib]) >= c.merge_persist_frames
+        keep = slow | (boxed & lasting)
+        ia, ib, boxed = ia[keep], ib[keep], boxed[keep]
+        if ia.size == 0:
+            return out
+        dx = x[ia] - x[ib]
+        close = boxed
         ext = extent_cov(x, tracks.ext_var)
         pd = np.stack([tracks.p[:, 0, 0] + ext[:, 0, 0], tracks.p[:, 1, 1] + ext[:, 1, 1]], axis=1)  # (T, 2)
         # a marginal Mahalanobis distance never exceeds the joint one: prune before the 4x4 solves
