@@ -19,8 +19,8 @@ nearest-neighbour "cell track": ``range + v T``, within a range and speed gate),
 exponentially weighted covariance of its normalised snapshots (the four segments are four looks),
 and splits a detection in two when its cell's covariance is surely rank two (second eigenvalue above
 ``min_eig_ratio`` of the first and well above the noise eigenvalues), the two fitted sources carry
-comparable power (``min_power_ratio``), the cell moves (``min_speed_mps``) and the two angles lie
-at least ``min_lateral_m`` apart on the ground (more than the width of one vehicle, whose own
+comparable power (``min_power_ratio``), the cell moves (``min_speed_mps``), the two angles lie
+at least ``min_lateral_m`` apart on the ground and all this held for ``min_split_frames`` frames in a row (more than the width of one vehicle, whose own
 scatterers spread a little in angle). All work is batched over detections and cells.
 """
 
@@ -39,6 +39,7 @@ class ResolverConfig:
     speed_gate_mps: float = 1.0
     memory_frames: float = 8.0
     min_frames: int = 6
+    min_split_frames: int = 4
     max_misses: int = 6
     min_eig_ratio: float = 0.05
     min_noise_ratio: float = 8.0
@@ -55,6 +56,7 @@ class _Cells:
     cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4), np.complex64))
     n: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     misses: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    streak: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))  # frames in a row found split
 
 
 class CellResolver:
@@ -133,10 +135,15 @@ class CellResolver:
             c.v_mps[k] = v_mps[hit]
             c.misses[k] = 0
             ready = np.flatnonzero(hit)[(c.n[k] >= cfg.min_frames) & (np.abs(v_mps[hit]) >= cfg.min_speed_mps)]
+            now = np.zeros(n_det, bool)
             if ready.size:
                 split_idx, ang = self._split(c.cov[match[ready]], range_m[ready])
-                split[ready[split_idx]] = True
+                now[ready[split_idx]] = True
                 angles[ready[split_idx]] = ang
+            c.streak[k] = np.where(now[hit], c.streak[k] + 1, 0)
+            # a cell split in a few frames in a row only (a passing vehicle's echo in one look is brief)
+            split[np.flatnonzero(hit)] = now[hit] & (c.streak[k] >= cfg.min_split_frames)
+            angles[~split] = np.nan
         # age, drop, create
         c.misses[~seen] += 1
         keep = c.misses <= cfg.max_misses
@@ -147,11 +154,12 @@ class CellResolver:
             cov=np.concatenate([c.cov[keep], r_new[new]]),
             n=np.concatenate([c.n[keep], np.ones(int(new.sum()), np.int32)]),
             misses=np.concatenate([c.misses[keep], np.zeros(int(new.sum()), np.int32)]),
+            streak=np.concatenate([c.streak[keep], np.zeros(int(new.sum()), np.int32)]),
         )
         if len(self.cells.range_m) > cfg.max_cells:  # keep the most recently seen
             o = np.argsort(self.cells.misses, kind="stable")[: cfg.max_cells]
             cc = self.cells
-            self.cells = _Cells(cc.range_m[o], cc.v_mps[o], cc.cov[o], cc.n[o], cc.misses[o])
+            self.cells = _Cells(cc.range_m[o], cc.v_mps[o], cc.cov[o], cc.n[o], cc.misses[o], cc.streak[o])
         return split, angles
 
     def _features(self, m: np.ndarray, scale_offdiag: float) -> np.ndarray:

@@ -125,6 +125,9 @@ class LaneConfig:
         "min": 1.0, "max": 100.0})
     resolve_min_frames: int = field(default=6, metadata={
         "doc": "frames a cell must have been followed before it may be split", "min": 2, "max": 100})
+    resolve_min_split_frames: int = field(default=4, metadata={
+        "doc": "a cell is split only after it was found to hold two vehicles in this many frames in a row (a "
+               "passing vehicle's echo in one look, or one noisy frame, is brief)", "min": 1, "max": 100})
     resolve_min_eig_ratio: float = field(default=0.05, metadata={
         "doc": "second eigenvalue of the cell covariance relative to the first above which two sources are "
                "considered (one vehicle's spread scatterers stay below)", "min": 1e-4, "max": 1.0})
@@ -215,6 +218,7 @@ class LanePipeline(Pipeline):
         if cfg.resolve_pairs:
             self.resolver = CellResolver(
                 ResolverConfig(memory_frames=cfg.resolve_memory_frames, min_frames=cfg.resolve_min_frames,
+                               min_split_frames=cfg.resolve_min_split_frames,
                                min_eig_ratio=cfg.resolve_min_eig_ratio, min_noise_ratio=cfg.resolve_min_noise_ratio,
                                min_lateral_m=cfg.resolve_min_lateral_m),
                 self._steer, self._grid, wf.frame_period_s)
