@@ -7,16 +7,22 @@ Per frame (four chirp segments: fast up, fast down, slow up, slow down; 4 receiv
       -> non-coherent integration over the channels -> OS-CFAR per segment -> local maxima,
          sub-bin interpolation -> signed beat frequencies
       -> four-segment pairing (edge.dsp.pairing): range at the frame start and radial speed,
-         ghosts of wrong pairings rejected by the slow segments
+         ghosts of wrong pairings rejected by the slow segments (and wrong pairings between two
+         scatterers of one long truck dropped once their true pairs are in)
+      -> track-aided pairing: a confirmed track that got no pairing takes the peaks nearest its predicted
+         beats in all four segments (a near vehicle's body smears its echo over several bins)
       -> Bartlett angle over the 4 channels (calibration vector divided out), the 4 segments as looks,
          each normalised, a segment that disagrees with the others left out (edge.dsp.angle)
-      -> ground-plane x/y (edge.dsp.geometry, eq. 16 for a raised radar)
+      -> resolve (edge.dsp.resolve): a detection whose range-speed cell holds two vehicles side by side
+         (rank-two spatial covariance over frames) becomes two detections, one per fitted angle
+      -> ground-plane x/y (edge.dsp.geometry, eq. 16 for a raised radar), nearest face of each body
       -> PDAF tracker (edge.track) -> lanes, statistics, events (edge.traffic)
 
 All parameters are in :class:`LaneConfig` (section ``pipeline.lane``); the tracker and the traffic
 layer read ``track.pdaf`` and ``traffic``. Intermediates for plots: ``power`` (segments x bins, linear),
 ``threshold`` and ``noise`` (linear; NaN away from local maxima unless ``cfar_full_threshold``),
-``peak_freqs_hz`` (per segment), pairing counts, ``angle_spectrum``.
+``peak_freqs_hz`` (per segment), pairing counts (``n_aided_pairs`` from tracks), ``angle_spectrum``.
+Detections carry ``extra["resolved_pair"]`` (>= 0: the two detections split from one share the value).
 """
 
 from __future__ import annotations
