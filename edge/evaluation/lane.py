@@ -289,6 +289,11 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             for k, v in sorted(pd_bins.items())},
         "vehicles_in_view": len(targets),
         "estimated_yaw_deg": math.degrees(pipe.traffic.yaw_rad) if pipe.traffic is not None else None,
+        "true_yaw_deg": float(scene.pose.yaw_deg),
+        # lanes in use at the end (configured, or learned with traffic.lane_mode = "learned"), road frame
+        "lane_mode": traffic_cfg.lane_mode,
+        "lane_centers_m": ([round(ln.center_m, 3) for ln in pipe.traffic.lanes] if pipe.traffic is not None else None),
+        "lane_centers_true_m": [round(ln.center_x_m - sc.pose.x_m, 3) for ln in sc.lanes],
         "events": events,
         "classification_accuracy": None,
         "confusion_matrix": None,
