@@ -98,7 +98,8 @@ class TrafficConfig:
         default=3.0, metadata={"unit": "m/s", "doc": "against the lane direction at least this fast is wrong-way",
                                "min": 0.1, "max": 100.0})
     wrong_way_min_frames: int = field(
-        default=15, metadata={"doc": "frames in a row against the lane direction before the event (0.5 s)",
+        default=15, metadata={"doc": "frames with a detection in a row against the lane direction before the "
+                                     "event (0.5 s; coasting frames neither count nor reset)",
                               "min": 1, "max": 10000})
     stopped_speed_mps: float = field(
         default=1.0, metadata={"unit": "m/s", "doc": "a vehicle slower than this is standing", "min": 0.0, "max": 20.0})

@@ -56,6 +56,7 @@ class _Memo:
     max_speed_mps: float
     wrong_frames: int = 0
     wrong_emitted: bool = False
+    hits: int = -1  # the track's hit count when last seen (coasting frames add no evidence)
     stopped_since_ns: int | None = None
     stopped_emitted: bool = False
 
@@ -147,10 +148,13 @@ class TrafficMonitor:
                 if abs(float(s[j]) - line) <= half_zone + 0.5 * length:
                     presence[k] = True
                 # wrong way
-                if vs[j] * lanes[k].direction < -cfg.wrong_way_min_speed_mps:
-                    memo.wrong_frames += 1
-                else:
-                    memo.wrong_frames = 0
+                # only frames with a detection count: a track seeded with a wrong velocity (a steep near
+                # detection) that coasts out of view must not raise the event on its prediction alone
+                if tr.hits > memo.hits:
+                    if vs[j] * lanes[k].direction < -cfg.wrong_way_min_speed_mps:
+                        memo.wrong_frames += 1
+                    else:
+                        memo.wrong_frames = 0
                 if memo.wrong_frames >= cfg.wrong_way_min_frames and not memo.wrong_emitted:
                     memo.wrong_emitted = True
                     events.append(TrafficEvent("wrong_way", tid, lane, t_ns))
@@ -166,6 +170,7 @@ class TrafficMonitor:
                 memo.stopped_emitted = False
             elif speed[j] >= cfg.stopped_speed_mps:
                 memo.stopped_since_ns = None
+            memo.hits = tr.hits
             out_tracks[id(tr)] = _with_lane(tr, lane) if tr.lane != lane else tr
         for tid in [k for k in self._memo if k not in seen]:
             del self._memo[tid]

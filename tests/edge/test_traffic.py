@@ -318,3 +318,18 @@ def test_yaw_from_running_tracks_at_start_up():
         got = est.estimate_rad()
     assert est.n_votes == 0 and got is not None
     assert math.degrees(got) == pytest.approx(3.0, abs=0.5)
+
+
+def test_a_coasting_track_raises_no_wrong_way_event():
+    """A track seeded with a wrong velocity that coasts (no new hits) against its lane's direction is
+    not a wrong-way driver; the same track with a detection every frame is."""
+    cfg = TrafficConfig(wrong_way_min_frames=15, estimate_yaw=False)
+    for hits_grow, expected in ((False, 0), (True, 1)):
+        mon = TrafficMonitor(cfg)
+        n = 0
+        for k in range(40):
+            y = 100.0 - 25.0 * k * 0.1
+            hits = k + 1 if hits_grow else 3
+            tr = TrackState(7, 5.25, y, 0.0, -25.0, math.hypot(5.25, y), -25.0, math.atan2(5.25, y), k + 1, hits, True)
+            n += len(mon.update((tr,), k * DT_NS).events)
+        assert n == expected
