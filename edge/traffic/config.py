@@ -94,6 +94,15 @@ class TrafficConfig:
     length_class_names: tuple[str, ...] = field(
         default=("motorcycle", "car", "van", "truck"),
         metadata={"doc": "names of the length classes (one more than the edges)"})
+    count_min_gap_s: float = field(
+        default=0.8, metadata={"unit": "s", "doc": "a crossing this soon after the previous one in the same lane at "
+                                                   "the same speed (count_twin_speed_mps) is the same vehicle's "
+                                                   "second track (the front and rear of a 16 m truck are 0.75 s "
+                                                   "apart at 80 km/h) and is not counted; 0 = count every track",
+                               "min": 0.0, "max": 10.0})
+    count_twin_speed_mps: float = field(
+        default=2.0, metadata={"unit": "m/s", "doc": "speed difference within which two crossings can be one "
+                                                     "vehicle", "min": 0.0, "max": 50.0})
     wrong_way_min_speed_mps: float = field(
         default=3.0, metadata={"unit": "m/s", "doc": "against the lane direction at least this fast is wrong-way",
                                "min": 0.1, "max": 100.0})

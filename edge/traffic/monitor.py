@@ -141,7 +141,14 @@ class TrafficMonitor:
                     f = (line - s0) / (s1 - s0)
                     tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))
                     cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
-                    self.stats.lane(lane).add(Crossing(tc, float(speed[j]), float(length), cls))
+                    acc = self.stats.lane(lane)
+                    last = acc.last
+                    # a second track on the same vehicle (a long truck seen at front and rear as two
+                    # tracks) crosses right after the first at the same speed: one vehicle
+                    twin = (last is not None and 0 <= tc - last.t_ns < int(cfg.count_min_gap_s * 1e9)
+                            and abs(last.speed_mps - float(speed[j])) < cfg.count_twin_speed_mps)
+                    if not twin:
+                        acc.add(Crossing(tc, float(speed[j]), float(length), cls))
                 memo.age, memo.s_m, memo.t_ns = tr.age_frames, s1, t_ns
                 memo.max_speed_mps = max(memo.max_speed_mps, float(speed[j]))
             if lane is not None:

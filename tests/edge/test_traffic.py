@@ -333,3 +333,20 @@ def test_a_coasting_track_raises_no_wrong_way_event():
             tr = TrackState(7, 5.25, y, 0.0, -25.0, math.hypot(5.25, y), -25.0, math.atan2(5.25, y), k + 1, hits, True)
             n += len(mon.update((tr,), k * DT_NS).events)
         assert n == expected
+
+
+@pytest.mark.parametrize("gap_s,expected", [(0.5, 1), (1.2, 2)])
+def test_the_second_track_of_one_truck_is_not_counted_twice(gap_s, expected):
+    """Two tracks in one lane crossing the detection line gap_s apart at the same speed: 0.5 s is the
+    front and rear of one long truck (one vehicle), 1.2 s two vehicles."""
+    cfg = TrafficConfig(estimate_yaw=False, count_min_gap_s=0.8, interval_s=60.0)
+    mon = TrafficMonitor(cfg)
+    v = 25.0
+    lag = int(round(gap_s / 0.1))
+    for k in range(80):
+        y1 = 30.0 + v * k * 0.1
+        trs = [_ts(1, 1.75, y1, 0.0, v, k + 1)]
+        if k >= lag:
+            trs.append(_ts(2, 1.75, 30.0 + v * (k - lag) * 0.1, 0.0, v, k - lag + 1))
+        mon.update(tuple(trs), int(k * 0.1e9))
+    assert len(mon.stats.lane(2).crossings) == expected
