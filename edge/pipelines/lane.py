@@ -56,6 +56,10 @@ class LaneConfig:
                "complex spectrum subtracted before detection (guard rails, gantries, poles and the TX leakage "
                "vanish; a vehicle standing much longer than this fades too); 0 = off",
         "min": 0.0, "max": 3600.0})
+    clutter_map_warmup_frames: int = field(default=60, metadata={
+        "doc": "the clutter map starts as a running mean, frame n weighted max(1/(n + this), 1 - exp(-T/time "
+               "constant)): static clutter is learned in seconds, a vehicle of the first frames stays in it at "
+               "1/this of its amplitude (-36 dB) only", "min": 1, "max": 1_000_000})
     cfar_pfa: float = field(default=1e-3, metadata={
         "doc": "design false-alarm probability per cell of the OS-CFAR (sets the threshold scale). Lim gives no "
                "value; 1e-3 (about 4 noise peaks per frame over 4 x 1024 cells) is affordable because a target "
@@ -211,6 +215,7 @@ class LanePipeline(Pipeline):
         period = wf.frame_period_s
         self._alpha = np.float32(1.0 - math.exp(-period / cfg.clutter_map_time_s)) if cfg.clutter_map_time_s > 0 else 0.0
         self._background = np.zeros(frontend.frame_shape, dtype=np.complex64)  # (rx, seg, bin) static-clutter map
+        self._map_frames = 0
         self._cap = np.float32(10.0 ** (cfg.cfar_cap_db / 10.0))
         self._ref_index = reference_index(n, cfg.cfar_train_cells, cfg.cfar_guard_cells)
         self._model = PairingModel.from_waveform(wf)
@@ -251,9 +256,13 @@ class LanePipeline(Pipeline):
         with timer.stage("range_fft"):
             spec = range_fft(iq, self.window)  # (rx, seg, bin) complex64
             if self._alpha > 0:
-                # the map starts empty and learns with the time constant: initialising it with the first
-                # frame would subtract that frame's vehicles and leave their negative images for minutes
-                self._background += self._alpha * (spec - self._background)
+                # the map starts empty and learns as a running mean over the first frames (weight
+                # 1/(n + warm-up)), then with the time constant: guard-rail posts are gone within seconds
+                # of a start instead of a minute (their wrong pairings made tracks hop along the rail);
+                # initialising it with the first frame alone would leave that frame's vehicles' images
+                alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
+                self._map_frames += 1
+                self._background += alpha * (spec - self._background)
                 spec = spec - self._background
             power = (spec.real * spec.real + spec.imag * spec.imag).sum(axis=0)  # (seg, bin) float32
         with timer.stage("cfar"):
