@@ -20,8 +20,11 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   ``detection_probability_raw``: the same with any detection (before the tracker) within the gate;
 * ``id_switches``: changes of the assigned track id along a vehicle's assigned frames;
 * false track: a confirmed track episode (an id, consecutive frames) that is assigned to a vehicle in
-  fewer than half of its frames (vehicles out of view count, so a track on a vehicle at 310 m is not
-  false); ``false_tracks_per_min`` over the evaluated time;
+  fewer than half of its frames *in view* (the same region as for vehicles; vehicles out of view count
+  for the assignment, so a track on a vehicle at 310 m is not false). Frames of a track outside the
+  region are not scored, as vehicles outside it are not: the traffic generator removes a receding
+  vehicle once its centre passes ``range_m`` (320 m) while its track, on the rear face two metres nearer,
+  rightly coasts on for a few frames; ``false_tracks_per_min`` over the evaluated time;
 * ``lane_accuracy``: assigned pairs whose track lane equals the vehicle's true lane at that frame;
 * ``count_error_per_lane``: measured volume at the traffic layer's detection line (closed intervals
   plus the open one) minus the true number of reference points crossing it, per lane.
@@ -219,17 +222,17 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             lane_n += 1
             lane_ok += int(t.lane is not None and t.lane == lanes[j])
 
-        seen = set()
+        t_rng = np.hypot(tpos[:, 0], tpos[:, 1])
+        t_in_view = (t_rng >= MIN_RANGE_M) & (t_rng <= MAX_RANGE_M) & (np.abs(np.arctan2(tpos[:, 0], tpos[:, 1])) <= half_fov)
         for k, t in enumerate(tracks):
-            seen.add(t.track_id)
             ep = episodes.get(t.track_id)
             if ep is None or ep[1] != n - 1:
                 if ep is not None:
                     closed_eps.append(ep)
                 ep = episodes[t.track_id] = [n, n, 0, 0]
             ep[1] = n
-            ep[2] += 1
-            ep[3] += int(t_assigned[k])
+            ep[2] += int(t_in_view[k])
+            ep[3] += int(t_assigned[k] and t_in_view[k])
     closed_eps.extend(episodes.values())
     # crossings of the open interval
     if pipe.traffic is not None:
@@ -238,7 +241,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
                 measured_volume[k] += len(la.crossings)
 
     duration_min = n_frames * period / 60.0
-    false_tracks = sum(1 for ep in closed_eps if ep[3] < 0.5 * ep[2])
+    false_tracks = sum(1 for ep in closed_eps if ep[2] > 0 and ep[3] < 0.5 * ep[2])
     targets = []
     for i, a in sorted(acc.items()):
         if a.n_view == 0:
@@ -286,6 +289,11 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             for k, v in sorted(pd_bins.items())},
         "vehicles_in_view": len(targets),
         "estimated_yaw_deg": math.degrees(pipe.traffic.yaw_rad) if pipe.traffic is not None else None,
+        "true_yaw_deg": float(scene.pose.yaw_deg),
+        # lanes in use at the end (configured, or learned with traffic.lane_mode = "learned"), road frame
+        "lane_mode": traffic_cfg.lane_mode,
+        "lane_centers_m": ([round(ln.center_m, 3) for ln in pipe.traffic.lanes] if pipe.traffic is not None else None),
+        "lane_centers_true_m": [round(ln.center_x_m - sc.pose.x_m, 3) for ln in sc.lanes],
         "events": events,
         "classification_accuracy": None,
         "confusion_matrix": None,

@@ -138,8 +138,18 @@ class PdafConfig:
                                        "lateral spread of far detections; settled tracks in adjacent lanes differ)",
                                 "min": 0.5, "max": 0.999999})
     merge_speed_mps: float = field(
-        default=2.0, metadata={"unit": "m/s", "doc": "speed difference below which close tracks are one vehicle",
+        default=2.0, metadata={"unit": "m/s", "doc": "speed difference along their common heading below which close tracks are one "
+                                                  "vehicle",
                                "min": 0.0, "max": 50.0})
+    merge_lateral_speed_mps: float = field(
+        default=2.0, metadata={"unit": "m/s", "doc": "... and across-heading speed difference below which they are",
+                               "min": 0.0, "max": 50.0})
+    merge_persist_frames: int = field(
+        default=30, metadata={"doc": "two tracks in each other's same-vehicle box with the same speed along for this "
+                                     "many frames are one vehicle whatever their speeds across (a duplicate seeded "
+                                     "with a wrong lateral speed drifts onto its vehicle at a few m/s across and "
+                                     "counted it twice at the detection line; vehicles crossing each other's path "
+                                     "pass through the box in well under a second)", "min": 1, "max": 10000})
     seed_merge_speed_mps: float = field(
         default=5.0, metadata={"unit": "m/s", "doc": "radial-speed difference below which a detection in a track's "
                                                      "same-vehicle box (or next to a stronger seed) does not seed: "

@@ -108,8 +108,10 @@ class TrackTable:
     confirmed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     moved: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # was ever surely moving
     ext_var: np.ndarray = field(default_factory=lambda: np.zeros(0))  # along-heading detection spread, m^2
+    close_run: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))  # frames next to a twin
 
-    _COLUMNS = ("x", "p", "track_id", "age", "hits", "misses", "history", "confirmed", "moved", "ext_var")
+    _COLUMNS = ("x", "p", "track_id", "age", "hits", "misses", "history", "confirmed", "moved", "ext_var",
+                "close_run")
 
     def __len__(self) -> int:
         return int(self.x.shape[0])
@@ -130,6 +132,7 @@ class TrackTable:
         self.confirmed = np.concatenate([self.confirmed, np.zeros(k, dtype=bool)])
         self.moved = np.concatenate([self.moved, np.zeros(k, dtype=bool)])
         self.ext_var = np.concatenate([self.ext_var, np.full(k, ext_var)])
+        self.close_run = np.concatenate([self.close_run, np.zeros(k, dtype=np.int32)])
 
 
 @dataclass
@@ -139,6 +142,7 @@ class Measurements:
     z: np.ndarray  # (M, n): x, y[, ground radial speed]
     snr_db: np.ndarray  # (M,)
     with_radial_speed: bool
+    pair: np.ndarray | None = None  # (M,) int: detections split from one (edge.dsp.resolve) share a value >= 0
 
     @classmethod
     def from_detections(cls, det: Detections, use_radial_speed: bool) -> "Measurements":
@@ -156,7 +160,11 @@ class Measurements:
             z = np.stack([x, y, vr * ratio], axis=1)
         else:
             z = np.stack([x, y], axis=1)
-        return cls(z, np.nan_to_num(snr, nan=0.0), use)
+        pair = det.extra.get("resolved_pair")
+        pair = np.asarray(pair, dtype=np.int64)[ok] if pair is not None and len(pair) == ok.size else None
+        if pair is not None and not (pair >= 0).any():
+            pair = None
+        return cls(z, np.nan_to_num(snr, nan=0.0), use, pair)
 
 
 class CvPredictor:
@@ -247,6 +255,8 @@ class PdaAssociator:
         rank = np.where(confirmed, np.inf, seniority.astype(float))
         owner = np.where(inn.d2 <= gamma, rank[:, None], -np.inf).max(axis=0) if len(rank) else rank
         allowed = confirmed[:, None] | (rank[:, None] >= owner[None, :])
+        if meas.pair is not None:  # one of two vehicles resolved in angle: the junior track may be the other one
+            allowed |= (meas.pair >= 0)[None, :]
         beta, beta0, gated = association_weights(
             inn, gamma, self.cfg.prob_detect, self.cfg.prob_gate, self.cfg.association, allowed
         )
@@ -262,9 +272,9 @@ def _box_close(a_xy: np.ndarray, b_xy: np.ndarray, lat_m, along_m) -> np.ndarray
     """(A, B) bool: points closer than the box half-sizes in x and y (scalars or (A,) per row)."""
     d = a_xy[:, None, :] - b_xy[None, :, :]
     lat = np.asarray(lat_m, dtype=float)
-    lat = lat[:, None] if lat.ndim else lat
+    lat = lat[:, None] if lat.ndim == 1 else lat
     along = np.asarray(along_m, dtype=float)
-    along = along[:, None] if along.ndim else along
+    along = along[:, None] if along.ndim == 1 else along
     return (np.abs(d[..., 0]) < lat) & (np.abs(d[..., 1]) < along)
 
 
@@ -294,12 +304,15 @@ class MofNInitiator:
         c = self.cfg
         z = meas.z
         rho = np.hypot(z[:, 0], z[:, 1])
-        cand = ~used & (rho >= c.min_range_m) & (rho <= c.max_range_m)
+        # a detection split from a merged one (two vehicles side by side) lies inside the gate of the track
+        # that followed the merged detection: it may seed unless a track sits right on it
+        resolved = meas.pair >= 0 if meas.pair is not None else np.zeros(z.shape[0], bool)
+        cand = (~used | resolved) & (rho >= c.min_range_m) & (rho <= c.max_range_m)
         if meas.with_radial_speed:
             cand &= np.abs(z[:, 2]) >= c.seed_min_radial_speed_mps
         if len(tracks) and cand.any():
-            near = _box_close(tracks.x[:, :2], z[:, :2], same_vehicle_lateral_m(c, tracks.x[:, :2]),
-                              same_vehicle_along_m(c, tracks))
+            lat = np.where(resolved[None, :], c.merge_lateral_m, same_vehicle_lateral_m(c, tracks.x[:, :2])[:, None])
+            near = _box_close(tracks.x[:, :2], z[:, :2], lat, same_vehicle_along_m(c, tracks))
             if meas.with_radial_speed:  # ... and moving like the track
                 rho_t = np.maximum(np.hypot(tracks.x[:, 0], tracks.x[:, 1]), 1e-3)
                 vr_t = (tracks.x[:, 0] * tracks.x[:, 2] + tracks.x[:, 1] * tracks.x[:, 3]) / rho_t
@@ -310,7 +323,9 @@ class MofNInitiator:
             return 0
         # one seed per vehicle: drop a candidate when a stronger one lies in its merge box
         zc, snr = z[idx], meas.snr_db[idx]
-        close = _box_close(zc[:, :2], zc[:, :2], same_vehicle_lateral_m(c, zc[:, :2]), c.init_merge_along_m)
+        lat_c = np.where(resolved[idx][None, :] & resolved[idx][:, None], c.merge_lateral_m,
+                         same_vehicle_lateral_m(c, zc[:, :2])[:, None])
+        close = _box_close(zc[:, :2], zc[:, :2], lat_c, c.init_merge_along_m)
         if meas.with_radial_speed:  # detections of one vehicle share its radial speed
             close &= np.abs(zc[:, None, 2] - zc[None, :, 2]) < c.seed_merge_speed_mps
         order = np.arange(idx.size)
@@ -367,19 +382,22 @@ class TrackDeleter:
         self.cfg = cfg
         self._state_gamma = gate_threshold(cfg.merge_state_prob, 4)
 
-    def delete(self, tracks: TrackTable) -> np.ndarray:
+    def delete(self, tracks: TrackTable, resolved: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """``resolved``: per track the resolved pair (or -1) and the detection it followed this frame."""
         c = self.cfg
         rho = np.hypot(tracks.x[:, 0], tracks.x[:, 1])
         sig = np.sqrt(np.maximum(tracks.p[:, 0, 0], tracks.p[:, 1, 1]))
         dead = (tracks.misses >= c.delete_after_misses) | (sig > c.max_position_sigma_m)
         dead |= (rho < c.min_range_m) | (rho > c.max_range_m)
         dead |= np.abs(np.arctan2(tracks.x[:, 0], tracks.x[:, 1])) > math.radians(c.max_azimuth_deg)
-        return dead | self.duplicates(tracks)
+        return dead | self.duplicates(tracks, resolved)
 
-    def duplicates(self, tracks: TrackTable) -> np.ndarray:
+    def duplicates(self, tracks: TrackTable, resolved: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """Of two tracks on one vehicle, drop the junior (unconfirmed first, then fewer hits, then younger).
 
-        Two tracks are one vehicle when their velocities agree within ``merge_speed_mps`` and either their
+        Two tracks are one vehicle when their velocities agree within ``merge_speed_mps`` along their common
+        heading and ``merge_lateral_speed_mps`` across it (or they stayed in the same-vehicle box for
+        ``merge_persist_frames``, whatever their lateral speeds) and either their
         positions are within the same-vehicle box or their states are statistically indistinguishable
         (position covariances widened by the vehicles' along-heading spread)."""
         c = self.cfg
@@ -389,14 +407,35 @@ class TrackDeleter:
             return out
         x = tracks.x
         ia, ib = np.triu_indices(t, 1)
-        dv = np.hypot(x[ia, 2] - x[ib, 2], x[ia, 3] - x[ib, 3])
-        keep = dv < c.merge_speed_mps
-        ia, ib = ia[keep], ib[keep]
-        if ia.size == 0:
-            return out
+        # speed difference along the pair's common heading, and across it: a duplicate born with a wrong
+        # lateral velocity (a far, noisy seed) drifts onto its vehicle with metres per second across
+        vsum = x[ia, 2:4] + x[ib, 2:4]
+        u = vsum / np.maximum(np.hypot(vsum[:, 0], vsum[:, 1]), 1e-9)[:, None]
+        dvx, dvy = x[ia, 2] - x[ib, 2], x[ia, 3] - x[ib, 3]
+        dv_along = np.abs(dvx * u[:, 0] + dvy * u[:, 1])
+        dv_across = np.abs(dvx * u[:, 1] - dvy * u[:, 0])
+        keep = dv_along < c.merge_speed_mps
+        if resolved is not None:  # tracks on the two members of a resolved pair are two vehicles
+            pair, det = resolved
+            keep &= ~((pair[ia] >= 0) & (pair[ia] == pair[ib]) & (det[ia] != det[ib]))
+        ia, ib, dv_across = ia[keep], ib[keep], dv_across[keep]
         reach = same_vehicle_along_m(c, tracks)
         dx = x[ia] - x[ib]
-        close = (np.abs(dx[:, 0]) < c.merge_lateral_m) & (np.abs(dx[:, 1]) < np.maximum(reach[ia], reach[ib]))
+        boxed = (np.abs(dx[:, 0]) < c.merge_lateral_m) & (np.abs(dx[:, 1]) < np.maximum(reach[ia], reach[ib]))
+        # same place, same speed along, but moving apart or together across: two vehicles crossing each
+        # other's path pass through the box within a second; a duplicate stays in it
+        run = np.zeros(t, np.int32)
+        if boxed.any():
+            run[ia[boxed]] = run[ib[boxed]] = 1
+        tracks.close_run = np.where(run > 0, tracks.close_run + 1, 0).astype(np.int32)
+        slow = dv_across < c.merge_lateral_speed_mps
+        lasting = np.minimum(tracks.close_run[ia], tracks.close_run[ib]) >= c.merge_persist_frames
+        keep = slow | (boxed & lasting)
+        ia, ib, boxed = ia[keep], ib[keep], boxed[keep]
+        if ia.size == 0:
+            return out
+        dx = x[ia] - x[ib]
+        close = boxed
         ext = extent_cov(x, tracks.ext_var)
         pd = np.stack([tracks.p[:, 0, 0] + ext[:, 0, 0], tracks.p[:, 1, 1] + ext[:, 1, 1]], axis=1)  # (T, 2)
         # a marginal Mahalanobis distance never exceeds the joint one: prune before the 4x4 solves
@@ -469,7 +508,12 @@ class PdafTracker:
             v = tr.x[:, 2:4]
             d2v = (v[:, None, :] @ np.linalg.solve(tr.p[:, 2:4, 2:4], v[:, :, None]))[:, 0, 0]
             tr.moved |= (d2v > self._moving_gamma) & (np.hypot(v[:, 0], v[:, 1]) >= cfg.confirm_min_speed_mps)
-            dead = self.deleter.delete(tr) | self.initiator.tentative_expired(tr)
+            resolved = None
+            if meas.pair is not None and m:
+                best = np.argmax(beta, axis=1)
+                strong = beta[np.arange(len(tr)), best] > 0.5
+                resolved = (np.where(strong, meas.pair[best], -1), best)
+            dead = self.deleter.delete(tr, resolved) | self.initiator.tentative_expired(tr)
             for tid in tr.track_id[dead & tr.confirmed]:
                 self.ids.release(int(tid))
             tr.keep(~dead)

@@ -33,11 +33,16 @@ class TrafficConfig:
     estimate_yaw: bool = field(
         default=True, metadata={"doc": "estimate the mounting yaw from the direction of straight confirmed tracks"})
     yaw_min_tracks: int = field(
-        default=8, metadata={"doc": "straight tracks needed before the yaw estimate is used", "min": 1, "max": 10000})
+        default=5, metadata={"doc": "straight tracks needed before the yaw estimate is used (ended ones; at start-up "
+                                    "running ones count too, see yaw_live_min_length_m)", "min": 1, "max": 10000})
     yaw_window_tracks: int = field(
         default=200, metadata={"doc": "most recent straight tracks the yaw is the median of", "min": 1, "max": 100000})
     yaw_min_track_length_m: float = field(
         default=40.0, metadata={"unit": "m", "doc": "a track must cover this distance to vote for the yaw",
+                                "min": 1.0, "max": 1000.0})
+    yaw_live_min_length_m: float = field(
+        default=20.0, metadata={"unit": "m", "doc": "at start-up (fewer than yaw_min_tracks ended tracks), running "
+                                                    "tracks vote once they covered this distance",
                                 "min": 1.0, "max": 1000.0})
     yaw_max_lateral_sd_m: float = field(
         default=0.8, metadata={"unit": "m", "doc": "a track whose positions scatter more than this across its "
@@ -89,11 +94,21 @@ class TrafficConfig:
     length_class_names: tuple[str, ...] = field(
         default=("motorcycle", "car", "van", "truck"),
         metadata={"doc": "names of the length classes (one more than the edges)"})
+    count_min_gap_s: float = field(
+        default=0.8, metadata={"unit": "s", "doc": "a crossing this soon after the previous one in the same lane at "
+                                                   "the same speed (count_twin_speed_mps) is the same vehicle's "
+                                                   "second track (the front and rear of a 16 m truck are 0.75 s "
+                                                   "apart at 80 km/h) and is not counted; 0 = count every track",
+                               "min": 0.0, "max": 10.0})
+    count_twin_speed_mps: float = field(
+        default=2.0, metadata={"unit": "m/s", "doc": "speed difference within which two crossings can be one "
+                                                     "vehicle", "min": 0.0, "max": 50.0})
     wrong_way_min_speed_mps: float = field(
         default=3.0, metadata={"unit": "m/s", "doc": "against the lane direction at least this fast is wrong-way",
                                "min": 0.1, "max": 100.0})
     wrong_way_min_frames: int = field(
-        default=15, metadata={"doc": "frames in a row against the lane direction before the event (0.5 s)",
+        default=15, metadata={"doc": "frames with a detection in a row against the lane direction before the "
+                                     "event (0.5 s; coasting frames neither count nor reset)",
                               "min": 1, "max": 10000})
     stopped_speed_mps: float = field(
         default=1.0, metadata={"unit": "m/s", "doc": "a vehicle slower than this is standing", "min": 0.0, "max": 20.0})

@@ -11,7 +11,9 @@ and the road axis points along ``(-sin(yaw), cos(yaw))`` in radar coordinates.
 Yaw estimate: every confirmed track accumulates running sums of its positions (O(1) memory per
 track); when it ends, the principal axis of its position scatter is the direction it drove. Tracks
 that covered at least ``yaw_min_track_length_m`` with a small spread across that axis (no lane change)
-vote; the yaw is the median vote of the last ``yaw_window_tracks``.
+vote; the yaw is the median vote of the last ``yaw_window_tracks``. Until ``yaw_min_tracks`` tracks have
+ended, running tracks that already qualify vote too (otherwise a mis-aimed radar assigns lanes wrongly
+for the first tens of seconds).
 
 Lane learning: positions of confirmed tracks (between ``learn_min_range_m`` and ``learn_max_range_m``)
 go into a bounded ring buffer; a lateral histogram in the road frame, smoothed, gives one peak per
@@ -113,10 +115,45 @@ class YawEstimator:
     def n_votes(self) -> int:
         return len(self._votes)
 
+    def live_votes(self) -> np.ndarray:
+        """Angles of :meth:`live_votes_weighted`."""
+        return self.live_votes_weighted()[0]
+
+    def live_votes_weighted(self) -> tuple[np.ndarray, np.ndarray]:
+        """Votes of the tracks still running that already qualify (covered ``yaw_live_min_length_m``,
+        straight so far): at start-up they give the estimate long before enough tracks have ended.
+        Weights: the inverse variance of a line's angle fitted to ``n`` points spread ``sd_along`` along
+        and ``sd_across`` across it, ``n sd_along^2 / sd_across^2`` (long, dense, straight tracks count most)."""
+        if not self._sums:
+            return np.zeros(0), np.zeros(0)
+        a = np.stack(list(self._sums.values()))
+        n = np.maximum(a[:, 0], 1.0)
+        mx, my = a[:, 1] / n, a[:, 2] / n
+        cxx, cyy, cxy = a[:, 3] / n - mx * mx, a[:, 4] / n - my * my, a[:, 5] / n - mx * my
+        # eigenvalues of the 2x2 scatter and the angle of its major axis from +y, in closed form
+        half_tr, det = 0.5 * (cxx + cyy), cxx * cyy - cxy * cxy
+        disc = np.sqrt(np.maximum(half_tr * half_tr - det, 0.0))
+        major, minor = half_tr + disc, np.maximum(half_tr - disc, 0.0)
+        ok = (a[:, 0] >= 3) & (np.sqrt(major * 12.0) >= self.cfg.yaw_live_min_length_m) & (
+            np.sqrt(minor) <= self.cfg.yaw_max_lateral_sd_m)
+        phi = 0.5 * np.arctan2(2.0 * cxy, cyy - cxx)  # major axis angle from +y towards +x
+        w = a[:, 0] * major / np.maximum(minor, 0.01)
+        return -phi[ok], w[ok]
+
     def estimate_rad(self) -> float | None:
-        if len(self._votes) < self.cfg.yaw_min_tracks:
+        votes = np.fromiter(self._votes, dtype=float)
+        if votes.size >= self.cfg.yaw_min_tracks:
+            return float(np.median(votes))
+        # start-up: the tracks that still run vote too; weighted median (ended tracks count as the best one)
+        live, w = self.live_votes_weighted()
+        if votes.size + live.size < self.cfg.yaw_min_tracks:
             return None
-        return float(np.median(np.fromiter(self._votes, dtype=float)))
+        top = float(w.max()) if w.size else 1.0
+        allv = np.concatenate([votes, live])
+        allw = np.concatenate([np.full(votes.size, top), w])
+        o = np.argsort(allv)
+        cw = np.cumsum(allw[o])
+        return float(allv[o][np.searchsorted(cw, 0.5 * cw[-1])])
 
 
 class LaneLearner:

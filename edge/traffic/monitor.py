@@ -56,6 +56,7 @@ class _Memo:
     max_speed_mps: float
     wrong_frames: int = 0
     wrong_emitted: bool = False
+    hits: int = -1  # the track's hit count when last seen (coasting frames add no evidence)
     stopped_since_ns: int | None = None
     stopped_emitted: bool = False
 
@@ -140,17 +141,27 @@ class TrafficMonitor:
                     f = (line - s0) / (s1 - s0)
                     tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))
                     cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
-                    self.stats.lane(lane).add(Crossing(tc, float(speed[j]), float(length), cls))
+                    acc = self.stats.lane(lane)
+                    last = acc.last
+                    # a second track on the same vehicle (a long truck seen at front and rear as two
+                    # tracks) crosses right after the first at the same speed: one vehicle
+                    twin = (last is not None and 0 <= tc - last.t_ns < int(cfg.count_min_gap_s * 1e9)
+                            and abs(last.speed_mps - float(speed[j])) < cfg.count_twin_speed_mps)
+                    if not twin:
+                        acc.add(Crossing(tc, float(speed[j]), float(length), cls))
                 memo.age, memo.s_m, memo.t_ns = tr.age_frames, s1, t_ns
                 memo.max_speed_mps = max(memo.max_speed_mps, float(speed[j]))
             if lane is not None:
                 if abs(float(s[j]) - line) <= half_zone + 0.5 * length:
                     presence[k] = True
                 # wrong way
-                if vs[j] * lanes[k].direction < -cfg.wrong_way_min_speed_mps:
-                    memo.wrong_frames += 1
-                else:
-                    memo.wrong_frames = 0
+                # only frames with a detection count: a track seeded with a wrong velocity (a steep near
+                # detection) that coasts out of view must not raise the event on its prediction alone
+                if tr.hits > memo.hits:
+                    if vs[j] * lanes[k].direction < -cfg.wrong_way_min_speed_mps:
+                        memo.wrong_frames += 1
+                    else:
+                        memo.wrong_frames = 0
                 if memo.wrong_frames >= cfg.wrong_way_min_frames and not memo.wrong_emitted:
                     memo.wrong_emitted = True
                     events.append(TrafficEvent("wrong_way", tid, lane, t_ns))
@@ -166,6 +177,7 @@ class TrafficMonitor:
                 memo.stopped_emitted = False
             elif speed[j] >= cfg.stopped_speed_mps:
                 memo.stopped_since_ns = None
+            memo.hits = tr.hits
             out_tracks[id(tr)] = _with_lane(tr, lane) if tr.lane != lane else tr
         for tid in [k for k in self._memo if k not in seen]:
             del self._memo[tid]

@@ -46,3 +46,17 @@ def test_evaluate_command_writes_design_keys(tmp_path, capsys):
               "id_switches", "lane_accuracy", "count_error_per_lane", "classification_accuracy", "confusion_matrix"):
         assert k in d["summary"]
     assert d["summary"]["classification_accuracy"] is None
+
+
+def test_side_by_side_is_resolved_into_two_tracks_by_angle():
+    """Two cars at equal range and speed in adjacent lanes, 90 frames (3 s, 120 -> 45 m). One peak per
+    segment holds both; the per-cell covariance over frames resolves them (edge.dsp.resolve). Measured on
+    seeds 3, 8, 21: tracked fractions 0.67-0.82 (the first ~15 frames are needed to resolve them), lane
+    accuracy 1.0; without the resolver one car is tracked in 0.27-0.32 of the frames, with a track
+    between the lanes (RMSE 1.3-1.7 m)."""
+    rep = evaluate(load_scenario("side-by-side"), seed=8, frames=90, config=load_config(env={}))
+    fr = sorted(t["tracked_fraction"] for t in rep["targets"])
+    assert len(fr) == 2 and fr[0] >= 0.6
+    assert rep["summary"]["lane_accuracy"] >= 0.95
+    assert {t["lane"] for t in rep["targets"]} == {0, 1}
+    assert all(t["position_rmse_m"] < 1.2 for t in rep["targets"])

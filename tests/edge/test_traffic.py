@@ -297,3 +297,56 @@ def test_a_crossing_counts_in_the_interval_of_its_interpolated_time():
     assert [(s.interval_start_ns, s.volume) for s in out] == [(0, 1), (1_000_000_000, 1)]
     assert out[0].mean_speed_kmh == pytest.approx(72.0) and out[1].mean_speed_kmh == pytest.approx(36.0)
     assert out[1].headway_s == pytest.approx(0.1)  # the previous crossing lies in the previous interval
+
+
+def test_yaw_from_running_tracks_at_start_up():
+    """No track has ended yet: straight running tracks that covered yaw_live_min_length_m vote,
+    weighted by how well their line is determined; the estimate is there within a second."""
+    cfg = TrafficConfig(yaw_min_tracks=5, yaw_live_min_length_m=20.0)
+    est = YawEstimator(cfg)
+    yaw = math.radians(3.0)
+    rng = np.random.default_rng(4)
+    lanes_u = np.array([-5.25, -1.75, 1.75, 5.25, -5.25, 1.75])
+    s0 = np.array([250.0, 180.0, 40.0, 90.0, 120.0, 200.0])
+    speed = np.array([-28.0, -25.0, 30.0, 27.0, -24.0, 26.0])
+    got = None
+    for k in range(30):  # 1 s at 30 frames/s
+        s = s0 + speed * k / 30.0
+        u = lanes_u + rng.normal(0.0, 0.02 * s0 / 10.0)  # lateral noise grows with range
+        xr, yr = _world_to_radar(u, s, yaw)
+        est.add(np.arange(1, 7), np.full(6, k + 1), xr, yr)
+        got = est.estimate_rad()
+    assert est.n_votes == 0 and got is not None
+    assert math.degrees(got) == pytest.approx(3.0, abs=0.5)
+
+
+def test_a_coasting_track_raises_no_wrong_way_event():
+    """A track seeded with a wrong velocity that coasts (no new hits) against its lane's direction is
+    not a wrong-way driver; the same track with a detection every frame is."""
+    cfg = TrafficConfig(wrong_way_min_frames=15, estimate_yaw=False)
+    for hits_grow, expected in ((False, 0), (True, 1)):
+        mon = TrafficMonitor(cfg)
+        n = 0
+        for k in range(40):
+            y = 100.0 - 25.0 * k * 0.1
+            hits = k + 1 if hits_grow else 3
+            tr = TrackState(7, 5.25, y, 0.0, -25.0, math.hypot(5.25, y), -25.0, math.atan2(5.25, y), k + 1, hits, True)
+            n += len(mon.update((tr,), k * DT_NS).events)
+        assert n == expected
+
+
+@pytest.mark.parametrize("gap_s,expected", [(0.5, 1), (1.2, 2)])
+def test_the_second_track_of_one_truck_is_not_counted_twice(gap_s, expected):
+    """Two tracks in one lane crossing the detection line gap_s apart at the same speed: 0.5 s is the
+    front and rear of one long truck (one vehicle), 1.2 s two vehicles."""
+    cfg = TrafficConfig(estimate_yaw=False, count_min_gap_s=0.8, interval_s=60.0)
+    mon = TrafficMonitor(cfg)
+    v = 25.0
+    lag = int(round(gap_s / 0.1))
+    for k in range(80):
+        y1 = 30.0 + v * k * 0.1
+        trs = [_ts(1, 1.75, y1, 0.0, v, k + 1)]
+        if k >= lag:
+            trs.append(_ts(2, 1.75, 30.0 + v * (k - lag) * 0.1, 0.0, v, k - lag + 1))
+        mon.update(tuple(trs), int(k * 0.1e9))
+    assert len(mon.stats.lane(2).crossings) == expected
