@@ -24,7 +24,8 @@ Beyond the paper (``track.alphabeta`` options; 0 restores the paper): once a tra
 ``doppler_range_rate_frames`` frames, its alpha-beta range rate is replaced after every update by its
 current unaliased radial speed, so fast vehicles are predicted where they will be; and a *merge
 guard*: a cluster with more than ``merge_ratio`` times the median point count of the track's last
-clusters is its target merged with another one (a car passing a pedestrian, Tavanti Fig. 9(d)) --
+clusters is its target merged with another one (a car passing a pedestrian, Tavanti Fig. 9(d); a track
+with fewer than ``merge_history_frames`` clusters only with another track predicted within ``gate_radius``) --
 the track counts the frame as seen but keeps its predicted state and adds nothing to its features
 or speed -- while a track left without a cluster whose prediction lies in such an enlarged cluster is
 *occluded*: it coasts without counting misses or ageing (at most ``merge_max_frames`` frames), so it
@@ -182,7 +183,7 @@ class SurveillanceTracker:
         merged: list[int] = []
         for tid, j in tstep.assigned.items():
             lab = labels[j]
-            if self._is_merged(tid, int(sig.n_points[lab])):
+            if self._is_merged(tid, int(sig.n_points[lab]), self._other_track_near(tid, sig.centroid[lab], pred)):
                 tr = by_id.get(tid)
                 if tr is not None and tid in pred:  # keep the prediction: the centroid is not this target's
                     tr.state = pred[tid]
@@ -224,14 +225,29 @@ class SurveillanceTracker:
             return False
         return float(self._frame_sizes[j]) > self.tracker.config.merge_ratio * float(np.median(hist))
 
-    def _is_merged(self, track_id: int, n_points: int) -> bool:
+    def _other_track_near(self, track_id: int, centroid: np.ndarray, pred: dict[int, np.ndarray]) -> bool:
+        """Is another track predicted within ``gate_radius`` of this centroid (on the cylinder)?"""
+        gate = self.tracker.config.gate_radius
+        return any(
+            float(np.linalg.norm(p[[0, 2, 4]] - centroid)) <= gate for tid, p in pred.items() if tid != track_id
+        )
+
+    def _is_merged(self, track_id: int, n_points: int, other_near: bool = True) -> bool:
         """Is this cluster the track's target merged with another one (``merge_ratio``)? Updates the
-        track's size history."""
+        track's size history.
+
+        A young track (fewer than ``merge_history_frames`` clusters) is held only when another track
+        is predicted near the cluster (``other_near``): a cluster grows several-fold on its own while
+        a long vehicle enters the beam (a truck's point count goes from ~100 to ~1000 in one frame),
+        and holding such a track on its prediction starved its features of the frames that make it a
+        truck and let it run away from its target."""
         cfg = self.tracker.config
         hist = self._size.get(track_id)
         if hist is None:
             return False
-        if cfg.merge_ratio > 0 and len(hist) >= 2 and self._merged_run[track_id] < cfg.merge_max_frames:
+        established = other_near or len(hist) >= cfg.merge_history_frames
+        if (established and cfg.merge_ratio > 0 and len(hist) >= 2
+                and self._merged_run[track_id] < cfg.merge_max_frames):
             if n_points > cfg.merge_ratio * float(np.median(hist)):
                 self._merged_run[track_id] += 1
                 self.merged_frames += 1
