@@ -221,7 +221,10 @@ class SurveillanceTracker:
         """Occlusion test of the alpha-beta tracker: is cluster ``j`` (an assigned one) large enough,
         against ``tr``'s own size, to hold ``tr``'s target merged with another?"""
         hist = self._size.get(tr.track_id)
-        if not hist:
+        # a track with fewer than merge_history_frames own clusters has no known size: typically a
+        # fragment split off a long vehicle's cluster for a frame or two, which, held as hidden in
+        # that cluster, lived (and was published) through the whole passage beside the real track
+        if not hist or len(hist) < self.tracker.config.merge_history_frames:
             return False
         return float(self._frame_sizes[j]) > self.tracker.config.merge_ratio * float(np.median(hist))
 
