@@ -24,7 +24,8 @@ Beyond the paper (``track.alphabeta`` options; 0 restores the paper): once a tra
 ``doppler_range_rate_frames`` frames, its alpha-beta range rate is replaced after every update by its
 current unaliased radial speed, so fast vehicles are predicted where they will be; and a *merge
 guard*: a cluster with more than ``merge_ratio`` times the median point count of the track's last
-clusters is its target merged with another one (a car passing a pedestrian, Tavanti Fig. 9(d)) --
+clusters and than its last own cluster is its target merged with another one (a car passing a pedestrian, Tavanti Fig. 9(d); a track
+with fewer than ``merge_history_frames`` clusters only with another track predicted within ``gate_radius``) --
 the track counts the frame as seen but keeps its predicted state and adds nothing to its features
 or speed -- while a track left without a cluster whose prediction lies in such an enlarged cluster is
 *occluded*: it coasts without counting misses or ageing (at most ``merge_max_frames`` frames), so it
@@ -182,7 +183,7 @@ class SurveillanceTracker:
         merged: list[int] = []
         for tid, j in tstep.assigned.items():
             lab = labels[j]
-            if self._is_merged(tid, int(sig.n_points[lab])):
+            if self._is_merged(tid, int(sig.n_points[lab]), self._other_track_near(tid, sig.centroid[lab], pred)):
                 tr = by_id.get(tid)
                 if tr is not None and tid in pred:  # keep the prediction: the centroid is not this target's
                     tr.state = pred[tid]
@@ -220,19 +221,40 @@ class SurveillanceTracker:
         """Occlusion test of the alpha-beta tracker: is cluster ``j`` (an assigned one) large enough,
         against ``tr``'s own size, to hold ``tr``'s target merged with another?"""
         hist = self._size.get(tr.track_id)
-        if not hist:
+        # a track with fewer than merge_history_frames own clusters has no known size: typically a
+        # fragment split off a long vehicle's cluster for a frame or two, which, held as hidden in
+        # that cluster, lived (and was published) through the whole passage beside the real track
+        if not hist or len(hist) < self.tracker.config.merge_history_frames:
             return False
         return float(self._frame_sizes[j]) > self.tracker.config.merge_ratio * float(np.median(hist))
 
-    def _is_merged(self, track_id: int, n_points: int) -> bool:
+    def _other_track_near(self, track_id: int, centroid: np.ndarray, pred: dict[int, np.ndarray]) -> bool:
+        """Is another track predicted within ``gate_radius`` of this centroid (on the cylinder)?"""
+        gate = self.tracker.config.gate_radius
+        return any(
+            float(np.linalg.norm(p[[0, 2, 4]] - centroid)) <= gate for tid, p in pred.items() if tid != track_id
+        )
+
+    def _is_merged(self, track_id: int, n_points: int, other_near: bool = True) -> bool:
         """Is this cluster the track's target merged with another one (``merge_ratio``)? Updates the
-        track's size history."""
+        track's size history.
+
+        A young track (fewer than ``merge_history_frames`` clusters) is held only when another track
+        is predicted near the cluster (``other_near``): a cluster grows several-fold on its own while
+        a long vehicle enters the beam (a truck's point count goes from ~100 to ~1000 in one frame),
+        and holding such a track on its prediction starved its features of the frames that make it a
+        truck and let it run away from its target."""
         cfg = self.tracker.config
         hist = self._size.get(track_id)
         if hist is None:
             return False
-        if cfg.merge_ratio > 0 and len(hist) >= 2 and self._merged_run[track_id] < cfg.merge_max_frames:
-            if n_points > cfg.merge_ratio * float(np.median(hist)):
+        established = other_near or len(hist) >= cfg.merge_history_frames
+        if (established and cfg.merge_ratio > 0 and len(hist) >= 2
+                and self._merged_run[track_id] < cfg.merge_max_frames):
+            # against the median *and* the last own cluster: a merge is a sudden jump, while a long
+            # vehicle coming closer grows a few tens of percent a frame (221 -> 1530 -> 1941 -> 3052
+            # points) and was held for merge_max_frames, losing its closest, most telling frames
+            if n_points > cfg.merge_ratio * max(float(np.median(hist)), float(hist[-1])):
                 self._merged_run[track_id] += 1
                 self.merged_frames += 1
                 return True

@@ -139,3 +139,40 @@ def test_reference_frames_option():
 
     with pytest.raises(ValueError):
         build_reference_set(events_per_class=1, frames="all")
+
+
+def test_a_growing_vehicle_is_not_held_as_merged():
+    """A truck entering the beam: its lone cluster grows 100 -> 800 (8x in one frame, a young track with
+    no other track near) and then a few tens of percent a frame to 6000 (over 6x the median of its
+    history, never 6x its last cluster). No frame is taken as merged: every one feeds its features and
+    the track follows it (the guard used to hold it on its prediction for merge_max_frames)."""
+    st = SurveillanceTracker(FE, 2.0, tracking=AlphaBetaConfig(merge_ratio=6.0), classify=False)
+    sizes = [100, 110, 800, 1100, 1600, 2300, 3300, 4500, 6000, 6000, 6000, 6000]
+    v = 18.0  # receding, km/h
+    for n, size in enumerate(sizes):
+        st.update(int(n * T * 1e9), points(blob(6.0 + v / 3.6 * n * T, v, size, 0)), seq=n)
+    (tr,) = st.tracker.tracks
+    assert st.merged_frames == 0
+    assert st._acc[tr.track_id].n == len(sizes)
+    assert tr.state[4] == pytest.approx(6.0 + v / 3.6 * (len(sizes) - 1) * T, abs=1.0)
+
+
+def test_a_young_fragment_does_not_hide_in_the_vehicle_cluster():
+    """A long vehicle's cluster splits for two frames into the body and a small fragment, which starts a
+    second track. When the fragment is gone, that track has no known size (fewer than
+    merge_history_frames clusters): it misses and ends instead of coasting as hidden in the vehicle's
+    cluster (and being published) for the rest of the passage."""
+    cfg = AlphaBetaConfig(merge_ratio=6.0, max_missed_frames=7)
+    st = SurveillanceTracker(FE, 2.0, tracking=cfg, classify=False)
+    v = 18.0
+    ids_seen = []
+    for n in range(20):
+        r = 8.0 + v / 3.6 * n * T
+        if n in (4, 5):
+            pts = points(blob(r, v, 1500, 0), blob(r - 2.5, v, 120, 1))
+        else:
+            pts = points(blob(r, v, 1500, 0))
+        step = st.update(int(n * T * 1e9), pts, seq=n)
+        ids_seen.append({t.track_id for t in step.tracks})
+    assert len(st.tracker.tracks) == 1  # the fragment's track ended (N_u misses), the body's lives on
+    assert all(len(s) == 1 for s in ids_seen[8:])  # and is not published beside the body's track
