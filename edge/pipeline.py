@@ -96,6 +96,8 @@ class Pipeline:
 
     profile: str = ""
     stages: tuple[str, ...] = ()
+    #: lanes the outputs reserve blocks for (Modbus lane statistics, CAN lane messages); 0 = no lanes
+    n_lanes: int = 0
 
     def __init__(self, frontend: FrontendInfo, config: Any) -> None:
         self.frontend = frontend

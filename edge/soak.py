@@ -205,25 +205,6 @@ class ModbusProbe:
                                     f"{mon.lane_volume.get(k, 0)}")
 
 
-def lane_count(pipeline: Any, config: Any) -> int:
-    """Lanes the outputs should report: the pipeline's ``n_lanes`` if it has one, else the traffic
-    layer's lanes (the lane pipeline exposes them only through ``pipeline.traffic``); with learned
-    lanes, as many as ``traffic.lane_centers_m`` lists."""
-    n = getattr(pipeline, "n_lanes", None)
-    if n is not None:
-        return int(n)
-    traffic = getattr(pipeline, "traffic", None)
-    if traffic is None:
-        return 0
-    if getattr(traffic, "lanes", ()):
-        return len(traffic.lanes)
-    # learned lanes are not known at start: the outputs reserve the lanes the configuration expects
-    try:
-        return len(config.section("traffic").lane_centers_m)
-    except (AttributeError, KeyError):
-        return 0
-
-
 def run_soak(
     profile: str,
     config: Any,
@@ -258,7 +239,7 @@ def run_soak(
         del rec, w
         src = open_radar(f"replay://{path}?speed=0&loop=1")
         pipe = build_pipeline(profile, src.frontend, config)
-        n_lanes = lane_count(pipe, config)
+        n_lanes = pipe.n_lanes
         mon = SoakMonitor(frames)
         sinks: list = build_sinks(config, n_lanes) if outputs else []
         modbus = next((s for s in sinks if isinstance(s, ModbusSink)), None)

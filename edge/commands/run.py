@@ -70,9 +70,7 @@ def run(args: argparse.Namespace) -> int:
     source = open_radar(cfg["source"].url)
     profile = resolve_profile(cfg["loop"].profile, source.frontend.board)
     pipeline = build_pipeline(profile, source.frontend, cfg)
-    from edge.soak import lane_count
-
-    n_lanes = lane_count(pipeline, cfg)
+    n_lanes = pipeline.n_lanes
     sinks = [] if args.no_outputs else build_sinks(cfg, n_lanes)
     from edge.ops import attach
 

@@ -74,9 +74,7 @@ def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.
     src = open_radar(cfg["source"].url)
     profile = resolve_profile(cfg["loop"].profile, src.frontend.board)
     pipe = build_pipeline(profile, src.frontend, cfg)
-    from edge.soak import lane_count
-
-    sinks = build_sinks(cfg, lane_count(pipe, cfg), strict=True)
+    sinks = build_sinks(cfg, pipe.n_lanes, strict=True)
     port = sinks[0].tcp_address[1]
     ctx = mp.get_context("spawn")
     active, stop, counter = ctx.Event(), ctx.Event(), ctx.Value("i", 0)

@@ -241,6 +241,10 @@ class LanePipeline(Pipeline):
             self.tracker = PdafTracker(track_config or PdafConfig())
             self.traffic = TrafficMonitor(traffic_config or TrafficConfig())
 
+    @property
+    def n_lanes(self) -> int:  # type: ignore[override]
+        return self.traffic.n_lanes if self.traffic is not None else 0
+
     @classmethod
     def from_config(cls, frontend: FrontendInfo, config: Any) -> "LanePipeline":
         """Build from the whole configuration (sections ``pipeline.lane``, ``track.pdaf``, ``traffic``)."""

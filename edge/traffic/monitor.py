@@ -80,6 +80,12 @@ class TrafficMonitor:
         self._last_t_ns: int | None = None
         self._next_learn_ns: int | None = None
 
+    @property
+    def n_lanes(self) -> int:
+        """Lanes known now; with learned lanes not yet learned, as many as ``lane_centers_m`` lists
+        (what the outputs reserve at start)."""
+        return len(self.lanes) or len(self.config.lane_centers_m)
+
     def update(self, tracks: tuple[TrackState, ...], t_ns: int) -> TrafficUpdate:
         cfg = self.config
         conf = [t for t in tracks if t.confirmed and t.track_id > 0]

@@ -94,19 +94,18 @@ def test_short_lane_soak_with_outputs_wraps_and_recycles():
 
 
 def test_lane_count_for_the_outputs_of_each_profile():
-    """`radar-edge run` sizes the Modbus/CAN lane blocks with this: the lane pipeline has no
-    ``n_lanes`` of its own, so the traffic layer's lanes (or, learned, the configured count) decide."""
+    """`radar-edge run`, soak and pollbench size the Modbus/CAN lane blocks with ``pipeline.n_lanes``:
+    the traffic layer's lanes (or, learned, the configured count) for the lane profile, 0 otherwise."""
     from edge.config import load_config
     from edge.pipeline import build_pipeline
-    from edge.soak import lane_count
     from hal.waveform import d2g_frontend, simo_frontend
 
     cfg = load_config(env={})
-    assert lane_count(build_pipeline("lane", simo_frontend(), cfg), cfg) == len(cfg.section("traffic").lane_centers_m) == 4
+    assert build_pipeline("lane", simo_frontend(), cfg).n_lanes == len(cfg.section("traffic").lane_centers_m) == 4
     three = load_config(env={}, overrides={"traffic.lane_centers_m": "[-5.25, -1.75, 1.75]",
                                            "traffic.lane_widths_m": "[3.5, 3.5, 3.5]",
                                            "traffic.lane_directions": "[\"toward\", \"toward\", \"away\"]"})
-    assert lane_count(build_pipeline("lane", simo_frontend(), three), three) == 3
+    assert build_pipeline("lane", simo_frontend(), three).n_lanes == 3
     learned = load_config(env={}, overrides={"traffic.lane_mode": "learned"})
-    assert lane_count(build_pipeline("lane", simo_frontend(), learned), learned) == 4
-    assert lane_count(build_pipeline("surveillance", d2g_frontend(), cfg), cfg) == 0
+    assert build_pipeline("lane", simo_frontend(), learned).n_lanes == 4
+    assert build_pipeline("surveillance", d2g_frontend(), cfg).n_lanes == 0

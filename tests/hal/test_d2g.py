@@ -231,34 +231,19 @@ def test_random_garbage_with_start_bytes_is_survived():
         assert src.stats.reconnects == src.stats.faults  # any fault was recovered
 
 
-def test_truncated_frame_loses_only_that_frame():
+@pytest.mark.parametrize("fault", ["truncate_next_frame", "corrupt_next_frame"],
+                         ids=["truncated-frame-loses-only-that-frame", "damaged-header-dropped-and-counted-once"])
+def test_a_damaged_frame_is_lost_alone_and_counted_once(fault):
     clock = SteppedClock()
     with D2GEmulator("tavanti-test1", seed=1, clock=clock) as emu, open_radar(_url(emu, FAST)) as src:
         clock.advance(PERIOD_S * 1.01)
         assert src.read_frame(timeout=5.0).seq == 0
-        emu.truncate_next_frame()
+        getattr(emu, fault)()
         clock.advance(PERIOD_S)
         with concurrent.futures.ThreadPoolExecutor(1) as pool:
             requests = emu.counters.requests
             fut = pool.submit(src.read_frame, 5.0)
-            # frame 1 goes out truncated; the host abandons it and asks again (the second request waits)
-            assert emu.wait_for(lambda: emu.counters.requests >= requests + 2, 5.0)
-            clock.advance(PERIOD_S)
-            f = fut.result(timeout=10)
-        assert f.seq == 2
-        assert src.corrupted_frames == 1 and src.stats.dropped_frames == 1 and src.stats.faults == 0
-
-
-def test_frame_with_a_damaged_header_is_dropped_and_counted_once():
-    clock = SteppedClock()
-    with D2GEmulator("tavanti-test1", seed=1, clock=clock) as emu, open_radar(_url(emu, FAST)) as src:
-        clock.advance(PERIOD_S * 1.01)
-        assert src.read_frame(timeout=5.0).seq == 0
-        emu.corrupt_next_frame()
-        clock.advance(PERIOD_S)
-        with concurrent.futures.ThreadPoolExecutor(1) as pool:
-            requests = emu.counters.requests
-            fut = pool.submit(src.read_frame, 5.0)
+            # frame 1 goes out damaged; the host abandons it and asks again (the second request waits)
             assert emu.wait_for(lambda: emu.counters.requests >= requests + 2, 5.0)
             clock.advance(PERIOD_S)
             f = fut.result(timeout=10)
