@@ -74,6 +74,12 @@ class LoopConfig:
         default=0.5, metadata={"unit": "s", "doc": "health published at least this often, frames or not",
                                "min": 0.05, "max": 10.0}
     )
+    cpus: tuple[int, ...] = field(
+        default=(),
+        metadata={"doc": "CPUs the frame loop is pinned to, e.g. [3] on a Raspberry Pi 4 with "
+                         "outputs.modbus.cpus = [0, 1, 2], so that Modbus polling never takes the loop's core "
+                         "(Linux; empty = not pinned)", "min": 0, "max": 1023},
+    )
 
 
 #: dotted section name -> "module:Class" (imported lazily so a section's module loads only when used)

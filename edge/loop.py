@@ -33,6 +33,8 @@ from typing import Any, Callable, Iterable, Protocol
 import numpy as np
 
 from edge.config import LoopConfig
+from edge.ops.affinity import check as check_cpus
+from edge.ops.affinity import pinned
 from edge.pipeline import Pipeline, StageTimer
 from edge.types import FrameResult, LoopHealth
 from hal.base import RadarSource
@@ -120,6 +122,7 @@ class FrameLoop:
         self.pace = pace
         self.read_timeout_s = read_timeout_s
         self.on_result = on_result
+        check_cpus(self.config.cpus, "loop.cpus")
         self.period_ns = int(round(source.frontend.waveform.frame_period_s * 1e9))
         self.timer = StageTimer(self.config.stats_window_frames, clock_ns=self.clock.now_ns)
         self.counters = LoopCounters()
@@ -158,6 +161,14 @@ class FrameLoop:
 
     # --- the loop ------------------------------------------------------------------------------
     def run(self, max_frames: int | None = None, duration_s: float | None = None) -> LoopSummary:
+        """Run until ``max_frames``, ``duration_s``, the end of the source, :meth:`stop` or a fatal error.
+
+        With ``loop.cpus`` set the calling thread is pinned to those CPUs for the run.
+        """
+        with pinned(self.config.cpus, "frame loop"):
+            return self._run(max_frames, duration_s)
+
+    def _run(self, max_frames: int | None, duration_s: float | None) -> LoopSummary:
         clk = self.clock
         self._running = True
         t_start = clk.now_ns()

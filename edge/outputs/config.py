@@ -61,6 +61,12 @@ class ModbusConfig:
                                                     "(about 0.5 s on a PC, several s on a slow board)",
                                 "min": 0.1, "max": 300.0},
     )
+    cpus: tuple[int, ...] = field(
+        default=(),
+        metadata={"doc": "CPUs the Modbus server process is pinned to, e.g. [0, 1, 2] with loop.cpus = [3], "
+                         "so that masters polling hard never take the frame loop's core (Linux; empty = "
+                         "not pinned)", "min": 0, "max": 1023},
+    )
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,8 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any, Callable
 
+from edge.ops.affinity import AffinityError, pin
+from edge.ops.affinity import check as check_cpus
 from edge.outputs.config import BAUD_CODES, CAN_BITRATE_CODES, PARITY_CODES, FailsafeConfig, ModbusConfig
 from edge.outputs.registers import (
     CMD_APPLY, CMD_RESTART_COMMS, CMD_STATUS_ADDR, CONFIG, CONFIG_BASE, CONFIG_SIZE, GENERATION_ADDR,
@@ -273,6 +275,11 @@ class _Server:
 def _server_main(cfg: ModbusConfig, image: bytes, config_words: list[int], conn: socket.socket, log_level: int) -> None:
     """Entry point of the Modbus server process."""
     logging.basicConfig(level=log_level, format="%(asctime)s %(levelname)s %(name)s[modbus]: %(message)s")
+
+    try:
+        pin(cfg.cpus, "Modbus server")
+    except AffinityError as exc:  # the parent checked the CPUs exist; a cpuset may still refuse them
+        log.error("%s; running unpinned", exc)
     img = array.array("H")
     img.frombytes(image)
     srv = _Server(cfg, img, config_words, conn)
@@ -463,6 +470,10 @@ class ModbusSink:
         return self
 
     def _spawn(self) -> None:
+        try:
+            check_cpus(self.cfg.cpus, "outputs.modbus.cpus")
+        except AffinityError as exc:
+            raise OutputError(str(exc)) from None
         ctx = multiprocessing.get_context("spawn")  # never fork a multi-threaded process
         parent, child = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         for s in (parent, child):

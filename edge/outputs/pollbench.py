@@ -10,10 +10,15 @@ with and without the pollers, and the frames dropped in each half.
     python -m edge.outputs.pollbench --duration 60 --rate 20
     python -m edge.outputs.pollbench --duration 60 --clients 4 --rate 0     # flood
     python -m edge.outputs.pollbench --duration 60 --clients 4 --rate 0 --client-nice 19
+    python -m edge.outputs.pollbench --duration 60 --clients 4 --rate 0 \
+        --loop-cpus 0 --server-cpus 1 --client-cpus 1      # the loop on a core of its own
 
 On a development machine the clients share the CPU with the device under test; real Modbus masters
 sit on other machines. ``--client-nice 19`` approximates that (the clients get only idle CPU); the
-server process's own work is then what remains of the flood's cost.
+server process's own work is then what remains of the flood's cost. ``--loop-cpus``/``--server-cpus``
+measure the deployed set-up with the frame loop on a core of its own (``loop.cpus``,
+``outputs.modbus.cpus``); ``--client-cpus`` keeps the stand-in masters off the loop's core, as
+masters on other machines are.
 """
 
 from __future__ import annotations
@@ -26,9 +31,12 @@ import time
 import numpy as np
 
 
-def _poller(port: int, rate_hz: float, active, stop, counter, nice: int = 0) -> None:
+def _poller(port: int, rate_hz: float, active, stop, counter, nice: int = 0, cpus: tuple[int, ...] = ()) -> None:
     import os
 
+    from edge.ops.affinity import pin
+
+    pin(cpus, "poll client")  # stands in for a master on another machine: not on the loop's core
     if nice:
         os.nice(nice)  # stands in for a master on another machine: only CPU the device would leave idle
     from pymodbus.client import ModbusTcpClient
@@ -60,14 +68,19 @@ def _poller(port: int, rate_hz: float, active, stop, counter, nice: int = 0) -> 
 
 
 def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.0, source: str | None = None,
-            clients: int = 1, client_nice: int = 0) -> dict:
+            clients: int = 1, client_nice: int = 0, loop_cpus: tuple[int, ...] = (),
+            server_cpus: tuple[int, ...] = (), client_cpus: tuple[int, ...] = ()) -> dict:
     from edge.config import load_config
     from edge.loop import FrameLoop
     from edge.outputs import build_sinks
     from edge.pipeline import build_pipeline, resolve_profile
     from hal import open_radar
 
-    overrides = {"outputs.modbus.tcp_port": 0}
+    overrides: dict = {"outputs.modbus.tcp_port": 0}
+    if loop_cpus:
+        overrides["loop.cpus"] = list(loop_cpus)
+    if server_cpus:
+        overrides["outputs.modbus.cpus"] = list(server_cpus)
     if source:
         overrides["source.url"] = source
     cfg = load_config(env={}, overrides=overrides)
@@ -78,7 +91,7 @@ def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.
     port = sinks[0].tcp_address[1]
     ctx = mp.get_context("spawn")
     active, stop, counter = ctx.Event(), ctx.Event(), ctx.Value("i", 0)
-    procs = [ctx.Process(target=_poller, args=(port, rate_hz, active, stop, counter, client_nice),
+    procs = [ctx.Process(target=_poller, args=(port, rate_hz, active, stop, counter, client_nice, tuple(client_cpus)),
                          daemon=True)
              for _ in range(max(1, clients))]
     for proc in procs:
@@ -111,7 +124,8 @@ def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.
             if proc.is_alive():
                 proc.terminate()
     out = {"profile": profile, "duration_s": duration_s, "block_s": block_s, "rate_hz": rate_hz,
-           "clients": len(procs), "client_nice": client_nice, "full_map_polls": counter.value}
+           "clients": len(procs), "client_nice": client_nice,
+           "loop_cpus": list(loop_cpus), "server_cpus": list(server_cpus), "client_cpus": list(client_cpus), "full_map_polls": counter.value}
     for key, on in (("without_poller", False), ("with_poller", True)):
         a = np.asarray(samples[on], dtype=float)
         a = a[np.isfinite(a)]
@@ -120,6 +134,13 @@ def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.
     if out["without_poller"]["p99_ms"] and out["with_poller"]["p99_ms"]:
         out["p99_ratio"] = out["with_poller"]["p99_ms"] / out["without_poller"]["p99_ms"]
     return out
+
+
+def _cpus(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(c) for c in text.split(",") if c.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected CPU numbers separated by commas, got {text!r}") from None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -133,9 +154,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--client-nice", type=int, default=0, metavar="N",
                    help="nice value of the client processes (e.g. 19: they stand in for masters on other machines "
                         "and take only CPU the device would leave idle; default 0)")
+    p.add_argument("--loop-cpus", type=_cpus, default=(), metavar="LIST",
+                   help="pin the frame loop to these CPUs, e.g. 0 (loop.cpus; default: not pinned)")
+    p.add_argument("--server-cpus", type=_cpus, default=(), metavar="LIST",
+                   help="pin the Modbus server process, e.g. 1 or 1,2,3 (outputs.modbus.cpus; default: not pinned)")
+    p.add_argument("--client-cpus", type=_cpus, default=(), metavar="LIST",
+                   help="pin the polling clients (they stand in for masters on other machines; default: not pinned)")
     p.add_argument("--source", help="radar source URL (default: source.url of the configuration)")
     a = p.parse_args(argv)
-    print(json.dumps(measure(a.duration, a.block, a.rate, a.source, a.clients, a.client_nice), indent=2))
+    print(json.dumps(measure(a.duration, a.block, a.rate, a.source, a.clients, a.client_nice,
+                             a.loop_cpus, a.server_cpus, a.client_cpus), indent=2))
     return 0
 
 
