@@ -24,6 +24,7 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.evaluate",
     "edge.commands.bench",
     "edge.commands.soak",
+    "edge.commands.pollbench",
     "edge.commands.registers",
     "edge.commands.dbc",
     "edge.commands.doctor",

@@ -1,4 +1,4 @@
-"""Does a Modbus client polling the whole map slow the frame loop down?
+"""``radar-edge pollbench``: does a Modbus client polling the whole map slow the frame loop down?
 
 Runs the real frame loop (simulated source, the board's pipeline, the configured outputs with
 Modbus TCP on an OS-chosen port) and ``clients`` clients, each in its own process, that read every
@@ -7,11 +7,11 @@ answers: a flood). The clients are switched on and off in alternating blocks so 
 the machine's load hit both halves alike; the result is the frame-time p50/p99 of frames processed
 with and without the pollers, and the frames dropped in each half.
 
-    python -m edge.outputs.pollbench --duration 60 --rate 20
-    python -m edge.outputs.pollbench --duration 60 --clients 4 --rate 0     # flood
-    python -m edge.outputs.pollbench --duration 60 --clients 4 --rate 0 --client-nice 19
-    python -m edge.outputs.pollbench --duration 60 --clients 4 --rate 0 \
-        --loop-cpus 0 --server-cpus 1 --client-cpus 1      # the loop on a core of its own
+    radar-edge pollbench --duration 60 --rate 20
+    radar-edge pollbench --duration 60 --clients 4 --rate 0     # flood
+    radar-edge pollbench --duration 60 --clients 4 --rate 0 --client-nice 19
+    radar-edge pollbench --duration 60 --clients 4 --rate 0 \
+        --loop-cpus 0 --server-cpus 1 --client-cpus 1          # the loop on a core of its own
 
 On a development machine the clients share the CPU with the device under test; real Modbus masters
 sit on other machines. ``--client-nice 19`` approximates that (the clients get only idle CPU); the
@@ -23,8 +23,6 @@ masters on other machines are.
 
 from __future__ import annotations
 
-import argparse
-import json
 import multiprocessing as mp
 import time
 
@@ -134,38 +132,3 @@ def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.
     if out["without_poller"]["p99_ms"] and out["with_poller"]["p99_ms"]:
         out["p99_ratio"] = out["with_poller"]["p99_ms"] / out["without_poller"]["p99_ms"]
     return out
-
-
-def _cpus(text: str) -> tuple[int, ...]:
-    try:
-        return tuple(int(c) for c in text.split(",") if c.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected CPU numbers separated by commas, got {text!r}") from None
-
-
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m edge.outputs.pollbench", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--duration", type=float, default=60.0, help="seconds of frames (default 60)")
-    p.add_argument("--block", type=float, default=5.0, help="poller on/off block length in s (default 5)")
-    p.add_argument("--rate", type=float, default=20.0,
-                   help="full-map polls per second per client (default 20; 0 = as fast as possible, a flood)")
-    p.add_argument("--clients", type=int, default=1, help="polling clients, one process each (default 1)")
-    p.add_argument("--client-nice", type=int, default=0, metavar="N",
-                   help="nice value of the client processes (e.g. 19: they stand in for masters on other machines "
-                        "and take only CPU the device would leave idle; default 0)")
-    p.add_argument("--loop-cpus", type=_cpus, default=(), metavar="LIST",
-                   help="pin the frame loop to these CPUs, e.g. 0 (loop.cpus; default: not pinned)")
-    p.add_argument("--server-cpus", type=_cpus, default=(), metavar="LIST",
-                   help="pin the Modbus server process, e.g. 1 or 1,2,3 (outputs.modbus.cpus; default: not pinned)")
-    p.add_argument("--client-cpus", type=_cpus, default=(), metavar="LIST",
-                   help="pin the polling clients (they stand in for masters on other machines; default: not pinned)")
-    p.add_argument("--source", help="radar source URL (default: source.url of the configuration)")
-    a = p.parse_args(argv)
-    print(json.dumps(measure(a.duration, a.block, a.rate, a.source, a.clients, a.client_nice,
-                             a.loop_cpus, a.server_cpus, a.client_cpus), indent=2))
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 
 import pytest
@@ -35,3 +36,17 @@ def test_pollbench_flood_with_the_loop_on_its_own_core():
                 loop_cpus=(loop_cpu,), server_cpus=(other,), client_cpus=(other,))
     assert r["loop_cpus"] == [loop_cpu] and r["server_cpus"] == [other]
     assert r["full_map_polls"] > 0 and r["with_poller"]["frames"] > 0 and r["without_poller"]["frames"] > 0
+
+
+def test_pollbench_command_writes_its_report_and_rejects_bad_arguments(tmp_path, capsys):
+    from edge.cli import main
+
+    out = tmp_path / "flood.json"
+    rc = main(["pollbench", "--duration", "1.5", "--block", "0.5", "--clients", "1", "--rate", "0",
+               "--source", "sim://simo?scenario=highway4&loop=1", "--json", str(out)])
+    assert rc == 0
+    rep = json.loads(out.read_text())
+    assert rep["clients"] == 1 and rep["rate_hz"] == 0.0 and rep["full_map_polls"] > 0
+    assert "full-map polls served" in capsys.readouterr().out
+    assert main(["pollbench", "--clients", "0"]) == 2
+    assert "--clients >= 1" in capsys.readouterr().err
