@@ -43,6 +43,12 @@ class ModbusConfig:
                                       "per the spec; many devices ship 8N1), O", "choices": PARITY_CODES},
     )
     rtu_stopbits: int = field(default=1, metadata={"doc": "RTU stop bits", "choices": (1, 2)})
+    rtu_retry_s: float = field(
+        default=5.0,
+        metadata={"unit": "s", "doc": "a serial port that cannot be opened (USB RS-485 adapter unplugged at "
+                                      "start) is retried this often; Modbus TCP serves meanwhile",
+                  "min": 0.05, "max": 600.0},
+    )
     unit_id: int = field(
         default=1,
         metadata={"doc": "RTU unit (slave) id on the shared RS-485 line; requests for other ids get no "

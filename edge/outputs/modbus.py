@@ -27,6 +27,7 @@ import array
 import asyncio
 import logging
 import multiprocessing
+import os
 import pickle
 import select
 import socket
@@ -164,7 +165,8 @@ class _Server:
         self.conn = conn
         self.unit_id = cfg.unit_id
         self.config = ConfigBlock(config_words, self._applied)
-        self.counters = {"reads": 0, "writes": 0, "exceptions": 0, "ignored_unit_id": 0}
+        self.counters = {"reads": 0, "writes": 0, "exceptions": 0, "ignored_unit_id": 0,
+                         "rtu_open": 0, "rtu_open_failures": 0}
 
     def _applied(self, before: dict[str, Any], after: dict[str, Any]) -> None:
         self.unit_id = int(after["unit_id"])
@@ -237,12 +239,54 @@ class _Server:
                 if msg[0] == "ping":
                     _send(self.conn, ("pong", msg[1]))
 
-    async def serve(self) -> None:
+    def _rtu_server(self) -> Any:
         from pymodbus.framer import FramerType
-        from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+        from pymodbus.server import ModbusSerialServer
+
+        return ModbusSerialServer(
+            self.device(), framer=FramerType.RTU, port=self.cfg.rtu_port, baudrate=self.cfg.rtu_baudrate,
+            parity=self.cfg.rtu_parity, bytesize=8, stopbits=self.cfg.rtu_stopbits, trace_pdu=self.rtu_filter,
+        )
+
+    async def _open_rtu(self, servers: list[Any]) -> str | None:
+        """Open the RTU server; None when it serves, else the reason (the caller retries)."""
+        if not os.path.exists(self.cfg.rtu_port):  # pymodbus would only say "Could not start listen"
+            self.counters["rtu_open_failures"] += 1
+            return f"no such serial port {self.cfg.rtu_port}"
+        try:
+            rtu = self._rtu_server()
+            await rtu.serve_forever(background=True)
+        except _START_ERRORS as exc:  # no such serial port (adapter unplugged), settings the tty refuses
+            self.counters["rtu_open_failures"] += 1
+            return f"{self.cfg.rtu_port}: {type(exc).__name__}: {exc}"
+        servers.append(rtu)
+        self.counters["rtu_open"] = 1
+        return None
+
+    async def _retry_rtu(self, servers: list[Any], stop: asyncio.Event) -> None:
+        """Retry opening the serial port every ``rtu_retry_s`` until it opens (TCP keeps serving)."""
+        while not stop.is_set():
+            try:
+                await asyncio.wait_for(stop.wait(), self.cfg.rtu_retry_s)
+                return
+            except asyncio.TimeoutError:
+                pass
+            err = await self._open_rtu(servers)
+            if err is None:
+                log.warning("Modbus RTU: %s opened after %d failed attempt(s); unit %d serving", self.cfg.rtu_port,
+                            self.counters["rtu_open_failures"], self.unit_id)
+                _send(self.conn, ("rtu", None))
+                return
+            if self.counters["rtu_open_failures"] in (2, 10) or self.counters["rtu_open_failures"] % 100 == 0:
+                log.error("Modbus RTU: still cannot open %s (%d attempts): %s", self.cfg.rtu_port,
+                          self.counters["rtu_open_failures"], err)
+
+    async def serve(self) -> None:
+        from pymodbus.server import ModbusTcpServer
 
         stop = asyncio.Event()
         servers: list[Any] = []
+        retry: asyncio.Task | None = None
         try:
             tcp_address = None
             if self.cfg.tcp_enabled:
@@ -250,21 +294,19 @@ class _Server:
                 await tcp.serve_forever(background=True)
                 servers.append(tcp)
                 tcp_address = tuple(tcp.transport.sockets[0].getsockname()[:2])
-            if self.cfg.rtu_port:
-                rtu = ModbusSerialServer(
-                    self.device(), framer=FramerType.RTU, port=self.cfg.rtu_port, baudrate=self.cfg.rtu_baudrate,
-                    parity=self.cfg.rtu_parity, bytesize=8, stopbits=self.cfg.rtu_stopbits, trace_pdu=self.rtu_filter,
-                )
-                await rtu.serve_forever(background=True)
-                servers.append(rtu)
-        except _START_ERRORS as exc:  # port in use, no such serial port, settings the tty refuses
+            rtu_error = await self._open_rtu(servers) if self.cfg.rtu_port else None
+        except _START_ERRORS as exc:  # TCP port in use, address not on this machine
             _send(self.conn, ("error", f"{type(exc).__name__}: {exc}"))
         else:
-            _send(self.conn, ("ready", tcp_address))
+            _send(self.conn, ("ready", tcp_address, rtu_error))
             self.conn.setblocking(False)
             asyncio.get_running_loop().add_reader(self.conn.fileno(), self.on_readable, stop)
+            if rtu_error is not None:
+                retry = asyncio.create_task(self._retry_rtu(servers, stop))
             await stop.wait()
         finally:
+            if retry is not None:
+                retry.cancel()
             for s in servers:
                 try:
                     await s.shutdown()
@@ -345,7 +387,10 @@ class ModbusSink:
         self._stop = threading.Event()
         self._watchdog_thread: threading.Thread | None = None
         self.tcp_address: tuple[str, int] | None = None
-        self.counters = {"images_sent": 0, "images_dropped": 0, "watchdog": 0, "applied": 0, "server_restarts": 0}
+        #: why the RTU serial port is not open (None: open, or RTU off); the server process retries it
+        self.rtu_error: str | None = None
+        self.counters = {"images_sent": 0, "images_dropped": 0, "watchdog": 0, "applied": 0, "server_restarts": 0,
+                         "rtu_open_failures": 0}
         self._restart_backoff_s = 0.5
         self._next_restart_s = 0.0
         self.server_counters: dict[str, int] = {}
@@ -424,6 +469,8 @@ class ModbusSink:
                 self.on_apply(before, after)
         elif msg[0] == "counters":
             self.server_counters = msg[1]
+        elif msg[0] == "rtu":
+            self.rtu_error = msg[1]
 
     def sync(self, timeout_s: float = 5.0) -> bool:
         """Wait until the server process has taken everything sent so far (tests, tools; never the loop).
@@ -496,11 +543,16 @@ class ModbusSink:
             parent.close()
             raise OutputError(f"Modbus: {msg[1]}")
         self.tcp_address = msg[1]
+        self.rtu_error = msg[2]
         if self.tcp_address:
             log.info("Modbus TCP listening on %s:%d", *self.tcp_address)
-        if self.cfg.rtu_port:
+        if self.cfg.rtu_port and self.rtu_error is None:
             log.info("Modbus RTU unit %d on %s %d 8%s%d", self.unit_id, self.cfg.rtu_port, self.cfg.rtu_baudrate,
                      self.cfg.rtu_parity, self.cfg.rtu_stopbits)
+        elif self.cfg.rtu_port:
+            self.counters["rtu_open_failures"] += 1
+            log.error("Modbus RTU: cannot open %s (%s); retrying every %g s%s", self.cfg.rtu_port, self.rtu_error,
+                      self.cfg.rtu_retry_s, ", Modbus TCP serving meanwhile" if self.tcp_address else "")
         parent.setblocking(False)
         self._conn = parent
         self._ship(self._image)

@@ -3,6 +3,7 @@ over RTU on a socat pty pair; exceptions, unit-id silence, configuration writes,
 
 from __future__ import annotations
 
+import contextlib
 import re
 import shutil
 import subprocess
@@ -175,12 +176,11 @@ def test_single_reads_never_tear_and_the_tear_byte_detects_split_reads(tcp_sink,
 
 
 # --- RTU over a socat pty pair ----------------------------------------------------------------
-@pytest.fixture
-def pty_pair(tmp_path):
+@contextlib.contextmanager
+def _socat_pair(a, b):
     socat = shutil.which("socat")
     if socat is None:
         pytest.skip("socat not installed (apt-get install socat): needed for the RTU pty pair")
-    a, b = tmp_path / "ttyV0", tmp_path / "ttyV1"
     proc = subprocess.Popen([socat, "-d", "-d", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
                             stderr=subprocess.PIPE, text=True)
     try:
@@ -193,6 +193,12 @@ def pty_pair(tmp_path):
     finally:
         proc.terminate()
         proc.wait(5)
+
+
+@pytest.fixture
+def pty_pair(tmp_path):
+    with _socat_pair(tmp_path / "ttyV0", tmp_path / "ttyV1") as pair:
+        yield pair
 
 
 @pytest.fixture
@@ -272,14 +278,53 @@ def test_mbpoll_rtu_unit_id(rtu_sink):
     assert other.returncode != 0 and "timed out" in other.stderr.lower()
 
 
-def test_start_fails_cleanly_for_a_missing_serial_port_and_a_busy_tcp_port(tcp_sink, tmp_path):
+def test_start_fails_cleanly_for_a_busy_tcp_port(tcp_sink):
     from edge.outputs.modbus import OutputError
 
-    with pytest.raises(OutputError):
-        ModbusSink(ModbusConfig(tcp_enabled=False, rtu_port=str(tmp_path / "no-such-tty"), start_timeout_s=5), 1).start()
     host, port = tcp_sink.tcp_address
-    with pytest.raises(OutputError):
+    with pytest.raises(OutputError, match="Modbus"):
         ModbusSink(ModbusConfig(tcp_host=host, tcp_port=port), 1).start()
+
+
+@pytest.mark.parametrize("tcp_enabled", [True, False])
+def test_a_missing_serial_port_is_retried_and_tcp_serves_meanwhile(tmp_path, tcp_enabled):
+    """An RS-485 adapter unplugged at start: a counted fault, retried until it appears (before, a missing
+    serial port stopped the whole Modbus server, TCP included)."""
+    a, b = tmp_path / "ttyV0", tmp_path / "ttyV1"
+    cfg = ModbusConfig(tcp_enabled=tcp_enabled, tcp_host="127.0.0.1", tcp_port=0, rtu_port=str(a), unit_id=3,
+                       rtu_parity="N", rtu_retry_s=0.1)
+    sink = ModbusSink(cfg, N_LANES, clock_ns=lambda: T0).start()
+    try:
+        assert sink.rtu_error is not None and str(a) in sink.rtu_error
+        assert sink.counters["rtu_open_failures"] == 1
+        _publish(sink, 5, np.random.default_rng(3))
+        if tcp_enabled:
+            host, port = sink.tcp_address
+            c = ModbusTcpClient(host, port=port, timeout=2, retries=0)
+            assert c.connect()
+            assert c.read_input_registers(0, count=1, device_id=1).registers == [R.MAP_MAGIC]
+            c.close()
+        with _socat_pair(a, b):  # the adapter is plugged in
+            rtu = ModbusSerialClient(str(b), baudrate=19200, parity="N", bytesize=8, stopbits=1, timeout=0.3,
+                                     retries=0)
+            assert rtu.connect()
+            regs = None
+            for _ in range(50):  # the server retries every 0.1 s; each failed read waits out its 0.3 s timeout
+                try:
+                    r = rtu.read_input_registers(0, count=1, device_id=3)
+                except ModbusIOException:
+                    continue
+                if not r.isError():
+                    regs = r.registers
+                    break
+            rtu.close()
+            assert regs == [R.MAP_MAGIC]
+            sink.request_counters()
+            assert sink.sync()
+            assert sink.server_counters["rtu_open"] == 1 and sink.server_counters["rtu_open_failures"] >= 1
+            assert sink.rtu_error is None
+    finally:
+        sink.close()
 
 
 def test_unit_id_applied_over_tcp_moves_the_rtu_device(pty_pair):
