@@ -156,8 +156,6 @@ class ClusterSignatures:
     # sums that make the signatures of several clusters of one frame combinable (union of their cells):
     cos_sum: np.ndarray | None = None  # (L,) sum of cos(theta) of the cells (eq. 18's zeta, real part)
     sin_sum: np.ndarray | None = None  # (L,) imaginary part
-    range_min_m: np.ndarray | None = None  # (L,) range extent of the cells
-    range_max_m: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.n_points.size)
@@ -210,12 +208,7 @@ class SignatureExtractor:
         ca = np.bincount(lab, amp * cos, minlength=L)
         sa = np.bincount(lab, amp * sin, minlength=L)
         dop_mean = np.where(n > 0, self.cylinder.speed_of_angle(np.arctan2(sa, ca)), np.nan)
-        r_lo = np.full(L, np.inf)
-        r_hi = np.full(L, -np.inf)
-        if lab.size:
-            np.minimum.at(r_lo, lab, rng)
-            np.maximum.at(r_hi, lab, rng)
-        return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop_mean, c, s, r_lo, r_hi)
+        return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop_mean, c, s)
 
     def _rcs(self, lab, rng, amp, rb, db, L) -> np.ndarray:
         """Eq. 17: sum over the local range peaks of every Doppler column of each cluster.

@@ -220,7 +220,7 @@ class SurveillanceTracker:
                 v_kmh = spd.current_radial_speed_kmh()
                 if math.isfinite(v_kmh):  # Doppler-aided range rate (m per frame), see AlphaBetaConfig
                     tr.state[5] = v_kmh / 3.6 * self.frame_period_s
-        self._link(recorded, sig)
+        self._link(recorded, points)
         seg = self.segmenter.step(t_ns, level)
         if seg.ended or seg.discarded:
             out.extend(self._close_tracks())
@@ -237,7 +237,7 @@ class SurveillanceTracker:
         ended, dropped = self.tracker.close_all()
         return self._end_tracks(ended, dropped, set())
 
-    def _link(self, recorded: list[tuple[int, int]], sig: ClusterSignatures) -> None:
+    def _link(self, recorded: list[tuple[int, int]], points: MapPoints) -> None:
         """Count a link between every two tracks of this frame whose clusters' range extents come
         within ``fragment_gap_m`` of each other and whose radial speeds agree within
         ``fragment_speed_kmh``."""
@@ -245,9 +245,10 @@ class SurveillanceTracker:
         if gap <= 0 or len(recorded) < 2:
             return
         ids = [tid for tid, _ in recorded]
-        labs = np.array([lab for _, lab in recorded])
-        lo = np.asarray(sig.range_min_m)[labs]
-        hi = np.asarray(sig.range_max_m)[labs]
+        rng, lab = np.asarray(points.range_m), np.asarray(points.label)
+        ext = [rng[lab == k] for _, k in recorded]  # a handful of clusters: one compare each
+        lo = np.array([float(e.min()) for e in ext])
+        hi = np.array([float(e.max()) for e in ext])
         sep = np.maximum(lo[:, None], lo[None, :]) - np.minimum(hi[:, None], hi[None, :])
         v = np.array([self._speed[tid].current_radial_speed_kmh() for tid in ids])
         dv = np.abs(v[:, None] - v[None, :])
