@@ -173,7 +173,9 @@ class AlphaBetaConfig:
         default=10.0,
         metadata={"unit": "km/h", "doc": "two tracks are linked (fragment_gap_m) only while their current unaliased "
                   "radial speeds differ by at most this (a fragment moves with its vehicle; a car passing a "
-                  "pedestrian does not); a track with fewer than two frames has no speed yet and passes",
+                  "pedestrian does not); a track with clusters in fewer than doppler_range_rate_frames frames (at least 2) "
+                  "has no reliable speed yet and passes (a fragment's centroid hardly moves while more of the "
+                  "vehicle comes into view)",
                   "min": 0.0, "max": 1000.0},
     )
     max_track_id: int = field(

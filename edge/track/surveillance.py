@@ -250,7 +250,9 @@ class SurveillanceTracker:
         lo = np.array([float(e.min()) for e in ext])
         hi = np.array([float(e.max()) for e in ext])
         sep = np.maximum(lo[:, None], lo[None, :]) - np.minimum(hi[:, None], hi[None, :])
-        v = np.array([self._speed[tid].current_radial_speed_kmh() for tid in ids])
+        n_aid = max(2, self.tracker.config.doppler_range_rate_frames)
+        v = np.array([self._speed[tid].current_radial_speed_kmh() if len(self._speed[tid]) >= n_aid else math.nan
+                      for tid in ids])
         dv = np.abs(v[:, None] - v[None, :])
         same = ~(dv > self.tracker.config.fragment_speed_kmh)  # NaN (no speed yet) passes
         ia, ib = np.nonzero(np.triu((sep <= gap) & same, 1))

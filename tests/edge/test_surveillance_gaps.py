@@ -277,3 +277,20 @@ def test_a_target_seen_every_other_frame_is_tracked_when_the_creation_frame_coun
         trk.step(n, meas([r], [-4.7]) if n % 2 == 0 else np.zeros((0, 3)))
         confirmed |= bool(trk.confirmed())
     assert confirmed is tracked
+
+
+def test_a_young_fragment_whose_centroid_hardly_moves_still_joins():
+    """Beside the radar more of a truck comes into view each frame, so a fragment's centroid hardly
+    moves (here 1 km/h against the truck's 18): its speed over three frames means nothing and does not
+    keep it from being linked; it joins the truck instead of being classified as a pedestrian."""
+    st = SurveillanceTracker(FE, 2.0, tracking=AlphaBetaConfig(fragment_gap_m=2.0), classify=False)
+    v = 18.0
+    events = []
+    for n in range(20):
+        r = 8.0 + v / 3.6 * n * T
+        blobs = [blob(r, v, 1500, 0)]
+        if n in (5, 6, 7):
+            blobs.append(blob(8.0 + v / 3.6 * 5 * T - 1.5 + 0.05 * (n - 5), 6.0, 150, 1))
+        events += st.update(int(n * T * 1e9), points(*blobs), seq=n).classifications
+    events += st.close()
+    assert len(events) == 1 and st.fragments == 1
