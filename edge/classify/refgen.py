@@ -25,10 +25,10 @@ tracker parameters. :func:`build_reference_set` does the same on the simulator:
 |az| <= 21°, :func:`hw_sim.events.visible`); it was the default until the surveillance tracker was
 measured against it: a track lives through the whole passage, so features from the beam frames
 alone had half the circular variance of the same car's track (cars then read as motorcycles).
-``passage_half_sector_deg`` was 45° until the fragments of a track were united with it
-(``track.alphabeta.fragment_gap_m``): the surveillance tracker follows a target as long as it gives
-clusters, through its passage beside the radar (motorcycles in the near lane had twice the circular
-variance in operation that the 45° passage gave them, and read as cars).
+``passage_half_sector_deg`` was 45° until it was compared with what the tracker measures: the
+surveillance tracker follows a target as long as it gives clusters, through its passage beside the
+radar (motorcycles in the near lane had twice the circular variance in operation that the 45°
+passage gave them, and read as cars).
 Frames outside the passage are not synthesised (the scene is empty then), which keeps a build of
 4 x 190 events to a few minutes.
 

@@ -31,7 +31,8 @@ or speed -- while a track left without a cluster whose prediction lies in such a
 *occluded*: it coasts without counting misses or ageing (at most ``merge_max_frames`` frames), so it
 picks its own cluster up again when the targets separate instead of ending and restarting.
 
-*Fragments* (``fragment_gap_m``, ``fragment_link_fraction``): a truck passing beside the radar spans
+*Fragments* (``fragment_gap_m``, ``fragment_link_fraction``; off by default, see the field's doc for
+the measurements): a truck passing beside the radar spans
 several metres of range and a wide Doppler spread, and DBSCAN often splits it into two or three
 clusters, each starting a track. Two tracks whose clusters of a frame come within ``fragment_gap_m``
 of each other in range, with radial speeds within ``fragment_speed_kmh``, are *linked* in that frame. A track that ends (or is dropped) linked to a
