@@ -30,7 +30,7 @@ surveillance tracker follows a target as long as it gives clusters, through its 
 radar (motorcycles in the near lane had twice the circular variance in operation that the 45°
 passage gave them, and read as cars).
 Frames outside the passage are not synthesised (the scene is empty then), which keeps a build of
-4 x 190 events to a few minutes.
+4 x 250 events to a few minutes.
 
 ``signatures="tracked"`` is the alternative the paper avoids: the events go through the whole
 surveillance chain (DBSCAN, alpha-beta tracker, :class:`~edge.track.surveillance.SurveillanceTracker`
