@@ -393,8 +393,10 @@ class FrameView:
         return int(self.id.size)
 
 
-def frame_view(scene: Scene, t_s: float) -> FrameView:
-    """What of the scene is in the Distance2Go's view at ``t_s`` (see :class:`FrameView`)."""
+def frame_view(scene: Scene, t_s: float, half_sector_deg: float = SEEN_HALF_SECTOR_DEG) -> FrameView:
+    """What of the scene is in the Distance2Go's view at ``t_s`` (see :class:`FrameView`); rows are the
+    targets with scatterers within 24 m and ``half_sector_deg`` of boresight (180 = all round: the
+    board's sidelobe floor sees a target passing beside it, or just behind it, at a few metres)."""
     sc = scene.scatterers(t_s, np.random.default_rng(0))
     tix = sc.target_index
     mov = tix >= 0
@@ -404,7 +406,7 @@ def frame_view(scene: Scene, t_s: float) -> FrameView:
     rel = scene.pose.to_radar(sc.position_m[mov])
     rng = np.linalg.norm(rel, axis=1)
     az = np.abs(np.degrees(np.arctan2(rel[:, 0], rel[:, 1])))
-    inv = (rng <= VISIBLE_RANGE_M) & (az <= SEEN_HALF_SECTOR_DEG)
+    inv = (rng <= VISIBLE_RANGE_M) & (az <= half_sector_deg)
     k = tix[mov][inv]
     if k.size == 0:
         z = np.zeros(0)

@@ -48,6 +48,7 @@ __all__ = [
     "MapPoints",
     "RadialSpeedEstimator",
     "SignatureExtractor",
+    "SignatureLog",
     "TrackFeatureAccumulator",
     "weighted_standardization",
 ]
@@ -152,6 +153,9 @@ class ClusterSignatures:
     rcs: np.ndarray  # (L,) eq. 17
     n_points: np.ndarray  # (L,) int
     doppler_kmh: np.ndarray  # (L,) amplitude-weighted circular mean of the wrapped radial speed
+    # sums that make the signatures of several clusters of one frame combinable (union of their cells):
+    cos_sum: np.ndarray | None = None  # (L,) sum of cos(theta) of the cells (eq. 18's zeta, real part)
+    sin_sum: np.ndarray | None = None  # (L,) imaginary part
 
     def __len__(self) -> int:
         return int(self.n_points.size)
@@ -204,7 +208,7 @@ class SignatureExtractor:
         ca = np.bincount(lab, amp * cos, minlength=L)
         sa = np.bincount(lab, amp * sin, minlength=L)
         dop_mean = np.where(n > 0, self.cylinder.speed_of_angle(np.arctan2(sa, ca)), np.nan)
-        return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop_mean)
+        return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop_mean, c, s)
 
     def _rcs(self, lab, rng, amp, rb, db, L) -> np.ndarray:
         """Eq. 17: sum over the local range peaks of every Doppler column of each cluster.
@@ -235,6 +239,54 @@ class SignatureExtractor:
         comp = np.sqrt(fc * fc + fb * fb) / fb
         val = np.power(np.maximum(r, 0.0), self.config.range_exponent) / self.n_samples * (amp[peak] * comp) ** 2
         return np.bincount(lab[peak], val, minlength=L)
+
+
+class SignatureLog:
+    """Per-frame cluster sums of a track (bounded), so that the signatures of several tracks of one
+    target can be united frame by frame: the eqs. 17-19 features of the union of their cells.
+
+    ``add(frame, t_s, n, cos_sum, sin_sum, rcs, range_sum)`` once per frame where the track has a
+    cluster; :meth:`extend` appends another track's rows (a fragment of the same target);
+    :meth:`accumulator` sums the rows of each frame (cells, eq. 18's resultant, eq. 17's quantity,
+    ranges: the union of the clusters) and feeds them, in time order, to a
+    :class:`TrackFeatureAccumulator`. With one row per frame it gives exactly the track's own features.
+    """
+
+    __slots__ = ("_rows", "max_rows")
+
+    def __init__(self, max_rows: int = 4096) -> None:
+        self._rows: deque[tuple[int, float, float, float, float, float, float]] = deque(maxlen=max_rows)
+        self.max_rows = int(max_rows)
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    def add(self, frame: int, t_s: float, n: float, cos_sum: float, sin_sum: float, rcs: float, range_sum: float) -> None:
+        self._rows.append((int(frame), float(t_s), float(n), float(cos_sum), float(sin_sum), float(rcs), float(range_sum)))
+
+    def extend(self, other: "SignatureLog") -> None:
+        self._rows.extend(other._rows)
+
+    def frames(self) -> int:
+        """Distinct frames with rows."""
+        return len({r[0] for r in self._rows})
+
+    def accumulator(self) -> TrackFeatureAccumulator:
+        acc = TrackFeatureAccumulator()
+        if not self._rows:
+            return acc
+        a = np.array(self._rows, dtype=np.float64)
+        a = a[np.argsort(a[:, 0], kind="stable")]
+        key = a[:, 0]
+        start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        t = a[start, 1]
+        sums = np.add.reduceat(a[:, 2:], start, axis=0)  # n, cos, sin, rcs, range per frame
+        n = sums[:, 0]
+        circ = 1.0 - np.hypot(sums[:, 1], sums[:, 2]) / n
+        r = sums[:, 4] / n
+        for k in range(t.size):
+            acc.add(t[k], circ[k], sums[k, 3], r[k])
+        return acc
 
 
 class TrackFeatureAccumulator:

@@ -5,7 +5,9 @@ model:
 
 1. standardise the reference features with the weighted mean and unbiased weighted standard
    deviation of eq. 20 (weights ``w_l`` summing to 1; class-balancing by default:
-   ``w_l = 1 / (C * n_{y_l})`` with ``C`` the classes present, so every class weighs the same);
+   ``w_l = 1 / (C * n_{y_l})`` with ``C`` the classes present, so every class weighs the same); the
+   standardised reference vectors are stored rounded to float32 (relative 6e-8, far below any
+   feature's noise), as the exported ONNX model stores them, and used in float64;
 2. distances from a query to all ``N`` reference vectors (Euclidean, Manhattan or Chebyshev);
 3. the ``k`` nearest: ``argsort(kind="stable")``, so among equal distances the lower reference index
    wins;
@@ -121,7 +123,9 @@ class WeightedKNN:
                 raise ValueError("weights must be (N,), non-negative, with a positive sum")
             w = w / w.sum()
         self.mean_, self.scale_ = weighted_standardization(x, w)
-        self.z_ = (x - self.mean_) / self.scale_
+        # the reference store is float32 (the exported ONNX model keeps it so, to stay small); queries,
+        # standardisation and distances stay float64, so both implementations compute the same numbers
+        self.z_ = ((x - self.mean_) / self.scale_).astype(np.float32).astype(np.float64)
         self.y_ = y
         self.w_ = w
         return self

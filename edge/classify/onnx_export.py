@@ -7,15 +7,20 @@ The graph (opset 17, no custom ops, no Scan/Loop)::
 
     features  float32 [Q, F]
       Cast(double) -> Sub(mean) -> Div(scale)                       eq. 20, the fitted mean/scale
-      Unsqueeze(1) -> Sub(Z_ref [N, F]) -> Abs                      |z - z_l| per feature [Q, N, F]
+      Unsqueeze(1) -> Sub(Cast(Z_ref float32 [N, F])) -> Abs        |z - z_l| per feature [Q, N, F]
       euclidean: Mul(a, a) -> ReduceSum(2) -> Sqrt
       manhattan: ReduceSum(2)            chebyshev: ReduceMax(2)     distances [Q, N]
       TopK(K = min(k, N), largest=0, sorted=1)                       neighbours [Q, K]
-      Gather(V [N, C]) -> ReduceSum(1)  /  Gather(w [N]) -> ReduceSum(1)   eq. 21
+      Gather(w [N]) -> nb_w [Q, K];  Gather(y int32 [N]) == classes -> Cast -> * nb_w -> ReduceSum(1)
+      / ReduceSum(nb_w)                                                  eq. 21
     probabilities double [Q, C], label int64 [Q] (ArgMax, first maximum), neighbors int64 [Q, K],
     distances double [Q, K]
 
-``V[l, c] = w_l * I(y_l = c)``. Everything after the input cast is computed in double, with the same
+The vote of neighbour ``l`` for class ``c`` is ``w_l * I(y_l = c)``. The standardised reference
+vectors are *stored* in float32 (20 bytes a vector instead of 40; with int32 labels and float64
+weights a reference costs 32 bytes, so about 1900 of them fit the 64 KiB model budget) and cast to
+double once; the oracle rounds its ``z_`` to float32 the same way when it is fitted, so both use
+identical reference values. Everything after the input cast is computed in double, with the same
 element-wise operations in the same order as the numpy oracle (:class:`edge.classify.knn.WeightedKNN`),
 so the standardised queries are bit-identical and distances differ at most by the summation order of
 five terms: the two implementations pick the same neighbours except for distances within a few ulp
@@ -151,6 +156,9 @@ class KnnDefinition:
             raise ValueError(f"k must be at least 1, got {self.k}")
         if not np.all(np.isfinite(z)) or not np.all(np.asarray(self.scale) > 0):
             raise ValueError("reference vectors must be finite and scales positive")
+        if not np.array_equal(z.astype(np.float32).astype(np.float64), z):
+            raise ValueError("reference_z must be exactly representable in float32 (the model stores it so; "
+                             "WeightedKNN.fit rounds it)")
         if np.any(np.asarray(self.weights) < 0) or not np.sum(self.weights) > 0:
             raise ValueError("weights must be non-negative with a positive sum")
 
@@ -203,9 +211,7 @@ def build_model(defn: KnnDefinition):
     n_c = len(defn.classes)
     kk = defn.effective_k
     w = np.asarray(defn.weights, dtype=np.float64)
-    y = np.asarray(defn.labels, dtype=np.int64)
-    votes = np.zeros((n, n_c), dtype=np.float64)
-    votes[np.arange(n), y] = w
+    y = np.asarray(defn.labels, dtype=np.int32)
 
     def const(name: str, arr: np.ndarray):
         return numpy_helper.from_array(np.ascontiguousarray(arr), name)
@@ -213,8 +219,9 @@ def build_model(defn: KnnDefinition):
     inits = [
         const("mean", np.asarray(defn.mean, dtype=np.float64)),
         const("scale", np.asarray(defn.scale, dtype=np.float64)),
-        const("reference_z", np.asarray(defn.reference_z, dtype=np.float64)),
-        const("votes", votes),
+        const("reference_z32", np.asarray(defn.reference_z, dtype=np.float32)),
+        const("ref_labels", y),
+        const("class_ids", np.arange(n_c, dtype=np.int32)),
         const("ref_weights", w),
         const("k", np.array([kk], dtype=np.int64)),
         const("axis_1", np.array([1], dtype=np.int64)),
@@ -226,6 +233,7 @@ def build_model(defn: KnnDefinition):
         helper.make_node("Sub", ["x64", "mean"], ["centred"], name="eq20_centre"),
         helper.make_node("Div", ["centred", "scale"], ["z"], name="eq20_scale"),
         helper.make_node("Unsqueeze", ["z", "axis_1"], ["z_q1f"], name="query_axis"),
+        helper.make_node("Cast", ["reference_z32"], ["reference_z"], to=TensorProto.DOUBLE, name="reference_to_double"),
         helper.make_node("Sub", ["z_q1f", "reference_z"], ["diff"], name="diff"),
         helper.make_node("Abs", ["diff"], ["absdiff"], name="absdiff"),
     ]
@@ -242,9 +250,14 @@ def build_model(defn: KnnDefinition):
     nodes += [
         helper.make_node("TopK", ["dist", "k"], ["distances", "neighbors"], axis=1, largest=0, sorted=1,
                          name="k_nearest"),
-        helper.make_node("Gather", ["votes", "neighbors"], ["nb_votes"], axis=0, name="gather_votes"),
-        helper.make_node("ReduceSum", ["nb_votes", "axis_1"], ["num"], keepdims=0, name="eq21_numerator"),
         helper.make_node("Gather", ["ref_weights", "neighbors"], ["nb_w"], axis=0, name="gather_weights"),
+        helper.make_node("Gather", ["ref_labels", "neighbors"], ["nb_y"], axis=0, name="gather_labels"),
+        helper.make_node("Unsqueeze", ["nb_y", "axis_2"], ["nb_y_qk1"], name="label_axis"),
+        helper.make_node("Equal", ["nb_y_qk1", "class_ids"], ["is_class"], name="one_hot"),
+        helper.make_node("Cast", ["is_class"], ["one_hot64"], to=TensorProto.DOUBLE, name="one_hot_double"),
+        helper.make_node("Unsqueeze", ["nb_w", "axis_2"], ["nb_w_qk1"], name="weight_axis"),
+        helper.make_node("Mul", ["one_hot64", "nb_w_qk1"], ["nb_votes"], name="votes"),
+        helper.make_node("ReduceSum", ["nb_votes", "axis_1"], ["num"], keepdims=0, name="eq21_numerator"),
         helper.make_node("ReduceSum", ["nb_w", "axis_1"], ["den"], keepdims=1, name="eq21_denominator"),
         helper.make_node("Div", ["num", "den"], ["probabilities"], name="eq21"),
         # label: the lowest class within PROBABILITY_TIE_TOL of the maximum (as WeightedKNN.predict)

@@ -31,6 +31,18 @@ or speed -- while a track left without a cluster whose prediction lies in such a
 *occluded*: it coasts without counting misses or ageing (at most ``merge_max_frames`` frames), so it
 picks its own cluster up again when the targets separate instead of ending and restarting.
 
+*Fragments* (``fragment_gap_m``, ``fragment_link_fraction``; off by default, see the field's doc for
+the measurements): a truck passing beside the radar spans
+several metres of range and a wide Doppler spread, and DBSCAN often splits it into two or three
+clusters, each starting a track. Two tracks whose clusters of a frame come within ``fragment_gap_m``
+of each other in range, with radial speeds within ``fragment_speed_kmh``, are *linked* in that frame. A track that ends (or is dropped) linked to a
+track still alive, or ending later in the same batch, in at least ``fragment_link_fraction`` of its own
+frames is a fragment: its per-frame cluster sums (:class:`~edge.classify.features.SignatureLog`) join
+that track's, so the features of eqs. 17-19 are computed, frame by frame, on the union of the
+target's cells -- what the reference set's thresholded signatures see -- and no event is published
+for the fragment (its id disappears as a dropped one). A pedestrian passed by a car is linked to it
+for a frame or two of its passage only, and keeps its own event.
+
 Published :class:`~edge.types.TrackState`: tracks seen in at least ``min_seen_frames`` frames and
 not coasting for more than ``publish_coasting_frames`` frames. The alpha-beta state lives on the
 wrapped map and only serves the association (Tavanti §II-D: with ``alpha = 0.19`` it lags a 40 km/h
@@ -61,6 +73,7 @@ from edge.classify.features import (
     MapPoints,
     RadialSpeedEstimator,
     SignatureExtractor,
+    SignatureLog,
     TrackFeatureAccumulator,
 )
 from edge.classify.classifier import build_classifier
@@ -130,6 +143,9 @@ class SurveillanceTracker:
         self._size: dict[int, deque] = {}  # track id -> point counts of its last clusters (not merged)
         self._merged_run: dict[int, int] = {}  # track id -> merged frames in a row
         self.merged_frames = 0
+        self._log: dict[int, SignatureLog] = {}  # track id -> per-frame cluster sums (its own and its fragments')
+        self._links: dict[int, dict[int, int]] = {}  # track id -> {other track id: frames with adjacent clusters}
+        self.fragments = 0  # tracks whose cells joined another track's signatures
 
     @classmethod
     def from_config(cls, frontend: FrontendInfo, config: Any, threshold: float) -> "SurveillanceTracker":
@@ -168,16 +184,18 @@ class SurveillanceTracker:
         self._frame_sizes = np.asarray(sig.n_points)[valid]
         tstep = self.tracker.step(t_ns, sig.centroid[valid])
         out: list[ClassifiedEvent] = []
-        for tr in tstep.ended:
-            out.append(self._finish(tr))
-        for tr in tstep.dropped:
-            self._forget(tr.track_id)
+        alive = {tr.track_id for tr in self.tracker.tracks} - set(tstep.created)
+        out.extend(self._end_tracks(tstep.ended, tstep.dropped, alive))
         for tid in tstep.created:
             self._size[tid] = deque(maxlen=self.tracker.config.merge_history_frames)
             self._merged_run[tid] = 0
             self._acc[tid] = TrackFeatureAccumulator()
             self._speed[tid] = RadialSpeedEstimator(self.cylinder.vmax_kmh)
+            self._log[tid] = SignatureLog()
+            self._links[tid] = {}
         t_s = t_ns * 1e-9 if seq is None else int(seq) * self.frame_period_s
+        frame_key = int(round(t_s / self.frame_period_s))
+        recorded: list[tuple[int, int]] = []
         n_aid = self.tracker.config.doppler_range_rate_frames
         by_id = {tr.track_id: tr for tr in self.tracker.tracks}
         merged: list[int] = []
@@ -191,6 +209,10 @@ class SurveillanceTracker:
                 merged.append(tid)
                 continue
             self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab])
+            n_lab = float(sig.n_points[lab])
+            self._log[tid].add(frame_key, t_s, n_lab, sig.cos_sum[lab], sig.sin_sum[lab], sig.rcs[lab],
+                               n_lab * float(sig.range_m[lab]))
+            recorded.append((tid, int(lab)))
             spd = self._speed[tid]
             spd.add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
             self._seen_t[tid] = t_s
@@ -199,6 +221,7 @@ class SurveillanceTracker:
                 v_kmh = spd.current_radial_speed_kmh()
                 if math.isfinite(v_kmh):  # Doppler-aided range rate (m per frame), see AlphaBetaConfig
                     tr.state[5] = v_kmh / 3.6 * self.frame_period_s
+        self._link(recorded, points)
         seg = self.segmenter.step(t_ns, level)
         if seg.ended or seg.discarded:
             out.extend(self._close_tracks())
@@ -213,9 +236,61 @@ class SurveillanceTracker:
     # ------------------------------------------------------------------------------------------
     def _close_tracks(self) -> list[ClassifiedEvent]:
         ended, dropped = self.tracker.close_all()
-        for tr in dropped:
-            self._forget(tr.track_id)
-        return [self._finish(tr) for tr in ended]
+        return self._end_tracks(ended, dropped, set())
+
+    def _link(self, recorded: list[tuple[int, int]], points: MapPoints) -> None:
+        """Count a link between every two tracks of this frame whose clusters' range extents come
+        within ``fragment_gap_m`` of each other and whose radial speeds agree within
+        ``fragment_speed_kmh``."""
+        gap = self.tracker.config.fragment_gap_m
+        if gap <= 0 or len(recorded) < 2:
+            return
+        ids = [tid for tid, _ in recorded]
+        rng, lab = np.asarray(points.range_m), np.asarray(points.label)
+        ext = [rng[lab == k] for _, k in recorded]  # a handful of clusters: one compare each
+        lo = np.array([float(e.min()) for e in ext])
+        hi = np.array([float(e.max()) for e in ext])
+        sep = np.maximum(lo[:, None], lo[None, :]) - np.minimum(hi[:, None], hi[None, :])
+        n_aid = max(2, self.tracker.config.doppler_range_rate_frames)
+        v = np.array([self._speed[tid].current_radial_speed_kmh() if len(self._speed[tid]) >= n_aid else math.nan
+                      for tid in ids])
+        dv = np.abs(v[:, None] - v[None, :])
+        same = ~(dv > self.tracker.config.fragment_speed_kmh)  # NaN (no speed yet) passes
+        ia, ib = np.nonzero(np.triu((sep <= gap) & same, 1))
+        for a, b in zip(ia.tolist(), ib.tolist()):
+            la, lb = self._links[ids[a]], self._links[ids[b]]
+            la[ids[b]] = la.get(ids[b], 0) + 1
+            lb[ids[a]] = lb.get(ids[a], 0) + 1
+
+    def _end_tracks(self, ended, dropped, alive: set[int]) -> list[ClassifiedEvent]:
+        """Classify the ``ended`` tracks and forget the ``dropped`` ones, except fragments: a track
+        linked (:meth:`_link`) in at least ``fragment_link_fraction`` of its own frames to a track that
+        is still ``alive``, or that ends in this batch with more frames, hands its signature rows to
+        that track (the one it is linked to most) instead."""
+        cfg = self.tracker.config
+        batch = sorted([(tr, True) for tr in ended] + [(tr, False) for tr in dropped],
+                       key=lambda e: (self._acc[e[0].track_id].n if e[0].track_id in self._acc else 0))
+        later = {tr.track_id for tr, _ in batch}
+        out: list[ClassifiedEvent] = []
+        for tr, is_ended in batch:
+            tid = tr.track_id
+            later.discard(tid)
+            partner = None
+            if cfg.fragment_gap_m > 0 and tid in self._links:
+                own = max(1, self._acc[tid].n)
+                best = [(n, p) for p, n in self._links[tid].items() if (p in alive or p in later)
+                        and n >= cfg.fragment_link_fraction * own]
+                if best:
+                    partner = max(best)[1]
+            if partner is not None:
+                self._log[partner].extend(self._log[tid])
+                self.fragments += 1
+                self._forget(tid, counted=False)
+            elif is_ended:
+                out.append(self._finish(tr))
+            else:
+                self._forget(tid)
+        return out
 
     def _hidden_in(self, tr: AlphaBetaTrack, j: int) -> bool:
         """Occlusion test of the alpha-beta tracker: is cluster ``j`` (an assigned one) large enough,
@@ -262,16 +337,24 @@ class SurveillanceTracker:
         hist.append(n_points)
         return False
 
-    def _forget(self, track_id: int) -> None:
+    def _forget(self, track_id: int, counted: bool = True) -> None:
+        self._log.pop(track_id, None)
+        for other in self._links.pop(track_id, {}):
+            self._links.get(other, {}).pop(track_id, None)
         self._acc.pop(track_id, None)
         self._speed.pop(track_id, None)
         self._seen_t.pop(track_id, None)
         self._size.pop(track_id, None)
         self._merged_run.pop(track_id, None)
-        self.dropped += 1
+        self.dropped += int(counted)
 
     def _finish(self, tr: AlphaBetaTrack) -> ClassifiedEvent:
-        acc = self._acc.pop(tr.track_id, None) or TrackFeatureAccumulator()
+        own = self._acc.pop(tr.track_id, None) or TrackFeatureAccumulator()
+        log_ = self._log.pop(tr.track_id, None)
+        for other in self._links.pop(tr.track_id, {}):
+            self._links.get(other, {}).pop(tr.track_id, None)
+        # the union with absorbed fragments; a track without any has exactly its own running features
+        acc = log_.accumulator() if log_ is not None and len(log_) > own.n else own
         spd = self._speed.pop(tr.track_id, None)
         self._seen_t.pop(tr.track_id, None)
         self._size.pop(tr.track_id, None)

@@ -251,14 +251,30 @@ def test_age_and_vis_counters():
     assert (tr.age, tr.vis, tr.missed, tr.seen_frames) == (4, 3, 0, 4)
 
 
+#: the paper's vis / age (the default counts the creation frame, see test_visibility_count_with_creation)
+PAPER_VIS = AlphaBetaConfig(visibility_count="paper")
+
+
 def test_track_missing_its_second_frame_is_deleted_by_th_v():
-    trk = AlphaBetaTracker(AlphaBetaConfig(), CYL)
+    trk = AlphaBetaTracker(PAPER_VIS, CYL)
     ended, dropped = _run(trk, [1, 0])
     assert (ended, dropped) == ([], [1]) and not trk.tracks  # vis / age = 0 / 1 < 0.25
 
 
+def test_visibility_count_with_creation():
+    """(vis + 1) / (age + 1): a new track survives its first misses while that is >= th_v = 0.25
+    (1/2, 1/3, 1/4) and is deleted at the fourth (1/5), unless it is seen again."""
+    trk = AlphaBetaTracker(AlphaBetaConfig(visibility_count="with_creation"), CYL)
+    assert _run(trk, [1, 0, 0, 0]) == ([], []) and len(trk.tracks) == 1
+    assert _run(trk, [0]) == ([], [1]) and not trk.tracks
+    trk = AlphaBetaTracker(AlphaBetaConfig(visibility_count="with_creation"), CYL)
+    _run(trk, [1, 0, 0, 0, 1, 0, 1])
+    (tr,) = trk.tracks
+    assert (tr.age, tr.vis, tr.seen_frames) == (6, 2, 3) and trk.confirmed() == [tr]
+
+
 def test_departure_after_n_u_misses_and_the_three_frame_rule():
-    cfg = AlphaBetaConfig()
+    cfg = PAPER_VIS
     # seen in 5 frames (vis 4), then 7 misses: vis/age = 4/11 >= 0.25 -> ends, classified
     trk = AlphaBetaTracker(cfg, CYL)
     ended, dropped = _run(trk, [1] * 5 + [0] * 6)
@@ -293,7 +309,7 @@ def test_close_all_drops_tracks_seen_in_fewer_than_three_frames():
 
 
 def test_ids_are_small_and_recycled():
-    trk = AlphaBetaTracker(AlphaBetaConfig(), CYL)
+    trk = AlphaBetaTracker(PAPER_VIS, CYL)
     st = trk.step(0, meas([3.0, 10.0, 20.0], [0.0, 0.0, 0.0]))
     assert st.created == (1, 2, 3)
     trk.step(1, meas([3.0, 20.0], [0.0, 0.0]))  # track 2 deleted (th_v), id 2 is free again

@@ -19,11 +19,12 @@ onnx = pytest.importorskip("onnx")
 
 def write_event_recordings(root: Path, n_events: int, seed: int) -> list[str]:
     """One recording per single-random event (the frames of its target's passage, as an event
-    trigger records them: :func:`hw_sim.events.frame_view`), with truth; returns the classes in
+    trigger records them: :func:`hw_sim.events.frame_view` all round), with truth; returns the classes in
     event order."""
     from hal.frame import RawFrame
     from hal.recording import RecordingWriter
     from hw_sim.boards import board_for
+    from edge.classify.refgen import PASSAGE_HALF_SECTOR_DEG
     from hw_sim.events import SLOT_S, frame_view, single_random
     from hw_sim.simulator import FrameSimulator
 
@@ -38,7 +39,7 @@ def write_event_recordings(root: Path, n_events: int, seed: int) -> list[str]:
     for e in range(n_events):
         w = RecordingWriter(fe, meta={"event": e, "seed": seed})
         for n in range(e * per_slot, (e + 1) * per_slot):
-            if len(frame_view(scene, n * period)) == 0:
+            if len(frame_view(scene, n * period, PASSAGE_HALF_SECTOR_DEG)) == 0:
                 continue
             f = sim.frame(n)
             w.add(RawFrame(seq=n, t_ns=int(round(f.t_s * 1e9)), i=f.i, q=f.q, frontend=fe, truth=f.truth))

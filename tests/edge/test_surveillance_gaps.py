@@ -176,3 +176,121 @@ def test_a_young_fragment_does_not_hide_in_the_vehicle_cluster():
         ids_seen.append({t.track_id for t in step.tracks})
     assert len(st.tracker.tracks) == 1  # the fragment's track ended (N_u misses), the body's lives on
     assert all(len(s) == 1 for s in ids_seen[8:])  # and is not published beside the body's track
+
+
+# --- fragments of one target (fragment_gap_m) and the SignatureLog they are united with --------------
+
+def test_signature_log_of_one_cluster_per_frame_is_the_tracks_own_features():
+    from edge.classify.features import SignatureExtractor, SignatureLog, TrackFeatureAccumulator
+
+    ex = SignatureExtractor(__import__("edge.classify.features", fromlist=["FeatureConfig"]).FeatureConfig(), FE)
+    acc, lg = TrackFeatureAccumulator(), SignatureLog()
+    for n in range(6):
+        sig = ex(points(blob(10.0 + 0.4 * n, 3.0 + n, 90 + 20 * n, 0)))
+        acc.add(n * T, sig.circular_variance[0], sig.rcs[0], sig.range_m[0])
+        lg.add(n, n * T, sig.n_points[0], sig.cos_sum[0], sig.sin_sum[0], sig.rcs[0], sig.n_points[0] * sig.range_m[0])
+    np.testing.assert_allclose(lg.accumulator().features(), acc.features(), rtol=1e-9)
+
+
+def test_signature_log_unites_two_clusters_of_a_frame_as_one_signature():
+    """Rows of two tracks for the same frames give the features of the union of their cells, as if one
+    cluster had held them (eq. 18's resultant and eq. 17's sum are additive over cells)."""
+    from edge.classify.features import FeatureConfig, SignatureExtractor, SignatureLog, TrackFeatureAccumulator
+
+    ex = SignatureExtractor(FeatureConfig(), FE)
+    a, b, whole = SignatureLog(), SignatureLog(), TrackFeatureAccumulator()
+    for n in range(5):
+        p1, p2 = blob(8.0 + 0.5 * n, 2.0, 150, 0), blob(11.0 + 0.5 * n, -4.0, 100, 1)
+        sig = ex(points(p1, p2))
+        for lg, k in ((a, 0), (b, 1)):
+            lg.add(n, n * T, sig.n_points[k], sig.cos_sum[k], sig.sin_sum[k], sig.rcs[k], sig.n_points[k] * sig.range_m[k])
+        one = points(p1, p2)
+        one = MapPoints(one.range_m, one.doppler_kmh, one.amplitude, one.range_bin, one.doppler_bin,
+                        np.zeros(len(one), dtype=np.int32))
+        s1 = ex(one, n_clusters=1)
+        whole.add(n * T, s1.circular_variance[0], s1.rcs[0], s1.range_m[0])
+    a.extend(b)
+    assert a.frames() == 5 and len(a) == 10
+    np.testing.assert_allclose(a.accumulator().features(), whole.features(), rtol=1e-6)
+
+
+def _split_vehicle_run(gap_m: float, fragment_offset_m: float, frames=range(3, 9)):
+    """A receding vehicle (1500 cells) whose cluster splits off a 150-cell fragment ``fragment_offset_m``
+    behind it in ``frames`` (long enough for the fragment's own track to be confirmed)."""
+    st = SurveillanceTracker(FE, 2.0, tracking=AlphaBetaConfig(fragment_gap_m=gap_m), classify=False)
+    v = 18.0
+    events = []
+    for n in range(20):
+        r = 8.0 + v / 3.6 * n * T
+        blobs = [blob(r, v, 1500, 0)]
+        if n in frames:
+            blobs.append(blob(r - fragment_offset_m, v - 3.0, 150, 1))
+        events += st.update(int(n * T * 1e9), points(*blobs), seq=n).classifications
+    events += st.close()
+    return st, events
+
+
+def test_a_fragment_track_joins_the_vehicle_signature():
+    """With fragment linking the fragment's track publishes no event of its own and its cells join the
+    vehicle's signature in the frames they shared; without it (the paper) the target gives two events."""
+    st, events = _split_vehicle_run(2.0, 1.5)
+    assert len(events) == 1 and st.fragments == 1
+    (ev,) = events
+    assert ev.features["frames"] == 20  # the frames of the union (the fragment's are among the vehicle's)
+    _, alone = _split_vehicle_run(0.0, 1.5)
+    assert len(alone) == 2
+    main = max(alone, key=lambda e: e.features["frames"])
+    # the union's cells spread further in Doppler than the vehicle's own cluster
+    assert ev.features["circ_var_mean"] > main.features["circ_var_mean"]
+
+
+def test_a_separate_target_is_not_a_fragment():
+    """A second cluster 6 m away (beyond fragment_gap_m from the vehicle's cells) keeps its own event;
+    so does one linked in fewer than fragment_link_fraction of its frames."""
+    st, events = _split_vehicle_run(2.0, 6.0)
+    assert len(events) == 2 and st.fragments == 0
+    # adjacent in 2 of its 12 frames only (a car passing a pedestrian): not a fragment
+    cfg = AlphaBetaConfig(fragment_gap_m=2.0, fragment_link_fraction=0.5)
+    st = SurveillanceTracker(FE, 2.0, tracking=cfg, classify=False)
+    events = []
+    for n in range(12):
+        ped = blob(12.0 + 1.5 / 3.6 * n * T, 1.5, 120, 1)
+        car_r = 2.0 + 30.0 / 3.6 * n * T  # passes the pedestrian around frames 6-7
+        blobs = [ped] + ([blob(car_r, 30.0, 900, 0)] if n < 10 else [])
+        events += st.update(int(n * T * 1e9), points(*blobs), seq=n).classifications
+    events += st.close()
+    assert len(events) == 2 and st.fragments == 0
+
+
+# --- visibility count (th_v) ------------------------------------------------------------------------
+
+@pytest.mark.parametrize("count, tracked", [("paper", False), ("with_creation", True)])
+def test_a_target_seen_every_other_frame_is_tracked_when_the_creation_frame_counts(count, tracked):
+    """A weak target (a pedestrian at 20 m) clustered in every other frame. The paper's vis / age deletes
+    a new track at its first miss (0 / 1 < th_v), so it is never confirmed; counting the creation frame
+    ((0 + 1) / (1 + 1) = 0.5) keeps it and it is tracked."""
+    cfg = AlphaBetaConfig(visibility_count=count, init_velocity="zero")
+    trk = AlphaBetaTracker(cfg, CYL)
+    confirmed = False
+    for n in range(12):
+        r = 20.0 - 1.3 * n * T
+        trk.step(n, meas([r], [-4.7]) if n % 2 == 0 else np.zeros((0, 3)))
+        confirmed |= bool(trk.confirmed())
+    assert confirmed is tracked
+
+
+def test_a_young_fragment_whose_centroid_hardly_moves_still_joins():
+    """Beside the radar more of a truck comes into view each frame, so a fragment's centroid hardly
+    moves (here 1 km/h against the truck's 18): its speed over three frames means nothing and does not
+    keep it from being linked; it joins the truck instead of being classified as a pedestrian."""
+    st = SurveillanceTracker(FE, 2.0, tracking=AlphaBetaConfig(fragment_gap_m=2.0), classify=False)
+    v = 18.0
+    events = []
+    for n in range(20):
+        r = 8.0 + v / 3.6 * n * T
+        blobs = [blob(r, v, 1500, 0)]
+        if n in (5, 6, 7):
+            blobs.append(blob(8.0 + v / 3.6 * 5 * T - 1.5 + 0.05 * (n - 5), 6.0, 150, 1))
+        events += st.update(int(n * T * 1e9), points(*blobs), seq=n).classifications
+    events += st.close()
+    assert len(events) == 1 and st.fragments == 1

@@ -141,3 +141,17 @@ def test_pedestrian_detection_range_shorter_than_car():
     assert med["pedestrian", 22.0] < 2.5 < 10.0 < med["pedestrian", 8.0]
     assert med["car", 22.0] > 2.0 * med["pedestrian", 22.0] and med["car", 22.0] > 4.0
     assert math.isfinite(med["car", 8.0])
+
+
+def test_frame_view_sector_all_round_keeps_a_target_passing_beside_the_radar():
+    """A car 2.5 m beside the radar (its rear about 65 deg off boresight, 3 m away): outside the 45 deg sector
+    of the truth statistics but inside an all-round passage (the board's sidelobe floor still sees
+    it, and the tracker follows it), which the reference set's signatures use."""
+    from hw_sim.events import SEEN_HALF_SECTOR_DEG, make_target
+
+    scene = Scene(RadarPose(height_m=1.0), [], seed=1)
+    scene.add_target(make_target("car", 7, LinearTrajectory((2.5, -1.0, 0.0), (0.0, -8.0, 0.0)), np.random.default_rng(0),
+                                 t_start_s=0.0, t_end_s=5.0))
+    assert len(frame_view(scene, 0.0)) == 0 and SEEN_HALF_SECTOR_DEG == 45.0
+    fv = frame_view(scene, 0.0, 180.0)
+    assert fv.id.tolist() == [7] and fv.range_max_m[0] < 6.0 and not fv.in_beam[0]
