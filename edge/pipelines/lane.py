@@ -32,14 +32,15 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import scipy.fft
 
 from edge.dsp.angle import bartlett_consensus, steering_matrix
-from edge.dsp.cfar import os_cfar, os_cfar_at, os_cfar_scale, reference_index
+from edge.dsp.cfar import os_cfar, os_cfar_at_padded, os_cfar_scale, reference_index
 from edge.dsp.geometry import polar_to_ground
 from edge.dsp.pairing import PairingModel, nearest_of_clusters, pair_beats
 from edge.dsp.peaks import interpolate_peak, local_maxima
 from edge.dsp.resolve import CellResolver, ResolverConfig
-from edge.dsp.range_fft import make_window, range_fft, to_complex64
+from edge.dsp.range_fft import make_window
 from edge.pipeline import Pipeline, PipelineError, StageTimer
 from edge.types import Detections, FrameResult, FrontendInfo, RawFrame
 from hal.waveform import SPEED_OF_LIGHT_MPS
@@ -198,6 +199,13 @@ class LanePipeline(Pipeline):
         self.n_bins = n
         self.window = make_window(cfg.window, n)
         self._iq = np.empty(frontend.frame_shape, dtype=np.complex64)
+        # the window times the FFT's 1/n scale when n is a power of two (scaling by 2^-k before the FFT
+        # is exact, the same spectrum bit for bit as scaling after it); one multiply less per frame
+        self._post_scale = n & (n - 1) != 0
+        self._window_scaled = self.window if self._post_scale else self.window * np.float32(1.0 / n)
+        self._sq = np.empty(frontend.frame_shape + (2,), dtype=np.float32)  # |re|^2, |im|^2 scratch
+        self._sq_sum = np.empty(frontend.frame_shape, dtype=np.float32)
+        self._diff = np.empty(frontend.frame_shape, dtype=np.complex64)  # clutter-map scratch
         fs = np.array([s.sample_rate_hz for s in wf.segments])
         self._bin_hz = fs / n  # (4,)
         self._freq = (np.fft.fftfreq(n)[None, :] * fs[:, None])  # (4, n) float64 signed Hz per bin
@@ -218,6 +226,11 @@ class LanePipeline(Pipeline):
         self._map_frames = 0
         self._cap = np.float32(10.0 ** (cfg.cfar_cap_db / 10.0))
         self._ref_index = reference_index(n, cfg.cfar_train_cells, cfg.cfar_guard_cells)
+        self._half = cfg.cfar_train_cells + cfg.cfar_guard_cells  # circular padding of the power rows
+        self._freq_flat = self._freq.ravel()
+        self._tiny = np.float32(1e-30)
+        self._seg_ends = np.arange(1, len(wf.segments) + 1)
+        self._scale32 = np.float32(self.cfar_scale)
         self._model = PairingModel.from_waveform(wf)
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
         half = math.radians(cfg.angle_max_deg)
@@ -255,10 +268,14 @@ class LanePipeline(Pipeline):
     def detect(self, frame: RawFrame, timer: StageTimer) -> tuple[Detections, dict[str, Any]]:
         """Detections of one frame (everything before the tracker) and the intermediates."""
         cfg = self.config
-        with timer.stage("to_complex"):
-            iq = to_complex64(frame, self._iq)
+        with timer.stage("to_complex"):  # int16 -> complex64, windowed on the way
+            iq = self._iq
+            np.multiply(frame.i, self._window_scaled, out=iq.real)
+            np.multiply(frame.q, self._window_scaled, out=iq.imag)
         with timer.stage("range_fft"):
-            spec = range_fft(iq, self.window)  # (rx, seg, bin) complex64
+            spec = scipy.fft.fft(iq, axis=-1, overwrite_x=True, workers=1)  # (rx, seg, bin) complex64
+            if self._post_scale:
+                spec *= np.float32(1.0 / self.n_bins)
             if self._alpha > 0:
                 # the map starts empty and learns as a running mean over the first frames (weight
                 # 1/(n + warm-up)), then with the time constant: guard-rail posts are gone within seconds
@@ -266,34 +283,60 @@ class LanePipeline(Pipeline):
                 # initialising it with the first frame alone would leave that frame's vehicles' images
                 alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
                 self._map_frames += 1
-                self._background += alpha * (spec - self._background)
-                spec = spec - self._background
-            power = (spec.real * spec.real + spec.imag * spec.imag).sum(axis=0)  # (seg, bin) float32
+                d = np.subtract(spec, self._background, out=self._diff)
+                d *= alpha
+                self._background += d
+                spec -= self._background
+            # non-coherent sum over the channels, written into the middle of a circularly padded row per
+            # segment (the OS-CFAR windows read across the ends); ``power`` is a view of it
+            h, n = self._half, self.n_bins
+            sq = np.multiply(spec.view(np.float32), spec.view(np.float32), out=self._sq.reshape(spec.shape[:-1] + (-1,)))
+            sq = sq.reshape(self._sq.shape)
+            np.add(sq[..., 0], sq[..., 1], out=self._sq_sum)
+            ppad = np.empty((spec.shape[1], n + 2 * h), np.float32)
+            power = ppad[:, h:h + n]
+            self._sq_sum.sum(axis=0, out=power)  # (seg, bin) float32
+            ppad[:, :h] = ppad[:, n:n + h]
+            ppad[:, n + h:] = ppad[:, h:2 * h]
         with timer.stage("cfar"):
-            floor = np.partition(power, self.n_bins // 2, axis=-1)[:, self.n_bins // 2]  # median per segment
+            floor = np.partition(power, n // 2, axis=-1)[:, n // 2]  # median per segment
             cap = floor * self._cap  # (4,)
             if cfg.cfar_full_threshold:  # the whole threshold curve, for plots
                 _, _, noise = os_cfar(power, self._ref_index, self._rank, self.cfar_scale)
                 noise = np.minimum(noise, cap[:, None])
-                thr = noise * np.float32(self.cfar_scale)
-                peaks = local_maxima(power, (power > thr) & self._valid)
+                thr = noise * self._scale32
+                rows, cols = np.nonzero(local_maxima(power, (power > thr) & self._valid))
+                cells = np.stack([ppad[rows, cols + h + o] for o in (-1, 0, 1)], axis=1)
             else:  # only local maxima can be reported: evaluate the ordered statistic there
-                rows, cols = np.nonzero(local_maxima(power, self._valid))
-                nz = np.minimum(os_cfar_at(power, rows, cols, self._ref_index, self._rank), cap[rows])
-                hit = power[rows, cols] > nz * np.float32(self.cfar_scale)
-                peaks = np.zeros(power.shape, bool)
-                peaks[rows[hit], cols[hit]] = True
+                is_max = power > ppad[:, h - 1:h - 1 + n]
+                is_max &= power >= ppad[:, h + 1:h + 1 + n]
+                is_max &= self._valid
+                flat = np.flatnonzero(is_max)
+                rows, cols = np.divmod(flat, n)
+                nz, cells = os_cfar_at_padded(ppad, rows, cols, cfg.cfar_train_cells, cfg.cfar_guard_cells,
+                                              self._rank)
+                np.minimum(nz, cap[rows], out=nz)
+                hit = cells[:, 1] > nz * self._scale32
                 noise = np.full(power.shape, np.nan, np.float32)
-                noise[rows, cols] = nz
-                thr = noise * np.float32(self.cfar_scale)
-            freqs, bins = [], []
-            for k in range(4):  # four segments
-                b = np.flatnonzero(peaks[k])
-                if b.size > cfg.max_peaks_per_segment:
-                    b = b[np.argsort(power[k, b])[-cfg.max_peaks_per_segment:]]
-                d = interpolate_peak(power[k], b)
-                freqs.append(self._freq[k, b] + d * self._bin_hz[k])
-                bins.append(b)
+                noise.reshape(-1)[flat] = nz
+                thr = noise * self._scale32
+                rows, cols, cells = rows[hit], cols[hit], cells[hit]
+            # peaks in (segment, bin) order; sub-bin offsets by a parabola through the log-power
+            # (edge.dsp.peaks.interpolate_peak, all segments at once)
+            ends = np.searchsorted(rows, self._seg_ends).tolist()
+            starts = [0] + ends[:3]
+            if max(e - b for b, e in zip(starts, ends)) > cfg.max_peaks_per_segment:
+                freqs, bins = self._strongest_peaks(power, rows, cols)
+            else:
+                lg = np.log(np.maximum(cells, self._tiny))
+                lm, l0, lp = lg[:, 0], lg[:, 1], lg[:, 2]
+                den = lm - 2.0 * l0 + lp
+                d = np.zeros(den.shape, np.float32)
+                np.divide(0.5 * (lm - lp), den, out=d, where=den < 0)
+                np.clip(d, np.float32(-0.5), np.float32(0.5), out=d)
+                f = self._freq_flat[rows * n + cols] + d * self._bin_hz[rows]
+                freqs = [f[b:e] for b, e in zip(starts, ends)]
+                bins = [cols[b:e] for b, e in zip(starts, ends)]
         with timer.stage("pairing"):
             pairs = pair_beats(tuple(freqs), self._model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
                                max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self._tol,
@@ -359,6 +402,20 @@ class LanePipeline(Pipeline):
             "angle_grid_rad": self._grid, "angle_spectrum": aspec,
         }
         return det, inter
+
+    def _strongest_peaks(self, power: np.ndarray, rows: np.ndarray, cols: np.ndarray):
+        """Per segment the ``max_peaks_per_segment`` strongest peaks (a segment with more): their
+        frequencies and bins, ordered by power (rare; the common case is done in :meth:`detect`)."""
+        cfg = self.config
+        freqs, bins = [], []
+        for k in range(power.shape[0]):
+            b = cols[rows == k]
+            if b.size > cfg.max_peaks_per_segment:
+                b = b[np.argsort(power[k, b])[-cfg.max_peaks_per_segment:]]
+            d = interpolate_peak(np.ascontiguousarray(power[k]), b)
+            freqs.append(self._freq[k, b] + d * self._bin_hz[k])
+            bins.append(b)
+        return freqs, bins
 
     def _track_aided_pairs(self, freqs, bins, pairs, t_ns: int):
         """Pairings of confirmed tracks that the four-segment pairing missed (a near vehicle's echo is smeared
