@@ -230,6 +230,7 @@ class LanePipeline(Pipeline):
         self._freq_flat = self._freq.ravel()
         self._tiny = np.float32(1e-30)
         self._seg_ends = np.arange(1, len(wf.segments) + 1)
+        self._aided_window_hz = cfg.aided_window_bins * self._bin_hz  # (4,)
         self._scale32 = np.float32(self.cfar_scale)
         self._model = PairingModel.from_waveform(wf)
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
@@ -342,8 +343,10 @@ class LanePipeline(Pipeline):
                                max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self._tol,
                                max_shared=cfg.pair_max_shared_peaks)
             p_rng, p_vel, p_res = pairs.range_m, pairs.radial_speed_mps, pairs.residual_hz
-            pk = (np.stack([bins[k][pairs.peak_index[:, k]] for k in range(4)], axis=1) if p_rng.size
-                  else np.zeros((0, 4), np.int64))  # (n, 4 seg) bins
+            # (n, 4 seg) bins: the peaks of the four segments are consecutive in ``all_bins``
+            all_bins = np.concatenate(bins)
+            seg_start = np.array([0] + np.cumsum([b.size for b in bins[:-1]]).tolist())
+            pk = all_bins[pairs.peak_index + seg_start] if p_rng.size else np.zeros((0, 4), np.int64)
             n_aided = 0
             if self.tracker is not None and cfg.aided_pairing and len(self.tracker.tracks):
                 a_bins, a_rng, a_vel, a_res = self._track_aided_pairs(freqs, bins, pairs, frame.t_ns)
@@ -450,25 +453,25 @@ class LanePipeline(Pipeline):
         r_hat, v_hat = r_hat[idx], v_hat[idx]
         f_hat = self._model.predict(r_hat, v_hat)  # (m, 4)
         m = idx.size
-        fsel = np.zeros((m, 4))
-        found = np.zeros((m, 4), bool)
-        out_bins = np.zeros((m, 4), np.int64)
-        for k in range(4):  # four segments; vectorised over tracks
-            fk = freqs[k]
-            used = np.zeros(fk.size, bool)
-            if pairs.range_m.size:
-                used[pairs.peak_index[:, k]] = True
-            pred_bin = np.round(f_hat[:, k] / self._bin_hz[k]).astype(np.int64) % self.n_bins
-            out_bins[:, k] = pred_bin
-            if fk.size == 0:
-                continue
-            d = np.abs(fk[None, :] - f_hat[:, k:k + 1])  # (m, peaks)
-            d[:, used] = np.inf
-            j = np.argmin(d, axis=1)
-            hit = d[np.arange(m), j] <= cfg.aided_window_bins * self._bin_hz[k]
-            found[:, k] = hit
-            fsel[:, k] = np.where(hit, fk[j], 0.0)
-            out_bins[:, k] = np.where(hit, bins[k][j], pred_bin)
+        # all four segments at once: peaks in a (segment, peak) table padded with +inf, used peaks at +inf
+        counts = [fk.size for fk in freqs]
+        width = max(counts)
+        pred_bin = np.round(f_hat / self._bin_hz).astype(np.int64) % self.n_bins  # (m, 4)
+        if width == 0:
+            return empty
+        table = np.full((4, width), np.inf)
+        btab = np.zeros((4, width), np.int64)
+        for k in range(4):  # four segments
+            table[k, :counts[k]] = freqs[k]
+            btab[k, :counts[k]] = bins[k]
+        if pairs.range_m.size:
+            table[np.arange(4), pairs.peak_index] = np.inf
+        d = np.abs(table[None, :, :] - f_hat[:, :, None])  # (m, 4, peaks)
+        j = d.argmin(axis=2)  # (m, 4): the first nearest in each segment's peak order
+        seg = np.arange(4)
+        found = d[np.arange(m)[:, None], seg, j] <= self._aided_window_hz
+        fsel = np.where(found, table[seg, j], 0.0)
+        out_bins = np.where(found, btab[seg, j], pred_bin)
         good = found.sum(axis=1) >= cfg.aided_min_segments
         if not good.any():
             return empty
