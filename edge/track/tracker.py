@@ -146,14 +146,15 @@ class Measurements:
 
     @classmethod
     def from_detections(cls, det: Detections, use_radial_speed: bool) -> "Measurements":
-        x = det.x_m.astype(np.float64)
-        y = det.y_m.astype(np.float64)
-        ok = np.isfinite(x) & np.isfinite(y)
-        x, y = x[ok], y[ok]
-        snr = det.snr_db.astype(np.float64)[ok]
-        vr = det.radial_speed_mps.astype(np.float64)[ok]
-        rng = det.range_m.astype(np.float64)[ok]
-        use = use_radial_speed and bool(np.all(np.isfinite(vr)) and np.all(np.isfinite(rng)))
+        # one float64 array of the five columns (a handful of detections: few calls, not few flops)
+        cols = np.array([det.x_m, det.y_m, det.snr_db, det.radial_speed_mps, det.range_m], dtype=np.float64)
+        fin = np.isfinite(cols)
+        ok = fin[0] & fin[1]
+        all_ok = bool(ok.all())
+        if not all_ok:
+            cols, fin = cols[:, ok], fin[:, ok]
+        x, y, snr, vr, rng = cols
+        use = use_radial_speed and bool(fin[3:5].all())
         if use:
             rho = np.hypot(x, y)
             ratio = np.divide(rng, rho, out=np.ones_like(rho), where=rho > 1e-6)
@@ -161,10 +162,16 @@ class Measurements:
         else:
             z = np.stack([x, y], axis=1)
         pair = det.extra.get("resolved_pair")
-        pair = np.asarray(pair, dtype=np.int64)[ok] if pair is not None and len(pair) == ok.size else None
-        if pair is not None and not (pair >= 0).any():
+        if pair is not None and len(pair) == ok.size:
+            pair = np.asarray(pair, dtype=np.int64)
+            pair = pair if all_ok else pair[ok]
+            if not (pair >= 0).any():
+                pair = None
+        else:
             pair = None
-        return cls(z, np.nan_to_num(snr, nan=0.0), use, pair)
+        if not fin[2].all():
+            snr = np.nan_to_num(snr, nan=0.0)
+        return cls(z, snr, use, pair)
 
 
 class CvPredictor:
@@ -172,10 +179,13 @@ class CvPredictor:
 
     def __init__(self, cfg: PdafConfig) -> None:
         self.cfg = cfg
+        self._cached: tuple[float, np.ndarray, np.ndarray] | None = None  # (dt, F, Q) of the last frame
 
     def predict(self, tracks: TrackTable, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-        f = kalman.cv_transition(dt_s)
-        q = kalman.cv_process_noise(dt_s, self.cfg.q_lateral_m2ps3, self.cfg.q_along_m2ps3)
+        if self._cached is None or self._cached[0] != dt_s:  # frames come at a fixed period
+            self._cached = (dt_s, kalman.cv_transition(dt_s),
+                            kalman.cv_process_noise(dt_s, self.cfg.q_lateral_m2ps3, self.cfg.q_along_m2ps3))
+        _, f, q = self._cached
         return kalman.predict(tracks.x, tracks.p, f, q)
 
 
@@ -357,7 +367,7 @@ class MofNInitiator:
     def confirm(self, tracks: TrackTable, ids: IdPool) -> None:
         c = self.cfg
         recent = tracks.history & self._mask_n
-        counts = np.array([int(v).bit_count() for v in recent], dtype=np.int32) if len(tracks) else recent
+        counts = np.bitwise_count(recent)
         ready = ~tracks.confirmed & (counts >= c.confirm_m) & tracks.moved
         for i in np.flatnonzero(ready):
             tid = ids.acquire()
@@ -371,7 +381,7 @@ class MofNInitiator:
         """Tentative tracks that can no longer reach M hits in their last N frames."""
         c = self.cfg
         recent = tracks.history & self._mask_n
-        counts = np.array([int(v).bit_count() for v in recent], dtype=np.int32) if len(tracks) else recent
+        counts = np.bitwise_count(recent)
         return ~tracks.confirmed & (tracks.age >= c.confirm_n) & (counts < c.confirm_m) & (tracks.misses > 0)
 
 
@@ -381,6 +391,7 @@ class TrackDeleter:
     def __init__(self, cfg: PdafConfig) -> None:
         self.cfg = cfg
         self._state_gamma = gate_threshold(cfg.merge_state_prob, 4)
+        self._pairs: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # track count -> np.triu_indices(t, 1)
 
     def delete(self, tracks: TrackTable, resolved: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """``resolved``: per track the resolved pair (or -1) and the detection it followed this frame."""
@@ -406,19 +417,27 @@ class TrackDeleter:
         if t < 2:
             return out
         x = tracks.x
-        ia, ib = np.triu_indices(t, 1)
+        pairs = self._pairs.get(t)
+        if pairs is None:
+            pairs = self._pairs[t] = np.triu_indices(t, 1)
+        ia, ib = pairs
         # speed difference along the pair's common heading, and across it: a duplicate born with a wrong
         # lateral velocity (a far, noisy seed) drifts onto its vehicle with metres per second across
-        vsum = x[ia, 2:4] + x[ib, 2:4]
-        u = vsum / np.maximum(np.hypot(vsum[:, 0], vsum[:, 1]), 1e-9)[:, None]
-        dvx, dvy = x[ia, 2] - x[ib, 2], x[ia, 3] - x[ib, 3]
-        dv_along = np.abs(dvx * u[:, 0] + dvy * u[:, 1])
-        dv_across = np.abs(dvx * u[:, 1] - dvy * u[:, 0])
-        keep = dv_along < c.merge_speed_mps
+        va, vb = x[ia, 2:4], x[ib, 2:4]
+        vsum = va + vb
+        nrm = np.maximum(np.hypot(vsum[:, 0], vsum[:, 1]), 1e-9)
+        ux, uy = vsum[:, 0] / nrm, vsum[:, 1] / nrm
+        dvx, dvy = va[:, 0] - vb[:, 0], va[:, 1] - vb[:, 1]
+        keep = np.abs(dvx * ux + dvy * uy) < c.merge_speed_mps
         if resolved is not None:  # tracks on the two members of a resolved pair are two vehicles
             pair, det = resolved
             keep &= ~((pair[ia] >= 0) & (pair[ia] == pair[ib]) & (det[ia] != det[ib]))
-        ia, ib, dv_across = ia[keep], ib[keep], dv_across[keep]
+        if not keep.any():  # no two tracks move alike: nothing is boxed, no duplicate
+            tracks.close_run = np.zeros(t, np.int32)
+            return out
+        ia, ib = ia[keep], ib[keep]
+        dvx, dvy, ux, uy = dvx[keep], dvy[keep], ux[keep], uy[keep]
+        dv_across = np.abs(dvx * uy - dvy * ux)
         reach = same_vehicle_along_m(c, tracks)
         dx = x[ia] - x[ib]
         boxed = (np.abs(dx[:, 0]) < c.merge_lateral_m) & (np.abs(dx[:, 1]) < np.maximum(reach[ia], reach[ib]))
@@ -431,10 +450,9 @@ class TrackDeleter:
         slow = dv_across < c.merge_lateral_speed_mps
         lasting = np.minimum(tracks.close_run[ia], tracks.close_run[ib]) >= c.merge_persist_frames
         keep = slow | (boxed & lasting)
-        ia, ib, boxed = ia[keep], ib[keep], boxed[keep]
-        if ia.size == 0:
+        if not keep.any():
             return out
-        dx = x[ia] - x[ib]
+        ia, ib, boxed, dx = ia[keep], ib[keep], boxed[keep], dx[keep]
         close = boxed
         ext = extent_cov(x, tracks.ext_var)
         pd = np.stack([tracks.p[:, 0, 0] + ext[:, 0, 0], tracks.p[:, 1, 1] + ext[:, 1, 1]], axis=1)  # (T, 2)
