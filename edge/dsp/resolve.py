@@ -119,7 +119,7 @@ class CellResolver:
                         taken_d[d] = taken_c[k] = True
                         match[d] = k
         # outer products of the normalised looks, averaged over looks
-        norm = np.linalg.norm(snapshots, axis=2, keepdims=True)
+        norm = np.sqrt(np.add.reduce((snapshots.conj() * snapshots).real, axis=2, keepdims=True))  # np.linalg.norm
         x = snapshots / np.maximum(norm, np.float32(1e-30))
         n_looks = np.maximum((norm[:, :, 0] > 0).sum(axis=1), 1).astype(np.float32)  # all-zero looks are left out
         r_new = np.einsum("nsa,nsb->nab", x, x.conj()) / n_looks[:, None, None]  # (n, rx, rx)
@@ -148,6 +148,9 @@ class CellResolver:
         c.misses[~seen] += 1
         keep = c.misses <= cfg.max_misses
         new = ~hit
+        if not new.any():
+            if keep.all():  # every detection followed a cell, no cell dropped: the table is updated in place
+                return split, angles
         self.cells = _Cells(
             range_m=np.concatenate([c.range_m[keep], range_m[new].astype(np.float64)]),
             v_mps=np.concatenate([c.v_mps[keep], v_mps[new].astype(np.float64)]),
