@@ -52,6 +52,7 @@ them until they are resolved (a 4-element array cannot resolve them in angle the
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections import deque
@@ -562,6 +563,27 @@ class PdafTracker:
         rows = zip(tr.track_id[idx].tolist(), st.tolist(), rho.tolist(), vr.tolist(), az.tolist(),
                    tr.age[idx].tolist(), tr.hits[idx].tolist(), tr.confirmed[idx].tolist(), length)
         return tuple(
-            TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=ln)
+            _track_state(tid, x, y, vx, vy, r, v, a, age, hits, conf, ln)
             for tid, (x, y, vx, vy), r, v, a, age, hits, conf, ln in rows
         )
+
+
+# every field in declaration order (the defaults of the optional ones), so ``__dict__`` is the same as
+# the dataclass constructor's
+_TRACK_STATE_DEFAULTS = {f.name: (None if f.default is dataclasses.MISSING else f.default)
+                         for f in dataclasses.fields(TrackState)}
+_TRACK_STATE_PLAIN = not hasattr(TrackState, "__post_init__") and all(
+    f.default_factory is dataclasses.MISSING for f in dataclasses.fields(TrackState))
+
+
+def _track_state(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m) -> TrackState:
+    """``TrackState(tid, x, ..., conf, length_m=length_m)`` without the frozen dataclass's per-field
+    ``object.__setattr__`` (tens of tracks per frame on the hot path; TrackState has no __post_init__)."""
+    if not _TRACK_STATE_PLAIN:
+        return TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=length_m)
+    out = object.__new__(TrackState)
+    d = out.__dict__
+    d.update(_TRACK_STATE_DEFAULTS)
+    d.update(track_id=tid, x_m=x, y_m=y, vx_mps=vx, vy_mps=vy, range_m=r, radial_speed_mps=v, az_rad=a,
+             age_frames=age, hits=hits, confirmed=conf, length_m=length_m)
+    return out
