@@ -174,10 +174,20 @@ class CellResolver:
     def _split(self, cov: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Which of the covariances ``(k, rx, rx)`` hold two resolved vehicles, and their angles."""
         cfg = self.cfg
-        w = np.linalg.eigvalsh(cov)  # ascending
+        # cheap necessary condition first (most cells hold one vehicle): for a PSD matrix lambda_1 >= F / tr
+        # (F = sum lambda^2 = squared Frobenius norm, tr = sum lambda), so lambda_2 <= tr - F / tr; a cell
+        # with tr - F / tr below half of min_eig_ratio x F / tr cannot pass the eigenvalue test below (the
+        # factor 2 keeps single-precision eigenvalue rounding, ~1e-6 lambda_1, far from the decision)
+        c64 = cov.astype(np.complex128)
+        tr = np.einsum("kii->k", c64).real
+        fro = np.einsum("kij,kij->k", c64.real, c64.real) + np.einsum("kij,kij->k", c64.imag, c64.imag)
+        maybe = np.flatnonzero((tr > 0) & (tr * tr - fro >= 0.5 * cfg.min_eig_ratio * fro))
+        if maybe.size == 0:
+            return maybe, np.zeros((0, 2), np.float32)
+        w = np.linalg.eigvalsh(cov[maybe])  # ascending
         noise = np.maximum(w[:, : self.n_rx - 2].mean(axis=1), 1e-12)
         two = (w[:, -2] >= cfg.min_eig_ratio * w[:, -1]) & (w[:, -2] >= cfg.min_noise_ratio * noise)
-        idx = np.flatnonzero(two)
+        idx = maybe[two]
         if idx.size == 0:
             return idx, np.zeros((0, 2), np.float32)
         fr = self._features(cov[idx], scale_offdiag=2.0)  # (k, 16)

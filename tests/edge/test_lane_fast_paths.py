@@ -8,6 +8,7 @@ import pytest
 from hw_sim import SIMO_BOARD
 
 from edge.dsp.angle import bartlett_consensus, steering_matrix
+from edge.dsp.resolve import CellResolver, ResolverConfig
 from edge.dsp.pairing import Pairs, PairingModel, pair_beats
 from edge.dsp.cfar import circular_pad, os_cfar, os_cfar_at, os_cfar_at_padded, reference_index
 
@@ -235,3 +236,61 @@ def test_bartlett_consensus_equals_the_plain_implementation(n_snap):
     np.testing.assert_array_equal(new[1], old[1])
     assert new[0].dtype == np.float32 and new[1].dtype == np.float32
     assert old[2].any() and ((~old[2]).any() or n_snap < 3)
+
+
+# --- resolve: the two-source test without the trace/Frobenius pre-check -------------------------------------
+
+def split_reference(self, cov: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which of the covariances ``(k, rx, rx)`` hold two resolved vehicles, and their angles."""
+    cfg = self.cfg
+    w = np.linalg.eigvalsh(cov)  # ascending
+    noise = np.maximum(w[:, : self.n_rx - 2].mean(axis=1), 1e-12)
+    two = (w[:, -2] >= cfg.min_eig_ratio * w[:, -1]) & (w[:, -2] >= cfg.min_noise_ratio * noise)
+    idx = np.flatnonzero(two)
+    if idx.size == 0:
+        return idx, np.zeros((0, 2), np.float32)
+    fr = self._features(cov[idx], scale_offdiag=2.0)  # (k, 16)
+    coarse = self._coarse[np.argmax(fr @ self._pair_feat[self._coarse].T, axis=1)]  # (k,) pair rows
+    ci, cj = self._pair_i[coarse], self._pair_j[coarse]
+    d = np.array([-1, 0, 1])
+    fi = np.clip(ci[:, None, None] + d[None, :, None], 0, self.grid.size - 1)  # (k, 3, 1)
+    fj = np.clip(cj[:, None, None] + d[None, None, :], 0, self.grid.size - 1)  # (k, 1, 3)
+    rows = self._pair_index[fi, fj].reshape(idx.size, -1)  # (k, 9), -1 where i >= j
+    rows = np.where(rows >= 0, rows, coarse[:, None])
+    fine = np.einsum("kf,kpf->kp", fr, self._pair_feat[rows])
+    best = rows[np.arange(idx.size), np.argmax(fine, axis=1)]
+    th = np.stack([self.grid[self._pair_i[best]], self.grid[self._pair_j[best]]], axis=1)
+    lateral = range_m[idx] * np.abs(np.sin(th[:, 1]) - np.sin(th[:, 0]))
+    # powers of the two fitted sources, diag(B+ R B+^H): a vehicle with a brief visitor in one of its
+    # looks (another vehicle's beat in one segment) has a strong and a faint source, not two vehicles
+    bp = self._pinv[best]  # (k, 2, rx)
+    pw = np.einsum("kar,krs,kas->ka", bp, cov[idx], bp.conj()).real
+    ratio = pw.min(axis=1) / np.maximum(pw.max(axis=1), 1e-30)
+    ok = (lateral >= cfg.min_lateral_m) & (ratio >= cfg.min_power_ratio)
+    return idx[ok], th[ok].astype(np.float32)
+
+
+def test_cell_split_equals_the_plain_implementation():
+    rng = np.random.default_rng(3)
+    grid = np.radians(np.arange(-19.0, 19.0 + 1e-9, 0.25)).astype(np.float32)
+    steer = steering_matrix(4, 0.0186, 0.01244, grid)
+    res = CellResolver(ResolverConfig(), steer, grid, 0.033)
+    covs = []
+    for k in range(600):
+        i, j = rng.integers(0, grid.size, 2)
+        p2 = rng.choice([0.0, 1e-3, 0.02, 0.05, 0.2, 0.5, 1.0])
+        noise = rng.choice([1e-4, 1e-3, 1e-2, 0.05])
+        a, b = steer[i][:, None], steer[j][:, None]
+        c = a @ a.conj().T + p2 * (b @ b.conj().T) + noise * np.eye(4)
+        w = rng.normal(size=(4, 4)) + 1j * rng.normal(size=(4, 4))
+        c = c + 0.01 * noise * (w @ w.conj().T)
+        covs.append(c / np.trace(c).real)
+    cov = np.array(covs).astype(np.complex64)
+    cov[:5] = 0.0  # empty cells
+    r = rng.uniform(20.0, 300.0, cov.shape[0])
+    new, old = res._split(cov, r), split_reference(res, cov, r)
+    np.testing.assert_array_equal(new[0], old[0])
+    np.testing.assert_array_equal(new[1], old[1])
+    assert old[0].size > 20  # splits happen
+    w = np.linalg.eigvalsh(cov)
+    assert ((w[:, -2] >= 0.05 * w[:, -1]) & (w[:, -2] < 0.2 * w[:, -1])).sum() > 20  # cells near the ratio test
