@@ -99,7 +99,7 @@ def _nearest(sorted_f: np.ndarray, order: np.ndarray, f: np.ndarray) -> tuple[np
     # a handful of peaks: one broadcast distance table beats a binary search and its clipping
     d = np.abs(f[:, None] - sorted_f[None, :])
     j = d.argmin(axis=1)  # the first minimum in frequency order: the lower of two equidistant peaks
-    return order[j], d[np.arange(f.size), j]
+    return order[j], d.min(axis=1)
 
 
 def pair_beats(
@@ -184,7 +184,7 @@ def pair_beats(
     idx = cand[keep_a]
     fm = np.concatenate([f0, f1, f2, f3])[idx + model.offsets((f0.size, f1.size, f2.size))]  # (n, 4)
     sol = fm @ model.pinv_t  # (n, 2): the least-squares (R0, v) over the four frequencies
-    res = np.sqrt(np.mean((sol @ model.matrix_t - fm) ** 2, axis=1))
+    res = np.sqrt(np.add.reduce((sol @ model.matrix_t - fm) ** 2, axis=1) / 4.0)  # RMS (np.mean)
     return Pairs(idx, sol[:, 0].astype(np.float32), sol[:, 1].astype(np.float32), res.astype(np.float32),
                  n_cand, n_ghost)
 

@@ -27,6 +27,7 @@ Detections carry ``extra["resolved_pair"]`` (>= 0: the two detections split from
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -345,7 +346,7 @@ class LanePipeline(Pipeline):
             p_rng, p_vel, p_res = pairs.range_m, pairs.radial_speed_mps, pairs.residual_hz
             # (n, 4 seg) bins: the peaks of the four segments are consecutive in ``all_bins``
             all_bins = np.concatenate(bins)
-            seg_start = np.array([0] + np.cumsum([b.size for b in bins[:-1]]).tolist())
+            seg_start = np.array(list(itertools.accumulate((b.size for b in bins[:-1]), initial=0)))
             pk = all_bins[pairs.peak_index + seg_start] if p_rng.size else np.zeros((0, 4), np.int64)
             n_aided = 0
             if self.tracker is not None and cfg.aided_pairing and len(self.tracker.tracks):
