@@ -335,7 +335,7 @@ class LanePipeline(Pipeline):
                 den = lm - 2.0 * l0 + lp
                 d = np.zeros(den.shape, np.float32)
                 np.divide(0.5 * (lm - lp), den, out=d, where=den < 0)
-                np.clip(d, np.float32(-0.5), np.float32(0.5), out=d)
+                np.minimum(np.maximum(d, np.float32(-0.5), out=d), np.float32(0.5), out=d)  # np.clip
                 f = self._freq_flat[rows * n + cols] + d * self._bin_hz[rows]
                 freqs = [f[b:e] for b, e in zip(starts, ends)]
                 bins = [cols[b:e] for b, e in zip(starts, ends)]

@@ -194,7 +194,7 @@ def heading(xp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit heading (T, 2) and weight (T,) in [0, 1] (0 when standing, 1 from 1 m/s)."""
     sp = np.hypot(xp[:, 2], xp[:, 3])
     u = xp[:, 2:4] / np.maximum(sp, 1e-9)[:, None]
-    return u, np.clip(sp, 0.0, 1.0)
+    return u, np.minimum(np.maximum(sp, 0.0), 1.0)  # np.clip, without its wrapper
 
 
 def extent_cov(xp: np.ndarray, ext_var: np.ndarray) -> np.ndarray:
@@ -244,7 +244,7 @@ class MeasurementModel:
         along_s = u[:, 0] * (s2[:, 0, 0] * u[:, 0] + s2[:, 0, 1] * u[:, 1]) + u[:, 1] * (
             s2[:, 1, 0] * u[:, 0] + s2[:, 1, 1] * u[:, 1])
         other = along_s - ext_var  # for moving tracks (w = 1) the extent adds exactly ext_var along u
-        sample = np.clip(m2 - other, 0.0, c.extent_max_sigma_m**2)
+        sample = np.minimum(np.maximum(m2 - other, 0.0), c.extent_max_sigma_m**2)
         return np.where(ok, (1.0 - c.extent_alpha) * ext_var + c.extent_alpha * sample, ext_var)
 
 
@@ -293,7 +293,7 @@ def same_vehicle_lateral_m(cfg: PdafConfig, xy: np.ndarray) -> np.ndarray:
     """(N,) lateral distance within which points at ``xy`` may be one vehicle (grows with range)."""
     r = np.hypot(xy[:, 0], xy[:, 1])
     lat = cfg.merge_lateral_sigmas * r * math.radians(cfg.azimuth_sigma_deg)
-    return np.clip(lat, cfg.merge_lateral_m, max(cfg.merge_lateral_m, cfg.merge_lateral_max_m))
+    return np.minimum(np.maximum(lat, cfg.merge_lateral_m), max(cfg.merge_lateral_m, cfg.merge_lateral_max_m))
 
 
 def same_vehicle_along_m(cfg: PdafConfig, tracks: "TrackTable") -> np.ndarray:
@@ -447,7 +447,7 @@ class TrackDeleter:
         run = np.zeros(t, np.int32)
         if boxed.any():
             run[ia[boxed]] = run[ib[boxed]] = 1
-        tracks.close_run = np.where(run > 0, tracks.close_run + 1, 0).astype(np.int32)
+        tracks.close_run = np.where(run > 0, tracks.close_run + 1, 0).astype(np.int32, copy=False)
         slow = dv_across < c.merge_lateral_speed_mps
         lasting = np.minimum(tracks.close_run[ia], tracks.close_run[ib]) >= c.merge_persist_frames
         keep = slow | (boxed & lasting)
@@ -521,8 +521,8 @@ class PdafTracker:
             used = (inn.d2 <= self.associator.exclusion_gamma[meas.z.shape[1]]).any(axis=0)
             tr.age += 1
             tr.hits += hit
-            tr.misses = np.where(hit, 0, tr.misses + 1).astype(np.int32)
-            tr.history = ((tr.history << np.uint32(1)) | hit.astype(np.uint32)).astype(np.uint32)
+            tr.misses = np.where(hit, 0, tr.misses + 1).astype(np.int32, copy=False)
+            tr.history = ((tr.history << np.uint32(1)) | hit.astype(np.uint32)).astype(np.uint32, copy=False)
             # moving for sure: the velocity is significantly non-zero (v' P_v^-1 v) and fast enough
             v = tr.x[:, 2:4]
             d2v = (v[:, None, :] @ np.linalg.solve(tr.p[:, 2:4, 2:4], v[:, :, None]))[:, 0, 0]
