@@ -232,6 +232,7 @@ class LanePipeline(Pipeline):
         self._tiny = np.float32(1e-30)
         self._seg_ends = np.arange(1, len(wf.segments) + 1)
         self._aided_window_hz = cfg.aided_window_bins * self._bin_hz  # (4,)
+        self._seg_bin0 = np.arange(len(wf.segments)) * n  # first bin of each segment in a (rx, seg * bin) view
         self._scale32 = np.float32(self.cfar_scale)
         self._model = PairingModel.from_waveform(wf)
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
@@ -359,7 +360,7 @@ class LanePipeline(Pipeline):
         with timer.stage("angle"):
             n_det = p_rng.size
             if n_det:
-                snaps = spec[:, np.arange(4)[None, :], pk]  # (rx, n, seg)
+                snaps = spec.reshape(spec.shape[0], -1).take(pk + self._seg_bin0, axis=1)  # (rx, n, seg)
                 snaps = snaps.transpose(1, 2, 0) * self._inv_cal  # (n, seg, rx)
                 az, aspec, kept = bartlett_consensus(snaps, self._steer, self._grid, math.radians(cfg.angle_outlier_deg))
                 p0 = power[0, pk[:, 0]]
