@@ -197,10 +197,10 @@ def heading(xp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, np.minimum(np.maximum(sp, 0.0), 1.0)  # np.clip, without its wrapper
 
 
-def extent_cov(xp: np.ndarray, ext_var: np.ndarray) -> np.ndarray:
+def extent_cov(xp: np.ndarray, ext_var: np.ndarray, head: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(T, 2, 2) spread of an extended vehicle's detections: ``ext_var`` along the heading
-    (isotropic while the heading is unknown)."""
-    u, w = heading(xp)
+    (isotropic while the heading is unknown). ``head``: ``heading(xp)`` if already computed."""
+    u, w = heading(xp) if head is None else head
     uu = u[:, :, None] * u[:, None, :]
     iso = np.eye(2)[None] * (1.0 - w)[:, None, None]
     return ext_var[:, None, None] * (w[:, None, None] * uu + iso)
@@ -217,13 +217,15 @@ class MeasurementModel:
     def __init__(self, cfg: PdafConfig) -> None:
         self.cfg = cfg
         self._az_sigma_rad = math.radians(cfg.azimuth_sigma_deg)
+        self._head: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None  # (xp, heading(xp))
 
     def at(self, xp: np.ndarray, with_radial_speed: bool, ext_var: np.ndarray | None = None):
         c = self.cfg
         zh, h = kalman.measurement_prediction(xp, with_radial_speed)
         rp = kalman.polar_position_noise(xp[:, :2], c.range_sigma_m, self._az_sigma_rad, c.extent_sigma_m)
         if ext_var is not None:
-            rp += extent_cov(xp, ext_var)
+            self._head = (xp, heading(xp))  # update_extent reuses it for the same prediction
+            rp += extent_cov(xp, ext_var, self._head[1])
         n = zh.shape[1]
         r = np.zeros((xp.shape[0], n, n))
         r[:, :2, :2] = rp
@@ -235,7 +237,7 @@ class MeasurementModel:
         """Learn the along-heading spread from the weighted along-heading innovations of this frame:
         ``E[a^2] - u' (H P H' + R_sensor) u``, ``R_sensor`` = ``S`` without the extent term."""
         c = self.cfg
-        u, w = heading(xp)
+        u, w = self._head[1] if self._head is not None and self._head[0] is xp else heading(xp)
         a = inn.v[:, :, 0] * u[:, None, 0] + inn.v[:, :, 1] * u[:, None, 1]  # (T, M) along-heading innovation
         wsum = beta.sum(axis=1)
         ok = (wsum > 0.5) & (w >= 1.0)
@@ -535,7 +537,8 @@ class PdafTracker:
             dead = self.deleter.delete(tr, resolved) | self.initiator.tentative_expired(tr)
             for tid in tr.track_id[dead & tr.confirmed]:
                 self.ids.release(int(tid))
-            tr.keep(~dead)
+            if dead.any():
+                tr.keep(~dead)
             self.initiator.confirm(tr, self.ids)  # after duplicates are gone: no id is spent on one
             self.intermediates = {"gated": gated, "beta0": beta0, "d2": inn.d2}
         else:
