@@ -96,10 +96,19 @@ def _nearest(sorted_f: np.ndarray, order: np.ndarray, f: np.ndarray) -> tuple[np
     distance, the lower frequency)."""
     if sorted_f.size == 0:
         return np.full(f.shape, -1), np.full(f.shape, np.inf)
-    # a handful of peaks: one broadcast distance table beats a binary search and its clipping
-    d = np.abs(f[:, None] - sorted_f[None, :])
-    j = d.argmin(axis=1)  # the first minimum in frequency order: the lower of two equidistant peaks
-    return order[j], d.min(axis=1)
+    if f.size * sorted_f.size <= 8192:
+        # a handful of peaks: one broadcast distance table beats a binary search and its clipping
+        d = np.abs(f[:, None] - sorted_f[None, :])
+        j = d.argmin(axis=1)  # the first minimum in frequency order: the lower of two equidistant peaks
+        return order[j], d.min(axis=1)
+    # dense scenes: binary search between the two neighbours (the same pick: the lower one on a tie)
+    j = np.clip(np.searchsorted(sorted_f, f), 1, max(sorted_f.size - 1, 1))
+    lo = np.clip(j - 1, 0, sorted_f.size - 1)
+    hi = np.clip(j, 0, sorted_f.size - 1)
+    d_lo = np.abs(f - sorted_f[lo])
+    d_hi = np.abs(f - sorted_f[hi])
+    pick = np.where(d_hi < d_lo, hi, lo)
+    return order[pick], np.minimum(d_lo, d_hi)
 
 
 def pair_beats(

@@ -181,6 +181,22 @@ def test_pair_beats_equals_the_plain_implementation(max_shared):
         assert n_ghost_dropped > 0  # the extended-vehicle ghost rule was exercised
 
 
+def test_nearest_peak_small_and_dense_paths_agree():
+    from edge.dsp.pairing import _nearest
+
+    rng = np.random.default_rng(2)
+    peaks = np.round(rng.uniform(-1e5, 1e5, 200))
+    peaks[5] = peaks[6] + 100.0
+    o = np.argsort(peaks)
+    tie = peaks[6] + 50.0  # exactly between two peaks: the lower one
+    for n_queries in (3, 500):  # 3 x 200 distances take the table, 500 x 200 the binary search
+        f = np.concatenate([np.round(rng.uniform(-1.2e5, 1.2e5, n_queries - 1)), [tie]])
+        j, d = _nearest(peaks[o], o, f)
+        np.testing.assert_array_equal(d, np.abs(f[:, None] - peaks[None, :]).min(axis=1))
+        np.testing.assert_array_equal(np.abs(f - peaks[j]), d)
+        assert j[-1] == 6
+
+
 # --- angle: the plain Bartlett consensus it replaced (np.median, np.errstate, copies) ----------------------
 
 def bartlett_consensus_reference(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np.ndarray,
