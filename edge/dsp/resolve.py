@@ -174,26 +174,10 @@ class CellResolver:
     def _split(self, cov: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Which of the covariances ``(k, rx, rx)`` hold two resolved vehicles, and their angles."""
         cfg = self.cfg
-        # cheap necessary condition first (most cells hold one vehicle): a Rayleigh quotient q after two
-        # power steps is a lower bound of lambda_1, and sum_{i>=2} lambda_i^2 = F - lambda_1^2 (F: squared
-        # Frobenius norm), so lambda_2 <= sqrt(F - q^2); a cell whose bound is below half of
-        # min_eig_ratio x q cannot pass the eigenvalue test below (the factor 2 keeps the single-precision
-        # eigenvalues' rounding, ~1e-7 of the trace, far from the decision). Cells with a tiny trace go on.
-        c64 = cov.astype(np.complex128)
-        tr = np.einsum("kii->k", c64).real
-        fro = np.einsum("kij,kij->k", c64.real, c64.real) + np.einsum("kij,kij->k", c64.imag, c64.imag)
-        y = c64[np.arange(cov.shape[0]), :, np.argmax(np.einsum("kii->ki", c64).real, axis=1)][:, :, None]
-        y = c64 @ (c64 @ y)  # (k, rx, 1)
-        z = c64 @ y
-        q = np.maximum((y.conj() * z).real.sum(axis=(1, 2)) / np.maximum((y.conj() * y).real.sum(axis=(1, 2)), 1e-300), 0.0)
-        lam2 = np.sqrt(np.maximum(fro - q * q, 0.0))
-        maybe = np.flatnonzero((tr > 1e-3) & (lam2 >= 0.5 * cfg.min_eig_ratio * q) | (tr > 0) & (tr <= 1e-3))
-        if maybe.size == 0:
-            return maybe, np.zeros((0, 2), np.float32)
-        w = np.linalg.eigvalsh(cov[maybe])  # ascending
+        w = np.linalg.eigvalsh(cov)  # ascending
         noise = np.maximum(np.add.reduce(w[:, : self.n_rx - 2], axis=1) / (self.n_rx - 2), 1e-12)  # np.mean
         two = (w[:, -2] >= cfg.min_eig_ratio * w[:, -1]) & (w[:, -2] >= cfg.min_noise_ratio * noise)
-        idx = maybe[two]
+        idx = np.flatnonzero(two)
         if idx.size == 0:
             return idx, np.zeros((0, 2), np.float32)
         fr = self._features(cov[idx], scale_offdiag=2.0)  # (k, 16)

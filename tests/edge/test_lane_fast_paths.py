@@ -254,7 +254,7 @@ def test_bartlett_consensus_equals_the_plain_implementation(n_snap):
     assert old[2].any() and ((~old[2]).any() or n_snap < 3)
 
 
-# --- resolve: the two-source test without the trace/Frobenius pre-check -------------------------------------
+# --- resolve: the two-source test as it was (np.mean) --------------------------------------------------------
 
 def split_reference(self, cov: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Which of the covariances ``(k, rx, rx)`` hold two resolved vehicles, and their angles."""
