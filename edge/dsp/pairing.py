@@ -147,7 +147,7 @@ def pair_beats(
     if n_conf == 0:
         e = np.zeros(0, np.float32)
         return Pairs(np.zeros((0, 4), np.int64), e, e, e, n_cand, n_ghost)
-    cand = np.stack([i0, i1, j2, j3], axis=1)[conf]  # (n, 4)
+    cand = np.array([i0, i1, j2, j3]).T[conf]  # (n, 4)
     vel = vel[conf]
     cost = (d2[conf] / tolerance_hz[0]) ** 2 + (d3[conf] / tolerance_hz[1]) ** 2
     # greedy, best slow agreement first (a handful of candidates): a candidate may share at most

@@ -134,7 +134,7 @@ class CellResolver:
             c.range_m[k] = range_m[hit]
             c.v_mps[k] = v_mps[hit]
             c.misses[k] = 0
-            ready = np.flatnonzero(hit)[(c.n[k] >= cfg.min_frames) & (np.abs(v_mps[hit]) >= cfg.min_speed_mps)]
+            ready = hit.nonzero()[0][(c.n[k] >= cfg.min_frames) & (np.abs(v_mps[hit]) >= cfg.min_speed_mps)]
             now = np.zeros(n_det, bool)
             if ready.size:
                 split_idx, ang = self._split(c.cov[match[ready]], range_m[ready])
@@ -142,7 +142,7 @@ class CellResolver:
                 angles[ready[split_idx]] = ang
             c.streak[k] = np.where(now[hit], c.streak[k] + 1, 0)
             # a cell split in a few frames in a row only (a passing vehicle's echo in one look is brief)
-            split[np.flatnonzero(hit)] = now[hit] & (c.streak[k] >= cfg.min_split_frames)
+            split[hit.nonzero()[0]] = now[hit] & (c.streak[k] >= cfg.min_split_frames)
             angles[~split] = np.nan
         # age, drop, create
         c.misses[~seen] += 1
@@ -177,7 +177,7 @@ class CellResolver:
         w = np.linalg.eigvalsh(cov)  # ascending
         noise = np.maximum(np.add.reduce(w[:, : self.n_rx - 2], axis=1) / (self.n_rx - 2), 1e-12)  # np.mean
         two = (w[:, -2] >= cfg.min_eig_ratio * w[:, -1]) & (w[:, -2] >= cfg.min_noise_ratio * noise)
-        idx = np.flatnonzero(two)
+        idx = two.nonzero()[0]
         if idx.size == 0:
             return idx, np.zeros((0, 2), np.float32)
         fr = self._features(cov[idx], scale_offdiag=2.0)  # (k, 16)

@@ -314,7 +314,7 @@ class LanePipeline(Pipeline):
                 is_max = power > ppad[:, h - 1:h - 1 + n]
                 is_max &= power >= ppad[:, h + 1:h + 1 + n]
                 is_max &= self._valid
-                flat = np.flatnonzero(is_max)
+                flat = is_max.reshape(-1).nonzero()[0]
                 rows, cols = np.divmod(flat, n)
                 nz, cells = os_cfar_at_padded(ppad, rows, cols, cfg.cfar_train_cells, cfg.cfar_guard_cells,
                                               self._rank)
@@ -371,7 +371,7 @@ class LanePipeline(Pipeline):
                 az = snr_db = np.zeros(0, np.float32)
                 aspec = np.zeros((0, self._grid.size), np.float32)
                 kept = np.zeros((0, 4), bool)
-            keep = np.flatnonzero(kept.sum(axis=1) >= cfg.angle_min_agreeing) if n_det else np.zeros(0, np.int64)
+            keep = (kept.sum(axis=1) >= cfg.angle_min_agreeing).nonzero()[0] if n_det else np.zeros(0, np.int64)
             rng, vel, res = p_rng[keep], p_vel[keep], p_res[keep]
             az, snr_db = az[keep], snr_db[keep]
             pair_of = np.full(keep.size, -1, np.int32)
@@ -384,7 +384,7 @@ class LanePipeline(Pipeline):
                 if split.any() and self.traffic is not None and self.traffic.lanes:
                     split &= self._split_straddles_lanes(rng, ang)
                 if split.any():  # each split detection becomes two, one per angle, half the power each
-                    s_idx = np.flatnonzero(split)
+                    s_idx = split.nonzero()[0]
                     az = az.copy()
                     az[s_idx] = ang[s_idx, 0]
                     pair_of[s_idx] = s_idx
@@ -435,7 +435,7 @@ class LanePipeline(Pipeline):
         cfg = self.config
         tr = self.tracker.tracks
         empty = (np.zeros((0, 4), np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.float32))
-        sel = np.flatnonzero(tr.confirmed)
+        sel = tr.confirmed.nonzero()[0]
         if sel.size == 0 or self.tracker.last_t_ns is None:
             return empty
         dt = max((t_ns - self.tracker.last_t_ns) * 1e-9, 0.0)
@@ -449,7 +449,7 @@ class LanePipeline(Pipeline):
             near = (np.abs(pairs.range_m[None, :] - r_hat[:, None]) < cfg.aided_gate_m) & (
                 np.abs(pairs.radial_speed_mps[None, :] - v_hat[:, None]) < cfg.aided_gate_mps)
             ok &= ~near.any(axis=1)
-        idx = np.flatnonzero(ok)
+        idx = ok.nonzero()[0]
         if idx.size == 0:
             return empty
         r_hat, v_hat = r_hat[idx], v_hat[idx]
@@ -485,7 +485,7 @@ class LanePipeline(Pipeline):
         sol = np.linalg.solve(nrm, rhs[:, :, None])[:, :, 0]  # (g, 2): range, speed
         resid = np.sqrt((w * (fs - sol @ A.T) ** 2).sum(axis=1) / w.sum(axis=1))
         close = (np.abs(sol[:, 0] - r_hat[good]) < cfg.aided_gate_m) & (np.abs(sol[:, 1] - v_hat[good]) < cfg.aided_gate_mps)
-        g = np.flatnonzero(good)[close]
+        g = good.nonzero()[0][close]
         return (out_bins[g], sol[close, 0].astype(np.float32), sol[close, 1].astype(np.float32),
                 resid[close].astype(np.float32))
 

@@ -159,9 +159,12 @@ class Measurements:
         if use:
             rho = np.hypot(x, y)
             ratio = np.divide(rng, rho, out=np.ones_like(rho), where=rho > 1e-6)
-            z = np.stack([x, y, vr * ratio], axis=1)
+            z = np.empty((x.size, 3))
+            z[:, 2] = vr * ratio
         else:
-            z = np.stack([x, y], axis=1)
+            z = np.empty((x.size, 2))
+        z[:, 0] = x
+        z[:, 1] = y
         pair = det.extra.get("resolved_pair")
         if pair is not None and len(pair) == ok.size:
             pair = np.asarray(pair, dtype=np.int64)
@@ -331,7 +334,7 @@ class MofNInitiator:
                 vr_t = (tracks.x[:, 0] * tracks.x[:, 2] + tracks.x[:, 1] * tracks.x[:, 3]) / rho_t
                 near &= np.abs(vr_t[:, None] - z[None, :, 2]) < c.seed_merge_speed_mps
             cand &= ~near.any(axis=0)
-        idx = np.flatnonzero(cand)
+        idx = cand.nonzero()[0]
         if idx.size == 0:
             return 0
         # one seed per vehicle: drop a candidate when a stronger one lies in its merge box
@@ -372,7 +375,7 @@ class MofNInitiator:
         recent = tracks.history & self._mask_n
         counts = np.bitwise_count(recent)
         ready = ~tracks.confirmed & (counts >= c.confirm_m) & tracks.moved
-        for i in np.flatnonzero(ready):
+        for i in ready.nonzero()[0]:
             tid = ids.acquire()
             if tid is None:
                 log.warning("no free track id (max %d): track stays tentative", c.max_track_id)
@@ -458,10 +461,10 @@ class TrackDeleter:
         ia, ib, boxed, dx = ia[keep], ib[keep], boxed[keep], dx[keep]
         close = boxed
         ext = extent_cov(x, tracks.ext_var)
-        pd = np.stack([tracks.p[:, 0, 0] + ext[:, 0, 0], tracks.p[:, 1, 1] + ext[:, 1, 1]], axis=1)  # (T, 2)
+        pd = np.array([tracks.p[:, 0, 0] + ext[:, 0, 0], tracks.p[:, 1, 1] + ext[:, 1, 1]]).T  # (T, 2)
         # a marginal Mahalanobis distance never exceeds the joint one: prune before the 4x4 solves
         marg = (dx[:, :2] ** 2 < self._state_gamma * (pd[ia] + pd[ib])).all(axis=1)
-        rest = np.flatnonzero(~close & marg)
+        rest = (~close & marg).nonzero()[0]
         if rest.size:
             ja, jb = ia[rest], ib[rest]
             psum = tracks.p[ja] + tracks.p[jb]
@@ -551,7 +554,7 @@ class PdafTracker:
         tr = self.tracks
         sel = np.ones(len(tr), dtype=bool) if self.config.publish_tentative else tr.confirmed.copy()
         sel &= tr.misses <= self.config.publish_max_misses
-        idx = np.flatnonzero(sel)
+        idx = sel.nonzero()[0]
         if idx.size == 0:
             return ()
         st = tr.x[idx]
