@@ -128,7 +128,8 @@ def os_cfar_at_padded(padded: np.ndarray, rows: np.ndarray, cols: np.ndarray, n_
     width = 2 * half + 1
     r, c = padded.shape
     s0, s1 = padded.strides
-    windows = np.lib.stride_tricks.as_strided(padded, (r, c - width + 1, width), (s0, s1, s1), writeable=False)
+    # every cell's window as a strided view (np.ndarray directly: as_strided's wrapper costs more than the gather)
+    windows = np.ndarray((r, c - width + 1, width), np.float32, padded, 0, (s0, s1, s1))
     win = windows[rows, cols]  # (n, width) copy; column half is the cell under test
     cells = win[:, half - 1:half + 2].copy()
     iv = win.view(np.int32)
