@@ -200,12 +200,15 @@ def heading(xp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, np.minimum(np.maximum(sp, 0.0), 1.0)  # np.clip, without its wrapper
 
 
+_EYE2 = np.eye(2)[None]  # (1, 2, 2)
+
+
 def extent_cov(xp: np.ndarray, ext_var: np.ndarray, head: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(T, 2, 2) spread of an extended vehicle's detections: ``ext_var`` along the heading
     (isotropic while the heading is unknown). ``head``: ``heading(xp)`` if already computed."""
     u, w = heading(xp) if head is None else head
     uu = u[:, :, None] * u[:, None, :]
-    iso = np.eye(2)[None] * (1.0 - w)[:, None, None]
+    iso = _EYE2 * (1.0 - w)[:, None, None]
     return ext_var[:, None, None] * (w[:, None, None] * uu + iso)
 
 
@@ -460,12 +463,17 @@ class TrackDeleter:
             return out
         ia, ib, boxed, dx = ia[keep], ib[keep], boxed[keep], dx[keep]
         close = boxed
-        ext = extent_cov(x, tracks.ext_var)
-        pd = np.array([tracks.p[:, 0, 0] + ext[:, 0, 0], tracks.p[:, 1, 1] + ext[:, 1, 1]]).T  # (T, 2)
+        # the diagonal of extent_cov(x, ext_var) (the whole matrices only for the pairs that need a solve)
+        head = heading(x)
+        u, w = head
+        iso = 1.0 - w
+        pd = np.array([tracks.p[:, 0, 0] + tracks.ext_var * (w * (u[:, 0] * u[:, 0]) + iso),
+                       tracks.p[:, 1, 1] + tracks.ext_var * (w * (u[:, 1] * u[:, 1]) + iso)]).T  # (T, 2)
         # a marginal Mahalanobis distance never exceeds the joint one: prune before the 4x4 solves
         marg = (dx[:, :2] ** 2 < self._state_gamma * (pd[ia] + pd[ib])).all(axis=1)
         rest = (~close & marg).nonzero()[0]
         if rest.size:
+            ext = extent_cov(x, tracks.ext_var, head)
             ja, jb = ia[rest], ib[rest]
             psum = tracks.p[ja] + tracks.p[jb]
             psum[:, :2, :2] += ext[ja] + ext[jb]
