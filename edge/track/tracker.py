@@ -582,22 +582,25 @@ class PdafTracker:
         )
 
 
-# every field in declaration order (the defaults of the optional ones), so ``__dict__`` is the same as
-# the dataclass constructor's
-_TRACK_STATE_DEFAULTS = {f.name: (None if f.default is dataclasses.MISSING else f.default)
-                         for f in dataclasses.fields(TrackState)}
-_TRACK_STATE_PLAIN = not hasattr(TrackState, "__post_init__") and all(
-    f.default_factory is dataclasses.MISSING for f in dataclasses.fields(TrackState))
+_TRACK_STATE_FIELDS = ("track_id", "x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps", "az_rad",
+                       "age_frames", "hits", "confirmed", "lane", "cls", "class_probability", "rcs_dbsm", "length_m")
+# the fast path below knows TrackState's fields; if they change (or it gains a __post_init__ or a factory
+# default), the plain constructor is used
+_TRACK_STATE_PLAIN = (tuple(f.name for f in dataclasses.fields(TrackState)) == _TRACK_STATE_FIELDS
+                      and not hasattr(TrackState, "__post_init__")
+                      and all(f.default is None for f in dataclasses.fields(TrackState)[11:15]))
+_new_object = object.__new__
+_set_dict = object.__setattr__
 
 
 def _track_state(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m) -> TrackState:
     """``TrackState(tid, x, ..., conf, length_m=length_m)`` without the frozen dataclass's per-field
-    ``object.__setattr__`` (tens of tracks per frame on the hot path; TrackState has no __post_init__)."""
+    ``object.__setattr__`` (tens of tracks per frame on the hot path); the same ``__dict__``."""
     if not _TRACK_STATE_PLAIN:
         return TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=length_m)
-    out = object.__new__(TrackState)
-    d = out.__dict__
-    d.update(_TRACK_STATE_DEFAULTS)
-    d.update(track_id=tid, x_m=x, y_m=y, vx_mps=vx, vy_mps=vy, range_m=r, radial_speed_mps=v, az_rad=a,
-             age_frames=age, hits=hits, confirmed=conf, length_m=length_m)
+    out = _new_object(TrackState)
+    _set_dict(out, "__dict__", {
+        "track_id": tid, "x_m": x, "y_m": y, "vx_mps": vx, "vy_mps": vy, "range_m": r, "radial_speed_mps": v,
+        "az_rad": a, "age_frames": age, "hits": hits, "confirmed": conf, "lane": None, "cls": None,
+        "class_probability": None, "rcs_dbsm": None, "length_m": length_m})
     return out
