@@ -24,6 +24,8 @@ numbered 0, 1, ... from the most negative offset (left) to the right, like ``[[l
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -159,6 +161,10 @@ class YawEstimator:
         if votes.size + live.size < self.cfg.yaw_min_tracks:
             return None
         top = float(w.max()) if w.size else 1.0
+        if votes.size + live.size <= 64:  # a handful of tracks: the same weighted median in plain Python
+            pairs = sorted(zip(votes.tolist() + live.tolist(), [top] * votes.size + w.tolist()), key=lambda p: p[0])
+            cw = list(itertools.accumulate(p[1] for p in pairs))
+            return pairs[bisect.bisect_left(cw, 0.5 * cw[-1])][0]
         allv = np.concatenate([votes, live])
         allw = np.concatenate([np.full(votes.size, top), w])
         o = np.argsort(allv)

@@ -326,3 +326,30 @@ def test_published_track_states_equal_the_dataclass_constructor():
         assert fast.lane is None  # the original is untouched
     with pytest.raises(AttributeError):  # still frozen
         fast.x_m = 0.0
+
+
+def test_start_up_yaw_weighted_median_equals_the_numpy_one():
+    from edge.traffic import TrafficConfig
+    from edge.traffic.lanes import YawEstimator
+
+    rng = np.random.default_rng(5)
+    est = YawEstimator(TrafficConfig())
+    n_checked = 0
+    for frame in range(120):
+        ids = np.arange(1, 9)
+        x = np.array([-5.25, -1.75, 1.75, 5.25] * 2) + 0.03 * frame * rng.normal(0.05, 0.02, 8) + rng.normal(0, 0.1, 8)
+        y = 40.0 + np.arange(8) * 20.0 + 0.8 * frame
+        est.add(ids, np.full(8, frame + 1), x, y)
+        got = est.estimate_rad()
+        votes = np.fromiter(est._votes, dtype=float)
+        live, w = est.live_votes_weighted()
+        if votes.size + live.size < TrafficConfig().yaw_min_tracks:
+            assert got is None
+            continue
+        allv = np.concatenate([votes, live])
+        allw = np.concatenate([np.full(votes.size, w.max() if w.size else 1.0), w])
+        o = np.argsort(allv)
+        cw = np.cumsum(allw[o])
+        assert got == float(allv[o][np.searchsorted(cw, 0.5 * cw[-1])])
+        n_checked += 1
+    assert n_checked > 50
