@@ -65,10 +65,14 @@ def bartlett_consensus(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np
     if n_det == 0:
         return np.zeros(0, np.float32), np.zeros((0, grid_rad.size), np.float32), np.zeros((0, n_snap), bool)
     y = snapshots @ steering.conj().T  # (n_det, n_snap, n_grid)
-    p = (y.real * y.real + y.imag * y.imag).astype(np.float32)
+    p = y.real * y.real
+    p += y.imag * y.imag  # float32
     p /= np.maximum(p.max(axis=2, keepdims=True), np.float32(1e-30))
     each = grid_rad[np.argmax(p, axis=2)]  # (n_det, n_snap)
-    med = np.median(each, axis=1, keepdims=True)
+    # median over the few snapshots (np.median's value: the middle one, or the mean of the middle two)
+    srt = np.sort(each, axis=1)
+    h = n_snap // 2
+    med = srt[:, h:h + 1] if n_snap % 2 else (srt[:, h - 1:h] + srt[:, h:h + 1]) / 2
     kept = np.abs(each - med) <= outlier_rad
     spec = (p * kept[..., None]).sum(axis=1)
     k = np.argmax(spec, axis=1)
@@ -76,8 +80,9 @@ def bartlett_consensus(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np
     rows = np.arange(n_det)
     pm, p0, pp = spec[rows, kk - 1], spec[rows, kk], spec[rows, kk + 1]
     den = pm - 2.0 * p0 + pp
-    with np.errstate(divide="ignore", invalid="ignore"):
-        d = np.where((den < 0) & (k == kk), 0.5 * (pm - pp) / den, 0.0)
+    inner = k == kk
+    d = np.zeros(den.shape, den.dtype)
+    np.divide(0.5 * (pm - pp), den, out=d, where=(den < 0) & inner)
     step = grid_rad[1] - grid_rad[0]
-    az = np.where(k == kk, grid_rad[kk] + np.clip(d, -0.5, 0.5) * step, grid_rad[k])
-    return az.astype(np.float32), spec.astype(np.float32), kept
+    az = np.where(inner, grid_rad[kk] + np.minimum(np.maximum(d, -0.5), 0.5) * step, grid_rad[k])
+    return az.astype(np.float32, copy=False), spec.astype(np.float32, copy=False), kept

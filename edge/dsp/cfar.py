@@ -94,3 +94,45 @@ def os_cfar_at(power: np.ndarray, rows: np.ndarray, cols: np.ndarray, ref_index:
         return np.zeros(0, np.float32)
     ref = power[rows[:, None], ref_index[cols]]  # (n, n_ref)
     return np.partition(ref, rank - 1, axis=-1)[:, rank - 1]
+
+
+def circular_pad(power: np.ndarray, half: int) -> np.ndarray:
+    """``(rows, n_bins + 2 half)`` copy of ``power`` ``(rows, n_bins)`` with ``half`` bins of circular
+    wrap-around on each side (the layout :func:`os_cfar_at_padded` reads)."""
+    n = power.shape[-1]
+    out = np.empty(power.shape[:-1] + (n + 2 * half,), dtype=power.dtype)
+    out[..., half:half + n] = power
+    out[..., :half] = power[..., n - half:]
+    out[..., half + n:] = power[..., :half]
+    return out
+
+
+def os_cfar_at_padded(padded: np.ndarray, rows: np.ndarray, cols: np.ndarray, n_train: int, n_guard: int,
+                      rank: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`os_cfar_at` on a circularly padded power array (:func:`circular_pad` with
+    ``half = n_train + n_guard``), plus each cell's power and its two neighbours.
+
+    ``padded``: float32 ``(n_rows, n_bins + 2 half)``, non-negative (a power); ``rows``, ``cols``: int
+    ``(n,)`` cells in unpadded bin numbers. Returns ``(noise (n,) float32, cells (n, 3) float32)`` with
+    ``cells[:, 1]`` the power of the cell under test and ``cells[:, 0]``, ``cells[:, 2]`` its circular
+    neighbours. ``noise`` equals :func:`os_cfar_at`'s exactly: one gather of every cell's whole window
+    (reference, guard and cell under test), the guard cells and the cell under test set below every
+    power, one in-place row sort; for non-negative float32 the order of the bit patterns as int32 is
+    the order of the values, and numpy sorts int32 rows fastest.
+    """
+    half = n_train + n_guard
+    if rows.size == 0:
+        return np.zeros(0, np.float32), np.zeros((0, 3), np.float32)
+    if padded.dtype != np.float32 or not padded.flags.c_contiguous:
+        padded = np.ascontiguousarray(padded, dtype=np.float32)
+    width = 2 * half + 1
+    r, c = padded.shape
+    s0, s1 = padded.strides
+    # every cell's window as a strided view (np.ndarray directly: as_strided's wrapper costs more than the gather)
+    windows = np.ndarray((r, c - width + 1, width), np.float32, padded, 0, (s0, s1, s1))
+    win = windows[rows, cols]  # (n, width) copy; column half is the cell under test
+    cells = win[:, half - 1:half + 2].copy()
+    iv = win.view(np.int32)
+    iv[:, n_train:n_train + 2 * n_guard + 1] = -1  # below every non-negative float's bit pattern
+    iv.sort(axis=1)
+    return win[:, rank - 1 + 2 * n_guard + 1], cells

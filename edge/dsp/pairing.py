@@ -33,6 +33,7 @@ Pairing (vectorised over all candidate pairs):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -61,6 +62,22 @@ class PairingModel:
         """``(..., 4)`` beat frequencies of targets at ``range_m`` with radial speed ``v_mps``."""
         return range_m[..., None] * self.a + v_mps[..., None] * self.b
 
+    @cached_property
+    def matrix_t(self) -> np.ndarray:
+        """``(2, 4)``: ``[R0, v] @ matrix_t`` are the four beat frequencies."""
+        return np.stack([self.a, self.b])
+
+    @cached_property
+    def pinv_t(self) -> np.ndarray:
+        """``(4, 2)``: ``f @ pinv_t`` is the least-squares ``[R0, v]`` of four beat frequencies ``f``."""
+        return np.ascontiguousarray(np.linalg.pinv(self.matrix_t.T).T)
+
+    @staticmethod
+    def offsets(sizes: tuple[int, int, int]) -> np.ndarray:
+        """``(4,)`` start of each segment's peaks in the concatenation of the four lists."""
+        s0, s1, s2 = sizes
+        return np.array([0, s0, s0 + s1, s0 + s1 + s2])
+
 
 @dataclass(frozen=True)
 class Pairs:
@@ -75,9 +92,16 @@ class Pairs:
 
 
 def _nearest(sorted_f: np.ndarray, order: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Index (into the unsorted list) and distance of the nearest peak to each ``f``."""
+    """Index (into the unsorted list) and distance of the nearest peak to each ``f`` (of two at the same
+    distance, the lower frequency)."""
     if sorted_f.size == 0:
         return np.full(f.shape, -1), np.full(f.shape, np.inf)
+    if f.size * sorted_f.size <= 8192:
+        # a handful of peaks: one broadcast distance table beats a binary search and its clipping
+        d = np.abs(f[:, None] - sorted_f[None, :])
+        j = d.argmin(axis=1)  # the first minimum in frequency order: the lower of two equidistant peaks
+        return order[j], d.min(axis=1)
+    # dense scenes: binary search between the two neighbours (the same pick: the lower one on a tie)
     j = np.clip(np.searchsorted(sorted_f, f), 1, max(sorted_f.size - 1, 1))
     lo = np.clip(j - 1, 0, sorted_f.size - 1)
     hi = np.clip(j, 0, sorted_f.size - 1)
@@ -104,70 +128,74 @@ def pair_beats(
     down, slow up, slow down). ``tolerance_hz``: allowed mismatch in the slow up / slow down segment.
     """
     f0, f1, f2, f3 = (np.asarray(f, dtype=np.float64) for f in freqs)
-    a, b = model.a, model.b
-    det = a[0] * b[1] - a[1] * b[0]
+    a0, a1, a2, a3 = model.a.tolist()
+    b0, b1, b2, b3 = model.b.tolist()
+    det = a0 * b1 - a1 * b0
     # solve [a0 b0; a1 b1] [R; v] = [f0; f1] for every (up, down) combination
-    F0, F1 = np.meshgrid(f0, f1, indexing="ij")  # (n0, n1)
-    rng = (F0 * b[1] - F1 * b[0]) / det
-    vel = (a[0] * F1 - a[1] * F0) / det
+    rng = (f0[:, None] * b1 - f1[None, :] * b0) / det  # (n0, n1)
+    vel = (a0 * f1[None, :] - a1 * f0[:, None]) / det
     ok = (rng >= min_range_m) & (rng <= max_range_m) & (np.abs(vel) <= max_speed_mps)
     i0, i1 = np.nonzero(ok)
     n_cand = int(i0.size)
     rng, vel = rng[i0, i1], vel[i0, i1]
-    pred = model.predict(rng, vel)  # (n, 4)
     o2, o3 = np.argsort(f2), np.argsort(f3)
-    j2, d2 = _nearest(f2[o2], o2, pred[:, 2])
-    j3, d3 = _nearest(f3[o3], o3, pred[:, 3])
+    j2, d2 = _nearest(f2[o2], o2, rng * a2 + vel * b2)  # eqs. 13-14: where the slow segments must see it
+    j3, d3 = _nearest(f3[o3], o3, rng * a3 + vel * b3)
     conf = (d2 <= tolerance_hz[0]) & (d3 <= tolerance_hz[1])
-    n_ghost = int(n_cand - conf.sum())
-    i0, i1, j2, j3, vel = i0[conf], i1[conf], j2[conf], j3[conf], vel[conf]
+    n_conf = int(np.count_nonzero(conf))
+    n_ghost = n_cand - n_conf
+    if n_conf == 0:
+        e = np.zeros(0, np.float32)
+        return Pairs(np.zeros((0, 4), np.int64), e, e, e, n_cand, n_ghost)
+    cand = np.array([i0, i1, j2, j3]).T[conf]  # (n, 4)
+    vel = vel[conf]
     cost = (d2[conf] / tolerance_hz[0]) ** 2 + (d3[conf] / tolerance_hz[1]) ** 2
     # greedy, best slow agreement first (a handful of candidates): a candidate may share at most
     # ``max_shared`` of its four peaks with pairs already accepted (two vehicles whose beats coincide in
     # one segment are both kept; the cross-pairings of one vehicle's scatterers share two or more)
-    # A candidate none of whose peaks any other candidate uses can neither be blocked nor block: accepted
-    # up front; the loop runs over the rest only (same result as the plain greedy, a fraction of the work)
-    cand = np.stack([i0, i1, j2, j3], axis=1)  # (n, 4)
-    alone = np.ones(cand.shape[0], bool)
-    for s, sz in enumerate((f0.size, f1.size, f2.size, f3.size)):
-        alone &= np.bincount(cand[:, s], minlength=sz)[cand[:, s]] == 1
-    used: list[set[int]] = [set(), set(), set(), set()]
-    keep = np.flatnonzero(alone).tolist()
-    rest = np.flatnonzero(~alone)
-    for n, pk in zip(rest[np.argsort(cost[rest], kind="stable")].tolist(),
-                     cand[rest[np.argsort(cost[rest], kind="stable")]].tolist()):
-        if sum(k in u for u, k in zip(used, pk)) <= max_shared:
-            for u, k in zip(used, pk):
-                u.add(k)
+    order = np.argsort(cost, kind="stable")
+    u0: dict[int, int] = {}
+    u1: dict[int, int] = {}
+    u2: dict[int, int] = {}
+    u3: dict[int, int] = {}
+    keep: list[int] = []
+    rows: list[list[int]] = []
+    for n, (p0, p1, p2, p3) in zip(order.tolist(), cand[order].tolist()):
+        if (p0 in u0) + (p1 in u1) + (p2 in u2) + (p3 in u3) <= max_shared:
+            u0[p0] = u0.get(p0, 0) + 1
+            u1[p1] = u1.get(p1, 0) + 1
+            u2[p2] = u2.get(p2, 0) + 1
+            u3[p3] = u3.get(p3, 0) + 1
             keep.append(n)
-    keep = np.sort(np.asarray(keep, dtype=np.int64)) if keep else np.zeros(0, np.int64)
-    keep = keep[np.argsort(cost[keep], kind="stable")]  # acceptance order, as the plain greedy
-    if keep.size > 2 and max_shared > 0 and ghost_speed_mps > 0:
+            rows.append([p0, p1, p2, p3])
+    keep_a = np.array(keep, dtype=np.int64)  # acceptance order
+    # peaks each accepted pair shares with the other accepted pairs
+    shared = [u0[p0] + u1[p1] + u2[p2] + u3[p3] - 4 for p0, p1, p2, p3 in rows]
+    if len(keep) > 2 and max_shared > 0 and ghost_speed_mps > 0 and max(shared) > max_shared:
         # a wrong pairing on an extended vehicle (the up peak of one scatterer with the down peak of another,
         # confirmed by other scatterers' slow peaks) may be accepted first; once the true pairs of those
         # scatterers are in, it shares two or more of its peaks with them, and its speed is off theirs by
         # 0.8 m/s per metre between the scatterers, while the two true pairs agree with each other: drop
         # it (the true pair of a near vehicle whose smeared peaks give ghosts on both sides stays)
-        pk = np.stack([i0[keep], i1[keep], j2[keep], j3[keep]], axis=1)  # (k, 4)
+        pk = cand[keep_a]  # (k, 4)
         share = (pk[:, None, :] == pk[None, :, :]).sum(axis=2)  # (k, k) peaks in common
         np.fill_diagonal(share, 0)
-        vk = vel[keep]
+        vk = vel[keep_a]
         dv = np.abs(vk[:, None] - vk[None, :])
         m = ((share > 0) & (dv > ghost_speed_mps)).astype(np.int64)  # partners at another speed
         agree = (dv <= ghost_speed_mps).astype(np.int64)  # ... which agree with each other
         np.fill_diagonal(agree, 0)
         ghost = (share.sum(axis=1) > max_shared) & ((m @ agree) * m).any(axis=1)
-        keep = keep[~ghost]
-    idx = np.stack([i0[keep], i1[keep], j2[keep], j3[keep]], axis=1) if keep.size else np.zeros((0, 4), np.int64)
-    if keep.size:
-        fm = np.stack([f0[idx[:, 0]], f1[idx[:, 1]], f2[idx[:, 2]], f3[idx[:, 3]]], axis=1)  # (n, 4)
-        A = np.stack([a, b], axis=1)  # (4, 2)
-        sol, *_ = np.linalg.lstsq(A, fm.T, rcond=None)  # (2, n)
-        res = np.sqrt(np.mean((A @ sol - fm.T) ** 2, axis=0))
-        r_out, v_out = sol[0], sol[1]
-    else:
-        r_out = v_out = res = np.zeros(0)
-    return Pairs(idx, r_out.astype(np.float32), v_out.astype(np.float32), res.astype(np.float32), n_cand, n_ghost)
+        keep_a = keep_a[~ghost]
+    if keep_a.size == 0:
+        e = np.zeros(0, np.float32)
+        return Pairs(np.zeros((0, 4), np.int64), e, e, e, n_cand, n_ghost)
+    idx = cand[keep_a]
+    fm = np.concatenate([f0, f1, f2, f3])[idx + model.offsets((f0.size, f1.size, f2.size))]  # (n, 4)
+    sol = fm @ model.pinv_t  # (n, 2): the least-squares (R0, v) over the four frequencies
+    res = np.sqrt(np.add.reduce((sol @ model.matrix_t - fm) ** 2, axis=1) / 4.0)  # RMS (np.mean)
+    return Pairs(idx, sol[:, 0].astype(np.float32), sol[:, 1].astype(np.float32), res.astype(np.float32),
+                 n_cand, n_ghost)
 
 
 def nearest_of_clusters(range_m: np.ndarray, v_mps: np.ndarray, x_m: np.ndarray, *, length_m: float,

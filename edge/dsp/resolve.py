@@ -119,7 +119,7 @@ class CellResolver:
                         taken_d[d] = taken_c[k] = True
                         match[d] = k
         # outer products of the normalised looks, averaged over looks
-        norm = np.linalg.norm(snapshots, axis=2, keepdims=True)
+        norm = np.sqrt(np.add.reduce((snapshots.conj() * snapshots).real, axis=2, keepdims=True))  # np.linalg.norm
         x = snapshots / np.maximum(norm, np.float32(1e-30))
         n_looks = np.maximum((norm[:, :, 0] > 0).sum(axis=1), 1).astype(np.float32)  # all-zero looks are left out
         r_new = np.einsum("nsa,nsb->nab", x, x.conj()) / n_looks[:, None, None]  # (n, rx, rx)
@@ -134,7 +134,7 @@ class CellResolver:
             c.range_m[k] = range_m[hit]
             c.v_mps[k] = v_mps[hit]
             c.misses[k] = 0
-            ready = np.flatnonzero(hit)[(c.n[k] >= cfg.min_frames) & (np.abs(v_mps[hit]) >= cfg.min_speed_mps)]
+            ready = hit.nonzero()[0][(c.n[k] >= cfg.min_frames) & (np.abs(v_mps[hit]) >= cfg.min_speed_mps)]
             now = np.zeros(n_det, bool)
             if ready.size:
                 split_idx, ang = self._split(c.cov[match[ready]], range_m[ready])
@@ -142,12 +142,15 @@ class CellResolver:
                 angles[ready[split_idx]] = ang
             c.streak[k] = np.where(now[hit], c.streak[k] + 1, 0)
             # a cell split in a few frames in a row only (a passing vehicle's echo in one look is brief)
-            split[np.flatnonzero(hit)] = now[hit] & (c.streak[k] >= cfg.min_split_frames)
+            split[hit.nonzero()[0]] = now[hit] & (c.streak[k] >= cfg.min_split_frames)
             angles[~split] = np.nan
         # age, drop, create
         c.misses[~seen] += 1
         keep = c.misses <= cfg.max_misses
         new = ~hit
+        if not new.any():
+            if keep.all():  # every detection followed a cell, no cell dropped: the table is updated in place
+                return split, angles
         self.cells = _Cells(
             range_m=np.concatenate([c.range_m[keep], range_m[new].astype(np.float64)]),
             v_mps=np.concatenate([c.v_mps[keep], v_mps[new].astype(np.float64)]),
@@ -172,9 +175,9 @@ class CellResolver:
         """Which of the covariances ``(k, rx, rx)`` hold two resolved vehicles, and their angles."""
         cfg = self.cfg
         w = np.linalg.eigvalsh(cov)  # ascending
-        noise = np.maximum(w[:, : self.n_rx - 2].mean(axis=1), 1e-12)
+        noise = np.maximum(np.add.reduce(w[:, : self.n_rx - 2], axis=1) / (self.n_rx - 2), 1e-12)  # np.mean
         two = (w[:, -2] >= cfg.min_eig_ratio * w[:, -1]) & (w[:, -2] >= cfg.min_noise_ratio * noise)
-        idx = np.flatnonzero(two)
+        idx = two.nonzero()[0]
         if idx.size == 0:
             return idx, np.zeros((0, 2), np.float32)
         fr = self._features(cov[idx], scale_offdiag=2.0)  # (k, 16)

@@ -27,19 +27,21 @@ Detections carry ``extra["resolved_pair"]`` (>= 0: the two detections split from
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import scipy.fft
 
 from edge.dsp.angle import bartlett_consensus, steering_matrix
-from edge.dsp.cfar import os_cfar, os_cfar_at, os_cfar_scale, reference_index
+from edge.dsp.cfar import os_cfar, os_cfar_at_padded, os_cfar_scale, reference_index
 from edge.dsp.geometry import polar_to_ground
 from edge.dsp.pairing import PairingModel, nearest_of_clusters, pair_beats
 from edge.dsp.peaks import interpolate_peak, local_maxima
 from edge.dsp.resolve import CellResolver, ResolverConfig
-from edge.dsp.range_fft import make_window, range_fft, to_complex64
+from edge.dsp.range_fft import make_window
 from edge.pipeline import Pipeline, PipelineError, StageTimer
 from edge.types import Detections, FrameResult, FrontendInfo, RawFrame
 from hal.waveform import SPEED_OF_LIGHT_MPS
@@ -198,6 +200,13 @@ class LanePipeline(Pipeline):
         self.n_bins = n
         self.window = make_window(cfg.window, n)
         self._iq = np.empty(frontend.frame_shape, dtype=np.complex64)
+        # the window times the FFT's 1/n scale when n is a power of two (scaling by 2^-k before the FFT
+        # is exact, the same spectrum bit for bit as scaling after it); one multiply less per frame
+        self._post_scale = n & (n - 1) != 0
+        self._window_scaled = self.window if self._post_scale else self.window * np.float32(1.0 / n)
+        self._sq = np.empty(frontend.frame_shape + (2,), dtype=np.float32)  # |re|^2, |im|^2 scratch
+        self._sq_sum = np.empty(frontend.frame_shape, dtype=np.float32)
+        self._diff = np.empty(frontend.frame_shape, dtype=np.complex64)  # clutter-map scratch
         fs = np.array([s.sample_rate_hz for s in wf.segments])
         self._bin_hz = fs / n  # (4,)
         self._freq = (np.fft.fftfreq(n)[None, :] * fs[:, None])  # (4, n) float64 signed Hz per bin
@@ -218,6 +227,13 @@ class LanePipeline(Pipeline):
         self._map_frames = 0
         self._cap = np.float32(10.0 ** (cfg.cfar_cap_db / 10.0))
         self._ref_index = reference_index(n, cfg.cfar_train_cells, cfg.cfar_guard_cells)
+        self._half = cfg.cfar_train_cells + cfg.cfar_guard_cells  # circular padding of the power rows
+        self._freq_flat = self._freq.ravel()
+        self._tiny = np.float32(1e-30)
+        self._seg_ends = np.arange(1, len(wf.segments) + 1)
+        self._aided_window_hz = cfg.aided_window_bins * self._bin_hz  # (4,)
+        self._seg_bin0 = np.arange(len(wf.segments)) * n  # first bin of each segment in a (rx, seg * bin) view
+        self._scale32 = np.float32(self.cfar_scale)
         self._model = PairingModel.from_waveform(wf)
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
         half = math.radians(cfg.angle_max_deg)
@@ -255,10 +271,14 @@ class LanePipeline(Pipeline):
     def detect(self, frame: RawFrame, timer: StageTimer) -> tuple[Detections, dict[str, Any]]:
         """Detections of one frame (everything before the tracker) and the intermediates."""
         cfg = self.config
-        with timer.stage("to_complex"):
-            iq = to_complex64(frame, self._iq)
+        with timer.stage("to_complex"):  # int16 -> complex64, windowed on the way
+            iq = self._iq
+            np.multiply(frame.i, self._window_scaled, out=iq.real)
+            np.multiply(frame.q, self._window_scaled, out=iq.imag)
         with timer.stage("range_fft"):
-            spec = range_fft(iq, self.window)  # (rx, seg, bin) complex64
+            spec = scipy.fft.fft(iq, axis=-1, overwrite_x=True, workers=1)  # (rx, seg, bin) complex64
+            if self._post_scale:
+                spec *= np.float32(1.0 / self.n_bins)
             if self._alpha > 0:
                 # the map starts empty and learns as a running mean over the first frames (weight
                 # 1/(n + warm-up)), then with the time constant: guard-rail posts are gone within seconds
@@ -266,41 +286,69 @@ class LanePipeline(Pipeline):
                 # initialising it with the first frame alone would leave that frame's vehicles' images
                 alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
                 self._map_frames += 1
-                self._background += alpha * (spec - self._background)
-                spec = spec - self._background
-            power = (spec.real * spec.real + spec.imag * spec.imag).sum(axis=0)  # (seg, bin) float32
+                d = np.subtract(spec, self._background, out=self._diff)
+                d *= alpha
+                self._background += d
+                spec -= self._background
+            # non-coherent sum over the channels, written into the middle of a circularly padded row per
+            # segment (the OS-CFAR windows read across the ends); ``power`` is a view of it
+            h, n = self._half, self.n_bins
+            sq = np.multiply(spec.view(np.float32), spec.view(np.float32), out=self._sq.reshape(spec.shape[:-1] + (-1,)))
+            sq = sq.reshape(self._sq.shape)
+            np.add(sq[..., 0], sq[..., 1], out=self._sq_sum)
+            ppad = np.empty((spec.shape[1], n + 2 * h), np.float32)
+            power = ppad[:, h:h + n]
+            self._sq_sum.sum(axis=0, out=power)  # (seg, bin) float32
+            ppad[:, :h] = ppad[:, n:n + h]
+            ppad[:, n + h:] = ppad[:, h:2 * h]
         with timer.stage("cfar"):
-            floor = np.partition(power, self.n_bins // 2, axis=-1)[:, self.n_bins // 2]  # median per segment
+            floor = np.partition(power, n // 2, axis=-1)[:, n // 2]  # median per segment
             cap = floor * self._cap  # (4,)
             if cfg.cfar_full_threshold:  # the whole threshold curve, for plots
                 _, _, noise = os_cfar(power, self._ref_index, self._rank, self.cfar_scale)
                 noise = np.minimum(noise, cap[:, None])
-                thr = noise * np.float32(self.cfar_scale)
-                peaks = local_maxima(power, (power > thr) & self._valid)
+                thr = noise * self._scale32
+                rows, cols = np.nonzero(local_maxima(power, (power > thr) & self._valid))
+                cells = np.stack([ppad[rows, cols + h + o] for o in (-1, 0, 1)], axis=1)
             else:  # only local maxima can be reported: evaluate the ordered statistic there
-                rows, cols = np.nonzero(local_maxima(power, self._valid))
-                nz = np.minimum(os_cfar_at(power, rows, cols, self._ref_index, self._rank), cap[rows])
-                hit = power[rows, cols] > nz * np.float32(self.cfar_scale)
-                peaks = np.zeros(power.shape, bool)
-                peaks[rows[hit], cols[hit]] = True
+                is_max = power > ppad[:, h - 1:h - 1 + n]
+                is_max &= power >= ppad[:, h + 1:h + 1 + n]
+                is_max &= self._valid
+                flat = is_max.reshape(-1).nonzero()[0]
+                rows, cols = np.divmod(flat, n)
+                nz, cells = os_cfar_at_padded(ppad, rows, cols, cfg.cfar_train_cells, cfg.cfar_guard_cells,
+                                              self._rank)
+                np.minimum(nz, cap[rows], out=nz)
+                hit = cells[:, 1] > nz * self._scale32
                 noise = np.full(power.shape, np.nan, np.float32)
-                noise[rows, cols] = nz
-                thr = noise * np.float32(self.cfar_scale)
-            freqs, bins = [], []
-            for k in range(4):  # four segments
-                b = np.flatnonzero(peaks[k])
-                if b.size > cfg.max_peaks_per_segment:
-                    b = b[np.argsort(power[k, b])[-cfg.max_peaks_per_segment:]]
-                d = interpolate_peak(power[k], b)
-                freqs.append(self._freq[k, b] + d * self._bin_hz[k])
-                bins.append(b)
+                noise.reshape(-1)[flat] = nz
+                thr = noise * self._scale32
+                rows, cols, cells = rows[hit], cols[hit], cells[hit]
+            # peaks in (segment, bin) order; sub-bin offsets by a parabola through the log-power
+            # (edge.dsp.peaks.interpolate_peak, all segments at once)
+            ends = np.searchsorted(rows, self._seg_ends).tolist()
+            starts = [0] + ends[:3]
+            if max(e - b for b, e in zip(starts, ends)) > cfg.max_peaks_per_segment:
+                freqs, bins = self._strongest_peaks(power, rows, cols)
+            else:
+                lg = np.log(np.maximum(cells, self._tiny))
+                lm, l0, lp = lg[:, 0], lg[:, 1], lg[:, 2]
+                den = lm - 2.0 * l0 + lp
+                d = np.zeros(den.shape, np.float32)
+                np.divide(0.5 * (lm - lp), den, out=d, where=den < 0)
+                np.minimum(np.maximum(d, np.float32(-0.5), out=d), np.float32(0.5), out=d)  # np.clip
+                f = self._freq_flat[rows * n + cols] + d * self._bin_hz[rows]
+                freqs = [f[b:e] for b, e in zip(starts, ends)]
+                bins = [cols[b:e] for b, e in zip(starts, ends)]
         with timer.stage("pairing"):
             pairs = pair_beats(tuple(freqs), self._model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
                                max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self._tol,
                                max_shared=cfg.pair_max_shared_peaks)
             p_rng, p_vel, p_res = pairs.range_m, pairs.radial_speed_mps, pairs.residual_hz
-            pk = (np.stack([bins[k][pairs.peak_index[:, k]] for k in range(4)], axis=1) if p_rng.size
-                  else np.zeros((0, 4), np.int64))  # (n, 4 seg) bins
+            # (n, 4 seg) bins: the peaks of the four segments are consecutive in ``all_bins``
+            all_bins = np.concatenate(bins)
+            seg_start = np.array(list(itertools.accumulate((b.size for b in bins[:-1]), initial=0)))
+            pk = all_bins[pairs.peak_index + seg_start] if p_rng.size else np.zeros((0, 4), np.int64)
             n_aided = 0
             if self.tracker is not None and cfg.aided_pairing and len(self.tracker.tracks):
                 a_bins, a_rng, a_vel, a_res = self._track_aided_pairs(freqs, bins, pairs, frame.t_ns)
@@ -312,7 +360,7 @@ class LanePipeline(Pipeline):
         with timer.stage("angle"):
             n_det = p_rng.size
             if n_det:
-                snaps = spec[:, np.arange(4)[None, :], pk]  # (rx, n, seg)
+                snaps = spec.reshape(spec.shape[0], -1).take(pk + self._seg_bin0, axis=1)  # (rx, n, seg)
                 snaps = snaps.transpose(1, 2, 0) * self._inv_cal  # (n, seg, rx)
                 az, aspec, kept = bartlett_consensus(snaps, self._steer, self._grid, math.radians(cfg.angle_outlier_deg))
                 p0 = power[0, pk[:, 0]]
@@ -323,7 +371,7 @@ class LanePipeline(Pipeline):
                 az = snr_db = np.zeros(0, np.float32)
                 aspec = np.zeros((0, self._grid.size), np.float32)
                 kept = np.zeros((0, 4), bool)
-            keep = np.flatnonzero(kept.sum(axis=1) >= cfg.angle_min_agreeing) if n_det else np.zeros(0, np.int64)
+            keep = (kept.sum(axis=1) >= cfg.angle_min_agreeing).nonzero()[0] if n_det else np.zeros(0, np.int64)
             rng, vel, res = p_rng[keep], p_vel[keep], p_res[keep]
             az, snr_db = az[keep], snr_db[keep]
             pair_of = np.full(keep.size, -1, np.int32)
@@ -336,7 +384,7 @@ class LanePipeline(Pipeline):
                 if split.any() and self.traffic is not None and self.traffic.lanes:
                     split &= self._split_straddles_lanes(rng, ang)
                 if split.any():  # each split detection becomes two, one per angle, half the power each
-                    s_idx = np.flatnonzero(split)
+                    s_idx = split.nonzero()[0]
                     az = az.copy()
                     az[s_idx] = ang[s_idx, 0]
                     pair_of[s_idx] = s_idx
@@ -360,6 +408,20 @@ class LanePipeline(Pipeline):
         }
         return det, inter
 
+    def _strongest_peaks(self, power: np.ndarray, rows: np.ndarray, cols: np.ndarray):
+        """Per segment the ``max_peaks_per_segment`` strongest peaks (a segment with more): their
+        frequencies and bins, ordered by power (rare; the common case is done in :meth:`detect`)."""
+        cfg = self.config
+        freqs, bins = [], []
+        for k in range(power.shape[0]):
+            b = cols[rows == k]
+            if b.size > cfg.max_peaks_per_segment:
+                b = b[np.argsort(power[k, b])[-cfg.max_peaks_per_segment:]]
+            d = interpolate_peak(np.ascontiguousarray(power[k]), b)
+            freqs.append(self._freq[k, b] + d * self._bin_hz[k])
+            bins.append(b)
+        return freqs, bins
+
     def _track_aided_pairs(self, freqs, bins, pairs, t_ns: int):
         """Pairings of confirmed tracks that the four-segment pairing missed (a near vehicle's echo is smeared
         over several bins by its body, and the peaks of the four segments no longer agree within a bin).
@@ -373,7 +435,7 @@ class LanePipeline(Pipeline):
         cfg = self.config
         tr = self.tracker.tracks
         empty = (np.zeros((0, 4), np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.float32))
-        sel = np.flatnonzero(tr.confirmed)
+        sel = tr.confirmed.nonzero()[0]
         if sel.size == 0 or self.tracker.last_t_ns is None:
             return empty
         dt = max((t_ns - self.tracker.last_t_ns) * 1e-9, 0.0)
@@ -387,31 +449,31 @@ class LanePipeline(Pipeline):
             near = (np.abs(pairs.range_m[None, :] - r_hat[:, None]) < cfg.aided_gate_m) & (
                 np.abs(pairs.radial_speed_mps[None, :] - v_hat[:, None]) < cfg.aided_gate_mps)
             ok &= ~near.any(axis=1)
-        idx = np.flatnonzero(ok)
+        idx = ok.nonzero()[0]
         if idx.size == 0:
             return empty
         r_hat, v_hat = r_hat[idx], v_hat[idx]
         f_hat = self._model.predict(r_hat, v_hat)  # (m, 4)
         m = idx.size
-        fsel = np.zeros((m, 4))
-        found = np.zeros((m, 4), bool)
-        out_bins = np.zeros((m, 4), np.int64)
-        for k in range(4):  # four segments; vectorised over tracks
-            fk = freqs[k]
-            used = np.zeros(fk.size, bool)
-            if pairs.range_m.size:
-                used[pairs.peak_index[:, k]] = True
-            pred_bin = np.round(f_hat[:, k] / self._bin_hz[k]).astype(np.int64) % self.n_bins
-            out_bins[:, k] = pred_bin
-            if fk.size == 0:
-                continue
-            d = np.abs(fk[None, :] - f_hat[:, k:k + 1])  # (m, peaks)
-            d[:, used] = np.inf
-            j = np.argmin(d, axis=1)
-            hit = d[np.arange(m), j] <= cfg.aided_window_bins * self._bin_hz[k]
-            found[:, k] = hit
-            fsel[:, k] = np.where(hit, fk[j], 0.0)
-            out_bins[:, k] = np.where(hit, bins[k][j], pred_bin)
+        # all four segments at once: peaks in a (segment, peak) table padded with +inf, used peaks at +inf
+        counts = [fk.size for fk in freqs]
+        width = max(counts)
+        pred_bin = np.round(f_hat / self._bin_hz).astype(np.int64) % self.n_bins  # (m, 4)
+        if width == 0:
+            return empty
+        table = np.full((4, width), np.inf)
+        btab = np.zeros((4, width), np.int64)
+        for k in range(4):  # four segments
+            table[k, :counts[k]] = freqs[k]
+            btab[k, :counts[k]] = bins[k]
+        if pairs.range_m.size:
+            table[np.arange(4), pairs.peak_index] = np.inf
+        d = np.abs(table[None, :, :] - f_hat[:, :, None])  # (m, 4, peaks)
+        j = d.argmin(axis=2)  # (m, 4): the first nearest in each segment's peak order
+        seg = np.arange(4)
+        found = d[np.arange(m)[:, None], seg, j] <= self._aided_window_hz
+        fsel = np.where(found, table[seg, j], 0.0)
+        out_bins = np.where(found, btab[seg, j], pred_bin)
         good = found.sum(axis=1) >= cfg.aided_min_segments
         if not good.any():
             return empty
@@ -423,7 +485,7 @@ class LanePipeline(Pipeline):
         sol = np.linalg.solve(nrm, rhs[:, :, None])[:, :, 0]  # (g, 2): range, speed
         resid = np.sqrt((w * (fs - sol @ A.T) ** 2).sum(axis=1) / w.sum(axis=1))
         close = (np.abs(sol[:, 0] - r_hat[good]) < cfg.aided_gate_m) & (np.abs(sol[:, 1] - v_hat[good]) < cfg.aided_gate_mps)
-        g = np.flatnonzero(good)[close]
+        g = good.nonzero()[0][close]
         return (out_bins[g], sol[close, 0].astype(np.float32), sol[close, 1].astype(np.float32),
                 resid[close].astype(np.float32))
 

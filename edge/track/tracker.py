@@ -52,6 +52,7 @@ them until they are resolved (a 4-element array cannot resolve them in angle the
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections import deque
@@ -146,25 +147,35 @@ class Measurements:
 
     @classmethod
     def from_detections(cls, det: Detections, use_radial_speed: bool) -> "Measurements":
-        x = det.x_m.astype(np.float64)
-        y = det.y_m.astype(np.float64)
-        ok = np.isfinite(x) & np.isfinite(y)
-        x, y = x[ok], y[ok]
-        snr = det.snr_db.astype(np.float64)[ok]
-        vr = det.radial_speed_mps.astype(np.float64)[ok]
-        rng = det.range_m.astype(np.float64)[ok]
-        use = use_radial_speed and bool(np.all(np.isfinite(vr)) and np.all(np.isfinite(rng)))
+        # one float64 array of the five columns (a handful of detections: few calls, not few flops)
+        cols = np.array([det.x_m, det.y_m, det.snr_db, det.radial_speed_mps, det.range_m], dtype=np.float64)
+        fin = np.isfinite(cols)
+        ok = fin[0] & fin[1]
+        all_ok = bool(ok.all())
+        if not all_ok:
+            cols, fin = cols[:, ok], fin[:, ok]
+        x, y, snr, vr, rng = cols
+        use = use_radial_speed and bool(fin[3:5].all())
         if use:
             rho = np.hypot(x, y)
             ratio = np.divide(rng, rho, out=np.ones_like(rho), where=rho > 1e-6)
-            z = np.stack([x, y, vr * ratio], axis=1)
+            z = np.empty((x.size, 3))
+            z[:, 2] = vr * ratio
         else:
-            z = np.stack([x, y], axis=1)
+            z = np.empty((x.size, 2))
+        z[:, 0] = x
+        z[:, 1] = y
         pair = det.extra.get("resolved_pair")
-        pair = np.asarray(pair, dtype=np.int64)[ok] if pair is not None and len(pair) == ok.size else None
-        if pair is not None and not (pair >= 0).any():
+        if pair is not None and len(pair) == ok.size:
+            pair = np.asarray(pair, dtype=np.int64)
+            pair = pair if all_ok else pair[ok]
+            if not (pair >= 0).any():
+                pair = None
+        else:
             pair = None
-        return cls(z, np.nan_to_num(snr, nan=0.0), use, pair)
+        if not fin[2].all():
+            snr = np.nan_to_num(snr, nan=0.0)
+        return cls(z, snr, use, pair)
 
 
 class CvPredictor:
@@ -172,10 +183,13 @@ class CvPredictor:
 
     def __init__(self, cfg: PdafConfig) -> None:
         self.cfg = cfg
+        self._cached: tuple[float, np.ndarray, np.ndarray] | None = None  # (dt, F, Q) of the last frame
 
     def predict(self, tracks: TrackTable, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-        f = kalman.cv_transition(dt_s)
-        q = kalman.cv_process_noise(dt_s, self.cfg.q_lateral_m2ps3, self.cfg.q_along_m2ps3)
+        if self._cached is None or self._cached[0] != dt_s:  # frames come at a fixed period
+            self._cached = (dt_s, kalman.cv_transition(dt_s),
+                            kalman.cv_process_noise(dt_s, self.cfg.q_lateral_m2ps3, self.cfg.q_along_m2ps3))
+        _, f, q = self._cached
         return kalman.predict(tracks.x, tracks.p, f, q)
 
 
@@ -183,15 +197,18 @@ def heading(xp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit heading (T, 2) and weight (T,) in [0, 1] (0 when standing, 1 from 1 m/s)."""
     sp = np.hypot(xp[:, 2], xp[:, 3])
     u = xp[:, 2:4] / np.maximum(sp, 1e-9)[:, None]
-    return u, np.clip(sp, 0.0, 1.0)
+    return u, np.minimum(np.maximum(sp, 0.0), 1.0)  # np.clip, without its wrapper
 
 
-def extent_cov(xp: np.ndarray, ext_var: np.ndarray) -> np.ndarray:
+_EYE2 = np.eye(2)[None]  # (1, 2, 2)
+
+
+def extent_cov(xp: np.ndarray, ext_var: np.ndarray, head: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(T, 2, 2) spread of an extended vehicle's detections: ``ext_var`` along the heading
-    (isotropic while the heading is unknown)."""
-    u, w = heading(xp)
+    (isotropic while the heading is unknown). ``head``: ``heading(xp)`` if already computed."""
+    u, w = heading(xp) if head is None else head
     uu = u[:, :, None] * u[:, None, :]
-    iso = np.eye(2)[None] * (1.0 - w)[:, None, None]
+    iso = _EYE2 * (1.0 - w)[:, None, None]
     return ext_var[:, None, None] * (w[:, None, None] * uu + iso)
 
 
@@ -206,13 +223,15 @@ class MeasurementModel:
     def __init__(self, cfg: PdafConfig) -> None:
         self.cfg = cfg
         self._az_sigma_rad = math.radians(cfg.azimuth_sigma_deg)
+        self._head: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None  # (xp, heading(xp))
 
     def at(self, xp: np.ndarray, with_radial_speed: bool, ext_var: np.ndarray | None = None):
         c = self.cfg
         zh, h = kalman.measurement_prediction(xp, with_radial_speed)
         rp = kalman.polar_position_noise(xp[:, :2], c.range_sigma_m, self._az_sigma_rad, c.extent_sigma_m)
         if ext_var is not None:
-            rp += extent_cov(xp, ext_var)
+            self._head = (xp, heading(xp))  # update_extent reuses it for the same prediction
+            rp += extent_cov(xp, ext_var, self._head[1])
         n = zh.shape[1]
         r = np.zeros((xp.shape[0], n, n))
         r[:, :2, :2] = rp
@@ -224,7 +243,7 @@ class MeasurementModel:
         """Learn the along-heading spread from the weighted along-heading innovations of this frame:
         ``E[a^2] - u' (H P H' + R_sensor) u``, ``R_sensor`` = ``S`` without the extent term."""
         c = self.cfg
-        u, w = heading(xp)
+        u, w = self._head[1] if self._head is not None and self._head[0] is xp else heading(xp)
         a = inn.v[:, :, 0] * u[:, None, 0] + inn.v[:, :, 1] * u[:, None, 1]  # (T, M) along-heading innovation
         wsum = beta.sum(axis=1)
         ok = (wsum > 0.5) & (w >= 1.0)
@@ -233,7 +252,7 @@ class MeasurementModel:
         along_s = u[:, 0] * (s2[:, 0, 0] * u[:, 0] + s2[:, 0, 1] * u[:, 1]) + u[:, 1] * (
             s2[:, 1, 0] * u[:, 0] + s2[:, 1, 1] * u[:, 1])
         other = along_s - ext_var  # for moving tracks (w = 1) the extent adds exactly ext_var along u
-        sample = np.clip(m2 - other, 0.0, c.extent_max_sigma_m**2)
+        sample = np.minimum(np.maximum(m2 - other, 0.0), c.extent_max_sigma_m**2)
         return np.where(ok, (1.0 - c.extent_alpha) * ext_var + c.extent_alpha * sample, ext_var)
 
 
@@ -282,7 +301,7 @@ def same_vehicle_lateral_m(cfg: PdafConfig, xy: np.ndarray) -> np.ndarray:
     """(N,) lateral distance within which points at ``xy`` may be one vehicle (grows with range)."""
     r = np.hypot(xy[:, 0], xy[:, 1])
     lat = cfg.merge_lateral_sigmas * r * math.radians(cfg.azimuth_sigma_deg)
-    return np.clip(lat, cfg.merge_lateral_m, max(cfg.merge_lateral_m, cfg.merge_lateral_max_m))
+    return np.minimum(np.maximum(lat, cfg.merge_lateral_m), max(cfg.merge_lateral_m, cfg.merge_lateral_max_m))
 
 
 def same_vehicle_along_m(cfg: PdafConfig, tracks: "TrackTable") -> np.ndarray:
@@ -318,7 +337,7 @@ class MofNInitiator:
                 vr_t = (tracks.x[:, 0] * tracks.x[:, 2] + tracks.x[:, 1] * tracks.x[:, 3]) / rho_t
                 near &= np.abs(vr_t[:, None] - z[None, :, 2]) < c.seed_merge_speed_mps
             cand &= ~near.any(axis=0)
-        idx = np.flatnonzero(cand)
+        idx = cand.nonzero()[0]
         if idx.size == 0:
             return 0
         # one seed per vehicle: drop a candidate when a stronger one lies in its merge box
@@ -357,9 +376,9 @@ class MofNInitiator:
     def confirm(self, tracks: TrackTable, ids: IdPool) -> None:
         c = self.cfg
         recent = tracks.history & self._mask_n
-        counts = np.array([int(v).bit_count() for v in recent], dtype=np.int32) if len(tracks) else recent
+        counts = np.bitwise_count(recent)
         ready = ~tracks.confirmed & (counts >= c.confirm_m) & tracks.moved
-        for i in np.flatnonzero(ready):
+        for i in ready.nonzero()[0]:
             tid = ids.acquire()
             if tid is None:
                 log.warning("no free track id (max %d): track stays tentative", c.max_track_id)
@@ -371,7 +390,7 @@ class MofNInitiator:
         """Tentative tracks that can no longer reach M hits in their last N frames."""
         c = self.cfg
         recent = tracks.history & self._mask_n
-        counts = np.array([int(v).bit_count() for v in recent], dtype=np.int32) if len(tracks) else recent
+        counts = np.bitwise_count(recent)
         return ~tracks.confirmed & (tracks.age >= c.confirm_n) & (counts < c.confirm_m) & (tracks.misses > 0)
 
 
@@ -381,6 +400,7 @@ class TrackDeleter:
     def __init__(self, cfg: PdafConfig) -> None:
         self.cfg = cfg
         self._state_gamma = gate_threshold(cfg.merge_state_prob, 4)
+        self._pairs: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # track count -> np.triu_indices(t, 1)
 
     def delete(self, tracks: TrackTable, resolved: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """``resolved``: per track the resolved pair (or -1) and the detection it followed this frame."""
@@ -406,19 +426,27 @@ class TrackDeleter:
         if t < 2:
             return out
         x = tracks.x
-        ia, ib = np.triu_indices(t, 1)
+        pairs = self._pairs.get(t)
+        if pairs is None:
+            pairs = self._pairs[t] = np.triu_indices(t, 1)
+        ia, ib = pairs
         # speed difference along the pair's common heading, and across it: a duplicate born with a wrong
         # lateral velocity (a far, noisy seed) drifts onto its vehicle with metres per second across
-        vsum = x[ia, 2:4] + x[ib, 2:4]
-        u = vsum / np.maximum(np.hypot(vsum[:, 0], vsum[:, 1]), 1e-9)[:, None]
-        dvx, dvy = x[ia, 2] - x[ib, 2], x[ia, 3] - x[ib, 3]
-        dv_along = np.abs(dvx * u[:, 0] + dvy * u[:, 1])
-        dv_across = np.abs(dvx * u[:, 1] - dvy * u[:, 0])
-        keep = dv_along < c.merge_speed_mps
+        va, vb = x[ia, 2:4], x[ib, 2:4]
+        vsum = va + vb
+        nrm = np.maximum(np.hypot(vsum[:, 0], vsum[:, 1]), 1e-9)
+        ux, uy = vsum[:, 0] / nrm, vsum[:, 1] / nrm
+        dvx, dvy = va[:, 0] - vb[:, 0], va[:, 1] - vb[:, 1]
+        keep = np.abs(dvx * ux + dvy * uy) < c.merge_speed_mps
         if resolved is not None:  # tracks on the two members of a resolved pair are two vehicles
             pair, det = resolved
             keep &= ~((pair[ia] >= 0) & (pair[ia] == pair[ib]) & (det[ia] != det[ib]))
-        ia, ib, dv_across = ia[keep], ib[keep], dv_across[keep]
+        if not keep.any():  # no two tracks move alike: nothing is boxed, no duplicate
+            tracks.close_run = np.zeros(t, np.int32)
+            return out
+        ia, ib = ia[keep], ib[keep]
+        dvx, dvy, ux, uy = dvx[keep], dvy[keep], ux[keep], uy[keep]
+        dv_across = np.abs(dvx * uy - dvy * ux)
         reach = same_vehicle_along_m(c, tracks)
         dx = x[ia] - x[ib]
         boxed = (np.abs(dx[:, 0]) < c.merge_lateral_m) & (np.abs(dx[:, 1]) < np.maximum(reach[ia], reach[ib]))
@@ -427,21 +455,25 @@ class TrackDeleter:
         run = np.zeros(t, np.int32)
         if boxed.any():
             run[ia[boxed]] = run[ib[boxed]] = 1
-        tracks.close_run = np.where(run > 0, tracks.close_run + 1, 0).astype(np.int32)
+        tracks.close_run = np.where(run > 0, tracks.close_run + 1, 0).astype(np.int32, copy=False)
         slow = dv_across < c.merge_lateral_speed_mps
         lasting = np.minimum(tracks.close_run[ia], tracks.close_run[ib]) >= c.merge_persist_frames
         keep = slow | (boxed & lasting)
-        ia, ib, boxed = ia[keep], ib[keep], boxed[keep]
-        if ia.size == 0:
+        if not keep.any():
             return out
-        dx = x[ia] - x[ib]
+        ia, ib, boxed, dx = ia[keep], ib[keep], boxed[keep], dx[keep]
         close = boxed
-        ext = extent_cov(x, tracks.ext_var)
-        pd = np.stack([tracks.p[:, 0, 0] + ext[:, 0, 0], tracks.p[:, 1, 1] + ext[:, 1, 1]], axis=1)  # (T, 2)
+        # the diagonal of extent_cov(x, ext_var) (the whole matrices only for the pairs that need a solve)
+        head = heading(x)
+        u, w = head
+        iso = 1.0 - w
+        pd = np.array([tracks.p[:, 0, 0] + tracks.ext_var * (w * (u[:, 0] * u[:, 0]) + iso),
+                       tracks.p[:, 1, 1] + tracks.ext_var * (w * (u[:, 1] * u[:, 1]) + iso)]).T  # (T, 2)
         # a marginal Mahalanobis distance never exceeds the joint one: prune before the 4x4 solves
         marg = (dx[:, :2] ** 2 < self._state_gamma * (pd[ia] + pd[ib])).all(axis=1)
-        rest = np.flatnonzero(~close & marg)
+        rest = (~close & marg).nonzero()[0]
         if rest.size:
+            ext = extent_cov(x, tracks.ext_var, head)
             ja, jb = ia[rest], ib[rest]
             psum = tracks.p[ja] + tracks.p[jb]
             psum[:, :2, :2] += ext[ja] + ext[jb]
@@ -502,8 +534,8 @@ class PdafTracker:
             used = (inn.d2 <= self.associator.exclusion_gamma[meas.z.shape[1]]).any(axis=0)
             tr.age += 1
             tr.hits += hit
-            tr.misses = np.where(hit, 0, tr.misses + 1).astype(np.int32)
-            tr.history = ((tr.history << np.uint32(1)) | hit.astype(np.uint32)).astype(np.uint32)
+            tr.misses = np.where(hit, 0, tr.misses + 1).astype(np.int32, copy=False)
+            tr.history = ((tr.history << np.uint32(1)) | hit.astype(np.uint32)).astype(np.uint32, copy=False)
             # moving for sure: the velocity is significantly non-zero (v' P_v^-1 v) and fast enough
             v = tr.x[:, 2:4]
             d2v = (v[:, None, :] @ np.linalg.solve(tr.p[:, 2:4, 2:4], v[:, :, None]))[:, 0, 0]
@@ -516,7 +548,8 @@ class PdafTracker:
             dead = self.deleter.delete(tr, resolved) | self.initiator.tentative_expired(tr)
             for tid in tr.track_id[dead & tr.confirmed]:
                 self.ids.release(int(tid))
-            tr.keep(~dead)
+            if dead.any():
+                tr.keep(~dead)
             self.initiator.confirm(tr, self.ids)  # after duplicates are gone: no id is spent on one
             self.intermediates = {"gated": gated, "beta0": beta0, "d2": inn.d2}
         else:
@@ -529,7 +562,7 @@ class PdafTracker:
         tr = self.tracks
         sel = np.ones(len(tr), dtype=bool) if self.config.publish_tentative else tr.confirmed.copy()
         sel &= tr.misses <= self.config.publish_max_misses
-        idx = np.flatnonzero(sel)
+        idx = sel.nonzero()[0]
         if idx.size == 0:
             return ()
         st = tr.x[idx]
@@ -544,6 +577,30 @@ class PdafTracker:
         rows = zip(tr.track_id[idx].tolist(), st.tolist(), rho.tolist(), vr.tolist(), az.tolist(),
                    tr.age[idx].tolist(), tr.hits[idx].tolist(), tr.confirmed[idx].tolist(), length)
         return tuple(
-            TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=ln)
+            _track_state(tid, x, y, vx, vy, r, v, a, age, hits, conf, ln)
             for tid, (x, y, vx, vy), r, v, a, age, hits, conf, ln in rows
         )
+
+
+_TRACK_STATE_FIELDS = ("track_id", "x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps", "az_rad",
+                       "age_frames", "hits", "confirmed", "lane", "cls", "class_probability", "rcs_dbsm", "length_m")
+# the fast path below knows TrackState's fields; if they change (or it gains a __post_init__ or a factory
+# default), the plain constructor is used
+_TRACK_STATE_PLAIN = (tuple(f.name for f in dataclasses.fields(TrackState)) == _TRACK_STATE_FIELDS
+                      and not hasattr(TrackState, "__post_init__")
+                      and all(f.default is None for f in dataclasses.fields(TrackState)[11:15]))
+_new_object = object.__new__
+_set_dict = object.__setattr__
+
+
+def _track_state(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m) -> TrackState:
+    """``TrackState(tid, x, ..., conf, length_m=length_m)`` without the frozen dataclass's per-field
+    ``object.__setattr__`` (tens of tracks per frame on the hot path); the same ``__dict__``."""
+    if not _TRACK_STATE_PLAIN:
+        return TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=length_m)
+    out = _new_object(TrackState)
+    _set_dict(out, "__dict__", {
+        "track_id": tid, "x_m": x, "y_m": y, "vx_mps": vx, "vy_mps": vy, "range_m": r, "radial_speed_mps": v,
+        "az_rad": a, "age_frames": age, "hits": hits, "confirmed": conf, "lane": None, "cls": None,
+        "class_probability": None, "rcs_dbsm": None, "length_m": length_m})
+    return out

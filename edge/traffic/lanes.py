@@ -24,6 +24,8 @@ numbered 0, 1, ... from the most negative offset (left) to the right, like ``[[l
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -74,8 +76,10 @@ class YawEstimator:
 
     def __init__(self, cfg) -> None:
         self.cfg = cfg
-        self._sums: dict[int, np.ndarray] = {}  # track_id -> [n, sx, sy, sxx, syy, sxy, age]
+        self._sums: dict[int, list[float]] = {}  # track_id -> [n, sx, sy, sxx, syy, sxy, age]
         self._votes: deque[float] = deque(maxlen=cfg.yaw_window_tracks)
+        self._n_voted = 0  # votes ever cast (the median of the window changes only with a new one)
+        self._median: tuple[int, float] | None = None  # (_n_voted, median of the window)
 
     def add(self, ids: np.ndarray, age: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
         """Accumulate this frame's confirmed tracks; tracks that ended (or whose id was recycled) vote."""
@@ -86,14 +90,19 @@ class YawEstimator:
                 self._vote(acc)
                 acc = None
             if acc is None:
-                acc = self._sums[i] = np.zeros(7)
-            acc += (1.0, xi, yi, xi * xi, yi * yi, xi * yi, 0.0)
+                acc = self._sums[i] = [0.0] * 7
+            acc[0] += 1.0
+            acc[1] += xi
+            acc[2] += yi
+            acc[3] += xi * xi
+            acc[4] += yi * yi
+            acc[5] += xi * yi
             acc[6] = a
             seen.add(i)
         for i in [k for k in self._sums if k not in seen]:
             self._vote(self._sums.pop(i))
 
-    def _vote(self, acc: np.ndarray) -> None:
+    def _vote(self, acc: list[float]) -> None:
         n = acc[0]
         if n < 3:
             return
@@ -110,6 +119,7 @@ class YawEstimator:
         if ey < 0:
             ex, ey = -ex, -ey
         self._votes.append(-math.atan2(ex, ey))  # road axis (-sin yaw, cos yaw)
+        self._n_voted += 1
 
     @property
     def n_votes(self) -> int:
@@ -126,7 +136,7 @@ class YawEstimator:
         and ``sd_across`` across it, ``n sd_along^2 / sd_across^2`` (long, dense, straight tracks count most)."""
         if not self._sums:
             return np.zeros(0), np.zeros(0)
-        a = np.stack(list(self._sums.values()))
+        a = np.array(list(self._sums.values()), dtype=np.float64)
         n = np.maximum(a[:, 0], 1.0)
         mx, my = a[:, 1] / n, a[:, 2] / n
         cxx, cyy, cxy = a[:, 3] / n - mx * mx, a[:, 4] / n - my * my, a[:, 5] / n - mx * my
@@ -141,14 +151,20 @@ class YawEstimator:
         return -phi[ok], w[ok]
 
     def estimate_rad(self) -> float | None:
+        if len(self._votes) >= self.cfg.yaw_min_tracks:
+            if self._median is None or self._median[0] != self._n_voted:
+                self._median = (self._n_voted, float(np.median(np.fromiter(self._votes, dtype=float))))
+            return self._median[1]
         votes = np.fromiter(self._votes, dtype=float)
-        if votes.size >= self.cfg.yaw_min_tracks:
-            return float(np.median(votes))
         # start-up: the tracks that still run vote too; weighted median (ended tracks count as the best one)
         live, w = self.live_votes_weighted()
         if votes.size + live.size < self.cfg.yaw_min_tracks:
             return None
         top = float(w.max()) if w.size else 1.0
+        if votes.size + live.size <= 64:  # a handful of tracks: the same weighted median in plain Python
+            pairs = sorted(zip(votes.tolist() + live.tolist(), [top] * votes.size + w.tolist()), key=lambda p: p[0])
+            cw = list(itertools.accumulate(p[1] for p in pairs))
+            return pairs[bisect.bisect_left(cw, 0.5 * cw[-1])][0]
         allv = np.concatenate([votes, live])
         allw = np.concatenate([np.full(votes.size, top), w])
         o = np.argsort(allv)

@@ -24,6 +24,7 @@ Events: ``wrong_way`` when a track in a lane moves against the lane's direction 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -63,9 +64,13 @@ class _Memo:
 
 def _with_lane(tr: TrackState, lane: int | None) -> TrackState:
     """``dataclasses.replace(tr, lane=lane)`` without its per-call field introspection (hot path)."""
-    d = dict(tr.__dict__)
+    if hasattr(TrackState, "__post_init__"):
+        return dataclasses.replace(tr, lane=lane)
+    out = object.__new__(TrackState)  # a frozen dataclass without __post_init__: copy its fields
+    d = out.__dict__
+    d.update(tr.__dict__)
     d["lane"] = lane
-    return TrackState(**d)
+    return out
 
 
 class TrafficMonitor:

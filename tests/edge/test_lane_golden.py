@@ -1,0 +1,39 @@
+"""The lane pipeline computes what it computed when the fixture was recorded (speed-ups must not change it).
+
+The fixture (``data/lane_golden_misaimed_s31.npz``: 200 frames of ``highway4-misaimed``, seed 31, with
+resolved side-by-side pairs, track-aided pairings, lane statistics and wrong-way events) holds the
+detections, tracks, lane statistics and events of the pipeline as recorded by ``tests/edge/lane_golden.py``.
+Ids, counts, lanes and flags must match exactly; floats within float32 round-off (positions 1e-4 m).
+A deliberate change of what the lane pipeline computes re-records it:
+``PYTHONPATH=. python -m tests.edge.lane_golden record tests/edge/data/lane_golden_misaimed_s31.npz
+--scenario highway4-misaimed --seed 31 --frames 200 --no-spectra``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from tests.edge import lane_golden
+
+FIXTURE = Path(__file__).parent / "data" / "lane_golden_misaimed_s31.npz"
+
+
+def test_lane_pipeline_reproduces_recorded_outputs():
+    errs = lane_golden.check(FIXTURE)
+    assert not errs, "lane pipeline outputs changed:\n" + "\n".join(errs)
+
+
+def test_compare_detects_a_changed_id_and_a_moved_track():
+    ref, _ = lane_golden.load(FIXTURE)
+    assert ref["trk_track_id"].size > 100 and (ref["det_resolved_pair"] >= 0).any() and ref["ev_frame"].size
+    new = {k: v.copy() for k, v in ref.items()}
+    new["trk_track_id"][5] += 1
+    new["trk_x_m"][7] += 2e-4
+    errs = lane_golden.compare(ref, new)
+    assert len(errs) == 2 and errs[0].startswith("trk_track_id") and errs[1].startswith("trk_x_m")
+    new = {k: v.copy() for k, v in ref.items()}
+    new["trk_x_m"][7] += 5e-5  # float32 round-off at 300 m is 3e-5 m
+    assert lane_golden.compare(ref, new) == []
+    assert np.isfinite(ref["det_x_m"]).all()
