@@ -83,8 +83,10 @@ class LaneConfig:
     min_range_m: float = field(default=5.0, metadata={
         "unit": "m", "doc": "nearest slant range reported (TX->RX leakage and the overpass itself are closer)",
         "min": 0.0, "max": 100.0})
-    max_range_m: float = field(default=330.0, metadata={
-        "unit": "m", "doc": "farthest slant range reported (design range 300 m)", "min": 10.0, "max": 400.0})
+    max_range_m: float = field(default=375.0, metadata={
+        "unit": "m", "doc": "farthest slant range reported (design range 300 m; a car fades out at 350-390 m and an "
+               "approaching one is tracked from there, so its track is confirmed when it reaches 300 m; 384 m is the "
+               "unambiguous range at standstill)", "min": 10.0, "max": 400.0})
     max_speed_kmh: float = field(default=250.0, metadata={
         "unit": "km/h", "doc": "largest radial speed a pairing may have", "min": 10.0, "max": 400.0})
     max_peaks_per_segment: int = field(default=128, metadata={
@@ -172,6 +174,13 @@ class LaneConfig:
         "min": 0.0, "max": 10.0})
     tracking: bool = field(default=True, metadata={
         "doc": "run the PDAF tracker and the traffic layer (off: detections only)"})
+    clutter_map_init_frames: int = field(default=16, metadata={
+        "doc": "after this many frames the clutter map is replaced by the per-bin median (real and imaginary parts) "
+               "of those frames: static returns, above all the TX->RX leakage 80 dB over the noise at DC, are then "
+               "removed exactly, while the running mean alone leaves (warm-up - 1)/(n + warm-up) of them for minutes "
+               "and masks every beat near zero frequency (vehicles 10-35 m from the radar); a vehicle moves through "
+               "a bin in a frame or two and stays out of the median; 0 = running mean only",
+        "min": 0, "max": 256})
 
 
 def _segment_slopes(fe: FrontendInfo) -> np.ndarray:
@@ -216,6 +225,8 @@ class LanePipeline(Pipeline):
         self._alpha = np.float32(1.0 - math.exp(-period / cfg.clutter_map_time_s)) if cfg.clutter_map_time_s > 0 else 0.0
         self._background = np.zeros(frontend.frame_shape, dtype=np.complex64)  # (rx, seg, bin) static-clutter map
         self._map_frames = 0
+        k_init = cfg.clutter_map_init_frames if self._alpha > 0 else 0
+        self._map_init = np.zeros((k_init,) + tuple(frontend.frame_shape), np.complex64) if k_init > 1 else None
         self._cap = np.float32(10.0 ** (cfg.cfar_cap_db / 10.0))
         self._ref_index = reference_index(n, cfg.cfar_train_cells, cfg.cfar_guard_cells)
         self._model = PairingModel.from_waveform(wf)
@@ -265,8 +276,14 @@ class LanePipeline(Pipeline):
                 # of a start instead of a minute (their wrong pairings made tracks hop along the rail);
                 # initialising it with the first frame alone would leave that frame's vehicles' images
                 alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
-                self._map_frames += 1
                 self._background += alpha * (spec - self._background)
+                if self._map_init is not None:  # the first frames are kept; then the map is their median
+                    self._map_init[self._map_frames] = spec
+                    if self._map_frames + 1 == self._map_init.shape[0]:
+                        med = np.median(self._map_init.real, axis=0) + 1j * np.median(self._map_init.imag, axis=0)
+                        self._background = med.astype(np.complex64)
+                        self._map_init = None
+                self._map_frames += 1
                 spec = spec - self._background
             power = (spec.real * spec.real + spec.imag * spec.imag).sum(axis=0)  # (seg, bin) float32
         with timer.stage("cfar"):
