@@ -359,6 +359,15 @@ class MofNInitiator:
         recent = tracks.history & self._mask_n
         counts = np.array([int(v).bit_count() for v in recent], dtype=np.int32) if len(tracks) else recent
         ready = ~tracks.confirmed & (counts >= c.confirm_m) & tracks.moved
+        if c.confirm_block_along_m > 0 and ready.any() and tracks.confirmed.any():
+            # a second track on a long vehicle (its front and its rear half) waits for the duplicate check
+            r, k = np.flatnonzero(ready), np.flatnonzero(tracks.confirmed)
+            d = tracks.x[r][:, None, :] - tracks.x[k][None, :, :]
+            u, _ = heading(tracks.x[k])  # speed compared along the confirmed track's heading (a young track's
+            dv = d[..., 2] * u[None, :, 0] + d[..., 3] * u[None, :, 1]  # lateral speed is still noise)
+            blocked = ((np.abs(d[..., 0]) < c.merge_lateral_m) & (np.abs(d[..., 1]) < c.confirm_block_along_m)
+                       & (np.abs(dv) < c.merge_speed_mps)).any(axis=1)
+            ready[r[blocked]] = False
         for i in np.flatnonzero(ready):
             tid = ids.acquire()
             if tid is None:
@@ -504,6 +513,8 @@ class PdafTracker:
             tr.hits += hit
             tr.misses = np.where(hit, 0, tr.misses + 1).astype(np.int32)
             tr.history = ((tr.history << np.uint32(1)) | hit.astype(np.uint32)).astype(np.uint32)
+            if cfg.reanchor_m > 0 and m and meas.with_radial_speed:
+                self._reanchor(meas, gated, hit, used)
             # moving for sure: the velocity is significantly non-zero (v' P_v^-1 v) and fast enough
             v = tr.x[:, 2:4]
             d2v = (v[:, None, :] @ np.linalg.solve(tr.p[:, 2:4, 2:4], v[:, :, None]))[:, 0, 0]
@@ -524,6 +535,37 @@ class PdafTracker:
         self.initiator.initiate(tr, meas, used)
         self.intermediates["used"] = used
         return self.published()
+
+    def _reanchor(self, meas: Measurements, gated: np.ndarray, hit: np.ndarray, used: np.ndarray) -> None:
+        """A confirmed track that missed moves to the nearest unclaimed detection up to ``reanchor_m`` nearer
+        than it, in line with it and at its radial speed (``PdafConfig.reanchor_m``): the near face of the
+        vehicle whose body the track sat on. Marks the detection used (no seed)."""
+        c = self.config
+        tr = self.tracks
+        miss = np.flatnonzero(tr.confirmed & ~hit)
+        free = np.flatnonzero(~gated.any(axis=0))
+        if miss.size == 0 or free.size == 0:
+            return
+        st, z = tr.x[miss], meas.z[free]
+        rho_t = np.maximum(np.hypot(st[:, 0], st[:, 1]), 1e-3)
+        vr_t = (st[:, 0] * st[:, 2] + st[:, 1] * st[:, 3]) / rho_t
+        nearer = rho_t[:, None] - np.hypot(z[:, 0], z[:, 1])[None, :]  # (k, f) > 0: the detection is nearer
+        ok = (nearer > 0) & (nearer <= c.reanchor_m) & (np.abs(st[:, 0, None] - z[None, :, 0]) < c.merge_lateral_m) & (
+            np.abs(vr_t[:, None] - z[None, :, 2]) < c.reanchor_speed_mps)
+        has = ok.any(axis=1)
+        if not has.any():
+            return
+        i = miss[has]
+        j = free[np.argmax(np.where(ok, nearer, -np.inf), axis=1)[has]]  # the nearest: the near face
+        tr.x[i, :2] = meas.z[j, :2]
+        _, _, r = self.measurement_model.at(tr.x[i], False)
+        tr.p[i, :2, :2] = r
+        tr.p[i, :2, 2:] = 0.0
+        tr.p[i, 2:, :2] = 0.0
+        tr.hits[i] += 1
+        tr.misses[i] = 0
+        tr.history[i] |= np.uint32(1)
+        used[j] = True
 
     def published(self) -> tuple[TrackState, ...]:
         tr = self.tracks

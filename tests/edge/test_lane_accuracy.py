@@ -37,3 +37,91 @@ def test_clutter_map_removes_the_tx_leakage_within_a_second():
     for fr in _frames(scene, 5, 30):
         _, inter = off.detect(fr, timer)
     assert 10.0 * np.log10(inter["power"][:, :3].max() / np.median(inter["power"])) > 40.0  # the leakage is there
+
+
+def _approaching_car_track_fraction(seed: int, config=None) -> float:
+    """Fraction of frames in which an approaching car (extended body, glint) between 300 and 270 m has a
+    confirmed track within 3 m + its length of its near face."""
+    from edge.config import load_config
+    from hw_sim.vehicles import RoadTrajectory, make_vehicle
+
+    cfg = config or load_config(env={})
+    scene = Scene(RadarPose(height_m=7.0, tilt_deg=1.5), seed=seed)
+    v = 30.0
+    traj = RoadTrajectory(-1.75, 372.0, -1, (0.0,), (v,))
+    car = make_vehicle(1, "car", traj, lane=1, rng=np.random.default_rng(seed), length_m=4.5)
+    scene.add_target(car)
+    p = LanePipeline(FE, cfg.section("pipeline.lane"), cfg.section("track.pdaf"), cfg.section("traffic"))
+    timer = StageTimer()
+    hit = n = 0
+    for fr in _frames(scene, seed, int(102.0 / v / FE.waveform.frame_period_s)):
+        res = p.process(fr, timer)
+        ref = car.near_face_point(fr.t_ns * 1e-9)
+        if not 270.0 <= ref[1] <= 300.0:
+            continue
+        n += 1
+        hit += any(t.confirmed and np.hypot(t.x_m - ref[0], t.y_m - ref[1]) <= 3.0 + car.length_m for t in p.tracker.published())
+    return hit / n
+
+
+def test_an_approaching_car_is_tracked_when_it_reaches_300_m():
+    """A car at 300 m is detected in only about half the frames (Swerling-like glint, 12 dB mean SNR).
+    Its track must be confirmed before it gets there: tracks (and detections) live beyond the design range,
+    and a tentative track may take 5 hits in 10 frames. Before: tracks beyond 320 m were deleted and 5 of 7
+    were needed, so the car was often still unconfirmed well inside 300 m."""
+    fractions = [_approaching_car_track_fraction(seed) for seed in (1, 2, 3)]
+    assert min(fractions) >= 0.95, fractions
+
+
+def _truck_run(seed: int, direction: int, y0_m: float, y_lo: float, y_hi: float, config=None):
+    """A 16 m truck (traffic body: near face, sides, far face; glint) in lane 1 (approaching, direction -1) or
+    lane 2 (receding, +1). Returns (frames with the near face in [y_lo, y_hi], frames whose nearest confirmed
+    track lies within 2.5 m of the near face, frames with more than one confirmed track on the truck)."""
+    from edge.config import load_config
+    from hw_sim.vehicles import RoadTrajectory, make_vehicle
+
+    cfg = config or load_config(env={})
+    scene = Scene(RadarPose(height_m=7.0, tilt_deg=1.5), seed=seed)
+    v = 25.0
+    x = -1.75 if direction < 0 else 1.75
+    truck = make_vehicle(1, "truck", RoadTrajectory(x, y0_m, direction, (0.0,), (v,)), lane=1,
+                         rng=np.random.default_rng(seed), length_m=16.0)
+    scene.add_target(truck)
+    p = LanePipeline(FE, cfg.section("pipeline.lane"), cfg.section("track.pdaf"), cfg.section("traffic"))
+    timer = StageTimer()
+    n = on_face = doubled = 0
+    ref0 = truck.near_face_point(0.0)[1]
+    n_frames = int((y_hi - ref0 if direction > 0 else ref0 - y_lo) / v / FE.waveform.frame_period_s) + 1
+    for fr in _frames(scene, seed, n_frames):
+        p.process(fr, timer)
+        ref = truck.near_face_point(fr.t_ns * 1e-9)
+        if not y_lo <= ref[1] <= y_hi:
+            continue
+        n += 1
+        tracks = [t for t in p.tracker.published() if t.confirmed]
+        d = np.array([np.hypot(t.x_m - ref[0], t.y_m - ref[1]) for t in tracks])
+        on_face += bool(d.size and d.min() <= 2.5)
+        # "on the truck": half a lane across, from just before the near face to the far end of the body (which
+        # lies farther from the radar whichever way the truck drives)
+        on_truck = [t for t in tracks if abs(t.x_m - ref[0]) < 1.75 and -3.0 <= t.y_m - ref[1] <= 19.0]
+        doubled += len(on_truck) > 1
+    return n, on_face, doubled
+
+
+def test_an_approaching_truck_is_one_track_on_its_near_face():
+    """Before: detections of the rear half of a 16 m truck (more than 7 m behind the near face) survived the
+    clustering and seeded a second track on the truck's body."""
+    for seed in (1, 2, 3):
+        n, on_face, doubled = _truck_run(seed, -1, 180.0, 40.0, 150.0)
+        assert on_face >= 0.95 * n, (seed, n, on_face)
+        assert doubled <= 0.02 * n, (seed, n, doubled)
+
+
+def test_a_receding_truck_from_under_the_overpass_is_tracked_on_its_near_face():
+    """A truck coming out from under the overpass shows its front first: the track is born on the front, 16 m
+    ahead of the near face (its rear, the reference point), and the near face could not seed a track of its
+    own in that track's same-vehicle box. Before (7 m / 0.6 m/s clustering, 5 of 7): on seed 1 the track stayed
+    16 m ahead of the near face. (A second track on the body ghosts still appears in some frames: not asserted.)"""
+    for seed in (1, 2, 3):
+        n, on_face, _ = _truck_run(seed, 1, -40.0, 20.0, 70.0)
+        assert on_face >= 0.8 * n, (seed, n, on_face)
