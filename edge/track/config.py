@@ -198,3 +198,26 @@ class PdafConfig:
                                                     "drops it or it moves clear (a follower this close at the same "
                                                     "speed, 0.6 s headway at 100 km/h, waits too); 0 = off",
                                 "min": 0.0, "max": 100.0})
+    confirm_block_lateral_m: float = field(
+        default=3.5, metadata={"unit": "m", "doc": "... and not while a confirmed track lies within this across "
+                                                   "(and confirm_block_along_m along) whose speed along is within "
+                                                   "confirm_block_speed_mps: the two sides of a truck at one range "
+                                                   "glint its body's echo up to a lane width beside it, at exactly "
+                                                   "its speed, behind its near face (a vehicle in the next lane "
+                                                   "that far behind waits until their speeds differ)",
+                                "min": 0.0, "max": 20.0})
+    confirm_block_speed_mps: float = field(
+        default=1.0, metadata={"unit": "m/s", "doc": "speed difference along of confirm_block_lateral_m (a young "
+                                                     "track's speed is good to a few tenths)",
+                               "min": 0.0, "max": 10.0})
+    confirm_block_behind_m: float = field(
+        default=2.0, metadata={"unit": "m", "doc": "... counted only for tentative tracks more than this farther from "
+                                                   "the radar than the confirmed one (body glint comes from behind the "
+                                                   "near face; two vehicles side by side at one range both confirm)",
+                               "min": 0.0, "max": 50.0})
+    confirm_block_max_range_m: float = field(
+        default=100.0, metadata={"unit": "m", "doc": "... and only for confirmed tracks nearer than this: farther "
+                                                     "out the azimuth noise is comparable with the glint offset and the "
+                                                     "glint joins the truck's own track, while a car in the next lane "
+                                                     "at the truck's speed must not wait",
+                                 "min": 0.0, "max": 1000.0})

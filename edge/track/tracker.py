@@ -365,8 +365,12 @@ class MofNInitiator:
             d = tracks.x[r][:, None, :] - tracks.x[k][None, :, :]
             u, _ = heading(tracks.x[k])  # speed compared along the confirmed track's heading (a young track's
             dv = d[..., 2] * u[None, :, 0] + d[..., 3] * u[None, :, 1]  # lateral speed is still noise)
-            blocked = ((np.abs(d[..., 0]) < c.merge_lateral_m) & (np.abs(d[..., 1]) < c.confirm_block_along_m)
-                       & (np.abs(dv) < c.merge_speed_mps)).any(axis=1)
+            along = np.abs(d[..., 1]) < c.confirm_block_along_m
+            blocked = (along & (((np.abs(d[..., 0]) < c.merge_lateral_m) & (np.abs(dv) < c.merge_speed_mps))
+                                | ((np.abs(d[..., 0]) < c.confirm_block_lateral_m) & (d[..., 1] > c.confirm_block_behind_m)
+                                   & (np.abs(dv) < c.confirm_block_speed_mps)
+                                   & (np.hypot(tracks.x[k, 0], tracks.x[k, 1]) < c.confirm_block_max_range_m)[None, :])
+                                )).any(axis=1)
             ready[r[blocked]] = False
         for i in np.flatnonzero(ready):
             tid = ids.acquire()
