@@ -485,16 +485,23 @@ class LanePipeline(Pipeline):
             k = assign_lanes(u, lanes)
             return np.where(k >= 0, dirs[np.maximum(k, 0)], 0)
 
-        s0 = np.sin(az.astype(np.float64))
-        bad = moving & (lane_dir(s0) == -sign)
+        period = self.frontend.waveform.wavelength_m / self.frontend.rx_spacing_m
+        # an alias is sin(az) +- period away, i.e. about period x range across: only near detections can have
+        # both themselves and their alias on the road (the rest is left alone at the cost of one comparison)
+        span = max(ln.center_m + 0.5 * ln.width_m for ln in lanes) - min(ln.center_m - 0.5 * ln.width_m for ln in lanes)
+        idx = np.flatnonzero(moving & (range_m <= np.float32(span / period + cfg.mounting_height_m)))
+        if idx.size == 0:
+            return az
+        range_m, sign = range_m[idx], sign[idx]
+        s0 = np.sin(az[idx].astype(np.float64))
+        bad = lane_dir(s0) == -sign
         if not bad.any():
             return az
         az = az.copy()
-        period = self.frontend.waveform.wavelength_m / self.frontend.rx_spacing_m
         for alt in (s0 + period, s0 - period):  # the two neighbouring grating lobes
             ok = bad & (np.abs(alt) <= 1.0)
             ok &= lane_dir(alt) == sign
-            az[ok] = np.arcsin(alt[ok]).astype(np.float32)
+            az[idx[ok]] = np.arcsin(alt[ok]).astype(np.float32)
             bad &= ~ok
         return az
 
