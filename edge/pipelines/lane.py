@@ -3,7 +3,8 @@
 Per frame (four chirp segments: fast up, fast down, slow up, slow down; 4 receive channels)::
 
     int16 I/Q -> complex64 -> windowed range FFT (every segment and channel)
-      -> static-clutter map subtracted (exponential average of the complex spectra)
+      -> static-clutter map subtracted (exponential average of the complex spectra, initialised with the
+         per-bin median of the first frames so the TX leakage at DC is gone within half a second)
       -> non-coherent integration over the channels -> OS-CFAR per segment -> local maxima,
          sub-bin interpolation -> signed beat frequencies
       -> four-segment pairing (edge.dsp.pairing): range at the frame start and radial speed,
@@ -15,7 +16,9 @@ Per frame (four chirp segments: fast up, fast down, slow up, slow down; 4 receiv
          each normalised, a segment that disagrees with the others left out (edge.dsp.angle)
       -> resolve (edge.dsp.resolve): a detection whose range-speed cell holds two vehicles side by side
          (rank-two spatial covariance over frames) becomes two detections, one per fitted angle
-      -> ground-plane x/y (edge.dsp.geometry, eq. 16 for a raised radar), nearest face of each body
+      -> grating-lobe aliases of near vehicles beyond +-19.5 deg moved back into a lane of their direction
+      -> ground-plane x/y (edge.dsp.geometry, eq. 16 for a raised radar), nearest face of each body (a 17 m
+         body's detections and the wrong pairings among its scatterers dropped)
       -> PDAF tracker (edge.track) -> lanes, statistics, events (edge.traffic)
 
 All parameters are in :class:`LaneConfig` (section ``pipeline.lane``); the tracker and the traffic

@@ -37,7 +37,11 @@ Beyond Lim's single-point PDAF, what a roadside radar needs (all parameters in `
   whose states are statistically indistinguishable, are one vehicle: the junior is dropped (before
   confirmation, so no id is spent on it);
 - confirmation needs M of N hits and a speed surely above ``confirm_min_speed_mps`` (static clutter
-  stays in unpublished tentative tracks that absorb its detections).
+  stays in unpublished tentative tracks that absorb its detections), and waits while a confirmed track
+  moving the same way lies within a truck length along (``confirm_block_*``: a long vehicle's second
+  seed, or its body's glint a lane beside it);
+- re-anchoring: a confirmed track that misses moves to an unclaimed detection up to ``reanchor_m``
+  nearer at its radial speed (it sat on a truck's body; the near face is the reference point).
 
 Measured on seeded synthetic scenes (tests/edge/trackscene.py): crossing vehicles that swap lanes
 side by side keep their ids with the cheap JPDA down to 1.5 m/s speed difference (PDAF: 6 of 10
