@@ -174,11 +174,9 @@ class LaneConfig:
                "seconds (a false track, an id switch when it took over, a track on the body instead of the near face). "
                "A follower this close at the same speed is hidden meanwhile (0.6 s headway at 100 km/h)",
         "min": 0.0, "max": 30.0})
-    cluster_speed_mps: float = field(default=6.0, metadata={
-        "unit": "m/s", "doc": "radial speed difference within which detections can be one vehicle: the body's own "
-               "scatterers share its speed, but wrong pairings between two of them (accepted when their true pairs "
-               "are not) lie between them at +-0.83 m/s per metre of spacing (a/2b of the fast segments; +-4 to "
-               "+-5.3 m/s seen on trucks 10-60 m away): 6 m/s covers scatterers up to 7 m apart",
+    cluster_speed_mps: float = field(default=0.6, metadata={
+        "unit": "m/s", "doc": "radial speed difference within which detections can be one vehicle (the body's own "
+               "scatterers share its speed)",
         "min": 0.0, "max": 10.0})
     cluster_lateral_m: float = field(default=1.5, metadata={
         "unit": "m", "doc": "lateral difference within which detections can be one vehicle (half a lane)",
@@ -194,6 +192,22 @@ class LaneConfig:
     unalias_min_speed_mps: float = field(default=1.0, metadata={
         "unit": "m/s", "doc": "radial speed below which a detection's direction of travel is unknown (not unaliased)",
         "min": 0.0, "max": 50.0})
+    cluster_ghost_speed_mps: float = field(default=0.0, metadata={
+        "unit": "m/s", "doc": "wrong pairings between two of a body's scatterers (accepted when their true pairs are "
+               "not) lie between them, off the body's speed by 0.83 m/s per metre of their spacing (a/2b of the fast "
+               "segments; +-4 to +-5.3 m/s seen on trucks 10-60 m away): detections behind a nearer one are dropped "
+               "up to this speed difference, but at most cluster_ghost_speed_per_m x their distance behind; 0 = off "
+               "(default): a car overtaking a van 2-5 m behind it at 2.8 m/s more during a lane swap (crossing) looks "
+               "exactly like such a ghost and was dropped, its track lost (6 m/s: an id switch on one seed of eight); "
+               "with it off, the ghosts on near trucks can seed tracks (confirmation blocking catches those within "
+               "merge_speed_mps)",
+        "min": 0.0, "max": 20.0})
+    cluster_ghost_speed_per_m: float = field(default=1.7, metadata={
+        "unit": "m/s per m", "doc": "... (twice 0.83: one of the two scatterers may be the near face itself)",
+        "min": 0.0, "max": 10.0})
+    cluster_ghost_length_m: float = field(default=8.5, metadata={
+        "unit": "m", "doc": "... and only up to this far behind (the midpoint between the near face and the far end of "
+               "the longest truck)", "min": 0.0, "max": 30.0})
     clutter_map_init_frames: int = field(default=16, metadata={
         "doc": "after this many frames the clutter map is replaced by the per-bin median (real and imaginary parts) "
                "of those frames: static returns, above all the TX->RX leakage 80 dB over the noise at DC, are then "
@@ -389,7 +403,10 @@ class LanePipeline(Pipeline):
             sel = np.arange(rng.size)
             if cfg.cluster_length_m > 0 and sel.size > 1:
                 sel = sel[nearest_of_clusters(rng, vel, x, length_m=cfg.cluster_length_m,
-                                              speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m)]
+                                              speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m,
+                                              ghost_speed_per_m=cfg.cluster_ghost_speed_per_m,
+                                              ghost_speed_mps=cfg.cluster_ghost_speed_mps,
+                                              ghost_length_m=cfg.cluster_ghost_length_m)]
             det = Detections(rng[sel], vel[sel], az[sel], snr_db[sel], x[sel], y[sel],
                              {"pair_residual_hz": res[sel], "resolved_pair": pair_of[sel]})
         inter = {
