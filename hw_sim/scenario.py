@@ -15,6 +15,7 @@ Schema (every key optional unless marked; units in names)::
     height_m = 6.0
     yaw_deg = 0.0                # boresight heading, clockwise from +y
     tilt_deg = 1.0               # downward tilt of the boresight
+    occluded_behind = false      # on an overpass's face: the deck hides everything behind it
 
     [[lane]]                     # road lanes (ground truth and lane statistics)
     center_x_m = -5.25
@@ -122,6 +123,13 @@ class Scenario:
 GENERATORS: dict[str, Callable[[Scene, Scenario, dict, np.random.Generator], None]] = {}
 
 
+def _bool(d: dict, key: str, where: str = "") -> bool:
+    v = d.get(key, False)
+    if not isinstance(v, bool):
+        raise ScenarioError(f"{where}{key} must be true or false, got {v!r}")
+    return v
+
+
 def _num(d: dict, key: str, default: float | None = None, where: str = "") -> float:
     if key not in d:
         if default is None:
@@ -188,6 +196,7 @@ def parse_scenario(raw: dict[str, Any], source: str = "<string>") -> Scenario:
         height_m=_num(r, "height_m", 6.0 if board == "simo" else 1.0, w),
         yaw_deg=_num(r, "yaw_deg", 0.0, w),
         tilt_deg=_num(r, "tilt_deg", 0.0, w),
+        occluded_behind=_bool(r, "occluded_behind", w),
     )
     lanes = []
     for n, ln in enumerate(raw.get("lane", [])):

@@ -34,6 +34,9 @@ class RadarPose:
     height_m: float = 6.0
     yaw_deg: float = 0.0
     tilt_deg: float = 0.0
+    #: the radar hangs on the face of an overpass: the deck hides everything behind the vertical plane of
+    #: its face (under and beyond the bridge), whatever the antennas' front-to-back ratio
+    occluded_behind: bool = False
 
     @property
     def position(self) -> np.ndarray:
@@ -234,9 +237,17 @@ class Scene:
         if not pos:
             z = np.zeros((0, 3))
             return ScattererSet(z, z.copy(), np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.int32))
-        return ScattererSet(
+        out = ScattererSet(
             np.concatenate(pos), np.concatenate(vel), np.concatenate(rcs), np.concatenate(ph), np.concatenate(idx)
         )
+        if self.pose.occluded_behind:  # the overpass deck: nothing behind the plane of its face is seen
+            yaw = math.radians(self.pose.yaw_deg)
+            d = out.position_m[:, :2] - np.array([self.pose.x_m, self.pose.y_m])
+            front = d[:, 0] * math.sin(yaw) + d[:, 1] * math.cos(yaw) > 0.0
+            if not front.all():
+                out = ScattererSet(out.position_m[front], out.velocity_mps[front], out.rcs_m2[front],
+                                   out.phase_cycles[front], out.target_index[front])
+        return out
 
     def truth(self, t_s: float) -> GroundTruth:
         act = [tg for tg in self.targets if tg.active(t_s)]

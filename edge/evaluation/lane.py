@@ -23,8 +23,9 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   fewer than half of its frames *in view* (the same region as for vehicles; vehicles out of view count
   for the assignment, so a track on a vehicle at 310 m is not false). Frames of a track outside the
   region are not scored, as vehicles outside it are not: the traffic generator removes a receding
-  vehicle once its centre passes ``range_m`` (320 m) while its track, on the rear face two metres nearer,
-  rightly coasts on for a few frames; ``false_tracks_per_min`` over the evaluated time;
+  vehicle once its centre passes ``range_m`` (380 m in the built-in scenarios) while its track, on the
+  rear face two metres nearer, rightly coasts on for a few frames; ``false_tracks_per_min`` over the
+  evaluated time;
 * ``lane_accuracy``: assigned pairs whose track lane equals the vehicle's true lane at that frame;
 * ``count_error_per_lane``: measured volume at the traffic layer's detection line (closed intervals
   plus the open one) minus the true number of reference points crossing it, per lane.

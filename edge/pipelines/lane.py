@@ -3,7 +3,8 @@
 Per frame (four chirp segments: fast up, fast down, slow up, slow down; 4 receive channels)::
 
     int16 I/Q -> complex64 -> windowed range FFT (every segment and channel)
-      -> static-clutter map subtracted (exponential average of the complex spectra)
+      -> static-clutter map subtracted (exponential average of the complex spectra, initialised with the
+         per-bin median of the first frames so the TX leakage at DC is gone within half a second)
       -> non-coherent integration over the channels -> OS-CFAR per segment -> local maxima,
          sub-bin interpolation -> signed beat frequencies
       -> four-segment pairing (edge.dsp.pairing): range at the frame start and radial speed,
@@ -15,7 +16,9 @@ Per frame (four chirp segments: fast up, fast down, slow up, slow down; 4 receiv
          each normalised, a segment that disagrees with the others left out (edge.dsp.angle)
       -> resolve (edge.dsp.resolve): a detection whose range-speed cell holds two vehicles side by side
          (rank-two spatial covariance over frames) becomes two detections, one per fitted angle
-      -> ground-plane x/y (edge.dsp.geometry, eq. 16 for a raised radar), nearest face of each body
+      -> grating-lobe aliases of near vehicles beyond +-19.5 deg moved back into a lane of their direction
+      -> ground-plane x/y (edge.dsp.geometry, eq. 16 for a raised radar), nearest face of each body (a 17 m
+         body's detections and the wrong pairings among its scatterers dropped)
       -> PDAF tracker (edge.track) -> lanes, statistics, events (edge.traffic)
 
 All parameters are in :class:`LaneConfig` (section ``pipeline.lane``); the tracker and the traffic
@@ -85,8 +88,11 @@ class LaneConfig:
     min_range_m: float = field(default=5.0, metadata={
         "unit": "m", "doc": "nearest slant range reported (TX->RX leakage and the overpass itself are closer)",
         "min": 0.0, "max": 100.0})
-    max_range_m: float = field(default=330.0, metadata={
-        "unit": "m", "doc": "farthest slant range reported (design range 300 m)", "min": 10.0, "max": 400.0})
+    max_range_m: float = field(default=375.0, metadata={
+        "unit": "m", "doc": "farthest slant range reported (design range 300 m; a car fades out at 350-390 m and an "
+               "approaching one is tracked from there, so its track is confirmed when it reaches 300 m: on "
+               "highway4-traffic seed 1 (2 min) car Pd at 250-300 m 0.92 with 330 m, 0.94 with 375 m; 384 m is the "
+               "unambiguous range at standstill)", "min": 10.0, "max": 400.0})
     max_speed_kmh: float = field(default=250.0, metadata={
         "unit": "km/h", "doc": "largest radial speed a pairing may have", "min": 10.0, "max": 400.0})
     max_peaks_per_segment: int = field(default=128, metadata={
@@ -163,17 +169,54 @@ class LaneConfig:
     target_height_m: float = field(default=0.5, metadata={
         "unit": "m", "doc": "height of the dominant vehicle scatterers (bumper) for the ground projection",
         "min": 0.0, "max": 5.0})
-    cluster_length_m: float = field(default=7.0, metadata={
+    cluster_length_m: float = field(default=17.0, metadata={
         "unit": "m", "doc": "detections at most this much farther than another one with the same radial speed and "
-               "lateral position are the same vehicle's body and dropped (0 = keep every detection)",
+               "lateral position are the same vehicle's body and dropped (0 = keep every detection); 17 m holds the "
+               "longest truck (16.5 m): with 7 m, the rear half of a truck seeded a second track that lived for "
+               "seconds (a false track, an id switch when it took over, a track on the body instead of the near face). "
+               "A follower this close at the same speed is hidden meanwhile (0.6 s headway at 100 km/h)",
         "min": 0.0, "max": 30.0})
     cluster_speed_mps: float = field(default=0.6, metadata={
-        "unit": "m/s", "doc": "radial speed difference within which detections can be one vehicle", "min": 0.0, "max": 10.0})
+        "unit": "m/s", "doc": "radial speed difference within which detections can be one vehicle (the body's own "
+               "scatterers share its speed)",
+        "min": 0.0, "max": 10.0})
     cluster_lateral_m: float = field(default=1.5, metadata={
         "unit": "m", "doc": "lateral difference within which detections can be one vehicle (half a lane)",
         "min": 0.0, "max": 10.0})
     tracking: bool = field(default=True, metadata={
         "doc": "run the PDAF tracker and the traffic layer (off: detections only)"})
+    unalias_by_lane: bool = field(default=True, metadata={
+        "doc": "when lanes are known, a moving detection that lands in a lane of the other direction of travel is "
+               "moved to its grating-lobe alias (sin(az) +- lambda/d) if that lies in a lane of its own direction: "
+               "near vehicles in outer lanes lie beyond the +-19.5 deg unambiguous sector and appeared mirrored "
+               "across the road as receding vehicles in approaching lanes (8 of 12 false tracks on highway4-traffic "
+               "seed 2, first 2 min)"})
+    unalias_min_speed_mps: float = field(default=1.0, metadata={
+        "unit": "m/s", "doc": "radial speed below which a detection's direction of travel is unknown (not unaliased)",
+        "min": 0.0, "max": 50.0})
+    cluster_ghost_speed_mps: float = field(default=0.0, metadata={
+        "unit": "m/s", "doc": "wrong pairings between two of a body's scatterers (accepted when their true pairs are "
+               "not) lie between them, off the body's speed by 0.83 m/s per metre of their spacing (a/2b of the fast "
+               "segments; +-4 to +-5.3 m/s seen on trucks 10-60 m away): detections behind a nearer one are dropped "
+               "up to this speed difference, but at most cluster_ghost_speed_per_m x their distance behind; 0 = off "
+               "(default): a car overtaking a van 2-5 m behind it at 2.8 m/s more during a lane swap (crossing) looks "
+               "exactly like such a ghost and was dropped, its track lost (6 m/s: an id switch on one seed of eight); "
+               "with it off, the ghosts on near trucks can seed tracks (confirmation blocking catches those within "
+               "merge_speed_mps)",
+        "min": 0.0, "max": 20.0})
+    cluster_ghost_speed_per_m: float = field(default=1.7, metadata={
+        "unit": "m/s per m", "doc": "... (twice 0.83: one of the two scatterers may be the near face itself)",
+        "min": 0.0, "max": 10.0})
+    cluster_ghost_length_m: float = field(default=8.5, metadata={
+        "unit": "m", "doc": "... and only up to this far behind (the midpoint between the near face and the far end of "
+               "the longest truck)", "min": 0.0, "max": 30.0})
+    clutter_map_init_frames: int = field(default=16, metadata={
+        "doc": "after this many frames the clutter map is replaced by the per-bin median (real and imaginary parts) "
+               "of those frames: static returns, above all the TX->RX leakage 80 dB over the noise at DC, are then "
+               "removed exactly, while the running mean alone leaves (warm-up - 1)/(n + warm-up) of them for minutes "
+               "and masks every beat near zero frequency (vehicles 10-35 m from the radar); a vehicle moves through "
+               "a bin in a frame or two and stays out of the median; 0 = running mean only",
+        "min": 0, "max": 256})
 
 
 def _segment_slopes(fe: FrontendInfo) -> np.ndarray:
@@ -225,6 +268,8 @@ class LanePipeline(Pipeline):
         self._alpha = np.float32(1.0 - math.exp(-period / cfg.clutter_map_time_s)) if cfg.clutter_map_time_s > 0 else 0.0
         self._background = np.zeros(frontend.frame_shape, dtype=np.complex64)  # (rx, seg, bin) static-clutter map
         self._map_frames = 0
+        k_init = cfg.clutter_map_init_frames if self._alpha > 0 else 0
+        self._map_init = np.zeros((k_init,) + tuple(frontend.frame_shape), np.complex64) if k_init > 1 else None
         self._cap = np.float32(10.0 ** (cfg.cfar_cap_db / 10.0))
         self._ref_index = reference_index(n, cfg.cfar_train_cells, cfg.cfar_guard_cells)
         self._half = cfg.cfar_train_cells + cfg.cfar_guard_cells  # circular padding of the power rows
@@ -285,10 +330,16 @@ class LanePipeline(Pipeline):
                 # of a start instead of a minute (their wrong pairings made tracks hop along the rail);
                 # initialising it with the first frame alone would leave that frame's vehicles' images
                 alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
-                self._map_frames += 1
                 d = np.subtract(spec, self._background, out=self._diff)
                 d *= alpha
                 self._background += d
+                if self._map_init is not None:  # the first frames are kept; then the map is their median
+                    self._map_init[self._map_frames] = spec
+                    if self._map_frames + 1 == self._map_init.shape[0]:
+                        med = np.median(self._map_init.real, axis=0) + 1j * np.median(self._map_init.imag, axis=0)
+                        self._background[...] = med
+                        self._map_init = None
+                self._map_frames += 1
                 spec -= self._background
             # non-coherent sum over the channels, written into the middle of a circularly padded row per
             # segment (the OS-CFAR windows read across the ends); ``power`` is a view of it
@@ -394,11 +445,16 @@ class LanePipeline(Pipeline):
                     snr_db = np.concatenate([snr_db, snr_db[s_idx]])
                     pair_of = np.concatenate([pair_of, s_idx.astype(np.int32)])
         with timer.stage("geometry"):
+            if cfg.unalias_by_lane and rng.size and self.traffic is not None and self.traffic.lanes:
+                az = self._unalias_by_lane(rng, vel, az)
             x, y = polar_to_ground(rng, az, cfg.mounting_height_m, cfg.target_height_m)
             sel = np.arange(rng.size)
             if cfg.cluster_length_m > 0 and sel.size > 1:
                 sel = sel[nearest_of_clusters(rng, vel, x, length_m=cfg.cluster_length_m,
-                                              speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m)]
+                                              speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m,
+                                              ghost_speed_per_m=cfg.cluster_ghost_speed_per_m,
+                                              ghost_speed_mps=cfg.cluster_ghost_speed_mps,
+                                              ghost_length_m=cfg.cluster_ghost_length_m)]
             det = Detections(rng[sel], vel[sel], az[sel], snr_db[sel], x[sel], y[sel],
                              {"pair_residual_hz": res[sel], "resolved_pair": pair_of[sel]})
         inter = {
@@ -488,6 +544,48 @@ class LanePipeline(Pipeline):
         g = good.nonzero()[0][close]
         return (out_bins[g], sol[close, 0].astype(np.float32), sol[close, 1].astype(np.float32),
                 resid[close].astype(np.float32))
+
+    def _unalias_by_lane(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray) -> np.ndarray:
+        """Grating lobes: with d = 1.5 lambda the array measures sin(az) only modulo lambda/d (+-19.5 deg). A
+        vehicle close to the radar in an outer lane lies beyond that (25 deg at 12 m) and its echo, still strong
+        through the sidelobes, shows up mirrored across the road. A moving detection that lands in a lane of the
+        other direction of travel is moved to its alias (sin(az) +- lambda/d) if that lies in a lane of its own
+        direction; otherwise it is left alone (a wrong-way driver keeps its position unless, within about 15 m,
+        its alias falls in a lane of the matching direction)."""
+        from edge.traffic.lanes import assign_lanes, to_road
+
+        cfg = self.config
+        lanes = self.traffic.lanes
+        dirs = np.array([ln.direction for ln in lanes])
+        sign = np.sign(v_mps).astype(np.int64)  # +1 receding: lanes "away"
+        moving = np.abs(v_mps) >= np.float32(cfg.unalias_min_speed_mps)
+
+        def lane_dir(sin_az: np.ndarray) -> np.ndarray:
+            x, y = polar_to_ground(range_m, np.arcsin(np.clip(sin_az, -1.0, 1.0)), cfg.mounting_height_m,
+                                   cfg.target_height_m)
+            u, _ = to_road(x.astype(np.float64), y.astype(np.float64), self.traffic.yaw_rad)
+            k = assign_lanes(u, lanes)
+            return np.where(k >= 0, dirs[np.maximum(k, 0)], 0)
+
+        period = self.frontend.waveform.wavelength_m / self.frontend.rx_spacing_m
+        # an alias is sin(az) +- period away, i.e. about period x range across: only near detections can have
+        # both themselves and their alias on the road (the rest is left alone at the cost of one comparison)
+        span = max(ln.center_m + 0.5 * ln.width_m for ln in lanes) - min(ln.center_m - 0.5 * ln.width_m for ln in lanes)
+        idx = np.flatnonzero(moving & (range_m <= np.float32(span / period + cfg.mounting_height_m)))
+        if idx.size == 0:
+            return az
+        range_m, sign = range_m[idx], sign[idx]
+        s0 = np.sin(az[idx].astype(np.float64))
+        bad = lane_dir(s0) == -sign
+        if not bad.any():
+            return az
+        az = az.copy()
+        for alt in (s0 + period, s0 - period):  # the two neighbouring grating lobes
+            ok = bad & (np.abs(alt) <= 1.0)
+            ok &= lane_dir(alt) == sign
+            az[idx[ok]] = np.arcsin(alt[ok]).astype(np.float32)
+            bad &= ~ok
+        return az
 
     def _split_straddles_lanes(self, range_m: np.ndarray, ang: np.ndarray) -> np.ndarray:
         """(n,) bool: the two directions of a split lie in adjacent lanes with their midpoint near the

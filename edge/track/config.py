@@ -76,7 +76,11 @@ class PdafConfig:
         default=5, metadata={"doc": "M of the M-of-N confirmation (5 of 7 frames = 0.2 s: in seeded runs with 3 "
                                     "noise detections per frame it halved the false tracks of 3 of 5)",
                              "min": 1, "max": 32})
-    confirm_n: int = field(default=7, metadata={"doc": "N of the M-of-N confirmation (frames)", "min": 1, "max": 32})
+    confirm_n: int = field(default=10, metadata={
+        "doc": "N of the M-of-N confirmation (frames). A car at 300 m is detected in about half the frames (glint, "
+               "12 dB mean SNR): 5 of 7 happens in 0.3 of the windows there, and a tentative track that can no longer "
+               "make it is dropped, so cars came into view untracked; 5 of 10 happens in 0.6",
+        "min": 1, "max": 32})
     moving_prob: float = field(
         default=0.9999, metadata={"doc": "a track counts as moving once v' P_v^-1 v exceeds the chi-square (2 dof) "
                                          "quantile of this probability and its speed exceeds confirm_min_speed_mps",
@@ -97,7 +101,9 @@ class PdafConfig:
                                "min": 0.1, "max": 1000.0})
     min_range_m: float = field(default=2.0, metadata={"unit": "m", "doc": "tracks live beyond this ground range",
                                                       "min": 0.0, "max": 100.0})
-    max_range_m: float = field(default=320.0, metadata={"unit": "m", "doc": "tracks live within this ground range",
+    max_range_m: float = field(default=370.0, metadata={"unit": "m", "doc": "tracks live within this ground range "
+                                                                        "(beyond the 300 m design range: an approaching "
+                                                                        "vehicle's track is confirmed before it gets there)",
                                                         "min": 1.0, "max": 2000.0})
     max_azimuth_deg: float = field(
         default=20.0, metadata={"unit": "deg", "doc": "tracks are deleted once outside this azimuth (the antenna's "
@@ -170,3 +176,48 @@ class PdafConfig:
                                        "detection chain reports several peaks per vehicle"})
     publish_tentative: bool = field(
         default=False, metadata={"doc": "also publish tentative tracks (confirmed=False, track_id=0)"})
+    reanchor_m: float = field(
+        default=17.0, metadata={"unit": "m", "doc": "a confirmed track without a detection in its gate moves to a "
+                                                    "detection no track validated that lies up to this much nearer "
+                                                    "in ground range, within merge_lateral_m across and "
+                                                    "reanchor_speed_mps in radial speed: it sat on the body of that "
+                                                    "detection's vehicle (a track born on a truck's front as the "
+                                                    "truck came out from under the overpass, or on a ghost along "
+                                                    "its body) and the near face, the vehicle's reference point, "
+                                                    "could not seed because it lies in the track's same-vehicle "
+                                                    "box (16.5 m: the longest truck); 0 = off",
+                                "min": 0.0, "max": 100.0})
+    reanchor_speed_mps: float = field(
+        default=1.0, metadata={"unit": "m/s", "doc": "radial-speed difference within which a re-anchoring "
+                                                     "detection is the track's own vehicle", "min": 0.0, "max": 20.0})
+    confirm_block_along_m: float = field(
+        default=17.0, metadata={"unit": "m", "doc": "a tentative track is not confirmed while a confirmed track lies "
+                                                    "within merge_lateral_m across and this far along with a velocity "
+                                                    "within merge_speed_mps: the same long vehicle (16.5 m truck) "
+                                                    "seeded twice; it stays tentative until the duplicate check "
+                                                    "drops it or it moves clear (a follower this close at the same "
+                                                    "speed, 0.6 s headway at 100 km/h, waits too); 0 = off",
+                                "min": 0.0, "max": 100.0})
+    confirm_block_lateral_m: float = field(
+        default=3.5, metadata={"unit": "m", "doc": "... and not while a confirmed track lies within this across "
+                                                   "(and confirm_block_along_m along) whose speed along is within "
+                                                   "confirm_block_speed_mps: the two sides of a truck at one range "
+                                                   "glint its body's echo up to a lane width beside it, at exactly "
+                                                   "its speed, behind its near face (a vehicle in the next lane "
+                                                   "that far behind waits until their speeds differ)",
+                                "min": 0.0, "max": 20.0})
+    confirm_block_speed_mps: float = field(
+        default=1.0, metadata={"unit": "m/s", "doc": "speed difference along of confirm_block_lateral_m (a young "
+                                                     "track's speed is good to a few tenths)",
+                               "min": 0.0, "max": 10.0})
+    confirm_block_behind_m: float = field(
+        default=2.0, metadata={"unit": "m", "doc": "... counted only for tentative tracks more than this farther from "
+                                                   "the radar than the confirmed one (body glint comes from behind the "
+                                                   "near face; two vehicles side by side at one range both confirm)",
+                               "min": 0.0, "max": 50.0})
+    confirm_block_max_range_m: float = field(
+        default=100.0, metadata={"unit": "m", "doc": "... and only for confirmed tracks nearer than this: farther "
+                                                     "out the azimuth noise is comparable with the glint offset and the "
+                                                     "glint joins the truck's own track, while a car in the next lane "
+                                                     "at the truck's speed must not wait",
+                                 "min": 0.0, "max": 1000.0})

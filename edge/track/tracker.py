@@ -37,7 +37,11 @@ Beyond Lim's single-point PDAF, what a roadside radar needs (all parameters in `
   whose states are statistically indistinguishable, are one vehicle: the junior is dropped (before
   confirmation, so no id is spent on it);
 - confirmation needs M of N hits and a speed surely above ``confirm_min_speed_mps`` (static clutter
-  stays in unpublished tentative tracks that absorb its detections).
+  stays in unpublished tentative tracks that absorb its detections), and waits while a confirmed track
+  moving the same way lies within a truck length along (``confirm_block_*``: a long vehicle's second
+  seed, or its body's glint a lane beside it);
+- re-anchoring: a confirmed track that misses moves to an unclaimed detection up to ``reanchor_m``
+  nearer at its radial speed (it sat on a truck's body; the near face is the reference point).
 
 Measured on seeded synthetic scenes (tests/edge/trackscene.py): crossing vehicles that swap lanes
 side by side keep their ids with the cheap JPDA down to 1.5 m/s speed difference (PDAF: 6 of 10
@@ -378,6 +382,19 @@ class MofNInitiator:
         recent = tracks.history & self._mask_n
         counts = np.bitwise_count(recent)
         ready = ~tracks.confirmed & (counts >= c.confirm_m) & tracks.moved
+        if c.confirm_block_along_m > 0 and ready.any() and tracks.confirmed.any():
+            # a second track on a long vehicle (its front and its rear half) waits for the duplicate check
+            r, k = np.flatnonzero(ready), np.flatnonzero(tracks.confirmed)
+            d = tracks.x[r][:, None, :] - tracks.x[k][None, :, :]
+            u, _ = heading(tracks.x[k])  # speed compared along the confirmed track's heading (a young track's
+            dv = d[..., 2] * u[None, :, 0] + d[..., 3] * u[None, :, 1]  # lateral speed is still noise)
+            along = np.abs(d[..., 1]) < c.confirm_block_along_m
+            blocked = (along & (((np.abs(d[..., 0]) < c.merge_lateral_m) & (np.abs(dv) < c.merge_speed_mps))
+                                | ((np.abs(d[..., 0]) < c.confirm_block_lateral_m) & (d[..., 1] > c.confirm_block_behind_m)
+                                   & (np.abs(dv) < c.confirm_block_speed_mps)
+                                   & (np.hypot(tracks.x[k, 0], tracks.x[k, 1]) < c.confirm_block_max_range_m)[None, :])
+                                )).any(axis=1)
+            ready[r[blocked]] = False
         for i in ready.nonzero()[0]:
             tid = ids.acquire()
             if tid is None:
@@ -536,6 +553,8 @@ class PdafTracker:
             tr.hits += hit
             tr.misses = np.where(hit, 0, tr.misses + 1).astype(np.int32, copy=False)
             tr.history = ((tr.history << np.uint32(1)) | hit.astype(np.uint32)).astype(np.uint32, copy=False)
+            if cfg.reanchor_m > 0 and m and meas.with_radial_speed:
+                self._reanchor(meas, gated, hit, used)
             # moving for sure: the velocity is significantly non-zero (v' P_v^-1 v) and fast enough
             v = tr.x[:, 2:4]
             d2v = (v[:, None, :] @ np.linalg.solve(tr.p[:, 2:4, 2:4], v[:, :, None]))[:, 0, 0]
@@ -557,6 +576,37 @@ class PdafTracker:
         self.initiator.initiate(tr, meas, used)
         self.intermediates["used"] = used
         return self.published()
+
+    def _reanchor(self, meas: Measurements, gated: np.ndarray, hit: np.ndarray, used: np.ndarray) -> None:
+        """A confirmed track that missed moves to the nearest unclaimed detection up to ``reanchor_m`` nearer
+        than it, in line with it and at its radial speed (``PdafConfig.reanchor_m``): the near face of the
+        vehicle whose body the track sat on. Marks the detection used (no seed)."""
+        c = self.config
+        tr = self.tracks
+        miss = np.flatnonzero(tr.confirmed & ~hit)
+        free = np.flatnonzero(~gated.any(axis=0))
+        if miss.size == 0 or free.size == 0:
+            return
+        st, z = tr.x[miss], meas.z[free]
+        rho_t = np.maximum(np.hypot(st[:, 0], st[:, 1]), 1e-3)
+        vr_t = (st[:, 0] * st[:, 2] + st[:, 1] * st[:, 3]) / rho_t
+        nearer = rho_t[:, None] - np.hypot(z[:, 0], z[:, 1])[None, :]  # (k, f) > 0: the detection is nearer
+        ok = (nearer > 0) & (nearer <= c.reanchor_m) & (np.abs(st[:, 0, None] - z[None, :, 0]) < c.merge_lateral_m) & (
+            np.abs(vr_t[:, None] - z[None, :, 2]) < c.reanchor_speed_mps)
+        has = ok.any(axis=1)
+        if not has.any():
+            return
+        i = miss[has]
+        j = free[np.argmax(np.where(ok, nearer, -np.inf), axis=1)[has]]  # the nearest: the near face
+        tr.x[i, :2] = meas.z[j, :2]
+        _, _, r = self.measurement_model.at(tr.x[i], False)
+        tr.p[i, :2, :2] = r
+        tr.p[i, :2, 2:] = 0.0
+        tr.p[i, 2:, :2] = 0.0
+        tr.hits[i] += 1
+        tr.misses[i] = 0
+        tr.history[i] |= np.uint32(1)
+        used[j] = True
 
     def published(self) -> tuple[TrackState, ...]:
         tr = self.tracks
