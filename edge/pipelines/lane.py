@@ -574,15 +574,20 @@ class LanePipeline(Pipeline):
         idx = np.flatnonzero(moving & (range_m <= np.float32(span / period + cfg.mounting_height_m)))
         if idx.size == 0:
             return az
-        range_m, sign = range_m[idx], sign[idx]
+        sign = sign[idx]
+        n = idx.size
+        range_m = np.tile(range_m[idx], 3)
         s0 = np.sin(az[idx].astype(np.float64))
-        bad = lane_dir(s0) == -sign
+        cand = np.concatenate([s0, s0 + period, s0 - period])  # itself and the two neighbouring grating lobes
+        d = lane_dir(cand)  # one pass for all three (the cost is per call, not per element)
+        bad = d[:n] == -sign
         if not bad.any():
             return az
         az = az.copy()
-        for alt in (s0 + period, s0 - period):  # the two neighbouring grating lobes
+        for j in (1, 2):
+            alt = cand[j * n:(j + 1) * n]
             ok = bad & (np.abs(alt) <= 1.0)
-            ok &= lane_dir(alt) == sign
+            ok &= d[j * n:(j + 1) * n] == sign
             az[idx[ok]] = np.arcsin(alt[ok]).astype(np.float32)
             bad &= ~ok
         return az
