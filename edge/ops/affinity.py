@@ -30,17 +30,19 @@ def machine_cpus() -> set[int]:
 
 def check(cpus: Iterable[int], what: str) -> None:
     """Raise :class:`AffinityError` if ``cpus`` names a CPU this machine does not have."""
-    missing = sorted({int(c) for c in cpus} - machine_cpus())
+    have = machine_cpus()
+    missing = sorted({int(c) for c in cpus} - have)
     if missing:
-        raise AffinityError(f"{what}: CPU(s) {missing} not on this machine (it has {sorted(machine_cpus())})")
+        raise AffinityError(f"{what}: CPU(s) {missing} not on this machine (it has {sorted(have)})")
 
 
 def pin(cpus: Iterable[int], what: str) -> set[int] | None:
     """Pin the calling thread to ``cpus``; return the set applied, or None when nothing was done.
 
     Call it from the thread that runs the work (the frame loop's, the server process's main
-    thread); threads it starts afterwards inherit the set, threads already running keep theirs. Raises :class:`AffinityError` naming ``what`` when a
-    CPU is not available to this process (a configuration for a bigger board on a smaller one).
+    thread); threads it starts afterwards inherit the set, threads already running keep theirs.
+    Raises :class:`AffinityError` naming ``what`` when a CPU is not on this machine (a configuration
+    for a bigger board on a smaller one) or the operating system refuses the set.
     """
     want = {int(c) for c in cpus}
     if not want:

@@ -250,15 +250,14 @@ class _Server:
 
     async def _open_rtu(self, servers: list[Any]) -> str | None:
         """Open the RTU server; None when it serves, else the reason (the caller retries)."""
-        if not os.path.exists(self.cfg.rtu_port):  # pymodbus would only say "Could not start listen"
-            self.counters["rtu_open_failures"] += 1
-            return f"no such serial port {self.cfg.rtu_port}"
         try:
+            if not os.path.exists(self.cfg.rtu_port):  # pymodbus would only say "Could not start listen"
+                raise FileNotFoundError("no such serial port")
             rtu = self._rtu_server()
             await rtu.serve_forever(background=True)
-        except _START_ERRORS as exc:  # no such serial port (adapter unplugged), settings the tty refuses
+        except _START_ERRORS as exc:  # adapter unplugged, settings the tty refuses
             self.counters["rtu_open_failures"] += 1
-            return f"{self.cfg.rtu_port}: {type(exc).__name__}: {exc}"
+            return f"{self.cfg.rtu_port}: {exc}"
         servers.append(rtu)
         self.counters["rtu_open"] = 1
         return None
@@ -317,7 +316,6 @@ class _Server:
 def _server_main(cfg: ModbusConfig, image: bytes, config_words: list[int], conn: socket.socket, log_level: int) -> None:
     """Entry point of the Modbus server process."""
     logging.basicConfig(level=log_level, format="%(asctime)s %(levelname)s %(name)s[modbus]: %(message)s")
-
     try:
         pin(cfg.cpus, "Modbus server")
     except AffinityError as exc:  # the parent checked the CPUs exist; a cpuset may still refuse them

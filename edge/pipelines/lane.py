@@ -279,6 +279,7 @@ class LanePipeline(Pipeline):
         self._aided_window_hz = cfg.aided_window_bins * self._bin_hz  # (4,)
         self._seg_bin0 = np.arange(len(wf.segments)) * n  # first bin of each segment in a (rx, seg * bin) view
         self._scale32 = np.float32(self.cfar_scale)
+        self._alias_period = wf.wavelength_m / frontend.rx_spacing_m  # grating-lobe period in sin(az)
         self._model = PairingModel.from_waveform(wf)
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
         half = math.radians(cfg.angle_max_deg)
@@ -556,38 +557,34 @@ class LanePipeline(Pipeline):
 
         cfg = self.config
         lanes = self.traffic.lanes
-        dirs = np.array([ln.direction for ln in lanes])
-        sign = np.sign(v_mps).astype(np.int64)  # +1 receding: lanes "away"
-        moving = np.abs(v_mps) >= np.float32(cfg.unalias_min_speed_mps)
-
-        def lane_dir(sin_az: np.ndarray) -> np.ndarray:
-            x, y = polar_to_ground(range_m, np.arcsin(np.clip(sin_az, -1.0, 1.0)), cfg.mounting_height_m,
-                                   cfg.target_height_m)
-            u, _ = to_road(x.astype(np.float64), y.astype(np.float64), self.traffic.yaw_rad)
-            k = assign_lanes(u, lanes)
-            return np.where(k >= 0, dirs[np.maximum(k, 0)], 0)
-
-        period = self.frontend.waveform.wavelength_m / self.frontend.rx_spacing_m
+        period = self._alias_period
         # an alias is sin(az) +- period away, i.e. about period x range across: only near detections can have
         # both themselves and their alias on the road (the rest is left alone at the cost of one comparison)
         span = max(ln.center_m + 0.5 * ln.width_m for ln in lanes) - min(ln.center_m - 0.5 * ln.width_m for ln in lanes)
-        idx = np.flatnonzero(moving & (range_m <= np.float32(span / period + cfg.mounting_height_m)))
+        near = np.abs(v_mps) >= np.float32(cfg.unalias_min_speed_mps)
+        near &= range_m <= np.float32(span / period + cfg.mounting_height_m)
+        idx = near.nonzero()[0]
         if idx.size == 0:
             return az
-        sign = sign[idx]
         n = idx.size
-        range_m = np.tile(range_m[idx], 3)
         s0 = np.sin(az[idx].astype(np.float64))
         cand = np.concatenate([s0, s0 + period, s0 - period])  # itself and the two neighbouring grating lobes
-        d = lane_dir(cand)  # one pass for all three (the cost is per call, not per element)
-        bad = d[:n] == -sign
+        # the lane direction of all three in one pass (the cost is per call, not per element)
+        x, y = polar_to_ground(np.tile(range_m[idx], 3), np.arcsin(np.clip(cand, -1.0, 1.0)), cfg.mounting_height_m,
+                               cfg.target_height_m)
+        u, _ = to_road(x.astype(np.float64), y.astype(np.float64), self.traffic.yaw_rad)
+        k = assign_lanes(u, lanes)
+        dirs = np.array([ln.direction for ln in lanes])
+        d = np.where(k >= 0, dirs[np.maximum(k, 0)], 0).reshape(3, n)
+        sign = np.sign(v_mps[idx]).astype(np.int64)  # +1 receding: lanes "away"
+        bad = d[0] == -sign
         if not bad.any():
             return az
         az = az.copy()
         for j in (1, 2):
             alt = cand[j * n:(j + 1) * n]
             ok = bad & (np.abs(alt) <= 1.0)
-            ok &= d[j * n:(j + 1) * n] == sign
+            ok &= d[j] == sign
             az[idx[ok]] = np.arcsin(alt[ok]).astype(np.float32)
             bad &= ~ok
         return az
