@@ -35,60 +35,79 @@ class PipelineError(RuntimeError):
 
 
 class StageTimer:
-    """Times named stages into fixed-size ring buffers (no allocation per frame after warm-up)."""
+    """Times named stages into fixed-size ring buffers (no allocation per frame after warm-up).
+
+    ``stage(name)`` hands out one cached context manager per name, which writes the duration
+    straight into that stage's ring: timing nine stages costs a few microseconds a frame.
+    """
 
     def __init__(self, window: int = 4096, clock_ns: Callable[[], int] = time.perf_counter_ns) -> None:
         self.window = window
         self._clock = clock_ns
-        self._buf: dict[str, np.ndarray] = {}
-        self._n: dict[str, int] = {}
+        self._stages: dict[str, _Stage] = {}
+        #: the latest duration of every stage (ms)
         self.current: dict[str, float] = {}
 
     def stage(self, name: str) -> "_Stage":
-        return _Stage(self, name)
+        st = self._stages.get(name)
+        if st is None:
+            st = self._stages[name] = _Stage(self, name)
+        return st
 
     def record(self, name: str, dt_ns: int) -> None:
-        buf = self._buf.get(name)
-        if buf is None:
-            buf = self._buf[name] = np.zeros(self.window, dtype=np.float64)
-            self._n[name] = 0
-        n = self._n[name]
-        buf[n % self.window] = dt_ns / 1e6
-        self._n[name] = n + 1
-        self.current[name] = dt_ns / 1e6
+        self.stage(name)._record(dt_ns)
 
     def samples_ms(self, name: str) -> np.ndarray:
-        n = self._n.get(name, 0)
-        return self._buf[name][: min(n, self.window)] if n else np.zeros(0)
+        st = self._stages.get(name)
+        if st is None or not st.n:
+            return np.zeros(0)
+        return np.asarray(st.buf[: min(st.n, self.window)], dtype=np.float64) / 1e6
 
     def names(self) -> list[str]:
-        return list(self._buf)
+        return list(self._stages)
 
     def summary(self) -> dict[str, dict[str, float]]:
         out = {}
-        for name in self._buf:
+        for name, st in self._stages.items():
             s = self.samples_ms(name)
             out[name] = {
                 "p50_ms": float(np.percentile(s, 50)),
                 "p99_ms": float(np.percentile(s, 99)),
                 "max_ms": float(s.max()),
-                "n": int(self._n[name]),
+                "n": int(st.n),
             }
         return out
 
 
 class _Stage:
-    __slots__ = ("_t", "_name", "_t0")
+    """One stage's context manager and ring buffer (durations in ns, a plain list: no numpy per frame)."""
+
+    __slots__ = ("name", "buf", "n", "_clock", "_current", "_window", "_t0")
 
     def __init__(self, timer: StageTimer, name: str) -> None:
-        self._t = timer
-        self._name = name
+        self.name = name
+        self.buf: list[int] = [0] * timer.window
+        self.n = 0
+        self._clock = timer._clock
+        self._current = timer.current
+        self._window = timer.window
+        self._t0 = 0
 
     def __enter__(self) -> None:
-        self._t0 = self._t._clock()
+        self._t0 = self._clock()
 
     def __exit__(self, *exc: object) -> None:
-        self._t.record(self._name, self._t._clock() - self._t0)
+        dt_ns = self._clock() - self._t0
+        n = self.n
+        self.buf[n % self._window] = dt_ns
+        self.n = n + 1
+        self._current[self.name] = dt_ns / 1e6
+
+    def _record(self, dt_ns: int) -> None:
+        n = self.n
+        self.buf[n % self._window] = dt_ns
+        self.n = n + 1
+        self._current[self.name] = dt_ns / 1e6
 
 
 class Pipeline:
