@@ -71,6 +71,10 @@ def assign_lanes(u: np.ndarray, lanes: tuple[Lane, ...]) -> np.ndarray:
     return np.where(inside, k, -1).astype(np.int32)
 
 
+#: up to this many running tracks the start-up votes are computed in plain Python
+_SMALL = 24
+
+
 class YawEstimator:
     """Mounting yaw from the directions of straight tracks (see the module docstring)."""
 
@@ -136,6 +140,8 @@ class YawEstimator:
         and ``sd_across`` across it, ``n sd_along^2 / sd_across^2`` (long, dense, straight tracks count most)."""
         if not self._sums:
             return np.zeros(0), np.zeros(0)
+        if len(self._sums) <= _SMALL:
+            return self._live_votes_small()
         a = np.array(list(self._sums.values()), dtype=np.float64)
         n = np.maximum(a[:, 0], 1.0)
         mx, my = a[:, 1] / n, a[:, 2] / n
@@ -149,6 +155,29 @@ class YawEstimator:
         phi = 0.5 * np.arctan2(2.0 * cxy, cyy - cxx)  # major axis angle from +y towards +x
         w = a[:, 0] * major / np.maximum(minor, 0.01)
         return -phi[ok], w[ok]
+
+    def _live_votes_small(self) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`live_votes_weighted` in plain Python floats, the same operations in the same order
+        (a handful of running tracks: numpy's per-call overhead would dominate); the angles with one
+        ``numpy.arctan2`` call, so the votes are bit-identical to the array path."""
+        min_len, max_sd = self.cfg.yaw_live_min_length_m, self.cfg.yaw_max_lateral_sd_m
+        sqrt = math.sqrt
+        num: list[float] = []
+        den: list[float] = []
+        ws: list[float] = []
+        for a0, a1, a2, a3, a4, a5, _ in self._sums.values():
+            n = a0 if a0 > 1.0 else 1.0
+            mx, my = a1 / n, a2 / n
+            cxx, cyy, cxy = a3 / n - mx * mx, a4 / n - my * my, a5 / n - mx * my
+            half_tr, det = 0.5 * (cxx + cyy), cxx * cyy - cxy * cxy
+            disc = sqrt(max(half_tr * half_tr - det, 0.0))
+            major, minor = half_tr + disc, max(half_tr - disc, 0.0)
+            if a0 >= 3 and sqrt(major * 12.0) >= min_len and sqrt(minor) <= max_sd:
+                num.append(2.0 * cxy)
+                den.append(cyy - cxx)
+                ws.append(a0 * major / max(minor, 0.01))
+        phi = 0.5 * np.arctan2(np.array(num, dtype=np.float64), np.array(den, dtype=np.float64))
+        return -phi, np.array(ws, dtype=np.float64)
 
     def estimate_rad(self) -> float | None:
         if len(self._votes) >= self.cfg.yaw_min_tracks:

@@ -62,9 +62,13 @@ class _Memo:
     stopped_emitted: bool = False
 
 
+#: TrackState validates in ``__post_init__``: then only ``dataclasses.replace`` is a faithful copy
+_TRACK_POST_INIT = hasattr(TrackState, "__post_init__")
+
+
 def _with_lane(tr: TrackState, lane: int | None) -> TrackState:
     """``dataclasses.replace(tr, lane=lane)`` without its per-call field introspection (hot path)."""
-    if hasattr(TrackState, "__post_init__"):
+    if _TRACK_POST_INIT:
         return dataclasses.replace(tr, lane=lane)
     out = object.__new__(TrackState)  # a frozen dataclass without __post_init__: copy its fields
     d = out.__dict__
@@ -97,15 +101,15 @@ class TrafficMonitor:
         dt_ns = 0 if self._last_t_ns is None else max(t_ns - self._last_t_ns, 0)
         dt_ns = min(dt_ns, 1_000_000_000)  # a stall does not count as occupied time
         self._last_t_ns = t_ns
-        n = len(conf)
-        ids = np.array([t.track_id for t in conf], dtype=np.int64)
-        age = np.array([t.age_frames for t in conf], dtype=np.int64)
-        x = np.array([t.x_m for t in conf])
-        y = np.array([t.y_m for t in conf])
-        vx = np.array([t.vx_mps for t in conf])
-        vy = np.array([t.vy_mps for t in conf])
+        # one (n, 6) array: track id, age, x, y, vx, vy (ids and ages are exact in float64)
+        kin = np.array([(t.track_id, t.age_frames, t.x_m, t.y_m, t.vx_mps, t.vy_mps) for t in conf],
+                       dtype=np.float64).reshape(-1, 6)
+        ids = kin[:, 0].astype(np.int64)
+        age = kin[:, 1].astype(np.int64)
+        x, y, vx, vy = kin[:, 2], kin[:, 3], kin[:, 4], kin[:, 5]
 
         # mounting yaw and lanes
+        est = None
         if cfg.estimate_yaw:
             self.yaw_estimator.add(ids, age, x, y)
             est = self.yaw_estimator.estimate_rad()
@@ -114,7 +118,7 @@ class TrafficMonitor:
         if cfg.lane_mode == "learned":
             self.learner.add(x, y, vx, vy)
             if self._next_learn_ns is None or t_ns >= self._next_learn_ns:
-                yaw_ready = not cfg.estimate_yaw or self.yaw_estimator.estimate_rad() is not None
+                yaw_ready = not cfg.estimate_yaw or est is not None
                 lanes = self.learner.learn(self.yaw_rad) if yaw_ready else ()
                 if lanes:
                     self.lanes = lanes
@@ -125,10 +129,13 @@ class TrafficMonitor:
         lanes = self.lanes
         n_lanes = len(lanes)
 
-        u, s = to_road(x, y, self.yaw_rad)
-        _, vs = to_road(vx, vy, self.yaw_rad)
-        speed = np.hypot(vx, vy)
-        lane_idx = assign_lanes(u, lanes)
+        u, s_arr = to_road(x, y, self.yaw_rad)
+        _, vs_arr = to_road(vx, vy, self.yaw_rad)
+        # plain Python floats for the per-track loop (numpy scalars are slow one at a time)
+        s, vs = s_arr.tolist(), vs_arr.tolist()
+        speed = np.hypot(vx, vy).tolist()
+        lane_idx = assign_lanes(u, lanes).tolist()
+        id_list = ids.tolist()
         presence = [False] * n_lanes
         events: list[TrafficEvent] = []
         out_tracks: dict[int, TrackState] = {}
@@ -136,17 +143,17 @@ class TrafficMonitor:
         line = cfg.detection_line_m
         seen = set()
         for j, tr in enumerate(conf):
-            tid = int(ids[j])
+            tid = id_list[j]
             seen.add(tid)
-            k = int(lane_idx[j])
+            k = lane_idx[j]
             lane = k if k >= 0 else None
             length = tr.length_m if tr.length_m is not None else cfg.default_vehicle_length_m
             memo = self._memo.get(tid)
             if memo is None or tr.age_frames < memo.age:
-                memo = self._memo[tid] = _Memo(tr.age_frames, float(s[j]), t_ns, float(speed[j]))
+                memo = self._memo[tid] = _Memo(tr.age_frames, s[j], t_ns, speed[j])
             else:
                 # detection line crossing (either direction), time interpolated
-                s0, s1 = memo.s_m, float(s[j])
+                s0, s1 = memo.s_m, s[j]
                 crossed = (s0 - line) * (s1 - line) < 0 or (s1 == line and s0 != line)
                 if crossed and lane is not None:
                     f = (line - s0) / (s1 - s0)
@@ -157,13 +164,13 @@ class TrafficMonitor:
                     # a second track on the same vehicle (a long truck seen at front and rear as two
                     # tracks) crosses right after the first at the same speed: one vehicle
                     twin = (last is not None and 0 <= tc - last.t_ns < int(cfg.count_min_gap_s * 1e9)
-                            and abs(last.speed_mps - float(speed[j])) < cfg.count_twin_speed_mps)
+                            and abs(last.speed_mps - speed[j]) < cfg.count_twin_speed_mps)
                     if not twin:
-                        acc.add(Crossing(tc, float(speed[j]), float(length), cls))
+                        acc.add(Crossing(tc, speed[j], float(length), cls))
                 memo.age, memo.s_m, memo.t_ns = tr.age_frames, s1, t_ns
-                memo.max_speed_mps = max(memo.max_speed_mps, float(speed[j]))
+                memo.max_speed_mps = max(memo.max_speed_mps, speed[j])
             if lane is not None:
-                if abs(float(s[j]) - line) <= half_zone + 0.5 * length:
+                if abs(s[j] - line) <= half_zone + 0.5 * length:
                     presence[k] = True
                 # wrong way
                 # only frames with a detection count: a track seeded with a wrong velocity (a steep near

@@ -353,3 +353,27 @@ def test_start_up_yaw_weighted_median_equals_the_numpy_one():
         assert got == float(allv[o][np.searchsorted(cw, 0.5 * cw[-1])])
         n_checked += 1
     assert n_checked > 50
+
+
+def test_start_up_live_votes_plain_python_path_is_bit_identical_to_the_array_path(monkeypatch):
+    """A handful of running tracks take the plain-Python path; it must give the same votes and
+    weights, bit for bit, as the array path (including tracks that do not qualify yet)."""
+    import edge.traffic.lanes as lanes_mod
+    from edge.traffic import TrafficConfig
+
+    rng = np.random.default_rng(11)
+    est = lanes_mod.YawEstimator(TrafficConfig())
+    n_votes = 0
+    for frame in range(80):
+        ids = np.arange(1, 11)
+        x = rng.normal(0.0, 3.0, 10) * (frame < 3) + np.linspace(-6, 6, 10) + rng.normal(0, 0.2, 10)
+        y = 10.0 + np.arange(10) * 15.0 + 0.9 * frame * (1 + 0.1 * np.arange(10))
+        est.add(ids, np.full(10, frame + 1), x, y)
+        monkeypatch.setattr(lanes_mod, "_SMALL", 10**6)
+        small = est.live_votes_weighted()
+        monkeypatch.setattr(lanes_mod, "_SMALL", -1)
+        arrays = est.live_votes_weighted()
+        assert small[0].dtype == arrays[0].dtype == np.float64
+        assert np.array_equal(small[0], arrays[0]) and np.array_equal(small[1], arrays[1])
+        n_votes += small[0].size
+    assert 0 < n_votes < 80 * 10  # some tracks qualify, not all (early frames are too short)
