@@ -80,7 +80,7 @@ def event_signatures(
 ) -> TrackFeatureAccumulator:
     """Accumulate thresholded signatures: ``frames`` yields ``(t_s, MapPoints)`` (labels ignored,
     cells closer than ``min_range_m`` dropped)."""
-    acc = TrackFeatureAccumulator()
+    acc = TrackFeatureAccumulator(extractor.config.extent_percentile)
     for t_s, pts in frames:
         k = np.asarray(pts.range_m) >= min_range_m
         if not k.any():
@@ -88,7 +88,7 @@ def event_signatures(
         one = MapPoints(pts.range_m[k], pts.doppler_kmh[k], pts.amplitude[k], pts.range_bin[k],
                         pts.doppler_bin[k], np.zeros(int(k.sum()), dtype=np.int32))
         sig = extractor(one, n_clusters=1)
-        acc.add(t_s, sig.circular_variance[0], sig.rcs[0], sig.range_m[0])
+        acc.add(t_s, sig.circular_variance[0], sig.rcs[0], sig.range_m[0], float(sig.extent_m[0]))
     return acc
 
 
@@ -173,7 +173,7 @@ def build_reference_set(
 
         tgs = [tg for tg in scene.targets if tg.id // 100 - 1 == event]
         if not tgs:
-            return None, np.full(5, np.nan), 0
+            return None, np.full(len(FEATURE_NAMES), np.nan), 0
         tracker = SurveillanceTracker(
             fe, sc_cfg.th_rd, tracking=cfg.section("track.alphabeta"), events=cfg.section("track.events"),
             features=feat_cfg, classify=False,
@@ -190,7 +190,7 @@ def build_reference_set(
             evs.extend(pipe.process(raw, timer).classifications)
         evs.extend(pipe.flush())
         if not evs:
-            return tgs[0].cls, np.full(5, np.nan), 0
+            return tgs[0].cls, np.full(len(FEATURE_NAMES), np.nan), 0
         best = max(evs, key=lambda ev: ev.features.get("frames", 0.0))
         x = np.array([best.features[k] for k in FEATURE_NAMES])
         return tgs[0].cls, x, int(best.features.get("frames", 0))
@@ -226,7 +226,9 @@ def build_reference_set(
         "skipped_events": skipped,
         "pipeline.surveillance": {k: getattr(sc_cfg, k) for k in ("k_c", "k_sf", "th_rd", "n_range_fft",
                                                                   "n_doppler_fft")},
-        "classify.features": {"if_corner_hz": feat_cfg.if_corner_hz, "range_exponent": feat_cfg.range_exponent},
+        "classify.features": {"if_corner_hz": feat_cfg.if_corner_hz, "range_exponent": feat_cfg.range_exponent,
+                              "extent_level_db": feat_cfg.extent_level_db,
+                              "extent_percentile": feat_cfg.extent_percentile},
         "build_seconds": round(elapsed, 1),
         "command": REGENERATE_COMMAND,
     }

@@ -109,12 +109,14 @@ def test_track_features_known_values():
     r = 20.0 - 1.5 * t  # 1.5 m/s approaching = -5.4 km/h
     s = rng.uniform(0, 1, t.size)
     g = rng.uniform(10, 100, t.size)
-    acc = TrackFeatureAccumulator()
+    e = rng.uniform(1, 6, t.size)
+    acc = TrackFeatureAccumulator(extent_percentile=90.0)
     for k in range(t.size):
-        acc.add(t[k], s[k], g[k], r[k])
+        acc.add(t[k], s[k], g[k], r[k], e[k])
     x = acc.features()
-    assert len(FEATURE_NAMES) == x.size == 5
-    np.testing.assert_allclose(x, [s.mean(), s.var(ddof=1), g.mean(), g.var(ddof=1), 5.4], rtol=1e-9)
+    assert len(FEATURE_NAMES) == x.size == 6
+    np.testing.assert_allclose(x, [s.mean(), s.var(ddof=1), g.mean(), g.var(ddof=1), 5.4, np.percentile(e, 90)],
+                               rtol=1e-9)
     assert acc.mean_radial_speed_kmh() == pytest.approx(-5.4, rel=1e-9)
     assert acc.n == 6
 
@@ -128,6 +130,35 @@ def test_radial_speed_mean_of_absolute_values_and_least_squares():
     v = np.diff(r) / 0.2 * 3.6
     assert acc.features()[4] == pytest.approx(np.abs(v).mean())
     assert acc.mean_radial_speed_kmh() == pytest.approx(np.polyfit(t, r, 1)[0] * 3.6)
+
+
+def test_extent_feature_is_nan_without_extents_and_ignores_nan_frames():
+    acc = TrackFeatureAccumulator(extent_percentile=50.0)
+    for k in range(3):
+        acc.add(0.2 * k, 0.1, 1.0, 10.0)
+    assert np.isnan(acc.features()[5]) and np.all(np.isfinite(acc.features()[:5]))
+    acc.add(0.6, 0.1, 1.0, 10.0, 4.0)
+    acc.add(0.8, 0.1, 1.0, 10.0, float("nan"))
+    acc.add(1.0, 0.1, 1.0, 10.0, 2.0)
+    assert acc.features()[5] == pytest.approx(3.0)  # median of the two measured extents
+
+
+def test_cluster_extent_spans_cells_within_level_of_the_peak():
+    """Extent = range span of the cells at most extent_level_db below the cluster's peak, per cluster."""
+    cfg = FeatureConfig(extent_level_db=20.0)
+    ex = SignatureExtractor(cfg, FE)
+    # cluster 0: peak 100 at 10 m, cells 20 (-14 dB) at 8 m and 5 (-26 dB) at 6 m -> 8..10 m
+    # cluster 1: one cell at 15 m -> extent 0; noise (-1) at 1 m is ignored
+    r = np.array([10.0, 8.0, 6.0, 15.0, 1.0])
+    amp = np.array([100.0, 20.0, 5.0, 3.0, 1000.0])
+    lab = np.array([0, 0, 0, 1, -1])
+    sig = ex(pts(r, np.zeros(5), amp, np.arange(5), np.zeros(5, dtype=int), lab))
+    np.testing.assert_allclose(sig.range_lo_m, [8.0, 15.0])
+    np.testing.assert_allclose(sig.range_hi_m, [10.0, 15.0])
+    np.testing.assert_allclose(sig.extent_m, [2.0, 0.0])
+    wide = SignatureExtractor(FeatureConfig(extent_level_db=30.0), FE)(
+        pts(r, np.zeros(5), amp, np.arange(5), np.zeros(5, dtype=int), lab))
+    np.testing.assert_allclose(wide.extent_m, [4.0, 0.0])
 
 
 def test_single_frame_gives_nan_variances():

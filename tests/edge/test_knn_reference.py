@@ -44,7 +44,7 @@ def test_generator_reproduces_the_packaged_set():
 
 def test_save_load_round_trip_and_errors(tmp_path):
     rng = np.random.default_rng(0)
-    ref = ReferenceSet(rng.normal(size=(8, 5)), np.arange(8) % 4, meta={"note": "test"})
+    ref = ReferenceSet(rng.normal(size=(8, len(FEATURE_NAMES))), np.arange(8) % 4, meta={"note": "test"})
     p = save_reference_set(ref, tmp_path / "r.npz")
     back = load_reference_set(p)
     np.testing.assert_array_equal(back.features, ref.features)
