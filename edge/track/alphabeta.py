@@ -150,6 +150,12 @@ class AlphaBetaConfig:
         metadata={"unit": "frames", "doc": "clusters (not merged) whose median point count is a track's own size",
                   "min": 1, "max": 1000},
     )
+    merge_other_min_frames: int = field(
+        default=0,
+        metadata={"unit": "frames", "doc": "a young track's enlarged cluster counts as merged only when another track "
+                  "with at least this many own (not merged) clusters is predicted within gate_radius; 0 = any other "
+                  "track", "min": 0, "max": 1000},
+    )
     merge_max_frames: int = field(
         default=10,
         metadata={"unit": "frames", "doc": "after this many merged frames in a row the larger cluster is accepted as "

@@ -305,10 +305,13 @@ class SurveillanceTracker:
         return float(self._frame_sizes[j]) > self.tracker.config.merge_ratio * float(np.median(hist))
 
     def _other_track_near(self, track_id: int, centroid: np.ndarray, pred: dict[int, np.ndarray]) -> bool:
-        """Is another track predicted within ``gate_radius`` of this centroid (on the cylinder)?"""
+        """Is another track (with at least ``merge_other_min_frames`` own clusters) predicted within
+        ``gate_radius`` of this centroid (on the cylinder)?"""
         gate = self.tracker.config.gate_radius
+        need = self.tracker.config.merge_other_min_frames
         return any(
-            float(np.linalg.norm(p[[0, 2, 4]] - centroid)) <= gate for tid, p in pred.items() if tid != track_id
+            float(np.linalg.norm(p[[0, 2, 4]] - centroid)) <= gate for tid, p in pred.items()
+            if tid != track_id and (need <= 0 or len(self._size.get(tid, ())) >= need)
         )
 
     def _is_merged(self, track_id: int, n_points: int, other_near: bool = True) -> bool:
