@@ -294,3 +294,24 @@ def test_a_young_fragment_whose_centroid_hardly_moves_still_joins():
         events += st.update(int(n * T * 1e9), points(*blobs), seq=n).classifications
     events += st.close()
     assert len(events) == 1 and st.fragments == 1
+
+
+@pytest.mark.parametrize("min_frames, held", [(0, True), (5, False)])
+def test_two_young_fragments_do_not_count_as_another_target(min_frames, held):
+    """A truck entering the beam shows as two small clusters (two young tracks), then as one cluster 10x
+    larger. With merge_other_min_frames = 5 the young track next to it is no "other target": the track
+    that takes the big cluster is not held on its prediction and the frame feeds its features; with 0
+    (any track) it was held as merged."""
+    cfg = AlphaBetaConfig(merge_ratio=6.0, merge_other_min_frames=min_frames)
+    st = SurveillanceTracker(FE, 2.0, tracking=cfg, classify=False)
+    v = 15.0
+    for n in range(4):
+        r = 8.0 + v / 3.6 * n * T
+        if n < 3:
+            pts = points(blob(r, v, 100, 0), blob(r + 1.5, v, 100, 1))
+        else:
+            pts = points(blob(r + 0.75, v, 1200, 0))
+        st.update(int(n * T * 1e9), pts, seq=n)
+    assert (st.merged_frames > 0) == held
+    frames = sorted(acc.n for acc in st._acc.values())
+    assert frames[-1] == (3 if held else 4)
