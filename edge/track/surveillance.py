@@ -189,7 +189,8 @@ class SurveillanceTracker:
         for tid in tstep.created:
             self._size[tid] = deque(maxlen=self.tracker.config.merge_history_frames)
             self._merged_run[tid] = 0
-            self._acc[tid] = TrackFeatureAccumulator(self.extractor.config.extent_percentile)
+            self._acc[tid] = TrackFeatureAccumulator(self.extractor.config.extent_percentile,
+                                                     vmax_kmh=self.extractor.speed_vmax_kmh)
             self._speed[tid] = RadialSpeedEstimator(self.cylinder.vmax_kmh)
             self._log[tid] = SignatureLog()
             self._links[tid] = {}
@@ -209,7 +210,8 @@ class SurveillanceTracker:
                 merged.append(tid)
                 continue
             lo, hi = float(sig.range_lo_m[lab]), float(sig.range_hi_m[lab])
-            self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab], hi - lo)
+            self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab], hi - lo,
+                               sig.doppler_kmh[lab])
             n_lab = float(sig.n_points[lab])
             self._log[tid].add(frame_key, t_s, n_lab, sig.cos_sum[lab], sig.sin_sum[lab], sig.rcs[lab],
                                n_lab * float(sig.range_m[lab]), lo, hi)
