@@ -34,8 +34,9 @@ displacement of a slow target is mostly centroid jitter (a pedestrian crossing t
 read 10 km/h, like a slow motorcycle). Measured with the reference set rebuilt each way: multi-random
 dev seeds 101/102/103 (40 events each) 0.741/0.819/0.768 with the range rate, 0.793/0.827/0.784 with
 the Doppler; single-random seeds 11/12 (100 events) 1.00/0.95 and 0.97/0.95 (a car whose short track
-got the wrong alias read as a pedestrian, two fast motorcycles as cars). The track's mean radial speed reported to the user is the least-squares slope of
-centroid range against time (km/h, positive receding). Weighted standardisation (eq. 20) lives in
+got the wrong alias read as a pedestrian, two fast motorcycles as cars).
+:meth:`TrackFeatureAccumulator.mean_radial_speed_kmh` is the least-squares slope of centroid range
+against time (km/h, positive receding). Weighted standardisation (eq. 20) lives in
 :func:`weighted_standardization`.
 
 A "point" is one cell of the range-Doppler map at or above ``th_RD`` (:class:`MapPoints`); labels
@@ -313,13 +314,13 @@ class SignatureLog:
     """Per-frame cluster sums of a track (bounded), so that the signatures of several tracks of one
     target can be united frame by frame: the eqs. 17-19 features of the union of their cells.
 
-    ``add(frame, t_s, n, cos_sum, sin_sum, rcs, range_sum, range_lo_m, range_hi_m)`` once per frame
-    where the track has a cluster; :meth:`extend` appends another track's rows (a fragment of the same
-    target); :meth:`accumulator` sums the rows of each frame (cells, eq. 18's resultant, eq. 17's
-    quantity, ranges: the union of the clusters; the range extent spans the lowest ``range_lo_m`` to
-    the highest ``range_hi_m`` of the frame's rows, each relative to its own cluster's peak) and feeds
-    them, in time order, to a :class:`TrackFeatureAccumulator`. With one row per frame it gives
-    exactly the track's own features.
+    ``add(frame, t_s, n, cos_sum, sin_sum, rcs, range_sum, range_lo_m, range_hi_m, doppler_kmh)`` once
+    per frame where the track has a cluster; :meth:`extend` appends another track's rows (a fragment of
+    the same target); :meth:`accumulator` sums the rows of each frame (cells, eq. 18's resultant, eq.
+    17's quantity, ranges: the union of the clusters; the range extent spans the lowest ``range_lo_m``
+    to the highest ``range_hi_m`` of the frame's rows, each relative to its own cluster's peak; the
+    Doppler is that of the frame's largest cluster) and feeds them, in time order, to a
+    :class:`TrackFeatureAccumulator`. With one row per frame it gives exactly the track's own features.
     """
 
     __slots__ = ("_rows", "max_rows")
@@ -332,9 +333,9 @@ class SignatureLog:
         return len(self._rows)
 
     def add(self, frame: int, t_s: float, n: float, cos_sum: float, sin_sum: float, rcs: float, range_sum: float,
-            range_lo_m: float = math.nan, range_hi_m: float = math.nan) -> None:
+            range_lo_m: float = math.nan, range_hi_m: float = math.nan, doppler_kmh: float = math.nan) -> None:
         self._rows.append((int(frame), float(t_s), float(n), float(cos_sum), float(sin_sum), float(rcs),
-                           float(range_sum), float(range_lo_m), float(range_hi_m)))
+                           float(range_sum), float(range_lo_m), float(range_hi_m), float(doppler_kmh)))
 
     def extend(self, other: "SignatureLog") -> None:
         self._rows.extend(other._rows)
@@ -343,23 +344,24 @@ class SignatureLog:
         """Distinct frames with rows."""
         return len({r[0] for r in self._rows})
 
-    def accumulator(self, extent_percentile: float = 90.0) -> "TrackFeatureAccumulator":
-        acc = TrackFeatureAccumulator(extent_percentile)
+    def accumulator(self, extent_percentile: float = 90.0, vmax_kmh: float | None = None) -> "TrackFeatureAccumulator":
+        acc = TrackFeatureAccumulator(extent_percentile, vmax_kmh=vmax_kmh)
         if not self._rows:
             return acc
         a = np.array(self._rows, dtype=np.float64)
-        a = a[np.argsort(a[:, 0], kind="stable")]
+        a = a[np.lexsort((a[:, 2], a[:, 0]))]  # by frame, then cell count: a frame's largest cluster last
         key = a[:, 0]
         start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
         t = a[start, 1]
         sums = np.add.reduceat(a[:, 2:7], start, axis=0)  # n, cos, sin, rcs, range per frame
         lo = np.fmin.reduceat(a[:, 7], start)
         hi = np.fmax.reduceat(a[:, 8], start)
+        dop = a[np.r_[start[1:] - 1, len(a) - 1], 9]
         n = sums[:, 0]
         circ = 1.0 - np.hypot(sums[:, 1], sums[:, 2]) / n
         r = sums[:, 4] / n
         for k in range(t.size):
-            acc.add(t[k], circ[k], sums[k, 3], r[k], hi[k] - lo[k])
+            acc.add(t[k], circ[k], sums[k, 3], r[k], hi[k] - lo[k], dop[k])
         return acc
 
 

@@ -2,7 +2,8 @@
 
 A reference set is an ``.npz`` file with
 
-* ``features`` (N, F) float64 (F = 6: eq. 19 and the range extent) in :data:`edge.classify.features.FEATURE_NAMES` order,
+* ``features`` (N, F) float64 (F = 6: eq. 19 and the range extent) in
+  :data:`edge.classify.features.FEATURE_NAMES` order,
 * ``labels`` (N,) int16 indices into ``classes``,
 * ``classes`` (C,) str, ``feature_names`` (F,) str,
 * ``meta`` a JSON string (generator, seed, events per class, configuration, command).

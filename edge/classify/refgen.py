@@ -47,9 +47,9 @@ which is ``build_reference_set(events_per_class=250, seed=DEFAULT_SEED)`` (3-fol
 k = 13 Euclidean k-NN with eq. 19's five features rose from 0.79 with 40 events per class to 0.88 with
 120 and 0.90 with 250 (45° passages; 0.87 all round); with the range extent as sixth feature and the
 Doppler-based E(|v_r|) (``classify.features``) it is 0.986 (all round, 250 per class: the confusions
-left are 7 motorcycles read as cars, 4 cars as motorcycles, 3 trucks as cars); the exported ONNX model stores the references in float32, so 250 per
-class stay under its 64 KiB budget (37.5 KiB with six features); the build takes five to eight
-minutes on the development machine) with the default
+left are 7 motorcycles read as cars, 4 cars as motorcycles, 3 trucks as cars); the exported ONNX
+model stores the references in float32, so 250 per class stay under its 64 KiB budget (37.5 KiB with
+six features); the build takes three to eight minutes on the development machine) with the default
 configuration, saved with its generator settings in ``meta``. The seeds used by evaluations and
 tests must differ from :data:`DEFAULT_SEED`.
 """

@@ -214,7 +214,7 @@ class SurveillanceTracker:
                                sig.doppler_kmh[lab])
             n_lab = float(sig.n_points[lab])
             self._log[tid].add(frame_key, t_s, n_lab, sig.cos_sum[lab], sig.sin_sum[lab], sig.rcs[lab],
-                               n_lab * float(sig.range_m[lab]), lo, hi)
+                               n_lab * float(sig.range_m[lab]), lo, hi, float(sig.doppler_kmh[lab]))
             recorded.append((tid, int(lab)))
             spd = self._speed[tid]
             spd.add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
@@ -361,7 +361,8 @@ class SurveillanceTracker:
         for other in self._links.pop(tr.track_id, {}):
             self._links.get(other, {}).pop(tr.track_id, None)
         # the union with absorbed fragments; a track without any has exactly its own running features
-        acc = log_.accumulator(pct) if log_ is not None and len(log_) > own.n else own
+        acc = (log_.accumulator(pct, self.extractor.speed_vmax_kmh) if log_ is not None and len(log_) > own.n
+               else own)
         spd = self._speed.pop(tr.track_id, None)
         self._seen_t.pop(tr.track_id, None)
         self._size.pop(tr.track_id, None)

@@ -184,12 +184,16 @@ def test_signature_log_of_one_cluster_per_frame_is_the_tracks_own_features():
     from edge.classify.features import SignatureExtractor, SignatureLog, TrackFeatureAccumulator
 
     ex = SignatureExtractor(__import__("edge.classify.features", fromlist=["FeatureConfig"]).FeatureConfig(), FE)
-    acc, lg = TrackFeatureAccumulator(), SignatureLog()
+    acc, lg = TrackFeatureAccumulator(vmax_kmh=VMAX), SignatureLog()
     for n in range(6):
         sig = ex(points(blob(10.0 + 0.4 * n, 3.0 + n, 90 + 20 * n, 0)))
-        acc.add(n * T, sig.circular_variance[0], sig.rcs[0], sig.range_m[0])
-        lg.add(n, n * T, sig.n_points[0], sig.cos_sum[0], sig.sin_sum[0], sig.rcs[0], sig.n_points[0] * sig.range_m[0])
-    np.testing.assert_allclose(lg.accumulator().features(), acc.features(), rtol=1e-9)
+        acc.add(n * T, sig.circular_variance[0], sig.rcs[0], sig.range_m[0], float(sig.extent_m[0]),
+                float(sig.doppler_kmh[0]))
+        lg.add(n, n * T, sig.n_points[0], sig.cos_sum[0], sig.sin_sum[0], sig.rcs[0], sig.n_points[0] * sig.range_m[0],
+               sig.range_lo_m[0], sig.range_hi_m[0], sig.doppler_kmh[0])
+    x = lg.accumulator(vmax_kmh=VMAX).features()
+    assert np.all(np.isfinite(x))
+    np.testing.assert_allclose(x, acc.features(), rtol=1e-9)
 
 
 def test_signature_log_unites_two_clusters_of_a_frame_as_one_signature():
