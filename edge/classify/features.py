@@ -420,10 +420,16 @@ class TrackFeatureAccumulator:
         self.last_t_s = t_s
 
     def extent_m(self) -> float:
-        """``extent_percentile`` of the per-frame range extents (linear interpolation); NaN if none."""
+        """``extent_percentile`` of the per-frame range extents (linear interpolation between order
+        statistics, as ``np.percentile``'s default; a sort of a track's few hundred values in plain
+        Python: called every frame for the provisional class of each live track); NaN if none."""
         if not self._ext:
             return math.nan
-        return float(np.percentile(np.fromiter(self._ext, dtype=np.float64), self.extent_percentile))
+        e = sorted(self._ext)
+        pos = (len(e) - 1) * self.extent_percentile / 100.0
+        lo = int(pos)
+        hi = min(lo + 1, len(e) - 1)
+        return e[lo] + (e[hi] - e[lo]) * (pos - lo)
 
     def features(self) -> np.ndarray:
         """``(6,)`` float64 in :data:`FEATURE_NAMES` order; NaN where fewer than two frames (the

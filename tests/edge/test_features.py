@@ -143,6 +143,17 @@ def test_extent_feature_is_nan_without_extents_and_ignores_nan_frames():
     assert acc.features()[5] == pytest.approx(3.0)  # median of the two measured extents
 
 
+@pytest.mark.parametrize("pct", [0.0, 37.5, 50.0, 90.0, 100.0])
+def test_extent_percentile_equals_numpy(pct):
+    rng = np.random.default_rng(int(pct))
+    for n in (1, 2, 7, 60):
+        e = rng.uniform(0.5, 12.0, n)
+        acc = TrackFeatureAccumulator(extent_percentile=pct)
+        for k in range(n):
+            acc.add(0.2 * k, 0.1, 1.0, 10.0, e[k])
+        assert acc.extent_m() == pytest.approx(np.percentile(e, pct), rel=1e-12, abs=1e-12)
+
+
 def test_cluster_extent_spans_cells_within_level_of_the_peak():
     """Extent = range span of the cells at most extent_level_db below the cluster's peak, per cluster."""
     cfg = FeatureConfig(extent_level_db=20.0)
