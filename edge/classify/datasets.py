@@ -48,7 +48,8 @@ class EventFeatureExtractor:
         self.extractor = SignatureExtractor(config.section("classify.features"), frontend)
 
     def __call__(self, frames: Iterable[Any]) -> np.ndarray:
-        """``(5,)``; NaN when the target was above ``th_RD`` in fewer than ``min_frames`` frames."""
+        """``(F,)`` (eq. 19 and the range extent); NaN when the target was above ``th_RD`` in fewer
+        than ``min_frames`` frames."""
         from edge.classify.refgen import event_signatures
 
         def points():

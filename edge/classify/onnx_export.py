@@ -23,7 +23,7 @@ double once; the oracle rounds its ``z_`` to float32 the same way when it is fit
 identical reference values. Everything after the input cast is computed in double, with the same
 element-wise operations in the same order as the numpy oracle (:class:`edge.classify.knn.WeightedKNN`),
 so the standardised queries are bit-identical and distances differ at most by the summation order of
-five terms: the two implementations pick the same neighbours except for distances within a few ulp
+six terms: the two implementations pick the same neighbours except for distances within a few ulp
 (about 1e-16 relative), which float32 arithmetic would make about 1e9 times more likely.
 
 Ties. ONNX TopK (opset 11 and later) specifies that among equal values the lower index comes first;
@@ -77,7 +77,7 @@ INPUT_NAME = "features"
 
 #: units of the eq. 19 features, in :data:`FEATURE_NAMES` order ("1" = dimensionless; the RCS-related
 #: quantity of eq. 17 is in ADC-count^2 m^1.8, "a.u.", as the paper uses it only relatively)
-FEATURE_UNITS: tuple[str, ...] = ("1", "1", "a.u.", "a.u.^2", "km/h")
+FEATURE_UNITS: tuple[str, ...] = ("1", "1", "a.u.", "a.u.^2", "km/h", "m")
 
 
 def project_version() -> str:

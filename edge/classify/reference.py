@@ -2,9 +2,10 @@
 
 A reference set is an ``.npz`` file with
 
-* ``features`` (N, 5) float64 in :data:`edge.classify.features.FEATURE_NAMES` order,
+* ``features`` (N, F) float64 (F = 6: eq. 19 and the range extent) in
+  :data:`edge.classify.features.FEATURE_NAMES` order,
 * ``labels`` (N,) int16 indices into ``classes``,
-* ``classes`` (C,) str, ``feature_names`` (5,) str,
+* ``classes`` (C,) str, ``feature_names`` (F,) str,
 * ``meta`` a JSON string (generator, seed, events per class, configuration, command).
 
 The surveillance pipeline loads the one named by ``classify.knn.reference_set`` or, when that is
@@ -42,7 +43,7 @@ class ReferenceSetError(ValueError):
 
 @dataclass(frozen=True, eq=False)
 class ReferenceSet:
-    features: np.ndarray  # (N, 5) float64
+    features: np.ndarray  # (N, F) float64
     labels: np.ndarray  # (N,) int
     classes: tuple[str, ...] = DEFAULT_CLASSES
     feature_names: tuple[str, ...] = FEATURE_NAMES

@@ -24,9 +24,10 @@ is an error. Building needs the `onnx` package (extra `train`); running it only 
 
 The packaged default model edge/data/knn_default.onnx is built by exactly:
   radar-edge export-onnx --out edge/data/knn_default.onnx
-from the packaged synthetic reference set edge/data/reference_set.npz (160 simulated single-target
-events, seed 90210: `radar-edge train --synthetic 160 --seed 90210` rebuilds the same set, same
-SHA-256) with the paper's k = 13, Euclidean, so the ONNX and numpy backends agree by default."""
+from the packaged synthetic reference set edge/data/reference_set.npz (1000 simulated single-target
+events, 250 per class, seed 90210, rebuilt by
+`PYTHONPATH=. python -c "from edge.classify.refgen import write_default; write_default()"`) with
+the paper's k = 13, Euclidean, so the ONNX and numpy backends agree by default."""
 EPILOG = """\
 examples:
   radar-edge export-onnx --out edge/data/knn_default.onnx          # the packaged default model

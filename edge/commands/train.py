@@ -13,7 +13,7 @@ NAME = "train"
 HELP = "train the surveillance classifier (grid search + 3-fold CV) and export it to ONNX"
 DESCRIPTION = """\
 Tavanti §III-C on your data: turns labelled single-target events into the feature vectors of
-eq. 19 (a site's own recordings, for recalibration at a new site, or a synthetic set from the
+eq. 19 plus the range extent (a site's own recordings, for recalibration at a new site, or a synthetic set from the
 simulated Distance2Go), searches k in [1, 50] x {Euclidean, Manhattan, Chebyshev} with stratified
 3-fold cross-validation and class-balancing weights, fits the weighted k-NN (eqs. 20-21) on the
 whole set with the best pair, and writes to --out:

@@ -189,7 +189,8 @@ class SurveillanceTracker:
         for tid in tstep.created:
             self._size[tid] = deque(maxlen=self.tracker.config.merge_history_frames)
             self._merged_run[tid] = 0
-            self._acc[tid] = TrackFeatureAccumulator()
+            self._acc[tid] = TrackFeatureAccumulator(self.extractor.config.extent_percentile,
+                                                     vmax_kmh=self.extractor.speed_vmax_kmh)
             self._speed[tid] = RadialSpeedEstimator(self.cylinder.vmax_kmh)
             self._log[tid] = SignatureLog()
             self._links[tid] = {}
@@ -208,10 +209,12 @@ class SurveillanceTracker:
                     tr.last_measurement = pred[tid][[0, 2, 4]].copy()
                 merged.append(tid)
                 continue
-            self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab])
+            lo, hi = float(sig.range_lo_m[lab]), float(sig.range_hi_m[lab])
+            self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab], hi - lo,
+                               sig.doppler_kmh[lab])
             n_lab = float(sig.n_points[lab])
             self._log[tid].add(frame_key, t_s, n_lab, sig.cos_sum[lab], sig.sin_sum[lab], sig.rcs[lab],
-                               n_lab * float(sig.range_m[lab]))
+                               n_lab * float(sig.range_m[lab]), lo, hi, float(sig.doppler_kmh[lab]))
             recorded.append((tid, int(lab)))
             spd = self._speed[tid]
             spd.add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
@@ -304,10 +307,13 @@ class SurveillanceTracker:
         return float(self._frame_sizes[j]) > self.tracker.config.merge_ratio * float(np.median(hist))
 
     def _other_track_near(self, track_id: int, centroid: np.ndarray, pred: dict[int, np.ndarray]) -> bool:
-        """Is another track predicted within ``gate_radius`` of this centroid (on the cylinder)?"""
+        """Is another track (with at least ``merge_other_min_frames`` own clusters) predicted within
+        ``gate_radius`` of this centroid (on the cylinder)?"""
         gate = self.tracker.config.gate_radius
+        need = self.tracker.config.merge_other_min_frames
         return any(
-            float(np.linalg.norm(p[[0, 2, 4]] - centroid)) <= gate for tid, p in pred.items() if tid != track_id
+            float(np.linalg.norm(p[[0, 2, 4]] - centroid)) <= gate for tid, p in pred.items()
+            if tid != track_id and (need <= 0 or len(self._size.get(tid, ())) >= need)
         )
 
     def _is_merged(self, track_id: int, n_points: int, other_near: bool = True) -> bool:
@@ -349,12 +355,14 @@ class SurveillanceTracker:
         self.dropped += int(counted)
 
     def _finish(self, tr: AlphaBetaTrack) -> ClassifiedEvent:
-        own = self._acc.pop(tr.track_id, None) or TrackFeatureAccumulator()
+        pct = self.extractor.config.extent_percentile
+        own = self._acc.pop(tr.track_id, None) or TrackFeatureAccumulator(pct)
         log_ = self._log.pop(tr.track_id, None)
         for other in self._links.pop(tr.track_id, {}):
             self._links.get(other, {}).pop(tr.track_id, None)
         # the union with absorbed fragments; a track without any has exactly its own running features
-        acc = log_.accumulator() if log_ is not None and len(log_) > own.n else own
+        acc = (log_.accumulator(pct, self.extractor.speed_vmax_kmh) if log_ is not None and len(log_) > own.n
+               else own)
         spd = self._speed.pop(tr.track_id, None)
         self._seen_t.pop(tr.track_id, None)
         self._size.pop(tr.track_id, None)

@@ -70,7 +70,7 @@ def reference_knn(rng):
                 p = frame_points(rng, [(kind, r0, vr, rng.uniform(-VMAX, VMAX))], n * T)
                 if len(p):
                     sig = ex(p)
-                    acc.add(n * T, sig.circular_variance[0], sig.rcs[0], sig.range_m[0])
+                    acc.add(n * T, sig.circular_variance[0], sig.rcs[0], sig.range_m[0], float(sig.extent_m[0]))
             xs.append(acc.features())
             ys.append(DEFAULT_CLASSES.index(kind))
     return WeightedKNN(DEFAULT_CLASSES, k=5).fit(np.array(xs), np.array(ys))

@@ -109,12 +109,14 @@ def test_track_features_known_values():
     r = 20.0 - 1.5 * t  # 1.5 m/s approaching = -5.4 km/h
     s = rng.uniform(0, 1, t.size)
     g = rng.uniform(10, 100, t.size)
-    acc = TrackFeatureAccumulator()
+    e = rng.uniform(1, 6, t.size)
+    acc = TrackFeatureAccumulator(extent_percentile=90.0)
     for k in range(t.size):
-        acc.add(t[k], s[k], g[k], r[k])
+        acc.add(t[k], s[k], g[k], r[k], e[k])
     x = acc.features()
-    assert len(FEATURE_NAMES) == x.size == 5
-    np.testing.assert_allclose(x, [s.mean(), s.var(ddof=1), g.mean(), g.var(ddof=1), 5.4], rtol=1e-9)
+    assert len(FEATURE_NAMES) == x.size == 6
+    np.testing.assert_allclose(x, [s.mean(), s.var(ddof=1), g.mean(), g.var(ddof=1), 5.4, np.percentile(e, 90)],
+                               rtol=1e-9)
     assert acc.mean_radial_speed_kmh() == pytest.approx(-5.4, rel=1e-9)
     assert acc.n == 6
 
@@ -128,6 +130,67 @@ def test_radial_speed_mean_of_absolute_values_and_least_squares():
     v = np.diff(r) / 0.2 * 3.6
     assert acc.features()[4] == pytest.approx(np.abs(v).mean())
     assert acc.mean_radial_speed_kmh() == pytest.approx(np.polyfit(t, r, 1)[0] * 3.6)
+
+
+def test_extent_feature_is_nan_without_extents_and_ignores_nan_frames():
+    acc = TrackFeatureAccumulator(extent_percentile=50.0)
+    for k in range(3):
+        acc.add(0.2 * k, 0.1, 1.0, 10.0)
+    assert np.isnan(acc.features()[5]) and np.all(np.isfinite(acc.features()[:5]))
+    acc.add(0.6, 0.1, 1.0, 10.0, 4.0)
+    acc.add(0.8, 0.1, 1.0, 10.0, float("nan"))
+    acc.add(1.0, 0.1, 1.0, 10.0, 2.0)
+    assert acc.features()[5] == pytest.approx(3.0)  # median of the two measured extents
+
+
+@pytest.mark.parametrize("pct", [0.0, 37.5, 50.0, 90.0, 100.0])
+def test_extent_percentile_equals_numpy(pct):
+    rng = np.random.default_rng(int(pct))
+    for n in (1, 2, 7, 60):
+        e = rng.uniform(0.5, 12.0, n)
+        acc = TrackFeatureAccumulator(extent_percentile=pct)
+        for k in range(n):
+            acc.add(0.2 * k, 0.1, 1.0, 10.0, e[k])
+        assert acc.extent_m() == pytest.approx(np.percentile(e, pct), rel=1e-12, abs=1e-12)
+
+
+def test_cluster_extent_spans_cells_within_level_of_the_peak():
+    """Extent = range span of the cells at most extent_level_db below the cluster's peak, per cluster."""
+    cfg = FeatureConfig(extent_level_db=20.0)
+    ex = SignatureExtractor(cfg, FE)
+    # cluster 0: peak 100 at 10 m, cells 20 (-14 dB) at 8 m and 5 (-26 dB) at 6 m -> 8..10 m
+    # cluster 1: one cell at 15 m -> extent 0; noise (-1) at 1 m is ignored
+    r = np.array([10.0, 8.0, 6.0, 15.0, 1.0])
+    amp = np.array([100.0, 20.0, 5.0, 3.0, 1000.0])
+    lab = np.array([0, 0, 0, 1, -1])
+    sig = ex(pts(r, np.zeros(5), amp, np.arange(5), np.zeros(5, dtype=int), lab))
+    np.testing.assert_allclose(sig.range_lo_m, [8.0, 15.0])
+    np.testing.assert_allclose(sig.range_hi_m, [10.0, 15.0])
+    np.testing.assert_allclose(sig.extent_m, [2.0, 0.0])
+    wide = SignatureExtractor(FeatureConfig(extent_level_db=30.0), FE)(
+        pts(r, np.zeros(5), amp, np.arange(5), np.zeros(5, dtype=int), lab))
+    np.testing.assert_allclose(wide.extent_m, [4.0, 0.0])
+
+
+def test_doppler_speed_feature_is_the_unaliased_doppler_not_the_centroid_jitter():
+    """speed_feature = "doppler": E(|v_r|) from each frame's wrapped Doppler unaliased with the range
+    rate. A pedestrian crossing the beam (radial 1.5 km/h) whose centroid jitters by 0.3 m reads
+    ~1.5 km/h; the paper's range displacement reads several times that (jitter / frame period)."""
+    rng = np.random.default_rng(4)
+    for v_kmh in (1.5, -27.0):  # a crossing pedestrian; a motorcycle, Doppler aliased (v_max 5.35 km/h)
+        t = np.arange(15) * 0.2
+        r = 12.0 + v_kmh / 3.6 * t + rng.normal(0.0, 0.3, t.size)
+        dop = (v_kmh + VMAX) % (2 * VMAX) - VMAX
+        by_doppler = TrackFeatureAccumulator(vmax_kmh=VMAX)
+        by_range = TrackFeatureAccumulator()
+        for k in range(t.size):
+            by_doppler.add(t[k], 0.1, 1.0, r[k], 2.0, dop)
+            by_range.add(t[k], 0.1, 1.0, r[k], 2.0, dop)
+        assert by_doppler.features()[4] == pytest.approx(abs(v_kmh), abs=1e-3)
+        if abs(v_kmh) < 5:
+            assert by_range.features()[4] > 3 * abs(v_kmh)
+    ex = SignatureExtractor(FeatureConfig(speed_feature="range_rate"), FE)
+    assert ex.speed_vmax_kmh is None and EX.speed_vmax_kmh == pytest.approx(VMAX)
 
 
 def test_single_frame_gives_nan_variances():

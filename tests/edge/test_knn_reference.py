@@ -44,7 +44,7 @@ def test_generator_reproduces_the_packaged_set():
 
 def test_save_load_round_trip_and_errors(tmp_path):
     rng = np.random.default_rng(0)
-    ref = ReferenceSet(rng.normal(size=(8, 5)), np.arange(8) % 4, meta={"note": "test"})
+    ref = ReferenceSet(rng.normal(size=(8, len(FEATURE_NAMES))), np.arange(8) % 4, meta={"note": "test"})
     p = save_reference_set(ref, tmp_path / "r.npz")
     back = load_reference_set(p)
     np.testing.assert_array_equal(back.features, ref.features)
@@ -65,3 +65,19 @@ def test_tracked_signatures_go_through_the_whole_chain():
     assert np.all(np.isfinite(ref.features))
     with pytest.raises(ValueError):
         build_reference_set(events_per_class=1, signatures="clustered")
+
+
+def test_packaged_set_range_extent_orders_the_classes_and_lifts_cross_validation():
+    """The range extent (beyond the paper) follows body length: pedestrian < motorcycle < car < truck,
+    and with it the paper's k = 13 Euclidean k-NN separates the packaged set far better than with the
+    five features of eq. 19 alone (3-fold CV, the grid search's folds): measured 0.986 vs 0.872."""
+    from edge.classify.train import grid_search
+
+    ref = load_reference_set()
+    j = FEATURE_NAMES.index("range_extent_m")
+    med = {c: float(np.median(ref.features[ref.labels == k, j])) for k, c in enumerate(ref.classes)}
+    assert med["pedestrian"] < med["motorcycle"] < med["car"] < med["truck"], med
+    six = grid_search(ref.features, ref.labels, ref.classes, ks=[13], metrics=("euclidean",), score="accuracy")
+    five = grid_search(np.delete(ref.features, j, axis=1), ref.labels, ref.classes, ks=[13],
+                       metrics=("euclidean",), score="accuracy")
+    assert six.score >= 0.95 and six.score > five.score + 0.05, (six.score, five.score)

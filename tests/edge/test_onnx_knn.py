@@ -18,16 +18,17 @@ onnx = pytest.importorskip("onnx")
 from edge.classify.onnx_export import KnnDefinition, export_model, reference_set_hash  # noqa: E402
 
 CLASSES = ("pedestrian", "car", "motorcycle", "truck")
-UNITS = np.array([0.1, 0.02, 3e3, 1e7, 15.0])
-OFFSET = np.array([0.4, 0.03, 5e3, 2e7, 25.0])
+F = len(FEATURE_NAMES)
+UNITS = np.array([0.1, 0.02, 3e3, 1e7, 15.0, 2.0])[:F]
+OFFSET = np.array([0.4, 0.03, 5e3, 2e7, 25.0, 5.0])[:F]
 
 
 def reference(seed: int, counts=(31, 88, 56, 7)):
     """Unbalanced blobs (the paper's class counts) in wildly different feature units, float32-exact
     so that a query equal to a reference vector hits it exactly."""
     rng = np.random.default_rng(seed)
-    centres = rng.normal(0, 1.2, size=(len(counts), 5))
-    x = np.concatenate([centres[c] + rng.normal(size=(n, 5)) for c, n in enumerate(counts)]) * UNITS + OFFSET
+    centres = rng.normal(0, 1.2, size=(len(counts), F))
+    x = np.concatenate([centres[c] + rng.normal(size=(n, F)) for c, n in enumerate(counts)]) * UNITS + OFFSET
     y = np.concatenate([np.full(n, c) for c, n in enumerate(counts)])
     return x.astype(np.float32).astype(np.float64), y
 
@@ -54,7 +55,7 @@ def test_parity_on_every_reference_vector_and_10000_random(metric, tmp_path):
     model = OnnxKnnClassifier(export(knn, tmp_path), expected_classes=CLASSES)
     assert_parity(knn, model, x)
     rng = np.random.default_rng(4)
-    q = rng.normal(0, 1.5, size=(10_000, 5)) * UNITS + OFFSET
+    q = rng.normal(0, 1.5, size=(10_000, F)) * UNITS + OFFSET
     assert_parity(knn, model, q)
     # the random queries are not all one class: the parity covers every decision
     assert len(np.unique(knn.predict(q.astype(np.float32)))) == len(CLASSES)
@@ -70,7 +71,7 @@ def test_parity_on_the_packaged_reference_set(metric, tmp_path):
     knn = WeightedKNN.from_reference_set(ref, k=13, metric=metric)
     model = OnnxKnnClassifier(export(knn, tmp_path), expected_classes=ref.classes)
     assert_parity(knn, model, ref.features)
-    z = np.random.default_rng(5).normal(0, 1.5, size=(10_000, 5))
+    z = np.random.default_rng(5).normal(0, 1.5, size=(10_000, F))
     assert_parity(knn, model, z * knn.scale_ + knn.mean_)
 
 
@@ -78,14 +79,14 @@ def grid_knn(metric: str, k: int, seed: int) -> tuple[WeightedKNN, np.ndarray]:
     """A reference set on a small integer grid with duplicated vectors, standardisation set to the
     identity: distances are exact, so many are exactly equal (ties) in both implementations."""
     rng = np.random.default_rng(seed)
-    z = rng.integers(0, 3, size=(60, 5)).astype(np.float64)
+    z = rng.integers(0, 3, size=(60, F)).astype(np.float64)
     z = np.concatenate([z, z[:15]])  # exact duplicates with higher indices
     y = rng.integers(0, 4, size=z.shape[0])
     y[-15:] = (y[:15] + 1) % 4  # the duplicates vote for another class: which one is kept matters
     w = rng.integers(1, 5, size=z.shape[0]).astype(np.float64)
     knn = WeightedKNN(CLASSES, k=k, metric=metric)
-    knn.mean_, knn.scale_, knn.z_, knn.y_, knn.w_ = np.zeros(5), np.ones(5), z, y, w / w.sum()
-    q = np.concatenate([z, rng.integers(0, 3, size=(500, 5)), rng.integers(0, 5, size=(500, 5)) / 2.0])
+    knn.mean_, knn.scale_, knn.z_, knn.y_, knn.w_ = np.zeros(F), np.ones(F), z, y, w / w.sum()
+    q = np.concatenate([z, rng.integers(0, 3, size=(500, F)), rng.integers(0, 5, size=(500, F)) / 2.0])
     return knn, q
 
 
@@ -111,11 +112,11 @@ def test_ties_go_to_the_lower_reference_index(metric, k, tmp_path):
 
 @pytest.mark.parametrize("metric", METRICS)
 def test_class_probability_ties_go_to_the_lower_class(metric, tmp_path):
-    z = np.array([[0.0] * 5, [1.0] * 5, [-1.0] * 5, [2.0] * 5])
+    z = np.array([[0.0] * F, [1.0] * F, [-1.0] * F, [2.0] * F])
     knn = WeightedKNN(CLASSES, k=2, metric=metric)
-    knn.mean_, knn.scale_, knn.z_, knn.y_, knn.w_ = np.zeros(5), np.ones(5), z, np.array([3, 1, 2, 0]), np.full(4, 0.25)
+    knn.mean_, knn.scale_, knn.z_, knn.y_, knn.w_ = np.zeros(F), np.ones(F), z, np.array([3, 1, 2, 0]), np.full(4, 0.25)
     model = OnnxKnnClassifier(export(knn, tmp_path))
-    q = np.array([[0.5] * 5, [-0.5] * 5, [0.0] * 5])  # two neighbours of equal weight, different classes
+    q = np.array([[0.5] * F, [-0.5] * F, [0.0] * F])  # two neighbours of equal weight, different classes
     np.testing.assert_array_equal(model.predict_proba(q)[0], [0, 0.5, 0, 0.5])
     np.testing.assert_array_equal(model.predict(q), knn.predict(q))
     np.testing.assert_array_equal(model.predict(q), [1, 2, 1])  # 3rd: z_1 and z_2 tie, z_1 (car) is kept
@@ -126,7 +127,7 @@ def test_k_larger_than_the_reference_set(tmp_path):
     knn = WeightedKNN(CLASSES, k=50, metric="euclidean").fit(x, y)
     model = OnnxKnnClassifier(export(knn, tmp_path))
     assert model.k == 50
-    q = np.random.default_rng(1).normal(size=(200, 5)) * UNITS + OFFSET
+    q = np.random.default_rng(1).normal(size=(200, F)) * UNITS + OFFSET
     assert_parity(knn, model, q)
     assert model.kneighbors(q)[1].shape == (200, 10)
 
@@ -140,7 +141,7 @@ def test_metadata_and_plain_graph(tmp_path):
     md = model.metadata
     assert md["classes"] == list(CLASSES)
     assert md["feature_names"] == list(FEATURE_NAMES)
-    assert md["feature_units"][-1] == "km/h" and len(md["feature_units"]) == 5
+    assert md["feature_units"][4] == "km/h" and md["feature_units"][-1] == "m" and len(md["feature_units"]) == F
     assert (md["k"], md["metric"], md["reference_sha256"], md["reference_size"]) == (13, "euclidean", h, str(len(y)))
     assert md["version"] and md["version"] != "unknown"
     assert md["build"] == {"command": "test"}
@@ -151,7 +152,7 @@ def test_metadata_and_plain_graph(tmp_path):
                    "Gather", "ArgMax", "GreaterOrEqual", "Equal"}
     assert "TopK" in ops and "Scan" not in ops
     ins = proto.graph.input[0].type.tensor_type
-    assert ins.elem_type == onnx.TensorProto.FLOAT and ins.shape.dim[1].dim_value == 5
+    assert ins.elem_type == onnx.TensorProto.FLOAT and ins.shape.dim[1].dim_value == F
     assert [o.name for o in proto.graph.output][:2] == ["label", "probabilities"]
 
 
@@ -174,7 +175,7 @@ def test_export_is_deterministic_and_hash_tracks_the_data(tmp_path):
 def test_schema_and_class_list_mismatch_refused(tmp_path):
     x, y = reference(8)
     knn = WeightedKNN(CLASSES, k=5).fit(x, y)
-    other = tuple(FEATURE_NAMES[:4]) + ("abs_radial_speed_max_kmh",)
+    other = tuple(FEATURE_NAMES[:-1]) + ("abs_radial_speed_max_kmh",)
     p = export_model(KnnDefinition.from_knn(knn, feature_names=other), tmp_path / "f.onnx")
     with pytest.raises(ModelError, match="expects features"):
         OnnxKnnClassifier(p)
@@ -220,13 +221,13 @@ def test_threads_and_bad_query_shape(tmp_path):
     knn = WeightedKNN(CLASSES, k=13).fit(x, y)
     model = OnnxKnnClassifier(export(knn, tmp_path), threads=2)
     assert_parity(knn, model, x[:50])
-    with pytest.raises(ValueError, match=r"\(Q, 5\)"):
+    with pytest.raises(ValueError, match=rf"\(Q, {F}\)"):
         model.predict(np.zeros((3, 4), dtype=np.float32))
     assert model.predict(x[0]).shape == (1,)  # one vector is one query
     with pytest.raises(ValueError, match="finite"):
-        model.predict_proba(np.array([[0.1, np.nan, 1e3, 1e6, 20.0]]))
+        model.predict_proba(np.array([[0.1, np.nan, 1e3, 1e6, 20.0, 4.0][:F]]))
     with pytest.raises(ValueError, match="finite"):
-        model.predict(np.array([[0.1, 0.01, np.inf, 1e6, 20.0]]))
+        model.predict(np.array([[0.1, 0.01, np.inf, 1e6, 20.0, 4.0][:F]]))
 
 
 def test_latency_function_reports_both_backends(tmp_path):
@@ -244,7 +245,7 @@ def test_runtime_does_not_import_onnx(tmp_path):
     code = ("import sys, numpy as np\n"
             "from edge.classify.onnx_runtime import OnnxKnnClassifier\n"
             f"m = OnnxKnnClassifier({str(p)!r})\n"
-            "m.predict(np.zeros((2, 5), dtype=np.float32))\n"
+            f"m.predict(np.zeros((2, {F}), dtype=np.float32))\n"
             "bad = sorted(n for n in sys.modules if n == 'onnx' or n.startswith('onnx.') or n.startswith('sklearn'))\n"
             "print(bad)\n")
     root = Path(__file__).resolve().parents[2]
@@ -258,14 +259,14 @@ def test_ties_on_a_large_grid_reference_set(metric, tmp_path):
     """onnxruntime's TopK may select differently for large inputs (heap vs sort): ties still go to
     the lower index with 2000 reference vectors on a 3^5 grid (about 8 copies of each point)."""
     rng = np.random.default_rng(21)
-    z = rng.integers(0, 3, size=(2000, 5)).astype(np.float64)
+    z = rng.integers(0, 3, size=(2000, F)).astype(np.float64)
     y = rng.integers(0, 4, size=2000)
     w = rng.integers(1, 5, size=2000).astype(np.float64)
     for k in (5, 50):
         knn = WeightedKNN(CLASSES, k=k, metric=metric)
-        knn.mean_, knn.scale_, knn.z_, knn.y_, knn.w_ = np.zeros(5), np.ones(5), z, y, w / w.sum()
+        knn.mean_, knn.scale_, knn.z_, knn.y_, knn.w_ = np.zeros(F), np.ones(F), z, y, w / w.sum()
         model = OnnxKnnClassifier(export(knn, tmp_path, f"big{k}.onnx"))
-        assert_parity(knn, model, rng.integers(0, 3, size=(300, 5)))
+        assert_parity(knn, model, rng.integers(0, 3, size=(300, F)))
 
 
 def test_a_1000_vector_reference_set_fits_the_64_kib_model_budget(tmp_path):
@@ -278,7 +279,7 @@ def test_a_1000_vector_reference_set_fits_the_64_kib_model_budget(tmp_path):
     assert p.stat().st_size < 64 * 1024
     model = OnnxKnnClassifier(p, expected_classes=CLASSES)
     assert_parity(knn, model, x)
-    assert_parity(knn, model, np.random.default_rng(12).normal(0, 1.5, size=(2000, 5)) * UNITS + OFFSET)
+    assert_parity(knn, model, np.random.default_rng(12).normal(0, 1.5, size=(2000, F)) * UNITS + OFFSET)
 
 
 def test_reference_vectors_must_be_float32_exact():

@@ -184,12 +184,16 @@ def test_signature_log_of_one_cluster_per_frame_is_the_tracks_own_features():
     from edge.classify.features import SignatureExtractor, SignatureLog, TrackFeatureAccumulator
 
     ex = SignatureExtractor(__import__("edge.classify.features", fromlist=["FeatureConfig"]).FeatureConfig(), FE)
-    acc, lg = TrackFeatureAccumulator(), SignatureLog()
+    acc, lg = TrackFeatureAccumulator(vmax_kmh=VMAX), SignatureLog()
     for n in range(6):
         sig = ex(points(blob(10.0 + 0.4 * n, 3.0 + n, 90 + 20 * n, 0)))
-        acc.add(n * T, sig.circular_variance[0], sig.rcs[0], sig.range_m[0])
-        lg.add(n, n * T, sig.n_points[0], sig.cos_sum[0], sig.sin_sum[0], sig.rcs[0], sig.n_points[0] * sig.range_m[0])
-    np.testing.assert_allclose(lg.accumulator().features(), acc.features(), rtol=1e-9)
+        acc.add(n * T, sig.circular_variance[0], sig.rcs[0], sig.range_m[0], float(sig.extent_m[0]),
+                float(sig.doppler_kmh[0]))
+        lg.add(n, n * T, sig.n_points[0], sig.cos_sum[0], sig.sin_sum[0], sig.rcs[0], sig.n_points[0] * sig.range_m[0],
+               sig.range_lo_m[0], sig.range_hi_m[0], sig.doppler_kmh[0])
+    x = lg.accumulator(vmax_kmh=VMAX).features()
+    assert np.all(np.isfinite(x))
+    np.testing.assert_allclose(x, acc.features(), rtol=1e-9)
 
 
 def test_signature_log_unites_two_clusters_of_a_frame_as_one_signature():
@@ -294,3 +298,24 @@ def test_a_young_fragment_whose_centroid_hardly_moves_still_joins():
         events += st.update(int(n * T * 1e9), points(*blobs), seq=n).classifications
     events += st.close()
     assert len(events) == 1 and st.fragments == 1
+
+
+@pytest.mark.parametrize("min_frames, held", [(0, True), (5, False)])
+def test_two_young_fragments_do_not_count_as_another_target(min_frames, held):
+    """A truck entering the beam shows as two small clusters (two young tracks), then as one cluster 10x
+    larger. With merge_other_min_frames = 5 the young track next to it is no "other target": the track
+    that takes the big cluster is not held on its prediction and the frame feeds its features; with 0
+    (any track) it was held as merged."""
+    cfg = AlphaBetaConfig(merge_ratio=6.0, merge_other_min_frames=min_frames)
+    st = SurveillanceTracker(FE, 2.0, tracking=cfg, classify=False)
+    v = 15.0
+    for n in range(4):
+        r = 8.0 + v / 3.6 * n * T
+        if n < 3:
+            pts = points(blob(r, v, 100, 0), blob(r + 1.5, v, 100, 1))
+        else:
+            pts = points(blob(r + 0.75, v, 1200, 0))
+        st.update(int(n * T * 1e9), pts, seq=n)
+    assert (st.merged_frames > 0) == held
+    frames = sorted(acc.n for acc in st._acc.values())
+    assert frames[-1] == (3 if held else 4)

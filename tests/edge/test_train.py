@@ -17,16 +17,17 @@ from edge.config import load_config
 pytest.importorskip("onnx")
 
 CLASSES = ("pedestrian", "car", "motorcycle", "truck")
-UNITS = np.array([0.1, 0.02, 3e3, 1e7, 15.0])
-OFFSET = np.array([0.4, 0.03, 5e3, 2e7, 25.0])
+UNITS = np.array([0.1, 0.02, 3e3, 1e7, 15.0, 2.0])
+OFFSET = np.array([0.4, 0.03, 5e3, 2e7, 25.0, 5.0])
 #: class centres in standard units: trucks sit next to cars (Tavanti Fig. 7: they overlap)
-CENTRES = np.array([[-3.0, 2.0, -2.0, -2.0, -3.0], [1.0, -1.0, 1.0, 1.0, 1.0], [0.0, 2.0, 0.0, 0.0, 2.0],
-                    [1.8, -1.6, 2.2, 2.2, 0.6]])
+CENTRES = np.array([[-3.0, 2.0, -2.0, -2.0, -3.0, -2.0], [1.0, -1.0, 1.0, 1.0, 1.0, 0.5],
+                    [0.0, 2.0, 0.0, 0.0, 2.0, -0.5], [1.8, -1.6, 2.2, 2.2, 0.6, 1.2]])
+F = CENTRES.shape[1]
 
 
 def make_set(seed: int, counts=(31, 88, 56, 7), spread: float = 0.6) -> ReferenceSet:
     rng = np.random.default_rng(seed)
-    x = np.concatenate([CENTRES[c] + spread * rng.normal(size=(n, 5)) for c, n in enumerate(counts)])
+    x = np.concatenate([CENTRES[c] + spread * rng.normal(size=(n, F)) for c, n in enumerate(counts)])
     y = np.concatenate([np.full(n, c) for c, n in enumerate(counts)])
     return ReferenceSet(x * UNITS + OFFSET, y, CLASSES, meta={"generator": "test blobs", "seed": seed})
 
@@ -56,7 +57,7 @@ def test_train_is_seeded_and_its_out_of_fold_predictions_equal_sklearn():
     pred = skm.cross_val_predict(sk, ref.features, ref.labels, cv=skm.PredefinedSplit(fold_of))
     np.testing.assert_array_equal(confusion_matrix(ref.labels, pred, 4), cm)
     # the fitted model is the one of the whole set
-    np.testing.assert_array_equal(knn.z_.shape, (len(ref), 5))
+    np.testing.assert_array_equal(knn.z_.shape, (len(ref), F))
 
 
 def test_without_trucks_the_trucks_are_labelled_as_the_nearest_class():
@@ -80,7 +81,7 @@ def test_training_refuses_too_small_or_single_class_sets():
 
 
 def test_pca_explains_the_variance_in_order():
-    z = np.random.default_rng(0).normal(size=(200, 5)) * [5, 3, 1, 0.5, 0.1]
+    z = np.random.default_rng(0).normal(size=(200, F)) * [5, 3, 1, 0.5, 0.1, 0.2]
     proj, var = reference_pca(z, 3)
     assert proj.shape == (200, 3)
     assert var[0] > var[1] > var[2] and 0.9 < var.sum() <= 1.0
