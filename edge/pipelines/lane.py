@@ -101,6 +101,17 @@ class LaneConfig:
         "doc": "a fast pairing is confirmed when slow-segment peaks lie within this many slow-segment bins "
                "of both predictions (ghost rejection); an extended vehicle's unresolved scatterers shift its peaks "
                "by up to about a bin", "min": 0.05, "max": 5.0})
+    pair_near_tolerance_bins: float = field(default=1.5, metadata={
+        "doc": "pair_tolerance_bins for candidates nearer than pair_near_range_m. Near the overpass a vehicle's "
+               "radial speed changes within the 33 ms frame (radial acceleration v^2 h^2 / R^3 with h the lateral "
+               "and height offset: 30 m/s^2 at 12 m, 100 km/h, an outer lane, i.e. a slow bin between the segments) "
+               "and its body spans many bins and degrees seen from the radar's height, so the four segments' peaks "
+               "agree less well; measured on highway4-traffic seeds 5 and 6 (3000 frames): receding cars at 10-25 "
+               "m were paired in about half their frames with 1.0 (a slow segment 1.0-1.5 bins off the fast pair's "
+               "prediction)", "min": 0.05, "max": 5.0})
+    pair_near_range_m: float = field(default=40.0, metadata={
+        "unit": "m", "doc": "slant range up to which pair_near_tolerance_bins applies (the radial acceleration "
+               "falls with R^3: 1 m/s^2 beyond about 40 m); 0 = off", "min": 0.0, "max": 400.0})
     pair_max_shared_peaks: int = field(default=1, metadata={
         "doc": "a pairing may share this many of its four peaks with better pairings (vehicles whose beats "
                "coincide in one segment); 0 = every peak belongs to one pairing", "min": 0, "max": 3})
@@ -113,6 +124,12 @@ class LaneConfig:
         "unit": "deg", "doc": "a segment whose own Bartlett maximum is farther than this from the median of the four "
                "is left out of the angle estimate (another vehicle shares its bin); 90 = keep all",
         "min": 0.1, "max": 90.0})
+    angle_outlier_lateral_m: float = field(default=1.0, metadata={
+        "unit": "m", "doc": "... widened near the radar to this lateral distance at the detection's range "
+               "(max(angle_outlier_deg, this / range)): a car 12 m away spans 9 deg and each segment's maximum "
+               "lands on another part of its body (1.0 m: 4.8 deg at 12 m, the 2 deg floor from 29 m on; less than "
+               "half the 3.5 m lane spacing, so the peaks of two vehicles in adjacent lanes still disagree)",
+        "min": 0.0, "max": 10.0})
     angle_min_agreeing: int = field(default=3, metadata={
         "doc": "a pairing is kept only if at least this many of the four segments agree on its angle: the peaks "
                "of a ghost pairing come from different vehicles and point in different directions",
@@ -194,22 +211,24 @@ class LaneConfig:
     unalias_min_speed_mps: float = field(default=1.0, metadata={
         "unit": "m/s", "doc": "radial speed below which a detection's direction of travel is unknown (not unaliased)",
         "min": 0.0, "max": 50.0})
-    cluster_ghost_speed_mps: float = field(default=0.0, metadata={
-        "unit": "m/s", "doc": "wrong pairings between two of a body's scatterers (accepted when their true pairs are "
-               "not) lie between them, off the body's speed by 0.83 m/s per metre of their spacing (a/2b of the fast "
-               "segments; +-4 to +-5.3 m/s seen on trucks 10-60 m away): detections behind a nearer one are dropped "
-               "up to this speed difference, but at most cluster_ghost_speed_per_m x their distance behind; 0 = off "
-               "(default): a car overtaking a van 2-5 m behind it at 2.8 m/s more during a lane swap (crossing) looks "
-               "exactly like such a ghost and was dropped, its track lost (6 m/s: an id switch on one seed of eight); "
-               "with it off, the ghosts on near trucks can seed tracks (confirmation blocking catches those within "
-               "merge_speed_mps)",
+    cluster_ghost_speed_mps: float = field(default=6.0, metadata={
+        "unit": "m/s", "doc": "wrong pairings among a body's scatterers: a long vehicle's equally spaced scatterers "
+               "(near face, side scatterers every L/5, far face) at R'-2u, R'-u, R'+u, R'+2u fit a target at R' with "
+               "speed v +- u a/b exactly in all four segments (a/b = 1.66 m/s per m of the fast segments; pair "
+               "residual ~1 Hz), so ghosts at v +- 5 m/s appear 6-10 m behind a truck's near face. Detections behind "
+               "a nearer one are dropped up to this speed difference, but at most cluster_ghost_speed_per_m x their "
+               "distance behind and at most cluster_ghost_length_m behind; 0 = off. Measured on highway4-traffic "
+               "seeds 5, 6, 7 (3000 frames each): the ghosts of receding trucks seeded tracks running ahead of them "
+               "across the detection line (false tracks 12 -> 7, summed count error 6 -> 4); crossing keeps both ids",
         "min": 0.0, "max": 20.0})
-    cluster_ghost_speed_per_m: float = field(default=1.7, metadata={
-        "unit": "m/s per m", "doc": "... (twice 0.83: one of the two scatterers may be the near face itself)",
+    cluster_ghost_speed_per_m: float = field(default=0.83, metadata={
+        "unit": "m/s per m", "doc": "... the ghost law: a ghost lies at least 2u behind the near face and is off by "
+               "u a/b, i.e. at most a / (2 b) = 0.83 m/s per metre behind (1.7 dropped a car overtaking a van 2-5 m "
+               "behind it at 2.8 m/s more in crossing)",
         "min": 0.0, "max": 10.0})
-    cluster_ghost_length_m: float = field(default=8.5, metadata={
-        "unit": "m", "doc": "... and only up to this far behind (the midpoint between the near face and the far end of "
-               "the longest truck)", "min": 0.0, "max": 30.0})
+    cluster_ghost_length_m: float = field(default=12.0, metadata={
+        "unit": "m", "doc": "... and only up to this far behind (a ghost at R' needs a scatterer 2u beyond it on the "
+               "body: R' <= 16.5 m - 2u; seen up to 9 m behind trucks)", "min": 0.0, "max": 30.0})
     clutter_map_init_frames: int = field(default=16, metadata={
         "doc": "after this many frames the clutter map is replaced by the per-bin median (real and imaginary parts) "
                "of those frames: static returns, above all the TX->RX leakage 80 dB over the noise at DC, are then "
@@ -282,6 +301,8 @@ class LanePipeline(Pipeline):
         self._alias_period = wf.wavelength_m / frontend.rx_spacing_m  # grating-lobe period in sin(az)
         self._model = PairingModel.from_waveform(wf)
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
+        self._near_tol = (cfg.pair_near_tolerance_bins * self._bin_hz[2], cfg.pair_near_tolerance_bins * self._bin_hz[3])
+        self._outlier_rad = np.float32(math.radians(cfg.angle_outlier_deg))
         half = math.radians(cfg.angle_max_deg)
         self._grid = np.arange(-half, half + 1e-12, math.radians(cfg.angle_step_deg)).astype(np.float32)
         self._steer = steering_matrix(n_rx, frontend.rx_spacing_m, wf.wavelength_m, self._grid)
@@ -395,7 +416,8 @@ class LanePipeline(Pipeline):
         with timer.stage("pairing"):
             pairs = pair_beats(tuple(freqs), self._model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
                                max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self._tol,
-                               max_shared=cfg.pair_max_shared_peaks)
+                               max_shared=cfg.pair_max_shared_peaks, near_tolerance_hz=self._near_tol,
+                               near_range_m=cfg.pair_near_range_m)
             p_rng, p_vel, p_res = pairs.range_m, pairs.radial_speed_mps, pairs.residual_hz
             # (n, 4 seg) bins: the peaks of the four segments are consecutive in ``all_bins``
             all_bins = np.concatenate(bins)
@@ -414,7 +436,10 @@ class LanePipeline(Pipeline):
             if n_det:
                 snaps = spec.reshape(spec.shape[0], -1).take(pk + self._seg_bin0, axis=1)  # (rx, n, seg)
                 snaps = snaps.transpose(1, 2, 0) * self._inv_cal  # (n, seg, rx)
-                az, aspec, kept = bartlett_consensus(snaps, self._steer, self._grid, math.radians(cfg.angle_outlier_deg))
+                outlier = self._outlier_rad
+                if cfg.angle_outlier_lateral_m > 0:  # wider near the radar, where a vehicle spans degrees
+                    outlier = np.maximum(outlier, np.float32(cfg.angle_outlier_lateral_m) / np.maximum(p_rng, np.float32(1.0)))
+                az, aspec, kept = bartlett_consensus(snaps, self._steer, self._grid, outlier)
                 p0 = power[0, pk[:, 0]]
                 n0 = noise[0, pk[:, 0]]
                 n0 = np.where(np.isfinite(n0), n0, floor[0])  # a track-aided pair may read a non-peak bin
