@@ -11,14 +11,16 @@ Per frame (four chirp segments: fast up, fast down, slow up, slow down; 4 receiv
          ghosts of wrong pairings rejected by the slow segments (and wrong pairings between two
          scatterers of one long truck dropped once their true pairs are in)
       -> track-aided pairing: a confirmed track that got no pairing takes the peaks nearest its predicted
-         beats in all four segments (a near vehicle's body smears its echo over several bins)
+         beats in all four segments (a near vehicle's body smears its echo over several bins), local maxima
+         above a lower OS-CFAR threshold (``aided_pfa``) included
       -> Bartlett angle over the 4 channels (calibration vector divided out), the 4 segments as looks,
-         each normalised, a segment that disagrees with the others left out (edge.dsp.angle)
+         each normalised, a segment that disagrees with the others left out (edge.dsp.angle; the agreement
+         window widens near the radar, where a vehicle spans degrees)
       -> resolve (edge.dsp.resolve): a detection whose range-speed cell holds two vehicles side by side
          (rank-two spatial covariance over frames) becomes two detections, one per fitted angle
       -> grating-lobe aliases of near vehicles beyond +-19.5 deg moved back into a lane of their direction
       -> ground-plane x/y (edge.dsp.geometry, eq. 16 for a raised radar), nearest face of each body (a 17 m
-         body's detections and the wrong pairings among its scatterers dropped)
+         body's detections and the wrong pairings among its scatterers -- ghosts at v +- u a/b -- dropped)
       -> PDAF tracker (edge.track) -> lanes, statistics, events (edge.traffic)
 
 All parameters are in :class:`LaneConfig` (section ``pipeline.lane``); the tracker and the traffic
@@ -146,6 +148,13 @@ class LaneConfig:
                "on highway4-misaimed seed 11 (90 s): 4 raises the detection probability 0.933 -> 0.934 with "
                "id switches 13 -> 12; 3 gives 0.936 but 22 id switches (tracks live on other vehicles' peaks)",
         "min": 2, "max": 4})
+    aided_pfa: float = field(default=1e-2, metadata={
+        "doc": "false-alarm probability of the lower OS-CFAR threshold at which a confirmed track's search also takes "
+               "local maxima that missed cfar_pfa (the track says where to look: four segments within "
+               "aided_window_bins of their predictions and a range/speed fit inside the aided gates make a noise "
+               "coincidence rare); 0 = only the cfar_pfa peaks. A car near 300 m or under the overpass crosses "
+               "the cfar_pfa threshold in all four segments in about 60 % of its frames only",
+        "min": 0.0, "max": 0.1})
     aided_gate_m: float = field(default=2.5, metadata={
         "unit": "m", "doc": "fitted range within this of the track's predicted slant range (and an existing "
                "pairing this close means the track needs no help)", "min": 0.1, "max": 20.0})
@@ -298,6 +307,10 @@ class LanePipeline(Pipeline):
         self._aided_window_hz = cfg.aided_window_bins * self._bin_hz  # (4,)
         self._seg_bin0 = np.arange(len(wf.segments)) * n  # first bin of each segment in a (rx, seg * bin) view
         self._scale32 = np.float32(self.cfar_scale)
+        self._aided_scale32 = None  # the lower threshold of track-aided pairing (weak peaks)
+        if cfg.aided_pairing and 0 < cfg.aided_pfa and cfg.tracking:
+            self._aided_scale32 = np.float32(min(os_cfar_scale(cfg.aided_pfa, self._n_ref, self._rank, n_looks=n_rx),
+                                                 self.cfar_scale))
         self._alias_period = wf.wavelength_m / frontend.rx_spacing_m  # grating-lobe period in sin(az)
         self._model = PairingModel.from_waveform(wf)
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
@@ -374,6 +387,10 @@ class LanePipeline(Pipeline):
             self._sq_sum.sum(axis=0, out=power)  # (seg, bin) float32
             ppad[:, :h] = ppad[:, n:n + h]
             ppad[:, n + h:] = ppad[:, h:2 * h]
+        # weak peaks (above the aided threshold, below the detection one) only when a confirmed track may use them
+        want_weak = (self._aided_scale32 is not None and self.tracker is not None
+                     and bool(self.tracker.tracks.confirmed.any()))
+        weak = None
         with timer.stage("cfar"):
             floor = np.partition(power, n // 2, axis=-1)[:, n // 2]  # median per segment
             cap = floor * self._cap  # (4,)
@@ -383,6 +400,10 @@ class LanePipeline(Pipeline):
                 thr = noise * self._scale32
                 rows, cols = np.nonzero(local_maxima(power, (power > thr) & self._valid))
                 cells = np.stack([ppad[rows, cols + h + o] for o in (-1, 0, 1)], axis=1)
+                if want_weak:
+                    wr, wc = np.nonzero(local_maxima(power, (power > noise * self._aided_scale32) & (power <= thr)
+                                                     & self._valid))
+                    weak = (wr, wc, np.stack([ppad[wr, wc + h + o] for o in (-1, 0, 1)], axis=1))
             else:  # only local maxima can be reported: evaluate the ordered statistic there
                 is_max = power > ppad[:, h - 1:h - 1 + n]
                 is_max &= power >= ppad[:, h + 1:h + 1 + n]
@@ -396,6 +417,9 @@ class LanePipeline(Pipeline):
                 noise = np.full(power.shape, np.nan, np.float32)
                 noise.reshape(-1)[flat] = nz
                 thr = noise * self._scale32
+                if want_weak:
+                    wk = ~hit & (cells[:, 1] > nz * self._aided_scale32)
+                    weak = (rows[wk], cols[wk], cells[wk])
                 rows, cols, cells = rows[hit], cols[hit], cells[hit]
             # peaks in (segment, bin) order; sub-bin offsets by a parabola through the log-power
             # (edge.dsp.peaks.interpolate_peak, all segments at once)
@@ -404,15 +428,14 @@ class LanePipeline(Pipeline):
             if max(e - b for b, e in zip(starts, ends)) > cfg.max_peaks_per_segment:
                 freqs, bins = self._strongest_peaks(power, rows, cols)
             else:
-                lg = np.log(np.maximum(cells, self._tiny))
-                lm, l0, lp = lg[:, 0], lg[:, 1], lg[:, 2]
-                den = lm - 2.0 * l0 + lp
-                d = np.zeros(den.shape, np.float32)
-                np.divide(0.5 * (lm - lp), den, out=d, where=den < 0)
-                np.minimum(np.maximum(d, np.float32(-0.5), out=d), np.float32(0.5), out=d)  # np.clip
-                f = self._freq_flat[rows * n + cols] + d * self._bin_hz[rows]
+                f = self._peak_freqs(rows, cols, cells)
                 freqs = [f[b:e] for b, e in zip(starts, ends)]
                 bins = [cols[b:e] for b, e in zip(starts, ends)]
+            if weak is not None:  # the same interpolation, grouped by segment
+                wr, wc, wcells = weak
+                we = np.searchsorted(wr, self._seg_ends).tolist()
+                wf = self._peak_freqs(wr, wc, wcells)
+                weak = ([wf[b:e] for b, e in zip([0] + we[:3], we)], [wc[b:e] for b, e in zip([0] + we[:3], we)])
         with timer.stage("pairing"):
             pairs = pair_beats(tuple(freqs), self._model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
                                max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self._tol,
@@ -425,7 +448,7 @@ class LanePipeline(Pipeline):
             pk = all_bins[pairs.peak_index + seg_start] if p_rng.size else np.zeros((0, 4), np.int64)
             n_aided = 0
             if self.tracker is not None and cfg.aided_pairing and len(self.tracker.tracks):
-                a_bins, a_rng, a_vel, a_res = self._track_aided_pairs(freqs, bins, pairs, frame.t_ns)
+                a_bins, a_rng, a_vel, a_res = self._track_aided_pairs(freqs, bins, pairs, frame.t_ns, weak)
                 n_aided = a_rng.size
                 if n_aided:
                     pk = np.concatenate([pk, a_bins])
@@ -490,6 +513,17 @@ class LanePipeline(Pipeline):
         }
         return det, inter
 
+    def _peak_freqs(self, rows: np.ndarray, cols: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """Signed beat frequencies (Hz) of peaks ``(segment rows, bin cols)`` with their power and its two
+        neighbours ``cells (n, 3)``: a parabola through the log-power (edge.dsp.peaks.interpolate_peak)."""
+        lg = np.log(np.maximum(cells, self._tiny))
+        lm, l0, lp = lg[:, 0], lg[:, 1], lg[:, 2]
+        den = lm - 2.0 * l0 + lp
+        d = np.zeros(den.shape, np.float32)
+        np.divide(0.5 * (lm - lp), den, out=d, where=den < 0)
+        np.minimum(np.maximum(d, np.float32(-0.5), out=d), np.float32(0.5), out=d)  # np.clip
+        return self._freq_flat[rows * self.n_bins + cols] + d * self._bin_hz[rows]
+
     def _strongest_peaks(self, power: np.ndarray, rows: np.ndarray, cols: np.ndarray):
         """Per segment the ``max_peaks_per_segment`` strongest peaks (a segment with more): their
         frequencies and bins, ordered by power (rare; the common case is done in :meth:`detect`)."""
@@ -504,7 +538,7 @@ class LanePipeline(Pipeline):
             bins.append(b)
         return freqs, bins
 
-    def _track_aided_pairs(self, freqs, bins, pairs, t_ns: int):
+    def _track_aided_pairs(self, freqs, bins, pairs, t_ns: int, weak=None):
         """Pairings of confirmed tracks that the four-segment pairing missed (a near vehicle's echo is smeared
         over several bins by its body, and the peaks of the four segments no longer agree within a bin).
 
@@ -513,7 +547,9 @@ class LanePipeline(Pipeline):
         ``aided_window_bins`` is taken in each segment, at least ``aided_min_segments`` must be found, and
         range and speed are fitted to them by least squares; the fit must lie within ``aided_gate_m`` and
         ``aided_gate_mps`` of the prediction. A segment without a peak is read at its predicted bin for
-        the angle. Returns ``(bins (m, 4), range_m, v_mps, residual_hz)``."""
+        the angle. ``weak``: per segment, the frequencies and bins of local maxima above the lower ``aided_pfa``
+        threshold only (searched as well, after the detected peaks). Returns ``(bins (m, 4), range_m, v_mps,
+        residual_hz)``."""
         cfg = self.config
         tr = self.tracker.tracks
         empty = (np.zeros((0, 4), np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.float32))
@@ -539,15 +575,19 @@ class LanePipeline(Pipeline):
         m = idx.size
         # all four segments at once: peaks in a (segment, peak) table padded with +inf, used peaks at +inf
         counts = [fk.size for fk in freqs]
-        width = max(counts)
+        w_counts = [fk.size for fk in weak[0]] if weak is not None else [0, 0, 0, 0]
+        width = max(c + w for c, w in zip(counts, w_counts))
         pred_bin = np.round(f_hat / self._bin_hz).astype(np.int64) % self.n_bins  # (m, 4)
         if width == 0:
             return empty
         table = np.full((4, width), np.inf)
         btab = np.zeros((4, width), np.int64)
-        for k in range(4):  # four segments
+        for k in range(4):  # four segments; the weak peaks after the detected ones (pairs.peak_index stays valid)
             table[k, :counts[k]] = freqs[k]
             btab[k, :counts[k]] = bins[k]
+            if w_counts[k]:
+                table[k, counts[k]:counts[k] + w_counts[k]] = weak[0][k]
+                btab[k, counts[k]:counts[k] + w_counts[k]] = weak[1][k]
         if pairs.range_m.size:
             table[np.arange(4), pairs.peak_index] = np.inf
         d = np.abs(table[None, :, :] - f_hat[:, :, None])  # (m, 4, peaks)
