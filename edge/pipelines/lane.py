@@ -228,7 +228,8 @@ class LaneConfig:
                "a nearer one are dropped up to this speed difference, but at most cluster_ghost_speed_per_m x their "
                "distance behind and at most cluster_ghost_length_m behind; 0 = off. Measured on highway4-traffic "
                "seeds 5, 6, 7 (3000 frames each): the ghosts of receding trucks seeded tracks running ahead of them "
-               "across the detection line (false tracks 12 -> 7, summed count error 6 -> 4; 0.83 and 0.9 m/s per m alike); crossing keeps both ids",
+               "across the detection line (false tracks 12 -> 7, summed count error 6 -> 4; 0.83 and 0.9 m/s per m "
+               "alike); crossing keeps both ids",
         "min": 0.0, "max": 20.0})
     cluster_ghost_speed_per_m: float = field(default=0.9, metadata={
         "unit": "m/s per m", "doc": "... the ghost law: a ghost lies at least 2u behind the near face and is off by "
@@ -315,7 +316,8 @@ class LanePipeline(Pipeline):
         self._alias_period = wf.wavelength_m / frontend.rx_spacing_m  # grating-lobe period in sin(az)
         self._model = PairingModel.from_waveform(wf)
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
-        self._near_tol = (cfg.pair_near_tolerance_bins * self._bin_hz[2], cfg.pair_near_tolerance_bins * self._bin_hz[3])
+        self._near_tol = (cfg.pair_near_tolerance_bins * self._bin_hz[2],
+                          cfg.pair_near_tolerance_bins * self._bin_hz[3])
         self._outlier_rad = np.float32(math.radians(cfg.angle_outlier_deg))
         half = math.radians(cfg.angle_max_deg)
         self._grid = np.arange(-half, half + 1e-12, math.radians(cfg.angle_step_deg)).astype(np.float32)
@@ -462,7 +464,8 @@ class LanePipeline(Pipeline):
                 snaps = snaps.transpose(1, 2, 0) * self._inv_cal  # (n, seg, rx)
                 outlier = self._outlier_rad
                 if cfg.angle_outlier_lateral_m > 0:  # wider near the radar, where a vehicle spans degrees
-                    outlier = np.maximum(outlier, np.float32(cfg.angle_outlier_lateral_m) / np.maximum(p_rng, np.float32(1.0)))
+                    outlier = np.maximum(outlier, np.float32(cfg.angle_outlier_lateral_m)
+                                         / np.maximum(p_rng, np.float32(1.0)))
                 az, aspec, kept = bartlett_consensus(snaps, self._steer, self._grid, outlier)
                 p0 = power[0, pk[:, 0]]
                 n0 = noise[0, pk[:, 0]]
