@@ -80,9 +80,13 @@ class LaneConfig:
     cfar_rank_fraction: float = field(default=0.75, metadata={
         "doc": "rank of the ordered statistic as a fraction of the reference cells (Rohling: 3/4)",
         "min": 0.05, "max": 1.0})
-    cfar_cap_db: float = field(default=12.0, metadata={
+    cfar_cap_db: float = field(default=9.0, metadata={
         "unit": "dB", "doc": "the OS-CFAR noise estimate is capped at the segment's median power plus this: "
-               "an extended vehicle (or several) filling the reference window cannot mask itself",
+               "an extended vehicle (or several) filling the reference window cannot mask itself. Where the beats "
+               "of several vehicles crowd (a receding car 10-25 m away shares the fast-up bins of approaching "
+               "vehicles 35 m farther) more than a quarter of the window holds echoes and the cap sets the "
+               "threshold; measured on highway4-traffic seeds 5, 6, 7 (3000 frames each) against 12 dB: car Pd "
+               "+0.2 points, summed count error 4 -> 2, false tracks 7 -> 8, 0.03 ms more per frame",
         "min": 0.0, "max": 100.0})
     cfar_full_threshold: bool = field(default=False, metadata={
         "doc": "compute the OS-CFAR threshold at every bin (for plots); off: only at local maxima, the only cells "
