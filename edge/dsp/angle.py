@@ -50,14 +50,15 @@ def bartlett(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np.ndarray) 
 
 
 def bartlett_consensus(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np.ndarray,
-                       outlier_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                       outlier_rad: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bartlett with per-snapshot normalisation and outlier rejection.
 
     In a busy scene one segment's peak bin can also hold another vehicle (the beats of two vehicles
     coincide in one segment only, because the four slopes map range and speed differently). Each
     snapshot's spectrum is normalised to unit power so every segment votes equally; snapshots whose own
     maximum lies more than ``outlier_rad`` from the median of the per-snapshot maxima are dropped, and
-    the rest are summed and refined as in :func:`bartlett`.
+    the rest are summed and refined as in :func:`bartlett`. ``outlier_rad`` is a scalar or one value per
+    detection ``(n_det,)``.
 
     Returns ``(az_rad (n_det,), spectrum (n_det, n_grid), kept (n_det, n_snap) bool)``.
     """
@@ -73,7 +74,7 @@ def bartlett_consensus(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np
     srt = np.sort(each, axis=1)
     h = n_snap // 2
     med = srt[:, h:h + 1] if n_snap % 2 else (srt[:, h - 1:h] + srt[:, h:h + 1]) / 2
-    kept = np.abs(each - med) <= outlier_rad
+    kept = np.abs(each - med) <= (outlier_rad[:, None] if np.ndim(outlier_rad) else outlier_rad)
     spec = (p * kept[..., None]).sum(axis=1)
     k = np.argmax(spec, axis=1)
     kk = np.clip(k, 1, grid_rad.size - 2)

@@ -121,11 +121,14 @@ def pair_beats(
     tolerance_hz: tuple[float, float],
     max_shared: int = 1,
     ghost_speed_mps: float = 1.5,
+    near_tolerance_hz: tuple[float, float] | None = None,
+    near_range_m: float = 0.0,
 ) -> Pairs:
     """Pair the peaks of the four segments.
 
     ``freqs``: signed beat frequencies (Hz, float64) of the peaks of segments 0..3 (fast up, fast
-    down, slow up, slow down). ``tolerance_hz``: allowed mismatch in the slow up / slow down segment.
+    down, slow up, slow down). ``tolerance_hz``: allowed mismatch in the slow up / slow down segment;
+    ``near_tolerance_hz`` (if given) replaces it for candidates at most ``near_range_m`` away.
     """
     f0, f1, f2, f3 = (np.asarray(f, dtype=np.float64) for f in freqs)
     a0, a1, a2, a3 = model.a.tolist()
@@ -141,7 +144,13 @@ def pair_beats(
     o2, o3 = np.argsort(f2), np.argsort(f3)
     j2, d2 = _nearest(f2[o2], o2, rng * a2 + vel * b2)  # eqs. 13-14: where the slow segments must see it
     j3, d3 = _nearest(f3[o3], o3, rng * a3 + vel * b3)
-    conf = (d2 <= tolerance_hz[0]) & (d3 <= tolerance_hz[1])
+    if near_tolerance_hz is not None and near_range_m > 0:
+        near = rng <= near_range_m
+        tol2 = np.where(near, near_tolerance_hz[0], tolerance_hz[0])
+        tol3 = np.where(near, near_tolerance_hz[1], tolerance_hz[1])
+    else:
+        tol2, tol3 = tolerance_hz
+    conf = (d2 <= tol2) & (d3 <= tol3)
     n_conf = int(np.count_nonzero(conf))
     n_ghost = n_cand - n_conf
     if n_conf == 0:
@@ -149,6 +158,7 @@ def pair_beats(
         return Pairs(np.zeros((0, 4), np.int64), e, e, e, n_cand, n_ghost)
     cand = np.array([i0, i1, j2, j3]).T[conf]  # (n, 4)
     vel = vel[conf]
+    # normalised by the base tolerance everywhere: a near candidate's wider window does not make it rank better
     cost = (d2[conf] / tolerance_hz[0]) ** 2 + (d3[conf] / tolerance_hz[1]) ** 2
     # greedy, best slow agreement first (a handful of candidates): a candidate may share at most
     # ``max_shared`` of its four peaks with pairs already accepted (two vehicles whose beats coincide in

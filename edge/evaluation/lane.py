@@ -129,6 +129,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     lane_ok = lane_n = 0
     range_bins: dict[int, list[float]] = {}
     pd_bins: dict[int, list[int]] = {}  # range bin -> [in view, detected, tracked]
+    pd_cls_bins: dict[tuple[str, int], list[int]] = {}  # (class, range bin) -> [in view, detected, tracked]
     measured_volume = np.zeros(n_lanes, dtype=np.int64)
     true_volume = np.zeros(n_lanes, dtype=np.int64)
     prev_s: dict[int, float] = {}
@@ -199,16 +200,20 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
                 continue
             a.n_view += 1
             rb = pd_bins.setdefault(int(ground_rng[j] // RANGE_BIN_M), [0, 0, 0])
+            rc = pd_cls_bins.setdefault((a.cls, int(ground_rng[j] // RANGE_BIN_M)), [0, 0, 0])
             rb[0] += 1
+            rc[0] += 1
             a.lanes.append(int(lanes[j]))
             a.dir_true += float(tr.radial_speed_mps[veh[j]])
             if det_xy.shape[0] and np.min(np.linalg.norm(det_xy - ref[j], axis=1)) <= gate[j]:
                 a.n_raw += 1
                 rb[1] += 1
+                rc[1] += 1
             k = assigned_track[j]
             if k < 0:
                 continue
             rb[2] += 1
+            rc[2] += 1
             t = tracks[k]
             a.n_hit += 1
             e2 = float(np.sum((tpos[k] - ref[j]) ** 2))
@@ -230,7 +235,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             if ep is None or ep[1] != n - 1:
                 if ep is not None:
                     closed_eps.append(ep)
-                ep = episodes[t.track_id] = [n, n, 0, 0]
+                ep = episodes[t.track_id] = [n, n, 0, 0, t.track_id, t.x_m, t.y_m]
             ep[1] = n
             ep[2] += int(t_in_view[k])
             ep[3] += int(t_assigned[k] and t_in_view[k])
@@ -278,6 +283,10 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         "min_tracked_fraction": min((t["tracked_fraction"] for t in targets), default=None),
         "false_tracks_per_min": false_tracks / duration_min if duration_min > 0 else None,
         "false_tracks": false_tracks,
+        # where the false tracks were confirmed (radar ground frame), for diagnosis
+        "false_track_episodes": [{"track_id": int(ep[4]), "first_frame": int(ep[0]), "frames": int(ep[1] - ep[0] + 1),
+                                  "x_m": round(float(ep[5]), 2), "y_m": round(float(ep[6]), 2)}
+                                 for ep in closed_eps if ep[2] > 0 and ep[3] < 0.5 * ep[2]],
         "id_switches": int(sum(a.switches for a in acc.values())),
         "lane_accuracy": lane_ok / lane_n if lane_n else None,
         "count_error_per_lane": [int(m - t) for m, t in zip(measured_volume, true_volume)],
@@ -288,6 +297,15 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         "detection_probability_by_range": {
             f"{int(k * RANGE_BIN_M)}-{int((k + 1) * RANGE_BIN_M)}": {"tracked": v[2] / v[0], "raw": v[1] / v[0]}
             for k, v in sorted(pd_bins.items())},
+        # per ground-truth class (cars include vans: hw_sim.vehicles.BODY_TYPES), all ranges and per range bin
+        "detection_probability_by_class": {
+            c: sum(v[2] for (cc, _), v in pd_cls_bins.items() if cc == c) / sum(v[0] for (cc, _), v in pd_cls_bins.items()
+                                                                                 if cc == c)
+            for c in sorted({cc for cc, _ in pd_cls_bins})},
+        "detection_probability_by_class_and_range": {
+            c: {f"{int(k * RANGE_BIN_M)}-{int((k + 1) * RANGE_BIN_M)}": {"tracked": v[2] / v[0], "raw": v[1] / v[0]}
+                for (cc, k), v in sorted(pd_cls_bins.items()) if cc == c}
+            for c in sorted({cc for cc, _ in pd_cls_bins})},
         "vehicles_in_view": len(targets),
         "estimated_yaw_deg": math.degrees(pipe.traffic.yaw_rad) if pipe.traffic is not None else None,
         "true_yaw_deg": float(scene.pose.yaw_deg),

@@ -11,14 +11,16 @@ Per frame (four chirp segments: fast up, fast down, slow up, slow down; 4 receiv
          ghosts of wrong pairings rejected by the slow segments (and wrong pairings between two
          scatterers of one long truck dropped once their true pairs are in)
       -> track-aided pairing: a confirmed track that got no pairing takes the peaks nearest its predicted
-         beats in all four segments (a near vehicle's body smears its echo over several bins)
+         beats in all four segments (a near vehicle's body smears its echo over several bins), local maxima
+         above a lower OS-CFAR threshold (``aided_pfa``) included
       -> Bartlett angle over the 4 channels (calibration vector divided out), the 4 segments as looks,
-         each normalised, a segment that disagrees with the others left out (edge.dsp.angle)
+         each normalised, a segment that disagrees with the others left out (edge.dsp.angle; the agreement
+         window widens near the radar, where a vehicle spans degrees)
       -> resolve (edge.dsp.resolve): a detection whose range-speed cell holds two vehicles side by side
          (rank-two spatial covariance over frames) becomes two detections, one per fitted angle
       -> grating-lobe aliases of near vehicles beyond +-19.5 deg moved back into a lane of their direction
       -> ground-plane x/y (edge.dsp.geometry, eq. 16 for a raised radar), nearest face of each body (a 17 m
-         body's detections and the wrong pairings among its scatterers dropped)
+         body's detections and the wrong pairings among its scatterers -- ghosts at v +- u a/b -- dropped)
       -> PDAF tracker (edge.track) -> lanes, statistics, events (edge.traffic)
 
 All parameters are in :class:`LaneConfig` (section ``pipeline.lane``); the tracker and the traffic
@@ -78,9 +80,13 @@ class LaneConfig:
     cfar_rank_fraction: float = field(default=0.75, metadata={
         "doc": "rank of the ordered statistic as a fraction of the reference cells (Rohling: 3/4)",
         "min": 0.05, "max": 1.0})
-    cfar_cap_db: float = field(default=12.0, metadata={
+    cfar_cap_db: float = field(default=9.0, metadata={
         "unit": "dB", "doc": "the OS-CFAR noise estimate is capped at the segment's median power plus this: "
-               "an extended vehicle (or several) filling the reference window cannot mask itself",
+               "an extended vehicle (or several) filling the reference window cannot mask itself. Where the beats "
+               "of several vehicles crowd (a receding car 10-25 m away shares the fast-up bins of approaching "
+               "vehicles 35 m farther) more than a quarter of the window holds echoes and the cap sets the "
+               "threshold; measured on highway4-traffic seeds 5, 6, 7 (3000 frames each) against 12 dB: car Pd "
+               "+0.2 points, summed count error 4 -> 2, false tracks 7 -> 8, 0.03 ms more per frame",
         "min": 0.0, "max": 100.0})
     cfar_full_threshold: bool = field(default=False, metadata={
         "doc": "compute the OS-CFAR threshold at every bin (for plots); off: only at local maxima, the only cells "
@@ -101,6 +107,17 @@ class LaneConfig:
         "doc": "a fast pairing is confirmed when slow-segment peaks lie within this many slow-segment bins "
                "of both predictions (ghost rejection); an extended vehicle's unresolved scatterers shift its peaks "
                "by up to about a bin", "min": 0.05, "max": 5.0})
+    pair_near_tolerance_bins: float = field(default=1.5, metadata={
+        "doc": "pair_tolerance_bins for candidates nearer than pair_near_range_m. Near the overpass a vehicle's "
+               "radial speed changes within the 33 ms frame (radial acceleration v^2 h^2 / R^3 with h the lateral "
+               "and height offset: 30 m/s^2 at 12 m, 100 km/h, an outer lane, i.e. a slow bin between the segments) "
+               "and its body spans many bins and degrees seen from the radar's height, so the four segments' peaks "
+               "agree less well; measured on highway4-traffic seeds 5 and 6 (3000 frames): receding cars at 10-25 "
+               "m were paired in about half their frames with 1.0 (a slow segment 1.0-1.5 bins off the fast pair's "
+               "prediction)", "min": 0.05, "max": 5.0})
+    pair_near_range_m: float = field(default=40.0, metadata={
+        "unit": "m", "doc": "slant range up to which pair_near_tolerance_bins applies (the radial acceleration "
+               "falls with R^3: 1 m/s^2 beyond about 40 m); 0 = off", "min": 0.0, "max": 400.0})
     pair_max_shared_peaks: int = field(default=1, metadata={
         "doc": "a pairing may share this many of its four peaks with better pairings (vehicles whose beats "
                "coincide in one segment); 0 = every peak belongs to one pairing", "min": 0, "max": 3})
@@ -113,6 +130,12 @@ class LaneConfig:
         "unit": "deg", "doc": "a segment whose own Bartlett maximum is farther than this from the median of the four "
                "is left out of the angle estimate (another vehicle shares its bin); 90 = keep all",
         "min": 0.1, "max": 90.0})
+    angle_outlier_lateral_m: float = field(default=1.0, metadata={
+        "unit": "m", "doc": "... widened near the radar to this lateral distance at the detection's range "
+               "(max(angle_outlier_deg, this / range)): a car 12 m away spans 9 deg and each segment's maximum "
+               "lands on another part of its body (1.0 m: 4.8 deg at 12 m, the 2 deg floor from 29 m on; less than "
+               "half the 3.5 m lane spacing, so the peaks of two vehicles in adjacent lanes still disagree)",
+        "min": 0.0, "max": 10.0})
     angle_min_agreeing: int = field(default=3, metadata={
         "doc": "a pairing is kept only if at least this many of the four segments agree on its angle: the peaks "
                "of a ghost pairing come from different vehicles and point in different directions",
@@ -129,6 +152,13 @@ class LaneConfig:
                "on highway4-misaimed seed 11 (90 s): 4 raises the detection probability 0.933 -> 0.934 with "
                "id switches 13 -> 12; 3 gives 0.936 but 22 id switches (tracks live on other vehicles' peaks)",
         "min": 2, "max": 4})
+    aided_pfa: float = field(default=1e-2, metadata={
+        "doc": "false-alarm probability of the lower OS-CFAR threshold at which a confirmed track's search also takes "
+               "local maxima that missed cfar_pfa (the track says where to look: four segments within "
+               "aided_window_bins of their predictions and a range/speed fit inside the aided gates make a noise "
+               "coincidence rare); 0 = only the cfar_pfa peaks. A car near 300 m or under the overpass crosses "
+               "the cfar_pfa threshold in all four segments in about 60 % of its frames only",
+        "min": 0.0, "max": 0.1})
     aided_gate_m: float = field(default=2.5, metadata={
         "unit": "m", "doc": "fitted range within this of the track's predicted slant range (and an existing "
                "pairing this close means the track needs no help)", "min": 0.1, "max": 20.0})
@@ -194,22 +224,26 @@ class LaneConfig:
     unalias_min_speed_mps: float = field(default=1.0, metadata={
         "unit": "m/s", "doc": "radial speed below which a detection's direction of travel is unknown (not unaliased)",
         "min": 0.0, "max": 50.0})
-    cluster_ghost_speed_mps: float = field(default=0.0, metadata={
-        "unit": "m/s", "doc": "wrong pairings between two of a body's scatterers (accepted when their true pairs are "
-               "not) lie between them, off the body's speed by 0.83 m/s per metre of their spacing (a/2b of the fast "
-               "segments; +-4 to +-5.3 m/s seen on trucks 10-60 m away): detections behind a nearer one are dropped "
-               "up to this speed difference, but at most cluster_ghost_speed_per_m x their distance behind; 0 = off "
-               "(default): a car overtaking a van 2-5 m behind it at 2.8 m/s more during a lane swap (crossing) looks "
-               "exactly like such a ghost and was dropped, its track lost (6 m/s: an id switch on one seed of eight); "
-               "with it off, the ghosts on near trucks can seed tracks (confirmation blocking catches those within "
-               "merge_speed_mps)",
+    cluster_ghost_speed_mps: float = field(default=6.0, metadata={
+        "unit": "m/s", "doc": "wrong pairings among a body's scatterers: a long vehicle's equally spaced scatterers "
+               "(near face, side scatterers every L/5, far face) at R'-2u, R'-u, R'+u, R'+2u fit a target at R' with "
+               "speed v +- u a/b exactly in all four segments (a/b = 1.66 m/s per m of the fast segments; pair "
+               "residual ~1 Hz), so ghosts at v +- 5 m/s appear 6-10 m behind a truck's near face. Detections behind "
+               "a nearer one are dropped up to this speed difference, but at most cluster_ghost_speed_per_m x their "
+               "distance behind and at most cluster_ghost_length_m behind; 0 = off. Measured on highway4-traffic "
+               "seeds 5, 6, 7 (3000 frames each): the ghosts of receding trucks seeded tracks running ahead of them "
+               "across the detection line (false tracks 12 -> 7, summed count error 6 -> 4; 0.83 and 0.9 m/s per m "
+               "alike); crossing keeps both ids",
         "min": 0.0, "max": 20.0})
-    cluster_ghost_speed_per_m: float = field(default=1.7, metadata={
-        "unit": "m/s per m", "doc": "... (twice 0.83: one of the two scatterers may be the near face itself)",
+    cluster_ghost_speed_per_m: float = field(default=0.9, metadata={
+        "unit": "m/s per m", "doc": "... the ghost law: a ghost lies at least 2u behind the near face and is off by "
+               "u a/b, i.e. at most a / (2 b) = 0.83 m/s per metre behind; 0.9 leaves room for the least-squares fit "
+               "over the four segments (a ghost exactly 2u behind came out at 0.834) and still keeps a car 3 m behind "
+               "a van at 2.8 m/s more (crossing; 1.7 dropped it)",
         "min": 0.0, "max": 10.0})
-    cluster_ghost_length_m: float = field(default=8.5, metadata={
-        "unit": "m", "doc": "... and only up to this far behind (the midpoint between the near face and the far end of "
-               "the longest truck)", "min": 0.0, "max": 30.0})
+    cluster_ghost_length_m: float = field(default=12.0, metadata={
+        "unit": "m", "doc": "... and only up to this far behind (a ghost at R' needs a scatterer 2u beyond it on the "
+               "body: R' <= 16.5 m - 2u; seen up to 9 m behind trucks)", "min": 0.0, "max": 30.0})
     clutter_map_init_frames: int = field(default=16, metadata={
         "doc": "after this many frames the clutter map is replaced by the per-bin median (real and imaginary parts) "
                "of those frames: static returns, above all the TX->RX leakage 80 dB over the noise at DC, are then "
@@ -279,9 +313,16 @@ class LanePipeline(Pipeline):
         self._aided_window_hz = cfg.aided_window_bins * self._bin_hz  # (4,)
         self._seg_bin0 = np.arange(len(wf.segments)) * n  # first bin of each segment in a (rx, seg * bin) view
         self._scale32 = np.float32(self.cfar_scale)
+        self._aided_scale32 = None  # the lower threshold of track-aided pairing (weak peaks)
+        if cfg.aided_pairing and 0 < cfg.aided_pfa and cfg.tracking:
+            self._aided_scale32 = np.float32(min(os_cfar_scale(cfg.aided_pfa, self._n_ref, self._rank, n_looks=n_rx),
+                                                 self.cfar_scale))
         self._alias_period = wf.wavelength_m / frontend.rx_spacing_m  # grating-lobe period in sin(az)
         self._model = PairingModel.from_waveform(wf)
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
+        self._near_tol = (cfg.pair_near_tolerance_bins * self._bin_hz[2],
+                          cfg.pair_near_tolerance_bins * self._bin_hz[3])
+        self._outlier_rad = np.float32(math.radians(cfg.angle_outlier_deg))
         half = math.radians(cfg.angle_max_deg)
         self._grid = np.arange(-half, half + 1e-12, math.radians(cfg.angle_step_deg)).astype(np.float32)
         self._steer = steering_matrix(n_rx, frontend.rx_spacing_m, wf.wavelength_m, self._grid)
@@ -353,6 +394,10 @@ class LanePipeline(Pipeline):
             self._sq_sum.sum(axis=0, out=power)  # (seg, bin) float32
             ppad[:, :h] = ppad[:, n:n + h]
             ppad[:, n + h:] = ppad[:, h:2 * h]
+        # weak peaks (above the aided threshold, below the detection one) only when a confirmed track may use them
+        want_weak = (self._aided_scale32 is not None and self.tracker is not None
+                     and bool(self.tracker.tracks.confirmed.any()))
+        weak = None
         with timer.stage("cfar"):
             floor = np.partition(power, n // 2, axis=-1)[:, n // 2]  # median per segment
             cap = floor * self._cap  # (4,)
@@ -362,6 +407,10 @@ class LanePipeline(Pipeline):
                 thr = noise * self._scale32
                 rows, cols = np.nonzero(local_maxima(power, (power > thr) & self._valid))
                 cells = np.stack([ppad[rows, cols + h + o] for o in (-1, 0, 1)], axis=1)
+                if want_weak:
+                    wr, wc = np.nonzero(local_maxima(power, (power > noise * self._aided_scale32) & (power <= thr)
+                                                     & self._valid))
+                    weak = (wr, wc, np.stack([ppad[wr, wc + h + o] for o in (-1, 0, 1)], axis=1))
             else:  # only local maxima can be reported: evaluate the ordered statistic there
                 is_max = power > ppad[:, h - 1:h - 1 + n]
                 is_max &= power >= ppad[:, h + 1:h + 1 + n]
@@ -375,6 +424,9 @@ class LanePipeline(Pipeline):
                 noise = np.full(power.shape, np.nan, np.float32)
                 noise.reshape(-1)[flat] = nz
                 thr = noise * self._scale32
+                if want_weak:
+                    wk = ~hit & (cells[:, 1] > nz * self._aided_scale32)
+                    weak = (rows[wk], cols[wk], cells[wk])
                 rows, cols, cells = rows[hit], cols[hit], cells[hit]
             # peaks in (segment, bin) order; sub-bin offsets by a parabola through the log-power
             # (edge.dsp.peaks.interpolate_peak, all segments at once)
@@ -383,19 +435,19 @@ class LanePipeline(Pipeline):
             if max(e - b for b, e in zip(starts, ends)) > cfg.max_peaks_per_segment:
                 freqs, bins = self._strongest_peaks(power, rows, cols)
             else:
-                lg = np.log(np.maximum(cells, self._tiny))
-                lm, l0, lp = lg[:, 0], lg[:, 1], lg[:, 2]
-                den = lm - 2.0 * l0 + lp
-                d = np.zeros(den.shape, np.float32)
-                np.divide(0.5 * (lm - lp), den, out=d, where=den < 0)
-                np.minimum(np.maximum(d, np.float32(-0.5), out=d), np.float32(0.5), out=d)  # np.clip
-                f = self._freq_flat[rows * n + cols] + d * self._bin_hz[rows]
+                f = self._peak_freqs(rows, cols, cells)
                 freqs = [f[b:e] for b, e in zip(starts, ends)]
                 bins = [cols[b:e] for b, e in zip(starts, ends)]
+            if weak is not None:  # the same interpolation, grouped by segment
+                wr, wc, wcells = weak
+                we = np.searchsorted(wr, self._seg_ends).tolist()
+                wf = self._peak_freqs(wr, wc, wcells)
+                weak = ([wf[b:e] for b, e in zip([0] + we[:3], we)], [wc[b:e] for b, e in zip([0] + we[:3], we)])
         with timer.stage("pairing"):
             pairs = pair_beats(tuple(freqs), self._model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
                                max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self._tol,
-                               max_shared=cfg.pair_max_shared_peaks)
+                               max_shared=cfg.pair_max_shared_peaks, near_tolerance_hz=self._near_tol,
+                               near_range_m=cfg.pair_near_range_m)
             p_rng, p_vel, p_res = pairs.range_m, pairs.radial_speed_mps, pairs.residual_hz
             # (n, 4 seg) bins: the peaks of the four segments are consecutive in ``all_bins``
             all_bins = np.concatenate(bins)
@@ -403,7 +455,7 @@ class LanePipeline(Pipeline):
             pk = all_bins[pairs.peak_index + seg_start] if p_rng.size else np.zeros((0, 4), np.int64)
             n_aided = 0
             if self.tracker is not None and cfg.aided_pairing and len(self.tracker.tracks):
-                a_bins, a_rng, a_vel, a_res = self._track_aided_pairs(freqs, bins, pairs, frame.t_ns)
+                a_bins, a_rng, a_vel, a_res = self._track_aided_pairs(freqs, bins, pairs, frame.t_ns, weak)
                 n_aided = a_rng.size
                 if n_aided:
                     pk = np.concatenate([pk, a_bins])
@@ -414,7 +466,11 @@ class LanePipeline(Pipeline):
             if n_det:
                 snaps = spec.reshape(spec.shape[0], -1).take(pk + self._seg_bin0, axis=1)  # (rx, n, seg)
                 snaps = snaps.transpose(1, 2, 0) * self._inv_cal  # (n, seg, rx)
-                az, aspec, kept = bartlett_consensus(snaps, self._steer, self._grid, math.radians(cfg.angle_outlier_deg))
+                outlier = self._outlier_rad
+                if cfg.angle_outlier_lateral_m > 0:  # wider near the radar, where a vehicle spans degrees
+                    outlier = np.maximum(outlier, np.float32(cfg.angle_outlier_lateral_m)
+                                         / np.maximum(p_rng, np.float32(1.0)))
+                az, aspec, kept = bartlett_consensus(snaps, self._steer, self._grid, outlier)
                 p0 = power[0, pk[:, 0]]
                 n0 = noise[0, pk[:, 0]]
                 n0 = np.where(np.isfinite(n0), n0, floor[0])  # a track-aided pair may read a non-peak bin
@@ -465,6 +521,17 @@ class LanePipeline(Pipeline):
         }
         return det, inter
 
+    def _peak_freqs(self, rows: np.ndarray, cols: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """Signed beat frequencies (Hz) of peaks ``(segment rows, bin cols)`` with their power and its two
+        neighbours ``cells (n, 3)``: a parabola through the log-power (edge.dsp.peaks.interpolate_peak)."""
+        lg = np.log(np.maximum(cells, self._tiny))
+        lm, l0, lp = lg[:, 0], lg[:, 1], lg[:, 2]
+        den = lm - 2.0 * l0 + lp
+        d = np.zeros(den.shape, np.float32)
+        np.divide(0.5 * (lm - lp), den, out=d, where=den < 0)
+        np.minimum(np.maximum(d, np.float32(-0.5), out=d), np.float32(0.5), out=d)  # np.clip
+        return self._freq_flat[rows * self.n_bins + cols] + d * self._bin_hz[rows]
+
     def _strongest_peaks(self, power: np.ndarray, rows: np.ndarray, cols: np.ndarray):
         """Per segment the ``max_peaks_per_segment`` strongest peaks (a segment with more): their
         frequencies and bins, ordered by power (rare; the common case is done in :meth:`detect`)."""
@@ -479,7 +546,7 @@ class LanePipeline(Pipeline):
             bins.append(b)
         return freqs, bins
 
-    def _track_aided_pairs(self, freqs, bins, pairs, t_ns: int):
+    def _track_aided_pairs(self, freqs, bins, pairs, t_ns: int, weak=None):
         """Pairings of confirmed tracks that the four-segment pairing missed (a near vehicle's echo is smeared
         over several bins by its body, and the peaks of the four segments no longer agree within a bin).
 
@@ -488,7 +555,9 @@ class LanePipeline(Pipeline):
         ``aided_window_bins`` is taken in each segment, at least ``aided_min_segments`` must be found, and
         range and speed are fitted to them by least squares; the fit must lie within ``aided_gate_m`` and
         ``aided_gate_mps`` of the prediction. A segment without a peak is read at its predicted bin for
-        the angle. Returns ``(bins (m, 4), range_m, v_mps, residual_hz)``."""
+        the angle. ``weak``: per segment, the frequencies and bins of local maxima above the lower ``aided_pfa``
+        threshold only (searched as well, after the detected peaks). Returns ``(bins (m, 4), range_m, v_mps,
+        residual_hz)``."""
         cfg = self.config
         tr = self.tracker.tracks
         empty = (np.zeros((0, 4), np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.float32))
@@ -514,15 +583,19 @@ class LanePipeline(Pipeline):
         m = idx.size
         # all four segments at once: peaks in a (segment, peak) table padded with +inf, used peaks at +inf
         counts = [fk.size for fk in freqs]
-        width = max(counts)
+        w_counts = [fk.size for fk in weak[0]] if weak is not None else [0, 0, 0, 0]
+        width = max(c + w for c, w in zip(counts, w_counts))
         pred_bin = np.round(f_hat / self._bin_hz).astype(np.int64) % self.n_bins  # (m, 4)
         if width == 0:
             return empty
         table = np.full((4, width), np.inf)
         btab = np.zeros((4, width), np.int64)
-        for k in range(4):  # four segments
+        for k in range(4):  # four segments; the weak peaks after the detected ones (pairs.peak_index stays valid)
             table[k, :counts[k]] = freqs[k]
             btab[k, :counts[k]] = bins[k]
+            if w_counts[k]:
+                table[k, counts[k]:counts[k] + w_counts[k]] = weak[0][k]
+                btab[k, counts[k]:counts[k] + w_counts[k]] = weak[1][k]
         if pairs.range_m.size:
             table[np.arange(4), pairs.peak_index] = np.inf
         d = np.abs(table[None, :, :] - f_hat[:, :, None])  # (m, 4, peaks)

@@ -33,6 +33,13 @@ def test_highway4_short_run_meets_accuracy_floor():
         assert rep["frame_time_ms"][key] > 0
     for t in rep["targets"]:
         assert t["direction_true"] == t["direction_est"]
+    # per class and range: the same assigned frames regrouped, so the overall value lies between the classes'
+    by_cls = s["detection_probability_by_class"]
+    assert set(by_cls) == {t["class"] for t in rep["targets"]}
+    assert min(by_cls.values()) <= s["detection_probability"] <= max(by_cls.values())
+    for c, bins in s["detection_probability_by_class_and_range"].items():
+        assert set(bins) <= set(s["detection_probability_by_range"]) and c in by_cls
+    assert s["false_track_episodes"] == []
 
 
 def test_evaluate_command_writes_design_keys(tmp_path, capsys):
