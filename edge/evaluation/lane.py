@@ -82,14 +82,15 @@ def _to_radar_ground(pose, p_world: np.ndarray) -> np.ndarray:
 
 
 class _TargetAcc:
-    __slots__ = ("cls", "lanes", "n_view", "n_hit", "sq_err", "spd_err", "ids", "last_id", "switches", "n_raw",
-                 "vr_true", "vr_est", "dir_true")
+    __slots__ = ("cls", "lanes", "n_view", "n_hit", "sq_err", "err_xy", "spd_err", "ids", "last_id", "switches",
+                 "n_raw", "vr_true", "vr_est", "dir_true")
 
     def __init__(self, cls: str) -> None:
         self.cls = cls
         self.lanes: list[int] = []
         self.n_view = self.n_hit = self.n_raw = self.switches = 0
         self.sq_err: list[float] = []
+        self.err_xy: list[tuple[float, float]] = []  # track - reference point (x across, y along), m
         self.spd_err: list[float] = []
         self.vr_true: list[float] = []
         self.vr_est: list[float] = []
@@ -211,8 +212,10 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             rb[2] += 1
             t = tracks[k]
             a.n_hit += 1
-            e2 = float(np.sum((tpos[k] - ref[j]) ** 2))
+            exy = tpos[k] - ref[j]
+            e2 = float(np.sum(exy**2))
             a.sq_err.append(e2)
+            a.err_xy.append((float(exy[0]), float(exy[1])))
             range_bins.setdefault(int(ground_rng[j] // RANGE_BIN_M), []).append(e2)
             a.spd_err.append(abs(t.speed_mps * 3.6 - speed_kmh[j]))
             a.vr_true.append(float(tr.radial_speed_mps[veh[j]]) * 3.6)
@@ -256,6 +259,10 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             "tracked_fraction": a.n_hit / a.n_view,
             "detected_fraction_raw": a.n_raw / a.n_view,
             "position_rmse_m": float(math.sqrt(np.mean(a.sq_err))) if a.sq_err else None,
+            # the error split into a bias (mean) and a noise (sd), across (x) and along (y) the boresight:
+            # rmse^2 = |bias|^2 + sd_x^2 + sd_y^2
+            "position_bias_xy_m": ([round(float(v), 4) for v in np.mean(a.err_xy, axis=0)] if a.err_xy else None),
+            "position_sd_xy_m": ([round(float(v), 4) for v in np.std(a.err_xy, axis=0)] if a.err_xy else None),
             "speed_mae_kmh": float(np.mean(a.spd_err)) if a.spd_err else None,
             "id_switches": a.switches,
             "predicted_class": None,
