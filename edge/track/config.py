@@ -74,16 +74,18 @@ class PdafConfig:
                                                   "the road decays to zero (the road direction is the mounting yaw "
                                                   "the traffic layer estimates); 0 = no decay", "min": 0.0, "max": 100.0})
     imm_manoeuvre_q_lateral_m2ps3: float = field(
-        default=0.5, metadata={"unit": "m^2/s^3", "doc": "manoeuvring mode: white-noise acceleration density "
+        default=2.0, metadata={"unit": "m^2/s^3", "doc": "manoeuvring mode: white-noise acceleration density "
                                                          "across the boresight (q_lateral_m2ps3 of the cv model; "
                                                          "along: q_along_m2ps3)", "min": 1e-6, "max": 1000.0})
     imm_p_keep_to_manoeuvre: float = field(
-        default=0.01, metadata={"doc": "per-frame probability that a lane-keeping vehicle starts a manoeuvre "
-                                       "(mean 100 frames = 3.3 s in the mode, a prior, not a rate of lane changes)",
+        default=0.02, metadata={"doc": "per-frame probability that a lane-keeping vehicle starts a manoeuvre "
+                                       "(mean 50 frames = 1.7 s in the mode: a prior, not a rate of lane changes; "
+                                       "0.01 left the crossing scenario's lane change too late on 3 of 16 seeds)",
                                 "min": 1e-6, "max": 0.5})
     imm_p_manoeuvre_to_keep: float = field(
-        default=0.03, metadata={"doc": "per-frame probability that a manoeuvre ends (mean 33 frames = 1.1 s; a lane "
-                                       "change takes 2-4 s)", "min": 1e-6, "max": 0.5})
+        default=0.02, metadata={"doc": "per-frame probability that a manoeuvre ends (mean 50 frames = 1.7 s; a lane "
+                                       "change takes 2-4 s; 0.03 lost a 2 s lane change across a neighbour 1.5 m/s "
+                                       "faster in tests/edge/test_pdaf_tracker.py)", "min": 1e-6, "max": 0.5})
     imm_init_keep_prob: float = field(
         default=0.5, metadata={"doc": "probability of the lane-keeping mode for a new track", "min": 0.0, "max": 1.0})
     imm_min_mode_prob: float = field(
@@ -99,8 +101,11 @@ class PdafConfig:
         default=2.0, metadata={"unit": "m/s", "doc": "initial along-boresight speed sd when the radial speed seeds it",
                                "min": 0.01, "max": 100.0})
     init_lateral_speed_sigma_mps: float = field(
-        default=3.0, metadata={"unit": "m/s", "doc": "initial lateral speed sd (vehicles move along the road; a "
-                                                     "mis-aimed radar sees a few m/s across)", "min": 0.01, "max": 100.0})
+        default=0.5, metadata={"unit": "m/s", "doc": "initial speed sd across the road (the road direction is the "
+                                                     "mounting yaw the traffic layer estimates; vehicles move along "
+                                                     "the road: a far seed's lateral speed would otherwise take a "
+                                                     "second of metre-sized azimuth noise to settle; 3.0 before the "
+                                                     "road direction was used)", "min": 0.01, "max": 100.0})
     init_speed_sigma_mps: float = field(
         default=40.0, metadata={"unit": "m/s", "doc": "initial speed sd when no radial speed is measured",
                                 "min": 0.1, "max": 200.0})

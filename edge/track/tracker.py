@@ -22,6 +22,15 @@ radial speeds are not all finite fall back to position-only updates.
 Tracks are held as a struct of arrays (:class:`TrackTable`): the per-frame work is a handful of
 batched numpy operations over tracks x detections; there is no Python object per detection.
 
+Motion model (``motion_model``): ``"cv"`` is Lim's constant-velocity Kalman filter; ``"imm"`` (default)
+runs two models per track, lane keeping (velocity across the road decaying to zero, tiny lateral
+process noise; the road direction is ``road_yaw_rad``, which the lane pipeline sets from the traffic
+layer's mounting-yaw estimate) and the cv model for manoeuvres, mixed by an IMM (:mod:`edge.track.imm`).
+The association (gate, clutter density, PDAF/JPDA weights) is computed once on the IMM's moment-matched
+prediction, as for the cv model; both modes are updated with those weights and weighed by their PDAF
+likelihoods. ``tracks.x``/``tracks.p`` are always the (combined) state every other stage reads; a seed's
+velocity points along the road (speed from the radial speed, ``init_lateral_speed_sigma_mps`` across).
+
 Beyond Lim's single-point PDAF, what a roadside radar needs (all parameters in ``track.pdaf``):
 
 - extended vehicles: a car or truck gives several detections spread over its length; each track
@@ -356,7 +365,9 @@ class MofNInitiator:
         self.meas_model = meas_model
         self._mask_n = np.uint32((1 << cfg.confirm_n) - 1)
 
-    def initiate(self, tracks: TrackTable, meas: Measurements, used: np.ndarray) -> int:
+    def initiate(self, tracks: TrackTable, meas: Measurements, used: np.ndarray, road_yaw_rad: float = 0.0) -> int:
+        """Seed tentative tracks; with a radial speed the seed moves along the road (``road_yaw_rad`` off the
+        boresight): its speed along the road from the radial speed, ``init_lateral_speed_sigma_mps`` across it."""
         c = self.cfg
         z = meas.z
         rho = np.hypot(z[:, 0], z[:, 1])
@@ -399,12 +410,19 @@ class MofNInitiator:
         _, _, r = self.meas_model.at(x0, False)
         p0[:, :2, :2] = r
         if meas.with_radial_speed:
-            y = seeds[:, 1]
-            rho_s = np.hypot(seeds[:, 0], y)
-            ok = np.abs(y) > 1.0
-            x0[:, 3] = np.where(ok, seeds[:, 2] * rho_s / np.where(ok, y, 1.0), 0.0)
-            p0[:, 2, 2] = c.init_lateral_speed_sigma_mps**2
-            p0[:, 3, 3] = np.where(ok, c.init_along_speed_sigma_mps**2, c.init_speed_sigma_mps**2)
+            # road direction e_s = (-sin yaw, cos yaw), across it e_u = (cos yaw, sin yaw): v = v_s e_s with
+            # v_r = v_s (e_s . p) / |p|
+            cy, sy = math.cos(road_yaw_rad), math.sin(road_yaw_rad)
+            proj = cy * seeds[:, 1] - sy * seeds[:, 0]  # e_s . p
+            rho_s = np.hypot(seeds[:, 0], seeds[:, 1])
+            ok = np.abs(proj) > 1.0
+            v_s = np.where(ok, seeds[:, 2] * rho_s / np.where(ok, proj, 1.0), 0.0)
+            x0[:, 2], x0[:, 3] = -sy * v_s, cy * v_s
+            var_s = np.where(ok, c.init_along_speed_sigma_mps**2, c.init_speed_sigma_mps**2)
+            var_u = c.init_lateral_speed_sigma_mps**2
+            p0[:, 2, 2] = cy * cy * var_u + sy * sy * var_s
+            p0[:, 3, 3] = sy * sy * var_u + cy * cy * var_s
+            p0[:, 2, 3] = p0[:, 3, 2] = cy * sy * (var_u - var_s)
         else:
             p0[:, 2, 2] = p0[:, 3, 3] = c.init_speed_sigma_mps**2
         tracks.append(x0, p0, c.extent_along_sigma_m**2, c.imm_init_keep_prob)
@@ -614,7 +632,7 @@ class PdafTracker:
             self.intermediates = {"gated": gated, "beta0": beta0, "d2": inn.d2}
         else:
             self.intermediates = {}
-        self.initiator.initiate(tr, meas, used)
+        self.initiator.initiate(tr, meas, used, self.road_yaw_rad)
         self.intermediates["used"] = used
         return self.published()
 
