@@ -75,30 +75,39 @@ def keep_model(dt_s: float, yaw_rad: float, tau_s: float, q_across_m2ps3: float,
 
 def mix(xm: np.ndarray, pm: np.ndarray, mu: np.ndarray, pi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Step 1: ``xm`` (T, 2, 4), ``pm`` (T, 2, 4, 4), ``mu`` (T, 2) -> mixed ``x0``, ``p0`` and the predicted
-    mode probabilities ``c`` (T, 2)."""
+    mode probabilities ``c`` (T, 2).
+
+    With two modes ``x_i - x0_j`` is ``w_1j D`` or ``-w_0j D`` (``D = x_0 - x_1``), so the spread term
+    ``sum_i w_ij d d'`` is ``w_0j w_1j D D'``: no (T, 2, 2, 4, 4) intermediate."""
     joint = mu[:, :, None] * pi[None, :, :]  # (T, i, j) = pi_ij mu_i
     c = joint.sum(axis=1)  # (T, j)
     w = joint / np.maximum(c, 1e-300)[:, None, :]  # (T, i, j)
-    x0 = np.einsum("tij,tid->tjd", w, xm)
-    d = xm[:, :, None, :] - x0[:, None, :, :]  # (T, i, j, 4)
-    spread = d[..., :, None] * d[..., None, :]  # (T, i, j, 4, 4)
-    p0 = np.einsum("tij,tijab->tjab", w, pm[:, :, None, :, :] + spread)
+    x0 = w.transpose(0, 2, 1) @ xm  # (T, j, 4)
+    d = xm[:, 0] - xm[:, 1]
+    dd = d[:, :, None] * d[:, None, :]  # (T, 4, 4)
+    w0, w1 = w[:, 0, :, None, None], w[:, 1, :, None, None]  # (T, j, 1, 1)
+    p0 = w0 * pm[:, 0, None] + w1 * pm[:, 1, None] + (w0 * w1) * dd[:, None]
     return x0, p0, c
 
 
 def predict_modes(x0: np.ndarray, p0: np.ndarray, f: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Step 2: ``f``, ``q`` (2, 4, 4) per mode -> predicted (T, 2, 4), (T, 2, 4, 4)."""
-    xp = np.einsum("jab,tjb->tja", f, x0)
+    xp = (x0[:, :, None, :] @ f.transpose(0, 2, 1)[None])[:, :, 0, :]
     pp = f[None] @ p0 @ f.transpose(0, 2, 1)[None] + q[None]
     return xp, pp
 
 
 def moment_match(xm: np.ndarray, pm: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Gaussian with the mean and covariance of the mixture ``sum_j w_j N(xm_j, pm_j)``: (T, 4), (T, 4, 4)."""
-    x = np.einsum("tj,tjd->td", w, xm)
-    d = xm - x[:, None, :]
-    p = np.einsum("tj,tjab->tab", w, pm + d[..., :, None] * d[..., None, :])
-    return x, 0.5 * (p + p.transpose(0, 2, 1))
+    """Gaussian with the mean and covariance of the mixture ``sum_j w_j N(xm_j, pm_j)`` of two modes:
+    (T, 4), (T, 4, 4); the spread term is ``w_0 w_1 D D'``, ``D = x_0 - x_1``."""
+    w0, w1 = w[:, 0, None], w[:, 1, None]
+    x = w0 * xm[:, 0] + w1 * xm[:, 1]
+    d = xm[:, 0] - xm[:, 1]
+    d *= np.sqrt(w0 * w1)
+    p = w0[:, :, None] * pm[:, 0]
+    p += w1[:, :, None] * pm[:, 1]
+    p += d[:, :, None] * d[:, None, :]  # symmetric inputs give an exactly symmetric sum
+    return x, p
 
 
 def mode_likelihood(inn: Innovations, gated: np.ndarray, gate_volume: np.ndarray, prob_detect: float,

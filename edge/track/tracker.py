@@ -310,11 +310,13 @@ class PdaAssociator:
         self.gamma = self._gamma.__getitem__  # gamma(n): the validation gate threshold of eq. 17
         self.exclusion_gamma = {n: gate_threshold(max(cfg.init_exclusion_prob, cfg.prob_gate), n) for n in (2, 3)}
 
-    def associate(self, meas: Measurements, zh, h, pp, r, confirmed: np.ndarray, seniority: np.ndarray):
-        """Confirmed tracks share detections (PDAF/JPDA); a tentative track only sees detections that no
+    def associate(self, meas: Measurements, zh, h, pp, r, confirmed: np.ndarray, seniority: np.ndarray,
+                  inn: Innovations | None = None):
+        """``inn``: the innovations of ``zh``, ``h``, ``pp``, ``r`` if already computed. Confirmed tracks share detections (PDAF/JPDA); a tentative track only sees detections that no
         more senior track validated (confirmed first, then more hits): a tentative track born from clutter
         next to a vehicle, or a second seed on the same vehicle, must not live off its points."""
-        inn = innovations(meas.z, zh, h, pp, r)
+        if inn is None:
+            inn = innovations(meas.z, zh, h, pp, r)
         n = meas.z.shape[1]
         gamma = self._gamma[n]
         rank = np.where(confirmed, np.inf, seniority.astype(float))
@@ -326,6 +328,10 @@ class PdaAssociator:
             inn, gamma, self.cfg.prob_detect, self.cfg.prob_gate, self.cfg.association, allowed
         )
         return inn, beta, beta0, gated
+
+
+def _rows(inn: Innovations, rows: slice) -> Innovations:
+    return Innovations(inn.v[rows], inn.d2[rows], inn.s[rows], inn.s_inv[rows], inn.det_s[rows])
 
 
 class PdaUpdater:
@@ -599,10 +605,18 @@ class PdafTracker:
             else:
                 xp, pp = self.predictor.predict(tr, dt_s)
             zh, h, r = self.measurement_model.at(xp, meas.with_radial_speed, tr.ext_var)
-            inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits)
             if self.imm_predictor is not None:
-                self._imm_update(meas, xpm, ppm, cj, r, inn, beta, beta0, gated)
+                # one innovation computation for the combined prediction (association) and both modes
+                t = len(tr)
+                zhm, hm = kalman.measurement_prediction(xpm.reshape(2 * t, 4), meas.with_radial_speed)
+                inn_all = innovations(meas.z, np.concatenate([zh, zhm]), np.concatenate([h, hm]),
+                                      np.concatenate([pp, ppm.reshape(2 * t, 4, 4)]),
+                                      np.concatenate([r, np.repeat(r, 2, axis=0)]))
+                inn, inn_m = _rows(inn_all, slice(0, t)), _rows(inn_all, slice(t, None))
+                inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits, inn)
+                self._imm_update(meas, xpm, ppm, cj, hm, inn, inn_m, beta, beta0, gated)
             else:
+                inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits)
                 tr.x, tr.p = self.updater.update(xp, pp, h, inn, beta, beta0)
             if cfg.extent_alpha > 0 and m:
                 tr.ext_var = self.measurement_model.update_extent(xp, tr.ext_var, inn, beta)
@@ -636,17 +650,17 @@ class PdafTracker:
         self.intermediates["used"] = used
         return self.published()
 
-    def _imm_update(self, meas: Measurements, xpm, ppm, cj, r, inn: Innovations, beta, beta0, gated) -> None:
-        """PDAF update of both modes with the association weights of the combined prediction, mode
-        probabilities from each mode's likelihood of the validated detections, moment-matched output."""
+    def _imm_update(self, meas: Measurements, xpm, ppm, cj, hm, inn: Innovations, inn_m: Innovations, beta, beta0,
+                    gated) -> None:
+        """PDAF update of both modes (rows (track, mode) of ``hm``, ``inn_m``) with the association weights of the
+        combined prediction, mode probabilities from each mode's likelihood of the validated detections,
+        moment-matched output."""
         cfg = self.config
         tr = self.tracks
         t = xpm.shape[0]
         n = meas.z.shape[1]
         xs, ps = xpm.reshape(2 * t, 4), ppm.reshape(2 * t, 4, 4)  # rows (track, mode)
-        zh, h = kalman.measurement_prediction(xs, meas.with_radial_speed)
-        inn_m = innovations(meas.z, zh, h, ps, np.repeat(r, 2, axis=0))
-        xu, pu = combined_update(xs, ps, h, inn_m, np.repeat(beta, 2, axis=0), np.repeat(beta0, 2, axis=0))
+        xu, pu = combined_update(xs, ps, hm, inn_m, np.repeat(beta, 2, axis=0), np.repeat(beta0, 2, axis=0))
         gamma = self.associator.gamma(n)
         vol = unit_ball_volume(n) * gamma ** (n / 2.0) * np.sqrt(inn.det_s)
         lik = imm.mode_likelihood(inn_m, np.repeat(gated, 2, axis=0), np.repeat(vol, 2), cfg.prob_detect,
