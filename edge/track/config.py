@@ -101,7 +101,7 @@ class PdafConfig:
         default=2.0, metadata={"unit": "m/s", "doc": "initial along-boresight speed sd when the radial speed seeds it",
                                "min": 0.01, "max": 100.0})
     init_lateral_speed_sigma_mps: float = field(
-        default=0.5, metadata={"unit": "m/s", "doc": "initial speed sd across the road (the road direction is the "
+        default=1.0, metadata={"unit": "m/s", "doc": "initial speed sd across the road (the road direction is the "
                                                      "mounting yaw the traffic layer estimates; vehicles move along "
                                                      "the road: a far seed's lateral speed would otherwise take a "
                                                      "second of metre-sized azimuth noise to settle; 3.0 before the "
