@@ -132,18 +132,17 @@ def _lateral_errors(cfg, vehicles, n_frames, seed, **kw):
 
 
 def test_lane_keeping_far_vehicle_lateral_error_below_the_single_cv_model():
-    """A car approaching from 250 m in its lane, 0.25 deg azimuth noise (1.1 m across at 250 m): the IMM
-    with road-directed seeds has a lower lateral error than the single cv model seeded with 3 m/s of
-    lateral speed uncertainty, the tracker before the IMM (measured on seeds 1-5: 0.73-0.91 of it, mean 0.85)."""
+    """A car approaching from 250 m in its lane, 0.25 deg azimuth noise (1.1 m across at 250 m): the IMM's
+    lateral error is below the single cv model's (measured on seeds 1-3: 0.93, 0.96, 0.93 of it; with seeds
+    that move along the road with 0.5 m/s sd across, init_lateral_speed_sigma_mps, 0.73-0.91)."""
     veh = [Vehicle(-1.75, 250.0, 0.0, -27.0)]
-    old = PdafConfig(motion_model="cv", init_lateral_speed_sigma_mps=3.0)
     ratios = []
     for seed in (1, 2, 3):
-        e_cv = _lateral_errors(old, veh, 180, seed, az_sigma_deg=0.25)
+        e_cv = _lateral_errors(PdafConfig(motion_model="cv"), veh, 180, seed, az_sigma_deg=0.25)
         e_imm = _lateral_errors(PdafConfig(), veh, 180, seed, az_sigma_deg=0.25)
         assert len(e_cv) > 150 and len(e_imm) > 150
         ratios.append(np.sqrt(np.mean(e_imm[:, 2] ** 2)) / np.sqrt(np.mean(e_cv[:, 2] ** 2)))
-    assert np.mean(ratios) < 0.92 and max(ratios) < 1.0, ratios
+    assert np.mean(ratios) < 0.96 and max(ratios) < 0.98, ratios
 
 
 def test_lane_change_is_followed_and_raises_the_manoeuvre_probability():
