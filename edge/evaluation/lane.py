@@ -15,7 +15,9 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
 * per frame, confirmed tracks are assigned one-to-one to vehicles (Hungarian, Euclidean cost) within
   a gate of ``gate_m`` plus the vehicle's length (a track may sit anywhere on a long truck);
 * ``tracked_fraction``: in-view frames with an assigned track / in-view frames;
-  ``position_rmse_m``: eq. (20) over the assigned frames; ``speed_mae_kmh``: |track speed - speed|;
+  ``position_rmse_m``: eq. (20) over the assigned frames, split into ``position_bias_xy_m`` (mean error,
+  across and along the boresight) and ``position_sd_xy_m`` (its sd): a bias (reference point, geometry)
+  and noise are fixed differently; ``speed_mae_kmh``: |track speed - speed|;
 * ``detection_probability``: assigned (vehicle, frame) pairs / in-view pairs, all vehicles;
   ``detection_probability_raw``: the same with any detection (before the tracker) within the gate;
 * ``id_switches``: changes of the assigned track id along a vehicle's assigned frames;
