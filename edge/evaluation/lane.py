@@ -15,7 +15,9 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
 * per frame, confirmed tracks are assigned one-to-one to vehicles (Hungarian, Euclidean cost) within
   a gate of ``gate_m`` plus the vehicle's length (a track may sit anywhere on a long truck);
 * ``tracked_fraction``: in-view frames with an assigned track / in-view frames;
-  ``position_rmse_m``: eq. (20) over the assigned frames; ``speed_mae_kmh``: |track speed - speed|;
+  ``position_rmse_m``: eq. (20) over the assigned frames, split into ``position_bias_xy_m`` (mean error,
+  across and along the boresight) and ``position_sd_xy_m`` (its sd): a bias (reference point, geometry)
+  and noise are fixed differently; ``speed_mae_kmh``: |track speed - speed|;
 * ``detection_probability``: assigned (vehicle, frame) pairs / in-view pairs, all vehicles;
   ``detection_probability_raw``: the same with any detection (before the tracker) within the gate;
 * ``id_switches``: changes of the assigned track id along a vehicle's assigned frames;
@@ -82,14 +84,15 @@ def _to_radar_ground(pose, p_world: np.ndarray) -> np.ndarray:
 
 
 class _TargetAcc:
-    __slots__ = ("cls", "lanes", "n_view", "n_hit", "sq_err", "spd_err", "ids", "last_id", "switches", "n_raw",
-                 "vr_true", "vr_est", "dir_true")
+    __slots__ = ("cls", "lanes", "n_view", "n_hit", "sq_err", "err_xy", "spd_err", "ids", "last_id", "switches",
+                 "n_raw", "vr_true", "vr_est", "dir_true")
 
     def __init__(self, cls: str) -> None:
         self.cls = cls
         self.lanes: list[int] = []
         self.n_view = self.n_hit = self.n_raw = self.switches = 0
         self.sq_err: list[float] = []
+        self.err_xy: list[tuple[float, float]] = []  # track - reference point (x across, y along), m
         self.spd_err: list[float] = []
         self.vr_true: list[float] = []
         self.vr_est: list[float] = []
@@ -216,8 +219,10 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             rc[2] += 1
             t = tracks[k]
             a.n_hit += 1
-            e2 = float(np.sum((tpos[k] - ref[j]) ** 2))
+            exy = tpos[k] - ref[j]
+            e2 = float(np.sum(exy**2))
             a.sq_err.append(e2)
+            a.err_xy.append((float(exy[0]), float(exy[1])))
             range_bins.setdefault(int(ground_rng[j] // RANGE_BIN_M), []).append(e2)
             a.spd_err.append(abs(t.speed_mps * 3.6 - speed_kmh[j]))
             a.vr_true.append(float(tr.radial_speed_mps[veh[j]]) * 3.6)
@@ -261,6 +266,10 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             "tracked_fraction": a.n_hit / a.n_view,
             "detected_fraction_raw": a.n_raw / a.n_view,
             "position_rmse_m": float(math.sqrt(np.mean(a.sq_err))) if a.sq_err else None,
+            # the error split into a bias (mean) and a noise (sd), across (x) and along (y) the boresight:
+            # rmse^2 = |bias|^2 + sd_x^2 + sd_y^2
+            "position_bias_xy_m": ([round(float(v), 4) for v in np.mean(a.err_xy, axis=0)] if a.err_xy else None),
+            "position_sd_xy_m": ([round(float(v), 4) for v in np.std(a.err_xy, axis=0)] if a.err_xy else None),
             "speed_mae_kmh": float(np.mean(a.spd_err)) if a.spd_err else None,
             "id_switches": a.switches,
             "predicted_class": None,

@@ -691,6 +691,7 @@ class LanePipeline(Pipeline):
             tracks = self.tracker.step(det, frame.t_ns)
         with timer.stage("traffic"):
             upd = self.traffic.update(tracks, frame.t_ns)
+            self.tracker.road_yaw_rad = self.traffic.yaw_rad  # the IMM's lane-keeping direction
         return FrameResult(
             profile=self.profile, seq=frame.seq, t_ns=frame.t_ns, detections=det, tracks=upd.tracks,
             presence=upd.presence, lane_stats=upd.lane_stats, events=upd.events, intermediates=inter,

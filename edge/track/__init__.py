@@ -7,7 +7,8 @@ Lane profile (Lim et al. §III-B)::
     tracks = tracker.step(detections, t_ns)   # tuple[edge.types.TrackState, ...]
 
 See :mod:`edge.track.tracker` for the contract, :mod:`edge.track.pdaf` for eqs. 17-19 and
-:mod:`edge.track.kalman` for the constant-velocity filter.
+:mod:`edge.track.kalman` for the constant-velocity filter, :mod:`edge.track.imm` for the interacting
+multiple models (lane keeping / manoeuvring) that run on top of it by default.
 """
 
 from edge.track.config import PdafConfig

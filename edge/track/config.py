@@ -57,6 +57,40 @@ class PdafConfig:
     q_along_m2ps3: float = field(
         default=2.0, metadata={"unit": "m^2/s^3", "doc": "white-noise acceleration density along the boresight "
                                                          "(braking, stop-and-go)", "min": 1e-6, "max": 1000.0})
+    motion_model: str = field(
+        default="imm",
+        metadata={"doc": "cv: one constant-velocity model (q_lateral_m2ps3, q_along_m2ps3); imm: interacting "
+                         "multiple models (edge.track.imm), lane keeping (across-road velocity decaying to zero, "
+                         "imm_keep_q_across_m2ps3) and the cv model for manoeuvres, weighed per track by how well "
+                         "each explains the detections: far vehicles' lateral position stops wandering with the "
+                         "azimuth noise while lane changes are still followed", "choices": ("cv", "imm")},
+    )
+    imm_keep_q_across_m2ps3: float = field(
+        default=0.002, metadata={"unit": "m^2/s^3", "doc": "lane-keeping mode: white-noise acceleration density "
+                                                           "across the road (drift within the lane)",
+                                 "min": 1e-9, "max": 10.0})
+    imm_keep_tau_s: float = field(
+        default=1.0, metadata={"unit": "s", "doc": "lane-keeping mode: time constant with which the velocity across "
+                                                  "the road decays to zero (the road direction is the mounting yaw "
+                                                  "the traffic layer estimates); 0 = no decay", "min": 0.0, "max": 100.0})
+    imm_manoeuvre_q_lateral_m2ps3: float = field(
+        default=2.0, metadata={"unit": "m^2/s^3", "doc": "manoeuvring mode: white-noise acceleration density "
+                                                         "across the boresight (q_lateral_m2ps3 of the cv model; "
+                                                         "along: q_along_m2ps3)", "min": 1e-6, "max": 1000.0})
+    imm_p_keep_to_manoeuvre: float = field(
+        default=0.02, metadata={"doc": "per-frame probability that a lane-keeping vehicle starts a manoeuvre "
+                                       "(mean 50 frames = 1.7 s in the mode: a prior, not a rate of lane changes; "
+                                       "0.01 left the crossing scenario's lane change too late on 3 of 16 seeds)",
+                                "min": 1e-6, "max": 0.5})
+    imm_p_manoeuvre_to_keep: float = field(
+        default=0.02, metadata={"doc": "per-frame probability that a manoeuvre ends (mean 50 frames = 1.7 s; a lane "
+                                       "change takes 2-4 s; 0.03 lost a 2 s lane change across a neighbour 1.5 m/s "
+                                       "faster in tests/edge/test_pdaf_tracker.py)", "min": 1e-6, "max": 0.5})
+    imm_init_keep_prob: float = field(
+        default=0.5, metadata={"doc": "probability of the lane-keeping mode for a new track", "min": 0.0, "max": 1.0})
+    imm_min_mode_prob: float = field(
+        default=1e-3, metadata={"doc": "floor of either mode's probability (a mode can always come back)",
+                                "min": 0.0, "max": 0.1})
     seed_min_radial_speed_mps: float = field(
         default=1.0, metadata={"unit": "m/s", "doc": "detections slower than this (ground radial speed, about 3 sd "
                                                      "of its noise) never seed a "
@@ -67,8 +101,12 @@ class PdafConfig:
         default=2.0, metadata={"unit": "m/s", "doc": "initial along-boresight speed sd when the radial speed seeds it",
                                "min": 0.01, "max": 100.0})
     init_lateral_speed_sigma_mps: float = field(
-        default=3.0, metadata={"unit": "m/s", "doc": "initial lateral speed sd (vehicles move along the road; a "
-                                                     "mis-aimed radar sees a few m/s across)", "min": 0.01, "max": 100.0})
+        default=3.0, metadata={"unit": "m/s", "doc": "initial speed sd across the road (the road direction is the "
+                                                     "mounting yaw the traffic layer estimates; a mis-aimed radar "
+                                                     "sees a few m/s across before it is estimated). 0.5-1.0 halves "
+                                                     "the lateral error of far seeds on highway4 but cost the second "
+                                                     "car of side-by-side (seeds 8, 31) a tenth of its tracked frames",
+                               "min": 0.01, "max": 100.0})
     init_speed_sigma_mps: float = field(
         default=40.0, metadata={"unit": "m/s", "doc": "initial speed sd when no radial speed is measured",
                                 "min": 0.1, "max": 200.0})

@@ -22,6 +22,15 @@ radial speeds are not all finite fall back to position-only updates.
 Tracks are held as a struct of arrays (:class:`TrackTable`): the per-frame work is a handful of
 batched numpy operations over tracks x detections; there is no Python object per detection.
 
+Motion model (``motion_model``): ``"cv"`` is Lim's constant-velocity Kalman filter; ``"imm"`` (default)
+runs two models per track, lane keeping (velocity across the road decaying to zero, tiny lateral
+process noise; the road direction is ``road_yaw_rad``, which the lane pipeline sets from the traffic
+layer's mounting-yaw estimate) and the cv model for manoeuvres, mixed by an IMM (:mod:`edge.track.imm`).
+The association (gate, clutter density, PDAF/JPDA weights) is computed once on the IMM's moment-matched
+prediction, as for the cv model; both modes are updated with those weights and weighed by their PDAF
+likelihoods. ``tracks.x``/``tracks.p`` are always the (combined) state every other stage reads; a seed's
+velocity points along the road (speed from the radial speed, ``init_lateral_speed_sigma_mps`` across).
+
 Beyond Lim's single-point PDAF, what a roadside radar needs (all parameters in ``track.pdaf``):
 
 - extended vehicles: a car or truck gives several detections spread over its length; each track
@@ -64,9 +73,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from edge.track import kalman
+from edge.track import imm, kalman
 from edge.track.config import PdafConfig
-from edge.track.pdaf import Innovations, association_weights, combined_update, gate_threshold, innovations
+from edge.track.pdaf import (Innovations, association_weights, combined_update, gate_threshold, innovations,
+                              unit_ball_volume)
 from edge.types import Detections, TrackState
 
 log = logging.getLogger(__name__)
@@ -114,9 +124,13 @@ class TrackTable:
     moved: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # was ever surely moving
     ext_var: np.ndarray = field(default_factory=lambda: np.zeros(0))  # along-heading detection spread, m^2
     close_run: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))  # frames next to a twin
+    # IMM (motion_model = "imm"): per-mode states and mode probabilities; x, p are their moment-matched mixture
+    xm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 4)))
+    pm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 4, 4)))
+    mu: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
     _COLUMNS = ("x", "p", "track_id", "age", "hits", "misses", "history", "confirmed", "moved", "ext_var",
-                "close_run")
+                "close_run", "xm", "pm", "mu")
 
     def __len__(self) -> int:
         return int(self.x.shape[0])
@@ -125,8 +139,11 @@ class TrackTable:
         for c in self._COLUMNS:
             setattr(self, c, getattr(self, c)[mask])
 
-    def append(self, x: np.ndarray, p: np.ndarray, ext_var: float) -> None:
+    def append(self, x: np.ndarray, p: np.ndarray, ext_var: float, keep_prob: float = 0.5) -> None:
         k = x.shape[0]
+        self.xm = np.concatenate([self.xm, np.repeat(x[:, None], 2, axis=1)])
+        self.pm = np.concatenate([self.pm, np.repeat(p[:, None], 2, axis=1)])
+        self.mu = np.concatenate([self.mu, np.tile([keep_prob, 1.0 - keep_prob], (k, 1))])
         self.x = np.concatenate([self.x, x])
         self.p = np.concatenate([self.p, p])
         self.track_id = np.concatenate([self.track_id, np.zeros(k, dtype=np.int32)])
@@ -195,6 +212,30 @@ class CvPredictor:
                             kalman.cv_process_noise(dt_s, self.cfg.q_lateral_m2ps3, self.cfg.q_along_m2ps3))
         _, f, q = self._cached
         return kalman.predict(tracks.x, tracks.p, f, q)
+
+
+class ImmPredictor:
+    """IMM mixing and mode-matched prediction (:mod:`edge.track.imm`): lane keeping along the road at
+    ``road_yaw_rad`` and the constant-velocity model of :class:`CvPredictor` for manoeuvres."""
+
+    def __init__(self, cfg: PdafConfig) -> None:
+        self.cfg = cfg
+        self.pi = imm.switch_matrix(cfg.imm_p_keep_to_manoeuvre, cfg.imm_p_manoeuvre_to_keep)
+        self._cached: tuple[float, float, np.ndarray, np.ndarray] | None = None  # (dt, yaw, F (2,4,4), Q (2,4,4))
+
+    def predict(self, tracks: TrackTable, dt_s: float, yaw_rad: float):
+        """-> combined (xp, pp), per mode (xpm, ppm) and predicted mode probabilities ``c`` (T, 2)."""
+        c = self.cfg
+        if self._cached is None or self._cached[0] != dt_s or self._cached[1] != yaw_rad:
+            fk, qk = imm.keep_model(dt_s, yaw_rad, c.imm_keep_tau_s, c.imm_keep_q_across_m2ps3, c.q_along_m2ps3)
+            fm = kalman.cv_transition(dt_s)
+            qm = kalman.cv_process_noise(dt_s, c.imm_manoeuvre_q_lateral_m2ps3, c.q_along_m2ps3)
+            self._cached = (dt_s, yaw_rad, np.stack([fk, fm]), np.stack([qk, qm]))
+        _, _, f, q = self._cached
+        x0, p0, cj = imm.mix(tracks.xm, tracks.pm, tracks.mu, self.pi)
+        xpm, ppm = imm.predict_modes(x0, p0, f, q)
+        xp, pp = imm.moment_match(xpm, ppm, cj)
+        return xp, pp, xpm, ppm, cj
 
 
 def heading(xp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -266,13 +307,16 @@ class PdaAssociator:
     def __init__(self, cfg: PdafConfig) -> None:
         self.cfg = cfg
         self._gamma = {n: gate_threshold(cfg.prob_gate, n) for n in (2, 3)}
+        self.gamma = self._gamma.__getitem__  # gamma(n): the validation gate threshold of eq. 17
         self.exclusion_gamma = {n: gate_threshold(max(cfg.init_exclusion_prob, cfg.prob_gate), n) for n in (2, 3)}
 
-    def associate(self, meas: Measurements, zh, h, pp, r, confirmed: np.ndarray, seniority: np.ndarray):
-        """Confirmed tracks share detections (PDAF/JPDA); a tentative track only sees detections that no
+    def associate(self, meas: Measurements, zh, h, pp, r, confirmed: np.ndarray, seniority: np.ndarray,
+                  inn: Innovations | None = None):
+        """``inn``: the innovations of ``zh``, ``h``, ``pp``, ``r`` if already computed. Confirmed tracks share detections (PDAF/JPDA); a tentative track only sees detections that no
         more senior track validated (confirmed first, then more hits): a tentative track born from clutter
         next to a vehicle, or a second seed on the same vehicle, must not live off its points."""
-        inn = innovations(meas.z, zh, h, pp, r)
+        if inn is None:
+            inn = innovations(meas.z, zh, h, pp, r)
         n = meas.z.shape[1]
         gamma = self._gamma[n]
         rank = np.where(confirmed, np.inf, seniority.astype(float))
@@ -284,6 +328,10 @@ class PdaAssociator:
             inn, gamma, self.cfg.prob_detect, self.cfg.prob_gate, self.cfg.association, allowed
         )
         return inn, beta, beta0, gated
+
+
+def _rows(inn: Innovations, rows: slice) -> Innovations:
+    return Innovations(inn.v[rows], inn.d2[rows], inn.s[rows], inn.s_inv[rows], inn.det_s[rows])
 
 
 class PdaUpdater:
@@ -323,7 +371,9 @@ class MofNInitiator:
         self.meas_model = meas_model
         self._mask_n = np.uint32((1 << cfg.confirm_n) - 1)
 
-    def initiate(self, tracks: TrackTable, meas: Measurements, used: np.ndarray) -> int:
+    def initiate(self, tracks: TrackTable, meas: Measurements, used: np.ndarray, road_yaw_rad: float = 0.0) -> int:
+        """Seed tentative tracks; with a radial speed the seed moves along the road (``road_yaw_rad`` off the
+        boresight): its speed along the road from the radial speed, ``init_lateral_speed_sigma_mps`` across it."""
         c = self.cfg
         z = meas.z
         rho = np.hypot(z[:, 0], z[:, 1])
@@ -366,15 +416,22 @@ class MofNInitiator:
         _, _, r = self.meas_model.at(x0, False)
         p0[:, :2, :2] = r
         if meas.with_radial_speed:
-            y = seeds[:, 1]
-            rho_s = np.hypot(seeds[:, 0], y)
-            ok = np.abs(y) > 1.0
-            x0[:, 3] = np.where(ok, seeds[:, 2] * rho_s / np.where(ok, y, 1.0), 0.0)
-            p0[:, 2, 2] = c.init_lateral_speed_sigma_mps**2
-            p0[:, 3, 3] = np.where(ok, c.init_along_speed_sigma_mps**2, c.init_speed_sigma_mps**2)
+            # road direction e_s = (-sin yaw, cos yaw), across it e_u = (cos yaw, sin yaw): v = v_s e_s with
+            # v_r = v_s (e_s . p) / |p|
+            cy, sy = math.cos(road_yaw_rad), math.sin(road_yaw_rad)
+            proj = cy * seeds[:, 1] - sy * seeds[:, 0]  # e_s . p
+            rho_s = np.hypot(seeds[:, 0], seeds[:, 1])
+            ok = np.abs(proj) > 1.0
+            v_s = np.where(ok, seeds[:, 2] * rho_s / np.where(ok, proj, 1.0), 0.0)
+            x0[:, 2], x0[:, 3] = -sy * v_s, cy * v_s
+            var_s = np.where(ok, c.init_along_speed_sigma_mps**2, c.init_speed_sigma_mps**2)
+            var_u = c.init_lateral_speed_sigma_mps**2
+            p0[:, 2, 2] = cy * cy * var_u + sy * sy * var_s
+            p0[:, 3, 3] = sy * sy * var_u + cy * cy * var_s
+            p0[:, 2, 3] = p0[:, 3, 2] = cy * sy * (var_u - var_s)
         else:
             p0[:, 2, 2] = p0[:, 3, 3] = c.init_speed_sigma_mps**2
-        tracks.append(x0, p0, c.extent_along_sigma_m**2)
+        tracks.append(x0, p0, c.extent_along_sigma_m**2, c.imm_init_keep_prob)
         return k
 
     def confirm(self, tracks: TrackTable, ids: IdPool) -> None:
@@ -517,6 +574,8 @@ class PdafTracker:
     def __init__(self, config: PdafConfig | None = None) -> None:
         self.config = config or PdafConfig()
         self.predictor = CvPredictor(self.config)
+        self.imm_predictor = ImmPredictor(self.config) if self.config.motion_model == "imm" else None
+        self.road_yaw_rad = 0.0  # direction of the road off the boresight (the lane pipeline sets its estimate)
         self.measurement_model = MeasurementModel(self.config)
         self.associator = PdaAssociator(self.config)
         self.updater = PdaUpdater()
@@ -541,10 +600,24 @@ class PdafTracker:
         m = meas.z.shape[0]
         used = np.zeros(m, dtype=bool)
         if len(tr):
-            xp, pp = self.predictor.predict(tr, dt_s)
+            if self.imm_predictor is not None:
+                xp, pp, xpm, ppm, cj = self.imm_predictor.predict(tr, dt_s, self.road_yaw_rad)
+            else:
+                xp, pp = self.predictor.predict(tr, dt_s)
             zh, h, r = self.measurement_model.at(xp, meas.with_radial_speed, tr.ext_var)
-            inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits)
-            tr.x, tr.p = self.updater.update(xp, pp, h, inn, beta, beta0)
+            if self.imm_predictor is not None:
+                # one innovation computation for the combined prediction (association) and both modes
+                t = len(tr)
+                zhm, hm = kalman.measurement_prediction(xpm.reshape(2 * t, 4), meas.with_radial_speed)
+                inn_all = innovations(meas.z, np.concatenate([zh, zhm]), np.concatenate([h, hm]),
+                                      np.concatenate([pp, ppm.reshape(2 * t, 4, 4)]),
+                                      np.concatenate([r, np.repeat(r, 2, axis=0)]))
+                inn, inn_m = _rows(inn_all, slice(0, t)), _rows(inn_all, slice(t, None))
+                inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits, inn)
+                self._imm_update(meas, xpm, ppm, cj, hm, inn, inn_m, beta, beta0, gated)
+            else:
+                inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits)
+                tr.x, tr.p = self.updater.update(xp, pp, h, inn, beta, beta0)
             if cfg.extent_alpha > 0 and m:
                 tr.ext_var = self.measurement_model.update_extent(xp, tr.ext_var, inn, beta)
             hit = gated.any(axis=1)
@@ -573,9 +646,28 @@ class PdafTracker:
             self.intermediates = {"gated": gated, "beta0": beta0, "d2": inn.d2}
         else:
             self.intermediates = {}
-        self.initiator.initiate(tr, meas, used)
+        self.initiator.initiate(tr, meas, used, self.road_yaw_rad)
         self.intermediates["used"] = used
         return self.published()
+
+    def _imm_update(self, meas: Measurements, xpm, ppm, cj, hm, inn: Innovations, inn_m: Innovations, beta, beta0,
+                    gated) -> None:
+        """PDAF update of both modes (rows (track, mode) of ``hm``, ``inn_m``) with the association weights of the
+        combined prediction, mode probabilities from each mode's likelihood of the validated detections,
+        moment-matched output."""
+        cfg = self.config
+        tr = self.tracks
+        t = xpm.shape[0]
+        n = meas.z.shape[1]
+        xs, ps = xpm.reshape(2 * t, 4), ppm.reshape(2 * t, 4, 4)  # rows (track, mode)
+        xu, pu = combined_update(xs, ps, hm, inn_m, np.repeat(beta, 2, axis=0), np.repeat(beta0, 2, axis=0))
+        gamma = self.associator.gamma(n)
+        vol = unit_ball_volume(n) * gamma ** (n / 2.0) * np.sqrt(inn.det_s)
+        lik = imm.mode_likelihood(inn_m, np.repeat(gated, 2, axis=0), np.repeat(vol, 2), cfg.prob_detect,
+                                  cfg.prob_gate).reshape(t, 2)
+        tr.mu = imm.update_mode_probabilities(cj, lik, cfg.imm_min_mode_prob)
+        tr.xm, tr.pm = xu.reshape(t, 2, 4), pu.reshape(t, 2, 4, 4)
+        tr.x, tr.p = imm.moment_match(tr.xm, tr.pm, tr.mu)
 
     def _reanchor(self, meas: Measurements, gated: np.ndarray, hit: np.ndarray, used: np.ndarray) -> None:
         """A confirmed track that missed moves to the nearest unclaimed detection up to ``reanchor_m`` nearer
@@ -606,6 +698,8 @@ class PdafTracker:
         tr.hits[i] += 1
         tr.misses[i] = 0
         tr.history[i] |= np.uint32(1)
+        tr.xm[i] = tr.x[i, None, :]  # both IMM modes restart from the new position
+        tr.pm[i] = tr.p[i, None, :, :]
         used[j] = True
 
     def published(self) -> tuple[TrackState, ...]:
