@@ -48,6 +48,7 @@ from edge.dsp.peaks import interpolate_peak, local_maxima
 from edge.dsp.resolve import CellResolver, ResolverConfig
 from edge.dsp.range_fft import make_window
 from edge.pipeline import Pipeline, PipelineError, StageTimer
+from edge.traffic.lanes import assign_lanes, to_road
 from edge.types import Detections, FrameResult, FrontendInfo, RawFrame
 from hal.waveform import SPEED_OF_LIGHT_MPS
 
@@ -430,19 +431,17 @@ class LanePipeline(Pipeline):
                 rows, cols, cells = rows[hit], cols[hit], cells[hit]
             # peaks in (segment, bin) order; sub-bin offsets by a parabola through the log-power
             # (edge.dsp.peaks.interpolate_peak, all segments at once)
-            ends = np.searchsorted(rows, self._seg_ends).tolist()
-            starts = [0] + ends[:3]
-            if max(e - b for b, e in zip(starts, ends)) > cfg.max_peaks_per_segment:
+            bounds = self._segment_bounds(rows)
+            if max(e - b for b, e in bounds) > cfg.max_peaks_per_segment:
                 freqs, bins = self._strongest_peaks(power, rows, cols)
             else:
                 f = self._peak_freqs(rows, cols, cells)
-                freqs = [f[b:e] for b, e in zip(starts, ends)]
-                bins = [cols[b:e] for b, e in zip(starts, ends)]
+                freqs, bins = [f[b:e] for b, e in bounds], [cols[b:e] for b, e in bounds]
             if weak is not None:  # the same interpolation, grouped by segment
                 wr, wc, wcells = weak
-                we = np.searchsorted(wr, self._seg_ends).tolist()
                 wf = self._peak_freqs(wr, wc, wcells)
-                weak = ([wf[b:e] for b, e in zip([0] + we[:3], we)], [wc[b:e] for b, e in zip([0] + we[:3], we)])
+                bounds = self._segment_bounds(wr)
+                weak = ([wf[b:e] for b, e in bounds], [wc[b:e] for b, e in bounds])
         with timer.stage("pairing"):
             pairs = pair_beats(tuple(freqs), self._model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
                                max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self._tol,
@@ -520,6 +519,11 @@ class LanePipeline(Pipeline):
             "angle_grid_rad": self._grid, "angle_spectrum": aspec,
         }
         return det, inter
+
+    def _segment_bounds(self, rows: np.ndarray) -> list[tuple[int, int]]:
+        """``(start, end)`` of each segment's run in ``rows`` (sorted segment numbers of peaks)."""
+        ends = np.searchsorted(rows, self._seg_ends).tolist()
+        return list(zip([0] + ends[:-1], ends))
 
     def _peak_freqs(self, rows: np.ndarray, cols: np.ndarray, cells: np.ndarray) -> np.ndarray:
         """Signed beat frequencies (Hz) of peaks ``(segment rows, bin cols)`` with their power and its two
@@ -626,8 +630,6 @@ class LanePipeline(Pipeline):
         other direction of travel is moved to its alias (sin(az) +- lambda/d) if that lies in a lane of its own
         direction; otherwise it is left alone (a wrong-way driver keeps its position unless, within about 15 m,
         its alias falls in a lane of the matching direction)."""
-        from edge.traffic.lanes import assign_lanes, to_road
-
         cfg = self.config
         lanes = self.traffic.lanes
         period = self._alias_period

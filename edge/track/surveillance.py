@@ -192,7 +192,8 @@ class SurveillanceTracker:
             self._acc[tid] = TrackFeatureAccumulator(self.extractor.config.extent_percentile,
                                                      vmax_kmh=self.extractor.speed_vmax_kmh)
             self._speed[tid] = RadialSpeedEstimator(self.cylinder.vmax_kmh)
-            self._log[tid] = SignatureLog()
+            if self.tracker.config.fragment_gap_m > 0:  # the rows are only ever united with a fragment's
+                self._log[tid] = SignatureLog()
             self._links[tid] = {}
         t_s = t_ns * 1e-9 if seq is None else int(seq) * self.frame_period_s
         frame_key = int(round(t_s / self.frame_period_s))
@@ -212,9 +213,11 @@ class SurveillanceTracker:
             lo, hi = float(sig.range_lo_m[lab]), float(sig.range_hi_m[lab])
             self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab], hi - lo,
                                sig.doppler_kmh[lab])
-            n_lab = float(sig.n_points[lab])
-            self._log[tid].add(frame_key, t_s, n_lab, sig.cos_sum[lab], sig.sin_sum[lab], sig.rcs[lab],
-                               n_lab * float(sig.range_m[lab]), lo, hi, float(sig.doppler_kmh[lab]))
+            log_ = self._log.get(tid)
+            if log_ is not None:
+                n_lab = float(sig.n_points[lab])
+                log_.add(frame_key, t_s, n_lab, sig.cos_sum[lab], sig.sin_sum[lab], sig.rcs[lab],
+                         n_lab * float(sig.range_m[lab]), lo, hi, float(sig.doppler_kmh[lab]))
             recorded.append((tid, int(lab)))
             spd = self._speed[tid]
             spd.add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
@@ -356,17 +359,13 @@ class SurveillanceTracker:
 
     def _finish(self, tr: AlphaBetaTrack) -> ClassifiedEvent:
         pct = self.extractor.config.extent_percentile
-        own = self._acc.pop(tr.track_id, None) or TrackFeatureAccumulator(pct)
-        log_ = self._log.pop(tr.track_id, None)
-        for other in self._links.pop(tr.track_id, {}):
-            self._links.get(other, {}).pop(tr.track_id, None)
+        own = self._acc.get(tr.track_id) or TrackFeatureAccumulator(pct)
+        log_ = self._log.get(tr.track_id)
+        spd = self._speed.get(tr.track_id)
+        self._forget(tr.track_id, counted=False)  # an ended track, classified below: not a dropped one
         # the union with absorbed fragments; a track without any has exactly its own running features
         acc = (log_.accumulator(pct, self.extractor.speed_vmax_kmh) if log_ is not None and len(log_) > own.n
                else own)
-        spd = self._speed.pop(tr.track_id, None)
-        self._seen_t.pop(tr.track_id, None)
-        self._size.pop(tr.track_id, None)
-        self._merged_run.pop(tr.track_id, None)
         x = acc.features()
         v = spd.mean_radial_speed_kmh() if spd is not None else math.nan
         if not math.isfinite(v):
