@@ -11,13 +11,16 @@ Public API (stable; used by ``edge.pipelines.lane``)::
     upd.events        # tuple[TrafficEvent, ...]: wrong_way, stopped_vehicle (once per occurrence)
     monitor.lanes     # current tuple[Lane, ...] (configured or learned; empty until learned)
     monitor.yaw_rad   # mounting yaw in use (configured until estimated)
+    monitor.yaw_sigma_rad  # its uncertainty (mounting_yaw_sigma_deg until estimated; 0 if not estimated)
 
 Lane indices are 0-based, ordered like the scenario's ``[[lane]]`` tables (left to right when
 learned). Only confirmed tracks are used. Per-track memory is keyed by ``track_id`` and reset when an
 id is recycled (its ``age_frames`` drops).
 
 Events: ``wrong_way`` when a track in a lane moves against the lane's direction faster than
-``wrong_way_min_speed_mps`` for ``wrong_way_min_frames`` frames in a row (once per track);
+``wrong_way_min_speed_mps`` for ``wrong_way_min_frames`` frames in a row (once per track), counting
+only frames with a detection where its lane is sure (``wrong_way_lane_sigmas`` times range x yaw
+uncertainty inside the lane: no alarms from a neighbouring lane while the yaw self-calibrates);
 ``stopped_vehicle`` when a track that once moved faster than ``moving_speed_mps`` stands (slower than
 ``stopped_speed_mps``) in a lane for ``stopped_min_s`` (again only after it moved off).
 """
@@ -83,6 +86,8 @@ class TrafficMonitor:
         self.yaw_rad = math.radians(cfg.mounting_yaw_deg)
         self.lanes: tuple[Lane, ...] = configured_lanes(cfg) if cfg.lane_mode == "configured" else ()
         self.yaw_estimator = YawEstimator(cfg)
+        self._yaw_sigma_cfg = math.radians(cfg.mounting_yaw_sigma_deg)
+        self.yaw_sigma_rad = 0.0 if not cfg.estimate_yaw else self._yaw_sigma_cfg
         self.learner = LaneLearner(cfg)
         self.stats = IntervalStatistics(cfg)
         self._memo: dict[int, _Memo] = {}
@@ -94,6 +99,21 @@ class TrafficMonitor:
         """Lanes known now; with learned lanes not yet learned, as many as ``lane_centers_m`` lists
         (what the outputs reserve at start)."""
         return len(self.lanes) or len(self.config.lane_centers_m)
+
+    def _lane_sure(self, u: np.ndarray, x: np.ndarray, y: np.ndarray, lane_idx: np.ndarray,
+                   yaw_sigma: float) -> list[bool]:
+        """Per track: is it ``wrong_way_lane_sigmas`` standard deviations inside its lane? The lateral
+        uncertainty in the road frame is range x the yaw's uncertainty (a wrong yaw turns the road frame
+        about the radar); off every lane it is never sure."""
+        n = lane_idx.size
+        if yaw_sigma <= 0.0 or self.config.wrong_way_lane_sigmas <= 0.0 or not self.lanes:
+            return (lane_idx >= 0).tolist()
+        c = np.array([ln.center_m for ln in self.lanes])
+        hw = 0.5 * np.array([ln.width_m for ln in self.lanes])
+        k = np.maximum(lane_idx, 0)
+        margin = hw[k] - np.abs(u - c[k])
+        sigma_u = np.hypot(x, y) * yaw_sigma
+        return ((lane_idx >= 0) & (margin >= self.config.wrong_way_lane_sigmas * sigma_u)).tolist() if n else []
 
     def update(self, tracks: tuple[TrackState, ...], t_ns: int) -> TrafficUpdate:
         cfg = self.config
@@ -110,11 +130,16 @@ class TrafficMonitor:
 
         # mounting yaw and lanes
         est = None
+        yaw_sigma = 0.0  # the configured yaw is taken as measured when it is not estimated
         if cfg.estimate_yaw:
             self.yaw_estimator.add(ids, age, x, y)
             est = self.yaw_estimator.estimate_rad()
             if est is not None:
                 self.yaw_rad = est
+                yaw_sigma = min(self.yaw_estimator.stderr_rad, self._yaw_sigma_cfg)
+            else:
+                yaw_sigma = self._yaw_sigma_cfg
+        self.yaw_sigma_rad = yaw_sigma
         if cfg.lane_mode == "learned":
             self.learner.add(x, y, vx, vy)
             if self._next_learn_ns is None or t_ns >= self._next_learn_ns:
@@ -134,7 +159,9 @@ class TrafficMonitor:
         # plain Python floats for the per-track loop (numpy scalars are slow one at a time)
         s, vs = s_arr.tolist(), vs_arr.tolist()
         speed = np.hypot(vx, vy).tolist()
-        lane_idx = assign_lanes(u, lanes).tolist()
+        lane_idx = assign_lanes(u, lanes)
+        lane_sure = self._lane_sure(u, x, y, lane_idx, yaw_sigma)
+        lane_idx = lane_idx.tolist()
         id_list = ids.tolist()
         presence = [False] * n_lanes
         events: list[TrafficEvent] = []
@@ -174,8 +201,9 @@ class TrafficMonitor:
                     presence[k] = True
                 # wrong way
                 # only frames with a detection count: a track seeded with a wrong velocity (a steep near
-                # detection) that coasts out of view must not raise the event on its prediction alone
-                if tr.hits > memo.hits:
+                # detection) that coasts out of view must not raise the event on its prediction alone; nor
+                # frames where the yaw is too uncertain to tell its lane from the neighbouring one
+                if tr.hits > memo.hits and lane_sure[j]:
                     if vs[j] * lanes[k].direction < -cfg.wrong_way_min_speed_mps:
                         memo.wrong_frames += 1
                     else:
