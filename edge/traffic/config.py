@@ -82,6 +82,17 @@ class TrafficConfig:
     relearn_every_s: float = field(
         default=60.0, metadata={"unit": "s", "doc": "re-learn lanes (and use the newest yaw) this often",
                                 "min": 0.1, "max": 86400.0})
+    calibration_file: str = field(
+        default="", metadata={"doc": "keep the self-calibration (estimated mounting yaw, learned lanes) in this JSON "
+                                     "file across restarts, e.g. /var/lib/radar-edge/traffic-calibration.json; "
+                                     "empty = start uncalibrated every time (see edge.traffic.calibration)"})
+    calibration_save_every_s: float = field(
+        default=60.0, metadata={"unit": "s", "doc": "save the calibration this often (and at stop)",
+                                "min": 1.0, "max": 86400.0})
+    calibration_moved_deg: float = field(
+        default=1.0, metadata={"unit": "deg", "doc": "a fresh yaw estimate (from yaw_min_tracks ended tracks) this "
+                                                     "far from the saved one means the radar was re-aimed: the saved "
+                                                     "calibration is dropped", "min": 0.1, "max": 45.0})
     interval_s: float = field(
         default=60.0, metadata={"unit": "s", "doc": "statistics interval", "min": 1.0, "max": 86400.0})
     detection_line_m: float = field(
