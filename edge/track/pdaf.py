@@ -31,6 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
+from edge.track.smallmat import inv_det
+
 __all__ = ["gate_threshold", "unit_ball_volume", "Innovations", "innovations", "association_weights", "combined_update"]
 
 
@@ -59,8 +61,7 @@ def innovations(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, 
     """``z`` (M, n), ``z_hat`` (T, n), ``h`` (T, n, 4), ``p`` (T, 4, 4), ``r`` (T, n, n)."""
     s = h @ p @ h.transpose(0, 2, 1) + r
     s = 0.5 * (s + s.transpose(0, 2, 1))
-    s_inv = np.linalg.inv(s)
-    det_s = np.linalg.det(s)
+    s_inv, det_s = inv_det(s)
     n = z.shape[1]
     v = np.empty((z_hat.shape[0], z.shape[0], n))
     for i in range(n):  # per measurement dimension (n <= 3), not per detection

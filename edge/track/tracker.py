@@ -75,6 +75,7 @@ import numpy as np
 
 from edge.track import imm, kalman
 from edge.track.config import PdafConfig
+from edge.track.smallmat import inv_quad2
 from edge.track.pdaf import (Innovations, association_weights, combined_update, gate_threshold, innovations,
                               unit_ball_volume)
 from edge.types import Detections, TrackState
@@ -630,7 +631,7 @@ class PdafTracker:
                 self._reanchor(meas, gated, hit, used)
             # moving for sure: the velocity is significantly non-zero (v' P_v^-1 v) and fast enough
             v = tr.x[:, 2:4]
-            d2v = (v[:, None, :] @ np.linalg.solve(tr.p[:, 2:4, 2:4], v[:, :, None]))[:, 0, 0]
+            d2v = inv_quad2(tr.p[:, 2:4, 2:4], v)
             tr.moved |= (d2v > self._moving_gamma) & (np.hypot(v[:, 0], v[:, 1]) >= cfg.confirm_min_speed_mps)
             resolved = None
             if meas.pair is not None and m:
