@@ -507,46 +507,48 @@ class TrackDeleter:
         ia, ib = pairs
         # speed difference along the pair's common heading, and across it: a duplicate born with a wrong
         # lateral velocity (a far, noisy seed) drifts onto its vehicle with metres per second across
-        va, vb = x[ia, 2:4], x[ib, 2:4]
-        vsum = va + vb
+        xa, xb = x[ia], x[ib]
+        dx = xa - xb  # (pairs, 4): position and velocity differences
+        vsum = xa[:, 2:4] + xb[:, 2:4]
         nrm = np.maximum(np.hypot(vsum[:, 0], vsum[:, 1]), 1e-9)
         ux, uy = vsum[:, 0] / nrm, vsum[:, 1] / nrm
-        dvx, dvy = va[:, 0] - vb[:, 0], va[:, 1] - vb[:, 1]
+        dvx, dvy = dx[:, 2], dx[:, 3]
         keep = np.abs(dvx * ux + dvy * uy) < c.merge_speed_mps
         if resolved is not None:  # tracks on the two members of a resolved pair are two vehicles
             pair, det = resolved
             keep &= ~((pair[ia] >= 0) & (pair[ia] == pair[ib]) & (det[ia] != det[ib]))
-        if not keep.any():  # no two tracks move alike: nothing is boxed, no duplicate
+        sel = keep.nonzero()[0]
+        if sel.size == 0:  # no two tracks move alike: nothing is boxed, no duplicate
             tracks.close_run = np.zeros(t, np.int32)
             return out
-        ia, ib = ia[keep], ib[keep]
-        dvx, dvy, ux, uy = dvx[keep], dvy[keep], ux[keep], uy[keep]
-        dv_across = np.abs(dvx * uy - dvy * ux)
+        ia, ib, dx, ux, uy = ia[sel], ib[sel], dx[sel], ux[sel], uy[sel]
+        dv_across = np.abs(dx[:, 2] * uy - dx[:, 3] * ux)
         reach = same_vehicle_along_m(c, tracks)
-        dx = x[ia] - x[ib]
         boxed = (np.abs(dx[:, 0]) < c.merge_lateral_m) & (np.abs(dx[:, 1]) < np.maximum(reach[ia], reach[ib]))
         # same place, same speed along, but moving apart or together across: two vehicles crossing each
         # other's path pass through the box within a second; a duplicate stays in it
-        run = np.zeros(t, np.int32)
+        keep = dv_across < c.merge_lateral_speed_mps
         if boxed.any():
-            run[ia[boxed]] = run[ib[boxed]] = 1
-        tracks.close_run = np.where(run > 0, tracks.close_run + 1, 0).astype(np.int32, copy=False)
-        slow = dv_across < c.merge_lateral_speed_mps
-        lasting = np.minimum(tracks.close_run[ia], tracks.close_run[ib]) >= c.merge_persist_frames
-        keep = slow | (boxed & lasting)
-        if not keep.any():
+            run = np.zeros(t, bool)
+            run[ia[boxed]] = run[ib[boxed]] = True
+            tracks.close_run = np.where(run, tracks.close_run + 1, 0).astype(np.int32, copy=False)
+            keep |= boxed & (np.minimum(tracks.close_run[ia], tracks.close_run[ib]) >= c.merge_persist_frames)
+        else:  # nothing boxed: every run ends, and no pair lasted (merge_persist_frames >= 1)
+            tracks.close_run = np.zeros(t, np.int32)
+        sel = keep.nonzero()[0]
+        if sel.size == 0:
             return out
-        ia, ib, boxed, dx = ia[keep], ib[keep], boxed[keep], dx[keep]
-        close = boxed
+        ia, ib, close, dx = ia[sel], ib[sel], boxed[sel], dx[sel]
         # the diagonal of extent_cov(x, ext_var) (the whole matrices only for the pairs that need a solve)
         head = heading(x)
         u, w = head
         iso = 1.0 - w
-        pd = np.array([tracks.p[:, 0, 0] + tracks.ext_var * (w * (u[:, 0] * u[:, 0]) + iso),
-                       tracks.p[:, 1, 1] + tracks.ext_var * (w * (u[:, 1] * u[:, 1]) + iso)]).T  # (T, 2)
+        pd = np.empty((t, 2))
+        pd[:, 0] = tracks.p[:, 0, 0] + tracks.ext_var * (w * (u[:, 0] * u[:, 0]) + iso)
+        pd[:, 1] = tracks.p[:, 1, 1] + tracks.ext_var * (w * (u[:, 1] * u[:, 1]) + iso)
         # a marginal Mahalanobis distance never exceeds the joint one: prune before the 4x4 solves
-        marg = (dx[:, :2] ** 2 < self._state_gamma * (pd[ia] + pd[ib])).all(axis=1)
-        rest = (~close & marg).nonzero()[0]
+        dd = dx[:, :2] * dx[:, :2] < self._state_gamma * (pd[ia] + pd[ib])
+        rest = (~close & dd[:, 0] & dd[:, 1]).nonzero()[0]
         if rest.size:
             ext = extent_cov(x, tracks.ext_var, head)
             ja, jb = ia[rest], ib[rest]
