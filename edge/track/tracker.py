@@ -142,20 +142,25 @@ class TrackTable:
 
     def append(self, x: np.ndarray, p: np.ndarray, ext_var: float, keep_prob: float = 0.5) -> None:
         k = x.shape[0]
-        self.xm = np.concatenate([self.xm, np.repeat(x[:, None], 2, axis=1)])
-        self.pm = np.concatenate([self.pm, np.repeat(p[:, None], 2, axis=1)])
-        self.mu = np.concatenate([self.mu, np.tile([keep_prob, 1.0 - keep_prob], (k, 1))])
-        self.x = np.concatenate([self.x, x])
-        self.p = np.concatenate([self.p, p])
-        self.track_id = np.concatenate([self.track_id, np.zeros(k, dtype=np.int32)])
-        self.age = np.concatenate([self.age, np.ones(k, dtype=np.int32)])
-        self.hits = np.concatenate([self.hits, np.ones(k, dtype=np.int32)])
-        self.misses = np.concatenate([self.misses, np.zeros(k, dtype=np.int32)])
-        self.history = np.concatenate([self.history, np.ones(k, dtype=np.uint32)])
-        self.confirmed = np.concatenate([self.confirmed, np.zeros(k, dtype=bool)])
-        self.moved = np.concatenate([self.moved, np.zeros(k, dtype=bool)])
-        self.ext_var = np.concatenate([self.ext_var, np.full(k, ext_var)])
-        self.close_run = np.concatenate([self.close_run, np.zeros(k, dtype=np.int32)])
+        cat = np.concatenate
+        zeros, ones = np.zeros(k, dtype=np.int32), np.ones(k, dtype=np.int32)
+        no = np.zeros(k, dtype=bool)
+        mu = np.empty((k, 2))
+        mu[:, 0], mu[:, 1] = keep_prob, 1.0 - keep_prob
+        self.xm = cat([self.xm, np.repeat(x[:, None], 2, axis=1)])
+        self.pm = cat([self.pm, np.repeat(p[:, None], 2, axis=1)])
+        self.mu = cat([self.mu, mu])
+        self.x = cat([self.x, x])
+        self.p = cat([self.p, p])
+        self.track_id = cat([self.track_id, zeros])
+        self.age = cat([self.age, ones])
+        self.hits = cat([self.hits, ones])
+        self.misses = cat([self.misses, zeros])
+        self.history = cat([self.history, np.ones(k, dtype=np.uint32)])
+        self.confirmed = cat([self.confirmed, no])
+        self.moved = cat([self.moved, no])
+        self.ext_var = cat([self.ext_var, np.full(k, ext_var)])
+        self.close_run = cat([self.close_run, zeros])
 
 
 @dataclass
@@ -627,8 +632,8 @@ class PdafTracker:
             used = (inn.d2 <= self.associator.exclusion_gamma[meas.z.shape[1]]).any(axis=0)
             tr.age += 1
             tr.hits += hit
-            tr.misses = np.where(hit, 0, tr.misses + 1).astype(np.int32, copy=False)
-            tr.history = ((tr.history << np.uint32(1)) | hit.astype(np.uint32)).astype(np.uint32, copy=False)
+            tr.misses = (tr.misses + 1) * ~hit  # int32: 0 on a hit
+            tr.history = (tr.history << np.uint32(1)) | hit  # uint32, bit 0 = this frame
             if cfg.reanchor_m > 0 and m and meas.with_radial_speed:
                 self._reanchor(meas, gated, hit, used)
             # moving for sure: the velocity is significantly non-zero (v' P_v^-1 v) and fast enough
@@ -678,9 +683,11 @@ class PdafTracker:
         vehicle whose body the track sat on. Marks the detection used (no seed)."""
         c = self.config
         tr = self.tracks
-        miss = np.flatnonzero(tr.confirmed & ~hit)
-        free = np.flatnonzero(~gated.any(axis=0))
-        if miss.size == 0 or free.size == 0:
+        miss = (tr.confirmed & ~hit).nonzero()[0]
+        if miss.size == 0:
+            return
+        free = (~gated.any(axis=0)).nonzero()[0]
+        if free.size == 0:
             return
         st, z = tr.x[miss], meas.z[free]
         rho_t = np.maximum(np.hypot(st[:, 0], st[:, 1]), 1e-3)
@@ -707,32 +714,50 @@ class PdafTracker:
 
     def published(self) -> tuple[TrackState, ...]:
         tr = self.tracks
-        sel = np.ones(len(tr), dtype=bool) if self.config.publish_tentative else tr.confirmed.copy()
-        sel &= tr.misses <= self.config.publish_max_misses
+        if self.config.publish_tentative:
+            sel = tr.misses <= self.config.publish_max_misses
+        else:
+            sel = tr.confirmed & (tr.misses <= self.config.publish_max_misses)
         idx = sel.nonzero()[0]
         if idx.size == 0:
             return ()
         st = tr.x[idx]
-        rho = np.hypot(st[:, 0], st[:, 1])
-        vr = np.divide(st[:, 0] * st[:, 2] + st[:, 1] * st[:, 3], rho, out=np.zeros_like(rho), where=rho > 0)
-        az = np.arctan2(st[:, 0], st[:, 1])
-        if self.config.publish_length:
-            _, w = heading(st)
-            length = [v if ok else None for v, ok in zip(np.sqrt(12.0 * tr.ext_var[idx]).tolist(), (w >= 1.0).tolist())]
+        x, y, vx, vy = st[:, 0], st[:, 1], st[:, 2], st[:, 3]
+        rho = np.hypot(x, y)
+        num = x * vx + y * vy
+        if (rho > 0).all():  # always, unless a track sits on the radar (min_range_m = 0)
+            vr = num / rho
+        else:
+            vr = np.divide(num, rho, out=np.zeros_like(rho), where=rho > 0)
+        az = np.arctan2(x, y)
+        if self.config.publish_length:  # moving (the weight of heading() is 1 from 1 m/s): the length is known
+            length = [v if ok else None
+                      for v, ok in zip(np.sqrt(12.0 * tr.ext_var[idx]).tolist(), (np.hypot(vx, vy) >= 1.0).tolist())]
         else:
             length = [None] * idx.size
         rows = zip(tr.track_id[idx].tolist(), st.tolist(), rho.tolist(), vr.tolist(), az.tolist(),
                    tr.age[idx].tolist(), tr.hits[idx].tolist(), tr.confirmed[idx].tolist(), length)
-        return tuple(
-            _track_state(tid, x, y, vx, vy, r, v, a, age, hits, conf, ln)
-            for tid, (x, y, vx, vy), r, v, a, age, hits, conf, ln in rows
-        )
+        if not _TRACK_STATE_PLAIN:
+            return tuple(TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=ln)
+                         for tid, (x, y, vx, vy), r, v, a, age, hits, conf, ln in rows)
+        # TrackState(...) without the frozen dataclass's per-field object.__setattr__ (tens of tracks per
+        # frame on the hot path): the same __dict__
+        new, set_dict, cls = _new_object, _set_dict, TrackState
+        out = []
+        for tid, (x, y, vx, vy), r, v, a, age, hits, conf, ln in rows:
+            o = new(cls)
+            set_dict(o, "__dict__", {
+                "track_id": tid, "x_m": x, "y_m": y, "vx_mps": vx, "vy_mps": vy, "range_m": r,
+                "radial_speed_mps": v, "az_rad": a, "age_frames": age, "hits": hits, "confirmed": conf, "lane": None,
+                "cls": None, "class_probability": None, "rcs_dbsm": None, "length_m": ln})
+            out.append(o)
+        return tuple(out)
 
 
 _TRACK_STATE_FIELDS = ("track_id", "x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps", "az_rad",
                        "age_frames", "hits", "confirmed", "lane", "cls", "class_probability", "rcs_dbsm", "length_m")
-# the fast path below knows TrackState's fields; if they change (or it gains a __post_init__ or a factory
-# default), the plain constructor is used
+# the fast path of PdafTracker.published knows TrackState's fields; if they change (or it gains a __post_init__
+# or a factory default), the plain constructor is used
 _TRACK_STATE_PLAIN = (tuple(f.name for f in dataclasses.fields(TrackState)) == _TRACK_STATE_FIELDS
                       and not hasattr(TrackState, "__post_init__")
                       and all(f.default is None for f in dataclasses.fields(TrackState)[11:15]))
@@ -742,7 +767,7 @@ _set_dict = object.__setattr__
 
 def _track_state(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m) -> TrackState:
     """``TrackState(tid, x, ..., conf, length_m=length_m)`` without the frozen dataclass's per-field
-    ``object.__setattr__`` (tens of tracks per frame on the hot path); the same ``__dict__``."""
+    ``object.__setattr__``; the same ``__dict__`` (PdafTracker.published builds it inline)."""
     if not _TRACK_STATE_PLAIN:
         return TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=length_m)
     out = _new_object(TrackState)
