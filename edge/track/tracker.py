@@ -671,8 +671,10 @@ class PdafTracker:
         xu, pu = combined_update(xs, ps, hm, inn_m, np.repeat(beta, 2, axis=0), np.repeat(beta0, 2, axis=0))
         gamma = self.associator.gamma(n)
         vol = unit_ball_volume(n) * gamma ** (n / 2.0) * np.sqrt(inn.det_s)
-        lik = imm.mode_likelihood(inn_m, np.repeat(gated, 2, axis=0), np.repeat(vol, 2), cfg.prob_detect,
-                                  cfg.prob_gate).reshape(t, 2)
+        m = inn_m.d2.shape[1]
+        by_mode = Innovations(inn_m.v.reshape(t, 2, m, n), inn_m.d2.reshape(t, 2, m), inn_m.s, inn_m.s_inv,
+                              inn_m.det_s.reshape(t, 2))  # (track, mode) axes: gate and volume broadcast
+        lik = imm.mode_likelihood(by_mode, gated[:, None, :], vol[:, None], cfg.prob_detect, cfg.prob_gate)
         tr.mu = imm.update_mode_probabilities(cj, lik, cfg.imm_min_mode_prob)
         tr.xm, tr.pm = xu.reshape(t, 2, 4), pu.reshape(t, 2, 4, 4)
         tr.x, tr.p = imm.moment_match(tr.xm, tr.pm, tr.mu)
