@@ -390,11 +390,15 @@ class MofNInitiator:
         if meas.with_radial_speed:
             cand &= np.abs(z[:, 2]) >= c.seed_min_radial_speed_mps
         if len(tracks) and cand.any():
-            lat = np.where(resolved[None, :], c.merge_lateral_m, same_vehicle_lateral_m(c, tracks.x[:, :2])[:, None])
-            near = _box_close(tracks.x[:, :2], z[:, :2], lat, same_vehicle_along_m(c, tracks))
+            xt = tracks.x
+            lat = same_vehicle_lateral_m(c, xt[:, :2])[:, None]
+            if meas.pair is not None:
+                lat = np.where(resolved[None, :], c.merge_lateral_m, lat)
+            d = xt[:, None, :2] - z[None, :, :2]  # (T, M, 2)
+            near = (np.abs(d[..., 0]) < lat) & (np.abs(d[..., 1]) < same_vehicle_along_m(c, tracks)[:, None])
             if meas.with_radial_speed:  # ... and moving like the track
-                rho_t = np.maximum(np.hypot(tracks.x[:, 0], tracks.x[:, 1]), 1e-3)
-                vr_t = (tracks.x[:, 0] * tracks.x[:, 2] + tracks.x[:, 1] * tracks.x[:, 3]) / rho_t
+                rho_t = np.maximum(np.hypot(xt[:, 0], xt[:, 1]), 1e-3)
+                vr_t = (xt[:, 0] * xt[:, 2] + xt[:, 1] * xt[:, 3]) / rho_t
                 near &= np.abs(vr_t[:, None] - z[None, :, 2]) < c.seed_merge_speed_mps
             cand &= ~near.any(axis=0)
         idx = cand.nonzero()[0]
