@@ -177,15 +177,20 @@ class Measurements:
         # one float64 array of the five columns (a handful of detections: few calls, not few flops)
         cols = np.array([det.x_m, det.y_m, det.snr_db, det.radial_speed_mps, det.range_m], dtype=np.float64)
         fin = np.isfinite(cols)
+        every = bool(fin.all())  # the usual frame: no checks column by column
         ok = fin[0] & fin[1]
-        all_ok = bool(ok.all())
+        all_ok = every or bool(ok.all())
         if not all_ok:
             cols, fin = cols[:, ok], fin[:, ok]
         x, y, snr, vr, rng = cols
-        use = use_radial_speed and bool(fin[3:5].all())
+        use = use_radial_speed and (every or bool(fin[3:5].all()))
         if use:
             rho = np.hypot(x, y)
-            ratio = np.divide(rng, rho, out=np.ones_like(rho), where=rho > 1e-6)
+            near = rho <= 1e-6
+            if near.any():
+                ratio = np.divide(rng, rho, out=np.ones_like(rho), where=~near)
+            else:
+                ratio = rng / rho
             z = np.empty((x.size, 3))
             z[:, 2] = vr * ratio
         else:
@@ -200,7 +205,7 @@ class Measurements:
                 pair = None
         else:
             pair = None
-        if not fin[2].all():
+        if not every and not fin[2].all():
             snr = np.nan_to_num(snr, nan=0.0)
         return cls(z, snr, use, pair)
 
@@ -325,11 +330,14 @@ class PdaAssociator:
             inn = innovations(meas.z, zh, h, pp, r)
         n = meas.z.shape[1]
         gamma = self._gamma[n]
-        rank = np.where(confirmed, np.inf, seniority.astype(float))
-        owner = np.where(inn.d2 <= gamma, rank[:, None], -np.inf).max(axis=0) if len(rank) else rank
-        allowed = confirmed[:, None] | (rank[:, None] >= owner[None, :])
-        if meas.pair is not None:  # one of two vehicles resolved in angle: the junior track may be the other one
-            allowed |= (meas.pair >= 0)[None, :]
+        if confirmed.all():  # no tentative track: every track may use every detection
+            allowed = None
+        else:
+            rank = np.where(confirmed, np.inf, seniority.astype(float))
+            owner = np.where(inn.d2 <= gamma, rank[:, None], -np.inf).max(axis=0)
+            allowed = confirmed[:, None] | (rank[:, None] >= owner[None, :])
+            if meas.pair is not None:  # one of two vehicles resolved in angle: the junior track may be the other one
+                allowed |= (meas.pair >= 0)[None, :]
         beta, beta0, gated = association_weights(
             inn, gamma, self.cfg.prob_detect, self.cfg.prob_gate, self.cfg.association, allowed
         )
