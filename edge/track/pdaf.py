@@ -125,15 +125,19 @@ def association_weights(
 def combined_update(
     xp: np.ndarray, pp: np.ndarray, h: np.ndarray, inn: Innovations, beta: np.ndarray, beta0: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """PDAF state estimation: ``xp`` (T, 4), ``pp`` (T, 4, 4) -> posterior (x, P)."""
-    k = pp @ h.transpose(0, 2, 1) @ inn.s_inv  # (T, 4, n)
-    vbar = (beta[:, None, :] @ inn.v)[:, 0, :]  # (T, n)
-    x = xp + (k @ vbar[:, :, None])[:, :, 0]
-    bv = inn.v * beta[:, :, None]
-    spread = bv.transpose(0, 2, 1) @ inn.v - vbar[:, :, None] * vbar[:, None, :]
-    kt = k.transpose(0, 2, 1)
-    pc = pp - k @ inn.s @ kt
-    w0 = beta0[:, None, None]
-    p = w0 * pp + (1.0 - w0) * pc + k @ spread @ kt
-    p = 0.5 * (p + p.transpose(0, 2, 1))
+    """PDAF state estimation: ``xp`` (T, 4), ``pp`` (T, 4, 4) -> posterior (x, P).
+
+    ``P = beta0 P^- + (1 - beta0)(P^- - K S K') + K spread K'`` is evaluated as
+    ``P^- + K (spread - (1 - beta0) S) K'`` (two small matrix products fewer). Leading dimensions broadcast:
+    the IMM updates both modes at once with ``xp`` (T, 2, 4), ``inn`` of shapes (T, 2, ...) and the common
+    weights ``beta`` (T, 1, M), ``beta0`` (T, 1)."""
+    k = pp @ h.swapaxes(-1, -2) @ inn.s_inv  # (..., 4, n)
+    v = inn.v  # (..., M, n)
+    vbar = beta[..., None, :] @ v  # (..., 1, n)
+    kt = k.swapaxes(-1, -2)
+    x = xp + (vbar @ kt)[..., 0, :]
+    spread = (v * beta[..., :, None]).swapaxes(-1, -2) @ v - vbar.swapaxes(-1, -2) * vbar
+    spread -= (1.0 - beta0)[..., None, None] * inn.s
+    p = pp + k @ spread @ kt
+    p = 0.5 * (p + p.swapaxes(-1, -2))
     return x, p

@@ -679,16 +679,15 @@ class PdafTracker:
         tr = self.tracks
         t = xpm.shape[0]
         n = meas.z.shape[1]
-        xs, ps = xpm.reshape(2 * t, 4), ppm.reshape(2 * t, 4, 4)  # rows (track, mode)
-        xu, pu = combined_update(xs, ps, hm, inn_m, np.repeat(beta, 2, axis=0), np.repeat(beta0, 2, axis=0))
+        m = inn_m.d2.shape[1]
+        # (track, mode) axes: the common weights, gate and gate volume broadcast over the modes
+        by_mode = Innovations(inn_m.v.reshape(t, 2, m, n), inn_m.d2.reshape(t, 2, m), inn_m.s.reshape(t, 2, n, n),
+                              inn_m.s_inv.reshape(t, 2, n, n), inn_m.det_s.reshape(t, 2))
+        tr.xm, tr.pm = combined_update(xpm, ppm, hm.reshape(t, 2, n, 4), by_mode, beta[:, None, :], beta0[:, None])
         gamma = self.associator.gamma(n)
         vol = unit_ball_volume(n) * gamma ** (n / 2.0) * np.sqrt(inn.det_s)
-        m = inn_m.d2.shape[1]
-        by_mode = Innovations(inn_m.v.reshape(t, 2, m, n), inn_m.d2.reshape(t, 2, m), inn_m.s, inn_m.s_inv,
-                              inn_m.det_s.reshape(t, 2))  # (track, mode) axes: gate and volume broadcast
         lik = imm.mode_likelihood(by_mode, gated[:, None, :], vol[:, None], cfg.prob_detect, cfg.prob_gate)
         tr.mu = imm.update_mode_probabilities(cj, lik, cfg.imm_min_mode_prob)
-        tr.xm, tr.pm = xu.reshape(t, 2, 4), pu.reshape(t, 2, 4, 4)
         tr.x, tr.p = imm.moment_match(tr.xm, tr.pm, tr.mu)
 
     def _reanchor(self, meas: Measurements, gated: np.ndarray, hit: np.ndarray, used: np.ndarray) -> None:
