@@ -86,19 +86,18 @@ def measurement_prediction(xp: np.ndarray, with_radial_speed: bool) -> tuple[np.
     """
     t = xp.shape[0]
     n = 3 if with_radial_speed else 2
-    h = np.repeat(_H_POSITION[n], t, axis=0)  # (t, n, 4): the position rows (the radial-speed row is filled below)
-    if not with_radial_speed:
-        return xp[:, :2].copy(), h
-    zh = np.empty((t, 3))
+    h = np.zeros((t, n, 4))
+    h[:, 0, 0] = 1.0
+    h[:, 1, 1] = 1.0
+    zh = np.empty((t, n))
     zh[:, :2] = xp[:, :2]
-    pos, vel = xp[:, :2], xp[:, 2:]
-    x, y, vx, vy = xp[:, 0], xp[:, 1], xp[:, 2], xp[:, 3]
-    rho = np.maximum(np.hypot(x, y), 1e-3)[:, None]  # (t, 1)
-    vr = (x * vx + y * vy)[:, None] / rho
-    zh[:, 2:] = vr
-    h[:, 2, :2] = (vel - vr * pos / rho) / rho  # (vx - vr x / rho) / rho, (vy - vr y / rho) / rho
-    h[:, 2, 2:] = pos / rho
+    if with_radial_speed:
+        x, y, vx, vy = xp[:, 0], xp[:, 1], xp[:, 2], xp[:, 3]
+        rho = np.maximum(np.hypot(x, y), 1e-3)
+        vr = (x * vx + y * vy) / rho
+        zh[:, 2] = vr
+        h[:, 2, 0] = (vx - vr * x / rho) / rho
+        h[:, 2, 1] = (vy - vr * y / rho) / rho
+        h[:, 2, 2] = x / rho
+        h[:, 2, 3] = y / rho
     return zh, h
-
-
-_H_POSITION = {2: np.eye(2, 4)[None], 3: np.eye(3, 4)[None] * [[1.0], [1.0], [0.0]]}  # (1, n, 4): x, y rows (row 2 zero)
