@@ -147,8 +147,8 @@ class TrackTable:
         no = np.zeros(k, dtype=bool)
         mu = np.empty((k, 2))
         mu[:, 0], mu[:, 1] = keep_prob, 1.0 - keep_prob
-        self.xm = cat([self.xm, np.repeat(x[:, None], 2, axis=1)])
-        self.pm = cat([self.pm, np.repeat(p[:, None], 2, axis=1)])
+        self.xm = cat([self.xm, x[:, None].repeat(2, axis=1)])
+        self.pm = cat([self.pm, p[:, None].repeat(2, axis=1)])
         self.mu = cat([self.mu, mu])
         self.x = cat([self.x, x])
         self.p = cat([self.p, p])
@@ -413,15 +413,19 @@ class MofNInitiator:
         if idx.size == 0:
             return 0
         # one seed per vehicle: drop a candidate when a stronger one lies in its merge box
-        zc, snr = z.take(idx, axis=0), meas.snr_db[idx]
-        lat_c = np.where(resolved[idx][None, :] & resolved[idx][:, None], c.merge_lateral_m,
-                         same_vehicle_lateral_m(c, zc[:, :2])[:, None])
-        close = _box_close(zc[:, :2], zc[:, :2], lat_c, c.init_merge_along_m)
-        if meas.with_radial_speed:  # detections of one vehicle share its radial speed
-            close &= np.abs(zc[:, None, 2] - zc[None, :, 2]) < c.seed_merge_speed_mps
-        order = np.arange(idx.size)
-        stronger = (snr[None, :] > snr[:, None]) | ((snr[None, :] == snr[:, None]) & (order[None, :] < order[:, None]))
-        seeds = zc.compress(~(close & stronger).any(axis=1), axis=0)
+        zc = z.take(idx, axis=0)
+        if idx.size == 1:  # one candidate: nothing to merge
+            seeds = zc
+        else:
+            snr = meas.snr_db[idx]
+            lat_c = np.where(resolved[idx][None, :] & resolved[idx][:, None], c.merge_lateral_m,
+                             same_vehicle_lateral_m(c, zc[:, :2])[:, None])
+            close = _box_close(zc[:, :2], zc[:, :2], lat_c, c.init_merge_along_m)
+            if meas.with_radial_speed:  # detections of one vehicle share its radial speed
+                close &= np.abs(zc[:, None, 2] - zc[None, :, 2]) < c.seed_merge_speed_mps
+            order = np.arange(idx.size)
+            stronger = (snr[None, :] > snr[:, None]) | ((snr[None, :] == snr[:, None]) & (order[None, :] < order[:, None]))
+            seeds = zc.compress(~(close & stronger).any(axis=1), axis=0)
         room = c.max_tracks - len(tracks)
         if room <= 0:
             log.debug("track table full (%d): %d seeds dropped", c.max_tracks, seeds.shape[0])
@@ -440,9 +444,13 @@ class MofNInitiator:
             proj = cy * seeds[:, 1] - sy * seeds[:, 0]  # e_s . p
             rho_s = np.hypot(seeds[:, 0], seeds[:, 1])
             ok = np.abs(proj) > 1.0
-            v_s = np.where(ok, seeds[:, 2] * rho_s / np.where(ok, proj, 1.0), 0.0)
+            if ok.all():  # the usual case: no seed right beside the radar across the road
+                v_s = seeds[:, 2] * rho_s / proj
+                var_s = np.full(k, c.init_along_speed_sigma_mps**2)
+            else:
+                v_s = np.where(ok, seeds[:, 2] * rho_s / np.where(ok, proj, 1.0), 0.0)
+                var_s = np.where(ok, c.init_along_speed_sigma_mps**2, c.init_speed_sigma_mps**2)
             x0[:, 2], x0[:, 3] = -sy * v_s, cy * v_s
-            var_s = np.where(ok, c.init_along_speed_sigma_mps**2, c.init_speed_sigma_mps**2)
             var_u = c.init_lateral_speed_sigma_mps**2
             p0[:, 2, 2] = cy * cy * var_u + sy * sy * var_s
             p0[:, 3, 3] = sy * sy * var_u + cy * cy * var_s
