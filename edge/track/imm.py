@@ -79,15 +79,18 @@ def mix(xm: np.ndarray, pm: np.ndarray, mu: np.ndarray, pi: np.ndarray) -> tuple
 
     With two modes ``x_i - x0_j`` is ``w_1j D`` or ``-w_0j D`` (``D = x_0 - x_1``), so the spread term
     ``sum_i w_ij d d'`` is ``w_0j w_1j D D'``: no (T, 2, 2, 4, 4) intermediate."""
+    t = xm.shape[0]
     joint = mu[:, :, None] * pi[None, :, :]  # (T, i, j) = pi_ij mu_i
     c = joint[:, 0] + joint[:, 1]  # (T, j): the sum over the two i
     w = joint / np.maximum(c, 1e-300)[:, None, :]  # (T, i, j)
-    x0 = w.transpose(0, 2, 1) @ xm  # (T, j, 4)
+    wt = w.swapaxes(1, 2)  # (T, j, i)
+    x0 = wt @ xm  # (T, j, 4)
     d = xm[:, 0] - xm[:, 1]
-    dd = d[:, :, None] * d[:, None, :]  # (T, 4, 4)
-    w0, w1 = w[:, 0, :, None, None], w[:, 1, :, None, None]  # (T, j, 1, 1)
-    p0 = w0 * pm[:, 0, None] + w1 * pm[:, 1, None] + (w0 * w1) * dd[:, None]
-    return x0, p0, c
+    dd = (d[:, :, None] * d[:, None, :]).reshape(t, 1, 16)
+    # sum_i w_ij P_i as one small matrix product over the flattened covariances (fewer broadcasting operations)
+    p0 = wt @ pm.reshape(t, 2, 16)  # (T, j, 16)
+    p0 += (w[:, 0] * w[:, 1])[:, :, None] * dd
+    return x0, p0.reshape(t, 2, 4, 4), c
 
 
 def predict_modes(x0: np.ndarray, p0: np.ndarray, f: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -100,13 +103,13 @@ def predict_modes(x0: np.ndarray, p0: np.ndarray, f: np.ndarray, q: np.ndarray) 
 def moment_match(xm: np.ndarray, pm: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Gaussian with the mean and covariance of the mixture ``sum_j w_j N(xm_j, pm_j)`` of two modes:
     (T, 4), (T, 4, 4); the spread term is ``w_0 w_1 D D'``, ``D = x_0 - x_1``."""
-    w0, w1 = w[:, 0, None], w[:, 1, None]
-    x = w0 * xm[:, 0] + w1 * xm[:, 1]
+    t = xm.shape[0]
+    wr = w[:, None, :]  # (T, 1, 2)
+    x = (wr @ xm)[:, 0]  # sum_j w_j x_j as small matrix products (fewer broadcasting operations)
     d = xm[:, 0] - xm[:, 1]
-    d *= np.sqrt(w0 * w1)
-    p = w0[:, :, None] * pm[:, 0]
-    p += w1[:, :, None] * pm[:, 1]
-    p += d[:, :, None] * d[:, None, :]  # symmetric inputs give an exactly symmetric sum
+    d *= np.sqrt(w[:, 0] * w[:, 1])[:, None]
+    p = (wr @ pm.reshape(t, 2, 16)).reshape(t, 4, 4)
+    p += d[:, :, None] * d[:, None, :]  # every element is summed alike: symmetric inputs give a symmetric sum
     return x, p
 
 
