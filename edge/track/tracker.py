@@ -565,18 +565,22 @@ class TrackDeleter:
         if sel.size == 0:
             return out
         ia, ib, close, dx = ia[sel], ib[sel], boxed[sel], dx.take(sel, axis=0)
-        # the diagonal of extent_cov(x, ext_var) (the whole matrices only for the pairs that need a solve)
-        head = heading(x)
-        u, w = head
+        # the diagonal of extent_cov(x, ext_var) (the whole matrices only for the pairs that need a solve),
+        # column by column: heading() without its two-column forms
+        sp = np.hypot(x[:, 2], x[:, 3])
+        nrm_t = np.maximum(sp, 1e-9)
+        ux_t, uy_t = x[:, 2] / nrm_t, x[:, 3] / nrm_t
+        w = np.minimum(np.maximum(sp, 0.0), 1.0)
         iso = 1.0 - w
-        pd = np.empty((t, 2))
-        pd[:, 0] = tracks.p[:, 0, 0] + tracks.ext_var * (w * (u[:, 0] * u[:, 0]) + iso)
-        pd[:, 1] = tracks.p[:, 1, 1] + tracks.ext_var * (w * (u[:, 1] * u[:, 1]) + iso)
+        pdx = tracks.p[:, 0, 0] + tracks.ext_var * (w * (ux_t * ux_t) + iso)
+        pdy = tracks.p[:, 1, 1] + tracks.ext_var * (w * (uy_t * uy_t) + iso)
         # a marginal Mahalanobis distance never exceeds the joint one: prune before the 4x4 solves
-        dd = dx[:, :2] * dx[:, :2] < self._state_gamma * (pd.take(ia, axis=0) + pd.take(ib, axis=0))
-        rest = (~close & dd[:, 0] & dd[:, 1]).nonzero()[0]
+        dxx, dxy = dx[:, 0], dx[:, 1]
+        marg = dxx * dxx < self._state_gamma * (pdx[ia] + pdx[ib])
+        marg &= dxy * dxy < self._state_gamma * (pdy[ia] + pdy[ib])
+        rest = (marg & ~close).nonzero()[0]
         if rest.size:
-            ext = extent_cov(x, tracks.ext_var, head)
+            ext = extent_cov(x, tracks.ext_var)
             ja, jb = ia[rest], ib[rest]
             psum = tracks.p.take(ja, axis=0) + tracks.p.take(jb, axis=0)
             psum[:, :2, :2] += ext.take(ja, axis=0) + ext.take(jb, axis=0)
@@ -714,9 +718,11 @@ class PdafTracker:
         st, z = tr.x.take(miss, axis=0), meas.z.take(free, axis=0)
         rho_t = np.maximum(np.hypot(st[:, 0], st[:, 1]), 1e-3)
         vr_t = (st[:, 0] * st[:, 2] + st[:, 1] * st[:, 3]) / rho_t
+        ok = np.abs(vr_t[:, None] - z[None, :, 2]) < c.reanchor_speed_mps
+        if not ok.any():  # the usual frame: no unclaimed detection at a missed track's radial speed
+            return
         nearer = rho_t[:, None] - np.hypot(z[:, 0], z[:, 1])[None, :]  # (k, f) > 0: the detection is nearer
-        ok = (nearer > 0) & (nearer <= c.reanchor_m) & (np.abs(st[:, 0, None] - z[None, :, 0]) < c.merge_lateral_m) & (
-            np.abs(vr_t[:, None] - z[None, :, 2]) < c.reanchor_speed_mps)
+        ok &= (nearer > 0) & (nearer <= c.reanchor_m) & (np.abs(st[:, 0, None] - z[None, :, 0]) < c.merge_lateral_m)
         has = ok.any(axis=1)
         if not has.any():
             return
