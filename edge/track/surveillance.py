@@ -125,6 +125,7 @@ class SurveillanceTracker:
         if self.tracker.config.merge_ratio > 0:
             self.tracker.occlusion_test = self._hidden_in
         self._frame_sizes = np.zeros(0, dtype=np.int64)
+        self.absorbed = 0  # clusters that joined a track's frame as its co-range fragments
         self.segmenter = EventSegmenter(events or EventConfig(), threshold)
         self.classifier: Any  # WeightedKNN or OnnxKnnClassifier (same predict interface), or None
         if not classify:
@@ -146,6 +147,8 @@ class SurveillanceTracker:
         self._log: dict[int, SignatureLog] = {}  # track id -> per-frame cluster sums (its own and its fragments')
         self._links: dict[int, dict[int, int]] = {}  # track id -> {other track id: frames with adjacent clusters}
         self.fragments = 0  # tracks whose cells joined another track's signatures
+        self.continued = 0  # ended tracks continued by a later track of the same target
+        self._start_ns: dict[int, int] = {}  # track id -> start of the earliest track it continues
 
     @classmethod
     def from_config(cls, frontend: FrontendInfo, config: Any, threshold: float) -> "SurveillanceTracker":
@@ -192,8 +195,9 @@ class SurveillanceTracker:
             self._acc[tid] = TrackFeatureAccumulator(self.extractor.config.extent_percentile,
                                                      vmax_kmh=self.extractor.speed_vmax_kmh)
             self._speed[tid] = RadialSpeedEstimator(self.cylinder.vmax_kmh)
-            if self.tracker.config.fragment_gap_m > 0:  # the rows are only ever united with a fragment's
-                self._log[tid] = SignatureLog()
+            cfg_t = self.tracker.config
+            if cfg_t.fragment_gap_m > 0 or cfg_t.continuation_speed_kmh > 0:  # united with a fragment's or
+                self._log[tid] = SignatureLog()  # an earlier track's rows; else never read
             self._links[tid] = {}
         t_s = t_ns * 1e-9 if seq is None else int(seq) * self.frame_period_s
         frame_key = int(round(t_s / self.frame_period_s))
@@ -201,6 +205,10 @@ class SurveillanceTracker:
         n_aid = self.tracker.config.doppler_range_rate_frames
         by_id = {tr.track_id: tr for tr in self.tracker.tracks}
         merged: list[int] = []
+        parts: dict[int, list[int]] = {}  # track id -> labels of its co-range fragments this frame
+        for j, tid in tstep.absorbed.items():
+            parts.setdefault(tid, []).append(int(labels[j]))
+        self.absorbed += len(tstep.absorbed)
         for tid, j in tstep.assigned.items():
             lab = labels[j]
             if self._is_merged(tid, int(sig.n_points[lab]), self._other_track_near(tid, sig.centroid[lab], pred)):
@@ -210,14 +218,21 @@ class SurveillanceTracker:
                     tr.last_measurement = pred[tid][[0, 2, 4]].copy()
                 merged.append(tid)
                 continue
-            lo, hi = float(sig.range_lo_m[lab]), float(sig.range_hi_m[lab])
-            self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab], hi - lo,
-                               sig.doppler_kmh[lab])
+            own = [int(lab)] + parts.get(tid, [])
+            lo, hi = float(np.min(sig.range_lo_m[own])), float(np.max(sig.range_hi_m[own]))
+            n_lab = float(np.sum(sig.n_points[own]))
+            if len(own) == 1:
+                circ, rcs, r_mean = sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab]
+            else:  # the union of the track's cluster and its co-range fragments (eqs. 17, 18 on all cells)
+                res = math.hypot(float(np.sum(sig.cos_sum[own])), float(np.sum(sig.sin_sum[own])))
+                circ = 1.0 - res / n_lab
+                rcs = float(np.sum(sig.rcs[own]))
+                r_mean = float(np.sum(sig.n_points[own] * sig.range_m[own])) / n_lab
+            self._acc[tid].add(t_s, circ, rcs, r_mean, hi - lo, sig.doppler_kmh[lab])
             log_ = self._log.get(tid)
             if log_ is not None:
-                n_lab = float(sig.n_points[lab])
-                log_.add(frame_key, t_s, n_lab, sig.cos_sum[lab], sig.sin_sum[lab], sig.rcs[lab],
-                         n_lab * float(sig.range_m[lab]), lo, hi, float(sig.doppler_kmh[lab]))
+                log_.add(frame_key, t_s, n_lab, float(np.sum(sig.cos_sum[own])), float(np.sum(sig.sin_sum[own])),
+                         rcs, n_lab * float(r_mean), lo, hi, float(sig.doppler_kmh[lab]))
             recorded.append((tid, int(lab)))
             spd = self._speed[tid]
             spd.add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
@@ -292,11 +307,54 @@ class SurveillanceTracker:
                 self._log[partner].extend(self._log[tid])
                 self.fragments += 1
                 self._forget(tid, counted=False)
+            elif is_ended and (succ := self._successor(tr, alive)) is not None:
+                self._log[succ].extend(self._log[tid])
+                self._speed[succ].prepend(self._speed[tid])
+                self._start_ns[succ] = self._start_ns.get(tid, int(tr.created_ns))
+                self.continued += 1
+                self._forget(tid, counted=False)
             elif is_ended:
                 out.append(self._finish(tr))
             else:
                 self._forget(tid)
         return out
+
+    def _successor(self, tr: AlphaBetaTrack, alive: set[int]) -> int | None:
+        """The live track that continues the ending track ``tr`` (``continuation_speed_kmh``), or None.
+
+        Candidates started after ``tr``'s last cluster; the gap from ``tr``'s last cluster to the
+        candidate's first one must be walked at ``tr``'s mean radial speed ``v`` (within
+        ``max(continuation_speed_kmh, |v| / 2)``), or start within ``continuation_near_m`` of it (the
+        speed of a track of a few frames can have the wrong alias). The nearest to ``tr``'s extrapolated range wins."""
+        cfg = self.tracker.config
+        if cfg.continuation_speed_kmh <= 0 or not alive:
+            return None
+        spd = self._speed.get(tr.track_id)
+        log_ = self._log.get(tr.track_id)
+        if spd is None or log_ is None or len(spd) == 0:
+            return None
+        t_a, r_a, _ = spd.last()
+        if r_a < cfg.continuation_min_range_m:
+            return None
+        v_a = spd.mean_radial_speed_kmh()
+        if not math.isfinite(v_a):
+            return None
+        best, best_err = None, math.inf
+        for tid in alive:
+            other = self._speed.get(tid)
+            if other is None or len(other) == 0 or tid not in self._log:
+                continue
+            t_b, r_b, _ = other.first()
+            dt = t_b - t_a
+            if not dt > 0:
+                continue
+            v_gap = (r_b - r_a) / dt * 3.6
+            err = abs(v_gap - v_a)
+            ok = err <= max(cfg.continuation_speed_kmh, 0.5 * abs(v_a))
+            ok = ok or abs(r_b - r_a) <= cfg.continuation_near_m
+            if ok and err < best_err:
+                best, best_err = tid, err
+        return best
 
     def _hidden_in(self, tr: AlphaBetaTrack, j: int) -> bool:
         """Occlusion test of the alpha-beta tracker: is cluster ``j`` (an assigned one) large enough,
@@ -355,6 +413,7 @@ class SurveillanceTracker:
         self._seen_t.pop(track_id, None)
         self._size.pop(track_id, None)
         self._merged_run.pop(track_id, None)
+        self._start_ns.pop(track_id, None)
         self.dropped += int(counted)
 
     def _finish(self, tr: AlphaBetaTrack) -> ClassifiedEvent:
@@ -362,6 +421,7 @@ class SurveillanceTracker:
         own = self._acc.get(tr.track_id) or TrackFeatureAccumulator(pct)
         log_ = self._log.get(tr.track_id)
         spd = self._speed.get(tr.track_id)
+        start_ns = self._start_ns.get(tr.track_id, int(tr.created_ns))  # of the earliest track it continues
         self._forget(tr.track_id, counted=False)  # an ended track, classified below: not a dropped one
         # the union with absorbed fragments; a track without any has exactly its own running features
         acc = (log_.accumulator(pct, self.extractor.speed_vmax_kmh) if log_ is not None and len(log_) > own.n
@@ -388,7 +448,7 @@ class SurveillanceTracker:
             probabilities=probs,
             mean_radial_speed_kmh=float(v),
             direction="approaching" if v < 0 else "receding",
-            start_ns=int(tr.created_ns),
+            start_ns=start_ns,
             end_ns=int(tr.last_seen_ns),
             features=feats,
         )
