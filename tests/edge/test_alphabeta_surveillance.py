@@ -161,3 +161,47 @@ def test_kinematics_run_on_the_sensor_clock_given_by_seq():
     assert len(out_a) == 1 and out_a[0].mean_radial_speed_kmh == pytest.approx(-25.0, abs=1.0)
     assert out_a[0].mean_radial_speed_kmh == out_b[0].mean_radial_speed_kmh
     assert out_b[0].end_ns < 1e9  # events keep the caller's (host) stamps
+
+
+def _estimator(t_s, r_m, v_kmh):
+    from edge.classify.features import RadialSpeedEstimator
+
+    e = RadialSpeedEstimator(VMAX)
+    for t, r in zip(t_s, r_m):
+        e.add(t, r, wrap(v_kmh))
+    return e
+
+
+def test_continuation_picks_the_track_started_where_the_ended_one_would_be():
+    """A receding car (20 km/h) lost at 11.6 m: of the tracks started after its last cluster, the one
+    whose first cluster is where 20 km/h takes it continues it; one that would need 6.5 km/h does not,
+    nor anything when the continuation is off or the car was last seen closer than 3 m."""
+    from edge.classify.features import SignatureLog
+    from edge.track.alphabeta import AlphaBetaTrack
+
+    def tracker(**kw):
+        st = SurveillanceTracker(FE, threshold=2.0, classify=False, tracking=AlphaBetaConfig(**kw))
+        t = np.arange(6) * T
+        st._speed[1] = _estimator(t, 6.0 + 20.0 / 3.6 * t, 20.0)
+        st._speed[2] = _estimator([1.8, 2.0], [16.0, 17.1], 20.0)  # 4.4 m in 0.8 s: 20 km/h
+        st._speed[3] = _estimator([1.8, 2.0], [13.0, 13.1], 20.0)  # 1.4 m in 0.8 s: 6.5 km/h
+        for tid in (1, 2, 3):
+            st._log[tid] = SignatureLog()
+        return st
+
+    tr = AlphaBetaTrack(1, np.zeros(6), np.zeros(3), created_ns=0, last_seen_ns=int(1e9))
+    assert tracker()._successor(tr, {2, 3}) == 2
+    assert tracker()._successor(tr, {3}) is None
+    assert tracker(continuation_speed_kmh=0.0)._successor(tr, {2, 3}) is None
+    assert tracker(continuation_min_range_m=12.0)._successor(tr, {2, 3}) is None
+    st = tracker()
+    st._speed[3] = _estimator([1.8, 2.0], [12.2, 12.5], 3.0)  # 0.64 m from where the car was lost
+    assert st._successor(tr, {3}) == 3
+
+
+def test_radial_speed_estimator_prepend_keeps_time_order():
+    a = _estimator([0.0, 0.2, 0.4], [5.0, 6.0, 7.0], 18.0)
+    b = _estimator([0.4, 1.0, 1.2], [7.0, 10.0, 11.0], 18.0)
+    b.prepend(a)
+    assert len(b) == 5 and b.first()[:2] == (0.0, 5.0) and b.last()[:2] == (1.2, 11.0)
+    assert b.mean_radial_speed_kmh() == pytest.approx(18.0, abs=0.5)
