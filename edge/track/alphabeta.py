@@ -39,7 +39,12 @@ rate by the track's unaliased radial speed (:class:`edge.track.surveillance.Surv
 published (:meth:`AlphaBetaTracker.confirmed`); ``visibility_count = "with_creation"`` counts the
 creation frame in ``vis`` and ``age`` for the ``th_v`` test (the paper's counters delete a new track
 on its first miss, so a weak target detected in every other frame is never tracked);
-``fragment_gap_m`` makes the surveillance tracker join the signatures of a track's fragments to it.
+``fragment_gap_m`` makes the surveillance tracker join the signatures of a track's fragments to it;
+``corange_fragment_m`` keeps a cluster within that range of a tracked target's cluster from starting
+a track (:attr:`TrackerStep.absorbed`; a younger track assigned one loses it to the most-seen track);
+``range_gate_m`` and ``range_gate_rate_factor`` add a range gate that grows with a track's rate and
+misses; ``shared_span_m``, ``continuation_speed_kmh`` and ``continuation_min_range_m`` are read by
+:class:`edge.track.surveillance.SurveillanceTracker`.
 
 Everything is vectorised over tracks and centroids; the only Python loop is the greedy assignment,
 at most ``min(tracks, centroids)`` iterations of an ``argmin`` over the cost matrix.
@@ -160,6 +165,16 @@ class AlphaBetaConfig:
                   "car); 0 = any other track. 5 vs 0: single-random dev seeds 11/12 1.00/0.95 vs 0.99/0.95, "
                   "multi-random 101/102/103 0.741/0.819/0.768 vs 0.741/0.811/0.768", "min": 0, "max": 1000},
     )
+    shared_span_m: float = field(
+        default=0.5,
+        metadata={"unit": "m", "doc": "beyond the paper: a track (with merge_history_frames own clusters) left without "
+                  "a centroid whose predicted range lies within this of the range span (extent_level_db) of the "
+                  "cluster another track took is hidden in it (two walkers crossing make one cluster for seconds, "
+                  "its centroid between them): it coasts without counting misses, and the other track keeps its "
+                  "prediction too (as merged) when the hidden one is at least 0.4 of its size (a car passing a walker keeps its own updates), so neither "
+                  "is dragged onto the other's path (at most merge_max_frames frames); 0 = off (only the "
+                  "merge_ratio size test)", "min": 0.0, "max": 10.0},
+    )
     merge_max_frames: int = field(
         default=10,
         metadata={"unit": "frames", "doc": "after this many merged frames in a row the larger cluster is accepted as "
@@ -217,19 +232,13 @@ class AlphaBetaConfig:
     continuation_speed_kmh: float = field(
         default=6.0,
         metadata={"unit": "km/h", "doc": "beyond the paper: a track that ends (N_u misses) is the same target as a "
-                  "track started after its last cluster and still alive when the gap between them is walked at the "
-                  "ended track's mean radial speed within this (or within half that speed), or when the new track "
-                  "starts within continuation_near_m of where the ended one was last seen: the ended track's frames "
+                  "track started after its last cluster and still alive when the gap between them is walked in its "
+                  "direction at its mean radial speed or its range rate within this (or within half that speed): "
+                  "the ended track's frames "
                   "join the new one's (one target, one event) instead of being classified on their own. A target "
                   "lost for a few frames (merged with another one's cluster, or ahead of its lagging prediction "
                   "while it accelerates past the radar) otherwise ends and restarts as a second track; 0 = off "
                   "(paper)", "min": 0.0, "max": 1000.0},
-    )
-    continuation_near_m: float = field(
-        default=1.0,
-        metadata={"unit": "m", "doc": "see continuation_speed_kmh: a new track this close in range to where the ended "
-                  "track was last seen continues it whatever their speeds (the speed of a track of a few frames "
-                  "can have the wrong alias)", "min": 0.0, "max": 100.0},
     )
     continuation_min_range_m: float = field(
         default=3.0,

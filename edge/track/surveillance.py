@@ -31,6 +31,25 @@ or speed -- while a track left without a cluster whose prediction lies in such a
 *occluded*: it coasts without counting misses or ageing (at most ``merge_max_frames`` frames), so it
 picks its own cluster up again when the targets separate instead of ending and restarting.
 
+One track per target (Tavanti §II-E, Figs. 9-11: merges and splits resolved in the tracker), each
+measured on multi-random dev seeds (field docs):
+
+* *co-range fragments* (``corange_fragment_m``, in :class:`~edge.track.alphabeta.AlphaBetaTracker`):
+  a jogger's legs at twice the torso's speed wrap around the +-5.4 km/h interval and DBSCAN cuts them
+  off at the same range; such a cluster starts no track (and a younger track assigned one loses it):
+  its cells join the track's signature of the frame (:attr:`~edge.track.alphabeta.TrackerStep.absorbed`);
+* *range gate* (``range_gate_m``): a slow track's coasting prediction does not jump 5 m to another
+  walker (R_gate alone is 6 m | km/h);
+* *shared clusters* (``shared_span_m``): two walkers crossing make one cluster for seconds, its
+  centroid between them; an established track predicted inside the range span of the cluster
+  another track took coasts hidden (no misses), and the other keeps its prediction too when the two
+  are of comparable size, so neither is dragged onto the other's path and both pick their own
+  clusters up when they separate;
+* *continuation* (``continuation_speed_kmh``): a track that ends although a track started after its
+  last cluster lies where its speed (or range rate) in its direction takes it hands its frames to that
+  track -- one event, features and mean speed over the whole passage -- instead of being classified on
+  its own (a motorcycle accelerating in radial speed past the radar outruns its prediction).
+
 *Fragments* (``fragment_gap_m``, ``fragment_link_fraction``; off by default, see the field's doc for
 the measurements): a truck passing beside the radar spans
 several metres of range and a wide Doppler spread, and DBSCAN often splits it into two or three
@@ -125,6 +144,8 @@ class SurveillanceTracker:
         if self.tracker.config.merge_ratio > 0:
             self.tracker.occlusion_test = self._hidden_in
         self._frame_sizes = np.zeros(0, dtype=np.int64)
+        self._frame_lo = self._frame_hi = np.zeros(0)
+        self._shared = {}
         self.absorbed = 0  # clusters that joined a track's frame as its co-range fragments
         self.segmenter = EventSegmenter(events or EventConfig(), threshold)
         self.classifier: Any  # WeightedKNN or OnnxKnnClassifier (same predict interface), or None
@@ -185,6 +206,9 @@ class SurveillanceTracker:
             p = self.tracker.filter.predict(np.stack([tr.state for tr in self.tracker.tracks]))
             pred = {tr.track_id: p[k] for k, tr in enumerate(self.tracker.tracks)}
         self._frame_sizes = np.asarray(sig.n_points)[valid]
+        self._frame_lo = np.asarray(sig.range_lo_m)[valid]
+        self._frame_hi = np.asarray(sig.range_hi_m)[valid]
+        self._shared: dict[int, list[int]] = {}  # centroid index -> ids of the tracks hidden in it by its span
         tstep = self.tracker.step(t_ns, sig.centroid[valid])
         out: list[ClassifiedEvent] = []
         alive = {tr.track_id for tr in self.tracker.tracks} - set(tstep.created)
@@ -211,7 +235,8 @@ class SurveillanceTracker:
         self.absorbed += len(tstep.absorbed)
         for tid, j in tstep.assigned.items():
             lab = labels[j]
-            if self._is_merged(tid, int(sig.n_points[lab]), self._other_track_near(tid, sig.centroid[lab], pred)):
+            shared = self._shares_with(tid, j)
+            if shared or self._is_merged(tid, int(sig.n_points[lab]), self._other_track_near(tid, sig.centroid[lab], pred)):
                 tr = by_id.get(tid)
                 if tr is not None and tid in pred:  # keep the prediction: the centroid is not this target's
                     tr.state = pred[tid]
@@ -322,22 +347,22 @@ class SurveillanceTracker:
     def _successor(self, tr: AlphaBetaTrack, alive: set[int]) -> int | None:
         """The live track that continues the ending track ``tr`` (``continuation_speed_kmh``), or None.
 
-        Candidates started after ``tr``'s last cluster; the gap from ``tr``'s last cluster to the
-        candidate's first one must be walked at ``tr``'s mean radial speed ``v`` (within
-        ``max(continuation_speed_kmh, |v| / 2)``), or start within ``continuation_near_m`` of it (the
-        speed of a track of a few frames can have the wrong alias). The nearest to ``tr``'s extrapolated range wins."""
+        Candidates started after ``tr``'s last cluster, last seen at ``continuation_min_range_m`` or
+        farther; the gap from ``tr``'s last cluster to the candidate's first one must be walked in the
+        direction ``tr`` moved, at ``tr``'s mean radial speed (its unaliased Doppler) or at its range
+        rate (the least-squares slope of its centroids: right when a track of a few frames got the
+        wrong alias), within ``max(continuation_speed_kmh, |v| / 2)``. The smallest mismatch wins."""
         cfg = self.tracker.config
         if cfg.continuation_speed_kmh <= 0 or not alive:
             return None
         spd = self._speed.get(tr.track_id)
-        log_ = self._log.get(tr.track_id)
-        if spd is None or log_ is None or len(spd) == 0:
+        if spd is None or tr.track_id not in self._log or len(spd) < 2:
             return None
         t_a, r_a, _ = spd.last()
         if r_a < cfg.continuation_min_range_m:
             return None
-        v_a = spd.mean_radial_speed_kmh()
-        if not math.isfinite(v_a):
+        speeds = [v for v in (spd.mean_radial_speed_kmh(), spd.reference_rate_kmh()) if math.isfinite(v)]
+        if not speeds:
             return None
         best, best_err = None, math.inf
         for tid in alive:
@@ -349,17 +374,33 @@ class SurveillanceTracker:
             if not dt > 0:
                 continue
             v_gap = (r_b - r_a) / dt * 3.6
-            err = abs(v_gap - v_a)
-            ok = err <= max(cfg.continuation_speed_kmh, 0.5 * abs(v_a))
-            ok = ok or abs(r_b - r_a) <= cfg.continuation_near_m
-            if ok and err < best_err:
-                best, best_err = tid, err
+            for v in speeds:
+                err = abs(v_gap - v)
+                if v_gap * v > 0 and err <= max(cfg.continuation_speed_kmh, 0.5 * abs(v)) and err < best_err:
+                    best, best_err = tid, err
         return best
+
+    def _shares_with(self, track_id: int, j: int) -> bool:
+        """Is centroid ``j`` (assigned to ``track_id``) shared with an established track hidden in its
+        range span (:meth:`_hidden_in`) whose size is at least 0.4 of this track's? Then the
+        centroid lies between the two targets: the track keeps its prediction (as merged)."""
+        others = self._shared.get(j)
+        hist = self._size.get(track_id)
+        if not others or not hist:
+            return False
+        own = float(np.median(hist))
+        return any(float(np.median(self._size[o])) >= 0.4 * own for o in others if self._size.get(o))
 
     def _hidden_in(self, tr: AlphaBetaTrack, j: int) -> bool:
         """Occlusion test of the alpha-beta tracker: is cluster ``j`` (an assigned one) large enough,
-        against ``tr``'s own size, to hold ``tr``'s target merged with another?"""
+        against ``tr``'s own size, to hold ``tr``'s target merged with another, or (``shared_span_m``)
+        does its range span hold ``tr``'s predicted range?"""
         hist = self._size.get(tr.track_id)
+        margin = self.tracker.config.shared_span_m
+        if (margin > 0 and hist and len(hist) >= self.tracker.config.merge_history_frames
+                and self._frame_lo[j] - margin <= float(tr.state[4]) <= self._frame_hi[j] + margin):
+            self._shared.setdefault(j, []).append(tr.track_id)
+            return True
         # a track with fewer than merge_history_frames own clusters has no known size: typically a
         # fragment split off a long vehicle's cluster for a frame or two, which, held as hidden in
         # that cluster, lived (and was published) through the whole passage beside the real track

@@ -175,7 +175,8 @@ def _estimator(t_s, r_m, v_kmh):
 def test_continuation_picks_the_track_started_where_the_ended_one_would_be():
     """A receding car (20 km/h) lost at 11.6 m: of the tracks started after its last cluster, the one
     whose first cluster is where 20 km/h takes it continues it; one that would need 6.5 km/h does not,
-    nor anything when the continuation is off or the car was last seen closer than 3 m."""
+    nor one that moves the other way, nor anything when the continuation is off or the car was last
+    seen closer than the minimum range."""
     from edge.classify.features import SignatureLog
     from edge.track.alphabeta import AlphaBetaTrack
 
@@ -195,8 +196,8 @@ def test_continuation_picks_the_track_started_where_the_ended_one_would_be():
     assert tracker(continuation_speed_kmh=0.0)._successor(tr, {2, 3}) is None
     assert tracker(continuation_min_range_m=12.0)._successor(tr, {2, 3}) is None
     st = tracker()
-    st._speed[3] = _estimator([1.8, 2.0], [12.2, 12.5], 3.0)  # 0.64 m from where the car was lost
-    assert st._successor(tr, {3}) == 3
+    st._speed[3] = _estimator([1.8, 2.0], [7.1, 6.0], -20.0)  # 20 km/h, but towards the radar
+    assert st._successor(tr, {3}) is None
 
 
 def test_radial_speed_estimator_prepend_keeps_time_order():
