@@ -338,11 +338,21 @@ class SurveillanceTracker:
                 self._start_ns[succ] = self._start_ns.get(tid, int(tr.created_ns))
                 self.continued += 1
                 self._forget(tid, counted=False)
+            elif is_ended and self._own_frames(tid) < 2:
+                # seen often enough, but nearly every frame merged with or shared by another target's
+                # cluster: no features to classify (eq. 19 needs two frames), dropped
+                self._forget(tid)
             elif is_ended:
                 out.append(self._finish(tr))
             else:
                 self._forget(tid)
         return out
+
+    def _own_frames(self, track_id: int) -> int:
+        """Frames with signatures of the track (its own clusters, and those of tracks it absorbed)."""
+        acc = self._acc.get(track_id)
+        log_ = self._log.get(track_id)
+        return max(acc.n if acc is not None else 0, log_.frames() if log_ is not None else 0)
 
     def _successor(self, tr: AlphaBetaTrack, alive: set[int]) -> int | None:
         """The live track that continues the ending track ``tr`` (``continuation_speed_kmh``), or None.
