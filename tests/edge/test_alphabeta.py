@@ -356,3 +356,20 @@ def test_corange_centroid_goes_to_the_most_seen_track():
     st = trk.step(5, meas([13.0, 12.9], [3.1, -4.0]))
     assert st.assigned == {1: 0} and st.absorbed == {1: 1}
     assert trk.tracks[1].missed == 1 and trk.tracks[0].missed == 0
+
+
+def test_range_gate_keeps_a_slow_track_from_jumping_to_another_walker():
+    """A walker's track (0.2 m per frame) misses a frame; a centroid 4 m from its prediction is inside
+    R_gate = 6 (m | km/h) but outside the range gate 2.5 + 3 * 0.2 * 2 = 3.7 m: it starts its own
+    track, while with the range gate off (paper) the walker's track takes it."""
+    def run(cfg):
+        trk = AlphaBetaTracker(cfg, CYL)
+        for k in range(6):
+            trk.step(k, meas([10.0 + 0.2 * k], [0.7]))
+        trk.step(6, np.zeros((0, 3)))
+        return trk.step(7, meas([11.4 + 4.0], [0.7]))
+
+    st = run(AlphaBetaConfig())
+    assert st.assigned == {2: 0} and st.created == (2,)
+    st = run(AlphaBetaConfig(range_gate_m=0.0))
+    assert st.assigned == {1: 0} and st.created == ()

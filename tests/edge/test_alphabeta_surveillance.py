@@ -206,3 +206,40 @@ def test_radial_speed_estimator_prepend_keeps_time_order():
     b.prepend(a)
     assert len(b) == 5 and b.first()[:2] == (0.0, 5.0) and b.last()[:2] == (1.2, 11.0)
     assert b.mean_radial_speed_kmh() == pytest.approx(18.0, abs=0.5)
+
+
+def _crossing_points(rng, targets, t, merged):
+    """Like frame_points, but all targets' cells form one cluster (label 0) when ``merged``."""
+    cols = [blob(rng, r0 + vr * t / 3.6, wrap(vr), kind, 0 if merged else k)
+            for k, (kind, r0, vr, _) in enumerate(targets)]
+    cat = [np.concatenate(c) for c in zip(*cols)]
+    return MapPoints(cat[0].astype(np.float32), cat[1].astype(np.float32), cat[2].astype(np.float32),
+                     cat[3].astype(np.int32), cat[4].astype(np.int32), cat[5].astype(np.int32))
+
+
+def _crossing_events(seed, shared_span_m):
+    rng = np.random.default_rng(seed)
+    targets = [("pedestrian", 4.0, 4.0, 0.0), ("pedestrian", 12.0, -4.0, 0.0)]
+    st = SurveillanceTracker(FE, threshold=2.0, classify=False, tracking=AlphaBetaConfig(shared_span_m=shared_span_m),
+                             events=EventConfig())
+    events = []
+    for n in range(40):
+        t = n * T
+        events += st.update(int(round(t * 1e9)), _crossing_points(rng, targets, t, 12 <= n <= 24)).classifications
+    return events + list(st.close())
+
+
+@pytest.mark.parametrize("seed", [5, 6, 7])
+def test_walkers_crossing_in_one_cluster_keep_their_tracks(seed):
+    """Two walkers (4 m receding at 4 km/h, 12 m approaching at 4 km/h) form one cluster for the 13
+    frames around their crossing (DBSCAN cannot part them): both tracks coast through it on their
+    predictions (shared_span_m) and each ends as one event with its own direction and speed. Without
+    the shared-cluster rule (0), seed 7's approaching walker loses its track and restarts."""
+    events = _crossing_events(seed, 0.5)
+    assert len(events) == 2, [(e.track_id, e.mean_radial_speed_kmh) for e in events]
+    by_dir = {e.direction: e for e in events}
+    assert by_dir["receding"].mean_radial_speed_kmh == pytest.approx(4.0, abs=1.0)
+    assert by_dir["approaching"].mean_radial_speed_kmh == pytest.approx(-4.0, abs=1.0)
+    assert by_dir["receding"].track_id == 1 and by_dir["approaching"].track_id == 2
+    if seed == 7:
+        assert len(_crossing_events(seed, 0.0)) == 3
