@@ -202,12 +202,14 @@ class _Path:
 
 
 def _along_road_path(
-    cls: str, speed: float, rng: np.random.Generator, max_duration_s: float, lane: int | None = None
+    cls: str, speed: float, rng: np.random.Generator, max_duration_s: float, lane: int | None = None,
+    keep_right: bool = True,
 ) -> _Path:
     """Approaching or receding along the road/sidewalk, heading jittered a little (aspect varies).
 
     Vehicles keep right on the two-way road: the near lane (x 2-3.5 m) carries approaching traffic,
-    the far lane (x 5-6.5 m) receding traffic.
+    the far lane (x 5-6.5 m) receding traffic. With ``keep_right=False`` (reference sets only) a
+    vehicle's direction is drawn independently of its lane, so both directions pass at both distances.
     """
     if cls == "pedestrian":
         near = rng.random() < NEAR_SIDEWALK_PROBABILITY
@@ -218,7 +220,7 @@ def _along_road_path(
         lane = int(rng.integers(0, 2)) if lane is None else lane
         x = float(rng.uniform(2.0, 3.5) if lane == 0 else rng.uniform(5.0, 6.5))
         jitter = 2.0
-        approaching = lane == 0
+        approaching = lane == 0 if keep_right else bool(rng.random() < 0.5)
     y_far, y_near = 27.0, -2.0
     head = math.radians(rng.uniform(-jitter, jitter))
     length = min(y_far - y_near, speed * max_duration_s)  # slow walkers start nearer
@@ -244,7 +246,7 @@ def _crossing_path(speed: float, rng: np.random.Generator) -> _Path:
 
 def add_event(
     scene: Scene, event: int, classes: list[str], t0_s: float, slot_s: float, rng: np.random.Generator,
-    *, crossing_probability: float = 0.0, stagger_s: float = 0.0,
+    *, crossing_probability: float = 0.0, stagger_s: float = 0.0, keep_right: bool = True,
 ) -> None:
     """Add the targets of one event (ids ``100 * (event + 1) + k``) inside ``[t0, t0 + slot)``."""
     usable = slot_s - QUIET_S - 0.5
@@ -254,14 +256,14 @@ def add_event(
         if cls == "pedestrian" and rng.random() < crossing_probability:
             path = _crossing_path(speed, rng)
         else:
-            path = _along_road_path(cls, speed, rng, usable - stagger_s)
+            path = _along_road_path(cls, speed, rng, usable - stagger_s, keep_right=keep_right)
         latest = max(0.0, usable - path.duration_s)
         start = t0_s + 0.5 + float(rng.uniform(0.0, min(stagger_s, latest)))
         if path.lane >= 0:
             # vehicles in one lane keep a time headway (they cannot overlap); else take the other lane
             for lane in (path.lane, 1 - path.lane):
                 if lane != path.lane:
-                    path = _along_road_path(cls, speed, rng, usable - stagger_s, lane=lane)
+                    path = _along_road_path(cls, speed, rng, usable - stagger_s, lane=lane, keep_right=keep_right)
                     latest = max(0.0, usable - path.duration_s)
                 for _ in range(8):
                     if all(abs(start - t) >= MIN_HEADWAY_S for t in lane_starts[lane]):
@@ -277,27 +279,33 @@ def add_event(
 
 
 def _d2g_events_table(scene: Scene, scenario: Any, spec: dict, rng: np.random.Generator) -> None:
-    """``[[d2g_events]]``: ``mode`` (single|multi), ``events``, ``slot_s``, ``first_event``."""
+    """``[[d2g_events]]``: ``mode`` (single|multi), ``events``, ``slot_s``, ``first_event``, ``keep_right``
+    (default true: approaching vehicles in the near lane, receding ones in the far lane; false draws the
+    direction independently of the lane, for reference sets that cover both geometries)."""
     from hw_sim.scenario import ScenarioError
 
     mode = spec.get("mode", "single")
     n = spec.get("events", 10)
     slot = float(spec.get("slot_s", SLOT_S))
     first = int(spec.get("first_event", 0))
-    if mode not in ("single", "multi") or not isinstance(n, int) or n < 1 or slot < 8.0:
-        raise ScenarioError(f"d2g_events: need mode single|multi, events >= 1, slot_s >= 8; got {spec!r}")
+    keep_right = spec.get("keep_right", True)
+    if (mode not in ("single", "multi") or not isinstance(n, int) or n < 1 or slot < 8.0
+            or not isinstance(keep_right, bool)):
+        raise ScenarioError(f"d2g_events: need mode single|multi, events >= 1, slot_s >= 8, keep_right a boolean; "
+                            f"got {spec!r}")
     order: list[str] = []
     for e in range(n):
         if mode == "single":
             if e % len(SURVEILLANCE_CLASSES) == 0:
                 order = list(rng.permutation(SURVEILLANCE_CLASSES))
             classes = [order[e % len(SURVEILLANCE_CLASSES)]]
-            add_event(scene, first + e, classes, e * slot, slot, rng)
+            add_event(scene, first + e, classes, e * slot, slot, rng, keep_right=keep_right)
         else:
             m = int(rng.integers(2, 5))
             # pedestrians and motorcycles dominate Tavanti's multi-target events (45/26/20/3)
             classes = list(rng.choice(SURVEILLANCE_CLASSES, size=m, p=[0.25, 0.4, 0.07, 0.28]))
-            add_event(scene, first + e, classes, e * slot, slot, rng, crossing_probability=0.3, stagger_s=6.0)
+            add_event(scene, first + e, classes, e * slot, slot, rng, crossing_probability=0.3, stagger_s=6.0,
+                      keep_right=keep_right)
 
 
 def _d2g_target_table(scene: Scene, scenario: Any, spec: dict, rng: np.random.Generator) -> None:
@@ -338,7 +346,7 @@ def site_raw(name: str, description: str, duration_s: float) -> dict[str, Any]:
     }
 
 
-def _event_scenario(mode: str, events: int | None):
+def _event_scenario(mode: str, events: int | None, keep_right: bool = True):
     from hw_sim.scenario import parse_scenario
 
     n = 10 if events is None else int(events)
@@ -347,12 +355,12 @@ def _event_scenario(mode: str, events: int | None):
     name = f"{mode}-random"
     what = "one target per event, classes balanced" if mode == "single" else "two to four targets per event"
     raw = site_raw(name, f"{n} random Distance2Go events ({what}), {SLOT_S:.0f} s each", n * SLOT_S)
-    raw["d2g_events"] = [{"mode": mode, "events": n, "slot_s": SLOT_S}]
+    raw["d2g_events"] = [{"mode": mode, "events": n, "slot_s": SLOT_S, "keep_right": keep_right}]
     return parse_scenario(raw, f"generator:{name}")
 
 
-def single_random(events: int | None = None):
-    return _event_scenario("single", events)
+def single_random(events: int | None = None, keep_right: bool = True):
+    return _event_scenario("single", events, keep_right)
 
 
 def multi_random(events: int | None = None):

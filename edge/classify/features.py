@@ -489,6 +489,27 @@ class RadialSpeedEstimator:
     def __len__(self) -> int:
         return len(self._t)
 
+    def prepend(self, earlier: "RadialSpeedEstimator") -> None:
+        """Put the frames of ``earlier`` (another track of the same target, ended before this one
+        started) before this one's; frames not earlier than this one's first are ignored."""
+        t0 = self._t[0] if self._t else math.inf
+        rows = [(t, r, v) for t, r, v in zip(earlier._t, earlier._r, earlier._v) if t < t0]
+        rows += list(zip(self._t, self._r, self._v))
+        rows = rows[-self._t.maxlen:] if self._t.maxlen else rows
+        self._t.clear(), self._r.clear(), self._v.clear()
+        for t, r, v in rows:
+            self._t.append(t)
+            self._r.append(r)
+            self._v.append(v)
+
+    def first(self) -> tuple[float, float, float]:
+        """``(t_s, range_m, doppler_wrapped_kmh)`` of the first frame (NaNs when empty)."""
+        return (self._t[0], self._r[0], self._v[0]) if self._t else (math.nan, math.nan, math.nan)
+
+    def last(self) -> tuple[float, float, float]:
+        """``(t_s, range_m, doppler_wrapped_kmh)`` of the last frame (NaNs when empty)."""
+        return (self._t[-1], self._r[-1], self._v[-1]) if self._t else (math.nan, math.nan, math.nan)
+
     @staticmethod
     def _slope_kmh(t: np.ndarray, r: np.ndarray) -> float:
         tc = t - t.mean()

@@ -39,7 +39,12 @@ rate by the track's unaliased radial speed (:class:`edge.track.surveillance.Surv
 published (:meth:`AlphaBetaTracker.confirmed`); ``visibility_count = "with_creation"`` counts the
 creation frame in ``vis`` and ``age`` for the ``th_v`` test (the paper's counters delete a new track
 on its first miss, so a weak target detected in every other frame is never tracked);
-``fragment_gap_m`` makes the surveillance tracker join the signatures of a track's fragments to it.
+``fragment_gap_m`` makes the surveillance tracker join the signatures of a track's fragments to it;
+``corange_fragment_m`` keeps a cluster within that range of a tracked target's cluster from starting
+a track (:attr:`TrackerStep.absorbed`; a younger track assigned one loses it to the most-seen track);
+``range_gate_m`` and ``range_gate_rate_factor`` add a range gate that grows with a track's rate and
+misses; ``shared_span_m``, ``continuation_speed_kmh`` and ``continuation_min_range_m`` are read by
+:class:`edge.track.surveillance.SurveillanceTracker`.
 
 Everything is vectorised over tracks and centroids; the only Python loop is the greedy assignment,
 at most ``min(tracks, centroids)`` iterations of an ``argmin`` over the cost matrix.
@@ -160,6 +165,16 @@ class AlphaBetaConfig:
                   "car); 0 = any other track. 5 vs 0: single-random dev seeds 11/12 1.00/0.95 vs 0.99/0.95, "
                   "multi-random 101/102/103 0.741/0.819/0.768 vs 0.741/0.811/0.768", "min": 0, "max": 1000},
     )
+    shared_span_m: float = field(
+        default=0.5,
+        metadata={"unit": "m", "doc": "beyond the paper: a track (with merge_history_frames own clusters) left without "
+                  "a centroid whose predicted range lies within this of the range span (extent_level_db) of the "
+                  "cluster another track took is hidden in it (two walkers crossing make one cluster for seconds, "
+                  "its centroid between them): it coasts without counting misses, and the other track keeps its "
+                  "prediction too (as merged) when the hidden one is at least 0.4 of its size (a car passing a walker keeps its own updates), so neither "
+                  "is dragged onto the other's path (at most merge_max_frames frames); 0 = off (only the "
+                  "merge_ratio size test)", "min": 0.0, "max": 10.0},
+    )
     merge_max_frames: int = field(
         default=10,
         metadata={"unit": "frames", "doc": "after this many merged frames in a row the larger cluster is accepted as "
@@ -189,6 +204,46 @@ class AlphaBetaConfig:
                   "has no reliable speed yet and passes (a fragment's centroid hardly moves while more of the "
                   "vehicle comes into view)",
                   "min": 0.0, "max": 1000.0},
+    )
+    range_gate_m: float = field(
+        default=2.5,
+        metadata={"unit": "m", "doc": "beyond the paper: besides R_gate, a track with a range rate (seen after its "
+                  "creation frame) takes only centroids whose range is within range_gate_m + "
+                  "range_gate_rate_factor * |u_r| * (missed + 1) of its predicted range (u_r in m per frame): "
+                  "R_gate = 6 (m | km/h) lets a pedestrian's coasting track (0.3 m per frame) jump 5 m to "
+                  "another walker; 0 = off (paper)", "min": 0.0, "max": 100.0},
+    )
+    range_gate_rate_factor: float = field(
+        default=3.0,
+        metadata={"doc": "growth of the range gate with the track's range rate and its missed frames "
+                  "(see range_gate_m)", "min": 0.0, "max": 100.0},
+    )
+    corange_fragment_m: float = field(
+        default=0.5,
+        metadata={"unit": "m", "doc": "beyond the paper: a cluster left without a track whose centroid range is within "
+                  "this of the cluster assigned to a track that existed before this frame starts no track: it is "
+                  "that target's own cells split off along Doppler (a pedestrian's swinging legs at twice the "
+                  "torso's speed wrap around the +-5.4 km/h interval and DBSCAN cuts them off at the same range), "
+                  "and its cells join the track's signature of the frame (the union the reference set's "
+                  "thresholded signatures see); the Distance2Go measures no angle, so two targets this close in "
+                  "range are not told apart anyway; 0 = off (paper: every unassigned cluster starts a track)",
+                  "min": 0.0, "max": 10.0},
+    )
+    continuation_speed_kmh: float = field(
+        default=6.0,
+        metadata={"unit": "km/h", "doc": "beyond the paper: a track that ends (N_u misses) is the same target as a "
+                  "track started after its last cluster and still alive when the gap between them is walked in its "
+                  "direction at its mean radial speed or its range rate within this (or within half that speed): "
+                  "the ended track's frames "
+                  "join the new one's (one target, one event) instead of being classified on their own. A target "
+                  "lost for a few frames (merged with another one's cluster, or ahead of its lagging prediction "
+                  "while it accelerates past the radar) otherwise ends and restarts as a second track; 0 = off "
+                  "(paper)", "min": 0.0, "max": 1000.0},
+    )
+    continuation_min_range_m: float = field(
+        default=3.0,
+        metadata={"unit": "m", "doc": "see continuation_speed_kmh: a track last seen closer than this has left past "
+                  "the radar and is never continued", "min": 0.0, "max": 100.0},
     )
     max_track_id: int = field(
         default=255,
@@ -288,8 +343,10 @@ class GreedyAssociator:
         self.gate_radius = float(gate_radius)
         self.gate_reference = gate_reference
 
-    def cost_matrix(self, predicted_pos: np.ndarray, last_pos: np.ndarray, centroids: np.ndarray) -> np.ndarray:
-        """``(n_tracks, n_centroids)`` Euclidean distances from the predictions, ``+inf`` outside the gate."""
+    def cost_matrix(self, predicted_pos: np.ndarray, last_pos: np.ndarray, centroids: np.ndarray,
+                    range_gate: np.ndarray | None = None) -> np.ndarray:
+        """``(n_tracks, n_centroids)`` Euclidean distances from the predictions, ``+inf`` outside the gate
+        (and, with ``range_gate`` (n_tracks,), where the range differs from the prediction by more)."""
         pred = np.asarray(predicted_pos, dtype=np.float64).reshape(-1, 3)
         cen = np.asarray(centroids, dtype=np.float64).reshape(-1, 3)
         cost = np.linalg.norm(pred[:, None, :] - cen[None, :, :], axis=-1)
@@ -299,13 +356,17 @@ class GreedyAssociator:
         else:
             gate_d = cost
         cost[gate_d > self.gate_radius] = np.inf
+        if range_gate is not None:
+            dr = np.abs(pred[:, 2, None] - cen[None, :, 2])
+            cost[dr > np.asarray(range_gate, dtype=np.float64)[:, None]] = np.inf
         return cost
 
     def associate(
-        self, predicted_pos: np.ndarray, last_pos: np.ndarray, centroids: np.ndarray
+        self, predicted_pos: np.ndarray, last_pos: np.ndarray, centroids: np.ndarray,
+        range_gate: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """-> ``(track_rows, centroid_cols, cost)``."""
-        cost = self.cost_matrix(predicted_pos, last_pos, centroids)
+        cost = self.cost_matrix(predicted_pos, last_pos, centroids, range_gate)
         rows, cols = greedy_assign(cost)
         return rows, cols, cost
 
@@ -370,6 +431,7 @@ class TrackerStep:
     cost: np.ndarray
     track_ids_before: tuple[int, ...]
     occluded: tuple[int, ...] = ()  # tracks hidden in another track's merged cluster (neither hit nor miss)
+    absorbed: dict[int, int] = field(default_factory=dict)  # centroid index -> track id it is part of (no birth)
 
 
 class AlphaBetaTracker:
@@ -408,12 +470,16 @@ class AlphaBetaTracker:
         ended: list[AlphaBetaTrack] = []
         dropped: list[AlphaBetaTrack] = []
         cost = np.zeros((len(self.tracks), cen.shape[0]))
+        absorbed: dict[int, int] = {}
         used_cols = np.zeros(cen.shape[0], dtype=bool)
         if self.tracks:
             states = np.stack([t.state for t in self.tracks])
             pred = self.filter.predict(states)
             last = np.stack([t.last_measurement for t in self.tracks])
-            rows, cols, cost = self.associator.associate(self.filter.measurement_of(pred), last, cen)
+            rows, cols, cost = self.associator.associate(self.filter.measurement_of(pred), last, cen,
+                                                         self._range_gate(pred))
+            if cfg.corange_fragment_m > 0 and rows.size:
+                rows, cols, absorbed = self._corange_fragments(rows, cols, cen)
             new_states = pred
             if rows.size:
                 new_states[rows] = self.filter.update(pred[rows], cen[cols])
@@ -460,6 +526,8 @@ class AlphaBetaTracker:
                 self.ids.release(tr.track_id)
         created: list[int] = []
         free = np.flatnonzero(~used_cols)
+        if absorbed:
+            free = np.array([j for j in free.tolist() if j not in absorbed], dtype=np.intp)
         if free.size:
             states = self.filter.initiate(cen[free])
             for j, s in zip(free.tolist(), states):
@@ -471,7 +539,49 @@ class AlphaBetaTracker:
                 self.tracks.append(AlphaBetaTrack(tid, s, cen[j].copy(), created_ns=t_ns, last_seen_ns=t_ns))
                 assigned[tid] = j
                 created.append(tid)
-        return TrackerStep(assigned, tuple(created), tuple(ended), tuple(dropped), cost, before, tuple(occluded))
+        return TrackerStep(assigned, tuple(created), tuple(ended), tuple(dropped), cost, before, tuple(occluded),
+                           absorbed)
+
+    def _range_gate(self, pred: np.ndarray) -> np.ndarray | None:
+        """Per-track range gate (``range_gate_m``, ``range_gate_rate_factor``) or None when off: tracks
+        with a rate (seen after their creation frame) ``r0 + k |u_r| (missed + 1)``, new ones inf."""
+        cfg = self.config
+        if cfg.range_gate_m <= 0:
+            return None
+        missed = np.array([t.missed for t in self.tracks], dtype=np.float64)
+        rated = np.array([t.vis > 0 for t in self.tracks], dtype=bool)
+        g = cfg.range_gate_m + cfg.range_gate_rate_factor * np.abs(pred[:, 5]) * (missed + 1.0)
+        return np.where(rated, g, np.inf)
+
+    def _corange_fragments(self, rows: np.ndarray, cols: np.ndarray, cen: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray, dict[int, int]]:
+        """Co-range fragments (``corange_fragment_m``): every centroid within that range of the centroid
+        assigned to the track seen in the most frames among those near it belongs to that track. A
+        younger track assigned such a centroid loses it (it coasts this frame), and the centroids no
+        track got start no track. Returns the kept ``(rows, cols)`` and ``{centroid index: owner id}``
+        of the centroids absorbed (the tracks' own centroids excluded)."""
+        tol = self.config.corange_fragment_m
+        r = cen[:, 2]
+        seen = np.array([self.tracks[i].seen_frames for i in rows.tolist()], dtype=np.int64)
+        near = np.abs(r[cols][:, None] - r[cols][None, :]) <= tol  # (a, a) assigned vs assigned
+        # the owner of each assigned centroid: the most-seen track among the co-range ones (itself on ties)
+        score = np.where(near, seen[None, :], -1)
+        owner = np.where(score.max(axis=1) > seen, np.argmax(score, axis=1), np.arange(rows.size))
+        keep = owner == np.arange(rows.size)
+        absorbed = {int(cols[a]): self.tracks[int(rows[owner[a]])].track_id for a in np.flatnonzero(~keep).tolist()}
+        rows, cols = rows[keep], cols[keep]
+        free = np.ones(cen.shape[0], dtype=bool)
+        free[cols] = False
+        for j in absorbed:
+            free[j] = False
+        fj = np.flatnonzero(free)
+        if fj.size and cols.size:
+            d = np.abs(r[fj][:, None] - r[cols][None, :])
+            b = np.argmin(d, axis=1)
+            for j, k, ok in zip(fj.tolist(), b.tolist(), (d[np.arange(fj.size), b] <= tol).tolist()):
+                if ok:
+                    absorbed[j] = self.tracks[int(rows[k])].track_id
+        return rows, cols, absorbed
 
     def _low_visibility(self, tr: AlphaBetaTrack) -> bool:
         """``vis / age < th_v`` (age >= 1 here), counted as ``visibility_count`` says."""

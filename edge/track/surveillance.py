@@ -31,6 +31,25 @@ or speed -- while a track left without a cluster whose prediction lies in such a
 *occluded*: it coasts without counting misses or ageing (at most ``merge_max_frames`` frames), so it
 picks its own cluster up again when the targets separate instead of ending and restarting.
 
+One track per target (Tavanti §II-E, Figs. 9-11: merges and splits resolved in the tracker), each
+measured on multi-random dev seeds (field docs):
+
+* *co-range fragments* (``corange_fragment_m``, in :class:`~edge.track.alphabeta.AlphaBetaTracker`):
+  a jogger's legs at twice the torso's speed wrap around the +-5.4 km/h interval and DBSCAN cuts them
+  off at the same range; such a cluster starts no track (and a younger track assigned one loses it):
+  its cells join the track's signature of the frame (:attr:`~edge.track.alphabeta.TrackerStep.absorbed`);
+* *range gate* (``range_gate_m``): a slow track's coasting prediction does not jump 5 m to another
+  walker (R_gate alone is 6 m | km/h);
+* *shared clusters* (``shared_span_m``): two walkers crossing make one cluster for seconds, its
+  centroid between them; an established track predicted inside the range span of the cluster
+  another track took coasts hidden (no misses), and the other keeps its prediction too when the two
+  are of comparable size, so neither is dragged onto the other's path and both pick their own
+  clusters up when they separate;
+* *continuation* (``continuation_speed_kmh``): a track that ends although a track started after its
+  last cluster lies where its speed (or range rate) in its direction takes it hands its frames to that
+  track -- one event, features and mean speed over the whole passage -- instead of being classified on
+  its own (a motorcycle accelerating in radial speed past the radar outruns its prediction).
+
 *Fragments* (``fragment_gap_m``, ``fragment_link_fraction``; off by default, see the field's doc for
 the measurements): a truck passing beside the radar spans
 several metres of range and a wide Doppler spread, and DBSCAN often splits it into two or three
@@ -125,6 +144,9 @@ class SurveillanceTracker:
         if self.tracker.config.merge_ratio > 0:
             self.tracker.occlusion_test = self._hidden_in
         self._frame_sizes = np.zeros(0, dtype=np.int64)
+        self._frame_lo = self._frame_hi = np.zeros(0)
+        self._shared = {}
+        self.absorbed = 0  # clusters that joined a track's frame as its co-range fragments
         self.segmenter = EventSegmenter(events or EventConfig(), threshold)
         self.classifier: Any  # WeightedKNN or OnnxKnnClassifier (same predict interface), or None
         if not classify:
@@ -146,6 +168,8 @@ class SurveillanceTracker:
         self._log: dict[int, SignatureLog] = {}  # track id -> per-frame cluster sums (its own and its fragments')
         self._links: dict[int, dict[int, int]] = {}  # track id -> {other track id: frames with adjacent clusters}
         self.fragments = 0  # tracks whose cells joined another track's signatures
+        self.continued = 0  # ended tracks continued by a later track of the same target
+        self._start_ns: dict[int, int] = {}  # track id -> start of the earliest track it continues
 
     @classmethod
     def from_config(cls, frontend: FrontendInfo, config: Any, threshold: float) -> "SurveillanceTracker":
@@ -182,6 +206,9 @@ class SurveillanceTracker:
             p = self.tracker.filter.predict(np.stack([tr.state for tr in self.tracker.tracks]))
             pred = {tr.track_id: p[k] for k, tr in enumerate(self.tracker.tracks)}
         self._frame_sizes = np.asarray(sig.n_points)[valid]
+        self._frame_lo = np.asarray(sig.range_lo_m)[valid]
+        self._frame_hi = np.asarray(sig.range_hi_m)[valid]
+        self._shared: dict[int, list[int]] = {}  # centroid index -> ids of the tracks hidden in it by its span
         tstep = self.tracker.step(t_ns, sig.centroid[valid])
         out: list[ClassifiedEvent] = []
         alive = {tr.track_id for tr in self.tracker.tracks} - set(tstep.created)
@@ -192,8 +219,9 @@ class SurveillanceTracker:
             self._acc[tid] = TrackFeatureAccumulator(self.extractor.config.extent_percentile,
                                                      vmax_kmh=self.extractor.speed_vmax_kmh)
             self._speed[tid] = RadialSpeedEstimator(self.cylinder.vmax_kmh)
-            if self.tracker.config.fragment_gap_m > 0:  # the rows are only ever united with a fragment's
-                self._log[tid] = SignatureLog()
+            cfg_t = self.tracker.config
+            if cfg_t.fragment_gap_m > 0 or cfg_t.continuation_speed_kmh > 0:  # united with a fragment's or
+                self._log[tid] = SignatureLog()  # an earlier track's rows; else never read
             self._links[tid] = {}
         t_s = t_ns * 1e-9 if seq is None else int(seq) * self.frame_period_s
         frame_key = int(round(t_s / self.frame_period_s))
@@ -201,23 +229,35 @@ class SurveillanceTracker:
         n_aid = self.tracker.config.doppler_range_rate_frames
         by_id = {tr.track_id: tr for tr in self.tracker.tracks}
         merged: list[int] = []
+        parts: dict[int, list[int]] = {}  # track id -> labels of its co-range fragments this frame
+        for j, tid in tstep.absorbed.items():
+            parts.setdefault(tid, []).append(int(labels[j]))
+        self.absorbed += len(tstep.absorbed)
         for tid, j in tstep.assigned.items():
             lab = labels[j]
-            if self._is_merged(tid, int(sig.n_points[lab]), self._other_track_near(tid, sig.centroid[lab], pred)):
+            shared = self._shares_with(tid, j)
+            if shared or self._is_merged(tid, int(sig.n_points[lab]), self._other_track_near(tid, sig.centroid[lab], pred)):
                 tr = by_id.get(tid)
                 if tr is not None and tid in pred:  # keep the prediction: the centroid is not this target's
                     tr.state = pred[tid]
                     tr.last_measurement = pred[tid][[0, 2, 4]].copy()
                 merged.append(tid)
                 continue
-            lo, hi = float(sig.range_lo_m[lab]), float(sig.range_hi_m[lab])
-            self._acc[tid].add(t_s, sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab], hi - lo,
-                               sig.doppler_kmh[lab])
+            own = [int(lab)] + parts.get(tid, [])
+            lo, hi = float(np.min(sig.range_lo_m[own])), float(np.max(sig.range_hi_m[own]))
+            n_lab = float(np.sum(sig.n_points[own]))
+            if len(own) == 1:
+                circ, rcs, r_mean = sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab]
+            else:  # the union of the track's cluster and its co-range fragments (eqs. 17, 18 on all cells)
+                res = math.hypot(float(np.sum(sig.cos_sum[own])), float(np.sum(sig.sin_sum[own])))
+                circ = 1.0 - res / n_lab
+                rcs = float(np.sum(sig.rcs[own]))
+                r_mean = float(np.sum(sig.n_points[own] * sig.range_m[own])) / n_lab
+            self._acc[tid].add(t_s, circ, rcs, r_mean, hi - lo, sig.doppler_kmh[lab])
             log_ = self._log.get(tid)
             if log_ is not None:
-                n_lab = float(sig.n_points[lab])
-                log_.add(frame_key, t_s, n_lab, sig.cos_sum[lab], sig.sin_sum[lab], sig.rcs[lab],
-                         n_lab * float(sig.range_m[lab]), lo, hi, float(sig.doppler_kmh[lab]))
+                log_.add(frame_key, t_s, n_lab, float(np.sum(sig.cos_sum[own])), float(np.sum(sig.sin_sum[own])),
+                         rcs, n_lab * float(r_mean), lo, hi, float(sig.doppler_kmh[lab]))
             recorded.append((tid, int(lab)))
             spd = self._speed[tid]
             spd.add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
@@ -292,16 +332,85 @@ class SurveillanceTracker:
                 self._log[partner].extend(self._log[tid])
                 self.fragments += 1
                 self._forget(tid, counted=False)
+            elif is_ended and (succ := self._successor(tr, alive)) is not None:
+                self._log[succ].extend(self._log[tid])
+                self._speed[succ].prepend(self._speed[tid])
+                self._start_ns[succ] = self._start_ns.get(tid, int(tr.created_ns))
+                self.continued += 1
+                self._forget(tid, counted=False)
+            elif is_ended and self._own_frames(tid) < 2:
+                # seen often enough, but nearly every frame merged with or shared by another target's
+                # cluster: no features to classify (eq. 19 needs two frames), dropped
+                self._forget(tid)
             elif is_ended:
                 out.append(self._finish(tr))
             else:
                 self._forget(tid)
         return out
 
+    def _own_frames(self, track_id: int) -> int:
+        """Frames with signatures of the track (its own clusters, and those of tracks it absorbed)."""
+        acc = self._acc.get(track_id)
+        log_ = self._log.get(track_id)
+        return max(acc.n if acc is not None else 0, log_.frames() if log_ is not None else 0)
+
+    def _successor(self, tr: AlphaBetaTrack, alive: set[int]) -> int | None:
+        """The live track that continues the ending track ``tr`` (``continuation_speed_kmh``), or None.
+
+        Candidates started after ``tr``'s last cluster, last seen at ``continuation_min_range_m`` or
+        farther; the gap from ``tr``'s last cluster to the candidate's first one must be walked in the
+        direction ``tr`` moved, at ``tr``'s mean radial speed (its unaliased Doppler) or at its range
+        rate (the least-squares slope of its centroids: right when a track of a few frames got the
+        wrong alias), within ``max(continuation_speed_kmh, |v| / 2)``. The smallest mismatch wins."""
+        cfg = self.tracker.config
+        if cfg.continuation_speed_kmh <= 0 or not alive:
+            return None
+        spd = self._speed.get(tr.track_id)
+        if spd is None or tr.track_id not in self._log or len(spd) < 2:
+            return None
+        t_a, r_a, _ = spd.last()
+        if r_a < cfg.continuation_min_range_m:
+            return None
+        speeds = [v for v in (spd.mean_radial_speed_kmh(), spd.reference_rate_kmh()) if math.isfinite(v)]
+        if not speeds:
+            return None
+        best, best_err = None, math.inf
+        for tid in alive:
+            other = self._speed.get(tid)
+            if other is None or len(other) == 0 or tid not in self._log:
+                continue
+            t_b, r_b, _ = other.first()
+            dt = t_b - t_a
+            if not dt > 0:
+                continue
+            v_gap = (r_b - r_a) / dt * 3.6
+            for v in speeds:
+                err = abs(v_gap - v)
+                if v_gap * v > 0 and err <= max(cfg.continuation_speed_kmh, 0.5 * abs(v)) and err < best_err:
+                    best, best_err = tid, err
+        return best
+
+    def _shares_with(self, track_id: int, j: int) -> bool:
+        """Is centroid ``j`` (assigned to ``track_id``) shared with an established track hidden in its
+        range span (:meth:`_hidden_in`) whose size is at least 0.4 of this track's? Then the
+        centroid lies between the two targets: the track keeps its prediction (as merged)."""
+        others = self._shared.get(j)
+        hist = self._size.get(track_id)
+        if not others or not hist:
+            return False
+        own = float(np.median(hist))
+        return any(float(np.median(self._size[o])) >= 0.4 * own for o in others if self._size.get(o))
+
     def _hidden_in(self, tr: AlphaBetaTrack, j: int) -> bool:
         """Occlusion test of the alpha-beta tracker: is cluster ``j`` (an assigned one) large enough,
-        against ``tr``'s own size, to hold ``tr``'s target merged with another?"""
+        against ``tr``'s own size, to hold ``tr``'s target merged with another, or (``shared_span_m``)
+        does its range span hold ``tr``'s predicted range?"""
         hist = self._size.get(tr.track_id)
+        margin = self.tracker.config.shared_span_m
+        if (margin > 0 and hist and len(hist) >= self.tracker.config.merge_history_frames
+                and self._frame_lo[j] - margin <= float(tr.state[4]) <= self._frame_hi[j] + margin):
+            self._shared.setdefault(j, []).append(tr.track_id)
+            return True
         # a track with fewer than merge_history_frames own clusters has no known size: typically a
         # fragment split off a long vehicle's cluster for a frame or two, which, held as hidden in
         # that cluster, lived (and was published) through the whole passage beside the real track
@@ -355,6 +464,7 @@ class SurveillanceTracker:
         self._seen_t.pop(track_id, None)
         self._size.pop(track_id, None)
         self._merged_run.pop(track_id, None)
+        self._start_ns.pop(track_id, None)
         self.dropped += int(counted)
 
     def _finish(self, tr: AlphaBetaTrack) -> ClassifiedEvent:
@@ -362,6 +472,7 @@ class SurveillanceTracker:
         own = self._acc.get(tr.track_id) or TrackFeatureAccumulator(pct)
         log_ = self._log.get(tr.track_id)
         spd = self._speed.get(tr.track_id)
+        start_ns = self._start_ns.get(tr.track_id, int(tr.created_ns))  # of the earliest track it continues
         self._forget(tr.track_id, counted=False)  # an ended track, classified below: not a dropped one
         # the union with absorbed fragments; a track without any has exactly its own running features
         acc = (log_.accumulator(pct, self.extractor.speed_vmax_kmh) if log_ is not None and len(log_) > own.n
@@ -388,7 +499,7 @@ class SurveillanceTracker:
             probabilities=probs,
             mean_radial_speed_kmh=float(v),
             direction="approaching" if v < 0 else "receding",
-            start_ns=int(tr.created_ns),
+            start_ns=start_ns,
             end_ns=int(tr.last_seen_ns),
             features=feats,
         )

@@ -325,3 +325,51 @@ def test_id_pool_exhaustion_is_counted():
     assert [pool.acquire() for _ in range(4)] == [1, 2, 3, None]
     pool.release(2)
     assert pool.acquire() == 2
+
+
+# --- co-range fragments ---------------------------------------------------------------------------
+
+def test_corange_fragment_starts_no_track_and_is_reported_absorbed():
+    """A second cluster at the target's range (its legs' wrapped micro-Doppler) starts no track; one
+    0.6 m away (beyond corange_fragment_m = 0.5) does; with the option off (0) both start tracks."""
+    trk = AlphaBetaTracker(AlphaBetaConfig(), CYL)
+    trk.step(0, meas([12.0], [3.0]))
+    st = trk.step(1, meas([11.9, 11.6], [3.1, -4.0]))  # 0.3 m apart: the legs of target 1
+    assert st.assigned == {1: 0} and st.created == () and st.absorbed == {1: 1}
+    st = trk.step(2, meas([11.8, 11.2], [3.1, -4.0]))  # 0.6 m: another target
+    assert st.assigned == {1: 0, 2: 1} and st.created == (2,) and st.absorbed == {}
+    off = AlphaBetaTracker(AlphaBetaConfig(corange_fragment_m=0.0), CYL)
+    off.step(0, meas([12.0], [3.0]))
+    st = off.step(1, meas([11.9, 11.6], [3.1, -4.0]))
+    assert st.created == (2,) and st.absorbed == {}
+
+
+def test_corange_centroid_goes_to_the_most_seen_track():
+    """A young track (a fragment started before the target's track had frames) that is assigned a
+    centroid at the range of an older track's centroid loses it to that track and coasts."""
+    trk = AlphaBetaTracker(AlphaBetaConfig(corange_fragment_m=0.0), CYL)
+    for k in range(4):
+        trk.step(k, meas([15.0 - 0.4 * k], [3.0]))
+    trk.step(4, meas([13.4, 13.3], [3.1, -4.0]))  # option off: the legs start track 2
+    assert [t.track_id for t in trk.tracks] == [1, 2]
+    trk.config = AlphaBetaConfig(corange_fragment_m=0.5)
+    st = trk.step(5, meas([13.0, 12.9], [3.1, -4.0]))
+    assert st.assigned == {1: 0} and st.absorbed == {1: 1}
+    assert trk.tracks[1].missed == 1 and trk.tracks[0].missed == 0
+
+
+def test_range_gate_keeps_a_slow_track_from_jumping_to_another_walker():
+    """A walker's track (0.2 m per frame) misses a frame; a centroid 4 m from its prediction is inside
+    R_gate = 6 (m | km/h) but outside the range gate 2.5 + 3 * 0.2 * 2 = 3.7 m: it starts its own
+    track, while with the range gate off (paper) the walker's track takes it."""
+    def run(cfg):
+        trk = AlphaBetaTracker(cfg, CYL)
+        for k in range(6):
+            trk.step(k, meas([10.0 + 0.2 * k], [0.7]))
+        trk.step(6, np.zeros((0, 3)))
+        return trk.step(7, meas([11.4 + 4.0], [0.7]))
+
+    st = run(AlphaBetaConfig())
+    assert st.assigned == {2: 0} and st.created == (2,)
+    st = run(AlphaBetaConfig(range_gate_m=0.0))
+    assert st.assigned == {1: 0} and st.created == ()

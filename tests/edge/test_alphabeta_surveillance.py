@@ -161,3 +161,85 @@ def test_kinematics_run_on_the_sensor_clock_given_by_seq():
     assert len(out_a) == 1 and out_a[0].mean_radial_speed_kmh == pytest.approx(-25.0, abs=1.0)
     assert out_a[0].mean_radial_speed_kmh == out_b[0].mean_radial_speed_kmh
     assert out_b[0].end_ns < 1e9  # events keep the caller's (host) stamps
+
+
+def _estimator(t_s, r_m, v_kmh):
+    from edge.classify.features import RadialSpeedEstimator
+
+    e = RadialSpeedEstimator(VMAX)
+    for t, r in zip(t_s, r_m):
+        e.add(t, r, wrap(v_kmh))
+    return e
+
+
+def test_continuation_picks_the_track_started_where_the_ended_one_would_be():
+    """A receding car (20 km/h) lost at 11.6 m: of the tracks started after its last cluster, the one
+    whose first cluster is where 20 km/h takes it continues it; one that would need 6.5 km/h does not,
+    nor one that moves the other way, nor anything when the continuation is off or the car was last
+    seen closer than the minimum range."""
+    from edge.classify.features import SignatureLog
+    from edge.track.alphabeta import AlphaBetaTrack
+
+    def tracker(**kw):
+        st = SurveillanceTracker(FE, threshold=2.0, classify=False, tracking=AlphaBetaConfig(**kw))
+        t = np.arange(6) * T
+        st._speed[1] = _estimator(t, 6.0 + 20.0 / 3.6 * t, 20.0)
+        st._speed[2] = _estimator([1.8, 2.0], [16.0, 17.1], 20.0)  # 4.4 m in 0.8 s: 20 km/h
+        st._speed[3] = _estimator([1.8, 2.0], [13.0, 13.1], 20.0)  # 1.4 m in 0.8 s: 6.5 km/h
+        for tid in (1, 2, 3):
+            st._log[tid] = SignatureLog()
+        return st
+
+    tr = AlphaBetaTrack(1, np.zeros(6), np.zeros(3), created_ns=0, last_seen_ns=int(1e9))
+    assert tracker()._successor(tr, {2, 3}) == 2
+    assert tracker()._successor(tr, {3}) is None
+    assert tracker(continuation_speed_kmh=0.0)._successor(tr, {2, 3}) is None
+    assert tracker(continuation_min_range_m=12.0)._successor(tr, {2, 3}) is None
+    st = tracker()
+    st._speed[3] = _estimator([1.8, 2.0], [7.1, 6.0], -20.0)  # 20 km/h, but towards the radar
+    assert st._successor(tr, {3}) is None
+
+
+def test_radial_speed_estimator_prepend_keeps_time_order():
+    a = _estimator([0.0, 0.2, 0.4], [5.0, 6.0, 7.0], 18.0)
+    b = _estimator([0.4, 1.0, 1.2], [7.0, 10.0, 11.0], 18.0)
+    b.prepend(a)
+    assert len(b) == 5 and b.first()[:2] == (0.0, 5.0) and b.last()[:2] == (1.2, 11.0)
+    assert b.mean_radial_speed_kmh() == pytest.approx(18.0, abs=0.5)
+
+
+def _crossing_points(rng, targets, t, merged):
+    """Like frame_points, but all targets' cells form one cluster (label 0) when ``merged``."""
+    cols = [blob(rng, r0 + vr * t / 3.6, wrap(vr), kind, 0 if merged else k)
+            for k, (kind, r0, vr, _) in enumerate(targets)]
+    cat = [np.concatenate(c) for c in zip(*cols)]
+    return MapPoints(cat[0].astype(np.float32), cat[1].astype(np.float32), cat[2].astype(np.float32),
+                     cat[3].astype(np.int32), cat[4].astype(np.int32), cat[5].astype(np.int32))
+
+
+def _crossing_events(seed, shared_span_m):
+    rng = np.random.default_rng(seed)
+    targets = [("pedestrian", 4.0, 4.0, 0.0), ("pedestrian", 12.0, -4.0, 0.0)]
+    st = SurveillanceTracker(FE, threshold=2.0, classify=False, tracking=AlphaBetaConfig(shared_span_m=shared_span_m),
+                             events=EventConfig())
+    events = []
+    for n in range(40):
+        t = n * T
+        events += st.update(int(round(t * 1e9)), _crossing_points(rng, targets, t, 12 <= n <= 24)).classifications
+    return events + list(st.close())
+
+
+@pytest.mark.parametrize("seed", [5, 6, 7])
+def test_walkers_crossing_in_one_cluster_keep_their_tracks(seed):
+    """Two walkers (4 m receding at 4 km/h, 12 m approaching at 4 km/h) form one cluster for the 13
+    frames around their crossing (DBSCAN cannot part them): both tracks coast through it on their
+    predictions (shared_span_m) and each ends as one event with its own direction and speed. Without
+    the shared-cluster rule (0), seed 7's approaching walker loses its track and restarts."""
+    events = _crossing_events(seed, 0.5)
+    assert len(events) == 2, [(e.track_id, e.mean_radial_speed_kmh) for e in events]
+    by_dir = {e.direction: e for e in events}
+    assert by_dir["receding"].mean_radial_speed_kmh == pytest.approx(4.0, abs=1.0)
+    assert by_dir["approaching"].mean_radial_speed_kmh == pytest.approx(-4.0, abs=1.0)
+    assert by_dir["receding"].track_id == 1 and by_dir["approaching"].track_id == 2
+    if seed == 7:
+        assert len(_crossing_events(seed, 0.0)) == 3

@@ -87,6 +87,22 @@ def test_single_random_balanced_and_deterministic():
         assert e * SLOT_S <= t.t_start_s and t.t_end_s <= (e + 1) * SLOT_S - QUIET_S + 1e-6
 
 
+def test_reference_events_put_both_directions_in_both_lanes():
+    """keep_right (the evaluation generators) ties a vehicle's direction to its lane (approaching in the
+    near lane x < 4 m, receding in the far one); keep_right=False (reference sets) does not."""
+    from hw_sim.events import single_random
+
+    def lanes(keep_right):
+        scene = single_random(events=80, keep_right=keep_right).build_scene(7)
+        return Counter((t.trajectory.p0[0] < 4.0, t.trajectory.v[1] < 0) for t in scene.targets
+                       if t.cls != "pedestrian")
+
+    kr = lanes(True)
+    assert set(kr) == {(True, True), (False, False)} and min(kr.values()) >= 15
+    anyl = lanes(False)
+    assert set(anyl) == {(True, True), (True, False), (False, True), (False, False)} and min(anyl.values()) >= 5
+
+
 def test_multi_random_two_to_four_overlapping_targets():
     scene = EVENT_SCENARIOS["multi-random"](events=12).build_scene(3)
     per = Counter(t.id // 100 for t in scene.targets)
