@@ -44,6 +44,7 @@ __all__ = [
     "predict_modes",
     "moment_match",
     "mode_likelihood",
+    "mode_likelihood_each",
     "update_mode_probabilities",
 ]
 
@@ -128,3 +129,14 @@ def update_mode_probabilities(c: np.ndarray, lik: np.ndarray, floor: float) -> n
     mu /= np.maximum(mu.sum(axis=1, keepdims=True), 1e-300)
     mu = np.maximum(mu, floor)
     return mu / mu.sum(axis=1, keepdims=True)
+
+
+def mode_likelihood_each(inn: Innovations, gated: np.ndarray, gate_volume: np.ndarray, prob_detect: float,
+                         prob_gate: float) -> np.ndarray:
+    """:func:`mode_likelihood` with one innovation covariance per (track, detection) (``inn.det_s`` (T, M),
+    :func:`edge.track.pdaf.innovations_each`): ``N(v_jm; 0, S_jm)`` per detection."""
+    n = inn.v.shape[2]
+    m_t = np.maximum(gated.sum(axis=1), 1)
+    norm = (2.0 * math.pi) ** (n / 2.0) * np.sqrt(inn.det_s)  # (T, M)
+    dens = (np.where(gated, np.exp(-0.5 * np.minimum(inn.d2, 700.0)), 0.0) / norm).sum(axis=1)
+    return (1.0 - prob_gate * prob_detect) + prob_detect * gate_volume / m_t * dens

@@ -31,7 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-__all__ = ["gate_threshold", "unit_ball_volume", "Innovations", "innovations", "association_weights", "combined_update"]
+__all__ = ["gate_threshold", "unit_ball_volume", "Innovations", "innovations", "association_weights", "combined_update",
+           "InnovationsEach", "innovations_each", "gate_volume_each", "association_weights_each", "combined_update_each"]
 
 
 def gate_threshold(prob_gate: float, n: int) -> float:
@@ -129,5 +130,134 @@ def combined_update(
     pc = pp - k @ inn.s @ kt
     w0 = beta0[:, None, None]
     p = w0 * pp + (1.0 - w0) * pc + k @ spread @ kt
+    p = 0.5 * (p + p.transpose(0, 2, 1))
+    return x, p
+
+
+# --- measurement-dependent noise: one R per detection (its SNR), so one S per (track, detection) ----------------
+#
+# With ``R_m`` per detection the innovation covariance is ``S_tm = H_t P_t H_t' + R_t + R_m`` (``R_t``: the
+# track's own part, the extent of its vehicle; ``R_m``: the sensor noise of detection ``m``). Each association
+# hypothesis ``m`` then has its own gain ``K_tm = P_t H_t' S_tm^-1`` and the PDAF posterior is the moment-matched
+# mixture of the per-hypothesis Kalman posteriors (Bar-Shalom, Daum & Huang 2009, eq. 39 with ``K`` inside the sum):
+#
+#     x = x^- + sum_m beta_m K_m v_m
+#     P = P^- - (sum_m beta_m K_m) H P^- + sum_m beta_m dx_m dx_m' - dx dx',   dx_m = K_m v_m,  dx = sum_m beta_m dx_m
+#
+# (``beta_0`` keeps ``x^-, P^-``). With a common ``R`` this is exactly :func:`combined_update`. The gate of a
+# detection is its own ellipse ``v' S_tm^-1 v <= gamma``; the likelihoods use ``N(v; 0, S_tm)``; the clutter density
+# ``M_t / V_t`` uses the mean gate volume of the validated detections, ``V_t = c_n gamma^(n/2) mean_m |S_tm|^(1/2)``
+# (with one validated detection ``L`` does not depend on ``S``, as with the common ``R``).
+
+@dataclass
+class InnovationsEach(Innovations):
+    """:class:`Innovations` with one ``S`` per (track, detection): ``s``, ``s_inv`` (T, M, n, n),
+    ``det_s`` (T, M); ``s_track`` (T, n, n) is ``H P H' + R_t`` without the detections' noise."""
+
+    s_track: np.ndarray | None = None
+
+
+def _sym_inv_det(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse and determinant of symmetric 2x2 or 3x3 matrices ``s`` (..., n, n) in closed form (batched over
+    tracks x detections, where ``np.linalg.inv`` on thousands of tiny matrices costs more than the maths)."""
+    n = s.shape[-1]
+    inv = np.empty_like(s)
+    if n == 2:
+        a, b, d = s[..., 0, 0], s[..., 0, 1], s[..., 1, 1]
+        det = a * d - b * b
+        inv[..., 0, 0], inv[..., 1, 1] = d / det, a / det
+        inv[..., 0, 1] = inv[..., 1, 0] = -b / det
+        return inv, det
+    if n != 3:
+        return np.linalg.inv(s), np.linalg.det(s)
+    a, b, c = s[..., 0, 0], s[..., 0, 1], s[..., 0, 2]
+    d, e, f = s[..., 1, 1], s[..., 1, 2], s[..., 2, 2]
+    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
+    c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * c00 + b * c01 + c * c02
+    inv[..., 0, 0], inv[..., 1, 1], inv[..., 2, 2] = c00 / det, c11 / det, c22 / det
+    inv[..., 0, 1] = inv[..., 1, 0] = c01 / det
+    inv[..., 0, 2] = inv[..., 2, 0] = c02 / det
+    inv[..., 1, 2] = inv[..., 2, 1] = c12 / det
+    return inv, det
+
+
+def innovations_each(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, r_track: np.ndarray,
+                     r_meas: np.ndarray) -> InnovationsEach:
+    """``z`` (M, n), ``z_hat`` (T, n), ``h`` (T, n, 4), ``p`` (T, 4, 4), ``r_track`` (T, n, n) the track's part of
+    ``R``, ``r_meas`` (M, n, n) each detection's part: ``S_tm = H_t P_t H_t' + r_track_t + r_meas_m``."""
+    st = h @ p @ h.transpose(0, 2, 1) + r_track
+    st = 0.5 * (st + st.transpose(0, 2, 1))
+    s = st[:, None] + r_meas[None]  # (T, M, n, n)
+    s_inv, det_s = _sym_inv_det(s)
+    v = z[None, :, :] - z_hat[:, None, :]  # (T, M, n)
+    n = z.shape[1]
+    d2 = np.zeros(v.shape[:2])
+    for i in range(n):  # per measurement dimension (n <= 3), not per detection
+        vi = v[:, :, i]
+        d2 += s_inv[:, :, i, i] * vi * vi
+        for j in range(i + 1, n):
+            d2 += 2.0 * s_inv[:, :, i, j] * vi * v[:, :, j]
+    return InnovationsEach(v, d2, s, s_inv, det_s, st)
+
+
+def gate_volume_each(inn: InnovationsEach, gated: np.ndarray, gamma: float) -> np.ndarray:
+    """(T,) ``V_t = c_n gamma^(n/2) mean_m |S_tm|^(1/2)`` over the validated detections (over all when none)."""
+    n = inn.v.shape[2]
+    root = np.sqrt(inn.det_s)
+    k = gated.sum(axis=1)
+    mean_root = np.where(k > 0, (root * gated).sum(axis=1) / np.maximum(k, 1),
+                         root.mean(axis=1) if root.shape[1] else 1.0)
+    return unit_ball_volume(n) * gamma ** (n / 2.0) * mean_root
+
+
+def association_weights_each(
+    inn: InnovationsEach,
+    gamma: float,
+    prob_detect: float,
+    prob_gate: float,
+    method: str = "pdaf",
+    allowed: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`association_weights` with one ``S`` per (track, detection) (``L_tm = P_D N(v; 0, S_tm) V_t / M_t``)."""
+    t, m = inn.d2.shape
+    n = inn.v.shape[2]
+    gated = inn.d2 <= gamma
+    if allowed is not None:
+        gated &= allowed
+    b = 1.0 - prob_gate * prob_detect
+    if m == 0 or t == 0:
+        return np.zeros((t, m)), np.ones(t), gated
+    m_t = gated.sum(axis=1)
+    vol = gate_volume_each(inn, gated, gamma)  # (T,)
+    norm = (2.0 * math.pi) ** (n / 2.0) * np.sqrt(inn.det_s)  # (T, M)
+    scale = prob_detect * vol / np.maximum(m_t, 1)  # (T,)
+    lik = np.where(gated, np.exp(-0.5 * np.minimum(inn.d2, gamma)) * scale[:, None] / norm, 0.0)
+    s_t = lik.sum(axis=1)
+    if method == "pdaf":
+        beta = lik / (b + s_t)[:, None]
+        beta0 = b / (b + s_t)
+    elif method == "jpda":
+        s_m = lik.sum(axis=0)
+        beta = lik / (s_t[:, None] + s_m[None, :] - lik + b)
+        beta0 = 1.0 - beta.sum(axis=1)
+    else:
+        raise ValueError(f"unknown association method {method!r}: choose pdaf or jpda")
+    return beta, beta0, gated
+
+
+def combined_update_each(
+    xp: np.ndarray, pp: np.ndarray, h: np.ndarray, inn: InnovationsEach, beta: np.ndarray, beta0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """PDAF state estimation with a gain per hypothesis (see the comment above :class:`InnovationsEach`):
+    ``xp`` (T, 4), ``pp`` (T, 4, 4) -> posterior (x, P). ``beta0`` is implied (``1 - sum beta``)."""
+    ph = pp @ h.transpose(0, 2, 1)  # (T, 4, n)
+    k = ph[:, None] @ inn.s_inv  # (T, M, 4, n)
+    dx = (k @ inn.v[..., None])[..., 0]  # (T, M, 4)
+    bdx = dx * beta[:, :, None]
+    dxbar = bdx.sum(axis=1)  # (T, 4)
+    kbar = (k * beta[:, :, None, None]).sum(axis=1)  # (T, 4, n)
+    x = xp + dxbar
+    p = pp - kbar @ ph.transpose(0, 2, 1) + bdx.transpose(0, 2, 1) @ dx - dxbar[:, :, None] * dxbar[:, None, :]
     p = 0.5 * (p + p.transpose(0, 2, 1))
     return x, p

@@ -75,8 +75,9 @@ import numpy as np
 
 from edge.track import imm, kalman
 from edge.track.config import PdafConfig
-from edge.track.pdaf import (Innovations, association_weights, combined_update, gate_threshold, innovations,
-                              unit_ball_volume)
+from edge.track.pdaf import (Innovations, InnovationsEach, association_weights, association_weights_each,
+                              combined_update, combined_update_each, gate_threshold, gate_volume_each, innovations,
+                              innovations_each, unit_ball_volume)
 from edge.types import Detections, TrackState
 
 log = logging.getLogger(__name__)
@@ -270,10 +271,33 @@ class MeasurementModel:
         self._az_sigma_rad = math.radians(cfg.azimuth_sigma_deg)
         self._head: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None  # (xp, heading(xp))
 
-    def at(self, xp: np.ndarray, with_radial_speed: bool, ext_var: np.ndarray | None = None):
+    @property
+    def per_detection(self) -> bool:
+        """``measurement_noise = "snr"``: the sensor noise is one ``R`` per detection (:meth:`of_detections`)."""
+        return self.cfg.measurement_noise == "snr"
+
+    def of_detections(self, meas: "Measurements", n: int | None = None) -> np.ndarray:
+        """(M, n, n) sensor noise of each detection from its SNR (``measurement_noise = "snr"``); the radial-speed
+        row stays in the track's part (:meth:`at`)."""
+        c = self.cfg
+        n = meas.z.shape[1] if n is None else n
+        rp = kalman.snr_polar_noise(meas.z[:, :2], meas.snr_db, c.snr_range_sigma_m, c.snr_range_floor_m,
+                                    math.radians(c.snr_azimuth_sigma_deg), math.radians(c.snr_azimuth_floor_deg),
+                                    c.snr_extent_sigma_m, (c.snr_min_db, c.snr_max_db))
+        if n == 2:
+            return rp
+        r = np.zeros((rp.shape[0], n, n))
+        r[:, :2, :2] = rp
+        return r
+
+    def at(self, xp: np.ndarray, with_radial_speed: bool, ext_var: np.ndarray | None = None, sensor: bool = True):
+        """``sensor=False``: without the converted polar noise (it comes per detection, :meth:`of_detections`)."""
         c = self.cfg
         zh, h = kalman.measurement_prediction(xp, with_radial_speed)
-        rp = kalman.polar_position_noise(xp[:, :2], c.range_sigma_m, self._az_sigma_rad, c.extent_sigma_m)
+        if sensor:
+            rp = kalman.polar_position_noise(xp[:, :2], c.range_sigma_m, self._az_sigma_rad, c.extent_sigma_m)
+        else:
+            rp = np.zeros((xp.shape[0], 2, 2))
         if ext_var is not None:
             self._head = (xp, heading(xp))  # update_extent reuses it for the same prediction
             rp += extent_cov(xp, ext_var, self._head[1])
@@ -293,7 +317,9 @@ class MeasurementModel:
         wsum = beta.sum(axis=1)
         ok = (wsum > 0.5) & (w >= 1.0)
         m2 = (beta * a * a).sum(axis=1) / np.maximum(wsum, 1e-12)
-        s2 = inn.s[:, :2, :2]
+        s2 = inn.s[..., :2, :2]
+        if s2.ndim == 4:  # one S per (track, detection): its weighted mean over this frame's detections
+            s2 = (s2 * beta[:, :, None, None]).sum(axis=1) / np.maximum(wsum, 1e-12)[:, None, None]
         along_s = u[:, 0] * (s2[:, 0, 0] * u[:, 0] + s2[:, 0, 1] * u[:, 1]) + u[:, 1] * (
             s2[:, 1, 0] * u[:, 0] + s2[:, 1, 1] * u[:, 1])
         other = along_s - ext_var  # for moving tracks (w = 1) the extent adds exactly ext_var along u
@@ -324,18 +350,22 @@ class PdaAssociator:
         allowed = confirmed[:, None] | (rank[:, None] >= owner[None, :])
         if meas.pair is not None:  # one of two vehicles resolved in angle: the junior track may be the other one
             allowed |= (meas.pair >= 0)[None, :]
-        beta, beta0, gated = association_weights(
-            inn, gamma, self.cfg.prob_detect, self.cfg.prob_gate, self.cfg.association, allowed
-        )
+        weights = association_weights_each if isinstance(inn, InnovationsEach) else association_weights
+        beta, beta0, gated = weights(inn, gamma, self.cfg.prob_detect, self.cfg.prob_gate, self.cfg.association, allowed)
         return inn, beta, beta0, gated
 
 
 def _rows(inn: Innovations, rows: slice) -> Innovations:
+    if isinstance(inn, InnovationsEach):
+        return InnovationsEach(inn.v[rows], inn.d2[rows], inn.s[rows], inn.s_inv[rows], inn.det_s[rows],
+                               inn.s_track[rows])
     return Innovations(inn.v[rows], inn.d2[rows], inn.s[rows], inn.s_inv[rows], inn.det_s[rows])
 
 
 class PdaUpdater:
     def update(self, xp, pp, h, inn: Innovations, beta, beta0):
+        if isinstance(inn, InnovationsEach):  # one gain per detection (its own R)
+            return combined_update_each(xp, pp, h, inn, beta, beta0)
         return combined_update(xp, pp, h, inn, beta, beta0)
 
 
@@ -403,17 +433,21 @@ class MofNInitiator:
             close &= np.abs(zc[:, None, 2] - zc[None, :, 2]) < c.seed_merge_speed_mps
         order = np.arange(idx.size)
         stronger = (snr[None, :] > snr[:, None]) | ((snr[None, :] == snr[:, None]) & (order[None, :] < order[:, None]))
-        seeds = zc[~(close & stronger).any(axis=1)]
+        seed_idx = idx[~(close & stronger).any(axis=1)]
+        seeds = z[seed_idx]
         room = c.max_tracks - len(tracks)
         if room <= 0:
             log.debug("track table full (%d): %d seeds dropped", c.max_tracks, seeds.shape[0])
             return 0
-        seeds = seeds[:room]
+        seeds, seed_idx = seeds[:room], seed_idx[:room]
         k = seeds.shape[0]
         x0 = np.zeros((k, 4))
         x0[:, :2] = seeds[:, :2]
         p0 = np.zeros((k, 4, 4))
-        _, _, r = self.meas_model.at(x0, False)
+        if self.meas_model.per_detection:  # the seed's own noise (its SNR)
+            r = self.meas_model.of_detections(meas, 2)[seed_idx]
+        else:
+            _, _, r = self.meas_model.at(x0, False)
         p0[:, :2, :2] = r
         if meas.with_radial_speed:
             # road direction e_s = (-sin yaw, cos yaw), across it e_u = (cos yaw, sin yaw): v = v_s e_s with
@@ -604,19 +638,22 @@ class PdafTracker:
                 xp, pp, xpm, ppm, cj = self.imm_predictor.predict(tr, dt_s, self.road_yaw_rad)
             else:
                 xp, pp = self.predictor.predict(tr, dt_s)
-            zh, h, r = self.measurement_model.at(xp, meas.with_radial_speed, tr.ext_var)
+            # measurement_noise = "snr": the sensor noise comes per detection, r holds the track's part only
+            rm = self.measurement_model.of_detections(meas) if self.measurement_model.per_detection else None
+            zh, h, r = self.measurement_model.at(xp, meas.with_radial_speed, tr.ext_var, sensor=rm is None)
             if self.imm_predictor is not None:
                 # one innovation computation for the combined prediction (association) and both modes
                 t = len(tr)
                 zhm, hm = kalman.measurement_prediction(xpm.reshape(2 * t, 4), meas.with_radial_speed)
-                inn_all = innovations(meas.z, np.concatenate([zh, zhm]), np.concatenate([h, hm]),
-                                      np.concatenate([pp, ppm.reshape(2 * t, 4, 4)]),
-                                      np.concatenate([r, np.repeat(r, 2, axis=0)]))
+                args = (meas.z, np.concatenate([zh, zhm]), np.concatenate([h, hm]),
+                        np.concatenate([pp, ppm.reshape(2 * t, 4, 4)]), np.concatenate([r, np.repeat(r, 2, axis=0)]))
+                inn_all = innovations(*args) if rm is None else innovations_each(*args, rm)
                 inn, inn_m = _rows(inn_all, slice(0, t)), _rows(inn_all, slice(t, None))
                 inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits, inn)
                 self._imm_update(meas, xpm, ppm, cj, hm, inn, inn_m, beta, beta0, gated)
             else:
-                inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits)
+                inn = None if rm is None else innovations_each(meas.z, zh, h, pp, r, rm)
+                inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits, inn)
                 tr.x, tr.p = self.updater.update(xp, pp, h, inn, beta, beta0)
             if cfg.extent_alpha > 0 and m:
                 tr.ext_var = self.measurement_model.update_extent(xp, tr.ext_var, inn, beta)
@@ -660,11 +697,17 @@ class PdafTracker:
         t = xpm.shape[0]
         n = meas.z.shape[1]
         xs, ps = xpm.reshape(2 * t, 4), ppm.reshape(2 * t, 4, 4)  # rows (track, mode)
-        xu, pu = combined_update(xs, ps, hm, inn_m, np.repeat(beta, 2, axis=0), np.repeat(beta0, 2, axis=0))
         gamma = self.associator.gamma(n)
-        vol = unit_ball_volume(n) * gamma ** (n / 2.0) * np.sqrt(inn.det_s)
-        lik = imm.mode_likelihood(inn_m, np.repeat(gated, 2, axis=0), np.repeat(vol, 2), cfg.prob_detect,
-                                  cfg.prob_gate).reshape(t, 2)
+        if isinstance(inn, InnovationsEach):  # one S per (track, detection): a gain per detection
+            xu, pu = combined_update_each(xs, ps, hm, inn_m, np.repeat(beta, 2, axis=0), np.repeat(beta0, 2, axis=0))
+            vol = gate_volume_each(inn, gated, gamma)
+            likelihood = imm.mode_likelihood_each
+        else:
+            xu, pu = combined_update(xs, ps, hm, inn_m, np.repeat(beta, 2, axis=0), np.repeat(beta0, 2, axis=0))
+            vol = unit_ball_volume(n) * gamma ** (n / 2.0) * np.sqrt(inn.det_s)
+            likelihood = imm.mode_likelihood
+        lik = likelihood(inn_m, np.repeat(gated, 2, axis=0), np.repeat(vol, 2), cfg.prob_detect,
+                         cfg.prob_gate).reshape(t, 2)
         tr.mu = imm.update_mode_probabilities(cj, lik, cfg.imm_min_mode_prob)
         tr.xm, tr.pm = xu.reshape(t, 2, 4), pu.reshape(t, 2, 4, 4)
         tr.x, tr.p = imm.moment_match(tr.xm, tr.pm, tr.mu)
@@ -683,7 +726,7 @@ class PdafTracker:
         rho_t = np.maximum(np.hypot(st[:, 0], st[:, 1]), 1e-3)
         vr_t = (st[:, 0] * st[:, 2] + st[:, 1] * st[:, 3]) / rho_t
         nearer = rho_t[:, None] - np.hypot(z[:, 0], z[:, 1])[None, :]  # (k, f) > 0: the detection is nearer
-        ok = (nearer > 0) & (nearer <= c.reanchor_m) & (np.abs(st[:, 0, None] - z[None, :, 0]) < c.merge_lateral_m) & (
+        ok = (nearer > c.reanchor_min_m) & (nearer <= c.reanchor_m) & (np.abs(st[:, 0, None] - z[None, :, 0]) < c.merge_lateral_m) & (
             np.abs(vr_t[:, None] - z[None, :, 2]) < c.reanchor_speed_mps)
         has = ok.any(axis=1)
         if not has.any():
@@ -691,7 +734,7 @@ class PdafTracker:
         i = miss[has]
         j = free[np.argmax(np.where(ok, nearer, -np.inf), axis=1)[has]]  # the nearest: the near face
         tr.x[i, :2] = meas.z[j, :2]
-        _, _, r = self.measurement_model.at(tr.x[i], False)
+        _, _, r = self.measurement_model.at(tr.x[i], False)  # a jump: the constant model's (wider) noise
         tr.p[i, :2, :2] = r
         tr.p[i, :2, 2:] = 0.0
         tr.p[i, 2:, :2] = 0.0
