@@ -466,6 +466,17 @@ class MofNInitiator:
         else:
             p0[:, 2, 2] = p0[:, 3, 3] = c.init_speed_sigma_mps**2
         tracks.append(x0, p0, c.extent_along_sigma_m**2, c.imm_init_keep_prob)
+        if meas.with_radial_speed and c.imm_keep_init_lateral_speed_sigma_mps > 0:
+            # the lane-keeping mode starts with little speed across the road (the manoeuvring mode keeps
+            # init_lateral_speed_sigma_mps): a far seed's noisy first detections must not set it drifting
+            pk = p0.copy()
+            var_k = c.imm_keep_init_lateral_speed_sigma_mps**2
+            pk[:, 2, 2] = cy * cy * var_k + sy * sy * var_s
+            pk[:, 3, 3] = sy * sy * var_k + cy * cy * var_s
+            pk[:, 2, 3] = pk[:, 3, 2] = cy * sy * (var_k - var_s)
+            w = c.imm_init_keep_prob
+            tracks.pm[-k:, 0] = pk
+            tracks.p[-k:] = w * pk + (1.0 - w) * p0  # the modes share the mean: no spread term
         return k
 
     def confirm(self, tracks: TrackTable, ids: IdPool) -> None:
@@ -658,7 +669,13 @@ class PdafTracker:
             if cfg.extent_alpha > 0 and m:
                 tr.ext_var = self.measurement_model.update_extent(xp, tr.ext_var, inn, beta)
             hit = gated.any(axis=1)
-            used = (inn.d2 <= self.associator.exclusion_gamma[meas.z.shape[1]]).any(axis=0)
+            d2_seed = inn.d2
+            if rm is not None and cfg.seed_exclusion_noise == "constant":
+                # which detections may seed: the exclusion gate of the constant noise model (wider than the SNR
+                # noise for strong detections of unresolved vehicle pairs, whose angle lies between the two)
+                zc, hc, rc = self.measurement_model.at(xp, meas.with_radial_speed, tr.ext_var)
+                d2_seed = innovations(meas.z, zc, hc, pp, rc).d2
+            used = (d2_seed <= self.associator.exclusion_gamma[meas.z.shape[1]]).any(axis=0)
             tr.age += 1
             tr.hits += hit
             tr.misses = np.where(hit, 0, tr.misses + 1).astype(np.int32, copy=False)
