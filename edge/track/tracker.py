@@ -466,7 +466,7 @@ class MofNInitiator:
         else:
             p0[:, 2, 2] = p0[:, 3, 3] = c.init_speed_sigma_mps**2
         tracks.append(x0, p0, c.extent_along_sigma_m**2, c.imm_init_keep_prob)
-        if meas.with_radial_speed and c.imm_keep_init_lateral_speed_sigma_mps > 0:
+        if c.motion_model == "imm" and meas.with_radial_speed and c.imm_keep_init_lateral_speed_sigma_mps > 0:
             # the lane-keeping mode starts with little speed across the road (the manoeuvring mode keeps
             # init_lateral_speed_sigma_mps): a far seed's noisy first detections must not set it drifting
             pk = p0.copy()
