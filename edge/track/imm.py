@@ -45,6 +45,7 @@ __all__ = [
     "moment_match",
     "mode_likelihood",
     "mode_likelihood_each",
+    "mode_likelihood_pairs",
     "update_mode_probabilities",
 ]
 
@@ -140,3 +141,13 @@ def mode_likelihood_each(inn: Innovations, gated: np.ndarray, gate_volume: np.nd
     norm = (2.0 * math.pi) ** (n / 2.0) * np.sqrt(inn.det_s)  # (T, M)
     dens = (np.where(gated, np.exp(-0.5 * np.minimum(inn.d2, 700.0)), 0.0) / norm).sum(axis=1)
     return (1.0 - prob_gate * prob_detect) + prob_detect * gate_volume / m_t * dens
+
+
+def mode_likelihood_pairs(pin, n_rows: int, gate_volume: np.ndarray, n_gated: np.ndarray, prob_detect: float,
+                          prob_gate: float) -> np.ndarray:
+    """:func:`mode_likelihood_each` from the validated pairs only (``pin``: :class:`edge.track.pdaf.PairInnovations`
+    of the mode rows): ``gate_volume`` and ``n_gated`` (number of validated detections) per row -> (n_rows,)."""
+    n = pin.v.shape[1]
+    dens = np.bincount(pin.t, np.exp(-0.5 * np.minimum(pin.d2, 700.0)) / ((2.0 * math.pi) ** (n / 2.0)
+                                                                         * np.sqrt(pin.det_s)), minlength=n_rows)
+    return (1.0 - prob_gate * prob_detect) + prob_detect * gate_volume / np.maximum(n_gated, 1) * dens

@@ -32,7 +32,8 @@ import numpy as np
 from scipy.stats import chi2
 
 __all__ = ["gate_threshold", "unit_ball_volume", "Innovations", "innovations", "association_weights", "combined_update",
-           "InnovationsEach", "innovations_each", "gate_volume_each", "association_weights_each", "combined_update_each"]
+           "InnovationsEach", "innovations_each", "gate_volume_each", "association_weights_each", "combined_update_each",
+           "PairInnovations", "pair_innovations", "combined_update_pairs"]
 
 
 def gate_threshold(prob_gate: float, n: int) -> float:
@@ -246,18 +247,60 @@ def association_weights_each(
     return beta, beta0, gated
 
 
+@dataclass
+class PairInnovations:
+    """Innovations of selected (track row, detection) pairs only (``P`` pairs, e.g. the validated ones): rows
+    ``t`` (P,), detections ``m`` (P,), ``v`` (P, n), ``d2`` (P,), ``s_inv`` (P, n, n), ``det_s`` (P,)."""
+
+    t: np.ndarray
+    m: np.ndarray
+    v: np.ndarray
+    d2: np.ndarray
+    s_inv: np.ndarray
+    det_s: np.ndarray
+
+
+def pair_innovations(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, r_track: np.ndarray,
+                     r_meas: np.ndarray, t: np.ndarray, m: np.ndarray) -> PairInnovations:
+    """:func:`innovations_each` for the pairs ``(t[k], m[k])`` only (the per-mode rows of the IMM need the validated
+    pairs, not all tracks x detections)."""
+    st = h @ p @ h.transpose(0, 2, 1) + r_track
+    st = 0.5 * (st + st.transpose(0, 2, 1))
+    s_inv, det_s = _sym_inv_det(st[t] + r_meas[m])
+    v = z[m] - z_hat[t]
+    d2 = np.einsum("pi,pij,pj->p", v, s_inv, v)
+    return PairInnovations(t, m, v, d2, s_inv, det_s)
+
+
+def combined_update_pairs(xp: np.ndarray, pp: np.ndarray, h: np.ndarray, pin: PairInnovations,
+                          w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The per-hypothesis PDAF update (comment above :class:`InnovationsEach`) over pairs: ``w`` (P,) the weight
+    ``beta`` of each pair (the pairs with ``beta > 0`` suffice; ``beta_0`` is implied)."""
+    t = xp.shape[0]
+    ph = pp @ h.transpose(0, 2, 1)  # (T, 4, n)
+    if pin.t.size == 0:
+        return xp.copy(), pp.copy()
+    k = ph[pin.t] @ pin.s_inv  # (P, 4, n)
+    dx = (k @ pin.v[:, :, None])[:, :, 0]  # (P, 4)
+    wdx = dx * w[:, None]
+    dxbar = np.zeros((t, 4))
+    np.add.at(dxbar, pin.t, wdx)
+    kbar = np.zeros(ph.shape)
+    np.add.at(kbar, pin.t, k * w[:, None, None])
+    spread = np.zeros((t, 4, 4))
+    np.add.at(spread, pin.t, wdx[:, :, None] * dx[:, None, :])
+    x = xp + dxbar
+    p = pp - kbar @ ph.transpose(0, 2, 1) + spread - dxbar[:, :, None] * dxbar[:, None, :]
+    p = 0.5 * (p + p.transpose(0, 2, 1))
+    return x, p
+
+
 def combined_update_each(
     xp: np.ndarray, pp: np.ndarray, h: np.ndarray, inn: InnovationsEach, beta: np.ndarray, beta0: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """PDAF state estimation with a gain per hypothesis (see the comment above :class:`InnovationsEach`):
-    ``xp`` (T, 4), ``pp`` (T, 4, 4) -> posterior (x, P). ``beta0`` is implied (``1 - sum beta``)."""
-    ph = pp @ h.transpose(0, 2, 1)  # (T, 4, n)
-    k = ph[:, None] @ inn.s_inv  # (T, M, 4, n)
-    dx = (k @ inn.v[..., None])[..., 0]  # (T, M, 4)
-    bdx = dx * beta[:, :, None]
-    dxbar = bdx.sum(axis=1)  # (T, 4)
-    kbar = (k * beta[:, :, None, None]).sum(axis=1)  # (T, 4, n)
-    x = xp + dxbar
-    p = pp - kbar @ ph.transpose(0, 2, 1) + bdx.transpose(0, 2, 1) @ dx - dxbar[:, :, None] * dxbar[:, None, :]
-    p = 0.5 * (p + p.transpose(0, 2, 1))
-    return x, p
+    ``xp`` (T, 4), ``pp`` (T, 4, 4) -> posterior (x, P). ``beta0`` is implied (``1 - sum beta``); only the pairs
+    with ``beta > 0`` are computed (:func:`combined_update_pairs`)."""
+    t, m = np.nonzero(beta > 0)
+    pin = PairInnovations(t, m, inn.v[t, m], inn.d2[t, m], inn.s_inv[t, m], inn.det_s[t, m])
+    return combined_update_pairs(xp, pp, h, pin, beta[t, m])

@@ -75,9 +75,10 @@ import numpy as np
 
 from edge.track import imm, kalman
 from edge.track.config import PdafConfig
-from edge.track.pdaf import (Innovations, InnovationsEach, association_weights, association_weights_each,
-                              combined_update, combined_update_each, gate_threshold, gate_volume_each, innovations,
-                              innovations_each, unit_ball_volume)
+from edge.track.pdaf import (Innovations, InnovationsEach, PairInnovations, association_weights,
+                              association_weights_each, combined_update, combined_update_each, combined_update_pairs,
+                              gate_threshold, gate_volume_each, innovations, innovations_each, pair_innovations,
+                              unit_ball_volume)
 from edge.types import Detections, TrackState
 
 log = logging.getLogger(__name__)
@@ -656,12 +657,15 @@ class PdafTracker:
                 # one innovation computation for the combined prediction (association) and both modes
                 t = len(tr)
                 zhm, hm = kalman.measurement_prediction(xpm.reshape(2 * t, 4), meas.with_radial_speed)
-                args = (meas.z, np.concatenate([zh, zhm]), np.concatenate([h, hm]),
-                        np.concatenate([pp, ppm.reshape(2 * t, 4, 4)]), np.concatenate([r, np.repeat(r, 2, axis=0)]))
-                inn_all = innovations(*args) if rm is None else innovations_each(*args, rm)
-                inn, inn_m = _rows(inn_all, slice(0, t)), _rows(inn_all, slice(t, None))
+                if rm is None:
+                    args = (meas.z, np.concatenate([zh, zhm]), np.concatenate([h, hm]),
+                            np.concatenate([pp, ppm.reshape(2 * t, 4, 4)]), np.concatenate([r, np.repeat(r, 2, axis=0)]))
+                    inn_all = innovations(*args)
+                    inn, inn_m = _rows(inn_all, slice(0, t)), _rows(inn_all, slice(t, None))
+                else:  # per-detection noise: the modes' innovations only for the validated pairs (in _imm_update)
+                    inn, inn_m = innovations_each(meas.z, zh, h, pp, r, rm), None
                 inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits, inn)
-                self._imm_update(meas, xpm, ppm, cj, hm, inn, inn_m, beta, beta0, gated)
+                self._imm_update(meas, xpm, ppm, cj, hm, inn, inn_m, beta, beta0, gated, zhm, r, rm)
             else:
                 inn = None if rm is None else innovations_each(meas.z, zh, h, pp, r, rm)
                 inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits, inn)
@@ -704,8 +708,8 @@ class PdafTracker:
         self.intermediates["used"] = used
         return self.published()
 
-    def _imm_update(self, meas: Measurements, xpm, ppm, cj, hm, inn: Innovations, inn_m: Innovations, beta, beta0,
-                    gated) -> None:
+    def _imm_update(self, meas: Measurements, xpm, ppm, cj, hm, inn: Innovations, inn_m: Innovations | None, beta,
+                    beta0, gated, zhm=None, r=None, rm=None) -> None:
         """PDAF update of both modes (rows (track, mode) of ``hm``, ``inn_m``) with the association weights of the
         combined prediction, mode probabilities from each mode's likelihood of the validated detections,
         moment-matched output."""
@@ -715,10 +719,22 @@ class PdafTracker:
         n = meas.z.shape[1]
         xs, ps = xpm.reshape(2 * t, 4), ppm.reshape(2 * t, 4, 4)  # rows (track, mode)
         gamma = self.associator.gamma(n)
-        if isinstance(inn, InnovationsEach):  # one S per (track, detection): a gain per detection
-            xu, pu = combined_update_each(xs, ps, hm, inn_m, np.repeat(beta, 2, axis=0), np.repeat(beta0, 2, axis=0))
+        if isinstance(inn, InnovationsEach):  # one S per (track, detection): a gain per detection, validated pairs
+            ti, mi = np.nonzero(gated)
+            rows = np.concatenate([2 * ti, 2 * ti + 1])  # rows (track, mode)
+            cols = np.concatenate([mi, mi])
+            pin = pair_innovations(meas.z, zhm, hm, ps, np.repeat(r, 2, axis=0), rm, rows, cols)
+            w = np.concatenate([beta[ti, mi], beta[ti, mi]])
+            pos = w > 0
+            xu, pu = combined_update_pairs(xs, ps, hm, PairInnovations(rows[pos], cols[pos], pin.v[pos], pin.d2[pos],
+                                                                        pin.s_inv[pos], pin.det_s[pos]), w[pos])
             vol = gate_volume_each(inn, gated, gamma)
-            likelihood = imm.mode_likelihood_each
+            lik = imm.mode_likelihood_pairs(pin, 2 * t, np.repeat(vol, 2), np.repeat(gated.sum(axis=1), 2),
+                                            cfg.prob_detect, cfg.prob_gate).reshape(t, 2)
+            tr.mu = imm.update_mode_probabilities(cj, lik, cfg.imm_min_mode_prob)
+            tr.xm, tr.pm = xu.reshape(t, 2, 4), pu.reshape(t, 2, 4, 4)
+            tr.x, tr.p = imm.moment_match(tr.xm, tr.pm, tr.mu)
+            return
         else:
             xu, pu = combined_update(xs, ps, hm, inn_m, np.repeat(beta, 2, axis=0), np.repeat(beta0, 2, axis=0))
             vol = unit_ball_volume(n) * gamma ** (n / 2.0) * np.sqrt(inn.det_s)
