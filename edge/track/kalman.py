@@ -14,7 +14,10 @@ Measurement models:
 
 The measurement noise of a converted polar measurement depends on where the target is
 (``R = J diag(sigma_r^2, sigma_az^2) J^T`` at the predicted range and azimuth), so ``R`` is computed
-per track at its prediction, one ``S`` per track, which keeps the PDAF gate an ellipse per track.
+per track at its prediction, one ``S`` per track, which keeps the PDAF gate an ellipse per track
+(``measurement_noise = "constant"``). With ``measurement_noise = "snr"`` the sensor part of ``R`` is computed per
+detection at its own position from its SNR (:func:`snr_polar_noise`), and ``S`` is per (track, detection)
+(:mod:`edge.track.pdaf`).
 """
 
 from __future__ import annotations
