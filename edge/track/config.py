@@ -78,15 +78,28 @@ class PdafConfig:
                                                          "across the boresight (q_lateral_m2ps3 of the cv model; "
                                                          "along: q_along_m2ps3)", "min": 1e-6, "max": 1000.0})
     imm_p_keep_to_manoeuvre: float = field(
-        default=0.002, metadata={"doc": "per-frame probability that a lane-keeping vehicle starts a manoeuvre "
-                                        "(mean 500 frames = 17 s in the mode; with 0.02, the stationary mode "
-                                        "probabilities are 50/50 and a far vehicle, whose single detections cannot "
-                                        "tell the modes apart, was half in the manoeuvring mode: its lateral speed "
-                                        "wandered by 0.5 m/s). With measurement_noise = constant 0.01 left the "
-                                        "crossing scenario's lane change too late on 3 of 16 seeds; with the SNR "
-                                        "noise the lane change is seen early enough at 0.002 (crossing seeds 1, 2, 3, "
-                                        "5, 6, 8, 31, 44: no id switch)",
+        default=0.02, metadata={"doc": "per-frame probability that a lane-keeping vehicle starts a manoeuvre "
+                                       "(mean 50 frames = 1.7 s in the mode: a prior, not a rate of lane changes; "
+                                       "0.01 left the crossing scenario's lane change too late on 3 of 16 seeds; "
+                                       "with measurement_noise = snr 0.01 on 2 of 20, 0.007 on 1 of 20, 0.02 on none)",
                                 "min": 1e-6, "max": 0.5})
+    imm_far_p_keep_to_manoeuvre: float = field(
+        default=0.002, metadata={"doc": "... falling (log-linearly from imm_far_from_m to imm_far_to_m) to this far "
+                                        "away: there one detection's lateral noise (0.5-1.5 m) exceeds what a lane "
+                                        "change moves in several frames, the mode likelihoods carry no information "
+                                        "and the mode probabilities follow the prior; with 0.02 that is 50/50 and a "
+                                        "far vehicle's lateral speed wandered by 0.5 m/s with the manoeuvring mode's "
+                                        "(highway4 dev seeds: motorcycle 0.19-0.45 m RMSE with 0.02 everywhere); "
+                                        "= imm_p_keep_to_manoeuvre: off", "min": 1e-6, "max": 0.5})
+    imm_far_from_m: float = field(
+        default=150.0, metadata={"unit": "m", "doc": "ground range from which the switching prior falls toward "
+                                                     "imm_far_p_keep_to_manoeuvre: lane changes nearer are followed "
+                                                     "as before, farther ones later (the crossing scenario's lane "
+                                                     "changes start at about 100 m: from 100 m, 1 of 20 seeds "
+                                                     "swapped ids; from 150 m none)", "min": 0.0, "max": 1000.0})
+    imm_far_to_m: float = field(
+        default=220.0, metadata={"unit": "m", "doc": "... reaching it at this ground range", "min": 0.0,
+                                 "max": 2000.0})
     imm_p_manoeuvre_to_keep: float = field(
         default=0.02, metadata={"doc": "per-frame probability that a manoeuvre ends (mean 50 frames = 1.7 s; a lane "
                                        "change takes 2-4 s; 0.03 lost a 2 s lane change across a neighbour 1.5 m/s "

@@ -81,7 +81,7 @@ def mix(xm: np.ndarray, pm: np.ndarray, mu: np.ndarray, pi: np.ndarray) -> tuple
 
     With two modes ``x_i - x0_j`` is ``w_1j D`` or ``-w_0j D`` (``D = x_0 - x_1``), so the spread term
     ``sum_i w_ij d d'`` is ``w_0j w_1j D D'``: no (T, 2, 2, 4, 4) intermediate."""
-    joint = mu[:, :, None] * pi[None, :, :]  # (T, i, j) = pi_ij mu_i
+    joint = mu[:, :, None] * (pi if pi.ndim == 3 else pi[None, :, :])  # (T, i, j) = pi_ij mu_i (pi: (2, 2) or per track)
     c = joint.sum(axis=1)  # (T, j)
     w = joint / np.maximum(c, 1e-300)[:, None, :]  # (T, i, j)
     x0 = w.transpose(0, 2, 1) @ xm  # (T, j, 4)

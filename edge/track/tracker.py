@@ -235,6 +235,17 @@ class ImmPredictor:
         self.pi = imm.switch_matrix(cfg.imm_p_keep_to_manoeuvre, cfg.imm_p_manoeuvre_to_keep)
         self._cached: tuple[float, float, np.ndarray, np.ndarray] | None = None  # (dt, yaw, F (2,4,4), Q (2,4,4))
 
+    def _far_switch(self, rho: np.ndarray) -> np.ndarray:
+        """(T, 2, 2) switching matrices: ``imm_p_keep_to_manoeuvre`` up to ``imm_far_from_m``, then falling
+        log-linearly to ``imm_far_p_keep_to_manoeuvre`` at ``imm_far_to_m`` and beyond."""
+        c = self.cfg
+        u = np.clip((rho - c.imm_far_from_m) / max(c.imm_far_to_m - c.imm_far_from_m, 1e-9), 0.0, 1.0)
+        p = np.exp((1.0 - u) * math.log(c.imm_p_keep_to_manoeuvre) + u * math.log(c.imm_far_p_keep_to_manoeuvre))
+        pi = np.empty((rho.size, 2, 2))
+        pi[:, 0, 0], pi[:, 0, 1] = 1.0 - p, p
+        pi[:, 1] = self.pi[1]
+        return pi
+
     def predict(self, tracks: TrackTable, dt_s: float, yaw_rad: float):
         """-> combined (xp, pp), per mode (xpm, ppm) and predicted mode probabilities ``c`` (T, 2)."""
         c = self.cfg
@@ -244,7 +255,10 @@ class ImmPredictor:
             qm = kalman.cv_process_noise(dt_s, c.imm_manoeuvre_q_lateral_m2ps3, c.q_along_m2ps3)
             self._cached = (dt_s, yaw_rad, np.stack([fk, fm]), np.stack([qk, qm]))
         _, _, f, q = self._cached
-        x0, p0, cj = imm.mix(tracks.xm, tracks.pm, tracks.mu, self.pi)
+        pi = self.pi
+        if c.imm_far_p_keep_to_manoeuvre < c.imm_p_keep_to_manoeuvre and len(tracks):
+            pi = self._far_switch(np.hypot(tracks.x[:, 0], tracks.x[:, 1]))
+        x0, p0, cj = imm.mix(tracks.xm, tracks.pm, tracks.mu, pi)
         xpm, ppm = imm.predict_modes(x0, p0, f, q)
         xp, pp = imm.moment_match(xpm, ppm, cj)
         return xp, pp, xpm, ppm, cj
