@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 NAME = "pollbench"
@@ -59,8 +60,12 @@ def run(args: argparse.Namespace) -> int:
 
     if args.duration <= 0 or args.block <= 0 or args.clients < 1 or args.rate < 0:
         raise ValueError("--duration and --block must be > 0, --clients >= 1 and --rate >= 0")
-    rep = measure(args.duration, args.block, args.rate, args.source, args.clients, args.client_nice,
-                  args.loop_cpus, args.server_cpus, args.client_cpus)
+    try:
+        rep = measure(args.duration, args.block, args.rate, args.source, args.clients, args.client_nice,
+                      args.loop_cpus, args.server_cpus, args.client_cpus)
+    except RuntimeError as exc:  # the poll clients never connected
+        print(f"radar-edge pollbench: error: {exc}", file=sys.stderr)
+        return 1
     text = json.dumps(rep, indent=2)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

@@ -30,7 +30,11 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   evaluated time;
 * ``lane_accuracy``: assigned pairs whose track lane equals the vehicle's true lane at that frame;
 * ``count_error_per_lane``: measured volume at the traffic layer's detection line (closed intervals
-  plus the open one) minus the true number of reference points crossing it, per lane.
+  plus the open one) minus the true number of reference points crossing it, per lane;
+* ``wrong_way``: the ``wrong_way`` alarms scored against the truth (scenarios with ``[[lane]]`` tables):
+  ``drivers`` = vehicles in view driving against their lane's direction faster than 3 m/s for 15 frames,
+  ``correct`` = alarms whose track followed such a vehicle when raised, ``false`` = the other alarms,
+  ``missed`` = drivers without a correct alarm.
 """
 
 from __future__ import annotations
@@ -83,9 +87,15 @@ def _to_radar_ground(pose, p_world: np.ndarray) -> np.ndarray:
     return np.stack([x, y], axis=1)
 
 
+#: a vehicle in view driving against its lane's direction faster than this for this many frames is a
+#: wrong-way driver (ground truth for scoring the wrong_way alarms)
+WRONG_WAY_TRUE_MPS = 3.0
+WRONG_WAY_TRUE_FRAMES = 15
+
+
 class _TargetAcc:
     __slots__ = ("cls", "lanes", "n_view", "n_hit", "sq_err", "err_xy", "spd_err", "ids", "last_id", "switches",
-                 "n_raw", "vr_true", "vr_est", "dir_true")
+                 "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames")
 
     def __init__(self, cls: str) -> None:
         self.cls = cls
@@ -98,6 +108,14 @@ class _TargetAcc:
         self.vr_est: list[float] = []
         self.dir_true = 0.0
         self.last_id: int | None = None
+        self.wrong_frames = 0  # frames in view driving against its lane's direction (a wrong-way driver)
+
+
+def _wrong_way_score(acc: dict[int, "_TargetAcc"], event_vehicle: list[int | None]) -> dict:
+    drivers = {i for i, a in acc.items() if a.wrong_frames >= WRONG_WAY_TRUE_FRAMES}
+    correct = [v for v in event_vehicle if v in drivers]
+    return {"drivers": len(drivers), "alarms": len(event_vehicle), "correct": len(correct),
+            "false": len(event_vehicle) - len(correct), "missed": len(drivers - set(correct))}
 
 
 def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: int | None = None,
@@ -137,6 +155,10 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     true_volume = np.zeros(n_lanes, dtype=np.int64)
     prev_s: dict[int, float] = {}
     events: list[dict] = []
+    # wrong-way scoring: the scenario's lane directions (+1 away from the radar), the vehicle each event's
+    # track followed when it was raised
+    lane_dir = [1 if ln.direction == "away" else -1 for ln in sc.lanes]
+    ww_event_vehicle: list[int | None] = []
 
     it = range(n_frames)
     if progress:
@@ -153,7 +175,8 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         t2 = time.perf_counter()
         cpu_ms[n] = (time.thread_time() - c1) * 1e3
         sim_ms[n], frame_ms[n] = (t1 - t0) * 1e3, (t2 - t1) * 1e3
-        for ev in res.events:
+        new_events = res.events
+        for ev in new_events:
             events.append({"kind": ev.kind, "track_id": ev.track_id, "lane": ev.lane, "t_s": round(f.t_s, 3)})
         for ls in res.lane_stats:
             if 0 <= ls.lane < n_lanes:
@@ -193,6 +216,11 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             ok = cost[r_i, c_i] < 1e6
             assigned_track[r_i[ok]] = c_i[ok]
             t_assigned[c_i[ok]] = True
+        for ev in new_events:
+            if ev.kind == "wrong_way":
+                k_tr = [k for k, t in enumerate(tracks) if t.track_id == ev.track_id]
+                hit = [int(ids[j]) for j in range(len(ids)) if k_tr and assigned_track[j] == k_tr[0]]
+                ww_event_vehicle.append(hit[0] if hit else None)
         det_xy = np.stack([res.detections.x_m, res.detections.y_m], axis=1).astype(np.float64)
 
         for j, i in enumerate(ids):
@@ -202,6 +230,8 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             if not in_view[j]:
                 continue
             a.n_view += 1
+            if 0 <= lanes[j] < len(lane_dir) and vel[j, 1] * lane_dir[lanes[j]] < -WRONG_WAY_TRUE_MPS:
+                a.wrong_frames += 1
             rb = pd_bins.setdefault(int(ground_rng[j] // RANGE_BIN_M), [0, 0, 0])
             rc = pd_cls_bins.setdefault((a.cls, int(ground_rng[j] // RANGE_BIN_M)), [0, 0, 0])
             rb[0] += 1
@@ -323,6 +353,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         "lane_centers_m": ([round(ln.center_m, 3) for ln in pipe.traffic.lanes] if pipe.traffic is not None else None),
         "lane_centers_true_m": [round(ln.center_x_m - sc.pose.x_m, 3) for ln in sc.lanes],
         "events": events,
+        # wrong-way alarms against the truth: a vehicle driving against its lane for WRONG_WAY_TRUE_FRAMES
+        # frames in view is a wrong-way driver; an alarm is correct when its track followed one
+        "wrong_way": _wrong_way_score(acc, ww_event_vehicle) if lane_dir else None,
         "classification_accuracy": None,
         "confusion_matrix": None,
     }

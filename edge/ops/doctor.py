@@ -13,6 +13,7 @@ import glob
 import grp
 import json
 import logging
+import math
 import os
 import pwd
 import re
@@ -540,6 +541,40 @@ def check_recorder(sys_: System, cfg: Any) -> list[Check]:
     return [Check("recordings", "ok", detail)]
 
 
+def check_traffic_calibration(sys_: System, cfg: Any) -> list[Check]:
+    """The lane profile's saved self-calibration (``traffic.calibration_file``): readable, which yaw and
+    lanes, how old; its directory writable (or nothing is kept across restarts)."""
+    import time
+
+    from edge.traffic.calibration import CalibrationError, load_calibration
+
+    path = cfg["traffic"].calibration_file
+    if not path:
+        return [Check("traffic calibration", "skipped", "off (traffic.calibration_file is empty)")]
+    p = sys_.path(path)
+    if not p.parent.is_dir():
+        return [Check("traffic calibration", "fail", f"{p.parent} does not exist: the calibration cannot be saved",
+                      f"sudo install -d -o {SERVICE_USER} -g {SERVICE_USER} -m 0750 {Path(path).parent}")]
+    st = p.parent.stat()
+    who = sys_.access
+    if not (who.uid == 0 or (st.st_uid == who.uid and st.st_mode & stat.S_IWUSR)
+            or (st.st_gid in who.gids and st.st_mode & stat.S_IWGRP)):
+        return [Check("traffic calibration", "fail", f"{Path(path).parent} is not writable by {who.user}",
+                      f"sudo chown {who.user}: {Path(path).parent}")]
+    try:
+        cal = load_calibration(p)
+    except CalibrationError as e:
+        return [Check("traffic calibration", "warn", f"{path} is ignored at start: {e}",
+                      f"delete {path}; the service learns the yaw and lanes again from traffic")]
+    if cal is None:
+        return [Check("traffic calibration", "ok", f"{path}: none saved yet (written once the yaw is estimated)")]
+    age_h = max(time.time() - cal.saved_unix_s, 0.0) / 3600.0 if cal.saved_unix_s else float("nan")
+    detail = (f"{path}: yaw {math.degrees(cal.yaw_rad):.2f} +- {math.degrees(cal.yaw_stderr_rad):.2f} deg from "
+              f"{cal.yaw_votes} tracks, {len(cal.lanes)} lanes ({cal.lane_mode}), saved {age_h:.1f} h ago")
+    return [Check("traffic calibration", "ok", detail,
+                  data={"yaw_deg": math.degrees(cal.yaw_rad), "lanes": len(cal.lanes), "age_h": age_h})]
+
+
 def check_user(sys_: System) -> list[Check]:
     """The service user exists and is in ``dialout`` (the group of the serial ports and the udev rule)."""
     if str(sys_.root) != "/":
@@ -589,7 +624,7 @@ def run_checks(sys_: System, config_path: str | None = None, overrides: dict[str
     if cfg is not None:
         for fn in (lambda: check_source(sys_, cfg, open_board), lambda: check_modbus(sys_, cfg),
                    lambda: check_can(sys_, cfg), lambda: check_classifier(sys_, cfg), lambda: check_models(sys_, cfg),
-                   lambda: check_recorder(sys_, cfg)):
+                   lambda: check_recorder(sys_, cfg), lambda: check_traffic_calibration(sys_, cfg)):
             checks.extend(_guard(fn))
     else:
         checks.append(Check("outputs", "skipped", "the configuration does not load"))

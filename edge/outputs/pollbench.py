@@ -24,13 +24,20 @@ masters on other machines are.
 from __future__ import annotations
 
 import multiprocessing as mp
+import threading
 import time
 
 import numpy as np
 
 
-def _poller(port: int, rate_hz: float, active, stop, counter, nice: int = 0, cpus: tuple[int, ...] = ()) -> None:
+#: poll clients must be connected this soon after they were started (spawned interpreters import pymodbus)
+CONNECT_TIMEOUT_S = 60.0
+
+
+def _poller(port: int, rate_hz: float, active, stop, counter, ready, nice: int = 0,
+            cpus: tuple[int, ...] = ()) -> None:
     import os
+    import threading
 
     from edge.ops.affinity import pin
 
@@ -43,7 +50,15 @@ def _poller(port: int, rate_hz: float, active, stop, counter, nice: int = 0, cpu
     from edge.outputs.registers import READ_RANGES
 
     c = ModbusTcpClient("127.0.0.1", port=port, timeout=2, retries=0)
-    c.connect()
+    while not c.connect():  # the server may not accept yet: try again until the run is called off
+        if stop.wait(0.05):
+            c.close()
+            return
+    try:
+        ready.wait(CONNECT_TIMEOUT_S)  # every client connected: the timed run starts
+    except threading.BrokenBarrierError:
+        c.close()
+        return
     nxt = time.monotonic()
     while not stop.is_set():
         if not active.wait(0.1):
@@ -88,12 +103,27 @@ def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.
     sinks = build_sinks(cfg, pipe.n_lanes, strict=True)
     port = sinks[0].tcp_address[1]
     ctx = mp.get_context("spawn")
+    n_clients = max(1, clients)
     active, stop, counter = ctx.Event(), ctx.Event(), ctx.Value("i", 0)
-    procs = [ctx.Process(target=_poller, args=(port, rate_hz, active, stop, counter, client_nice, tuple(client_cpus)),
-                         daemon=True)
-             for _ in range(max(1, clients))]
+    ready = ctx.Barrier(n_clients + 1)
+    procs = [ctx.Process(target=_poller, args=(port, rate_hz, active, stop, counter, ready, client_nice,
+                                               tuple(client_cpus)), daemon=True)
+             for _ in range(n_clients)]
     for proc in procs:
         proc.start()
+    try:
+        ready.wait(CONNECT_TIMEOUT_S)  # the flood blocks start with every client connected, not while they start
+    except threading.BrokenBarrierError:
+        stop.set()
+        for proc in procs:
+            proc.join(10)
+            if proc.is_alive():
+                proc.terminate()
+        for s in sinks:
+            s.close()
+        src.close()
+        raise RuntimeError(f"the {n_clients} poll client(s) did not connect to the Modbus server on port {port} "
+                           f"within {CONNECT_TIMEOUT_S:.0f} s") from None
     samples: dict[bool, list[float]] = {True: [], False: []}
     dropped = {True: 0, False: 0}
     seen = [0]

@@ -345,6 +345,10 @@ class LanePipeline(Pipeline):
             self.tracker = PdafTracker(track_config or PdafConfig())
             self.traffic = TrafficMonitor(traffic_config or TrafficConfig())
 
+    def close(self) -> None:
+        if self.traffic is not None:
+            self.traffic.close()  # saves the traffic self-calibration when configured
+
     @property
     def n_lanes(self) -> int:  # type: ignore[override]
         return self.traffic.n_lanes if self.traffic is not None else 0

@@ -81,15 +81,18 @@ def mix(xm: np.ndarray, pm: np.ndarray, mu: np.ndarray, pi: np.ndarray) -> tuple
 
     With two modes ``x_i - x0_j`` is ``w_1j D`` or ``-w_0j D`` (``D = x_0 - x_1``), so the spread term
     ``sum_i w_ij d d'`` is ``w_0j w_1j D D'``: no (T, 2, 2, 4, 4) intermediate."""
+    t = xm.shape[0]
     joint = mu[:, :, None] * (pi if pi.ndim == 3 else pi[None, :, :])  # (T, i, j) = pi_ij mu_i (pi: (2, 2) or per track)
-    c = joint.sum(axis=1)  # (T, j)
+    c = joint[:, 0] + joint[:, 1]  # (T, j): the sum over the two i
     w = joint / np.maximum(c, 1e-300)[:, None, :]  # (T, i, j)
-    x0 = w.transpose(0, 2, 1) @ xm  # (T, j, 4)
+    wt = w.swapaxes(1, 2)  # (T, j, i)
+    x0 = wt @ xm  # (T, j, 4)
     d = xm[:, 0] - xm[:, 1]
-    dd = d[:, :, None] * d[:, None, :]  # (T, 4, 4)
-    w0, w1 = w[:, 0, :, None, None], w[:, 1, :, None, None]  # (T, j, 1, 1)
-    p0 = w0 * pm[:, 0, None] + w1 * pm[:, 1, None] + (w0 * w1) * dd[:, None]
-    return x0, p0, c
+    dd = (d[:, :, None] * d[:, None, :]).reshape(t, 1, 16)
+    # sum_i w_ij P_i as one small matrix product over the flattened covariances (fewer broadcasting operations)
+    p0 = wt @ pm.reshape(t, 2, 16)  # (T, j, 16)
+    p0 += (w[:, 0] * w[:, 1])[:, :, None] * dd
+    return x0, p0.reshape(t, 2, 4, 4), c
 
 
 def predict_modes(x0: np.ndarray, p0: np.ndarray, f: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -102,13 +105,13 @@ def predict_modes(x0: np.ndarray, p0: np.ndarray, f: np.ndarray, q: np.ndarray) 
 def moment_match(xm: np.ndarray, pm: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Gaussian with the mean and covariance of the mixture ``sum_j w_j N(xm_j, pm_j)`` of two modes:
     (T, 4), (T, 4, 4); the spread term is ``w_0 w_1 D D'``, ``D = x_0 - x_1``."""
-    w0, w1 = w[:, 0, None], w[:, 1, None]
-    x = w0 * xm[:, 0] + w1 * xm[:, 1]
+    t = xm.shape[0]
+    wr = w[:, None, :]  # (T, 1, 2)
+    x = (wr @ xm)[:, 0]  # sum_j w_j x_j as small matrix products (fewer broadcasting operations)
     d = xm[:, 0] - xm[:, 1]
-    d *= np.sqrt(w0 * w1)
-    p = w0[:, :, None] * pm[:, 0]
-    p += w1[:, :, None] * pm[:, 1]
-    p += d[:, :, None] * d[:, None, :]  # symmetric inputs give an exactly symmetric sum
+    d *= np.sqrt(w[:, 0] * w[:, 1])[:, None]
+    p = (wr @ pm.reshape(t, 2, 16)).reshape(t, 4, 4)
+    p += d[:, :, None] * d[:, None, :]  # every element is summed alike: symmetric inputs give a symmetric sum
     return x, p
 
 
@@ -116,20 +119,23 @@ def mode_likelihood(inn: Innovations, gated: np.ndarray, gate_volume: np.ndarray
                     prob_gate: float) -> np.ndarray:
     """Step 4 for one mode: ``inn`` of the mode's prediction (T, M), ``gated`` (T, M) the detections the
     common gate validated, ``gate_volume`` (T,) that gate's volume -> (T,) likelihood up to a factor
-    common to all modes of a track."""
-    n = inn.v.shape[2]
-    m_t = np.maximum(gated.sum(axis=1), 1)
+    common to all modes of a track.
+
+    Leading dimensions broadcast: all modes at once with ``inn`` of shapes (T, 2, M[, n]), ``gated``
+    (T, 1, M) and ``gate_volume`` (T, 1) give (T, 2)."""
+    n = inn.v.shape[-1]
+    m_t = np.maximum(gated.sum(axis=-1), 1)
     norm = (2.0 * math.pi) ** (n / 2.0) * np.sqrt(inn.det_s)
-    dens = np.where(gated, np.exp(-0.5 * np.minimum(inn.d2, 700.0)), 0.0).sum(axis=1) / norm
+    dens = np.where(gated, np.exp(-0.5 * np.minimum(inn.d2, 700.0)), 0.0).sum(axis=-1) / norm
     return (1.0 - prob_gate * prob_detect) + prob_detect * gate_volume / m_t * dens
 
 
 def update_mode_probabilities(c: np.ndarray, lik: np.ndarray, floor: float) -> np.ndarray:
     """Step 4: ``mu_j = L_j c_j / sum`` (T, 2), kept at least ``floor`` so a mode can always come back."""
     mu = c * lik
-    mu /= np.maximum(mu.sum(axis=1, keepdims=True), 1e-300)
+    mu /= np.maximum(mu[:, 0:1] + mu[:, 1:2], 1e-300)  # the sum over the two modes
     mu = np.maximum(mu, floor)
-    return mu / mu.sum(axis=1, keepdims=True)
+    return mu / (mu[:, 0:1] + mu[:, 1:2])
 
 
 def mode_likelihood_each(inn: Innovations, gated: np.ndarray, gate_volume: np.ndarray, prob_detect: float,

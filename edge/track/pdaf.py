@@ -31,6 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
+from edge.track.smallmat import inv_det
+
 __all__ = ["gate_threshold", "unit_ball_volume", "Innovations", "innovations", "association_weights", "combined_update",
            "InnovationsEach", "innovations_each", "gate_volume_each", "association_weights_each", "combined_update_each",
            "PairInnovations", "pair_innovations", "combined_update_pairs"]
@@ -57,23 +59,27 @@ class Innovations:
     det_s: np.ndarray  # (T,)
 
 
+def _quad_terms(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ij = [(i, j) for i in range(n) for j in range(i, n)]
+    return (np.array([i for i, _ in ij]), np.array([j for _, j in ij]),
+            np.array([1.0 if i == j else 2.0 for i, j in ij]))
+
+
+_QUAD_TERMS = {n: _quad_terms(n) for n in (1, 2, 3)}
+
+
 def innovations(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, r: np.ndarray) -> Innovations:
     """``z`` (M, n), ``z_hat`` (T, n), ``h`` (T, n, 4), ``p`` (T, 4, 4), ``r`` (T, n, n)."""
     s = h @ p @ h.transpose(0, 2, 1) + r
     s = 0.5 * (s + s.transpose(0, 2, 1))
-    s_inv = np.linalg.inv(s)
-    det_s = np.linalg.det(s)
+    s_inv, det_s = inv_det(s)
     n = z.shape[1]
-    v = np.empty((z_hat.shape[0], z.shape[0], n))
-    for i in range(n):  # per measurement dimension (n <= 3), not per detection
-        np.subtract(z[None, :, i], z_hat[:, i, None], out=v[:, :, i])
-    # d2 = v' S^-1 v expanded over the symmetric n x n terms: cheaper than tiny batched matmuls
-    d2 = np.zeros(v.shape[:2])
-    for i in range(n):
-        vi = v[:, :, i]
-        d2 += s_inv[:, i, i, None] * vi * vi
-        for j in range(i + 1, n):
-            d2 += 2.0 * s_inv[:, i, j, None] * vi * v[:, :, j]
+    v = z[None, :, :] - z_hat[:, None, :]  # (T, M, n)
+    # d2 = v' S^-1 v expanded over the symmetric n x n terms (cheaper than tiny batched matmuls), all terms
+    # S^-1_ij v_i v_j (doubled off the diagonal) in one product, summed in the order i <= j
+    ii, jj, twice = _QUAD_TERMS[n]
+    terms = (s_inv[:, ii, jj] * twice)[:, None, :] * v[:, :, ii] * v[:, :, jj]  # (T, M, n (n + 1) / 2)
+    d2 = np.add.reduce(terms, axis=2)  # fewer than 8 terms: summed one after the other (no pairwise blocks)
     return Innovations(v, d2, s, s_inv, det_s)
 
 
@@ -121,17 +127,21 @@ def association_weights(
 def combined_update(
     xp: np.ndarray, pp: np.ndarray, h: np.ndarray, inn: Innovations, beta: np.ndarray, beta0: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """PDAF state estimation: ``xp`` (T, 4), ``pp`` (T, 4, 4) -> posterior (x, P)."""
-    k = pp @ h.transpose(0, 2, 1) @ inn.s_inv  # (T, 4, n)
-    vbar = (beta[:, None, :] @ inn.v)[:, 0, :]  # (T, n)
-    x = xp + (k @ vbar[:, :, None])[:, :, 0]
-    bv = inn.v * beta[:, :, None]
-    spread = bv.transpose(0, 2, 1) @ inn.v - vbar[:, :, None] * vbar[:, None, :]
-    kt = k.transpose(0, 2, 1)
-    pc = pp - k @ inn.s @ kt
-    w0 = beta0[:, None, None]
-    p = w0 * pp + (1.0 - w0) * pc + k @ spread @ kt
-    p = 0.5 * (p + p.transpose(0, 2, 1))
+    """PDAF state estimation: ``xp`` (T, 4), ``pp`` (T, 4, 4) -> posterior (x, P).
+
+    ``P = beta0 P^- + (1 - beta0)(P^- - K S K') + K spread K'`` is evaluated as
+    ``P^- + K (spread - (1 - beta0) S) K'`` (two small matrix products fewer). Leading dimensions broadcast:
+    the IMM updates both modes at once with ``xp`` (T, 2, 4), ``inn`` of shapes (T, 2, ...) and the common
+    weights ``beta`` (T, 1, M), ``beta0`` (T, 1)."""
+    k = pp @ h.swapaxes(-1, -2) @ inn.s_inv  # (..., 4, n)
+    v = inn.v  # (..., M, n)
+    vbar = beta[..., None, :] @ v  # (..., 1, n)
+    kt = k.swapaxes(-1, -2)
+    x = xp + (vbar @ kt)[..., 0, :]
+    spread = (v * beta[..., :, None]).swapaxes(-1, -2) @ v - vbar.swapaxes(-1, -2) * vbar
+    spread -= (1.0 - beta0)[..., None, None] * inn.s
+    p = pp + k @ spread @ kt
+    p = 0.5 * (p + p.swapaxes(-1, -2))
     return x, p
 
 

@@ -5,7 +5,8 @@
     upd = monitor.update(tracks, t_ns)   # -> TrafficUpdate(tracks, presence, lane_stats, events)
 
 See :mod:`edge.traffic.monitor` (contract), :mod:`edge.traffic.lanes` (road frame, yaw estimate, lane
-learning) and :mod:`edge.traffic.stats` (definitions of every statistic).
+learning), :mod:`edge.traffic.stats` (definitions of every statistic) and :mod:`edge.traffic.calibration`
+(the self-calibration kept across restarts).
 """
 
 from edge.traffic.config import TrafficConfig

@@ -30,6 +30,13 @@ class TrafficConfig:
     mounting_yaw_deg: float = field(
         default=0.0, metadata={"unit": "deg", "doc": "radar yaw against the road axis (clockwise, as hw_sim "
                                                      "RadarPose.yaw_deg); used until estimated", "min": -45.0, "max": 45.0})
+    mounting_yaw_sigma_deg: float = field(
+        default=0.5, metadata={"unit": "deg", "doc": "how well the configured mounting yaw is known (an installer "
+                                                     "with a sighting laser aims to about half a degree): until the yaw is estimated, lane "
+                                                     "assignment at range r is uncertain by r x this across the road "
+                                                     "(used by the wrong-way gate; ignored with estimate_yaw off, "
+                                                     "when the configured yaw is taken as measured)",
+                               "min": 0.0, "max": 45.0})
     estimate_yaw: bool = field(
         default=True, metadata={"doc": "estimate the mounting yaw from the direction of straight confirmed tracks"})
     yaw_min_tracks: int = field(
@@ -75,6 +82,17 @@ class TrafficConfig:
     relearn_every_s: float = field(
         default=60.0, metadata={"unit": "s", "doc": "re-learn lanes (and use the newest yaw) this often",
                                 "min": 0.1, "max": 86400.0})
+    calibration_file: str = field(
+        default="", metadata={"doc": "keep the self-calibration (estimated mounting yaw, learned lanes) in this JSON "
+                                     "file across restarts, e.g. /var/lib/radar-edge/traffic-calibration.json; "
+                                     "empty = start uncalibrated every time (see edge.traffic.calibration)"})
+    calibration_save_every_s: float = field(
+        default=60.0, metadata={"unit": "s", "doc": "save the calibration this often (and at stop)",
+                                "min": 1.0, "max": 86400.0})
+    calibration_moved_deg: float = field(
+        default=1.0, metadata={"unit": "deg", "doc": "a fresh yaw estimate (from yaw_min_tracks ended tracks) this "
+                                                     "far from the saved one means the radar was re-aimed: the saved "
+                                                     "calibration is dropped", "min": 0.1, "max": 45.0})
     interval_s: float = field(
         default=60.0, metadata={"unit": "s", "doc": "statistics interval", "min": 1.0, "max": 86400.0})
     detection_line_m: float = field(
@@ -110,6 +128,13 @@ class TrafficConfig:
         default=15, metadata={"doc": "frames with a detection in a row against the lane direction before the "
                                      "event (0.5 s; coasting frames neither count nor reset)",
                               "min": 1, "max": 10000})
+    wrong_way_lane_sigmas: float = field(
+        default=2.0, metadata={"doc": "a frame counts towards wrong_way only while the track is this many standard "
+                                      "deviations inside its lane: distance to the lane's nearer edge over range x the "
+                                      "yaw's uncertainty (mounting_yaw_sigma_deg until estimated, then the estimate's "
+                                      "standard error); so no alarm from the neighbouring lane while the yaw "
+                                      "self-calibrates or far away with a young estimate (frames that fail neither "
+                                      "count nor reset)", "min": 0.0, "max": 10.0})
     stopped_speed_mps: float = field(
         default=1.0, metadata={"unit": "m/s", "doc": "a vehicle slower than this is standing", "min": 0.0, "max": 20.0})
     stopped_min_s: float = field(

@@ -83,7 +83,8 @@ class YawEstimator:
         self._sums: dict[int, list[float]] = {}  # track_id -> [n, sx, sy, sxx, syy, sxy, age]
         self._votes: deque[float] = deque(maxlen=cfg.yaw_window_tracks)
         self._n_voted = 0  # votes ever cast (the median of the window changes only with a new one)
-        self._median: tuple[int, float] | None = None  # (_n_voted, median of the window)
+        self._median: tuple[int, float, float] | None = None  # (_n_voted, median of the window, its stderr)
+        self._stderr: float | None = None  # standard error of the last estimate
 
     def add(self, ids: np.ndarray, age: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
         """Accumulate this frame's confirmed tracks; tracks that ended (or whose id was recycled) vote."""
@@ -182,23 +183,56 @@ class YawEstimator:
     def estimate_rad(self) -> float | None:
         if len(self._votes) >= self.cfg.yaw_min_tracks:
             if self._median is None or self._median[0] != self._n_voted:
-                self._median = (self._n_voted, float(np.median(np.fromiter(self._votes, dtype=float))))
+                v = np.fromiter(self._votes, dtype=float)
+                self._median = (self._n_voted, float(np.median(v)), _median_stderr(v, None))
+            self._stderr = self._median[2]
             return self._median[1]
         votes = np.fromiter(self._votes, dtype=float)
         # start-up: the tracks that still run vote too; weighted median (ended tracks count as the best one)
         live, w = self.live_votes_weighted()
         if votes.size + live.size < self.cfg.yaw_min_tracks:
+            self._stderr = None
             return None
         top = float(w.max()) if w.size else 1.0
         if votes.size + live.size <= 64:  # a handful of tracks: the same weighted median in plain Python
-            pairs = sorted(zip(votes.tolist() + live.tolist(), [top] * votes.size + w.tolist()), key=lambda p: p[0])
+            vals, wts = votes.tolist() + live.tolist(), [top] * votes.size + w.tolist()
+            self._stderr = _median_stderr(np.array(vals), np.array(wts))
+            pairs = sorted(zip(vals, wts), key=lambda p: p[0])
             cw = list(itertools.accumulate(p[1] for p in pairs))
             return pairs[bisect.bisect_left(cw, 0.5 * cw[-1])][0]
         allv = np.concatenate([votes, live])
         allw = np.concatenate([np.full(votes.size, top), w])
+        self._stderr = _median_stderr(allv, allw)
         o = np.argsort(allv)
         cw = np.cumsum(allw[o])
         return float(allv[o][np.searchsorted(cw, 0.5 * cw[-1])])
+
+    @property
+    def stderr_rad(self) -> float | None:
+        """Standard error of the last :meth:`estimate_rad` (None before the first estimate): the spread of
+        the votes over the square root of their (effective) number, times 1.2533 for a median. It says
+        how far off the yaw may still be -- a lateral uncertainty of ``range x stderr`` in the road frame."""
+        return self._stderr
+
+
+def _median_stderr(v: np.ndarray, w: np.ndarray | None) -> float:
+    """Standard error of the (weighted) median of the votes ``v``: ``1.2533 sd / sqrt(n_eff)`` with the
+    weighted sd and Kish's effective number ``(sum w)^2 / sum w^2`` (``n`` when unweighted); one vote
+    gives no spread, so its error is taken as unknown (``inf``)."""
+    n = v.size
+    if n < 2:
+        return math.inf
+    if w is None:
+        return 1.2533 * float(np.std(v, ddof=1)) / math.sqrt(n)
+    sw = float(w.sum())
+    if sw <= 0.0:
+        return math.inf
+    mean = float((w * v).sum()) / sw
+    n_eff = sw * sw / float((w * w).sum())
+    if n_eff <= 1.0:
+        return math.inf
+    var = float((w * (v - mean) ** 2).sum()) / sw * n_eff / (n_eff - 1.0)
+    return 1.2533 * math.sqrt(var / n_eff)
 
 
 class LaneLearner:

@@ -11,13 +11,17 @@ Public API (stable; used by ``edge.pipelines.lane``)::
     upd.events        # tuple[TrafficEvent, ...]: wrong_way, stopped_vehicle (once per occurrence)
     monitor.lanes     # current tuple[Lane, ...] (configured or learned; empty until learned)
     monitor.yaw_rad   # mounting yaw in use (configured until estimated)
+    monitor.yaw_sigma_rad  # its uncertainty (mounting_yaw_sigma_deg until estimated; 0 if not estimated)
+    monitor.close()   # with traffic.calibration_file: save the self-calibration (edge.traffic.calibration)
 
 Lane indices are 0-based, ordered like the scenario's ``[[lane]]`` tables (left to right when
 learned). Only confirmed tracks are used. Per-track memory is keyed by ``track_id`` and reset when an
 id is recycled (its ``age_frames`` drops).
 
 Events: ``wrong_way`` when a track in a lane moves against the lane's direction faster than
-``wrong_way_min_speed_mps`` for ``wrong_way_min_frames`` frames in a row (once per track);
+``wrong_way_min_speed_mps`` for ``wrong_way_min_frames`` frames in a row (once per track), counting
+only frames with a detection where its lane is sure (``wrong_way_lane_sigmas`` times range x yaw
+uncertainty inside the lane: no alarms from a neighbouring lane while the yaw self-calibrates);
 ``stopped_vehicle`` when a track that once moved faster than ``moving_speed_mps`` stands (slower than
 ``stopped_speed_mps``) in a lane for ``stopped_min_s`` (again only after it moved off).
 """
@@ -31,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge.traffic.calibration import Calibration, CalibrationError, CalibrationWriter, load_calibration
 from edge.traffic.config import TrafficConfig
 from edge.traffic.lanes import Lane, LaneLearner, YawEstimator, assign_lanes, configured_lanes, to_road
 from edge.traffic.stats import Crossing, IntervalStatistics
@@ -83,17 +88,104 @@ class TrafficMonitor:
         self.yaw_rad = math.radians(cfg.mounting_yaw_deg)
         self.lanes: tuple[Lane, ...] = configured_lanes(cfg) if cfg.lane_mode == "configured" else ()
         self.yaw_estimator = YawEstimator(cfg)
+        self._yaw_sigma_cfg = math.radians(cfg.mounting_yaw_sigma_deg)
+        self.yaw_sigma_rad = 0.0 if not cfg.estimate_yaw else self._yaw_sigma_cfg
         self.learner = LaneLearner(cfg)
         self.stats = IntervalStatistics(cfg)
         self._memo: dict[int, _Memo] = {}
         self._last_t_ns: int | None = None
         self._next_learn_ns: int | None = None
+        #: the calibration saved by an earlier run, in use until this run's estimate is better
+        self.saved_calibration: Calibration | None = None
+        self._writer: CalibrationWriter | None = None
+        self._next_save_ns: int | None = None
+        if cfg.calibration_file:
+            self._restore(cfg.calibration_file)
+            self._writer = CalibrationWriter(cfg.calibration_file)
+
+    def _restore(self, path: str) -> None:
+        cfg = self.config
+        try:
+            cal = load_calibration(path)
+        except CalibrationError as e:
+            log.warning("traffic calibration ignored (%s): %s", path, e)
+            return
+        if cal is None:
+            log.info("no traffic calibration in %s yet: starting uncalibrated", path)
+            return
+        if cal.lane_mode != cfg.lane_mode:
+            log.warning("traffic calibration in %s is for lane_mode %s, configured %s: ignored", path, cal.lane_mode,
+                        cfg.lane_mode)
+            return
+        if cfg.estimate_yaw:
+            self.yaw_rad = cal.yaw_rad
+            self.yaw_sigma_rad = cal.yaw_stderr_rad
+        if cfg.lane_mode == "learned" and cal.lanes:
+            self.lanes = cal.lanes
+        self.saved_calibration = cal
+        log.info("traffic calibration restored from %s: yaw %.3f +- %.3f deg, %d lanes", path,
+                 math.degrees(cal.yaw_rad), math.degrees(cal.yaw_stderr_rad), len(cal.lanes))
+
+    def calibration(self) -> Calibration:
+        """What the monitor knows now (yaw in use and its uncertainty, lanes)."""
+        se = self.yaw_estimator.stderr_rad
+        saved = self.saved_calibration
+        if saved is not None:
+            se, votes = saved.yaw_stderr_rad, saved.yaw_votes
+        else:
+            se = se if se is not None and math.isfinite(se) else math.radians(self.config.mounting_yaw_sigma_deg)
+            votes = self.yaw_estimator.n_votes
+        return Calibration(self.yaw_rad, se, votes, self.config.lane_mode, tuple(self.lanes))
+
+    def close(self) -> None:
+        """Save the calibration a last time (with ``calibration_file``) and stop the writer."""
+        if self._writer is not None:
+            if self._last_t_ns is not None:
+                self._writer.submit(self.calibration())
+            self._writer.close()
+            self._writer = None
+
+    def _yaw_in_use(self, est: float | None) -> tuple[float, float]:
+        """(yaw, sigma) from this run's estimate ``est`` and the saved calibration: the saved one holds until
+        the estimate is more certain, or is dropped when the estimate says the radar was re-aimed."""
+        cfg = self.config
+        saved = self.saved_calibration
+        se = self.yaw_estimator.stderr_rad if est is not None else None
+        if saved is not None:
+            settled = self.yaw_estimator.n_votes >= cfg.yaw_min_tracks
+            if est is not None and settled and abs(est - saved.yaw_rad) > max(
+                    math.radians(cfg.calibration_moved_deg), 3.0 * math.hypot(se, saved.yaw_stderr_rad)):
+                log.warning("mounting yaw %.2f deg differs from the saved %.2f deg: radar re-aimed? saved "
+                            "calibration dropped", math.degrees(est), math.degrees(saved.yaw_rad))
+                self.saved_calibration = None
+            elif est is None or se >= saved.yaw_stderr_rad:
+                return saved.yaw_rad, saved.yaw_stderr_rad
+            else:
+                self.saved_calibration = None  # this run's estimate is now the better one
+        if est is None:
+            return self.yaw_rad, self._yaw_sigma_cfg
+        return est, min(se, self._yaw_sigma_cfg)
 
     @property
     def n_lanes(self) -> int:
         """Lanes known now; with learned lanes not yet learned, as many as ``lane_centers_m`` lists
         (what the outputs reserve at start)."""
         return len(self.lanes) or len(self.config.lane_centers_m)
+
+    def _lane_sure(self, u: np.ndarray, x: np.ndarray, y: np.ndarray, lane_idx: np.ndarray,
+                   yaw_sigma: float) -> list[bool]:
+        """Per track: is it ``wrong_way_lane_sigmas`` standard deviations inside its lane? The lateral
+        uncertainty in the road frame is range x the yaw's uncertainty (a wrong yaw turns the road frame
+        about the radar); off every lane it is never sure."""
+        n = lane_idx.size
+        if yaw_sigma <= 0.0 or self.config.wrong_way_lane_sigmas <= 0.0 or not self.lanes:
+            return (lane_idx >= 0).tolist()
+        c = np.array([ln.center_m for ln in self.lanes])
+        hw = 0.5 * np.array([ln.width_m for ln in self.lanes])
+        k = np.maximum(lane_idx, 0)
+        margin = hw[k] - np.abs(u - c[k])
+        sigma_u = np.hypot(x, y) * yaw_sigma
+        return ((lane_idx >= 0) & (margin >= self.config.wrong_way_lane_sigmas * sigma_u)).tolist() if n else []
 
     def update(self, tracks: tuple[TrackState, ...], t_ns: int) -> TrafficUpdate:
         cfg = self.config
@@ -110,15 +202,23 @@ class TrafficMonitor:
 
         # mounting yaw and lanes
         est = None
+        yaw_sigma = 0.0  # the configured yaw is taken as measured when it is not estimated
         if cfg.estimate_yaw:
             self.yaw_estimator.add(ids, age, x, y)
             est = self.yaw_estimator.estimate_rad()
-            if est is not None:
-                self.yaw_rad = est
+            self.yaw_rad, yaw_sigma = self._yaw_in_use(est)
+        self.yaw_sigma_rad = yaw_sigma
+        if self._writer is not None:
+            if self._next_save_ns is None:
+                self._next_save_ns = t_ns + int(cfg.calibration_save_every_s * 1e9)
+            elif t_ns >= self._next_save_ns:
+                self._next_save_ns = t_ns + int(cfg.calibration_save_every_s * 1e9)
+                if est is not None or self.saved_calibration is not None or (cfg.lane_mode == "learned" and self.lanes):
+                    self._writer.submit(self.calibration())
         if cfg.lane_mode == "learned":
             self.learner.add(x, y, vx, vy)
             if self._next_learn_ns is None or t_ns >= self._next_learn_ns:
-                yaw_ready = not cfg.estimate_yaw or est is not None
+                yaw_ready = not cfg.estimate_yaw or est is not None or self.saved_calibration is not None
                 lanes = self.learner.learn(self.yaw_rad) if yaw_ready else ()
                 if lanes:
                     self.lanes = lanes
@@ -134,7 +234,9 @@ class TrafficMonitor:
         # plain Python floats for the per-track loop (numpy scalars are slow one at a time)
         s, vs = s_arr.tolist(), vs_arr.tolist()
         speed = np.hypot(vx, vy).tolist()
-        lane_idx = assign_lanes(u, lanes).tolist()
+        lane_idx = assign_lanes(u, lanes)
+        lane_sure = self._lane_sure(u, x, y, lane_idx, yaw_sigma)
+        lane_idx = lane_idx.tolist()
         id_list = ids.tolist()
         presence = [False] * n_lanes
         events: list[TrafficEvent] = []
@@ -174,8 +276,9 @@ class TrafficMonitor:
                     presence[k] = True
                 # wrong way
                 # only frames with a detection count: a track seeded with a wrong velocity (a steep near
-                # detection) that coasts out of view must not raise the event on its prediction alone
-                if tr.hits > memo.hits:
+                # detection) that coasts out of view must not raise the event on its prediction alone; nor
+                # frames where the yaw is too uncertain to tell its lane from the neighbouring one
+                if tr.hits > memo.hits and lane_sure[j]:
                     if vs[j] * lanes[k].direction < -cfg.wrong_way_min_speed_mps:
                         memo.wrong_frames += 1
                     else:

@@ -335,6 +335,45 @@ def test_a_coasting_track_raises_no_wrong_way_event():
         assert n == expected
 
 
+def _wrong_way_frames(cfg, x0, y0, vy, n=60):
+    """Frame index of each wrong_way event of one track in lane 3 (away) driving toward the radar."""
+    mon = TrafficMonitor(cfg)
+    got = []
+    for k in range(n):
+        got.extend(k for _ in mon.update((_ts(7, x0, y0 + vy * k * 0.1, 0.0, vy, k + 1),), k * DT_NS).events)
+    return got
+
+
+def test_no_wrong_way_alarm_from_the_neighbouring_lane_while_the_yaw_is_unknown():
+    """A track 0.5 m inside lane 3's edge 150 m away: with the configured yaw known to 0.5 deg (and not yet
+    estimated) that is 0.4 sd of lateral uncertainty, so its frames do not count; 25 m away it is 2.3 sd
+    inside and raises the alarm after wrong_way_min_frames. A vehicle in the middle of the lane at 150 m
+    is 1.3 sd inside: with wrong_way_lane_sigmas 1 it raises, with 2 it waits until it is nearer."""
+    base = dict(wrong_way_min_frames=15, estimate_yaw=True, yaw_min_tracks=5, mounting_yaw_sigma_deg=0.5)
+    cfg = TrafficConfig(**base)
+    assert _wrong_way_frames(cfg, 4.0, 150.0, -4.0) == []  # 150 -> 126 m: never sure of its lane
+    assert _wrong_way_frames(cfg, 4.0, 25.0, -4.0) == [14]
+    mid = _wrong_way_frames(cfg, 5.25, 150.0, -25.0)
+    # 2 sd inside 1.75 m of half-width at 0.5 deg: within 100 m, from frame 20 (y = 100 m) on
+    assert mid == [20 + 14]
+    assert _wrong_way_frames(TrafficConfig(**base, wrong_way_lane_sigmas=1.0), 5.25, 150.0, -25.0) == [14]
+    # the installer measured the yaw (no estimate): every frame in the lane counts
+    assert _wrong_way_frames(TrafficConfig(wrong_way_min_frames=15, estimate_yaw=False), 4.0, 150.0, -4.0) == [14]
+
+
+def test_yaw_estimate_standard_error_shrinks_with_votes():
+    """The standard error of the yaw median is 1.2533 sd / sqrt(n) of the votes."""
+    rng = np.random.default_rng(3)
+    est = YawEstimator(TrafficConfig(yaw_min_tracks=5, yaw_window_tracks=1000))
+    assert est.estimate_rad() is None and est.stderr_rad is None
+    votes = rng.normal(0.01, 0.004, 400)
+    est._votes.extend(votes.tolist())
+    est._n_voted = votes.size
+    assert est.estimate_rad() == pytest.approx(float(np.median(votes)))
+    assert est.stderr_rad == pytest.approx(1.2533 * np.std(votes, ddof=1) / 20.0)
+    assert 0.5 * 0.004 / 20 < est.stderr_rad < 2.0 * 0.004 / 20
+
+
 @pytest.mark.parametrize("gap_s,expected", [(0.5, 1), (1.2, 2)])
 def test_the_second_track_of_one_truck_is_not_counted_twice(gap_s, expected):
     """Two tracks in one lane crossing the detection line gap_s apart at the same speed: 0.5 s is the

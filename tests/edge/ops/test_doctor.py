@@ -380,3 +380,29 @@ def test_service_user_in_dialout(monkeypatch):
     assert dr.check_user(FakeSystem("/"))[0].status == "ok"
     users.clear()
     assert dr.check_user(FakeSystem("/"))[0].status == "warn"
+
+
+def test_traffic_calibration_file(tmp_path):
+    from edge.traffic import Lane
+    from edge.traffic.calibration import Calibration, CalibrationWriter
+
+    assert dr.check_traffic_calibration(FakeSystem(tmp_path, uid=0), _cfg())[0].status == "skipped"
+    cfg = _cfg(**{"traffic.calibration_file": "/var/lib/radar-edge/traffic-calibration.json"})
+    c = dr.check_traffic_calibration(FakeSystem(tmp_path, uid=0), cfg)[0]
+    assert c.status == "fail" and "install -d" in c.fix
+    d = tmp_path / "var/lib/radar-edge"
+    d.mkdir(parents=True)
+    c = dr.check_traffic_calibration(FakeSystem(tmp_path, uid=0), cfg)[0]
+    assert c.status == "ok" and "none saved yet" in c.detail
+    w = CalibrationWriter(d / "traffic-calibration.json")
+    w.submit(Calibration(0.05, 0.001, 42, "learned", (Lane(-1.75, 3.5, -1), Lane(1.75, 3.5, 1))))
+    w.close()
+    c = dr.check_traffic_calibration(FakeSystem(tmp_path, uid=0), cfg)[0]
+    assert c.status == "ok" and "yaw 2.86 +- 0.06 deg from 42 tracks, 2 lanes (learned)" in c.detail
+    (d / "traffic-calibration.json").write_text("{broken")
+    c = dr.check_traffic_calibration(FakeSystem(tmp_path, uid=0), cfg)[0]
+    assert c.status == "warn" and "delete" in c.fix
+    if os.geteuid() == 0:  # the service user (uid 1000) may not write a root-owned 0755 directory
+        os.chmod(d, 0o755)
+        c = dr.check_traffic_calibration(FakeSystem(tmp_path, uid=1000), cfg)[0]
+        assert c.status == "fail" and "chown" in c.fix

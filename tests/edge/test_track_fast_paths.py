@@ -1,0 +1,111 @@
+"""The lane tracker's cheaper code paths compute what the plain forms compute (issue 9).
+
+End to end the lane golden fixtures (tests/edge/test_lane_golden.py) pin the tracker's outputs; these
+tests pin the pieces: the inline TrackState construction, the IMM update of both modes by broadcasting
+(against the flat (track, mode) rows with repeated weights) and the row operations of the track table.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from edge.track import PdafConfig, PdafTracker, TrackTable, imm
+from edge.track import tracker as tracker_module
+from edge.track.pdaf import Innovations, combined_update, innovations
+from edge.types import TrackState
+from tests.edge.trackscene import Vehicle, frames
+
+SCENE = [Vehicle(-5.25, 200.0, 0.0, -27.0, length_m=12.0), Vehicle(-1.75, 150.0, 0.0, -22.0),
+         Vehicle(1.75, 20.0, 0.0, 30.0, length_m=4.5), Vehicle(5.25, 40.0, 0.0, 25.0)]
+
+
+def _published(cfg: PdafConfig, n_frames: int = 150) -> list[tuple[TrackState, ...]]:
+    tr = PdafTracker(cfg)
+    return [tr.step(det, t_ns) for t_ns, det, _ in frames(SCENE, n_frames, seed=3, p_detect=0.9,
+                                                           clutter_per_frame=2.0)]
+
+
+@pytest.mark.parametrize("tentative", [False, True])
+def test_published_states_equal_the_dataclass_constructor(tentative, monkeypatch):
+    cfg = dataclasses.replace(PdafConfig(), publish_tentative=tentative)
+    fast = _published(cfg)
+    n = sum(len(f) for f in fast)
+    assert n > 300 and any(t.length_m is not None for f in fast for t in f)
+    assert any(not t.confirmed for f in fast for t in f) == tentative
+    for f in fast:
+        for t in f:
+            plain = TrackState(**vars(t))
+            assert t == plain and list(vars(t).items()) == list(vars(plain).items()) and hash(t) == hash(plain)
+    # the fallback through the constructor gives the same states
+    monkeypatch.setattr(tracker_module, "_TRACK_STATE_PLAIN", False)
+    assert _published(cfg) == fast
+
+
+def _random_modes(rng, t, m, n):
+    xpm = rng.normal(size=(t, 2, 4)) * [20.0, 100.0, 3.0, 25.0]
+    a = rng.normal(size=(t, 2, 4, 4))
+    ppm = a @ a.swapaxes(-1, -2) + 0.1 * np.eye(4)
+    zh = xpm[:, :, :n] + rng.normal(size=(t, 2, n))
+    h = np.zeros((t, 2, n, 4))
+    h[..., 0, 0] = h[..., 1, 1] = 1.0
+    if n == 3:
+        h[..., 2, :] = rng.normal(size=(t, 2, 4))
+    r = np.broadcast_to(np.diag([0.3, 1.0, 0.09][:n]), (t * 2, n, n))
+    z = rng.normal(size=(m, n)) * [20.0, 100.0, 25.0][:n]
+    inn = innovations(z, zh.reshape(2 * t, n), h.reshape(2 * t, n, 4), ppm.reshape(2 * t, 4, 4), r)
+    beta = rng.uniform(size=(t, m))
+    beta /= beta.sum(axis=1, keepdims=True) * rng.uniform(1.0, 3.0, size=(t, 1))
+    beta0 = 1.0 - beta.sum(axis=1)
+    return xpm, ppm, h, inn, beta, beta0
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_both_modes_by_broadcasting_equal_the_flat_rows(n):
+    rng = np.random.default_rng(11 + n)
+    t, m = 7, 5
+    xpm, ppm, h, inn, beta, beta0 = _random_modes(rng, t, m, n)
+    flat_x, flat_p = combined_update(xpm.reshape(2 * t, 4), ppm.reshape(2 * t, 4, 4), h.reshape(2 * t, n, 4), inn,
+                                     np.repeat(beta, 2, axis=0), np.repeat(beta0, 2))
+    by_mode = Innovations(inn.v.reshape(t, 2, m, n), inn.d2.reshape(t, 2, m), inn.s.reshape(t, 2, n, n),
+                          inn.s_inv.reshape(t, 2, n, n), inn.det_s.reshape(t, 2))
+    x, p = combined_update(xpm, ppm, h, by_mode, beta[:, None, :], beta0[:, None])
+    np.testing.assert_allclose(x, flat_x.reshape(t, 2, 4), rtol=1e-13, atol=1e-12)
+    np.testing.assert_allclose(p, flat_p.reshape(t, 2, 4, 4), rtol=1e-13, atol=1e-12)
+    # the textbook form beta0 P + (1 - beta0)(P - K S K') + K spread K' of one row
+    k = ppm[0, 1] @ h[0, 1].T @ np.linalg.inv(by_mode.s[0, 1])
+    v = by_mode.v[0, 1]
+    vbar = beta[0] @ v
+    spread = (v * beta[0][:, None]).T @ v - np.outer(vbar, vbar)
+    pc = ppm[0, 1] - k @ by_mode.s[0, 1] @ k.T
+    ref = beta0[0] * ppm[0, 1] + (1 - beta0[0]) * pc + k @ spread @ k.T
+    np.testing.assert_allclose(p[0, 1], ref, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(x[0, 1], xpm[0, 1] + k @ vbar, rtol=1e-12)
+    # mode likelihoods: broadcast gate and volume against repeated rows
+    gated = inn.d2.reshape(t, 2, m)[:, 0] < 9.0
+    vol = rng.uniform(1.0, 5.0, size=t)
+    flat = imm.mode_likelihood(inn, np.repeat(gated, 2, axis=0), np.repeat(vol, 2), 0.9, 0.99).reshape(t, 2)
+    np.testing.assert_array_equal(imm.mode_likelihood(by_mode, gated[:, None, :], vol[:, None], 0.9, 0.99), flat)
+
+
+def test_track_table_rows_keep_their_dtypes():
+    tab = TrackTable()
+    rng = np.random.default_rng(2)
+    x = rng.normal(size=(5, 4))
+    p = np.repeat(np.eye(4)[None], 5, axis=0) * rng.uniform(1, 2, size=(5, 1, 1))
+    tab.append(x, p, 1.7, 0.6)
+    tab.append(x[:2] + 1.0, p[:2], 2.0, 0.5)
+    dtypes = {c: getattr(tab, c).dtype for c in TrackTable._COLUMNS}
+    assert len(tab) == 7 and dtypes["history"] == np.uint32 and dtypes["track_id"] == np.int32
+    np.testing.assert_array_equal(tab.xm[:, 1], np.concatenate([x, x[:2] + 1.0]))
+    np.testing.assert_array_equal(tab.mu[:5], [[0.6, 0.4]] * 5)
+    np.testing.assert_array_equal(tab.ext_var, [1.7] * 5 + [2.0] * 2)
+    mask = np.array([True, False, True, True, False, False, True])
+    before = {c: getattr(tab, c).copy() for c in TrackTable._COLUMNS}
+    tab.keep(mask)
+    assert len(tab) == 4
+    for c in TrackTable._COLUMNS:
+        assert getattr(tab, c).dtype == dtypes[c]
+        np.testing.assert_array_equal(getattr(tab, c), before[c][mask])
