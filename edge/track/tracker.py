@@ -39,7 +39,9 @@ are not. The innovation covariance then differs per (track, detection): the gate
 use each detection's own ``S``, the PDAF posterior is the moment-matched mixture of one Kalman update per
 hypothesis with its own gain (:func:`edge.track.pdaf.combined_update_each`; equal to Lim's single-gain update when
 all ``R`` are equal), and the IMM modes are updated over the validated pairs only. Which detections may seed stays
-decided with the constant model's (wider) exclusion gate (``seed_exclusion_noise``).
+decided with the constant model's (wider) exclusion gate (``seed_exclusion_noise``). Cost (thread CPU time per
+frame, p50, shared development machine): highway4 seed 1 (4.7 detections) 0.34 ms constant, 0.57 ms snr; 73 synthetic
+tracks x 99 detections 2.35 ms constant, 2.50 ms snr.
 
 Beyond Lim's single-point PDAF, what a roadside radar needs (all parameters in ``track.pdaf``):
 
