@@ -22,6 +22,7 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.simulate",
     "edge.commands.replay",
     "edge.commands.evaluate",
+    "edge.commands.fit_noise",
     "edge.commands.bench",
     "edge.commands.soak",
     "edge.commands.pollbench",

@@ -80,14 +80,38 @@ class PdafConfig:
     imm_p_keep_to_manoeuvre: float = field(
         default=0.02, metadata={"doc": "per-frame probability that a lane-keeping vehicle starts a manoeuvre "
                                        "(mean 50 frames = 1.7 s in the mode: a prior, not a rate of lane changes; "
-                                       "0.01 left the crossing scenario's lane change too late on 3 of 16 seeds)",
+                                       "0.01 left the crossing scenario's lane change too late on 3 of 16 seeds; "
+                                       "with measurement_noise = snr 0.01 on 2 of 20, 0.007 on 1 of 20, 0.02 on none)",
                                 "min": 1e-6, "max": 0.5})
+    imm_far_p_keep_to_manoeuvre: float = field(
+        default=0.002, metadata={"doc": "... falling (log-linearly from imm_far_from_m to imm_far_to_m) to this far "
+                                        "away: there one detection's lateral noise (0.5-1.5 m) exceeds what a lane "
+                                        "change moves in several frames, the mode likelihoods carry no information "
+                                        "and the mode probabilities follow the prior; with 0.02 that is 50/50 and a "
+                                        "far vehicle's lateral speed wandered by 0.5 m/s with the manoeuvring mode's "
+                                        "(highway4 dev seeds: motorcycle 0.19-0.45 m RMSE with 0.02 everywhere); "
+                                        "= imm_p_keep_to_manoeuvre: off", "min": 1e-6, "max": 0.5})
+    imm_far_from_m: float = field(
+        default=150.0, metadata={"unit": "m", "doc": "ground range from which the switching prior falls toward "
+                                                     "imm_far_p_keep_to_manoeuvre: lane changes nearer are followed "
+                                                     "as before, farther ones later (the crossing scenario's lane "
+                                                     "changes start at about 100 m: from 100 m, 1 of 20 seeds "
+                                                     "swapped ids; from 150 m none)", "min": 0.0, "max": 1000.0})
+    imm_far_to_m: float = field(
+        default=220.0, metadata={"unit": "m", "doc": "... reaching it at this ground range", "min": 0.0,
+                                 "max": 2000.0})
     imm_p_manoeuvre_to_keep: float = field(
         default=0.02, metadata={"doc": "per-frame probability that a manoeuvre ends (mean 50 frames = 1.7 s; a lane "
                                        "change takes 2-4 s; 0.03 lost a 2 s lane change across a neighbour 1.5 m/s "
                                        "faster in tests/edge/test_pdaf_tracker.py)", "min": 1e-6, "max": 0.5})
     imm_init_keep_prob: float = field(
         default=0.5, metadata={"doc": "probability of the lane-keeping mode for a new track", "min": 0.0, "max": 1.0})
+    imm_keep_init_lateral_speed_sigma_mps: float = field(
+        default=0.5, metadata={"unit": "m/s", "doc": "initial speed sd across the road of a seed's lane-keeping mode "
+                                                     "(the manoeuvring mode starts with init_lateral_speed_sigma_mps): "
+                                                     "a vehicle seeded far away, where the azimuth noise is a metre, "
+                                                     "does not start drifting across; 0 = as the manoeuvring mode",
+                                "min": 0.0, "max": 100.0})
     imm_min_mode_prob: float = field(
         default=1e-3, metadata={"doc": "floor of either mode's probability (a mode can always come back)",
                                 "min": 0.0, "max": 0.1})
@@ -101,11 +125,16 @@ class PdafConfig:
         default=2.0, metadata={"unit": "m/s", "doc": "initial along-boresight speed sd when the radial speed seeds it",
                                "min": 0.01, "max": 100.0})
     init_lateral_speed_sigma_mps: float = field(
-        default=3.0, metadata={"unit": "m/s", "doc": "initial speed sd across the road (the road direction is the "
+        default=1.5, metadata={"unit": "m/s", "doc": "initial speed sd across the road (the road direction is the "
                                                      "mounting yaw the traffic layer estimates; a mis-aimed radar "
-                                                     "sees a few m/s across before it is estimated). 0.5-1.0 halves "
-                                                     "the lateral error of far seeds on highway4 but cost the second "
-                                                     "car of side-by-side (seeds 8, 31) a tenth of its tracked frames",
+                                                     "sees a few m/s across before it is estimated; the IMM's "
+                                                     "lane-keeping mode starts with imm_keep_init_lateral_speed_sigma_mps). "
+                                                     "3.0 with measurement_noise = snr let seeds on the strong "
+                                                     "in-between detections of two unresolved cars side by side chase "
+                                                     "across at 5-9 m/s and swap vehicles (side-by-side seeds 5, 31, "
+                                                     "44: 3-6 id switches; 1.5: 0-1). 0.5-1.0 cost the second car of "
+                                                     "side-by-side (seeds 8, 31) a tenth of its tracked frames with "
+                                                     "the constant noise",
                                "min": 0.01, "max": 100.0})
     init_speed_sigma_mps: float = field(
         default=40.0, metadata={"unit": "m/s", "doc": "initial speed sd when no radial speed is measured",
@@ -225,6 +254,12 @@ class PdafConfig:
                                                     "could not seed because it lies in the track's same-vehicle "
                                                     "box (16.5 m: the longest truck); 0 = off",
                                 "min": 0.0, "max": 100.0})
+    reanchor_min_m: float = field(
+        default=1.0, metadata={"unit": "m", "doc": "... and at least this much nearer: a detection less than a metre "
+                                                   "nearer is the track's own vehicle's near face measured badly (an "
+                                                   "outlier of the azimuth, outside the gate of a confident track), "
+                                                   "not a face the track missed; 0 = any nearer detection",
+                               "min": 0.0, "max": 100.0})
     reanchor_speed_mps: float = field(
         default=1.0, metadata={"unit": "m/s", "doc": "radial-speed difference within which a re-anchoring "
                                                      "detection is the track's own vehicle", "min": 0.0, "max": 20.0})
@@ -259,3 +294,57 @@ class PdafConfig:
                                                      "glint joins the truck's own track, while a car in the next lane "
                                                      "at the truck's speed must not wait",
                                  "min": 0.0, "max": 1000.0})
+    measurement_noise: str = field(
+        default="snr",
+        metadata={"doc": "constant: one R per track from range_sigma_m, azimuth_sigma_deg and extent_sigma_m at its "
+                         "prediction (Lim); snr: one R per detection from its SNR, sigma^2 = sigma0^2 / SNR + floor^2 "
+                         "for azimuth and range (Cramer-Rao form, snr_* fields, fitted to the simulated SIMO board), "
+                         "so strong far detections are trusted and weak ones are not; the PDAF update then uses one "
+                         "gain per detection (edge.track.pdaf.combined_update_each)", "choices": ("constant", "snr")},
+    )
+    seed_exclusion_noise: str = field(
+        default="constant",
+        metadata={"doc": "with measurement_noise = snr, the noise model of the exclusion gate that keeps a tracked "
+                         "vehicle's detections from seeding (init_exclusion_prob): constant (range_sigma_m, "
+                         "azimuth_sigma_deg: two vehicles side by side, unresolved in angle, give strong detections "
+                         "between them that the SNR noise puts outside the gate; as seeds they became tracks that "
+                         "swapped vehicles) or snr", "choices": ("constant", "snr")},
+    )
+    snr_azimuth_sigma_deg: float = field(
+        default=0.88, metadata={"unit": "deg", "doc": "measurement_noise = snr: azimuth sd at 0 dB SNR "
+                                                      "(sigma_az = this / sqrt(SNR)). Fitted on highway4 dev seeds 1, 2, "
+                                                      "3, 5, 8 (6853 detections against the true position, 20-300 m, "
+                                                      "4-40 dB): 0.88; the Cramer-Rao bound of the 4-channel array "
+                                                      "(d = 1.5 lambda) with the 4 segments as looks is 0.96. "
+                                                      "radar-edge fit-noise reproduces the fit (0.85 with this "
+                                                      "tracker's aided pairings)",
+                                "min": 0.001, "max": 20.0})
+    snr_azimuth_floor_deg: float = field(
+        default=0.03, metadata={"unit": "deg", "doc": "... plus this azimuth sd in quadrature (calibration, glint of "
+                                                      "a vehicle's scatterers; fitted: 0.026)", "min": 0.0, "max": 5.0})
+    snr_range_sigma_m: float = field(
+        default=0.165, metadata={"unit": "m", "doc": "measurement_noise = snr: range sd at 0 dB SNR (sub-bin "
+                                                     "interpolation of the beat frequencies; fitted as the azimuth: "
+                                                     "0.165)", "min": 0.001, "max": 10.0})
+    snr_range_floor_m: float = field(
+        default=0.015, metadata={"unit": "m", "doc": "... plus this range sd in quadrature (fitted: 0.015)",
+                                 "min": 0.0, "max": 5.0})
+    snr_extent_sigma_m: float = field(
+        default=0.47, metadata={"unit": "m", "doc": "measurement_noise = snr: isotropic position sd added to every "
+                                                    "detection (extent_sigma_m of the constant model): which of an "
+                                                    "extended vehicle's scatterers gives the peak. Fitted with the "
+                                                    "azimuth law fixed on highway4-traffic seed 5 (17316 detections "
+                                                    "of hw_sim.vehicles bodies against their near-face point): 0.47 "
+                                                    "(a 1.8 m wide car, uniform: 0.52); highway4's point-like targets "
+                                                    "show < 0.01, but a floor that small made confident tracks lose "
+                                                    "real vehicles' detections from their gates (crossing: id swaps). "
+                                                    "Along the heading the learned spread of the vehicle is added",
+                                "min": 0.0, "max": 10.0})
+    snr_min_db: float = field(
+        default=6.0, metadata={"unit": "dB", "doc": "a detection's SNR is taken as at least this in the law (a "
+                                                    "detection without a finite SNR counts as this): below, the "
+                                                    "measured error saturates (4.5 dB at 240 m: 1.5 m sd, the law "
+                                                    "2.2 m)", "min": -20.0, "max": 60.0})
+    snr_max_db: float = field(
+        default=45.0, metadata={"unit": "dB", "doc": "... and at most this (the floors dominate beyond)",
+                                "min": -20.0, "max": 100.0})

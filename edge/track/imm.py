@@ -44,6 +44,8 @@ __all__ = [
     "predict_modes",
     "moment_match",
     "mode_likelihood",
+    "mode_likelihood_each",
+    "mode_likelihood_pairs",
     "update_mode_probabilities",
 ]
 
@@ -80,7 +82,7 @@ def mix(xm: np.ndarray, pm: np.ndarray, mu: np.ndarray, pi: np.ndarray) -> tuple
     With two modes ``x_i - x0_j`` is ``w_1j D`` or ``-w_0j D`` (``D = x_0 - x_1``), so the spread term
     ``sum_i w_ij d d'`` is ``w_0j w_1j D D'``: no (T, 2, 2, 4, 4) intermediate."""
     t = xm.shape[0]
-    joint = mu[:, :, None] * pi[None, :, :]  # (T, i, j) = pi_ij mu_i
+    joint = mu[:, :, None] * (pi if pi.ndim == 3 else pi[None, :, :])  # (T, i, j) = pi_ij mu_i (pi: (2, 2) or per track)
     c = joint[:, 0] + joint[:, 1]  # (T, j): the sum over the two i
     w = joint / np.maximum(c, 1e-300)[:, None, :]  # (T, i, j)
     wt = w.swapaxes(1, 2)  # (T, j, i)
@@ -134,3 +136,24 @@ def update_mode_probabilities(c: np.ndarray, lik: np.ndarray, floor: float) -> n
     mu /= np.maximum(mu[:, 0:1] + mu[:, 1:2], 1e-300)  # the sum over the two modes
     mu = np.maximum(mu, floor)
     return mu / (mu[:, 0:1] + mu[:, 1:2])
+
+
+def mode_likelihood_each(inn: Innovations, gated: np.ndarray, gate_volume: np.ndarray, prob_detect: float,
+                         prob_gate: float) -> np.ndarray:
+    """:func:`mode_likelihood` with one innovation covariance per (track, detection) (``inn.det_s`` (T, M),
+    :func:`edge.track.pdaf.innovations_each`): ``N(v_jm; 0, S_jm)`` per detection."""
+    n = inn.v.shape[2]
+    m_t = np.maximum(gated.sum(axis=1), 1)
+    norm = (2.0 * math.pi) ** (n / 2.0) * np.sqrt(inn.det_s)  # (T, M)
+    dens = (np.where(gated, np.exp(-0.5 * np.minimum(inn.d2, 700.0)), 0.0) / norm).sum(axis=1)
+    return (1.0 - prob_gate * prob_detect) + prob_detect * gate_volume / m_t * dens
+
+
+def mode_likelihood_pairs(pin, n_rows: int, gate_volume: np.ndarray, n_gated: np.ndarray, prob_detect: float,
+                          prob_gate: float) -> np.ndarray:
+    """:func:`mode_likelihood_each` from the validated pairs only (``pin``: :class:`edge.track.pdaf.PairInnovations`
+    of the mode rows): ``gate_volume`` and ``n_gated`` (number of validated detections) per row -> (n_rows,)."""
+    n = pin.v.shape[1]
+    dens = np.bincount(pin.t, np.exp(-0.5 * np.minimum(pin.d2, 700.0)) / ((2.0 * math.pi) ** (n / 2.0)
+                                                                         * np.sqrt(pin.det_s)), minlength=n_rows)
+    return (1.0 - prob_gate * prob_detect) + prob_detect * gate_volume / np.maximum(n_gated, 1) * dens

@@ -14,7 +14,10 @@ Measurement models:
 
 The measurement noise of a converted polar measurement depends on where the target is
 (``R = J diag(sigma_r^2, sigma_az^2) J^T`` at the predicted range and azimuth), so ``R`` is computed
-per track at its prediction, one ``S`` per track, which keeps the PDAF gate an ellipse per track.
+per track at its prediction, one ``S`` per track, which keeps the PDAF gate an ellipse per track
+(``measurement_noise = "constant"``). With ``measurement_noise = "snr"`` the sensor part of ``R`` is computed per
+detection at its own position from its SNR (:func:`snr_polar_noise`), and ``S`` is per (track, detection)
+(:mod:`edge.track.pdaf`).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ __all__ = [
     "predict",
     "polar_position_noise",
     "measurement_prediction",
+    "snr_polar_noise",
 ]
 
 
@@ -101,3 +105,25 @@ def measurement_prediction(xp: np.ndarray, with_radial_speed: bool) -> tuple[np.
         h[:, 2, 2] = x / rho
         h[:, 2, 3] = y / rho
     return zh, h
+
+
+def snr_polar_noise(xy: np.ndarray, snr_db: np.ndarray, range_sigma0_m: float, range_floor_m: float,
+                    az_sigma0_rad: float, az_floor_rad: float, floor_sigma_m: float,
+                    snr_clip_db: tuple[float, float] = (0.0, 60.0)) -> np.ndarray:
+    """(M, 2, 2) covariance of each converted polar detection at its own ground point ``xy`` (M, 2) from its
+    SNR ``snr_db`` (M,): the Cramer-Rao form ``sigma^2 = sigma0^2 / snr + floor^2`` (``snr`` linear, clipped to
+    ``snr_clip_db``) for the azimuth (``sigma0`` = the sd at 0 dB) and for the range, converted like
+    :func:`polar_position_noise` (``J diag(sigma_r^2, sigma_az^2) J'`` plus ``floor_sigma_m^2`` isotropic).
+    """
+    snr = 10.0 ** (np.clip(snr_db, snr_clip_db[0], snr_clip_db[1]) / 10.0)
+    var_r = range_sigma0_m**2 / snr + range_floor_m**2
+    var_az = az_sigma0_rad**2 / snr + az_floor_rad**2
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    r_safe = np.maximum(r, 1e-6)
+    s, c = xy[:, 0] / r_safe, xy[:, 1] / r_safe
+    rr2 = r * r * var_az
+    out = np.empty((xy.shape[0], 2, 2))
+    out[:, 0, 0] = s * s * var_r + c * c * rr2 + floor_sigma_m**2
+    out[:, 1, 1] = c * c * var_r + s * s * rr2 + floor_sigma_m**2
+    out[:, 0, 1] = out[:, 1, 0] = s * c * (var_r - rr2)
+    return out

@@ -33,7 +33,9 @@ from scipy.stats import chi2
 
 from edge.track.smallmat import inv_det
 
-__all__ = ["gate_threshold", "unit_ball_volume", "Innovations", "innovations", "association_weights", "combined_update"]
+__all__ = ["gate_threshold", "unit_ball_volume", "Innovations", "innovations", "association_weights", "combined_update",
+           "InnovationsEach", "innovations_each", "gate_volume_each", "association_weights_each", "combined_update_each",
+           "PairInnovations", "pair_innovations", "combined_update_pairs"]
 
 
 def gate_threshold(prob_gate: float, n: int) -> float:
@@ -141,3 +143,174 @@ def combined_update(
     p = pp + k @ spread @ kt
     p = 0.5 * (p + p.swapaxes(-1, -2))
     return x, p
+
+
+# --- measurement-dependent noise: one R per detection (its SNR), so one S per (track, detection) ----------------
+#
+# With ``R_m`` per detection the innovation covariance is ``S_tm = H_t P_t H_t' + R_t + R_m`` (``R_t``: the
+# track's own part, the extent of its vehicle; ``R_m``: the sensor noise of detection ``m``). Each association
+# hypothesis ``m`` then has its own gain ``K_tm = P_t H_t' S_tm^-1`` and the PDAF posterior is the moment-matched
+# mixture of the per-hypothesis Kalman posteriors (Bar-Shalom, Daum & Huang 2009, eq. 39 with ``K`` inside the sum):
+#
+#     x = x^- + sum_m beta_m K_m v_m
+#     P = P^- - (sum_m beta_m K_m) H P^- + sum_m beta_m dx_m dx_m' - dx dx',   dx_m = K_m v_m,  dx = sum_m beta_m dx_m
+#
+# (``beta_0`` keeps ``x^-, P^-``). With a common ``R`` this is exactly :func:`combined_update`. The gate of a
+# detection is its own ellipse ``v' S_tm^-1 v <= gamma``; the likelihoods use ``N(v; 0, S_tm)``; the clutter density
+# ``M_t / V_t`` uses the mean gate volume of the validated detections, ``V_t = c_n gamma^(n/2) mean_m |S_tm|^(1/2)``
+# (with one validated detection ``L`` does not depend on ``S``, as with the common ``R``).
+
+@dataclass
+class InnovationsEach(Innovations):
+    """:class:`Innovations` with one ``S`` per (track, detection): ``s``, ``s_inv`` (T, M, n, n),
+    ``det_s`` (T, M); ``s_track`` (T, n, n) is ``H P H' + R_t`` without the detections' noise."""
+
+    s_track: np.ndarray | None = None
+
+
+def _sym_inv_det(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse and determinant of symmetric 2x2 or 3x3 matrices ``s`` (..., n, n) in closed form (batched over
+    tracks x detections, where ``np.linalg.inv`` on thousands of tiny matrices costs more than the maths)."""
+    n = s.shape[-1]
+    inv = np.empty_like(s)
+    if n == 2:
+        a, b, d = s[..., 0, 0], s[..., 0, 1], s[..., 1, 1]
+        det = a * d - b * b
+        inv[..., 0, 0], inv[..., 1, 1] = d / det, a / det
+        inv[..., 0, 1] = inv[..., 1, 0] = -b / det
+        return inv, det
+    if n != 3:
+        return np.linalg.inv(s), np.linalg.det(s)
+    a, b, c = s[..., 0, 0], s[..., 0, 1], s[..., 0, 2]
+    d, e, f = s[..., 1, 1], s[..., 1, 2], s[..., 2, 2]
+    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
+    c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * c00 + b * c01 + c * c02
+    inv[..., 0, 0], inv[..., 1, 1], inv[..., 2, 2] = c00 / det, c11 / det, c22 / det
+    inv[..., 0, 1] = inv[..., 1, 0] = c01 / det
+    inv[..., 0, 2] = inv[..., 2, 0] = c02 / det
+    inv[..., 1, 2] = inv[..., 2, 1] = c12 / det
+    return inv, det
+
+
+def innovations_each(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, r_track: np.ndarray,
+                     r_meas: np.ndarray) -> InnovationsEach:
+    """``z`` (M, n), ``z_hat`` (T, n), ``h`` (T, n, 4), ``p`` (T, 4, 4), ``r_track`` (T, n, n) the track's part of
+    ``R``, ``r_meas`` (M, n, n) each detection's part: ``S_tm = H_t P_t H_t' + r_track_t + r_meas_m``."""
+    st = h @ p @ h.transpose(0, 2, 1) + r_track
+    st = 0.5 * (st + st.transpose(0, 2, 1))
+    s = st[:, None] + r_meas[None]  # (T, M, n, n)
+    s_inv, det_s = _sym_inv_det(s)
+    v = z[None, :, :] - z_hat[:, None, :]  # (T, M, n)
+    n = z.shape[1]
+    d2 = np.zeros(v.shape[:2])
+    for i in range(n):  # per measurement dimension (n <= 3), not per detection
+        vi = v[:, :, i]
+        d2 += s_inv[:, :, i, i] * vi * vi
+        for j in range(i + 1, n):
+            d2 += 2.0 * s_inv[:, :, i, j] * vi * v[:, :, j]
+    return InnovationsEach(v, d2, s, s_inv, det_s, st)
+
+
+def gate_volume_each(inn: InnovationsEach, gated: np.ndarray, gamma: float) -> np.ndarray:
+    """(T,) ``V_t = c_n gamma^(n/2) mean_m |S_tm|^(1/2)`` over the validated detections (over all when none)."""
+    n = inn.v.shape[2]
+    root = np.sqrt(inn.det_s)
+    k = gated.sum(axis=1)
+    mean_root = np.where(k > 0, (root * gated).sum(axis=1) / np.maximum(k, 1),
+                         root.mean(axis=1) if root.shape[1] else 1.0)
+    return unit_ball_volume(n) * gamma ** (n / 2.0) * mean_root
+
+
+def association_weights_each(
+    inn: InnovationsEach,
+    gamma: float,
+    prob_detect: float,
+    prob_gate: float,
+    method: str = "pdaf",
+    allowed: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`association_weights` with one ``S`` per (track, detection) (``L_tm = P_D N(v; 0, S_tm) V_t / M_t``)."""
+    t, m = inn.d2.shape
+    n = inn.v.shape[2]
+    gated = inn.d2 <= gamma
+    if allowed is not None:
+        gated &= allowed
+    b = 1.0 - prob_gate * prob_detect
+    if m == 0 or t == 0:
+        return np.zeros((t, m)), np.ones(t), gated
+    m_t = gated.sum(axis=1)
+    vol = gate_volume_each(inn, gated, gamma)  # (T,)
+    norm = (2.0 * math.pi) ** (n / 2.0) * np.sqrt(inn.det_s)  # (T, M)
+    scale = prob_detect * vol / np.maximum(m_t, 1)  # (T,)
+    lik = np.where(gated, np.exp(-0.5 * np.minimum(inn.d2, gamma)) * scale[:, None] / norm, 0.0)
+    s_t = lik.sum(axis=1)
+    if method == "pdaf":
+        beta = lik / (b + s_t)[:, None]
+        beta0 = b / (b + s_t)
+    elif method == "jpda":
+        s_m = lik.sum(axis=0)
+        beta = lik / (s_t[:, None] + s_m[None, :] - lik + b)
+        beta0 = 1.0 - beta.sum(axis=1)
+    else:
+        raise ValueError(f"unknown association method {method!r}: choose pdaf or jpda")
+    return beta, beta0, gated
+
+
+@dataclass
+class PairInnovations:
+    """Innovations of selected (track row, detection) pairs only (``P`` pairs, e.g. the validated ones): rows
+    ``t`` (P,), detections ``m`` (P,), ``v`` (P, n), ``d2`` (P,), ``s_inv`` (P, n, n), ``det_s`` (P,)."""
+
+    t: np.ndarray
+    m: np.ndarray
+    v: np.ndarray
+    d2: np.ndarray
+    s_inv: np.ndarray
+    det_s: np.ndarray
+
+
+def pair_innovations(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, r_track: np.ndarray,
+                     r_meas: np.ndarray, t: np.ndarray, m: np.ndarray) -> PairInnovations:
+    """:func:`innovations_each` for the pairs ``(t[k], m[k])`` only (the per-mode rows of the IMM need the validated
+    pairs, not all tracks x detections)."""
+    st = h @ p @ h.transpose(0, 2, 1) + r_track
+    st = 0.5 * (st + st.transpose(0, 2, 1))
+    s_inv, det_s = _sym_inv_det(st[t] + r_meas[m])
+    v = z[m] - z_hat[t]
+    d2 = np.einsum("pi,pij,pj->p", v, s_inv, v)
+    return PairInnovations(t, m, v, d2, s_inv, det_s)
+
+
+def combined_update_pairs(xp: np.ndarray, pp: np.ndarray, h: np.ndarray, pin: PairInnovations,
+                          w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The per-hypothesis PDAF update (comment above :class:`InnovationsEach`) over pairs: ``w`` (P,) the weight
+    ``beta`` of each pair (the pairs with ``beta > 0`` suffice; ``beta_0`` is implied)."""
+    t = xp.shape[0]
+    ph = pp @ h.transpose(0, 2, 1)  # (T, 4, n)
+    if pin.t.size == 0:
+        return xp.copy(), pp.copy()
+    k = ph[pin.t] @ pin.s_inv  # (P, 4, n)
+    dx = (k @ pin.v[:, :, None])[:, :, 0]  # (P, 4)
+    wdx = dx * w[:, None]
+    dxbar = np.zeros((t, 4))
+    np.add.at(dxbar, pin.t, wdx)
+    kbar = np.zeros(ph.shape)
+    np.add.at(kbar, pin.t, k * w[:, None, None])
+    spread = np.zeros((t, 4, 4))
+    np.add.at(spread, pin.t, wdx[:, :, None] * dx[:, None, :])
+    x = xp + dxbar
+    p = pp - kbar @ ph.transpose(0, 2, 1) + spread - dxbar[:, :, None] * dxbar[:, None, :]
+    p = 0.5 * (p + p.transpose(0, 2, 1))
+    return x, p
+
+
+def combined_update_each(
+    xp: np.ndarray, pp: np.ndarray, h: np.ndarray, inn: InnovationsEach, beta: np.ndarray, beta0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """PDAF state estimation with a gain per hypothesis (see the comment above :class:`InnovationsEach`):
+    ``xp`` (T, 4), ``pp`` (T, 4, 4) -> posterior (x, P). ``beta0`` is implied (``1 - sum beta``); only the pairs
+    with ``beta > 0`` are computed (:func:`combined_update_pairs`)."""
+    t, m = np.nonzero(beta > 0)
+    pin = PairInnovations(t, m, inn.v[t, m], inn.d2[t, m], inn.s_inv[t, m], inn.det_s[t, m])
+    return combined_update_pairs(xp, pp, h, pin, beta[t, m])

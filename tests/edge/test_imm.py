@@ -12,7 +12,7 @@ import pytest
 
 from edge.track import PdafConfig, PdafTracker, imm, kalman
 from edge.track.pdaf import Innovations
-from tests.edge.trackscene import FRAME_NS, Vehicle, frames
+from tests.edge.trackscene import FRAME_NS, Vehicle, frames, scene_config
 
 
 def _random_spd(rng, n):
@@ -99,8 +99,8 @@ def _scene(n_frames, seed, vehicles, **kw):
 def test_imm_with_two_cv_modes_is_the_single_model_tracker():
     """Both modes the cv model (keep mode without decay, the cv model's lateral noise): mixing and the mode
     probabilities change nothing, so every published state equals the single-model tracker's."""
-    base = PdafConfig(motion_model="cv", init_lateral_speed_sigma_mps=3.0)
-    same = dataclasses.replace(base, motion_model="imm", imm_keep_tau_s=0.0,
+    base = scene_config(motion_model="cv", init_lateral_speed_sigma_mps=3.0)
+    same = dataclasses.replace(base, motion_model="imm", imm_keep_tau_s=0.0, imm_keep_init_lateral_speed_sigma_mps=0.0,
                                imm_keep_q_across_m2ps3=base.q_lateral_m2ps3,
                                imm_manoeuvre_q_lateral_m2ps3=base.q_lateral_m2ps3)
     scene = _scene(150, 5, [Vehicle(-1.75, 150.0, 0.0, -25.0), Vehicle(5.25, 30.0, 0.0, 22.0, length_m=4.5)])
@@ -138,8 +138,8 @@ def test_lane_keeping_far_vehicle_lateral_error_below_the_single_cv_model():
     veh = [Vehicle(-1.75, 250.0, 0.0, -27.0)]
     ratios = []
     for seed in (1, 2, 3):
-        e_cv = _lateral_errors(PdafConfig(motion_model="cv"), veh, 180, seed, az_sigma_deg=0.25)
-        e_imm = _lateral_errors(PdafConfig(), veh, 180, seed, az_sigma_deg=0.25)
+        e_cv = _lateral_errors(scene_config(motion_model="cv"), veh, 180, seed, az_sigma_deg=0.25)
+        e_imm = _lateral_errors(scene_config(), veh, 180, seed, az_sigma_deg=0.25)
         assert len(e_cv) > 150 and len(e_imm) > 150
         ratios.append(np.sqrt(np.mean(e_imm[:, 2] ** 2)) / np.sqrt(np.mean(e_cv[:, 2] ** 2)))
     assert np.mean(ratios) < 0.96 and max(ratios) < 0.98, ratios
@@ -149,7 +149,7 @@ def test_lane_change_is_followed_and_raises_the_manoeuvre_probability():
     """A lane change (3.5 m in 2.5 s) at 70-20 m: one track follows it (lateral error stays well below half a
     lane) and the manoeuvre mode gains weight during the change (measured: 0.45 before, 0.63 during)."""
     veh = [Vehicle(-5.25, 90.0, 0.0, -20.0, lane_change=(1.0, 2.5, 3.5))]
-    e = _lateral_errors(PdafConfig(), veh, 120, 3, az_sigma_deg=0.15)
+    e = _lateral_errors(scene_config(), veh, 120, 3, az_sigma_deg=0.15)
     assert len(set(e[:, 4].tolist())) == 1  # one track throughout
     t = e[:, 0]
     assert np.max(np.abs(e[t > 0.5, 2])) < 0.8
@@ -172,6 +172,14 @@ def test_seed_velocity_follows_the_road_direction():
     assert len(tr.tracks) == 1
     v = tr.tracks.x[0, 2:]
     np.testing.assert_allclose(v, v_s * e_s, atol=0.05)
-    p = tr.tracks.p[0, 2:, 2:]
     e_u = np.array([math.cos(yaw), math.sin(yaw)])
-    assert e_u @ p @ e_u == pytest.approx(PdafConfig().init_lateral_speed_sigma_mps**2, rel=1e-6)
+    cfg = PdafConfig()
+    # the manoeuvring mode starts with init_lateral_speed_sigma_mps across the road, the lane-keeping mode with
+    # imm_keep_init_lateral_speed_sigma_mps; the published covariance is their mixture
+    pk, pm = tr.tracks.pm[0, 0, 2:, 2:], tr.tracks.pm[0, 1, 2:, 2:]
+    assert e_u @ pm @ e_u == pytest.approx(cfg.init_lateral_speed_sigma_mps**2, rel=1e-6)
+    assert e_u @ pk @ e_u == pytest.approx(cfg.imm_keep_init_lateral_speed_sigma_mps**2, rel=1e-6)
+    w = cfg.imm_init_keep_prob
+    np.testing.assert_allclose(tr.tracks.p[0], w * tr.tracks.pm[0, 0] + (1 - w) * tr.tracks.pm[0, 1], rtol=1e-12)
+    e_s_var = e_s @ pm @ e_s
+    assert e_s @ pk @ e_s == pytest.approx(e_s_var, rel=1e-9)  # along the road both modes alike

@@ -172,11 +172,11 @@ def test_body_glint_beside_a_truck_does_not_confirm():
     behind its near face and at exactly its speed (seen on highway4-traffic seed 2: a second, false track in the
     next lane). A detection stream glued to a confirmed vehicle like that stays tentative; a car side by side at
     the same range, or behind at another speed, still confirms."""
-    from edge.track import PdafConfig, PdafTracker
-    from tests.edge.trackscene import Vehicle, frames
+    from edge.track import PdafTracker
+    from tests.edge.trackscene import Vehicle, frames, scene_config
 
     def ids_for(second: Vehicle, seed: int) -> int:
-        tr = PdafTracker(PdafConfig())
+        tr = PdafTracker(scene_config())
         ids = set()
         for t_ns, det, _ in frames([Vehicle(-5.25, 95.0, 0.0, -25.0), second], 80, seed=seed, p_detect=0.9,
                                    az_sigma_deg=0.3):

@@ -37,7 +37,10 @@ def test_lane_pipeline_reproduces_recorded_outputs(fixture):
 
 def test_the_fixtures_cover_resolved_pairs_and_events():
     sbs, _ = lane_golden.load(SIDE_BY_SIDE)
-    assert (sbs["det_resolved_pair"] >= 0).sum() > 50 and len(set(sbs["trk_track_id"].tolist())) == 2
+    ids, rows = np.unique(sbs["trk_track_id"], return_counts=True)
+    # two tracks carry the two cars (since the SNR measurement noise a third lives for 3 frames as they pass
+    # under the bridge, 146-148)
+    assert (sbs["det_resolved_pair"] >= 0).sum() > 50 and (rows > 50).sum() == 2 and len(ids) <= 3
     ww, _ = lane_golden.load(WRONG_WAY)
     assert ww["ev_frame"].size == 1 and str(ww["ev_kind"][0]) == "wrong_way"
 

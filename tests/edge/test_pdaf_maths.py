@@ -194,3 +194,109 @@ def test_pdaf_matches_stonesoup_pda_one_target_in_clutter():
         np.testing.assert_allclose(x[0], np.asarray(mean, float).ravel()[perm], rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(p[0], np.asarray(cov, float)[np.ix_(perm, perm)], rtol=1e-8, atol=1e-10)
     assert n_multi >= 5, "the scenario must exercise several validated detections per frame"
+
+
+# --- one R per detection (measurement_noise = "snr") ---------------------------------------------------------------
+
+from edge.track import imm  # noqa: E402
+from edge.track.pdaf import (_sym_inv_det, association_weights_each, combined_update_each,  # noqa: E402
+                             gate_volume_each, innovations_each)
+
+
+def _random_tracks(rng, t, n):
+    xp = np.column_stack([rng.uniform(-8, 8, t), rng.uniform(20, 200, t), rng.uniform(-1, 1, t), rng.uniform(-30, 30, t)])
+    a = rng.normal(size=(t, 4, 4))
+    pp = a @ a.transpose(0, 2, 1) * 0.3 + np.eye(4)[None] * 0.05
+    zh, h = kalman.measurement_prediction(xp, n == 3)
+    b = rng.normal(size=(t, n, n))
+    r_track = b @ b.transpose(0, 2, 1) * 0.05 + np.eye(n)[None] * 0.01
+    return xp, pp, zh, h, r_track
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_closed_form_inverse_and_determinant_match_numpy(n):
+    rng = np.random.default_rng(7)
+    a = rng.normal(size=(5, 6, n, n))
+    s = a @ a.swapaxes(-1, -2) + 0.1 * np.eye(n)
+    inv, det = _sym_inv_det(s)
+    np.testing.assert_allclose(inv, np.linalg.inv(s), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(det, np.linalg.det(s), rtol=1e-9)
+
+
+@pytest.mark.parametrize("method", ["pdaf", "jpda"])
+@pytest.mark.parametrize("n", [2, 3])
+def test_per_detection_path_with_one_common_r_is_the_constant_r_pdaf(method, n):
+    """Every detection with the same R: innovations, gate, weights and the update equal the constant-R functions
+    (the per-hypothesis gains are then one gain)."""
+    rng = np.random.default_rng(11 + n)
+    t, m = 4, 9
+    xp, pp, zh, h, r_track = _random_tracks(rng, t, n)
+    c = rng.normal(size=(n, n))
+    r_common = c @ c.T * 0.1 + np.eye(n) * 0.02
+    z = zh[rng.integers(0, t, m)] + rng.normal(0, 0.7, (m, n))
+    each = innovations_each(z, zh, h, pp, r_track, np.repeat(r_common[None], m, axis=0))
+    one = innovations(z, zh, h, pp, r_track + r_common[None])
+    np.testing.assert_allclose(each.d2, one.d2, rtol=1e-9)
+    np.testing.assert_allclose(each.det_s, np.repeat(one.det_s[:, None], m, axis=1), rtol=1e-9)
+    gamma = gate_threshold(0.99, n)
+    b1, b01, g1 = association_weights(one, gamma, 0.9, 0.99, method)
+    b2, b02, g2 = association_weights_each(each, gamma, 0.9, 0.99, method)
+    assert g1.any() and (~g1).any()
+    np.testing.assert_array_equal(g1, g2)
+    np.testing.assert_allclose(b2, b1, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(b02, b01, rtol=1e-9)
+    x1, p1 = combined_update(xp, pp, h, one, b1, b01)
+    x2, p2 = combined_update_each(xp, pp, h, each, b2, b02)
+    np.testing.assert_allclose(x2, x1, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(p2, p1, rtol=1e-8, atol=1e-10)
+    vol = unit_ball_volume(n) * gamma ** (n / 2) * np.sqrt(one.det_s)
+    np.testing.assert_allclose(gate_volume_each(each, g2, gamma), vol, rtol=1e-9)
+    np.testing.assert_allclose(imm.mode_likelihood_each(each, g2, vol, 0.9, 0.99),
+                               imm.mode_likelihood(one, g1, vol, 0.9, 0.99), rtol=1e-9)
+
+
+def test_per_detection_update_is_the_moment_matched_mixture_of_per_hypothesis_kalman_updates():
+    """Different R per detection: the posterior is the mixture, weighted by beta (and beta0 for 'none is the
+    target'), of one Kalman update per detection with its own S and gain; checked track by track in plain loops."""
+    rng = np.random.default_rng(5)
+    t, m, n = 3, 6, 3
+    xp, pp, zh, h, r_track = _random_tracks(rng, t, n)
+    c = rng.normal(size=(m, n, n))
+    r_meas = c @ c.transpose(0, 2, 1) * rng.uniform(0.01, 1.0, m)[:, None, None] + np.eye(n)[None] * 0.01
+    z = zh[rng.integers(0, t, m)] + rng.normal(0, 0.5, (m, n))
+    inn = innovations_each(z, zh, h, pp, r_track, r_meas)
+    beta, beta0, gated = association_weights_each(inn, gate_threshold(0.99, n), 0.9, 0.99, "pdaf")
+    assert (gated.sum(axis=1) >= 2).any()
+    x, p = combined_update_each(xp, pp, h, inn, beta, beta0)
+    for i in range(t):
+        means, covs, ws = [xp[i]], [pp[i]], [beta0[i]]
+        for j in range(m):
+            s = h[i] @ pp[i] @ h[i].T + r_track[i] + r_meas[j]
+            k = pp[i] @ h[i].T @ np.linalg.inv(s)
+            means.append(xp[i] + k @ (z[j] - zh[i]))
+            covs.append((np.eye(4) - k @ h[i]) @ pp[i])
+            ws.append(beta[i, j])
+            # the likelihood uses this detection's own S
+            assert inn.det_s[i, j] == pytest.approx(np.linalg.det(s), rel=1e-9)
+        ws = np.array(ws)
+        assert ws.sum() == pytest.approx(1.0)
+        mean = sum(w * mu for w, mu in zip(ws, means))
+        cov = sum(w * (cv + np.outer(mu - mean, mu - mean)) for w, mu, cv in zip(ws, means, covs))
+        np.testing.assert_allclose(x[i], mean, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(p[i], cov, rtol=1e-8, atol=1e-10)
+
+
+def test_snr_polar_noise_known_answer():
+    # on boresight at 100 m, 20 dB: sd across = r * sqrt(s0^2 / 100 + floor^2), along = the range law
+    s0, fl = np.radians(1.0), np.radians(0.1)
+    r = kalman.snr_polar_noise(np.array([[0.0, 100.0], [0.0, 100.0]]), np.array([20.0, 80.0]), 0.2, 0.01, s0, fl, 0.3,
+                               (0.0, 40.0))
+    np.testing.assert_allclose(r[0], [[100.0**2 * (s0**2 / 100 + fl**2) + 0.09, 0.0],
+                                      [0.0, 0.04 / 100 + 1e-4 + 0.09]], rtol=1e-12)
+    np.testing.assert_allclose(r[1, 0, 0], 100.0**2 * (s0**2 / 1e4 + fl**2) + 0.09, rtol=1e-12)  # clipped at 40 dB
+    # off boresight: the same rotation as the constant model
+    xy = np.array([[30.0, 80.0]])
+    snr = np.array([15.0])
+    lin = 10 ** 1.5
+    want = kalman.polar_position_noise(xy, math.sqrt(0.04 / lin + 1e-4), math.sqrt(s0**2 / lin + fl**2), 0.3)
+    np.testing.assert_allclose(kalman.snr_polar_noise(xy, snr, 0.2, 0.01, s0, fl, 0.3), want, rtol=1e-12)

@@ -8,12 +8,12 @@ import pytest
 from edge.config import load_config
 from edge.track import IdPool, PdafConfig, PdafTracker
 from edge.types import Detections
-from tests.edge.trackscene import FRAME_NS, Vehicle, frames
+from tests.edge.trackscene import FRAME_NS, Vehicle, frames, scene_config
 
 
 def _run(vehicles, n_frames, cfg=None, **kw):
     """Track a scene; return per-vehicle lists of (track_id or -1, position error, speed error) and all ids."""
-    tr = PdafTracker(cfg or PdafConfig())
+    tr = PdafTracker(cfg or scene_config())
     hist: dict[int, list[tuple[int, float, float]]] = {}
     ids = set()
     for t_ns, det, truth in frames(vehicles, n_frames, **kw):
@@ -48,7 +48,7 @@ def test_config_section_registered_and_validated():
 
 @pytest.mark.parametrize("association", ["pdaf", "jpda"])
 def test_four_lanes_with_clutter_one_id_per_vehicle_and_accurate(association):
-    hist, ids, _ = _run(HIGHWAY, 300, PdafConfig(association=association), seed=11, p_detect=0.9,
+    hist, ids, _ = _run(HIGHWAY, 300, scene_config(association=association), seed=11, p_detect=0.9,
                         clutter_per_frame=2.0)
     assert len(ids) == 4, f"expected one confirmed track per vehicle, got ids {sorted(ids)}"
     for i, h in hist.items():
@@ -62,7 +62,7 @@ def test_four_lanes_with_clutter_one_id_per_vehicle_and_accurate(association):
 
 
 def test_position_only_measurement_also_tracks():
-    hist, ids, _ = _run(HIGHWAY[:2], 200, PdafConfig(use_radial_speed=False), seed=2, p_detect=0.95)
+    hist, ids, _ = _run(HIGHWAY[:2], 200, scene_config(use_radial_speed=False), seed=2, p_detect=0.95)
     assert len(ids) == 2
     for h in hist.values():
         assert sum(a > 0 for a, _, _ in h) > 180
@@ -78,7 +78,7 @@ def _crossing(dv_mps: float):
 @pytest.mark.parametrize("association,dv_mps", [("jpda", 1.5), ("jpda", 5.0), ("pdaf", 5.0)])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_crossing_vehicles_keep_their_ids(association, dv_mps, seed):
-    hist, ids, _ = _run(_crossing(dv_mps), 200, PdafConfig(association=association), seed=seed, p_detect=0.9,
+    hist, ids, _ = _run(_crossing(dv_mps), 200, scene_config(association=association), seed=seed, p_detect=0.9,
                         clutter_per_frame=1.0, clutter_box=(-10.0, 10.0, 20.0, 150.0))
     before = [{a for a, _, _ in h[30:60]} for h in hist.values()]
     after = [{a for a, _, _ in h[-40:]} for h in hist.values()]
@@ -103,7 +103,7 @@ def test_ids_are_recycled_and_stay_small():
     vehicles = [Vehicle(1.75, 20.0, 0.0, 30.0, t_start_s=k * 1.5, t_end_s=k * 1.5 + 2.5) for k in range(12)]
     for k, v in enumerate(vehicles):
         v.y0_m = 20.0 - 30.0 * k * 1.5  # enters at y = 20 m when it starts
-    cfg = PdafConfig(max_track_id=3, delete_after_misses=3)
+    cfg = scene_config(max_track_id=3, delete_after_misses=3)
     tr = PdafTracker(cfg)
     seen = []
     for t_ns, det, _ in frames(vehicles, int(19.0 / 0.033), seed=4, p_detect=0.95):
@@ -135,7 +135,7 @@ def test_static_clutter_never_confirms_but_a_vehicle_that_stops_stays():
 
 def test_static_clutter_without_radial_speed_is_held_in_a_tentative_track():
     post = Vehicle(8.0, 80.0, 0.0, 0.0)
-    tr = PdafTracker(PdafConfig(use_radial_speed=False))
+    tr = PdafTracker(scene_config(use_radial_speed=False))
     for t_ns, det, _ in frames([post], 100, seed=6, p_detect=0.95):
         out = tr.step(det, t_ns)
     assert out == ()
@@ -148,14 +148,14 @@ def test_sixty_four_simultaneous_tracks():
     for lane_x in (-8.75, -5.25, -1.75, 1.75, 5.25, 8.75, 12.25, -12.25):
         for k in range(8):
             vehicles.append(Vehicle(lane_x, 30.0 + 25.0 * k + rng.uniform(-3, 3), 0.0, rng.uniform(15, 30)))
-    cfg = PdafConfig(range_sigma_m=0.1, azimuth_sigma_deg=0.2)  # the sensor model of this scene
+    cfg = scene_config(range_sigma_m=0.1, azimuth_sigma_deg=0.2)  # the sensor model of this scene
     hist, ids, tr = _run(vehicles, 60, cfg, seed=9, p_detect=0.95, fov_deg=25.0, range_sigma_m=0.1, az_sigma_deg=0.2)
     last = tr.published()
     assert len(last) == 64 and len({o.track_id for o in last}) == 64
 
 
 def test_empty_frames_and_missed_detections_coast_then_delete():
-    cfg = PdafConfig(delete_after_misses=5)
+    cfg = scene_config(delete_after_misses=5)
     tr = PdafTracker(cfg)
     gen = frames([HIGHWAY[2]], 30, seed=1)
     t_ns = 0
@@ -177,7 +177,7 @@ def test_extended_vehicles_one_track_each_and_length_estimate(seed):
         Vehicle(1.75, 20.0, 0.0, 30.0, length_m=8.0),
         Vehicle(5.25, 40.0, 0.0, 25.0, length_m=4.5),
     ]
-    tr = PdafTracker()
+    tr = PdafTracker(scene_config())
     ids = set()
     per_vehicle: dict[int, list[int]] = {}
     lengths: dict[int, list[float]] = {}
@@ -217,7 +217,7 @@ def test_slant_radial_speed_is_projected_to_the_ground_plane():
 
 
 def test_frames_without_radial_speed_fall_back_to_position_only():
-    tr = PdafTracker()
+    tr = PdafTracker(scene_config())
     for t_ns, det, _ in frames([HIGHWAY[2]], 60, seed=3):
         det = Detections(det.range_m, np.full_like(det.radial_speed_mps, np.nan), det.az_rad, det.snr_db,
                          det.x_m, det.y_m)
@@ -234,3 +234,37 @@ def test_side_by_side_vehicles_get_two_tracks(y0_m, v_mps, length_m):
     assert len(ids) == 2
     own = [{a for a, _, _ in h[12:]} for h in hist.values()]
     assert all(len(o) == 1 and -1 not in o for o in own) and own[0] != own[1], own
+
+
+def _snr_scene_errors(cfg, seed):
+    """Per vehicle (position RMSE, ids) on a scene whose noise follows the SNR law (trackscene noise="snr")."""
+    tr = PdafTracker(cfg)
+    err: dict[int, list[float]] = {}
+    ids: dict[int, set[int]] = {}
+    vehicles = [Vehicle(-1.75, 280.0, 0.0, -27.0), Vehicle(5.25, 40.0, 0.0, 25.0)]
+    for t_ns, det, truth in frames(vehicles, 300, seed=seed, p_detect=0.8, clutter_per_frame=1.0, noise="snr",
+                                   extent_sigma_m=0.47):
+        out = tr.step(det, t_ns)
+        for i, x, y, _, _ in truth:
+            d = [np.hypot(o.x_m - x, o.y_m - y) for o in out]
+            if d and min(d) < 3.0:
+                err.setdefault(i, []).append(min(d))
+                ids.setdefault(i, set()).add(out[int(np.argmin(d))].track_id)
+    return {i: (float(np.sqrt(np.mean(np.square(e)))), len(e), ids[i]) for i, e in err.items()}
+
+
+def test_snr_noise_model_beats_the_constant_one_when_the_noise_follows_the_snr():
+    """A car approaching from 280 m and one receding from 40 m, detections whose noise follows the SNR
+    (radar equation, Swerling 1; the law of measurement_noise = "snr"): told the law, the tracker's position RMSE
+    is lower than with the constant noise model (measured on seeds 1-6: mean 0.164 m vs 0.171 m), one id per
+    vehicle, both tracked almost throughout."""
+    snr, const = [], []
+    for seed in range(1, 7):
+        a, b = _snr_scene_errors(PdafConfig(), seed), _snr_scene_errors(scene_config(), seed)
+        for res in (a, b):
+            assert sorted(res) == [0, 1]
+            for rmse, n, ids in res.values():
+                assert n > 280 and len(ids) == 1 and rmse < 0.3
+        snr += [a[i][0] for i in a]
+        const += [b[i][0] for i in b]
+    assert np.mean(snr) < 0.98 * np.mean(const), (np.mean(snr), np.mean(const))

@@ -12,7 +12,7 @@ from edge.track import PdafTracker
 from edge.traffic import TrafficConfig, TrafficMonitor
 from edge.traffic.lanes import LaneLearner, YawEstimator, to_road
 from edge.types import TrackState
-from tests.edge.trackscene import Vehicle, frames
+from tests.edge.trackscene import Vehicle, frames, scene_config
 
 DT_NS = 100_000_000  # 10 frames per second keeps the hand computation readable
 
@@ -233,7 +233,7 @@ def test_tracker_and_monitor_end_to_end_on_a_misaimed_radar():
             vehicles.append(Vehicle(x0, y0, vx, vy, t_start_s=t0, t_end_s=t0 + 165.0 / v))
             lane_of.append(lane)
     cfg = TrafficConfig(lane_mode="learned", relearn_every_s=5.0, learn_min_samples=1500, interval_s=10.0)
-    tr, mon = PdafTracker(), TrafficMonitor(cfg)
+    tr, mon = PdafTracker(scene_config()), TrafficMonitor(cfg)
     assigned = []
     stats = []
     prev_s = {}

@@ -3,6 +3,13 @@
 Vehicles move on straight lines (optionally with a lateral manoeuvre); each frame a vehicle is
 detected with probability ``p_detect`` at its reference point with polar noise; uniform clutter is
 added in a box. Everything is returned as :class:`edge.types.Detections` per frame.
+
+Two sensor models (``noise``): ``"constant"`` (default) draws the polar noise with the given sd whatever
+SNR it reports (uniform 10-30 dB): track such scenes with :func:`scene_config` (the tracker's
+``measurement_noise = "constant"``). ``"snr"`` reports a radar-equation SNR per detection (``snr_100m_db`` at
+100 m, R^-4, Swerling 1 fluctuation) and draws the noise from it with the law of the tracker's
+``measurement_noise = "snr"`` (``sigma^2 = sigma0^2 / SNR + floor^2``, the PdafConfig defaults), plus
+``extent_sigma_m`` isotropic.
 """
 
 from __future__ import annotations
@@ -11,9 +18,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge.track import PdafConfig
 from edge.types import Detections
 
 FRAME_NS = 33_000_000
+
+
+def scene_config(**kw) -> PdafConfig:
+    """Tracker configuration for ``noise="constant"`` scenes: their noise does not depend on the SNR they
+    report, so the tracker is told so (``measurement_noise = "constant"``); ``kw`` as for PdafConfig."""
+    kw.setdefault("measurement_noise", "constant")
+    return PdafConfig(**kw)
 
 
 @dataclass
@@ -58,15 +73,19 @@ def frames(
     frame_ns: int = FRAME_NS,
     min_y_m: float = 3.0,
     fov_deg: float = 20.0,
+    noise: str = "constant",
+    snr_100m_db: float = 30.0,
+    extent_sigma_m: float = 0.0,
 ):
     """Yield ``(t_ns, Detections, truth)`` with ``truth`` a list of (index, x, y, vx, vy) per vehicle in view
     (beyond ``min_y_m`` and within ``fov_deg`` of boresight)."""
     rng = np.random.default_rng(seed)
     az_sigma = np.radians(az_sigma_deg)
+    law = PdafConfig()
     for k in range(n_frames):
         t_ns = k * frame_ns
         t_s = t_ns * 1e-9
-        r, vr, az, truth = [], [], [], []
+        r, vr, az, truth, snr = [], [], [], [], []
         for i, v in enumerate(vehicles):
             if not v.active(t_s):
                 continue
@@ -84,8 +103,19 @@ def frames(
                 pts = [(x + o * vx / sp, y + o * vy / sp) for o in off]
             for px, py in pts:
                 rho = np.hypot(px, py)
-                r.append(rho + rng.normal(0, range_sigma_m))
-                az.append(np.arctan2(px, py) + rng.normal(0, az_sigma))
+                if noise == "snr":
+                    s_db = snr_100m_db - 40.0 * np.log10(rho / 100.0) + 10.0 * np.log10(rng.exponential())
+                    s_db = min(max(s_db, 4.0), 60.0)
+                    snr.append(s_db)
+                    lin = 10.0 ** (min(max(s_db, law.snr_min_db), law.snr_max_db) / 10.0)
+                    sd_r = np.hypot(law.snr_range_sigma_m / np.sqrt(lin), law.snr_range_floor_m)
+                    sd_az = np.radians(np.hypot(law.snr_azimuth_sigma_deg / np.sqrt(lin), law.snr_azimuth_floor_deg))
+                    px, py = px + rng.normal(0, extent_sigma_m), py + rng.normal(0, extent_sigma_m)
+                    rho = np.hypot(px, py)
+                else:
+                    sd_r, sd_az = range_sigma_m, az_sigma
+                r.append(rho + rng.normal(0, sd_r))
+                az.append(np.arctan2(px, py) + rng.normal(0, sd_az))
                 vr.append((px * vx + py * vy) / rho + rng.normal(0, vr_sigma_mps))
         nc = rng.poisson(clutter_per_frame) if clutter_per_frame > 0 else 0
         if nc:
@@ -95,5 +125,9 @@ def frames(
             az.extend(np.arctan2(cx, cy))
             vr.extend(rng.uniform(-40, 40, nc))
         n = len(r)
-        det = Detections.from_polar(r, vr, az, rng.uniform(10, 30, n)) if n else Detections.empty()
+        if noise == "snr":
+            snr_db = np.concatenate([snr, np.full(n - len(snr), 6.0)])  # clutter: weak
+        else:
+            snr_db = rng.uniform(10, 30, n)
+        det = Detections.from_polar(r, vr, az, snr_db) if n else Detections.empty()
         yield t_ns, det, truth
