@@ -155,7 +155,11 @@ class TrafficMonitor:
                 # detection line crossing (either direction), time interpolated
                 s0, s1 = memo.s_m, s[j]
                 crossed = (s0 - line) * (s1 - line) < 0 or (s1 == line and s0 != line)
-                if crossed and lane is not None:
+                # a track crossing against its lane's direction counts once it is a reported wrong-way driver
+                # (a truck's ghost drifting into the other direction's lanes never is)
+                against = (cfg.count_lane_direction_only and lane is not None
+                           and vs[j] * lanes[k].direction < 0 and not memo.wrong_emitted)
+                if crossed and lane is not None and not against:
                     f = (line - s0) / (s1 - s0)
                     tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))
                     cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
