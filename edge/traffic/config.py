@@ -104,11 +104,12 @@ class TrafficConfig:
         default=2.0, metadata={"unit": "m/s", "doc": "speed difference within which two crossings can be one "
                                                      "vehicle", "min": 0.0, "max": 50.0})
     count_lane_direction_only: bool = field(
-        default=True, metadata={"doc": "a track crossing the detection line against its lane's direction of travel "
-                                       "is counted only once it was reported as a wrong-way driver: the ghosts of "
-                                       "receding trucks (tracks running a few metres beside and ahead of the truck, "
-                                       "drifting into the approaching lanes) were counted there (highway4-traffic "
-                                       "seed 6, 3 min: lane 1 +2 -> 0)"})
+        default=True, metadata={"doc": "the volume counts only tracks crossing the detection line in their lane's "
+                                       "direction of travel (a wrong-way driver is reported as an event instead): "
+                                       "the ghosts of receding trucks (tracks a few metres beside and ahead of the "
+                                       "truck, drifting into the approaching lanes, where they even raise wrong_way "
+                                       "on their sparse detections) were counted there (highway4-traffic seed 6, "
+                                       "6000 frames: lane 1 +2 -> 0)"})
     wrong_way_min_speed_mps: float = field(
         default=3.0, metadata={"unit": "m/s", "doc": "against the lane direction at least this fast is wrong-way",
                                "min": 0.1, "max": 100.0})

@@ -155,10 +155,9 @@ class TrafficMonitor:
                 # detection line crossing (either direction), time interpolated
                 s0, s1 = memo.s_m, s[j]
                 crossed = (s0 - line) * (s1 - line) < 0 or (s1 == line and s0 != line)
-                # a track crossing against its lane's direction counts once it is a reported wrong-way driver
-                # (a truck's ghost drifting into the other direction's lanes never is)
-                against = (cfg.count_lane_direction_only and lane is not None
-                           and vs[j] * lanes[k].direction < 0 and not memo.wrong_emitted)
+                # the volume counts vehicles travelling in the lane's direction: the ghost of a receding truck
+                # drifting into the approaching lanes is not one (a wrong-way driver is reported as an event)
+                against = cfg.count_lane_direction_only and lane is not None and vs[j] * lanes[k].direction < 0
                 if crossed and lane is not None and not against:
                     f = (line - s0) / (s1 - s0)
                     tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))
