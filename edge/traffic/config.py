@@ -103,6 +103,20 @@ class TrafficConfig:
     count_twin_speed_mps: float = field(
         default=2.0, metadata={"unit": "m/s", "doc": "speed difference within which two crossings can be one "
                                                      "vehicle", "min": 0.0, "max": 50.0})
+    count_late_max_m: float = field(
+        default=30.0, metadata={"unit": "m", "doc": "a confirmed track first seen up to this far past the detection "
+                                                    "line (in its lane's direction of travel) is counted at the "
+                                                    "crossing time extrapolated back, unless a crossing of about that "
+                                                    "time and speed was counted in the lane (count_late_match_*): its "
+                                                    "vehicle crossed untracked (its track lost or taken over by a "
+                                                    "neighbour at the line and re-born after it); 0 = off",
+                                "min": 0.0, "max": 300.0})
+    count_late_match_s: float = field(
+        default=1.0, metadata={"unit": "s", "doc": "a late crossing within this of a counted one in the lane ...",
+                               "min": 0.0, "max": 10.0})
+    count_late_match_speed_mps: float = field(
+        default=3.0, metadata={"unit": "m/s", "doc": "... at a speed within this is that vehicle again",
+                               "min": 0.0, "max": 50.0})
     count_lane_direction_only: bool = field(
         default=True, metadata={"doc": "the volume counts only tracks crossing the detection line in their lane's "
                                        "direction of travel (a wrong-way driver is reported as an event instead): "

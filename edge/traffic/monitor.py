@@ -87,6 +87,7 @@ class TrafficMonitor:
         self.stats = IntervalStatistics(cfg)
         self._memo: dict[int, _Memo] = {}
         self._last_t_ns: int | None = None
+        self._first_t_ns: int | None = None
         self._next_learn_ns: int | None = None
 
     @property
@@ -95,12 +96,37 @@ class TrafficMonitor:
         (what the outputs reserve at start)."""
         return len(self.lanes) or len(self.config.lane_centers_m)
 
+    def _count_late(self, tr: TrackState, lane: int, direction: int, s_m: float, vs_mps: float, speed_mps: float,
+                    length_m: float, t_ns: int) -> None:
+        """A track first seen (confirmed) past the detection line: its vehicle crossed the line untracked (its
+        earlier track was lost or taken over by a neighbour just before the line and it was re-born after it;
+        or it crossed while still tentative). Counted at the crossing time extrapolated back at its along-road
+        speed, unless a crossing in the lane at about that time and speed was already counted (the same vehicle's
+        earlier track, or a second track on a long truck)."""
+        cfg = self.config
+        ahead = (s_m - cfg.detection_line_m) * direction  # metres past the line in the direction of travel
+        v_dir = vs_mps * direction
+        if not (0.0 < ahead <= cfg.count_late_max_m) or v_dir < cfg.moving_speed_mps:
+            return
+        tc = t_ns - int(round(ahead / v_dir * 1e9))
+        if self._first_t_ns is None or tc <= self._first_t_ns:  # crossed before the monitor started
+            return
+        acc = self.stats.lane(lane)
+        tol_ns = int(cfg.count_late_match_s * 1e9)
+        if any(abs(c.t_ns - tc) <= tol_ns and abs(c.speed_mps - speed_mps) < cfg.count_late_match_speed_mps
+               for c in acc.recent):
+            return
+        cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
+        acc.add(Crossing(tc, speed_mps, length_m, cls))
+
     def update(self, tracks: tuple[TrackState, ...], t_ns: int) -> TrafficUpdate:
         cfg = self.config
         conf = [t for t in tracks if t.confirmed and t.track_id > 0]
         dt_ns = 0 if self._last_t_ns is None else max(t_ns - self._last_t_ns, 0)
         dt_ns = min(dt_ns, 1_000_000_000)  # a stall does not count as occupied time
         self._last_t_ns = t_ns
+        if self._first_t_ns is None:
+            self._first_t_ns = t_ns
         # one (n, 6) array: track id, age, x, y, vx, vy (ids and ages are exact in float64)
         kin = np.array([(t.track_id, t.age_frames, t.x_m, t.y_m, t.vx_mps, t.vy_mps) for t in conf],
                        dtype=np.float64).reshape(-1, 6)
@@ -151,6 +177,8 @@ class TrafficMonitor:
             memo = self._memo.get(tid)
             if memo is None or tr.age_frames < memo.age:
                 memo = self._memo[tid] = _Memo(tr.age_frames, s[j], t_ns, speed[j])
+                if lane is not None and cfg.count_late_max_m > 0:
+                    self._count_late(tr, lane, lanes[k].direction, s[j], vs[j], speed[j], float(length), t_ns)
             else:
                 # detection line crossing (either direction), time interpolated
                 s0, s1 = memo.s_m, s[j]

@@ -25,6 +25,7 @@ re-learned with a different count, the interval in progress mixes the two number
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,6 +50,8 @@ class LaneAccumulator:
     crossings: list[tuple[Crossing, float, float]] = field(default_factory=list)
     occupied_ns: int = 0
     last: Crossing | None = None  # carried over intervals
+    #: the latest counted crossings (carried over intervals): a re-born track is matched against them
+    recent: deque = field(default_factory=lambda: deque(maxlen=16))
 
     def add(self, c: Crossing) -> None:
         h = g = float("nan")
@@ -57,7 +60,9 @@ class LaneAccumulator:
             clear = self.last.length_m / self.last.speed_mps if self.last.speed_mps > 0 else 0.0
             g = max(h - clear, 0.0)
         self.crossings.append((c, h, g))
-        self.last = c
+        self.recent.append(c)
+        if self.last is None or c.t_ns >= self.last.t_ns:
+            self.last = c
 
     def take(self, end_ns: int) -> list[tuple[Crossing, float, float]]:
         """Remove and return the crossings before ``end_ns`` (later ones belong to the next interval)."""

@@ -366,3 +366,36 @@ def test_a_crossing_against_the_lane_direction_is_not_counted(direction_only, ex
     for k in range(40):
         mon.update((_ts(4, -1.75, 70.0 - v * k * 0.1, 0.0, -v, k + 1),), k * DT_NS)
     assert len(mon.stats.lane(1).crossings) == 1
+
+
+@pytest.mark.parametrize("lost_at_m,late_max_m,expected", [
+    (52.0, 30.0, 1),  # lost before the line, re-born after it: counted once, at the extrapolated time
+    (52.0, 0.0, 0),   # ... (without the late count the vehicle is missed)
+    (46.0, 30.0, 1),  # lost after it crossed: the re-born track is the same vehicle, not counted again
+    (52.0, 5.0, 0),   # re-born farther past the line than count_late_max_m
+])
+def test_a_track_reborn_past_the_line_counts_its_vehicle_once(lost_at_m, late_max_m, expected):
+    cfg = TrafficConfig(estimate_yaw=False, interval_s=60.0, count_late_max_m=late_max_m)
+    mon = TrafficMonitor(cfg)
+    v = 25.0  # approaching in lane 1 (toward the radar)
+    born_again_m = 40.0
+    crossing_times = []
+    for k in range(60):
+        y = 80.0 - v * k * 0.1
+        trs = []
+        if y > lost_at_m:
+            trs.append(_ts(1, -1.75, y, 0.0, -v, k + 1))
+        elif y <= born_again_m:
+            trs.append(_ts(2, -1.75, y, 0.0, -v, k + 1 - 16))
+        mon.update(tuple(trs), k * DT_NS)
+        crossing_times = [c.t_ns for c, _, _ in mon.stats.lane(1).crossings]
+    assert len(crossing_times) == expected
+    if expected:
+        assert crossing_times[0] == pytest.approx(1.2e9, abs=1e6)  # 80 m -> 50 m at 25 m/s
+
+
+def test_tracks_already_past_the_line_at_start_are_not_counted():
+    mon = TrafficMonitor(TrafficConfig(estimate_yaw=False, interval_s=60.0, count_late_max_m=30.0))
+    for k in range(20):
+        mon.update((_ts(1, -1.75, 40.0 - 25.0 * k * 0.1, 0.0, -25.0, k + 1),), k * DT_NS)
+    assert mon.stats.lane(1).crossings == []
