@@ -96,6 +96,20 @@ class TrafficMonitor:
         (what the outputs reserve at start)."""
         return len(self.lanes) or len(self.config.lane_centers_m)
 
+    def _same_vehicle(self, acc, tc_ns: int, speed_mps: float) -> bool:
+        """A crossing at ``tc_ns`` is a vehicle already counted in the lane: within ``count_same_vehicle_s`` of a
+        counted crossing whatever its speed (two vehicles of one lane are never that close; the ghost tracks of a
+        truck's body cross right with it at v +- 5-8 m/s), or up to ``count_min_gap_s`` after one at the same
+        speed (the second track on a long truck's rear)."""
+        cfg = self.config
+        near_ns = int(cfg.count_same_vehicle_s * 1e9)
+        gap_ns = int(cfg.count_min_gap_s * 1e9)
+        for c in acc.recent:
+            d = tc_ns - c.t_ns
+            if abs(d) < near_ns or (0 <= d < gap_ns and abs(c.speed_mps - speed_mps) < cfg.count_twin_speed_mps):
+                return True
+        return False
+
     def _count_late(self, tr: TrackState, lane: int, direction: int, s_m: float, vs_mps: float, speed_mps: float,
                     length_m: float, t_ns: int) -> None:
         """A track first seen (confirmed) past the detection line: its vehicle crossed the line untracked (its
@@ -113,8 +127,9 @@ class TrafficMonitor:
             return
         acc = self.stats.lane(lane)
         tol_ns = int(cfg.count_late_match_s * 1e9)
-        if any(abs(c.t_ns - tc) <= tol_ns and abs(c.speed_mps - speed_mps) < cfg.count_late_match_speed_mps
-               for c in acc.recent):
+        if self._same_vehicle(acc, tc, speed_mps) or any(
+                abs(c.t_ns - tc) <= tol_ns and abs(c.speed_mps - speed_mps) < cfg.count_late_match_speed_mps
+                for c in acc.recent):
             return
         cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
         acc.add(Crossing(tc, speed_mps, length_m, cls))
@@ -191,12 +206,7 @@ class TrafficMonitor:
                     tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))
                     cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
                     acc = self.stats.lane(lane)
-                    last = acc.last
-                    # a second track on the same vehicle (a long truck seen at front and rear as two
-                    # tracks) crosses right after the first at the same speed: one vehicle
-                    twin = (last is not None and 0 <= tc - last.t_ns < int(cfg.count_min_gap_s * 1e9)
-                            and abs(last.speed_mps - speed[j]) < cfg.count_twin_speed_mps)
-                    if not twin:
+                    if not self._same_vehicle(acc, tc, speed[j]):
                         acc.add(Crossing(tc, speed[j], float(length), cls))
                 memo.age, memo.s_m, memo.t_ns = tr.age_frames, s1, t_ns
                 memo.max_speed_mps = max(memo.max_speed_mps, speed[j])

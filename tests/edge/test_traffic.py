@@ -287,7 +287,8 @@ def test_sections_load_from_a_toml_file(tmp_path):
 
 
 def test_a_crossing_counts_in_the_interval_of_its_interpolated_time():
-    mon = TrafficMonitor(TrafficConfig(interval_s=1.0, detection_line_m=50.0, **ONE_LANE))
+    # two crossings 0.1 s apart in one lane would be one vehicle (count_same_vehicle_s): off, this is about intervals
+    mon = TrafficMonitor(TrafficConfig(interval_s=1.0, detection_line_m=50.0, count_same_vehicle_s=0.0, **ONE_LANE))
     out = []
     for k in range(0, 22):
         t = k * 0.1
@@ -399,3 +400,22 @@ def test_tracks_already_past_the_line_at_start_are_not_counted():
     for k in range(20):
         mon.update((_ts(1, -1.75, 40.0 - 25.0 * k * 0.1, 0.0, -25.0, k + 1),), k * DT_NS)
     assert mon.stats.lane(1).crossings == []
+
+
+@pytest.mark.parametrize("lag_s,dv_mps,expected", [
+    (0.2, 5.0, 1),  # a truck body's ghost track crossing right after the truck, 5 m/s faster: one vehicle
+    (0.6, 5.0, 2),  # 0.6 s later at another speed: a second vehicle
+    (0.6, 0.5, 1),  # 0.6 s later at the same speed: the second track on a long truck (count_min_gap_s)
+])
+def test_crossings_moments_apart_in_one_lane_are_one_vehicle(lag_s, dv_mps, expected):
+    cfg = TrafficConfig(estimate_yaw=False, interval_s=60.0, count_same_vehicle_s=0.4, count_min_gap_s=0.8,
+                        count_twin_speed_mps=2.0, count_late_max_m=0.0)
+    mon = TrafficMonitor(cfg)
+    v1, v2 = 25.0, 25.0 + dv_mps
+    t2 = 1.0 + lag_s  # crossing times: 1.0 s and t2
+    for k in range(40):
+        t = k * 0.1 + 0.05
+        trs = [_ts(1, 5.25, 50.0 + v1 * (t - 1.0), 0.0, v1, k + 1),
+               _ts(2, 5.25, 50.0 + v2 * (t - t2), 0.0, v2, k + 1)]
+        mon.update(tuple(trs), int(round(t * 1e9)))
+    assert len(mon.stats.lane(3).crossings) == expected
