@@ -16,6 +16,17 @@ Lane indices are 0-based, ordered like the scenario's ``[[lane]]`` tables (left 
 learned). Only confirmed tracks are used. Per-track memory is keyed by ``track_id`` and reset when an
 id is recycled (its ``age_frames`` drops).
 
+Counting (volume at the detection line, one count per vehicle however its tracks behave): a confirmed track
+crossing the line in its lane's direction of travel is counted at the interpolated crossing time, unless a
+crossing was counted in the lane less than ``count_same_vehicle_s`` before or after (a truck body's ghost
+tracks cross with it, at another speed), or up to ``count_min_gap_s`` before at the same speed (off by
+default). A track crossing against its lane's direction (a receding truck's ghost drifting into the
+approaching lanes) is not counted; a wrong-way driver is an event. A track first seen up to
+``count_late_max_m`` past the line counts its vehicle at the crossing time extrapolated back at its
+along-road speed, unless a crossing of about that time and speed was counted in the lane
+(``count_late_match_*``: the same vehicle's earlier track), and not if that time lies before the monitor's
+first frame. No ground truth is used: the rules rest on what one vehicle's tracks can look like.
+
 Events: ``wrong_way`` when a track in a lane moves against the lane's direction faster than
 ``wrong_way_min_speed_mps`` for ``wrong_way_min_frames`` frames in a row (once per track);
 ``stopped_vehicle`` when a track that once moved faster than ``moving_speed_mps`` stands (slower than
