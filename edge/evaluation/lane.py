@@ -35,6 +35,8 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   ``drivers`` = vehicles in view driving against their lane's direction faster than 3 m/s for 15 frames,
   ``correct`` = alarms whose track followed such a vehicle when raised, ``false`` = the other alarms,
   ``missed`` = drivers without a correct alarm.
+* ``count_mismatches``: the true crossings left unmatched (``missed``) and the counted ones left unmatched
+  (``extra``) when each lane's two lists are matched one-to-one by time (at most ``COUNT_MATCH_S`` apart).
 """
 
 from __future__ import annotations
@@ -58,6 +60,7 @@ MIN_RANGE_M = 10.0
 MAX_RANGE_M = 300.0
 GATE_M = 3.0
 RANGE_BIN_M = 50.0
+COUNT_MATCH_S = 2.0  # a counted crossing this close in time to a true one in the lane is that vehicle's
 
 
 def _installer_config(config: Any, sc) -> tuple[Any, Any, Any]:
@@ -76,6 +79,27 @@ def _installer_config(config: Any, sc) -> tuple[Any, Any, Any]:
             lane_directions=tuple(ln.direction for ln in sc.lanes),
         )
     return lane_cfg, track_cfg, traffic_cfg
+
+
+def _count_mismatches(true_cross: list, meas_cross: list, n_lanes: int) -> dict:
+    """``{"missed": [...], "extra": [...]}``: true crossings (lane, t_s, vehicle id, class) and counted ones
+    (lane, t_s, speed km/h) left over when each lane's two lists are matched one-to-one minimising the time
+    differences, pairs further apart than ``COUNT_MATCH_S`` not allowed."""
+    missed, extra = [], []
+    for k in range(n_lanes):
+        t_true = [c for c in true_cross if c[0] == k]
+        t_meas = [c for c in meas_cross if c[0] == k]
+        dt = np.abs(np.array([c[1] for c in t_true])[:, None] - np.array([c[1] for c in t_meas])[None, :]).reshape(
+            len(t_true), len(t_meas))
+        cost = np.where(dt <= COUNT_MATCH_S, dt, 1e6)
+        r, c = linear_sum_assignment(cost) if cost.size else (np.zeros(0, int), np.zeros(0, int))
+        ok = cost[r, c] < 1e6
+        mt, mm = set(r[ok].tolist()), set(c[ok].tolist())
+        missed += [{"lane": k, "t_s": round(x[1], 3), "vehicle_id": x[2], "class": x[3]}
+                   for n, x in enumerate(t_true) if n not in mt]
+        extra += [{"lane": k, "t_s": round(x[1], 3), "speed_kmh": round(x[2], 1)}
+                  for n, x in enumerate(t_meas) if n not in mm]
+    return {"missed": missed, "extra": extra}
 
 
 def _to_radar_ground(pose, p_world: np.ndarray) -> np.ndarray:
@@ -154,6 +178,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     measured_volume = np.zeros(n_lanes, dtype=np.int64)
     true_volume = np.zeros(n_lanes, dtype=np.int64)
     prev_s: dict[int, float] = {}
+    true_cross: list[tuple[int, float, int, str]] = []  # (lane, t_s, vehicle id, class)
+    meas_cross: list[tuple[int, float, float]] = []  # (lane, t_s, speed km/h) as counted by the traffic layer
+    seen_last: dict[int, Any] = {}
     events: list[dict] = []
     # wrong-way scoring: the scenario's lane directions (+1 away from the radar), the vehicle each event's
     # track followed when it was raised
@@ -181,6 +208,14 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         for ls in res.lane_stats:
             if 0 <= ls.lane < n_lanes:
                 measured_volume[ls.lane] += ls.volume
+        if pipe.traffic is not None:  # the crossings counted in this frame (appended to each lane's recent ones)
+            for k, la in pipe.traffic.stats.lanes.items():
+                rec = list(la.recent)
+                last = seen_last.get(k)
+                start = next((i + 1 for i in range(len(rec) - 1, -1, -1) if rec[i] is last), 0) if last is not None else 0
+                meas_cross.extend((k, c.t_ns * 1e-9, c.speed_mps * 3.6) for c in rec[start:])
+                if rec:
+                    seen_last[k] = rec[-1]
 
         tr = f.truth
         veh = [k for k in range(len(tr)) if tr.cls[k] != "clutter"]
@@ -203,6 +238,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             s_prev = prev_s.get(int(i))
             if s_prev is not None and (s_prev - line) * (centre_y[j] - line) < 0 and 0 <= lanes[j] < n_lanes:
                 true_volume[lanes[j]] += 1
+                true_cross.append((int(lanes[j]), float(f.t_s), int(i), tr.cls[veh[j]]))
             prev_s[int(i)] = float(centre_y[j])
 
         tracks = [t for t in res.tracks if t.confirmed and t.track_id > 0]
@@ -331,6 +367,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         "count_error_per_lane": [int(m - t) for m, t in zip(measured_volume, true_volume)],
         "volume_true_per_lane": [int(v) for v in true_volume],
         "volume_measured_per_lane": [int(v) for v in measured_volume],
+        # which crossings make the count errors: per lane, true and counted crossings matched one-to-one by time
+        # (within COUNT_MATCH_S); the unmatched ones, for diagnosis (counts of the open interval included)
+        "count_mismatches": _count_mismatches(true_cross, meas_cross, n_lanes),
         "rmse_by_range_m": {f"{int(k * RANGE_BIN_M)}-{int((k + 1) * RANGE_BIN_M)}": float(math.sqrt(np.mean(v)))
                             for k, v in sorted(range_bins.items())},
         "detection_probability_by_range": {

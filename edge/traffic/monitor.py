@@ -18,6 +18,17 @@ Lane indices are 0-based, ordered like the scenario's ``[[lane]]`` tables (left 
 learned). Only confirmed tracks are used. Per-track memory is keyed by ``track_id`` and reset when an
 id is recycled (its ``age_frames`` drops).
 
+Counting (volume at the detection line, one count per vehicle however its tracks behave): a confirmed track
+crossing the line in its lane's direction of travel is counted at the interpolated crossing time, unless a
+crossing was counted in the lane less than ``count_same_vehicle_s`` before or after (a truck body's ghost
+tracks cross with it, at another speed), or up to ``count_min_gap_s`` before at the same speed (off by
+default). A track crossing against its lane's direction (a receding truck's ghost drifting into the
+approaching lanes) is not counted; a wrong-way driver is an event. A track first seen up to
+``count_late_max_m`` past the line counts its vehicle at the crossing time extrapolated back at its
+along-road speed, unless a crossing of about that time and speed was counted in the lane
+(``count_late_match_*``: the same vehicle's earlier track), and not if that time lies before the monitor's
+first frame. No ground truth is used: the rules rest on what one vehicle's tracks can look like.
+
 Events: ``wrong_way`` when a track in a lane moves against the lane's direction faster than
 ``wrong_way_min_speed_mps`` for ``wrong_way_min_frames`` frames in a row (once per track), counting
 only frames with a detection where its lane is sure (``wrong_way_lane_sigmas`` times range x yaw
@@ -94,6 +105,7 @@ class TrafficMonitor:
         self.stats = IntervalStatistics(cfg)
         self._memo: dict[int, _Memo] = {}
         self._last_t_ns: int | None = None
+        self._first_t_ns: int | None = None
         self._next_learn_ns: int | None = None
         #: the calibration saved by an earlier run, in use until this run's estimate is better
         self.saved_calibration: Calibration | None = None
@@ -187,12 +199,52 @@ class TrafficMonitor:
         sigma_u = np.hypot(x, y) * yaw_sigma
         return ((lane_idx >= 0) & (margin >= self.config.wrong_way_lane_sigmas * sigma_u)).tolist() if n else []
 
+    def _same_vehicle(self, acc, tc_ns: int, speed_mps: float) -> bool:
+        """A crossing at ``tc_ns`` is a vehicle already counted in the lane: within ``count_same_vehicle_s`` of a
+        counted crossing whatever its speed (two vehicles of one lane are never that close; the ghost tracks of a
+        truck's body cross right with it at v +- 5-8 m/s), or up to ``count_min_gap_s`` after one at the same
+        speed (the second track on a long truck's rear)."""
+        cfg = self.config
+        near_ns = int(cfg.count_same_vehicle_s * 1e9)
+        gap_ns = int(cfg.count_min_gap_s * 1e9)
+        for c in acc.recent:
+            d = tc_ns - c.t_ns
+            if abs(d) < near_ns or (0 <= d < gap_ns and abs(c.speed_mps - speed_mps) < cfg.count_twin_speed_mps):
+                return True
+        return False
+
+    def _count_late(self, tr: TrackState, lane: int, direction: int, s_m: float, vs_mps: float, speed_mps: float,
+                    length_m: float, t_ns: int) -> None:
+        """A track first seen (confirmed) past the detection line: its vehicle crossed the line untracked (its
+        earlier track was lost or taken over by a neighbour just before the line and it was re-born after it;
+        or it crossed while still tentative). Counted at the crossing time extrapolated back at its along-road
+        speed, unless a crossing in the lane at about that time and speed was already counted (the same vehicle's
+        earlier track, or a second track on a long truck)."""
+        cfg = self.config
+        ahead = (s_m - cfg.detection_line_m) * direction  # metres past the line in the direction of travel
+        v_dir = vs_mps * direction
+        if not (0.0 < ahead <= cfg.count_late_max_m) or v_dir < cfg.moving_speed_mps:
+            return
+        tc = t_ns - int(round(ahead / v_dir * 1e9))
+        if self._first_t_ns is None or tc <= self._first_t_ns:  # crossed before the monitor started
+            return
+        acc = self.stats.lane(lane)
+        tol_ns = int(cfg.count_late_match_s * 1e9)
+        if self._same_vehicle(acc, tc, speed_mps) or any(
+                abs(c.t_ns - tc) <= tol_ns and abs(c.speed_mps - speed_mps) < cfg.count_late_match_speed_mps
+                for c in acc.recent):
+            return
+        cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
+        acc.add(Crossing(tc, speed_mps, length_m, cls))
+
     def update(self, tracks: tuple[TrackState, ...], t_ns: int) -> TrafficUpdate:
         cfg = self.config
         conf = [t for t in tracks if t.confirmed and t.track_id > 0]
         dt_ns = 0 if self._last_t_ns is None else max(t_ns - self._last_t_ns, 0)
         dt_ns = min(dt_ns, 1_000_000_000)  # a stall does not count as occupied time
         self._last_t_ns = t_ns
+        if self._first_t_ns is None:
+            self._first_t_ns = t_ns
         # one (n, 6) array: track id, age, x, y, vx, vy (ids and ages are exact in float64)
         kin = np.array([(t.track_id, t.age_frames, t.x_m, t.y_m, t.vx_mps, t.vy_mps) for t in conf],
                        dtype=np.float64).reshape(-1, 6)
@@ -253,21 +305,21 @@ class TrafficMonitor:
             memo = self._memo.get(tid)
             if memo is None or tr.age_frames < memo.age:
                 memo = self._memo[tid] = _Memo(tr.age_frames, s[j], t_ns, speed[j])
+                if lane is not None and cfg.count_late_max_m > 0:
+                    self._count_late(tr, lane, lanes[k].direction, s[j], vs[j], speed[j], float(length), t_ns)
             else:
                 # detection line crossing (either direction), time interpolated
                 s0, s1 = memo.s_m, s[j]
                 crossed = (s0 - line) * (s1 - line) < 0 or (s1 == line and s0 != line)
-                if crossed and lane is not None:
+                # the volume counts vehicles travelling in the lane's direction: the ghost of a receding truck
+                # drifting into the approaching lanes is not one (a wrong-way driver is reported as an event)
+                against = cfg.count_lane_direction_only and lane is not None and vs[j] * lanes[k].direction < 0
+                if crossed and lane is not None and not against:
                     f = (line - s0) / (s1 - s0)
                     tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))
                     cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
                     acc = self.stats.lane(lane)
-                    last = acc.last
-                    # a second track on the same vehicle (a long truck seen at front and rear as two
-                    # tracks) crosses right after the first at the same speed: one vehicle
-                    twin = (last is not None and 0 <= tc - last.t_ns < int(cfg.count_min_gap_s * 1e9)
-                            and abs(last.speed_mps - speed[j]) < cfg.count_twin_speed_mps)
-                    if not twin:
+                    if not self._same_vehicle(acc, tc, speed[j]):
                         acc.add(Crossing(tc, speed[j], float(length), cls))
                 memo.age, memo.s_m, memo.t_ns = tr.age_frames, s1, t_ns
                 memo.max_speed_mps = max(memo.max_speed_mps, speed[j])

@@ -3,7 +3,11 @@
 A track *crosses* the line when its along-road distance ``s`` changes side of ``detection_line_m``
 between two frames; the crossing time is interpolated linearly. Per lane and interval:
 
-- ``volume``: crossings;
+- ``volume``: crossings, one per vehicle (:class:`edge.traffic.TrafficMonitor` decides what is counted: only
+  crossings in the lane's direction of travel; a crossing within ``count_same_vehicle_s`` of a counted one in
+  the lane is that vehicle's ghost track; a track first seen up to ``count_late_max_m`` past the line -- its
+  vehicle crossed untracked -- is counted at the crossing time extrapolated back unless it matches a counted
+  crossing, so a vehicle whose track is lost at the line and re-born after it is counted once);
 - ``mean_speed_kmh`` / ``speed_p85_kmh``: arithmetic mean and 85th percentile (linear
   interpolation, ``numpy.percentile``) of the speeds at crossing (time-mean spot speed);
 - ``headway_s``: mean time between the crossing of a vehicle and the crossing of the one before it
@@ -25,6 +29,7 @@ re-learned with a different count, the interval in progress mixes the two number
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,6 +54,8 @@ class LaneAccumulator:
     crossings: list[tuple[Crossing, float, float]] = field(default_factory=list)
     occupied_ns: int = 0
     last: Crossing | None = None  # carried over intervals
+    #: the latest counted crossings (carried over intervals): a re-born track is matched against them
+    recent: deque = field(default_factory=lambda: deque(maxlen=16))
 
     def add(self, c: Crossing) -> None:
         h = g = float("nan")
@@ -57,7 +64,9 @@ class LaneAccumulator:
             clear = self.last.length_m / self.last.speed_mps if self.last.speed_mps > 0 else 0.0
             g = max(h - clear, 0.0)
         self.crossings.append((c, h, g))
-        self.last = c
+        self.recent.append(c)
+        if self.last is None or c.t_ns >= self.last.t_ns:
+            self.last = c
 
     def take(self, end_ns: int) -> list[tuple[Crossing, float, float]]:
         """Remove and return the crossings before ``end_ns`` (later ones belong to the next interval)."""

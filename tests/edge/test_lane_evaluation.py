@@ -78,3 +78,17 @@ def test_wrong_way_alarms_are_scored_against_the_truth():
     assert s["wrong_way"] == {"drivers": 1, "alarms": 1, "correct": 1, "false": 0, "missed": 0}
     s = evaluate(load_scenario("highway4-misaimed"), seed=1, frames=120, config=load_config(env={}))["summary"]
     assert s["wrong_way"] == {"drivers": 0, "alarms": 0, "correct": 0, "false": 0, "missed": 0}
+
+
+def test_count_mismatches_pair_crossings_by_time_per_lane():
+    from edge.evaluation.lane import _count_mismatches
+
+    true = [(0, 10.0, 1, "car"), (0, 20.0, 2, "truck"), (1, 30.0, 3, "car"), (1, 40.0, 4, "car")]
+    meas = [(0, 10.3, 90.0), (0, 20.1, 80.0), (0, 20.2, 70.0), (1, 30.5, 95.0), (2, 40.0, 99.0)]
+    got = _count_mismatches(true, meas, 3)
+    # lane 0: the 20.2 s crossing is the second of one vehicle; lane 1: vehicle 4 missed; lane 2: one extra
+    assert got["missed"] == [{"lane": 1, "t_s": 40.0, "vehicle_id": 4, "class": "car"}]
+    assert got["extra"] == [{"lane": 0, "t_s": 20.2, "speed_kmh": 70.0}, {"lane": 2, "t_s": 40.0, "speed_kmh": 99.0}]
+    assert _count_mismatches([(0, 10.0, 1, "car")], [(0, 12.5, 90.0)], 1) == {
+        "missed": [{"lane": 0, "t_s": 10.0, "vehicle_id": 1, "class": "car"}],
+        "extra": [{"lane": 0, "t_s": 12.5, "speed_kmh": 90.0}]}  # more than COUNT_MATCH_S apart

@@ -3,7 +3,7 @@
 The fixtures (``data/lane_golden_misaimed_s31.npz``: 200 frames of ``highway4-misaimed``, seed 31, with
 track-aided pairings, the yaw self-calibrating and lane statistics; ``data/lane_golden_side_by_side_s31.npz``:
 300 frames of ``side-by-side``, seed 31, with resolved side-by-side pairs; ``data/lane_golden_wrong_way_s6.npz``:
-180 frames of ``wrong-way``, seed 6, with its wrong-way event) hold the detections, tracks,
+240 frames of ``wrong-way``, seed 6, with its wrong-way event) hold the detections, tracks,
 lane statistics and events of the pipeline as recorded by ``tests/edge/lane_golden.py``.
 Ids, counts, lanes and flags must match exactly; floats within float32 round-off (positions 1e-4 m).
 A deliberate change of what the lane pipeline computes re-records it:
@@ -12,7 +12,7 @@ A deliberate change of what the lane pipeline computes re-records it:
 ``PYTHONPATH=. python -m tests.edge.lane_golden record tests/edge/data/lane_golden_side_by_side_s31.npz
 --scenario side-by-side --seed 31 --frames 300 --no-spectra`` and
 ``PYTHONPATH=. python -m tests.edge.lane_golden record tests/edge/data/lane_golden_wrong_way_s6.npz
---scenario wrong-way --seed 6 --frames 180 --no-spectra``.
+--scenario wrong-way --seed 6 --frames 240 --no-spectra``.
 """
 
 from __future__ import annotations

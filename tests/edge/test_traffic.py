@@ -287,7 +287,8 @@ def test_sections_load_from_a_toml_file(tmp_path):
 
 
 def test_a_crossing_counts_in_the_interval_of_its_interpolated_time():
-    mon = TrafficMonitor(TrafficConfig(interval_s=1.0, detection_line_m=50.0, **ONE_LANE))
+    # two crossings 0.1 s apart in one lane would be one vehicle (count_same_vehicle_s): off, this is about intervals
+    mon = TrafficMonitor(TrafficConfig(interval_s=1.0, detection_line_m=50.0, count_same_vehicle_s=0.0, **ONE_LANE))
     out = []
     for k in range(0, 22):
         t = k * 0.1
@@ -389,3 +390,71 @@ def test_the_second_track_of_one_truck_is_not_counted_twice(gap_s, expected):
             trs.append(_ts(2, 1.75, 30.0 + v * (k - lag) * 0.1, 0.0, v, k - lag + 1))
         mon.update(tuple(trs), int(k * 0.1e9))
     assert len(mon.stats.lane(2).crossings) == expected
+
+
+@pytest.mark.parametrize("direction_only,expected", [(True, 0), (False, 1)])
+def test_a_crossing_against_the_lane_direction_is_not_counted(direction_only, expected):
+    """A receding track in an approaching lane (a truck's ghost) crossing the line is not in the volume; an
+    approaching car in the same lane is."""
+    cfg = TrafficConfig(estimate_yaw=False, interval_s=60.0, count_lane_direction_only=direction_only)
+    mon = TrafficMonitor(cfg)
+    v = 20.0
+    for k in range(40):
+        mon.update((_ts(3, -1.75, 35.0 + v * k * 0.1, 0.0, v, k + 1),), k * DT_NS)
+    assert len(mon.stats.lane(1).crossings) == expected
+    mon = TrafficMonitor(cfg)
+    for k in range(40):
+        mon.update((_ts(4, -1.75, 70.0 - v * k * 0.1, 0.0, -v, k + 1),), k * DT_NS)
+    assert len(mon.stats.lane(1).crossings) == 1
+
+
+@pytest.mark.parametrize("lost_at_m,late_max_m,expected", [
+    (52.0, 30.0, 1),  # lost before the line, re-born after it: counted once, at the extrapolated time
+    (52.0, 0.0, 0),   # ... (without the late count the vehicle is missed)
+    (46.0, 30.0, 1),  # lost after it crossed: the re-born track is the same vehicle, not counted again
+    (52.0, 5.0, 0),   # re-born farther past the line than count_late_max_m
+])
+def test_a_track_reborn_past_the_line_counts_its_vehicle_once(lost_at_m, late_max_m, expected):
+    cfg = TrafficConfig(estimate_yaw=False, interval_s=60.0, count_late_max_m=late_max_m)
+    mon = TrafficMonitor(cfg)
+    v = 25.0  # approaching in lane 1 (toward the radar)
+    born_again_m = 40.0
+    crossing_times = []
+    for k in range(60):
+        y = 80.0 - v * k * 0.1
+        trs = []
+        if y > lost_at_m:
+            trs.append(_ts(1, -1.75, y, 0.0, -v, k + 1))
+        elif y <= born_again_m:
+            trs.append(_ts(2, -1.75, y, 0.0, -v, k + 1 - 16))
+        mon.update(tuple(trs), k * DT_NS)
+        crossing_times = [c.t_ns for c, _, _ in mon.stats.lane(1).crossings]
+    assert len(crossing_times) == expected
+    if expected:
+        assert crossing_times[0] == pytest.approx(1.2e9, abs=1e6)  # 80 m -> 50 m at 25 m/s
+
+
+def test_tracks_already_past_the_line_at_start_are_not_counted():
+    mon = TrafficMonitor(TrafficConfig(estimate_yaw=False, interval_s=60.0, count_late_max_m=30.0))
+    for k in range(20):
+        mon.update((_ts(1, -1.75, 40.0 - 25.0 * k * 0.1, 0.0, -25.0, k + 1),), k * DT_NS)
+    assert mon.stats.lane(1).crossings == []
+
+
+@pytest.mark.parametrize("lag_s,dv_mps,expected", [
+    (0.2, 5.0, 1),  # a truck body's ghost track crossing right after the truck, 5 m/s faster: one vehicle
+    (0.6, 5.0, 2),  # 0.6 s later at another speed: a second vehicle
+    (0.6, 0.5, 1),  # 0.6 s later at the same speed: the second track on a long truck (count_min_gap_s)
+])
+def test_crossings_moments_apart_in_one_lane_are_one_vehicle(lag_s, dv_mps, expected):
+    cfg = TrafficConfig(estimate_yaw=False, interval_s=60.0, count_same_vehicle_s=0.4, count_min_gap_s=0.8,
+                        count_twin_speed_mps=2.0, count_late_max_m=0.0)
+    mon = TrafficMonitor(cfg)
+    v1, v2 = 25.0, 25.0 + dv_mps
+    t2 = 1.0 + lag_s  # crossing times: 1.0 s and t2
+    for k in range(40):
+        t = k * 0.1 + 0.05
+        trs = [_ts(1, 5.25, 50.0 + v1 * (t - 1.0), 0.0, v1, k + 1),
+               _ts(2, 5.25, 50.0 + v2 * (t - t2), 0.0, v2, k + 1)]
+        mon.update(tuple(trs), int(round(t * 1e9)))
+    assert len(mon.stats.lane(3).crossings) == expected
