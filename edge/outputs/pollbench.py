@@ -80,6 +80,14 @@ def _poller(port: int, rate_hz: float, active, stop, counter, ready, nice: int =
     c.close()
 
 
+def _stop_clients(procs, stop) -> None:
+    stop.set()
+    for proc in procs:
+        proc.join(10)
+        if proc.is_alive():
+            proc.terminate()
+
+
 def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.0, source: str | None = None,
             clients: int = 1, client_nice: int = 0, loop_cpus: tuple[int, ...] = (),
             server_cpus: tuple[int, ...] = (), client_cpus: tuple[int, ...] = ()) -> dict:
@@ -114,11 +122,7 @@ def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.
     try:
         ready.wait(CONNECT_TIMEOUT_S)  # the flood blocks start with every client connected, not while they start
     except threading.BrokenBarrierError:
-        stop.set()
-        for proc in procs:
-            proc.join(10)
-            if proc.is_alive():
-                proc.terminate()
+        _stop_clients(procs, stop)
         for s in sinks:
             s.close()
         src.close()
@@ -146,11 +150,7 @@ def measure(duration_s: float = 60.0, block_s: float = 5.0, rate_hz: float = 20.
     try:
         loop.run(duration_s=duration_s)
     finally:
-        stop.set()
-        for proc in procs:
-            proc.join(10)
-            if proc.is_alive():
-                proc.terminate()
+        _stop_clients(procs, stop)
     out = {"profile": profile, "duration_s": duration_s, "block_s": block_s, "rate_hz": rate_hz,
            "clients": len(procs), "client_nice": client_nice,
            "loop_cpus": list(loop_cpus), "server_cpus": list(server_cpus), "client_cpus": list(client_cpus), "full_map_polls": counter.value}

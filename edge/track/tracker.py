@@ -357,6 +357,14 @@ class MeasurementModel:
             r[:, 2, 2] = c.radial_speed_sigma_mps**2
         return zh, h, r
 
+    def with_sensor(self, xp: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """``r`` of :meth:`at` with ``sensor=False`` plus the constant converted polar noise: what :meth:`at`
+        with ``sensor=True`` returns, without computing the prediction and extent again."""
+        c = self.cfg
+        out = r.copy()
+        out[:, :2, :2] += kalman.polar_position_noise(xp[:, :2], c.range_sigma_m, self._az_sigma_rad, c.extent_sigma_m)
+        return out
+
     def update_extent(self, xp, ext_var, inn: Innovations, beta: np.ndarray) -> np.ndarray:
         """Learn the along-heading spread from the weighted along-heading innovations of this frame:
         ``E[a^2] - u' (H P H' + R_sensor) u``, ``R_sensor`` = ``S`` without the extent term."""
@@ -747,8 +755,7 @@ class PdafTracker:
             if rm is not None and cfg.seed_exclusion_noise == "constant":
                 # which detections may seed: the exclusion gate of the constant noise model (wider than the SNR
                 # noise for strong detections of unresolved vehicle pairs, whose angle lies between the two)
-                zc, hc, rc = self.measurement_model.at(xp, meas.with_radial_speed, tr.ext_var)
-                d2_seed = innovations(meas.z, zc, hc, pp, rc).d2
+                d2_seed = innovations(meas.z, zh, h, pp, self.measurement_model.with_sensor(xp, r)).d2
             used = (d2_seed <= self.associator.exclusion_gamma[meas.z.shape[1]]).any(axis=0)
             tr.age += 1
             tr.hits += hit

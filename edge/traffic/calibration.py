@@ -152,15 +152,12 @@ class CalibrationWriter:
         while True:
             self._wake.wait()
             self._wake.clear()
+            closing = self._closing  # read before taking the state: what was submitted before close() is written
             with self._lock:
                 cal, self._pending = self._pending, None
             if cal is not None:
                 self._write(cal)
-            if self._closing:
-                with self._lock:
-                    cal, self._pending = self._pending, None
-                if cal is not None:
-                    self._write(cal)
+            if closing:
                 return
 
     def _write(self, cal: Calibration) -> None:

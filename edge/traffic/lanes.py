@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Lane", "to_road", "assign_lanes", "YawEstimator", "LaneLearner", "configured_lanes"]
+__all__ = ["Lane", "to_road", "assign_lanes", "assign_lanes_with_margin", "YawEstimator", "LaneLearner", "configured_lanes"]
 
 
 @dataclass(frozen=True)
@@ -61,14 +61,20 @@ def to_road(x: np.ndarray, y: np.ndarray, yaw_rad: float) -> tuple[np.ndarray, n
 
 def assign_lanes(u: np.ndarray, lanes: tuple[Lane, ...]) -> np.ndarray:
     """Lane index per lateral offset ``u`` (N,), -1 outside every lane (nearest centre wins on overlaps)."""
+    return assign_lanes_with_margin(u, lanes)[0]
+
+
+def assign_lanes_with_margin(u: np.ndarray, lanes: tuple[Lane, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`assign_lanes` and, per offset, its distance inside the nearest lane's nearer edge (m; negative
+    outside every lane)."""
     if not lanes:
-        return np.full(u.shape, -1, dtype=np.int32)
+        return np.full(u.shape, -1, dtype=np.int32), np.full(u.shape, -np.inf)
     c = np.array([ln.center_m for ln in lanes])
     w = np.array([ln.width_m for ln in lanes])
     d = np.abs(u[:, None] - c[None, :])
     k = np.argmin(d, axis=1)
-    inside = d[np.arange(u.size), k] <= 0.5 * w[k]
-    return np.where(inside, k, -1).astype(np.int32)
+    margin = 0.5 * w[k] - d[np.arange(u.size), k]
+    return np.where(margin >= 0.0, k, -1).astype(np.int32), margin
 
 
 #: up to this many running tracks the start-up votes are computed in plain Python

@@ -48,7 +48,7 @@ import numpy as np
 
 from edge.traffic.calibration import Calibration, CalibrationError, CalibrationWriter, load_calibration
 from edge.traffic.config import TrafficConfig
-from edge.traffic.lanes import Lane, LaneLearner, YawEstimator, assign_lanes, configured_lanes, to_road
+from edge.traffic.lanes import Lane, LaneLearner, YawEstimator, assign_lanes_with_margin, configured_lanes, to_road
 from edge.traffic.stats import Crossing, IntervalStatistics
 from edge.types import LaneStats, TrackState, TrafficEvent
 
@@ -140,13 +140,13 @@ class TrafficMonitor:
 
     def calibration(self) -> Calibration:
         """What the monitor knows now (yaw in use and its uncertainty, lanes)."""
-        se = self.yaw_estimator.stderr_rad
         saved = self.saved_calibration
         if saved is not None:
             se, votes = saved.yaw_stderr_rad, saved.yaw_votes
         else:
-            se = se if se is not None and math.isfinite(se) else math.radians(self.config.mounting_yaw_sigma_deg)
-            votes = self.yaw_estimator.n_votes
+            se, votes = self.yaw_estimator.stderr_rad, self.yaw_estimator.n_votes
+            if se is None or not math.isfinite(se):
+                se = self._yaw_sigma_cfg
         return Calibration(self.yaw_rad, se, votes, self.config.lane_mode, tuple(self.lanes))
 
     def close(self) -> None:
@@ -183,21 +183,6 @@ class TrafficMonitor:
         """Lanes known now; with learned lanes not yet learned, as many as ``lane_centers_m`` lists
         (what the outputs reserve at start)."""
         return len(self.lanes) or len(self.config.lane_centers_m)
-
-    def _lane_sure(self, u: np.ndarray, x: np.ndarray, y: np.ndarray, lane_idx: np.ndarray,
-                   yaw_sigma: float) -> list[bool]:
-        """Per track: is it ``wrong_way_lane_sigmas`` standard deviations inside its lane? The lateral
-        uncertainty in the road frame is range x the yaw's uncertainty (a wrong yaw turns the road frame
-        about the radar); off every lane it is never sure."""
-        n = lane_idx.size
-        if yaw_sigma <= 0.0 or self.config.wrong_way_lane_sigmas <= 0.0 or not self.lanes:
-            return (lane_idx >= 0).tolist()
-        c = np.array([ln.center_m for ln in self.lanes])
-        hw = 0.5 * np.array([ln.width_m for ln in self.lanes])
-        k = np.maximum(lane_idx, 0)
-        margin = hw[k] - np.abs(u - c[k])
-        sigma_u = np.hypot(x, y) * yaw_sigma
-        return ((lane_idx >= 0) & (margin >= self.config.wrong_way_lane_sigmas * sigma_u)).tolist() if n else []
 
     def _same_vehicle(self, acc, tc_ns: int, speed_mps: float) -> bool:
         """A crossing at ``tc_ns`` is a vehicle already counted in the lane: within ``count_same_vehicle_s`` of a
@@ -286,8 +271,13 @@ class TrafficMonitor:
         # plain Python floats for the per-track loop (numpy scalars are slow one at a time)
         s, vs = s_arr.tolist(), vs_arr.tolist()
         speed = np.hypot(vx, vy).tolist()
-        lane_idx = assign_lanes(u, lanes)
-        lane_sure = self._lane_sure(u, x, y, lane_idx, yaw_sigma)
+        lane_idx, margin = assign_lanes_with_margin(u, lanes)
+        # wrong-way gate: the track is wrong_way_lane_sigmas standard deviations inside its lane, the lateral
+        # uncertainty being range x the yaw's (a wrong yaw turns the road frame about the radar)
+        sure = lane_idx >= 0
+        if yaw_sigma > 0.0 and cfg.wrong_way_lane_sigmas > 0.0:
+            sure &= margin >= cfg.wrong_way_lane_sigmas * yaw_sigma * np.hypot(x, y)
+        lane_sure = sure.tolist()
         lane_idx = lane_idx.tolist()
         id_list = ids.tolist()
         presence = [False] * n_lanes
