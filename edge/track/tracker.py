@@ -101,7 +101,7 @@ from edge.track.config import PdafConfig
 from edge.track.smallmat import inv_quad2
 from edge.track.pdaf import (Innovations, InnovationsEach, PairInnovations, association_weights,
                               association_weights_each, combined_update, combined_update_each, combined_update_pairs,
-                              gate_threshold, gate_volume_each, innovations, innovations_each, pair_innovations,
+                              gate_threshold, gate_volume_each, innovations, innovations_each, mahalanobis_d2, pair_innovations,
                               unit_ball_volume)
 from edge.types import Detections, TrackState
 
@@ -273,12 +273,14 @@ class ImmPredictor:
     def predict(self, tracks: TrackTable, dt_s: float, yaw_rad: float):
         """-> combined (xp, pp), per mode (xpm, ppm) and predicted mode probabilities ``c`` (T, 2)."""
         c = self.cfg
-        if self._cached is None or self._cached[0] != dt_s or self._cached[1] != yaw_rad:
-            fk, qk = imm.keep_model(dt_s, yaw_rad, c.imm_keep_tau_s, c.imm_keep_q_across_m2ps3, c.q_along_m2ps3)
+        if self._cached is None or self._cached[0] != dt_s:
             fm = kalman.cv_transition(dt_s)
             qm = kalman.cv_process_noise(dt_s, c.imm_manoeuvre_q_lateral_m2ps3, c.q_along_m2ps3)
-            self._cached = (dt_s, yaw_rad, np.stack([fk, fm]), np.stack([qk, qm]))
-        _, _, f, q = self._cached
+            self._cached = (dt_s, None, np.stack([fm, fm]), np.stack([qm, qm]))
+        _, cached_yaw, f, q = self._cached
+        if cached_yaw != yaw_rad:  # the yaw estimate moves nearly every frame: only the keep mode is rebuilt
+            f[0], q[0] = imm.keep_model(dt_s, yaw_rad, c.imm_keep_tau_s, c.imm_keep_q_across_m2ps3, c.q_along_m2ps3)
+            self._cached = (dt_s, yaw_rad, f, q)
         pi = self.pi
         if c.imm_far_p_keep_to_manoeuvre < c.imm_p_keep_to_manoeuvre and len(tracks):
             pi = self._far_switch(np.hypot(tracks.x[:, 0], tracks.x[:, 1]))
@@ -755,7 +757,8 @@ class PdafTracker:
             if rm is not None and cfg.seed_exclusion_noise == "constant":
                 # which detections may seed: the exclusion gate of the constant noise model (wider than the SNR
                 # noise for strong detections of unresolved vehicle pairs, whose angle lies between the two)
-                d2_seed = innovations(meas.z, zh, h, pp, self.measurement_model.with_sensor(xp, r)).d2
+                # (S of the constant model = the track's part of S plus the constant sensor noise; the same innovations)
+                d2_seed = mahalanobis_d2(inn.v, self.measurement_model.with_sensor(xp, inn.s_track))
             used = (d2_seed <= self.associator.exclusion_gamma[meas.z.shape[1]]).any(axis=0)
             tr.age += 1
             tr.hits += hit
@@ -801,11 +804,16 @@ class PdafTracker:
             rows = np.concatenate([2 * ti, 2 * ti + 1])  # rows (track, mode)
             cols = np.concatenate([mi, mi])
             pin = pair_innovations(meas.z, zhm, hm, ps, np.repeat(r, 2, axis=0), rm, rows, cols)
-            w = np.concatenate([beta[ti, mi], beta[ti, mi]])
-            pos = w > 0
-            xu, pu = combined_update_pairs(xs, ps, hm, PairInnovations(rows[pos], cols[pos], pin.v[pos], pin.d2[pos],
-                                                                        pin.s_inv[pos], pin.det_s[pos]), w[pos])
-            vol = gate_volume_each(inn, gated, gamma)
+            wg = beta[ti, mi]
+            w = np.concatenate([wg, wg])
+            if (wg > 0).all():  # the usual case (a validated pair has a positive weight unless it underflows)
+                xu, pu = combined_update_pairs(xs, ps, hm, pin, w)
+            else:
+                pos = w > 0
+                xu, pu = combined_update_pairs(xs, ps, hm, PairInnovations(rows[pos], cols[pos], pin.v[pos],
+                                                                            pin.d2[pos], pin.s_inv[pos],
+                                                                            pin.det_s[pos]), w[pos])
+            vol = inn.gate_volume if inn.gate_volume is not None else gate_volume_each(inn, gated, gamma)
             lik = imm.mode_likelihood_pairs(pin, 2 * t, np.repeat(vol, 2), np.repeat(gated.sum(axis=1), 2),
                                             cfg.prob_detect, cfg.prob_gate).reshape(t, 2)
             tr.mu = imm.update_mode_probabilities(cj, lik, cfg.imm_min_mode_prob)
