@@ -77,7 +77,7 @@ def bartlett_consensus(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np
     kept = np.abs(each - med) <= (outlier_rad[:, None] if np.ndim(outlier_rad) else outlier_rad)
     spec = (p * kept[..., None]).sum(axis=1)
     k = np.argmax(spec, axis=1)
-    kk = np.clip(k, 1, grid_rad.size - 2)
+    kk = np.minimum(np.maximum(k, 1), grid_rad.size - 2)  # np.clip, without its wrapper (5 us on a few ints)
     rows = np.arange(n_det)
     pm, p0, pp = spec[rows, kk - 1], spec[rows, kk], spec[rows, kk + 1]
     den = pm - 2.0 * p0 + pp

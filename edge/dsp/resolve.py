@@ -84,6 +84,8 @@ class CellResolver:
         self._pair_index[i, j] = np.arange(i.size)
         # coarse search on every other grid angle, then the 3 x 3 fine neighbours of the best coarse pair
         self._coarse = np.flatnonzero((i % 2 == 0) & (j % 2 == 0))
+        # their features transposed once (gathering (2926, 16) rows every frame cost 80 us, 15 times the product)
+        self._coarse_feat_t = np.ascontiguousarray(self._pair_feat[self._coarse].T)
         self.reset()
 
     def reset(self) -> None:
@@ -181,11 +183,12 @@ class CellResolver:
         if idx.size == 0:
             return idx, np.zeros((0, 2), np.float32)
         fr = self._features(cov[idx], scale_offdiag=2.0)  # (k, 16)
-        coarse = self._coarse[np.argmax(fr @ self._pair_feat[self._coarse].T, axis=1)]  # (k,) pair rows
+        coarse = self._coarse[np.argmax(fr @ self._coarse_feat_t, axis=1)]  # (k,) pair rows
         ci, cj = self._pair_i[coarse], self._pair_j[coarse]
         d = np.array([-1, 0, 1])
-        fi = np.clip(ci[:, None, None] + d[None, :, None], 0, self.grid.size - 1)  # (k, 3, 1)
-        fj = np.clip(cj[:, None, None] + d[None, None, :], 0, self.grid.size - 1)  # (k, 1, 3)
+        top = self.grid.size - 1  # np.clip as minimum/maximum (its wrapper costs 5 us a call on a few ints)
+        fi = np.minimum(np.maximum(ci[:, None, None] + d[None, :, None], 0), top)  # (k, 3, 1)
+        fj = np.minimum(np.maximum(cj[:, None, None] + d[None, None, :], 0), top)  # (k, 1, 3)
         rows = self._pair_index[fi, fj].reshape(idx.size, -1)  # (k, 9), -1 where i >= j
         rows = np.where(rows >= 0, rows, coarse[:, None])
         fine = np.einsum("kf,kpf->kp", fr, self._pair_feat[rows])

@@ -649,7 +649,7 @@ class LanePipeline(Pipeline):
         s0 = np.sin(az[idx].astype(np.float64))
         cand = np.concatenate([s0, s0 + period, s0 - period])  # itself and the two neighbouring grating lobes
         # the lane direction of all three in one pass (the cost is per call, not per element)
-        x, y = polar_to_ground(np.tile(range_m[idx], 3), np.arcsin(np.clip(cand, -1.0, 1.0)), cfg.mounting_height_m,
+        x, y = polar_to_ground(np.tile(range_m[idx], 3), np.arcsin(np.minimum(np.maximum(cand, -1.0), 1.0)), cfg.mounting_height_m,
                                cfg.target_height_m)
         u, _ = to_road(x.astype(np.float64), y.astype(np.float64), self.traffic.yaw_rad)
         k = assign_lanes(u, lanes)

@@ -263,7 +263,7 @@ class ImmPredictor:
         """(T, 2, 2) switching matrices: ``imm_p_keep_to_manoeuvre`` up to ``imm_far_from_m``, then falling
         log-linearly to ``imm_far_p_keep_to_manoeuvre`` at ``imm_far_to_m`` and beyond."""
         c = self.cfg
-        u = np.clip((rho - c.imm_far_from_m) / max(c.imm_far_to_m - c.imm_far_from_m, 1e-9), 0.0, 1.0)
+        u = np.minimum(np.maximum((rho - c.imm_far_from_m) / max(c.imm_far_to_m - c.imm_far_from_m, 1e-9), 0.0), 1.0)
         p = np.exp((1.0 - u) * math.log(c.imm_p_keep_to_manoeuvre) + u * math.log(c.imm_far_p_keep_to_manoeuvre))
         pi = np.empty((rho.size, 2, 2))
         pi[:, 0, 0], pi[:, 0, 1] = 1.0 - p, p
