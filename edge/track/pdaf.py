@@ -60,10 +60,10 @@ class Innovations:
     det_s: np.ndarray  # (T,)
 
 
-def _quad_terms(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _quad_terms(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     ij = [(i, j) for i in range(n) for j in range(i, n)]
     return (np.array([i for i, _ in ij]), np.array([j for _, j in ij]),
-            np.array([1.0 if i == j else 2.0 for i, j in ij]))
+            np.array([1.0 if i == j else 2.0 for i, j in ij]), np.array([n * i + j for i, j in ij]))
 
 
 _QUAD_TERMS = {n: _quad_terms(n) for n in (1, 2, 3)}
@@ -82,8 +82,10 @@ def _quad(v: np.ndarray, s_inv: np.ndarray) -> np.ndarray:
     """(T, M) ``v' S_t^-1 v`` of innovations ``v`` (T, M, n) with one symmetric ``S_t^-1`` (T, n, n) per track."""
     # expanded over the symmetric n x n terms (cheaper than tiny batched matmuls), all terms
     # S^-1_ij v_i v_j (doubled off the diagonal) in one product, summed in the order i <= j
-    ii, jj, twice = _QUAD_TERMS[v.shape[2]]
-    terms = (s_inv[:, ii, jj] * twice)[:, None, :] * v[:, :, ii] * v[:, :, jj]  # (T, M, n (n + 1) / 2)
+    n = v.shape[2]
+    ii, jj, twice, flat = _QUAD_TERMS[n]
+    sij = s_inv.reshape(-1, n * n).take(flat, axis=1)  # (T, n (n + 1) / 2) distinct entries, one take
+    terms = (sij * twice)[:, None, :] * v.take(ii, axis=2) * v.take(jj, axis=2)  # (T, M, n (n + 1) / 2)
     return np.add.reduce(terms, axis=2)  # fewer than 8 terms: summed one after the other (no pairwise blocks)
 
 
@@ -192,8 +194,10 @@ def _quad_each(v: np.ndarray, s_inv: np.ndarray) -> np.ndarray:
     """``v' S^-1 v`` with one ``S^-1`` per innovation: ``v`` (..., n), ``s_inv`` (..., n, n) symmetric -> (...).
     All terms ``S^-1_ij v_i v_j`` (doubled off the diagonal) in one product, summed in the order i <= j (as
     :func:`innovations` does per track)."""
-    ii, jj, twice = _QUAD_TERMS[v.shape[-1]]
-    return np.add.reduce(s_inv[..., ii, jj] * twice * v[..., ii] * v[..., jj], axis=-1)
+    n = v.shape[-1]
+    ii, jj, twice, flat = _QUAD_TERMS[n]
+    sij = s_inv.reshape(s_inv.shape[:-2] + (n * n,)).take(flat, axis=-1)  # the distinct entries (one take, not 2-D fancy indexing)
+    return np.add.reduce(sij * twice * v.take(ii, axis=-1) * v.take(jj, axis=-1), axis=-1)
 
 
 def innovations_each(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, r_track: np.ndarray,

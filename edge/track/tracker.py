@@ -341,10 +341,12 @@ class MeasurementModel:
         r[:, :2, :2] = rp
         return r
 
-    def at(self, xp: np.ndarray, with_radial_speed: bool, ext_var: np.ndarray | None = None, sensor: bool = True):
-        """``sensor=False``: without the converted polar noise (it comes per detection, :meth:`of_detections`)."""
+    def at(self, xp: np.ndarray, with_radial_speed: bool, ext_var: np.ndarray | None = None, sensor: bool = True,
+           pred: tuple[np.ndarray, np.ndarray] | None = None):
+        """``sensor=False``: without the converted polar noise (it comes per detection, :meth:`of_detections`).
+        ``pred``: ``kalman.measurement_prediction(xp, with_radial_speed)`` if already computed."""
         c = self.cfg
-        zh, h = kalman.measurement_prediction(xp, with_radial_speed)
+        zh, h = kalman.measurement_prediction(xp, with_radial_speed) if pred is None else pred
         if sensor:
             rp = kalman.polar_position_noise(xp[:, :2], c.range_sigma_m, self._az_sigma_rad, c.extent_sigma_m)
         else:
@@ -732,11 +734,15 @@ class PdafTracker:
                 xp, pp = self.predictor.predict(tr, dt_s)
             # measurement_noise = "snr": the sensor noise comes per detection, r holds the track's part only
             rm = self.measurement_model.of_detections(meas) if self.measurement_model.per_detection else None
-            zh, h, r = self.measurement_model.at(xp, meas.with_radial_speed, tr.ext_var, sensor=rm is None)
+            pred = None
+            if self.imm_predictor is not None:  # the combined prediction's and both modes' in one (elementwise) call
+                t = len(tr)
+                zh_all, h_all = kalman.measurement_prediction(np.concatenate([xp, xpm.reshape(2 * t, 4)]),
+                                                              meas.with_radial_speed)
+                pred, zhm, hm = (zh_all[:t], h_all[:t]), zh_all[t:], h_all[t:]
+            zh, h, r = self.measurement_model.at(xp, meas.with_radial_speed, tr.ext_var, sensor=rm is None, pred=pred)
             if self.imm_predictor is not None:
                 # one innovation computation for the combined prediction (association) and both modes
-                t = len(tr)
-                zhm, hm = kalman.measurement_prediction(xpm.reshape(2 * t, 4), meas.with_radial_speed)
                 if rm is None:
                     args = (meas.z, np.concatenate([zh, zhm]), np.concatenate([h, hm]),
                             np.concatenate([pp, ppm.reshape(2 * t, 4, 4)]), np.concatenate([r, r.repeat(2, axis=0)]))
