@@ -319,7 +319,9 @@ class LanePipeline(Pipeline):
             self._aided_scale32 = np.float32(min(os_cfar_scale(cfg.aided_pfa, self._n_ref, self._rank, n_looks=n_rx),
                                                  self.cfar_scale))
         self._alias_period = wf.wavelength_m / frontend.rx_spacing_m  # grating-lobe period in sin(az)
+        self._lane_cache: tuple = (None, 0.0, None)  # (lanes, their span across, directions) of _unalias_by_lane
         self._model = PairingModel.from_waveform(wf)
+        self._model_ab = np.stack([self._model.a, self._model.b], axis=1)  # (4, 2): beat = a R + b v per segment
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
         self._near_tol = (cfg.pair_near_tolerance_bins * self._bin_hz[2],
                           cfg.pair_near_tolerance_bins * self._bin_hz[3])
@@ -593,7 +595,7 @@ class LanePipeline(Pipeline):
         counts = [fk.size for fk in freqs]
         w_counts = [fk.size for fk in weak[0]] if weak is not None else [0, 0, 0, 0]
         width = max(c + w for c, w in zip(counts, w_counts))
-        pred_bin = np.round(f_hat / self._bin_hz).astype(np.int64) % self.n_bins  # (m, 4)
+        pred_bin = np.rint(f_hat / self._bin_hz).astype(np.int64) % self.n_bins  # (m, 4); np.round's value
         if width == 0:
             return empty
         table = np.full((4, width), np.inf)
@@ -615,7 +617,7 @@ class LanePipeline(Pipeline):
         good = found.sum(axis=1) >= cfg.aided_min_segments
         if not good.any():
             return empty
-        A = np.stack([self._model.a, self._model.b], axis=1)  # (4, 2)
+        A = self._model_ab  # (4, 2)
         w = found[good].astype(np.float64)
         fs = fsel[good]
         nrm = np.einsum("mk,ki,kj->mij", w, A, A)
@@ -639,7 +641,11 @@ class LanePipeline(Pipeline):
         period = self._alias_period
         # an alias is sin(az) +- period away, i.e. about period x range across: only near detections can have
         # both themselves and their alias on the road (the rest is left alone at the cost of one comparison)
-        span = max(ln.center_m + 0.5 * ln.width_m for ln in lanes) - min(ln.center_m - 0.5 * ln.width_m for ln in lanes)
+        if self._lane_cache[0] is not lanes:  # the lanes change when the traffic layer learns them: rarely
+            self._lane_cache = (lanes, max(ln.center_m + 0.5 * ln.width_m for ln in lanes)
+                                - min(ln.center_m - 0.5 * ln.width_m for ln in lanes),
+                                np.array([ln.direction for ln in lanes]))
+        _, span, dirs = self._lane_cache
         near = np.abs(v_mps) >= np.float32(cfg.unalias_min_speed_mps)
         near &= range_m <= np.float32(span / period + cfg.mounting_height_m)
         idx = near.nonzero()[0]
@@ -653,7 +659,6 @@ class LanePipeline(Pipeline):
                                cfg.target_height_m)
         u, _ = to_road(x.astype(np.float64), y.astype(np.float64), self.traffic.yaw_rad)
         k = assign_lanes(u, lanes)
-        dirs = np.array([ln.direction for ln in lanes])
         d = np.where(k >= 0, dirs[np.maximum(k, 0)], 0).reshape(3, n)
         sign = np.sign(v_mps[idx]).astype(np.int64)  # +1 receding: lanes "away"
         bad = d[0] == -sign
