@@ -406,7 +406,9 @@ class LanePipeline(Pipeline):
                      and bool(self.tracker.tracks.confirmed.any()))
         weak = None
         with timer.stage("cfar"):
-            floor = np.partition(power, n // 2, axis=-1)[:, n // 2]  # median per segment
+            # median per segment; the power is non-negative, so its float32 bit patterns as int32 sort like the
+            # values and numpy selects int32 faster (the same element)
+            floor = np.partition(power.view(np.int32), n // 2, axis=-1)[:, n // 2].view(np.float32)
             cap = floor * self._cap  # (4,)
             if cfg.cfar_full_threshold:  # the whole threshold curve, for plots
                 _, _, noise = os_cfar(power, self._ref_index, self._rank, self.cfar_scale)
