@@ -74,6 +74,9 @@ def report_lines(rep: dict) -> list[str]:
                    f"{s['p99_ms'] / budget:12.2%}")
     out.append(f"{'frame':<16}{fr['p50_ms']:9.3f}{fr['p99_ms']:9.3f}{fr['p50_ms'] / budget:12.2%}"
                f"{fr['p99_budget_fraction']:12.2%}")
+    if fr.get("cpu_p99_ms") is not None:  # thread CPU time of the same frames (no preemption by other processes)
+        out.append(f"{'frame CPU time':<16}{fr['cpu_p50_ms']:9.3f}{fr['cpu_p99_ms']:9.3f}"
+                   f"{fr['cpu_p50_ms'] / budget:12.2%}{fr['cpu_p99_ms'] / budget:12.2%}")
     b = rep.get("fft_bound")
     if b:
         out.append(f"{'FFT-only bound':<16}{b.get('p50_ms', float('nan')):9.3f}{b['p99_ms']:9.3f}"

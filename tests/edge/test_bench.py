@@ -17,6 +17,7 @@ def test_bench_report_keys_and_consistency():
     assert fr["budget_ms"] == 33.0
     assert 0 < fr["p50_ms"] <= fr["p99_ms"]
     assert abs(fr["p99_budget_fraction"] - fr["p99_ms"] / 33.0) < 1e-12
+    assert 0 < fr["cpu_p50_ms"] <= fr["cpu_p99_ms"] <= fr["cpu_max_ms"]  # thread CPU time of the same frames
     assert set(rep["stages"]) >= {"to_complex", "range_fft", "peaks"}
     assert rep["fft_bound"]["p99_ms"] > 0 and rep["fft_bound"]["ratio"] > 0
     assert rep["peer"]["p99_ms"] > 0 and rep["peer"]["frames"] == 12
