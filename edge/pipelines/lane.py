@@ -440,14 +440,19 @@ class LanePipeline(Pipeline):
             # peaks in (segment, bin) order; sub-bin offsets by a parabola through the log-power
             # (edge.dsp.peaks.interpolate_peak, all segments at once)
             bounds = self._segment_bounds(rows)
+            wf = None
             if max(e - b for b, e in bounds) > cfg.max_peaks_per_segment:
                 freqs, bins = self._strongest_peaks(power, rows, cols)
             else:
-                f = self._peak_freqs(rows, cols, cells)
+                if weak is None:
+                    f = self._peak_freqs(rows, cols, cells)
+                else:  # the detected and the weak peaks in one interpolation (elementwise; the cost is per call)
+                    f = self._peak_freqs(*(np.concatenate([a, b]) for a, b in zip((rows, cols, cells), weak)))
+                    f, wf = f[:rows.size], f[rows.size:]
                 freqs, bins = [f[b:e] for b, e in bounds], [cols[b:e] for b, e in bounds]
             if weak is not None:  # the same interpolation, grouped by segment
                 wr, wc, wcells = weak
-                wf = self._peak_freqs(wr, wc, wcells)
+                wf = self._peak_freqs(wr, wc, wcells) if wf is None else wf
                 bounds = self._segment_bounds(wr)
                 weak = ([wf[b:e] for b, e in bounds], [wc[b:e] for b, e in bounds])
         with timer.stage("pairing"):
@@ -657,8 +662,9 @@ class LanePipeline(Pipeline):
         s0 = np.sin(az[idx].astype(np.float64))
         cand = np.concatenate([s0, s0 + period, s0 - period])  # itself and the two neighbouring grating lobes
         # the lane direction of all three in one pass (the cost is per call, not per element)
-        x, y = polar_to_ground(np.tile(range_m[idx], 3), np.arcsin(np.minimum(np.maximum(cand, -1.0), 1.0)), cfg.mounting_height_m,
-                               cfg.target_height_m)
+        r3 = range_m[idx]
+        x, y = polar_to_ground(np.concatenate([r3, r3, r3]), np.arcsin(np.minimum(np.maximum(cand, -1.0), 1.0)),
+                               cfg.mounting_height_m, cfg.target_height_m)
         u, _ = to_road(x.astype(np.float64), y.astype(np.float64), self.traffic.yaw_rad)
         k = assign_lanes(u, lanes)
         d = np.where(k >= 0, dirs[np.maximum(k, 0)], 0).reshape(3, n)
