@@ -196,7 +196,8 @@ def _quad_each(v: np.ndarray, s_inv: np.ndarray) -> np.ndarray:
     :func:`innovations` does per track)."""
     n = v.shape[-1]
     ii, jj, twice, flat = _QUAD_TERMS[n]
-    sij = s_inv.reshape(s_inv.shape[:-2] + (n * n,)).take(flat, axis=-1)  # the distinct entries (one take, not 2-D fancy indexing)
+    # the distinct entries of S^-1 with one take (not 2-D fancy indexing)
+    sij = s_inv.reshape(s_inv.shape[:-2] + (n * n,)).take(flat, axis=-1)
     return np.add.reduce(sij * twice * v.take(ii, axis=-1) * v.take(jj, axis=-1), axis=-1)
 
 

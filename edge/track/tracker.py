@@ -101,8 +101,8 @@ from edge.track.config import PdafConfig
 from edge.track.smallmat import inv_quad2
 from edge.track.pdaf import (Innovations, InnovationsEach, PairInnovations, association_weights,
                               association_weights_each, combined_update, combined_update_each, combined_update_pairs,
-                              gate_threshold, gate_volume_each, innovations, innovations_each, mahalanobis_d2, pair_innovations,
-                              unit_ball_volume)
+                              gate_threshold, gate_volume_each, innovations, innovations_each, mahalanobis_d2,
+                              pair_innovations, unit_ball_volume)
 from edge.types import Detections, TrackState
 
 log = logging.getLogger(__name__)
