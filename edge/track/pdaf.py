@@ -213,13 +213,16 @@ def innovations_each(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndar
     return InnovationsEach(v, _quad_each(v, s_inv), s, s_inv, det_s, st)
 
 
-def gate_volume_each(inn: InnovationsEach, gated: np.ndarray, gamma: float) -> np.ndarray:
-    """(T,) ``V_t = c_n gamma^(n/2) mean_m |S_tm|^(1/2)`` over the validated detections (over all when none)."""
+def gate_volume_each(inn: InnovationsEach, gated: np.ndarray, gamma: float, n_gated: np.ndarray | None = None,
+                     root: np.ndarray | None = None) -> np.ndarray:
+    """(T,) ``V_t = c_n gamma^(n/2) mean_m |S_tm|^(1/2)`` over the validated detections (over all when none).
+    ``n_gated`` (``gated.sum(axis=1)``) and ``root`` (``sqrt(inn.det_s)``): if already computed."""
     n = inn.v.shape[2]
-    root = np.sqrt(inn.det_s)
-    k = gated.sum(axis=1)
-    mean_root = np.where(k > 0, (root * gated).sum(axis=1) / np.maximum(k, 1),
-                         root.mean(axis=1) if root.shape[1] else 1.0)
+    root = np.sqrt(inn.det_s) if root is None else root
+    k = np.add.reduce(gated, axis=1) if n_gated is None else n_gated  # ndarray.sum without its wrapper
+    mean_root = np.add.reduce(root * gated, axis=1) / np.maximum(k, 1)
+    if not k.all():  # a track without a validated detection: the mean over all (np.mean's sum / count)
+        mean_root = np.where(k > 0, mean_root, np.add.reduce(root, axis=1) / root.shape[1] if root.shape[1] else 1.0)
     return unit_ball_volume(n) * gamma ** (n / 2.0) * mean_root
 
 
@@ -240,19 +243,20 @@ def association_weights_each(
     b = 1.0 - prob_gate * prob_detect
     if m == 0 or t == 0:
         return np.zeros((t, m)), np.ones(t), gated
-    m_t = gated.sum(axis=1)
-    vol = inn.gate_volume = gate_volume_each(inn, gated, gamma)  # (T,)
-    norm = (2.0 * math.pi) ** (n / 2.0) * np.sqrt(inn.det_s)  # (T, M)
+    m_t = np.add.reduce(gated, axis=1)  # the sums as ufunc reductions: ndarray.sum's value without its wrapper
+    root = np.sqrt(inn.det_s)
+    vol = inn.gate_volume = gate_volume_each(inn, gated, gamma, m_t, root)  # (T,)
+    norm = (2.0 * math.pi) ** (n / 2.0) * root  # (T, M)
     scale = prob_detect * vol / np.maximum(m_t, 1)  # (T,)
     lik = np.where(gated, np.exp(-0.5 * np.minimum(inn.d2, gamma)) * scale[:, None] / norm, 0.0)
-    s_t = lik.sum(axis=1)
+    s_t = np.add.reduce(lik, axis=1)
     if method == "pdaf":
         beta = lik / (b + s_t)[:, None]
         beta0 = b / (b + s_t)
     elif method == "jpda":
-        s_m = lik.sum(axis=0)
+        s_m = np.add.reduce(lik, axis=0)
         beta = lik / (s_t[:, None] + s_m[None, :] - lik + b)
-        beta0 = 1.0 - beta.sum(axis=1)
+        beta0 = 1.0 - np.add.reduce(beta, axis=1)
     else:
         raise ValueError(f"unknown association method {method!r}: choose pdaf or jpda")
     return beta, beta0, gated
