@@ -19,18 +19,19 @@ import numpy as np
 
 
 _NEIGHBOURS = np.array([-1, 0, 1])
-_CONJ_T: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # id(steering) -> (steering, its conjugate transpose)
+_CONJ: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # id(steering) -> (steering, steering.conj())
 
 
 def _conj_t(steering: np.ndarray) -> np.ndarray:
-    """``steering.conj().T`` (contiguous), computed once per steering matrix (the pipeline passes the same one
-    every frame)."""
-    hit = _CONJ_T.get(id(steering))
+    """``steering.conj().T`` with the conjugate computed once per steering matrix (the pipeline passes the same
+    one every frame). The same transposed view of a contiguous conjugate as before: BLAS picks its kernel by
+    the layout, and a contiguous transpose sums a single look's product in another order."""
+    hit = _CONJ.get(id(steering))
     if hit is None or hit[0] is not steering:
-        if len(_CONJ_T) > 8:
-            _CONJ_T.clear()
-        hit = _CONJ_T[id(steering)] = (steering, np.ascontiguousarray(steering.conj().T))
-    return hit[1]
+        if len(_CONJ) > 8:
+            _CONJ.clear()
+        hit = _CONJ[id(steering)] = (steering, steering.conj())
+    return hit[1].T
 
 
 def steering_matrix(n_rx: int, spacing_m: float, wavelength_m: float, grid_rad: np.ndarray) -> np.ndarray:
