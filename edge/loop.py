@@ -35,6 +35,7 @@ import numpy as np
 from edge.config import LoopConfig
 from edge.ops.affinity import check as check_cpus
 from edge.ops.affinity import pinned
+from edge.ops.heap import frozen_heap
 from edge.pipeline import Pipeline, StageTimer
 from edge.types import FrameResult, LoopHealth
 from hal.base import RadarSource
@@ -163,9 +164,11 @@ class FrameLoop:
     def run(self, max_frames: int | None = None, duration_s: float | None = None) -> LoopSummary:
         """Run until ``max_frames``, ``duration_s``, the end of the source, :meth:`stop` or a fatal error.
 
-        With ``loop.cpus`` set the calling thread is pinned to those CPUs for the run.
+        With ``loop.cpus`` set the calling thread is pinned to those CPUs for the run. The start-up heap is
+        frozen for the garbage collector while frames run (:func:`edge.ops.heap.frozen_heap`, issue 9: a full
+        collection of it takes longer than a lane frame).
         """
-        with pinned(self.config.cpus, "frame loop"):
+        with pinned(self.config.cpus, "frame loop"), frozen_heap():
             return self._run(max_frames, duration_s)
 
     def _run(self, max_frames: int | None, duration_s: float | None) -> LoopSummary:

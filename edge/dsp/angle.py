@@ -18,6 +18,22 @@ from __future__ import annotations
 import numpy as np
 
 
+_NEIGHBOURS = np.array([-1, 0, 1])
+_CONJ: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # id(steering) -> (steering, steering.conj())
+
+
+def _conj_t(steering: np.ndarray) -> np.ndarray:
+    """``steering.conj().T`` with the conjugate computed once per steering matrix (the pipeline passes the same
+    one every frame). The same transposed view of a contiguous conjugate as before: BLAS picks its kernel by
+    the layout, and a contiguous transpose sums a single look's product in another order."""
+    hit = _CONJ.get(id(steering))
+    if hit is None or hit[0] is not steering:
+        if len(_CONJ) > 8:
+            _CONJ.clear()
+        hit = _CONJ[id(steering)] = (steering, steering.conj())
+    return hit[1].T
+
+
 def steering_matrix(n_rx: int, spacing_m: float, wavelength_m: float, grid_rad: np.ndarray) -> np.ndarray:
     """``(n_grid, n_rx)`` complex64 steering vectors, normalised to unit norm."""
     m = np.arange(n_rx)
@@ -65,21 +81,22 @@ def bartlett_consensus(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np
     n_det, n_snap, _ = snapshots.shape
     if n_det == 0:
         return np.zeros(0, np.float32), np.zeros((0, grid_rad.size), np.float32), np.zeros((0, n_snap), bool)
-    y = snapshots @ steering.conj().T  # (n_det, n_snap, n_grid)
+    y = snapshots @ _conj_t(steering)  # (n_det, n_snap, n_grid)
     p = y.real * y.real
     p += y.imag * y.imag  # float32
-    p /= np.maximum(p.max(axis=2, keepdims=True), np.float32(1e-30))
+    # (ufunc reductions: the values of ndarray.max/.sum without their wrappers; a few us a call at this size)
+    p /= np.maximum(np.maximum.reduce(p, axis=2, keepdims=True), np.float32(1e-30))
     each = grid_rad[np.argmax(p, axis=2)]  # (n_det, n_snap)
     # median over the few snapshots (np.median's value: the middle one, or the mean of the middle two)
     srt = np.sort(each, axis=1)
     h = n_snap // 2
     med = srt[:, h:h + 1] if n_snap % 2 else (srt[:, h - 1:h] + srt[:, h:h + 1]) / 2
     kept = np.abs(each - med) <= (outlier_rad[:, None] if np.ndim(outlier_rad) else outlier_rad)
-    spec = (p * kept[..., None]).sum(axis=1)
+    spec = np.add.reduce(p * kept[..., None], axis=1)
     k = np.argmax(spec, axis=1)
-    kk = np.clip(k, 1, grid_rad.size - 2)
-    rows = np.arange(n_det)
-    pm, p0, pp = spec[rows, kk - 1], spec[rows, kk], spec[rows, kk + 1]
+    kk = np.minimum(np.maximum(k, 1), grid_rad.size - 2)  # np.clip, without its wrapper (5 us on a few ints)
+    # the maximum and its two neighbours in one gather
+    pm, p0, pp = spec.take(kk[:, None] + (np.arange(n_det) * spec.shape[1])[:, None] + _NEIGHBOURS).T
     den = pm - 2.0 * p0 + pp
     inner = k == kk
     d = np.zeros(den.shape, den.dtype)

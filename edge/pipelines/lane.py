@@ -319,7 +319,9 @@ class LanePipeline(Pipeline):
             self._aided_scale32 = np.float32(min(os_cfar_scale(cfg.aided_pfa, self._n_ref, self._rank, n_looks=n_rx),
                                                  self.cfar_scale))
         self._alias_period = wf.wavelength_m / frontend.rx_spacing_m  # grating-lobe period in sin(az)
+        self._lane_cache: tuple = (None, 0.0, None)  # (lanes, their span across, directions) of _unalias_by_lane
         self._model = PairingModel.from_waveform(wf)
+        self._model_ab = np.stack([self._model.a, self._model.b], axis=1)  # (4, 2): beat = a R + b v per segment
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
         self._near_tol = (cfg.pair_near_tolerance_bins * self._bin_hz[2],
                           cfg.pair_near_tolerance_bins * self._bin_hz[3])
@@ -404,7 +406,9 @@ class LanePipeline(Pipeline):
                      and bool(self.tracker.tracks.confirmed.any()))
         weak = None
         with timer.stage("cfar"):
-            floor = np.partition(power, n // 2, axis=-1)[:, n // 2]  # median per segment
+            # median per segment; the power is non-negative, so its float32 bit patterns as int32 sort like the
+            # values and numpy selects int32 faster (the same element)
+            floor = np.partition(power.view(np.int32), n // 2, axis=-1)[:, n // 2].view(np.float32)
             cap = floor * self._cap  # (4,)
             if cfg.cfar_full_threshold:  # the whole threshold curve, for plots
                 _, _, noise = os_cfar(power, self._ref_index, self._rank, self.cfar_scale)
@@ -436,14 +440,19 @@ class LanePipeline(Pipeline):
             # peaks in (segment, bin) order; sub-bin offsets by a parabola through the log-power
             # (edge.dsp.peaks.interpolate_peak, all segments at once)
             bounds = self._segment_bounds(rows)
+            wf = None
             if max(e - b for b, e in bounds) > cfg.max_peaks_per_segment:
                 freqs, bins = self._strongest_peaks(power, rows, cols)
             else:
-                f = self._peak_freqs(rows, cols, cells)
+                if weak is None:
+                    f = self._peak_freqs(rows, cols, cells)
+                else:  # the detected and the weak peaks in one interpolation (elementwise; the cost is per call)
+                    f = self._peak_freqs(*(np.concatenate([a, b]) for a, b in zip((rows, cols, cells), weak)))
+                    f, wf = f[:rows.size], f[rows.size:]
                 freqs, bins = [f[b:e] for b, e in bounds], [cols[b:e] for b, e in bounds]
             if weak is not None:  # the same interpolation, grouped by segment
                 wr, wc, wcells = weak
-                wf = self._peak_freqs(wr, wc, wcells)
+                wf = self._peak_freqs(wr, wc, wcells) if wf is None else wf
                 bounds = self._segment_bounds(wr)
                 weak = ([wf[b:e] for b, e in bounds], [wc[b:e] for b, e in bounds])
         with timer.stage("pairing"):
@@ -593,7 +602,7 @@ class LanePipeline(Pipeline):
         counts = [fk.size for fk in freqs]
         w_counts = [fk.size for fk in weak[0]] if weak is not None else [0, 0, 0, 0]
         width = max(c + w for c, w in zip(counts, w_counts))
-        pred_bin = np.round(f_hat / self._bin_hz).astype(np.int64) % self.n_bins  # (m, 4)
+        pred_bin = np.rint(f_hat / self._bin_hz).astype(np.int64) % self.n_bins  # (m, 4); np.round's value
         if width == 0:
             return empty
         table = np.full((4, width), np.inf)
@@ -615,7 +624,7 @@ class LanePipeline(Pipeline):
         good = found.sum(axis=1) >= cfg.aided_min_segments
         if not good.any():
             return empty
-        A = np.stack([self._model.a, self._model.b], axis=1)  # (4, 2)
+        A = self._model_ab  # (4, 2)
         w = found[good].astype(np.float64)
         fs = fsel[good]
         nrm = np.einsum("mk,ki,kj->mij", w, A, A)
@@ -639,7 +648,11 @@ class LanePipeline(Pipeline):
         period = self._alias_period
         # an alias is sin(az) +- period away, i.e. about period x range across: only near detections can have
         # both themselves and their alias on the road (the rest is left alone at the cost of one comparison)
-        span = max(ln.center_m + 0.5 * ln.width_m for ln in lanes) - min(ln.center_m - 0.5 * ln.width_m for ln in lanes)
+        if self._lane_cache[0] is not lanes:  # the lanes change when the traffic layer learns them: rarely
+            self._lane_cache = (lanes, max(ln.center_m + 0.5 * ln.width_m for ln in lanes)
+                                - min(ln.center_m - 0.5 * ln.width_m for ln in lanes),
+                                np.array([ln.direction for ln in lanes]))
+        _, span, dirs = self._lane_cache
         near = np.abs(v_mps) >= np.float32(cfg.unalias_min_speed_mps)
         near &= range_m <= np.float32(span / period + cfg.mounting_height_m)
         idx = near.nonzero()[0]
@@ -649,11 +662,11 @@ class LanePipeline(Pipeline):
         s0 = np.sin(az[idx].astype(np.float64))
         cand = np.concatenate([s0, s0 + period, s0 - period])  # itself and the two neighbouring grating lobes
         # the lane direction of all three in one pass (the cost is per call, not per element)
-        x, y = polar_to_ground(np.tile(range_m[idx], 3), np.arcsin(np.clip(cand, -1.0, 1.0)), cfg.mounting_height_m,
-                               cfg.target_height_m)
+        r3 = range_m[idx]
+        x, y = polar_to_ground(np.concatenate([r3, r3, r3]), np.arcsin(np.minimum(np.maximum(cand, -1.0), 1.0)),
+                               cfg.mounting_height_m, cfg.target_height_m)
         u, _ = to_road(x.astype(np.float64), y.astype(np.float64), self.traffic.yaw_rad)
         k = assign_lanes(u, lanes)
-        dirs = np.array([ln.direction for ln in lanes])
         d = np.where(k >= 0, dirs[np.maximum(k, 0)], 0).reshape(3, n)
         sign = np.sign(v_mps[idx]).astype(np.int64)  # +1 receding: lanes "away"
         bad = d[0] == -sign

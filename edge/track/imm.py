@@ -62,16 +62,19 @@ def keep_model(dt_s: float, yaw_rad: float, tau_s: float, q_across_m2ps3: float,
     acceleration ``q_across`` across and ``q_along`` along the road (direction ``yaw_rad`` off the boresight,
     the convention of :func:`edge.traffic.lanes.to_road`: across ``(cos, sin)``, along ``(-sin, cos)``)."""
     c, s = math.cos(yaw_rad), math.sin(yaw_rad)
-    rot = np.array([[c, -s], [s, c]])  # columns: road across, road along, in radar ground coordinates
     decay = math.exp(-dt_s / tau_s) if tau_s > 0 else 1.0
-    phi = rot @ np.diag([decay, 1.0]) @ rot.T
-    f = np.eye(4)
-    f[0, 2] = f[1, 3] = dt_s
-    f[2:, 2:] = phi
-    a = rot @ np.diag([q_across_m2ps3, q_along_m2ps3]) @ rot.T
+    # rot diag(u, v) rot' with rot = [[c, -s], [s, c]] (columns: road across, road along) in closed form, with
+    # Python floats: the road direction follows the traffic layer's yaw estimate, so this runs nearly every
+    # frame, and a dozen tiny numpy calls cost more than the 4 x 4 matrices (issue 9)
+    cc, ss, cs = c * c, s * s, c * s
+    p00, p01, p11 = cc * decay + ss, cs * (decay - 1.0), ss * decay + cc  # phi = rot diag(decay, 1) rot'
+    a00 = cc * q_across_m2ps3 + ss * q_along_m2ps3
+    a01 = cs * (q_across_m2ps3 - q_along_m2ps3)
+    a11 = ss * q_across_m2ps3 + cc * q_along_m2ps3
+    f = np.array([[1.0, 0.0, dt_s, 0.0], [0.0, 1.0, 0.0, dt_s], [0.0, 0.0, p00, p01], [0.0, 0.0, p01, p11]])
     d3, d2, d1 = dt_s**3 / 3.0, dt_s**2 / 2.0, dt_s
-    q = np.empty((4, 4))
-    q[:2, :2], q[:2, 2:], q[2:, :2], q[2:, 2:] = d3 * a, d2 * a, d2 * a, d1 * a
+    q = np.array([[d3 * a00, d3 * a01, d2 * a00, d2 * a01], [d3 * a01, d3 * a11, d2 * a01, d2 * a11],
+                  [d2 * a00, d2 * a01, d1 * a00, d1 * a01], [d2 * a01, d2 * a11, d1 * a01, d1 * a11]])
     return f, q
 
 

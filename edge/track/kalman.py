@@ -115,7 +115,8 @@ def snr_polar_noise(xy: np.ndarray, snr_db: np.ndarray, range_sigma0_m: float, r
     ``snr_clip_db``) for the azimuth (``sigma0`` = the sd at 0 dB) and for the range, converted like
     :func:`polar_position_noise` (``J diag(sigma_r^2, sigma_az^2) J'`` plus ``floor_sigma_m^2`` isotropic).
     """
-    snr = 10.0 ** (np.clip(snr_db, snr_clip_db[0], snr_clip_db[1]) / 10.0)
+    # np.clip, without its wrapper
+    snr = 10.0 ** (np.minimum(np.maximum(snr_db, snr_clip_db[0]), snr_clip_db[1]) / 10.0)
     var_r = range_sigma0_m**2 / snr + range_floor_m**2
     var_az = az_sigma0_rad**2 / snr + az_floor_rad**2
     r = np.hypot(xy[:, 0], xy[:, 1])

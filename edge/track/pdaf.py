@@ -33,7 +33,8 @@ from scipy.stats import chi2
 
 from edge.track.smallmat import inv_det
 
-__all__ = ["gate_threshold", "unit_ball_volume", "Innovations", "innovations", "association_weights", "combined_update",
+__all__ = ["gate_threshold", "unit_ball_volume", "Innovations", "innovations", "mahalanobis_d2", "association_weights",
+           "combined_update",
            "InnovationsEach", "innovations_each", "gate_volume_each", "association_weights_each", "combined_update_each",
            "PairInnovations", "pair_innovations", "combined_update_pairs"]
 
@@ -59,10 +60,10 @@ class Innovations:
     det_s: np.ndarray  # (T,)
 
 
-def _quad_terms(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _quad_terms(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     ij = [(i, j) for i in range(n) for j in range(i, n)]
     return (np.array([i for i, _ in ij]), np.array([j for _, j in ij]),
-            np.array([1.0 if i == j else 2.0 for i, j in ij]))
+            np.array([1.0 if i == j else 2.0 for i, j in ij]), np.array([n * i + j for i, j in ij]))
 
 
 _QUAD_TERMS = {n: _quad_terms(n) for n in (1, 2, 3)}
@@ -73,14 +74,25 @@ def innovations(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, 
     s = h @ p @ h.transpose(0, 2, 1) + r
     s = 0.5 * (s + s.transpose(0, 2, 1))
     s_inv, det_s = inv_det(s)
-    n = z.shape[1]
     v = z[None, :, :] - z_hat[:, None, :]  # (T, M, n)
-    # d2 = v' S^-1 v expanded over the symmetric n x n terms (cheaper than tiny batched matmuls), all terms
+    return Innovations(v, _quad(v, s_inv), s, s_inv, det_s)
+
+
+def _quad(v: np.ndarray, s_inv: np.ndarray) -> np.ndarray:
+    """(T, M) ``v' S_t^-1 v`` of innovations ``v`` (T, M, n) with one symmetric ``S_t^-1`` (T, n, n) per track."""
+    # expanded over the symmetric n x n terms (cheaper than tiny batched matmuls), all terms
     # S^-1_ij v_i v_j (doubled off the diagonal) in one product, summed in the order i <= j
-    ii, jj, twice = _QUAD_TERMS[n]
-    terms = (s_inv[:, ii, jj] * twice)[:, None, :] * v[:, :, ii] * v[:, :, jj]  # (T, M, n (n + 1) / 2)
-    d2 = np.add.reduce(terms, axis=2)  # fewer than 8 terms: summed one after the other (no pairwise blocks)
-    return Innovations(v, d2, s, s_inv, det_s)
+    n = v.shape[2]
+    ii, jj, twice, flat = _QUAD_TERMS[n]
+    sij = s_inv.reshape(-1, n * n).take(flat, axis=1)  # (T, n (n + 1) / 2) distinct entries, one take
+    terms = (sij * twice)[:, None, :] * v.take(ii, axis=2) * v.take(jj, axis=2)  # (T, M, n (n + 1) / 2)
+    return np.add.reduce(terms, axis=2)  # fewer than 8 terms: summed one after the other (no pairwise blocks)
+
+
+def mahalanobis_d2(v: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """(T, M) squared Mahalanobis distances of innovations ``v`` (T, M, n) under one covariance per track
+    ``s`` (T, n, n): the ``d2`` of :func:`innovations` for innovations already computed."""
+    return _quad(v, inv_det(s)[0])
 
 
 def association_weights(
@@ -166,31 +178,27 @@ class InnovationsEach(Innovations):
     ``det_s`` (T, M); ``s_track`` (T, n, n) is ``H P H' + R_t`` without the detections' noise."""
 
     s_track: np.ndarray | None = None
+    #: (T,) gate volume of the validated detections, set by :func:`association_weights_each` (the IMM update reuses it)
+    gate_volume: np.ndarray | None = None
 
 
 def _sym_inv_det(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Inverse and determinant of symmetric 2x2 or 3x3 matrices ``s`` (..., n, n) in closed form (batched over
-    tracks x detections, where ``np.linalg.inv`` on thousands of tiny matrices costs more than the maths)."""
-    n = s.shape[-1]
-    inv = np.empty_like(s)
-    if n == 2:
-        a, b, d = s[..., 0, 0], s[..., 0, 1], s[..., 1, 1]
-        det = a * d - b * b
-        inv[..., 0, 0], inv[..., 1, 1] = d / det, a / det
-        inv[..., 0, 1] = inv[..., 1, 0] = -b / det
-        return inv, det
-    if n != 3:
-        return np.linalg.inv(s), np.linalg.det(s)
-    a, b, c = s[..., 0, 0], s[..., 0, 1], s[..., 0, 2]
-    d, e, f = s[..., 1, 1], s[..., 1, 2], s[..., 2, 2]
-    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
-    c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
-    det = a * c00 + b * c01 + c * c02
-    inv[..., 0, 0], inv[..., 1, 1], inv[..., 2, 2] = c00 / det, c11 / det, c22 / det
-    inv[..., 0, 1] = inv[..., 1, 0] = c01 / det
-    inv[..., 0, 2] = inv[..., 2, 0] = c02 / det
-    inv[..., 1, 2] = inv[..., 2, 1] = c12 / det
-    return inv, det
+    tracks x detections, where ``np.linalg.inv`` on thousands of tiny matrices costs more than the maths):
+    :func:`edge.track.smallmat.inv_det`, whose cofactors of a symmetric matrix are those of the symmetric
+    formulas bit for bit, in a third of the numpy calls."""
+    return inv_det(s)
+
+
+def _quad_each(v: np.ndarray, s_inv: np.ndarray) -> np.ndarray:
+    """``v' S^-1 v`` with one ``S^-1`` per innovation: ``v`` (..., n), ``s_inv`` (..., n, n) symmetric -> (...).
+    All terms ``S^-1_ij v_i v_j`` (doubled off the diagonal) in one product, summed in the order i <= j (as
+    :func:`innovations` does per track)."""
+    n = v.shape[-1]
+    ii, jj, twice, flat = _QUAD_TERMS[n]
+    # the distinct entries of S^-1 with one take (not 2-D fancy indexing)
+    sij = s_inv.reshape(s_inv.shape[:-2] + (n * n,)).take(flat, axis=-1)
+    return np.add.reduce(sij * twice * v.take(ii, axis=-1) * v.take(jj, axis=-1), axis=-1)
 
 
 def innovations_each(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, r_track: np.ndarray,
@@ -202,23 +210,19 @@ def innovations_each(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndar
     s = st[:, None] + r_meas[None]  # (T, M, n, n)
     s_inv, det_s = _sym_inv_det(s)
     v = z[None, :, :] - z_hat[:, None, :]  # (T, M, n)
-    n = z.shape[1]
-    d2 = np.zeros(v.shape[:2])
-    for i in range(n):  # per measurement dimension (n <= 3), not per detection
-        vi = v[:, :, i]
-        d2 += s_inv[:, :, i, i] * vi * vi
-        for j in range(i + 1, n):
-            d2 += 2.0 * s_inv[:, :, i, j] * vi * v[:, :, j]
-    return InnovationsEach(v, d2, s, s_inv, det_s, st)
+    return InnovationsEach(v, _quad_each(v, s_inv), s, s_inv, det_s, st)
 
 
-def gate_volume_each(inn: InnovationsEach, gated: np.ndarray, gamma: float) -> np.ndarray:
-    """(T,) ``V_t = c_n gamma^(n/2) mean_m |S_tm|^(1/2)`` over the validated detections (over all when none)."""
+def gate_volume_each(inn: InnovationsEach, gated: np.ndarray, gamma: float, n_gated: np.ndarray | None = None,
+                     root: np.ndarray | None = None) -> np.ndarray:
+    """(T,) ``V_t = c_n gamma^(n/2) mean_m |S_tm|^(1/2)`` over the validated detections (over all when none).
+    ``n_gated`` (``gated.sum(axis=1)``) and ``root`` (``sqrt(inn.det_s)``): if already computed."""
     n = inn.v.shape[2]
-    root = np.sqrt(inn.det_s)
-    k = gated.sum(axis=1)
-    mean_root = np.where(k > 0, (root * gated).sum(axis=1) / np.maximum(k, 1),
-                         root.mean(axis=1) if root.shape[1] else 1.0)
+    root = np.sqrt(inn.det_s) if root is None else root
+    k = np.add.reduce(gated, axis=1) if n_gated is None else n_gated  # ndarray.sum without its wrapper
+    mean_root = np.add.reduce(root * gated, axis=1) / np.maximum(k, 1)
+    if not k.all():  # a track without a validated detection: the mean over all (np.mean's sum / count)
+        mean_root = np.where(k > 0, mean_root, np.add.reduce(root, axis=1) / root.shape[1] if root.shape[1] else 1.0)
     return unit_ball_volume(n) * gamma ** (n / 2.0) * mean_root
 
 
@@ -239,19 +243,20 @@ def association_weights_each(
     b = 1.0 - prob_gate * prob_detect
     if m == 0 or t == 0:
         return np.zeros((t, m)), np.ones(t), gated
-    m_t = gated.sum(axis=1)
-    vol = gate_volume_each(inn, gated, gamma)  # (T,)
-    norm = (2.0 * math.pi) ** (n / 2.0) * np.sqrt(inn.det_s)  # (T, M)
+    m_t = np.add.reduce(gated, axis=1)  # the sums as ufunc reductions: ndarray.sum's value without its wrapper
+    root = np.sqrt(inn.det_s)
+    vol = inn.gate_volume = gate_volume_each(inn, gated, gamma, m_t, root)  # (T,)
+    norm = (2.0 * math.pi) ** (n / 2.0) * root  # (T, M)
     scale = prob_detect * vol / np.maximum(m_t, 1)  # (T,)
     lik = np.where(gated, np.exp(-0.5 * np.minimum(inn.d2, gamma)) * scale[:, None] / norm, 0.0)
-    s_t = lik.sum(axis=1)
+    s_t = np.add.reduce(lik, axis=1)
     if method == "pdaf":
         beta = lik / (b + s_t)[:, None]
         beta0 = b / (b + s_t)
     elif method == "jpda":
-        s_m = lik.sum(axis=0)
+        s_m = np.add.reduce(lik, axis=0)
         beta = lik / (s_t[:, None] + s_m[None, :] - lik + b)
-        beta0 = 1.0 - beta.sum(axis=1)
+        beta0 = 1.0 - np.add.reduce(beta, axis=1)
     else:
         raise ValueError(f"unknown association method {method!r}: choose pdaf or jpda")
     return beta, beta0, gated
@@ -277,9 +282,8 @@ def pair_innovations(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndar
     st = h @ p @ h.transpose(0, 2, 1) + r_track
     st = 0.5 * (st + st.transpose(0, 2, 1))
     s_inv, det_s = _sym_inv_det(st[t] + r_meas[m])
-    v = z[m] - z_hat[t]
-    d2 = np.einsum("pi,pij,pj->p", v, s_inv, v)
-    return PairInnovations(t, m, v, d2, s_inv, det_s)
+    v = z.take(m, axis=0) - z_hat.take(t, axis=0)
+    return PairInnovations(t, m, v, _quad_each(v, s_inv), s_inv, det_s)
 
 
 def combined_update_pairs(xp: np.ndarray, pp: np.ndarray, h: np.ndarray, pin: PairInnovations,
@@ -287,18 +291,26 @@ def combined_update_pairs(xp: np.ndarray, pp: np.ndarray, h: np.ndarray, pin: Pa
     """The per-hypothesis PDAF update (comment above :class:`InnovationsEach`) over pairs: ``w`` (P,) the weight
     ``beta`` of each pair (the pairs with ``beta > 0`` suffice; ``beta_0`` is implied)."""
     t = xp.shape[0]
-    ph = pp @ h.transpose(0, 2, 1)  # (T, 4, n)
     if pin.t.size == 0:
         return xp.copy(), pp.copy()
-    k = ph[pin.t] @ pin.s_inv  # (P, 4, n)
+    n_p, n = pin.v.shape
+    ph = pp @ h.transpose(0, 2, 1)  # (T, 4, n)
+    k = ph.take(pin.t, axis=0) @ pin.s_inv  # (P, 4, n)
     dx = (k @ pin.v[:, :, None])[:, :, 0]  # (P, 4)
     wdx = dx * w[:, None]
-    dxbar = np.zeros((t, 4))
-    np.add.at(dxbar, pin.t, wdx)
-    kbar = np.zeros(ph.shape)
-    np.add.at(kbar, pin.t, k * w[:, None, None])
-    spread = np.zeros((t, 4, 4))
-    np.add.at(spread, pin.t, wdx[:, :, None] * dx[:, None, :])
+    # the three weighted sums over each row's pairs (sum w dx, sum w K, sum w dx dx') in one product with the
+    # (T, P) row-membership matrix (np.add.at three times costs three times as much; the sums are sequential over
+    # the few pairs of a row, in pair order, either way)
+    g = np.empty((n_p, 4 + 4 * n + 16))
+    g[:, :4] = wdx
+    np.multiply(k.reshape(n_p, 4 * n), w[:, None], out=g[:, 4:4 + 4 * n])
+    g[:, 4 + 4 * n:] = (wdx[:, :, None] * dx[:, None, :]).reshape(n_p, 16)
+    member = np.zeros((t, n_p))
+    member[pin.t, np.arange(n_p)] = 1.0
+    sums = member @ g
+    dxbar = sums[:, :4]
+    kbar = sums[:, 4:4 + 4 * n].reshape(t, 4, n)
+    spread = sums[:, 4 + 4 * n:].reshape(t, 4, 4)
     x = xp + dxbar
     p = pp - kbar @ ph.transpose(0, 2, 1) + spread - dxbar[:, :, None] * dxbar[:, None, :]
     p = 0.5 * (p + p.transpose(0, 2, 1))

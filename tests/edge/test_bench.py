@@ -17,6 +17,8 @@ def test_bench_report_keys_and_consistency():
     assert fr["budget_ms"] == 33.0
     assert 0 < fr["p50_ms"] <= fr["p99_ms"]
     assert abs(fr["p99_budget_fraction"] - fr["p99_ms"] / 33.0) < 1e-12
+    assert 0 < fr["cpu_p50_ms"] <= fr["cpu_p99_ms"] <= fr["cpu_max_ms"]  # thread CPU time of the same frames
+    assert "min_over_runs_p99_ms" not in fr  # one run: no per-frame minimum
     assert set(rep["stages"]) >= {"to_complex", "range_fft", "peaks"}
     assert rep["fft_bound"]["p99_ms"] > 0 and rep["fft_bound"]["ratio"] > 0
     assert rep["peer"]["p99_ms"] > 0 and rep["peer"]["frames"] == 12
@@ -51,6 +53,9 @@ def test_bench_profiles_report_finite_ratios(profile):
         assert 0 <= s["p50_ms"] <= s["p99_ms"]
         assert abs(s["p99_budget_fraction"] - s["p99_ms"] / budget) < 1e-12
     assert _finite_positive(rep["frame"]["p50_budget_fraction"])
+    # each frame's fastest of the two runs is never slower than that frame in the run kept (percentiles are monotone)
+    assert 0 < rep["frame"]["min_over_runs_p50_ms"] <= rep["frame"]["p50_ms"]
+    assert rep["frame"]["min_over_runs_p99_ms"] <= rep["frame"]["p99_ms"]
     for key in ("fft_bound", "peer"):
         assert _finite_positive(rep[key]["p99_ms"]) and _finite_positive(rep[key]["ratio"]), key
     assert abs(rep["peer"]["ratio"] - rep["peer"]["p99_ms"] / rep["frame"]["p99_ms"]) < 1e-9

@@ -226,3 +226,49 @@ def test_stop_from_another_context_ends_the_loop():
     loop_ref["loop"] = loop
     s = loop.run()
     assert s.frames == 5 and s.stop_reason == "stopped"
+
+
+def test_frames_run_with_the_start_up_heap_frozen_and_it_is_handed_back_at_stop():
+    """issue 9: a full garbage collection of the start-up heap takes longer than a lane frame; the loop runs its
+    frames with that heap frozen (gc.freeze) and unfreezes it when it stops."""
+    import gc
+
+    clk = FakeClock()
+    frozen = []
+
+    class Probe(ScriptedPipeline):
+        def process(self, frame, timer):
+            frozen.append(gc.get_freeze_count())
+            return super().process(frame, timer)
+
+    gc.unfreeze()
+    loop = FrameLoop(FakeSource(clk), Probe(clk, lambda n: 1.0), LoopConfig(), clock=clk, pace="none")
+    assert loop.run(max_frames=5).frames == 5
+    assert len(frozen) == 5 and min(frozen) > 1000  # the modules, the pipeline, this test's objects
+    assert gc.get_freeze_count() == 0
+
+
+def test_frozen_heap_collects_first_and_keeps_later_garbage_collectable():
+    import gc
+    import weakref
+
+    from edge.ops.heap import frozen_heap
+
+    class Node:
+        pass
+
+    gc.unfreeze()
+    dead = Node()
+    dead.self = dead  # a reference cycle: only the cyclic collector frees it
+    ref = weakref.ref(dead)
+    del dead
+    with frozen_heap() as n:
+        assert ref() is None  # collected before freezing, not frozen for good
+        assert n > 1000 and gc.get_freeze_count() > 0
+        late = Node()
+        late.self = late
+        late_ref = weakref.ref(late)
+        del late
+        gc.collect()
+        assert late_ref() is None  # objects made while frozen are collected as usual
+    assert gc.get_freeze_count() == 0

@@ -109,3 +109,103 @@ def test_track_table_rows_keep_their_dtypes():
     for c in TrackTable._COLUMNS:
         assert getattr(tab, c).dtype == dtypes[c]
         np.testing.assert_array_equal(getattr(tab, c), before[c][mask])
+
+
+# --- issue 9, second pass: fewer numpy calls per frame, same numbers -------------------------------------------
+
+def _covariances(rng, shape, n):
+    a = rng.normal(size=shape + (n, n))
+    return a @ a.swapaxes(-1, -2) * 0.3 + 0.05 * np.eye(n)
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_mahalanobis_d2_of_given_innovations_is_the_innovations_d2(n):
+    from edge.track.pdaf import mahalanobis_d2
+
+    rng = np.random.default_rng(21)
+    t, m = 5, 7
+    h = rng.normal(size=(t, n, 4))
+    p = _covariances(rng, (t,), 4)
+    r = _covariances(rng, (t,), n)
+    inn = innovations(rng.normal(size=(m, n)), rng.normal(size=(t, n)), h, p, r)
+    np.testing.assert_array_equal(mahalanobis_d2(inn.v, inn.s), inn.d2)
+    ref = np.einsum("tmi,tij,tmj->tm", inn.v, np.linalg.inv(inn.s), inn.v)
+    np.testing.assert_allclose(inn.d2, ref, rtol=1e-10)
+
+
+def test_pair_quadratic_forms_and_inverses_match_linalg():
+    from edge.track.pdaf import _quad_each, _sym_inv_det
+
+    rng = np.random.default_rng(22)
+    s = _covariances(rng, (4, 6), 3)
+    v = rng.normal(size=(4, 6, 3))
+    inv, det = _sym_inv_det(s)
+    np.testing.assert_allclose(inv, np.linalg.inv(s), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(det, np.linalg.det(s), rtol=1e-9)
+    np.testing.assert_allclose(_quad_each(v, inv), np.einsum("...i,...ij,...j->...", v, np.linalg.inv(s), v),
+                               rtol=1e-9)
+
+
+def test_pair_update_sums_each_rows_pairs_whatever_their_order():
+    """combined_update_pairs (one product with the row-membership matrix) against np.add.at, with the IMM's row
+    order (all mode-0 rows, then all mode-1 rows), rows without pairs and one row with a single pair."""
+    from edge.track.pdaf import PairInnovations, combined_update_pairs
+
+    rng = np.random.default_rng(23)
+    t, n = 6, 3
+    xp = rng.normal(size=(t, 4))
+    pp = _covariances(rng, (t,), 4)
+    h = rng.normal(size=(t, n, 4))
+    rows = np.array([0, 0, 2, 4, 4, 4, 1, 1, 3, 5, 5, 5])[[0, 1, 2, 3, 4, 5, 6, 7, 9, 10, 11]]  # row 3 without pairs
+    k = rows.size
+    s_inv = np.linalg.inv(_covariances(rng, (k,), n))
+    v = rng.normal(size=(k, n))
+    w = rng.uniform(0.05, 0.4, k)
+    pin = PairInnovations(rows, np.arange(k), v, np.zeros(k), s_inv, np.ones(k))
+    x, p = combined_update_pairs(xp, pp, h, pin, w)
+    ph = pp @ h.transpose(0, 2, 1)
+    gain = ph[rows] @ s_inv
+    dx = (gain @ v[:, :, None])[:, :, 0]
+    dxbar, kbar, spread = np.zeros((t, 4)), np.zeros((t, 4, n)), np.zeros((t, 4, 4))
+    np.add.at(dxbar, rows, dx * w[:, None])
+    np.add.at(kbar, rows, gain * w[:, None, None])
+    np.add.at(spread, rows, (dx * w[:, None])[:, :, None] * dx[:, None, :])
+    p_ref = pp - kbar @ ph.transpose(0, 2, 1) + spread - dxbar[:, :, None] * dxbar[:, None, :]
+    np.testing.assert_allclose(x, xp + dxbar, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(p, 0.5 * (p_ref + p_ref.transpose(0, 2, 1)), rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(x[3], xp[3])  # no pair: the prediction stays
+    np.testing.assert_allclose(p[3], 0.5 * (pp[3] + pp[3].T), rtol=0, atol=0)
+
+
+def test_imm_prediction_cache_follows_yaw_and_period_changes():
+    """The keep mode's F, Q are rebuilt in place when only the yaw moves: every (dt, yaw) gets the matrices a
+    fresh predictor would use."""
+    cfg = PdafConfig()
+    cached = tracker_module.ImmPredictor(cfg)
+    tracks = TrackTable()
+    rng = np.random.default_rng(24)
+    x = np.column_stack([rng.uniform(-8, 8, 3), rng.uniform(30, 200, 3), rng.normal(0, 1, 3), rng.uniform(-30, 30, 3)])
+    tracks.append(x, np.repeat(np.eye(4)[None], 3, axis=0), 1.0, 0.6)
+    for dt, yaw in [(0.033, 0.0), (0.033, 0.01), (0.034, 0.01), (0.034, -0.02), (0.033, -0.02), (0.033, 0.0)]:
+        fresh = tracker_module.ImmPredictor(cfg)
+        for a, b in zip(cached.predict(tracks, dt, yaw), fresh.predict(tracks, dt, yaw)):
+            np.testing.assert_array_equal(a, b)
+        fk, qk = imm.keep_model(dt, yaw, cfg.imm_keep_tau_s, cfg.imm_keep_q_across_m2ps3, cfg.q_along_m2ps3)
+        np.testing.assert_array_equal(cached._cached[2][0], fk)
+        np.testing.assert_array_equal(cached._cached[3][0], qk)
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.05, -0.3])
+def test_keep_model_closed_form_is_the_rotated_model(yaw):
+    import math
+
+    dt, tau, qa, ql = 0.033, 1.5, 0.02, 2.0
+    f, q = imm.keep_model(dt, yaw, tau, qa, ql)
+    rot = np.array([[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]])
+    phi = rot @ np.diag([math.exp(-dt / tau), 1.0]) @ rot.T
+    a = rot @ np.diag([qa, ql]) @ rot.T
+    np.testing.assert_allclose(f[2:, 2:], phi, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(f[:2], np.hstack([np.eye(2), dt * np.eye(2)]), rtol=0, atol=0)
+    np.testing.assert_allclose(q, np.block([[dt**3 / 3 * a, dt**2 / 2 * a], [dt**2 / 2 * a, dt * a]]), rtol=1e-14,
+                               atol=1e-18)
+    np.testing.assert_array_equal(q, q.T)
