@@ -169,6 +169,10 @@ class SurveillanceTracker:
         self._links: dict[int, dict[int, int]] = {}  # track id -> {other track id: frames with adjacent clusters}
         self.fragments = 0  # tracks whose cells joined another track's signatures
         self.continued = 0  # ended tracks continued by a later track of the same target
+        self.rigid_merges = 0  # younger tracks merged into an older one as parts of one rigid body
+        self.rigid_parts = 0  # new tracks merged in their first frame into the body a part was merged into
+        self._rigid: dict[tuple[int, int], list[float]] = {}  # (older, younger) -> separations of the frames counted
+        self._body: dict[int, tuple[float, float]] = {}  # track id -> range offsets of the parts merged into it
         self._start_ns: dict[int, int] = {}  # track id -> start of the earliest track it continues
 
     @classmethod
@@ -236,7 +240,9 @@ class SurveillanceTracker:
         for tid, j in tstep.assigned.items():
             lab = labels[j]
             shared = self._shares_with(tid, j)
-            if shared or self._is_merged(tid, int(sig.n_points[lab]), self._other_track_near(tid, sig.centroid[lab], pred)):
+            if shared or self._is_merged(tid, int(sig.n_points[lab]), self._other_track_near(tid, sig.centroid[lab], pred),
+                                         self._any_track_near(tid, sig.centroid[lab], pred, sig.range_lo_m[lab],
+                                                              sig.range_hi_m[lab])):
                 tr = by_id.get(tid)
                 if tr is not None and tid in pred:  # keep the prediction: the centroid is not this target's
                     tr.state = pred[tid]
@@ -268,6 +274,8 @@ class SurveillanceTracker:
                 if math.isfinite(v_kmh):  # Doppler-aided range rate (m per frame), see AlphaBetaConfig
                     tr.state[5] = v_kmh / 3.6 * self.frame_period_s
         self._link(recorded, points)
+        if self.tracker.config.rigid_min_speed_kmh > 0:
+            self._rigid_merge(recorded, sig)
         seg = self.segmenter.step(t_ns, level)
         if seg.ended or seg.discarded:
             out.extend(self._close_tracks())
@@ -307,6 +315,82 @@ class SurveillanceTracker:
             la, lb = self._links[ids[a]], self._links[ids[b]]
             la[ids[b]] = la.get(ids[b], 0) + 1
             lb[ids[a]] = lb.get(ids[a], 0) + 1
+
+    def _rigid_merge(self, recorded: list[tuple[int, int]], sig: ClusterSignatures) -> None:
+        """Merge tracks that are parts of one rigid body (``rigid_*`` of :class:`AlphaBetaConfig`).
+
+        For every pair of an older track ``a`` with an unaliased radial speed of at least
+        ``rigid_min_speed_kmh`` and a younger track ``b`` that has its own cluster this frame: the
+        frame counts when ``b``'s cluster is within ``rigid_length_m`` of ``a``'s (its cluster this
+        frame, or its prediction while it coasts) and their wrapped Dopplers agree within
+        ``rigid_doppler_kmh``; any other frame of ``b`` resets the count. After ``rigid_frames``
+        frames in a row whose separations spread by at most ``rigid_separation_m``, ``b``'s signature
+        rows join ``a``'s (the union of the body's cells frame by frame) and ``b`` ends without an
+        event. ``a`` remembers the separations (widened by ``rigid_separation_m``): a track started
+        there later with ``a``'s Doppler is the same part again and is merged in its first frame."""
+        cfg = self.tracker.config
+        n_aid = max(2, cfg.doppler_range_rate_frames)
+        by_id = {tr.track_id: tr for tr in self.tracker.tracks}
+        own = {tid: lab for tid, lab in recorded}
+        period = 2.0 * self.cylinder.vmax_kmh
+        older = []
+        for tid, tr in by_id.items():
+            spd = self._speed.get(tid)
+            if spd is None or len(spd) < n_aid:
+                continue
+            v = spd.current_radial_speed_kmh()
+            if not abs(v) >= cfg.rigid_min_speed_kmh:
+                continue
+            if tid in own:
+                r, dw = float(sig.range_m[own[tid]]), float(sig.doppler_kmh[own[tid]])
+            else:
+                r, dw = float(tr.state[4]), spd.last()[2]
+            older.append((tid, len(spd), r, dw))
+        seen: set[tuple[int, int]] = set()
+        for a, n_a, r_a, dw_a in older:
+            for b, lab in own.items():
+                spd_b = self._speed.get(b)
+                if b == a or spd_b is None or len(spd_b) >= n_a or b not in by_id or a not in by_id:
+                    continue
+                key = (a, b)
+                sep = float(sig.range_m[lab]) - r_a
+                ddw = abs((float(sig.doppler_kmh[lab]) - dw_a + 0.5 * period) % period - 0.5 * period)
+                if abs(sep) <= cfg.rigid_length_m and ddw <= cfg.rigid_doppler_kmh:
+                    body = self._body.get(a)
+                    if len(spd_b) == 1 and body is not None and body[0] <= sep <= body[1]:
+                        # a new track where a part already merged into ``a`` was: that part again
+                        self._merge_into(a, b)
+                        self.rigid_merges -= 1
+                        self.rigid_parts += 1
+                        by_id.pop(b, None)
+                        continue
+                    seps = self._rigid.setdefault(key, [])
+                    seps.append(sep)
+                    del seps[:-cfg.rigid_frames]
+                    seen.add(key)
+                    if len(seps) >= cfg.rigid_frames and max(seps) - min(seps) <= cfg.rigid_separation_m:
+                        m = cfg.rigid_separation_m
+                        lo, hi = min(seps) - m, max(seps) + m
+                        if body is not None:
+                            lo, hi = min(lo, body[0]), max(hi, body[1])
+                        self._body[a] = (lo, hi)
+                        self._merge_into(a, b)
+                        by_id.pop(b, None)
+        # a younger track's frame that did not move with the older one breaks the run
+        for key in [k for k in self._rigid if k not in seen and (k[1] in own or k[0] not in by_id or k[1] not in by_id)]:
+            del self._rigid[key]
+
+    def _merge_into(self, keep: int, gone: int) -> None:
+        """Track ``gone`` is a part of ``keep``'s target: its rows join ``keep``'s, it ends silently."""
+        log_k, log_g = self._log.get(keep), self._log.get(gone)
+        if log_k is not None and log_g is not None:
+            log_k.extend(log_g)
+        self.tracker.tracks = [t for t in self.tracker.tracks if t.track_id != gone]
+        self.tracker.ids.release(gone)
+        self._rigid = {k: v for k, v in self._rigid.items() if gone not in k}
+        self.rigid_merges += 1
+        self._forget(gone, counted=False)
+        log.debug("track %d merged into track %d (one rigid body)", gone, keep)
 
     def _end_tracks(self, ended, dropped, alive: set[int]) -> list[ClassifiedEvent]:
         """Classify the ``ended`` tracks and forget the ``dropped`` ones, except fragments: a track
@@ -428,7 +512,21 @@ class SurveillanceTracker:
             if tid != track_id and (need <= 0 or len(self._size.get(tid, ())) >= need)
         )
 
-    def _is_merged(self, track_id: int, n_points: int, other_near: bool = True) -> bool:
+    def _any_track_near(self, track_id: int, centroid: np.ndarray, pred: dict[int, np.ndarray], lo_m: float,
+                        hi_m: float) -> bool:
+        """Is any other track predicted within ``gate_radius`` of this centroid (on the cylinder) or, in
+        range, inside the cluster's span (``lo_m``..``hi_m`` widened by ``shared_span_m``)? Always true
+        when ``merge_other_required`` is ``young`` (the old rule: established tracks need no other)."""
+        cfg = self.tracker.config
+        if cfg.merge_other_required == "young":
+            return True
+        m = cfg.shared_span_m
+        return any(
+            float(np.linalg.norm(p[[0, 2, 4]] - centroid)) <= cfg.gate_radius or lo_m - m <= float(p[4]) <= hi_m + m
+            for tid, p in pred.items() if tid != track_id
+        )
+
+    def _is_merged(self, track_id: int, n_points: int, other_near: bool = True, any_near: bool = True) -> bool:
         """Is this cluster the track's target merged with another one (``merge_ratio``)? Updates the
         track's size history.
 
@@ -436,12 +534,14 @@ class SurveillanceTracker:
         is predicted near the cluster (``other_near``): a cluster grows several-fold on its own while
         a long vehicle enters the beam (a truck's point count goes from ~100 to ~1000 in one frame),
         and holding such a track on its prediction starved its features of the frames that make it a
-        truck and let it run away from its target."""
+        truck and let it run away from its target. With ``merge_other_required = "always"`` an
+        established track is held only when some other track is near the cluster (``any_near``): a
+        target growing on its own as it approaches is no merge."""
         cfg = self.tracker.config
         hist = self._size.get(track_id)
         if hist is None:
             return False
-        established = other_near or len(hist) >= cfg.merge_history_frames
+        established = other_near or (len(hist) >= cfg.merge_history_frames and any_near)
         if (established and cfg.merge_ratio > 0 and len(hist) >= 2
                 and self._merged_run[track_id] < cfg.merge_max_frames):
             # against the median *and* the last own cluster: a merge is a sudden jump, while a long
@@ -465,6 +565,7 @@ class SurveillanceTracker:
         self._size.pop(track_id, None)
         self._merged_run.pop(track_id, None)
         self._start_ns.pop(track_id, None)
+        self._body.pop(track_id, None)
         self.dropped += int(counted)
 
     def _finish(self, tr: AlphaBetaTrack) -> ClassifiedEvent:
