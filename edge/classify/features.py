@@ -502,6 +502,10 @@ class RadialSpeedEstimator:
             self._r.append(r)
             self._v.append(v)
 
+    def history(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(t_s, range_m)`` of every frame kept (float64 arrays, oldest first)."""
+        return np.array(self._t, dtype=np.float64), np.array(self._r, dtype=np.float64)
+
     def first(self) -> tuple[float, float, float]:
         """``(t_s, range_m, doppler_wrapped_kmh)`` of the first frame (NaNs when empty)."""
         return (self._t[0], self._r[0], self._v[0]) if self._t else (math.nan, math.nan, math.nan)

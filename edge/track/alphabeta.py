@@ -289,6 +289,32 @@ class AlphaBetaConfig:
         metadata={"unit": "frames", "doc": "see rigid_min_speed_kmh: consecutive frames of the younger track moving "
                   "with the older one before they are merged", "min": 1, "max": 1000},
     )
+    passage_max_frames: int = field(
+        default=8,
+        metadata={"unit": "frames", "doc": "beyond the paper: a track that ends with at most this many frames of "
+                  "its own, one of them within passage_range_m of the radar, is the part of a vehicle seen while it "
+                  "passes beside the radar (its Doppler near zero and spread, a separate cluster at 3 m) when a "
+                  "vehicle track (unaliased radial speed at least rigid_min_speed_kmh) still alive had a cluster "
+                  "within rigid_length_m of one of its clusters at most passage_gap_frames frames apart: its "
+                  "signatures join that track's and it ends without an event (Tavanti Test 1's car, departing "
+                  "3 m beside the radar, otherwise gives two events); 0 = off", "min": 0, "max": 1000},
+    )
+    passage_range_m: float = field(
+        default=8.0,
+        metadata={"unit": "m", "doc": "see passage_max_frames: the short track's nearest cluster is at most this "
+                  "far from the radar (vehicles pass 2-6.5 m beside it at the simulated site)", "min": 0.0, "max": 30.0},
+    )
+    passage_gap_frames: int = field(
+        default=2,
+        metadata={"unit": "frames", "doc": "see passage_max_frames: largest time between a cluster of the short "
+                  "track and one of the vehicle track that are within rigid_length_m", "min": 0, "max": 100},
+    )
+    passage_speed_kmh: float = field(
+        default=8.0,
+        metadata={"unit": "km/h", "doc": "see passage_max_frames: the short track's mean radial speed is within this "
+                  "of zero (the vehicle beside the radar) or of the vehicle track's speed; a motorcycle seen for a few "
+                  "frames while a car passes the other way is neither", "min": 0.0, "max": 100.0},
+    )
     max_track_id: int = field(
         default=255,
         metadata={"doc": "track ids are 1..max_track_id, smallest free first and recycled (fits CAN/Modbus)",

@@ -171,6 +171,7 @@ class SurveillanceTracker:
         self.continued = 0  # ended tracks continued by a later track of the same target
         self.rigid_merges = 0  # younger tracks merged into an older one as parts of one rigid body
         self.rigid_parts = 0  # new tracks merged in their first frame into the body a part was merged into
+        self.passages = 0  # short tracks of a vehicle's passage beside the radar joined to its track
         self._rigid: dict[tuple[int, int], list[float]] = {}  # (older, younger) -> separations of the frames counted
         self._body: dict[int, tuple[float, float]] = {}  # track id -> range offsets of the parts merged into it
         self._start_ns: dict[int, int] = {}  # track id -> start of the earliest track it continues
@@ -416,6 +417,12 @@ class SurveillanceTracker:
                 self._log[partner].extend(self._log[tid])
                 self.fragments += 1
                 self._forget(tid, counted=False)
+            elif is_ended and (host := self._passage_host(tr, alive)) is not None:
+                self._log[host].extend(self._log[tid])
+                self._start_ns[host] = min(self._start_ns.get(host, int(self._created_ns(host))),
+                                           self._start_ns.get(tid, int(tr.created_ns)))
+                self.passages += 1
+                self._forget(tid, counted=False)
             elif is_ended and (succ := self._successor(tr, alive)) is not None:
                 self._log[succ].extend(self._log[tid])
                 self._speed[succ].prepend(self._speed[tid])
@@ -431,6 +438,55 @@ class SurveillanceTracker:
             else:
                 self._forget(tid)
         return out
+
+    def _created_ns(self, track_id: int) -> int:
+        for t in self.tracker.tracks:
+            if t.track_id == track_id:
+                return int(t.created_ns)
+        return 0
+
+    def _passage_host(self, tr: AlphaBetaTrack, alive: set[int]) -> int | None:
+        """The vehicle track whose passage beside the radar the short ending track ``tr`` saw, or None
+        (``passage_max_frames``, ``passage_range_m``, ``passage_gap_frames`` with ``rigid_min_speed_kmh``
+        and ``rigid_length_m``): ``tr`` has at most ``passage_max_frames`` frames of its own, one of
+        them within ``passage_range_m``; the host is alive, at least ``rigid_min_speed_kmh`` fast, and one of
+        its clusters lies within ``rigid_length_m`` of one of ``tr``'s at most ``passage_gap_frames``
+        frames apart; ``tr``'s mean radial speed is within ``passage_speed_kmh`` of zero (beside the
+        radar) or of the host's. The closest such pair picks the host."""
+        cfg = self.tracker.config
+        if cfg.passage_max_frames <= 0 or cfg.rigid_min_speed_kmh <= 0 or not alive:
+            return None
+        spd = self._speed.get(tr.track_id)
+        if spd is None or len(spd) == 0 or tr.track_id not in self._log or self._own_frames(tr.track_id) > cfg.passage_max_frames:
+            return None
+        t_x, r_x = spd.history()
+        if not float(np.min(r_x)) <= cfg.passage_range_m:
+            return None
+        n_aid = max(2, cfg.doppler_range_rate_frames)
+        dt_max = (cfg.passage_gap_frames + 0.5) * self.frame_period_s
+        v_x = spd.mean_radial_speed_kmh()
+        if not math.isfinite(v_x):
+            v_x = 0.0  # a single frame: no speed, judged by place and time only
+        best, best_d = None, math.inf
+        for tid in alive:
+            other = self._speed.get(tid)
+            if other is None or tid not in self._log or len(other) < n_aid:
+                continue
+            v_y = other.current_radial_speed_kmh()
+            if not abs(v_y) >= cfg.rigid_min_speed_kmh:
+                continue
+            # beside the radar the part's radial speed is small; otherwise it is the host's own (one body):
+            # another vehicle passing the other way, or a fast one seen for a few frames, is neither
+            if not (abs(v_x) <= cfg.passage_speed_kmh or abs(v_x - v_y) <= cfg.passage_speed_kmh):
+                continue
+            t_y, r_y = other.history()
+            near = np.abs(t_x[:, None] - t_y[None, :]) <= dt_max
+            if not near.any():
+                continue
+            d = float(np.min(np.where(near, np.abs(r_x[:, None] - r_y[None, :]), np.inf)))
+            if d <= cfg.rigid_length_m and d < best_d:
+                best, best_d = tid, d
+        return best
 
     def _own_frames(self, track_id: int) -> int:
         """Frames with signatures of the track (its own clusters, and those of tracks it absorbed)."""

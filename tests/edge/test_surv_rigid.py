@@ -129,3 +129,41 @@ def test_a_target_growing_alone_is_not_held_as_merged(rule, held):
     assert (st.merged_frames > 0) == held
     (ev,) = events
     assert (ev.features["frames"] < 10) == held
+
+
+def car_passing_beside_the_radar(n):
+    """A departing car seen first beside the radar (frames 0-4: a cluster at about 3 m with a small
+    radial speed), then, from frame 4, its receding body at 16.5 km/h from 5 m on."""
+    out = []
+    if n <= 4:
+        out.append((3.0 + 0.05 * n, 1.0, 300))
+    if n >= 4:
+        out.append((5.0 + 16.5 / 3.6 * T * (n - 4), 16.5, 400))
+    return out
+
+
+@pytest.mark.parametrize("max_frames, events_expected", [(8, 1), (0, 2)])
+def test_the_part_seen_beside_the_radar_joins_the_departing_vehicle(max_frames, events_expected):
+    st, _, events = run(AlphaBetaConfig(passage_max_frames=max_frames), car_passing_beside_the_radar, 24)
+    assert len(events) == events_expected
+    assert st.passages == (1 if max_frames else 0)
+    if max_frames:
+        (ev,) = events
+        assert ev.mean_radial_speed_kmh == pytest.approx(16.5, abs=1.0)  # the part's frames add no speed
+        assert ev.features["frames"] == 25 - 1  # frame 4 holds both clusters: one united signature
+
+
+def motorcycle_and_car_crossing_near_the_radar(n):
+    """An approaching motorcycle at -35 km/h seen for 5 frames at 9 -> 5 m while a car departs from 4 m."""
+    out = [(4.0 + 16.5 / 3.6 * T * n, 16.5, 400)]
+    if n < 5:
+        out.append((9.0 - 35.0 / 3.6 * T * n, -35.0, 200))
+    return out
+
+
+def test_a_short_track_of_another_vehicle_is_not_a_passage_part():
+    st, _, events = run(AlphaBetaConfig(), motorcycle_and_car_crossing_near_the_radar, 24)
+    assert st.passages == 0 and len(events) == 2
+    # its speed is what tells it apart
+    st, _, events = run(AlphaBetaConfig(passage_speed_kmh=100.0), motorcycle_and_car_crossing_near_the_radar, 24)
+    assert st.passages == 1 and len(events) == 1
