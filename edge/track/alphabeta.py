@@ -312,8 +312,13 @@ class AlphaBetaConfig:
     passage_speed_kmh: float = field(
         default=8.0,
         metadata={"unit": "km/h", "doc": "see passage_max_frames: the short track's mean radial speed is within this "
-                  "of zero (the vehicle beside the radar) or of the vehicle track's speed; a motorcycle seen for a few "
-                  "frames while a car passes the other way is neither", "min": 0.0, "max": 100.0},
+                  "of zero (the vehicle beside the radar) or within passage_same_speed_kmh of the vehicle track's "
+                  "speed; a motorcycle seen for a few frames while a car passes the other way is neither",
+                  "min": 0.0, "max": 100.0},
+    )
+    passage_same_speed_kmh: float = field(
+        default=2.5,
+        metadata={"unit": "km/h", "doc": "see passage_speed_kmh", "min": 0.0, "max": 100.0},
     )
     max_track_id: int = field(
         default=255,

@@ -452,7 +452,7 @@ class SurveillanceTracker:
         them within ``passage_range_m``; the host is alive, at least ``rigid_min_speed_kmh`` fast, and one of
         its clusters lies within ``rigid_length_m`` of one of ``tr``'s at most ``passage_gap_frames``
         frames apart; ``tr``'s mean radial speed is within ``passage_speed_kmh`` of zero (beside the
-        radar) or of the host's. The closest such pair picks the host."""
+        radar) or within ``passage_same_speed_kmh`` of the host's. The closest such pair picks the host."""
         cfg = self.tracker.config
         if cfg.passage_max_frames <= 0 or cfg.rigid_min_speed_kmh <= 0 or not alive:
             return None
@@ -477,7 +477,7 @@ class SurveillanceTracker:
                 continue
             # beside the radar the part's radial speed is small; otherwise it is the host's own (one body):
             # another vehicle passing the other way, or a fast one seen for a few frames, is neither
-            if not (abs(v_x) <= cfg.passage_speed_kmh or abs(v_x - v_y) <= cfg.passage_speed_kmh):
+            if not (abs(v_x) <= cfg.passage_speed_kmh or abs(v_x - v_y) <= cfg.passage_same_speed_kmh):
                 continue
             t_y, r_y = other.history()
             near = np.abs(t_x[:, None] - t_y[None, :]) <= dt_max
