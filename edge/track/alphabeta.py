@@ -320,6 +320,14 @@ class AlphaBetaConfig:
         default=2.5,
         metadata={"unit": "km/h", "doc": "see passage_speed_kmh", "min": 0.0, "max": 100.0},
     )
+    continuation_same_frame: bool = field(
+        default=True,
+        metadata={"doc": "see continuation_speed_kmh: a track started in the very frame of the ended track's last "
+                  "cluster (another part of the same target, 1 m away at another Doppler) is a candidate too, judged "
+                  "at its latest cluster (the longest baseline: the parts are metres apart); false = only tracks "
+                  "started after it (Tavanti Test 3's motorcycle, lost while it crosses the jogger, otherwise gives "
+                  "two events on some seeds)"},
+    )
     max_track_id: int = field(
         default=255,
         metadata={"doc": "track ids are 1..max_track_id, smallest free first and recycled (fits CAN/Modbus)",

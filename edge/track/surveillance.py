@@ -520,6 +520,10 @@ class SurveillanceTracker:
             if other is None or len(other) == 0 or tid not in self._log:
                 continue
             t_b, r_b, _ = other.first()
+            if t_b == t_a and cfg.continuation_same_frame:
+                # started in the frame of tr's last cluster (another part of the same target, a metre
+                # away): judged at its latest cluster, the longest baseline
+                t_b, r_b, _ = other.last()
             dt = t_b - t_a
             if not dt > 0:
                 continue

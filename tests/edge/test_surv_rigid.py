@@ -167,3 +167,26 @@ def test_a_short_track_of_another_vehicle_is_not_a_passage_part():
     # its speed is what tells it apart
     st, _, events = run(AlphaBetaConfig(passage_speed_kmh=100.0), motorcycle_and_car_crossing_near_the_radar, 24)
     assert st.passages == 1 and len(events) == 1
+
+
+def motorcycle_handed_over(n):
+    """A motorcycle receding at 25 km/h from 10 m: its first track's cluster until frame 5; in frame 5 a
+    second part 2 m behind at another Doppler starts a track that carries on alone from frame 6."""
+    v = 25.0
+    r = 10.0 + v / 3.6 * T * n
+    out = []
+    if n <= 5:
+        out.append((r, v, 100))
+    if n >= 5:
+        out.append((r - 2.0, v - 5.0, 100))
+    return out
+
+
+@pytest.mark.parametrize("same_frame, n_events", [(True, 1), (False, 2)])
+def test_a_track_started_in_the_last_frame_of_another_can_continue_it(same_frame, n_events):
+    st, _, events = run(AlphaBetaConfig(continuation_same_frame=same_frame), motorcycle_handed_over, 20)
+    assert len(events) == n_events
+    assert st.continued == (1 if same_frame else 0)
+    if same_frame:
+        (ev,) = events
+        assert ev.start_ns == 0  # the event spans the first track's frames too
