@@ -50,6 +50,20 @@ measured on multi-random dev seeds (field docs):
   track -- one event, features and mean speed over the whole passage -- instead of being classified on
   its own (a motorcycle accelerating in radial speed past the radar outruns its prediction).
 
+* *rigid bodies* (``rigid_*``): a car passing 3 m beside the radar shows its front and rear as two
+  clusters with one Doppler, each with a track; a younger track whose cluster stays within
+  ``rigid_length_m`` of an older vehicle track (at least ``rigid_min_speed_kmh``, faster than any
+  jogger, so walkers side by side are never merged) at its wrapped Doppler, with a steady separation
+  for ``rigid_frames`` frames, is merged into it (signatures united, no event of its own), and a track
+  started later where that part was joins at once;
+* *passage beside the radar* (``passage_*``): a short track (at most ``passage_max_frames`` frames,
+  near the radar, slow or at the vehicle's speed) next to a live vehicle track in place and time is
+  that vehicle seen while it passes beside the radar, its Doppler near zero: its signatures join the
+  vehicle's (Tavanti Test 1's departing car);
+* *merge guard needs another target* (``merge_other_required``): an enlarged cluster holds a track on
+  its prediction only when another track is near it; an approaching car growing six-fold alone is
+  itself, not a merge.
+
 *Fragments* (``fragment_gap_m``, ``fragment_link_fraction``; off by default, see the field's doc for
 the measurements): a truck passing beside the radar spans
 several metres of range and a wide Doppler spread, and DBSCAN often splits it into two or three
