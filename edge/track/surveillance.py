@@ -653,7 +653,10 @@ class SurveillanceTracker:
         acc = (log_.accumulator(pct, self.extractor.speed_vmax_kmh) if log_ is not None and len(log_) > own.n
                else own)
         x = acc.features()
-        v = spd.mean_radial_speed_kmh() if spd is not None else math.nan
+        v = math.nan
+        if spd is not None:
+            v = (spd.trimmed_mean_radial_speed_kmh() if self.extractor.config.event_speed == "trimmed_mean"
+                 else spd.mean_radial_speed_kmh())
         if not math.isfinite(v):
             v = acc.mean_radial_speed_kmh()
         if self.classifier is not None and np.all(np.isfinite(x)):

@@ -190,3 +190,18 @@ def test_a_track_started_in_the_last_frame_of_another_can_continue_it(same_frame
     if same_frame:
         (ev,) = events
         assert ev.start_ns == 0  # the event spans the first track's frames too
+
+
+def test_trimmed_mean_speed_follows_the_mean_where_the_median_follows_the_far_frames():
+    from edge.classify.features import RadialSpeedEstimator
+
+    est = RadialSpeedEstimator(VMAX)
+    # a car receding past the radar: radial speed rising 13 -> 17 km/h, then 17.5 km/h for 10 frames
+    v = np.concatenate([np.linspace(13.0, 17.0, 6), np.full(10, 17.5)])
+    r = 4.0 + np.cumsum(v / 3.6 * T)
+    for k, (vk, rk) in enumerate(zip(v, r)):
+        est.add(k * T, rk, wrap(vk))
+    assert est.speeds_kmh() == pytest.approx(v, abs=0.01)  # every frame unaliased right
+    assert est.trimmed_mean_radial_speed_kmh() == pytest.approx(float(np.mean(v)), abs=0.05)
+    assert est.mean_radial_speed_kmh() == pytest.approx(17.5, abs=0.01)  # the median: the far frames
+    assert abs(float(np.mean(v)) - 17.5) > 0.5
