@@ -24,8 +24,9 @@ so the whole algorithm runs on arrays, with no per-point Python and no callback 
 3. **Border points**: a non-core point joins the cluster of its nearest core point if that point is
    within ``eps`` (the nearest core point is again a boundary bin: one KD-tree query).
 
-The result equals scikit-learn's ``DBSCAN(eps, min_samples=M)`` on the same 3-D points up to label
-permutation (border points within ``eps`` of two clusters may go to either; scikit-learn picks by
+Optionally (``min_samples_far``, ``far_range_m``) the core-point threshold is lower from a range on
+(a range-dependent ``M``; beyond the paper). With one ``M`` everywhere, the result equals
+scikit-learn's ``DBSCAN(eps, min_samples=M)`` on the same 3-D points up to label permutation (border points within ``eps`` of two clusters may go to either; scikit-learn picks by
 visiting order, this module by distance).
 """
 
@@ -65,9 +66,10 @@ class CylinderDbscan:
     """
 
     def __init__(
-        self, n_range: int, n_doppler: int, range_bin_m: float, radius_kmh: float, eps: float, min_samples: int
+        self, n_range: int, n_doppler: int, range_bin_m: float, radius_kmh: float, eps: float, min_samples: int,
+        min_samples_far: int | None = None, far_range_m: float = math.inf,
     ) -> None:
-        if eps <= 0 or min_samples < 1:
+        if eps <= 0 or min_samples < 1 or (min_samples_far is not None and min_samples_far < 1):
             raise ValueError("DBSCAN needs eps > 0 and min_samples >= 1")
         self.n_range = int(n_range)
         self.n_doppler = int(n_doppler)
@@ -75,6 +77,12 @@ class CylinderDbscan:
         self.radius_kmh = float(radius_kmh)
         self.eps = float(eps)
         self.min_samples = int(min_samples)
+        # core-point threshold per range row: min_samples, or min_samples_far from far_range_m on (a weak
+        # far target covers fewer cells above th_RD: its echo falls as r^-2 while its Doppler spread does not)
+        self.min_samples_far = self.min_samples if min_samples_far is None else int(min_samples_far)
+        self.far_range_m = float(far_range_m)
+        rows_m = np.arange(self.n_range) * self.range_bin_m
+        self._m_row = np.where(rows_m >= self.far_range_m, self.min_samples_far, self.min_samples).astype(np.int32)
         self._r = self.eps * (1.0 + _EPS_TOL)
         h = min(int(math.floor(self._r / self.range_bin_m)), self.n_range - 1)
         self._h = h
@@ -135,7 +143,7 @@ class CylinderDbscan:
             return Clusters(ri, dj, labels, np.zeros(0, dtype=bool), 0, z)
         counts_grid = self.neighbour_counts(mask)
         counts = counts_grid[ri, dj]
-        core_grid = mask & (counts_grid >= self.min_samples)
+        core_grid = mask & (counts_grid >= self._m_row[:, None])
         core = core_grid[ri, dj]
         if not core.any():
             return Clusters(ri, dj, labels, core, 0, counts)

@@ -175,6 +175,16 @@ class AlphaBetaConfig:
                   "is dragged onto the other's path (at most merge_max_frames frames); 0 = off (only the "
                   "merge_ratio size test)", "min": 0.0, "max": 10.0},
     )
+    merge_other_required: str = field(
+        default="always",
+        metadata={"doc": "beyond the paper: which tracks need another target's track near the enlarged cluster "
+                  "(predicted within gate_radius of its centroid or inside its range span) for the merge_ratio test: "
+                  "young = only tracks with fewer than merge_history_frames sizes (an established track's cluster "
+                  "growing six-fold is always a merge), always (default) = every track: a car approaching from 20 m "
+                  "grows from ~200 to ~1200 points in one frame on its own, and held on its prediction for "
+                  "merge_max_frames it ran away and its event was lost",
+                  "choices": ("young", "always")},
+    )
     merge_max_frames: int = field(
         default=10,
         metadata={"unit": "frames", "doc": "after this many merged frames in a row the larger cluster is accepted as "
@@ -244,6 +254,79 @@ class AlphaBetaConfig:
         default=3.0,
         metadata={"unit": "m", "doc": "see continuation_speed_kmh: a track last seen closer than this has left past "
                   "the radar and is never continued", "min": 0.0, "max": 100.0},
+    )
+    rigid_min_speed_kmh: float = field(
+        default=13.0,
+        metadata={"unit": "km/h", "doc": "beyond the paper (Tavanti Fig. 9: one track per target): two live tracks "
+                  "are parts of one rigid body (a car passing 3 m beside the radar shows its front and rear as two "
+                  "clusters, each with a track) when the older one has an unaliased radial speed of at least this "
+                  "(faster than a jogger, 3.3 m/s: two walkers side by side are never merged), the younger one's "
+                  "cluster lies within rigid_length_m of it in range with a wrapped Doppler within "
+                  "rigid_doppler_kmh of its own, and their range separation stays within rigid_separation_m for "
+                  "rigid_frames frames; the younger track's signatures then join the older one's and it ends "
+                  "without an event; 0 = off (paper)", "min": 0.0, "max": 200.0},
+    )
+    rigid_length_m: float = field(
+        default=6.0,
+        metadata={"unit": "m", "doc": "see rigid_min_speed_kmh: largest range separation of two parts of one body "
+                  "(a car's length, most of a truck's in range beside the radar)", "min": 0.0, "max": 30.0},
+    )
+    rigid_doppler_kmh: float = field(
+        default=1.5,
+        metadata={"unit": "km/h", "doc": "see rigid_min_speed_kmh: largest difference of the two tracks' wrapped "
+                  "Doppler (circular, modulo 2 v_max) in a frame that counts as moving together (the older track's "
+                  "last measured Doppler when it coasts)", "min": 0.0, "max": 20.0},
+    )
+    rigid_separation_m: float = field(
+        default=1.5,
+        metadata={"unit": "m", "doc": "see rigid_min_speed_kmh: largest spread of the range separation (younger "
+                  "track's cluster minus the older track's cluster, or its prediction while it coasts) over the "
+                  "frames counted: parts of one body keep their distance, a walker passed by a car at 17 km/h "
+                  "changes it by 0.7 m a frame", "min": 0.0, "max": 30.0},
+    )
+    rigid_frames: int = field(
+        default=3,
+        metadata={"unit": "frames", "doc": "see rigid_min_speed_kmh: consecutive frames of the younger track moving "
+                  "with the older one before they are merged", "min": 1, "max": 1000},
+    )
+    passage_max_frames: int = field(
+        default=8,
+        metadata={"unit": "frames", "doc": "beyond the paper: a track that ends with at most this many frames of "
+                  "its own, one of them within passage_range_m of the radar, is the part of a vehicle seen while it "
+                  "passes beside the radar (its Doppler near zero and spread, a separate cluster at 3 m) when a "
+                  "vehicle track (unaliased radial speed at least rigid_min_speed_kmh) still alive had a cluster "
+                  "within rigid_length_m of one of its clusters at most passage_gap_frames frames apart: its "
+                  "signatures join that track's and it ends without an event (Tavanti Test 1's car, departing "
+                  "3 m beside the radar, otherwise gives two events); 0 = off", "min": 0, "max": 1000},
+    )
+    passage_range_m: float = field(
+        default=8.0,
+        metadata={"unit": "m", "doc": "see passage_max_frames: the short track's nearest cluster is at most this "
+                  "far from the radar (vehicles pass 2-6.5 m beside it at the simulated site)", "min": 0.0, "max": 30.0},
+    )
+    passage_gap_frames: int = field(
+        default=2,
+        metadata={"unit": "frames", "doc": "see passage_max_frames: largest time between a cluster of the short "
+                  "track and one of the vehicle track that are within rigid_length_m", "min": 0, "max": 100},
+    )
+    passage_speed_kmh: float = field(
+        default=8.0,
+        metadata={"unit": "km/h", "doc": "see passage_max_frames: the short track's mean radial speed is within this "
+                  "of zero (the vehicle beside the radar) or within passage_same_speed_kmh of the vehicle track's "
+                  "speed; a motorcycle seen for a few frames while a car passes the other way is neither",
+                  "min": 0.0, "max": 100.0},
+    )
+    passage_same_speed_kmh: float = field(
+        default=2.5,
+        metadata={"unit": "km/h", "doc": "see passage_speed_kmh", "min": 0.0, "max": 100.0},
+    )
+    continuation_same_frame: bool = field(
+        default=True,
+        metadata={"doc": "see continuation_speed_kmh: a track started in the very frame of the ended track's last "
+                  "cluster (another part of the same target, 1 m away at another Doppler) is a candidate too, judged "
+                  "at its latest cluster (the longest baseline: the parts are metres apart); false = only tracks "
+                  "started after it (Tavanti Test 3's motorcycle, lost while it crosses the jogger, otherwise gives "
+                  "two events on some seeds)"},
     )
     max_track_id: int = field(
         default=255,

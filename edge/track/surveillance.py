@@ -50,6 +50,20 @@ measured on multi-random dev seeds (field docs):
   track -- one event, features and mean speed over the whole passage -- instead of being classified on
   its own (a motorcycle accelerating in radial speed past the radar outruns its prediction).
 
+* *rigid bodies* (``rigid_*``): a car passing 3 m beside the radar shows its front and rear as two
+  clusters with one Doppler, each with a track; a younger track whose cluster stays within
+  ``rigid_length_m`` of an older vehicle track (at least ``rigid_min_speed_kmh``, faster than any
+  jogger, so walkers side by side are never merged) at its wrapped Doppler, with a steady separation
+  for ``rigid_frames`` frames, is merged into it (signatures united, no event of its own), and a track
+  started later where that part was joins at once;
+* *passage beside the radar* (``passage_*``): a short track (at most ``passage_max_frames`` frames,
+  near the radar, slow or at the vehicle's speed) next to a live vehicle track in place and time is
+  that vehicle seen while it passes beside the radar, its Doppler near zero: its signatures join the
+  vehicle's (Tavanti Test 1's departing car);
+* *merge guard needs another target* (``merge_other_required``): an enlarged cluster holds a track on
+  its prediction only when another track is near it; an approaching car growing six-fold alone is
+  itself, not a merge.
+
 *Fragments* (``fragment_gap_m``, ``fragment_link_fraction``; off by default, see the field's doc for
 the measurements): a truck passing beside the radar spans
 several metres of range and a wide Doppler spread, and DBSCAN often splits it into two or three
@@ -169,6 +183,11 @@ class SurveillanceTracker:
         self._links: dict[int, dict[int, int]] = {}  # track id -> {other track id: frames with adjacent clusters}
         self.fragments = 0  # tracks whose cells joined another track's signatures
         self.continued = 0  # ended tracks continued by a later track of the same target
+        self.rigid_merges = 0  # younger tracks merged into an older one as parts of one rigid body
+        self.rigid_parts = 0  # new tracks merged in their first frame into the body a part was merged into
+        self.passages = 0  # short tracks of a vehicle's passage beside the radar joined to its track
+        self._rigid: dict[tuple[int, int], list[float]] = {}  # (older, younger) -> separations of the frames counted
+        self._body: dict[int, tuple[float, float]] = {}  # track id -> range offsets of the parts merged into it
         self._start_ns: dict[int, int] = {}  # track id -> start of the earliest track it continues
 
     @classmethod
@@ -236,7 +255,9 @@ class SurveillanceTracker:
         for tid, j in tstep.assigned.items():
             lab = labels[j]
             shared = self._shares_with(tid, j)
-            if shared or self._is_merged(tid, int(sig.n_points[lab]), self._other_track_near(tid, sig.centroid[lab], pred)):
+            if shared or self._is_merged(tid, int(sig.n_points[lab]), self._other_track_near(tid, sig.centroid[lab], pred),
+                                         self._any_track_near(tid, sig.centroid[lab], pred, sig.range_lo_m[lab],
+                                                              sig.range_hi_m[lab])):
                 tr = by_id.get(tid)
                 if tr is not None and tid in pred:  # keep the prediction: the centroid is not this target's
                     tr.state = pred[tid]
@@ -268,6 +289,8 @@ class SurveillanceTracker:
                 if math.isfinite(v_kmh):  # Doppler-aided range rate (m per frame), see AlphaBetaConfig
                     tr.state[5] = v_kmh / 3.6 * self.frame_period_s
         self._link(recorded, points)
+        if self.tracker.config.rigid_min_speed_kmh > 0:
+            self._rigid_merge(recorded, sig)
         seg = self.segmenter.step(t_ns, level)
         if seg.ended or seg.discarded:
             out.extend(self._close_tracks())
@@ -308,6 +331,82 @@ class SurveillanceTracker:
             la[ids[b]] = la.get(ids[b], 0) + 1
             lb[ids[a]] = lb.get(ids[a], 0) + 1
 
+    def _rigid_merge(self, recorded: list[tuple[int, int]], sig: ClusterSignatures) -> None:
+        """Merge tracks that are parts of one rigid body (``rigid_*`` of :class:`AlphaBetaConfig`).
+
+        For every pair of an older track ``a`` with an unaliased radial speed of at least
+        ``rigid_min_speed_kmh`` and a younger track ``b`` that has its own cluster this frame: the
+        frame counts when ``b``'s cluster is within ``rigid_length_m`` of ``a``'s (its cluster this
+        frame, or its prediction while it coasts) and their wrapped Dopplers agree within
+        ``rigid_doppler_kmh``; any other frame of ``b`` resets the count. After ``rigid_frames``
+        frames in a row whose separations spread by at most ``rigid_separation_m``, ``b``'s signature
+        rows join ``a``'s (the union of the body's cells frame by frame) and ``b`` ends without an
+        event. ``a`` remembers the separations (widened by ``rigid_separation_m``): a track started
+        there later with ``a``'s Doppler is the same part again and is merged in its first frame."""
+        cfg = self.tracker.config
+        n_aid = max(2, cfg.doppler_range_rate_frames)
+        by_id = {tr.track_id: tr for tr in self.tracker.tracks}
+        own = {tid: lab for tid, lab in recorded}
+        period = 2.0 * self.cylinder.vmax_kmh
+        older = []
+        for tid, tr in by_id.items():
+            spd = self._speed.get(tid)
+            if spd is None or len(spd) < n_aid:
+                continue
+            v = spd.current_radial_speed_kmh()
+            if not abs(v) >= cfg.rigid_min_speed_kmh:
+                continue
+            if tid in own:
+                r, dw = float(sig.range_m[own[tid]]), float(sig.doppler_kmh[own[tid]])
+            else:
+                r, dw = float(tr.state[4]), spd.last()[2]
+            older.append((tid, len(spd), r, dw))
+        seen: set[tuple[int, int]] = set()
+        for a, n_a, r_a, dw_a in older:
+            for b, lab in own.items():
+                spd_b = self._speed.get(b)
+                if b == a or spd_b is None or len(spd_b) >= n_a or b not in by_id or a not in by_id:
+                    continue
+                key = (a, b)
+                sep = float(sig.range_m[lab]) - r_a
+                ddw = abs((float(sig.doppler_kmh[lab]) - dw_a + 0.5 * period) % period - 0.5 * period)
+                if abs(sep) <= cfg.rigid_length_m and ddw <= cfg.rigid_doppler_kmh:
+                    body = self._body.get(a)
+                    if len(spd_b) == 1 and body is not None and body[0] <= sep <= body[1]:
+                        # a new track where a part already merged into ``a`` was: that part again
+                        self._merge_into(a, b)
+                        self.rigid_merges -= 1
+                        self.rigid_parts += 1
+                        by_id.pop(b, None)
+                        continue
+                    seps = self._rigid.setdefault(key, [])
+                    seps.append(sep)
+                    del seps[:-cfg.rigid_frames]
+                    seen.add(key)
+                    if len(seps) >= cfg.rigid_frames and max(seps) - min(seps) <= cfg.rigid_separation_m:
+                        m = cfg.rigid_separation_m
+                        lo, hi = min(seps) - m, max(seps) + m
+                        if body is not None:
+                            lo, hi = min(lo, body[0]), max(hi, body[1])
+                        self._body[a] = (lo, hi)
+                        self._merge_into(a, b)
+                        by_id.pop(b, None)
+        # a younger track's frame that did not move with the older one breaks the run
+        for key in [k for k in self._rigid if k not in seen and (k[1] in own or k[0] not in by_id or k[1] not in by_id)]:
+            del self._rigid[key]
+
+    def _merge_into(self, keep: int, gone: int) -> None:
+        """Track ``gone`` is a part of ``keep``'s target: its rows join ``keep``'s, it ends silently."""
+        log_k, log_g = self._log.get(keep), self._log.get(gone)
+        if log_k is not None and log_g is not None:
+            log_k.extend(log_g)
+        self.tracker.tracks = [t for t in self.tracker.tracks if t.track_id != gone]
+        self.tracker.ids.release(gone)
+        self._rigid = {k: v for k, v in self._rigid.items() if gone not in k}
+        self.rigid_merges += 1
+        self._forget(gone, counted=False)
+        log.debug("track %d merged into track %d (one rigid body)", gone, keep)
+
     def _end_tracks(self, ended, dropped, alive: set[int]) -> list[ClassifiedEvent]:
         """Classify the ``ended`` tracks and forget the ``dropped`` ones, except fragments: a track
         linked (:meth:`_link`) in at least ``fragment_link_fraction`` of its own frames to a track that
@@ -332,6 +431,12 @@ class SurveillanceTracker:
                 self._log[partner].extend(self._log[tid])
                 self.fragments += 1
                 self._forget(tid, counted=False)
+            elif is_ended and (host := self._passage_host(tr, alive)) is not None:
+                self._log[host].extend(self._log[tid])
+                self._start_ns[host] = min(self._start_ns.get(host, int(self._created_ns(host))),
+                                           self._start_ns.get(tid, int(tr.created_ns)))
+                self.passages += 1
+                self._forget(tid, counted=False)
             elif is_ended and (succ := self._successor(tr, alive)) is not None:
                 self._log[succ].extend(self._log[tid])
                 self._speed[succ].prepend(self._speed[tid])
@@ -347,6 +452,55 @@ class SurveillanceTracker:
             else:
                 self._forget(tid)
         return out
+
+    def _created_ns(self, track_id: int) -> int:
+        for t in self.tracker.tracks:
+            if t.track_id == track_id:
+                return int(t.created_ns)
+        return 0
+
+    def _passage_host(self, tr: AlphaBetaTrack, alive: set[int]) -> int | None:
+        """The vehicle track whose passage beside the radar the short ending track ``tr`` saw, or None
+        (``passage_max_frames``, ``passage_range_m``, ``passage_gap_frames`` with ``rigid_min_speed_kmh``
+        and ``rigid_length_m``): ``tr`` has at most ``passage_max_frames`` frames of its own, one of
+        them within ``passage_range_m``; the host is alive, at least ``rigid_min_speed_kmh`` fast, and one of
+        its clusters lies within ``rigid_length_m`` of one of ``tr``'s at most ``passage_gap_frames``
+        frames apart; ``tr``'s mean radial speed is within ``passage_speed_kmh`` of zero (beside the
+        radar) or within ``passage_same_speed_kmh`` of the host's. The closest such pair picks the host."""
+        cfg = self.tracker.config
+        if cfg.passage_max_frames <= 0 or cfg.rigid_min_speed_kmh <= 0 or not alive:
+            return None
+        spd = self._speed.get(tr.track_id)
+        if spd is None or len(spd) == 0 or tr.track_id not in self._log or self._own_frames(tr.track_id) > cfg.passage_max_frames:
+            return None
+        t_x, r_x = spd.history()
+        if not float(np.min(r_x)) <= cfg.passage_range_m:
+            return None
+        n_aid = max(2, cfg.doppler_range_rate_frames)
+        dt_max = (cfg.passage_gap_frames + 0.5) * self.frame_period_s
+        v_x = spd.mean_radial_speed_kmh()
+        if not math.isfinite(v_x):
+            v_x = 0.0  # a single frame: no speed, judged by place and time only
+        best, best_d = None, math.inf
+        for tid in alive:
+            other = self._speed.get(tid)
+            if other is None or tid not in self._log or len(other) < n_aid:
+                continue
+            v_y = other.current_radial_speed_kmh()
+            if not abs(v_y) >= cfg.rigid_min_speed_kmh:
+                continue
+            # beside the radar the part's radial speed is small; otherwise it is the host's own (one body):
+            # another vehicle passing the other way, or a fast one seen for a few frames, is neither
+            if not (abs(v_x) <= cfg.passage_speed_kmh or abs(v_x - v_y) <= cfg.passage_same_speed_kmh):
+                continue
+            t_y, r_y = other.history()
+            near = np.abs(t_x[:, None] - t_y[None, :]) <= dt_max
+            if not near.any():
+                continue
+            d = float(np.min(np.where(near, np.abs(r_x[:, None] - r_y[None, :]), np.inf)))
+            if d <= cfg.rigid_length_m and d < best_d:
+                best, best_d = tid, d
+        return best
 
     def _own_frames(self, track_id: int) -> int:
         """Frames with signatures of the track (its own clusters, and those of tracks it absorbed)."""
@@ -380,6 +534,10 @@ class SurveillanceTracker:
             if other is None or len(other) == 0 or tid not in self._log:
                 continue
             t_b, r_b, _ = other.first()
+            if t_b == t_a and cfg.continuation_same_frame:
+                # started in the frame of tr's last cluster (another part of the same target, a metre
+                # away): judged at its latest cluster, the longest baseline
+                t_b, r_b, _ = other.last()
             dt = t_b - t_a
             if not dt > 0:
                 continue
@@ -428,7 +586,21 @@ class SurveillanceTracker:
             if tid != track_id and (need <= 0 or len(self._size.get(tid, ())) >= need)
         )
 
-    def _is_merged(self, track_id: int, n_points: int, other_near: bool = True) -> bool:
+    def _any_track_near(self, track_id: int, centroid: np.ndarray, pred: dict[int, np.ndarray], lo_m: float,
+                        hi_m: float) -> bool:
+        """Is any other track predicted within ``gate_radius`` of this centroid (on the cylinder) or, in
+        range, inside the cluster's span (``lo_m``..``hi_m`` widened by ``shared_span_m``)? Always true
+        when ``merge_other_required`` is ``young`` (the old rule: established tracks need no other)."""
+        cfg = self.tracker.config
+        if cfg.merge_other_required == "young":
+            return True
+        m = cfg.shared_span_m
+        return any(
+            float(np.linalg.norm(p[[0, 2, 4]] - centroid)) <= cfg.gate_radius or lo_m - m <= float(p[4]) <= hi_m + m
+            for tid, p in pred.items() if tid != track_id
+        )
+
+    def _is_merged(self, track_id: int, n_points: int, other_near: bool = True, any_near: bool = True) -> bool:
         """Is this cluster the track's target merged with another one (``merge_ratio``)? Updates the
         track's size history.
 
@@ -436,12 +608,14 @@ class SurveillanceTracker:
         is predicted near the cluster (``other_near``): a cluster grows several-fold on its own while
         a long vehicle enters the beam (a truck's point count goes from ~100 to ~1000 in one frame),
         and holding such a track on its prediction starved its features of the frames that make it a
-        truck and let it run away from its target."""
+        truck and let it run away from its target. With ``merge_other_required = "always"`` an
+        established track is held only when some other track is near the cluster (``any_near``): a
+        target growing on its own as it approaches is no merge."""
         cfg = self.tracker.config
         hist = self._size.get(track_id)
         if hist is None:
             return False
-        established = other_near or len(hist) >= cfg.merge_history_frames
+        established = other_near or (len(hist) >= cfg.merge_history_frames and any_near)
         if (established and cfg.merge_ratio > 0 and len(hist) >= 2
                 and self._merged_run[track_id] < cfg.merge_max_frames):
             # against the median *and* the last own cluster: a merge is a sudden jump, while a long
@@ -465,6 +639,7 @@ class SurveillanceTracker:
         self._size.pop(track_id, None)
         self._merged_run.pop(track_id, None)
         self._start_ns.pop(track_id, None)
+        self._body.pop(track_id, None)
         self.dropped += int(counted)
 
     def _finish(self, tr: AlphaBetaTrack) -> ClassifiedEvent:
@@ -478,7 +653,10 @@ class SurveillanceTracker:
         acc = (log_.accumulator(pct, self.extractor.speed_vmax_kmh) if log_ is not None and len(log_) > own.n
                else own)
         x = acc.features()
-        v = spd.mean_radial_speed_kmh() if spd is not None else math.nan
+        v = math.nan
+        if spd is not None:
+            v = (spd.trimmed_mean_radial_speed_kmh() if self.extractor.config.event_speed == "trimmed_mean"
+                 else spd.mean_radial_speed_kmh())
         if not math.isfinite(v):
             v = acc.mean_radial_speed_kmh()
         if self.classifier is not None and np.all(np.isfinite(x)):

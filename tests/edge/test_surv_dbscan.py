@@ -127,3 +127,24 @@ def test_simulated_frame_equals_sklearn():
     m = RDP.process((f.i + 1j * f.q).astype(np.complex64)).amplitude
     n, _ = _compare(_db(), m >= 2.0)
     assert n >= 1
+
+
+def test_range_dependent_min_points_is_dbscan_with_each_m_on_its_side():
+    """``min_samples_far`` from ``far_range_m`` on: points all nearer are clustered as DBSCAN with M,
+    points all beyond as DBSCAN with M_far (scikit-learn), and a weak far blob that M = 80 leaves as
+    noise is a cluster with M_far = 40."""
+    far_bin = 128  # 12 m
+    db2 = CylinderDbscan(RDP.n_range, RDP.n_doppler_fft, RDP.range_bin_m, RDP.cylinder_radius_kmh, 1.9, 80,
+                         min_samples_far=40, far_range_m=far_bin * RDP.range_bin_m)
+    for seed in (3, 4):
+        mask = _blob_mask(seed, n_blobs=10)
+        near, far = mask.copy(), mask.copy()
+        near[far_bin - 25:] = False  # eps (1.9 m) is 20 range bins: no neighbour across the boundary
+        far[: far_bin + 25] = False
+        _compare(db2, near)  # db2.min_samples = 80
+        _compare(_db(m=40), far)
+        np.testing.assert_array_equal(db2.fit(far).labels, _db(m=40).fit(far).labels)
+    weak = np.zeros((RDP.n_range, RDP.n_doppler_fft), dtype=bool)
+    weak[200:206, 100:110] = True  # 60 cells at 19 m
+    assert _db(m=80).fit(weak).n_clusters == 0
+    assert db2.fit(weak).n_clusters == 1

@@ -1,0 +1,207 @@
+"""One track per target (Tavanti Fig. 9): the rigid-body merge of two tracks on one vehicle, and the
+merge guard that needs another track near an enlarged cluster (SurveillanceTracker on hand-made
+clusters, no simulator)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from edge.classify.features import MapPoints
+from edge.track.alphabeta import AlphaBetaConfig
+from edge.track.surveillance import SurveillanceTracker
+from hal.waveform import d2g_frontend
+
+FE = d2g_frontend()
+VMAX = 5.348
+T = 0.2
+
+
+def wrap(v_kmh):
+    return (v_kmh + VMAX) % (2 * VMAX) - VMAX
+
+
+def blob(r, v, n, label, amp=5.0):
+    """``n`` cells around (r, wrapped v): a small rectangle on the (range, Doppler) grid."""
+    dr, dv = 24.0 / 256, 2 * VMAX / 256
+    rb0, db0 = int(round(r / dr)), int(round((wrap(v) + VMAX) / dv))
+    w = max(1, int(np.sqrt(n)))
+    k = np.arange(n)
+    rb = rb0 + k // w - (n // w) // 2
+    db = np.mod(db0 + k % w - w // 2, 256)
+    return rb * dr, db * dv - VMAX, np.full(n, amp), rb, db, np.full(n, label)
+
+
+def points(*blobs):
+    if not blobs:
+        z = np.zeros(0)
+        return MapPoints(z.astype(np.float32), z.astype(np.float32), z.astype(np.float32), z.astype(np.int32),
+                         z.astype(np.int32), z.astype(np.int32))
+    cat = [np.concatenate(c) for c in zip(*blobs)]
+    return MapPoints(cat[0].astype(np.float32), cat[1].astype(np.float32), cat[2].astype(np.float32),
+                     cat[3].astype(np.int32), cat[4].astype(np.int32), cat[5].astype(np.int32))
+
+
+def run(cfg, scene, frames):
+    """Feed ``scene(n) -> list of (range, v, cells)`` for ``frames`` frames; -> (tracker, ids per frame, events)."""
+    st = SurveillanceTracker(FE, 2.0, tracking=cfg, classify=False)
+    ids, events = [], []
+    for n in range(frames):
+        bl = [blob(r, v, c, k) for k, (r, v, c) in enumerate(scene(n))]
+        step = st.update(int(n * T * 1e9), points(*bl), seq=n)
+        ids.append({t.track_id for t in st.tracker.tracks})
+        events.extend(step.classifications)
+    events.extend(st.close())
+    return st, ids, events
+
+
+def car_front_and_rear(n, v=16.5):
+    """A car receding at ``v`` km/h: its front cluster from frame 0, its rear part 3 m behind from frame 6
+    (the body coming into view beside the radar), the same Doppler (one rigid body)."""
+    r = 5.0 + v / 3.6 * T * n
+    out = [(r, v, 400)]
+    if n >= 6:
+        out.append((r - 3.0, v, 250))
+    return out
+
+
+@pytest.mark.parametrize("min_speed, tracks_at_end", [(13.0, 1), (0.0, 2)])
+def test_front_and_rear_of_one_car_become_one_track(min_speed, tracks_at_end):
+    st, ids, events = run(AlphaBetaConfig(rigid_min_speed_kmh=min_speed), car_front_and_rear, 14)
+    assert len(ids[-1]) == tracks_at_end
+    assert len(events) == tracks_at_end
+    assert st.rigid_merges == (1 if min_speed > 0 else 0)
+    if min_speed > 0:
+        # the merged track's signatures span both parts: its range extent covers the 3 m between them
+        (ev,) = events
+        assert ev.features["frames"] == 14
+        assert ev.mean_radial_speed_kmh == pytest.approx(16.5, abs=1.0)
+
+
+def test_the_rear_track_lives_only_rigid_frames_frames():
+    cfg = AlphaBetaConfig(rigid_frames=3)
+    _, ids, _ = run(cfg, car_front_and_rear, 14)
+    assert [len(s) for s in ids[5:10]] == [1, 2, 2, 1, 1]  # born at 6, merged on its 3rd frame (8)
+
+
+def walkers_side_by_side(n):
+    """Two walkers 1.5 m apart at the same 5 km/h (same Doppler), receding together; the second one is
+    seen from frame 4 on (entering the beam)."""
+    r = 6.0 + 5.0 / 3.6 * T * n
+    return [(r, 5.0, 150)] + ([(r + 1.5, 5.0, 150)] if n >= 4 else [])
+
+
+def test_two_walkers_side_by_side_are_not_merged():
+    st, ids, events = run(AlphaBetaConfig(), walkers_side_by_side, 20)
+    assert len(ids[-1]) == 2 and len(events) == 2 and st.rigid_merges == 0
+    # the speed floor is what keeps them apart: without it they are one rigid body
+    st, ids, events = run(AlphaBetaConfig(rigid_min_speed_kmh=1.0), walkers_side_by_side, 20)
+    assert st.rigid_merges == 1 and len(events) == 1
+
+
+def car_passing_walker(n):
+    """A car at 5 + 2 * 10.7 km/h (the walker's wrapped Doppler: aliased twice) from 2 m passes a walker
+    appearing at 12 m on frame 3 at 5 km/h."""
+    v_car = 5.0 + 4 * VMAX
+    out = [(2.0 + v_car / 3.6 * T * n, v_car, 400)]
+    if n >= 3:
+        out.append((12.0 + 5.0 / 3.6 * T * n, 5.0, 150))
+    return out
+
+
+def test_a_car_passing_a_walker_with_its_wrapped_doppler_is_not_merged():
+    st, ids, events = run(AlphaBetaConfig(corange_fragment_m=0.0), car_passing_walker, 16)
+    assert st.rigid_merges == 0 and len(events) == 2
+    # their separation changes by 1.2 m a frame: a loose separation test would merge them
+    st, _, events = run(AlphaBetaConfig(corange_fragment_m=0.0, rigid_separation_m=30.0), car_passing_walker, 16)
+    assert st.rigid_merges == 1 and len(events) == 1
+
+
+def approaching_car_growing(n):
+    """One approaching car whose cluster grows tenfold in one frame (150 -> 1500 cells) at 14 m, alone."""
+    return [(20.0 - 25.0 / 3.6 * T * n, -25.0, 150 if n < 5 else 1500)]
+
+
+@pytest.mark.parametrize("rule, held", [("always", False), ("young", True)])
+def test_a_target_growing_alone_is_not_held_as_merged(rule, held):
+    cfg = AlphaBetaConfig(merge_other_required=rule, rigid_min_speed_kmh=0.0)
+    st, _, events = run(cfg, approaching_car_growing, 10)
+    assert (st.merged_frames > 0) == held
+    (ev,) = events
+    assert (ev.features["frames"] < 10) == held
+
+
+def car_passing_beside_the_radar(n):
+    """A departing car seen first beside the radar (frames 0-4: a cluster at about 3 m with a small
+    radial speed), then, from frame 4, its receding body at 16.5 km/h from 5 m on."""
+    out = []
+    if n <= 4:
+        out.append((3.0 + 0.05 * n, 1.0, 300))
+    if n >= 4:
+        out.append((5.0 + 16.5 / 3.6 * T * (n - 4), 16.5, 400))
+    return out
+
+
+@pytest.mark.parametrize("max_frames, events_expected", [(8, 1), (0, 2)])
+def test_the_part_seen_beside_the_radar_joins_the_departing_vehicle(max_frames, events_expected):
+    st, _, events = run(AlphaBetaConfig(passage_max_frames=max_frames), car_passing_beside_the_radar, 24)
+    assert len(events) == events_expected
+    assert st.passages == (1 if max_frames else 0)
+    if max_frames:
+        (ev,) = events
+        assert ev.mean_radial_speed_kmh == pytest.approx(16.5, abs=1.0)  # the part's frames add no speed
+        assert ev.features["frames"] == 25 - 1  # frame 4 holds both clusters: one united signature
+
+
+def motorcycle_and_car_crossing_near_the_radar(n):
+    """An approaching motorcycle at -35 km/h seen for 5 frames at 9 -> 5 m while a car departs from 4 m."""
+    out = [(4.0 + 16.5 / 3.6 * T * n, 16.5, 400)]
+    if n < 5:
+        out.append((9.0 - 35.0 / 3.6 * T * n, -35.0, 200))
+    return out
+
+
+def test_a_short_track_of_another_vehicle_is_not_a_passage_part():
+    st, _, events = run(AlphaBetaConfig(), motorcycle_and_car_crossing_near_the_radar, 24)
+    assert st.passages == 0 and len(events) == 2
+    # its speed is what tells it apart
+    st, _, events = run(AlphaBetaConfig(passage_speed_kmh=100.0), motorcycle_and_car_crossing_near_the_radar, 24)
+    assert st.passages == 1 and len(events) == 1
+
+
+def motorcycle_handed_over(n):
+    """A motorcycle receding at 25 km/h from 10 m: its first track's cluster until frame 5; in frame 5 a
+    second part 2 m behind at another Doppler starts a track that carries on alone from frame 6."""
+    v = 25.0
+    r = 10.0 + v / 3.6 * T * n
+    out = []
+    if n <= 5:
+        out.append((r, v, 100))
+    if n >= 5:
+        out.append((r - 2.0, v - 5.0, 100))
+    return out
+
+
+@pytest.mark.parametrize("same_frame, n_events", [(True, 1), (False, 2)])
+def test_a_track_started_in_the_last_frame_of_another_can_continue_it(same_frame, n_events):
+    st, _, events = run(AlphaBetaConfig(continuation_same_frame=same_frame), motorcycle_handed_over, 20)
+    assert len(events) == n_events
+    assert st.continued == (1 if same_frame else 0)
+    if same_frame:
+        (ev,) = events
+        assert ev.start_ns == 0  # the event spans the first track's frames too
+
+
+def test_trimmed_mean_speed_follows_the_mean_where_the_median_follows_the_far_frames():
+    from edge.classify.features import RadialSpeedEstimator
+
+    est = RadialSpeedEstimator(VMAX)
+    # a car receding past the radar: radial speed rising 13 -> 17 km/h, then 17.5 km/h for 10 frames
+    v = np.concatenate([np.linspace(13.0, 17.0, 6), np.full(10, 17.5)])
+    r = 4.0 + np.cumsum(v / 3.6 * T)
+    for k, (vk, rk) in enumerate(zip(v, r)):
+        est.add(k * T, rk, wrap(vk))
+    assert est.speeds_kmh() == pytest.approx(v, abs=0.01)  # every frame unaliased right
+    assert est.trimmed_mean_radial_speed_kmh() == pytest.approx(float(np.mean(v)), abs=0.05)
+    assert est.mean_radial_speed_kmh() == pytest.approx(17.5, abs=0.01)  # the median: the far frames
+    assert abs(float(np.mean(v)) - 17.5) > 0.5
