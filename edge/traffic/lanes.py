@@ -69,12 +69,19 @@ def assign_lanes_with_margin(u: np.ndarray, lanes: tuple[Lane, ...]) -> tuple[np
     outside every lane)."""
     if not lanes:
         return np.full(u.shape, -1, dtype=np.int32), np.full(u.shape, -np.inf)
-    c = np.array([ln.center_m for ln in lanes])
-    w = np.array([ln.width_m for ln in lanes])
-    d = np.abs(u[:, None] - c[None, :])
-    k = np.argmin(d, axis=1)
-    margin = 0.5 * w[k] - d[np.arange(u.size), k]
-    return np.where(margin >= 0.0, k, -1).astype(np.int32), margin
+    global _lane_arrays
+    if _lane_arrays[0] is not lanes:  # the lanes (a tuple of frozen Lanes) change rarely: their arrays once
+        _lane_arrays = (lanes, np.array([ln.center_m for ln in lanes]), 0.5 * np.array([ln.width_m for ln in lanes]))
+    _, c, half_w = _lane_arrays
+    d = np.abs(u[:, None] - c)
+    k = d.argmin(axis=1)
+    margin = half_w[k] - np.minimum.reduce(d, axis=1)  # the minimum is the distance at k (same value)
+    k[~(margin >= 0.0)] = -1  # NaN too, as np.where(margin >= 0, k, -1)
+    return k.astype(np.int32), margin
+
+
+#: (lanes, their centres, their half widths) of the last call of :func:`assign_lanes_with_margin`
+_lane_arrays: tuple = (None, None, None)
 
 
 #: up to this many running tracks the start-up votes are computed in plain Python
