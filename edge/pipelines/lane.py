@@ -521,15 +521,20 @@ class LanePipeline(Pipeline):
             if cfg.unalias_by_lane and rng.size and self.traffic is not None and self.traffic.lanes:
                 az = self._unalias_by_lane(rng, vel, az)
             x, y = polar_to_ground(rng, az, cfg.mounting_height_m, cfg.target_height_m)
-            sel = np.arange(rng.size)
-            if cfg.cluster_length_m > 0 and sel.size > 1:
-                sel = sel[nearest_of_clusters(rng, vel, x, length_m=cfg.cluster_length_m,
-                                              speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m,
-                                              ghost_speed_per_m=cfg.cluster_ghost_speed_per_m,
-                                              ghost_speed_mps=cfg.cluster_ghost_speed_mps,
-                                              ghost_length_m=cfg.cluster_ghost_length_m)]
-            det = Detections(rng[sel], vel[sel], az[sel], snr_db[sel], x[sel], y[sel],
-                             {"pair_residual_hz": res[sel], "resolved_pair": pair_of[sel]})
+            sel = None  # all kept
+            if cfg.cluster_length_m > 0 and rng.size > 1:
+                keep = nearest_of_clusters(rng, vel, x, length_m=cfg.cluster_length_m,
+                                           speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m,
+                                           ghost_speed_per_m=cfg.cluster_ghost_speed_per_m,
+                                           ghost_speed_mps=cfg.cluster_ghost_speed_mps,
+                                           ghost_length_m=cfg.cluster_ghost_length_m)
+                if not keep.all():
+                    sel = keep.nonzero()[0]
+            if sel is None:  # the arrays themselves (nothing reads or writes them after this)
+                det = Detections(rng, vel, az, snr_db, x, y, {"pair_residual_hz": res, "resolved_pair": pair_of})
+            else:
+                det = Detections(rng[sel], vel[sel], az[sel], snr_db[sel], x[sel], y[sel],
+                                 {"pair_residual_hz": res[sel], "resolved_pair": pair_of[sel]})
         inter = {
             "power": power, "threshold": thr, "noise": noise, "peak_freqs_hz": freqs,
             "n_pair_candidates": pairs.n_candidates, "n_ghosts_rejected": pairs.n_ghosts, "n_aided_pairs": n_aided,
