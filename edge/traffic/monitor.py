@@ -266,8 +266,8 @@ class TrafficMonitor:
         lanes = self.lanes
         n_lanes = len(lanes)
 
-        # positions and velocities in one call: columns (x, vx) and (y, vy) of ``kin`` as views
-        (u, _), (s_arr, vs_arr) = (a.T for a in to_road(kin[:, 2::2], kin[:, 3::2], self.yaw_rad))
+        u, s_arr = to_road(x, y, self.yaw_rad)
+        _, vs_arr = to_road(vx, vy, self.yaw_rad)
         # plain Python floats for the per-track loop (numpy scalars are slow one at a time)
         s, vs = s_arr.tolist(), vs_arr.tolist()
         speed = np.hypot(vx, vy).tolist()
