@@ -254,6 +254,9 @@ class LaneConfig:
         "min": 0, "max": 256})
 
 
+_SEG4 = np.arange(4)  # the four segments, as an index
+
+
 def _segment_slopes(fe: FrontendInfo) -> np.ndarray:
     return np.array([s.slope_hz_per_s for s in fe.waveform.segments])
 
@@ -319,7 +322,8 @@ class LanePipeline(Pipeline):
             self._aided_scale32 = np.float32(min(os_cfar_scale(cfg.aided_pfa, self._n_ref, self._rank, n_looks=n_rx),
                                                  self.cfar_scale))
         self._alias_period = wf.wavelength_m / frontend.rx_spacing_m  # grating-lobe period in sin(az)
-        self._lane_cache: tuple = (None, 0.0, None)  # (lanes, their span across, directions) of _unalias_by_lane
+        self._lane_cache: tuple = (None, 0.0, None)
+        self._pad_inf, self._pad_zero = np.zeros(0), np.zeros(0, np.int64)  # padding rows of _track_aided_pairs  # (lanes, their span across, directions) of _unalias_by_lane
         self._model = PairingModel.from_waveform(wf)
         self._model_ab = np.stack([self._model.a, self._model.b], axis=1)  # (4, 2): beat = a R + b v per segment
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
@@ -517,15 +521,20 @@ class LanePipeline(Pipeline):
             if cfg.unalias_by_lane and rng.size and self.traffic is not None and self.traffic.lanes:
                 az = self._unalias_by_lane(rng, vel, az)
             x, y = polar_to_ground(rng, az, cfg.mounting_height_m, cfg.target_height_m)
-            sel = np.arange(rng.size)
-            if cfg.cluster_length_m > 0 and sel.size > 1:
-                sel = sel[nearest_of_clusters(rng, vel, x, length_m=cfg.cluster_length_m,
-                                              speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m,
-                                              ghost_speed_per_m=cfg.cluster_ghost_speed_per_m,
-                                              ghost_speed_mps=cfg.cluster_ghost_speed_mps,
-                                              ghost_length_m=cfg.cluster_ghost_length_m)]
-            det = Detections(rng[sel], vel[sel], az[sel], snr_db[sel], x[sel], y[sel],
-                             {"pair_residual_hz": res[sel], "resolved_pair": pair_of[sel]})
+            sel = None  # all kept
+            if cfg.cluster_length_m > 0 and rng.size > 1:
+                keep = nearest_of_clusters(rng, vel, x, length_m=cfg.cluster_length_m,
+                                           speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m,
+                                           ghost_speed_per_m=cfg.cluster_ghost_speed_per_m,
+                                           ghost_speed_mps=cfg.cluster_ghost_speed_mps,
+                                           ghost_length_m=cfg.cluster_ghost_length_m)
+                if not keep.all():
+                    sel = keep.nonzero()[0]
+            if sel is None:  # the arrays themselves (nothing reads or writes them after this)
+                det = Detections(rng, vel, az, snr_db, x, y, {"pair_residual_hz": res, "resolved_pair": pair_of})
+            else:
+                det = Detections(rng[sel], vel[sel], az[sel], snr_db[sel], x[sel], y[sel],
+                                 {"pair_residual_hz": res[sel], "resolved_pair": pair_of[sel]})
         inter = {
             "power": power, "threshold": thr, "noise": noise, "peak_freqs_hz": freqs,
             "n_pair_candidates": pairs.n_candidates, "n_ghosts_rejected": pairs.n_ghosts, "n_aided_pairs": n_aided,
@@ -602,26 +611,31 @@ class LanePipeline(Pipeline):
         counts = [fk.size for fk in freqs]
         w_counts = [fk.size for fk in weak[0]] if weak is not None else [0, 0, 0, 0]
         width = max(c + w for c, w in zip(counts, w_counts))
-        pred_bin = np.rint(f_hat / self._bin_hz).astype(np.int64) % self.n_bins  # (m, 4); np.round's value
         if width == 0:
             return empty
-        table = np.full((4, width), np.inf)
-        btab = np.zeros((4, width), np.int64)
-        for k in range(4):  # four segments; the weak peaks after the detected ones (pairs.peak_index stays valid)
-            table[k, :counts[k]] = freqs[k]
-            btab[k, :counts[k]] = bins[k]
+        # four segments; the weak peaks after the detected ones (pairs.peak_index stays valid); one concatenation
+        # each (padding: views of cached +inf / 0 rows)
+        if self._pad_inf.size < width:
+            self._pad_inf, self._pad_zero = np.full(2 * width, np.inf), np.zeros(2 * width, np.int64)
+        fp, bp = [], []
+        for k in range(4):
+            fp.append(freqs[k])
+            bp.append(bins[k])
             if w_counts[k]:
-                table[k, counts[k]:counts[k] + w_counts[k]] = weak[0][k]
-                btab[k, counts[k]:counts[k] + w_counts[k]] = weak[1][k]
+                fp.append(weak[0][k])
+                bp.append(weak[1][k])
+            fp.append(self._pad_inf[:width - counts[k] - w_counts[k]])
+            bp.append(self._pad_zero[:width - counts[k] - w_counts[k]])
+        table = np.concatenate(fp, dtype=np.float64).reshape(4, width)
+        btab = np.concatenate(bp, dtype=np.int64).reshape(4, width)
+        seg = _SEG4
         if pairs.range_m.size:
-            table[np.arange(4), pairs.peak_index] = np.inf
-        d = np.abs(table[None, :, :] - f_hat[:, :, None])  # (m, 4, peaks)
+            table[seg, pairs.peak_index] = np.inf
+        d = np.abs(table - f_hat[:, :, None])  # (m, 4, peaks)
         j = d.argmin(axis=2)  # (m, 4): the first nearest in each segment's peak order
-        seg = np.arange(4)
-        found = d[np.arange(m)[:, None], seg, j] <= self._aided_window_hz
+        found = np.minimum.reduce(d, axis=2) <= self._aided_window_hz  # the minimum is d at j
         fsel = np.where(found, table[seg, j], 0.0)
-        out_bins = np.where(found, btab[seg, j], pred_bin)
-        good = found.sum(axis=1) >= cfg.aided_min_segments
+        good = np.add.reduce(found, axis=1) >= cfg.aided_min_segments
         if not good.any():
             return empty
         A = self._model_ab  # (4, 2)
@@ -633,7 +647,9 @@ class LanePipeline(Pipeline):
         resid = np.sqrt((w * (fs - sol @ A.T) ** 2).sum(axis=1) / w.sum(axis=1))
         close = (np.abs(sol[:, 0] - r_hat[good]) < cfg.aided_gate_m) & (np.abs(sol[:, 1] - v_hat[good]) < cfg.aided_gate_mps)
         g = good.nonzero()[0][close]
-        return (out_bins[g], sol[close, 0].astype(np.float32), sol[close, 1].astype(np.float32),
+        # a segment without a peak is read at its predicted bin (np.round's value)
+        out_bins = np.where(found[g], btab[seg, j[g]], np.rint(f_hat[g] / self._bin_hz).astype(np.int64) % self.n_bins)
+        return (out_bins, sol[close, 0].astype(np.float32), sol[close, 1].astype(np.float32),
                 resid[close].astype(np.float32))
 
     def _unalias_by_lane(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray) -> np.ndarray:

@@ -69,12 +69,19 @@ def assign_lanes_with_margin(u: np.ndarray, lanes: tuple[Lane, ...]) -> tuple[np
     outside every lane)."""
     if not lanes:
         return np.full(u.shape, -1, dtype=np.int32), np.full(u.shape, -np.inf)
-    c = np.array([ln.center_m for ln in lanes])
-    w = np.array([ln.width_m for ln in lanes])
-    d = np.abs(u[:, None] - c[None, :])
-    k = np.argmin(d, axis=1)
-    margin = 0.5 * w[k] - d[np.arange(u.size), k]
-    return np.where(margin >= 0.0, k, -1).astype(np.int32), margin
+    global _lane_arrays
+    if _lane_arrays[0] is not lanes:  # the lanes (a tuple of frozen Lanes) change rarely: their arrays once
+        _lane_arrays = (lanes, np.array([ln.center_m for ln in lanes]), 0.5 * np.array([ln.width_m for ln in lanes]))
+    _, c, half_w = _lane_arrays
+    d = np.abs(u[:, None] - c)
+    k = d.argmin(axis=1)
+    margin = half_w[k] - np.minimum.reduce(d, axis=1)  # the minimum is the distance at k (same value)
+    k[~(margin >= 0.0)] = -1  # NaN too, as np.where(margin >= 0, k, -1)
+    return k.astype(np.int32), margin
+
+
+#: (lanes, their centres, their half widths) of the last call of :func:`assign_lanes_with_margin`
+_lane_arrays: tuple = (None, None, None)
 
 
 #: up to this many running tracks the start-up votes are computed in plain Python
@@ -230,14 +237,16 @@ def _median_stderr(v: np.ndarray, w: np.ndarray | None) -> float:
         return math.inf
     if w is None:
         return 1.2533 * float(np.std(v, ddof=1)) / math.sqrt(n)
-    sw = float(w.sum())
+    add = np.add.reduce  # what ndarray.sum calls, without its wrapper (a handful of votes: the cost is per call)
+    sw = float(add(w))
     if sw <= 0.0:
         return math.inf
-    mean = float((w * v).sum()) / sw
-    n_eff = sw * sw / float((w * w).sum())
+    mean = float(add(w * v)) / sw
+    n_eff = sw * sw / float(add(w * w))
     if n_eff <= 1.0:
         return math.inf
-    var = float((w * (v - mean) ** 2).sum()) / sw * n_eff / (n_eff - 1.0)
+    d = v - mean
+    var = float(add(w * (d * d))) / sw * n_eff / (n_eff - 1.0)  # numpy's x ** 2 is x * x
     return 1.2533 * math.sqrt(var / n_eff)
 
 

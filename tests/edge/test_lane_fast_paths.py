@@ -181,6 +181,31 @@ def test_pair_beats_equals_the_plain_implementation(max_shared):
         assert n_ghost_dropped > 0  # the extended-vehicle ghost rule was exercised
 
 
+@pytest.mark.parametrize("near", [False, True])
+def test_pair_beats_plain_python_path_is_bit_identical_to_the_array_path(monkeypatch, near):
+    import edge.dsp.pairing as pairing
+
+    kw = dict(min_range_m=5.0, max_range_m=330.0, max_speed_mps=70.0, tolerance_hz=(520.0, 520.0), max_shared=1)
+    if near:  # the wider window near the radar (lane profile: 1.5 bins up to 40 m)
+        kw.update(near_tolerance_hz=(780.0, 780.0), near_range_m=120.0)
+    n_small = n_pairs = 0
+    for seed in range(300):
+        freqs = _scene_peaks(seed)
+        monkeypatch.setattr(pairing, "_SMALL_FAST", 10**9)
+        monkeypatch.setattr(pairing, "_SMALL_SLOW", 10**9)
+        small = pair_beats(freqs, MODEL, **kw)
+        monkeypatch.setattr(pairing, "_SMALL_FAST", -1)
+        arrays = pair_beats(freqs, MODEL, **kw)
+        for f in ("peak_index", "range_m", "radial_speed_mps", "residual_hz"):
+            a, b = getattr(small, f), getattr(arrays, f)
+            assert a.dtype == b.dtype and a.shape == b.shape
+            np.testing.assert_array_equal(a, b)  # bit for bit, not within a tolerance
+        assert (small.n_candidates, small.n_ghosts) == (arrays.n_candidates, arrays.n_ghosts)
+        n_small += freqs[0].size * freqs[1].size <= 64
+        n_pairs += small.range_m.size
+    assert n_small > 50 and n_pairs > 300
+
+
 def test_nearest_peak_small_and_dense_paths_agree():
     from edge.dsp.pairing import _nearest
 
