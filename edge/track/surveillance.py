@@ -281,7 +281,7 @@ class SurveillanceTracker:
                          rcs, n_lab * float(r_mean), lo, hi, float(sig.doppler_kmh[lab]))
             recorded.append((tid, int(lab)))
             spd = self._speed[tid]
-            spd.add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
+            spd.add(t_s, sig.range_m[lab], sig.doppler_kmh[lab], lo, hi)
             self._seen_t[tid] = t_s
             tr = by_id.get(tid)
             if n_aid > 0 and tr is not None and len(spd) >= n_aid:
@@ -655,8 +655,9 @@ class SurveillanceTracker:
         x = acc.features()
         v = math.nan
         if spd is not None:
-            v = (spd.trimmed_mean_radial_speed_kmh() if self.extractor.config.event_speed == "trimmed_mean"
-                 else spd.mean_radial_speed_kmh())
+            lead = self.extractor.config.event_speed_leading_edge_m
+            v = (spd.trimmed_mean_radial_speed_kmh(lead) if self.extractor.config.event_speed == "trimmed_mean"
+                 else spd.mean_radial_speed_kmh(lead))
         if not math.isfinite(v):
             v = acc.mean_radial_speed_kmh()
         if self.classifier is not None and np.all(np.isfinite(x)):
