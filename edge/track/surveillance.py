@@ -15,8 +15,10 @@ assigned cluster's signature to its track's :class:`~edge.classify.features.Trac
 and feeds the frame's level to the :class:`~edge.track.events.EventSegmenter`. A track ends when it
 has missed ``N_u`` frames or when the event ends (hysteresis), and is classified there and then
 (streaming, not after the whole event as in the paper): class, eq. 21 probabilities, mean radial
-speed and direction. The speed is the median of the track's per-frame radial speeds, each the
-cluster's wrapped Doppler with its alias chosen by the local range rate of the centroid
+speed and direction. The speed is the trimmed mean (``event_speed``) of the track's per-frame radial
+speeds, each the cluster's wrapped Doppler with its alias chosen by the range rate of the centroid
+(of the body's leading edge for a long one, ``event_speed_leading_edge_m``), without the frames
+faster than the target's far frames (``event_speed_cap_range_m``: wrong aliases beside the radar)
 (:class:`~edge.classify.features.RadialSpeedEstimator`, km/h, positive receding); the least-squares
 range rate when that is not available.
 
@@ -655,9 +657,12 @@ class SurveillanceTracker:
         x = acc.features()
         v = math.nan
         if spd is not None:
-            lead = self.extractor.config.event_speed_leading_edge_m
-            v = (spd.trimmed_mean_radial_speed_kmh(lead) if self.extractor.config.event_speed == "trimmed_mean"
-                 else spd.mean_radial_speed_kmh(lead))
+            fc = self.extractor.config
+            lead = fc.event_speed_leading_edge_m
+            cap = {"cap_range_m": fc.event_speed_cap_range_m, "cap_margin_kmh": fc.event_speed_cap_margin_kmh,
+                   "cap_min_kmh": fc.event_speed_cap_min_kmh}
+            v = (spd.trimmed_mean_radial_speed_kmh(lead, **cap) if fc.event_speed == "trimmed_mean"
+                 else spd.mean_radial_speed_kmh(lead, **cap))
         if not math.isfinite(v):
             v = acc.mean_radial_speed_kmh()
         if self.classifier is not None and np.all(np.isfinite(x)):

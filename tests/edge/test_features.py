@@ -308,3 +308,24 @@ def test_leading_edge_only_for_long_bodies_and_the_right_edge():
     for tk, rk, vk in zip(t, centroid, wrapped(np.full(t.size, v_true))):
         est2.add(tk, rk, vk)
     assert est2.reference_rate_kmh(4.0) == pytest.approx(est2.reference_rate_kmh())
+
+
+def test_event_speed_leaves_out_frames_faster_than_the_target():
+    """A motorcycle receding at 27 km/h from beside the radar: its first frames (radial speed -10..17
+    km/h, changing faster than the reference rate can follow) took the alias nearest the track's rate,
+    reading 28-30 km/h; the far frames (>= 10 m) show 27 at most, so those frames are left out."""
+    t = np.arange(14) * 0.2
+    r = np.array([2.9, 3.0, 4.0, 5.1, 6.5, 7.9, 9.3, 10.7, 12.1, 13.6, 15.1, 16.6, 18.1, 19.6])
+    v = np.array([29.0, 28.3, 30.0, 29.7, 22.9, 24.2, 25.3, 26.0, 26.5, 26.7, 26.9, 26.9, 27.1, 27.1])
+    est = RadialSpeedEstimator(VMAX)
+    for tk, rk, vk in zip(t, r, wrapped(v)):
+        est.add(tk, rk, vk)
+    np.testing.assert_allclose(est.speeds_kmh(), v, atol=1e-9)  # every frame on the alias above
+    kept = est.capped_speeds_kmh(cap_range_m=10.0, cap_margin_kmh=0.5)
+    np.testing.assert_allclose(kept, v[4:], atol=1e-9)
+    assert est.trimmed_mean_radial_speed_kmh(cap_range_m=10.0) == pytest.approx(float(np.mean(v[4:])))
+    assert est.trimmed_mean_radial_speed_kmh() == pytest.approx(float(np.mean(v)))  # off: as before
+    assert est.mean_radial_speed_kmh(cap_range_m=10.0) == pytest.approx(float(np.median(v[4:])))
+    # a slow target (far frames below cap_min_kmh), or one without two far frames, is left alone
+    assert est.capped_speeds_kmh(cap_range_m=10.0, cap_min_kmh=30.0).size == v.size
+    assert est.capped_speeds_kmh(cap_range_m=20.0).size == v.size
