@@ -15,8 +15,10 @@ assigned cluster's signature to its track's :class:`~edge.classify.features.Trac
 and feeds the frame's level to the :class:`~edge.track.events.EventSegmenter`. A track ends when it
 has missed ``N_u`` frames or when the event ends (hysteresis), and is classified there and then
 (streaming, not after the whole event as in the paper): class, eq. 21 probabilities, mean radial
-speed and direction. The speed is the median of the track's per-frame radial speeds, each the
-cluster's wrapped Doppler with its alias chosen by the local range rate of the centroid
+speed and direction. The speed is the trimmed mean (``event_speed``) of the track's per-frame radial
+speeds, each the cluster's wrapped Doppler with its alias chosen by the range rate of the centroid
+(of the body's leading edge for a long one, ``event_speed_leading_edge_m``), without the frames
+faster than the target's far frames (``event_speed_cap_range_m``: wrong aliases beside the radar)
 (:class:`~edge.classify.features.RadialSpeedEstimator`, km/h, positive receding); the least-squares
 range rate when that is not available.
 
@@ -281,7 +283,7 @@ class SurveillanceTracker:
                          rcs, n_lab * float(r_mean), lo, hi, float(sig.doppler_kmh[lab]))
             recorded.append((tid, int(lab)))
             spd = self._speed[tid]
-            spd.add(t_s, sig.range_m[lab], sig.doppler_kmh[lab])
+            spd.add(t_s, sig.range_m[lab], sig.doppler_kmh[lab], lo, hi)
             self._seen_t[tid] = t_s
             tr = by_id.get(tid)
             if n_aid > 0 and tr is not None and len(spd) >= n_aid:
@@ -655,8 +657,12 @@ class SurveillanceTracker:
         x = acc.features()
         v = math.nan
         if spd is not None:
-            v = (spd.trimmed_mean_radial_speed_kmh() if self.extractor.config.event_speed == "trimmed_mean"
-                 else spd.mean_radial_speed_kmh())
+            fc = self.extractor.config
+            lead = fc.event_speed_leading_edge_m
+            cap = {"cap_range_m": fc.event_speed_cap_range_m, "cap_margin_kmh": fc.event_speed_cap_margin_kmh,
+                   "cap_min_kmh": fc.event_speed_cap_min_kmh}
+            v = (spd.trimmed_mean_radial_speed_kmh(lead, **cap) if fc.event_speed == "trimmed_mean"
+                 else spd.mean_radial_speed_kmh(lead, **cap))
         if not math.isfinite(v):
             v = acc.mean_radial_speed_kmh()
         if self.classifier is not None and np.all(np.isfinite(x)):

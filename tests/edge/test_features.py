@@ -263,3 +263,69 @@ def test_radial_speed_needs_two_frames_and_ignores_repeated_times():
     assert len(est) == 1 and math.isnan(est.current_radial_speed_kmh())
     est.add(0.2, 10.1, 1.0)
     assert est.mean_radial_speed_kmh() == pytest.approx(1.0)
+
+
+def _receding_truck(extent_final_m: float, lag: float = 0.45):
+    """A body receding at 22 km/h beside the radar: its front (far edge) moves at full speed while its
+    centroid, held back by the side coming into view behind the front, moves at ``lag`` of it."""
+    t = np.arange(20) * 0.2
+    v_true = 22.0
+    front = 7.0 + v_true / 3.6 * t
+    centroid = 6.0 + lag * v_true / 3.6 * t
+    near = front - np.linspace(1.0, extent_final_m, t.size)
+    return t, v_true, centroid, near, front
+
+
+def test_event_speed_of_a_long_body_unaliased_with_its_leading_edge():
+    t, v_true, centroid, near, front = _receding_truck(extent_final_m=9.0)
+    est = RadialSpeedEstimator(VMAX)
+    for tk, rk, vk, lo, hi in zip(t, centroid, wrapped(np.full(t.size, v_true)), near, front):
+        est.add(tk, rk, vk, lo, hi)
+    # the centroid's rate (9.9 km/h) is more than v_max off: every frame takes the wrong alias
+    assert abs(est.trimmed_mean_radial_speed_kmh() - (v_true - 2 * VMAX)) < 0.01
+    assert est.reference_rate_kmh(4.0) == pytest.approx(v_true, abs=0.01)  # the far (leading) edge
+    assert est.trimmed_mean_radial_speed_kmh(4.0) == pytest.approx(v_true, abs=0.01)
+    assert est.mean_radial_speed_kmh(4.0) == pytest.approx(v_true, abs=0.01)
+
+
+def test_leading_edge_only_for_long_bodies_and_the_right_edge():
+    # short body (median extent < 4 m): the centroid's rate as before, edges ignored
+    t, v_true, centroid, near, front = _receding_truck(extent_final_m=3.0, lag=1.0)
+    est = RadialSpeedEstimator(VMAX)
+    for tk, rk, vk, lo in zip(t, centroid, wrapped(np.full(t.size, v_true)), near):
+        est.add(tk, rk, vk, lo, lo + 0.5)  # edges that would give the wrong rate if used
+    assert est.reference_rate_kmh(4.0) == pytest.approx(est.reference_rate_kmh())
+    # approaching long body: the near edge leads
+    est = RadialSpeedEstimator(VMAX)
+    tt = np.arange(20) * 0.2
+    lo = 20.0 - 25.0 / 3.6 * tt
+    for tk, l in zip(tt, lo):
+        est.add(tk, l + 2.0 - 0.5 * (-25.0 / 3.6) * tk, wrapped(-25.0), l, l + 9.0)  # centroid lags
+    assert est.reference_rate_kmh(4.0) == pytest.approx(-25.0, abs=0.01)
+    assert est.trimmed_mean_radial_speed_kmh(4.0) == pytest.approx(-25.0, abs=0.01)
+    # without extents (the old add signature) nothing changes
+    est2 = RadialSpeedEstimator(VMAX)
+    for tk, rk, vk in zip(t, centroid, wrapped(np.full(t.size, v_true))):
+        est2.add(tk, rk, vk)
+    assert est2.reference_rate_kmh(4.0) == pytest.approx(est2.reference_rate_kmh())
+
+
+def test_event_speed_leaves_out_frames_faster_than_the_target():
+    """A motorcycle receding at 27 km/h from beside the radar: its first frames (radial speed -10..17
+    km/h, changing faster than the reference rate can follow) took the alias nearest the track's rate,
+    reading 28-30 km/h; the far frames (>= 10 m) show 27 at most, so those frames are left out."""
+    t = np.arange(14) * 0.2
+    r = np.array([2.9, 3.0, 4.0, 5.1, 6.5, 7.9, 9.3, 10.7, 12.1, 13.6, 15.1, 16.6, 18.1, 19.6])
+    v = np.array([29.0, 28.3, 30.0, 29.7, 22.9, 24.2, 25.3, 26.0, 26.5, 26.7, 26.9, 26.9, 27.1, 27.1])
+    est = RadialSpeedEstimator(VMAX)
+    for tk, rk, vk in zip(t, r, wrapped(v)):
+        est.add(tk, rk, vk)
+    np.testing.assert_allclose(est.speeds_kmh(), v, atol=1e-9)  # every frame on the alias above
+    kept = est.capped_speeds_kmh(cap_range_m=10.0, cap_margin_kmh=0.5)
+    np.testing.assert_allclose(kept, v[4:], atol=1e-9)
+    assert est.trimmed_mean_radial_speed_kmh(cap_range_m=10.0) == pytest.approx(float(np.mean(v[4:])))
+    assert est.trimmed_mean_radial_speed_kmh() == pytest.approx(float(np.mean(v)))  # off: as before
+    assert est.mean_radial_speed_kmh(cap_range_m=10.0) == pytest.approx(float(np.median(v[4:])))
+    # a slow target (far frames below cap_min_kmh), or one without two far frames, is left alone
+    assert est.capped_speeds_kmh(cap_range_m=10.0, cap_min_kmh=30.0).size == v.size
+    assert est.capped_speeds_kmh(cap_range_m=20.0).size == v.size
