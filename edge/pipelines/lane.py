@@ -182,6 +182,10 @@ class LaneConfig:
                "considered (one vehicle's spread scatterers stay below)", "min": 1e-4, "max": 1.0})
     resolve_min_noise_ratio: float = field(default=8.0, metadata={
         "doc": "... and relative to the mean of the noise eigenvalues", "min": 1.0, "max": 1e4})
+    resolve_min_power_ratio: float = field(default=0.1, metadata={
+        "doc": "... and the weaker of the two fitted sources carries at least this fraction of the stronger one's "
+               "power (a vehicle with a brief visitor in one of its looks has a strong and a faint source)",
+        "min": 0.0, "max": 1.0})
     resolve_min_lateral_m: float = field(default=2.5, metadata={
         "unit": "m", "doc": "the two fitted directions must lie at least this far apart across at the cell's range "
                "(more than one vehicle's width; adjacent lanes are 3.5 m apart)", "min": 0.5, "max": 20.0})
@@ -189,6 +193,18 @@ class LaneConfig:
         "doc": "when lanes are known (configured or learned), a split is kept only if its two directions lie in "
                "adjacent lanes and their midpoint within this fraction of the lane spacing from the boundary "
                "between them (a truck's two sides straddle one lane's centre instead)", "min": 0.0, "max": 1.0})
+    resolve_skip_bodies: bool = field(default=True, metadata={
+        "doc": "no split of a cell that lies behind a nearer detection of the same vehicle (up to cluster_length_m "
+               "nearer, within cluster_speed_mps and cluster_lateral_m of the cell's unsplit position): a vehicle's "
+               "body puts its two sides (or a side and its far face) in one range bin, a rank-two covariance the "
+               "4-element array cannot resolve, and the two-source fit pushed one direction into the next lane, 3-4 m "
+               "beside the vehicle, where it seeded tracks that were counted (highway4-traffic seed 31: beside a "
+               "receding van and an approaching truck); two vehicles side by side are the nearest detections of "
+               "both"})
+    resolve_same_direction: bool = field(default=True, metadata={
+        "doc": "when lanes are known, a split is kept only if both its lanes carry the cell's direction of travel "
+               "(the sign of its radial speed): two vehicles in one range-speed cell move the same way, and a body "
+               "split across the median put a track against its lane's direction (a wrong-way alarm)"})
     calibration_gain: tuple[float, ...] = field(default=(1.0, 1.0, 1.0, 1.0), metadata={
         "doc": "per-channel amplitude of the receive paths (divided out before the angle estimate)",
         "min": 1e-3, "max": 1e3})
@@ -335,7 +351,7 @@ class LanePipeline(Pipeline):
                 ResolverConfig(memory_frames=cfg.resolve_memory_frames, min_frames=cfg.resolve_min_frames,
                                min_split_frames=cfg.resolve_min_split_frames,
                                min_eig_ratio=cfg.resolve_min_eig_ratio, min_noise_ratio=cfg.resolve_min_noise_ratio,
-                               min_lateral_m=cfg.resolve_min_lateral_m),
+                               min_lateral_m=cfg.resolve_min_lateral_m, min_power_ratio=cfg.resolve_min_power_ratio),
                 self._steer, self._grid, wf.frame_period_s)
         self.tracker = self.traffic = None
         if cfg.tracking:
@@ -493,7 +509,9 @@ class LanePipeline(Pipeline):
                                                                                     np.complex64)
                 split, ang = self.resolver.step(rng, vel, looks)
                 if split.any() and self.traffic is not None and self.traffic.lanes:
-                    split &= self._split_straddles_lanes(rng, ang)
+                    split &= self._split_straddles_lanes(rng, vel, ang)
+                if split.any() and cfg.resolve_skip_bodies:
+                    split &= ~self._split_is_body(rng, vel, az, split)
                 if split.any():  # each split detection becomes two, one per angle, half the power each
                     s_idx = split.nonzero()[0]
                     az = az.copy()
@@ -668,10 +686,32 @@ class LanePipeline(Pipeline):
             bad &= ~ok
         return az
 
-    def _split_straddles_lanes(self, range_m: np.ndarray, ang: np.ndarray) -> np.ndarray:
+    def _split_is_body(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, split: np.ndarray) -> np.ndarray:
+        """(n,) bool: split detections whose cell lies behind a nearer detection of the same vehicle -- up to
+        ``cluster_length_m`` nearer, within ``cluster_speed_mps`` in radial speed and ``cluster_lateral_m`` across
+        of the cell's own (unsplit) position, the nearest_of_clusters rule. Such a cell is the vehicle's body
+        (its two sides, or a side and the far face, in one range bin) and not two vehicles side by side,
+        whose near faces are the nearest detections of both. The array cannot resolve scatterers 1-2.5 m
+        apart (a 4-element aperture: 9.6 deg Rayleigh width, 1.5 deg at 75 m), so the two-source fit pushes
+        its angles apart and one of them lands in the next lane, 3-4 m beside the vehicle (highway4-traffic
+        seed 31: tracks beside a receding van and an approaching truck were counted there)."""
+        cfg = self.config
+        s_idx = split.nonzero()[0]
+        x, _ = polar_to_ground(range_m, az, cfg.mounting_height_m, cfg.target_height_m)
+        r = range_m[s_idx, None] - range_m[None, :]  # > 0: the other detection is nearer
+        body = ((r > 0) & (r <= np.float32(cfg.cluster_length_m))
+                & (np.abs(v_mps[s_idx, None] - v_mps[None, :]) <= np.float32(cfg.cluster_speed_mps))
+                & (np.abs(x[s_idx, None] - x[None, :]) <= np.float32(cfg.cluster_lateral_m))).any(axis=1)
+        out = np.zeros(split.shape, bool)
+        out[s_idx[body]] = True
+        return out
+
+    def _split_straddles_lanes(self, range_m: np.ndarray, v_mps: np.ndarray, ang: np.ndarray) -> np.ndarray:
         """(n,) bool: the two directions of a split lie in adjacent lanes with their midpoint near the
         boundary between them -- two vehicles side by side. A truck's two sides (2.5 m apart) fit two
-        sources as well as two cars do, but they straddle the centre of one lane."""
+        sources as well as two cars do, but they straddle the centre of one lane. Both lanes must carry
+        the cell's direction of travel (its radial speed's sign; two vehicles in one range-speed cell move
+        the same way) when ``resolve_same_direction``."""
         from edge.traffic.lanes import to_road
 
         cfg = self.config
@@ -687,7 +727,12 @@ class LanePipeline(Pipeline):
         boundary = 0.5 * (centres[lo] + centres[hi])
         spacing = np.abs(centres[hi] - centres[lo])
         mid = u.mean(axis=1)
-        return ok & (np.abs(mid - boundary) <= cfg.resolve_boundary_fraction * spacing)
+        ok &= np.abs(mid - boundary) <= cfg.resolve_boundary_fraction * spacing
+        if cfg.resolve_same_direction:
+            dirs = np.array([ln.direction for ln in lanes])
+            sign = np.sign(v_mps)
+            ok &= (dirs[lo] == sign) & (dirs[hi] == sign)
+        return ok
 
     def process(self, frame: RawFrame, timer: StageTimer) -> FrameResult:
         det, inter = self.detect(frame, timer)
