@@ -193,6 +193,12 @@ class LaneConfig:
         "doc": "when lanes are known (configured or learned), a split is kept only if its two directions lie in "
                "adjacent lanes and their midpoint within this fraction of the lane spacing from the boundary "
                "between them (a truck's two sides straddle one lane's centre instead)", "min": 0.0, "max": 1.0})
+    resolve_follow_direction: bool = field(default=True, metadata={
+        "doc": "steer a cell's covariance memory along with its vehicle's direction (sin(az) scales with 1/range at a "
+               "fixed lateral position) before adding a frame: without it the memory of a vehicle near the radar, "
+               "whose direction sweeps by degrees within resolve_memory_frames, held its earlier direction as a "
+               "second source and the cell was split into the vehicle and a phantom 3 m further out, in the next "
+               "lane (highway4-traffic seeds 31 and 57: tracks beside receding cars at 30-40 m counted in lane 3)"})
     resolve_skip_bodies: bool = field(default=True, metadata={
         "doc": "no split of a cell that lies behind a nearer detection of the same vehicle (up to cluster_length_m "
                "nearer, within cluster_speed_mps and cluster_lateral_m of the cell's unsplit position): a vehicle's "
@@ -351,7 +357,8 @@ class LanePipeline(Pipeline):
                 ResolverConfig(memory_frames=cfg.resolve_memory_frames, min_frames=cfg.resolve_min_frames,
                                min_split_frames=cfg.resolve_min_split_frames,
                                min_eig_ratio=cfg.resolve_min_eig_ratio, min_noise_ratio=cfg.resolve_min_noise_ratio,
-                               min_lateral_m=cfg.resolve_min_lateral_m, min_power_ratio=cfg.resolve_min_power_ratio),
+                               min_lateral_m=cfg.resolve_min_lateral_m, min_power_ratio=cfg.resolve_min_power_ratio,
+                               follow_direction=cfg.resolve_follow_direction),
                 self._steer, self._grid, wf.frame_period_s)
         self.tracker = self.traffic = None
         if cfg.tracking:
@@ -507,7 +514,7 @@ class LanePipeline(Pipeline):
                 # only the looks that agreed on the angle (another vehicle may share one segment's bin)
                 looks = snaps[keep] * kept[keep][:, :, None] if n_det else np.zeros((0, 4, self.frontend.n_rx),
                                                                                     np.complex64)
-                split, ang = self.resolver.step(rng, vel, looks)
+                split, ang = self.resolver.step(rng, vel, looks, az)
                 if split.any() and self.traffic is not None and self.traffic.lanes:
                     split &= self._split_straddles_lanes(rng, vel, ang)
                 if split.any() and cfg.resolve_skip_bodies:
