@@ -22,6 +22,12 @@ and splits a detection in two when its cell's covariance is surely rank two (sec
 comparable power (``min_power_ratio``), the cell moves (``min_speed_mps``), the two angles lie
 at least ``min_lateral_m`` apart on the ground and all this held for ``min_split_frames`` frames in a row (more than the width of one vehicle, whose own
 scatterers spread a little in angle). All work is batched over detections and cells.
+
+A vehicle keeps its lateral position while its range changes, so its direction cosine ``x / R`` moves:
+near the radar by degrees within the memory. With ``follow_direction`` every cell's covariance is steered
+by that shift (``sin(az) (1 - R_new / R_old)``, a diagonal phase ramp over the elements) before a frame is
+added; otherwise the memory of a receding car leaving the overpass holds its direction of half a second
+earlier as a second source, and the fit splits the car into itself and a phantom 3 m further out.
 """
 
 from __future__ import annotations

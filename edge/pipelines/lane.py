@@ -17,7 +17,9 @@ Per frame (four chirp segments: fast up, fast down, slow up, slow down; 4 receiv
          each normalised, a segment that disagrees with the others left out (edge.dsp.angle; the agreement
          window widens near the radar, where a vehicle spans degrees)
       -> resolve (edge.dsp.resolve): a detection whose range-speed cell holds two vehicles side by side
-         (rank-two spatial covariance over frames) becomes two detections, one per fitted angle
+         (rank-two spatial covariance over frames, its memory steered along with the vehicles' direction)
+         becomes two detections, one per fitted angle -- not when the cell lies behind a nearer detection of
+         the same vehicle (its body), nor across lanes of opposite directions
       -> grating-lobe aliases of near vehicles beyond +-19.5 deg moved back into a lane of their direction
       -> ground-plane x/y (edge.dsp.geometry, eq. 16 for a raised radar), nearest face of each body (a 17 m
          body's detections and the wrong pairings among its scatterers -- ghosts at v +- u a/b -- dropped)
@@ -198,7 +200,13 @@ class LaneConfig:
                "fixed lateral position) before adding a frame: without it the memory of a vehicle near the radar, "
                "whose direction sweeps by degrees within resolve_memory_frames, held its earlier direction as a "
                "second source and the cell was split into the vehicle and a phantom 3 m further out, in the next "
-               "lane (highway4-traffic seeds 31 and 57: tracks beside receding cars at 30-40 m counted in lane 3)"})
+               "lane (highway4-traffic seeds 31 and 57: tracks beside receding cars at 30-40 m counted in lane 3). "
+               "Measured with resolve_skip_bodies and resolve_same_direction on highway4-traffic seeds 5, 6, 7 "
+               "(6000 frames each) against all three off: summed |count error| 3 -> 2 (the three tracks counted "
+               "beside receding vehicles gone; a car hidden beside another in the next lane at its speed, counted "
+               "through a split before, missed on seed 7), false tracks 19 -> 19, id switches 43 -> 40, detection "
+               "probability within 0.001; side-by-side seeds 3, 5, 6, 8, 21 (300 frames) tracked fractions within "
+               "0.1 per car"})
     resolve_skip_bodies: bool = field(default=True, metadata={
         "doc": "no split of a cell that lies behind a nearer detection of the same vehicle (up to cluster_length_m "
                "nearer, within cluster_speed_mps and cluster_lateral_m of the cell's unsplit position): a vehicle's "
