@@ -7,39 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edge.classify.features import MapPoints
 from edge.track.alphabeta import AlphaBetaConfig
 from edge.track.surveillance import SurveillanceTracker
 from hal.waveform import d2g_frontend
+from tests.edge.survscene import VMAX, blob, points, wrap
 
 FE = d2g_frontend()
-VMAX = 5.348
 T = 0.2
-
-
-def wrap(v_kmh):
-    return (v_kmh + VMAX) % (2 * VMAX) - VMAX
-
-
-def blob(r, v, n, label, amp=5.0):
-    """``n`` cells around (r, wrapped v): a small rectangle on the (range, Doppler) grid."""
-    dr, dv = 24.0 / 256, 2 * VMAX / 256
-    rb0, db0 = int(round(r / dr)), int(round((wrap(v) + VMAX) / dv))
-    w = max(1, int(np.sqrt(n)))
-    k = np.arange(n)
-    rb = rb0 + k // w - (n // w) // 2
-    db = np.mod(db0 + k % w - w // 2, 256)
-    return rb * dr, db * dv - VMAX, np.full(n, amp), rb, db, np.full(n, label)
-
-
-def points(*blobs):
-    if not blobs:
-        z = np.zeros(0)
-        return MapPoints(z.astype(np.float32), z.astype(np.float32), z.astype(np.float32), z.astype(np.int32),
-                         z.astype(np.int32), z.astype(np.int32))
-    cat = [np.concatenate(c) for c in zip(*blobs)]
-    return MapPoints(cat[0].astype(np.float32), cat[1].astype(np.float32), cat[2].astype(np.float32),
-                     cat[3].astype(np.int32), cat[4].astype(np.int32), cat[5].astype(np.int32))
 
 
 def run(cfg, scene, frames):

@@ -12,19 +12,15 @@ from edge.track.alphabeta import AlphaBetaConfig, AlphaBetaTracker
 from edge.track.cylinder import Cylinder
 from edge.track.surveillance import SurveillanceTracker
 from hal.waveform import d2g_frontend
+from tests.edge.survscene import VMAX, blob, points
 
 FE = d2g_frontend()
-VMAX = 5.348
 CYL = Cylinder(VMAX)
 T = 0.2
 
 
 def meas(range_m, v_kmh):
     return CYL.to_cylinder(np.asarray(range_m, dtype=np.float64), np.asarray(v_kmh, dtype=np.float64), dtype=np.float64)
-
-
-def wrap(v_kmh):
-    return (v_kmh + VMAX) % (2 * VMAX) - VMAX
 
 
 # --- sidelobe guard --------------------------------------------------------------------------------
@@ -48,22 +44,6 @@ def test_detection_mask_guard_drops_sidelobes_of_a_strong_echo_only():
 
 
 # --- Doppler-aided range rate and merge guard (SurveillanceTracker on hand-made clusters) -----------
-
-def blob(r, v, n, label, amp=5.0):
-    """``n`` cells around (r, wrapped v): a small rectangle on the (range, Doppler) grid."""
-    dr, dv = 24.0 / 256, 2 * VMAX / 256
-    rb0, db0 = int(round(r / dr)), int(round((wrap(v) + VMAX) / dv))
-    w = max(1, int(np.sqrt(n)))
-    k = np.arange(n)
-    rb = rb0 + k // w - (n // w) // 2
-    db = np.mod(db0 + k % w - w // 2, 256)
-    return rb * dr, db * dv - VMAX, np.full(n, amp), rb, db, np.full(n, label)
-
-
-def points(*blobs):
-    cat = [np.concatenate(c) for c in zip(*blobs)]
-    return MapPoints(cat[0].astype(np.float32), cat[1].astype(np.float32), cat[2].astype(np.float32),
-                     cat[3].astype(np.int32), cat[4].astype(np.int32), cat[5].astype(np.int32))
 
 
 def test_doppler_aided_range_rate_follows_a_fast_car():
