@@ -72,7 +72,10 @@ class _Cells:
 class CellResolver:
     """Per-cell covariance memory and the two-source split (see the module docstring)."""
 
-    def __init__(self, cfg: ResolverConfig, steering: np.ndarray, grid_rad: np.ndarray, frame_period_s: float) -> None:
+    def __init__(self, cfg: ResolverConfig, steering: np.ndarray, grid_rad: np.ndarray, frame_period_s: float,
+                 spacing_wavelengths: float) -> None:
+        """``steering`` (grid, rx) over ``grid_rad``; ``spacing_wavelengths``: the array's element spacing d / lambda
+        (the phase ramp of :meth:`_follow`)."""
         self.cfg = cfg
         self.period_s = frame_period_s
         self.grid = grid_rad
@@ -98,12 +101,8 @@ class CellResolver:
         # their features gathered once (gathering (2926, 16) rows every frame cost 80 us, 15 times the product);
         # used as the same transposed view as before (BLAS picks its kernel by the layout)
         self._coarse_feat = self._pair_feat[self._coarse]
-        # element spacing in wavelengths, from the steering vectors' phase step at the grid's edge (|phase| < pi
-        # inside the unambiguous sector), and the element lag a - b of every covariance entry
-        edge = int(np.argmax(np.abs(grid_rad)))
-        step = np.angle(steering[edge, 1] * np.conj(steering[edge, 0])) if n_rx > 1 else 0.0
-        self._d_over_lam = float(-step / (2.0 * np.pi * np.sin(grid_rad[edge]))) if grid_rad[edge] != 0 else 0.0
-        m = np.arange(n_rx)
+        self._d_over_lam = float(spacing_wavelengths)
+        m = np.arange(n_rx)  # the element lag a - b of every covariance entry
         self._lag = (m[:, None] - m[None, :]).astype(np.float32)
         self.reset()
 

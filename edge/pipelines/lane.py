@@ -352,8 +352,8 @@ class LanePipeline(Pipeline):
             self._aided_scale32 = np.float32(min(os_cfar_scale(cfg.aided_pfa, self._n_ref, self._rank, n_looks=n_rx),
                                                  self.cfar_scale))
         self._alias_period = wf.wavelength_m / frontend.rx_spacing_m  # grating-lobe period in sin(az)
-        self._lane_cache: tuple = (None, 0.0, None)
-        self._pad_inf, self._pad_zero = np.zeros(0), np.zeros(0, np.int64)  # padding rows of _track_aided_pairs  # (lanes, their span across, directions) of _unalias_by_lane
+        self._lane_cache: tuple = (None, 0.0, None)  # (lanes, their span across, directions): see _lane_arrays
+        self._pad_inf, self._pad_zero = np.zeros(0), np.zeros(0, np.int64)  # padding rows of _track_aided_pairs
         self._model = PairingModel.from_waveform(wf)
         self._model_ab = np.stack([self._model.a, self._model.b], axis=1)  # (4, 2): beat = a R + b v per segment
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
@@ -373,7 +373,7 @@ class LanePipeline(Pipeline):
                                min_eig_ratio=cfg.resolve_min_eig_ratio, min_noise_ratio=cfg.resolve_min_noise_ratio,
                                min_lateral_m=cfg.resolve_min_lateral_m, min_power_ratio=cfg.resolve_min_power_ratio,
                                follow_direction=cfg.resolve_follow_direction),
-                self._steer, self._grid, wf.frame_period_s)
+                self._steer, self._grid, wf.frame_period_s, frontend.rx_spacing_m / wf.wavelength_m)
         self.tracker = self.traffic = None
         if cfg.tracking:
             from edge.track import PdafConfig, PdafTracker
@@ -697,11 +697,7 @@ class LanePipeline(Pipeline):
         period = self._alias_period
         # an alias is sin(az) +- period away, i.e. about period x range across: only near detections can have
         # both themselves and their alias on the road (the rest is left alone at the cost of one comparison)
-        if self._lane_cache[0] is not lanes:  # the lanes change when the traffic layer learns them: rarely
-            self._lane_cache = (lanes, max(ln.center_m + 0.5 * ln.width_m for ln in lanes)
-                                - min(ln.center_m - 0.5 * ln.width_m for ln in lanes),
-                                np.array([ln.direction for ln in lanes]))
-        _, span, dirs = self._lane_cache
+        span, dirs = self._lane_arrays(lanes)
         near = np.abs(v_mps) >= np.float32(cfg.unalias_min_speed_mps)
         near &= range_m <= np.float32(span / period + cfg.mounting_height_m)
         idx = near.nonzero()[0]
@@ -730,6 +726,15 @@ class LanePipeline(Pipeline):
             bad &= ~ok
         return az
 
+    def _lane_arrays(self, lanes) -> tuple[float, np.ndarray]:
+        """(span of the road across, (L,) lane directions) of ``lanes``, cached: the lanes change only when the
+        traffic layer learns them."""
+        if self._lane_cache[0] is not lanes:
+            self._lane_cache = (lanes, max(ln.center_m + 0.5 * ln.width_m for ln in lanes)
+                                - min(ln.center_m - 0.5 * ln.width_m for ln in lanes),
+                                np.array([ln.direction for ln in lanes]))
+        return self._lane_cache[1], self._lane_cache[2]
+
     def _split_is_body(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, split: np.ndarray) -> np.ndarray:
         """(n,) bool: split detections whose cell lies behind a nearer detection of the same vehicle -- up to
         ``cluster_length_m`` nearer, within ``cluster_speed_mps`` in radial speed and ``cluster_lateral_m`` across
@@ -740,15 +745,10 @@ class LanePipeline(Pipeline):
         its angles apart and one of them lands in the next lane, 3-4 m beside the vehicle (highway4-traffic
         seed 31: tracks beside a receding van and an approaching truck were counted there)."""
         cfg = self.config
-        s_idx = split.nonzero()[0]
         x, _ = polar_to_ground(range_m, az, cfg.mounting_height_m, cfg.target_height_m)
-        r = range_m[s_idx, None] - range_m[None, :]  # > 0: the other detection is nearer
-        body = ((r > 0) & (r <= np.float32(cfg.cluster_length_m))
-                & (np.abs(v_mps[s_idx, None] - v_mps[None, :]) <= np.float32(cfg.cluster_speed_mps))
-                & (np.abs(x[s_idx, None] - x[None, :]) <= np.float32(cfg.cluster_lateral_m))).any(axis=1)
-        out = np.zeros(split.shape, bool)
-        out[s_idx[body]] = True
-        return out
+        behind = ~nearest_of_clusters(range_m, v_mps, x, length_m=cfg.cluster_length_m,
+                                      speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m)
+        return split & behind
 
     def _split_straddles_lanes(self, range_m: np.ndarray, v_mps: np.ndarray, ang: np.ndarray) -> np.ndarray:
         """(n,) bool: the two directions of a split lie in adjacent lanes with their midpoint near the
@@ -773,7 +773,7 @@ class LanePipeline(Pipeline):
         mid = u.mean(axis=1)
         ok &= np.abs(mid - boundary) <= cfg.resolve_boundary_fraction * spacing
         if cfg.resolve_same_direction:
-            dirs = np.array([ln.direction for ln in lanes])
+            _, dirs = self._lane_arrays(lanes)
             sign = np.sign(v_mps)
             ok &= (dirs[lo] == sign) & (dirs[hi] == sign)
         return ok

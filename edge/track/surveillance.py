@@ -96,6 +96,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -257,9 +258,9 @@ class SurveillanceTracker:
         for tid, j in tstep.assigned.items():
             lab = labels[j]
             shared = self._shares_with(tid, j)
-            if shared or self._is_merged(tid, int(sig.n_points[lab]), self._other_track_near(tid, sig.centroid[lab], pred),
-                                         self._any_track_near(tid, sig.centroid[lab], pred, sig.range_lo_m[lab],
-                                                              sig.range_hi_m[lab])):
+            if shared or self._is_merged(
+                    tid, int(sig.n_points[lab]), self._other_track_near(tid, sig.centroid[lab], pred),
+                    lambda: self._any_track_near(tid, sig.centroid[lab], pred, sig.range_lo_m[lab], sig.range_hi_m[lab])):
                 tr = by_id.get(tid)
                 if tr is not None and tid in pred:  # keep the prediction: the centroid is not this target's
                     tr.state = pred[tid]
@@ -377,7 +378,6 @@ class SurveillanceTracker:
                     if len(spd_b) == 1 and body is not None and body[0] <= sep <= body[1]:
                         # a new track where a part already merged into ``a`` was: that part again
                         self._merge_into(a, b)
-                        self.rigid_merges -= 1
                         self.rigid_parts += 1
                         by_id.pop(b, None)
                         continue
@@ -392,6 +392,7 @@ class SurveillanceTracker:
                             lo, hi = min(lo, body[0]), max(hi, body[1])
                         self._body[a] = (lo, hi)
                         self._merge_into(a, b)
+                        self.rigid_merges += 1
                         by_id.pop(b, None)
         # a younger track's frame that did not move with the older one breaks the run
         for key in [k for k in self._rigid if k not in seen and (k[1] in own or k[0] not in by_id or k[1] not in by_id)]:
@@ -405,7 +406,6 @@ class SurveillanceTracker:
         self.tracker.tracks = [t for t in self.tracker.tracks if t.track_id != gone]
         self.tracker.ids.release(gone)
         self._rigid = {k: v for k, v in self._rigid.items() if gone not in k}
-        self.rigid_merges += 1
         self._forget(gone, counted=False)
         log.debug("track %d merged into track %d (one rigid body)", gone, keep)
 
@@ -602,7 +602,8 @@ class SurveillanceTracker:
             for tid, p in pred.items() if tid != track_id
         )
 
-    def _is_merged(self, track_id: int, n_points: int, other_near: bool = True, any_near: bool = True) -> bool:
+    def _is_merged(self, track_id: int, n_points: int, other_near: bool = True,
+                   any_near: Callable[[], bool] = lambda: True) -> bool:
         """Is this cluster the track's target merged with another one (``merge_ratio``)? Updates the
         track's size history.
 
@@ -611,13 +612,13 @@ class SurveillanceTracker:
         a long vehicle enters the beam (a truck's point count goes from ~100 to ~1000 in one frame),
         and holding such a track on its prediction starved its features of the frames that make it a
         truck and let it run away from its target. With ``merge_other_required = "always"`` an
-        established track is held only when some other track is near the cluster (``any_near``): a
+        established track is held only when some other track is near the cluster (``any_near()``, asked only then): a
         target growing on its own as it approaches is no merge."""
         cfg = self.tracker.config
         hist = self._size.get(track_id)
         if hist is None:
             return False
-        established = other_near or (len(hist) >= cfg.merge_history_frames and any_near)
+        established = other_near or (len(hist) >= cfg.merge_history_frames and any_near())
         if (established and cfg.merge_ratio > 0 and len(hist) >= 2
                 and self._merged_run[track_id] < cfg.merge_max_frames):
             # against the median *and* the last own cluster: a merge is a sudden jump, while a long

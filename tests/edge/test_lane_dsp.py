@@ -249,7 +249,8 @@ def _resolver():
     from edge.dsp.angle import steering_matrix as sm
 
     grid = np.arange(-math.radians(19.0), math.radians(19.0) + 1e-9, math.radians(0.25)).astype(np.float32)
-    return CellResolver(ResolverConfig(), sm(4, FE.rx_spacing_m, LAM, grid), grid, FE.waveform.frame_period_s)
+    return CellResolver(ResolverConfig(), sm(4, FE.rx_spacing_m, LAM, grid), grid, FE.waveform.frame_period_s,
+                        FE.rx_spacing_m / LAM)
 
 
 def test_resolver_splits_two_cars_side_by_side_and_finds_both_angles():

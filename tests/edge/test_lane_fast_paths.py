@@ -315,7 +315,7 @@ def test_cell_split_equals_the_plain_implementation():
     rng = np.random.default_rng(3)
     grid = np.radians(np.arange(-19.0, 19.0 + 1e-9, 0.25)).astype(np.float32)
     steer = steering_matrix(4, 0.0186, 0.01244, grid)
-    res = CellResolver(ResolverConfig(), steer, grid, 0.033)
+    res = CellResolver(ResolverConfig(), steer, grid, 0.033, 0.0186 / 0.01244)
     covs = []
     for k in range(600):
         i, j = rng.integers(0, grid.size, 2)

@@ -89,7 +89,7 @@ def _sweep(follow: bool, seed: int, lateral_m=(1.75,), offsets_m=(-0.9, -0.63, 0
     lam = FE.waveform.wavelength_m
     grid = np.arange(-math.radians(19.0), math.radians(19.0) + 1e-9, math.radians(0.25)).astype(np.float32)
     res = CellResolver(ResolverConfig(follow_direction=follow), steering_matrix(4, FE.rx_spacing_m, lam, grid), grid,
-                       FE.waveform.frame_period_s)
+                       FE.waveform.frame_period_s, FE.rx_spacing_m / lam)
     rng = np.random.default_rng(seed)
     xs = np.add.outer(np.asarray(lateral_m), np.asarray(offsets_m)).ravel()
     out = []
