@@ -75,7 +75,7 @@ class CellResolver:
     def __init__(self, cfg: ResolverConfig, steering: np.ndarray, grid_rad: np.ndarray, frame_period_s: float,
                  spacing_wavelengths: float) -> None:
         """``steering`` (grid, rx) over ``grid_rad``; ``spacing_wavelengths``: the array's element spacing d / lambda
-        (the phase ramp of :meth:`_follow`)."""
+        (the phase ramp of :meth:`_steer_memory`)."""
         self.cfg = cfg
         self.period_s = frame_period_s
         self.grid = grid_rad
@@ -91,6 +91,12 @@ class CellResolver:
         # tr(P R) for Hermitian P and R as a real dot product of their upper triangles:
         # sum_k P_kk R_kk + 2 sum_{k<l} (Re P_kl Re R_kl + Im P_kl Im R_kl)
         self._iu = np.triu_indices(n_rx, 1)
+        # the features of a complex64 covariance as columns of its (k, 2 rx^2) float view: Re of the diagonal, then
+        # Re and Im of the upper triangle, weighted 1 and 2 (:meth:`_features`)
+        diag = np.arange(n_rx) * (n_rx + 1)
+        upper = self._iu[0] * n_rx + self._iu[1]
+        self._feat_cols = np.concatenate([2 * diag, 2 * upper, 2 * upper + 1])
+        self._feat_w = np.concatenate([np.ones(n_rx), np.full(2 * upper.size, 2.0)]).astype(np.float32)
         self._pair_feat = self._features(proj, scale_offdiag=1.0)  # (P, n_rx^2) float32
         self._pinv = (np.linalg.inv(bh @ b) @ bh).astype(np.complex64)  # (P, 2, rx): source amplitudes
         n_grid = grid_rad.size
@@ -102,8 +108,9 @@ class CellResolver:
         # used as the same transposed view as before (BLAS picks its kernel by the layout)
         self._coarse_feat = self._pair_feat[self._coarse]
         self._d_over_lam = float(spacing_wavelengths)
-        m = np.arange(n_rx)  # the element lag a - b of every covariance entry
-        self._lag = (m[:, None] - m[None, :]).astype(np.float32)
+        m = np.arange(n_rx)  # the element lag a - b of every covariance entry, as an index into the lags
+        self._lags = np.arange(-(n_rx - 1), n_rx).astype(np.float32)  # (2 rx - 1,)
+        self._lag_index = (m[:, None] - m[None, :]) + (n_rx - 1)  # (rx, rx)
         self.reset()
 
     def reset(self) -> None:
@@ -115,7 +122,7 @@ class CellResolver:
 
         ``snapshots``: complex64 ``(n, n_looks, n_rx)`` (calibrated; a look of zeros is left out). ``angles``
         is NaN where not split. ``az_rad`` (n,): the detections' angles; with ``follow_direction`` a cell's
-        memory is steered along with its vehicle's direction (see :meth:`_follow`).
+        memory is steered along with its vehicle's direction (see :meth:`_steer_memory`).
         """
         cfg = self.cfg
         c = self.cells
@@ -147,27 +154,35 @@ class CellResolver:
         r_new = np.einsum("nsa,nsb->nab", x, x.conj()) / n_looks[:, None, None]  # (n, rx, rx)
         hit = match >= 0
         seen = np.zeros(len(c.range_m), bool)
-        if hit.any():
-            k = match[hit]
+        hi = hit.nonzero()[0]
+        if hi.size:
+            k = match[hi]  # distinct cells (one-to-one)
             seen[k] = True
             c.n[k] += 1
+            rh, vh = range_m[hi], v_mps[hi]
+            cov = c.cov[k]  # gathered once, updated, written back once
             if cfg.follow_direction and az_rad is not None:
-                self._follow(k, range_m[hit], az_rad[hit])
+                cov *= self._steer_memory(rh, c.range_m[k], az_rad[hi])
             a = np.maximum(1.0 / c.n[k], 1.0 / cfg.memory_frames).astype(np.float32)
-            c.cov[k] += a[:, None, None] * (r_new[hit] - c.cov[k])
-            c.range_m[k] = range_m[hit]
-            c.v_mps[k] = v_mps[hit]
+            cov += a[:, None, None] * (r_new[hi] - cov)
+            c.cov[k] = cov
+            c.range_m[k] = rh
+            c.v_mps[k] = vh
             c.misses[k] = 0
-            ready = hit.nonzero()[0][(c.n[k] >= cfg.min_frames) & (np.abs(v_mps[hit]) >= cfg.min_speed_mps)]
+            sel = (c.n[k] >= cfg.min_frames) & (np.abs(vh) >= cfg.min_speed_mps)
+            ready = hi[sel]
             now = np.zeros(n_det, bool)
             if ready.size:
-                split_idx, ang = self._split(c.cov[match[ready]], range_m[ready])
-                now[ready[split_idx]] = True
-                angles[ready[split_idx]] = ang
-            c.streak[k] = np.where(now[hit], c.streak[k] + 1, 0)
+                split_idx, ang = self._split(cov[sel], range_m[ready])
+                if split_idx.size:
+                    now[ready[split_idx]] = True
+                    angles[ready[split_idx]] = ang
+            now_hit = now[hi]
+            c.streak[k] = np.where(now_hit, c.streak[k] + 1, 0)
             # a cell split in a few frames in a row only (a passing vehicle's echo in one look is brief)
-            split[hit.nonzero()[0]] = now[hit] & (c.streak[k] >= cfg.min_split_frames)
-            angles[~split] = np.nan
+            if now_hit.any():  # (otherwise nothing is split and the angles stay NaN)
+                split[hi] = now_hit & (c.streak[k] >= cfg.min_split_frames)
+                angles[~split] = np.nan
         # age, drop, create
         c.misses[~seen] += 1
         keep = c.misses <= cfg.max_misses
@@ -189,8 +204,9 @@ class CellResolver:
             self.cells = _Cells(cc.range_m[o], cc.v_mps[o], cc.cov[o], cc.n[o], cc.misses[o], cc.streak[o])
         return split, angles
 
-    def _follow(self, k: np.ndarray, range_m: np.ndarray, az_rad: np.ndarray) -> None:
-        """Steer the memory of cells ``k`` to their vehicles' new direction before this frame's looks are added.
+    def _steer_memory(self, range_m: np.ndarray, old_range_m: np.ndarray, az_rad: np.ndarray) -> np.ndarray:
+        """``(k, rx, rx)`` complex64 factors that steer the memory of cells last seen at ``old_range_m`` to their
+        vehicles' new direction before this frame's looks are added (multiplied into their covariances).
 
         A vehicle keeps its lateral position while its range changes, so its direction cosine along the array
         ``sin(az) = x / R`` scales with ``R_old / R_new``: near the radar it sweeps quickly (a receding car in
@@ -200,14 +216,19 @@ class CellResolver:
         57: a track in lane 3 beside a receding car of lane 2, counted there). The shift ``sin(az) (1 - R_new /
         R_old)`` is applied as the diagonal steering ``R_ab <- R_ab exp(-j 2 pi d/lambda (a - b) shift)`` that
         moves every source of the memory by it (two vehicles side by side shift alike to within their
-        separation times the relative range change)."""
-        c = self.cells
-        shift = np.sin(az_rad.astype(np.float64)) * (1.0 - range_m / np.maximum(c.range_m[k], 1e-3))
-        ph = (-2.0 * np.pi * self._d_over_lam) * shift.astype(np.float32)[:, None, None] * self._lag
-        c.cov[k] *= (np.cos(ph) + 1j * np.sin(ph)).astype(np.complex64)
+        separation times the relative range change). The phase depends on the element lag ``a - b`` only: it is
+        evaluated for the ``2 rx - 1`` lags and gathered into the ``rx x rx`` layout (the same values)."""
+        shift = np.sin(az_rad.astype(np.float64)) * (1.0 - range_m / np.maximum(old_range_m, 1e-3))
+        ph = (-2.0 * np.pi * self._d_over_lam) * shift.astype(np.float32)[:, None] * self._lags  # (k, 2 rx - 1)
+        f = (np.cos(ph) + 1j * np.sin(ph)).astype(np.complex64)
+        return f.take(self._lag_index, axis=1)  # (k, rx, rx)
 
     def _features(self, m: np.ndarray, scale_offdiag: float) -> np.ndarray:
         """``(k, rx, rx)`` Hermitian -> ``(k, rx^2)`` float32: diagonal, then Re and Im of the upper triangle."""
+        if m.dtype == np.complex64 and scale_offdiag == 2.0:
+            # one gather of the diagonal and the upper triangle as float pairs, one product with the column
+            # weights (1 on the diagonal, 2 off it: exact), the same values as the general form below
+            return m.reshape(m.shape[0], -1).view(np.float32).take(self._feat_cols, axis=1) * self._feat_w
         d = np.real(np.diagonal(m, axis1=1, axis2=2))
         u = m[:, self._iu[0], self._iu[1]]
         return np.concatenate([d, scale_offdiag * u.real, scale_offdiag * u.imag], axis=1).astype(np.float32)
