@@ -32,6 +32,8 @@ earlier as a second source, and the fit splits the car into itself and a phantom
 
 from __future__ import annotations
 
+import math
+from bisect import bisect_left, bisect_right
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -107,6 +109,14 @@ class CellResolver:
         # their features gathered once (gathering (2926, 16) rows every frame cost 80 us, 15 times the product);
         # used as the same transposed view as before (BLAS picks its kernel by the layout)
         self._coarse_feat = self._pair_feat[self._coarse]
+        # the fine search's 3 x 3 neighbour pairs (i + di, j + dj, clipped to the grid) of every coarse pair, the
+        # coarse pair itself where a neighbour is not a pair (i >= j): (n_coarse, 9) pair rows
+        top = n_grid - 1
+        ci, cj = i[self._coarse], j[self._coarse]
+        fi = np.minimum(np.maximum(ci[:, None, None] + _NEIGHBOURS[None, :, None], 0), top)  # (c, 3, 1)
+        fj = np.minimum(np.maximum(cj[:, None, None] + _NEIGHBOURS[None, None, :], 0), top)  # (c, 1, 3)
+        rows = self._pair_index[fi, fj].reshape(self._coarse.size, -1)  # -1 where i >= j
+        self._fine_rows = np.where(rows >= 0, rows, self._coarse[:, None])
         self._d_over_lam = float(spacing_wavelengths)
         m = np.arange(n_rx)  # the element lag a - b of every covariance entry, as an index into the lags
         self._lags = np.arange(-(n_rx - 1), n_rx).astype(np.float32)  # (2 rx - 1,)
@@ -130,23 +140,7 @@ class CellResolver:
         angles = np.full((n_det, 2), np.nan, np.float32)
         split = np.zeros(n_det, bool)
         # association: predicted cell range against detections, nearest first, one-to-one
-        match = np.full(n_det, -1)
-        if len(c.range_m) and n_det:
-            pr = c.range_m + c.v_mps * self.period_s
-            dr = np.abs(range_m[:, None] - pr[None, :])
-            dv = np.abs(v_mps[:, None] - c.v_mps[None, :])
-            cost = np.where((dr <= cfg.range_gate_m) & (dv <= cfg.speed_gate_mps),
-                            dr / cfg.range_gate_m + dv / cfg.speed_gate_mps, np.inf)
-            di, ci = np.nonzero(np.isfinite(cost))
-            if di.size:
-                order = np.argsort(cost[di, ci], kind="stable")
-                di, ci = di[order], ci[order]
-                taken_d = np.zeros(n_det, bool)
-                taken_c = np.zeros(len(c.range_m), bool)
-                for d, k in zip(di.tolist(), ci.tolist()):  # pairs inside the gates: a handful
-                    if not taken_d[d] and not taken_c[k]:
-                        taken_d[d] = taken_c[k] = True
-                        match[d] = k
+        match = self._associate(range_m, v_mps) if len(c.range_m) and n_det else np.full(n_det, -1)
         # outer products of the normalised looks, averaged over looks
         norm = np.sqrt(np.add.reduce((snapshots.conj() * snapshots).real, axis=2, keepdims=True))  # np.linalg.norm
         x = snapshots / np.maximum(norm, np.float32(1e-30))
@@ -204,6 +198,39 @@ class CellResolver:
             self.cells = _Cells(cc.range_m[o], cc.v_mps[o], cc.cov[o], cc.n[o], cc.misses[o], cc.streak[o])
         return split, angles
 
+    def _associate(self, range_m: np.ndarray, v_mps: np.ndarray) -> np.ndarray:
+        """``(n,)`` cell of each detection (-1: none): pairs inside the range and speed gates (the cell's range
+        predicted with its speed), cheapest first (``|dr| / range gate + |dv| / speed gate``; ties in detection,
+        then cell order), one-to-one. Plain Python floats (float64, the same operations as array code): a
+        handful of detections and cells, and only the cells within the range gate's window of each detection
+        (a binary search over the predicted ranges) are looked at."""
+        cfg = self.cfg
+        c = self.cells
+        rg, sg = cfg.range_gate_m, cfg.speed_gate_mps
+        pr = (c.range_m + c.v_mps * self.period_s).tolist()
+        cv = c.v_mps.tolist()
+        by_range = sorted(range(len(pr)), key=pr.__getitem__)
+        pr_sorted = [pr[k] for k in by_range]
+        ordered = math.isfinite(sum(pr))  # (a NaN would leave the order undefined: then every cell is looked at)
+        cand = []
+        for d, (r, v) in enumerate(zip(range_m.tolist(), v_mps.tolist())):
+            # a window twice the gate (rounding cannot move a cell across it), then the gate itself
+            window = (by_range[bisect_left(pr_sorted, r - 2.0 * rg):bisect_right(pr_sorted, r + 2.0 * rg)]
+                      if ordered else by_range)
+            for k in window:
+                dr, dv = abs(r - pr[k]), abs(v - cv[k])
+                if dr <= rg and dv <= sg:
+                    cand.append((dr / rg + dv / sg, d, k))
+        match = [-1] * range_m.size
+        if cand:
+            cand.sort()
+            taken_c = set()
+            for _, d, k in cand:
+                if match[d] < 0 and k not in taken_c:
+                    taken_c.add(k)
+                    match[d] = k
+        return np.array(match, dtype=np.int64)
+
     def _steer_memory(self, range_m: np.ndarray, old_range_m: np.ndarray, az_rad: np.ndarray) -> np.ndarray:
         """``(k, rx, rx)`` complex64 factors that steer the memory of cells last seen at ``old_range_m`` to their
         vehicles' new direction before this frame's looks are added (multiplied into their covariances).
@@ -243,14 +270,8 @@ class CellResolver:
         if idx.size == 0:
             return idx, np.zeros((0, 2), np.float32)
         fr = self._features(cov[idx], scale_offdiag=2.0)  # (k, 16)
-        coarse = self._coarse[np.argmax(fr @ self._coarse_feat.T, axis=1)]  # (k,) pair rows
-        ci, cj = self._pair_i[coarse], self._pair_j[coarse]
-        d = _NEIGHBOURS
-        top = self.grid.size - 1  # np.clip as minimum/maximum (its wrapper costs 5 us a call on a few ints)
-        fi = np.minimum(np.maximum(ci[:, None, None] + d[None, :, None], 0), top)  # (k, 3, 1)
-        fj = np.minimum(np.maximum(cj[:, None, None] + d[None, None, :], 0), top)  # (k, 1, 3)
-        rows = self._pair_index[fi, fj].reshape(idx.size, -1)  # (k, 9), -1 where i >= j
-        rows = np.where(rows >= 0, rows, coarse[:, None])
+        best_coarse = np.argmax(fr @ self._coarse_feat.T, axis=1)  # (k,) positions in the coarse list
+        rows = self._fine_rows[best_coarse]  # (k, 9): the neighbours of the best coarse pair
         fine = np.einsum("kf,kpf->kp", fr, self._pair_feat[rows])
         best = rows[np.arange(idx.size), np.argmax(fine, axis=1)]
         th = self.grid[self._pair_ij[best]]  # (k, 2)
