@@ -31,4 +31,4 @@ def polar_to_ground(range_m: np.ndarray, az_rad: np.ndarray, height_m: float, ta
     x = r * np.sin(az)
     rc = r * np.cos(az)
     y = np.sqrt(np.maximum(rc * rc - dz * dz, np.float32(0)))
-    return x.astype(np.float32), y.astype(np.float32)
+    return x.astype(np.float32, copy=False), y.astype(np.float32, copy=False)  # (fresh arrays: no copies)

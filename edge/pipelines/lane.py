@@ -50,7 +50,7 @@ from edge.dsp.peaks import interpolate_peak, local_maxima
 from edge.dsp.resolve import CellResolver, ResolverConfig
 from edge.dsp.range_fft import make_window
 from edge.pipeline import Pipeline, PipelineError, StageTimer
-from edge.traffic.lanes import assign_lanes, to_road
+from edge.traffic.lanes import assign_lanes
 from edge.types import Detections, FrameResult, FrontendInfo, RawFrame
 from hal.waveform import SPEED_OF_LIGHT_MPS
 
@@ -375,6 +375,7 @@ class LanePipeline(Pipeline):
             self._aided_scale32 = np.float32(min(os_cfar_scale(cfg.aided_pfa, self._n_ref, self._rank, n_looks=n_rx),
                                                  self.cfar_scale))
         self._alias_period = wf.wavelength_m / frontend.rx_spacing_m  # grating-lobe period in sin(az)
+        self._alias_offsets = np.array([0.0, self._alias_period, -self._alias_period])[:, None]  # (3, 1)
         self._lane_cache: tuple = (None, 0.0, None)  # (lanes, their span across, directions): see _lane_arrays
         self._pad_inf, self._pad_zero = np.zeros(0), np.zeros(0, np.int64)  # padding rows of _track_aided_pairs
         self._model = PairingModel.from_waveform(wf)
@@ -725,23 +726,22 @@ class LanePipeline(Pipeline):
         idx = near.nonzero()[0]
         if idx.size == 0:
             return az
-        n = idx.size
-        s0 = np.sin(az[idx].astype(np.float64))
-        cand = np.concatenate([s0, s0 + period, s0 - period])  # itself and the two neighbouring grating lobes
-        # the lane direction of all three in one pass (the cost is per call, not per element)
-        r3 = range_m[idx]
-        x, y = polar_to_ground(np.concatenate([r3, r3, r3]), np.arcsin(np.minimum(np.maximum(cand, -1.0), 1.0)),
+        # itself and the two neighbouring grating lobes, (3, n)
+        cand = np.sin(az[idx].astype(np.float64)) + self._alias_offsets
+        # the lane direction of all three in one pass (the cost is per call, not per element); the road frame's
+        # lateral offset as to_road computes it
+        x, y = polar_to_ground(range_m[idx], np.arcsin(np.minimum(np.maximum(cand, -1.0), 1.0)),
                                cfg.mounting_height_m, cfg.target_height_m)
-        u, _ = to_road(x.astype(np.float64), y.astype(np.float64), self.traffic.yaw_rad)
-        k = assign_lanes(u, lanes)
-        d = np.where(k >= 0, dirs[np.maximum(k, 0)], 0).reshape(3, n)
-        sign = np.sign(v_mps[idx]).astype(np.int64)  # +1 receding: lanes "away"
+        yaw = self.traffic.yaw_rad
+        u = x.astype(np.float64) * math.cos(yaw) + y.astype(np.float64) * math.sin(yaw)
+        d = dirs[assign_lanes(u.reshape(-1), lanes)].reshape(3, -1)  # direction, 0 outside every lane (-1 -> 0)
+        sign = np.sign(v_mps[idx])  # +1 receding: lanes "away"
         bad = d[0] == -sign
         if not bad.any():
             return az
         az = az.copy()
         for j in (1, 2):
-            alt = cand[j * n:(j + 1) * n]
+            alt = cand[j]
             ok = bad & (np.abs(alt) <= 1.0)
             ok &= d[j] == sign
             az[idx[ok]] = np.arcsin(alt[ok]).astype(np.float32)
@@ -749,12 +749,12 @@ class LanePipeline(Pipeline):
         return az
 
     def _lane_arrays(self, lanes) -> tuple[float, np.ndarray]:
-        """(span of the road across, (L,) lane directions) of ``lanes``, cached: the lanes change only when the
-        traffic layer learns them."""
+        """(span of the road across, (L + 1,) lane directions and a 0 after them, which lane index -1 -- outside
+        every lane -- reads) of ``lanes``, cached: the lanes change only when the traffic layer learns them."""
         if self._lane_cache[0] is not lanes:
             self._lane_cache = (lanes, max(ln.center_m + 0.5 * ln.width_m for ln in lanes)
                                 - min(ln.center_m - 0.5 * ln.width_m for ln in lanes),
-                                np.array([ln.direction for ln in lanes]))
+                                np.array([ln.direction for ln in lanes] + [0]))
         return self._lane_cache[1], self._lane_cache[2]
 
     def _split_is_body(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, split: np.ndarray) -> np.ndarray:
