@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -279,6 +281,37 @@ def test_bartlett_consensus_equals_the_plain_implementation(n_snap):
     assert old[2].any() and ((~old[2]).any() or n_snap < 3)
 
 
+def test_bartlett_consensus_scalar_refinement_equals_the_plain_implementation():
+    """A handful of detections (<= 16) are refined one by one with NumPy scalars: the same values, at the grid's
+    edges too (angles beyond +-19 deg), and with a float64 grid."""
+    from edge.dsp import angle
+
+    rng = np.random.default_rng(12)
+    grid32 = np.radians(np.arange(-19.0, 19.0 + 1e-9, 0.25)).astype(np.float32)
+    for grid in (grid32, grid32.astype(np.float64)):
+        steer = steering_matrix(4, 0.0186, 0.01244, grid)
+        n = 300
+        az = rng.uniform(-0.45, 0.45, (n, 1))
+        a = np.exp(-2j * np.pi * np.arange(4)[None, :] * 1.5 * np.sin(az))
+        x = (a[:, None, :] * rng.normal(1.0, 0.3, (n, 4, 1)) + 0.3 * (
+            rng.normal(size=(n, 4, 4)) + 1j * rng.normal(size=(n, 4, 4)))).astype(np.complex64)
+        x[-2:] = 0.0
+        start, n_small = 0, 0
+        for size in itertools.cycle(range(1, angle._SMALL + 1)):
+            if start >= n:
+                break
+            xs = x[start:start + size]
+            start += size
+            new, old = bartlett_consensus(xs, steer, grid, np.radians(2.0)), bartlett_consensus_reference(
+                xs, steer, grid, np.radians(2.0))
+            n_small += xs.shape[0] if xs.shape[0] <= angle._SMALL else 0
+            np.testing.assert_array_equal(new[0], old[0])
+            np.testing.assert_array_equal(new[1], old[1])
+            np.testing.assert_array_equal(new[2], old[2])
+            assert new[0].dtype == np.float32
+        assert n_small == n
+
+
 # --- resolve: the two-source test as it was (np.mean) --------------------------------------------------------
 
 def split_reference(self, cov: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -402,3 +435,69 @@ def test_start_up_live_votes_plain_python_path_is_bit_identical_to_the_array_pat
         assert np.array_equal(small[0], arrays[0]) and np.array_equal(small[1], arrays[1])
         n_votes += small[0].size
     assert 0 < n_votes < 80 * 10  # some tracks qualify, not all (early frames are too short)
+
+
+def _associate_reference(res: CellResolver, range_m: np.ndarray, v_mps: np.ndarray) -> np.ndarray:
+    """The cell association as array code (gate table, stable sort of the costs, greedy one-to-one)."""
+    cfg, c, n_det = res.cfg, res.cells, range_m.size
+    match = np.full(n_det, -1)
+    pr = c.range_m + c.v_mps * res.period_s
+    dr = np.abs(range_m[:, None] - pr[None, :])
+    dv = np.abs(v_mps[:, None] - c.v_mps[None, :])
+    cost = np.where((dr <= cfg.range_gate_m) & (dv <= cfg.speed_gate_mps),
+                    dr / cfg.range_gate_m + dv / cfg.speed_gate_mps, np.inf)
+    di, ci = np.nonzero(np.isfinite(cost))
+    order = np.argsort(cost[di, ci], kind="stable")
+    taken_d, taken_c = np.zeros(n_det, bool), np.zeros(len(c.range_m), bool)
+    for d, k in zip(di[order].tolist(), ci[order].tolist()):
+        if not taken_d[d] and not taken_c[k]:
+            taken_d[d] = taken_c[k] = True
+            match[d] = k
+    return match
+
+
+def test_cell_association_equals_the_array_form():
+    from edge.dsp.resolve import _Cells
+
+    grid = np.radians(np.arange(-19.0, 19.0 + 1e-9, 0.25)).astype(np.float32)
+    res = CellResolver(ResolverConfig(), steering_matrix(4, 0.0186, 0.01244, grid), grid, 0.033, 1.5)
+    rng = np.random.default_rng(21)
+    n_matched = 0
+    for t in range(2000):
+        nc, nd = int(rng.integers(1, 30)), int(rng.integers(1, 30))
+        cr = rng.uniform(5.0, 60.0, nc)
+        cv = rng.choice([-20.0, -10.0, 10.0, 25.0], nc) + rng.normal(0.0, 0.5, nc)
+        if t % 5 == 0:  # equal costs: ties broken in detection, then cell order
+            cr, cv = np.round(cr), np.round(cv)
+        res.cells = _Cells(cr, cv, np.zeros((nc, 4, 4), np.complex64), np.ones(nc, np.int32), np.zeros(nc, np.int32),
+                           np.zeros(nc, np.int32))
+        k = rng.integers(0, nc, nd)
+        r = (cr[k] + cv[k] * 0.033 + rng.normal(0.0, 1.2, nd)).astype(np.float32)
+        v = (cv[k] + rng.normal(0.0, 0.6, nd)).astype(np.float32)
+        if t % 5 == 0:
+            r = np.round(r).astype(np.float32)
+        if t % 11 == 0:
+            r[0] = np.nan
+        if t % 13 == 0:
+            cr[0] = np.nan  # a cell without a range: the binary search is not used
+        new = res._associate(r, v)
+        np.testing.assert_array_equal(new, _associate_reference(res, r, v))
+        assert new.dtype == np.int64
+        n_matched += int((new >= 0).sum())
+    assert n_matched > 10_000
+
+
+@pytest.mark.parametrize("k", [2, 3, 16])
+def test_clutter_map_start_median_equals_np_median(k):
+    from edge.pipelines.lane import _median_of_frames
+
+    rng = np.random.default_rng(k)
+    z = ((rng.standard_normal((k, 4, 4, 64)) + 1j * rng.standard_normal((k, 4, 4, 64))) * 1000).astype(np.complex64)
+    z[:, 0, 0, :3] = 0.0  # exact zeros (and ties)
+    z[1, 1, 1, 5] = np.nan
+    z[0, 2, 2, 7] = complex(np.nan, 1.0)
+    ref = np.median(z.real, axis=0) + 1j * np.median(z.imag, axis=0)
+    out = _median_of_frames(z.copy())
+    assert out.dtype == ref.dtype == np.complex64
+    np.testing.assert_array_equal(out, ref)  # NaN where np.median gives NaN
+    assert np.isnan(out[1, 1, 5]) and np.isnan(out[2, 2, 7])
