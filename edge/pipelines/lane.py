@@ -379,6 +379,8 @@ class LanePipeline(Pipeline):
         self._alias_offsets = np.array([0.0, self._alias_period, -self._alias_period])[:, None]  # (3, 1)
         self._lane_cache: tuple = (None, 0.0, None)  # (lanes, their span across, directions): see _lane_arrays
         self._pad_inf, self._pad_zero = np.zeros(0), np.zeros(0, np.int64)  # padding rows of _track_aided_pairs
+        self._aided_empty = (np.zeros((0, 4), np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32),
+                             np.zeros(0, np.float32))  # no track-aided pairs (read, never written)
         self._model = PairingModel.from_waveform(wf)
         self._model_ab = np.stack([self._model.a, self._model.b], axis=1)  # (4, 2): beat = a R + b v per segment
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
@@ -643,27 +645,33 @@ class LanePipeline(Pipeline):
         residual_hz)``."""
         cfg = self.config
         tr = self.tracker.tracks
-        empty = (np.zeros((0, 4), np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.float32))
+        empty = self._aided_empty
         sel = tr.confirmed.nonzero()[0]
         if sel.size == 0 or self.tracker.last_t_ns is None:
             return empty
         dt = max((t_ns - self.tracker.last_t_ns) * 1e-9, 0.0)
-        st = tr.x[sel]
-        x, y = st[:, 0] + st[:, 2] * dt, st[:, 1] + st[:, 3] * dt
         dz = cfg.mounting_height_m - cfg.target_height_m
-        r_hat = np.sqrt(x * x + y * y + dz * dz)
-        v_hat = (x * st[:, 2] + y * st[:, 3]) / r_hat
-        ok = (r_hat >= cfg.min_range_m) & (r_hat <= cfg.max_range_m) & (np.abs(v_hat) >= 1.0)
-        if pairs.range_m.size:  # already paired
-            near = (np.abs(pairs.range_m[None, :] - r_hat[:, None]) < cfg.aided_gate_m) & (
-                np.abs(pairs.radial_speed_mps[None, :] - v_hat[:, None]) < cfg.aided_gate_mps)
-            ok &= ~near.any(axis=1)
-        idx = ok.nonzero()[0]
-        if idx.size == 0:
+        dz2 = dz * dz
+        # the predicted slant range and radial speed of each confirmed track, in plain Python floats (the float64
+        # operations of array code in the same order; a handful of tracks and pairings)
+        r_lo, r_hi, gate_m, gate_mps = cfg.min_range_m, cfg.max_range_m, cfg.aided_gate_m, cfg.aided_gate_mps
+        paired = list(zip(pairs.range_m.tolist(), pairs.radial_speed_mps.tolist()))
+        r_l, v_l = [], []
+        for x0, y0, vx, vy in tr.x.take(sel, axis=0)[:, :4].tolist():  # x, y, vx, vy
+            x, y = x0 + vx * dt, y0 + vy * dt
+            r = math.sqrt(x * x + y * y + dz2)
+            v = (x * vx + y * vy) / r
+            if not (r >= r_lo and r <= r_hi and abs(v) >= 1.0):
+                continue
+            if any(abs(pr - r) < gate_m and abs(pv - v) < gate_mps for pr, pv in paired):
+                continue  # already paired
+            r_l.append(r)
+            v_l.append(v)
+        if not r_l:
             return empty
-        r_hat, v_hat = r_hat[idx], v_hat[idx]
-        f_hat = self._model.predict(r_hat, v_hat)  # (m, 4)
-        m = idx.size
+        a0, a1, a2, a3, b0, b1, b2, b3 = self._model.coefficients
+        f_hat = np.array([(r * a0 + v * b0, r * a1 + v * b1, r * a2 + v * b2, r * a3 + v * b3)
+                          for r, v in zip(r_l, v_l)])  # (m, 4): PairingModel.predict's values
         # all four segments at once: peaks in a (segment, peak) table padded with +inf, used peaks at +inf
         counts = [fk.size for fk in freqs]
         w_counts = [fk.size for fk in weak[0]] if weak is not None else [0, 0, 0, 0]
@@ -702,6 +710,7 @@ class LanePipeline(Pipeline):
         rhs = np.einsum("mk,ki,mk->mi", w, A, fs)
         sol = np.linalg.solve(nrm, rhs[:, :, None])[:, :, 0]  # (g, 2): range, speed
         resid = np.sqrt((w * (fs - sol @ A.T) ** 2).sum(axis=1) / w.sum(axis=1))
+        r_hat, v_hat = np.array(r_l), np.array(v_l)
         close = (np.abs(sol[:, 0] - r_hat[good]) < cfg.aided_gate_m) & (np.abs(sol[:, 1] - v_hat[good]) < cfg.aided_gate_mps)
         g = good.nonzero()[0][close]
         # a segment without a peak is read at its predicted bin (np.round's value)
