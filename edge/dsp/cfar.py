@@ -17,6 +17,7 @@ which :func:`os_cfar_pfa` integrates numerically; for ``L = 1`` it equals Rohlin
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -116,9 +117,9 @@ def os_cfar_at_padded(padded: np.ndarray, rows: np.ndarray, cols: np.ndarray, n_
     ``(n,)`` cells in unpadded bin numbers. Returns ``(noise (n,) float32, cells (n, 3) float32)`` with
     ``cells[:, 1]`` the power of the cell under test and ``cells[:, 0]``, ``cells[:, 2]`` its circular
     neighbours. ``noise`` equals :func:`os_cfar_at`'s exactly: one gather of every cell's whole window
-    (reference, guard and cell under test), the guard cells and the cell under test set below every
-    power, one in-place row sort; for non-negative float32 the order of the bit patterns as int32 is
-    the order of the values, and numpy sorts int32 rows fastest.
+    (reference, guard and cell under test), its reference cells taken out and sorted in place as rows;
+    for non-negative float32 the order of the bit patterns as int32 is the order of the values, and numpy
+    sorts int32 rows fastest.
     """
     half = n_train + n_guard
     if rows.size == 0:
@@ -132,7 +133,15 @@ def os_cfar_at_padded(padded: np.ndarray, rows: np.ndarray, cols: np.ndarray, n_
     windows = np.ndarray((r, c - width + 1, width), np.float32, padded, 0, (s0, s1, s1))
     win = windows[rows, cols]  # (n, width) copy; column half is the cell under test
     cells = win[:, half - 1:half + 2].copy()
-    iv = win.view(np.int32)
-    iv[:, n_train:n_train + 2 * n_guard + 1] = -1  # below every non-negative float's bit pattern
-    iv.sort(axis=1)
-    return win[:, rank - 1 + 2 * n_guard + 1], cells
+    # the reference cells alone (guard cells and the cell under test left out): rows of 2 n_train values sort
+    # much faster than rows of 2 half + 1 when that is a power of two (numpy's SIMD sorting networks: 32
+    # values 37 us, 37 values 54 us for 630 rows on the development machine)
+    ref = win.view(np.int32).take(_reference_columns(n_train, n_guard), axis=1)
+    ref.sort(axis=1)
+    return ref[:, rank - 1].view(np.float32), cells
+
+
+@functools.lru_cache(maxsize=8)
+def _reference_columns(n_train: int, n_guard: int) -> np.ndarray:
+    """Columns of the reference cells in a window of ``2 (n_train + n_guard) + 1`` cells."""
+    return np.r_[0:n_train, n_train + 2 * n_guard + 1:2 * (n_train + n_guard) + 1]
