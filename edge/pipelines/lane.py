@@ -378,6 +378,7 @@ class LanePipeline(Pipeline):
         self._alias_period = wf.wavelength_m / frontend.rx_spacing_m  # grating-lobe period in sin(az)
         self._alias_offsets = np.array([0.0, self._alias_period, -self._alias_period])[:, None]  # (3, 1)
         self._lane_cache: tuple = (None, 0.0, None)  # (lanes, their span across, directions): see _lane_arrays
+        self._centres_cache: tuple = (None, None)  # (lanes, their centres): see _lane_centres
         self._pad_inf, self._pad_zero = np.zeros(0), np.zeros(0, np.int64)  # padding rows of _track_aided_pairs
         self._aided_empty = (np.zeros((0, 4), np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32),
                              np.zeros(0, np.float32))  # no track-aided pairs (read, never written)
@@ -767,6 +768,12 @@ class LanePipeline(Pipeline):
                                 np.array([ln.direction for ln in lanes] + [0]))
         return self._lane_cache[1], self._lane_cache[2]
 
+    def _lane_centres(self, lanes) -> np.ndarray:
+        """(L,) lane centres across the road (m) of ``lanes``, cached like :meth:`_lane_arrays`."""
+        if self._centres_cache[0] is not lanes:
+            self._centres_cache = (lanes, np.array([ln.center_m for ln in lanes]))
+        return self._centres_cache[1]
+
     def _split_is_body(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, split: np.ndarray) -> np.ndarray:
         """(n,) bool: split detections whose cell lies behind a nearer detection of the same vehicle -- up to
         ``cluster_length_m`` nearer, within ``cluster_speed_mps`` in radial speed and ``cluster_lateral_m`` across
@@ -788,21 +795,19 @@ class LanePipeline(Pipeline):
         sources as well as two cars do, but they straddle the centre of one lane. Both lanes must carry
         the cell's direction of travel (its radial speed's sign; two vehicles in one range-speed cell move
         the same way) when ``resolve_same_direction``."""
-        from edge.traffic.lanes import to_road
-
         cfg = self.config
         lanes = self.traffic.lanes
-        centres = np.array([ln.center_m for ln in lanes])
-        u = np.empty(ang.shape)
-        for k in range(2):
-            x, y = polar_to_ground(range_m, np.nan_to_num(ang[:, k]), cfg.mounting_height_m, cfg.target_height_m)
-            u[:, k], _ = to_road(x.astype(np.float64), y.astype(np.float64), self.traffic.yaw_rad)
+        centres = self._lane_centres(lanes)
+        # both directions at once: the ground position and the road frame's lateral offset (to_road's operations)
+        x, y = polar_to_ground(range_m[:, None], np.nan_to_num(ang), cfg.mounting_height_m, cfg.target_height_m)
+        yaw = self.traffic.yaw_rad
+        u = x.astype(np.float64) * math.cos(yaw) + y.astype(np.float64) * math.sin(yaw)  # (n, 2)
         lane = np.argmin(np.abs(u[:, :, None] - centres[None, None, :]), axis=2)  # (n, 2) nearest lane
-        lo, hi = lane.min(axis=1), lane.max(axis=1)
+        lo, hi = np.minimum(lane[:, 0], lane[:, 1]), np.maximum(lane[:, 0], lane[:, 1])
         ok = (hi - lo) == 1
         boundary = 0.5 * (centres[lo] + centres[hi])
         spacing = np.abs(centres[hi] - centres[lo])
-        mid = u.mean(axis=1)
+        mid = (u[:, 0] + u[:, 1]) / 2  # u.mean(axis=1): the sum of the two, halved
         ok &= np.abs(mid - boundary) <= cfg.resolve_boundary_fraction * spacing
         if cfg.resolve_same_direction:
             _, dirs = self._lane_arrays(lanes)
