@@ -63,12 +63,15 @@ class ResolverConfig:
 
 @dataclass
 class _Cells:
-    range_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    v_mps: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """The cells: per-cell numbers as Python lists (a handful of cells; their bookkeeping one by one costs less
+    than array calls), the covariances as one array (they are updated in batches)."""
+
+    range_m: list = field(default_factory=list)  # float (float64), last range
+    v_mps: list = field(default_factory=list)  # float, last radial speed
     cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4), np.complex64))
-    n: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
-    misses: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
-    streak: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))  # frames in a row found split
+    n: list = field(default_factory=list)  # int, frames followed
+    misses: list = field(default_factory=list)  # int, frames in a row without a detection
+    streak: list = field(default_factory=list)  # int, frames in a row found split
 
 
 class CellResolver:
@@ -80,6 +83,7 @@ class CellResolver:
         (the phase ramp of :meth:`_steer_memory`)."""
         self.cfg = cfg
         self.period_s = frame_period_s
+        self._min_speed32 = float(np.float32(cfg.min_speed_mps))  # compared with float32 speeds, as array code does
         self.grid = grid_rad
         n_rx = steering.shape[1]
         self.n_rx = n_rx
@@ -140,66 +144,77 @@ class CellResolver:
         angles = np.full((n_det, 2), np.nan, np.float32)
         split = np.zeros(n_det, bool)
         # association: predicted cell range against detections, nearest first, one-to-one
-        match = self._associate(range_m, v_mps) if len(c.range_m) and n_det else np.full(n_det, -1)
+        match = self._associate(range_m, v_mps) if len(c.range_m) and n_det else [-1] * n_det
         # outer products of the normalised looks, averaged over looks
         norm = np.sqrt(np.add.reduce((snapshots.conj() * snapshots).real, axis=2, keepdims=True))  # np.linalg.norm
         x = snapshots / np.maximum(norm, np.float32(1e-30))
         n_looks = np.maximum((norm[:, :, 0] > 0).sum(axis=1), 1).astype(np.float32)  # all-zero looks are left out
         r_new = np.einsum("nsa,nsb->nab", x, x.conj()) / n_looks[:, None, None]  # (n, rx, rx)
-        hit = match >= 0
-        seen = np.zeros(len(c.range_m), bool)
-        hi = hit.nonzero()[0]
-        if hi.size:
-            k = match[hi]  # distinct cells (one-to-one)
-            seen[k] = True
-            c.n[k] += 1
+        # the detections that followed a cell and their cells (distinct: one-to-one)
+        hi_l = [d for d, m in enumerate(match) if m >= 0]
+        k_l = [match[d] for d in hi_l]
+        if hi_l:
+            hi, k = np.array(hi_l), np.array(k_l)
             rh, vh = range_m[hi], v_mps[hi]
             cov = c.cov[k]  # gathered once, updated, written back once
             if cfg.follow_direction and az_rad is not None:
-                cov *= self._steer_memory(rh, c.range_m[k], az_rad[hi])
-            a = np.maximum(1.0 / c.n[k], 1.0 / cfg.memory_frames).astype(np.float32)
+                cov *= self._steer_memory(rh, np.array([c.range_m[j] for j in k_l]), az_rad[hi])
+            # the weight of this frame: max(1 / n, 1 / memory) in float64, rounded to float32 (as astype)
+            a_l = []
+            for j in k_l:
+                c.n[j] += 1
+                a_l.append(max(1.0 / c.n[j], 1.0 / cfg.memory_frames))
+            a = np.array(a_l, dtype=np.float32)
             cov += a[:, None, None] * (r_new[hi] - cov)
             c.cov[k] = cov
-            c.range_m[k] = rh
-            c.v_mps[k] = vh
-            c.misses[k] = 0
-            sel = (c.n[k] >= cfg.min_frames) & (np.abs(vh) >= cfg.min_speed_mps)
-            ready = hi[sel]
-            now = np.zeros(n_det, bool)
-            if ready.size:
+            ready_pos = []  # positions in hi_l of the cells followed long enough, moving
+            for p, (j, r, v) in enumerate(zip(k_l, rh.tolist(), vh.tolist())):
+                c.range_m[j], c.v_mps[j], c.misses[j] = r, v, 0
+                if c.n[j] >= cfg.min_frames and abs(v) >= self._min_speed32:
+                    ready_pos.append(p)
+            now_l = [False] * len(hi_l)
+            if ready_pos:
+                sel = np.array(ready_pos)
+                ready = hi[sel]
                 split_idx, ang = self._split(cov[sel], range_m[ready])
                 if split_idx.size:
-                    now[ready[split_idx]] = True
                     angles[ready[split_idx]] = ang
-            now_hit = now[hi]
-            c.streak[k] = np.where(now_hit, c.streak[k] + 1, 0)
+                    for p in sel[split_idx].tolist():
+                        now_l[p] = True
             # a cell split in a few frames in a row only (a passing vehicle's echo in one look is brief)
-            if now_hit.any():  # (otherwise nothing is split and the angles stay NaN)
-                split[hi] = now_hit & (c.streak[k] >= cfg.min_split_frames)
+            for p, j in enumerate(k_l):
+                c.streak[j] = c.streak[j] + 1 if now_l[p] else 0
+            if any(now_l):  # (otherwise nothing is split and the angles stay NaN)
+                split[hi] = [f and c.streak[j] >= cfg.min_split_frames for f, j in zip(now_l, k_l)]
                 angles[~split] = np.nan
         # age, drop, create
-        c.misses[~seen] += 1
-        keep = c.misses <= cfg.max_misses
-        new = ~hit
-        if not new.any():
-            if keep.all():  # every detection followed a cell, no cell dropped: the table is updated in place
-                return split, angles
+        seen = set(k_l)
+        misses = c.misses
+        for j in range(len(misses)):
+            if j not in seen:
+                misses[j] += 1
+        keep = [j for j, m in enumerate(misses) if m <= cfg.max_misses]
+        new = [d for d, m in enumerate(match) if m < 0]
+        if not new and len(keep) == len(misses):
+            return split, angles  # every detection followed a cell, no cell dropped: the table is updated in place
+        n_new = len(new)
         self.cells = _Cells(
-            range_m=np.concatenate([c.range_m[keep], range_m[new].astype(np.float64)]),
-            v_mps=np.concatenate([c.v_mps[keep], v_mps[new].astype(np.float64)]),
+            range_m=[c.range_m[j] for j in keep] + range_m[new].astype(np.float64).tolist(),
+            v_mps=[c.v_mps[j] for j in keep] + v_mps[new].astype(np.float64).tolist(),
             cov=np.concatenate([c.cov[keep], r_new[new]]),
-            n=np.concatenate([c.n[keep], np.ones(int(new.sum()), np.int32)]),
-            misses=np.concatenate([c.misses[keep], np.zeros(int(new.sum()), np.int32)]),
-            streak=np.concatenate([c.streak[keep], np.zeros(int(new.sum()), np.int32)]),
+            n=[c.n[j] for j in keep] + [1] * n_new,
+            misses=[misses[j] for j in keep] + [0] * n_new,
+            streak=[c.streak[j] for j in keep] + [0] * n_new,
         )
-        if len(self.cells.range_m) > cfg.max_cells:  # keep the most recently seen
-            o = np.argsort(self.cells.misses, kind="stable")[: cfg.max_cells]
+        if len(self.cells.range_m) > cfg.max_cells:  # keep the most recently seen (a stable sort, as argsort's)
             cc = self.cells
-            self.cells = _Cells(cc.range_m[o], cc.v_mps[o], cc.cov[o], cc.n[o], cc.misses[o], cc.streak[o])
+            o = sorted(range(len(cc.misses)), key=cc.misses.__getitem__)[: cfg.max_cells]
+            self.cells = _Cells([cc.range_m[j] for j in o], [cc.v_mps[j] for j in o], cc.cov[o],
+                                [cc.n[j] for j in o], [cc.misses[j] for j in o], [cc.streak[j] for j in o])
         return split, angles
 
-    def _associate(self, range_m: np.ndarray, v_mps: np.ndarray) -> np.ndarray:
-        """``(n,)`` cell of each detection (-1: none): pairs inside the range and speed gates (the cell's range
+    def _associate(self, range_m: np.ndarray, v_mps: np.ndarray) -> list[int]:
+        """The cell of each detection (-1: none): pairs inside the range and speed gates (the cell's range
         predicted with its speed), cheapest first (``|dr| / range gate + |dv| / speed gate``; ties in detection,
         then cell order), one-to-one. Plain Python floats (float64, the same operations as array code): a
         handful of detections and cells, and only the cells within the range gate's window of each detection
@@ -207,8 +222,9 @@ class CellResolver:
         cfg = self.cfg
         c = self.cells
         rg, sg = cfg.range_gate_m, cfg.speed_gate_mps
-        pr = (c.range_m + c.v_mps * self.period_s).tolist()
-        cv = c.v_mps.tolist()
+        period = self.period_s
+        cv = c.v_mps
+        pr = [r + v * period for r, v in zip(c.range_m, cv)]  # (r + v T, as array code computes it)
         by_range = sorted(range(len(pr)), key=pr.__getitem__)
         pr_sorted = [pr[k] for k in by_range]
         ordered = math.isfinite(sum(pr))  # (a NaN would leave the order undefined: then every cell is looked at)
@@ -229,7 +245,7 @@ class CellResolver:
                 if match[d] < 0 and k not in taken_c:
                     taken_c.add(k)
                     match[d] = k
-        return np.array(match, dtype=np.int64)
+        return match
 
     def _steer_memory(self, range_m: np.ndarray, old_range_m: np.ndarray, az_rad: np.ndarray) -> np.ndarray:
         """``(k, rx, rx)`` complex64 factors that steer the memory of cells last seen at ``old_range_m`` to their

@@ -440,15 +440,16 @@ def test_start_up_live_votes_plain_python_path_is_bit_identical_to_the_array_pat
 def _associate_reference(res: CellResolver, range_m: np.ndarray, v_mps: np.ndarray) -> np.ndarray:
     """The cell association as array code (gate table, stable sort of the costs, greedy one-to-one)."""
     cfg, c, n_det = res.cfg, res.cells, range_m.size
+    c_range, c_v = np.array(c.range_m), np.array(c.v_mps)
     match = np.full(n_det, -1)
-    pr = c.range_m + c.v_mps * res.period_s
+    pr = c_range + c_v * res.period_s
     dr = np.abs(range_m[:, None] - pr[None, :])
-    dv = np.abs(v_mps[:, None] - c.v_mps[None, :])
+    dv = np.abs(v_mps[:, None] - c_v[None, :])
     cost = np.where((dr <= cfg.range_gate_m) & (dv <= cfg.speed_gate_mps),
                     dr / cfg.range_gate_m + dv / cfg.speed_gate_mps, np.inf)
     di, ci = np.nonzero(np.isfinite(cost))
     order = np.argsort(cost[di, ci], kind="stable")
-    taken_d, taken_c = np.zeros(n_det, bool), np.zeros(len(c.range_m), bool)
+    taken_d, taken_c = np.zeros(n_det, bool), np.zeros(c_range.size, bool)
     for d, k in zip(di[order].tolist(), ci[order].tolist()):
         if not taken_d[d] and not taken_c[k]:
             taken_d[d] = taken_c[k] = True
@@ -469,8 +470,6 @@ def test_cell_association_equals_the_array_form():
         cv = rng.choice([-20.0, -10.0, 10.0, 25.0], nc) + rng.normal(0.0, 0.5, nc)
         if t % 5 == 0:  # equal costs: ties broken in detection, then cell order
             cr, cv = np.round(cr), np.round(cv)
-        res.cells = _Cells(cr, cv, np.zeros((nc, 4, 4), np.complex64), np.ones(nc, np.int32), np.zeros(nc, np.int32),
-                           np.zeros(nc, np.int32))
         k = rng.integers(0, nc, nd)
         r = (cr[k] + cv[k] * 0.033 + rng.normal(0.0, 1.2, nd)).astype(np.float32)
         v = (cv[k] + rng.normal(0.0, 0.6, nd)).astype(np.float32)
@@ -480,10 +479,10 @@ def test_cell_association_equals_the_array_form():
             r[0] = np.nan
         if t % 13 == 0:
             cr[0] = np.nan  # a cell without a range: the binary search is not used
+        res.cells = _Cells(cr.tolist(), cv.tolist(), np.zeros((nc, 4, 4), np.complex64), [1] * nc, [0] * nc, [0] * nc)
         new = res._associate(r, v)
-        np.testing.assert_array_equal(new, _associate_reference(res, r, v))
-        assert new.dtype == np.int64
-        n_matched += int((new >= 0).sum())
+        np.testing.assert_array_equal(np.array(new), _associate_reference(res, r, v))
+        n_matched += sum(m >= 0 for m in new)
     assert n_matched > 10_000
 
 
@@ -501,3 +500,119 @@ def test_clutter_map_start_median_equals_np_median(k):
     assert out.dtype == ref.dtype == np.complex64
     np.testing.assert_array_equal(out, ref)  # NaN where np.median gives NaN
     assert np.isnan(out[1, 1, 5]) and np.isnan(out[2, 2, 7])
+
+
+class _ArrayCells:
+    def __init__(self, n_rx):
+        self.range_m, self.v_mps = np.zeros(0), np.zeros(0)
+        self.cov = np.zeros((0, n_rx, n_rx), np.complex64)
+        self.n, self.misses, self.streak = (np.zeros(0, np.int32) for _ in range(3))
+
+
+def _step_reference(res: CellResolver, c: _ArrayCells, range_m, v_mps, snapshots, az_rad):
+    """CellResolver.step as array code (the form before the per-cell numbers became lists); returns the new cells."""
+    cfg = res.cfg
+    n_det = range_m.size
+    angles = np.full((n_det, 2), np.nan, np.float32)
+    split = np.zeros(n_det, bool)
+    match = np.full(n_det, -1)
+    if len(c.range_m) and n_det:
+        pr = c.range_m + c.v_mps * res.period_s
+        dr = np.abs(range_m[:, None] - pr[None, :])
+        dv = np.abs(v_mps[:, None] - c.v_mps[None, :])
+        cost = np.where((dr <= cfg.range_gate_m) & (dv <= cfg.speed_gate_mps),
+                        dr / cfg.range_gate_m + dv / cfg.speed_gate_mps, np.inf)
+        di, ci = np.nonzero(np.isfinite(cost))
+        order = np.argsort(cost[di, ci], kind="stable")
+        taken_d, taken_c = np.zeros(n_det, bool), np.zeros(len(c.range_m), bool)
+        for d, k in zip(di[order].tolist(), ci[order].tolist()):
+            if not taken_d[d] and not taken_c[k]:
+                taken_d[d] = taken_c[k] = True
+                match[d] = k
+    norm = np.sqrt(np.add.reduce((snapshots.conj() * snapshots).real, axis=2, keepdims=True))
+    x = snapshots / np.maximum(norm, np.float32(1e-30))
+    n_looks = np.maximum((norm[:, :, 0] > 0).sum(axis=1), 1).astype(np.float32)
+    r_new = np.einsum("nsa,nsb->nab", x, x.conj()) / n_looks[:, None, None]
+    hit = match >= 0
+    seen = np.zeros(len(c.range_m), bool)
+    if hit.any():
+        k = match[hit]
+        seen[k] = True
+        c.n[k] += 1
+        if cfg.follow_direction:
+            shift = np.sin(az_rad[hit].astype(np.float64)) * (1.0 - range_m[hit] / np.maximum(c.range_m[k], 1e-3))
+            m = np.arange(res.n_rx)
+            lag = (m[:, None] - m[None, :]).astype(np.float32)
+            ph = (-2.0 * np.pi * res._d_over_lam) * shift.astype(np.float32)[:, None, None] * lag
+            c.cov[k] *= (np.cos(ph) + 1j * np.sin(ph)).astype(np.complex64)
+        a = np.maximum(1.0 / c.n[k], 1.0 / cfg.memory_frames).astype(np.float32)
+        c.cov[k] += a[:, None, None] * (r_new[hit] - c.cov[k])
+        c.range_m[k] = range_m[hit]
+        c.v_mps[k] = v_mps[hit]
+        c.misses[k] = 0
+        ready = hit.nonzero()[0][(c.n[k] >= cfg.min_frames) & (np.abs(v_mps[hit]) >= cfg.min_speed_mps)]
+        now = np.zeros(n_det, bool)
+        if ready.size:
+            split_idx, ang = split_reference(res, c.cov[match[ready]], range_m[ready])
+            now[ready[split_idx]] = True
+            angles[ready[split_idx]] = ang
+        c.streak[k] = np.where(now[hit], c.streak[k] + 1, 0)
+        split[hit.nonzero()[0]] = now[hit] & (c.streak[k] >= cfg.min_split_frames)
+        angles[~split] = np.nan
+    c.misses[~seen] += 1
+    keep = c.misses <= cfg.max_misses
+    new = ~hit
+    if new.any() or not keep.all():
+        nn = int(new.sum())
+        c.range_m = np.concatenate([c.range_m[keep], range_m[new].astype(np.float64)])
+        c.v_mps = np.concatenate([c.v_mps[keep], v_mps[new].astype(np.float64)])
+        c.cov = np.concatenate([c.cov[keep], r_new[new]])
+        c.n = np.concatenate([c.n[keep], np.ones(nn, np.int32)])
+        c.misses = np.concatenate([c.misses[keep], np.zeros(nn, np.int32)])
+        c.streak = np.concatenate([c.streak[keep], np.zeros(nn, np.int32)])
+        if len(c.range_m) > cfg.max_cells:
+            o = np.argsort(c.misses, kind="stable")[: cfg.max_cells]
+            c.range_m, c.v_mps, c.cov, c.n, c.misses, c.streak = (
+                c.range_m[o], c.v_mps[o], c.cov[o], c.n[o], c.misses[o], c.streak[o])
+    return split, angles
+
+
+@pytest.mark.parametrize("max_cells", [256, 6])
+def test_cell_resolver_step_equals_the_array_form(max_cells):
+    """Several vehicles (two side by side) followed over frames, cells created, dropped and (max_cells=6) cut:
+    the splits, angles and every cell's state equal the array form's."""
+    grid = np.radians(np.arange(-19.0, 19.0 + 1e-9, 0.25)).astype(np.float32)
+    steer = steering_matrix(4, 0.0186, 0.01244, grid)
+    res = CellResolver(ResolverConfig(max_cells=max_cells, min_frames=3, min_split_frames=2, min_lateral_m=1.0),
+                       steer, grid, 0.033, 0.0186 / 0.01244)
+    ref = _ArrayCells(4)
+    rng = np.random.default_rng(5)
+    d_lam = 0.0186 / 0.01244
+    n_split = 0
+    for t in range(150):
+        n = int(rng.integers(0, 9))
+        r0 = np.array([30.0, 30.0, 55.0, 80.0, 12.0, 100.0, 140.0, 60.0])[:n] - 0.9 * t * 0.033 * 25.0 % 60.0
+        rng_m = (np.abs(r0) + 5.0 + rng.normal(0.0, 0.2, n)).astype(np.float32)
+        v = np.array([-25.0, -25.0, 20.0, -30.0, 0.5, 22.0, -10.0, 15.0])[:n].astype(np.float32)
+        th = np.array([-0.06, 0.06, 0.1, -0.2, 0.0, 0.05, 0.15, -0.1])[:n]
+        a = np.exp(-2j * np.pi * d_lam * np.arange(4)[None, :] * np.sin(th)[:, None])
+        b = np.exp(-2j * np.pi * d_lam * np.arange(4)[None, :] * np.sin(-th)[:, None])
+        ph = np.exp(2j * np.pi * rng.random((n, 4, 1)))
+        snaps = (a[:, None, :] + ph * b[:, None, :] * (np.arange(n) < 2)[:, None, None]
+                 + 0.05 * (rng.normal(size=(n, 4, 4)) + 1j * rng.normal(size=(n, 4, 4)))).astype(np.complex64)
+        if n:
+            snaps[0, 3] = 0.0  # a look left out
+        az = th.astype(np.float32)
+        new_split, new_ang = res.step(rng_m, v, snaps, az)
+        old_split, old_ang = _step_reference(res, ref, rng_m, v, snaps, az)
+        np.testing.assert_array_equal(new_split, old_split)
+        np.testing.assert_array_equal(new_ang, old_ang)
+        c = res.cells
+        np.testing.assert_array_equal(np.array(c.range_m, np.float64).reshape(-1), ref.range_m)
+        np.testing.assert_array_equal(np.array(c.v_mps, np.float64).reshape(-1), ref.v_mps)
+        np.testing.assert_array_equal(c.cov, ref.cov)
+        for name in ("n", "misses", "streak"):
+            np.testing.assert_array_equal(np.array(getattr(c, name), np.int64).reshape(-1), getattr(ref, name))
+        n_split += int(new_split.sum())
+    assert n_split > 0
+    assert max_cells > 6 or len(res.cells.range_m) <= 6
