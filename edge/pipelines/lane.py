@@ -366,6 +366,8 @@ class LanePipeline(Pipeline):
         self._ref_index = reference_index(n, cfg.cfar_train_cells, cfg.cfar_guard_cells)
         self._half = cfg.cfar_train_cells + cfg.cfar_guard_cells  # circular padding of the power rows
         self._freq_flat = self._freq.ravel()
+        self._bin_shift = n.bit_length() - 1 if n & (n - 1) == 0 else None
+        self._nan_rows = np.full((len(wf.segments), n), np.nan, np.float32)
         self._tiny = np.float32(1e-30)
         self._seg_ends = np.arange(1, len(wf.segments) + 1)
         self._aided_window_hz = cfg.aided_window_bins * self._bin_hz  # (4,)
@@ -487,12 +489,15 @@ class LanePipeline(Pipeline):
                 is_max &= power >= ppad[:, h + 1:h + 1 + n]
                 is_max &= self._valid
                 flat = is_max.reshape(-1).nonzero()[0]
-                rows, cols = np.divmod(flat, n)
+                if self._bin_shift is not None:  # a power of two: np.divmod's values by a shift and a mask
+                    rows, cols = flat >> self._bin_shift, flat & (n - 1)
+                else:
+                    rows, cols = np.divmod(flat, n)
                 nz, cells = os_cfar_at_padded(ppad, rows, cols, cfg.cfar_train_cells, cfg.cfar_guard_cells,
                                               self._rank)
                 np.minimum(nz, cap[rows], out=nz)
                 hit = cells[:, 1] > nz * self._scale32
-                noise = np.full(power.shape, np.nan, np.float32)
+                noise = self._nan_rows.copy()  # (np.full's value; NaN away from local maxima)
                 noise.reshape(-1)[flat] = nz
                 thr = noise * self._scale32
                 if want_weak:
