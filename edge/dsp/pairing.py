@@ -165,16 +165,17 @@ def pair_beats(
     if f0.size * f1.size <= _SMALL_FAST and f2.size <= _SMALL_SLOW and f3.size <= _SMALL_SLOW:
         # a handful of peaks: the candidates in plain Python floats (the same IEEE operations in the same
         # order as the array path below, so the same values; numpy's per-call cost would dominate)
+        fl = (f0.tolist(), f1.tolist(), f2.tolist(), f3.tolist())
         n_cand, rows_c, vel_c, cost_c = _candidates_small(
-            f0.tolist(), f1.tolist(), f2.tolist(), f3.tolist(), model.coefficients, det, min_range_m, max_range_m,
+            *fl, model.coefficients, det, min_range_m, max_range_m,
             max_speed_mps, tolerance_hz,
             near_tolerance_hz if near_tolerance_hz is not None and near_range_m > 0 else None, near_range_m)
         n_ghost = n_cand - len(rows_c)
         if not rows_c:
             return _no_pairs(n_cand, n_ghost)
         order_l = sorted(range(len(cost_c)), key=cost_c.__getitem__)  # stable, as argsort(kind="stable")
-        return _accept(order_l, [rows_c[n] for n in order_l], np.array(rows_c, dtype=np.int64), vel_c,
-                       (f0, f1, f2, f3), model, max_shared, ghost_speed_mps, n_cand, n_ghost)
+        return _accept(order_l, [rows_c[n] for n in order_l], vel_c, fl, model, max_shared, ghost_speed_mps,
+                       n_cand, n_ghost)
     # solve [a0 b0; a1 b1] [R; v] = [f0; f1] for every (up, down) combination
     rng = (f0[:, None] * b1 - f1[None, :] * b0) / det  # (n0, n1)
     vel = (a0 * f1[None, :] - a1 * f0[:, None]) / det
@@ -222,8 +223,8 @@ def pair_beats(
     # ``max_shared`` of its four peaks with pairs already accepted (two vehicles whose beats coincide in
     # one segment are both kept; the cross-pairings of one vehicle's scatterers share two or more)
     order = np.argsort(cost, kind="stable")
-    return _accept(order.tolist(), cand[order].tolist(), cand, vel, (f0, f1, f2, f3), model, max_shared,
-                   ghost_speed_mps, n_cand, n_ghost)
+    return _accept(order.tolist(), cand[order].tolist(), vel, (f0.tolist(), f1.tolist(), f2.tolist(), f3.tolist()),
+                   model, max_shared, ghost_speed_mps, n_cand, n_ghost)
 
 
 def _candidates_small(f0: list, f1: list, f2: list, f3: list, coef: tuple, det: float, min_range_m: float,
@@ -292,10 +293,11 @@ def _candidates_small(f0: list, f1: list, f2: list, f3: list, coef: tuple, det: 
     return n_cand, rows, vels, costs
 
 
-def _accept(order: list, cand_rows: list, cand: np.ndarray, vel, f: tuple, model: PairingModel, max_shared: int,
+def _accept(order: list, cand_rows: list, vel, f: tuple, model: PairingModel, max_shared: int,
             ghost_speed_mps: float, n_cand: int, n_ghost: int) -> Pairs:
-    """Steps 4 and 5 of :func:`pair_beats`: ``order`` of the confirmed candidates (best first), their rows in
-    that order, all rows ``cand (n, 4)`` and speeds ``vel (n,)``."""
+    """Steps 4 and 5 of :func:`pair_beats`: ``order`` of the confirmed candidates (best first), their rows
+    ``[i0, i1, j2, j3]`` in that order, the speeds ``vel`` of all candidates and the four segments' peak
+    frequencies ``f`` as lists of floats."""
     u0: dict[int, int] = {}
     u1: dict[int, int] = {}
     u2: dict[int, int] = {}
@@ -308,9 +310,8 @@ def _accept(order: list, cand_rows: list, cand: np.ndarray, vel, f: tuple, model
             u1[p1] = u1.get(p1, 0) + 1
             u2[p2] = u2.get(p2, 0) + 1
             u3[p3] = u3.get(p3, 0) + 1
-            keep.append(n)
+            keep.append(n)  # acceptance order
             rows.append([p0, p1, p2, p3])
-    keep_a = np.array(keep, dtype=np.int64)  # acceptance order
     # peaks each accepted pair shares with the other accepted pairs
     shared = [u0[p0] + u1[p1] + u2[p2] + u3[p3] - 4 for p0, p1, p2, p3 in rows]
     if len(keep) > 2 and max_shared > 0 and ghost_speed_mps > 0 and max(shared) > max_shared:
@@ -319,21 +320,21 @@ def _accept(order: list, cand_rows: list, cand: np.ndarray, vel, f: tuple, model
         # scatterers are in, it shares two or more of its peaks with them, and its speed is off theirs by
         # 0.8 m/s per metre between the scatterers, while the two true pairs agree with each other: drop
         # it (the true pair of a near vehicle whose smeared peaks give ghosts on both sides stays)
-        pk = cand[keep_a]  # (k, 4)
+        pk = np.array(rows, dtype=np.int64)  # (k, 4)
         share = (pk[:, None, :] == pk[None, :, :]).sum(axis=2)  # (k, k) peaks in common
         np.fill_diagonal(share, 0)
-        vk = np.asarray(vel, dtype=np.float64)[keep_a]
+        vk = np.asarray(vel, dtype=np.float64)[np.array(keep, dtype=np.int64)]
         dv = np.abs(vk[:, None] - vk[None, :])
         m = ((share > 0) & (dv > ghost_speed_mps)).astype(np.int64)  # partners at another speed
         agree = (dv <= ghost_speed_mps).astype(np.int64)  # ... which agree with each other
         np.fill_diagonal(agree, 0)
         ghost = (share.sum(axis=1) > max_shared) & ((m @ agree) * m).any(axis=1)
-        keep_a = keep_a[~ghost]
-    if keep_a.size == 0:
+        rows = [r for r, g in zip(rows, ghost.tolist()) if not g]
+    if not rows:
         return _no_pairs(n_cand, n_ghost)
-    idx = cand[keep_a]
+    idx = np.array(rows, dtype=np.int64)
     f0, f1, f2, f3 = f
-    fm = np.concatenate(f)[idx + model.offsets((f0.size, f1.size, f2.size))]  # (n, 4)
+    fm = np.array([[f0[p0], f1[p1], f2[p2], f3[p3]] for p0, p1, p2, p3 in rows])  # (n, 4) float64
     sol = fm @ model.pinv_t  # (n, 2): the least-squares (R0, v) over the four frequencies
     res = np.sqrt(np.add.reduce((sol @ model.matrix_t - fm) ** 2, axis=1) / 4.0)  # RMS (np.mean)
     return Pairs(idx, sol[:, 0].astype(np.float32), sol[:, 1].astype(np.float32), res.astype(np.float32),
