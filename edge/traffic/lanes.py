@@ -200,19 +200,20 @@ class YawEstimator:
                 self._median = (self._n_voted, float(np.median(v)), _median_stderr(v, None))
             self._stderr = self._median[2]
             return self._median[1]
-        votes = np.fromiter(self._votes, dtype=float)
+        votes_l = list(self._votes)  # (Python floats)
         # start-up: the tracks that still run vote too; weighted median (ended tracks count as the best one)
         live, w = self.live_votes_weighted()
-        if votes.size + live.size < self.cfg.yaw_min_tracks:
+        if len(votes_l) + live.size < self.cfg.yaw_min_tracks:
             self._stderr = None
             return None
-        top = float(w.max()) if w.size else 1.0
-        if votes.size + live.size <= 64:  # a handful of tracks: the same weighted median in plain Python
-            vals, wts = votes.tolist() + live.tolist(), [top] * votes.size + w.tolist()
+        top = float(np.maximum.reduce(w)) if w.size else 1.0  # (w.max() without its wrapper)
+        if len(votes_l) + live.size <= 64:  # a handful of tracks: the same weighted median in plain Python
+            vals, wts = votes_l + live.tolist(), [top] * len(votes_l) + w.tolist()
             self._stderr = _median_stderr(np.array(vals), np.array(wts))
             pairs = sorted(zip(vals, wts), key=lambda p: p[0])
             cw = list(itertools.accumulate(p[1] for p in pairs))
             return pairs[bisect.bisect_left(cw, 0.5 * cw[-1])][0]
+        votes = np.array(votes_l, dtype=float)
         allv = np.concatenate([votes, live])
         allw = np.concatenate([np.full(votes.size, top), w])
         self._stderr = _median_stderr(allv, allw)

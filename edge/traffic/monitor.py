@@ -48,7 +48,7 @@ import numpy as np
 
 from edge.traffic.calibration import Calibration, CalibrationError, CalibrationWriter, load_calibration
 from edge.traffic.config import TrafficConfig
-from edge.traffic.lanes import Lane, LaneLearner, YawEstimator, assign_lanes_with_margin, configured_lanes, to_road
+from edge.traffic.lanes import Lane, LaneLearner, YawEstimator, assign_lanes_with_margin, configured_lanes
 from edge.traffic.stats import Crossing, IntervalStatistics
 from edge.types import LaneStats, TrackState, TrafficEvent
 
@@ -266,8 +266,10 @@ class TrafficMonitor:
         lanes = self.lanes
         n_lanes = len(lanes)
 
-        u, s_arr = to_road(x, y, self.yaw_rad)
-        _, vs_arr = to_road(vx, vy, self.yaw_rad)
+        # the road frame (to_road's operations; of the velocities only the along-road part is used)
+        cy, sy = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
+        u, s_arr = x * cy + y * sy, -x * sy + y * cy
+        vs_arr = -vx * sy + vy * cy
         # plain Python floats for the per-track loop (numpy scalars are slow one at a time)
         s, vs = s_arr.tolist(), vs_arr.tolist()
         speed = np.hypot(vx, vy).tolist()
