@@ -148,7 +148,7 @@ class CellResolver:
         # outer products of the normalised looks, averaged over looks
         norm = np.sqrt(np.add.reduce((snapshots.conj() * snapshots).real, axis=2, keepdims=True))  # np.linalg.norm
         x = snapshots / np.maximum(norm, np.float32(1e-30))
-        n_looks = np.maximum((norm[:, :, 0] > 0).sum(axis=1), 1).astype(np.float32)  # all-zero looks are left out
+        n_looks = np.maximum(np.add.reduce(norm[:, :, 0] > 0, axis=1), 1).astype(np.float32)  # all-zero looks left out
         r_new = np.einsum("nsa,nsb->nab", x, x.conj()) / n_looks[:, None, None]  # (n, rx, rx)
         # the detections that followed a cell and their cells (distinct: one-to-one)
         hi_l = [d for d, m in enumerate(match) if m >= 0]

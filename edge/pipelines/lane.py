@@ -462,7 +462,7 @@ class LanePipeline(Pipeline):
             np.add(sq[..., 0], sq[..., 1], out=self._sq_sum)
             ppad = np.empty((spec.shape[1], n + 2 * h), np.float32)
             power = ppad[:, h:h + n]
-            self._sq_sum.sum(axis=0, out=power)  # (seg, bin) float32
+            np.add.reduce(self._sq_sum, axis=0, out=power)  # (seg, bin) float32 (ndarray.sum without its wrapper)
             ppad[:, :h] = ppad[:, n:n + h]
             ppad[:, n + h:] = ppad[:, h:2 * h]
         # weak peaks (above the aided threshold, below the detection one) only when a confirmed track may use them
@@ -558,7 +558,8 @@ class LanePipeline(Pipeline):
                 az = snr_db = np.zeros(0, np.float32)
                 aspec = np.zeros((0, self._grid.size), np.float32)
                 kept = np.zeros((0, 4), bool)
-            keep = (kept.sum(axis=1) >= cfg.angle_min_agreeing).nonzero()[0] if n_det else np.zeros(0, np.int64)
+            keep = ((np.add.reduce(kept, axis=1) >= cfg.angle_min_agreeing).nonzero()[0] if n_det
+                    else np.zeros(0, np.int64))
             rng, vel, res = p_rng[keep], p_vel[keep], p_res[keep]
             az, snr_db = az[keep], snr_db[keep]
             pair_of = np.full(keep.size, -1, np.int32)
@@ -568,11 +569,14 @@ class LanePipeline(Pipeline):
                 looks = snaps[keep] * kept[keep][:, :, None] if n_det else np.zeros((0, 4, self.frontend.n_rx),
                                                                                     np.complex64)
                 split, ang = self.resolver.step(rng, vel, looks, az)
-                if split.any() and self.traffic is not None and self.traffic.lanes:
+                any_split = split.any()  # (rare: asked once when nothing is split)
+                if any_split and self.traffic is not None and self.traffic.lanes:
                     split &= self._split_straddles_lanes(rng, vel, ang)
-                if split.any() and cfg.resolve_skip_bodies:
+                    any_split = split.any()
+                if any_split and cfg.resolve_skip_bodies:
                     split &= ~self._split_is_body(rng, vel, az, split)
-                if split.any():  # each split detection becomes two, one per angle, half the power each
+                    any_split = split.any()
+                if any_split:  # each split detection becomes two, one per angle, half the power each
                     s_idx = split.nonzero()[0]
                     az = az.copy()
                     az[s_idx] = ang[s_idx, 0]
