@@ -320,15 +320,18 @@ def _accept(order: list, cand_rows: list, vel, f: tuple, model: PairingModel, ma
         # scatterers are in, it shares two or more of its peaks with them, and its speed is off theirs by
         # 0.8 m/s per metre between the scatterers, while the two true pairs agree with each other: drop
         # it (the true pair of a near vehicle whose smeared peaks give ghosts on both sides stays)
+        # (ufunc reductions and flat diagonal writes: the values of ndarray.sum/.any and np.fill_diagonal without
+        # their wrappers, a few us a call at this size)
+        k = len(rows)
         pk = np.array(rows, dtype=np.int64)  # (k, 4)
-        share = (pk[:, None, :] == pk[None, :, :]).sum(axis=2)  # (k, k) peaks in common
-        np.fill_diagonal(share, 0)
-        vk = np.asarray(vel, dtype=np.float64)[np.array(keep, dtype=np.int64)]
+        share = np.add.reduce(pk[:, None, :] == pk[None, :, :], axis=2)  # (k, k) peaks in common
+        share.reshape(-1)[::k + 1] = 0
+        vk = np.array([vel[n] for n in keep], dtype=np.float64)
         dv = np.abs(vk[:, None] - vk[None, :])
         m = ((share > 0) & (dv > ghost_speed_mps)).astype(np.int64)  # partners at another speed
         agree = (dv <= ghost_speed_mps).astype(np.int64)  # ... which agree with each other
-        np.fill_diagonal(agree, 0)
-        ghost = (share.sum(axis=1) > max_shared) & ((m @ agree) * m).any(axis=1)
+        agree.reshape(-1)[::k + 1] = 0
+        ghost = (np.add.reduce(share, axis=1) > max_shared) & np.logical_or.reduce((m @ agree) * m, axis=1)
         rows = [r for r, g in zip(rows, ghost.tolist()) if not g]
     if not rows:
         return _no_pairs(n_cand, n_ghost)
