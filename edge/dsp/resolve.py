@@ -21,7 +21,8 @@ and splits a detection in two when its cell's covariance is surely rank two (sec
 ``min_eig_ratio`` of the first and well above the noise eigenvalues), the two fitted sources carry
 comparable power (``min_power_ratio``), the cell moves (``min_speed_mps``), the two angles lie
 at least ``min_lateral_m`` apart on the ground and all this held for ``min_split_frames`` frames in a row (more than the width of one vehicle, whose own
-scatterers spread a little in angle). All work is batched over detections and cells.
+scatterers spread a little in angle). The covariance work is batched over detections and cells; the
+association and each cell's counters are plain Python (a handful of cells: array calls would cost more).
 
 A vehicle keeps its lateral position while its range changes, so its direction cosine ``x / R`` moves:
 near the radar by degrees within the memory. With ``follow_direction`` every cell's covariance is steered
