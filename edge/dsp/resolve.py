@@ -95,6 +95,9 @@ class CellResolver:
         proj = b @ np.linalg.inv(bh @ b) @ bh  # (P, rx, rx)
         self._pair_i, self._pair_j = i, j
         self._pair_ij = np.stack([i, j], axis=1)  # (P, 2): both grid indices of a pair in one gather
+        self._pair_th = grid_rad[self._pair_ij]  # (P, 2) their angles
+        sin_th = np.sin(self._pair_th)
+        self._pair_dsin = np.abs(sin_th[:, 1] - sin_th[:, 0])  # (P,) the spread of their direction cosines
         # tr(P R) for Hermitian P and R as a real dot product of their upper triangles:
         # sum_k P_kk R_kk + 2 sum_{k<l} (Re P_kl Re R_kl + Im P_kl Im R_kl)
         self._iu = np.triu_indices(n_rx, 1)
@@ -286,17 +289,18 @@ class CellResolver:
         idx = two.nonzero()[0]
         if idx.size == 0:
             return idx, np.zeros((0, 2), np.float32)
-        fr = self._features(cov[idx], scale_offdiag=2.0)  # (k, 16)
+        cov = cov[idx]
+        fr = self._features(cov, scale_offdiag=2.0)  # (k, 16)
         best_coarse = np.argmax(fr @ self._coarse_feat.T, axis=1)  # (k,) positions in the coarse list
         rows = self._fine_rows[best_coarse]  # (k, 9): the neighbours of the best coarse pair
         fine = np.einsum("kf,kpf->kp", fr, self._pair_feat[rows])
         best = rows[np.arange(idx.size), np.argmax(fine, axis=1)]
-        th = self.grid[self._pair_ij[best]]  # (k, 2)
-        lateral = range_m[idx] * np.abs(np.sin(th[:, 1]) - np.sin(th[:, 0]))
+        th = self._pair_th[best]  # (k, 2)
+        lateral = range_m[idx] * self._pair_dsin[best]  # |sin th_j - sin th_i| x range
         # powers of the two fitted sources, diag(B+ R B+^H): a vehicle with a brief visitor in one of its
         # looks (another vehicle's beat in one segment) has a strong and a faint source, not two vehicles
         bp = self._pinv[best]  # (k, 2, rx)
-        pw = np.einsum("kar,krs,kas->ka", bp, cov[idx], bp.conj()).real
+        pw = np.einsum("kar,krs,kas->ka", bp, cov, bp.conj()).real
         ratio = np.minimum.reduce(pw, axis=1) / np.maximum(np.maximum.reduce(pw, axis=1), 1e-30)  # min / max
         ok = (lateral >= cfg.min_lateral_m) & (ratio >= cfg.min_power_ratio)
         return idx[ok], th[ok].astype(np.float32)
