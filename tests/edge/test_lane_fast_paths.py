@@ -616,3 +616,19 @@ def test_cell_resolver_step_equals_the_array_form(max_cells):
         n_split += int(new_split.sum())
     assert n_split > 0
     assert max_cells > 6 or len(res.cells.range_m) <= 6
+
+
+def test_split_features_one_gather_equals_the_general_form():
+    """The complex64 covariance features (diagonal, 2 Re and 2 Im of the upper triangle) from one gather of the
+    float view and one product equal the general form's."""
+    grid = np.radians(np.arange(-19.0, 19.0 + 1e-9, 0.25)).astype(np.float32)
+    res = CellResolver(ResolverConfig(), steering_matrix(4, 0.0186, 0.01244, grid), grid, 0.033, 1.5)
+    rng = np.random.default_rng(8)
+    x = (rng.normal(size=(50, 4, 4)) + 1j * rng.normal(size=(50, 4, 4))).astype(np.complex64)
+    cov = np.einsum("nsa,nsb->nab", x, x.conj())
+    fast = res._features(cov, scale_offdiag=2.0)
+    d = np.real(np.diagonal(cov, axis1=1, axis2=2))
+    u = cov[:, res._iu[0], res._iu[1]]
+    general = np.concatenate([d, 2.0 * u.real, 2.0 * u.imag], axis=1).astype(np.float32)
+    assert fast.dtype == np.float32 and fast.flags.c_contiguous
+    np.testing.assert_array_equal(fast, general)
