@@ -174,8 +174,8 @@ def pair_beats(
         if not rows_c:
             return _no_pairs(n_cand, n_ghost)
         order_l = sorted(range(len(cost_c)), key=cost_c.__getitem__)  # stable, as argsort(kind="stable")
-        return _accept(order_l, [rows_c[n] for n in order_l], vel_c, fl, model, max_shared, ghost_speed_mps,
-                       n_cand, n_ghost)
+        return _accept(order_l, [rows_c[n] for n in order_l], vel_c, (f0, f1, f2, f3), model, max_shared,
+                       ghost_speed_mps, n_cand, n_ghost, fl)
     # solve [a0 b0; a1 b1] [R; v] = [f0; f1] for every (up, down) combination
     rng = (f0[:, None] * b1 - f1[None, :] * b0) / det  # (n0, n1)
     vel = (a0 * f1[None, :] - a1 * f0[:, None]) / det
@@ -223,8 +223,8 @@ def pair_beats(
     # ``max_shared`` of its four peaks with pairs already accepted (two vehicles whose beats coincide in
     # one segment are both kept; the cross-pairings of one vehicle's scatterers share two or more)
     order = np.argsort(cost, kind="stable")
-    return _accept(order.tolist(), cand[order].tolist(), vel, (f0.tolist(), f1.tolist(), f2.tolist(), f3.tolist()),
-                   model, max_shared, ghost_speed_mps, n_cand, n_ghost)
+    return _accept(order.tolist(), cand[order].tolist(), vel, (f0, f1, f2, f3), model, max_shared, ghost_speed_mps,
+                   n_cand, n_ghost)
 
 
 def _candidates_small(f0: list, f1: list, f2: list, f3: list, coef: tuple, det: float, min_range_m: float,
@@ -294,10 +294,10 @@ def _candidates_small(f0: list, f1: list, f2: list, f3: list, coef: tuple, det: 
 
 
 def _accept(order: list, cand_rows: list, vel, f: tuple, model: PairingModel, max_shared: int,
-            ghost_speed_mps: float, n_cand: int, n_ghost: int) -> Pairs:
+            ghost_speed_mps: float, n_cand: int, n_ghost: int, f_lists: tuple | None = None) -> Pairs:
     """Steps 4 and 5 of :func:`pair_beats`: ``order`` of the confirmed candidates (best first), their rows
     ``[i0, i1, j2, j3]`` in that order, the speeds ``vel`` of all candidates and the four segments' peak
-    frequencies ``f`` as lists of floats."""
+    frequencies ``f`` (float64 arrays; ``f_lists``: the same as lists of floats, when at hand)."""
     u0: dict[int, int] = {}
     u1: dict[int, int] = {}
     u2: dict[int, int] = {}
@@ -336,8 +336,11 @@ def _accept(order: list, cand_rows: list, vel, f: tuple, model: PairingModel, ma
     if not rows:
         return _no_pairs(n_cand, n_ghost)
     idx = np.array(rows, dtype=np.int64)
-    f0, f1, f2, f3 = f
-    fm = np.array([[f0[p0], f1[p1], f2[p2], f3[p3]] for p0, p1, p2, p3 in rows])  # (n, 4) float64
+    if f_lists is not None:  # a handful of pairs: their four frequencies picked from the lists
+        f0, f1, f2, f3 = f_lists
+        fm = np.array([[f0[p0], f1[p1], f2[p2], f3[p3]] for p0, p1, p2, p3 in rows])  # (n, 4) float64
+    else:  # more: one gather from the concatenated peak lists
+        fm = np.concatenate(f)[idx + model.offsets((f[0].size, f[1].size, f[2].size))]
     sol = fm @ model.pinv_t  # (n, 2): the least-squares (R0, v) over the four frequencies
     res = np.sqrt(np.add.reduce((sol @ model.matrix_t - fm) ** 2, axis=1) / 4.0)  # RMS (np.mean)
     return Pairs(idx, sol[:, 0].astype(np.float32), sol[:, 1].astype(np.float32), res.astype(np.float32),

@@ -34,6 +34,7 @@ Detections carry ``extra["resolved_pair"]`` (>= 0: the two detections split from
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 from dataclasses import dataclass, field
@@ -665,7 +666,11 @@ class LanePipeline(Pipeline):
         # the predicted slant range and radial speed of each confirmed track, in plain Python floats (the float64
         # operations of array code in the same order; a handful of tracks and pairings)
         r_lo, r_hi, gate_m, gate_mps = cfg.min_range_m, cfg.max_range_m, cfg.aided_gate_m, cfg.aided_gate_mps
-        paired = list(zip(pairs.range_m.tolist(), pairs.radial_speed_mps.tolist()))
+        # the pairings by range: a track looks only at those within twice the gate (a binary search; rounding
+        # cannot move one across that window), then applies the gate itself
+        paired = sorted(zip(pairs.range_m.tolist(), pairs.radial_speed_mps.tolist()))
+        paired_r = [pr for pr, _ in paired]
+        ordered = math.isfinite(sum(paired_r))  # (a NaN would leave the order undefined: then all are looked at)
         r_l, v_l = [], []
         for x0, y0, vx, vy in tr.x.take(sel, axis=0)[:, :4].tolist():  # x, y, vx, vy
             x, y = x0 + vx * dt, y0 + vy * dt
@@ -673,7 +678,11 @@ class LanePipeline(Pipeline):
             v = (x * vx + y * vy) / r
             if not (r >= r_lo and r <= r_hi and abs(v) >= 1.0):
                 continue
-            if any(abs(pr - r) < gate_m and abs(pv - v) < gate_mps for pr, pv in paired):
+            near = paired
+            if ordered:
+                lo = bisect.bisect_left(paired_r, r - 2.0 * gate_m)
+                near = paired[lo:bisect.bisect_right(paired_r, r + 2.0 * gate_m, lo)]
+            if any(abs(pr - r) < gate_m and abs(pv - v) < gate_mps for pr, pv in near):
                 continue  # already paired
             r_l.append(r)
             v_l.append(v)
