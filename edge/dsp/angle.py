@@ -109,8 +109,9 @@ def bartlett_consensus(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np
     return az.astype(np.float32, copy=False), spec.astype(np.float32, copy=False), kept
 
 
-#: up to this many detections :func:`bartlett_consensus` refines the maxima one by one with NumPy scalars
-_SMALL = 16
+#: up to this many detections :func:`bartlett_consensus` refines the maxima one by one with NumPy scalars (more:
+#: the array form is cheaper)
+_SMALL = 10
 
 
 def _refine_small(spec: np.ndarray, k: np.ndarray, grid_rad: np.ndarray) -> np.ndarray:

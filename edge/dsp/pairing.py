@@ -326,7 +326,7 @@ def _accept(order: list, cand_rows: list, vel, f: tuple, model: PairingModel, ma
         pk = np.array(rows, dtype=np.int64)  # (k, 4)
         share = np.add.reduce(pk[:, None, :] == pk[None, :, :], axis=2)  # (k, k) peaks in common
         share.reshape(-1)[::k + 1] = 0
-        vk = np.array([vel[n] for n in keep], dtype=np.float64)
+        vk = np.asarray(vel, dtype=np.float64)[np.array(keep, dtype=np.int64)]
         dv = np.abs(vk[:, None] - vk[None, :])
         m = ((share > 0) & (dv > ghost_speed_mps)).astype(np.int64)  # partners at another speed
         agree = (dv <= ghost_speed_mps).astype(np.int64)  # ... which agree with each other

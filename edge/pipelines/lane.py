@@ -287,6 +287,9 @@ class LaneConfig:
 
 _SEG4 = np.arange(4)  # the four segments, as an index
 
+#: up to this many confirmed tracks the track-aided pairing predicts them in plain Python floats
+_AIDED_SMALL = 10
+
 
 def _median_of_frames(frames: np.ndarray) -> np.ndarray:
     """``np.median(z.real, axis=0) + 1j * np.median(z.imag, axis=0)`` of the complex64 spectra ``z`` (frames on the
@@ -661,36 +664,10 @@ class LanePipeline(Pipeline):
         if sel.size == 0 or self.tracker.last_t_ns is None:
             return empty
         dt = max((t_ns - self.tracker.last_t_ns) * 1e-9, 0.0)
-        dz = cfg.mounting_height_m - cfg.target_height_m
-        dz2 = dz * dz
-        # the predicted slant range and radial speed of each confirmed track, in plain Python floats (the float64
-        # operations of array code in the same order; a handful of tracks and pairings)
-        r_lo, r_hi, gate_m, gate_mps = cfg.min_range_m, cfg.max_range_m, cfg.aided_gate_m, cfg.aided_gate_mps
-        # the pairings by range: a track looks only at those within twice the gate (a binary search; rounding
-        # cannot move one across that window), then applies the gate itself
-        paired = sorted(zip(pairs.range_m.tolist(), pairs.radial_speed_mps.tolist()))
-        paired_r = [pr for pr, _ in paired]
-        ordered = math.isfinite(sum(paired_r))  # (a NaN would leave the order undefined: then all are looked at)
-        r_l, v_l = [], []
-        for x0, y0, vx, vy in tr.x.take(sel, axis=0)[:, :4].tolist():  # x, y, vx, vy
-            x, y = x0 + vx * dt, y0 + vy * dt
-            r = math.sqrt(x * x + y * y + dz2)
-            v = (x * vx + y * vy) / r
-            if not (r >= r_lo and r <= r_hi and abs(v) >= 1.0):
-                continue
-            near = paired
-            if ordered:
-                lo = bisect.bisect_left(paired_r, r - 2.0 * gate_m)
-                near = paired[lo:bisect.bisect_right(paired_r, r + 2.0 * gate_m, lo)]
-            if any(abs(pr - r) < gate_m and abs(pv - v) < gate_mps for pr, pv in near):
-                continue  # already paired
-            r_l.append(r)
-            v_l.append(v)
-        if not r_l:
+        pred = self._aided_predictions(sel, dt, pairs)
+        if pred is None:
             return empty
-        a0, a1, a2, a3, b0, b1, b2, b3 = self._model.coefficients
-        f_hat = np.array([(r * a0 + v * b0, r * a1 + v * b1, r * a2 + v * b2, r * a3 + v * b3)
-                          for r, v in zip(r_l, v_l)])  # (m, 4): PairingModel.predict's values
+        r_hat, v_hat, f_hat = pred
         # all four segments at once: peaks in a (segment, peak) table padded with +inf, used peaks at +inf
         counts = [fk.size for fk in freqs]
         w_counts = [fk.size for fk in weak[0]] if weak is not None else [0, 0, 0, 0]
@@ -729,13 +706,62 @@ class LanePipeline(Pipeline):
         rhs = np.einsum("mk,ki,mk->mi", w, A, fs)
         sol = np.linalg.solve(nrm, rhs[:, :, None])[:, :, 0]  # (g, 2): range, speed
         resid = np.sqrt((w * (fs - sol @ A.T) ** 2).sum(axis=1) / w.sum(axis=1))
-        r_hat, v_hat = np.array(r_l), np.array(v_l)
         close = (np.abs(sol[:, 0] - r_hat[good]) < cfg.aided_gate_m) & (np.abs(sol[:, 1] - v_hat[good]) < cfg.aided_gate_mps)
         g = good.nonzero()[0][close]
         # a segment without a peak is read at its predicted bin (np.round's value)
         out_bins = np.where(found[g], btab[seg, j[g]], np.rint(f_hat[g] / self._bin_hz).astype(np.int64) % self.n_bins)
         return (out_bins, sol[close, 0].astype(np.float32), sol[close, 1].astype(np.float32),
                 resid[close].astype(np.float32))
+
+    def _aided_predictions(self, sel: np.ndarray, dt: float, pairs) -> tuple | None:
+        """``(range_m (m,), v_mps (m,), beats (m, 4))`` predicted at this frame for the confirmed tracks ``sel`` that
+        lie inside the range limits, move (|v| >= 1 m/s) and have no pairing within the aided gates; None if none.
+        A handful of tracks in plain Python floats (the float64 operations of the array form in the same order; the
+        pairings looked at only within twice the range gate, found by a binary search), more as arrays."""
+        cfg = self.config
+        tr = self.tracker.tracks
+        dz = cfg.mounting_height_m - cfg.target_height_m
+        r_lo, r_hi, gate_m, gate_mps = cfg.min_range_m, cfg.max_range_m, cfg.aided_gate_m, cfg.aided_gate_mps
+        if sel.size > _AIDED_SMALL:
+            st = tr.x[sel]
+            x, y = st[:, 0] + st[:, 2] * dt, st[:, 1] + st[:, 3] * dt
+            r_hat = np.sqrt(x * x + y * y + dz * dz)
+            v_hat = (x * st[:, 2] + y * st[:, 3]) / r_hat
+            ok = (r_hat >= r_lo) & (r_hat <= r_hi) & (np.abs(v_hat) >= 1.0)
+            if pairs.range_m.size:  # already paired
+                near = (np.abs(pairs.range_m[None, :] - r_hat[:, None]) < gate_m) & (
+                    np.abs(pairs.radial_speed_mps[None, :] - v_hat[:, None]) < gate_mps)
+                ok &= ~near.any(axis=1)
+            idx = ok.nonzero()[0]
+            if idx.size == 0:
+                return None
+            r_hat, v_hat = r_hat[idx], v_hat[idx]
+            return r_hat, v_hat, self._model.predict(r_hat, v_hat)
+        dz2 = dz * dz
+        paired = sorted(zip(pairs.range_m.tolist(), pairs.radial_speed_mps.tolist()))
+        paired_r = [pr for pr, _ in paired]
+        ordered = math.isfinite(sum(paired_r))  # (a NaN would leave the order undefined: then all are looked at)
+        r_l, v_l = [], []
+        for x0, y0, vx, vy in tr.x.take(sel, axis=0)[:, :4].tolist():  # x, y, vx, vy
+            x, y = x0 + vx * dt, y0 + vy * dt
+            r = math.sqrt(x * x + y * y + dz2)
+            v = (x * vx + y * vy) / r
+            if not (r >= r_lo and r <= r_hi and abs(v) >= 1.0):
+                continue
+            near = paired
+            if ordered:  # (rounding cannot move a pairing across a window twice the gate)
+                lo = bisect.bisect_left(paired_r, r - 2.0 * gate_m)
+                near = paired[lo:bisect.bisect_right(paired_r, r + 2.0 * gate_m, lo)]
+            if any(abs(pr - r) < gate_m and abs(pv - v) < gate_mps for pr, pv in near):
+                continue  # already paired
+            r_l.append(r)
+            v_l.append(v)
+        if not r_l:
+            return None
+        a0, a1, a2, a3, b0, b1, b2, b3 = self._model.coefficients
+        f_hat = np.array([(r * a0 + v * b0, r * a1 + v * b1, r * a2 + v * b2, r * a3 + v * b3)
+                          for r, v in zip(r_l, v_l)])  # (m, 4): PairingModel.predict's values
+        return np.array(r_l), np.array(v_l), f_hat
 
     def _unalias_by_lane(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray) -> np.ndarray:
         """Grating lobes: with d = 1.5 lambda the array measures sin(az) only modulo lambda/d (+-19.5 deg). A

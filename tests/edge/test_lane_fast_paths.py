@@ -282,7 +282,7 @@ def test_bartlett_consensus_equals_the_plain_implementation(n_snap):
 
 
 def test_bartlett_consensus_scalar_refinement_equals_the_plain_implementation():
-    """A handful of detections (<= 16) are refined one by one with NumPy scalars: the same values, at the grid's
+    """A handful of detections (<= angle._SMALL) are refined one by one with NumPy scalars: the same values, at the
     edges too (angles beyond +-19 deg), and with a float64 grid."""
     from edge.dsp import angle
 
@@ -632,3 +632,41 @@ def test_split_features_one_gather_equals_the_general_form():
     general = np.concatenate([d, 2.0 * u.real, 2.0 * u.imag], axis=1).astype(np.float32)
     assert fast.dtype == np.float32 and fast.flags.c_contiguous
     np.testing.assert_array_equal(fast, general)
+
+
+def test_track_aided_predictions_small_and_array_paths_agree(monkeypatch):
+    """The confirmed tracks' predicted range, speed and beats, and which of them already have a pairing within the
+    aided gates: the plain-Python path (a handful of tracks) and the array path give the same values."""
+    from edge.pipelines import lane
+    from edge.pipelines.lane import LaneConfig, LanePipeline
+
+    pipe = LanePipeline(SIMO_BOARD.frontend, LaneConfig())
+    rng = np.random.default_rng(3)
+    n_kept = 0
+    for t in range(60):
+        n = int(rng.integers(1, 25))
+        x = np.stack([rng.uniform(-8.0, 8.0, n), rng.uniform(-20.0, 380.0, n), rng.normal(0.0, 0.5, n),
+                      rng.choice([-30.0, -0.5, 25.0], n)], axis=1)
+        pipe.tracker.tracks.append(x, np.tile(np.eye(4), (n, 1, 1)), 1.0)
+        tr = pipe.tracker.tracks
+        tr.confirmed[:] = True
+        dt = 0.033
+        xp, yp = x[:, 0] + x[:, 2] * dt, x[:, 1] + x[:, 3] * dt
+        r = np.sqrt(xp * xp + yp * yp + 6.5 ** 2)
+        v = (xp * x[:, 2] + yp * x[:, 3]) / r
+        k = rng.random(n) < 0.4  # some tracks already paired (within the gates), some just outside
+        pr = (r[k] + rng.choice([0.0, 2.4, 2.6, -2.6], k.sum())).astype(np.float32)
+        pv = (v[k] + rng.choice([0.0, 1.4, 1.6], k.sum())).astype(np.float32)
+        pairs = Pairs(np.zeros((pr.size, 4), np.int64), pr, pv, np.zeros(pr.size, np.float32), 0, 0)
+        sel = np.arange(len(tr))
+        monkeypatch.setattr(lane, "_AIDED_SMALL", 10_000)
+        small = pipe._aided_predictions(sel, dt, pairs)
+        monkeypatch.setattr(lane, "_AIDED_SMALL", -1)
+        full = pipe._aided_predictions(sel, dt, pairs)
+        assert (small is None) == (full is None)
+        if small is not None:
+            for a, b in zip(small, full):
+                np.testing.assert_array_equal(a, b)
+            n_kept += small[0].size
+        pipe.tracker.reset()
+    assert n_kept > 100
