@@ -32,8 +32,9 @@ earlier as a second source, and the fit splits the car into itself and a phantom
 
 Cost (issue 9, third pass; thread CPU time per frame on recorded highway4, per-frame minimum over 9 runs, shared
 development machine, three measurements): :meth:`CellResolver.step` 176-186 -> 140-146 us p50, 278-302 -> 210-231 us
-p99, with the same outputs bit for bit -- the association and the per-cell counters in plain Python, the memory steering on the 7 element lags, each
-covariance gathered and written back once, the fine search's neighbour pairs and the pairs' angles tabulated.
+p99, with the same outputs bit for bit -- the association and the per-cell counters in plain Python, the memory
+steering on the 7 element lags, each covariance gathered and written back once, the fine search's neighbour pairs and
+the pairs' angles tabulated.
 """
 
 from __future__ import annotations
