@@ -115,6 +115,32 @@ class PdafConfig:
     imm_min_mode_prob: float = field(
         default=1e-3, metadata={"doc": "floor of either mode's probability (a mode can always come back)",
                                 "min": 0.0, "max": 0.1})
+    lateral_smoother: bool = field(
+        default=True,
+        metadata={"doc": "publish the across-boresight position from a straight-line filter per track that runs beside "
+                         "the motion model, outside the IMM's mixing (edge.track.kalman.lateral_pda_update): a vehicle "
+                         "keeping its lane drives a straight line and its lateral position is averaged over every "
+                         "detection since it last manoeuvred; the filter is reset to the motion model's estimate when "
+                         "the two disagree (lateral_smoother_reset_prob). Association, gating and ids are unchanged "
+                         "(they use the motion model)"})
+    lateral_smoother_q_m2ps3: float = field(
+        default=1e-4, metadata={"unit": "m^2/s^3", "doc": "white-noise acceleration density across the boresight of "
+                                                          "the straight-line filter", "min": 0.0, "max": 10.0})
+    lateral_smoother_init_speed_sigma_mps: float = field(
+        default=0.03, metadata={"unit": "m/s", "doc": "a new track's straight-line filter starts with its lateral speed "
+                                                     "along the road direction (road_yaw_rad) with at most this sd "
+                                                     "(a far seed's first, noisy detections must not set its "
+                                                     "direction); a radar aimed worse than that is caught by the reset "
+                                                     "test", "min": 0.001, "max": 100.0})
+    lateral_smoother_reset_prob: float = field(
+        default=0.99, metadata={"doc": "the straight-line filter restarts from the motion model's estimate when their "
+                                         "lateral positions or lateral speeds differ beyond the chi-square (1 dof) "
+                                         "quantile of this probability (a Hausman test: the variance of the difference "
+                                         "is the motion model's minus the straight line's): a lane change",
+                                  "min": 0.5, "max": 0.9999999})
+    lateral_smoother_min_var_fraction: float = field(
+        default=0.1, metadata={"doc": "... that variance is kept at least this fraction of the motion model's own (both "
+                                      "are model variances)", "min": 1e-4, "max": 1.0})
     seed_min_radial_speed_mps: float = field(
         default=1.0, metadata={"unit": "m/s", "doc": "detections slower than this (ground radial speed, about 3 sd "
                                                      "of its noise) never seed a "

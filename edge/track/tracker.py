@@ -160,9 +160,12 @@ class TrackTable:
     xm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 4)))
     pm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 4, 4)))
     mu: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    # lateral_smoother: the straight-line filter across the boresight, [x, vx] and its covariance
+    lat: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    lat_p: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))
 
     _COLUMNS = ("x", "p", "track_id", "age", "hits", "misses", "history", "confirmed", "moved", "ext_var",
-                "close_run", "xm", "pm", "mu")
+                "close_run", "xm", "pm", "mu", "lat", "lat_p")
 
     def __len__(self) -> int:
         return int(self.x.shape[0])
@@ -181,6 +184,8 @@ class TrackTable:
         self.xm = cat([self.xm, x[:, None].repeat(2, axis=1)])
         self.pm = cat([self.pm, p[:, None].repeat(2, axis=1)])
         self.mu = cat([self.mu, mu])
+        self.lat = cat([self.lat, x[:, 0::2]])
+        self.lat_p = cat([self.lat_p, p[:, 0::2, 0::2]])
         self.x = cat([self.x, x])
         self.p = cat([self.p, p])
         self.track_id = cat([self.track_id, zeros])
@@ -716,6 +721,7 @@ class PdafTracker:
         self.initiator = MofNInitiator(self.config, self.measurement_model)
         self.deleter = TrackDeleter(self.config)
         self._moving_gamma = gate_threshold(self.config.moving_prob, 2)
+        self._lateral_gamma = gate_threshold(self.config.lateral_smoother_reset_prob, 1)
         self.reset()
 
     def reset(self) -> None:
@@ -762,6 +768,8 @@ class PdafTracker:
                 inn = None if rm is None else innovations_each(meas.z, zh, h, pp, r, rm)
                 inn, beta, beta0, gated = self.associator.associate(meas, zh, h, pp, r, tr.confirmed, tr.hits, inn)
                 tr.x, tr.p = self.updater.update(xp, pp, h, inn, beta, beta0)
+            if cfg.lateral_smoother:
+                self._lateral_step(meas, dt_s, beta, r, rm)
             if cfg.extent_alpha > 0 and m:
                 tr.ext_var = self.measurement_model.update_extent(xp, tr.ext_var, inn, beta)
             hit = gated.any(axis=1)
@@ -842,6 +850,30 @@ class PdafTracker:
         tr.mu = imm.update_mode_probabilities(cj, lik, cfg.imm_min_mode_prob)
         tr.x, tr.p = imm.moment_match(tr.xm, tr.pm, tr.mu)
 
+    def _lateral_step(self, meas: Measurements, dt_s: float, beta: np.ndarray, r: np.ndarray,
+                      rm: np.ndarray | None) -> None:
+        """The straight-line filter across the boresight (``lateral_smoother``, :mod:`edge.track.kalman`): predict,
+        PDAF update with the association's weights and each detection's own lateral variance (the track's part
+        of ``R`` plus, with ``measurement_noise = "snr"``, the detection's), restart from the motion model's
+        estimate where the two disagree."""
+        cfg = self.config
+        tr = self.tracks
+        new = tr.age == 1  # seeded last frame: its lateral speed is the road direction's, give or take a little
+        if new.any():
+            tr.lat_p[new, 1, 1] = np.minimum(tr.lat_p[new, 1, 1], cfg.lateral_smoother_init_speed_sigma_mps**2)
+            tr.lat_p[new, 0, 1] = tr.lat_p[new, 1, 0] = 0.0
+        lat, lat_p = kalman.lateral_predict(tr.lat, tr.lat_p, dt_s, cfg.lateral_smoother_q_m2ps3)
+        ti, mi = np.nonzero(beta > 0)
+        if ti.size:
+            var = r[ti, 0, 0] if rm is None else r[ti, 0, 0] + rm[mi, 0, 0]
+            lat, lat_p = kalman.lateral_pda_update(lat, lat_p, meas.z[mi, 0], var, ti, beta[ti, mi])
+        ref, ref_p = tr.x[:, 0::2], tr.p[:, 0::2, 0::2]
+        off = kalman.lateral_inconsistent(lat, lat_p, ref, ref_p, self._lateral_gamma,
+                                          cfg.lateral_smoother_min_var_fraction)
+        if off.any():
+            lat[off], lat_p[off] = ref[off], ref_p[off]
+        tr.lat, tr.lat_p = lat, lat_p
+
     def _reanchor(self, meas: Measurements, gated: np.ndarray, hit: np.ndarray, used: np.ndarray) -> None:
         """A confirmed track that missed moves to the nearest unclaimed detection up to ``reanchor_m`` nearer
         than it, in line with it and at its radial speed (``PdafConfig.reanchor_m``): the near face of the
@@ -877,6 +909,8 @@ class PdafTracker:
         tr.history[i] |= np.uint32(1)
         tr.xm[i] = tr.x[i, None, :]  # both IMM modes restart from the new position
         tr.pm[i] = tr.p[i, None, :, :]
+        tr.lat[i] = tr.x[i, 0::2]  # and the straight-line filter
+        tr.lat_p[i] = tr.p[i, 0::2, 0::2]
         used[j] = True
 
     def published(self) -> tuple[TrackState, ...]:
@@ -889,6 +923,8 @@ class PdafTracker:
         if idx.size == 0:
             return ()
         st = tr.x.take(idx, axis=0)
+        if self.config.lateral_smoother:  # the lateral position of the straight-line filter
+            st[:, 0] = tr.lat[idx, 0]
         x, y, vx, vy = st[:, 0], st[:, 1], st[:, 2], st[:, 3]
         rho = np.hypot(x, y)
         num = x * vx + y * vy
