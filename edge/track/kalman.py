@@ -22,6 +22,8 @@ detection at its own position from its SNR (:func:`snr_polar_noise`), and ``S`` 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = [
@@ -34,6 +36,8 @@ __all__ = [
     "lateral_predict",
     "lateral_pda_update",
     "lateral_inconsistent",
+    "lateral_log_likelihood_ratio",
+    "lateral_blend",
 ]
 
 
@@ -144,7 +148,9 @@ def snr_polar_noise(xy: np.ndarray, snr_db: np.ndarray, range_sigma0_m: float, r
 # the 0.03 m/s of its q and tau; the same RMSE to three decimals with q_keep 0.002 and 1e-4). The straight-line
 # filter below runs beside the IMM, outside its interaction: state ``[x, vx]`` per track, tiny process noise, the
 # PDAF weights of the tracker's association, one gain per validated detection. It is reset to the IMM's estimate
-# when the two disagree beyond their statistics (:func:`lateral_inconsistent`): a lane change.
+# when the two disagree beyond their statistics (:func:`lateral_inconsistent`), or when the detections have been
+# explained better by the IMM's predictions than by its own for a while (:func:`lateral_log_likelihood_ratio`, a
+# CUSUM): a lane change.
 
 
 def lateral_predict(xs: np.ndarray, ps: np.ndarray, dt_s: float, q_m2ps3: float) -> tuple[np.ndarray, np.ndarray]:
@@ -202,3 +208,34 @@ def lateral_inconsistent(xs: np.ndarray, ps: np.ndarray, x_ref: np.ndarray, p_re
     v_s = np.stack([ps[:, 0, 0], ps[:, 1, 1]], axis=1)
     var = np.maximum(v_ref - v_s, min_fraction * v_ref)
     return (d * d > gamma * np.maximum(var, 1e-12)).any(axis=1)
+
+
+def lateral_log_likelihood_ratio(n_tracks: int, t: np.ndarray, w: np.ndarray, z: np.ndarray, r: np.ndarray,
+                                 x_s: np.ndarray, var_s: np.ndarray, x_ref: np.ndarray,
+                                 var_ref: np.ndarray) -> np.ndarray:
+    """(T,) log-likelihood ratio of this frame's detections across the boresight under a reference prediction
+    (the IMM's, ``x_ref``, ``var_ref`` (T,)) against the straight line's (``x_s``, ``var_s`` (T,)): per pair ``(t[k],
+    z[k])`` with noise variance ``r[k]`` and association weight ``w[k]``, ``log N(z; x_ref, var_ref + r) -
+    log N(z; x_s, var_s + r)``, summed over each track's pairs with the weights. Page's CUSUM of it,
+    ``max(0, c + llr)``, grows while the vehicle leaves the straight line (and stays near 0 while it keeps it,
+    where the straight line predicts better)."""
+    if t.size == 0:
+        return np.zeros(n_tracks)
+    s_s = var_s.take(t) + r
+    s_r = var_ref.take(t) + r
+    v_s = z - x_s.take(t)
+    v_r = z - x_ref.take(t)
+    llr = 0.5 * (np.log(s_s / s_r) + v_s * v_s / s_s - v_r * v_r / s_r)
+    return np.bincount(t, w * llr, minlength=n_tracks)
+
+
+def lateral_blend(x_s: np.ndarray, x_ref: np.ndarray, cusum: np.ndarray, threshold: float) -> np.ndarray:
+    """The published lateral position: the straight line's ``x_s``, moved towards the motion model's ``x_ref`` by
+    the probability that the vehicle has left the line, ``p(c) = 1 / (1 + exp(threshold - c))`` for the CUSUM ``c``
+    of :func:`lateral_log_likelihood_ratio` (log-odds against prior odds ``exp(-threshold)``; at the threshold the
+    filter restarts from ``x_ref``), less its value without evidence: ``w = (p(c) - p(0)) / (1 - p(0))``, 0 while
+    the CUSUM is 0. The change is followed while the evidence for it accumulates."""
+    p0 = 1.0 / (1.0 + math.exp(min(threshold, 700.0)))
+    p = 1.0 / (1.0 + np.exp(np.minimum(threshold - cusum, 700.0)))
+    w = (p - p0) / (1.0 - p0)
+    return x_s + w * (x_ref - x_s)
