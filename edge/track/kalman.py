@@ -204,10 +204,12 @@ def lateral_inconsistent(xs: np.ndarray, ps: np.ndarray, x_ref: np.ndarray, p_re
     difference is ``var_ref - var_s`` (kept at least ``min_fraction`` of ``var_ref``: both are model variances);
     ``d^2 / var > gamma`` (a chi-square quantile, 1 dof) in either component means the vehicle left the line."""
     d = xs - x_ref
-    v_ref = np.stack([p_ref[:, 0, 0], p_ref[:, 1, 1]], axis=1)
-    v_s = np.stack([ps[:, 0, 0], ps[:, 1, 1]], axis=1)
-    var = np.maximum(v_ref - v_s, min_fraction * v_ref)
-    return (d * d > gamma * np.maximum(var, 1e-12)).any(axis=1)
+    d *= d
+    v_ref = p_ref.reshape(-1, 4)[:, 0::3]  # the diagonals (T, 2): one strided view
+    var = np.maximum(v_ref - ps.reshape(-1, 4)[:, 0::3], min_fraction * v_ref)
+    out = d[:, 0] > gamma * np.maximum(var[:, 0], 1e-12)
+    out |= d[:, 1] > gamma * np.maximum(var[:, 1], 1e-12)
+    return out
 
 
 def lateral_log_likelihood_ratio(n_tracks: int, t: np.ndarray, w: np.ndarray, z: np.ndarray, r: np.ndarray,

@@ -944,8 +944,10 @@ class PdafTracker:
             return ()
         st = tr.x.take(idx, axis=0)
         if self.config.lateral_smoother:  # the lateral position of the straight-line filter ...
-            st[:, 0] = kalman.lateral_blend(tr.lat[idx, 0], st[:, 0], tr.lat_cusum[idx],
-                                            self.config.lateral_smoother_cusum_nats)
+            c = tr.lat_cusum.take(idx)
+            lat = tr.lat[:, 0].take(idx)
+            # ... moved towards the motion model's by the evidence that the vehicle left its line (none: itself)
+            st[:, 0] = kalman.lateral_blend(lat, st[:, 0], c, self.config.lateral_smoother_cusum_nats) if c.any() else lat
         x, y, vx, vy = st[:, 0], st[:, 1], st[:, 2], st[:, 3]
         rho = np.hypot(x, y)
         num = x * vx + y * vy
