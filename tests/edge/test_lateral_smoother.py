@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from edge.config import load_config
 from edge.evaluation import evaluate
 from edge.track import PdafConfig, PdafTracker, kalman
 from edge.track.pdaf import gate_threshold
@@ -107,7 +108,7 @@ def test_far_lane_keeping_vehicle_is_placed_from_all_its_detections():
     with the straight-line filter is well below the IMM's own (measured on seeds 1-3: 0.04-0.05 m against
     0.19-0.25 m)."""
     veh = [Vehicle(5.25, 80.0, 0.0, 30.0)]
-    cfg = PdafConfig()
+    cfg = PdafConfig(lateral_smoother=True)
     kw = dict(p_detect=0.6, noise="snr", snr_100m_db=18.0, extent_sigma_m=0.0, clutter_per_frame=1.0,
               clutter_box=(-10.0, 15.0, 60.0, 300.0))
     for seed in (1, 2, 3):
@@ -123,7 +124,7 @@ def test_lane_change_is_followed_by_the_published_position():
     error below 0.8 m throughout, below 0.3 m a second after it ended; measured: at most 0.64 m and 0.02 m, the
     IMM's own 0.35 m and 0.02 m; 0.98 m with the Hausman test alone)."""
     veh = [Vehicle(-5.25, 110.0, 0.0, -20.0, lane_change=(1.0, 2.5, 3.5))]
-    tr = PdafTracker(PdafConfig(measurement_noise="constant"))
+    tr = PdafTracker(PdafConfig(measurement_noise="constant", lateral_smoother=True))
     rows = []
     for t_ns, det, truth in frames(veh, 150, seed=3, p_detect=0.9, clutter_per_frame=1.0, az_sigma_deg=0.15):
         pub = tr.step(det, t_ns)
@@ -141,8 +142,9 @@ def test_lane_change_is_followed_by_the_published_position():
 @pytest.mark.timeout(120)
 def test_highway4_motorcycle_position_rmse():
     """highway4 seed 1: the motorcycle (2 m^2, lane 3, receding 80 -> 300 m) within Lim's 0.15 m (0.186 m before
-    the straight-line filter, 0.04 m with it), every vehicle within 0.15 m."""
-    res = evaluate("highway4", seed=1, frames=None, events=None, config=None)
+    the straight-line filter, 0.04 m with it; the filter is an option, off by default), every vehicle within 0.15 m."""
+    cfg = load_config(env={}, overrides={"track.pdaf.lateral_smoother": True})
+    res = evaluate("highway4", seed=1, frames=None, events=None, config=cfg)
     by_id = {t["id"]: t for t in res["targets"]}
     assert by_id[5]["class"] == "motorcycle"
     assert by_id[5]["position_rmse_m"] < 0.1
