@@ -148,6 +148,42 @@ class PdafConfig:
                "12 dB mean SNR): 5 of 7 happens in 0.3 of the windows there, and a tentative track that can no longer "
                "make it is dropped, so cars came into view untracked; 5 of 10 happens in 0.6",
         "min": 1, "max": 32})
+    confirmation: str = field(
+        default="either",
+        metadata={"doc": "how a tentative track confirms (always also: surely moving, confirm_min_speed_mps, and the "
+                         "confirm_block_* rules): m_of_n: confirm_m hits in the last confirm_n frames; score: the "
+                         "sequential log-likelihood-ratio track score (edge.track.score, Blackman & Popoli) reaches "
+                         "ln((1 - score_true_reject_prob) / score_false_confirm_prob), and a tentative track whose "
+                         "score falls to ln(score_true_reject_prob / (1 - score_false_confirm_prob)) is dropped; "
+                         "either: whichever comes first (a strong, consistent vehicle confirms in 2-3 frames, a weak "
+                         "far one no later than with M-of-N); a tentative track is dropped when both reject it (M-of-N "
+                         "can no longer be reached and the score is at or below the lower threshold)",
+                 "choices": ("m_of_n", "score", "either")},
+    )
+    score_prob_detect: float = field(
+        default=0.6, metadata={"doc": "P_D of the score's likelihood ratio: the probability that a vehicle is detected "
+                                      "in a frame where tracks are born, at the edges of the coverage (a frame without "
+                                      "a validated detection adds ln(1 - P_D P_G)). Measured on highway4-traffic: "
+                                      "approaching cars at 280-330 m and receding cars of the outer lane at 12-30 m "
+                                      "(outside the antenna's beam) are detected in about half to two thirds of the "
+                                      "frames; prob_detect (0.9, the PDAF's) would count each miss as strong evidence "
+                                      "against them", "min": 0.05, "max": 0.999})
+    score_false_confirm_prob: float = field(
+        default=1e-4, metadata={"doc": "alpha of the score's sequential test: probability that a run of false "
+                                       "detections seeding a tentative track reaches confirmation",
+                                "min": 1e-12, "max": 0.5})
+    score_true_reject_prob: float = field(
+        default=0.01, metadata={"doc": "beta of the score's sequential test: probability that a vehicle's tentative "
+                                       "track is dropped (confirmation = score only)", "min": 1e-9, "max": 0.5})
+    score_false_density_m2: float = field(
+        default=1e-3, metadata={"unit": "1/m^2", "doc": "density of false moving detections per frame on the ground "
+                                                       "(lambda of the score's likelihood ratio)",
+                                "min": 1e-12, "max": 10.0})
+    score_speed_span_mps: float = field(
+        default=139.0, metadata={"unit": "m/s", "doc": "radial-speed span over which false detections spread "
+                                                      "uniformly (the pipeline's +-250 km/h): with the radial speed "
+                                                      "measured, lambda = score_false_density_m2 / this",
+                                 "min": 0.1, "max": 1000.0})
     moving_prob: float = field(
         default=0.9999, metadata={"doc": "a track counts as moving once v' P_v^-1 v exceeds the chi-square (2 dof) "
                                          "quantile of this probability and its speed exceeds confirm_min_speed_mps",
@@ -228,6 +264,16 @@ class PdafConfig:
                                                      "same-vehicle box (or next to a stronger seed) does not seed: "
                                                      "wrong pairings on a long truck give ghost detections +-4 m/s "
                                                      "off its speed at its position", "min": 0.0, "max": 50.0})
+    seed_side_speed_mps: float = field(
+        default=1.0, metadata={"unit": "m/s", "doc": "... but beside the track's line (more than merge_lateral_m across, "
+                                                    "inside the wider same-vehicle box of far detections: up to "
+                                                    "merge_lateral_max_m) only this radial-speed difference: a car in "
+                                                    "the next lane 250-300 m out, a few metres along and 1.5-3 m/s "
+                                                    "faster or slower, could not seed while the first car's track "
+                                                    "covered it (highway4-traffic seeds 5 and 6: the largest share of "
+                                                    "the missed car frames at 250-300 m); 1.0 is about 3 sd of the "
+                                                    "radial-speed noise; 0 = seed_merge_speed_mps everywhere",
+                               "min": 0.0, "max": 50.0})
     max_tracks: int = field(default=128, metadata={"doc": "tentative + confirmed tracks held at most", "min": 1,
                                                    "max": 4096})
     max_track_id: int = field(

@@ -102,7 +102,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from edge.track import imm, kalman
+from edge.track import imm, kalman, score
 from edge.track.config import PdafConfig
 from edge.track.smallmat import inv_quad2
 from edge.track.pdaf import (Innovations, InnovationsEach, PairInnovations, association_weights,
@@ -156,13 +156,14 @@ class TrackTable:
     moved: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # was ever surely moving
     ext_var: np.ndarray = field(default_factory=lambda: np.zeros(0))  # along-heading detection spread, m^2
     close_run: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))  # frames next to a twin
+    score: np.ndarray = field(default_factory=lambda: np.zeros(0))  # log-likelihood-ratio track score (edge.track.score)
     # IMM (motion_model = "imm"): per-mode states and mode probabilities; x, p are their moment-matched mixture
     xm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 4)))
     pm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 4, 4)))
     mu: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
     _COLUMNS = ("x", "p", "track_id", "age", "hits", "misses", "history", "confirmed", "moved", "ext_var",
-                "close_run", "xm", "pm", "mu")
+                "close_run", "score", "xm", "pm", "mu")
 
     def __len__(self) -> int:
         return int(self.x.shape[0])
@@ -192,6 +193,7 @@ class TrackTable:
         self.moved = cat([self.moved, no])
         self.ext_var = cat([self.ext_var, np.full(k, ext_var)])
         self.close_run = cat([self.close_run, zeros])
+        self.score = cat([self.score, np.zeros(k)])
 
 
 @dataclass
@@ -463,13 +465,46 @@ def same_vehicle_along_m(cfg: PdafConfig, tracks: "TrackTable") -> np.ndarray:
                       cfg.merge_extent_factor * np.sqrt(tracks.ext_var))
 
 
+def _same_speed(cfg: PdafConfig, dx_m: np.ndarray, dv_mps: np.ndarray) -> np.ndarray:
+    """Radial speeds ``dv_mps`` apart close enough for points ``dx_m`` apart across to be one vehicle when seeding:
+    within ``seed_merge_speed_mps`` in line (``merge_lateral_m``: the vehicle's own points and the ghosts of wrong
+    pairings along its body), within ``seed_side_speed_mps`` beside it (farther out, where the same-vehicle box is
+    wider than a lane, a vehicle in the next lane at a different speed)."""
+    dv = np.abs(dv_mps)
+    same = dv < cfg.seed_merge_speed_mps
+    if cfg.seed_side_speed_mps > 0:
+        same &= (dv < cfg.seed_side_speed_mps) | (np.abs(dx_m) < cfg.merge_lateral_m)
+    return same
+
+
 class MofNInitiator:
-    """Tentative tracks from detections no track explains; confirmation after M hits in N frames."""
+    """Tentative tracks from detections no track explains; confirmation after M hits in N frames, or by the
+    track score (``confirmation``: :mod:`edge.track.score`)."""
 
     def __init__(self, cfg: PdafConfig, meas_model: MeasurementModel) -> None:
         self.cfg = cfg
         self.meas_model = meas_model
         self._mask_n = np.uint32((1 << cfg.confirm_n) - 1)
+        self.uses_score = cfg.confirmation in ("score", "either")
+        self._score_confirm = score.confirm_threshold(cfg.score_false_confirm_prob, cfg.score_true_reject_prob)
+        self._score_drop = -score.confirm_threshold(cfg.score_true_reject_prob, cfg.score_false_confirm_prob)
+        self._density = {n: score.false_density(cfg.score_false_density_m2, cfg.score_speed_span_mps, n) for n in (2, 3)}
+
+    def score_increment(self, inn: Innovations, gated: np.ndarray, n: int) -> np.ndarray:
+        """(T,) this frame's log-likelihood ratio of every track (:func:`edge.track.score.score_increment`)."""
+        c = self.cfg
+        return score.score_increment(inn.d2, inn.det_s, gated, n, c.score_prob_detect, c.prob_gate, self._density[n])
+
+    def _ready(self, tracks: TrackTable) -> np.ndarray:
+        """Tentative tracks that pass the confirmation test (``confirmation``), before the moving and block rules."""
+        c = self.cfg
+        out = ~tracks.confirmed
+        if c.confirmation == "score":
+            return out & (tracks.score >= self._score_confirm)
+        mofn = np.bitwise_count(tracks.history & self._mask_n) >= c.confirm_m
+        if c.confirmation == "either":
+            mofn |= tracks.score >= self._score_confirm
+        return out & mofn
 
     def initiate(self, tracks: TrackTable, meas: Measurements, used: np.ndarray, road_yaw_rad: float = 0.0) -> int:
         """Seed tentative tracks; with a radial speed the seed moves along the road (``road_yaw_rad`` off the
@@ -493,7 +528,7 @@ class MofNInitiator:
             if meas.with_radial_speed:  # ... and moving like the track
                 rho_t = np.maximum(np.hypot(xt[:, 0], xt[:, 1]), 1e-3)
                 vr_t = (xt[:, 0] * xt[:, 2] + xt[:, 1] * xt[:, 3]) / rho_t
-                near &= np.abs(vr_t[:, None] - z[None, :, 2]) < c.seed_merge_speed_mps
+                near &= _same_speed(c, d[..., 0], vr_t[:, None] - z[None, :, 2])
             cand &= ~near.any(axis=0)
         idx = cand.nonzero()[0]
         if idx.size == 0:
@@ -508,7 +543,7 @@ class MofNInitiator:
                              same_vehicle_lateral_m(c, zc[:, :2])[:, None])
             close = _box_close(zc[:, :2], zc[:, :2], lat_c, c.init_merge_along_m)
             if meas.with_radial_speed:  # detections of one vehicle share its radial speed
-                close &= np.abs(zc[:, None, 2] - zc[None, :, 2]) < c.seed_merge_speed_mps
+                close &= _same_speed(c, zc[:, None, 0] - zc[None, :, 0], zc[:, None, 2] - zc[None, :, 2])
             order = np.arange(idx.size)
             stronger = (snr[None, :] > snr[:, None]) | ((snr[None, :] == snr[:, None]) & (order[None, :] < order[:, None]))
             seed_idx = idx.compress(~(close & stronger).any(axis=1))
@@ -563,9 +598,7 @@ class MofNInitiator:
 
     def confirm(self, tracks: TrackTable, ids: IdPool) -> None:
         c = self.cfg
-        recent = tracks.history & self._mask_n
-        counts = np.bitwise_count(recent)
-        ready = ~tracks.confirmed & (counts >= c.confirm_m) & tracks.moved
+        ready = self._ready(tracks) & tracks.moved
         if c.confirm_block_along_m > 0 and ready.any() and tracks.confirmed.any():
             # a second track on a long vehicle (its front and its rear half) waits for the duplicate check
             r, k = np.flatnonzero(ready), np.flatnonzero(tracks.confirmed)
@@ -591,9 +624,14 @@ class MofNInitiator:
     def tentative_expired(self, tracks: TrackTable) -> np.ndarray:
         """Tentative tracks that can no longer reach M hits in their last N frames."""
         c = self.cfg
+        if c.confirmation == "score":  # Wald's lower threshold
+            return ~tracks.confirmed & (tracks.score <= self._score_drop)
         recent = tracks.history & self._mask_n
         counts = np.bitwise_count(recent)
-        return ~tracks.confirmed & (tracks.age >= c.confirm_n) & (counts < c.confirm_m) & (tracks.misses > 0)
+        out = ~tracks.confirmed & (tracks.age >= c.confirm_n) & (counts < c.confirm_m) & (tracks.misses > 0)
+        if c.confirmation == "either":  # ... and the score's test has not become undecided or better
+            out &= tracks.score <= self._score_drop
+        return out
 
 
 class TrackDeleter:
@@ -765,6 +803,8 @@ class PdafTracker:
             if cfg.extent_alpha > 0 and m:
                 tr.ext_var = self.measurement_model.update_extent(xp, tr.ext_var, inn, beta)
             hit = gated.any(axis=1)
+            if self.initiator.uses_score:
+                tr.score += self.initiator.score_increment(inn, gated, meas.z.shape[1])
             d2_seed = inn.d2
             if rm is not None and cfg.seed_exclusion_noise == "constant":
                 # which detections may seed: the exclusion gate of the constant noise model (wider than the SNR
