@@ -104,3 +104,17 @@ def bartlett_consensus(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np
     step = grid_rad[1] - grid_rad[0]
     az = np.where(inner, grid_rad[kk] + np.minimum(np.maximum(d, -0.5), 0.5) * step, grid_rad[k])
     return az.astype(np.float32, copy=False), spec.astype(np.float32, copy=False), kept
+
+
+def peak_coherence(snapshots: np.ndarray, steering: np.ndarray, k: np.ndarray, kept: np.ndarray) -> np.ndarray:
+    """Fraction of the kept looks' energy that the steering vector at grid index ``k`` holds, per detection:
+    ``sum_s |a_k^H x_s|^2 / sum_s |x_s|^2`` over the kept looks ``s`` (``steering`` rows of unit norm). 1 for one
+    point source, lower when the cell holds scatterers at several angles (the two sides of a truck's body in one
+    range bin) or noise. ``snapshots`` (n, looks, rx), ``k`` (n,) int, ``kept`` (n, looks) bool -> (n,) float32."""
+    if snapshots.shape[0] == 0:
+        return np.zeros(0, np.float32)
+    a = steering.take(k, axis=0).conj()  # (n, rx)
+    y = np.einsum("nsr,nr->ns", snapshots, a)
+    p = (y.real * y.real + y.imag * y.imag) * kept
+    e = np.add.reduce((snapshots.real * snapshots.real + snapshots.imag * snapshots.imag), axis=2) * kept
+    return (np.add.reduce(p, axis=1) / np.maximum(np.add.reduce(e, axis=1), np.float32(1e-30))).astype(np.float32)

@@ -156,8 +156,9 @@ class PdafConfig:
                          "ln((1 - score_true_reject_prob) / score_false_confirm_prob), and a tentative track whose "
                          "score falls to ln(score_true_reject_prob / (1 - score_false_confirm_prob)) is dropped; "
                          "either: whichever comes first (a strong, consistent vehicle confirms in 2-3 frames, a weak "
-                         "far one no later than with M-of-N); a tentative track is dropped when both reject it (M-of-N "
-                         "can no longer be reached and the score is at or below the lower threshold)",
+                         "far one no later than with M-of-N); a tentative track is dropped when M-of-N can no longer be "
+                         "reached (keeping it while the score was undecided let the body glint of receding trucks, "
+                         "detected in a quarter of the frames, live on until it confirmed a lane beside the truck)",
                  "choices": ("m_of_n", "score", "either")},
     )
     score_prob_detect: float = field(
@@ -264,16 +265,19 @@ class PdafConfig:
                                                      "same-vehicle box (or next to a stronger seed) does not seed: "
                                                      "wrong pairings on a long truck give ghost detections +-4 m/s "
                                                      "off its speed at its position", "min": 0.0, "max": 50.0})
-    seed_side_speed_mps: float = field(
-        default=1.0, metadata={"unit": "m/s", "doc": "... but beside the track's line (more than merge_lateral_m across, "
-                                                    "inside the wider same-vehicle box of far detections: up to "
-                                                    "merge_lateral_max_m) only this radial-speed difference: a car in "
-                                                    "the next lane 250-300 m out, a few metres along and 1.5-3 m/s "
-                                                    "faster or slower, could not seed while the first car's track "
-                                                    "covered it (highway4-traffic seeds 5 and 6: the largest share of "
-                                                    "the missed car frames at 250-300 m); 1.0 is about 3 sd of the "
-                                                    "radial-speed noise; 0 = seed_merge_speed_mps everywhere",
-                               "min": 0.0, "max": 50.0})
+    seed_min_coherence: float = field(
+        default=0.8, metadata={"doc": "a strong detection (seed_coherence_min_snr_db) whose Bartlett peak holds less than "
+                                      "this share of its looks' energy (edge.dsp.angle.peak_coherence: 1 for one point "
+                                      "source, (N snr + 1) / (N snr + N) for one in noise on N channels) never seeds: "
+                                      "the two sides of a receding truck's body in one range bin gave 0.57-0.65 and an "
+                                      "angle 3-4 m off, in the approaching lane beside it, while vehicles' own "
+                                      "detections at 25-35 m gave 0.89-0.99 (highway4-traffic seed 6); such tracks ran "
+                                      "against their lane's direction (false tracks, false wrong-way alarms). Such a "
+                                      "detection still updates tracks. 0 = off", "min": 0.0, "max": 1.0})
+    seed_coherence_min_snr_db: float = field(
+        default=12.0, metadata={"unit": "dB", "doc": "... applied to detections at least this strong (a point source at "
+                                                    "12 dB on 4 channels has 0.95; weak far detections are noisy and "
+                                                    "keep seeding)", "min": -20.0, "max": 100.0})
     max_tracks: int = field(default=128, metadata={"doc": "tentative + confirmed tracks held at most", "min": 1,
                                                    "max": 4096})
     max_track_id: int = field(

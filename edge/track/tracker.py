@@ -57,7 +57,9 @@ Beyond Lim's single-point PDAF, what a roadside radar needs (all parameters in `
 - duplicates: two tracks with the same velocity whose positions fall within the same-vehicle box, or
   whose states are statistically indistinguishable, are one vehicle: the junior is dropped (before
   confirmation, so no id is spent on it);
-- confirmation needs M of N hits and a speed surely above ``confirm_min_speed_mps`` (static clutter
+- confirmation needs M of N hits, or (``confirmation = "either"``, default) a sequential log-likelihood-ratio
+  track score above Wald's threshold (:mod:`edge.track.score`: a strong, consistent vehicle in two or three
+  frames), and a speed surely above ``confirm_min_speed_mps`` (static clutter
   stays in unpublished tentative tracks that absorb its detections), and waits while a confirmed track
   moving the same way lies within a truck length along (``confirm_block_*``: a long vehicle's second
   seed, or its body's glint a lane beside it);
@@ -204,6 +206,7 @@ class Measurements:
     snr_db: np.ndarray  # (M,)
     with_radial_speed: bool
     pair: np.ndarray | None = None  # (M,) int: detections split from one (edge.dsp.resolve) share a value >= 0
+    coherence: np.ndarray | None = None  # (M,) the Bartlett peak's share of the looks' energy (if measured)
 
     @classmethod
     def from_detections(cls, det: Detections, use_radial_speed: bool) -> "Measurements":
@@ -240,7 +243,12 @@ class Measurements:
             pair = None
         if not every and not fin[2].all():
             snr = np.nan_to_num(snr, nan=0.0)
-        return cls(z, snr, use, pair)
+        coh = det.extra.get("angle_coherence")
+        if coh is not None and len(coh) == ok.size:
+            coh = np.asarray(coh, dtype=np.float64) if all_ok else np.asarray(coh, dtype=np.float64)[ok]
+        else:
+            coh = None
+        return cls(z, snr, use, pair, coh)
 
 
 class CvPredictor:
@@ -465,18 +473,6 @@ def same_vehicle_along_m(cfg: PdafConfig, tracks: "TrackTable") -> np.ndarray:
                       cfg.merge_extent_factor * np.sqrt(tracks.ext_var))
 
 
-def _same_speed(cfg: PdafConfig, dx_m: np.ndarray, dv_mps: np.ndarray) -> np.ndarray:
-    """Radial speeds ``dv_mps`` apart close enough for points ``dx_m`` apart across to be one vehicle when seeding:
-    within ``seed_merge_speed_mps`` in line (``merge_lateral_m``: the vehicle's own points and the ghosts of wrong
-    pairings along its body), within ``seed_side_speed_mps`` beside it (farther out, where the same-vehicle box is
-    wider than a lane, a vehicle in the next lane at a different speed)."""
-    dv = np.abs(dv_mps)
-    same = dv < cfg.seed_merge_speed_mps
-    if cfg.seed_side_speed_mps > 0:
-        same &= (dv < cfg.seed_side_speed_mps) | (np.abs(dx_m) < cfg.merge_lateral_m)
-    return same
-
-
 class MofNInitiator:
     """Tentative tracks from detections no track explains; confirmation after M hits in N frames, or by the
     track score (``confirmation``: :mod:`edge.track.score`)."""
@@ -518,6 +514,8 @@ class MofNInitiator:
         cand = (~used | resolved) & (rho >= c.min_range_m) & (rho <= c.max_range_m)
         if meas.with_radial_speed:
             cand &= np.abs(z[:, 2]) >= c.seed_min_radial_speed_mps
+        if meas.coherence is not None and c.seed_min_coherence > 0:
+            cand &= (meas.coherence >= c.seed_min_coherence) | (meas.snr_db < c.seed_coherence_min_snr_db)
         if len(tracks) and cand.any():
             xt = tracks.x
             lat = same_vehicle_lateral_m(c, xt[:, :2])[:, None]
@@ -528,7 +526,7 @@ class MofNInitiator:
             if meas.with_radial_speed:  # ... and moving like the track
                 rho_t = np.maximum(np.hypot(xt[:, 0], xt[:, 1]), 1e-3)
                 vr_t = (xt[:, 0] * xt[:, 2] + xt[:, 1] * xt[:, 3]) / rho_t
-                near &= _same_speed(c, d[..., 0], vr_t[:, None] - z[None, :, 2])
+                near &= np.abs(vr_t[:, None] - z[None, :, 2]) < c.seed_merge_speed_mps
             cand &= ~near.any(axis=0)
         idx = cand.nonzero()[0]
         if idx.size == 0:
@@ -543,7 +541,7 @@ class MofNInitiator:
                              same_vehicle_lateral_m(c, zc[:, :2])[:, None])
             close = _box_close(zc[:, :2], zc[:, :2], lat_c, c.init_merge_along_m)
             if meas.with_radial_speed:  # detections of one vehicle share its radial speed
-                close &= _same_speed(c, zc[:, None, 0] - zc[None, :, 0], zc[:, None, 2] - zc[None, :, 2])
+                close &= np.abs(zc[:, None, 2] - zc[None, :, 2]) < c.seed_merge_speed_mps
             order = np.arange(idx.size)
             stronger = (snr[None, :] > snr[:, None]) | ((snr[None, :] == snr[:, None]) & (order[None, :] < order[:, None]))
             seed_idx = idx.compress(~(close & stronger).any(axis=1))
@@ -628,10 +626,7 @@ class MofNInitiator:
             return ~tracks.confirmed & (tracks.score <= self._score_drop)
         recent = tracks.history & self._mask_n
         counts = np.bitwise_count(recent)
-        out = ~tracks.confirmed & (tracks.age >= c.confirm_n) & (counts < c.confirm_m) & (tracks.misses > 0)
-        if c.confirmation == "either":  # ... and the score's test has not become undecided or better
-            out &= tracks.score <= self._score_drop
-        return out
+        return ~tracks.confirmed & (tracks.age >= c.confirm_n) & (counts < c.confirm_m) & (tracks.misses > 0)
 
 
 class TrackDeleter:

@@ -8,7 +8,7 @@ import math
 import numpy as np
 from scipy.stats import multivariate_normal
 
-from edge.track import PdafTracker
+from edge.track import PdafConfig, PdafTracker
 from edge.track.score import confirm_threshold, false_density, score_increment
 from tests.edge.trackscene import Vehicle, frames, scene_config
 
@@ -74,3 +74,50 @@ def test_a_strong_vehicle_confirms_sooner_with_the_score_and_clutter_still_never
         for t_ns, det, _ in frames([], 600, seed=4, clutter_per_frame=5.0, clutter_box=(-10.0, 10.0, 10.0, 300.0)):
             confirmed += len(tr.step(det, t_ns))
         assert confirmed == 0, rule
+
+
+
+def test_peak_coherence_one_source_two_sources_and_noise():
+    import math as _m
+
+    from edge.dsp.angle import peak_coherence, steering_matrix
+
+    grid = np.radians(np.arange(-19.0, 19.01, 0.25))
+    lam = 0.0124
+    steer = steering_matrix(4, 1.5 * lam, lam, grid)
+    rng = np.random.default_rng(1)
+    k1, k2 = 40, 100  # -9 deg and +6 deg
+
+    def looks(amps):
+        x = np.zeros((4, 4), np.complex64)
+        for k, a in amps:
+            x += (a * np.exp(2j * _m.pi * rng.random((4, 1)))) * steer[k][None, :] * 2.0
+        return x
+
+    one = looks([(k1, 1.0)])
+    two = looks([(k1, 1.0), (k2, 1.0)])
+    snaps = np.stack([one, two])
+    kept = np.ones((2, 4), bool)
+    coh = peak_coherence(snaps, steer, np.array([k1, k1]), kept)
+    assert coh[0] > 0.999 and coh[1] < 0.8, coh
+    # a left-out look does not count; an empty input is fine
+    kept[1, 1:] = False
+    assert peak_coherence(snaps[1:], steer, np.array([k1]), kept[1:])[0] < 0.8
+    assert peak_coherence(np.zeros((0, 4, 4), np.complex64), steer, np.zeros(0, int), np.zeros((0, 4), bool)).size == 0
+
+
+def test_a_strong_incoherent_detection_does_not_seed_but_a_weak_one_does():
+    from edge.types import Detections
+
+    def det(coh, snr):
+        d = Detections.from_polar([40.0], [20.0], [0.05], [snr])
+        d.extra["angle_coherence"] = np.array([coh])
+        return d
+
+    for coh, snr, seeds in ((0.6, 20.0, 0), (0.95, 20.0, 1), (0.6, 8.0, 1)):
+        tr = PdafTracker()
+        tr.step(det(coh, snr), 0)
+        assert len(tr.tracks) == seeds, (coh, snr)
+    tr = PdafTracker(PdafConfig(seed_min_coherence=0.0))  # off: every moving detection seeds
+    tr.step(det(0.6, 20.0), 0)
+    assert len(tr.tracks) == 1
