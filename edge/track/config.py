@@ -177,7 +177,7 @@ class PdafConfig:
         default=0.01, metadata={"doc": "beta of the score's sequential test: probability that a vehicle's tentative "
                                        "track is dropped (confirmation = score only)", "min": 1e-9, "max": 0.5})
     score_false_density_m2: float = field(
-        default=1e-2, metadata={"unit": "1/m^2", "doc": "density of false moving detections per frame on the ground "
+        default=3e-2, metadata={"unit": "1/m^2", "doc": "density of false moving detections per frame on the ground "
                                                        "(lambda of the score's likelihood ratio). Moving detections "
                                                        "farther than 3 m from every vehicle are rare (0.11 per frame "
                                                        "over the 30 deg x 375 m sector, 3e-6 per m^2; highway4-traffic "
@@ -185,8 +185,10 @@ class PdafConfig:
                                                        "vehicles (truck body glints, wrong pairings), far denser there: "
                                                        "measured on highway4-traffic seed 6 (6000 frames, M-of-N "
                                                        "expiry): 1e-3 confirmed them (false tracks 7 -> 43 with the "
-                                                       "tentative expiry of the score), 1e-2 car Pd 0.982 -> 0.990 and "
-                                                       "false tracks 7 -> 19 without seed_min_coherence, 3e-2 0.985 and 8",
+                                                       "tentative expiry of the score); with M-of-N expiry 1e-2 car Pd "
+                                                       "0.982 -> 0.990 and false tracks 7 -> 19, 3e-2 0.985 and 8; with "
+                                                       "seed_min_coherence 1e-2 0.989 and 11, 3e-2 0.985 and 4 (false "
+                                                       "tracks must not rise: 3e-2)",
                                 "min": 1e-12, "max": 10.0})
     score_speed_span_mps: float = field(
         default=139.0, metadata={"unit": "m/s", "doc": "radial-speed span over which false detections spread "
