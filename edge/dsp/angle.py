@@ -133,3 +133,16 @@ def _refine_small(spec: np.ndarray, k: np.ndarray, grid_rad: np.ndarray) -> np.n
             az.append(grid_rad[ki])
     return np.array(az).astype(np.float32, copy=False)
 
+
+def peak_coherence(snapshots: np.ndarray, steering: np.ndarray, k: np.ndarray, kept: np.ndarray) -> np.ndarray:
+    """Fraction of the kept looks' energy that the steering vector at grid index ``k`` holds, per detection:
+    ``sum_s |a_k^H x_s|^2 / sum_s |x_s|^2`` over the kept looks ``s`` (``steering`` rows of unit norm). 1 for one
+    point source, lower when the cell holds scatterers at several angles (the two sides of a truck's body in one
+    range bin) or noise. ``snapshots`` (n, looks, rx), ``k`` (n,) int, ``kept`` (n, looks) bool -> (n,) float32."""
+    if snapshots.shape[0] == 0:
+        return np.zeros(0, np.float32)
+    a = steering.take(k, axis=0).conj()  # (n, rx)
+    y = np.einsum("nsr,nr->ns", snapshots, a)
+    p = (y.real * y.real + y.imag * y.imag) * kept
+    e = np.add.reduce((snapshots.real * snapshots.real + snapshots.imag * snapshots.imag), axis=2) * kept
+    return (np.add.reduce(p, axis=1) / np.maximum(np.add.reduce(e, axis=1), np.float32(1e-30))).astype(np.float32)

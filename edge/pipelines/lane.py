@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 import scipy.fft
 
-from edge.dsp.angle import bartlett_consensus, steering_matrix
+from edge.dsp.angle import bartlett_consensus, peak_coherence, steering_matrix
 from edge.dsp.cfar import os_cfar, os_cfar_at_padded, os_cfar_scale, reference_index
 from edge.dsp.geometry import polar_to_ground
 from edge.dsp.pairing import PairingModel, nearest_of_clusters, pair_beats
@@ -415,6 +415,7 @@ class LanePipeline(Pipeline):
 
             self.tracker = PdafTracker(track_config or PdafConfig())
             self.traffic = TrafficMonitor(traffic_config or TrafficConfig())
+        self._want_coherence = self.tracker is not None and self.tracker.config.seed_min_coherence > 0
 
     def close(self) -> None:
         if self.traffic is not None:
@@ -567,6 +568,10 @@ class LanePipeline(Pipeline):
             rng, vel, res = p_rng[keep], p_vel[keep], p_res[keep]
             az, snr_db = az[keep], snr_db[keep]
             pair_of = np.full(keep.size, -1, np.int32)
+            coh = None  # the Bartlett peak's share of the looks' energy, when the tracker's seeding asks for it
+            if self._want_coherence:
+                coh = (peak_coherence(snaps[keep], self._steer, np.argmax(aspec[keep], axis=1), kept[keep])
+                       if keep.size else np.zeros(0, np.float32))
         if self.resolver is not None:
             with timer.stage("resolve"):
                 # only the looks that agreed on the angle (another vehicle may share one segment's bin)
@@ -590,6 +595,9 @@ class LanePipeline(Pipeline):
                     snr_db[s_idx] -= np.float32(3.0)
                     snr_db = np.concatenate([snr_db, snr_db[s_idx]])
                     pair_of = np.concatenate([pair_of, s_idx.astype(np.int32)])
+                    if coh is not None:  # two sources by construction: not judged by one direction's share
+                        coh[s_idx] = 1.0
+                        coh = np.concatenate([coh, coh[s_idx]])
         with timer.stage("geometry"):
             if cfg.unalias_by_lane and rng.size and self.traffic is not None and self.traffic.lanes:
                 az = self._unalias_by_lane(rng, vel, az)
@@ -608,6 +616,8 @@ class LanePipeline(Pipeline):
             else:
                 det = Detections(rng[sel], vel[sel], az[sel], snr_db[sel], x[sel], y[sel],
                                  {"pair_residual_hz": res[sel], "resolved_pair": pair_of[sel]})
+            if coh is not None:
+                det.extra["angle_coherence"] = coh if sel is None else coh[sel]
         inter = {
             "power": power, "threshold": thr, "noise": noise, "peak_freqs_hz": freqs,
             "n_pair_candidates": pairs.n_candidates, "n_ghosts_rejected": pairs.n_ghosts, "n_aided_pairs": n_aided,

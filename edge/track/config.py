@@ -193,6 +193,57 @@ class PdafConfig:
                "12 dB mean SNR): 5 of 7 happens in 0.3 of the windows there, and a tentative track that can no longer "
                "make it is dropped, so cars came into view untracked; 5 of 10 happens in 0.6",
         "min": 1, "max": 32})
+    confirmation: str = field(
+        default="m_of_n",
+        metadata={"doc": "how a tentative track confirms (always also: surely moving, confirm_min_speed_mps, and the "
+                         "confirm_block_* rules): m_of_n: confirm_m hits in the last confirm_n frames; score: the "
+                         "sequential log-likelihood-ratio track score (edge.track.score, Blackman & Popoli) reaches "
+                         "ln((1 - score_true_reject_prob) / score_false_confirm_prob), and a tentative track whose "
+                         "score falls to ln(score_true_reject_prob / (1 - score_false_confirm_prob)) is dropped; "
+                         "either: whichever comes first (a strong, consistent vehicle confirms in 2-3 frames, a weak "
+                         "far one no later than with M-of-N); a tentative track is dropped when M-of-N can no longer be "
+                         "reached (keeping it while the score was undecided let the body glint of receding trucks, "
+                         "detected in a quarter of the frames, live on until it confirmed a lane beside the truck). Default "
+                         "m_of_n: 'either' with seed_min_coherence 0.8 raised car Pd (highway4-traffic, 10 min, seeds "
+                         "5/6/4242/2027: 0.985/0.984/0.982/0.975 -> 0.990/0.987/0.985/0.979) but broke the per-lane "
+                         "count's +-1 on seeds 5 and 4242 (a lane +2, from new false tracks at the line) and raised "
+                         "4242's id switches 48 -> 71 (2027: 91 -> 78)",
+                 "choices": ("m_of_n", "score", "either")},
+    )
+    score_prob_detect: float = field(
+        default=0.6, metadata={"doc": "P_D of the score's likelihood ratio: the probability that a vehicle is detected "
+                                      "in a frame where tracks are born, at the edges of the coverage (a frame without "
+                                      "a validated detection adds ln(1 - P_D P_G)). Measured on highway4-traffic: "
+                                      "approaching cars at 280-330 m and receding cars of the outer lane at 12-30 m "
+                                      "(outside the antenna's beam) are detected in about half to two thirds of the "
+                                      "frames; prob_detect (0.9, the PDAF's) would count each miss as strong evidence "
+                                      "against them", "min": 0.05, "max": 0.999})
+    score_false_confirm_prob: float = field(
+        default=1e-4, metadata={"doc": "alpha of the score's sequential test: probability that a run of false "
+                                       "detections seeding a tentative track reaches confirmation",
+                                "min": 1e-12, "max": 0.5})
+    score_true_reject_prob: float = field(
+        default=0.01, metadata={"doc": "beta of the score's sequential test: probability that a vehicle's tentative "
+                                       "track is dropped (confirmation = score only)", "min": 1e-9, "max": 0.5})
+    score_false_density_m2: float = field(
+        default=3e-2, metadata={"unit": "1/m^2", "doc": "density of false moving detections per frame on the ground "
+                                                       "(lambda of the score's likelihood ratio). Moving detections "
+                                                       "farther than 3 m from every vehicle are rare (0.11 per frame "
+                                                       "over the 30 deg x 375 m sector, 3e-6 per m^2; highway4-traffic "
+                                                       "seed 7), but false tracks come from detections next to "
+                                                       "vehicles (truck body glints, wrong pairings), far denser there: "
+                                                       "measured on highway4-traffic seed 6 (6000 frames, M-of-N "
+                                                       "expiry): 1e-3 confirmed them (false tracks 7 -> 43 with the "
+                                                       "tentative expiry of the score); with M-of-N expiry 1e-2 car Pd "
+                                                       "0.982 -> 0.990 and false tracks 7 -> 19, 3e-2 0.985 and 8; with "
+                                                       "seed_min_coherence 1e-2 0.989 and 11, 3e-2 0.985 and 4 (false "
+                                                       "tracks must not rise: 3e-2)",
+                                "min": 1e-12, "max": 10.0})
+    score_speed_span_mps: float = field(
+        default=139.0, metadata={"unit": "m/s", "doc": "radial-speed span over which false detections spread "
+                                                      "uniformly (the pipeline's +-250 km/h): with the radial speed "
+                                                      "measured, lambda = score_false_density_m2 / this",
+                                 "min": 0.1, "max": 1000.0})
     moving_prob: float = field(
         default=0.9999, metadata={"doc": "a track counts as moving once v' P_v^-1 v exceeds the chi-square (2 dof) "
                                          "quantile of this probability and its speed exceeds confirm_min_speed_mps",
@@ -273,6 +324,19 @@ class PdafConfig:
                                                      "same-vehicle box (or next to a stronger seed) does not seed: "
                                                      "wrong pairings on a long truck give ghost detections +-4 m/s "
                                                      "off its speed at its position", "min": 0.0, "max": 50.0})
+    seed_min_coherence: float = field(
+        default=0.0, metadata={"doc": "a strong detection (seed_coherence_min_snr_db) whose Bartlett peak holds less than "
+                                      "this share of its looks' energy (edge.dsp.angle.peak_coherence: 1 for one point "
+                                      "source, (N snr + 1) / (N snr + N) for one in noise on N channels) never seeds: "
+                                      "the two sides of a receding truck's body in one range bin gave 0.57-0.65 and an "
+                                      "angle 3-4 m off, in the approaching lane beside it, while vehicles' own "
+                                      "detections at 25-35 m gave 0.89-0.99 (highway4-traffic seed 6); such tracks ran "
+                                      "against their lane's direction (false tracks, false wrong-way alarms). Such a "
+                                      "detection still updates tracks. 0 = off (the default: see confirmation)", "min": 0.0, "max": 1.0})
+    seed_coherence_min_snr_db: float = field(
+        default=12.0, metadata={"unit": "dB", "doc": "... applied to detections at least this strong (a point source at "
+                                                    "12 dB on 4 channels has 0.95; weak far detections are noisy and "
+                                                    "keep seeding)", "min": -20.0, "max": 100.0})
     max_tracks: int = field(default=128, metadata={"doc": "tentative + confirmed tracks held at most", "min": 1,
                                                    "max": 4096})
     max_track_id: int = field(

@@ -70,7 +70,9 @@ Beyond Lim's single-point PDAF, what a roadside radar needs (all parameters in `
 - duplicates: two tracks with the same velocity whose positions fall within the same-vehicle box, or
   whose states are statistically indistinguishable, are one vehicle: the junior is dropped (before
   confirmation, so no id is spent on it);
-- confirmation needs M of N hits and a speed surely above ``confirm_min_speed_mps`` (static clutter
+- confirmation needs M of N hits, or (``confirmation = "either"``, default) a sequential log-likelihood-ratio
+  track score above Wald's threshold (:mod:`edge.track.score`: a strong, consistent vehicle in two or three
+  frames), and a speed surely above ``confirm_min_speed_mps`` (static clutter
   stays in unpublished tentative tracks that absorb its detections), and waits while a confirmed track
   moving the same way lies within a truck length along (``confirm_block_*``: a long vehicle's second
   seed, or its body's glint a lane beside it);
@@ -115,7 +117,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from edge.track import imm, kalman
+from edge.track import imm, kalman, score
 from edge.track.config import PdafConfig
 from edge.track.smallmat import inv_quad2
 from edge.track.pdaf import (Innovations, InnovationsEach, PairInnovations, association_weights,
@@ -169,6 +171,7 @@ class TrackTable:
     moved: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # was ever surely moving
     ext_var: np.ndarray = field(default_factory=lambda: np.zeros(0))  # along-heading detection spread, m^2
     close_run: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))  # frames next to a twin
+    score: np.ndarray = field(default_factory=lambda: np.zeros(0))  # log-likelihood-ratio track score (edge.track.score)
     # IMM (motion_model = "imm"): per-mode states and mode probabilities; x, p are their moment-matched mixture
     xm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 4)))
     pm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 4, 4)))
@@ -179,7 +182,7 @@ class TrackTable:
     lat_cusum: np.ndarray = field(default_factory=lambda: np.zeros(0))  # CUSUM of the IMM-vs-line likelihood ratio
 
     _COLUMNS = ("x", "p", "track_id", "age", "hits", "misses", "history", "confirmed", "moved", "ext_var",
-                "close_run", "xm", "pm", "mu", "lat", "lat_p",
+                "close_run", "score", "xm", "pm", "mu", "lat", "lat_p",
                 "lat_cusum")
 
     def __len__(self) -> int:
@@ -213,6 +216,7 @@ class TrackTable:
         self.moved = cat([self.moved, no])
         self.ext_var = cat([self.ext_var, np.full(k, ext_var)])
         self.close_run = cat([self.close_run, zeros])
+        self.score = cat([self.score, np.zeros(k)])
 
 
 @dataclass
@@ -223,6 +227,7 @@ class Measurements:
     snr_db: np.ndarray  # (M,)
     with_radial_speed: bool
     pair: np.ndarray | None = None  # (M,) int: detections split from one (edge.dsp.resolve) share a value >= 0
+    coherence: np.ndarray | None = None  # (M,) the Bartlett peak's share of the looks' energy (if measured)
 
     @classmethod
     def from_detections(cls, det: Detections, use_radial_speed: bool) -> "Measurements":
@@ -259,7 +264,12 @@ class Measurements:
             pair = None
         if not every and not fin[2].all():
             snr = np.nan_to_num(snr, nan=0.0)
-        return cls(z, snr, use, pair)
+        coh = det.extra.get("angle_coherence")
+        if coh is not None and len(coh) == ok.size:
+            coh = np.asarray(coh, dtype=np.float64) if all_ok else np.asarray(coh, dtype=np.float64)[ok]
+        else:
+            coh = None
+        return cls(z, snr, use, pair, coh)
 
 
 class CvPredictor:
@@ -485,12 +495,33 @@ def same_vehicle_along_m(cfg: PdafConfig, tracks: "TrackTable") -> np.ndarray:
 
 
 class MofNInitiator:
-    """Tentative tracks from detections no track explains; confirmation after M hits in N frames."""
+    """Tentative tracks from detections no track explains; confirmation after M hits in N frames, or by the
+    track score (``confirmation``: :mod:`edge.track.score`)."""
 
     def __init__(self, cfg: PdafConfig, meas_model: MeasurementModel) -> None:
         self.cfg = cfg
         self.meas_model = meas_model
         self._mask_n = np.uint32((1 << cfg.confirm_n) - 1)
+        self.uses_score = cfg.confirmation in ("score", "either")
+        self._score_confirm = score.confirm_threshold(cfg.score_false_confirm_prob, cfg.score_true_reject_prob)
+        self._score_drop = -score.confirm_threshold(cfg.score_true_reject_prob, cfg.score_false_confirm_prob)
+        self._density = {n: score.false_density(cfg.score_false_density_m2, cfg.score_speed_span_mps, n) for n in (2, 3)}
+
+    def score_increment(self, inn: Innovations, gated: np.ndarray, n: int) -> np.ndarray:
+        """(T,) this frame's log-likelihood ratio of every track (:func:`edge.track.score.score_increment`)."""
+        c = self.cfg
+        return score.score_increment(inn.d2, inn.det_s, gated, n, c.score_prob_detect, c.prob_gate, self._density[n])
+
+    def _ready(self, tracks: TrackTable) -> np.ndarray:
+        """Tentative tracks that pass the confirmation test (``confirmation``), before the moving and block rules."""
+        c = self.cfg
+        out = ~tracks.confirmed
+        if c.confirmation == "score":
+            return out & (tracks.score >= self._score_confirm)
+        mofn = np.bitwise_count(tracks.history & self._mask_n) >= c.confirm_m
+        if c.confirmation == "either":
+            mofn |= tracks.score >= self._score_confirm
+        return out & mofn
 
     def initiate(self, tracks: TrackTable, meas: Measurements, used: np.ndarray, road_yaw_rad: float = 0.0) -> int:
         """Seed tentative tracks; with a radial speed the seed moves along the road (``road_yaw_rad`` off the
@@ -504,6 +535,8 @@ class MofNInitiator:
         cand = (~used | resolved) & (rho >= c.min_range_m) & (rho <= c.max_range_m)
         if meas.with_radial_speed:
             cand &= np.abs(z[:, 2]) >= c.seed_min_radial_speed_mps
+        if meas.coherence is not None and c.seed_min_coherence > 0:
+            cand &= (meas.coherence >= c.seed_min_coherence) | (meas.snr_db < c.seed_coherence_min_snr_db)
         if len(tracks) and cand.any():
             xt = tracks.x
             lat = same_vehicle_lateral_m(c, xt[:, :2])[:, None]
@@ -584,9 +617,7 @@ class MofNInitiator:
 
     def confirm(self, tracks: TrackTable, ids: IdPool) -> None:
         c = self.cfg
-        recent = tracks.history & self._mask_n
-        counts = np.bitwise_count(recent)
-        ready = ~tracks.confirmed & (counts >= c.confirm_m) & tracks.moved
+        ready = self._ready(tracks) & tracks.moved
         if c.confirm_block_along_m > 0 and ready.any() and tracks.confirmed.any():
             # a second track on a long vehicle (its front and its rear half) waits for the duplicate check
             r, k = np.flatnonzero(ready), np.flatnonzero(tracks.confirmed)
@@ -612,6 +643,8 @@ class MofNInitiator:
     def tentative_expired(self, tracks: TrackTable) -> np.ndarray:
         """Tentative tracks that can no longer reach M hits in their last N frames."""
         c = self.cfg
+        if c.confirmation == "score":  # Wald's lower threshold
+            return ~tracks.confirmed & (tracks.score <= self._score_drop)
         recent = tracks.history & self._mask_n
         counts = np.bitwise_count(recent)
         return ~tracks.confirmed & (tracks.age >= c.confirm_n) & (counts < c.confirm_m) & (tracks.misses > 0)
@@ -789,6 +822,8 @@ class PdafTracker:
             if cfg.extent_alpha > 0 and m:
                 tr.ext_var = self.measurement_model.update_extent(xp, tr.ext_var, inn, beta)
             hit = gated.any(axis=1)
+            if self.initiator.uses_score:
+                tr.score += self.initiator.score_increment(inn, gated, meas.z.shape[1])
             d2_seed = inn.d2
             if rm is not None and cfg.seed_exclusion_noise == "constant":
                 # which detections may seed: the exclusion gate of the constant noise model (wider than the SNR
