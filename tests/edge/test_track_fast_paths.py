@@ -209,3 +209,25 @@ def test_keep_model_closed_form_is_the_rotated_model(yaw):
     np.testing.assert_allclose(q, np.block([[dt**3 / 3 * a, dt**2 / 2 * a], [dt**2 / 2 * a, dt * a]]), rtol=1e-14,
                                atol=1e-18)
     np.testing.assert_array_equal(q, q.T)
+
+
+def test_deleter_pairs_are_triu_indices_for_any_sequence_of_track_counts():
+    deleter = tracker_module.TrackDeleter(PdafConfig())
+    rng = np.random.default_rng(9)
+    for t in [2, 5, 3, 31, 32, 33, 2, 70, 40, 0, 1, *rng.integers(0, 150, size=20).tolist()]:
+        ia, ib = deleter.pairs(t)
+        ra, rb = np.triu_indices(t, 1)
+        assert ia.dtype == ra.dtype and np.array_equal(ia, ra) and np.array_equal(ib, rb), t
+
+
+def test_detection_noise_of_some_rows_is_those_rows_of_all():
+    cfg = PdafConfig()
+    mm = tracker_module.MeasurementModel(cfg)
+    rng = np.random.default_rng(4)
+    z = np.column_stack([rng.uniform(-10, 10, 9), rng.uniform(5, 250, 9), rng.normal(0, 20, 9)])
+    meas = tracker_module.Measurements(z, rng.uniform(-5, 70, 9), True)
+    rows = np.array([7, 0, 3])
+    for n in (2, 3):
+        full = mm.of_detections(meas, n)
+        some = mm.of_detections(meas, n, rows=rows)
+        assert some.shape == (3, n, n) and np.array_equal(some, full[rows])
