@@ -195,28 +195,45 @@ class TrackTable:
     def append(self, x: np.ndarray, p: np.ndarray, ext_var: float, keep_prob: float = 0.5) -> None:
         k = x.shape[0]
         cat = np.concatenate
-        zeros, ones = np.zeros(k, dtype=np.int32), np.ones(k, dtype=np.int32)
-        no = np.zeros(k, dtype=bool)
-        mu = np.empty((k, 2))
-        mu[:, 0], mu[:, 1] = keep_prob, 1.0 - keep_prob
+        zeros, ones, no, ones_u32, zeros_f, ext, mu = _new_rows(k, ext_var, keep_prob)
         self.xm = cat([self.xm, x[:, None].repeat(2, axis=1)])
         self.pm = cat([self.pm, p[:, None].repeat(2, axis=1)])
         self.mu = cat([self.mu, mu])
         self.lat = cat([self.lat, x[:, 0::2]])
         self.lat_p = cat([self.lat_p, p[:, 0::2, 0::2]])
-        self.lat_cusum = cat([self.lat_cusum, np.zeros(k)])
+        self.lat_cusum = cat([self.lat_cusum, zeros_f])
         self.x = cat([self.x, x])
         self.p = cat([self.p, p])
         self.track_id = cat([self.track_id, zeros])
         self.age = cat([self.age, ones])
         self.hits = cat([self.hits, ones])
         self.misses = cat([self.misses, zeros])
-        self.history = cat([self.history, np.ones(k, dtype=np.uint32)])
+        self.history = cat([self.history, ones_u32])
         self.confirmed = cat([self.confirmed, no])
         self.moved = cat([self.moved, no])
-        self.ext_var = cat([self.ext_var, np.full(k, ext_var)])
+        self.ext_var = cat([self.ext_var, ext])
         self.close_run = cat([self.close_run, zeros])
-        self.score = cat([self.score, np.zeros(k)])
+        self.score = cat([self.score, zeros_f])
+
+
+_NEW_ROWS: dict[tuple[int, float, float], tuple[np.ndarray, ...]] = {}
+
+
+def _new_rows(k: int, ext_var: float, keep_prob: float) -> tuple[np.ndarray, ...]:
+    """The constant columns of ``k`` new tracks (read-only, cached: ``TrackTable.append`` copies them): int32 zeros
+    and ones, bool zeros, uint32 ones, float zeros, ``ext_var`` and the mode probabilities ``(keep, 1 - keep)``."""
+    key = (k, ext_var, keep_prob)
+    rows = _NEW_ROWS.get(key)
+    if rows is None:
+        mu = np.empty((k, 2))
+        mu[:, 0], mu[:, 1] = keep_prob, 1.0 - keep_prob
+        rows = (np.zeros(k, dtype=np.int32), np.ones(k, dtype=np.int32), np.zeros(k, dtype=bool),
+                np.ones(k, dtype=np.uint32), np.zeros(k), np.full(k, ext_var), mu)
+        for a in rows:
+            a.flags.writeable = False
+        if len(_NEW_ROWS) < 256:  # a few seed counts per configuration
+            _NEW_ROWS[key] = rows
+    return rows
 
 
 @dataclass
