@@ -216,6 +216,7 @@ class TrackTable:
         self.score = cat([self.score, zeros_f])
 
 
+_SEED_MERGE_PLAIN_MAX = 8  # seed candidates up to which MofNInitiator merges them in plain Python
 _NEW_ROWS: dict[tuple[int, float, float], tuple[np.ndarray, ...]] = {}
 
 
@@ -577,6 +578,9 @@ class MofNInitiator:
         zc = z.take(idx, axis=0)
         if idx.size == 1:  # one candidate: nothing to merge
             seed_idx = idx
+        elif idx.size <= _SEED_MERGE_PLAIN_MAX:  # a handful: the same comparisons on Python floats, pair by pair
+            seed_idx = self._merge_seeds_plain(idx, zc, meas.snr_db.take(idx), resolved.take(idx),
+                                               meas.with_radial_speed)
         else:
             snr = meas.snr_db[idx]
             lat_c = np.where(resolved[idx][None, :] & resolved[idx][:, None], c.merge_lateral_m,
@@ -613,7 +617,7 @@ class MofNInitiator:
             ok = np.abs(proj) > 1.0
             if ok.all():  # the usual case: no seed right beside the radar across the road
                 v_s = seeds[:, 2] * rho_s / proj
-                var_s = np.full(k, c.init_along_speed_sigma_mps**2)
+                var_s = c.init_along_speed_sigma_mps**2  # one value for all seeds: the covariances below once
             else:
                 v_s = np.where(ok, seeds[:, 2] * rho_s / np.where(ok, proj, 1.0), 0.0)
                 var_s = np.where(ok, c.init_along_speed_sigma_mps**2, c.init_speed_sigma_mps**2)
@@ -637,6 +641,31 @@ class MofNInitiator:
             tracks.pm[-k:, 0] = pk
             tracks.p[-k:] = w * pk + (1.0 - w) * p0  # the modes share the mean: no spread term
         return k
+
+    def _merge_seeds_plain(self, idx: np.ndarray, zc: np.ndarray, snr: np.ndarray, resolved: np.ndarray,
+                           with_radial_speed: bool) -> np.ndarray:
+        """The merge of :meth:`initiate`'s candidates (one seed per vehicle: a candidate goes when a stronger one,
+        or an equally strong earlier one, lies in its merge box at its radial speed) for a handful of them, in
+        plain Python: the same float64 differences and comparisons as the (A, A) array form, a few calls fewer."""
+        c = self.cfg
+        rows = zc.tolist()
+        sl = snr.tolist()
+        res = resolved.tolist()
+        lat_i = same_vehicle_lateral_m(c, zc[:, :2]).tolist()
+        lat_pair, along, dv = c.merge_lateral_m, c.init_merge_along_m, c.seed_merge_speed_mps
+        keep = []
+        for i, zi in enumerate(rows):
+            si, ri, li = sl[i], res[i], lat_i[i]
+            for j, zj in enumerate(rows):
+                sj = sl[j]
+                if not (sj > si or (sj == si and j < i)):  # j is not stronger (never itself)
+                    continue
+                if (abs(zi[0] - zj[0]) < (lat_pair if ri and res[j] else li) and abs(zi[1] - zj[1]) < along
+                        and (not with_radial_speed or abs(zi[2] - zj[2]) < dv)):
+                    break
+            else:
+                keep.append(i)
+        return idx.take(np.array(keep, dtype=np.intp))
 
     def confirm(self, tracks: TrackTable, ids: IdPool) -> None:
         c = self.cfg

@@ -231,3 +231,35 @@ def test_detection_noise_of_some_rows_is_those_rows_of_all():
         full = mm.of_detections(meas, n)
         some = mm.of_detections(meas, n, rows=rows)
         assert some.shape == (3, n, n) and np.array_equal(some, full[rows])
+
+
+@pytest.mark.parametrize("with_pairs", [False, True])
+def test_seed_merge_in_plain_python_equals_the_array_form(with_pairs, monkeypatch):
+    """Candidates in clusters (so seeds merge), equal SNRs (the tie rule), resolved pairs (their own box)."""
+    cfg = PdafConfig()
+    rng = np.random.default_rng(11)
+    n_merged = 0
+    for trial in range(60):
+        m = int(rng.integers(2, 9))
+        centres = rng.uniform([-8.0, 20.0, -30.0], [8.0, 200.0, 30.0], size=(2, 3))
+        z = centres[rng.integers(0, 2, m)] + rng.normal(0.0, [1.0, 2.0, 0.3], size=(m, 3))
+        snr = np.round(rng.uniform(5.0, 12.0, m))  # ties
+        pair = np.where(rng.uniform(size=m) < 0.4, rng.integers(0, 2, m), -1) if with_pairs else None
+        meas = tracker_module.Measurements(z, snr, True, pair)
+        out = []
+        for plain_max in (0, 100):
+            monkeypatch.setattr(tracker_module, "_SEED_MERGE_PLAIN_MAX", plain_max)
+            tracks = TrackTable()
+            tracker_module.MofNInitiator(cfg, tracker_module.MeasurementModel(cfg)).initiate(
+                tracks, meas, np.zeros(m, bool))
+            out.append(tracks)
+        assert np.array_equal(out[0].x, out[1].x) and np.array_equal(out[0].p, out[1].p)
+        assert np.array_equal(out[0].pm, out[1].pm)
+        n_merged += len(out[0]) < m
+    assert n_merged > 20
+
+
+def test_tracker_outputs_equal_with_the_plain_seed_merge_off(monkeypatch):
+    fast = _published(PdafConfig(), 80)
+    monkeypatch.setattr(tracker_module, "_SEED_MERGE_PLAIN_MAX", 0)
+    assert _published(PdafConfig(), 80) == fast
