@@ -100,6 +100,13 @@ per-detection PDAF update as one product with the row-membership matrix instead 
 and sqrt|S| shared by the weights and the IMM update; the seed exclusion's d2 from the innovations already
 computed; smallmat's cofactors for the per-pair inverses): ``step`` on recorded highway4 detections 0.58 ->
 0.44 ms p50, highway4-traffic 0.75 -> 0.63 ms (thread CPU time, per-frame minimum of 7 runs).
+A third pass for the slow frames, seeding and the first frames (same outputs, bit for bit on recorded highway4 and
+highway4-traffic): the seeds' noise for the seeds only (or taken from the frame's per-detection noise), the merge of
+up to 8 seed candidates in plain Python, one along-road speed variance as a scalar, the new tracks' constant columns
+from a cache, the deleter's pair indices cut from a larger table's instead of ``np.triu_indices`` each time the
+track count changes (~60 us). ``initiate`` on a seeding frame 118 -> 83 us (highway4), 156 -> 107 us (p99,
+highway4-traffic); ``step`` p99 586 -> 553 us (highway4, 300 frames), 902 -> 836 us (highway4-traffic, 600 frames);
+p50 unchanged (per-function thread CPU time, per-frame minimum of 15 runs alternating with the previous code).
 
 Known limit: two vehicles side by side at the same range and speed are separated only where the
 azimuth noise is well below the lane spacing (tested at 25-60 m with 0.5 deg); far away the seeds
