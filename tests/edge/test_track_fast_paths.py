@@ -209,3 +209,57 @@ def test_keep_model_closed_form_is_the_rotated_model(yaw):
     np.testing.assert_allclose(q, np.block([[dt**3 / 3 * a, dt**2 / 2 * a], [dt**2 / 2 * a, dt * a]]), rtol=1e-14,
                                atol=1e-18)
     np.testing.assert_array_equal(q, q.T)
+
+
+def test_deleter_pairs_are_triu_indices_for_any_sequence_of_track_counts():
+    deleter = tracker_module.TrackDeleter(PdafConfig())
+    rng = np.random.default_rng(9)
+    for t in [2, 5, 3, 31, 32, 33, 2, 70, 40, 0, 1, *rng.integers(0, 150, size=20).tolist()]:
+        ia, ib = deleter.pairs(t)
+        ra, rb = np.triu_indices(t, 1)
+        assert ia.dtype == ra.dtype and np.array_equal(ia, ra) and np.array_equal(ib, rb), t
+
+
+def test_detection_noise_of_some_rows_is_those_rows_of_all():
+    cfg = PdafConfig()
+    mm = tracker_module.MeasurementModel(cfg)
+    rng = np.random.default_rng(4)
+    z = np.column_stack([rng.uniform(-10, 10, 9), rng.uniform(5, 250, 9), rng.normal(0, 20, 9)])
+    meas = tracker_module.Measurements(z, rng.uniform(-5, 70, 9), True)
+    rows = np.array([7, 0, 3])
+    for n in (2, 3):
+        full = mm.of_detections(meas, n)
+        some = mm.of_detections(meas, n, rows=rows)
+        assert some.shape == (3, n, n) and np.array_equal(some, full[rows])
+
+
+@pytest.mark.parametrize("with_pairs", [False, True])
+def test_seed_merge_in_plain_python_equals_the_array_form(with_pairs, monkeypatch):
+    """Candidates in clusters (so seeds merge), equal SNRs (the tie rule), resolved pairs (their own box)."""
+    cfg = PdafConfig()
+    rng = np.random.default_rng(11)
+    n_merged = 0
+    for trial in range(60):
+        m = int(rng.integers(2, 9))
+        centres = rng.uniform([-8.0, 20.0, -30.0], [8.0, 200.0, 30.0], size=(2, 3))
+        z = centres[rng.integers(0, 2, m)] + rng.normal(0.0, [1.0, 2.0, 0.3], size=(m, 3))
+        snr = np.round(rng.uniform(5.0, 12.0, m))  # ties
+        pair = np.where(rng.uniform(size=m) < 0.4, rng.integers(0, 2, m), -1) if with_pairs else None
+        meas = tracker_module.Measurements(z, snr, True, pair)
+        out = []
+        for plain_max in (0, 100):
+            monkeypatch.setattr(tracker_module, "_SEED_MERGE_PLAIN_MAX", plain_max)
+            tracks = TrackTable()
+            tracker_module.MofNInitiator(cfg, tracker_module.MeasurementModel(cfg)).initiate(
+                tracks, meas, np.zeros(m, bool))
+            out.append(tracks)
+        assert np.array_equal(out[0].x, out[1].x) and np.array_equal(out[0].p, out[1].p)
+        assert np.array_equal(out[0].pm, out[1].pm)
+        n_merged += len(out[0]) < m
+    assert n_merged > 20
+
+
+def test_tracker_outputs_equal_with_the_plain_seed_merge_off(monkeypatch):
+    fast = _published(PdafConfig(), 80)
+    monkeypatch.setattr(tracker_module, "_SEED_MERGE_PLAIN_MAX", 0)
+    assert _published(PdafConfig(), 80) == fast
