@@ -669,19 +669,29 @@ def weighted_standardization(x: np.ndarray, weights: np.ndarray) -> tuple[np.nda
     ``x`` (N, F), ``weights`` (N,) non-negative (normalised here to sum 1). Returns ``(mean, scale)``
     so that ``z = (x - mean) / scale``; the scale is
     ``sqrt(sum_l w_l (x_l - mean)^2 / (1 - sum_l w_l^2))`` and 1 where a feature is constant.
+
+    The sums are exactly rounded (:func:`math.fsum` of the elementwise products) rather than BLAS dot
+    products, whose summation order depends on the CPU's kernel: the fitted mean and scale, and so the
+    exported ONNX model, are the same bits on every machine (this runs once per fit, on N x F values).
     """
     x = np.asarray(x, dtype=np.float64)
     w = np.asarray(weights, dtype=np.float64).reshape(-1)
     if x.ndim != 2 or x.shape[0] != w.size:
         raise ValueError(f"x must be (N, F) with N = len(weights); got {x.shape} and {w.shape}")
-    if np.any(w < 0) or not w.sum() > 0:
+    total = math.fsum(w.tolist())
+    if np.any(w < 0) or not total > 0:
         raise ValueError("weights must be non-negative with a positive sum")
-    w = w / w.sum()
-    mean = w @ x
-    denom = 1.0 - float(np.sum(w * w))
+    w = w / total
+    mean = _column_fsum(w[:, None] * x)
+    denom = 1.0 - math.fsum((w * w).tolist())
     if denom <= 0:
         raise ValueError("weighted standardisation needs at least two observations with weight")
-    var = (w @ (x - mean) ** 2) / denom
+    var = _column_fsum(w[:, None] * (x - mean) ** 2) / denom
     scale = np.sqrt(var)
     scale[~(scale > 0)] = 1.0
     return mean, scale
+
+
+def _column_fsum(a: np.ndarray) -> np.ndarray:
+    """(N, F) -> (F,) exactly rounded column sums (:func:`math.fsum`)."""
+    return np.array([math.fsum(col) for col in a.T.tolist()], dtype=np.float64).reshape(a.shape[1])
