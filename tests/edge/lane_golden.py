@@ -13,9 +13,21 @@ Record (before a change) and check (after it)::
     PYTHONPATH=. python -m tests.edge.lane_golden check OUT.npz
 
 ``check`` compares integers, booleans, counts and ids exactly and floats within float32 round-off
-(positions 1e-4 m; see :data:`TOLERANCE`). ``tests/edge/test_lane_golden.py`` runs the check on a small
-fixture recorded with this module; a deliberate change of what the pipeline computes (tracker or
-pairing logic) re-records it with ``record`` (the fixture's arguments are in its ``meta``).
+(positions 1e-4 m; see :data:`TOLERANCE`). ``tests/edge/test_lane_golden.py`` runs the check on the small
+fixtures of :data:`FIXTURES`; a deliberate change of what the pipeline computes (tracker or pairing logic)
+re-records them with ``record-all`` (each fixture's arguments are in :data:`FIXTURES` and its ``meta``).
+
+Fixtures are kept per machine kind (:func:`machine`): the BLAS kernel OpenBLAS picks for the CPU and the
+SIMD targets numpy dispatches to round differently in the last bits (the tracker's small matrix products
+go through BLAS), a detection at the threshold then comes or goes and the runs diverge within a few dozen
+frames. A fixture can only vouch for "nothing changed" on a machine whose floating point is the one it was
+recorded with, so each lives in ``data/golden/<machine>/`` and the test skips, saying so, where none was
+recorded::
+
+    PYTHONPATH=. python -m tests.edge.lane_golden record-all       # this machine's fixtures, from FIXTURES
+    PYTHONPATH=. python -m tests.edge.lane_golden machine          # its folder name
+
+Record on the code before a change (``git stash``), then check after it.
 """
 
 from __future__ import annotations
@@ -27,6 +39,50 @@ import sys
 from pathlib import Path
 
 import numpy as np
+
+DATA_DIR = Path(__file__).parent / "data" / "golden"
+
+#: the fixtures the test checks: file stem -> recording arguments
+FIXTURES = {
+    "lane_golden_misaimed_s31": {"scenario": "highway4-misaimed", "seed": 31, "frames": 200},
+    "lane_golden_side_by_side_s31": {"scenario": "side-by-side", "seed": 31, "frames": 300},
+    "lane_golden_wrong_way_s6": {"scenario": "wrong-way", "seed": 6, "frames": 240},
+}
+
+
+def machine() -> str:
+    """The floating-point kind of this machine, as a folder name: the BLAS library and the kernel it picked
+    for the CPU (threadpoolctl), and the SIMD targets numpy dispatches to (``numpy.show_runtime``'s 'found'),
+    e.g. ``openblas-haswell_x86_v3``."""
+    import numpy._core._multiarray_umath as um
+    from threadpoolctl import threadpool_info
+
+    blas = [i for i in threadpool_info() if i.get("user_api") == "blas"]
+    kind = (f"{blas[0].get('internal_api', 'blas')}-{blas[0].get('architecture') or 'unknown'}" if blas
+            else "noblas")
+    simd = [t for t in getattr(um, "__cpu_dispatch__", []) if um.__cpu_features__.get(t)]
+    return f"{kind}_{'+'.join(simd) or 'baseline'}".lower().replace(" ", "")
+
+
+def fixture_path(stem: str, kind: str | None = None) -> Path:
+    return DATA_DIR / (kind or machine()) / f"{stem}.npz"
+
+
+def recorded_kinds() -> list[str]:
+    return sorted(d.name for d in DATA_DIR.iterdir() if d.is_dir()) if DATA_DIR.is_dir() else []
+
+
+def record(path: str | Path, scenario: str, seed: int, frames: int, interval_s: float = 5.0,
+           spectra: bool = True) -> dict[str, np.ndarray]:
+    import scipy
+
+    meta = {"scenario": scenario, "seed": seed, "frames": frames, "interval_s": interval_s, "spectra": spectra,
+            "machine": machine(), "numpy": np.__version__, "scipy": scipy.__version__}
+    data = run(scenario, seed, frames, interval_s, spectra)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    save(path, data, meta)
+    return data
+
 
 #: absolute tolerance per float column (name prefix match); everything else compares exactly
 TOLERANCE = {
@@ -142,9 +198,16 @@ def run(scenario: str, seed: int, frames: int, interval_s: float = 5.0, spectra:
 
 def check(path: str | Path) -> list[str]:
     """Re-run the recording's scenario and compare (empty list: equivalent)."""
+    import scipy
+
     ref, meta = load(path)
-    return compare(ref, run(meta["scenario"], meta["seed"], meta["frames"], meta["interval_s"],
+    errs = compare(ref, run(meta["scenario"], meta["seed"], meta["frames"], meta["interval_s"],
                             meta.get("spectra", True)))
+    now = {"machine": machine(), "numpy": np.__version__, "scipy": scipy.__version__}
+    moved = [f"{k} {meta[k]} -> {v}" for k, v in now.items() if k in meta and meta[k] != v]
+    if errs and moved:  # say what else differs from the recording (round-off of another library or kernel)
+        errs.append("recorded with another environment: " + ", ".join(moved))
+    return errs
 
 
 def compare(ref: dict[str, np.ndarray], new: dict[str, np.ndarray]) -> list[str]:
@@ -195,22 +258,28 @@ def load(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("action", choices=("record", "check"))
-    p.add_argument("path")
+    p.add_argument("action", choices=("record", "check", "record-all", "machine"))
+    p.add_argument("path", nargs="?", help="fixture file (record, check)")
     p.add_argument("--scenario", default="highway4-traffic")
     p.add_argument("--seed", type=int, default=31)
     p.add_argument("--frames", type=int, default=400)
     p.add_argument("--interval-s", type=float, default=5.0)
     p.add_argument("--no-spectra", action="store_true", help="leave the angle spectra, CFAR noise and peak frequencies out (small fixtures)")
     a = p.parse_args(argv)
-    if a.action == "record":
-        meta = {"scenario": a.scenario, "seed": a.seed, "frames": a.frames, "interval_s": a.interval_s,
-                "spectra": not a.no_spectra}
-        data = run(a.scenario, a.seed, a.frames, a.interval_s, not a.no_spectra)
-        save(a.path, data, meta)
-        print(f"recorded {a.path}: {len(data['det_frame'])} detections, {len(data['trk_frame'])} track rows, "
-              f"{len(data['ls_frame'])} lane statistics, {len(data['ev_frame'])} events, "
-              f"confirmed ids {sorted(set(data['trk_track_id'].tolist()))}")
+    if a.action == "machine":
+        print(machine())
+        return 0
+    if a.action in ("record", "check") and not a.path:
+        p.error(f"{a.action} needs a fixture path")
+    if a.action in ("record", "record-all"):
+        jobs = ([(a.path, {"scenario": a.scenario, "seed": a.seed, "frames": a.frames})] if a.action == "record"
+                else [(fixture_path(stem), args) for stem, args in FIXTURES.items()])
+        for path, args in jobs:
+            data = record(path, **args, interval_s=a.interval_s,
+                          spectra=not a.no_spectra and a.action == "record")
+            print(f"recorded {path}: {len(data['det_frame'])} detections, {len(data['trk_frame'])} track rows, "
+                  f"{len(data['ls_frame'])} lane statistics, {len(data['ev_frame'])} events, "
+                  f"confirmed ids {sorted(set(data['trk_track_id'].tolist()))}")
         return 0
     errs = check(a.path)
     print("\n".join(errs) if errs else f"equivalent: {a.path} ({load(a.path)[1]})")
