@@ -20,8 +20,8 @@ re-records them with ``record-all`` (each fixture's arguments are in :data:`FIXT
 Fixtures are kept per machine kind (:func:`machine`): the BLAS kernel OpenBLAS picks for the CPU and the
 SIMD targets numpy dispatches to round differently in the last bits (the tracker's small matrix products
 go through BLAS), a detection at the threshold then comes or goes and the runs diverge within a few dozen
-frames. A fixture can only vouch for "nothing changed" on a machine whose floating point is the one it was
-recorded with, so each lives in ``data/golden/<machine>/`` and the test skips, saying so, where none was
+frames (so does the BLAS thread count: :func:`run` holds BLAS to one thread, as on the device). A fixture
+can only vouch for "nothing changed" on a machine whose floating point is the one it was recorded with, so each lives in ``data/golden/<machine>/`` and the test skips, saying so, where none was
 recorded::
 
     PYTHONPATH=. python -m tests.edge.lane_golden record-all       # this machine's fixtures, from FIXTURES
@@ -189,11 +189,16 @@ def flatten(results, spectra: bool = True) -> dict[str, np.ndarray]:
 
 
 def run(scenario: str, seed: int, frames: int, interval_s: float = 5.0, spectra: bool = True) -> dict[str, np.ndarray]:
+    """The pipeline's outputs, with BLAS on one thread as on the device (the service unit sets
+    OPENBLAS_NUM_THREADS=1): a threaded BLAS splits sums differently, and the runs diverge."""
+    from threadpoolctl import threadpool_limits
+
     from edge.pipeline import StageTimer
 
-    pipe, it = build(scenario, seed, interval_s)
-    timer = StageTimer(16)
-    return flatten([pipe.process(f, timer) for f in it(frames)], spectra)
+    with threadpool_limits(limits=1):
+        pipe, it = build(scenario, seed, interval_s)
+        timer = StageTimer(16)
+        return flatten([pipe.process(f, timer) for f in it(frames)], spectra)
 
 
 def check(path: str | Path) -> list[str]:
