@@ -1008,9 +1008,19 @@ class PdafTracker:
         off = kalman.lateral_inconsistent(lat, lat_p, ref, ref_p, self._lateral_gamma,
                                           cfg.lateral_smoother_min_var_fraction)
         off |= cusum > cfg.lateral_smoother_cusum_nats
+        hold = None
+        if cfg.lateral_smoother_hold_manoeuvre_prob < 1.0 and cfg.motion_model == "imm":
+            hold = tr.mu[:, 1] > cfg.lateral_smoother_hold_manoeuvre_prob  # the IMM says: manoeuvring
+            off |= hold
         if off.any():
             lat[off], lat_p[off] = ref[off], ref_p[off]
             cusum = np.where(off, 0.0, cusum)
+            if hold is not None and hold.any():
+                # held during a manoeuvre: the lateral speed of the lane-keeping mode (decaying to the road's), so a
+                # line that starts again as the manoeuvre ends does not keep the manoeuvre's speed across
+                lat[hold, 1] = tr.xm[hold, 0, 2]
+                lat_p[hold, 1, 1] = tr.pm[hold, 0, 2, 2]
+                lat_p[hold, 0, 1] = lat_p[hold, 1, 0] = tr.pm[hold, 0, 0, 2]
         tr.lat, tr.lat_p, tr.lat_cusum = lat, lat_p, cusum
 
     def _road_lateral_speed(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
