@@ -835,6 +835,8 @@ class PdafTracker:
         self.imm_predictor = ImmPredictor(self.config) if self.config.motion_model == "imm" else None
         self.road_yaw_rad = 0.0  # direction of the road off the boresight (the lane pipeline sets its estimate)
         self.road_yaw_sigma_rad = 0.0  # its uncertainty (the lane pipeline sets the traffic layer's; lateral_smoother)
+        # lateral_smoother: the motion model's x_m of the last published tracks (the published x_m is the line's)
+        self.published_motion_x_m: np.ndarray | None = None
         self.measurement_model = MeasurementModel(self.config)
         self.associator = PdaAssociator(self.config)
         self.updater = PdaUpdater()
@@ -849,6 +851,7 @@ class PdafTracker:
         self.ids = IdPool(self.config.max_track_id)
         self.last_t_ns: int | None = None
         self.intermediates: dict[str, np.ndarray] = {}
+        self.published_motion_x_m = None
 
     def step(self, detections: Detections, t_ns: int) -> tuple[TrackState, ...]:
         """Advance all tracks to ``t_ns`` with this frame's detections; return the published tracks."""
@@ -1086,9 +1089,12 @@ class PdafTracker:
             sel = tr.confirmed & (tr.misses <= self.config.publish_max_misses)
         idx = sel.nonzero()[0]
         if idx.size == 0:
+            if self.config.lateral_smoother:
+                self.published_motion_x_m = None
             return ()
         st = tr.x.take(idx, axis=0)
         if self.config.lateral_smoother:  # the lateral position of the straight-line filter ...
+            self.published_motion_x_m = st[:, 0].copy()
             c = tr.lat_cusum.take(idx)
             lat = tr.lat[:, 0].take(idx)
             # ... moved towards the motion model's by the evidence that the vehicle left its line (none: itself)

@@ -174,18 +174,14 @@ def test_lateral_speed_update_is_the_kalman_update_of_the_speed():
 
 
 @pytest.mark.timeout(120)
-def test_misaimed_radar_yaw_is_learned_with_the_yaw_uncertainty_prior():
-    """highway4-misaimed (radar 3 deg off, yaw 0 configured), seed 1, 120 frames: with the straight line held along
-    the configured yaw (0.03 m/s) the published tracks vote for that yaw and the lanes are wrong (measured lane
-    accuracy 0.542, smoother off 0.680); with its prior widened by the yaw's uncertainty
-    (``lateral_smoother_yaw_uncertainty``) 0.753."""
-    def lane_accuracy(**ov):
-        cfg = load_config(env={}, overrides={f"track.pdaf.{k}": v for k, v in ov.items()})
-        return evaluate("highway4-misaimed", seed=1, frames=120, events=None, config=cfg)["summary"]["lane_accuracy"]
-
-    tight = lane_accuracy(lateral_smoother=True)
-    wide = lane_accuracy(lateral_smoother=True, lateral_smoother_yaw_uncertainty=True)
-    assert wide > 0.7 and tight < 0.6, (wide, tight)
+def test_misaimed_radar_yaw_is_learned_from_the_motion_models_positions():
+    """highway4-misaimed (radar 3 deg off, yaw 0 configured), seed 1, 120 frames. The straight line starts along the
+    configured yaw (0.03 m/s); had the yaw estimator taken the published positions, those tracks would vote for the
+    yaw they assumed (lane accuracy 0.542 measured). It takes the motion model's (``TrafficMonitor.update(...,
+    yaw_x_m)``): 0.683, smoother off 0.680."""
+    cfg = load_config(env={}, overrides={"track.pdaf.lateral_smoother": True})
+    s = evaluate("highway4-misaimed", seed=1, frames=120, events=None, config=cfg)["summary"]
+    assert s["lane_accuracy"] > 0.66, s["lane_accuracy"]
 
 
 def test_line_is_held_at_the_motion_model_while_it_manoeuvres():
