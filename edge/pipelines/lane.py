@@ -878,7 +878,6 @@ class LanePipeline(Pipeline):
         with timer.stage("traffic"):
             upd = self.traffic.update(tracks, frame.t_ns, self.tracker.published_motion_x_m)
             self.tracker.road_yaw_rad = self.traffic.yaw_rad  # the IMM's lane-keeping direction
-            self.tracker.road_yaw_sigma_rad = self.traffic.yaw_sigma_rad  # how well it is known
         return FrameResult(
             profile=self.profile, seq=frame.seq, t_ns=frame.t_ns, detections=det, tracks=upd.tracks,
             presence=upd.presence, lane_stats=upd.lane_stats, events=upd.events, intermediates=inter,

@@ -154,37 +154,6 @@ class PdafConfig:
                                       "0.894, 0.764/0.903); a lane change (tests/edge/test_lateral_smoother.py) largest "
                                       "error 0.64 m either way, a second after it 0.024 -> 0.011 m (0.6 keeping the "
                                       "combined lateral speed: 0.128 m)", "min": 0.0, "max": 1.0})
-    lateral_smoother_yaw_uncertainty: bool = field(
-        default=False, metadata={"doc": "widen the straight line's lateral-speed prior (lateral_smoother_init_speed_sigma_mps) "
-                                        "by the speed along the road times the road direction's uncertainty (the traffic "
-                                        "layer's yaw sd, traffic.mounting_yaw_sigma_deg until the yaw is estimated; "
-                                        "PdafTracker.road_yaw_sigma_rad). The published positions feed the yaw estimator: "
-                                        "a line held along the configured yaw votes for it. highway4-misaimed lane "
-                                        "accuracy, seed 1 (120/300 frames) 0.433/0.788 -> 0.721/0.897, seed 31 "
-                                        "0.696/0.865 -> 0.761/0.901 (smoother off: 0.680/0.894, 0.764/0.903); "
-                                        "side-by-side (90 frames, seeds 3, 8, 21) tracked fractions 0.88/0.54, "
-                                        "0.89/0.59, 0.70/0.83 -> 0.78/0.64, 0.78/0.70, 0.78/0.76 (off: 0.77/0.66, "
-                                        "0.74/0.73, 0.77/0.77; the yaw is not estimated there, 1 deg: the line of the "
-                                        "unresolved pair wanders as the IMM's does). Off because the lines of vehicles "
-                                        "seeded before the yaw is estimated follow their noisy first detections: "
-                                        "highway4 motorcycle (dev seeds 1, 3, 5, 8, 21, 44) 0.044/0.108/0.132/0.090/"
-                                        "0.031/0.042 -> 0.110/0.152/0.283/0.190/0.057/0.104 m (off 0.186/0.156/0.376/"
-                                        "0.313/0.102/0.225); crossing lane accuracy (seeds 3, 1, 5, 8) 0.975/0.997/"
-                                        "0.966/0.969 -> 0.953/0.975/0.963/0.963 (off 0.969/1.000/0.966/0.969)"})
-    lateral_smoother_restart_along_road: bool = field(
-        default=False, metadata={"doc": "after a restart (and for a new track) the straight line's lateral speed is "
-                                        "pulled to the road direction's (a Kalman update with it as a measurement of "
-                                        "the sd of lateral_smoother_init_speed_sigma_mps, whenever the line's own is "
-                                        "less certain), not kept at the motion model's: a line restarted during a "
-                                        "manoeuvre otherwise keeps its lateral speed (side-by-side seed 8: 0.8-1.5 m/s "
-                                        "for 40 frames after the split, last lateral error 0.46 m, the IMM's 0.24 m). "
-                                        "highway4 motorcycle, dev seeds 1, 3, 5, 8, 21, 44: 0.044/0.108/0.132/0.090/"
-                                        "0.031/0.042 -> 0.032/0.106/0.102/0.075/0.031/0.037 m; highway4-misaimed lane "
-                                        "accuracy seed 1 (120/300 frames) 0.433/0.788 -> 0.580/0.812, seed 31 "
-                                        "0.696/0.865 -> 0.755/0.899 (off: 0.680/0.894, 0.764/0.903). Off because a "
-                                        "restarted line then lags a lane change: crossing seeds 1 and 5, 0 -> 4 id "
-                                        "switches, lane accuracy (seeds 3, 1, 5, 8) 0.975/0.997/0.966/0.969 -> "
-                                        "0.963/0.969/0.963/0.972"})
     lateral_smoother_reset_prob: float = field(
         default=0.99, metadata={"doc": "the straight-line filter restarts from the motion model's estimate when their "
                                        "lateral positions or lateral speeds differ beyond the chi-square (1 dof) "

@@ -35,7 +35,6 @@ __all__ = [
     "snr_polar_noise",
     "lateral_predict",
     "lateral_pda_update",
-    "lateral_speed_update",
     "lateral_inconsistent",
     "lateral_log_likelihood_ratio",
     "lateral_blend",
@@ -194,20 +193,6 @@ def lateral_pda_update(xs: np.ndarray, ps: np.ndarray, z: np.ndarray, r: np.ndar
     x = xs + dxbar
     p = ps - kbar[:, :, None] * ps[:, 0, None, :] + sums[:, 4:].reshape(n_t, 2, 2) - dxbar[:, :, None] * dxbar[:, None, :]
     p = 0.5 * (p + p.transpose(0, 2, 1))
-    return x, p
-
-
-def lateral_speed_update(xs: np.ndarray, ps: np.ndarray, v: np.ndarray, r: np.ndarray,
-                         rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Kalman update of the straight-line states ``xs`` (T, 2), ``ps`` (T, 2, 2) of the tracks ``rows`` (bool (T,))
-    with a measurement ``v`` (T,) of the lateral speed of variance ``r`` (T,) (``H = [0, 1]``; the road direction's
-    lateral speed). Other rows are returned unchanged (copies)."""
-    x, p = xs.copy(), ps.copy()
-    pr = ps[rows]
-    k = pr[:, :, 1] / (pr[:, 1, 1] + r[rows])[:, None]  # (K, 2)
-    x[rows] = xs[rows] + k * (v[rows] - xs[rows, 1])[:, None]
-    pu = pr - k[:, :, None] * pr[:, 1, None, :]
-    p[rows] = 0.5 * (pu + pu.transpose(0, 2, 1))
     return x, p
 
 

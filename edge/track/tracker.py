@@ -834,7 +834,6 @@ class PdafTracker:
         self.predictor = CvPredictor(self.config)
         self.imm_predictor = ImmPredictor(self.config) if self.config.motion_model == "imm" else None
         self.road_yaw_rad = 0.0  # direction of the road off the boresight (the lane pipeline sets its estimate)
-        self.road_yaw_sigma_rad = 0.0  # its uncertainty (the lane pipeline sets the traffic layer's; lateral_smoother)
         # lateral_smoother: the motion model's x_m of the last published tracks (the published x_m is the line's)
         self.published_motion_x_m: np.ndarray | None = None
         self.measurement_model = MeasurementModel(self.config)
@@ -984,19 +983,10 @@ class PdafTracker:
         estimate where the two disagree (``xp``, ``pp``: the motion model's prediction, for the CUSUM)."""
         cfg = self.config
         tr = self.tracks
-        if cfg.lateral_smoother_restart_along_road:
-            # the line's lateral speed is never less certain than the road direction's: where it is (a new track, a
-            # restart from the motion model's estimate, a yaw estimate that became sure), the road direction's
-            # lateral speed is taken in as a measurement of it
-            v_road, var_road = self._road_lateral_speed(tr.x)
-            loose = tr.lat_p[:, 1, 1] > var_road
-            if loose.any():
-                tr.lat, tr.lat_p = kalman.lateral_speed_update(tr.lat, tr.lat_p, v_road, var_road, loose)
-        else:
-            new = tr.age == 1  # seeded last frame: its lateral speed is the road direction's, give or take a little
-            if new.any():
-                tr.lat_p[new, 1, 1] = np.minimum(tr.lat_p[new, 1, 1], self._road_lateral_speed(tr.x[new])[1])
-                tr.lat_p[new, 0, 1] = tr.lat_p[new, 1, 0] = 0.0
+        new = tr.age == 1  # seeded last frame: its lateral speed is the road direction's, give or take a little
+        if new.any():
+            tr.lat_p[new, 1, 1] = np.minimum(tr.lat_p[new, 1, 1], cfg.lateral_smoother_init_speed_sigma_mps**2)
+            tr.lat_p[new, 0, 1] = tr.lat_p[new, 1, 0] = 0.0
         lat, lat_p = kalman.lateral_predict(tr.lat, tr.lat_p, dt_s, cfg.lateral_smoother_q_m2ps3)
         ti, mi = np.nonzero(beta > 0)
         cusum = tr.lat_cusum
@@ -1025,21 +1015,6 @@ class PdafTracker:
                 lat_p[hold, 1, 1] = tr.pm[hold, 0, 2, 2]
                 lat_p[hold, 0, 1] = lat_p[hold, 1, 0] = tr.pm[hold, 0, 0, 2]
         tr.lat, tr.lat_p, tr.lat_cusum = lat, lat_p, cusum
-
-    def _road_lateral_speed(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(K,) lateral speed (m/s) of a vehicle at state ``x`` (K, 4) that drives along the road (``road_yaw_rad``),
-        and its variance: ``lateral_smoother_init_speed_sigma_mps^2`` plus the speed along the road times the road
-        direction's uncertainty (``road_yaw_sigma_rad``, the traffic layer's: the configured yaw's sd until it is
-        estimated), squared. A straight line held tighter than the road direction is known keeps the direction it
-        assumed, and published to the yaw estimator its tracks vote for that yaw (highway4-misaimed)."""
-        cy, sy = math.cos(self.road_yaw_rad), math.sin(self.road_yaw_rad)
-        v_s = cy * x[:, 3] - sy * x[:, 2]  # along the road, e_s = (-sin yaw, cos yaw)
-        var = self.config.lateral_smoother_init_speed_sigma_mps**2
-        if self.config.lateral_smoother_yaw_uncertainty and self.road_yaw_sigma_rad > 0.0:
-            var = var + (v_s * self.road_yaw_sigma_rad) ** 2
-        else:
-            var = np.full(x.shape[0], var)
-        return -sy * v_s, var
 
     def _reanchor(self, meas: Measurements, gated: np.ndarray, hit: np.ndarray, used: np.ndarray) -> None:
         """A confirmed track that missed moves to the nearest unclaimed detection up to ``reanchor_m`` nearer

@@ -152,27 +152,6 @@ def test_highway4_motorcycle_position_rmse():
     assert res["summary"]["false_tracks"] == 0 and res["summary"]["id_switches"] == 0
 
 
-def test_lateral_speed_update_is_the_kalman_update_of_the_speed():
-    """The road direction's lateral speed taken in as a measurement (``H = [0, 1]``) of the rows asked for; the
-    other rows unchanged."""
-    rng = np.random.default_rng(3)
-    xs = rng.normal(size=(3, 2))
-    ps = np.stack([_spd2(rng) for _ in range(3)])
-    v, r = rng.normal(size=3), rng.uniform(0.01, 1.0, size=3)
-    rows = np.array([True, False, True])
-    x, p = kalman.lateral_speed_update(xs, ps, v, r, rows)
-    h = np.array([[0.0, 1.0]])
-    for k in range(3):
-        if not rows[k]:
-            np.testing.assert_array_equal(x[k], xs[k])
-            np.testing.assert_array_equal(p[k], ps[k])
-            continue
-        s = h @ ps[k] @ h.T + r[k]
-        gain = ps[k] @ h.T / s
-        np.testing.assert_allclose(x[k], xs[k] + (gain * (v[k] - xs[k, 1]))[:, 0], rtol=1e-12)
-        np.testing.assert_allclose(p[k], (np.eye(2) - gain @ h) @ ps[k], rtol=1e-12, atol=1e-15)
-
-
 @pytest.mark.timeout(120)
 def test_misaimed_radar_yaw_is_learned_from_the_motion_models_positions():
     """highway4-misaimed (radar 3 deg off, yaw 0 configured), seed 1, 120 frames. The straight line starts along the
