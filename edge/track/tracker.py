@@ -35,14 +35,22 @@ Published lateral position (``lateral_smoother``, off by default): a straight-li
 boresight (``tracks.lat``: ``[x, vx]``, :func:`edge.track.kalman.lateral_pda_update`), outside the IMM's mixing,
 updated with the association's weights and each detection's own lateral noise; it restarts from the motion
 model's estimate when a Hausman test or a CUSUM of the likelihood ratio of the two says the vehicle left the line
-(a lane change), and the published ``x_m`` moves towards the motion model's as that evidence grows. The IMM's
-lane-keeping mode alone cannot average a far vehicle's lateral position: mixed with the manoeuvring mode every
-frame, it takes in ~20x its own lateral process noise (highway4 motorcycle, 0.15-0.38 m RMSE on the dev seeds).
-Association, gates, ids and ``tracks.x`` (what every other stage reads) are the motion model's. It is off by
-default because it follows a change of line late: a lane change's largest lateral error 0.35 -> 0.64 m, the first
-track of a side-by-side pair stays between the lanes longer after the resolver splits it (side-by-side seed 3,
-90 frames: tracked fractions 0.77/0.66 -> 0.88/0.54), and on a mis-aimed radar it starts along the configured
-road direction until the yaw is estimated (highway4-misaimed lane accuracy 0.976 -> 0.974, 0.984 -> 0.977).
+(a lane change), and is held there (with the lane-keeping mode's lateral speed) while the IMM's manoeuvring mode
+has more than ``lateral_smoother_hold_manoeuvre_prob``; the published ``x_m`` moves towards the motion model's as
+the CUSUM's evidence grows. The IMM's lane-keeping mode alone cannot average a far vehicle's lateral position:
+mixed with the manoeuvring mode every frame, it takes in ~20x its own lateral process noise (highway4 motorcycle,
+0.15-0.38 m RMSE on the dev seeds). Association, gates, ids and ``tracks.x`` (what every other stage reads) are the
+motion model's, and so are the positions the traffic layer's yaw estimator takes (``published_motion_x_m``: a line
+starts along the road direction in use, and its tracks would vote for the yaw it assumed; highway4-misaimed seed 1,
+120 frames, lane accuracy 0.542 with the published positions, 0.683 with the motion model's, 0.680 without the
+filter). Why it is still off by default, measured with it on (off in brackets): side-by-side (90 frames) tracked
+fractions seed 3 0.88/0.54 (0.77/0.66), seed 8 0.89/0.59 (0.74/0.73), seed 21 0.70/0.83 (0.77/0.77). The loss is
+before the resolver splits the cell, not after it (from the split on both cars had a track in every frame, on and
+off, seeds 3 and 8): the one track of the unresolved pair lies between the lanes, and the evaluation gives each
+frame to the nearer car; the straight line averages the merged detections and stays on one side of the middle,
+the IMM's estimate wanders after the momentarily brighter car and gives frames to both. Also: a lane change's
+largest lateral error 0.35 -> 0.64 m (the line's lag before the change is detected), and highway4 seed 44 car 3
+(seeded at 260 m, its first detections 1.3 m off on average) 0.23 m with or without it.
 
 Measurement noise (``measurement_noise``): ``"constant"`` is one ``R`` per track from fixed range and azimuth sds
 at its prediction (Lim); ``"snr"`` (default) is one ``R`` per detection from its SNR, ``sigma^2 = sigma0^2 / SNR +
