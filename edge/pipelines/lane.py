@@ -876,7 +876,7 @@ class LanePipeline(Pipeline):
         with timer.stage("track"):
             tracks = self.tracker.step(det, frame.t_ns)
         with timer.stage("traffic"):
-            upd = self.traffic.update(tracks, frame.t_ns)
+            upd = self.traffic.update(tracks, frame.t_ns, self.tracker.published_motion_x_m)
             self.tracker.road_yaw_rad = self.traffic.yaw_rad  # the IMM's lane-keeping direction
         return FrameResult(
             profile=self.profile, seq=frame.seq, t_ns=frame.t_ns, detections=det, tracks=upd.tracks,

@@ -35,14 +35,22 @@ Published lateral position (``lateral_smoother``, off by default): a straight-li
 boresight (``tracks.lat``: ``[x, vx]``, :func:`edge.track.kalman.lateral_pda_update`), outside the IMM's mixing,
 updated with the association's weights and each detection's own lateral noise; it restarts from the motion
 model's estimate when a Hausman test or a CUSUM of the likelihood ratio of the two says the vehicle left the line
-(a lane change), and the published ``x_m`` moves towards the motion model's as that evidence grows. The IMM's
-lane-keeping mode alone cannot average a far vehicle's lateral position: mixed with the manoeuvring mode every
-frame, it takes in ~20x its own lateral process noise (highway4 motorcycle, 0.15-0.38 m RMSE on the dev seeds).
-Association, gates, ids and ``tracks.x`` (what every other stage reads) are the motion model's. It is off by
-default because it follows a change of line late: a lane change's largest lateral error 0.35 -> 0.64 m, the first
-track of a side-by-side pair stays between the lanes longer after the resolver splits it (side-by-side seed 3,
-90 frames: tracked fractions 0.77/0.66 -> 0.88/0.54), and on a mis-aimed radar it starts along the configured
-road direction until the yaw is estimated (highway4-misaimed lane accuracy 0.976 -> 0.974, 0.984 -> 0.977).
+(a lane change), and is held there (with the lane-keeping mode's lateral speed) while the IMM's manoeuvring mode
+has more than ``lateral_smoother_hold_manoeuvre_prob``; the published ``x_m`` moves towards the motion model's as
+the CUSUM's evidence grows. The IMM's lane-keeping mode alone cannot average a far vehicle's lateral position:
+mixed with the manoeuvring mode every frame, it takes in ~20x its own lateral process noise (highway4 motorcycle,
+0.15-0.38 m RMSE on the dev seeds). Association, gates, ids and ``tracks.x`` (what every other stage reads) are the
+motion model's, and so are the positions the traffic layer's yaw estimator takes (``published_motion_x_m``: a line
+starts along the road direction in use, and its tracks would vote for the yaw it assumed; highway4-misaimed seed 1,
+120 frames, lane accuracy 0.542 with the published positions, 0.683 with the motion model's, 0.680 without the
+filter). Why it is still off by default, measured with it on (off in brackets): side-by-side (90 frames) tracked
+fractions seed 3 0.88/0.54 (0.77/0.66), seed 8 0.89/0.59 (0.74/0.73), seed 21 0.70/0.83 (0.77/0.77). The loss is
+before the resolver splits the cell, not after it (from the split on both cars had a track in every frame, on and
+off, seeds 3 and 8): the one track of the unresolved pair lies between the lanes, and the evaluation gives each
+frame to the nearer car; the straight line averages the merged detections and stays on one side of the middle,
+the IMM's estimate wanders after the momentarily brighter car and gives frames to both. Also: a lane change's
+largest lateral error 0.35 -> 0.64 m (the line's lag before the change is detected), and highway4 seed 44 car 3
+(seeded at 260 m, its first detections 1.3 m off on average) 0.23 m with or without it.
 
 Measurement noise (``measurement_noise``): ``"constant"`` is one ``R`` per track from fixed range and azimuth sds
 at its prediction (Lim); ``"snr"`` (default) is one ``R`` per detection from its SNR, ``sigma^2 = sigma0^2 / SNR +
@@ -834,6 +842,8 @@ class PdafTracker:
         self.predictor = CvPredictor(self.config)
         self.imm_predictor = ImmPredictor(self.config) if self.config.motion_model == "imm" else None
         self.road_yaw_rad = 0.0  # direction of the road off the boresight (the lane pipeline sets its estimate)
+        # lateral_smoother: the motion model's x_m of the last published tracks (the published x_m is the line's)
+        self.published_motion_x_m: np.ndarray | None = None
         self.measurement_model = MeasurementModel(self.config)
         self.associator = PdaAssociator(self.config)
         self.updater = PdaUpdater()
@@ -848,6 +858,7 @@ class PdafTracker:
         self.ids = IdPool(self.config.max_track_id)
         self.last_t_ns: int | None = None
         self.intermediates: dict[str, np.ndarray] = {}
+        self.published_motion_x_m = None
 
     def step(self, detections: Detections, t_ns: int) -> tuple[TrackState, ...]:
         """Advance all tracks to ``t_ns`` with this frame's detections; return the published tracks."""
@@ -998,9 +1009,19 @@ class PdafTracker:
         off = kalman.lateral_inconsistent(lat, lat_p, ref, ref_p, self._lateral_gamma,
                                           cfg.lateral_smoother_min_var_fraction)
         off |= cusum > cfg.lateral_smoother_cusum_nats
+        hold = None
+        if cfg.lateral_smoother_hold_manoeuvre_prob < 1.0 and cfg.motion_model == "imm":
+            hold = tr.mu[:, 1] > cfg.lateral_smoother_hold_manoeuvre_prob  # the IMM says: manoeuvring
+            off |= hold
         if off.any():
             lat[off], lat_p[off] = ref[off], ref_p[off]
             cusum = np.where(off, 0.0, cusum)
+            if hold is not None and hold.any():
+                # held during a manoeuvre: the lateral speed of the lane-keeping mode (decaying to the road's), so a
+                # line that starts again as the manoeuvre ends does not keep the manoeuvre's speed across
+                lat[hold, 1] = tr.xm[hold, 0, 2]
+                lat_p[hold, 1, 1] = tr.pm[hold, 0, 2, 2]
+                lat_p[hold, 0, 1] = lat_p[hold, 1, 0] = tr.pm[hold, 0, 0, 2]
         tr.lat, tr.lat_p, tr.lat_cusum = lat, lat_p, cusum
 
     def _reanchor(self, meas: Measurements, gated: np.ndarray, hit: np.ndarray, used: np.ndarray) -> None:
@@ -1051,9 +1072,12 @@ class PdafTracker:
             sel = tr.confirmed & (tr.misses <= self.config.publish_max_misses)
         idx = sel.nonzero()[0]
         if idx.size == 0:
+            if self.config.lateral_smoother:
+                self.published_motion_x_m = None
             return ()
         st = tr.x.take(idx, axis=0)
         if self.config.lateral_smoother:  # the lateral position of the straight-line filter ...
+            self.published_motion_x_m = st[:, 0].copy()
             c = tr.lat_cusum.take(idx)
             lat = tr.lat[:, 0].take(idx)
             # ... moved towards the motion model's by the evidence that the vehicle left its line (none: itself)

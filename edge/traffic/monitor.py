@@ -222,7 +222,10 @@ class TrafficMonitor:
         cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
         acc.add(Crossing(tc, speed_mps, length_m, cls))
 
-    def update(self, tracks: tuple[TrackState, ...], t_ns: int) -> TrafficUpdate:
+    def update(self, tracks: tuple[TrackState, ...], t_ns: int, yaw_x_m: np.ndarray | None = None) -> TrafficUpdate:
+        """``yaw_x_m``: per track of ``tracks`` the across-boresight position the yaw estimator takes instead of
+        ``x_m`` (the motion model's, when the published one comes from a filter that assumes the road direction:
+        ``track.pdaf.lateral_smoother``; its tracks would vote for the yaw they assumed)."""
         cfg = self.config
         conf = [t for t in tracks if t.confirmed and t.track_id > 0]
         dt_ns = 0 if self._last_t_ns is None else max(t_ns - self._last_t_ns, 0)
@@ -241,7 +244,11 @@ class TrafficMonitor:
         est = None
         yaw_sigma = 0.0  # the configured yaw is taken as measured when it is not estimated
         if cfg.estimate_yaw:
-            self.yaw_estimator.add(ids, age, x, y)
+            if yaw_x_m is not None and len(yaw_x_m) == len(tracks):
+                sel = [k for k, t in enumerate(tracks) if t.confirmed and t.track_id > 0]
+                self.yaw_estimator.add(ids, age, np.asarray(yaw_x_m, dtype=np.float64)[sel], y)
+            else:
+                self.yaw_estimator.add(ids, age, x, y)
             est = self.yaw_estimator.estimate_rad()
             self.yaw_rad, yaw_sigma = self._yaw_in_use(est)
         self.yaw_sigma_rad = yaw_sigma
