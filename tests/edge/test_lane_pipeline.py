@@ -156,3 +156,49 @@ def test_track_aided_pairing_recovers_a_smeared_near_vehicle():
     assert (b[0] == [bk[0] for bk in bins]).all()
     two = tuple(fk if k < 2 else fk + 50 * p._bin_hz[k] for k, fk in enumerate(freqs))
     assert p._track_aided_pairs(two, bins, pairs, t_ns)[1].size == 0
+
+
+def _aided_for_tentative(config, y=260.0, vy=-30.0, hits=2, moved=True):
+    """A tentative track (``hits`` hits) at ``y`` moving at ``vy`` along the boresight, and peaks exactly at its
+    predicted beats in all four segments: the track-aided pairings found for it."""
+    from edge.dsp.pairing import pair_beats
+
+    p = build_pipeline("lane", FE, config)
+    tr = p.tracker
+    x = -5.25
+    tr.tracks.append(np.array([[x, y, 0.0, vy]]), np.eye(4)[None] * 0.01, 1.0)
+    tr.tracks.hits[:] = hits
+    tr.tracks.moved[:] = moved
+    tr.last_t_ns = 0
+    t_ns = 33_000_000
+    yy = y + vy * t_ns * 1e-9
+    dz = p.config.mounting_height_m - p.config.target_height_m
+    r = math.sqrt(x * x + yy * yy + dz * dz)
+    v = (yy * vy) / r
+    f = p._model.predict(np.array(r), np.array(v))
+    freqs = tuple(np.array([f[k] + 0.3 * p._bin_hz[k]]) for k in range(4))
+    bins = tuple(np.round(fk / p._bin_hz[k]).astype(np.int64) % p.n_bins for k, fk in enumerate(freqs))
+    cfg = p.config
+    # the four-segment pairing would find it too; the aided search is asked directly (no pairing given)
+    pairs = pair_beats(tuple(np.zeros(0) for _ in range(4)), p._model, min_range_m=cfg.min_range_m,
+                       max_range_m=cfg.max_range_m, max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=p._tol)
+    _, rng, vel, _ = p._track_aided_pairs(freqs, bins, pairs, t_ns)
+    return rng, vel, r, v
+
+
+def test_far_approaching_tentative_tracks_search_for_their_peaks():
+    """aided_tentative_min_range_m: a tentative track approaching from 260 m with two hits takes its peaks as a
+    confirmed track does; not with one hit, not when it recedes, not at 150 m, not before the tracker found it
+    moving, not with the option off."""
+    cfg = load_config(env={})
+    rng, vel, r, v = _aided_for_tentative(cfg)
+    assert rng.size == 1 and abs(rng[0] - r) < 0.5 and abs(vel[0] - v) < 0.5
+    assert _aided_for_tentative(cfg, hits=1)[0].size == 0
+    assert _aided_for_tentative(cfg, vy=30.0)[0].size == 0
+    assert _aided_for_tentative(cfg, y=150.0)[0].size == 0
+    assert _aided_for_tentative(cfg, moved=False)[0].size == 0
+    off = load_config(env={}, overrides={"pipeline.lane.aided_tentative_min_range_m": "0"})
+    assert _aided_for_tentative(off)[0].size == 0
+    either = load_config(env={}, overrides={"pipeline.lane.aided_tentative_approaching": "false",
+                                            "pipeline.lane.aided_tentative_min_hits": "1"})
+    assert _aided_for_tentative(either, vy=30.0, hits=1)[0].size == 1
