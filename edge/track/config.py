@@ -254,6 +254,17 @@ class PdafConfig:
                                                      "clutter (guard rail, gantry) is held in unpublished tentative "
                                                      "tracks; a vehicle that stops later stays confirmed",
                                "min": 0.0, "max": 50.0})
+    tentative_keep_from_m: float = field(
+        default=0.0, metadata={"unit": "m", "doc": "beyond this ground range a tentative track is dropped (M-of-N "
+                                                  "confirmation) only once fewer than tentative_keep_min_hits of its "
+                                                  "last confirm_n frames hit, instead of as soon as confirm_m can no "
+                                                  "longer be reached: an approaching car at 300-330 m is detected in "
+                                                  "0.2-0.5 of the frames, and a track dropped at 4 of 10 was seeded "
+                                                  "again with an empty history and a fresh velocity; 0 = off",
+                               "min": 0.0, "max": 2000.0})
+    tentative_keep_min_hits: int = field(
+        default=2, metadata={"doc": "hits in the last confirm_n frames that keep a far tentative track "
+                                    "(tentative_keep_from_m)", "min": 1, "max": 32})
     delete_after_misses: int = field(
         default=20, metadata={"doc": "consecutive frames without a validated detection before a track is deleted "
                                     "(Lim: tracks survive two or three misses; far vehicles are detected in only "
