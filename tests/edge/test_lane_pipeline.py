@@ -139,11 +139,7 @@ def test_track_aided_pairing_recovers_a_smeared_near_vehicle():
     tr.tracks.confirmed[:] = True
     tr.last_t_ns = 0
     t_ns = 33_000_000
-    yy = y + vy * t_ns * 1e-9
-    dz = p.config.mounting_height_m - p.config.target_height_m
-    r = math.sqrt(x * x + yy * yy + dz * dz)
-    v = (yy * vy) / r
-    f = p._model.predict(np.array(r), np.array(v))
+    r, v, f = _predicted_beats(p, x, y, vy, t_ns)
     off = np.array([2.0, 2.0, -1.5, 1.5]) * p._bin_hz
     freqs = tuple(np.array([f[k] + off[k], f[k] + 40 * p._bin_hz[k]]) for k in range(4))
     bins = tuple(np.round(fk / p._bin_hz[k]).astype(np.int64) % p.n_bins for k, fk in enumerate(freqs))
@@ -156,6 +152,16 @@ def test_track_aided_pairing_recovers_a_smeared_near_vehicle():
     assert (b[0] == [bk[0] for bk in bins]).all()
     two = tuple(fk if k < 2 else fk + 50 * p._bin_hz[k] for k, fk in enumerate(freqs))
     assert p._track_aided_pairs(two, bins, pairs, t_ns)[1].size == 0
+
+
+def _predicted_beats(p, x: float, y: float, vy: float, t_ns: int):
+    """Slant range, radial speed and the four segments' beat frequencies of a track at (x, y) moving at ``vy``
+    along the boresight, ``t_ns`` after its last update (the prediction the track-aided pairing makes)."""
+    yy = y + vy * t_ns * 1e-9
+    dz = p.config.mounting_height_m - p.config.target_height_m
+    r = math.sqrt(x * x + yy * yy + dz * dz)
+    v = (yy * vy) / r
+    return r, v, p._model.predict(np.array(r), np.array(v))
 
 
 def _aided_for_tentative(config, y=260.0, vy=-30.0, hits=2, moved=True):
@@ -171,11 +177,7 @@ def _aided_for_tentative(config, y=260.0, vy=-30.0, hits=2, moved=True):
     tr.tracks.moved[:] = moved
     tr.last_t_ns = 0
     t_ns = 33_000_000
-    yy = y + vy * t_ns * 1e-9
-    dz = p.config.mounting_height_m - p.config.target_height_m
-    r = math.sqrt(x * x + yy * yy + dz * dz)
-    v = (yy * vy) / r
-    f = p._model.predict(np.array(r), np.array(v))
+    r, v, f = _predicted_beats(p, x, y, vy, t_ns)
     freqs = tuple(np.array([f[k] + 0.3 * p._bin_hz[k]]) for k in range(4))
     bins = tuple(np.round(fk / p._bin_hz[k]).astype(np.int64) % p.n_bins for k, fk in enumerate(freqs))
     cfg = p.config
