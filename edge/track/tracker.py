@@ -714,11 +714,11 @@ class MofNInitiator:
             return ~tracks.confirmed & (tracks.score <= self._score_drop)
         recent = tracks.history & self._mask_n
         counts = np.bitwise_count(recent)
-        short = counts < c.confirm_m
-        if c.tentative_keep_from_m > 0:  # far tracks: only once hardly anything hits any more
+        out = ~tracks.confirmed & (tracks.age >= c.confirm_n) & (counts < c.confirm_m) & (tracks.misses > 0)
+        if c.tentative_keep_from_m > 0 and out.any():  # far tracks: only once hardly anything hits any more
             far = np.hypot(tracks.x[:, 0], tracks.x[:, 1]) > c.tentative_keep_from_m
-            short &= ~far | (counts < c.tentative_keep_min_hits)
-        return ~tracks.confirmed & (tracks.age >= c.confirm_n) & short & (tracks.misses > 0)
+            out &= ~far | (counts < c.tentative_keep_min_hits)
+        return out
 
 
 class TrackDeleter:
