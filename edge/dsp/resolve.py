@@ -24,6 +24,12 @@ at least ``min_lateral_m`` apart on the ground and all this held for ``min_split
 scatterers spread a little in angle). The covariance work is batched over detections and cells; the
 association and each cell's counters are plain Python (a handful of cells: array calls would cost more).
 
+A cell that is not split but whose second eigenvalue is above ``pair_hint_eig_ratio`` of the first (and
+``min_noise_ratio`` above the noise) marks its detection in :attr:`CellResolver.two_sources`: two sources too close
+in angle to be split yet (two cars side by side at 100-120 m: 0.026-0.05, while one point-like vehicle stays near
+0.01), whose one Bartlett angle lies between them. The tracker's straight-line lateral filter does not average
+such detections (``track.pdaf.lateral_smoother_hold_unresolved``).
+
 A vehicle keeps its lateral position while its range changes, so its direction cosine ``x / R`` moves:
 near the radar by degrees within the memory. With ``follow_direction`` every cell's covariance is steered
 by that shift (``sin(az) (1 - R_new / R_old)``, a diagonal phase ramp over the elements) before a frame is
@@ -66,6 +72,7 @@ class ResolverConfig:
     min_speed_mps: float = 1.0
     max_cells: int = 256
     follow_direction: bool = True
+    pair_hint_eig_ratio: float = 0.02
 
 
 @dataclass
@@ -139,6 +146,7 @@ class CellResolver:
 
     def reset(self) -> None:
         self.cells = _Cells(cov=np.zeros((0, self.n_rx, self.n_rx), np.complex64))
+        self.two_sources = np.zeros(0, bool)
 
     def step(self, range_m: np.ndarray, v_mps: np.ndarray, snapshots: np.ndarray,
              az_rad: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -153,6 +161,7 @@ class CellResolver:
         n_det = range_m.size
         angles = np.full((n_det, 2), np.nan, np.float32)
         split = np.zeros(n_det, bool)
+        self.two_sources = two_sources = np.zeros(n_det, bool)
         # association: predicted cell range against detections, nearest first, one-to-one
         match = self._associate(range_m, v_mps) if len(c.range_m) and n_det else [-1] * n_det
         # outer products of the normalised looks, averaged over looks
@@ -186,7 +195,8 @@ class CellResolver:
             if ready_pos:
                 sel = np.array(ready_pos)
                 ready = hi[sel]
-                split_idx, ang = self._split(cov[sel], range_m[ready])
+                split_idx, ang, two = self._split(cov[sel], range_m[ready])
+                two_sources[ready] = two
                 if split_idx.size:
                     angles[ready[split_idx]] = ang
                     for p in sel[split_idx].tolist():
@@ -286,15 +296,18 @@ class CellResolver:
         u = m[:, self._iu[0], self._iu[1]]
         return np.concatenate([d, scale_offdiag * u.real, scale_offdiag * u.imag], axis=1).astype(np.float32)
 
-    def _split(self, cov: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Which of the covariances ``(k, rx, rx)`` hold two resolved vehicles, and their angles."""
+    def _split(self, cov: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Which of the covariances ``(k, rx, rx)`` hold two resolved vehicles, and their angles; and which hold two
+        sources, resolved or not (``pair_hint_eig_ratio``, :attr:`CellResolver.two_sources`)."""
         cfg = self.cfg
         w = np.linalg.eigvalsh(cov)  # ascending
         noise = np.maximum(np.add.reduce(w[:, : self.n_rx - 2], axis=1) / (self.n_rx - 2), 1e-12)  # np.mean
-        two = (w[:, -2] >= cfg.min_eig_ratio * w[:, -1]) & (w[:, -2] >= cfg.min_noise_ratio * noise)
+        above_noise = w[:, -2] >= cfg.min_noise_ratio * noise
+        hint = above_noise & (w[:, -2] >= cfg.pair_hint_eig_ratio * w[:, -1])
+        two = (w[:, -2] >= cfg.min_eig_ratio * w[:, -1]) & above_noise
         idx = two.nonzero()[0]
         if idx.size == 0:
-            return idx, np.zeros((0, 2), np.float32)
+            return idx, np.zeros((0, 2), np.float32), hint
         cov = cov[idx]
         fr = self._features(cov, scale_offdiag=2.0)  # (k, 16)
         best_coarse = np.argmax(fr @ self._coarse_feat.T, axis=1)  # (k,) positions in the coarse list
@@ -309,4 +322,4 @@ class CellResolver:
         pw = np.einsum("kar,krs,kas->ka", bp, cov, bp.conj()).real
         ratio = np.minimum.reduce(pw, axis=1) / np.maximum(np.maximum.reduce(pw, axis=1), 1e-30)  # min / max
         ok = (lateral >= cfg.min_lateral_m) & (ratio >= cfg.min_power_ratio)
-        return idx[ok], th[ok].astype(np.float32)
+        return idx[ok], th[ok].astype(np.float32), hint

@@ -30,7 +30,8 @@ All parameters are in :class:`LaneConfig` (section ``pipeline.lane``); the track
 layer read ``track.pdaf`` and ``traffic``. Intermediates for plots: ``power`` (segments x bins, linear),
 ``threshold`` and ``noise`` (linear; NaN away from local maxima unless ``cfar_full_threshold``),
 ``peak_freqs_hz`` (per segment), pairing counts (``n_aided_pairs`` from tracks), ``angle_spectrum``.
-Detections carry ``extra["resolved_pair"]`` (>= 0: the two detections split from one share the value).
+Detections carry ``extra["resolved_pair"]`` (>= 0: the two detections split from one share the value) and
+``extra["unresolved_pair"]`` (bool: the resolver found two sources in the cell but could not split them).
 """
 
 from __future__ import annotations
@@ -207,6 +208,13 @@ class LaneConfig:
                "considered (one vehicle's spread scatterers stay below)", "min": 1e-4, "max": 1.0})
     resolve_min_noise_ratio: float = field(default=8.0, metadata={
         "doc": "... and relative to the mean of the noise eigenvalues", "min": 1.0, "max": 1e4})
+    resolve_pair_hint_eig_ratio: float = field(default=0.02, metadata={
+        "doc": "a cell not split whose second eigenvalue is above this fraction of the first (and resolve_min_noise_ratio "
+               "above the noise) marks its detection extra['unresolved_pair']: two sources too close in angle to be "
+               "split (two cars side by side at 100-120 m: 0.026-0.05 while their two-source fit already finds both "
+               "lanes; one point-like vehicle about 0.01), whose one angle lies between them. The tracker's lateral "
+               "filter does not draw a straight line through such detections (track.pdaf.lateral_smoother)",
+        "min": 1e-4, "max": 1.0})
     resolve_min_power_ratio: float = field(default=0.1, metadata={
         "doc": "... and the weaker of the two fitted sources carries at least this fraction of the stronger one's "
                "power (a vehicle with a brief visitor in one of its looks has a strong and a faint source)",
@@ -427,6 +435,7 @@ class LanePipeline(Pipeline):
                 ResolverConfig(memory_frames=cfg.resolve_memory_frames, min_frames=cfg.resolve_min_frames,
                                min_split_frames=cfg.resolve_min_split_frames,
                                min_eig_ratio=cfg.resolve_min_eig_ratio, min_noise_ratio=cfg.resolve_min_noise_ratio,
+                               pair_hint_eig_ratio=cfg.resolve_pair_hint_eig_ratio,
                                min_lateral_m=cfg.resolve_min_lateral_m, min_power_ratio=cfg.resolve_min_power_ratio,
                                follow_direction=cfg.resolve_follow_direction),
                 self._steer, self._grid, wf.frame_period_s, frontend.rx_spacing_m / wf.wavelength_m)
@@ -590,6 +599,7 @@ class LanePipeline(Pipeline):
             rng, vel, res = p_rng[keep], p_vel[keep], p_res[keep]
             az, snr_db = az[keep], snr_db[keep]
             pair_of = np.full(keep.size, -1, np.int32)
+            unresolved = None  # two sources in the cell, not split (the resolver's hint)
             coh = None  # the Bartlett peak's share of the looks' energy, when the tracker's seeding asks for it
             if self._want_coherence:
                 coh = (peak_coherence(snaps[keep], self._steer, np.argmax(aspec[keep], axis=1), kept[keep])
@@ -600,6 +610,7 @@ class LanePipeline(Pipeline):
                 looks = snaps[keep] * kept[keep][:, :, None] if n_det else np.zeros((0, 4, self.frontend.n_rx),
                                                                                     np.complex64)
                 split, ang = self.resolver.step(rng, vel, looks, az)
+                unresolved = self.resolver.two_sources
                 any_split = split.any()  # (rare: asked once when nothing is split)
                 if any_split and self.traffic is not None and self.traffic.lanes:
                     split &= self._split_straddles_lanes(rng, vel, ang)
@@ -617,6 +628,7 @@ class LanePipeline(Pipeline):
                     snr_db[s_idx] -= np.float32(3.0)
                     snr_db = np.concatenate([snr_db, snr_db[s_idx]])
                     pair_of = np.concatenate([pair_of, s_idx.astype(np.int32)])
+                    unresolved = np.concatenate([unresolved & ~split, np.zeros(s_idx.size, bool)])
                     if coh is not None:  # two sources by construction: not judged by one direction's share
                         coh[s_idx] = 1.0
                         coh = np.concatenate([coh, coh[s_idx]])
@@ -640,6 +652,8 @@ class LanePipeline(Pipeline):
                                  {"pair_residual_hz": res[sel], "resolved_pair": pair_of[sel]})
             if coh is not None:
                 det.extra["angle_coherence"] = coh if sel is None else coh[sel]
+            if unresolved is not None:
+                det.extra["unresolved_pair"] = unresolved if sel is None else unresolved[sel]
         inter = {
             "power": power, "threshold": thr, "noise": noise, "peak_freqs_hz": freqs,
             "n_pair_candidates": pairs.n_candidates, "n_ghosts_rejected": pairs.n_ghosts, "n_aided_pairs": n_aided,

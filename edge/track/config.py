@@ -160,6 +160,12 @@ class PdafConfig:
                                       "0.894, 0.764/0.903); a lane change (tests/edge/test_lateral_smoother.py) largest "
                                       "error 0.64 m either way, a second after it 0.024 -> 0.011 m (0.6 keeping the "
                                       "combined lateral speed: 0.128 m)", "min": 0.0, "max": 1.0})
+    lateral_smoother_hold_unresolved: bool = field(
+        default=True, metadata={"doc": "the straight-line filter is also held at the motion model's position while the "
+                                       "detection that carries a track (weight above 0.5) is an unresolved pair "
+                                       "(extra['unresolved_pair'] from pipeline.lane's resolver: two cars side by side "
+                                       "whose one angle lies between the lanes): the line would sit on one side of the "
+                                       "middle, on neither car"})
     lateral_smoother_reset_prob: float = field(
         default=0.99, metadata={"doc": "the straight-line filter restarts from the motion model's estimate when their "
                                        "lateral positions or lateral speeds differ beyond the chi-square (1 dof) "

@@ -36,21 +36,21 @@ boresight (``tracks.lat``: ``[x, vx]``, :func:`edge.track.kalman.lateral_pda_upd
 updated with the association's weights and each detection's own lateral noise; it restarts from the motion
 model's estimate when a Hausman test or a CUSUM of the likelihood ratio of the two says the vehicle left the line
 (a lane change), and is held there (with the lane-keeping mode's lateral speed) while the IMM's manoeuvring mode
-has more than ``lateral_smoother_hold_manoeuvre_prob``; the published ``x_m`` moves towards the motion model's as
-the CUSUM's evidence grows. The IMM's lane-keeping mode alone cannot average a far vehicle's lateral position:
-mixed with the manoeuvring mode every frame, it takes in ~20x its own lateral process noise (highway4 motorcycle,
-0.15-0.38 m RMSE on the dev seeds). Association, gates, ids and ``tracks.x`` (what every other stage reads) are the
-motion model's, and so are the positions the traffic layer's yaw estimator takes (``published_motion_x_m``: a line
-starts along the road direction in use, and its tracks would vote for the yaw it assumed; highway4-misaimed seed 1,
-120 frames, lane accuracy 0.542 with the published positions, 0.683 with the motion model's, 0.680 without the
-filter). Why it is still off by default, measured with it on (off in brackets): side-by-side (90 frames) tracked
-fractions seed 3 0.88/0.54 (0.77/0.66), seed 8 0.89/0.59 (0.74/0.73), seed 21 0.70/0.83 (0.77/0.77). The loss is
-before the resolver splits the cell, not after it (from the split on both cars had a track in every frame, on and
-off, seeds 3 and 8): the one track of the unresolved pair lies between the lanes, and the evaluation gives each
-frame to the nearer car; the straight line averages the merged detections and stays on one side of the middle,
-the IMM's estimate wanders after the momentarily brighter car and gives frames to both. Also: a lane change's
-largest lateral error 0.35 -> 0.64 m (the line's lag before the change is detected), and highway4 seed 44 car 3
-(seeded at 260 m, its first detections 1.3 m off on average) 0.23 m with or without it.
+has more than ``lateral_smoother_hold_manoeuvre_prob``, or while the detection that carries the track is an
+unresolved pair (``lateral_smoother_hold_unresolved``: ``Measurements.unresolved``, the resolver's two sources too
+close in angle to split, whose one angle lies between the lanes); the published ``x_m`` moves towards the motion
+model's as the CUSUM's evidence grows. The IMM's lane-keeping mode alone cannot average a far vehicle's lateral
+position: mixed with the manoeuvring mode every frame, it takes in ~20x its own lateral process noise (highway4
+motorcycle, 0.15-0.38 m RMSE on the dev seeds). Association, gates, ids and ``tracks.x`` (what every other stage
+reads) are the motion model's, and so are the positions the traffic layer's yaw estimator takes
+(``published_motion_x_m``: a line starts along the road direction in use, and its tracks would vote for the yaw it
+assumed; highway4-misaimed seed 1, 120 frames, lane accuracy 0.542 with the published positions, 0.683 with the
+motion model's, 0.680 without the filter). Side-by-side (90 frames) tracked fractions without the unresolved-pair
+hold: seed 3 0.88/0.54, seed 8 0.89/0.59, seed 21 0.70/0.83 (the one track of the unresolved pair lies between the
+lanes, the evaluation gives each frame to the nearer car, and the straight line stays on one side of the middle);
+with it 0.77/0.66, 0.74/0.73, 0.77/0.77, as with the filter off. Left as they are: a lane change's largest lateral
+error 0.64 m either way, and highway4 seed 44 car 3 (seeded at 260 m, its first detections 1.3 m off on average)
+0.22 m with the filter, 0.24 m without.
 
 Measurement noise (``measurement_noise``): ``"constant"`` is one ``R`` per track from fixed range and azimuth sds
 at its prediction (Lim); ``"snr"`` (default) is one ``R`` per detection from its SNR, ``sigma^2 = sigma0^2 / SNR +
@@ -261,6 +261,7 @@ class Measurements:
     with_radial_speed: bool
     pair: np.ndarray | None = None  # (M,) int: detections split from one (edge.dsp.resolve) share a value >= 0
     coherence: np.ndarray | None = None  # (M,) the Bartlett peak's share of the looks' energy (if measured)
+    unresolved: np.ndarray | None = None  # (M,) bool: two sources in the cell, not split (edge.dsp.resolve's hint)
 
     @classmethod
     def from_detections(cls, det: Detections, use_radial_speed: bool) -> "Measurements":
@@ -302,7 +303,14 @@ class Measurements:
             coh = np.asarray(coh, dtype=np.float64) if all_ok else np.asarray(coh, dtype=np.float64)[ok]
         else:
             coh = None
-        return cls(z, snr, use, pair, coh)
+        unr = det.extra.get("unresolved_pair")
+        if unr is not None and len(unr) == ok.size:
+            unr = np.asarray(unr, dtype=bool) if all_ok else np.asarray(unr, dtype=bool)[ok]
+            if not unr.any():
+                unr = None
+        else:
+            unr = None
+        return cls(z, snr, use, pair, coh, unr)
 
 
 class CvPredictor:
@@ -1017,6 +1025,15 @@ class PdafTracker:
         if cfg.lateral_smoother_hold_manoeuvre_prob < 1.0 and cfg.motion_model == "imm":
             hold = tr.mu[:, 1] > cfg.lateral_smoother_hold_manoeuvre_prob  # the IMM says: manoeuvring
             off |= hold
+        if cfg.lateral_smoother_hold_unresolved and meas.unresolved is not None and ti.size:
+            # a detection of two vehicles too close in angle to split (its angle lies between them) carries the track
+            # (its largest weight): no straight line through it, the motion model's position until the pair splits
+            best = np.argmax(beta, axis=1)
+            pair = meas.unresolved[best] & (beta[np.arange(len(tr)), best] > 0.5)
+            if pair.any():
+                off |= pair
+                if hold is not None:  # (imm) with the lane-keeping mode's lateral speed, as in a manoeuvre
+                    hold = hold | pair
         if off.any():
             lat[off], lat_p[off] = ref[off], ref_p[off]
             cusum = np.where(off, 0.0, cusum)

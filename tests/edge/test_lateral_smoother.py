@@ -186,3 +186,27 @@ def test_line_is_held_at_the_motion_model_while_it_manoeuvres():
                 late.append(abs(pub[int(np.argmin(d))].x_m - x))
     assert held >= 10
     assert len(late) >= 10 and max(late) < 0.05
+
+
+def test_line_is_held_at_the_motion_model_on_an_unresolved_pair():
+    """A far lane-keeping vehicle (as in :func:`test_far_lane_keeping_vehicle_is_placed_from_all_its_detections`)
+    whose detections are marked ``unresolved_pair`` from frame 60 to 120 (the resolver's two sources too close in
+    angle to split: the one angle lies between two vehicles): there the published position is the motion model's,
+    before and after it is the line's (which differs from it)."""
+    veh = [Vehicle(5.25, 80.0, 0.0, 30.0)]
+    tr = PdafTracker(PdafConfig(lateral_smoother=True))
+    kw = dict(p_detect=0.9, noise="snr", snr_100m_db=18.0, extent_sigma_m=0.0, clutter_per_frame=0.0)
+    held = free = 0
+    for k, (t_ns, det, _) in enumerate(frames(veh, 180, seed=2, **kw)):
+        det.extra["unresolved_pair"] = np.full(len(det.x_m), 60 <= k < 120)
+        pub = tr.step(det, t_ns)
+        tt = tr.tracks
+        for o in pub:
+            i = int(np.flatnonzero(tt.track_id == o.track_id)[0])
+            hit = bool(tt.history[i] & 1)
+            if 60 <= k < 120 and hit:
+                held += 1
+                assert o.x_m == pytest.approx(float(tt.x[i, 0]), abs=1e-9)
+            elif k >= 140 or 30 <= k < 60:
+                free += abs(o.x_m - float(tt.x[i, 0])) > 1e-6
+    assert held >= 40 and free >= 40
