@@ -31,7 +31,7 @@ prediction, as for the cv model; both modes are updated with those weights and w
 likelihoods. ``tracks.x``/``tracks.p`` are always the (combined) state every other stage reads; a seed's
 velocity points along the road (speed from the radial speed, ``init_lateral_speed_sigma_mps`` across).
 
-Published lateral position (``lateral_smoother``, off by default): a straight-line filter per track across the
+Published lateral position (``lateral_smoother``, on by default): a straight-line filter per track across the
 boresight (``tracks.lat``: ``[x, vx]``, :func:`edge.track.kalman.lateral_pda_update`), outside the IMM's mixing,
 updated with the association's weights and each detection's own lateral noise; it restarts from the motion
 model's estimate when a Hausman test or a CUSUM of the likelihood ratio of the two says the vehicle left the line
@@ -1030,10 +1030,7 @@ class PdafTracker:
             # (its largest weight): no straight line through it, the motion model's position until the pair splits
             best = np.argmax(beta, axis=1)
             pair = meas.unresolved[best] & (beta[np.arange(len(tr)), best] > 0.5)
-            if pair.any():
-                off |= pair
-                if hold is not None:  # (imm) with the lane-keeping mode's lateral speed, as in a manoeuvre
-                    hold = hold | pair
+            off |= pair  # (with the motion model's own lateral speed: the pair may be crossing)
         if off.any():
             lat[off], lat_p[off] = ref[off], ref_p[off]
             cusum = np.where(off, 0.0, cusum)

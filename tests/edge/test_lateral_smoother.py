@@ -142,7 +142,7 @@ def test_lane_change_is_followed_by_the_published_position():
 @pytest.mark.timeout(120)
 def test_highway4_motorcycle_position_rmse():
     """highway4 seed 1: the motorcycle (2 m^2, lane 3, receding 80 -> 300 m) within Lim's 0.15 m (0.186 m before
-    the straight-line filter, 0.04 m with it; the filter is an option, off by default), every vehicle within 0.15 m."""
+    the straight-line filter, 0.04 m with it), every vehicle within 0.15 m."""
     cfg = load_config(env={}, overrides={"track.pdaf.lateral_smoother": True})
     res = evaluate("highway4", seed=1, frames=None, events=None, config=cfg)
     by_id = {t["id"]: t for t in res["targets"]}

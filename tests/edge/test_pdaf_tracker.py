@@ -257,10 +257,16 @@ def test_snr_noise_model_beats_the_constant_one_when_the_noise_follows_the_snr()
     """A car approaching from 280 m and one receding from 40 m, detections whose noise follows the SNR
     (radar equation, Swerling 1; the law of measurement_noise = "snr"): told the law, the tracker's position RMSE
     is lower than with the constant noise model (measured on seeds 1-6: mean 0.164 m vs 0.171 m), one id per
-    vehicle, both tracked almost throughout."""
+    vehicle, both tracked almost throughout.
+
+    This compares the motion filter, whose state every other stage reads (gates, association, ids), so the
+    published lateral position is the motion model's here (``lateral_smoother`` off in both). With the straight-line
+    filter on (the default) both publish better lateral positions and the law no longer helps them: seeds 1-6, mean
+    0.152 m (snr) vs 0.149 m (constant)."""
     snr, const = [], []
     for seed in range(1, 7):
-        a, b = _snr_scene_errors(PdafConfig(), seed), _snr_scene_errors(scene_config(), seed)
+        a = _snr_scene_errors(PdafConfig(lateral_smoother=False), seed)
+        b = _snr_scene_errors(scene_config(lateral_smoother=False), seed)
         for res in (a, b):
             assert sorted(res) == [0, 1]
             for rmse, n, ids in res.values():
