@@ -232,8 +232,10 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         lengths = np.array([getattr(by_id[i], "length_m", 0.0) for i in ids])
         gate = GATE_M + lengths
 
-        # true crossings of the detection line (world y along the road; lanes run along y)
-        centre_y = tr.position_m[veh, 1] - scene.pose.y_m
+        # true crossings of the detection line by the reference points (world y along the road; lanes run along
+        # y): the point the tracks follow, so a vehicle whose near face has crossed as the run ends (or had as it
+        # began) is counted by both or neither
+        centre_y = ref_w[:, 1] - scene.pose.y_m
         for j, i in enumerate(ids):
             s_prev = prev_s.get(int(i))
             if s_prev is not None and (s_prev - line) * (centre_y[j] - line) < 0 and 0 <= lanes[j] < n_lanes:

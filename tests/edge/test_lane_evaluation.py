@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 from edge.cli import main
 from edge.config import load_config
@@ -92,3 +93,31 @@ def test_count_mismatches_pair_crossings_by_time_per_lane():
     assert _count_mismatches([(0, 10.0, 1, "car")], [(0, 12.5, 90.0)], 1) == {
         "missed": [{"lane": 0, "t_s": 10.0, "vehicle_id": 1, "class": "car"}],
         "extra": [{"lane": 0, "t_s": 12.5, "speed_kmh": 90.0}]}  # more than COUNT_MATCH_S apart
+
+
+def test_true_crossings_are_those_of_the_reference_point_the_tracks_follow(tmp_path):
+    """The truth counts a vehicle at the detection line when its reference point (the near face, which its track
+    follows) crosses it, not its centre: a run that ends after a car's front crossed the line and before its
+    centre did (2.25 m, 3 frames later at 90 km/h) has one true crossing, and the traffic layer's count matches it
+    (with the centre the truth had none and the count was an "extra": highway4-traffic seed 7002, lanes 0 and 1,
+    in the run's last 0.1 s)."""
+    from hw_sim.boards import SIMO_BOARD
+    from hw_sim.scenario import load_scenario as load
+
+    toml = (Path(__file__).parent.parent.parent / "hw_sim" / "scenarios" / "side-by-side.toml").read_text()
+    head = toml.split("[[vehicle]]")[0].replace('name = "side-by-side"', 'name = "one-at-the-line"')
+    path = tmp_path / "one.toml"
+    path.write_text(head + '[[vehicle]]\nid = 1\nkind = "car"\nlane = 1\ny_m = 100.0\nspeed_kmh = 90.0\nlength_m = 4.5\n')
+    sc = load(str(path))
+    car = sc.build_scene(1).targets[0]
+    period = SIMO_BOARD.frontend.waveform.frame_period_s
+    line = load_config(env={}).section("traffic").detection_line_m
+    y0 = sc.build_scene(1).pose.y_m
+    front = next(n for n in range(400) if car.near_face_point(n * period)[1] - y0 < line)
+    centre = next(n for n in range(400) if car.trajectory.position(n * period)[1] - y0 < line)
+    assert centre - front >= 2
+    rep = evaluate(sc, seed=1, frames=centre, config=load_config(env={}))  # its last frame: the centre short of it
+    s = rep["summary"]
+    assert s["volume_true_per_lane"][1] == 1
+    assert s["count_error_per_lane"] == [0, 0, 0, 0]
+    assert s["count_mismatches"] == {"missed": [], "extra": []}
