@@ -235,13 +235,13 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         # true crossings of the detection line by the reference points (world y along the road; lanes run along
         # y): the point the tracks follow, so a vehicle whose near face has crossed as the run ends (or had as it
         # began) is counted by both or neither
-        centre_y = ref_w[:, 1] - scene.pose.y_m
+        ref_y = ref_w[:, 1] - scene.pose.y_m
         for j, i in enumerate(ids):
             s_prev = prev_s.get(int(i))
-            if s_prev is not None and (s_prev - line) * (centre_y[j] - line) < 0 and 0 <= lanes[j] < n_lanes:
+            if s_prev is not None and (s_prev - line) * (ref_y[j] - line) < 0 and 0 <= lanes[j] < n_lanes:
                 true_volume[lanes[j]] += 1
                 true_cross.append((int(lanes[j]), float(f.t_s), int(i), tr.cls[veh[j]]))
-            prev_s[int(i)] = float(centre_y[j])
+            prev_s[int(i)] = float(ref_y[j])
 
         tracks = [t for t in res.tracks if t.confirmed and t.track_id > 0]
         tpos = np.array([[t.x_m, t.y_m] for t in tracks]).reshape(-1, 2)
