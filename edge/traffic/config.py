@@ -147,6 +147,12 @@ class TrafficConfig:
     count_late_match_speed_mps: float = field(
         default=3.0, metadata={"unit": "m/s", "doc": "... at a speed within this is that vehicle again",
                                "min": 0.0, "max": 50.0})
+    count_once_per_track: bool = field(
+        default=True, metadata={"doc": "a track is counted at the detection line once (by its crossing or as a late "
+                                       "crossing): one that moved back behind the line and crossed it again is the same "
+                                       "vehicle (highway4-traffic seed 7001: a receding car's track re-anchored 11 m "
+                                       "nearer onto an unclaimed detection at its speed 0.2 s after it crossed, and "
+                                       "crossed again 0.6 s after the first count: lane 2 +1)"})
     count_lane_direction_only: bool = field(
         default=True, metadata={"doc": "the volume counts only tracks crossing the detection line in their lane's "
                                        "direction of travel (a wrong-way driver is reported as an event instead): "

@@ -22,7 +22,8 @@ Counting (volume at the detection line, one count per vehicle however its tracks
 crossing the line in its lane's direction of travel is counted at the interpolated crossing time, unless a
 crossing was counted in the lane less than ``count_same_vehicle_s`` before or after (a truck body's ghost
 tracks cross with it, at another speed), or up to ``count_min_gap_s`` before at the same speed (off by
-default). A track crossing against its lane's direction (a receding truck's ghost drifting into the
+default), or the track was counted already (``count_once_per_track``: a track that jumped back behind the line
+and crossed it again is still one vehicle). A track crossing against its lane's direction (a receding truck's ghost drifting into the
 approaching lanes) is not counted; a wrong-way driver is an event. A track first seen up to
 ``count_late_max_m`` past the line counts its vehicle at the crossing time extrapolated back at its
 along-road speed, unless a crossing of about that time and speed was counted in the lane
@@ -76,6 +77,7 @@ class _Memo:
     hits: int = -1  # the track's hit count when last seen (coasting frames add no evidence)
     stopped_since_ns: int | None = None
     stopped_emitted: bool = False
+    counted: bool = False  # the track's vehicle was counted at the detection line (count_once_per_track)
 
 
 #: TrackState validates in ``__post_init__``: then only ``dataclasses.replace`` is a faithful copy
@@ -199,28 +201,29 @@ class TrafficMonitor:
         return False
 
     def _count_late(self, tr: TrackState, lane: int, direction: int, s_m: float, vs_mps: float, speed_mps: float,
-                    length_m: float, t_ns: int) -> None:
+                    length_m: float, t_ns: int) -> bool:
         """A track first seen (confirmed) past the detection line: its vehicle crossed the line untracked (its
         earlier track was lost or taken over by a neighbour just before the line and it was re-born after it;
         or it crossed while still tentative). Counted at the crossing time extrapolated back at its along-road
         speed, unless a crossing in the lane at about that time and speed was already counted (the same vehicle's
-        earlier track, or a second track on a long truck)."""
+        earlier track, or a second track on a long truck). Returns whether it was counted."""
         cfg = self.config
         ahead = (s_m - cfg.detection_line_m) * direction  # metres past the line in the direction of travel
         v_dir = vs_mps * direction
         if not (0.0 < ahead <= cfg.count_late_max_m) or v_dir < cfg.moving_speed_mps:
-            return
+            return False
         tc = t_ns - int(round(ahead / v_dir * 1e9))
         if self._first_t_ns is None or tc <= self._first_t_ns:  # crossed before the monitor started
-            return
+            return False
         acc = self.stats.lane(lane)
         tol_ns = int(cfg.count_late_match_s * 1e9)
         if self._same_vehicle(acc, tc, speed_mps) or any(
                 abs(c.t_ns - tc) <= tol_ns and abs(c.speed_mps - speed_mps) < cfg.count_late_match_speed_mps
                 for c in acc.recent):
-            return
+            return False
         cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
         acc.add(Crossing(tc, speed_mps, length_m, cls))
+        return True
 
     def update(self, tracks: tuple[TrackState, ...], t_ns: int, yaw_x_m: np.ndarray | None = None) -> TrafficUpdate:
         """``yaw_x_m``: per track of ``tracks`` the across-boresight position the yaw estimator takes instead of
@@ -305,7 +308,8 @@ class TrafficMonitor:
             if memo is None or tr.age_frames < memo.age:
                 memo = self._memo[tid] = _Memo(tr.age_frames, s[j], t_ns, speed[j])
                 if lane is not None and cfg.count_late_max_m > 0:
-                    self._count_late(tr, lane, lanes[k].direction, s[j], vs[j], speed[j], float(length), t_ns)
+                    memo.counted = self._count_late(tr, lane, lanes[k].direction, s[j], vs[j], speed[j],
+                                                    float(length), t_ns)
             else:
                 # detection line crossing (either direction), time interpolated
                 s0, s1 = memo.s_m, s[j]
@@ -313,13 +317,14 @@ class TrafficMonitor:
                 # the volume counts vehicles travelling in the lane's direction: the ghost of a receding truck
                 # drifting into the approaching lanes is not one (a wrong-way driver is reported as an event)
                 against = cfg.count_lane_direction_only and lane is not None and vs[j] * lanes[k].direction < 0
-                if crossed and lane is not None and not against:
+                if crossed and lane is not None and not against and not (memo.counted and cfg.count_once_per_track):
                     f = (line - s0) / (s1 - s0)
                     tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))
                     cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
                     acc = self.stats.lane(lane)
                     if not self._same_vehicle(acc, tc, speed[j]):
                         acc.add(Crossing(tc, speed[j], float(length), cls))
+                        memo.counted = True
                 memo.age, memo.s_m, memo.t_ns = tr.age_frames, s1, t_ns
                 memo.max_speed_mps = max(memo.max_speed_mps, speed[j])
             if lane is not None:

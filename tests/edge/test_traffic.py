@@ -458,3 +458,20 @@ def test_crossings_moments_apart_in_one_lane_are_one_vehicle(lag_s, dv_mps, expe
                _ts(2, 5.25, 50.0 + v2 * (t - t2), 0.0, v2, k + 1)]
         mon.update(tuple(trs), int(round(t * 1e9)))
     assert len(mon.stats.lane(3).crossings) == expected
+
+
+@pytest.mark.parametrize("once,expected", [(True, 1), (False, 2)])
+def test_a_track_that_jumps_back_behind_the_line_is_counted_once(once, expected):
+    """A receding car's track crosses the line, jumps 11 m back toward the radar (re-anchored onto an unclaimed
+    detection at its speed, as in highway4-traffic seed 7001) and crosses again 0.6 s after its first crossing:
+    one vehicle with ``count_once_per_track`` (two counts without it)."""
+    cfg = TrafficConfig(estimate_yaw=False, interval_s=60.0, count_once_per_track=once)
+    mon = TrafficMonitor(cfg)
+    v = 21.0  # receding in lane 2
+    y = 40.0
+    for k in range(30):
+        y += v * 0.1
+        if k == 8:
+            y -= 11.0  # the jump, after the first crossing (y 57 -> 48)
+        mon.update((_ts(7, 1.75, y, 0.0, v, k + 1),), k * DT_NS)
+    assert len(mon.stats.lane(2).crossings) == expected
