@@ -22,11 +22,11 @@ Counting (volume at the detection line, one count per vehicle however its tracks
 crossing the line in its lane's direction of travel is counted at the interpolated crossing time, unless a
 crossing was counted in the lane less than ``count_same_vehicle_s`` before or after (a truck body's ghost
 tracks cross with it, at another speed), or up to ``count_min_gap_s`` before at the same speed (off by
-default), or the track was counted already (``count_once_per_track``: a track that jumped back behind the line
-and crossed it again is still one vehicle). A track crossing against its lane's direction (a receding truck's ghost drifting into the
-approaching lanes) is not counted; a wrong-way driver is an event. A track first seen up to
-``count_late_max_m`` past the line counts its vehicle at the crossing time extrapolated back at its
-along-road speed, unless a crossing of about that time and speed was counted in the lane
+default), or the track was counted already (``count_once_per_track``: a track that jumped back behind the
+line and crossed it again is still one vehicle). A track crossing against its lane's direction (a receding
+truck's ghost drifting into the approaching lanes) is not counted; a wrong-way driver is an event. A track
+first seen up to ``count_late_max_m`` past the line counts its vehicle at the crossing time extrapolated back
+at its along-road speed, unless a crossing of about that time and speed was counted in the lane
 (``count_late_match_*``: the same vehicle's earlier track), and not if that time lies before the monitor's
 first frame. No ground truth is used: the rules rest on what one vehicle's tracks can look like.
 
