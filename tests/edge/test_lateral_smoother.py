@@ -143,7 +143,8 @@ def test_lane_change_is_followed_by_the_published_position():
 def test_highway4_motorcycle_position_rmse():
     """highway4 seed 1: the motorcycle (2 m^2, lane 3, receding 80 -> 300 m) within Lim's 0.15 m (0.186 m before
     the straight-line filter, 0.04 m with it), every vehicle within 0.15 m."""
-    cfg = load_config(env={}, overrides={"track.pdaf.lateral_smoother": True})
+    cfg = load_config(env={})  # the straight-line filter on, as by default
+    assert cfg.section("track.pdaf").lateral_smoother
     res = evaluate("highway4", seed=1, frames=None, events=None, config=cfg)
     by_id = {t["id"]: t for t in res["targets"]}
     assert by_id[5]["class"] == "motorcycle"
@@ -158,7 +159,7 @@ def test_misaimed_radar_yaw_is_learned_from_the_motion_models_positions():
     configured yaw (0.03 m/s); had the yaw estimator taken the published positions, those tracks would vote for the
     yaw they assumed (lane accuracy 0.542 measured). It takes the motion model's (``TrafficMonitor.update(...,
     yaw_x_m)``): 0.683, smoother off 0.680."""
-    cfg = load_config(env={}, overrides={"track.pdaf.lateral_smoother": True})
+    cfg = load_config(env={})  # the straight-line filter on, as by default
     s = evaluate("highway4-misaimed", seed=1, frames=120, events=None, config=cfg)["summary"]
     assert s["lane_accuracy"] > 0.66, s["lane_accuracy"]
 
