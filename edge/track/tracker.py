@@ -298,19 +298,26 @@ class Measurements:
             pair = None
         if not every and not fin[2].all():
             snr = np.nan_to_num(snr, nan=0.0)
-        coh = det.extra.get("angle_coherence")
-        if coh is not None and len(coh) == ok.size:
-            coh = np.asarray(coh, dtype=np.float64) if all_ok else np.asarray(coh, dtype=np.float64)[ok]
-        else:
-            coh = None
-        unr = det.extra.get("unresolved_pair")
-        if unr is not None and len(unr) == ok.size:
-            unr = np.asarray(unr, dtype=bool) if all_ok else np.asarray(unr, dtype=bool)[ok]
-            if not unr.any():
-                unr = None
-        else:
+        coh = _extra_column(det, "angle_coherence", np.float64, ok, all_ok)
+        unr = _extra_column(det, "unresolved_pair", bool, ok, all_ok)
+        if unr is not None and not unr.any():
             unr = None
         return cls(z, snr, use, pair, coh, unr)
+
+
+def _extra_column(det: Detections, key: str, dtype, ok: np.ndarray, all_ok: bool) -> np.ndarray | None:
+    """The per-detection column ``det.extra[key]`` as ``dtype``, rows ``ok`` kept (None if absent or mis-sized)."""
+    col = det.extra.get(key)
+    if col is None or len(col) != ok.size:
+        return None
+    col = np.asarray(col, dtype=dtype)
+    return col if all_ok else col[ok]
+
+
+def _carrying_detection(beta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per track, the detection of largest association weight and whether it carries the track (weight > 0.5)."""
+    best = np.argmax(beta, axis=1)
+    return best, beta[np.arange(beta.shape[0]), best] > 0.5
 
 
 class CvPredictor:
@@ -937,8 +944,7 @@ class PdafTracker:
             tr.moved |= (d2v > self._moving_gamma) & (np.hypot(v[:, 0], v[:, 1]) >= cfg.confirm_min_speed_mps)
             resolved = None
             if meas.pair is not None and m:
-                best = np.argmax(beta, axis=1)
-                strong = beta[np.arange(len(tr)), best] > 0.5
+                best, strong = _carrying_detection(beta)
                 resolved = (np.where(strong, meas.pair[best], -1), best)
             dead = self.deleter.delete(tr, resolved) | self.initiator.tentative_expired(tr)
             for tid in tr.track_id[dead & tr.confirmed]:
@@ -1028,8 +1034,8 @@ class PdafTracker:
         if cfg.lateral_smoother_hold_unresolved and meas.unresolved is not None and ti.size:
             # a detection of two vehicles too close in angle to split (its angle lies between them) carries the track
             # (its largest weight): no straight line through it, the motion model's position until the pair splits
-            best = np.argmax(beta, axis=1)
-            pair = meas.unresolved[best] & (beta[np.arange(len(tr)), best] > 0.5)
+            best, strong = _carrying_detection(beta)
+            pair = meas.unresolved[best] & strong
             off |= pair  # (with the motion model's own lateral speed: the pair may be crossing)
         if off.any():
             lat[off], lat_p[off] = ref[off], ref_p[off]

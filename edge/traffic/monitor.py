@@ -230,7 +230,8 @@ class TrafficMonitor:
         ``x_m`` (the motion model's, when the published one comes from a filter that assumes the road direction:
         ``track.pdaf.lateral_smoother``; its tracks would vote for the yaw they assumed)."""
         cfg = self.config
-        conf = [t for t in tracks if t.confirmed and t.track_id > 0]
+        sel = [k for k, t in enumerate(tracks) if t.confirmed and t.track_id > 0]
+        conf = [tracks[k] for k in sel]
         dt_ns = 0 if self._last_t_ns is None else max(t_ns - self._last_t_ns, 0)
         dt_ns = min(dt_ns, 1_000_000_000)  # a stall does not count as occupied time
         self._last_t_ns = t_ns
@@ -248,7 +249,6 @@ class TrafficMonitor:
         yaw_sigma = 0.0  # the configured yaw is taken as measured when it is not estimated
         if cfg.estimate_yaw:
             if yaw_x_m is not None and len(yaw_x_m) == len(tracks):
-                sel = [k for k, t in enumerate(tracks) if t.confirmed and t.track_id > 0]
                 self.yaw_estimator.add(ids, age, np.asarray(yaw_x_m, dtype=np.float64)[sel], y)
             else:
                 self.yaw_estimator.add(ids, age, x, y)
