@@ -14,7 +14,9 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   board's field of view; targets of class ``clutter`` (multipath ghosts) are never vehicles;
 * per frame, confirmed tracks are assigned one-to-one to vehicles (Hungarian, Euclidean cost) within
   a gate of ``gate_m`` plus the vehicle's length (a track may sit anywhere on a long truck);
-* ``tracked_fraction``: in-view frames with an assigned track / in-view frames;
+* ``tracked_fraction``: in-view frames with an assigned track / in-view frames; ``untracked_frames``: the
+  others split into those before its first assigned frame (acquisition), between (gaps) and after its last
+  (lost before leaving the view), summed per class in ``untracked_frames_by_class``;
   ``position_rmse_m``: eq. (20) over the assigned frames, split into ``position_bias_xy_m`` (mean error,
   across and along the boresight) and ``position_sd_xy_m`` (its sd): a bias (reference point, geometry)
   and noise are fixed differently; ``speed_mae_kmh``: |track speed - speed|;
@@ -119,7 +121,7 @@ WRONG_WAY_TRUE_FRAMES = 15
 
 class _TargetAcc:
     __slots__ = ("cls", "lanes", "n_view", "n_hit", "sq_err", "err_xy", "spd_err", "ids", "last_id", "switches",
-                 "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames")
+                 "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames", "first_hit", "last_hit")
 
     def __init__(self, cls: str) -> None:
         self.cls = cls
@@ -133,6 +135,14 @@ class _TargetAcc:
         self.dir_true = 0.0
         self.last_id: int | None = None
         self.wrong_frames = 0  # frames in view driving against its lane's direction (a wrong-way driver)
+        self.first_hit = self.last_hit = -1  # in-view frame index (0 = its first in view) of its first/last assigned one
+
+    def missed_phases(self) -> tuple[int, int, int]:
+        """Its untracked in-view frames split into (before its first track, gaps between, after its last)."""
+        if self.n_hit == 0:
+            return self.n_view, 0, 0
+        before, after = self.first_hit, self.n_view - 1 - self.last_hit
+        return before, self.n_view - self.n_hit - before - after, after
 
 
 def _wrong_way_score(acc: dict[int, "_TargetAcc"], event_vehicle: list[int | None]) -> dict:
@@ -286,6 +296,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             rb[2] += 1
             rc[2] += 1
             t = tracks[k]
+            if a.first_hit < 0:
+                a.first_hit = a.n_view - 1
+            a.last_hit = a.n_view - 1
             a.n_hit += 1
             exy = tpos[k] - ref[j]
             e2 = float(np.sum(exy**2))
@@ -333,6 +346,8 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             "frames_in_view": a.n_view,
             "tracked_fraction": a.n_hit / a.n_view,
             "detected_fraction_raw": a.n_raw / a.n_view,
+            # its untracked in-view frames: before its first track (acquisition), between tracks, after its last
+            "untracked_frames": dict(zip(("before_first", "gaps", "after_last"), a.missed_phases())),
             "position_rmse_m": float(math.sqrt(np.mean(a.sq_err))) if a.sq_err else None,
             # the error split into a bias (mean) and a noise (sd), across (x) and along (y) the boresight:
             # rmse^2 = |bias|^2 + sd_x^2 + sd_y^2
@@ -386,6 +401,13 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             c: {f"{int(k * RANGE_BIN_M)}-{int((k + 1) * RANGE_BIN_M)}": {"tracked": v[2] / v[0], "raw": v[1] / v[0]}
                 for (cc, k), v in sorted(pd_cls_bins.items()) if cc == c}
             for c in sorted({cc for cc, _ in pd_cls_bins})},
+        # per class, the untracked in-view frames summed by phase (acquisition after entering the view, gaps
+        # between tracks, loss before leaving it): which of the three a lower detection probability comes from
+        "untracked_frames_by_class": {
+            c: dict(zip(("before_first", "gaps", "after_last"),
+                        (int(v) for v in np.sum([a.missed_phases() for a in acc.values() if a.cls == c and a.n_view],
+                                                 axis=0))))
+            for c in sorted({a.cls for a in acc.values() if a.n_view})},
         "vehicles_in_view": len(targets),
         "estimated_yaw_deg": math.degrees(pipe.traffic.yaw_rad) if pipe.traffic is not None else None,
         "true_yaw_deg": float(scene.pose.yaw_deg),

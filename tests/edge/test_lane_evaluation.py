@@ -41,6 +41,16 @@ def test_highway4_short_run_meets_accuracy_floor():
     for c, bins in s["detection_probability_by_class_and_range"].items():
         assert set(bins) <= set(s["detection_probability_by_range"]) and c in by_cls
     assert s["false_track_episodes"] == []
+    # the untracked frames split by phase: the three add up to the untracked frames, and the vehicles entering
+    # the view during the run (all six start inside it) need a few frames to confirm, so some are before_first
+    by_phase = {c: [0, 0, 0] for c in by_cls}
+    for t in rep["targets"]:
+        u = t["untracked_frames"]
+        assert min(u.values()) >= 0
+        assert sum(u.values()) == round(t["frames_in_view"] * (1 - t["tracked_fraction"]))
+        by_phase[t["class"]] = [a + b for a, b in zip(by_phase[t["class"]], u.values())]
+    assert {c: list(v.values()) for c, v in s["untracked_frames_by_class"].items()} == by_phase
+    assert sum(v[0] for v in by_phase.values()) > 0
 
 
 def test_evaluate_command_writes_design_keys(tmp_path, capsys):
