@@ -31,6 +31,13 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   rear face two metres nearer, rightly coasts on for a few frames; ``false_tracks_per_min`` over the
   evaluated time;
 * ``lane_accuracy``: assigned pairs whose track lane equals the vehicle's true lane at that frame;
+* ``detection_probability_by_overlap``: per class, the detection probability over the in-view frames where
+  the vehicle is ``separate`` and where it is ``overlapping`` another vehicle, and the overlapping share:
+  in at least ``OVERLAP_SEGMENTS`` of the four chirp segments its near face's beat frequency lies within
+  ``OVERLAP_BINS`` FFT bins of the beats spanned by another vehicle's body (near face to far end, at its
+  radial speed), and the two are less than the array's beamwidth (lambda / (N d), 9.5 deg) apart in azimuth.
+  Neither the waveform nor Bartlett separates such a pair; only the side-by-side resolver can. A diagnosis
+  of where the misses come from (the headline ``detection_probability`` counts every frame);
 * ``count_error_per_lane``: measured volume at the traffic layer's detection line (closed intervals
   plus the open one) minus the true number of reference points crossing it, per lane;
 * ``wrong_way``: the ``wrong_way`` alarms scored against the truth (scenarios with ``[[lane]]`` tables):
@@ -52,6 +59,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from edge.dsp.pairing import PairingModel
 from edge.pipeline import StageTimer
 from edge.pipelines.lane import LanePipeline
 from hal.frame import RawFrame
@@ -63,6 +71,8 @@ MAX_RANGE_M = 300.0
 GATE_M = 3.0
 RANGE_BIN_M = 50.0
 COUNT_MATCH_S = 2.0  # a counted crossing this close in time to a true one in the lane is that vehicle's
+OVERLAP_BINS = 1.5  # a beat this many FFT bins from another vehicle's span shares its peak (Hann main lobe: 2)
+OVERLAP_SEGMENTS = 2  # ... in this many of the four segments (the pairing tolerates one shared peak)
 
 
 def _installer_config(config: Any, sc) -> tuple[Any, Any, Any]:
@@ -117,6 +127,29 @@ def _to_radar_ground(pose, p_world: np.ndarray) -> np.ndarray:
 #: wrong-way driver (ground truth for scoring the wrong_way alarms)
 WRONG_WAY_TRUE_MPS = 3.0
 WRONG_WAY_TRUE_FRAMES = 15
+
+
+def _overlapping(model, bin_hz: np.ndarray, r_near: np.ndarray, length: np.ndarray, v: np.ndarray,
+                 az: np.ndarray, beamwidth_rad: float) -> np.ndarray:
+    """Per vehicle, whether another vehicle shares its range-Doppler cell and its beam (see the module doc).
+
+    ``r_near`` slant range of the near face, ``length`` along the range, ``v`` radial speed, ``az`` azimuth,
+    all (n,). In each chirp segment a vehicle's body spans the beats ``a_k r + b_k v`` for ``r`` from its near
+    face to its far end; vehicle i overlaps j where its near face's beat lies within ``OVERLAP_BINS`` bins of
+    j's span in at least ``OVERLAP_SEGMENTS`` segments and the two are less than a beamwidth apart.
+    """
+    n = r_near.size
+    if n < 2:
+        return np.zeros(n, bool)
+    a, b = model.a[None, :], model.b[None, :]
+    f_i = a * r_near[:, None] + b * v[:, None]  # (n, K)
+    f_far = a * (r_near + length)[:, None] + b * v[:, None]
+    margin = OVERLAP_BINS * bin_hz[None, None, :]
+    lo, hi = np.minimum(f_i, f_far)[None, :, :] - margin, np.maximum(f_i, f_far)[None, :, :] + margin
+    inside = (f_i[:, None, :] >= lo) & (f_i[:, None, :] <= hi)  # (i, j, K)
+    close = (inside.sum(axis=2) >= OVERLAP_SEGMENTS) & (np.abs(az[:, None] - az[None, :]) < beamwidth_rad)
+    np.fill_diagonal(close, False)
+    return close.any(axis=1)
 
 
 class _TargetAcc:
@@ -196,6 +229,12 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     # track followed when it was raised
     lane_dir = [1 if ln.direction == "away" else -1 for ln in sc.lanes]
     ww_event_vehicle: list[int | None] = []
+    # range-Doppler-beam overlap of vehicles: the waveform's beat model, FFT bin widths and the array's
+    # Rayleigh beamwidth lambda / (N d)
+    pair_model = PairingModel.from_waveform(fe.waveform)
+    bin_hz = np.array([sg.sample_rate_hz / sg.n_samples for sg in fe.waveform.segments])
+    beamwidth = fe.waveform.wavelength_m / (fe.n_rx * fe.rx_spacing_m)
+    pd_overlap: dict[tuple[str, bool], list[int]] = {}  # (class, overlapping) -> [in view, tracked]
 
     it = range(n_frames)
     if progress:
@@ -241,6 +280,8 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             np.abs(np.arctan2(ref[:, 0], ref[:, 1])) <= half_fov)
         lengths = np.array([getattr(by_id[i], "length_m", 0.0) for i in ids])
         gate = GATE_M + lengths
+        overlap = _overlapping(pair_model, bin_hz, np.linalg.norm(ref_w - scene.pose.position, axis=1), lengths,
+                               tr.radial_speed_mps[veh], tr.az_rad[veh], beamwidth)
 
         # true crossings of the detection line by the reference points (world y along the road; lanes run along
         # y): the point the tracks follow, so a vehicle whose near face has crossed as the run ends (or had as it
@@ -282,8 +323,10 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
                 a.wrong_frames += 1
             rb = pd_bins.setdefault(int(ground_rng[j] // RANGE_BIN_M), [0, 0, 0])
             rc = pd_cls_bins.setdefault((a.cls, int(ground_rng[j] // RANGE_BIN_M)), [0, 0, 0])
+            ro = pd_overlap.setdefault((a.cls, bool(overlap[j])), [0, 0])
             rb[0] += 1
             rc[0] += 1
+            ro[0] += 1
             a.lanes.append(int(lanes[j]))
             a.dir_true += float(tr.radial_speed_mps[veh[j]])
             if det_xy.shape[0] and np.min(np.linalg.norm(det_xy - ref[j], axis=1)) <= gate[j]:
@@ -295,6 +338,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
                 continue
             rb[2] += 1
             rc[2] += 1
+            ro[1] += 1
             t = tracks[k]
             if a.first_hit < 0:
                 a.first_hit = a.n_view - 1
@@ -408,6 +452,14 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
                         (int(v) for v in np.sum([a.missed_phases() for a in acc.values() if a.cls == c and a.n_view],
                                                  axis=0))))
             for c in sorted({a.cls for a in acc.values() if a.n_view})},
+        # per class, the detection probability apart from and while overlapping another vehicle in range,
+        # Doppler and beam (module doc), and the share of in-view frames that overlap
+        "detection_probability_by_overlap": {
+            c: {"separate": (pd_overlap[c, False][1] / pd_overlap[c, False][0]) if (c, False) in pd_overlap else None,
+                "overlapping": (pd_overlap[c, True][1] / pd_overlap[c, True][0]) if (c, True) in pd_overlap else None,
+                "overlapping_fraction": pd_overlap.get((c, True), [0])[0]
+                / (pd_overlap.get((c, True), [0])[0] + pd_overlap.get((c, False), [0])[0])}
+            for c in sorted({cc for cc, _ in pd_overlap})},
         "vehicles_in_view": len(targets),
         "estimated_yaw_deg": math.degrees(pipe.traffic.yaw_rad) if pipe.traffic is not None else None,
         "true_yaw_deg": float(scene.pose.yaw_deg),

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+
+import pytest
 from pathlib import Path
 
 from edge.cli import main
@@ -78,6 +80,8 @@ def test_side_by_side_is_resolved_into_two_tracks_by_angle():
     assert rep["summary"]["lane_accuracy"] >= 0.95
     assert {t["lane"] for t in rep["targets"]} == {0, 1}
     assert all(t["position_rmse_m"] < 1.2 for t in rep["targets"])
+    # the evaluator's overlap diagnosis sees the pair as one range-Doppler cell in one beam throughout
+    assert rep["summary"]["detection_probability_by_overlap"]["car"]["overlapping_fraction"] == 1.0
 
 
 def test_wrong_way_alarms_are_scored_against_the_truth():
@@ -131,3 +135,38 @@ def test_true_crossings_are_those_of_the_reference_point_the_tracks_follow(tmp_p
     assert s["volume_true_per_lane"][1] == 1
     assert s["count_error_per_lane"] == [0, 0, 0, 0]
     assert s["count_mismatches"] == {"missed": [], "extra": []}
+
+
+def test_overlap_diagnosis_marks_vehicles_the_waveform_and_array_cannot_separate():
+    """The evaluator's ``detection_probability_by_overlap``: which vehicles share another's range-Doppler
+    cell and beam. Built from the SIMO waveform's own beat model (edge.dsp.pairing.PairingModel)."""
+    import math
+
+    import numpy as np
+
+    from edge.dsp.pairing import PairingModel
+    from edge.evaluation.lane import _overlapping
+    from hal.waveform import simo_frontend
+
+    fe = simo_frontend()
+    model = PairingModel.from_waveform(fe.waveform)
+    bin_hz = np.array([sg.sample_rate_hz / sg.n_samples for sg in fe.waveform.segments])
+    bw = fe.waveform.wavelength_m / (fe.n_rx * fe.rx_spacing_m)
+    assert math.degrees(bw) == pytest.approx(9.55, abs=0.01)
+
+    def ov(r, length, v, az_deg):
+        return _overlapping(model, bin_hz, np.array(r, float), np.array(length, float), np.array(v, float),
+                            np.radians(az_deg), bw).tolist()
+
+    # two cars side by side at 150 m, 0.3 m/s apart, 1.3 deg apart: one cell, one beam
+    assert ov([150.0, 150.0], [4.5, 4.5], [-19.0, -19.3], [-0.7, -2.0]) == [True, True]
+    # the same 10 m apart in range, or 20 deg apart in azimuth (at short range), or 5 m/s apart: separate
+    assert ov([150.0, 160.0], [4.5, 4.5], [-19.0, -19.3], [-0.7, -2.0]) == [False, False]
+    assert ov([15.0, 15.0], [4.5, 4.5], [-19.0, -19.3], [-10.0, 10.0]) == [False, False]
+    assert ov([150.0, 150.0], [4.5, 4.5], [-19.0, -24.0], [-0.7, -2.0]) == [False, False]
+    # a motorcycle beside the middle of a 12 m truck 4 m/s faster: inside the truck body's beats; the truck's
+    # own near face, 6 m nearer, is outside the motorcycle's (short) span
+    assert ov([56.0, 50.0], [2.0, 12.0], [-20.0, -24.0], [-5.0, -2.0]) == [True, False]
+    # one vehicle alone, and none
+    assert ov([100.0], [4.5], [-20.0], [0.0]) == [False]
+    assert ov([], [], [], []) == []
