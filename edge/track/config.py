@@ -51,6 +51,29 @@ class PdafConfig:
     extent_max_sigma_m: float = field(
         default=6.0, metadata={"unit": "m", "doc": "upper bound of the learned along-heading spread (a 20 m "
                                                    "articulated truck: 5.8 m)", "min": 0.1, "max": 50.0})
+    extent_near_side_factor: float = field(
+        default=0.0, metadata={"doc": "the extent's spread (extent_along_sigma_m, learned) in the state update of a "
+                                      "detection nearer the radar than the track's prediction, as a fraction: a track "
+                                      "follows the vehicle's near face and the body lies behind it, so a detection in "
+                                      "front of the prediction is the face (give or take the sensor's noise), not a "
+                                      "scatterer further along; association weights and gates keep the whole spread "
+                                      "(1: symmetric, as before). A receding car's track starts on its front while "
+                                      "its rear is still under the overpass and then converged on the rear face as "
+                                      "1/n. highway4-traffic seed 11, 1500 frames, receding cars' along-range error "
+                                      "at 10-20 / 40-50 / 100-150 m: +1.09 / +0.56 / +0.21 m (RMSE 1.38 / 0.73 / "
+                                      "0.39) -> +0.19 / +0.08 / +0.06 m (0.40 / 0.20 / 0.26), approaching cars' "
+                                      "+0.18 / +0.11 / +0.11 -> +0.15 / +0.08 / +0.08 m; 0.1: +0.32 / +0.12 / +0.07 m. "
+                                      "10-min highway4-traffic, seeds 5, 6, 7005, 7006: position RMSE mean 0.422 / "
+                                      "0.428 / 0.404 / 0.393 -> 0.260 / 0.278 / 0.261 / 0.265 m (0-50 m bin 1.01-1.21 "
+                                      "-> 0.44-0.66 m), car detection probability 0.9943 / 0.9936 / 0.9909 / 0.9926 "
+                                      "-> 0.9944 / 0.9933 / 0.9909 / 0.9919, id switches 36 / 53 / 54 / 46 -> 41 / 48 "
+                                      "/ 52 / 37, per-lane counts the same but one more missed on 5 and on 6; crossing "
+                                      "(seeds 3, 1, 5, 8) RMSE 0.321 / 0.226 / 0.414 / 0.255 -> 0.233 / 0.216 / 0.250 / "
+                                      "0.226 m, lane accuracy 0.966 / 0.994 -> 0.960 / 0.991 on 3 and 1; "
+                                      "highway4-misaimed (seeds 1, 31) RMSE 0.893 / 0.644 -> 0.597 / 0.481 m; highway4 "
+                                      "(point targets) unchanged. Applies with motion_model = imm and "
+                                      "measurement_noise = snr (the defaults)",
+                               "min": 0.0, "max": 1.0})
     q_lateral_m2ps3: float = field(
         default=0.5, metadata={"unit": "m^2/s^3", "doc": "white-noise acceleration density across the boresight "
                                                          "(lane changes)", "min": 1e-6, "max": 1000.0})

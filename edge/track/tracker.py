@@ -974,7 +974,14 @@ class PdafTracker:
             ti, mi = np.nonzero(gated)
             rows = np.concatenate([2 * ti, 2 * ti + 1])  # rows (track, mode)
             cols = np.concatenate([mi, mi])
-            pin = pair_innovations(meas.z, zhm, hm, ps, np.repeat(r, 2, axis=0), rm, rows, cols)
+            scale = None
+            if cfg.extent_near_side_factor != 1.0:
+                # a detection nearer the radar than the track's (near-face) prediction: the face is nearer, not a
+                # scatterer further along the body -- the extent's spread shrinks for it
+                v = meas.z[cols, :2] - zhm[rows, :2]
+                nearer = (v * zhm[rows, :2]).sum(axis=1) < 0.0
+                scale = np.where(nearer, cfg.extent_near_side_factor, 1.0)
+            pin = pair_innovations(meas.z, zhm, hm, ps, np.repeat(r, 2, axis=0), rm, rows, cols, scale)
             wg = beta[ti, mi]
             w = np.concatenate([wg, wg])
             if (wg > 0).all():  # the usual case (a validated pair has a positive weight unless it underflows)
