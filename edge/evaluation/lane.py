@@ -152,6 +152,14 @@ def _overlapping(model, bin_hz: np.ndarray, r_near: np.ndarray, length: np.ndarr
     return close.any(axis=1)
 
 
+def _overlap_summary(separate: list[int] | None, overlapping: list[int] | None) -> dict:
+    """One class's ``detection_probability_by_overlap`` from its [in view, tracked] counts apart and overlapping."""
+    n_sep, n_ovl = (separate or [0])[0], (overlapping or [0])[0]
+    return {"separate": separate[1] / n_sep if n_sep else None,
+            "overlapping": overlapping[1] / n_ovl if n_ovl else None,
+            "overlapping_fraction": n_ovl / (n_sep + n_ovl)}
+
+
 class _TargetAcc:
     __slots__ = ("cls", "lanes", "n_view", "n_hit", "sq_err", "err_xy", "spd_err", "ids", "last_id", "switches",
                  "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames", "first_hit", "last_hit")
@@ -454,12 +462,8 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             for c in sorted({a.cls for a in acc.values() if a.n_view})},
         # per class, the detection probability apart from and while overlapping another vehicle in range,
         # Doppler and beam (module doc), and the share of in-view frames that overlap
-        "detection_probability_by_overlap": {
-            c: {"separate": (pd_overlap[c, False][1] / pd_overlap[c, False][0]) if (c, False) in pd_overlap else None,
-                "overlapping": (pd_overlap[c, True][1] / pd_overlap[c, True][0]) if (c, True) in pd_overlap else None,
-                "overlapping_fraction": pd_overlap.get((c, True), [0])[0]
-                / (pd_overlap.get((c, True), [0])[0] + pd_overlap.get((c, False), [0])[0])}
-            for c in sorted({cc for cc, _ in pd_overlap})},
+        "detection_probability_by_overlap": {c: _overlap_summary(pd_overlap.get((c, False)), pd_overlap.get((c, True)))
+                                             for c in sorted({cc for cc, _ in pd_overlap})},
         "vehicles_in_view": len(targets),
         "estimated_yaw_deg": math.degrees(pipe.traffic.yaw_rad) if pipe.traffic is not None else None,
         "true_yaw_deg": float(scene.pose.yaw_deg),
