@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from edge.commands.common import add_config_arguments, config_from_args
 
@@ -61,8 +62,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"radar-edge plot: {exc}")
         return 2
     if str(args.file).lower().endswith(".json"):
-        from pathlib import Path
-
         from edge.ops.report_plots import load_report, plot_report
 
         try:

@@ -281,16 +281,11 @@ def pair_innovations(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndar
     """:func:`innovations_each` for the pairs ``(t[k], m[k])`` only (the per-mode rows of the IMM need the validated
     pairs, not all tracks x detections). ``position_scale`` (P,): the position block of the track's part of ``R``
     scaled per pair (``extent_near_side_factor``)."""
-    if position_scale is None:
-        st = h @ p @ h.transpose(0, 2, 1) + r_track
-        st = 0.5 * (st + st.transpose(0, 2, 1))
-        s = st[t] + r_meas[m]
-    else:
-        hph = h @ p @ h.transpose(0, 2, 1)
-        rt = r_track[t]
+    rt = r_track[t]  # a copy (fancy indexing): scaled in place
+    if position_scale is not None:
         rt[:, :2, :2] *= position_scale[:, None, None]
-        s = hph[t] + rt
-        s = 0.5 * (s + s.transpose(0, 2, 1)) + r_meas[m]
+    s = (h @ p @ h.transpose(0, 2, 1))[t] + rt
+    s = 0.5 * (s + s.transpose(0, 2, 1)) + r_meas[m]
     s_inv, det_s = _sym_inv_det(s)
     v = z.take(m, axis=0) - z_hat.take(t, axis=0)
     return PairInnovations(t, m, v, _quad_each(v, s_inv), s_inv, det_s)

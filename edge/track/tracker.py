@@ -978,8 +978,8 @@ class PdafTracker:
             if cfg.extent_near_side_factor != 1.0:
                 # a detection nearer the radar than the track's (near-face) prediction: the face is nearer, not a
                 # scatterer further along the body -- the extent's spread shrinks for it
-                v = meas.z[cols, :2] - zhm[rows, :2]
-                nearer = (v * zhm[rows, :2]).sum(axis=1) < 0.0
+                zp = zhm[rows, :2]
+                nearer = ((meas.z[cols, :2] - zp) * zp).sum(axis=1) < 0.0
                 scale = np.where(nearer, cfg.extent_near_side_factor, 1.0)
             pin = pair_innovations(meas.z, zhm, hm, ps, np.repeat(r, 2, axis=0), rm, rows, cols, scale)
             wg = beta[ti, mi]
