@@ -201,16 +201,22 @@ class TrafficMonitor:
         return False
 
     def _count_late(self, tr: TrackState, lane: int, direction: int, s_m: float, vs_mps: float, speed_mps: float,
-                    length_m: float, t_ns: int) -> bool:
+                    length_m: float, t_ns: int, margin_m: float = math.inf) -> bool:
         """A track first seen (confirmed) past the detection line: its vehicle crossed the line untracked (its
         earlier track was lost or taken over by a neighbour just before the line and it was re-born after it;
         or it crossed while still tentative). Counted at the crossing time extrapolated back at its along-road
         speed, unless a crossing in the lane at about that time and speed was already counted (the same vehicle's
-        earlier track, or a second track on a long truck). Returns whether it was counted."""
+        earlier track, or a second track on a long truck), or one in an adjacent lane of its direction at that time
+        and speed (``count_late_twin_*``: the vehicle's ghost at another angle). ``margin_m``: how far inside its
+        lane it lies, for the longer reach of receding tracks (``count_late_receding_max_m``). Returns whether it
+        was counted."""
         cfg = self.config
         ahead = (s_m - cfg.detection_line_m) * direction  # metres past the line in the direction of travel
         v_dir = vs_mps * direction
-        if not (0.0 < ahead <= cfg.count_late_max_m) or v_dir < cfg.moving_speed_mps:
+        reach = cfg.count_late_max_m
+        if direction > 0 and cfg.count_late_receding_max_m > reach and margin_m >= cfg.count_late_far_margin_m:
+            reach = cfg.count_late_receding_max_m
+        if not (0.0 < ahead <= reach) or v_dir < cfg.moving_speed_mps:
             return False
         tc = t_ns - int(round(ahead / v_dir * 1e9))
         if self._first_t_ns is None or tc <= self._first_t_ns:  # crossed before the monitor started
@@ -221,6 +227,13 @@ class TrafficMonitor:
                 abs(c.t_ns - tc) <= tol_ns and abs(c.speed_mps - speed_mps) < cfg.count_late_match_speed_mps
                 for c in acc.recent):
             return False
+        if cfg.count_late_twin_s > 0:
+            twin_ns = int(cfg.count_late_twin_s * 1e9)
+            for k in (lane - 1, lane + 1):  # the adjacent lanes of the same direction of travel
+                if 0 <= k < len(self.lanes) and self.lanes[k].direction == direction and k in self.stats.lanes and any(
+                        abs(c.t_ns - tc) <= twin_ns and abs(c.speed_mps - speed_mps) < cfg.count_late_twin_speed_mps
+                        for c in self.stats.lanes[k].recent):
+                    return False
         cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
         acc.add(Crossing(tc, speed_mps, length_m, cls))
         return True
@@ -309,7 +322,7 @@ class TrafficMonitor:
                 memo = self._memo[tid] = _Memo(tr.age_frames, s[j], t_ns, speed[j])
                 if lane is not None and cfg.count_late_max_m > 0:
                     memo.counted = self._count_late(tr, lane, lanes[k].direction, s[j], vs[j], speed[j],
-                                                    float(length), t_ns)
+                                                    float(length), t_ns, float(margin[j]))
             else:
                 # detection line crossing (either direction), time interpolated
                 s0, s1 = memo.s_m, s[j]

@@ -434,6 +434,58 @@ def test_a_track_reborn_past_the_line_counts_its_vehicle_once(lost_at_m, late_ma
         assert crossing_times[0] == pytest.approx(1.2e9, abs=1e6)  # 80 m -> 50 m at 25 m/s
 
 
+@pytest.mark.parametrize("x_m,born_m,v_sign,receding_max_m,expected", [
+    (5.25, 86.0, 1, 60.0, 1),  # receding, masked beside a truck until 36 m past the line: counted
+    (5.25, 86.0, 1, 0.0, 0),   # ... (only count_late_max_m: missed)
+    (5.25, 116.0, 1, 60.0, 0),  # first seen farther past than count_late_receding_max_m
+    (3.75, 86.0, 1, 60.0, 0),  # 0.25 m inside its lane, by the boundary where a neighbour's ghost sits
+    (-5.25, 14.0, -1, 60.0, 0),  # approaching, 36 m past the line: count_late_max_m holds
+])
+def test_a_receding_vehicle_first_tracked_far_past_the_line_is_counted(x_m, born_m, v_sign, receding_max_m,
+                                                                       expected):
+    """A car overtaken by a truck in the next lane is masked by the truck's body until it is well past the
+    line (highway4-traffic seed 7005: first tracked 36 and 52 m past it). The extended late count is for
+    receding tracks well inside their lane only."""
+    cfg = TrafficConfig(estimate_yaw=False, interval_s=60.0, count_late_max_m=30.0,
+                        count_late_receding_max_m=receding_max_m, count_late_far_margin_m=1.0)
+    mon = TrafficMonitor(cfg)
+    mon.update((_ts(9, 0.0, 150.0, 0.0, 20.0, 50),), 0)  # the monitor starts before the vehicle crosses
+    v = 24.0 * v_sign
+    for k in range(1, 20):
+        mon.update((_ts(1, x_m, born_m + v * k * 0.1, 0.0, v, k), _ts(9, 0.0, 150.0 + 2.0 * k, 0.0, 20.0, 50 + k)),
+                   3_000_000_000 + k * DT_NS)
+    lane = 3 if x_m > 3.5 else 2 if x_m > 0 else 0
+    crossings = [c for c, _, _ in mon.stats.lane(lane).crossings]
+    assert len(crossings) == expected
+    if expected:  # at the time extrapolated back: first seen 38.4 m past the line (at 3.1 s) at 24 m/s
+        assert crossings[0].t_ns == pytest.approx((3.1 - 38.4 / 24.0) * 1e9, abs=1e6)
+
+
+@pytest.mark.parametrize("dv_mps,lane_twin,twin_s,expected", [
+    (0.05, 3, 0.1, 0),  # born past the line at the range and speed of the vehicle counted beside it: its ghost
+    (1.0, 3, 0.1, 1),   # 1 m/s slower: a second vehicle that crossed untracked beside it
+    (0.05, 3, 0.0, 1),  # the twin rule off
+    (0.05, 1, 0.1, 1),  # the counted vehicle is in a lane of the other direction
+])
+def test_a_late_track_beside_a_counted_twin_is_not_counted(dv_mps, lane_twin, twin_s, expected):
+    """highway4-traffic seed 7007: tracks beside a receding truck at its range and speed, confirmed past the line,
+    were counted late in the next lane (lane 2 +2)."""
+    cfg = TrafficConfig(estimate_yaw=False, interval_s=60.0, count_late_max_m=30.0, count_late_twin_s=twin_s,
+                        count_late_twin_speed_mps=0.3)
+    mon = TrafficMonitor(cfg)
+    v = 25.0
+    x_twin, v_twin = (5.25, v) if lane_twin == 3 else (-1.75, -v)
+    y_twin0 = 45.0 if lane_twin == 3 else 55.0  # crosses the line at 0.2 s either way
+    for k in range(12):
+        trs = [_ts(1, x_twin, y_twin0 + v_twin * k * 0.1, 0.0, v_twin, k + 1)]
+        if k >= 6:  # the ghost beside it, first seen 10 m past the line
+            vg = v - dv_mps
+            trs.append(_ts(2, 1.75, 50.0 + 10.0 + vg * (k - 6) * 0.1, 0.0, vg, k - 5))
+        mon.update(tuple(trs), k * DT_NS)
+    assert len(mon.stats.lane(lane_twin).crossings) == 1
+    assert len(mon.stats.lane(2).crossings) == expected
+
+
 def test_tracks_already_past_the_line_at_start_are_not_counted():
     mon = TrafficMonitor(TrafficConfig(estimate_yaw=False, interval_s=60.0, count_late_max_m=30.0))
     for k in range(20):
