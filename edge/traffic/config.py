@@ -149,10 +149,10 @@ class TrafficConfig:
                                                     "spans its beats) until the truck is far enough ahead "
                                                     "(highway4-traffic seed 7005: cars first tracked 36 and 53 m past "
                                                     "the line). Measured on the tracks of seeds 5, 6, 7005 and 7007 "
-                                                    "(10 min each): of the receding tracks first seen 30-80 m past, "
-                                                    "the 6 of missed vehicles lay 0.71-1.54 m inside their lane, 34-72 "
-                                                    "m past; 3 of the 5 ghosts within 0.12 m of a boundary, 2 at "
-                                                    "71-73 m past; 60 m and 0.5 m count 5 of the 6 and no ghost. "
+                                                    "(10 min each), receding tracks first seen 30-80 m past: 6 were "
+                                                    "missed vehicles, 0.71-1.54 m inside their lane and 34-72 m past; "
+                                                    "of the 5 ghosts, 3 lay within 0.12 m of a lane boundary and 2 "
+                                                    "were 71-73 m past. 60 m and 0.5 m count 5 of the 6 and no ghost. "
                                                     "0 = count_late_max_m for both directions",
                                 "min": 0.0, "max": 300.0})
     count_late_far_margin_m: float = field(
@@ -173,9 +173,12 @@ class TrafficConfig:
                                                      "at another angle (a ghost beside a truck, a phantom of the "
                                                      "side-by-side resolver: its range and speed are the vehicle's "
                                                      "own), not a vehicle that crossed untracked. highway4-traffic "
-                                                     "seeds 5, 6, 7005, 7007: the 4 extra late counts were 0.006-0.012 "
-                                                     "s and 0.04-0.13 m/s from such a twin, the 12 right ones at least "
-                                                     "0.115 s or 0.94 m/s from any; 0 s = off",
+                                                     "seeds 5, 6, 7005, 7007: the 4 extra late counts (ghosts of three "
+                                                     "trucks and a car; no vehicle crossed in their lane within 0.3 s) "
+                                                     "were 0.006-0.012 s and 0.04-0.13 m/s from such a twin, the 12 "
+                                                     "right ones at least 0.115 s or 0.94 m/s from any. Crossings at "
+                                                     "the line are not tested so: real pairs side by side cross within "
+                                                     "0.01 s at one speed. 0 s = off",
                                        "min": 0.0, "max": 50.0})
     count_once_per_track: bool = field(
         default=True, metadata={"doc": "a track is counted at the detection line once (by its crossing or as a late "
