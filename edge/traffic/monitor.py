@@ -200,8 +200,13 @@ class TrafficMonitor:
                 return True
         return False
 
+    @staticmethod
+    def _counted_near(recent, t_ns: int, speed_mps: float, tol_ns: int, dv_mps: float) -> bool:
+        """One of the counted crossings ``recent`` lies within ``tol_ns`` of ``t_ns`` and ``dv_mps`` of its speed."""
+        return any(abs(c.t_ns - t_ns) <= tol_ns and abs(c.speed_mps - speed_mps) < dv_mps for c in recent)
+
     def _count_late(self, tr: TrackState, lane: int, direction: int, s_m: float, vs_mps: float, speed_mps: float,
-                    length_m: float, t_ns: int, margin_m: float = math.inf) -> bool:
+                    length_m: float, t_ns: int, margin_m: float) -> bool:
         """A track first seen (confirmed) past the detection line: its vehicle crossed the line untracked (its
         earlier track was lost or taken over by a neighbour just before the line and it was re-born after it;
         or it crossed while still tentative). Counted at the crossing time extrapolated back at its along-road
@@ -222,17 +227,15 @@ class TrafficMonitor:
         if self._first_t_ns is None or tc <= self._first_t_ns:  # crossed before the monitor started
             return False
         acc = self.stats.lane(lane)
-        tol_ns = int(cfg.count_late_match_s * 1e9)
-        if self._same_vehicle(acc, tc, speed_mps) or any(
-                abs(c.t_ns - tc) <= tol_ns and abs(c.speed_mps - speed_mps) < cfg.count_late_match_speed_mps
-                for c in acc.recent):
+        if self._same_vehicle(acc, tc, speed_mps) or self._counted_near(
+                acc.recent, tc, speed_mps, int(cfg.count_late_match_s * 1e9), cfg.count_late_match_speed_mps):
             return False
         if cfg.count_late_twin_s > 0:
             twin_ns = int(cfg.count_late_twin_s * 1e9)
             for k in (lane - 1, lane + 1):  # the adjacent lanes of the same direction of travel
-                if 0 <= k < len(self.lanes) and self.lanes[k].direction == direction and k in self.stats.lanes and any(
-                        abs(c.t_ns - tc) <= twin_ns and abs(c.speed_mps - speed_mps) < cfg.count_late_twin_speed_mps
-                        for c in self.stats.lanes[k].recent):
+                other = self.stats.lanes.get(k)
+                if (other is not None and 0 <= k < len(self.lanes) and self.lanes[k].direction == direction
+                        and self._counted_near(other.recent, tc, speed_mps, twin_ns, cfg.count_late_twin_speed_mps)):
                     return False
         cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
         acc.add(Crossing(tc, speed_mps, length_m, cls))
