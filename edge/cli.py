@@ -22,6 +22,7 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.simulate",
     "edge.commands.replay",
     "edge.commands.evaluate",
+    "edge.commands.replay_traffic",
     "edge.commands.fit_noise",
     "edge.commands.bench",
     "edge.commands.soak",

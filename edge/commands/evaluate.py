@@ -21,6 +21,8 @@ EPILOG = """\
 examples:
   radar-edge evaluate --scenario highway4 --json out/highway4.json
   radar-edge evaluate --scenario multi-random --events 20 --seed 3 --json out/multi.json
+  radar-edge evaluate --scenario highway4-traffic --seed 5 --record-tracks out/s5-tracks.npz --json out/s5.json
+  radar-edge replay-traffic out/s5-tracks.npz --set traffic.count_late_twin_s=0   # counting rules, in seconds
 """
 
 
@@ -30,6 +32,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, default=None, help="limit the number of frames")
     p.add_argument("--events", type=int, default=None, help="number of events for event generators")
     p.add_argument("--json", metavar="OUT", help="write the report here (default: print it)")
+    p.add_argument("--record-tracks", metavar="FILE",
+                   help="lane profile: also save the traffic layer's input (tracks per frame) and the true crossings "
+                        "of the detection line, for radar-edge replay-traffic")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_config_arguments(p)
 
@@ -40,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
     report = evaluate(
         args.scenario, seed=args.seed, frames=args.frames, events=args.events, config=cfg,
-        progress=not args.no_progress and sys.stderr.isatty(),
+        progress=not args.no_progress and sys.stderr.isatty(), record_tracks=args.record_tracks,
     )
     text = json.dumps(report, indent=2, sort_keys=False)
     if args.json:

@@ -12,7 +12,9 @@ from typing import Any
 from edge.pipeline import BOARD_PROFILE
 
 
-def evaluate(scenario: str, *, seed: int | None, frames: int | None, events: int | None, config: Any, progress: bool = False) -> dict:
+def evaluate(scenario: str, *, seed: int | None, frames: int | None, events: int | None, config: Any, progress: bool = False,
+             record_tracks: str | None = None) -> dict:
+    """``record_tracks``: a path for the traffic layer's input (lane profile only, :mod:`edge.evaluation.track_log`)."""
     from hw_sim.scenario import load_scenario_for_eval
 
     sc = load_scenario_for_eval(scenario, events=events)
@@ -21,4 +23,10 @@ def evaluate(scenario: str, *, seed: int | None, frames: int | None, events: int
         mod = importlib.import_module(f"edge.evaluation.{profile}")
     except ModuleNotFoundError as exc:
         raise ValueError(f"evaluation of the {profile!r} profile is not available yet") from exc
-    return mod.evaluate(sc, seed=seed, frames=frames, events=events, config=config, progress=progress)
+    if record_tracks is None:
+        return mod.evaluate(sc, seed=seed, frames=frames, events=events, config=config, progress=progress)
+    if profile != "lane":
+        raise ValueError(f"--record-tracks records the lane profile's traffic layer; {scenario!r} runs the {profile} "
+                         "profile")
+    return mod.evaluate(sc, seed=seed, frames=frames, events=events, config=config, progress=progress,
+                        record_tracks=record_tracks)

@@ -45,7 +45,8 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   ``correct`` = alarms whose track followed such a vehicle when raised, ``false`` = the other alarms,
   ``missed`` = drivers without a correct alarm.
 * ``count_mismatches``: the true crossings left unmatched (``missed``) and the counted ones left unmatched
-  (``extra``) when each lane's two lists are matched one-to-one by time (at most ``COUNT_MATCH_S`` apart).
+  (``extra``) when each lane's two lists are matched one-to-one by time (at most
+  ``edge.evaluation.counting.COUNT_MATCH_S`` apart).
 """
 
 from __future__ import annotations
@@ -54,12 +55,15 @@ import dataclasses
 import logging
 import math
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from edge.dsp.pairing import PairingModel
+from edge.evaluation.counting import CountTally
+from edge.evaluation.track_log import TrackLogRecorder
 from edge.pipeline import StageTimer
 from edge.pipelines.lane import LanePipeline
 from hal.frame import RawFrame
@@ -70,7 +74,6 @@ MIN_RANGE_M = 10.0
 MAX_RANGE_M = 300.0
 GATE_M = 3.0
 RANGE_BIN_M = 50.0
-COUNT_MATCH_S = 2.0  # a counted crossing this close in time to a true one in the lane is that vehicle's
 OVERLAP_BINS = 1.5  # a beat this many FFT bins from another vehicle's span shares its peak (Hann main lobe: 2)
 OVERLAP_SEGMENTS = 2  # ... in this many of the four segments (the pairing tolerates one shared peak)
 
@@ -91,27 +94,6 @@ def _installer_config(config: Any, sc) -> tuple[Any, Any, Any]:
             lane_directions=tuple(ln.direction for ln in sc.lanes),
         )
     return lane_cfg, track_cfg, traffic_cfg
-
-
-def _count_mismatches(true_cross: list, meas_cross: list, n_lanes: int) -> dict:
-    """``{"missed": [...], "extra": [...]}``: true crossings (lane, t_s, vehicle id, class) and counted ones
-    (lane, t_s, speed km/h) left over when each lane's two lists are matched one-to-one minimising the time
-    differences, pairs further apart than ``COUNT_MATCH_S`` not allowed."""
-    missed, extra = [], []
-    for k in range(n_lanes):
-        t_true = [c for c in true_cross if c[0] == k]
-        t_meas = [c for c in meas_cross if c[0] == k]
-        dt = np.abs(np.array([c[1] for c in t_true])[:, None] - np.array([c[1] for c in t_meas])[None, :]).reshape(
-            len(t_true), len(t_meas))
-        cost = np.where(dt <= COUNT_MATCH_S, dt, 1e6)
-        r, c = linear_sum_assignment(cost) if cost.size else (np.zeros(0, int), np.zeros(0, int))
-        ok = cost[r, c] < 1e6
-        mt, mm = set(r[ok].tolist()), set(c[ok].tolist())
-        missed += [{"lane": k, "t_s": round(x[1], 3), "vehicle_id": x[2], "class": x[3]}
-                   for n, x in enumerate(t_true) if n not in mt]
-        extra += [{"lane": k, "t_s": round(x[1], 3), "speed_kmh": round(x[2], 1)}
-                  for n, x in enumerate(t_meas) if n not in mm]
-    return {"missed": missed, "extra": extra}
 
 
 def _to_radar_ground(pose, p_world: np.ndarray) -> np.ndarray:
@@ -194,7 +176,9 @@ def _wrong_way_score(acc: dict[int, "_TargetAcc"], event_vehicle: list[int | Non
 
 
 def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: int | None = None,
-             config: Any = None, progress: bool = False) -> dict:
+             config: Any = None, progress: bool = False, record_tracks: str | Path | None = None) -> dict:
+    """The report of the module docstring. ``record_tracks``: also write the traffic layer's input and the true
+    crossings there (:mod:`edge.evaluation.track_log`, for ``radar-edge replay-traffic``)."""
     from edge.config import load_config
     from hw_sim.boards import SIMO_BOARD
     from hw_sim.simulator import FrameSimulator
@@ -210,6 +194,12 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     sim = FrameSimulator(board, scene, seed)
     lane_cfg, track_cfg, traffic_cfg = _installer_config(config, sc)
     pipe = LanePipeline(fe, lane_cfg, track_cfg, traffic_cfg)
+    recorder = None
+    if record_tracks is not None:
+        if pipe.traffic is None:
+            raise ValueError("--record-tracks records the traffic layer's input, but tracking is off in this "
+                             "configuration")
+        recorder = pipe.traffic_tap = TrackLogRecorder()
     by_id = {tg.id: tg for tg in scene.targets}
     half_fov = math.radians(fe.fov_deg / 2.0)
     line = traffic_cfg.detection_line_m
@@ -226,12 +216,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     range_bins: dict[int, list[float]] = {}
     pd_bins: dict[int, list[int]] = {}  # range bin -> [in view, detected, tracked]
     pd_cls_bins: dict[tuple[str, int], list[int]] = {}  # (class, range bin) -> [in view, detected, tracked]
-    measured_volume = np.zeros(n_lanes, dtype=np.int64)
-    true_volume = np.zeros(n_lanes, dtype=np.int64)
+    tally = CountTally(n_lanes)  # what the traffic layer counted at its detection line
     prev_s: dict[int, float] = {}
     true_cross: list[tuple[int, float, int, str]] = []  # (lane, t_s, vehicle id, class)
-    meas_cross: list[tuple[int, float, float]] = []  # (lane, t_s, speed km/h) as counted by the traffic layer
-    seen_last: dict[int, Any] = {}
     events: list[dict] = []
     # wrong-way scoring: the scenario's lane directions (+1 away from the radar), the vehicle each event's
     # track followed when it was raised
@@ -262,17 +249,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         new_events = res.events
         for ev in new_events:
             events.append({"kind": ev.kind, "track_id": ev.track_id, "lane": ev.lane, "t_s": round(f.t_s, 3)})
-        for ls in res.lane_stats:
-            if 0 <= ls.lane < n_lanes:
-                measured_volume[ls.lane] += ls.volume
-        if pipe.traffic is not None:  # the crossings counted in this frame (appended to each lane's recent ones)
-            for k, la in pipe.traffic.stats.lanes.items():
-                rec = list(la.recent)
-                last = seen_last.get(k)
-                start = next((i + 1 for i in range(len(rec) - 1, -1, -1) if rec[i] is last), 0) if last is not None else 0
-                meas_cross.extend((k, c.t_ns * 1e-9, c.speed_mps * 3.6) for c in rec[start:])
-                if rec:
-                    seen_last[k] = rec[-1]
+        tally.add_frame(res.lane_stats, pipe.traffic)
 
         tr = f.truth
         veh = [k for k in range(len(tr)) if tr.cls[k] != "clutter"]
@@ -298,7 +275,6 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         for j, i in enumerate(ids):
             s_prev = prev_s.get(int(i))
             if s_prev is not None and (s_prev - line) * (ref_y[j] - line) < 0 and 0 <= lanes[j] < n_lanes:
-                true_volume[lanes[j]] += 1
                 true_cross.append((int(lanes[j]), float(f.t_s), int(i), tr.cls[veh[j]]))
             prev_s[int(i)] = float(ref_y[j])
 
@@ -378,11 +354,8 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             ep[2] += int(t_in_view[k])
             ep[3] += int(t_assigned[k] and t_in_view[k])
     closed_eps.extend(episodes.values())
-    # crossings of the open interval
-    if pipe.traffic is not None:
-        for k, la in pipe.traffic.stats.lanes.items():
-            if 0 <= k < n_lanes:
-                measured_volume[k] += len(la.crossings)
+    tally.close(pipe.traffic)  # the crossings of the open interval
+    counts = tally.summary(true_cross)
 
     duration_min = n_frames * period / 60.0
     false_tracks = sum(1 for ep in closed_eps if ep[2] > 0 and ep[3] < 0.5 * ep[2])
@@ -433,12 +406,12 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
                                  for ep in closed_eps if ep[2] > 0 and ep[3] < 0.5 * ep[2]],
         "id_switches": int(sum(a.switches for a in acc.values())),
         "lane_accuracy": lane_ok / lane_n if lane_n else None,
-        "count_error_per_lane": [int(m - t) for m, t in zip(measured_volume, true_volume)],
-        "volume_true_per_lane": [int(v) for v in true_volume],
-        "volume_measured_per_lane": [int(v) for v in measured_volume],
+        "count_error_per_lane": counts["count_error_per_lane"],
+        "volume_true_per_lane": counts["volume_true_per_lane"],
+        "volume_measured_per_lane": counts["volume_measured_per_lane"],
         # which crossings make the count errors: per lane, true and counted crossings matched one-to-one by time
         # (within COUNT_MATCH_S); the unmatched ones, for diagnosis (counts of the open interval included)
-        "count_mismatches": _count_mismatches(true_cross, meas_cross, n_lanes),
+        "count_mismatches": counts["count_mismatches"],
         "rmse_by_range_m": {f"{int(k * RANGE_BIN_M)}-{int((k + 1) * RANGE_BIN_M)}": float(math.sqrt(np.mean(v)))
                             for k, v in sorted(range_bins.items())},
         "detection_probability_by_range": {
@@ -479,11 +452,17 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         "confusion_matrix": None,
     }
     budget_ms = period * 1e3
+    track_log = None
+    if recorder is not None:
+        meta = {"scenario": sc.name, "seed": seed, "frames": n_frames, "frame_period_s": period, "n_lanes": n_lanes,
+                "traffic": dataclasses.asdict(traffic_cfg), "counts": counts, "events": events}
+        track_log = str(recorder.save(record_tracks, meta, true_cross))
     return {
         "scenario": sc.name,
         "profile": "lane",
         "seed": seed,
         "frames": n_frames,
+        "track_log": track_log,
         "targets": targets,
         "summary": summary,
         "frame_time_ms": {

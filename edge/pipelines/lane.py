@@ -40,7 +40,7 @@ import bisect
 import itertools
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import scipy.fft
@@ -447,6 +447,8 @@ class LanePipeline(Pipeline):
             self.tracker = PdafTracker(track_config or PdafConfig())
             self.traffic = TrafficMonitor(traffic_config or TrafficConfig())
         self._want_coherence = self.tracker is not None and self.tracker.config.seed_min_coherence > 0
+        #: called with (tracks, t_ns, motion model's x per track or None) before the traffic layer's update
+        self.traffic_tap: Callable[[tuple, int, np.ndarray | None], None] | None = None
 
     def close(self) -> None:
         if self.traffic is not None:
@@ -923,6 +925,8 @@ class LanePipeline(Pipeline):
             return FrameResult(profile=self.profile, seq=frame.seq, t_ns=frame.t_ns, detections=det, intermediates=inter)
         with timer.stage("track"):
             tracks = self.tracker.step(det, frame.t_ns)
+        if self.traffic_tap is not None:  # (the traffic layer's input, e.g. for evaluate --record-tracks)
+            self.traffic_tap(tracks, frame.t_ns, self.tracker.published_motion_x_m)
         with timer.stage("traffic"):
             upd = self.traffic.update(tracks, frame.t_ns, self.tracker.published_motion_x_m)
             self.tracker.road_yaw_rad = self.traffic.yaw_rad  # the IMM's lane-keeping direction

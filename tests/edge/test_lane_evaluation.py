@@ -96,7 +96,7 @@ def test_wrong_way_alarms_are_scored_against_the_truth():
 
 
 def test_count_mismatches_pair_crossings_by_time_per_lane():
-    from edge.evaluation.lane import _count_mismatches
+    from edge.evaluation.counting import count_mismatches as _count_mismatches
 
     true = [(0, 10.0, 1, "car"), (0, 20.0, 2, "truck"), (1, 30.0, 3, "car"), (1, 40.0, 4, "car")]
     meas = [(0, 10.3, 90.0), (0, 20.1, 80.0), (0, 20.2, 70.0), (1, 30.5, 95.0), (2, 40.0, 99.0)]

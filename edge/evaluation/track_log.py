@@ -1,0 +1,210 @@
+"""The traffic layer's input recorded during a lane evaluation, and the traffic layer run again on it.
+
+``radar-edge evaluate --scenario highway4-traffic --record-tracks run.npz`` saves, frame by frame, the tracks the
+traffic layer (:class:`edge.traffic.TrafficMonitor`) was given and the true crossings of the detection line.
+``radar-edge replay-traffic run.npz --set traffic.count_late_twin_s=0`` runs the traffic layer again on them with
+other settings and scores its counts against the same truth (:mod:`edge.evaluation.counting`): seconds for what
+takes a ten-minute evaluation, so that counting rules, lane geometry and interval settings can be tried and
+compared on the same traffic. With the recorded settings the replay gives the evaluation's counts exactly.
+
+What a replay cannot change: the tracks. Settings of ``pipeline.lane`` and ``track.pdaf`` need a new evaluation,
+and so do effects of the traffic layer on the tracker (the tracker takes the traffic layer's mounting-yaw
+estimate as the road direction of its lane-keeping model): a replay with other yaw settings counts the recorded
+tracks, which were followed with the recorded run's yaw. The true crossings are those of the recorded detection
+line, so ``traffic.detection_line_m`` cannot change in a replay. A calibration file is neither read nor written.
+
+File format (version 1): a numpy ``.npz`` (no pickled objects), columns one row per published track and frame:
+
+=================  =========================================================================================
+``meta``           JSON text as uint8: ``format_version``, ``scenario``, ``seed``, ``frames``, ``frame_period_s``,
+                   ``n_lanes``, ``traffic`` (the resolved ``traffic`` section the evaluation ran with),
+                   ``counts`` (the evaluation's count figures: error, volumes, mismatches), ``events``
+``frame_t_ns``     ``(F,)`` int64 frame times
+``frame_start``    ``(F + 1,)`` int64: the tracks of frame ``f`` are rows ``frame_start[f]:frame_start[f + 1]``
+``frame_has_motion_x``  ``(F,)`` bool: the frame came with the motion model's lateral positions (below)
+``track_<field>``  ``(N,)`` the :class:`edge.types.TrackState` fields: ``track_id``, ``age_frames``, ``hits``
+                   (int64), ``confirmed`` (bool), ``lane`` (int64, -1 = none), ``cls`` (str, "" = none), the
+                   floats (float64; NaN = none for ``class_probability``, ``rcs_dbsm``, ``length_m``)
+``motion_x_m``     ``(N,)`` float64: the tracker's motion-model ``x`` per track (the yaw estimator's input)
+``true_lane``, ``true_t_s``, ``true_vehicle``, ``true_class``
+                   the true crossings of the detection line: lane, time (s), vehicle id, class
+=================  =========================================================================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from edge.evaluation.counting import CountTally
+from edge.types import TrackState
+
+FORMAT_VERSION = 1
+
+_INT_FIELDS = ("track_id", "age_frames", "hits")
+_FLOAT_FIELDS = ("x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps", "az_rad")
+_OPTIONAL_FLOAT_FIELDS = ("class_probability", "rcs_dbsm", "length_m")
+_KEYS = ("meta", "frame_t_ns", "frame_start", "frame_has_motion_x", "motion_x_m", "track_confirmed", "track_lane",
+         "track_cls", "true_lane", "true_t_s", "true_vehicle", "true_class") + tuple(
+    f"track_{f}" for f in _INT_FIELDS + _FLOAT_FIELDS + _OPTIONAL_FLOAT_FIELDS)
+
+
+class TrackLogError(ValueError):
+    """A track log that cannot be read or replayed as asked; the message says why."""
+
+
+class TrackLogRecorder:
+    """Collects the traffic layer's input frame by frame (:attr:`edge.pipelines.lane.LanePipeline.traffic_tap`)."""
+
+    def __init__(self) -> None:
+        self._t_ns: list[int] = []
+        self._start: list[int] = [0]
+        self._has_mx: list[bool] = []
+        self._rows: list[TrackState] = []
+        self._mx: list[float] = []
+
+    def __call__(self, tracks: tuple[TrackState, ...], t_ns: int, motion_x_m: np.ndarray | None) -> None:
+        self._t_ns.append(int(t_ns))
+        self._rows.extend(tracks)
+        ok = motion_x_m is not None and len(motion_x_m) == len(tracks)
+        self._has_mx.append(ok)
+        self._mx.extend(np.asarray(motion_x_m, dtype=np.float64).tolist() if ok else [np.nan] * len(tracks))
+        self._start.append(len(self._rows))
+
+    def save(self, path: str | Path, meta: dict, true_cross: list[tuple[int, float, int, str]]) -> Path:
+        """Write the log with ``meta`` (module docstring) and the true crossings; returns the path written."""
+        rows = self._rows
+        cols: dict[str, np.ndarray] = {
+            "meta": np.frombuffer(json.dumps({"format_version": FORMAT_VERSION, **meta}).encode(), dtype=np.uint8),
+            "frame_t_ns": np.array(self._t_ns, dtype=np.int64),
+            "frame_start": np.array(self._start, dtype=np.int64),
+            "frame_has_motion_x": np.array(self._has_mx, dtype=bool),
+            "motion_x_m": np.array(self._mx, dtype=np.float64),
+            "track_confirmed": np.array([t.confirmed for t in rows], dtype=bool),
+            "track_lane": np.array([-1 if t.lane is None else t.lane for t in rows], dtype=np.int64),
+            "track_cls": np.array(["" if t.cls is None else t.cls for t in rows], dtype=str),
+            "true_lane": np.array([c[0] for c in true_cross], dtype=np.int64),
+            "true_t_s": np.array([c[1] for c in true_cross], dtype=np.float64),
+            "true_vehicle": np.array([c[2] for c in true_cross], dtype=np.int64),
+            "true_class": np.array([c[3] for c in true_cross], dtype=str),
+        }
+        for f in _INT_FIELDS:
+            cols[f"track_{f}"] = np.array([getattr(t, f) for t in rows], dtype=np.int64)
+        for f in _FLOAT_FIELDS:
+            cols[f"track_{f}"] = np.array([getattr(t, f) for t in rows], dtype=np.float64)
+        for f in _OPTIONAL_FLOAT_FIELDS:
+            cols[f"track_{f}"] = np.array([np.nan if getattr(t, f) is None else getattr(t, f) for t in rows],
+                                          dtype=np.float64)
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with path.open("wb") as fh:  # (np.savez_compressed would append .npz to a name without it)
+            np.savez_compressed(fh, **cols)
+        return path
+
+
+@dataclass(frozen=True)
+class TrackLog:
+    """A loaded track log (module docstring): ``meta`` and the columns by name."""
+
+    meta: dict
+    cols: dict[str, np.ndarray]
+
+    @property
+    def frames(self) -> int:
+        return int(self.cols["frame_t_ns"].size)
+
+    @property
+    def true_crossings(self) -> list[tuple[int, float, int, str]]:
+        c = self.cols
+        return list(zip(c["true_lane"].tolist(), c["true_t_s"].tolist(), c["true_vehicle"].tolist(),
+                        c["true_class"].tolist()))
+
+    def frame_tracks(self) -> list[tuple[int, tuple[TrackState, ...], np.ndarray | None]]:
+        """Per frame ``(t_ns, tracks, motion_x_m or None)``, as the traffic layer was given them."""
+        c = self.cols
+        n = c["track_track_id"].size
+        ints = {f: c[f"track_{f}"].tolist() for f in _INT_FIELDS}
+        floats = {f: c[f"track_{f}"].tolist() for f in _FLOAT_FIELDS}
+        opt = {f: [None if v != v else v for v in c[f"track_{f}"].tolist()] for f in _OPTIONAL_FLOAT_FIELDS}
+        conf = c["track_confirmed"].tolist()
+        lane = [None if v < 0 else v for v in c["track_lane"].tolist()]
+        cls = [v or None for v in c["track_cls"].tolist()]
+        rows = [TrackState(track_id=ints["track_id"][i], x_m=floats["x_m"][i], y_m=floats["y_m"][i],
+                           vx_mps=floats["vx_mps"][i], vy_mps=floats["vy_mps"][i], range_m=floats["range_m"][i],
+                           radial_speed_mps=floats["radial_speed_mps"][i], az_rad=floats["az_rad"][i],
+                           age_frames=ints["age_frames"][i], hits=ints["hits"][i], confirmed=conf[i], lane=lane[i],
+                           cls=cls[i], class_probability=opt["class_probability"][i], rcs_dbsm=opt["rcs_dbsm"][i],
+                           length_m=opt["length_m"][i])
+                for i in range(n)]
+        start, mx, has = c["frame_start"], c["motion_x_m"], c["frame_has_motion_x"]
+        return [(int(t), tuple(rows[start[f]:start[f + 1]]), mx[start[f]:start[f + 1]] if has[f] else None)
+                for f, t in enumerate(c["frame_t_ns"].tolist())]
+
+
+def load_track_log(path: str | Path) -> TrackLog:
+    """Read a track log; :class:`TrackLogError` naming what is wrong with a file that is not one."""
+    path = Path(path)
+    if not path.is_file():
+        raise TrackLogError(f"{path}: no such file (record one with radar-edge evaluate --record-tracks)")
+    if not zipfile.is_zipfile(path):
+        raise TrackLogError(f"{path}: not a track log (a numpy .npz archive) written by radar-edge evaluate "
+                            "--record-tracks")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            cols = {k: z[k] for k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise TrackLogError(f"{path}: not a track log (.npz) written by radar-edge evaluate --record-tracks: {exc}") \
+            from exc
+    if "meta" not in cols or "frame_start" not in cols:
+        raise TrackLogError(f"{path}: not a track log (a recording of raw frames is replayed with radar-edge replay)")
+    missing = [k for k in _KEYS if k not in cols]
+    if missing:
+        raise TrackLogError(f"{path}: incomplete track log: no {', '.join(missing)}")
+    try:
+        meta = json.loads(cols["meta"].tobytes().decode())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise TrackLogError(f"{path}: its meta block is not JSON: {exc}") from exc
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise TrackLogError(f"{path}: track log format version {meta.get('format_version')!r}, this radar-edge reads "
+                            f"version {FORMAT_VERSION}")
+    n = cols["track_track_id"].size
+    start = cols["frame_start"]
+    if (start.size != cols["frame_t_ns"].size + 1 or start[0] != 0 or start[-1] != n or np.any(np.diff(start) < 0)
+            or any(cols[k].size != n for k in _KEYS if k.startswith("track_") or k == "motion_x_m")):
+        raise TrackLogError(f"{path}: inconsistent track log (frame index and track columns disagree)")
+    return TrackLog(meta, cols)
+
+
+def replay_traffic(log: TrackLog, traffic_config: Any, progress: Callable[[int], None] | None = None) -> dict:
+    """Run the traffic layer with ``traffic_config`` (a :class:`edge.traffic.TrafficConfig`) on the recorded tracks
+    and score its counts against the recorded truth. Returns ``{"counts": ..., "events": ..., "lanes": ...}``:
+    ``counts`` as :meth:`edge.evaluation.counting.CountTally.summary`, ``events`` the traffic events (kind, track
+    id, lane, t_s), ``lanes`` the lane centres in use at the end and the estimated yaw. ``progress(frames done)``
+    is called now and then."""
+    from edge.traffic import TrafficMonitor
+
+    recorded_line = log.meta["traffic"]["detection_line_m"]
+    if traffic_config.detection_line_m != recorded_line:
+        raise TrackLogError(f"traffic.detection_line_m = {traffic_config.detection_line_m} in the replay, but the "
+                            f"truth was recorded at {recorded_line} m: record again with the new line")
+    cfg = dataclasses.replace(traffic_config, calibration_file="")
+    mon = TrafficMonitor(cfg)
+    tally = CountTally(int(log.meta["n_lanes"]))
+    events = []
+    for n, (t_ns, tracks, mx) in enumerate(log.frame_tracks()):
+        upd = mon.update(tracks, t_ns, mx)
+        tally.add_frame(upd.lane_stats, mon)
+        events.extend({"kind": ev.kind, "track_id": ev.track_id, "lane": ev.lane, "t_s": round(t_ns * 1e-9, 3)}
+                      for ev in upd.events)
+        if progress is not None and n % 1000 == 999:
+            progress(n + 1)
+    tally.close(mon)
+    return {"counts": tally.summary(log.true_crossings), "events": events,
+            "lane_centers_m": [round(ln.center_m, 3) for ln in mon.lanes],
+            "estimated_yaw_deg": float(np.degrees(mon.yaw_rad))}
