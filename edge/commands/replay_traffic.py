@@ -28,17 +28,20 @@ examples:
   radar-edge evaluate --scenario highway4-traffic --seed 5 --record-tracks out/s5-tracks.npz --json out/s5.json
   radar-edge replay-traffic out/s5-tracks.npz                                  # the evaluation's counts again
   radar-edge replay-traffic out/s5-tracks.npz --set traffic.count_late_twin_s=0 --json out/s5-no-twin.json
+  radar-edge replay-traffic out/s*-tracks.npz --set traffic.count_same_vehicle_s=0.5   # several runs, one table
 """
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("file", help="track log written by radar-edge evaluate --record-tracks (.npz)")
-    p.add_argument("--json", metavar="OUT", help="also write the result as JSON here")
+    p.add_argument("file", nargs="+", help="track log(s) written by radar-edge evaluate --record-tracks (.npz); with "
+                                           "several, a table of their count errors follows")
+    p.add_argument("--json", metavar="OUT", help="also write the result as JSON here (a list with several logs)")
     add_config_arguments(p)
 
 
 def _traffic_settings(args: argparse.Namespace, recorded: dict):
-    """The recorded traffic section with the user's explicit traffic settings (file, environment, --set) on top."""
+    """The recorded traffic section (:func:`edge.evaluation.track_log.recorded_traffic_settings`) with the user's
+    explicit traffic settings (file, environment, --set) on top."""
     from edge.config import ConfigError, build_section
 
     other = [s.split("=", 1)[0].strip() for s in args.set if not s.split("=", 1)[0].strip().startswith("traffic.")]
@@ -55,12 +58,14 @@ def _fmt(errors: list[int]) -> str:
     return "[" + ", ".join(f"{e:+d}" if e else "0" for e in errors) + "]"
 
 
-def run(args: argparse.Namespace) -> int:
-    from edge.evaluation.track_log import load_track_log, replay_traffic
+def _replay_one(args: argparse.Namespace, path: str) -> dict:
+    """Replay one log, print its block, return its JSON document."""
+    from edge.evaluation.track_log import load_track_log, recorded_traffic_settings, replay_traffic
 
-    log = load_track_log(args.file)
+    log = load_track_log(path)
     meta = log.meta
-    traffic_cfg, changed = _traffic_settings(args, meta["traffic"])
+    recorded, unknown = recorded_traffic_settings(log)
+    traffic_cfg, changed = _traffic_settings(args, recorded)
     progress = None
     bar = None
     if sys.stderr.isatty():
@@ -69,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
         except ImportError:  # (tqdm comes with the train and test extras)
             tqdm = None
         if tqdm is not None:
-            bar = tqdm(total=log.frames, desc="replay-traffic", unit="frame")
+            bar = tqdm(total=log.frames, desc=f"replay-traffic {Path(path).name}", unit="frame")
             progress = lambda n: bar.update(n - bar.n)  # noqa: E731
     try:
         result = replay_traffic(log, traffic_cfg, progress)
@@ -77,9 +82,11 @@ def run(args: argparse.Namespace) -> int:
         if bar is not None:
             bar.close()
     rec, new = meta["counts"], result["counts"]
-    print(f"{meta['scenario']} seed {meta['seed']}, {meta['frames']} frames, {len(log.true_crossings)} true crossings "
-          f"of the line at {traffic_cfg.detection_line_m:g} m")
+    print(f"{path}: {meta['scenario']} seed {meta['seed']}, {meta['frames']} frames, {len(log.true_crossings)} true "
+          f"crossings of the line at {traffic_cfg.detection_line_m:g} m")
     print("changed: " + (", ".join(f"traffic.{k}={v!r}" for k, v in changed.items()) or "nothing (recorded settings)"))
+    if unknown:
+        print("recorded settings this version does not have (dropped): " + ", ".join(f"traffic.{k}" for k in unknown))
     print(f"true volume per lane      {new['volume_true_per_lane']}")
     print(f"count error per lane      recorded {_fmt(rec['count_error_per_lane'])} -> replayed "
           f"{_fmt(new['count_error_per_lane'])}")
@@ -93,10 +100,30 @@ def run(args: argparse.Namespace) -> int:
     for k in kinds:
         print(f"{k} events {sum(e['kind'] == k for e in result['events'])} "
               f"(recorded {sum(e['kind'] == k for e in meta['events'])})")
+    return {"track_log": str(path), "scenario": meta["scenario"], "seed": meta["seed"], "frames": meta["frames"],
+            "changed": changed, "dropped_recorded_settings": unknown,
+            "recorded": {"counts": rec, "events": meta["events"]}, **result}
+
+
+def run(args: argparse.Namespace) -> int:
+    docs = []
+    for n, path in enumerate(args.file):
+        if n:
+            print()
+        docs.append(_replay_one(args, path))
+    if len(docs) > 1:  # the logs side by side: per-lane errors and the sum of their magnitudes, recorded -> replayed
+        print()
+        w = max(len(d["track_log"]) for d in docs)
+        print(f"{'track log':<{w}}  {'recorded':<22} {'replayed':<22} |error| recorded -> replayed")
+        tot_r = tot_n = 0
+        for d in docs:
+            er, en = d["recorded"]["counts"]["count_error_per_lane"], d["counts"]["count_error_per_lane"]
+            sr, sn = sum(map(abs, er)), sum(map(abs, en))
+            tot_r, tot_n = tot_r + sr, tot_n + sn
+            print(f"{d['track_log']:<{w}}  {_fmt(er):<22} {_fmt(en):<22} {sr} -> {sn}")
+        print(f"{'all':<{w}}  {'':<22} {'':<22} {tot_r} -> {tot_n}")
     if args.json:
         out = Path(args.json)
         out.parent.mkdir(parents=True, exist_ok=True)
-        doc = {"track_log": str(args.file), "scenario": meta["scenario"], "seed": meta["seed"], "frames": meta["frames"],
-               "changed": changed, "recorded": {"counts": rec, "events": meta["events"]}, **result}
-        out.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        out.write_text(json.dumps(docs[0] if len(docs) == 1 else docs, indent=2) + "\n", encoding="utf-8")
     return 0

@@ -181,6 +181,16 @@ def load_track_log(path: str | Path) -> TrackLog:
     return TrackLog(meta, cols)
 
 
+def recorded_traffic_settings(log: TrackLog) -> tuple[dict, list[str]]:
+    """The recorded ``traffic`` section as values this version knows, and the recorded keys it does not (a log
+    written by another version: those settings are dropped, settings it did not have take their defaults)."""
+    from edge.traffic import TrafficConfig
+
+    known = {f.name for f in dataclasses.fields(TrafficConfig)}
+    rec = log.meta["traffic"]
+    return {k: v for k, v in rec.items() if k in known}, sorted(k for k in rec if k not in known)
+
+
 def replay_traffic(log: TrackLog, traffic_config: Any, progress: Callable[[int], None] | None = None) -> dict:
     """Run the traffic layer with ``traffic_config`` (a :class:`edge.traffic.TrafficConfig`) on the recorded tracks
     and score its counts against the recorded truth. Returns ``{"counts": ..., "events": ..., "lanes": ...}``:

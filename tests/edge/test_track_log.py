@@ -128,6 +128,17 @@ def test_bad_track_logs_and_settings_are_clear_errors(recorded, tmp_path, capsys
     assert "traffic layer only" in capsys.readouterr().err
 
 
+def _rewrite_meta(src, dst, change):
+    """A copy of the track log ``src`` at ``dst`` with ``change(meta)`` applied to its meta block."""
+    with zipfile.ZipFile(src) as z:
+        cols = {name[:-4]: np.load(z.open(name), allow_pickle=False) for name in z.namelist()}
+    meta = json.loads(cols["meta"].tobytes().decode())
+    change(meta)
+    cols["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
+    np.savez_compressed(dst, **cols)
+    return dst
+
+
 def test_replay_traffic_command(recorded, tmp_path, capsys):
     path, rep = recorded
     out = tmp_path / "r.json"
@@ -138,3 +149,19 @@ def test_replay_traffic_command(recorded, tmp_path, capsys):
     assert doc["changed"] == {"interval_s": 10.0}
     assert doc["counts"]["count_error_per_lane"] == rep["summary"]["count_error_per_lane"]
     assert doc["recorded"]["counts"]["count_error_per_lane"] == rep["summary"]["count_error_per_lane"]
+
+
+def test_replay_traffic_command_several_logs_and_other_versions(recorded, tmp_path, capsys):
+    """Several logs give one table of count errors; a log written by a version with a traffic setting this one does
+    not have replays with that setting dropped, and says so."""
+    path, rep = recorded
+    other = _rewrite_meta(path, tmp_path / "other.npz", lambda m: m["traffic"].update(count_future_rule_s=0.5))
+    out = tmp_path / "both.json"
+    assert main(["replay-traffic", str(path), str(other), "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "(dropped): traffic.count_future_rule_s" in text
+    err = sum(map(abs, rep["summary"]["count_error_per_lane"]))
+    assert text.rstrip().splitlines()[-1].split() == ["all", str(2 * err), "->", str(2 * err)]
+    docs = json.loads(out.read_text())
+    assert [d["dropped_recorded_settings"] for d in docs] == [[], ["count_future_rule_s"]]
+    assert docs[0]["counts"] == docs[1]["counts"]
