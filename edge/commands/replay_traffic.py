@@ -87,6 +87,8 @@ def _replay_one(args: argparse.Namespace, path: str) -> dict:
     print("changed: " + (", ".join(f"traffic.{k}={v!r}" for k, v in changed.items()) or "nothing (recorded settings)"))
     if unknown:
         print("recorded settings this version does not have (dropped): " + ", ".join(f"traffic.{k}" for k in unknown))
+    print(f"lanes at the end          {result['lane_centers_m']} m ({traffic_cfg.lane_mode}), mounting yaw "
+          f"{result['estimated_yaw_deg']:.2f} deg")
     print(f"true volume per lane      {new['volume_true_per_lane']}")
     print(f"count error per lane      recorded {_fmt(rec['count_error_per_lane'])} -> replayed "
           f"{_fmt(new['count_error_per_lane'])}")

@@ -92,3 +92,21 @@ def test_run_stops_cleanly_on_signal_with_a_summary(sig):
             p.kill()
     assert p.returncode == 0, err
     assert "stage" in out and "p99/budget" in out and "(stopped)" in out
+
+
+def test_output_into_a_closed_pipe_ends_quietly():
+    """``radar-edge registers | head -1``: the reader goes away; the command stops with 141 (128 + SIGPIPE) and no
+    traceback, as Unix tools do. The pipe's read end is closed before the command starts, so its first write fails."""
+    import os
+    import subprocess
+    import sys
+
+    r, w = os.pipe()
+    os.close(r)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "edge", "registers"], stdout=w, stderr=subprocess.PIPE,
+                              timeout=120)
+    finally:
+        os.close(w)
+    assert proc.returncode == 141
+    assert b"Traceback" not in proc.stderr
