@@ -34,7 +34,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", metavar="OUT", help="write the report here (default: print it)")
     p.add_argument("--record-tracks", metavar="FILE",
                    help="lane profile: also save the traffic layer's input (tracks per frame) and the true crossings "
-                        "of the detection line, for radar-edge replay-traffic")
+                        "of the detection line, for radar-edge replay-traffic (about 17 MB for ten minutes of "
+                        "four-lane traffic)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_config_arguments(p)
 

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import operator
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,6 +51,8 @@ FORMAT_VERSION = 1
 _INT_FIELDS = ("track_id", "age_frames", "hits")
 _FLOAT_FIELDS = ("x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps", "az_rad")
 _OPTIONAL_FLOAT_FIELDS = ("class_probability", "rcs_dbsm", "length_m")
+_ROW_FIELDS = _INT_FIELDS + _FLOAT_FIELDS + _OPTIONAL_FLOAT_FIELDS + ("confirmed", "lane", "cls")
+_ROW = operator.attrgetter(*_ROW_FIELDS)  # a track's fields as one tuple
 _KEYS = ("meta", "frame_t_ns", "frame_start", "frame_has_motion_x", "motion_x_m", "track_confirmed", "track_lane",
          "track_cls", "true_lane", "true_t_s", "true_vehicle", "true_class") + tuple(
     f"track_{f}" for f in _INT_FIELDS + _FLOAT_FIELDS + _OPTIONAL_FLOAT_FIELDS)
@@ -60,47 +63,65 @@ class TrackLogError(ValueError):
 
 
 class TrackLogRecorder:
-    """Collects the traffic layer's input frame by frame (:attr:`edge.pipelines.lane.LanePipeline.traffic_tap`)."""
+    """Collects the traffic layer's input frame by frame (:attr:`edge.pipelines.lane.LanePipeline.traffic_tap`).
+    The tracks' fields are kept as columns, converted every ``chunk_rows`` rows (ten minutes of four-lane traffic
+    is about 300 000 rows: as TrackState objects they would hold a few hundred MB)."""
 
-    def __init__(self) -> None:
+    def __init__(self, chunk_rows: int = 8192) -> None:
+        self._chunk_rows = chunk_rows
         self._t_ns: list[int] = []
         self._start: list[int] = [0]
         self._has_mx: list[bool] = []
-        self._rows: list[TrackState] = []
         self._mx: list[float] = []
+        self._rows: list[tuple] = []  # the tracks not yet converted, as tuples of _ROW_FIELDS
+        self._chunks: list[dict[str, np.ndarray]] = []
+        self._n = 0
 
     def __call__(self, tracks: tuple[TrackState, ...], t_ns: int, motion_x_m: np.ndarray | None) -> None:
         self._t_ns.append(int(t_ns))
-        self._rows.extend(tracks)
+        self._rows.extend(map(_ROW, tracks))
+        self._n += len(tracks)
         ok = motion_x_m is not None and len(motion_x_m) == len(tracks)
         self._has_mx.append(ok)
         self._mx.extend(np.asarray(motion_x_m, dtype=np.float64).tolist() if ok else [np.nan] * len(tracks))
-        self._start.append(len(self._rows))
+        self._start.append(self._n)
+        if len(self._rows) >= self._chunk_rows:
+            self._flush()
+
+    def _flush(self) -> None:
+        if not self._rows:
+            return
+        cols = dict(zip(_ROW_FIELDS, zip(*self._rows)))
+        chunk = {f"track_{f}": np.array(cols[f], dtype=np.int64) for f in _INT_FIELDS}
+        chunk.update({f"track_{f}": np.array(cols[f], dtype=np.float64) for f in _FLOAT_FIELDS})
+        chunk.update({f"track_{f}": np.array([np.nan if v is None else v for v in cols[f]], dtype=np.float64)
+                      for f in _OPTIONAL_FLOAT_FIELDS})
+        chunk["track_confirmed"] = np.array(cols["confirmed"], dtype=bool)
+        chunk["track_lane"] = np.array([-1 if v is None else v for v in cols["lane"]], dtype=np.int64)
+        chunk["track_cls"] = np.array(["" if v is None else v for v in cols["cls"]], dtype=str)
+        self._chunks.append(chunk)
+        self._rows = []
 
     def save(self, path: str | Path, meta: dict, true_cross: list[tuple[int, float, int, str]]) -> Path:
         """Write the log with ``meta`` (module docstring) and the true crossings; returns the path written."""
-        rows = self._rows
+        self._flush()
         cols: dict[str, np.ndarray] = {
             "meta": np.frombuffer(json.dumps({"format_version": FORMAT_VERSION, **meta}).encode(), dtype=np.uint8),
             "frame_t_ns": np.array(self._t_ns, dtype=np.int64),
             "frame_start": np.array(self._start, dtype=np.int64),
             "frame_has_motion_x": np.array(self._has_mx, dtype=bool),
             "motion_x_m": np.array(self._mx, dtype=np.float64),
-            "track_confirmed": np.array([t.confirmed for t in rows], dtype=bool),
-            "track_lane": np.array([-1 if t.lane is None else t.lane for t in rows], dtype=np.int64),
-            "track_cls": np.array(["" if t.cls is None else t.cls for t in rows], dtype=str),
             "true_lane": np.array([c[0] for c in true_cross], dtype=np.int64),
             "true_t_s": np.array([c[1] for c in true_cross], dtype=np.float64),
             "true_vehicle": np.array([c[2] for c in true_cross], dtype=np.int64),
             "true_class": np.array([c[3] for c in true_cross], dtype=str),
         }
-        for f in _INT_FIELDS:
-            cols[f"track_{f}"] = np.array([getattr(t, f) for t in rows], dtype=np.int64)
-        for f in _FLOAT_FIELDS:
-            cols[f"track_{f}"] = np.array([getattr(t, f) for t in rows], dtype=np.float64)
-        for f in _OPTIONAL_FLOAT_FIELDS:
-            cols[f"track_{f}"] = np.array([np.nan if getattr(t, f) is None else getattr(t, f) for t in rows],
-                                          dtype=np.float64)
+        empty = {"track_confirmed": bool, "track_lane": np.int64, "track_cls": str}
+        empty.update({f"track_{f}": np.int64 for f in _INT_FIELDS})
+        empty.update({f"track_{f}": np.float64 for f in _FLOAT_FIELDS + _OPTIONAL_FLOAT_FIELDS})
+        for key, dtype in empty.items():
+            parts = [c[key] for c in self._chunks]
+            cols[key] = np.concatenate(parts) if parts else np.zeros(0, dtype=dtype)
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         with path.open("wb") as fh:  # (np.savez_compressed would append .npz to a name without it)

@@ -73,7 +73,7 @@ def test_the_log_holds_the_traffic_layers_input_exactly(tmp_path):
     lane_cfg, track_cfg, traffic_cfg = _installer_config(cfg, sc)
     pipe = LanePipeline(SIMO_BOARD.frontend, lane_cfg, track_cfg, traffic_cfg)
     seen = []
-    rec = TrackLogRecorder()
+    rec = TrackLogRecorder(chunk_rows=7)  # several column chunks
 
     def tap(tracks, t_ns, mx):
         seen.append((t_ns, tracks, None if mx is None else np.array(mx)))
