@@ -1071,6 +1071,8 @@ class PdafTracker:
         rho_t = np.maximum(np.hypot(st[:, 0], st[:, 1]), 1e-3)
         vr_t = (st[:, 0] * st[:, 2] + st[:, 1] * st[:, 3]) / rho_t
         ok = np.abs(vr_t[:, None] - z[None, :, 2]) < c.reanchor_speed_mps
+        if c.reanchor_receding_only:  # an approaching track started on its near face far away (config doc)
+            ok &= (vr_t > 0.0)[:, None]
         if not ok.any():  # the usual frame: no unclaimed detection at a missed track's radial speed
             return
         nearer = rho_t[:, None] - np.hypot(z[:, 0], z[:, 1])[None, :]  # (k, f) > 0: the detection is nearer

@@ -353,3 +353,30 @@ def test_a_track_follows_the_near_face_not_the_body_behind_it():
     for seed in range(1, 6):
         assert abs(_receding_from_under_the_deck(PdafConfig(), seed)) < 0.3
         assert _receding_from_under_the_deck(PdafConfig(extent_near_side_factor=1.0), seed) > 0.8
+
+
+@pytest.mark.parametrize("v_mps,receding_only,jumps", [
+    (-28.0, True, False),  # approaching: the detection 16 m nearer at its speed is the vehicle ahead's ghost
+    (-28.0, False, True),  # (re-anchoring for every track)
+    (28.0, True, True),    # receding: its track sat on the body, the near face behind it came into view
+])
+def test_only_receding_tracks_reanchor(v_mps, receding_only, jumps):
+    """highway4-traffic seed 7018: car 105's confirmed track missed a frame at 84 m and re-anchored 16.5 m nearer
+    onto a pairing ghost at its speed in front of car 104, crossed the line with it and kept car 105's next track
+    tentative (``reanchor_receding_only``)."""
+    cfg = scene_config(reanchor_receding_only=receding_only)
+    tr = PdafTracker(cfg)
+    x, y0 = -5.25, 84.0 if v_mps < 0 else 40.0
+    dt = FRAME_NS * 1e-9
+
+    def det(y: float) -> Detections:
+        r = float(np.hypot(x, y))
+        return Detections.from_polar([r], [v_mps * y / r], [np.arctan2(x, y)], [25.0])
+
+    for k in range(20):  # confirmed on clean detections
+        out = tr.step(det(y0 + v_mps * k * dt), k * FRAME_NS)
+    (before,) = [o for o in out if o.confirmed]
+    y_pred = y0 + v_mps * 20 * dt
+    out = tr.step(det(y_pred - 16.0), 20 * FRAME_NS)  # its own detection missed; one 16 m nearer, at its speed
+    (after,) = [o for o in out if o.track_id == before.track_id]
+    assert abs(after.y_m - (y_pred - 16.0)) < 1.0 if jumps else abs(after.y_m - y_pred) < 1.0
