@@ -39,7 +39,7 @@ import operator
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -146,26 +146,26 @@ class TrackLog:
         return list(zip(c["true_lane"].tolist(), c["true_t_s"].tolist(), c["true_vehicle"].tolist(),
                         c["true_class"].tolist()))
 
-    def frame_tracks(self) -> list[tuple[int, tuple[TrackState, ...], np.ndarray | None]]:
-        """Per frame ``(t_ns, tracks, motion_x_m or None)``, as the traffic layer was given them."""
+    def frame_tracks(self) -> Iterator[tuple[int, tuple[TrackState, ...], np.ndarray | None]]:
+        """Per frame ``(t_ns, tracks, motion_x_m or None)``, as the traffic layer was given them (one frame's
+        TrackState objects at a time: a ten-minute log holds ~300 000 rows)."""
         c = self.cols
-        n = c["track_track_id"].size
-        ints = {f: c[f"track_{f}"].tolist() for f in _INT_FIELDS}
-        floats = {f: c[f"track_{f}"].tolist() for f in _FLOAT_FIELDS}
-        opt = {f: [None if v != v else v for v in c[f"track_{f}"].tolist()] for f in _OPTIONAL_FLOAT_FIELDS}
-        conf = c["track_confirmed"].tolist()
-        lane = [None if v < 0 else v for v in c["track_lane"].tolist()]
-        cls = [v or None for v in c["track_cls"].tolist()]
-        rows = [TrackState(track_id=ints["track_id"][i], x_m=floats["x_m"][i], y_m=floats["y_m"][i],
-                           vx_mps=floats["vx_mps"][i], vy_mps=floats["vy_mps"][i], range_m=floats["range_m"][i],
-                           radial_speed_mps=floats["radial_speed_mps"][i], az_rad=floats["az_rad"][i],
-                           age_frames=ints["age_frames"][i], hits=ints["hits"][i], confirmed=conf[i], lane=lane[i],
-                           cls=cls[i], class_probability=opt["class_probability"][i], rcs_dbsm=opt["rcs_dbsm"][i],
-                           length_m=opt["length_m"][i])
-                for i in range(n)]
+        names = ("track_id", *_FLOAT_FIELDS, "age_frames", "hits", "confirmed", "lane", "cls", *_OPTIONAL_FLOAT_FIELDS)
+        cols = [c[f"track_{f}"] for f in names]
+        i_lane, i_cls = names.index("lane"), names.index("cls")
         start, mx, has = c["frame_start"], c["motion_x_m"], c["frame_has_motion_x"]
-        return [(int(t), tuple(rows[start[f]:start[f + 1]]), mx[start[f]:start[f + 1]] if has[f] else None)
-                for f, t in enumerate(c["frame_t_ns"].tolist())]
+        for f, t in enumerate(c["frame_t_ns"].tolist()):
+            a, b = int(start[f]), int(start[f + 1])
+            rows = []
+            for v in zip(*(col[a:b].tolist() for col in cols)):
+                v = list(v)
+                v[i_lane] = None if v[i_lane] < 0 else v[i_lane]
+                v[i_cls] = v[i_cls] or None
+                for k in range(i_cls + 1, len(v)):  # NaN: not given
+                    if v[k] != v[k]:
+                        v[k] = None
+                rows.append(TrackState(**dict(zip(names, v))))
+            yield int(t), tuple(rows), (mx[a:b] if has[f] else None)
 
 
 def load_track_log(path: str | Path) -> TrackLog:
@@ -214,10 +214,10 @@ def recorded_traffic_settings(log: TrackLog) -> tuple[dict, list[str]]:
 
 def replay_traffic(log: TrackLog, traffic_config: Any, progress: Callable[[int], None] | None = None) -> dict:
     """Run the traffic layer with ``traffic_config`` (a :class:`edge.traffic.TrafficConfig`) on the recorded tracks
-    and score its counts against the recorded truth. Returns ``{"counts": ..., "events": ..., "lanes": ...}``:
-    ``counts`` as :meth:`edge.evaluation.counting.CountTally.summary`, ``events`` the traffic events (kind, track
-    id, lane, t_s), ``lanes`` the lane centres in use at the end and the estimated yaw. ``progress(frames done)``
-    is called now and then."""
+    and score its counts against the recorded truth. Returns ``{"counts", "events", "lane_centers_m",
+    "estimated_yaw_deg"}``: ``counts`` as :meth:`edge.evaluation.counting.CountTally.summary`, ``events`` the
+    traffic events (kind, track id, lane, t_s), the lane centres in use at the end and the mounting yaw.
+    ``progress(frames done)`` is called now and then."""
     from edge.traffic import TrafficMonitor
 
     recorded_line = log.meta["traffic"]["detection_line_m"]

@@ -88,7 +88,7 @@ def test_the_log_holds_the_traffic_layers_input_exactly(tmp_path):
     meta = {"scenario": sc.name, "seed": 2, "frames": 40, "frame_period_s": 0.033, "n_lanes": 4,
             "traffic": {"detection_line_m": 50.0}, "counts": {}, "events": []}
     log = load_track_log(rec.save(tmp_path / "t.npz", meta, [(1, 0.5, 7, "car")]))
-    got = log.frame_tracks()
+    got = list(log.frame_tracks())
     assert len(got) == 40 and sum(len(t) for _, t, _ in seen) > 40  # tracks confirmed within the 40 frames
     for (t0, tr0, mx0), (t1, tr1, mx1) in zip(seen, got):
         assert t0 == t1 and tr0 == tr1
