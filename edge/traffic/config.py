@@ -180,20 +180,6 @@ class TrafficConfig:
                                                      "the line are not tested so: real pairs side by side cross within "
                                                      "0.01 s at one speed. 0 s = off",
                                        "min": 0.0, "max": 50.0})
-    count_jump_m: float = field(
-        default=5.0, metadata={"unit": "m", "doc": "a track whose along-road position changed by more than this "
-                                                   "beyond its speed in one frame moved to another detection (the "
-                                                   "tracker's re-anchoring onto a vehicle's near face, "
-                                                   "track.pdaf.reanchor_m); until it is detected again a crossing "
-                                                   "of the line is held and counted only if it is: a track that "
-                                                   "jumped onto a stray detection and coasts across the line on its "
-                                                   "prediction is deleted unseen, its vehicle counted by its own "
-                                                   "track (highway4-traffic seed 7007: a car's track missed one "
-                                                   "frame at 70 m, jumped 16 m onto a stray detection at its speed "
-                                                   "and coasted across the line 0.7 s before the car, which its next "
-                                                   "track counted too: lane 0 +1 -> 0; seeds 5, 6, 7012, 7015, 7016 "
-                                                   "unchanged, replayed with radar-edge replay-traffic; 2, 3 and 8 m "
-                                                   "alike). 0 = off", "min": 0.0, "max": 100.0})
     count_once_per_track: bool = field(
         default=True, metadata={"doc": "a track is counted at the detection line once (by its crossing or as a late "
                                        "crossing): one that moved back behind the line and crossed it again is the same "

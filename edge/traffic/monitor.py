@@ -23,9 +23,7 @@ crossing the line in its lane's direction of travel is counted at the interpolat
 crossing was counted in the lane less than ``count_same_vehicle_s`` before or after (a truck body's ghost
 tracks cross with it, at another speed), or up to ``count_min_gap_s`` before at the same speed (off by
 default), or the track was counted already (``count_once_per_track``: a track that jumped back behind the
-line and crossed it again is still one vehicle). A track that jumped along the road (``count_jump_m``: the
-tracker moved it to another detection) and crosses before it is detected again is counted only once it is,
-at its crossing time. A track crossing against its lane's direction (a receding
+line and crossed it again is still one vehicle). A track crossing against its lane's direction (a receding
 truck's ghost drifting into the approaching lanes) is not counted; a wrong-way driver is an event. A track
 first seen up to ``count_late_max_m`` past the line counts its vehicle at the crossing time extrapolated back
 at its along-road speed, unless a crossing of about that time and speed was counted in the lane
@@ -80,8 +78,6 @@ class _Memo:
     stopped_since_ns: int | None = None
     stopped_emitted: bool = False
     counted: bool = False  # the track's vehicle was counted at the detection line (count_once_per_track)
-    jumped: bool = False  # it jumped along the road (count_jump_m) and has had no detection since
-    pending: tuple[int, Crossing] | None = None  # (lane, crossing) made since such a jump: counted at its next hit
 
 
 #: TrackState validates in ``__post_init__``: then only ``dataclasses.replace`` is a faithful copy
@@ -189,13 +185,6 @@ class TrafficMonitor:
         """Lanes known now; with learned lanes not yet learned, as many as ``lane_centers_m`` lists
         (what the outputs reserve at start)."""
         return len(self.lanes) or len(self.config.lane_centers_m)
-
-    def _count(self, memo: _Memo, lane: int, crossing: Crossing) -> None:
-        """Count a track's crossing in ``lane`` unless it is a vehicle counted there already (:meth:`_same_vehicle`)."""
-        acc = self.stats.lane(lane)
-        if not self._same_vehicle(acc, crossing.t_ns, crossing.speed_mps):
-            acc.add(crossing)
-            memo.counted = True
 
     def _same_vehicle(self, acc, tc_ns: int, speed_mps: float) -> bool:
         """A crossing at ``tc_ns`` is a vehicle already counted in the lane: within ``count_same_vehicle_s`` of a
@@ -323,7 +312,6 @@ class TrafficMonitor:
         events: list[TrafficEvent] = []
         out_tracks: dict[int, TrackState] = {}
         half_zone = 0.5 * cfg.presence_zone_m
-        jump_m = cfg.count_jump_m
         line = cfg.detection_line_m
         seen = set()
         for j, tr in enumerate(conf):
@@ -345,25 +333,14 @@ class TrafficMonitor:
                 # the volume counts vehicles travelling in the lane's direction: the ghost of a receding truck
                 # drifting into the approaching lanes is not one (a wrong-way driver is reported as an event)
                 against = cfg.count_lane_direction_only and lane is not None and vs[j] * lanes[k].direction < 0
-                hit = tr.hits > memo.hits
-                if jump_m > 0 and abs(s1 - s0 - vs[j] * (t_ns - memo.t_ns) * 1e-9) > jump_m:
-                    memo.jumped = True  # moved to another detection (the tracker's re-anchoring), not driven there
-                    hit = False  # (the re-anchoring counts the detection it jumped to as a hit: no evidence yet)
-                elif hit:
-                    memo.jumped = False
                 if crossed and lane is not None and not against and not (memo.counted and cfg.count_once_per_track):
                     f = (line - s0) / (s1 - s0)
                     tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))
                     cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
-                    crossing = Crossing(tc, speed[j], float(length), cls)
-                    if memo.jumped:
-                        memo.pending = (lane, crossing)  # on the jump's word alone: counted if it is detected again
-                    else:
-                        self._count(memo, lane, crossing)
-                elif memo.pending is not None and hit:  # detected again after crossing the line on a jump
-                    self._count(memo, *memo.pending)
-                if hit:
-                    memo.pending = None
+                    acc = self.stats.lane(lane)
+                    if not self._same_vehicle(acc, tc, speed[j]):
+                        acc.add(Crossing(tc, speed[j], float(length), cls))
+                        memo.counted = True
                 memo.age, memo.s_m, memo.t_ns = tr.age_frames, s1, t_ns
                 memo.max_speed_mps = max(memo.max_speed_mps, speed[j])
             if lane is not None:
