@@ -457,7 +457,11 @@ class PdafConfig:
                                        "13.9-16.5 m, jumped from a car onto the car or truck ahead; at 387.98 s car "
                                        "105's track jumped 16.5 m onto car 104 at 84 m, crossed the line with it and "
                                        "held car 105's next track tentative: lane 0 -1; seed 7007: car 4's track "
-                                       "jumped 16 m at 70 m and crossed 0.7 s early, lane 0 +1)"})
+                                       "jumped 16 m at 70 m and crossed 0.7 s early, lane 0 +1). Ten minutes each, "
+                                       "seeds 5, 7007, 7012, 7015, 7016, 7018, all-lane |count error| 12 -> 6, car "
+                                       "detection probability up on every seed (7016 0.9866 -> 0.9894), id switches "
+                                       "308 -> 219, RMSE mean down 0.002-0.014 m; highway4 seeds 7001-7040 and the "
+                                       "golden fixtures unchanged"})
     reanchor_speed_mps: float = field(
         default=1.0, metadata={"unit": "m/s", "doc": "radial-speed difference within which a re-anchoring "
                                                      "detection is the track's own vehicle", "min": 0.0, "max": 20.0})
