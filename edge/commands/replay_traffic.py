@@ -44,7 +44,7 @@ def _traffic_settings(args: argparse.Namespace, recorded: dict):
     explicit traffic settings (file, environment, --set) on top."""
     from edge.config import ConfigError, build_section
 
-    other = [s.split("=", 1)[0].strip() for s in args.set if not s.split("=", 1)[0].strip().startswith("traffic.")]
+    other = [k for k in (s.split("=", 1)[0].strip() for s in args.set) if not k.startswith("traffic.")]
     if other:
         raise ConfigError(f"{', '.join(other)}: a replay re-runs the traffic layer only; settings outside traffic.* "
                           "change the tracks and need a new radar-edge evaluate --record-tracks")

@@ -53,9 +53,12 @@ _FLOAT_FIELDS = ("x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps"
 _OPTIONAL_FLOAT_FIELDS = ("class_probability", "rcs_dbsm", "length_m")
 _ROW_FIELDS = _INT_FIELDS + _FLOAT_FIELDS + _OPTIONAL_FLOAT_FIELDS + ("confirmed", "lane", "cls")
 _ROW = operator.attrgetter(*_ROW_FIELDS)  # a track's fields as one tuple
-_KEYS = ("meta", "frame_t_ns", "frame_start", "frame_has_motion_x", "motion_x_m", "track_confirmed", "track_lane",
-         "track_cls", "true_lane", "true_t_s", "true_vehicle", "true_class") + tuple(
-    f"track_{f}" for f in _INT_FIELDS + _FLOAT_FIELDS + _OPTIONAL_FLOAT_FIELDS)
+#: the per-track columns and their types
+_TRACK_COLUMNS: dict[str, type] = {"track_confirmed": bool, "track_lane": np.int64, "track_cls": str,
+                                   **{f"track_{f}": np.int64 for f in _INT_FIELDS},
+                                   **{f"track_{f}": np.float64 for f in _FLOAT_FIELDS + _OPTIONAL_FLOAT_FIELDS}}
+_KEYS = ("meta", "frame_t_ns", "frame_start", "frame_has_motion_x", "motion_x_m", "true_lane", "true_t_s",
+         "true_vehicle", "true_class", *_TRACK_COLUMNS)
 
 
 class TrackLogError(ValueError):
@@ -116,10 +119,7 @@ class TrackLogRecorder:
             "true_vehicle": np.array([c[2] for c in true_cross], dtype=np.int64),
             "true_class": np.array([c[3] for c in true_cross], dtype=str),
         }
-        empty = {"track_confirmed": bool, "track_lane": np.int64, "track_cls": str}
-        empty.update({f"track_{f}": np.int64 for f in _INT_FIELDS})
-        empty.update({f"track_{f}": np.float64 for f in _FLOAT_FIELDS + _OPTIONAL_FLOAT_FIELDS})
-        for key, dtype in empty.items():
+        for key, dtype in _TRACK_COLUMNS.items():
             parts = [c[key] for c in self._chunks]
             cols[key] = np.concatenate(parts) if parts else np.zeros(0, dtype=dtype)
         path = Path(path)
@@ -197,7 +197,7 @@ def load_track_log(path: str | Path) -> TrackLog:
     n = cols["track_track_id"].size
     start = cols["frame_start"]
     if (start.size != cols["frame_t_ns"].size + 1 or start[0] != 0 or start[-1] != n or np.any(np.diff(start) < 0)
-            or any(cols[k].size != n for k in _KEYS if k.startswith("track_") or k == "motion_x_m")):
+            or any(cols[k].size != n for k in (*_TRACK_COLUMNS, "motion_x_m"))):
         raise TrackLogError(f"{path}: inconsistent track log (frame index and track columns disagree)")
     return TrackLog(meta, cols)
 
