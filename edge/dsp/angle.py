@@ -66,7 +66,9 @@ def bartlett(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np.ndarray) 
 
 
 def bartlett_consensus(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np.ndarray,
-                       outlier_rad: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                       outlier_rad: float | np.ndarray, peak_bins: np.ndarray | None = None,
+                       shared_bins: int = 1, min_agreeing: int = 3, min_clean: int = 2,
+                       speeds: np.ndarray | None = None, min_speed_diff: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Bartlett with per-snapshot normalisation and outlier rejection.
 
     In a busy scene one segment's peak bin can also hold another vehicle (the beats of two vehicles
@@ -76,11 +78,23 @@ def bartlett_consensus(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np
     the rest are summed and refined as in :func:`bartlett`. ``outlier_rad`` is a scalar or one value per
     detection ``(n_det,)``.
 
-    Returns ``(az_rad (n_det,), spectrum (n_det, n_grid), kept (n_det, n_snap) bool)``.
+    A visitor weaker than the vehicle, or at an angle within ``outlier_rad`` of it, pulls the look's maximum
+    only part of the way and passes that test. With ``peak_bins`` ``(n_det, n_snap)`` (each detection's FFT
+    bin in each look, e.g. its pairing's peaks), a look whose bin lies within ``shared_bins`` of another
+    accepted detection's bin in the same look (accepted: at least ``min_agreeing`` agreeing looks) holds both
+    vehicles: it still votes in the median and counts as agreeing, but is left out of the sum when at least
+    ``min_clean`` agreeing looks remain without it. With ``speeds`` ``(n_det,)``, only a detection whose speed
+    differs by more than ``min_speed_diff`` counts as another vehicle (the scatterers of one vehicle pair into
+    several detections of one speed, a bin or two apart, and share looks without harm).
+
+    Returns ``(az_rad (n_det,), spectrum (n_det, n_grid), kept (n_det, n_snap) bool, used (n_det, n_snap)
+    bool)``: ``kept`` the looks that agree on the angle, ``used`` those summed (``kept`` without the shared
+    ones where enough remain; ``kept`` itself without ``peak_bins``).
     """
     n_det, n_snap, _ = snapshots.shape
     if n_det == 0:
-        return np.zeros(0, np.float32), np.zeros((0, grid_rad.size), np.float32), np.zeros((0, n_snap), bool)
+        none = np.zeros((0, n_snap), bool)
+        return np.zeros(0, np.float32), np.zeros((0, grid_rad.size), np.float32), none, none
     y = snapshots @ _conj_t(steering)  # (n_det, n_snap, n_grid)
     q = y.view(y.real.dtype)  # (n_det, n_snap, 2 n_grid): re, im interleaved
     q = q * q
@@ -93,10 +107,18 @@ def bartlett_consensus(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np
     h = n_snap // 2
     med = srt[:, h:h + 1] if n_snap % 2 else (srt[:, h - 1:h] + srt[:, h:h + 1]) / 2
     kept = np.abs(each - med) <= (outlier_rad[:, None] if np.ndim(outlier_rad) else outlier_rad)
-    spec = np.add.reduce(p * kept[..., None], axis=1)
+    used = kept
+    if peak_bins is not None and n_det > 1:
+        shared = shared_looks(peak_bins, shared_bins, np.add.reduce(kept, axis=1) >= min_agreeing, speeds,
+                              min_speed_diff)
+        if shared.any():
+            clean = kept & ~shared
+            enough = np.add.reduce(clean, axis=1) >= min_clean
+            used = np.where(enough[:, None], clean, kept)
+    spec = np.add.reduce(p * used[..., None], axis=1)
     k = np.argmax(spec, axis=1)
     if n_det <= _SMALL:
-        return _refine_small(spec, k, grid_rad), spec.astype(np.float32, copy=False), kept
+        return _refine_small(spec, k, grid_rad), spec.astype(np.float32, copy=False), kept, used
     kk = np.minimum(np.maximum(k, 1), grid_rad.size - 2)  # np.clip, without its wrapper (5 us on a few ints)
     # the maximum and its two neighbours in one gather
     pm, p0, pp = spec.take(kk[:, None] + (np.arange(n_det) * spec.shape[1])[:, None] + _NEIGHBOURS).T
@@ -106,7 +128,23 @@ def bartlett_consensus(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np
     np.divide(0.5 * (pm - pp), den, out=d, where=(den < 0) & inner)
     step = grid_rad[1] - grid_rad[0]
     az = np.where(inner, grid_rad[kk] + np.minimum(np.maximum(d, -0.5), 0.5) * step, grid_rad[k])
-    return az.astype(np.float32, copy=False), spec.astype(np.float32, copy=False), kept
+    return az.astype(np.float32, copy=False), spec.astype(np.float32, copy=False), kept, used
+
+
+def shared_looks(peak_bins: np.ndarray, within: int, among: np.ndarray, speeds: np.ndarray | None = None,
+                 min_speed_diff: float = 0.0) -> np.ndarray:
+    """``(n, looks)`` bool: the looks in which a detection's bin lies within ``within`` bins of the bin of another
+    detection marked in ``among`` ``(n,)`` bool (``peak_bins`` ``(n, looks)`` int); with ``speeds`` ``(n,)``, of
+    another whose speed differs by more than ``min_speed_diff``."""
+    other = peak_bins[among]  # (m, looks)
+    near = np.abs(peak_bins[:, None, :] - other[None, :, :]) <= within  # (n, m, looks)
+    if np.count_nonzero(near) == near.shape[1] * near.shape[2]:  # only each of ``among`` with itself (most frames)
+        return np.zeros(peak_bins.shape, bool)
+    rows = np.flatnonzero(among)
+    near[rows, np.arange(rows.size)] = False  # not with itself
+    if speeds is not None:
+        near &= (np.abs(speeds[:, None] - speeds[None, among]) > min_speed_diff)[:, :, None]
+    return np.logical_or.reduce(near, axis=1)
 
 
 #: up to this many detections :func:`bartlett_consensus` refines the maxima one by one with NumPy scalars (more:

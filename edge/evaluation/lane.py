@@ -30,7 +30,8 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   vehicle once its centre passes ``range_m`` (380 m in the built-in scenarios) while its track, on the
   rear face two metres nearer, rightly coasts on for a few frames; ``false_tracks_per_min`` over the
   evaluated time;
-* ``lane_accuracy``: assigned pairs whose track lane equals the vehicle's true lane at that frame;
+* ``lane_accuracy``: assigned pairs whose track lane equals the vehicle's true lane at that frame (per vehicle
+  too, over its assigned frames);
 * ``detection_probability_by_overlap``: per class, the detection probability over the in-view frames where
   the vehicle is ``separate`` and where it is ``overlapping`` another vehicle, and the overlapping share:
   in at least ``OVERLAP_SEGMENTS`` of the four chirp segments its near face's beat frequency lies within
@@ -144,12 +145,12 @@ def _overlap_summary(separate: list[int] | None, overlapping: list[int] | None) 
 
 class _TargetAcc:
     __slots__ = ("cls", "lanes", "n_view", "n_hit", "sq_err", "err_xy", "spd_err", "ids", "last_id", "switches",
-                 "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames", "first_hit", "last_hit")
+                 "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames", "first_hit", "last_hit", "lane_ok")
 
     def __init__(self, cls: str) -> None:
         self.cls = cls
         self.lanes: list[int] = []
-        self.n_view = self.n_hit = self.n_raw = self.switches = 0
+        self.n_view = self.n_hit = self.n_raw = self.switches = self.lane_ok = 0
         self.sq_err: list[float] = []
         self.err_xy: list[tuple[float, float]] = []  # track - reference point (x across, y along), m
         self.spd_err: list[float] = []
@@ -340,7 +341,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
                 a.switches += 1
             a.last_id = t.track_id
             lane_n += 1
-            lane_ok += int(t.lane is not None and t.lane == lanes[j])
+            ok = int(t.lane is not None and t.lane == lanes[j])
+            lane_ok += ok
+            a.lane_ok += ok
 
         t_rng = np.hypot(tpos[:, 0], tpos[:, 1])
         t_in_view = (t_rng >= MIN_RANGE_M) & (t_rng <= MAX_RANGE_M) & (np.abs(np.arctan2(tpos[:, 0], tpos[:, 1])) <= half_fov)
@@ -380,6 +383,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             "position_sd_xy_m": ([round(float(v), 4) for v in np.std(a.err_xy, axis=0)] if a.err_xy else None),
             "speed_mae_kmh": float(np.mean(a.spd_err)) if a.spd_err else None,
             "id_switches": a.switches,
+            "lane_accuracy": a.lane_ok / a.n_hit if a.n_hit else None,
             "predicted_class": None,
             "direction_true": "receding" if a.dir_true > 0 else "approaching",
             "direction_est": (None if not a.vr_est else ("receding" if np.mean(a.vr_est) > 0 else "approaching")),

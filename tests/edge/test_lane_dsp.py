@@ -198,10 +198,70 @@ def test_bartlett_consensus_drops_a_contaminated_segment():
     intruder = 3.0 * _snapshots(6.0, 1, 40.0, rng)[0, 0]
     snaps[0, 2] += intruder
     plain, _ = bartlett(snaps, steer, grid)
-    az, _, kept = bartlett_consensus(snaps, steer, grid, math.radians(2.0))
+    az, _, kept, used = bartlett_consensus(snaps, steer, grid, math.radians(2.0))
     assert abs(math.degrees(plain[0]) + 2.4) > 1.0
     assert abs(math.degrees(az[0]) + 2.4) < 0.15
     assert kept[0].tolist() == [True, True, False, True]
+
+
+def test_bartlett_consensus_leaves_out_a_look_shared_with_another_vehicle():
+    """A car at -5.5 deg whose fourth look also holds a faster vehicle at -2.7 deg (their beats coincide in that
+    segment; highway4-traffic seed 7012, car 120 beside car 266): the visitor pulls that look's maximum less than
+    the 2 deg outlier limit, so the consensus keeps it and the angle is biased towards the visitor. Told each
+    detection's peak bins, the look that both detections use is left out of both and the angles are unbiased; a
+    detection of the same speed (another scatterer of the car) or one that is not accepted does not count."""
+    from edge.dsp.angle import bartlett_consensus
+
+    grid = np.radians(np.arange(-19.0, 19.0 + 1e-9, 0.25)).astype(np.float32)
+    steer = steering_matrix(4, FE.rx_spacing_m, LAM, grid)
+    bins = np.array([[100, 220, 140, 300], [130, 260, 170, 301]])  # look 3: one bin apart
+    err_plain, err_shared = [], []
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        car = _snapshots(-5.5, 4, 25.0, rng)[0]
+        other = _snapshots(-2.7, 4, 25.0, rng)[0]
+        car[3] += 0.8 * other[3]
+        snaps = np.stack([car, other])
+        az, _, kept, used = bartlett_consensus(snaps, steer, grid, math.radians(2.0))
+        assert kept.all() and (used == kept).all()  # the visitor passes the outlier test
+        err_plain.append(abs(math.degrees(az[0]) + 5.5))
+        az, _, kept, used = bartlett_consensus(snaps, steer, grid, math.radians(2.0), bins, 1, 3,
+                                               speeds=np.array([-18.7, -28.7]), min_speed_diff=1.0)
+        assert kept.all()  # still counted as agreeing (the pairing is accepted as before)
+        assert used.tolist() == [[True, True, True, False]] * 2
+        err_shared.append(abs(math.degrees(az[0]) + 5.5))
+        assert abs(math.degrees(az[1]) + 2.7) < 0.2
+        # one speed: another scatterer of the same vehicle, no visitor
+        _, _, _, used = bartlett_consensus(snaps, steer, grid, math.radians(2.0), bins, 1, 3,
+                                           speeds=np.array([-18.7, -18.9]), min_speed_diff=1.0)
+        assert used.all()
+        # bins two apart: not shared
+        far = bins.copy()
+        far[1, 3] = 302
+        _, _, _, used = bartlett_consensus(snaps, steer, grid, math.radians(2.0), far, 1, 3)
+        assert used.all()
+    assert np.mean(err_plain) > 0.25
+    assert np.mean(err_shared) < 0.1
+
+
+def test_bartlett_consensus_shares_only_with_accepted_detections_and_keeps_two_looks():
+    """A pairing whose looks disagree (a ghost, not accepted) shares no look; a detection that would keep fewer
+    than two agreeing looks without its shared ones keeps them all."""
+    from edge.dsp.angle import bartlett_consensus
+
+    grid = np.radians(np.arange(-19.0, 19.0 + 1e-9, 0.25)).astype(np.float32)
+    steer = steering_matrix(4, FE.rx_spacing_m, LAM, grid)
+    rng = np.random.default_rng(3)
+    car = _snapshots(-5.5, 4, 25.0, rng)[0]
+    ghost = np.stack([_snapshots(a, 1, 25.0, rng)[0, 0] for a in (-15.0, -5.0, 4.0, 12.0)])
+    bins = np.array([[100, 220, 140, 300], [100, 221, 400, 500]])
+    _, _, kept, used = bartlett_consensus(np.stack([car, ghost]), steer, grid, math.radians(2.0), bins, 1, 3)
+    assert kept[0].all() and kept[1].sum() < 3
+    assert used[0].all()
+    other = _snapshots(-2.7, 4, 25.0, rng)[0]
+    bins = np.array([[100, 220, 140, 300], [100, 220, 140, 350]])  # three looks shared
+    _, _, kept, used = bartlett_consensus(np.stack([car, other]), steer, grid, math.radians(2.0), bins, 1, 3)
+    assert kept.all() and (used == kept).all()
 
 
 def test_pairing_drops_a_wrong_pairing_accepted_before_the_true_pairs():

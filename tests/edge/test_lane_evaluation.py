@@ -36,6 +36,9 @@ def test_highway4_short_run_meets_accuracy_floor():
         assert rep["frame_time_ms"][key] > 0
     for t in rep["targets"]:
         assert t["direction_true"] == t["direction_est"]
+    # per vehicle over its assigned frames: their mean weighted by those frames is the overall lane accuracy
+    n = [round(t["frames_in_view"] * t["tracked_fraction"]) for t in rep["targets"]]
+    assert sum(k * t["lane_accuracy"] for k, t in zip(n, rep["targets"])) / sum(n) == pytest.approx(s["lane_accuracy"])
     # per class and range: the same assigned frames regrouped, so the overall value lies between the classes'
     by_cls = s["detection_probability_by_class"]
     assert set(by_cls) == {t["class"] for t in rep["targets"]}

@@ -275,6 +275,7 @@ def test_bartlett_consensus_equals_the_plain_implementation(n_snap):
     x = x.astype(np.complex64)
     new, old = bartlett_consensus(x, steer, grid, np.radians(2.0)), bartlett_consensus_reference(x, steer, grid, np.radians(2.0))
     np.testing.assert_array_equal(new[2], old[2])
+    np.testing.assert_array_equal(new[3], old[2])  # without peak bins every agreeing look is used
     np.testing.assert_array_equal(new[0], old[0])
     np.testing.assert_array_equal(new[1], old[1])
     assert new[0].dtype == np.float32 and new[1].dtype == np.float32

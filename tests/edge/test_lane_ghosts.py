@@ -12,6 +12,7 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 
 from edge.pipelines.lane import LaneConfig, LanePipeline
 from edge.traffic import TrafficConfig
@@ -120,3 +121,45 @@ def test_two_cars_side_by_side_receding_are_still_split_with_the_memory_followin
     for s in range(3):
         split = _sweep(True, s, lateral_m=(1.75, 5.25), offsets_m=(0.0,), r0_m=40.0, n_frames=30)
         assert sum(split[10:]) >= 15
+
+
+# --- a look shared with another vehicle is not a second source ------------------------------------------------
+
+def _split_beside_car_120(skip_shared: bool) -> tuple[int, int]:
+    """highway4-traffic seed 7012, frames 14700-14910 (frames are simulated independently: a run can start
+    anywhere): car 120 approaches in lane 0 (x -5.25 m) from 80 to 43 m. Car 266 (lane 1, 10 m/s faster, 12-16 m
+    nearer) shares the slow down-chirp's bin with it from frame 14876 on, and car 599 (lane 3, receding) its fast
+    down-chirp's around 14888. Returns (split detections beside car 120, frames with a confirmed track in lane 1
+    at its range and speed)."""
+    from edge.config import load_config
+    from edge.evaluation.lane import _installer_config
+    from edge.pipeline import StageTimer
+    from hal.frame import RawFrame
+    from hw_sim.scenario import load_scenario
+    from hw_sim.simulator import FrameSimulator
+
+    sc = load_scenario("highway4-traffic")
+    config = load_config(env={}, overrides={"pipeline.lane.angle_skip_shared_looks": skip_shared})
+    sim = FrameSimulator(SIMO_BOARD, sc.build_scene(7012), 7012)
+    pipe = LanePipeline(FE, *_installer_config(config, sc))
+    timer = StageTimer(window=8)
+    splits = phantom = 0
+    for n in range(14700, 14910):
+        f = sim.frame(n)
+        out = pipe.process(RawFrame(n, int(round(f.t_s * 1e9)), f.i, f.q, FE, f.truth), timer)
+        d = out.detections
+        pair = d.extra["resolved_pair"]
+        splits += int(np.count_nonzero((pair >= 0) & (d.x_m < 0) & (d.y_m > 30) & (d.y_m < 80)))
+        phantom += any(t.confirmed and -3.5 < t.x_m < 0.0 and 30.0 < t.y_m < 80.0 and abs(t.vy_mps + 18.8) < 1.5
+                       for t in out.tracks)  # (car 266 in lane 1 is 10 m/s faster)
+    return splits, phantom
+
+
+@pytest.mark.slow
+def test_a_vehicle_in_one_segment_of_another_does_not_split_it_into_a_phantom():
+    """Without the shared looks left out, the resolver's memory of car 120 holds car 266 (and car 599) as a second
+    source at -2.4 m and splits it from frame 14893 on; the phantom becomes a confirmed track in lane 1 and was
+    counted there (the +2 of lane 1 at stop 21). With them left out, nothing beside car 120 is split."""
+    splits, phantom = _split_beside_car_120(False)
+    assert splits >= 4 and phantom >= 5
+    assert _split_beside_car_120(True) == (0, 0)

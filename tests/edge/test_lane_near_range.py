@@ -52,13 +52,13 @@ def test_angle_agreement_window_per_detection():
     for az in (8.0, 8.0, 8.0, 11.5):
         looks.append(np.exp(-2j * np.pi * m * FE.rx_spacing_m * math.sin(math.radians(az)) / LAM))
     snaps = np.repeat(np.array(looks, np.complex64)[None], 2, axis=0)  # (2 det, 4 looks, 4 rx)
-    az, _, kept = bartlett_consensus(snaps, steer, grid, np.radians([2.0, 5.0]).astype(np.float32))
+    az, _, kept, _ = bartlett_consensus(snaps, steer, grid, np.radians([2.0, 5.0]).astype(np.float32))
     assert kept[0].tolist() == [True, True, True, False]
     assert kept[1].tolist() == [True, True, True, True]
     assert abs(math.degrees(az[0]) - 8.0) < 0.1 and math.degrees(az[1]) > 8.3  # the fourth look pulls it
     # a scalar window gives the same as an array of equal values
-    az_s, _, kept_s = bartlett_consensus(snaps, steer, grid, math.radians(2.0))
-    az_a, _, kept_a = bartlett_consensus(snaps, steer, grid, np.full(2, math.radians(2.0), np.float32))
+    az_s, _, kept_s, _ = bartlett_consensus(snaps, steer, grid, math.radians(2.0))
+    az_a, _, kept_a, _ = bartlett_consensus(snaps, steer, grid, np.full(2, math.radians(2.0), np.float32))
     np.testing.assert_array_equal(kept_s, kept_a)
     np.testing.assert_array_equal(az_s, az_a)
 

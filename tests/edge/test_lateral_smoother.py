@@ -153,15 +153,33 @@ def test_highway4_motorcycle_position_rmse():
     assert res["summary"]["false_tracks"] == 0 and res["summary"]["id_switches"] == 0
 
 
-@pytest.mark.timeout(120)
-def test_misaimed_radar_yaw_is_learned_from_the_motion_models_positions():
-    """highway4-misaimed (radar 3 deg off, yaw 0 configured), seed 1, 120 frames. The straight line starts along the
-    configured yaw (0.03 m/s); had the yaw estimator taken the published positions, those tracks would vote for the
-    yaw they assumed (lane accuracy 0.542 measured). It takes the motion model's (``TrafficMonitor.update(...,
-    yaw_x_m)``): 0.683, smoother off 0.680."""
+@pytest.mark.timeout(300)
+def test_misaimed_radar_yaw_is_learned_from_the_motion_models_positions(monkeypatch):
+    """highway4-misaimed (radar 3 deg off, yaw 0 configured), seeds 1-6, 120 frames each. The straight line starts
+    along the configured yaw (0.03 m/s); had the yaw estimator taken the published positions, those tracks would vote
+    for the yaw they assumed. It takes the motion model's (``TrafficMonitor.update(..., yaw_x_m)``). Lane accuracy,
+    mean over the six seeds, measured: 0.743 with the motion model's positions, 0.680 with the published ones (per
+    seed 0.630/0.748/0.726/0.772/0.781/0.799 against 0.597/0.591/0.769/0.760/0.620/0.743).
+
+    Over 120 frames the start-up yaw is the weighted median of a handful of running tracks' directions and one
+    seed's lane accuracy moves by +-0.06 with any change of the detections (seed 1 alone was 0.683-0.694 before
+    ``angle_skip_shared_looks`` and 0.630 after, at a yaw 0.1 deg further off), so the six seeds are pooled and the
+    two ways compared on the same frames."""
+    import edge.traffic.monitor as monitor
+
     cfg = load_config(env={})  # the straight-line filter on, as by default
-    s = evaluate("highway4-misaimed", seed=1, frames=120, events=None, config=cfg)["summary"]
-    assert s["lane_accuracy"] > 0.66, s["lane_accuracy"]
+    update = monitor.TrafficMonitor.update
+
+    def mean_lane_accuracy() -> float:
+        return float(np.mean([evaluate("highway4-misaimed", seed=seed, frames=120, events=None,
+                                       config=cfg)["summary"]["lane_accuracy"] for seed in range(1, 7)]))
+
+    motion = mean_lane_accuracy()
+    monkeypatch.setattr(monitor.TrafficMonitor, "update",
+                        lambda self, tracks, t_ns, yaw_x_m=None: update(self, tracks, t_ns, None))
+    published = mean_lane_accuracy()
+    assert motion > 0.70, motion
+    assert motion > published + 0.03, (motion, published)
 
 
 def test_line_is_held_at_the_motion_model_while_it_manoeuvres():
