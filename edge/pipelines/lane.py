@@ -154,8 +154,9 @@ class LaneConfig:
                "per-seed mean position RMSE lower on 37 of 40 (summed 2.642 -> 2.502 m), seeds with a vehicle over "
                "0.15 m 5 -> 4, no false track either way; highway4-traffic ten minutes, seeds 5, 7007, 7012, 7015, "
                "7016, 7018, 7019, 7020: position RMSE mean 0.251-0.274 -> 0.221-0.246 m (every seed), counted "
-               "crossings matching no vehicle 7 -> 1, vehicles not counted 5 -> 8 (all three new ones crossed "
-               "untracked in both runs and had been counted late by chance), id switches 283 -> 264, confirmed "
+               "crossings matching no vehicle 7 -> 1, vehicles not counted 5 -> 8 (two of the new ones crossed "
+               "untracked in both runs and had been counted late by chance; the third, a coasting truck track "
+               "drifting sideways in both runs, crossed the line 0.1 m beyond the lane boundary), id switches 283 -> 264, confirmed "
                "false tracks 134 -> 116, car detection probability within 0.001; the phantom that the resolver split "
                "off car 120 of seed 7012 (another vehicle in two of its segments) is gone"})
     angle_shared_bins: int = field(default=1, metadata={
