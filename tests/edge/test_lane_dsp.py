@@ -140,6 +140,22 @@ def test_nearest_of_clusters_keeps_the_near_face():
     assert keep.tolist() == [True, False, False, True, True]
 
 
+def test_nearest_of_clusters_measures_the_ghost_law_from_near_faces():
+    """highway4-traffic seed 7018: a 6 m van (near face 60.0 m, rear face 66.0 m, -21.6 m/s) and a truck 17 m behind
+    the van's near face at -24.1 m/s, its own side scatterer 2.6 m further. The truck lies 11 m behind the van's rear
+    face and 2.5 m/s off, inside the ghost law taken from any nearer detection (0.9 m/s per m, up to 12 m), so it was
+    dropped; from the van's near face it is 17 m behind, beyond any ghost of the van's body. A real ghost, 7 m
+    behind the truck's near face and 4 m/s off, is still dropped."""
+    r = np.array([60.0, 66.0, 77.0, 79.6, 84.0])
+    v = np.array([-21.6, -21.6, -24.1, -24.1, -20.1])
+    x = np.full(5, -1.75)
+    kw = dict(length_m=17.0, speed_mps=0.6, lateral_m=1.5, ghost_speed_per_m=0.9, ghost_speed_mps=6.0,
+              ghost_length_m=12.0)
+    assert nearest_of_clusters(r, v, x, **kw).tolist() == [True, False, True, False, False]
+    assert nearest_of_clusters(r, v, x, ghost_from_near_faces=False, **kw).tolist() == [True, False, False, False,
+                                                                                        False]
+
+
 # --- angle and geometry ------------------------------------------------------------------------
 
 def _snapshots(az_deg, n_snap, snr_db, rng, gains=None):
