@@ -68,7 +68,8 @@ def bartlett(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np.ndarray) 
 def bartlett_consensus(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np.ndarray,
                        outlier_rad: float | np.ndarray, peak_bins: np.ndarray | None = None,
                        shared_bins: int = 1, min_agreeing: int = 3, min_clean: int = 2,
-                       speeds: np.ndarray | None = None, min_speed_diff: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                       speeds: np.ndarray | None = None,
+                       min_speed_diff: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Bartlett with per-snapshot normalisation and outlier rejection.
 
     In a busy scene one segment's peak bin can also hold another vehicle (the beats of two vehicles

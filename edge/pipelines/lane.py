@@ -157,9 +157,9 @@ class LaneConfig:
                "7016, 7018, 7019, 7020: position RMSE mean 0.251-0.274 -> 0.221-0.246 m (every seed), counted "
                "crossings matching no vehicle 7 -> 1, vehicles not counted 5 -> 8 (two of the new ones crossed "
                "untracked in both runs and had been counted late by chance; the third, a coasting truck track "
-               "drifting sideways in both runs, crossed the line 0.1 m beyond the lane boundary), id switches 283 -> 264, confirmed "
-               "false tracks 134 -> 116, car detection probability within 0.001; the phantom that the resolver split "
-               "off car 120 of seed 7012 (another vehicle in two of its segments) is gone"})
+               "drifting sideways in both runs, crossed the line 0.1 m beyond the lane boundary), id switches 283 -> "
+               "264, confirmed false tracks 134 -> 116, car detection probability within 0.001; the phantom that the "
+               "resolver split off car 120 of seed 7012 (another vehicle in two of its segments) is gone"})
     angle_shared_bins: int = field(default=1, metadata={
         "doc": "peaks this many FFT bins apart or closer in one segment count as shared (a Hann window's main lobe "
                "spans +-2 bins: two beats a bin apart merge into one peak)", "min": 0, "max": 4})
