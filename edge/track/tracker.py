@@ -84,6 +84,11 @@ Beyond Lim's single-point PDAF, what a roadside radar needs (all parameters in `
   stays in unpublished tentative tracks that absorb its detections), and waits while a confirmed track
   moving the same way lies within a truck length along (``confirm_block_*``: a long vehicle's second
   seed, or its body's glint a lane beside it);
+- near the radar: the measured ground radial speed of an extended vehicle is blurred by the mast geometry (a
+  scatterer farther along the body sees another elevation), so its sd grows as ``|v| h^2 / g^3`` times
+  ``near_speed_spread_m`` at ground range ``g`` under a radar ``h`` above the targets (``sensor_height_m``, set by
+  the lane pipeline), in ``R`` and in a seed's speed: a car coming out from under the radar is not seeded with
+  its first detections' speed and then gated out;
 - re-anchoring: a confirmed track that misses moves to an unclaimed detection up to ``reanchor_m``
   nearer at its radial speed (it sat on a truck's body; the near face is the reference point).
 
@@ -405,6 +410,7 @@ class MeasurementModel:
     def __init__(self, cfg: PdafConfig) -> None:
         self.cfg = cfg
         self._az_sigma_rad = math.radians(cfg.azimuth_sigma_deg)
+        self.height_m = 0.0  # radar above the targets (PdafTracker.sensor_height_m): near_speed_spread_m's geometry
         self._head: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None  # (xp, heading(xp))
 
     @property
@@ -446,7 +452,18 @@ class MeasurementModel:
         r[:, :2, :2] = rp
         if n == 3:
             r[:, 2, 2] = c.radial_speed_sigma_mps**2
+            if self.height_m > 0.0 and c.near_speed_spread_m > 0.0:
+                r[:, 2, 2] += self.near_speed_sd(xp[:, :2], zh[:, 2]) ** 2
         return zh, h, r
+
+    def near_speed_sd(self, xy: np.ndarray, v_mps: np.ndarray) -> np.ndarray:
+        """(T,) sd of a measured ground radial speed ``v_mps`` at ground positions ``xy`` that comes from the
+        spread of the vehicle's scatterers along the line of sight (``near_speed_spread_m``): ``|v| h^2 / g^3 d``,
+        capped at |v| + 1 m/s (right under the radar the radial speed says nothing)."""
+        h2 = self.height_m * self.height_m
+        g = np.maximum(np.hypot(xy[:, 0], xy[:, 1]), 1.0)
+        av = np.abs(v_mps)
+        return np.minimum(av * (h2 * self.cfg.near_speed_spread_m) / (g * g * g), av + 1.0)
 
     def with_sensor(self, xp: np.ndarray, r: np.ndarray) -> np.ndarray:
         """``r`` of :meth:`at` with ``sensor=False`` plus the constant converted polar noise: what :meth:`at`
@@ -651,6 +668,9 @@ class MofNInitiator:
             else:
                 v_s = np.where(ok, seeds[:, 2] * rho_s / np.where(ok, proj, 1.0), 0.0)
                 var_s = np.where(ok, c.init_along_speed_sigma_mps**2, c.init_speed_sigma_mps**2)
+            if self.meas_model.height_m > 0.0 and c.near_speed_spread_m > 0.0:
+                # near the radar the seed's speed is blurred by its body's spread (MeasurementModel.near_speed_sd)
+                var_s = var_s + self.meas_model.near_speed_sd(seeds[:, :2], v_s) ** 2
             x0[:, 2], x0[:, 3] = -sy * v_s, cy * v_s
             var_u = c.init_lateral_speed_sigma_mps**2
             p0[:, 2, 2] = cy * cy * var_u + sy * sy * var_s
@@ -871,6 +891,16 @@ class PdafTracker:
         self._moving_gamma = gate_threshold(self.config.moving_prob, 2)
         self._lateral_gamma = gate_threshold(self.config.lateral_smoother_reset_prob, 1)
         self.reset()
+
+    @property
+    def sensor_height_m(self) -> float:
+        """Height of the radar above the targets' scatterers (m): the geometry of ``near_speed_spread_m`` (the lane
+        pipeline sets it from its mounting and target heights; 0 = unknown, the term off)."""
+        return self.measurement_model.height_m
+
+    @sensor_height_m.setter
+    def sensor_height_m(self, value: float) -> None:
+        self.measurement_model.height_m = max(float(value), 0.0)
 
     def reset(self) -> None:
         self.tracks = TrackTable()

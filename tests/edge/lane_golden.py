@@ -28,6 +28,14 @@ recorded::
     PYTHONPATH=. python -m tests.edge.lane_golden machine          # its folder name
 
 Record on the code before a change (``git stash``), then check after it.
+
+A newer machine can also stand in for an older kind by holding numpy and OpenBLAS to its instruction set; on an
+AVX-512 machine (``openblas-haswell_x86_v3+x86_v4+avx512_icl``) this reproduced the ``openblas-haswell_x86_v3``
+fixtures exactly, so it records and checks them too::
+
+    export NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX"
+    export NPY_DISABLE_CPU_FEATURES="$NPY_DISABLE_CPU_FEATURES AVX512_CNL AVX512_ICL AVX512_SPR"
+    OPENBLAS_CORETYPE=Haswell PYTHONPATH=. python -m tests.edge.lane_golden record-all
 """
 
 from __future__ import annotations
