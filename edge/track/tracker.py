@@ -452,9 +452,14 @@ class MeasurementModel:
         r[:, :2, :2] = rp
         if n == 3:
             r[:, 2, 2] = c.radial_speed_sigma_mps**2
-            if self.height_m > 0.0 and c.near_speed_spread_m > 0.0:
+            if self.near_speed_on:
                 r[:, 2, 2] += self.near_speed_sd(xp[:, :2], zh[:, 2]) ** 2
         return zh, h, r
+
+    @property
+    def near_speed_on(self) -> bool:
+        """The near-radar radial-speed term applies: a height is known and ``near_speed_spread_m`` is not 0."""
+        return self.height_m > 0.0 and self.cfg.near_speed_spread_m > 0.0
 
     def near_speed_sd(self, xy: np.ndarray, v_mps: np.ndarray) -> np.ndarray:
         """(T,) sd of a measured ground radial speed ``v_mps`` at ground positions ``xy`` that comes from the
@@ -668,7 +673,7 @@ class MofNInitiator:
             else:
                 v_s = np.where(ok, seeds[:, 2] * rho_s / np.where(ok, proj, 1.0), 0.0)
                 var_s = np.where(ok, c.init_along_speed_sigma_mps**2, c.init_speed_sigma_mps**2)
-            if self.meas_model.height_m > 0.0 and c.near_speed_spread_m > 0.0:
+            if self.meas_model.near_speed_on:
                 # near the radar the seed's speed is blurred by its body's spread (MeasurementModel.near_speed_sd)
                 var_s = var_s + self.meas_model.near_speed_sd(seeds[:, :2], v_s) ** 2
             x0[:, 2], x0[:, 3] = -sy * v_s, cy * v_s
