@@ -44,7 +44,8 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
 * ``wrong_way``: the ``wrong_way`` alarms scored against the truth (scenarios with ``[[lane]]`` tables):
   ``drivers`` = vehicles in view driving against their lane's direction faster than 3 m/s for 15 frames,
   ``correct`` = alarms whose track followed such a vehicle when raised, ``false`` = the other alarms,
-  ``missed`` = drivers without a correct alarm.
+  ``missed`` = drivers without a correct alarm; per driver alarmed, ``delay_s`` from its first frame in view
+  against its lane to its first alarm and ``alarm_range_m``, its ground range then.
 * ``count_mismatches``: the true crossings left unmatched (``missed``) and the counted ones left unmatched
   (``extra``) when each lane's two lists are matched one-to-one by time (at most
   ``edge.evaluation.counting.COUNT_MATCH_S`` apart).
@@ -145,7 +146,7 @@ def _overlap_summary(separate: list[int] | None, overlapping: list[int] | None) 
 
 class _TargetAcc:
     __slots__ = ("cls", "lanes", "n_view", "n_hit", "sq_err", "err_xy", "spd_err", "ids", "last_id", "switches",
-                 "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames", "first_hit", "last_hit", "lane_ok")
+                 "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames", "wrong_first_t", "first_hit", "last_hit", "lane_ok")
 
     def __init__(self, cls: str) -> None:
         self.cls = cls
@@ -159,6 +160,7 @@ class _TargetAcc:
         self.dir_true = 0.0
         self.last_id: int | None = None
         self.wrong_frames = 0  # frames in view driving against its lane's direction (a wrong-way driver)
+        self.wrong_first_t: float | None = None  # time of the first of them, s
         self.first_hit = self.last_hit = -1  # in-view frame index (0 = its first in view) of its first/last assigned one
 
     def missed_phases(self) -> tuple[int, int, int]:
@@ -169,11 +171,20 @@ class _TargetAcc:
         return before, self.n_view - self.n_hit - before - after, after
 
 
-def _wrong_way_score(acc: dict[int, "_TargetAcc"], event_vehicle: list[int | None]) -> dict:
+def _wrong_way_score(acc: dict[int, "_TargetAcc"], alarms: list[tuple[int | None, float, float | None]]) -> dict:
+    """``alarms``: per wrong_way event, the vehicle its track followed (None: none), its time and that vehicle's
+    ground range then."""
     drivers = {i for i, a in acc.items() if a.wrong_frames >= WRONG_WAY_TRUE_FRAMES}
-    correct = [v for v in event_vehicle if v in drivers]
-    return {"drivers": len(drivers), "alarms": len(event_vehicle), "correct": len(correct),
-            "false": len(event_vehicle) - len(correct), "missed": len(drivers - set(correct))}
+    correct = [(v, t, r) for v, t, r in alarms if v in drivers]
+    first: dict[int, tuple[float, float]] = {}
+    for v, t, r in correct:
+        first.setdefault(v, (t, r))
+    return {"drivers": len(drivers), "alarms": len(alarms), "correct": len(correct),
+            "false": len(alarms) - len(correct), "missed": len(drivers - set(first)),
+            # per driver alarmed: seconds from its first frame in view against its lane to its first alarm, and
+            # its ground range then
+            "delay_s": [round(t - acc[v].wrong_first_t, 3) for v, (t, _) in sorted(first.items())],
+            "alarm_range_m": [round(r, 1) for _, (_, r) in sorted(first.items())]}
 
 
 def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: int | None = None,
@@ -224,7 +235,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     # wrong-way scoring: the scenario's lane directions (+1 away from the radar), the vehicle each event's
     # track followed when it was raised
     lane_dir = [1 if ln.direction == "away" else -1 for ln in sc.lanes]
-    ww_event_vehicle: list[int | None] = []
+    ww_event_vehicle: list[tuple[int | None, float, float | None]] = []
     # range-Doppler-beam overlap of vehicles: the waveform's beat model, FFT bin widths and the array's
     # Rayleigh beamwidth lambda / (N d)
     pair_model = PairingModel.from_waveform(fe.waveform)
@@ -293,8 +304,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         for ev in new_events:
             if ev.kind == "wrong_way":
                 k_tr = [k for k, t in enumerate(tracks) if t.track_id == ev.track_id]
-                hit = [int(ids[j]) for j in range(len(ids)) if k_tr and assigned_track[j] == k_tr[0]]
-                ww_event_vehicle.append(hit[0] if hit else None)
+                hit = [j for j in range(len(ids)) if k_tr and assigned_track[j] == k_tr[0]]
+                ww_event_vehicle.append((int(ids[hit[0]]), float(f.t_s), float(ground_rng[hit[0]])) if hit
+                                        else (None, float(f.t_s), None))
         det_xy = np.stack([res.detections.x_m, res.detections.y_m], axis=1).astype(np.float64)
 
         for j, i in enumerate(ids):
@@ -306,6 +318,8 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             a.n_view += 1
             if 0 <= lanes[j] < len(lane_dir) and vel[j, 1] * lane_dir[lanes[j]] < -WRONG_WAY_TRUE_MPS:
                 a.wrong_frames += 1
+                if a.wrong_first_t is None:
+                    a.wrong_first_t = float(f.t_s)
             rb = pd_bins.setdefault(int(ground_rng[j] // RANGE_BIN_M), [0, 0, 0])
             rc = pd_cls_bins.setdefault((a.cls, int(ground_rng[j] // RANGE_BIN_M)), [0, 0, 0])
             ro = pd_overlap.setdefault((a.cls, bool(overlap[j])), [0, 0])

@@ -93,9 +93,15 @@ def test_wrong_way_alarms_are_scored_against_the_truth():
     wrong way, and while the yaw self-calibrates a far car can sit in the neighbouring, opposite lane --
     which raised false alarms (seed 1: frames 18, 23, 30) before the wrong-way gate."""
     s = evaluate(load_scenario("wrong-way"), config=load_config(env={}))["summary"]
-    assert s["wrong_way"] == {"drivers": 1, "alarms": 1, "correct": 1, "false": 0, "missed": 0}
+    ww = s["wrong_way"]
+    assert {k: ww[k] for k in ("drivers", "alarms", "correct", "false", "missed")} == {
+        "drivers": 1, "alarms": 1, "correct": 1, "false": 0, "missed": 0}
+    # the car is in view from 200 m; the yaw self-calibrates first (8 s of traffic): the alarm comes late and near
+    assert len(ww["delay_s"]) == len(ww["alarm_range_m"]) == 1
+    assert 0.5 < ww["delay_s"][0] < 8.0 and 10.0 < ww["alarm_range_m"][0] < 200.0
     s = evaluate(load_scenario("highway4-misaimed"), seed=1, frames=120, config=load_config(env={}))["summary"]
-    assert s["wrong_way"] == {"drivers": 0, "alarms": 0, "correct": 0, "false": 0, "missed": 0}
+    assert s["wrong_way"] == {"drivers": 0, "alarms": 0, "correct": 0, "false": 0, "missed": 0, "delay_s": [],
+                              "alarm_range_m": []}
 
 
 def test_count_mismatches_pair_crossings_by_time_per_lane():

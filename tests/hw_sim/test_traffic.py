@@ -204,3 +204,24 @@ def test_overpass_deck_hides_what_is_behind_the_radar():
             seen = sorted(sc.targets[k].id for k in scat.target_index)
             assert seen == ([2] if occluded else [1, 2]), (yaw, occluded, seen)
             assert len(sc.truth(0.0)) == 2
+
+
+def test_wrong_way_traffic_places_its_six_drivers_as_described():
+    """wrong-way-traffic: one wrong-way driver every 40 s from 60 s on, those of the receding lanes (2, 3) coming
+    towards the radar from 380 m out, those of the approaching lanes (0, 1) driving away from under the bridge;
+    the random traffic's ids do not collide with theirs."""
+    sc = load_scenario("wrong-way-traffic")
+    scene = sc.build_scene(1)
+    ids = [t.id for t in scene.targets]
+    assert len(ids) == len(set(ids))
+    by = {t.id: t for t in scene.targets}
+    for n, vid in enumerate(range(9001, 9007)):
+        v = by[vid]
+        t = 60.0 + 40.0 * n + 0.5
+        lane = v.lane_at(t)
+        vy = v.trajectory.velocity(t)[1]
+        y = v.near_face_point(t)[1] - sc.pose.y_m
+        direction = sc.lanes[lane].direction
+        assert (vy > 0) != (direction == "away")  # against its lane
+        assert (345.0 < y < 380.0) if direction == "away" else (0.0 < y < 20.0)
+        assert v.t_start_s == pytest.approx(t - 0.5) and v.t_end_s > t + 10.0
