@@ -32,8 +32,11 @@ first frame. No ground truth is used: the rules rest on what one vehicle's track
 
 Events: ``wrong_way`` when a track in a lane moves against the lane's direction faster than
 ``wrong_way_min_speed_mps`` for ``wrong_way_min_frames`` frames in a row (once per track), counting
-only frames with a detection where its lane is sure (``wrong_way_lane_sigmas`` times range x yaw
-uncertainty inside the lane: no alarms from a neighbouring lane while the yaw self-calibrates);
+only frames with a detection where its lane is sure (``wrong_way_lane_sigmas`` times range x the yaw's and the
+tracks' azimuth uncertainty inside the lane: no alarms from a neighbouring lane while the yaw self-calibrates,
+nor from a far track whose lateral position is metres off); not again for a track within
+``wrong_way_same_driver_m`` and ``wrong_way_same_driver_speed_mps`` of one that raised it and still runs (the same
+driver's second track);
 ``stopped_vehicle`` when a track that once moved faster than ``moving_speed_mps`` stands (slower than
 ``stopped_speed_mps``) in a lane for ``stopped_min_s`` (again only after it moved off).
 """
@@ -241,6 +244,21 @@ class TrafficMonitor:
         acc.add(Crossing(tc, speed_mps, length_m, cls))
         return True
 
+    def _same_wrong_way_driver(self, conf: list[TrackState], j: int, s: list[float], vs: list[float]) -> bool:
+        """Whether confirmed track ``j``, qualifying for wrong_way, is within wrong_way_same_driver_m along the road
+        and wrong_way_same_driver_speed_mps of another that raised it and still runs: the same driver's second
+        track (a glint of its body, a new track after a loss), not a second driver."""
+        cfg = self.config
+        if cfg.wrong_way_same_driver_speed_mps <= 0.0:
+            return False
+        for i, t in enumerate(conf):
+            m = self._memo.get(t.track_id)
+            if (i != j and m is not None and m.wrong_emitted and t.age_frames >= m.age
+                    and abs(s[i] - s[j]) <= cfg.wrong_way_same_driver_m
+                    and abs(vs[i] - vs[j]) <= cfg.wrong_way_same_driver_speed_mps):
+                return True
+        return False
+
     def update(self, tracks: tuple[TrackState, ...], t_ns: int, yaw_x_m: np.ndarray | None = None) -> TrafficUpdate:
         """``yaw_x_m``: per track of ``tracks`` the across-boresight position the yaw estimator takes instead of
         ``x_m`` (the motion model's, when the published one comes from a filter that assumes the road direction:
@@ -301,10 +319,12 @@ class TrafficMonitor:
         speed = np.hypot(vx, vy).tolist()
         lane_idx, margin = assign_lanes_with_margin(u, lanes)
         # wrong-way gate: the track is wrong_way_lane_sigmas standard deviations inside its lane, the lateral
-        # uncertainty being range x the yaw's (a wrong yaw turns the road frame about the radar)
+        # uncertainty being range x the yaw's (a wrong yaw turns the road frame about the radar) and the track's
+        # own azimuth error's
         sure = lane_idx >= 0
-        if yaw_sigma > 0.0 and cfg.wrong_way_lane_sigmas > 0.0:
-            sure &= margin >= cfg.wrong_way_lane_sigmas * yaw_sigma * np.hypot(x, y)
+        lat_sigma = math.hypot(yaw_sigma, math.radians(cfg.wrong_way_azimuth_sigma_deg))
+        if lat_sigma > 0.0 and cfg.wrong_way_lane_sigmas > 0.0:
+            sure &= margin >= cfg.wrong_way_lane_sigmas * lat_sigma * np.hypot(x, y)
         lane_sure = sure.tolist()
         lane_idx = lane_idx.tolist()
         id_list = ids.tolist()
@@ -357,7 +377,8 @@ class TrafficMonitor:
                         memo.wrong_frames = 0
                 if memo.wrong_frames >= cfg.wrong_way_min_frames and not memo.wrong_emitted:
                     memo.wrong_emitted = True
-                    events.append(TrafficEvent("wrong_way", tid, lane, t_ns))
+                    if not self._same_wrong_way_driver(conf, j, s, vs):
+                        events.append(TrafficEvent("wrong_way", tid, lane, t_ns))
             # stopped vehicle
             if speed[j] < cfg.stopped_speed_mps and memo.max_speed_mps >= cfg.moving_speed_mps and lane is not None:
                 if memo.stopped_since_ns is None:

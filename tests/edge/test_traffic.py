@@ -350,7 +350,8 @@ def test_no_wrong_way_alarm_from_the_neighbouring_lane_while_the_yaw_is_unknown(
     estimated) that is 0.4 sd of lateral uncertainty, so its frames do not count; 25 m away it is 2.3 sd
     inside and raises the alarm after wrong_way_min_frames. A vehicle in the middle of the lane at 150 m
     is 1.3 sd inside: with wrong_way_lane_sigmas 1 it raises, with 2 it waits until it is nearer."""
-    base = dict(wrong_way_min_frames=15, estimate_yaw=True, yaw_min_tracks=5, mounting_yaw_sigma_deg=0.5)
+    base = dict(wrong_way_min_frames=15, estimate_yaw=True, yaw_min_tracks=5, mounting_yaw_sigma_deg=0.5,
+                wrong_way_azimuth_sigma_deg=0.0)  # the yaw's uncertainty alone (the tracks' own: the next test)
     cfg = TrafficConfig(**base)
     assert _wrong_way_frames(cfg, 4.0, 150.0, -4.0) == []  # 150 -> 126 m: never sure of its lane
     assert _wrong_way_frames(cfg, 4.0, 25.0, -4.0) == [14]
@@ -359,7 +360,8 @@ def test_no_wrong_way_alarm_from_the_neighbouring_lane_while_the_yaw_is_unknown(
     assert mid == [20 + 14]
     assert _wrong_way_frames(TrafficConfig(**base, wrong_way_lane_sigmas=1.0), 5.25, 150.0, -25.0) == [14]
     # the installer measured the yaw (no estimate): every frame in the lane counts
-    assert _wrong_way_frames(TrafficConfig(wrong_way_min_frames=15, estimate_yaw=False), 4.0, 150.0, -4.0) == [14]
+    assert _wrong_way_frames(TrafficConfig(wrong_way_min_frames=15, estimate_yaw=False, wrong_way_azimuth_sigma_deg=0.0),
+                             4.0, 150.0, -4.0) == [14]
 
 
 def test_yaw_estimate_standard_error_shrinks_with_votes():
@@ -527,3 +529,34 @@ def test_a_track_that_jumps_back_behind_the_line_is_counted_once(once, expected)
             y -= 11.0  # the jump, after the first crossing (y 57 -> 48)
         mon.update((_ts(7, 1.75, y, 0.0, v, k + 1),), k * DT_NS)
     assert len(mon.stats.lane(2).crossings) == expected
+
+
+def test_far_track_by_the_lane_edge_raises_no_wrong_way_alarm_with_its_azimuth_uncertainty():
+    """traffic.wrong_way_azimuth_sigma_deg: a far track's lateral position is range x its azimuth error off (a car
+    of lane 1 tracked 330-350 m out sat 0.1-1 m inside receding lane 2: highway4-traffic seed 7012). With 0.1 deg,
+    0.58 m of lateral sd at 330 m, a track 0.5 m inside lane 3 is 0.87 sd inside and its frames do not count (2 sd
+    needs it within 143 m); one in the middle of the lane is 3 sd inside and raises the alarm after
+    wrong_way_min_frames (the yaw known, not estimated)."""
+    base = dict(wrong_way_min_frames=15, estimate_yaw=False)
+    edge_cfg = TrafficConfig(**base, wrong_way_azimuth_sigma_deg=0.1)
+    assert _wrong_way_frames(edge_cfg, 4.0, 330.0, -25.0) == []  # 330 -> 182.5 m, never 2 sd inside
+    assert _wrong_way_frames(edge_cfg, 5.25, 330.0, -25.0) == [14]
+    without = TrafficConfig(**base, wrong_way_azimuth_sigma_deg=0.0)
+    assert _wrong_way_frames(without, 4.0, 330.0, -25.0) == [14]  # counted from the start
+    assert TrafficConfig().wrong_way_azimuth_sigma_deg == 0.1
+
+
+@pytest.mark.parametrize("behind_m,speed_mps,expected", [(8.0, -25.0, [7]), (40.0, -25.0, [7, 9]), (8.0, -20.0, [7, 9])])
+def test_a_wrong_way_drivers_second_track_raises_no_second_alarm(behind_m, speed_mps, expected):
+    """A track born 1 s after a wrong-way driver's, behind it in lane 3: 8 m behind at its speed it is the same
+    driver (a glint of a wrong-way truck's body seeded one 8 m behind it: wrong-way-traffic seed 1) and raises no
+    alarm of its own; 40 m behind, or 5 m/s slower, it is a second driver."""
+    mon = TrafficMonitor(TrafficConfig(wrong_way_min_frames=15, estimate_yaw=False))
+    got = []
+    for k in range(50):
+        tracks = [_ts(7, 5.25, 150.0 - 25.0 * k * 0.1, 0.0, -25.0, k + 1)]
+        if k >= 10:
+            y9 = 150.0 - 25.0 * 1.0 + behind_m + speed_mps * (k - 10) * 0.1
+            tracks.append(_ts(9, 5.25, y9, 0.0, speed_mps, k - 9))
+        got.extend(e.track_id for e in mon.update(tuple(tracks), k * DT_NS).events)
+    assert got == expected
