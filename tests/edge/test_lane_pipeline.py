@@ -211,3 +211,101 @@ def test_the_tracker_gets_the_radar_height_above_the_targets():
     its tracker the mounting height less the target height (the geometry polar_to_ground uses)."""
     p = LanePipeline(FE, LaneConfig(mounting_height_m=9.0, target_height_m=0.5))
     assert p.tracker.sensor_height_m == pytest.approx(8.5)
+
+
+_TRUCK_LANE1 = """
+[scenario]
+name = "truck-lane1"
+board = "simo"
+description = "an approaching truck in lane 1, 100 m out"
+duration_s = 6.0
+seed = 3
+[radar]
+height_m = 7.0
+tilt_deg = 1.5
+occluded_behind = true
+[[lane]]
+center_x_m = -5.25
+[[lane]]
+center_x_m = -1.75
+[[lane]]
+center_x_m = 1.75
+direction = "away"
+[[lane]]
+center_x_m = 5.25
+direction = "away"
+[[vehicle]]
+id = 1
+kind = "truck"
+lane = 1
+y_m = 100.0
+speed_kmh = 70.0
+"""
+
+
+def _against_lane_track_frames(tmp_path, overrides, seed=3, n=180):
+    """Frames x confirmed tracks moving towards the radar in the receding lanes (x > 0.3 m), and the detections
+    there, while the truck of _TRUCK_LANE1 comes from 100 m to 30 m."""
+    from edge.evaluation.lane import _installer_config
+    from hw_sim.scenario import load_scenario
+
+    path = tmp_path / "truck.toml"
+    path.write_text(_TRUCK_LANE1)
+    sc = load_scenario(str(path))
+    # the yaw as installed (not estimated: one truck would not estimate it in 6 s)
+    lc, tc, fc = _installer_config(load_config(env={}, overrides={"traffic.estimate_yaw": "false", **overrides}), sc)
+    p = LanePipeline(FE, lc, tc, fc)
+    sim = FrameSimulator(SIMO_BOARD, sc.build_scene(seed), seed)
+    timer = StageTimer()
+    n_tracks = n_dets = 0
+    for k in range(n):
+        f = sim.frame(k)
+        res = p.process(RawFrame(k, int(round(f.t_s * 1e9)), f.i, f.q, FE, f.truth), timer)
+        d = res.detections
+        n_dets += int(((d.x_m > 0.3) & (d.radial_speed_mps < -3.0)).sum())
+        n_tracks += sum(1 for t in res.tracks if t.confirmed and t.x_m > 0.3 and t.vy_mps < -3.0)
+    return n_tracks, n_dets
+
+
+def test_a_trucks_angle_glint_in_the_other_carriageway_is_dropped(tmp_path):
+    """Two scatterers of a truck's body in one range cell in antiphase pull the 4-element Bartlett peak up to a
+    beamwidth aside: at 45-60 m the approaching truck shows up 5-6 m beside itself, in a receding lane, at its own
+    speed. Without pipeline.lane.cluster_against_lane_speed_mps those detections confirm a track driving against
+    that lane (a wrong-way alarm on highway4-traffic seeds 5, 7015, 7016); with it they are dropped."""
+    off_tracks, off_dets = _against_lane_track_frames(tmp_path, {"pipeline.lane.cluster_against_lane_speed_mps": "0"})
+    on_tracks, on_dets = _against_lane_track_frames(tmp_path, {})
+    assert off_tracks > 20 and off_dets > 20  # the glint and its ghost track are there...
+    assert on_tracks == 0 and on_dets < off_dets / 2  # ...and gone (left: glints with no near face detected)
+
+
+def test_against_lane_glint_rule_keeps_other_vehicles():
+    """_against_lane_glint on hand-made detections: only the one against its lane, behind a nearer detection of
+    its speed within a beamwidth, is dropped -- not a receding car in its own lane, not a wrong-way driver at
+    another speed or farther behind, not a car beside the truck in the same direction at the same speed."""
+    from edge.traffic import TrafficConfig
+
+    p = LanePipeline(FE, LaneConfig(mounting_height_m=7.0),
+                     traffic_config=TrafficConfig(lane_centers_m=(-5.25, -1.75, 1.75, 5.25),
+                                                  lane_directions=("toward", "toward", "away", "away"),
+                                                  lane_widths_m=(3.5,) * 4, estimate_yaw=False))
+    #            truck face  glint     receding   ww slower  ww far    car beside (lane 0)
+    x = np.array([-1.75,     3.5,      1.75,      5.25,      3.5,      -5.25], np.float32)
+    y = np.array([45.0,      50.0,     52.0,      55.0,      66.0,     47.0], np.float32)
+    v = np.array([-19.0,     -19.1,    19.0,      -17.0,     -19.0,    -19.0], np.float32)
+    rng = np.hypot(x, y).astype(np.float32)
+    az = np.arctan2(x, y).astype(np.float32)
+    got = p._against_lane_glint(rng, v, az, x, y, np.ones(x.size, bool))
+    assert got.tolist() == [False, True, False, False, False, False]
+    # a receding car by the median shown 0.5 m across it, beside a receding car of its speed 5 m nearer: within
+    # cluster_against_lane_margin_m of its own direction's lanes, kept; 1.5 m across, dropped
+    for across, dropped in ((0.5, False), (1.5, True)):
+        x2 = np.array([5.25, -across], np.float32)
+        y2 = np.array([45.0, 50.0], np.float32)
+        v2 = np.array([19.0, 19.1], np.float32)
+        got = p._against_lane_glint(np.hypot(x2, y2).astype(np.float32), v2, np.arctan2(x2, y2).astype(np.float32),
+                                    x2, y2, np.ones(2, bool))
+        assert got.tolist() == [False, dropped]
+    # the truck's face not kept (no nearer detection of its speed): the glint stays
+    keep = np.ones(x.size, bool)
+    keep[0] = False
+    assert not p._against_lane_glint(rng, v, az, x, y, keep).any()
