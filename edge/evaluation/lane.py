@@ -40,7 +40,8 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   Neither the waveform nor Bartlett separates such a pair; only the side-by-side resolver can. A diagnosis
   of where the misses come from (the headline ``detection_probability`` counts every frame);
 * ``count_error_per_lane``: measured volume at the traffic layer's detection line (closed intervals
-  plus the open one) minus the true number of reference points crossing it, per lane;
+  plus the open one) minus the true number of reference points crossing it in the lane's direction of travel
+  (a wrong-way driver is an event, not volume), per lane;
 * ``wrong_way``: the ``wrong_way`` alarms scored against the truth (scenarios with ``[[lane]]`` tables):
   ``drivers`` = vehicles in view driving against their lane's direction faster than 3 m/s for 15 frames,
   ``correct`` = alarms whose track followed such a vehicle when raised, ``false`` = the other alarms,
@@ -286,7 +287,10 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         ref_y = ref_w[:, 1] - scene.pose.y_m
         for j, i in enumerate(ids):
             s_prev = prev_s.get(int(i))
-            if s_prev is not None and (s_prev - line) * (ref_y[j] - line) < 0 and 0 <= lanes[j] < n_lanes:
+            # in the lane's direction of travel: the volume the traffic layer counts (a wrong-way driver is an
+            # event, traffic.count_lane_direction_only)
+            if (s_prev is not None and (s_prev - line) * (ref_y[j] - line) < 0 and 0 <= lanes[j] < n_lanes
+                    and (ref_y[j] - s_prev) * lane_dir[lanes[j]] > 0):
                 true_cross.append((int(lanes[j]), float(f.t_s), int(i), tr.cls[veh[j]]))
             prev_s[int(i)] = float(ref_y[j])
 

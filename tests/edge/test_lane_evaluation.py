@@ -99,6 +99,9 @@ def test_wrong_way_alarms_are_scored_against_the_truth():
     # the car is in view from 200 m; the yaw self-calibrates first (8 s of traffic): the alarm comes late and near
     assert len(ww["delay_s"]) == len(ww["alarm_range_m"]) == 1
     assert 0.5 < ww["delay_s"][0] < 8.0 and 10.0 < ww["alarm_range_m"][0] < 200.0
+    # crossing the detection line against lane 2, the driver is an event and not part of the lane's volume
+    assert s["count_error_per_lane"][2] == 0
+    assert all(m["vehicle_id"] != 1 for m in s["count_mismatches"]["missed"])
     s = evaluate(load_scenario("highway4-misaimed"), seed=1, frames=120, config=load_config(env={}))["summary"]
     assert s["wrong_way"] == {"drivers": 0, "alarms": 0, "correct": 0, "false": 0, "missed": 0, "delay_s": [],
                               "alarm_range_m": []}
