@@ -147,7 +147,8 @@ def _overlap_summary(separate: list[int] | None, overlapping: list[int] | None) 
 
 class _TargetAcc:
     __slots__ = ("cls", "lanes", "n_view", "n_hit", "sq_err", "err_xy", "spd_err", "ids", "last_id", "switches",
-                 "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames", "wrong_first_t", "first_hit", "last_hit", "lane_ok")
+                 "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames", "wrong_first_t", "first_hit", "last_hit",
+                 "lane_ok")
 
     def __init__(self, cls: str) -> None:
         self.cls = cls

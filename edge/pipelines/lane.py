@@ -339,7 +339,11 @@ class LaneConfig:
                "beamwidth: an approaching truck's body at 45-60 m showed up 5-6 m beside it, in the receding lane, "
                "at the truck's speed (within 0.15 m/s) in a third of the frames, and seeded a track that raised a "
                "false wrong_way alarm (highway4-traffic seeds 5, 7015, 7016). A wrong-way driver pacing a vehicle of "
-               "the other carriageway this closely is dropped while it does; 0 = off",
+               "the other carriageway this closely is dropped while it does. Measured, off -> on (with "
+               "traffic.wrong_way_azimuth_sigma_deg), highway4-traffic ten minutes, seeds 5, 7007, 7012, 7015, 7016, "
+               "7018, 7019, 7020: confirmed false tracks 116 -> 73, id switches 264 -> 238, false wrong_way alarms "
+               "5 -> 0, per-lane counts the same, car detection probability the same or 1e-4 lower (3 seeds); "
+               "highway4 seeds 7001-7040, side-by-side and crossing 1-8 unchanged; 0 = off",
         "min": 0.0, "max": 10.0})
     cluster_against_lane_margin_m: float = field(default=1.0, metadata={
         "unit": "m", "doc": "... only where the lanes this far to either side (plus the traffic layer's wrong-way "

@@ -204,12 +204,13 @@ class TrafficConfig:
         default=2.0, metadata={"doc": "a frame counts towards wrong_way only while the track is this many standard "
                                       "deviations inside its lane: distance to the lane's nearer edge over range x the "
                                       "yaw's uncertainty (mounting_yaw_sigma_deg until estimated, then the estimate's "
-                                      "standard error) and the tracks' (wrong_way_azimuth_sigma_deg); so no alarm from the neighbouring lane while the yaw "
-                                      "self-calibrates or far away with a young estimate (frames that fail neither "
-                                      "count nor reset)", "min": 0.0, "max": 10.0})
+                                      "standard error) and the tracks' (wrong_way_azimuth_sigma_deg); so no alarm from "
+                                      "the neighbouring lane while the yaw self-calibrates or far away with a young "
+                                      "estimate (frames that fail neither count nor reset)", "min": 0.0, "max": 10.0})
     wrong_way_azimuth_sigma_deg: float = field(
-        default=0.1, metadata={"unit": "deg", "doc": "the tracks' own azimuth uncertainty in the wrong_way_lane_sigmas "
-                                                     "gate, added in quadrature to the yaw's (range x both): far away a "
+        default=0.1, metadata={"unit": "deg", "doc": "the tracks' own azimuth uncertainty in the "
+                                                     "wrong_way_lane_sigmas gate, added in quadrature to the yaw's "
+                                                     "(range x both): far away a "
                                                      "track's lateral position is metres off (a car of lane 1 tracked "
                                                      "330-350 m out sat 0.1-1 m inside receding lane 2 and raised "
                                                      "wrong_way: highway4-traffic seed 7012; 0.05 deg would do there). "
@@ -218,7 +219,8 @@ class TrafficConfig:
                                "min": 0.0, "max": 10.0})
     wrong_way_same_driver_m: float = field(
         default=20.0, metadata={"unit": "m", "doc": "a track qualifying for wrong_way within this along the road of a "
-                                                    "track that raised it and still runs ...", "min": 0.0, "max": 200.0})
+                                                    "track that raised it and still runs ...",
+                                "min": 0.0, "max": 200.0})
     wrong_way_same_driver_speed_mps: float = field(
         default=1.0, metadata={"unit": "m/s", "doc": "... at a speed within this is the same driver and raises no "
                                                      "second alarm (a wrong-way truck's body seen at a glint angle in "

@@ -360,8 +360,8 @@ def test_no_wrong_way_alarm_from_the_neighbouring_lane_while_the_yaw_is_unknown(
     assert mid == [20 + 14]
     assert _wrong_way_frames(TrafficConfig(**base, wrong_way_lane_sigmas=1.0), 5.25, 150.0, -25.0) == [14]
     # the installer measured the yaw (no estimate): every frame in the lane counts
-    assert _wrong_way_frames(TrafficConfig(wrong_way_min_frames=15, estimate_yaw=False, wrong_way_azimuth_sigma_deg=0.0),
-                             4.0, 150.0, -4.0) == [14]
+    measured = TrafficConfig(wrong_way_min_frames=15, estimate_yaw=False, wrong_way_azimuth_sigma_deg=0.0)
+    assert _wrong_way_frames(measured, 4.0, 150.0, -4.0) == [14]
 
 
 def test_yaw_estimate_standard_error_shrinks_with_votes():
@@ -546,7 +546,8 @@ def test_far_track_by_the_lane_edge_raises_no_wrong_way_alarm_with_its_azimuth_u
     assert TrafficConfig().wrong_way_azimuth_sigma_deg == 0.1
 
 
-@pytest.mark.parametrize("behind_m,speed_mps,expected", [(8.0, -25.0, [7]), (40.0, -25.0, [7, 9]), (8.0, -20.0, [7, 9])])
+@pytest.mark.parametrize("behind_m,speed_mps,expected",
+                         [(8.0, -25.0, [7]), (40.0, -25.0, [7, 9]), (8.0, -20.0, [7, 9])])
 def test_a_wrong_way_drivers_second_track_raises_no_second_alarm(behind_m, speed_mps, expected):
     """A track born 1 s after a wrong-way driver's, behind it in lane 3: 8 m behind at its speed it is the same
     driver (a glint of a wrong-way truck's body seeded one 8 m behind it: wrong-way-traffic seed 1) and raises no
