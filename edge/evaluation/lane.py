@@ -47,6 +47,8 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   ``correct`` = alarms whose track followed such a vehicle when raised, ``false`` = the other alarms,
   ``missed`` = drivers without a correct alarm; per driver alarmed, ``delay_s`` from its first frame in view
   against its lane to its first alarm and ``alarm_range_m``, its ground range then.
+* ``stopped_vehicle``: the ``stopped_vehicle`` alarms scored the same way: ``vehicles`` = vehicles standing
+  (slower than 0.5 m/s) in a lane in view for 5 s, ``delay_s`` from when they came to a standstill.
 * ``count_mismatches``: the true crossings left unmatched (``missed``) and the counted ones left unmatched
   (``extra``) when each lane's two lists are matched one-to-one by time (at most
   ``edge.evaluation.counting.COUNT_MATCH_S`` apart).
@@ -108,6 +110,10 @@ def _to_radar_ground(pose, p_world: np.ndarray) -> np.ndarray:
     return np.stack([x, y], axis=1)
 
 
+#: a vehicle in view in a lane slower than STOPPED_TRUE_MPS for STOPPED_TRUE_S is a stopped vehicle (ground truth
+#: for scoring the stopped_vehicle alarms)
+STOPPED_TRUE_MPS = 0.5
+STOPPED_TRUE_S = 5.0
 #: a vehicle in view driving against its lane's direction faster than this for this many frames is a
 #: wrong-way driver (ground truth for scoring the wrong_way alarms)
 WRONG_WAY_TRUE_MPS = 3.0
@@ -147,8 +153,8 @@ def _overlap_summary(separate: list[int] | None, overlapping: list[int] | None) 
 
 class _TargetAcc:
     __slots__ = ("cls", "lanes", "n_view", "n_hit", "sq_err", "err_xy", "spd_err", "ids", "last_id", "switches",
-                 "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames", "wrong_first_t", "first_hit", "last_hit",
-                 "lane_ok")
+                 "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames", "wrong_first_t", "stand_since_t", "stopped_t",
+                 "first_hit", "last_hit", "lane_ok")
 
     def __init__(self, cls: str) -> None:
         self.cls = cls
@@ -163,6 +169,8 @@ class _TargetAcc:
         self.last_id: int | None = None
         self.wrong_frames = 0  # frames in view driving against its lane's direction (a wrong-way driver)
         self.wrong_first_t: float | None = None  # time of the first of them, s
+        self.stand_since_t: float | None = None  # standing in a lane in view since (s), None while moving
+        self.stopped_t: float | None = None  # start of its first standstill of STOPPED_TRUE_S (a stopped vehicle)
         self.first_hit = self.last_hit = -1  # in-view frame index (0 = its first in view) of its first/last assigned one
 
     def missed_phases(self) -> tuple[int, int, int]:
@@ -173,20 +181,32 @@ class _TargetAcc:
         return before, self.n_view - self.n_hit - before - after, after
 
 
-def _wrong_way_score(acc: dict[int, "_TargetAcc"], alarms: list[tuple[int | None, float, float | None]]) -> dict:
-    """``alarms``: per wrong_way event, the vehicle its track followed (None: none), its time and that vehicle's
-    ground range then."""
-    drivers = {i for i, a in acc.items() if a.wrong_frames >= WRONG_WAY_TRUE_FRAMES}
-    correct = [(v, t, r) for v, t, r in alarms if v in drivers]
+def _event_score(since: dict[int, float], alarms: list[tuple[int | None, float, float | None]],
+                 who: str = "drivers") -> dict:
+    """An event's alarms against the truth. ``since``: the vehicles the event is true of and when it became so;
+    ``alarms``: per event raised, the vehicle its track followed (None: none), its time and that vehicle's ground
+    range then."""
+    correct = [(v, t, r) for v, t, r in alarms if v in since]
     first: dict[int, tuple[float, float]] = {}
     for v, t, r in correct:
         first.setdefault(v, (t, r))
-    return {"drivers": len(drivers), "alarms": len(alarms), "correct": len(correct),
-            "false": len(alarms) - len(correct), "missed": len(drivers - set(first)),
-            # per driver alarmed: seconds from its first frame in view against its lane to its first alarm, and
-            # its ground range then
-            "delay_s": [round(t - acc[v].wrong_first_t, 3) for v, (t, _) in sorted(first.items())],
+    return {who: len(since), "alarms": len(alarms), "correct": len(correct),
+            "false": len(alarms) - len(correct), "missed": len(set(since) - set(first)),
+            # per vehicle alarmed: seconds from when the event became true of it to its first alarm, and its
+            # ground range then
+            "delay_s": [round(t - since[v], 3) for v, (t, _) in sorted(first.items())],
             "alarm_range_m": [round(r, 1) for _, (_, r) in sorted(first.items())]}
+
+
+def _wrong_way_score(acc: dict[int, "_TargetAcc"], alarms: list[tuple[int | None, float, float | None]]) -> dict:
+    """Drivers: vehicles in view against their lane for WRONG_WAY_TRUE_FRAMES, since their first such frame."""
+    return _event_score({i: a.wrong_first_t for i, a in acc.items() if a.wrong_frames >= WRONG_WAY_TRUE_FRAMES},
+                        alarms)
+
+
+def _stopped_score(acc: dict[int, "_TargetAcc"], alarms: list[tuple[int | None, float, float | None]]) -> dict:
+    """Stopped vehicles: standing in a lane in view for STOPPED_TRUE_S, since they came to a standstill."""
+    return _event_score({i: a.stopped_t for i, a in acc.items() if a.stopped_t is not None}, alarms, "vehicles")
 
 
 def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: int | None = None,
@@ -238,6 +258,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     # track followed when it was raised
     lane_dir = [1 if ln.direction == "away" else -1 for ln in sc.lanes]
     ww_event_vehicle: list[tuple[int | None, float, float | None]] = []
+    stop_event_vehicle: list[tuple[int | None, float, float | None]] = []
     # range-Doppler-beam overlap of vehicles: the waveform's beat model, FFT bin widths and the array's
     # Rayleigh beamwidth lambda / (N d)
     pair_model = PairingModel.from_waveform(fe.waveform)
@@ -307,11 +328,11 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             assigned_track[r_i[ok]] = c_i[ok]
             t_assigned[c_i[ok]] = True
         for ev in new_events:
-            if ev.kind == "wrong_way":
+            if ev.kind in ("wrong_way", "stopped_vehicle"):
                 k_tr = [k for k, t in enumerate(tracks) if t.track_id == ev.track_id]
                 hit = [j for j in range(len(ids)) if k_tr and assigned_track[j] == k_tr[0]]
-                ww_event_vehicle.append((int(ids[hit[0]]), float(f.t_s), float(ground_rng[hit[0]])) if hit
-                                        else (None, float(f.t_s), None))
+                (ww_event_vehicle if ev.kind == "wrong_way" else stop_event_vehicle).append(
+                    (int(ids[hit[0]]), float(f.t_s), float(ground_rng[hit[0]])) if hit else (None, float(f.t_s), None))
         det_xy = np.stack([res.detections.x_m, res.detections.y_m], axis=1).astype(np.float64)
 
         for j, i in enumerate(ids):
@@ -325,6 +346,13 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
                 a.wrong_frames += 1
                 if a.wrong_first_t is None:
                     a.wrong_first_t = float(f.t_s)
+            if 0 <= lanes[j] < len(lane_dir) and speed_kmh[j] < STOPPED_TRUE_MPS * 3.6:
+                if a.stand_since_t is None:
+                    a.stand_since_t = float(f.t_s)
+                if a.stopped_t is None and f.t_s - a.stand_since_t >= STOPPED_TRUE_S - 1e-9:
+                    a.stopped_t = a.stand_since_t
+            else:
+                a.stand_since_t = None
             rb = pd_bins.setdefault(int(ground_rng[j] // RANGE_BIN_M), [0, 0, 0])
             rc = pd_cls_bins.setdefault((a.cls, int(ground_rng[j] // RANGE_BIN_M)), [0, 0, 0])
             ro = pd_overlap.setdefault((a.cls, bool(overlap[j])), [0, 0])
@@ -471,6 +499,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         # wrong-way alarms against the truth: a vehicle driving against its lane for WRONG_WAY_TRUE_FRAMES
         # frames in view is a wrong-way driver; an alarm is correct when its track followed one
         "wrong_way": _wrong_way_score(acc, ww_event_vehicle) if lane_dir else None,
+        "stopped_vehicle": _stopped_score(acc, stop_event_vehicle) if lane_dir else None,
         "classification_accuracy": None,
         "confusion_matrix": None,
     }

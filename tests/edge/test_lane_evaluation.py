@@ -182,3 +182,17 @@ def test_overlap_diagnosis_marks_vehicles_the_waveform_and_array_cannot_separate
     # one vehicle alone, and none
     assert ov([100.0], [4.5], [-20.0], [0.0]) == [False]
     assert ov([], [], [], []) == []
+
+
+def test_stopped_vehicle_alarms_are_scored_against_the_truth():
+    """``stopped-vehicle``, first 20 s: the car of lane 1 stands 120 m out from 12.2 s; it is a stopped vehicle once
+    it has stood 5 s, and the alarm (traffic.stopped_min_s = 5 s) must follow it, about 5 s after it stopped.
+    ``stop-and-go``'s car stands 4 s: no stopped vehicle, no alarm."""
+    s = evaluate(load_scenario("stopped-vehicle"), seed=1, frames=600, config=load_config(env={}))["summary"]
+    sv = s["stopped_vehicle"]
+    assert {k: sv[k] for k in ("vehicles", "alarms", "correct", "false", "missed")} == {
+        "vehicles": 1, "alarms": 1, "correct": 1, "false": 0, "missed": 0}
+    # (the monitor calls slower than 1 m/s standing, the truth slower than 0.5 m/s: 0.2 s of braking apart)
+    assert 4.5 <= sv["delay_s"][0] < 6.0 and abs(sv["alarm_range_m"][0] - 118.0) < 3.0
+    s = evaluate(load_scenario("stop-and-go"), config=load_config(env={}))["summary"]
+    assert s["stopped_vehicle"]["vehicles"] == 0 and s["stopped_vehicle"]["alarms"] == 0
