@@ -21,6 +21,9 @@ from typing import Protocol
 
 import numpy as np
 
+#: a decorrelating target slower than this stands still and keeps its scattering phases (Scene.scatterers)
+STANDING_MPS = 0.05
+
 #: class names used in ground truth and by the classifier, in a fixed order
 CLASSES: tuple[str, ...] = ("pedestrian", "car", "motorcycle", "truck", "bicycle", "clutter")
 
@@ -225,8 +228,12 @@ class Scene:
                 r = r * rng.gamma(2.0, 0.5)
             rcs.append(r)
             # a target whose micro-motion (vibration, pitch: millimetres at lambda = 12 mm) decorrelates its
-            # glint from frame to frame draws new scattering phases every frame
-            ph.append(rng.random(r.size) if getattr(tg, "glint_decorrelates", False) else self._scatter_phase(tg.id, r.size))
+            # glint from frame to frame draws new scattering phases every frame -- while it moves: a vehicle
+            # standing still (a breakdown, engine off) keeps fixed phases, a static echo the clutter map can learn
+            # (the draw is made either way, so the other targets' draws stay those of the moving case)
+            fresh = rng.random(r.size) if getattr(tg, "glint_decorrelates", False) else None
+            moving = fresh is not None and v_ref[0] * v_ref[0] + v_ref[1] * v_ref[1] >= STANDING_MPS * STANDING_MPS
+            ph.append(fresh if moving else self._scatter_phase(tg.id, r.size))
             idx.append(np.full(r.size, k, dtype=np.int32))
         if self.clutter is not None and self.clutter.rcs_m2.size:
             pos.append(self.clutter.position_m)

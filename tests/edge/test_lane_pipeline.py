@@ -309,3 +309,71 @@ def test_against_lane_glint_rule_keeps_other_vehicles():
     keep = np.ones(x.size, bool)
     keep[0] = False
     assert not p._against_lane_glint(rng, v, az, x, y, keep).any()
+
+
+_STOPPING_CAR = """
+[scenario]
+name = "stopping-car"
+board = "simo"
+description = "a car of lane 1 brakes to a standstill about 90 m out and stands"
+duration_s = 20.0
+seed = 2
+[radar]
+height_m = 7.0
+tilt_deg = 1.5
+occluded_behind = true
+[[lane]]
+center_x_m = -5.25
+[[lane]]
+center_x_m = -1.75
+[[lane]]
+center_x_m = 1.75
+direction = "away"
+[[lane]]
+center_x_m = 5.25
+direction = "away"
+[[vehicle]]
+id = 1
+kind = "car"
+lane = 1
+y_m = 150.0
+speed_kmh = 60.0
+stop_at_s = 1.0
+decel_mps2 = 3.0
+stop_s = 60.0
+"""
+
+
+def _standing_tracked_fraction(tmp_path, overrides, n=600):
+    """Fraction of the frames from 10 s on (the car of _STOPPING_CAR has stood since 6.6 s) with a confirmed track
+    within 3 m of it; the clutter map's time constant is 2 s, so an unheld map learns the standing car in seconds."""
+    from edge.evaluation.lane import _installer_config
+    from hw_sim.scenario import load_scenario
+
+    path = tmp_path / "stopping.toml"
+    path.write_text(_STOPPING_CAR)
+    sc = load_scenario(str(path))
+    lc, tc, fc = _installer_config(load_config(env={}, overrides={"pipeline.lane.clutter_map_time_s": "2",
+                                                                   **overrides}), sc)
+    p = LanePipeline(FE, lc, tc, fc)
+    sim = FrameSimulator(SIMO_BOARD, sc.build_scene(2), 2)
+    timer = StageTimer()
+    held = total = 0
+    for k in range(n):
+        f = sim.frame(k)
+        res = p.process(RawFrame(k, int(round(f.t_s * 1e9)), f.i, f.q, FE, f.truth), timer)
+        if f.t_s < 10.0:
+            continue
+        car = f.truth.position_m[0]
+        total += 1
+        held += any(t.confirmed and math.hypot(t.x_m - car[0], t.y_m - car[1]) < 3.0 for t in res.tracks)
+    return held / total
+
+
+def test_the_clutter_map_hold_keeps_a_stopped_vehicle(tmp_path):
+    """A vehicle standing still (engine off: fixed scattering phases) is a static echo: the clutter map learns it
+    and its track is lost. pipeline.lane.clutter_map_hold_speed_mps stops the map's update in the range bins of a
+    confirmed track that moved and now stands, and the car stays tracked."""
+    off = _standing_tracked_fraction(tmp_path, {"pipeline.lane.clutter_map_hold_speed_mps": "0"})
+    on = _standing_tracked_fraction(tmp_path, {})  # the default: 1 m/s
+    assert off < 0.5 and on > 0.95

@@ -225,3 +225,25 @@ def test_wrong_way_traffic_places_its_six_drivers_as_described():
         assert (vy > 0) != (direction == "away")  # against its lane
         assert (345.0 < y < 380.0) if direction == "away" else (0.0 < y < 20.0)
         assert v.t_start_s == pytest.approx(t - 0.5) and v.t_end_s > t + 10.0
+
+
+def test_a_standing_vehicle_keeps_its_scattering_phases():
+    """Moving, a vehicle's glint decorrelates from frame to frame (new scattering phases); standing still (a
+    breakdown, engine off) its phases stay fixed: a static echo. The other targets' draws do not change with it."""
+    sc = load_scenario("stop-and-go")
+    scene = sc.build_scene()
+    car = next(t for t in scene.targets if t.id == 1)
+    k = scene.targets.index(car)
+
+    def phases(t):
+        s = scene.scatterers(t)
+        return s.phase_cycles[s.target_index == k], s.phase_cycles[s.target_index != k]
+
+    assert np.linalg.norm(car.trajectory.velocity(7.0)) < 0.05 and np.linalg.norm(car.trajectory.velocity(0.5)) > 10
+    standing_a, others_a = phases(7.0)
+    standing_b, others_b = phases(7.033)
+    assert np.array_equal(standing_a, standing_b)
+    moving_a, _ = phases(0.5)
+    moving_b, _ = phases(0.533)
+    assert not np.array_equal(moving_a, moving_b)
+    assert not np.array_equal(others_a, others_b)  # the truck moves on
