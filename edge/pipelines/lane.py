@@ -487,6 +487,8 @@ class LanePipeline(Pipeline):
                              np.zeros(0, np.float32))  # no track-aided pairs (read, never written)
         self._model = PairingModel.from_waveform(wf)
         self._model_ab = np.stack([self._model.a, self._model.b], axis=1)  # (4, 2): beat = a R + b v per segment
+        # a static echo's FFT bins per metre of range in each segment (negative on a down-chirp): _hold_standing
+        self._bins_per_m = (self._model.a / self._bin_hz).tolist()
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
         self._near_tol = (cfg.pair_near_tolerance_bins * self._bin_hz[2],
                           cfg.pair_near_tolerance_bins * self._bin_hz[3])
@@ -926,8 +928,7 @@ class LanePipeline(Pipeline):
         # lateral offset as to_road computes it
         x, y = polar_to_ground(range_m[idx], np.arcsin(np.minimum(np.maximum(cand, -1.0), 1.0)),
                                cfg.mounting_height_m, cfg.target_height_m)
-        yaw = self.traffic.yaw_rad
-        u = x.astype(np.float64) * math.cos(yaw) + y.astype(np.float64) * math.sin(yaw)
+        u = self._across_road(x, y)
         d = dirs[assign_lanes(u.reshape(-1), lanes)].reshape(3, -1)  # direction, 0 outside every lane (-1 -> 0)
         sign = np.sign(v_mps[idx])  # +1 receding: lanes "away"
         bad = d[0] == -sign
@@ -951,6 +952,12 @@ class LanePipeline(Pipeline):
                                 np.array([ln.direction for ln in lanes] + [0]))
         return self._lane_cache[1], self._lane_cache[2]
 
+    def _across_road(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Lateral offset (float64, m) of ground positions in the road frame of the traffic layer's yaw, as
+        edge.traffic.lanes.to_road computes it (its operations only: the lanes' coordinate)."""
+        yaw = self.traffic.yaw_rad
+        return x.astype(np.float64) * math.cos(yaw) + y.astype(np.float64) * math.sin(yaw)
+
     def _hold_standing(self, d: np.ndarray) -> None:
         """Zero the clutter-map update ``d`` (rx, seg, bin) in the range bins of stopped confirmed tracks
         (``clutter_map_hold_speed_mps``): a static echo at zero Doppler, beat a_k R in segment k."""
@@ -967,8 +974,7 @@ class LanePipeline(Pipeline):
         for g in np.hypot(x[stop, 0], x[stop, 1]).tolist():
             r0 = math.sqrt(max(g - 3.0, 0.0) ** 2 + h * h)
             r1 = math.sqrt((g + cfg.clutter_map_hold_length_m) ** 2 + h * h)
-            for k in range(d.shape[1]):
-                a = self._model.a[k] / self._bin_hz[k]  # bins per metre (negative on a down-chirp)
+            for k, a in enumerate(self._bins_per_m):
                 lo, hi = sorted((a * r0, a * r1))
                 d[:, k, np.arange(math.floor(lo) - 1, math.ceil(hi) + 2) % n] = 0
 
@@ -986,8 +992,7 @@ class LanePipeline(Pipeline):
         traffic = self.traffic
         lanes = traffic.lanes
         _, dirs = self._lane_arrays(lanes)
-        yaw = traffic.yaw_rad
-        u = x.astype(np.float64) * math.cos(yaw) + y.astype(np.float64) * math.sin(yaw)
+        u = self._across_road(x, y)
         against = keep & (dirs[assign_lanes(u, lanes)] * v_mps < -np.float32(cfg.unalias_min_speed_mps))
         out = np.zeros(range_m.shape, bool)
         if not against.any():
@@ -1041,8 +1046,7 @@ class LanePipeline(Pipeline):
         centres = self._lane_centres(lanes)
         # both directions at once: the ground position and the road frame's lateral offset (to_road's operations)
         x, y = polar_to_ground(range_m[:, None], np.nan_to_num(ang), cfg.mounting_height_m, cfg.target_height_m)
-        yaw = self.traffic.yaw_rad
-        u = x.astype(np.float64) * math.cos(yaw) + y.astype(np.float64) * math.sin(yaw)  # (n, 2)
+        u = self._across_road(x, y)  # (n, 2)
         lane = np.argmin(np.abs(u[:, :, None] - centres[None, None, :]), axis=2)  # (n, 2) nearest lane
         lo, hi = np.minimum(lane[:, 0], lane[:, 1]), np.maximum(lane[:, 0], lane[:, 1])
         ok = (hi - lo) == 1

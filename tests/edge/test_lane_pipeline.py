@@ -213,13 +213,8 @@ def test_the_tracker_gets_the_radar_height_above_the_targets():
     assert p.tracker.sensor_height_m == pytest.approx(8.5)
 
 
-_TRUCK_LANE1 = """
-[scenario]
-name = "truck-lane1"
-board = "simo"
-description = "an approaching truck in lane 1, 100 m out"
-duration_s = 6.0
-seed = 3
+#: the radar on an overpass above four lanes, two each way (highway4's road)
+_FOUR_LANES = """
 [radar]
 height_m = 7.0
 tilt_deg = 1.5
@@ -234,7 +229,35 @@ direction = "away"
 [[lane]]
 center_x_m = 5.25
 direction = "away"
-[[vehicle]]
+"""
+
+
+def _scenario_frames(tmp_path, text, overrides, seed, n):
+    """(frame, result) of the lane pipeline, built as radar-edge evaluate builds it, on the first n frames of the
+    scenario ``text`` (TOML, written to tmp_path)."""
+    from edge.evaluation.lane import _installer_config
+    from hw_sim.scenario import load_scenario
+
+    path = tmp_path / "scenario.toml"
+    path.write_text(text)
+    sc = load_scenario(str(path))
+    lc, tc, fc = _installer_config(load_config(env={}, overrides=overrides), sc)
+    p = LanePipeline(FE, lc, tc, fc)
+    sim = FrameSimulator(SIMO_BOARD, sc.build_scene(seed), seed)
+    timer = StageTimer()
+    for k in range(n):
+        f = sim.frame(k)
+        yield f, p.process(RawFrame(k, int(round(f.t_s * 1e9)), f.i, f.q, FE, f.truth), timer)
+
+
+_TRUCK_LANE1 = """
+[scenario]
+name = "truck-lane1"
+board = "simo"
+description = "an approaching truck in lane 1, 100 m out"
+duration_s = 6.0
+seed = 3
+""" + _FOUR_LANES + """[[vehicle]]
 id = 1
 kind = "truck"
 lane = 1
@@ -246,21 +269,9 @@ speed_kmh = 70.0
 def _against_lane_track_frames(tmp_path, overrides, seed=3, n=180):
     """Frames x confirmed tracks moving towards the radar in the receding lanes (x > 0.3 m), and the detections
     there, while the truck of _TRUCK_LANE1 comes from 100 m to 30 m."""
-    from edge.evaluation.lane import _installer_config
-    from hw_sim.scenario import load_scenario
-
-    path = tmp_path / "truck.toml"
-    path.write_text(_TRUCK_LANE1)
-    sc = load_scenario(str(path))
-    # the yaw as installed (not estimated: one truck would not estimate it in 6 s)
-    lc, tc, fc = _installer_config(load_config(env={}, overrides={"traffic.estimate_yaw": "false", **overrides}), sc)
-    p = LanePipeline(FE, lc, tc, fc)
-    sim = FrameSimulator(SIMO_BOARD, sc.build_scene(seed), seed)
-    timer = StageTimer()
     n_tracks = n_dets = 0
-    for k in range(n):
-        f = sim.frame(k)
-        res = p.process(RawFrame(k, int(round(f.t_s * 1e9)), f.i, f.q, FE, f.truth), timer)
+    # the yaw as installed (not estimated: one truck would not estimate it in 6 s)
+    for _, res in _scenario_frames(tmp_path, _TRUCK_LANE1, {"traffic.estimate_yaw": "false", **overrides}, seed, n):
         d = res.detections
         n_dets += int(((d.x_m > 0.3) & (d.radial_speed_mps < -3.0)).sum())
         n_tracks += sum(1 for t in res.tracks if t.confirmed and t.x_m > 0.3 and t.vy_mps < -3.0)
@@ -318,21 +329,7 @@ board = "simo"
 description = "a car of lane 1 brakes to a standstill about 90 m out and stands"
 duration_s = 20.0
 seed = 2
-[radar]
-height_m = 7.0
-tilt_deg = 1.5
-occluded_behind = true
-[[lane]]
-center_x_m = -5.25
-[[lane]]
-center_x_m = -1.75
-[[lane]]
-center_x_m = 1.75
-direction = "away"
-[[lane]]
-center_x_m = 5.25
-direction = "away"
-[[vehicle]]
+""" + _FOUR_LANES + """[[vehicle]]
 id = 1
 kind = "car"
 lane = 1
@@ -347,21 +344,9 @@ stop_s = 60.0
 def _standing_tracked_fraction(tmp_path, overrides, n=600):
     """Fraction of the frames from 10 s on (the car of _STOPPING_CAR has stood since 6.6 s) with a confirmed track
     within 3 m of it; the clutter map's time constant is 2 s, so an unheld map learns the standing car in seconds."""
-    from edge.evaluation.lane import _installer_config
-    from hw_sim.scenario import load_scenario
-
-    path = tmp_path / "stopping.toml"
-    path.write_text(_STOPPING_CAR)
-    sc = load_scenario(str(path))
-    lc, tc, fc = _installer_config(load_config(env={}, overrides={"pipeline.lane.clutter_map_time_s": "2",
-                                                                   **overrides}), sc)
-    p = LanePipeline(FE, lc, tc, fc)
-    sim = FrameSimulator(SIMO_BOARD, sc.build_scene(2), 2)
-    timer = StageTimer()
     held = total = 0
-    for k in range(n):
-        f = sim.frame(k)
-        res = p.process(RawFrame(k, int(round(f.t_s * 1e9)), f.i, f.q, FE, f.truth), timer)
+    for f, res in _scenario_frames(tmp_path, _STOPPING_CAR, {"pipeline.lane.clutter_map_time_s": "2", **overrides},
+                                   2, n):
         if f.t_s < 10.0:
             continue
         car = f.truth.position_m[0]
