@@ -9,7 +9,7 @@ from pathlib import Path
 
 from edge.cli import main
 from edge.config import load_config
-from edge.evaluation.lane import evaluate
+from edge.evaluation.lane import _rmse_within, evaluate
 from hw_sim.scenario import load_scenario
 
 
@@ -56,6 +56,26 @@ def test_highway4_short_run_meets_accuracy_floor():
         by_phase[t["class"]] = [a + b for a, b in zip(by_phase[t["class"]], u.values())]
     assert {c: list(v.values()) for c, v in s["untracked_frames_by_class"].items()} == by_phase
     assert sum(v[0] for v in by_phase.values()) > 0
+    # per vehicle within each 50 m of range: the last step holds all its assigned frames, so it is its whole-time
+    # figure; the summary's per-step figure is the worst vehicle's
+    worst: dict[str, float] = {}
+    for t in rep["targets"]:
+        w = t["position_rmse_m_within"]
+        assert w[max(w, key=float)] == pytest.approx(t["position_rmse_m"])
+        for k, v in w.items():
+            worst[k] = max(worst.get(k, 0.0), v)
+    assert s["position_rmse_m_max_within"] == pytest.approx(worst)
+
+
+def test_rmse_within_range_steps_is_cumulative():
+    """Squared errors 1, 4, 9 at 10, 60 and 260 m: within 50 m the first alone, from 100 m to 250 m the first two,
+    within 300 m all three."""
+    w = _rmse_within([1.0, 4.0, 9.0], [10.0, 60.0, 260.0])
+    assert list(w) == ["50", "100", "150", "200", "250", "300"]
+    assert w["50"] == pytest.approx(1.0)
+    assert w["100"] == w["150"] == w["200"] == w["250"] == pytest.approx((2.5) ** 0.5)
+    assert w["300"] == pytest.approx((14.0 / 3.0) ** 0.5)
+    assert _rmse_within([], []) == {}
 
 
 def test_evaluate_command_writes_design_keys(tmp_path, capsys):
