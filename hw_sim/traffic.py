@@ -32,6 +32,11 @@ TOML tables (units in names; lanes are indices into the scenario's ``[[lane]]`` 
     min_headway_s = 1.2          # time headway is min_headway_s + exponential
     range_m = 320.0              # vehicles enter/leave this far from the radar
     mix = { car = 0.72, van = 0.1, truck = 0.12, bus = 0.02, motorcycle = 0.04 }
+    lateral_offset_sd_m = 0.0    # each driver's own offset from the lane centre (normal, clipped at 2.5 sd)
+    weave_sdlp_m = 0.0           # each driver's slow wander inside the lane (SDLP, a sinusoid of ...
+    weave_period_s = [8.0, 20.0] # ... a period drawn uniformly from this range and a random phase)
+                                 # (on-road driving tests at motorway speed measure SDLPs of about 0.2 m;
+                                 # both 0 by default: every vehicle on its lane centre, as before)
 
     [[guardrail]]                # static posts along the road (clutter)
     x_m = -7.5
@@ -54,6 +59,7 @@ from before ``t = 0`` so that the road is already populated when the scenario st
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -158,10 +164,18 @@ def build_traffic(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generat
     if flow <= 0 or v_mean <= 0 or h_min <= 0 or (w < 0).any() or w.sum() <= 0:
         raise ScenarioError(f"{where}flow_veh_h, speed_kmh_mean, min_headway_s and mix weights must be positive")
     w = w / w.sum()
+    off_sd = _num(spec, "lateral_offset_sd_m", 0.0, where)
+    sdlp = _num(spec, "weave_sdlp_m", 0.0, where)
+    period = spec.get("weave_period_s", [8.0, 20.0])
+    if (off_sd < 0 or sdlp < 0 or not isinstance(period, list) or len(period) != 2
+            or not all(isinstance(p, (int, float)) for p in period) or not 0 < period[0] <= period[1]):
+        raise ScenarioError(f"{where}lateral_offset_sd_m and weave_sdlp_m must be >= 0 and weave_period_s a range "
+                            f"[shortest, longest] of positive seconds")
     path_m = r_max - AWAY_ENTRY_Y_M
     t_fill = path_m / max(v_min, 1.0)
     mean_gap = 3600.0 / flow
     vid = _next_id(scene)
+    made: list[Vehicle] = []
     for lane in lanes:
         d = _direction(sc, lane)
         y_entry = r_max if d < 0 else AWAY_ENTRY_Y_M
@@ -177,10 +191,21 @@ def build_traffic(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generat
                     v = prev_v
             kind = kinds[int(rng.choice(len(kinds), p=w))]
             traj = RoadTrajectory(x0, y_entry, d, (t,), (v,))
-            veh = make_vehicle(vid, kind, traj, lane=lane, rng=rng, t_start_s=t, t_end_s=t + path_m / v)
-            scene.add_target(veh)
+            made.append(make_vehicle(vid, kind, traj, lane=lane, rng=rng, t_start_s=t, t_end_s=t + path_m / v))
             vid += 1
             prev_t, prev_v = t, v
+    if off_sd > 0 or sdlp > 0:
+        # drawn after the traffic itself, so that the same seed gives the same vehicles with or without them
+        n = len(made)
+        off = np.clip(rng.normal(0.0, 1.0, n), -2.5, 2.5) * off_sd
+        per = rng.uniform(float(period[0]), float(period[1]), n)
+        phase = rng.uniform(0.0, 2.0 * math.pi, n)
+        for veh, o, p, ph in zip(made, off.tolist(), per.tolist(), phase.tolist()):
+            tr = veh.trajectory
+            veh.trajectory = dataclasses.replace(tr, x0_m=tr.x0_m + o,
+                                                 weave=(sdlp * math.sqrt(2.0), p, ph) if sdlp > 0 else None)
+    for veh in made:
+        scene.add_target(veh)
 
 
 def build_guardrail(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generator) -> None:

@@ -85,7 +85,9 @@ class RoadTrajectory:
 
     ``y(t) = y0 + direction * s(t)`` with ``s`` the integral of the speed profile (knots ``speed_t_s``,
     ``speed_mps``, linear between, constant outside); ``x(t) = x0 + sum dx_i * (1 - cos(pi u_i)) / 2``,
-    ``u_i = clip((t - t_i) / T_i, 0, 1)`` for each lane change ``(t_i, T_i, dx_i)``.
+    ``u_i = clip((t - t_i) / T_i, 0, 1)`` for each lane change ``(t_i, T_i, dx_i)``, plus ``A sin(2 pi t / P + phi)``
+    for a weave ``(A, P, phi)``: a driver's slow wander inside the lane (its standard deviation of lateral position,
+    SDLP, is ``A / sqrt 2``).
     """
 
     x0_m: float
@@ -94,6 +96,7 @@ class RoadTrajectory:
     speed_t_s: tuple[float, ...]
     speed_mps: tuple[float, ...]
     lane_changes: tuple[tuple[float, float, float], ...] = ()  # (t_start_s, duration_s, dx_m)
+    weave: tuple[float, float, float] | None = None  # (amplitude_m, period_s, phase_rad)
 
     def __post_init__(self) -> None:
         if len(self.speed_t_s) != len(self.speed_mps) or not self.speed_t_s:
@@ -122,6 +125,11 @@ class RoadTrajectory:
             x = x + dx * (1.0 - np.cos(math.pi * u)) / 2.0
             inside = (t > t0) & (t < t0 + dur)
             vx = vx + np.where(inside, dx * math.pi / (2.0 * dur) * np.sin(math.pi * u), 0.0)
+        if self.weave is not None:
+            amp, period, phase = self.weave
+            w = 2.0 * math.pi / period
+            x = x + amp * np.sin(w * t + phase)
+            vx = vx + amp * w * np.cos(w * t + phase)
         return x, vx
 
     def position(self, t_s):

@@ -247,3 +247,35 @@ def test_a_standing_vehicle_keeps_its_scattering_phases():
     moving_b, _ = phases(0.533)
     assert not np.array_equal(moving_a, moving_b)
     assert not np.array_equal(others_a, others_b)  # the truck moves on
+
+
+def test_drivers_keep_their_own_offset_and_weave_inside_the_lane():
+    """lateral_offset_sd_m and weave_sdlp_m: the same vehicles (ids, kinds, lengths, entry times, speeds) as without
+    them, each off its lane centre by its own offset (spread as configured) and wandering around it with the
+    configured SDLP; the velocity is the position's derivative; bad values are refused by name."""
+    plain = _scenario("[[traffic]]\nflow_veh_h = 1200.0\n", duration_s=600.0).build_scene()
+    sc = _scenario("[[traffic]]\nflow_veh_h = 1200.0\nlateral_offset_sd_m = 0.2\nweave_sdlp_m = 0.18\n",
+                   duration_s=600.0)
+    scene = sc.build_scene()
+    assert [(t.id, t.kind, t.length_m, t.t_start_s, t.trajectory.speed_mps) for t in scene.targets] == \
+        [(t.id, t.kind, t.length_m, t.t_start_s, t.trajectory.speed_mps) for t in plain.targets]
+    offsets, sdlp = [], []
+    for veh in scene.targets:
+        centre = sc.lanes[veh.lane].center_x_m
+        t = np.linspace(veh.t_start_s, veh.t_end_s, 400)
+        x = veh.trajectory.position(t)[:, 0] - centre
+        assert np.abs(x).max() < 0.2 * 2.5 + 0.18 * 2**0.5 + 1e-9  # inside its lane (3.5 m wide)
+        offsets.append(veh.trajectory.x0_m - centre)
+        sdlp.append(x.std())
+        vx = veh.trajectory.velocity(t)[:, 0]
+        mid = 0.5 * (t[1:] + t[:-1])
+        assert np.interp(mid, t, vx) == pytest.approx(np.diff(x) / np.diff(t), abs=2e-3)
+    assert len(offsets) > 500
+    assert np.std(offsets) == pytest.approx(0.2, rel=0.1)
+    # a vehicle in view for 12-20 s sees one or two of its 8-20 s periods: its own sd scatters around the SDLP
+    assert np.median(sdlp) == pytest.approx(0.18, rel=0.15)
+    assert all(t.trajectory.x0_m == sc.lanes[t.lane].center_x_m for t in plain.targets)
+    with pytest.raises(ScenarioError, match="weave_period_s"):
+        _scenario("[[traffic]]\nweave_sdlp_m = 0.2\nweave_period_s = [5.0]\n")
+    with pytest.raises(ScenarioError, match="lateral_offset_sd_m"):
+        _scenario("[[traffic]]\nlateral_offset_sd_m = -1.0\n")
