@@ -25,6 +25,7 @@ tracks cross with it, at another speed), or up to ``count_min_gap_s`` before at 
 default), or the track was counted already (``count_once_per_track``: a track that jumped back behind the
 line and crossed it again is still one vehicle). A track crossing against its lane's direction (a receding
 truck's ghost drifting into the approaching lanes) is not counted; a wrong-way driver is an event. A track
+crossing outside every lane but within ``count_outside_lane_m`` of the nearest counts in that lane. A track
 first seen up to ``count_late_max_m`` past the line counts its vehicle at the crossing time extrapolated back
 at its along-road speed, unless a crossing of about that time and speed was counted in the lane
 (``count_late_match_*``: the same vehicle's earlier track), and not if that time lies before the monitor's
@@ -353,11 +354,17 @@ class TrafficMonitor:
                 # the volume counts vehicles travelling in the lane's direction: the ghost of a receding truck
                 # drifting into the approaching lanes is not one (a wrong-way driver is reported as an event)
                 against = cfg.count_lane_direction_only and lane is not None and vs[j] * lanes[k].direction < 0
-                if crossed and lane is not None and not against and not (memo.counted and cfg.count_once_per_track):
+                c_lane = lane  # the lane it is counted in: its own, or the nearest just outside which it crossed
+                if crossed and lane is None and cfg.count_outside_lane_m > 0.0 and lanes:
+                    near = min(range(n_lanes), key=lambda i: abs(u[j] - lanes[i].center_m))
+                    if abs(u[j] - lanes[near].center_m) - 0.5 * lanes[near].width_m <= cfg.count_outside_lane_m:
+                        c_lane = near
+                        against = cfg.count_lane_direction_only and vs[j] * lanes[near].direction < 0
+                if crossed and c_lane is not None and not against and not (memo.counted and cfg.count_once_per_track):
                     f = (line - s0) / (s1 - s0)
                     tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))
                     cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
-                    acc = self.stats.lane(lane)
+                    acc = self.stats.lane(c_lane)
                     if not self._same_vehicle(acc, tc, speed[j]):
                         acc.add(Crossing(tc, speed[j], float(length), cls))
                         memo.counted = True

@@ -561,3 +561,23 @@ def test_a_wrong_way_drivers_second_track_raises_no_second_alarm(behind_m, speed
             tracks.append(_ts(9, 5.25, y9, 0.0, speed_mps, k - 9))
         got.extend(e.track_id for e in mon.update(tuple(tracks), k * DT_NS).events)
     assert got == expected
+
+
+@pytest.mark.parametrize("x_m,v_sign,outside_m,lane,expected", [
+    (-7.01, -1, 1.0, 0, 1),  # 0.01 m outside the outer approaching lane: counted in it
+    (-7.01, -1, 0.0, 0, 0),  # ... only inside a lane (the rule off): the vehicle is missed
+    (-8.5, -1, 1.0, 0, 0),   # 1.5 m outside: on the shoulder or beyond, not counted
+    (7.4, 1, 1.0, 3, 1),     # 0.4 m outside the outer receding lane: counted in it
+    (7.4, -1, 1.0, 3, 0),    # ... but not against that lane's direction
+])
+def test_a_track_crossing_just_outside_the_outer_lane_counts_in_it(x_m, v_sign, outside_m, lane, expected):
+    """highway4-traffic (weaving drivers) seed 5: a truck's track went eight frames without a detection at the
+    line, coasted sideways and crossed it 0.01 m outside lane 0: the truck was missed (lane 0 -2)."""
+    cfg = TrafficConfig(estimate_yaw=False, interval_s=60.0, count_outside_lane_m=outside_m)
+    mon = TrafficMonitor(cfg)
+    v = 20.0 * v_sign
+    y0 = 70.0 if v_sign < 0 else 30.0
+    for k in range(40):
+        mon.update((_ts(5, x_m, y0 + v * k * 0.1, 0.0, v, k + 1),), k * DT_NS)
+    assert sum(len(mon.stats.lane(i).crossings) for i in range(4)) == expected
+    assert len(mon.stats.lane(lane).crossings) == expected
