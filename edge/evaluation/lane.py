@@ -23,7 +23,8 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   50 m step of ground range (``{"50": .., "100": .., ..}``, cumulative; ``position_rmse_m_max_within`` in the
   summary is the worst vehicle's per step): far away one detection's lateral error is about a metre (4
   channels), so a vehicle first seen 250 m out carries its first second's error in its whole-time figure,
-  while Lim's reference trajectories (Table 3) came from a camera over a stretch of known length; ``speed_mae_kmh``: |track speed - speed|;
+  while Lim's reference trajectories (Table 3) came from a camera over a stretch of known length;
+  ``speed_mae_kmh``: |track speed - speed|;
 * ``detection_probability``: assigned (vehicle, frame) pairs / in-view pairs, all vehicles;
   ``detection_probability_raw``: the same with any detection (before the tracker) within the gate;
 * ``id_switches``: changes of the assigned track id along a vehicle's assigned frames;
@@ -170,9 +171,9 @@ def _rmse_within(sq_err: list[float], rng: list[float]) -> dict[str, float]:
 
 
 class _TargetAcc:
-    __slots__ = ("cls", "lanes", "n_view", "n_hit", "sq_err", "err_rng", "err_xy", "spd_err", "ids", "last_id", "switches",
-                 "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames", "wrong_first_t", "stand_since_t", "stopped_t",
-                 "first_hit", "last_hit", "lane_ok")
+    __slots__ = ("cls", "lanes", "n_view", "n_hit", "sq_err", "err_rng", "err_xy", "spd_err", "ids", "last_id",
+                 "switches", "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames", "wrong_first_t", "stand_since_t",
+                 "stopped_t", "first_hit", "last_hit", "lane_ok")
 
     def __init__(self, cls: str) -> None:
         self.cls = cls
@@ -470,7 +471,8 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     summary = {
         "position_rmse_m_mean": float(np.mean(rmses)) if rmses else None,
         "position_rmse_m_max": float(np.max(rmses)) if rmses else None,
-        "position_rmse_m_max_within": {k: float(max(v)) for k, v in sorted(within.items(), key=lambda kv: float(kv[0]))},
+        "position_rmse_m_max_within": {k: float(max(v)) for k, v in sorted(within.items(),
+                                                                            key=lambda kv: float(kv[0]))},
         "speed_mae_kmh": float(np.mean(spd)) if spd else None,
         "detection_probability": n_hit / n_view if n_view else None,
         "detection_probability_raw": n_raw / n_view if n_view else None,
