@@ -355,11 +355,10 @@ class TrafficMonitor:
                 # drifting into the approaching lanes is not one (a wrong-way driver is reported as an event)
                 against = cfg.count_lane_direction_only and lane is not None and vs[j] * lanes[k].direction < 0
                 c_lane = lane  # the lane it is counted in: its own, or the nearest just outside which it crossed
-                if crossed and lane is None and cfg.count_outside_lane_m > 0.0 and lanes:
-                    near = min(range(n_lanes), key=lambda i: abs(u[j] - lanes[i].center_m))
-                    if abs(u[j] - lanes[near].center_m) - 0.5 * lanes[near].width_m <= cfg.count_outside_lane_m:
-                        c_lane = near
-                        against = cfg.count_lane_direction_only and vs[j] * lanes[near].direction < 0
+                # (margin: inside the nearest lane's edge, negative outside it; -inf without lanes)
+                if crossed and lane is None and -margin[j] <= cfg.count_outside_lane_m:
+                    c_lane = min(range(n_lanes), key=lambda i: abs(u[j] - lanes[i].center_m))
+                    against = cfg.count_lane_direction_only and vs[j] * lanes[c_lane].direction < 0
                 if crossed and c_lane is not None and not against and not (memo.counted and cfg.count_once_per_track):
                     f = (line - s0) / (s1 - s0)
                     tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))
