@@ -111,6 +111,7 @@ class LaneStats:
     headway_s: float
     gap_s: float
     class_counts: dict[str, int] = field(default_factory=dict)
+    mean_length_m: float = float("nan")
 
 
 @dataclass(frozen=True)
