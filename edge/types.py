@@ -90,6 +90,13 @@ class TrackState:
     class_probability: float | None = None
     rcs_dbsm: float | None = None
     length_m: float | None = None
+    # quality, None where not estimated: standard deviations of the published x_m, y_m, vx_mps, vy_mps (from the
+    # track's state covariance) and the probability that the track is a real object (0..1)
+    x_sd_m: float | None = None
+    y_sd_m: float | None = None
+    vx_sd_mps: float | None = None
+    vy_sd_mps: float | None = None
+    existence_probability: float | None = None
 
     @property
     def speed_mps(self) -> float:

@@ -1165,30 +1165,57 @@ class PdafTracker:
             length = [None] * idx.size
         rows = zip(tr.track_id[idx].tolist(), st.tolist(), rho.tolist(), vr.tolist(), az.tolist(),
                    tr.age[idx].tolist(), tr.hits[idx].tolist(), tr.confirmed[idx].tolist(), length)
+        quality = self._published_quality(idx)
         if not _TRACK_STATE_PLAIN:
-            return tuple(TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=ln)
-                         for tid, (x, y, vx, vy), r, v, a, age, hits, conf, ln in rows)
+            return tuple(TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=ln, x_sd_m=xs, y_sd_m=ys,
+                                    vx_sd_mps=vxs, vy_sd_mps=vys, existence_probability=pe)
+                         for (tid, (x, y, vx, vy), r, v, a, age, hits, conf, ln), (xs, ys, vxs, vys, pe)
+                         in zip(rows, quality))
         # TrackState(...) without the frozen dataclass's per-field object.__setattr__ (tens of tracks per
         # frame on the hot path): the same __dict__
         new, set_dict, cls = _new_object, _set_dict, TrackState
         out = []
-        for tid, (x, y, vx, vy), r, v, a, age, hits, conf, ln in rows:
+        for (tid, (x, y, vx, vy), r, v, a, age, hits, conf, ln), (xs, ys, vxs, vys, pe) in zip(rows, quality):
             o = new(cls)
             set_dict(o, "__dict__", {
                 "track_id": tid, "x_m": x, "y_m": y, "vx_mps": vx, "vy_mps": vy, "range_m": r,
                 "radial_speed_mps": v, "az_rad": a, "age_frames": age, "hits": hits, "confirmed": conf, "lane": None,
-                "cls": None, "class_probability": None, "rcs_dbsm": None, "length_m": ln})
+                "cls": None, "class_probability": None, "rcs_dbsm": None, "length_m": ln, "x_sd_m": xs, "y_sd_m": ys,
+                "vx_sd_mps": vxs, "vy_sd_mps": vys, "existence_probability": pe})
             out.append(o)
         return tuple(out)
 
+    def _published_quality(self, idx: np.ndarray) -> zip:
+        """Per published track (rows ``idx``): the standard deviations of the published x, y, vx, vy and the
+        existence probability, as TrackState's quality fields.
+
+        The deviations are the roots of the state covariance's diagonal (the published frame is the state's);
+        with the lateral smoother the lateral one is the straight-line filter's, or the larger of the two while
+        the published position moves towards the motion model's. The existence probability is the posterior
+        ``1 / (1 + exp(-L))`` of the track score ``L`` (:mod:`edge.track.score`, prior odds 1; ``L`` stays 0 when
+        confirmation = m_of_n keeps no score), and a confirmed track's ``L`` counts as at least Wald's
+        threshold ``ln((1 - score_true_reject_prob) / score_false_confirm_prob)``, the evidence a confirmation
+        stands for (an M-of-N confirmation is taken as equally strong): 0.9999 with the defaults."""
+        tr, cfg = self.tracks, self.config
+        sd = np.sqrt(np.maximum(np.diagonal(tr.p.take(idx, axis=0), axis1=1, axis2=2), 0.0))  # (n, 4): x, y, vx, vy
+        if cfg.lateral_smoother:
+            lat_sd = np.sqrt(np.maximum(tr.lat_p[:, 0, 0].take(idx), 0.0))
+            sd[:, 0] = np.where(tr.lat_cusum.take(idx) > 0.0, np.maximum(lat_sd, sd[:, 0]), lat_sd)
+        log_odds = tr.score.take(idx)
+        floor = score.confirm_threshold(cfg.score_false_confirm_prob, cfg.score_true_reject_prob)
+        log_odds = np.where(tr.confirmed.take(idx), np.maximum(log_odds, floor), log_odds)
+        p_exist = 1.0 / (1.0 + np.exp(-np.clip(log_odds, -700.0, 700.0)))
+        return zip(*sd.T.tolist(), p_exist.tolist())
+
 
 _TRACK_STATE_FIELDS = ("track_id", "x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps", "az_rad",
-                       "age_frames", "hits", "confirmed", "lane", "cls", "class_probability", "rcs_dbsm", "length_m")
+                       "age_frames", "hits", "confirmed", "lane", "cls", "class_probability", "rcs_dbsm", "length_m",
+                       "x_sd_m", "y_sd_m", "vx_sd_mps", "vy_sd_mps", "existence_probability")
 # the fast path of PdafTracker.published knows TrackState's fields; if they change (or it gains a __post_init__
 # or a factory default), the plain constructor is used
 _TRACK_STATE_PLAIN = (tuple(f.name for f in dataclasses.fields(TrackState)) == _TRACK_STATE_FIELDS
                       and not hasattr(TrackState, "__post_init__")
-                      and all(f.default is None for f in dataclasses.fields(TrackState)[11:15]))
+                      and all(f.default is None for f in dataclasses.fields(TrackState)[11:]))
 _new_object = object.__new__
 _set_dict = object.__setattr__
 
@@ -1202,5 +1229,6 @@ def _track_state(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m) -> Track
     _set_dict(out, "__dict__", {
         "track_id": tid, "x_m": x, "y_m": y, "vx_mps": vx, "vy_mps": vy, "range_m": r, "radial_speed_mps": v,
         "az_rad": a, "age_frames": age, "hits": hits, "confirmed": conf, "lane": None, "cls": None,
-        "class_probability": None, "rcs_dbsm": None, "length_m": length_m})
+        "class_probability": None, "rcs_dbsm": None, "length_m": length_m, "x_sd_m": None, "y_sd_m": None,
+        "vx_sd_mps": None, "vy_sd_mps": None, "existence_probability": None})
     return out
