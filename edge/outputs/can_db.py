@@ -11,10 +11,18 @@ sensor: ``0x690 + 8 x sensor_id`` + 0 Lane_Stats_A, +1 Lane_Stats_B, +2 Lane_Cla
 +3 Lane_Presence, +4 Interval_Status. Lane statistics follow NTCIP 1202 semantics (interval
 volume/occupancy/speed, rolling 0-255 sequence) with the Wavetronix additions (85th percentile,
 headway, gap, class counts). "Not available" is the all-ones raw value of a signal (marked n/a).
+
+ARS408 signals without an n/a code in Continental's DBC get one where we need it: raw 0 of Obj_RCS
+(-64 dBm2, far below anything a radar detects), Obj_Length and Obj_Width (0 m) means "not measured"
+(VAL_ ``not_measured``); a measured value never encodes to raw 0. The 0x60C quality codes follow
+Continental's tables (:func:`rms_code`, :func:`prob_of_exist_code`): rms code 31 is "invalid" (not
+estimated), ProbOfExist 0 is "invalid".
 """
 
 from __future__ import annotations
 
+import bisect
+import math
 from dataclasses import dataclass
 
 import cantools
@@ -33,6 +41,35 @@ OBJ_CLASS = {0: "point", 1: "car", 2: "truck", 3: "pedestrian", 4: "motorcycle",
 MEAS_STATE = {0: "deleted", 1: "new", 2: "measured", 3: "predicted", 4: "deleted_for_merge", 5: "new_from_merge"}
 PROB_OF_EXIST = {0: "invalid", 1: "lt_25", 2: "lt_50", 3: "lt_75", 4: "lt_90", 5: "lt_99", 6: "lt_99_9", 7: "le_100"}
 OUTPUT_TYPE = {0: "none", 1: "send_objects", 2: "send_clusters"}
+NOT_MEASURED = {0: "not_measured"}
+
+#: 0x60C rms codes: code k (0..30) means "standard deviation < 0.005 x (top / 0.005)^(k / 30)", a geometric table
+#: from "<0.005" to "<10.000" (m, m/s, m/s^2; top 10) or to "<180.000" (orientation, deg; top 180), as in
+#: Continental's ARS408 DBC; 31 = invalid
+RMS_INVALID = 31
+RMS_BOUNDS = tuple(0.005 * (10.0 / 0.005) ** (k / 30) for k in range(31))
+ORIENTATION_RMS_BOUNDS_DEG = tuple(0.005 * (180.0 / 0.005) ** (k / 30) for k in range(31))
+#: 0x60C Obj_ProbOfExist: code k (1..7) means "probability < PROB_OF_EXIST_BOUNDS[k - 1]" (7: <= 100 %); 0 = invalid
+PROB_OF_EXIST_BOUNDS = (0.25, 0.5, 0.75, 0.9, 0.99, 0.999)
+
+
+def rms_code(sd: float | None, bounds: tuple[float, ...] = RMS_BOUNDS) -> int:
+    """The 0x60C rms code of a standard deviation: the first code whose bound exceeds it; 31 (invalid) when it
+    is not estimated (None, NaN) or not below the table's top (a larger code would claim a better accuracy)."""
+    if sd is None or not math.isfinite(sd) or sd < 0:
+        return RMS_INVALID
+    return bisect.bisect_right(bounds, float(sd))  # == 31 above the top
+
+
+def prob_of_exist_code(p: float | None) -> int:
+    """The 0x60C Obj_ProbOfExist code of an existence probability in [0, 1]; 0 (invalid) when unknown."""
+    if p is None or not 0.0 <= p <= 1.0:  # NaN fails both comparisons
+        return 0
+    return 1 + bisect.bisect_right(PROB_OF_EXIST_BOUNDS, float(p))
+
+
+def _rms_choices(bounds: tuple[float, ...], unit: str) -> dict[int, str]:
+    return {**{k: f"<{b:.3f} {unit}" for k, b in enumerate(bounds)}, RMS_INVALID: "invalid"}
 MOTION_RX = {0: "input_ok", 1: "speed_missing", 2: "yaw_rate_missing", 3: "speed_and_yaw_rate_missing"}
 
 
@@ -47,6 +84,7 @@ class Sig:
     choices: dict[int, str] | None = None
     comment: str = ""
     na: bool = False  # the all-ones raw value means "not available"
+    na_zero: bool = False  # raw 0 means "not measured" (ARS408 signals without an invalid code)
 
     def raw_max(self) -> int:
         return (1 << self.length) - 1
@@ -109,24 +147,36 @@ MESSAGES: tuple[Msg, ...] = (
         Sig("Obj_VrelLong", 39, 10, 0.25, -128.0, "m/s", comment="velocity along the boresight, receding +"),
         Sig("Obj_VrelLat", 45, 9, 0.25, -64.0, "m/s", comment="lateral velocity, left +"),
         Sig("Obj_DynProp", 50, 3, choices=DYN_PROP),
-        Sig("Obj_RCS", 63, 8, 0.5, -64.0, "dBm2", comment="0 dBm2 (raw 0x80) when not measured"),
+        Sig("Obj_RCS", 63, 8, 0.5, -64.0, "dBm2", choices=NOT_MEASURED, na_zero=True,
+            comment="radar cross-section; raw 0 (-64 dBm2) = not measured (no calibrated RCS estimate)"),
     ], "ARS408 object position and velocity, one per object"),
     _ars("Obj_2_Quality", 0x60C, 7, [
         Sig("Obj_ID", 7, 8),
-        Sig("Obj_DistLong_rms", 15, 5), Sig("Obj_DistLat_rms", 10, 5), Sig("Obj_VrelLong_rms", 21, 5),
-        Sig("Obj_VrelLat_rms", 16, 5), Sig("Obj_ArelLong_rms", 27, 5), Sig("Obj_ArelLat_rms", 38, 5),
-        Sig("Obj_Orientation_rms", 33, 5),
+        Sig("Obj_DistLong_rms", 15, 5, choices=_rms_choices(RMS_BOUNDS, "m"), comment="sd of Obj_DistLong"),
+        Sig("Obj_DistLat_rms", 10, 5, choices=_rms_choices(RMS_BOUNDS, "m"), comment="sd of Obj_DistLat"),
+        Sig("Obj_VrelLong_rms", 21, 5, choices=_rms_choices(RMS_BOUNDS, "m/s"), comment="sd of Obj_VrelLong"),
+        Sig("Obj_VrelLat_rms", 16, 5, choices=_rms_choices(RMS_BOUNDS, "m/s"), comment="sd of Obj_VrelLat"),
+        Sig("Obj_ArelLong_rms", 27, 5, choices=_rms_choices(RMS_BOUNDS, "m/s2"),
+            comment="31: no acceleration estimate (constant-velocity tracks)"),
+        Sig("Obj_ArelLat_rms", 38, 5, choices=_rms_choices(RMS_BOUNDS, "m/s2"),
+            comment="31: no acceleration estimate (constant-velocity tracks)"),
+        Sig("Obj_Orientation_rms", 33, 5, choices=_rms_choices(ORIENTATION_RMS_BOUNDS_DEG, "deg"),
+            comment="bound on the heading's sd from the velocity's; 31 when the heading is unknown (slower than 0.5 m/s)"),
         Sig("Obj_MeasState", 52, 3, choices=MEAS_STATE),
-        Sig("Obj_ProbOfExist", 55, 3, choices=PROB_OF_EXIST),
-    ], "ARS408 object quality (optional); rms codes are 31 (invalid: not estimated)"),
+        Sig("Obj_ProbOfExist", 55, 3, choices=PROB_OF_EXIST,
+            comment="from the track's existence probability (confirmation and track score); 0 = unknown"),
+    ], "ARS408 object quality (optional): standard deviations from the track covariance, existence probability"),
     _ars("Obj_3_Extended", 0x60D, 8, [
         Sig("Obj_ID", 7, 8),
-        Sig("Obj_ArelLong", 15, 11, 0.01, -10.0, "m/s2"),
-        Sig("Obj_ArelLat", 20, 9, 0.01, -2.5, "m/s2"),
-        Sig("Obj_Class", 26, 3, choices=OBJ_CLASS),
-        Sig("Obj_OrientationAngle", 39, 10, 0.4, -180.0, "deg"),
-        Sig("Obj_Length", 55, 8, 0.2, 0.0, "m"),
-        Sig("Obj_Width", 63, 8, 0.2, 0.0, "m"),
+        Sig("Obj_ArelLong", 15, 11, 0.01, -10.0, "m/s2", comment="0: not estimated (Obj_ArelLong_rms 31)"),
+        Sig("Obj_ArelLat", 20, 9, 0.01, -2.5, "m/s2", comment="0: not estimated (Obj_ArelLat_rms 31)"),
+        Sig("Obj_Class", 26, 3, choices=OBJ_CLASS, comment="from the track's class; 0 point = not classified"),
+        Sig("Obj_OrientationAngle", 39, 10, 0.4, -180.0, "deg",
+            comment="heading of the velocity; 0 when slower than 0.5 m/s (Obj_Orientation_rms 31)"),
+        Sig("Obj_Length", 55, 8, 0.2, 0.0, "m", choices=NOT_MEASURED, na_zero=True,
+            comment="measured vehicle length; raw 0 = not measured"),
+        Sig("Obj_Width", 63, 8, 0.2, 0.0, "m", choices=NOT_MEASURED, na_zero=True,
+            comment="raw 0 = not measured (no track measures a width: the lane board's 9.5 deg beam cannot resolve one)"),
     ], "ARS408 object extended information: class (truck covers truck/bus), size, heading"),
     _ars("VersionID", 0x700, 4, [
         Sig("Version_MajorRelease", 7, 8), Sig("Version_MinorRelease", 15, 8), Sig("Version_PatchLevel", 23, 8),

@@ -24,7 +24,8 @@ from typing import Any, Callable
 
 import can
 
-from edge.outputs.can_db import BY_NAME, INTERFACE_VERSION, build_database
+from edge.outputs.can_db import (BY_NAME, INTERFACE_VERSION, ORIENTATION_RMS_BOUNDS_DEG, RMS_INVALID, build_database,
+                                 prob_of_exist_code, rms_code)
 from edge.outputs.config import CanConfig, FailsafeConfig
 from edge.outputs.registers import CLASS_COUNT_GROUPS, Links, ars_class, firmware_version
 from edge.outputs.state import ALARM_NONE, ALARM_PIPELINE, ALARM_STOPPED, OutputState, Snapshot
@@ -40,12 +41,13 @@ MASK_OBJECTS, MASK_QUALITY, MASK_EXTENDED, MASK_LANE_STATS, MASK_PRESENCE = 1, 2
 
 
 def _clamp_phys(sig, value: Any) -> float:
-    """Physical value inside the signal's raw range; None/NaN = n/a (all-ones raw) or the raw minimum."""
+    """Physical value inside the signal's raw range; None/NaN = n/a (all-ones raw, or raw 0 of a ``na_zero``
+    signal) or the raw minimum. A value never encodes to the n/a raw value."""
     v = None if value is None else float(value)  # numpy scalars too
     if v is None or not math.isfinite(v):
         return sig.phys(sig.raw_max()) if sig.na else sig.phys(0)
     raw = round((v - sig.offset) / sig.scale)
-    return sig.phys(min(max(raw, 0), sig.raw_max() - (1 if sig.na else 0)))
+    return sig.phys(min(max(raw, 1 if sig.na_zero else 0), sig.raw_max() - (1 if sig.na else 0)))
 
 
 _SPECS = {m.name: {s.name: s for s in m.signals} for m in BY_NAME.values()}
@@ -58,6 +60,23 @@ def dyn_prop(t: TrackState) -> int:
     if abs(t.vx_mps) > abs(t.vy_mps):
         return 6  # crossing moving
     return 2 if t.vy_mps < 0 else 0  # oncoming / moving
+
+
+def heading_deg(t: TrackState) -> float | None:
+    """Heading of the velocity in the ARS408 frame (0 = receding along the boresight, left +); None when the
+    track is slower than 0.5 m/s."""
+    if math.hypot(t.vx_mps, t.vy_mps) <= 0.5:
+        return None
+    return math.degrees(math.atan2(-t.vx_mps, t.vy_mps))
+
+
+def orientation_rms_code(t: TrackState) -> int:
+    """0x60C Obj_Orientation_rms: a bound on the heading's sd from the velocity's sds, (|vy| sd_vx + |vx| sd_vy)
+    / |v|^2 (first order, whatever the correlation of vx and vy); 31 without a heading or its sds."""
+    if heading_deg(t) is None or t.vx_sd_mps is None or t.vy_sd_mps is None:
+        return RMS_INVALID
+    sd_rad = (abs(t.vy_mps) * t.vx_sd_mps + abs(t.vx_mps) * t.vy_sd_mps) / (t.vx_mps ** 2 + t.vy_mps ** 2)
+    return rms_code(math.degrees(sd_rad), ORIENTATION_RMS_BOUNDS_DEG)
 
 
 class CanEncoder:
@@ -199,19 +218,23 @@ class CanEncoder:
             out.append(self._encode("Obj_1_General", {
                 "Obj_ID": t.track_id & 0xFF, "Obj_DistLong": t.y_m, "Obj_DistLat": -t.x_m,
                 "Obj_VrelLong": t.vy_mps, "Obj_VrelLat": -t.vx_mps, "Obj_DynProp": dyn_prop(t),
-                "Obj_RCS": 0.0 if t.rcs_dbsm is None else t.rcs_dbsm}))
-        if self.mask & MASK_QUALITY:
+                "Obj_RCS": t.rcs_dbsm}))  # None: raw 0, "not measured"
+        if self.mask & MASK_QUALITY:  # DistLong is y and DistLat -x: their sds are y's and x's
             for t in tracks:
                 out.append(self._encode("Obj_2_Quality", {
-                    "Obj_ID": t.track_id & 0xFF, "Obj_DistLong_rms": 31, "Obj_DistLat_rms": 31, "Obj_VrelLong_rms": 31,
-                    "Obj_VrelLat_rms": 31, "Obj_ArelLong_rms": 31, "Obj_ArelLat_rms": 31, "Obj_Orientation_rms": 31,
-                    "Obj_MeasState": 1 if t.hits <= 1 else 2, "Obj_ProbOfExist": 0}))
+                    "Obj_ID": t.track_id & 0xFF, "Obj_DistLong_rms": rms_code(t.y_sd_m),
+                    "Obj_DistLat_rms": rms_code(t.x_sd_m), "Obj_VrelLong_rms": rms_code(t.vy_sd_mps),
+                    "Obj_VrelLat_rms": rms_code(t.vx_sd_mps), "Obj_ArelLong_rms": RMS_INVALID,
+                    "Obj_ArelLat_rms": RMS_INVALID, "Obj_Orientation_rms": orientation_rms_code(t),
+                    "Obj_MeasState": 1 if t.hits <= 1 else 2,
+                    "Obj_ProbOfExist": prob_of_exist_code(t.existence_probability)}))
         if self.mask & MASK_EXTENDED:
             for t in tracks:
-                heading = math.degrees(math.atan2(-t.vx_mps, t.vy_mps)) if math.hypot(t.vx_mps, t.vy_mps) > 0.5 else 0.0
+                heading = heading_deg(t)
                 out.append(self._encode("Obj_3_Extended", {
                     "Obj_ID": t.track_id & 0xFF, "Obj_ArelLong": 0.0, "Obj_ArelLat": 0.0, "Obj_Class": ars_class(t.cls),
-                    "Obj_OrientationAngle": heading, "Obj_Length": t.length_m or 0.0, "Obj_Width": 0.0}))
+                    "Obj_OrientationAngle": 0.0 if heading is None else heading, "Obj_Length": t.length_m,
+                    "Obj_Width": None}))  # None: raw 0, "not measured"
         return out
 
 
