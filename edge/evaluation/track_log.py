@@ -24,7 +24,8 @@ File format (version 1): a numpy ``.npz`` (no pickled objects), columns one row 
 ``frame_has_motion_x``  ``(F,)`` bool: the frame came with the motion model's lateral positions (below)
 ``track_<field>``  ``(N,)`` the :class:`edge.types.TrackState` fields: ``track_id``, ``age_frames``, ``hits``
                    (int64), ``confirmed`` (bool), ``lane`` (int64, -1 = none), ``cls`` (str, "" = none), the
-                   floats (float64; NaN = none for ``class_probability``, ``rcs_dbsm``, ``length_m``)
+                   floats (float64; NaN = none for ``class_probability``, ``rcs_dbsm``, ``length_m`` and the
+                   quality fields ``x_sd_m`` ... ``existence_probability``, NaN too in logs written before them)
 ``motion_x_m``     ``(N,)`` float64: the tracker's motion-model ``x`` per track (the yaw estimator's input)
 ``true_lane``, ``true_t_s``, ``true_vehicle``, ``true_class``
                    the true crossings of the detection line: lane, time (s), vehicle id, class
@@ -50,7 +51,8 @@ FORMAT_VERSION = 1
 
 _INT_FIELDS = ("track_id", "age_frames", "hits")
 _FLOAT_FIELDS = ("x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps", "az_rad")
-_OPTIONAL_FLOAT_FIELDS = ("class_probability", "rcs_dbsm", "length_m")
+_QUALITY_FIELDS = ("x_sd_m", "y_sd_m", "vx_sd_mps", "vy_sd_mps", "existence_probability")  # may be absent
+_OPTIONAL_FLOAT_FIELDS = ("class_probability", "rcs_dbsm", "length_m", *_QUALITY_FIELDS)
 _ROW_FIELDS = _INT_FIELDS + _FLOAT_FIELDS + _OPTIONAL_FLOAT_FIELDS + ("confirmed", "lane", "cls")
 _ROW = operator.attrgetter(*_ROW_FIELDS)  # a track's fields as one tuple
 #: the per-track columns and their types
@@ -58,7 +60,7 @@ _TRACK_COLUMNS: dict[str, type] = {"track_confirmed": bool, "track_lane": np.int
                                    **{f"track_{f}": np.int64 for f in _INT_FIELDS},
                                    **{f"track_{f}": np.float64 for f in _FLOAT_FIELDS + _OPTIONAL_FLOAT_FIELDS}}
 _KEYS = ("meta", "frame_t_ns", "frame_start", "frame_has_motion_x", "motion_x_m", "true_lane", "true_t_s",
-         "true_vehicle", "true_class", *_TRACK_COLUMNS)
+         "true_vehicle", "true_class", *(k for k in _TRACK_COLUMNS if k[len("track_"):] not in _QUALITY_FIELDS))
 
 
 class TrackLogError(ValueError):
@@ -195,6 +197,8 @@ def load_track_log(path: str | Path) -> TrackLog:
         raise TrackLogError(f"{path}: track log format version {meta.get('format_version')!r}, this radar-edge reads "
                             f"version {FORMAT_VERSION}")
     n = cols["track_track_id"].size
+    for f in _QUALITY_FIELDS:
+        cols.setdefault(f"track_{f}", np.full(n, np.nan))
     start = cols["frame_start"]
     if (start.size != cols["frame_t_ns"].size + 1 or start[0] != 0 or start[-1] != n or np.any(np.diff(start) < 0)
             or any(cols[k].size != n for k in (*_TRACK_COLUMNS, "motion_x_m"))):

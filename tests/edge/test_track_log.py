@@ -165,3 +165,21 @@ def test_replay_traffic_command_several_logs_and_other_versions(recorded, tmp_pa
     docs = json.loads(out.read_text())
     assert [d["dropped_recorded_settings"] for d in docs] == [[], ["count_future_rule_s"]]
     assert docs[0]["counts"] == docs[1]["counts"]
+
+
+def test_a_log_written_before_the_quality_fields_still_loads(tmp_path):
+    from edge.types import TrackState
+
+    rec = TrackLogRecorder()
+    t = TrackState(3, 1.0, 50.0, 0.0, -20.0, 50.01, -20.0, 0.02, 30, 28, x_sd_m=0.2, y_sd_m=0.1, vx_sd_mps=0.5,
+                   vy_sd_mps=0.3, existence_probability=0.9999)
+    meta = {"scenario": "x", "seed": 1, "frames": 1, "frame_period_s": 0.033, "n_lanes": 4,
+            "traffic": {"detection_line_m": 50.0}, "counts": {}, "events": []}
+    rec((t,), 0, None)
+    path = rec.save(tmp_path / "new.npz", meta, [])
+    assert next(load_track_log(path).frame_tracks())[1] == (t,)
+    with np.load(path) as z:
+        old = {k: z[k] for k in z.files if not k.endswith(("_sd_m", "_sd_mps", "existence_probability"))}
+    np.savez(tmp_path / "old.npz", **old)
+    (got,) = next(load_track_log(tmp_path / "old.npz").frame_tracks())[1]
+    assert got.x_sd_m is None and got.existence_probability is None and got.y_m == 50.0
