@@ -356,7 +356,7 @@ class CanSink:
             try:
                 self.bus.send(msg, timeout=0.005)
                 self.sent += 1
-            except (can.CanError, OSError) as exc:
+            except (can.CanError, OSError, ValueError) as exc:  # ValueError: a backend refusing the message
                 code = getattr(exc, "error_code", None) or getattr(exc, "errno", None)
                 kind = "enobufs" if code == errno.ENOBUFS else "bus_off" if code in (errno.ENETDOWN, errno.ENETUNREACH) else "send_error"
                 self.faults[kind] += 1

@@ -575,3 +575,24 @@ def test_an_ars408_driver_keeps_every_confirmed_track_of_the_lane_pipeline(cap):
                 assert (0.0 if code == 0 else ARS408_RMS_LABELS[code - 1]) - 5e-4 <= sd < ARS408_RMS_LABELS[code] + 5e-4
     assert total > 500 and len({t.track_id for r in results for t in r.tracks}) >= 10
     assert kept == total
+
+
+
+def test_a_backend_refusing_a_message_is_a_counted_fault_not_a_dead_sender():
+    """python-can's serial framing raises ValueError for a timestamp it cannot pack; before, any such error ended
+    the sender thread and CAN output stopped for good."""
+    class RefusingBus(FailingBus):
+        def send(self, msg, timeout=None):
+            if self.fail_times > 0:
+                self.fail_times -= 1
+                raise ValueError("Timestamp is out of range")
+            self.sent.append(msg)
+
+    bus = RefusingBus(None, fail_times=1)
+    sink = CanSink(CanConfig(interface="serial", reconnect_s=1.0), 1, bus_factory=lambda: bus, threaded=False)
+    sink.publish(make_result(0, T0, presence=(True,)), health(T0, T0))
+    assert sink.faults["send_error"] == 1 and not bus.sent
+    t = T0 + 1_100_000_000
+    sink.publish(make_result(1, t, presence=(True,)), health(t, t))
+    assert bus.sent
+    sink.close()
