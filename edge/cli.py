@@ -13,6 +13,7 @@ import logging
 import os
 import sys
 
+from edge.commands.common import StartupError
 from edge.config import ConfigError
 from edge.extras import MissingExtraError
 from edge.pipeline import PipelineError
@@ -99,7 +100,8 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.verbose, args.quiet)
     try:
         return int(args._run(args) or 0)
-    except (ConfigError, PipelineError, RadarError, ValueError, FileNotFoundError, MissingExtraError) as exc:
+    except (ConfigError, PipelineError, RadarError, ValueError, FileNotFoundError, MissingExtraError,
+            StartupError) as exc:
         logging.getLogger("radar-edge").debug("error", exc_info=True)
         print(f"radar-edge {args.command}: error: {exc}", file=sys.stderr)
         return 2
