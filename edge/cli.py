@@ -13,7 +13,9 @@ import logging
 import os
 import sys
 
+from edge.commands.common import StartupError
 from edge.config import ConfigError
+from edge.extras import MissingExtraError
 from edge.pipeline import PipelineError
 from hal.errors import RadarError
 
@@ -50,6 +52,16 @@ source URLs: sim://simo?scenario=NAME&seed=N  sim://d2g?scenario=NAME
 """
 
 
+def product_version() -> str:
+    """The installed package's version (the firmware version Modbus and CAN report)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("radar-edge")
+    except PackageNotFoundError:  # running from a source tree that was never installed
+        return "0+unknown"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="radar-edge",
@@ -58,6 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"radar-edge {product_version()}",
+                        help="print the product version and exit")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     parser.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -86,7 +100,8 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.verbose, args.quiet)
     try:
         return int(args._run(args) or 0)
-    except (ConfigError, PipelineError, RadarError, ValueError, FileNotFoundError) as exc:
+    except (ConfigError, PipelineError, RadarError, ValueError, FileNotFoundError, MissingExtraError,
+            StartupError) as exc:
         logging.getLogger("radar-edge").debug("error", exc_info=True)
         print(f"radar-edge {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -21,6 +21,15 @@ Errors follow an explicit policy (``loop.error_policy``): a source fault either 
 reconnects the source with exponential back-off, or stops the loop; a pipeline exception skips the
 frame; ``max_consecutive_errors`` failures in a row stop the loop. Sinks get the result of every
 frame and, when no frame arrives, a health heartbeat at least every ``health_period_s``.
+
+A device that cannot be opened at start (a board not plugged in yet) does not end the run unless the
+policy is ``stop``: the loop reports state ``fault`` to the sinks every ``health_period_s`` and
+retries opening it with back-off (``reconnect_backoff_s`` doubling, at most 32 times it and 30 s),
+for as long as it takes; then frames run as usual.
+
+``errors`` in the health and the summary counts pipeline failures, source faults the loop saw, and
+the faults the source handled itself (link faults, malformed frames and resynchronisations it
+counts in ``source.stats``); ``reconnects`` counts the loop's and the source's own reconnects.
 """
 
 from __future__ import annotations
@@ -40,7 +49,7 @@ from edge.pipeline import Pipeline, StageTimer
 from edge.types import FrameResult, LoopHealth
 from hal.base import RadarSource
 from hal.clock import MonotonicClock
-from hal.errors import RadarError, SourceClosedError, SourceTimeoutError
+from hal.errors import DeviceError, RadarError, SourceClosedError, SourceTimeoutError
 
 log = logging.getLogger(__name__)
 
@@ -152,13 +161,23 @@ class FrameLoop:
             frames=self.counters.frames,
             dropped_frames=self.counters.dropped_frames + self.source.stats.dropped_frames,
             overruns=self.counters.overruns,
-            errors=self.counters.errors + self.counters.source_errors,
+            errors=self.errors,
             source_ok=self._state == "running",
             last_frame_ns=self._last_frame_ns,
             frame_p99_ms=p99,
             budget_ms=self.budget_ms,
             state=self._state,
         )
+
+    @property
+    def errors(self) -> int:
+        """Pipeline failures, source faults the loop saw and the faults the source handled itself."""
+        return self.counters.errors + self.counters.source_errors + self.source.stats.errors
+
+    @property
+    def reconnects(self) -> int:
+        """Reconnects by the loop's error policy and by the source itself."""
+        return self.counters.reconnects + self.source.stats.reconnects
 
     # --- the loop ------------------------------------------------------------------------------
     def run(self, max_frames: int | None = None, duration_s: float | None = None) -> LoopSummary:
@@ -182,8 +201,9 @@ class FrameLoop:
         heartbeat_ns = int(self.config.health_period_s * 1e9)
         self._state = "running"
         try:
-            if not self.source.is_open:
-                self.source.open()
+            if not self.source.is_open and not self._open_source(t_end):
+                reason = f"{duration_s} s" if self._running else "stopped"
+                self._running = False
             while self._running:
                 if max_frames is not None and self.counters.frames >= max_frames:
                     reason = f"{max_frames} frames"
@@ -272,14 +292,56 @@ class FrameLoop:
             dropped_frames=self.counters.dropped_frames,
             source_dropped_frames=self.source.stats.dropped_frames,
             overruns=self.counters.overruns,
-            errors=self.counters.errors + self.counters.source_errors,
+            errors=self.errors,
             timeouts=self.counters.timeouts,
-            reconnects=self.counters.reconnects,
+            reconnects=self.reconnects,
             duration_s=(clk.now_ns() - t_start) / 1e9,
             budget_ms=self.budget_ms,
             stages=self.timer.summary(),
             stop_reason=reason,
         )
+
+    def _open_source(self, t_end: int | None) -> bool:
+        """Open the source; a device that is not there is served as a fault and retried (module docstring).
+
+        False when the loop was stopped or ``t_end`` passed before it opened. With ``error_policy =
+        "stop"`` the first failure is raised.
+        """
+        attempt = 0
+        while self._running:
+            try:
+                self.source.open()
+            except DeviceError as exc:
+                if self.config.error_policy == "stop":
+                    raise
+                attempt += 1
+                self.counters.source_errors += 1
+                self._state = "fault"
+                delay_s = min(30.0, self.config.reconnect_backoff_s * 2 ** min(attempt - 1, 5))
+                level = logging.ERROR if attempt == 1 or attempt % 20 == 0 else logging.INFO
+                log.log(level, "cannot open the source (attempt %d): %s; serving the fault, next attempt in %.1f s",
+                        attempt, exc, delay_s)
+                if not self._wait_serving(self.clock.now_ns() + int(delay_s * 1e9), t_end):
+                    return False
+                continue
+            if attempt:
+                log.warning("source opened after %d failed attempt(s)", attempt)
+            self._state = "running"
+            return True
+        return False
+
+    def _wait_serving(self, until_ns: int, t_end: int | None) -> bool:
+        """Wait until ``until_ns`` publishing heartbeats; False if stopped or ``t_end`` came first."""
+        period_ns = int(self.config.health_period_s * 1e9)
+        while self._running:
+            self._heartbeat(period_ns, force=True)
+            now = self.clock.now_ns()
+            if t_end is not None and now >= t_end:
+                return False
+            if now >= until_ns:
+                return True
+            self.clock.sleep_until_ns(min(until_ns, now + period_ns, t_end if t_end is not None else until_ns))
+        return False
 
     def _next_tick(self, t0: int, k: int, now: int) -> int:
         """Index of the next tick on the grid; ticks already past are skipped and counted."""

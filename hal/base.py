@@ -37,13 +37,20 @@ class RawRead:
 
 @dataclass
 class SourceStats:
-    """Counters a source keeps while open."""
+    """Counters a source keeps over its life (across opens)."""
 
     frames: int = 0
     dropped_frames: int = 0
     timeouts: int = 0
-    faults: int = 0
-    reconnects: int = 0
+    faults: int = 0  # link faults the backend handled itself (each one reconnects)
+    reconnects: int = 0  # reconnects the backend made itself
+    malformed_frames: int = 0  # frames that arrived corrupted or truncated and were dropped
+    resyncs: int = 0  # times the stream decoder skipped garbage to find the next message
+
+    @property
+    def errors(self) -> int:
+        """Faults the backend absorbed without raising: link faults, malformed frames, resynchronisations."""
+        return self.faults + self.malformed_frames + self.resyncs
 
 
 class RadarSource:

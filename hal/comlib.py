@@ -11,7 +11,8 @@ Wire format (all numbers little-endian):
 * status message (device to host only): ``5B ep code(u16)``; it ends every exchange.
 
 Every non-zero status code maps to a named :class:`StatusError` subclass (:func:`status_error`).
-The decoder itself never raises on input: garbage is skipped and counted in ``Decoder.discarded``.
+The decoder itself never raises on input: garbage is skipped and counted in ``Decoder.discarded``
+(bytes) and ``Decoder.resyncs`` (runs of garbage).
 The payload parsers raise :class:`MalformedMessageError`, the request builders
 :class:`RequestError`; all are :class:`hal.errors.ProtocolError`.
 
@@ -356,6 +357,10 @@ class Decoder:
         self._buf = bytearray()
         self.discarded = 0
         self.decoded = 0
+        #: times the decoder lost the message boundaries and skipped bytes to find them again (one per
+        #: run of garbage between two good messages, however it was chunked)
+        self.resyncs = 0
+        self._lost = False
 
     @property
     def buffered(self) -> int:
@@ -370,7 +375,11 @@ class Decoder:
         """The line went quiet: give up on the incomplete message at the head and resynchronise."""
         out: list[Message] = []
         while self._buf:
-            self._drop(self._next_start(0))
+            n = self._next_start(0)
+            if n and not self._lost:
+                self._lost = True
+                self.resyncs += 1
+            self._drop(n)
             out += self._parse()
         return out
 
@@ -378,6 +387,7 @@ class Decoder:
         """Forget everything buffered (after reopening the port)."""
         self.discarded += len(self._buf)
         self._buf.clear()
+        self._lost = False
 
     def _drop(self, n: int) -> None:
         self.discarded += n
@@ -401,6 +411,7 @@ class Decoder:
         n = len(buf)
         pos = 0
         skipped = 0
+        lost = self._lost
         while pos < n:
             start = buf[pos]
             if start == PAYLOAD_START:
@@ -412,6 +423,9 @@ class Decoder:
                     nxt = self._next_start(pos)
                     skipped += nxt - pos
                     pos = nxt
+                    if not lost:
+                        lost = True
+                        self.resyncs += 1
                     continue
                 end = pos + HEADER_LEN + length
                 if n < end + TAIL_LEN:
@@ -420,9 +434,13 @@ class Decoder:
                     nxt = self._next_start(pos)
                     skipped += nxt - pos
                     pos = nxt
+                    if not lost:
+                        lost = True
+                        self.resyncs += 1
                     continue
                 out.append(Payload(ep, bytes(buf[pos + HEADER_LEN : end])))
                 pos = end + TAIL_LEN
+                lost = False
             elif start == STATUS_START and self.accept_status:
                 if n - pos < STATUS_LEN:
                     break
@@ -431,14 +449,22 @@ class Decoder:
                     nxt = self._next_start(pos)
                     skipped += nxt - pos
                     pos = nxt
+                    if not lost:
+                        lost = True
+                        self.resyncs += 1
                     continue
                 out.append(Status(ep, buf[pos + 2] | (buf[pos + 3] << 8)))
                 pos += STATUS_LEN
+                lost = False
             else:
                 nxt = self._next_start(pos)
                 skipped += nxt - pos
                 pos = nxt
+                if not lost:
+                    lost = True
+                    self.resyncs += 1
         del buf[:pos]
+        self._lost = lost
         self.discarded += skipped
         self.decoded += len(out)
         return out

@@ -19,7 +19,9 @@ the last sequence number plus the frame periods that elapsed. Temperature messag
 telemetry (:attr:`D2GSource.telemetry`), announcements of other settings are logged and skipped.
 
 Faults: an unplugged port, a read or write error, a reply that does not come within the frame period
-plus ``timeout_s``, or an error status are counted in ``stats.faults``; the port is closed and reopened
+plus ``timeout_s``, or an error status are counted in ``stats.faults``; frames that arrive corrupted or
+truncated in ``stats.malformed_frames``, runs of garbage the decoder skipped in ``stats.resyncs`` (all
+three reach the frame loop's ``errors``); the port is closed and reopened
 with exponential back-off (``backoff_s`` doubling up to ``backoff_max_s``, on the injectable clock),
 the session is configured again and frames resume (``stats.reconnects``). After a framing error from
 endpoint 0 the board ignores input until its line has been quiet for its timeout (10 s on the sibling
@@ -177,7 +179,7 @@ class D2GSource(RadarSource):
         self.port_path: str | None = None
         self.endpoints: dict[str, int] = {}
         self.telemetry: dict[str, Any] = {}
-        self.corrupted_frames = 0
+        self._resyncs_done = 0  # decoder resyncs on links already closed
         self.failed_attempts = 0  # reconnect attempts that failed, over the source's life
         self.last_fault: str | None = None
         self._last_host_seq: int | None = None
@@ -192,6 +194,11 @@ class D2GSource(RadarSource):
     @property
     def frontend(self) -> FrontendInfo:
         return self._frontend
+
+    @property
+    def corrupted_frames(self) -> int:
+        """Frame requests that ended without a valid frame (``stats.malformed_frames``)."""
+        return self.stats.malformed_frames
 
     @property
     def connected(self) -> bool:
@@ -221,6 +228,13 @@ class D2GSource(RadarSource):
         self._down = False
 
     def _read_raw(self, timeout_s: float | None) -> RawRead | None:
+        try:
+            return self._read_raw_link(timeout_s)
+        finally:
+            link = self._link
+            self.stats.resyncs = self._resyncs_done + (link.decoder.resyncs if link is not None else 0)
+
+    def _read_raw_link(self, timeout_s: float | None) -> RawRead | None:
         t_end = None if timeout_s is None else time.monotonic() + timeout_s
         while True:
             if self._down:
@@ -459,12 +473,14 @@ class D2GSource(RadarSource):
     def _drain_quiet(self) -> None:
         """Discard input until the line has been quiet for ``gap_s`` (at most ``timeout_s``)."""
         link = self._link
+        resyncs = link.decoder.resyncs  # stale bytes of an earlier session are expected, not a link error
         t_end = time.monotonic() + self.timeout_s
         while time.monotonic() < t_end:
             msgs = link.read(self.gap_s)
             if not msgs and time.monotonic() - link.last_rx >= self.gap_s:
                 break
         link.decoder.reset()
+        link.decoder.resyncs = resyncs
 
     def _drain_pending(self) -> None:
         """Let an outstanding frame request finish, so that its status is not taken for the next one."""
@@ -536,7 +552,7 @@ class D2GSource(RadarSource):
                         continue
                     raise err
                 if frame is None:
-                    self.corrupted_frames += 1
+                    self.stats.malformed_frames += 1
                     log.info("frame request ended without a valid frame (corrupted or truncated)")
                     continue
                 return self._raw(frame)
@@ -621,6 +637,7 @@ class D2GSource(RadarSource):
 
     def _drop_link(self) -> None:
         if self._link is not None:
+            self._resyncs_done += self._link.decoder.resyncs
             self._link.close()
             self._link = None
         self._pending = False

@@ -7,6 +7,10 @@ import argparse
 from edge.config import Config, load_config, parse_set_option
 
 
+class StartupError(RuntimeError):
+    """A configured output or resource cannot be started (the CLI prints it as one line, exit 2)."""
+
+
 def add_config_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="FILE", help="TOML configuration file (defaults < file < environment < --set)")
     p.add_argument(

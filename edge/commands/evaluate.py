@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from pathlib import Path
 
@@ -43,10 +44,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from edge.evaluation import evaluate
 
+    from edge.extras import available, install_hint
+
     cfg = config_from_args(args)
+    progress = not args.no_progress and sys.stderr.isatty()
+    if progress and not available("tqdm"):
+        logging.getLogger(__name__).warning("no progress bar: tqdm is not installed (%s)", install_hint("tqdm"))
+        progress = False
     report = evaluate(
         args.scenario, seed=args.seed, frames=args.frames, events=args.events, config=cfg,
-        progress=not args.no_progress and sys.stderr.isatty(), record_tracks=args.record_tracks,
+        progress=progress, record_tracks=args.record_tracks,
     )
     text = json.dumps(report, indent=2, sort_keys=False)
     if args.json:

@@ -54,6 +54,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from edge.extras import require
+
+    require("onnx", "export-onnx")
     from edge.classify.modelio import build_and_export, parity_check
     from edge.classify.onnx_runtime import OnnxKnnClassifier, query_latency
 

@@ -7,7 +7,7 @@ import logging
 import signal
 import sys
 
-from edge.commands.common import add_config_arguments, config_from_args
+from edge.commands.common import StartupError, add_config_arguments, config_from_args
 from edge.outputs.cli_options import add_output_arguments, output_overrides
 
 NAME = "run"
@@ -46,12 +46,16 @@ def add_loop_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def build_sinks(cfg, n_lanes: int) -> list:
+    """Start the configured outputs; one that cannot start is a :class:`StartupError` naming it."""
     try:
         from edge import outputs
+        from edge.outputs.modbus import OutputError
     except ImportError:  # pragma: no cover - outputs are part of the package
         return []
-    builder = getattr(outputs, "build_sinks", None)
-    return list(builder(cfg, n_lanes)) if builder is not None else []
+    try:
+        return list(outputs.build_sinks(cfg, n_lanes))
+    except OutputError as exc:
+        raise StartupError(str(exc)) from exc
 
 
 def run(args: argparse.Namespace) -> int:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from pathlib import Path
 
@@ -89,6 +90,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from edge.extras import available, install_hint, require
+
+    require("onnx", "train")  # it exports the trained model
     from edge.classify.modelio import export_knn, parity_check
     from edge.classify.onnx_runtime import OnnxKnnClassifier
     from edge.classify.reference import load_reference_set, save_reference_set
@@ -96,6 +100,9 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = config_from_args(args)
     progress = not args.no_progress and sys.stderr.isatty()
+    if progress and not available("tqdm"):
+        logging.getLogger(__name__).warning("no progress bar: tqdm is not installed (%s)", install_hint("tqdm"))
+        progress = False
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if args.folds < 2:

@@ -370,8 +370,16 @@ def check_can(sys_: System, cfg: Any) -> list[Check]:
                   f"txqueuelen {link.get('txqlen')}", data=data)]
 
 
+#: configuration keys that name a model or data file the pipelines load (empty = the packaged default)
+MODEL_FILE_KEYS = ("classify.onnx.model", "classify.knn.reference_set")
+#: a string value with one of these suffixes is a model file whatever its key is called
+MODEL_SUFFIXES = (".onnx", ".npz")
+
+
 def _model_fields(cfg: Any) -> Iterable[tuple[str, str]]:
-    """(dotted key, path) of every configured model file (fields named *model*, *_onnx, *_path ending .onnx)."""
+    """(dotted key, path) of every configured model file: the keys of :data:`MODEL_FILE_KEYS` and any
+    string value ending in a model suffix. A field is never taken for a path by its name alone
+    (``track.pdaf.motion_model = "imm"`` is a choice, not a file)."""
     import dataclasses
 
     from edge.config import SECTIONS
@@ -383,8 +391,9 @@ def _model_fields(cfg: Any) -> Iterable[tuple[str, str]]:
             continue
         for f in dataclasses.fields(sec):
             v = getattr(sec, f.name)
-            if isinstance(v, str) and v and ("model" in f.name or v.endswith(".onnx")):
-                yield f"{name}.{f.name}", v
+            key = f"{name}.{f.name}"
+            if isinstance(v, str) and v and (key in MODEL_FILE_KEYS or v.lower().endswith(MODEL_SUFFIXES)):
+                yield key, v
 
 
 def check_classifier(sys_: System, cfg: Any) -> list[Check]:

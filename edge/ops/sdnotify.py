@@ -6,10 +6,14 @@ The protocol is one datagram of ``KEY=VALUE`` lines to the ``AF_UNIX`` socket na
 
 :class:`NotifySink` follows the frame loop:
 
-* ``READY=1`` after the first frame has been processed (the source is open and the pipeline runs);
+* ``READY=1`` after the first frame has been processed (the source is open and the pipeline runs),
+  or as soon as the loop serves a source that cannot be opened at start as a fault (the outputs are
+  up and tell the controller; the loop retries the board);
 * ``WATCHDOG=1`` at most every half watchdog period, and **only if a frame was processed since the
-  previous ping** -- heartbeats without a frame (source stalled, board unplugged) do not feed the
-  watchdog, so systemd restarts the service after ``WatchdogSec``;
+  previous ping**, or while the loop is still retrying a source that has never delivered a frame --
+  heartbeats of a source that stalled after frames flowed do not feed the watchdog, so systemd
+  restarts the service after ``WatchdogSec``; a board missing at start keeps the service up instead
+  of restarting it into the start limit;
 * ``STATUS=`` with state, frames, drops and the p99 frame time against the budget, when it changes
   and at most once a second;
 * ``STOPPING=1`` when the loop closes its sinks.
@@ -129,12 +133,14 @@ class NotifySink:
             return
         now = self.clock_ns()
         lines: list[str] = []
-        if not self.ready and result is not None:
+        waiting_for_source = health.state == "fault" and health.frames == 0  # never opened: retrying it
+        if not self.ready and (result is not None or waiting_for_source):
             self.ready = True
             lines.append("READY=1")
-        # feed the watchdog only if frames were processed since the last ping
+        # feed the watchdog only if frames were processed since the last ping (or the board is awaited)
         due = self._last_ping_ns is None or now - self._last_ping_ns >= self.ping_ns
-        if self.ready and due and health.frames > self._frames_at_ping and health.state == "running":
+        progress = health.frames > self._frames_at_ping and health.state == "running"
+        if self.ready and due and (progress or waiting_for_source):
             lines.append("WATCHDOG=1")
             self._last_ping_ns = now
             self._frames_at_ping = health.frames

@@ -2,7 +2,8 @@
 
 ``--modbus-tcp HOST:PORT``, ``--modbus-rtu PORT`` and ``--can INTERFACE:CHANNEL`` are shorthands
 for ``--set outputs.modbus.*`` / ``--set outputs.can.*``; :func:`output_overrides` turns them into
-configuration overrides (command-line precedence).
+configuration overrides (command-line precedence). A malformed value is refused here; what the
+values name is checked at start (:func:`edge.outputs.check_output_config`, the TCP port bound).
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ def add_output_arguments(p: argparse.ArgumentParser) -> None:
                    help="serve Modbus RTU on this serial port, e.g. /dev/ttyAMA0 (19200 8E1, unit id 1 unless "
                         "--set outputs.modbus.rtu_baudrate/rtu_parity/rtu_stopbits/unit_id)")
     g.add_argument("--can", metavar="INTERFACE:CHANNEL",
-                   help="send the CAN object list, e.g. socketcan:can0 (bring the bus up with `ip link` first)")
+                   help="send the CAN object list, e.g. socketcan:can0 (bring the bus up with `ip link` first; an "
+                        "unknown python-can interface is refused at start, an absent can0 is retried)")
 
 
 def output_overrides(args: argparse.Namespace) -> dict[str, Any]:

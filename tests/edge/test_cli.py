@@ -110,3 +110,16 @@ def test_output_into_a_closed_pipe_ends_quietly():
         os.close(w)
     assert proc.returncode == 141
     assert b"Traceback" not in proc.stderr
+
+
+def test_version_is_the_package_version_the_outputs_report(capsys):
+    from importlib.metadata import version
+
+    from edge.outputs.registers import firmware_version
+
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out.strip()
+    assert out == f"radar-edge {version('radar-edge')}"
+    assert out.split()[1].split(".")[:3] == [str(v) for v in firmware_version()]

@@ -272,3 +272,60 @@ def test_frozen_heap_collects_first_and_keeps_later_garbage_collectable():
         gc.collect()
         assert late_ref() is None  # objects made while frozen are collected as usual
     assert gc.get_freeze_count() == 0
+
+
+class AbsentSource(FakeSource):
+    """A device that is not there for the first ``absent_opens`` attempts to open it."""
+
+    def __init__(self, clock, absent_opens, n_frames=5):
+        super().__init__(clock, n_frames=n_frames)
+        self.clock = clock
+        self.absent = absent_opens
+        self.open_times_ns = []
+
+    def _open(self):
+        self.opens += 1
+        self.open_times_ns.append(self.clock.now_ns())
+        if self.opens <= self.absent:
+            raise DeviceError("cannot open /dev/radar-d2g: [Errno 2] No such file or directory")
+
+
+def test_a_device_missing_at_start_is_served_as_a_fault_and_retried_with_backoff():
+    """Before, the first failed open ended the run (``radar-edge run`` exit 2, a systemd restart storm)."""
+    clk = FakeClock()
+    sink = RecordingSink()
+    src = AbsentSource(clk, absent_opens=8)
+    loop = FrameLoop(src, ScriptedPipeline(clk, lambda n: 1.0), LoopConfig(reconnect_backoff_s=1.0, health_period_s=0.5),
+                     sinks=[sink], clock=clk)
+    s = loop.run()
+    assert src.opens == 9 and s.frames == 5 and s.stop_reason == "end of source"
+    assert s.errors == 8  # each failed open is a counted source fault
+    gaps_s = np.diff(src.open_times_ns) / 1e9
+    assert gaps_s.tolist() == pytest.approx([1, 2, 4, 8, 16, 30, 30, 30])  # doubling, at most 30 s
+    waiting = [h for h in sink.health if h.frames == 0 and h.state != "stopped"]
+    assert waiting and all(h.state == "fault" and not h.source_ok for h in waiting)
+    assert [h.errors for h in waiting] == sorted(h.errors for h in waiting) and waiting[-1].errors == 8
+    assert np.diff([h.t_ns for h in waiting]).max() <= 500_000_000  # a heartbeat every health period
+    assert sink.results == [0, 1, 2, 3, 4]
+
+
+def test_missing_device_stop_policy_duration_and_stop_while_waiting():
+    clk = FakeClock()
+    with pytest.raises(DeviceError):
+        FrameLoop(AbsentSource(clk, 1), ScriptedPipeline(clk, lambda n: 1.0), LoopConfig(error_policy="stop"),
+                  clock=clk).run()
+    s = FrameLoop(AbsentSource(clk, 100), ScriptedPipeline(clk, lambda n: 1.0), LoopConfig(), clock=clk).run(duration_s=10)
+    assert s.frames == 0 and s.stop_reason == "10 s" and s.errors == 4  # opens at 0, 1, 3, 7 s
+    loop_ref = {}
+
+    class StopSink(RecordingSink):
+        def publish(self, result, health):
+            super().publish(result, health)
+            if len(self.health) == 5:
+                loop_ref["loop"].stop()
+
+    loop = FrameLoop(AbsentSource(clk, 100), ScriptedPipeline(clk, lambda n: 1.0), LoopConfig(), sinks=[StopSink()],
+                     clock=clk)
+    loop_ref["loop"] = loop
+    s = loop.run()
+    assert s.frames == 0 and s.stop_reason == "stopped"

@@ -342,12 +342,17 @@ def test_frame_loop_keeps_running_through_each_fault(fault):
 
         loop = FrameLoop(src, MinimalPipeline(src.frontend, MinimalConfig()), sinks=[FaultSink()], read_timeout_s=0.2)
         summary = loop.run(max_frames=8)
-    assert summary.frames == 8 and summary.errors == 0 and summary.stop_reason == "8 frames"
+    assert summary.frames == 8 and summary.stop_reason == "8 frames"
     assert seqs == sorted(seqs) and len(set(seqs)) == 8
+    # what the source absorbed reaches the loop's errors and reconnects (they stayed 0 before)
+    assert summary.errors == src.stats.errors >= 1 and loop.health().errors == summary.errors
+    assert summary.reconnects == src.stats.reconnects
     if fault in ("stall", "disconnect"):
-        assert src.stats.faults == 1 and src.stats.reconnects == 1
+        assert src.stats.faults == 1 and src.stats.reconnects == 1 and summary.reconnects == 1
     if fault == "truncate":
-        assert src.corrupted_frames == 1
+        assert src.corrupted_frames == src.stats.malformed_frames == 1
+    if fault == "garbage":
+        assert src.stats.resyncs >= 1
 
 
 def test_pipeline_results_on_d2g_match_sim_d2g():
@@ -405,3 +410,42 @@ def test_framing_error_from_the_board_makes_the_host_wait_for_a_quiet_line():
             assert after.seq > before.seq
             assert src.stats.faults == 1 and src.stats.reconnects == 1
             assert src.failed_attempts == 0  # the host did not talk into the board's quiet time
+
+
+def test_run_summary_agrees_with_the_log_over_five_reconnects_and_malformed_frames(caplog):
+    """Five unplugs and two corrupted frames: the summary's reconnects equal the reconnects the log shows
+    and ``errors`` counts every fault (before: ``reconnects 0, errors 0``)."""
+    import logging
+
+    from edge.loop import FrameLoop
+    from edge.pipelines.minimal import MinimalConfig, MinimalPipeline
+
+    with D2GEmulator("tavanti-test1", seed=1) as emu, open_radar(_url(emu, FAST)) as src:
+        plan = {2: emu.disconnect, 4: emu.disconnect, 6: emu.corrupt_next_frame, 8: emu.disconnect,
+                10: emu.disconnect, 12: emu.truncate_next_frame, 14: emu.disconnect}
+        state = {"down": False}
+
+        class FaultSink:
+            def publish(self, result, health):
+                if result is not None:
+                    inject = plan.pop(health.frames, None)
+                    if inject is not None:
+                        inject()
+                        state["down"] = inject == emu.disconnect
+                elif state["down"]:  # the loop saw no frame for a while: plug the board back in
+                    state["down"] = False
+                    emu.reconnect()
+
+            def close(self):
+                pass
+
+        loop = FrameLoop(src, MinimalPipeline(src.frontend, MinimalConfig()), sinks=[FaultSink()], read_timeout_s=0.2)
+        with caplog.at_level(logging.INFO, logger="hal.d2g"):
+            summary = loop.run(max_frames=18)
+    logged = sum("Distance2Go reconnected" in r.getMessage() for r in caplog.records)
+    faults = sum("Distance2Go fault" in r.getMessage() for r in caplog.records)
+    assert logged == faults == 5 and summary.reconnects == 5
+    assert f"reconnects {logged}," in summary.lines()[0]
+    assert src.stats.malformed_frames == 2
+    assert summary.errors == src.stats.errors == 5 + 2 + src.stats.resyncs
+    assert f"errors {summary.errors}," in summary.lines()[0]

@@ -406,3 +406,56 @@ def test_traffic_calibration_file(tmp_path):
         os.chmod(d, 0o755)
         c = dr.check_traffic_calibration(FakeSystem(tmp_path, uid=1000), cfg)[0]
         assert c.status == "fail" and "chown" in c.fix
+
+
+EXAMPLE_TOML = Path(__file__).resolve().parents[3] / "deploy" / "radar-edge.example.toml"
+UNIT_FILE = Path(__file__).resolve().parents[3] / "deploy" / "radar-edge.service"
+
+
+def test_default_install_passes_and_motion_model_is_not_a_file(tmp_path):
+    """Built-in defaults on an empty root: warnings (no config file, simulator source), no failure.
+
+    ``track.pdaf.motion_model = "imm"`` used to be taken for a model file because of its name."""
+    checks = dr.run_checks(FakeSystem(tmp_path, uid=0), None, open_board=False)
+    failed = [(c.name, c.detail) for c in checks if c.status == "fail"]
+    assert failed == []
+    assert not any("motion_model" in c.detail for c in checks)
+    assert ("track.pdaf.motion_model", "imm") not in list(dr._model_fields(load_config(env={})))
+
+
+def test_model_fields_are_the_file_keys_and_model_suffixes(tmp_path):
+    cfg = load_config(env={}, overrides={"classify.knn.reference_set": str(tmp_path / "ref.npz"),
+                                         "classify.onnx.model": "site.onnx"})
+    assert dict(dr._model_fields(cfg)) == {"classify.knn.reference_set": str(tmp_path / "ref.npz"),
+                                           "classify.onnx.model": "site.onnx"}
+    c = _by_name(dr.check_models(FakeSystem(tmp_path, uid=0), cfg), "model")
+    assert c.status == "fail" and "classify.knn.reference_set" in c.detail and "file not found" in c.detail
+
+
+def _example_install(root: Path) -> None:
+    """A fake root laid out as deploy/install.sh leaves a Pi with the HAT: board, UART, state dirs, unit."""
+    _dev(root, "/dev/radar-d2g")
+    _dev(root, "/dev/ttyAMA0")
+    (root / "proc").mkdir()
+    (root / "proc/cmdline").write_text("console=tty1 root=/dev/mmcblk0p2\n")
+    (root / "var/lib/radar-edge/recordings").mkdir(parents=True)
+    unit = root / "etc/systemd/system/radar-edge.service"
+    unit.parent.mkdir(parents=True)
+    unit.write_text(UNIT_FILE.read_text())
+    exe = _dev(root, "/opt/radar-edge/venv/bin/radar-edge", mode=0o755, gid=0)
+    assert exe.is_file()
+
+
+def test_example_config_on_a_complete_install_passes_and_a_missing_board_fails(tmp_path):
+    _example_install(tmp_path)
+    board = {"board": "d2g", "frame": "received", "endpoints": {"RBAS": 1, "RADX": 2, "RFMC": 3}}
+    fine = FakeSystem(tmp_path, uid=0, commands=_ip(), board=board)
+    checks = dr.run_checks(fine, str(EXAMPLE_TOML), open_board=True)
+    assert [(c.name, c.detail) for c in checks if c.status == "fail"] == []
+    assert {c.name: c.status for c in checks}["board"] == "ok"
+    (tmp_path / "dev/radar-d2g").unlink()  # the board unplugged: a real failure, with its fix
+    checks = dr.run_checks(FakeSystem(tmp_path, uid=0, commands=_ip(), board=board), str(EXAMPLE_TOML),
+                           open_board=True)
+    failed = [c for c in checks if c.status == "fail"]
+    assert [c.name for c in failed] == ["serial port"] and "/dev/radar-d2g does not exist" in failed[0].detail
+    assert "lsusb" in failed[0].fix

@@ -224,3 +224,30 @@ def test_watchdog_stops_while_the_emulated_distance2go_stalls(notify_socket):
     assert pings["before"] >= 3 and pings["after"] >= 1
     assert pings["stalled"] == 0  # the stall starves the watchdog: systemd would restart the service
     assert any(ph == "stalled" and "STATUS=" in m for ph, m in log)
+
+
+def test_a_board_missing_at_start_is_ready_and_feeds_the_watchdog_while_it_is_awaited(notify_socket):
+    """The loop serves the missing board as a fault: systemd gets READY=1 and pings, so it neither kills the
+    start after TimeoutStartSec nor restarts it into the start limit; once frames flow, the usual rule."""
+    path, rx = notify_socket
+    clock = FakeClock()
+    sink = NotifySink(Notifier(path), watchdog_s=1.0, clock_ns=clock.now_ns)  # ping every 0.5 s
+
+    def h(state, frames):
+        return LoopHealth(t_ns=clock.now_ns(), frames=frames, dropped_frames=0, overruns=0, errors=3,
+                          source_ok=False, last_frame_ns=0, frame_p99_ms=0.0, budget_ms=200.0, state=state)
+
+    msgs = []
+    for _ in range(8):  # 4 s of fault heartbeats, no frame yet
+        sink.publish(None, h("fault", 0))
+        msgs += _drain(rx)
+        clock.advance_ns(500_000_000)
+    assert msgs[0].splitlines()[0] == "READY=1" and sum("READY=1" in m for m in msgs) == 1
+    assert sum("WATCHDOG=1" in m.splitlines() for m in msgs) == 8
+    assert any("STATUS=fault" in m for m in msgs)
+    msgs = []
+    for _ in range(4):  # frames flowed, then the source stalled: no ping (systemd restarts as before)
+        sink.publish(None, h("stalled", 10))
+        msgs += _drain(rx)
+        clock.advance_ns(500_000_000)
+    assert not any("WATCHDOG=1" in m for m in msgs)
