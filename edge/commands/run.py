@@ -45,13 +45,14 @@ def add_loop_arguments(p: argparse.ArgumentParser) -> None:
     add_output_arguments(p)
 
 
-def build_sinks(cfg, n_lanes: int) -> list:
+def build_sinks(cfg, n_lanes: int, traffic=None) -> list:
+    """The configured outputs; ``traffic``: the pipeline's traffic layer (lanes in use, lane geometry writes)."""
     try:
         from edge import outputs
     except ImportError:  # pragma: no cover - outputs are part of the package
         return []
     builder = getattr(outputs, "build_sinks", None)
-    return list(builder(cfg, n_lanes)) if builder is not None else []
+    return list(builder(cfg, n_lanes, traffic=traffic)) if builder is not None else []
 
 
 def run(args: argparse.Namespace) -> int:
@@ -71,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     profile = resolve_profile(cfg["loop"].profile, source.frontend.board)
     pipeline = build_pipeline(profile, source.frontend, cfg)
     n_lanes = pipeline.n_lanes
-    sinks = [] if args.no_outputs else build_sinks(cfg, n_lanes)
+    sinks = [] if args.no_outputs else build_sinks(cfg, n_lanes, getattr(pipeline, "traffic", None))
     from edge.ops import attach
 
     pipeline = attach(cfg, pipeline, sinks, view=getattr(args, "view", False))

@@ -14,15 +14,17 @@ log = logging.getLogger(__name__)
 __all__ = ["build_sinks"]
 
 
-def build_sinks(config: Any, n_lanes: int, *, strict: bool = False) -> list:
+def build_sinks(config: Any, n_lanes: int, *, strict: bool = False, traffic: Any = None) -> list:
     """Create and start the outputs enabled in ``config`` (sections ``outputs.modbus``, ``outputs.can``,
-    ``outputs.failsafe``). A Modbus server that cannot start (port in use, no serial port) is logged as
+    ``outputs.failsafe``; ``traffic.interval_s`` for the configuration block). ``traffic``: the pipeline's
+    :class:`~edge.traffic.TrafficMonitor` (or None): its lanes in use are published, and with configured lanes
+    a Modbus lane geometry apply replaces them (:meth:`~edge.traffic.TrafficMonitor.set_lanes`). A Modbus server that cannot start (port in use, no serial port) is logged as
     an error and left out, so the radar keeps serving its other outputs; ``strict=True`` raises
     :class:`~edge.outputs.modbus.OutputError` instead. A missing CAN interface is a counted fault that
     the CAN sink retries (the loop keeps running)."""
     from edge.outputs.can_out import CanSink
     from edge.outputs.modbus import ModbusSink, OutputError, initial_config_words
-    from edge.outputs.registers import MAX_LANES, Links
+    from edge.outputs.registers import MAX_LANES, Links, lane_geometry
 
     mb, cn, fs = config.section("outputs.modbus"), config.section("outputs.can"), config.section("outputs.failsafe")
     n = min(max(int(n_lanes), 0), MAX_LANES)
@@ -35,13 +37,20 @@ def build_sinks(config: Any, n_lanes: int, *, strict: bool = False) -> list:
         can_sink = CanSink(cn, n, failsafe=fs, links=links).start()
         sinks.append(can_sink)
     if mb.tcp_enabled or mb.rtu_port:
+        configured = traffic is not None and traffic.config.lane_mode == "configured" and 0 < len(traffic.lanes) <= n
+
         def on_apply(before: dict, after: dict) -> None:
             if can_sink is not None:
                 can_sink.set_runtime(bool(after["can_enable"]), int(after["can_sensor_id"]), int(after["can_output_mask"]))
+            if configured and lane_geometry(after) != lane_geometry(before):
+                traffic.set_lanes([((lo + hi) / 2, hi - lo, d) for lo, hi, d in lane_geometry(after)])
 
-        words = initial_config_words(mb, n, cn)
+        interval_s = config.section("traffic").interval_s
+        words = initial_config_words(mb, n, cn, interval_s, traffic.lanes if configured else ())
+        lanes = (lambda: traffic.lanes) if traffic is not None else None
         try:
-            sinks.insert(0, ModbusSink(mb, n, failsafe=fs, links=links, config_words=words, on_apply=on_apply).start())
+            sinks.insert(0, ModbusSink(mb, n, failsafe=fs, links=links, config_words=words, on_apply=on_apply,
+                                       lanes=lanes, geometry_lanes=len(traffic.lanes) if configured else None).start())
         except OutputError as exc:
             if strict:
                 for s in sinks:
