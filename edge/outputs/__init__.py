@@ -45,6 +45,9 @@ def build_sinks(config: Any, n_lanes: int, *, strict: bool = False, traffic: Any
             if configured and lane_geometry(after) != lane_geometry(before):
                 traffic.set_lanes([((lo + hi) / 2, hi - lo, d) for lo, hi, d in lane_geometry(after)])
 
+        if mb.stale_image_s <= config.section("loop").health_period_s:
+            log.warning("outputs.modbus.stale_image_s %.2f s is not above loop.health_period_s %.2f s: Modbus will show "
+                        "a stalled source as 'not responding'", mb.stale_image_s, config.section("loop").health_period_s)
         interval_s = config.section("traffic").interval_s
         words = initial_config_words(mb, n, cn, interval_s, traffic.lanes if configured else ())
         lanes = (lambda: traffic.lanes) if traffic is not None else None
