@@ -465,7 +465,8 @@ class ModbusSink:
     process as one message on a non-blocking local socket, so Modbus clients never hold the loop's
     interpreter lock and the loop never waits for them (a full socket buffer drops the image and
     counts it; the next frame sends a newer one). A watchdog thread faults the image when the loop
-    goes silent and restarts a dead server process (back-off 1-30 s). Without :meth:`start` nothing
+    goes silent and restarts a dead server process (back-off 1-30 s); the server process faults it too
+    when no image arrives (``stale_image_s``), which also covers a frozen or dead frame-loop process. Without :meth:`start` nothing
     is served and :meth:`image` is the only view (used by unit tests).
     """
 
