@@ -241,7 +241,7 @@ def run_soak(
         pipe = build_pipeline(profile, src.frontend, config)
         n_lanes = pipe.n_lanes
         mon = SoakMonitor(frames)
-        sinks: list = build_sinks(config, n_lanes) if outputs else []
+        sinks: list = build_sinks(config, n_lanes, getattr(pipe, "traffic", None)) if outputs else []
         modbus = next((s for s in sinks if isinstance(s, ModbusSink)), None)
         probe = ModbusProbe(modbus, n_lanes) if modbus is not None and modbus.tcp_address else None
         mon.probe = probe

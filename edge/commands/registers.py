@@ -11,13 +11,15 @@ DESCRIPTION = """\
 Prints the Modbus register map that `radar-edge run` serves over Modbus TCP and RTU (RS-485). It is
 generated from the same declarative table the server image is built from, so it cannot drift: every
 register with its 0-based PDU address, its 1-based input (3xxxx, FC4) and holding (4xxxx, FC3)
-numbers, type, fixed-point scale and unit, "not available" code and meaning. 32-bit values are high
-word first (registers 2-3 read 0x1234 0x5678)."""
+numbers, the reference mbpoll takes (address + 1, with -t 3 for FC4 or -t 4 for FC3), type,
+fixed-point scale and unit, "not available" code and meaning. 32-bit values are high word first
+(registers 2-3 read 0x1234 0x5678)."""
 EPILOG = """\
 examples:
   radar-edge registers                       # Markdown to stdout
   radar-edge registers --out docs/registers.md
-  mbpoll -m tcp -p 5020 -a 1 -t 3:hex -0 -r 0 -c 4 -1 127.0.0.1   # read magic, version, word-order test
+  mbpoll -m tcp -p 5020 -a 1 -t 3:hex -r 1 -c 4 -1 127.0.0.1   # 30001-30004: magic, version, word-order test
+  mbpoll -m tcp -p 5020 -a 1 -t 4 -r 2005 -1 127.0.0.1         # 42005 (address 2004): statistics interval
 """
 
 

@@ -45,15 +45,16 @@ def add_loop_arguments(p: argparse.ArgumentParser) -> None:
     add_output_arguments(p)
 
 
-def build_sinks(cfg, n_lanes: int) -> list:
-    """Start the configured outputs; one that cannot start is a :class:`StartupError` naming it."""
+def build_sinks(cfg, n_lanes: int, traffic=None) -> list:
+    """Start the configured outputs; one that cannot start is a :class:`StartupError` naming it.
+    ``traffic``: the pipeline's traffic layer (lanes in use, lane geometry writes)."""
     try:
         from edge import outputs
         from edge.outputs.modbus import OutputError
     except ImportError:  # pragma: no cover - outputs are part of the package
         return []
     try:
-        return list(outputs.build_sinks(cfg, n_lanes))
+        return list(outputs.build_sinks(cfg, n_lanes, traffic=traffic))
     except OutputError as exc:
         raise StartupError(str(exc)) from exc
 
@@ -75,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     profile = resolve_profile(cfg["loop"].profile, source.frontend.board)
     pipeline = build_pipeline(profile, source.frontend, cfg)
     n_lanes = pipeline.n_lanes
-    sinks = [] if args.no_outputs else build_sinks(cfg, n_lanes)
+    sinks = [] if args.no_outputs else build_sinks(cfg, n_lanes, getattr(pipeline, "traffic", None))
     from edge.ops import attach
 
     pipeline = attach(cfg, pipeline, sinks, view=getattr(args, "view", False))

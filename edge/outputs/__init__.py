@@ -68,15 +68,18 @@ def tcp_bind_error(host: str, port: int) -> str | None:
     return None
 
 
-def build_sinks(config: Any, n_lanes: int, *, strict: bool = True) -> list:
+def build_sinks(config: Any, n_lanes: int, *, strict: bool = True, traffic: Any = None) -> list:
     """Create and start the outputs enabled in ``config`` (sections ``outputs.modbus``, ``outputs.can``,
-    ``outputs.failsafe``) after :func:`check_output_config`. A Modbus server that cannot start (TCP port
-    in use, address not on this machine) raises :class:`~edge.outputs.modbus.OutputError` naming the
-    address; ``strict=False`` logs it and leaves Modbus out instead. A serial port or CAN interface that
-    is absent is a counted fault the output retries (the loop keeps running)."""
+    ``outputs.failsafe``; ``traffic.interval_s`` for the configuration block) after :func:`check_output_config`.
+    ``traffic``: the pipeline's :class:`~edge.traffic.TrafficMonitor` (or None): its lanes in use are published,
+    and with configured lanes a Modbus lane geometry apply replaces them
+    (:meth:`~edge.traffic.TrafficMonitor.set_lanes`). A Modbus server that cannot start (TCP port in use,
+    address not on this machine) raises :class:`~edge.outputs.modbus.OutputError` naming the address;
+    ``strict=False`` logs it and leaves Modbus out instead. A serial port or CAN interface that is absent is a
+    counted fault the output retries (the loop keeps running)."""
     from edge.outputs.can_out import CanSink
     from edge.outputs.modbus import ModbusSink, OutputError, initial_config_words
-    from edge.outputs.registers import MAX_LANES, Links
+    from edge.outputs.registers import MAX_LANES, Links, lane_geometry
 
     check_output_config(config)
     mb, cn, fs = config.section("outputs.modbus"), config.section("outputs.can"), config.section("outputs.failsafe")
@@ -90,17 +93,27 @@ def build_sinks(config: Any, n_lanes: int, *, strict: bool = True) -> list:
         can_sink = CanSink(cn, n, failsafe=fs, links=links).start()
         sinks.append(can_sink)
     if mb.tcp_enabled or mb.rtu_port:
+        configured = traffic is not None and traffic.config.lane_mode == "configured" and 0 < len(traffic.lanes) <= n
+
         def on_apply(before: dict, after: dict) -> None:
             if can_sink is not None:
                 can_sink.set_runtime(bool(after["can_enable"]), int(after["can_sensor_id"]), int(after["can_output_mask"]))
+            if configured and lane_geometry(after) != lane_geometry(before):
+                traffic.set_lanes([((lo + hi) / 2, hi - lo, d) for lo, hi, d in lane_geometry(after)])
 
-        words = initial_config_words(mb, n, cn)
+        if mb.stale_image_s <= config.section("loop").health_period_s:
+            log.warning("outputs.modbus.stale_image_s %.2f s is not above loop.health_period_s %.2f s: Modbus will show "
+                        "a stalled source as 'not responding'", mb.stale_image_s, config.section("loop").health_period_s)
+        interval_s = config.section("traffic").interval_s
+        words = initial_config_words(mb, n, cn, interval_s, traffic.lanes if configured else ())
+        lanes = (lambda: traffic.lanes) if traffic is not None else None
         busy = tcp_bind_error(mb.tcp_host, mb.tcp_port) if strict and mb.tcp_enabled and mb.tcp_port else None
         try:
             if busy:
                 hint = f" (which program holds it: ss -ltnp 'sport = :{mb.tcp_port}')" if "in use" in busy else ""
                 raise OutputError(f"Modbus TCP {mb.tcp_host}:{mb.tcp_port} cannot be served: {busy}{hint}")
-            sinks.insert(0, ModbusSink(mb, n, failsafe=fs, links=links, config_words=words, on_apply=on_apply).start())
+            sinks.insert(0, ModbusSink(mb, n, failsafe=fs, links=links, config_words=words, on_apply=on_apply,
+                                       lanes=lanes, geometry_lanes=len(traffic.lanes) if configured else None).start())
         except OutputError as exc:
             where = ", ".join([f"TCP {mb.tcp_host}:{mb.tcp_port}"] * mb.tcp_enabled + [f"RTU {mb.rtu_port}"] * bool(mb.rtu_port))
             if strict:

@@ -57,10 +57,16 @@ class ModbusConfig:
     config_writes: bool = field(
         default=False,
         metadata={"doc": "allow writes to the configuration block 2000-2099 (staged, applied by the "
-                         "command register 2090); off = every write gets exception 01"},
+                         "command register 2090); off = FC6/FC16 are not served (exception 01)"},
     )
     serial_number: int = field(
         default=0, metadata={"doc": "device serial number reported in registers 7-8", "min": 0, "max": 0xFFFFFFFE}
+    )
+    stale_image_s: float = field(
+        default=1.0,
+        metadata={"unit": "s", "doc": "the Modbus server process shows the fault itself (alarm 4, loop state 5) "
+                                      "when the frame loop sent no image for this long (frozen, hung or crashed); "
+                                      "keep it above loop.health_period_s", "min": 0.1, "max": 1.9},
     )
     start_timeout_s: float = field(
         default=30.0, metadata={"unit": "s", "doc": "give up starting the server process after this long "

@@ -10,11 +10,21 @@ in Python: in a thread, every request would hold the interpreter lock the frame 
 client polling the whole map at 20 Hz the frame-time p99 rose by 13 % that way; see
 ``python -m edge.outputs.pollbench``). The frame loop never waits on a Modbus client.
 
-Only the configuration block (2000-2099) is writable. Writes are refused with exception 01 unless
+Only the configuration block (2000-2099) is writable. FC6/FC16 are not served (exception 01) unless
 ``outputs.modbus.config_writes`` is on; then every register is validated (exception 03 out of
 range, 02 for reserved/read-only ones) and staged, and the command register 2090 applies (0xA5A5)
 or discards (0x5A5A) the staged values. RTU stays silent for unit ids other than its own (a shared
 RS-485 line); TCP answers every unit id.
+
+Conformance (Modbus Application Protocol v1.1b3): the servers decode requests with
+:func:`request_problem` first, so every function code other than 3, 4, 6 and 16 gets exception 01
+with its own function code + 0x80 (pymodbus would answer FC8, FC17 and FC43 itself), quantities out
+of range get 03 and truncated requests 01.
+
+The server process watches its input too: when no image came from the frame loop for
+``outputs.modbus.stale_image_s`` (the loop frozen by SIGSTOP, hung or crashed: the parent's watchdog
+thread stops with it), it serves the fault itself (:func:`~edge.outputs.registers.no_image_fault`)
+until the next image.
 
 pymodbus facts this relies on (3.16.1, see the project's outputs reference): ``SimDevice(id=0)``
 answers every unit id; ``trace_pdu`` returning ``None`` for a request drops it without a reply;
@@ -40,7 +50,8 @@ from edge.ops.affinity import check as check_cpus
 from edge.outputs.config import BAUD_CODES, CAN_BITRATE_CODES, PARITY_CODES, FailsafeConfig, ModbusConfig
 from edge.outputs.registers import (
     CMD_APPLY, CMD_RESTART_COMMS, CMD_STATUS_ADDR, CONFIG, CONFIG_BASE, CONFIG_SIZE, GENERATION_ADDR,
-    MAX_LANES, READ_RANGES, ImageBuilder, Links, config_values, default_config_words,
+    GEOMETRY_OFFSETS, MAX_LANES, READ_RANGES, STATUS, ImageBuilder, Links, config_values, default_config_words,
+    lane_geometry, lane_geometry_values, no_image_fault,
 )
 from edge.outputs.state import OutputState
 
@@ -56,10 +67,14 @@ except ImportError:  # pragma: no cover - not on POSIX
 
 READ_FCS = (3, 4)
 WRITE_FCS = (6, 16)
+#: the only function codes served; every other one gets exception 01
+SERVED_FCS = READ_FCS + WRITE_FCS
 _CFG_REG = {r.offset: r for r in CONFIG.regs}
 #: configuration registers that take effect without a restart
 LIVE_KEYS = frozenset({"unit_id", "can_enable", "can_sensor_id", "can_output_mask", "command", "generation",
                        "command_status"})
+
+_GEOMETRY_KEYS = frozenset(_CFG_REG[o].name for o in GEOMETRY_OFFSETS)
 
 
 class OutputError(RuntimeError):
@@ -72,18 +87,21 @@ _START_ERRORS = (OSError, RuntimeError, ValueError, _TermiosError)  # pymodbus: 
 class ConfigBlock:
     """Staged and applied configuration words (owned by the Modbus thread)."""
 
-    def __init__(self, words: list[int], on_apply: Callable[[dict[str, Any], dict[str, Any]], None] | None = None):
+    def __init__(self, words: list[int], on_apply: Callable[[dict[str, Any], dict[str, Any]], None] | None = None,
+                 geometry_lanes: int | None = None):
         self.applied = list(words)
         self.staged = list(words)
         self.initial = list(words)
         self.on_apply = on_apply
+        #: lanes the geometry registers must keep in use; None: geometry not writable (learned or no lanes)
+        self.geometry_lanes = geometry_lanes
 
     def write(self, offset: int, values: list[int]) -> int | None:
         """Validate and stage ``values`` from ``offset``; returns an exception code or None."""
         for i, raw in enumerate(values):
             off = offset + i
             reg = _CFG_REG.get(off)
-            if reg is None or not reg.writable:
+            if reg is None or not reg.writable or (off in GEOMETRY_OFFSETS and self.geometry_lanes is None):
                 return 2
             v = raw - 0x10000 if reg.kind == "s16" and raw & 0x8000 else raw
             if not reg.lo <= v <= reg.hi:
@@ -99,7 +117,7 @@ class ConfigBlock:
     def _command(self, raw: int) -> int | None:
         st = CMD_STATUS_ADDR - CONFIG_BASE
         if raw == CMD_APPLY:
-            problem = validate_config(config_values(self.staged))
+            problem = validate_config(config_values(self.staged), self.geometry_lanes)
             if problem:
                 log.warning("configuration apply rejected: %s", problem)
                 self.staged[st] = 2
@@ -123,24 +141,81 @@ class ConfigBlock:
 
     def pending_restart(self) -> bool:
         now, first = config_values(self.applied), config_values(self.initial)
-        return any(now[k] != first[k] for k in now if k not in LIVE_KEYS)
+        live = LIVE_KEYS if self.geometry_lanes is None else LIVE_KEYS | _GEOMETRY_KEYS  # applied to the traffic layer
+        return any(now[k] != first[k] for k in now if k not in live)
 
 
-def validate_config(v: dict[str, Any]) -> str | None:
-    """Cross-register checks made when the command register applies a configuration."""
+def validate_config(v: dict[str, Any], geometry_lanes: int | None = None) -> str | None:
+    """Cross-register checks made when the command register applies a configuration; with
+    ``geometry_lanes``, the enabled lanes must be exactly lanes 1..geometry_lanes (the lanes in use)."""
     for k in range(1, MAX_LANES + 1):
         if v.get(f"lane{k}_enabled") and v[f"lane{k}_x_min"] >= v[f"lane{k}_x_max"]:
             return f"lane {k}: x_min {v[f'lane{k}_x_min']:.1f} m must be below x_max {v[f'lane{k}_x_max']:.1f} m"
     if v.get("lanes") and sum(bool(v.get(f"lane{k}_enabled")) for k in range(1, MAX_LANES + 1)) > v["lanes"]:
         return "more lanes enabled than configured"
+    if geometry_lanes is not None:
+        enabled = [k for k in range(1, MAX_LANES + 1) if v.get(f"lane{k}_enabled")]
+        if enabled != list(range(1, geometry_lanes + 1)):
+            return f"lanes {enabled} enabled: the traffic layer uses lanes 1..{geometry_lanes} (changing the count " \
+                   "needs the configuration file and a restart)"
     return None
 
 
-def initial_config_words(cfg: ModbusConfig, n_lanes: int, can: Any = None, interval_s: float = 60.0) -> list[int]:
+def request_problem(fc: int, data: bytes, writes_enabled: bool) -> int | None:
+    """Exception code for a request PDU (function code ``fc``, then ``data``) this device does not serve, or None
+    (Modbus Application Protocol v1.1b3 section 7: 01 function not served, or a PDU too short to hold its fields;
+    03 quantity or byte count out of range)."""
+    if fc not in SERVED_FCS or (fc in WRITE_FCS and not writes_enabled):
+        return 1
+    if len(data) < (5 if fc == 16 else 4):
+        return 1
+    qty = int.from_bytes(data[2:4], "big")
+    if fc in READ_FCS and not 1 <= qty <= 125:
+        return 3
+    if fc == 16 and (not 1 <= qty <= 123 or data[4] != 2 * qty or len(data) < 5 + data[4]):
+        return 3
+    return None
+
+
+def _decoder(writes_enabled: bool) -> Any:
+    """A pymodbus request decoder that refuses what :func:`request_problem` refuses (server process only)."""
+    from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
+
+    class Refused(ModbusPDU):
+        """A request answered with exception ``code`` under its own function code."""
+
+        def __init__(self, fc: int, code: int) -> None:
+            super().__init__()
+            self.function_code = fc
+            self.code = code
+
+        async def datastore_update(self, context: Any, device_id: int) -> Any:
+            return ExceptionResponse(self.function_code & 0x7F, self.code, device_id=device_id)
+
+    class Decoder(DecodePDU):
+        def decode(self, frame: bytes) -> Any:
+            if not frame:
+                return None
+            fc = int(frame[0])
+            code = request_problem(fc, bytes(frame[1:]), writes_enabled)
+            if code is None:
+                pdu = super().decode(frame)
+                if pdu is not None:
+                    return pdu
+                code = 3
+            return Refused(fc, code)
+
+    return Decoder(True)
+
+
+def initial_config_words(cfg: ModbusConfig, n_lanes: int, can: Any = None, interval_s: float = 60.0,
+                         lanes: Any = ()) -> list[int]:
+    """The configuration block of the running configuration: ``interval_s`` the traffic layer's interval,
+    ``lanes`` its configured lanes (``center_m``, ``width_m``, ``direction``; none: geometry reads 0)."""
     words = default_config_words({
         "unit_id": cfg.unit_id, "baud_code": BAUD_CODES.index(cfg.rtu_baudrate),
         "parity_code": PARITY_CODES.index(cfg.rtu_parity), "stop_bits": cfg.rtu_stopbits,
-        "interval_s": int(interval_s), "lanes": max(1, n_lanes),
+        "interval_s": max(1, int(round(interval_s))), "lanes": n_lanes, **lane_geometry_values(lanes),
         "can_enable": int(bool(can is not None and can.interface)),
         "can_bitrate_code": CAN_BITRATE_CODES.index(can.bitrate) if can is not None else 2,
         "can_sensor_id": can.sensor_id if can is not None else 0,
@@ -159,14 +234,46 @@ def can_output_mask(can: Any) -> int:
 class _Server:
     """The server process's side: current image, staged configuration, the pymodbus action."""
 
-    def __init__(self, cfg: ModbusConfig, image: array.array, config_words: list[int], conn: socket.socket) -> None:
+    def __init__(self, cfg: ModbusConfig, image: array.array, config_words: list[int], conn: socket.socket,
+                 geometry_lanes: int | None = None, presence: str = "on",
+                 clock_s: Callable[[], float] = time.monotonic) -> None:
         self.cfg = cfg
         self.image = image
         self.conn = conn
         self.unit_id = cfg.unit_id
-        self.config = ConfigBlock(config_words, self._applied)
+        self.config = ConfigBlock(config_words, self._applied, geometry_lanes)
+        self.presence = presence
+        self.clock_s = clock_s
+        self.image_s = clock_s()  # when the current image arrived
+        #: the silence watch starts with the first image the frame loop built (update counter > 0)
+        self.armed = bool(image[STATUS.base + _UPDATE_COUNTER])
+        self._fault: tuple[Any, int, list[int]] | None = None  # (image, since tenths, its fault view)
         self.counters = {"reads": 0, "writes": 0, "exceptions": 0, "ignored_unit_id": 0,
-                         "rtu_open": 0, "rtu_open_failures": 0}
+                         "rtu_open": 0, "rtu_open_failures": 0, "no_image_faults": 0}
+
+    def served(self) -> Any:
+        """The image to serve now: the latest one, or its fault view when the frame loop went silent."""
+        silent = self.clock_s() - self.image_s
+        if not self.armed or silent <= self.cfg.stale_image_s:
+            return self.image
+        tenths = int(silent * 10)
+        fault = self._fault
+        if fault is None or fault[0] is not self.image or fault[1] != tenths:
+            if fault is None or fault[0] is not self.image:
+                self.counters["no_image_faults"] += 1
+                log.error("no image from the frame loop for %.1f s: serving the fault", silent)
+            self._fault = fault = (self.image, tenths, no_image_fault(self.image, silent, self.presence))
+        return fault[2]
+
+    def take_image(self, img: array.array) -> None:
+        if self._fault is not None:
+            log.warning("images from the frame loop again: fault cleared")
+            self._fault = None
+        self.image = img  # one reference swap: reads see the old or the new image, never a mix
+        self.image_s = self.clock_s()
+        self.armed = self.armed or bool(img[STATUS.base + _UPDATE_COUNTER])
+
+
 
     def _applied(self, before: dict[str, Any], after: dict[str, Any]) -> None:
         self.unit_id = int(after["unit_id"])
@@ -180,29 +287,33 @@ class _Server:
             if fc in WRITE_FCS:
                 return None  # pymodbus reads back after a write: the written values are in regs already
             if fc not in READ_FCS:
-                self.counters["exceptions"] += 1
                 return ExcCodes.ILLEGAL_FUNCTION
             self.counters["reads"] += 1
             if address >= CONFIG_BASE:
                 regs[address - start: address - start + count] = self.config.staged[address - CONFIG_BASE:][:count]
             else:
-                regs[address - start: address - start + count] = self.image[address: address + count]
+                regs[address - start: address - start + count] = self.served()[address: address + count]
             return None
         if fc not in WRITE_FCS or not self.cfg.config_writes:
-            self.counters["exceptions"] += 1
             return ExcCodes.ILLEGAL_FUNCTION
         if not CONFIG_BASE <= address < CONFIG_BASE + CONFIG_SIZE:
-            self.counters["exceptions"] += 1
             return ExcCodes.ILLEGAL_ADDRESS
         code = self.config.write(address - CONFIG_BASE, [int(v) for v in values])
         if code is not None:
-            self.counters["exceptions"] += 1
             return {1: ExcCodes.ILLEGAL_FUNCTION, 2: ExcCodes.ILLEGAL_ADDRESS, 3: ExcCodes.ILLEGAL_VALUE}[code]
         self.counters["writes"] += 1
         return None
 
+    def trace(self, sending: bool, pdu: Any) -> Any:
+        """Counts the exception responses sent (pymodbus's trace_pdu hook, TCP)."""
+        if sending and pdu.function_code & 0x80:
+            self.counters["exceptions"] += 1
+        return pdu
+
     def rtu_filter(self, sending: bool, pdu: Any) -> Any:
-        if not sending and pdu.dev_id != self.unit_id:
+        if sending:
+            return self.trace(sending, pdu)
+        if pdu.dev_id != self.unit_id:
             self.counters["ignored_unit_id"] += 1
             return None  # another device on the shared line: stay silent
         return pdu
@@ -228,7 +339,7 @@ class _Server:
             if data[:1] == _IMG:
                 img = array.array("H")
                 img.frombytes(data[1:])
-                self.image = img  # one reference swap: reads see the old or the new image, never a mix
+                self.take_image(img)
             elif data[:1] == _CTL:
                 msg = pickle.loads(data[1:])
                 if msg[0] == "stop":
@@ -243,10 +354,12 @@ class _Server:
         from pymodbus.framer import FramerType
         from pymodbus.server import ModbusSerialServer
 
-        return ModbusSerialServer(
+        server = ModbusSerialServer(
             self.device(), framer=FramerType.RTU, port=self.cfg.rtu_port, baudrate=self.cfg.rtu_baudrate,
             parity=self.cfg.rtu_parity, bytesize=8, stopbits=self.cfg.rtu_stopbits, trace_pdu=self.rtu_filter,
         )
+        server.decoder = _decoder(self.cfg.config_writes)
+        return server
 
     async def _open_rtu(self, servers: list[Any]) -> str | None:
         """Open the RTU server; None when it serves, else the reason (the caller retries)."""
@@ -289,7 +402,8 @@ class _Server:
         try:
             tcp_address = None
             if self.cfg.tcp_enabled:
-                tcp = ModbusTcpServer(self.device(), address=(self.cfg.tcp_host, self.cfg.tcp_port))
+                tcp = ModbusTcpServer(self.device(), address=(self.cfg.tcp_host, self.cfg.tcp_port), trace_pdu=self.trace)
+                tcp.decoder = _decoder(self.cfg.config_writes)  # each connection's framer takes it from here
                 await tcp.serve_forever(background=True)
                 servers.append(tcp)
                 tcp_address = tuple(tcp.transport.sockets[0].getsockname()[:2])
@@ -313,7 +427,8 @@ class _Server:
                     log.debug("Modbus server shutdown: %s", exc)
 
 
-def _server_main(cfg: ModbusConfig, image: bytes, config_words: list[int], conn: socket.socket, log_level: int) -> None:
+def _server_main(cfg: ModbusConfig, image: bytes, config_words: list[int], conn: socket.socket, log_level: int,
+                 geometry_lanes: int | None = None, presence: str = "on") -> None:
     """Entry point of the Modbus server process."""
     logging.basicConfig(level=log_level, format="%(asctime)s %(levelname)s %(name)s[modbus]: %(message)s")
     try:
@@ -322,7 +437,7 @@ def _server_main(cfg: ModbusConfig, image: bytes, config_words: list[int], conn:
         log.error("%s; running unpinned", exc)
     img = array.array("H")
     img.frombytes(image)
-    srv = _Server(cfg, img, config_words, conn)
+    srv = _Server(cfg, img, config_words, conn, geometry_lanes, presence)
     try:
         asyncio.run(srv.serve())
     except KeyboardInterrupt:  # Ctrl-C reaches the whole process group; the parent decides
@@ -332,6 +447,7 @@ def _server_main(cfg: ModbusConfig, image: bytes, config_words: list[int], conn:
 
 
 _IMG, _CTL = b"I", b"C"
+_UPDATE_COUNTER = next(r.offset for r in STATUS.regs if r.name == "update_counter")
 _MAX_MSG = 1 << 16
 
 
@@ -349,7 +465,8 @@ class ModbusSink:
     process as one message on a non-blocking local socket, so Modbus clients never hold the loop's
     interpreter lock and the loop never waits for them (a full socket buffer drops the image and
     counts it; the next frame sends a newer one). A watchdog thread faults the image when the loop
-    goes silent and restarts a dead server process (back-off 1-30 s). Without :meth:`start` nothing
+    goes silent and restarts a dead server process (back-off 1-30 s); the server process faults it too
+    when no image arrives (``stale_image_s``), which also covers a frozen or dead frame-loop process. Without :meth:`start` nothing
     is served and :meth:`image` is the only view (used by unit tests).
     """
 
@@ -365,12 +482,18 @@ class ModbusSink:
         clock_ns: Callable[[], int] = time.monotonic_ns,
         wall_clock: Callable[[], float] = time.time,
         watchdog_period_s: float = 0.25,
+        lanes: Callable[[], Any] | None = None,
+        geometry_lanes: int | None = None,
     ) -> None:
+        """``lanes``: the traffic layer's lanes in use (their directions are published); ``geometry_lanes``: how
+        many configured lanes the geometry registers may re-apply (None: geometry writes refused)."""
         self.cfg = cfg
         self.n_lanes = n_lanes
         self.links = links or Links()
         self.links.writes_enabled = cfg.config_writes
-        self.state = OutputState(n_lanes, failsafe)
+        self.failsafe = failsafe or FailsafeConfig()
+        self.geometry_lanes = geometry_lanes
+        self.state = OutputState(n_lanes, failsafe, lanes)
         self.builder = ImageBuilder(n_lanes, serial_number=cfg.serial_number, links=self.links, wall_clock=wall_clock)
         self.config_words = list(config_words or initial_config_words(cfg, n_lanes))
         self.on_apply = on_apply
@@ -525,7 +648,8 @@ class ModbusSink:
             s.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 18)
         img = array.array("H", self._image).tobytes()
         self._proc = ctx.Process(target=_server_main, name="radar-edge-modbus", daemon=True,
-                                 args=(self.cfg, img, self.config_words, child, logging.getLogger().level))
+                                 args=(self.cfg, img, self.config_words, child, logging.getLogger().level,
+                                       self.geometry_lanes, self.failsafe.presence))
         self._proc.start()
         child.close()
         parent.settimeout(self.cfg.start_timeout_s)

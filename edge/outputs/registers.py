@@ -2,8 +2,9 @@
 
 Conventions (stated in the generated documentation too):
 
-* Addresses are 0-based PDU addresses. The 1-based "register numbers" are 30001 + address (input
-  registers, FC4) and 40001 + address (holding registers, FC3). Both function codes read the same
+* Addresses are 0-based PDU addresses. The 1-based "register numbers" a PLC shows are 30001 + address
+  (input registers, FC4) and 40001 + address (holding registers, FC3); mbpoll takes the 1-based
+  reference ``address + 1`` with ``-t 3`` (FC4) or ``-t 4`` (FC3). Both function codes read the same
   image; only the configuration block accepts writes (FC6/FC16).
 * 16-bit values are big-endian (the Modbus rule). 32-bit values take two registers, **high word
   first**; registers 2-3 hold the word-order test value 0x12345678.
@@ -21,7 +22,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable
 
-from edge.outputs.state import ALARMS, LOOP_STATES, MAX_LANES, Snapshot, finite
+from edge.outputs.state import ALARM_NO_PUBLISH, ALARMS, LOOP_STATES, MAX_LANES, Snapshot, finite
 
 MAP_MAGIC = 0x5452  # "TR"
 MAP_VERSION = 0x0100  # 1.0
@@ -54,6 +55,10 @@ ST_CONFIG_PENDING, ST_STATS_STALE, ST_FAILSAFE, ST_WRITES_ENABLED, ST_ANY_FAULT 
 # lane live-word bits
 LV_PRESENCE, LV_QUEUE, LV_WRONG_WAY, LV_STALE, LV_FAILSAFE, LV_NO_INTERVAL = 0, 1, 2, 8, 9, 10
 NTCIP_OCC_WATCHDOG_FAULT = 216
+#: loop_state value the Modbus server process itself serves when no image came from the frame loop
+LOOP_STATE_NO_IMAGE = len(LOOP_STATES)
+#: lane direction codes (lane_id high byte, configuration lane<k>_direction)
+DIR_APPROACHING, DIR_RECEDING, DIR_BOTH = 0, 1, 2
 
 
 @dataclass(frozen=True)
@@ -137,13 +142,18 @@ STATUS = Block("status", 16, 32, (
     _r("errors", 17, "u16", "pipeline and source errors since start (saturates)", na=False),
     _r("frame_p99", 18, "u16", "99th-percentile frame processing time", "ms", 0.1),
     _r("budget", 19, "u16", "frame time budget (frame period)", "ms", 0.1),
-    _r("loop_state", 20, "u16", "frame loop state: " + ", ".join(f"{i} {s}" for i, s in enumerate(LOOP_STATES)), na=False),
-    _r("since_last_frame", 21, "u16", "time since the last frame result (n/a before the first)", "s", 0.1),
+    _r("loop_state", 20, "u16", "frame loop state: " + ", ".join(f"{i} {s}" for i, s in enumerate(LOOP_STATES))
+       + f", {LOOP_STATE_NO_IMAGE} not responding (set by the Modbus server process when no image came from the "
+       "frame loop for outputs.modbus.stale_image_s)", na=False),
+    _r("since_last_frame", 21, "u16", "time since the last frame result (n/a before the first; keeps counting "
+       "while the frame loop does not respond)", "s", 0.1),
     _r("update_counter", 22, "u16", "incremented on every image update (results and heartbeats), mod 65536", na=False),
 ), "Read-only. Updated with every result and every heartbeat (at least every 0.5 s).")
 
 LANE = Block("lane", LANE_BASE, LANE_STRIDE, (
-    _r("lane_id", 0, "u16", "lane number 1..N (low byte); high byte direction: 0 approaching, 1 receding, 2 both, 0xFF unknown", na=False),
+    _r("lane_id", 0, "u16", "lane number 1..N (low byte); high byte direction of travel of the lane in use "
+       "(configured, or learned once learned): 0 approaching, 1 receding, 2 both, 0xFF unknown (lanes not "
+       "learned yet)", na=False),
     _r("volume", 1, "u16", "vehicles in the last closed interval"),
     _r("occupancy", 2, "u16", "occupancy in the interval (0-10000)", "%", 0.01),
     _r("ntcip_occupancy", 3, "u16", "NTCIP 1202 style occupancy: 0-200 in 0.5 % steps, or fault code "
@@ -152,8 +162,8 @@ LANE = Block("lane", LANE_BASE, LANE_STRIDE, (
     _r("mean_speed", 5, "u16", "mean speed in the interval (n/a if volume 0)", "km/h", 0.1),
     _r("speed_p85", 6, "u16", "85th-percentile speed", "km/h", 0.1),
     _r("headway", 7, "u16", "mean headway, front to front", "s", 0.01),
-    _r("gap", 8, "u16", "mean gap, back to front", "s", 0.01),
-    _r("mean_length", 9, "u16", "mean vehicle length (not measured yet: n/a)", "m", 0.1),
+    _r("gap", 8, "u16", "mean gap, back to front (n/a when it cannot be measured)", "s", 0.01),
+    _r("mean_length", 9, "u16", "mean measured vehicle length in the interval (n/a when none was measured)", "m", 0.1),
     _r("live", 10, "bits", "live, every frame: bit0 presence (call), 1 queue (not detected yet: 0), 2 wrong-way "
        "vehicle now, 8 statistics stale, 9 fail-safe presence, 10 no interval closed yet", na=False),
     _r("cumulative_volume", 11, "u32", "vehicles since start", na=False),
@@ -195,10 +205,11 @@ _LANE_GEOM = []
 for _k in range(MAX_LANES):
     _o = 10 + 4 * _k
     _LANE_GEOM += [
-        _cfg(f"lane{_k + 1}_x_min", _o, f"lane {_k + 1} lateral start", -1000, 1000, "m", 0.1, "s16"),
-        _cfg(f"lane{_k + 1}_x_max", _o + 1, f"lane {_k + 1} lateral end (> start)", -1000, 1000, "m", 0.1, "s16"),
-        _cfg(f"lane{_k + 1}_direction", _o + 2, f"lane {_k + 1} direction: 0 approaching, 1 receding, 2 both", 0, 2),
-        _cfg(f"lane{_k + 1}_enabled", _o + 3, f"lane {_k + 1} enabled 0/1", 0, 1),
+        _cfg(f"lane{_k + 1}_x_min", _o, f"lane {_k + 1} left edge across the road (road frame of "
+             "traffic.lane_centers_m, right +)", -1000, 1000, "m", 0.1, "s16"),
+        _cfg(f"lane{_k + 1}_x_max", _o + 1, f"lane {_k + 1} right edge (> left edge)", -1000, 1000, "m", 0.1, "s16"),
+        _cfg(f"lane{_k + 1}_direction", _o + 2, f"lane {_k + 1} direction of travel: 0 approaching, 1 receding", 0, 1),
+        _cfg(f"lane{_k + 1}_enabled", _o + 3, f"lane {_k + 1} in use 0/1", 0, 1),
     ]
 
 CONFIG = Block("configuration", CONFIG_BASE, CONFIG_SIZE, (
@@ -206,8 +217,8 @@ CONFIG = Block("configuration", CONFIG_BASE, CONFIG_SIZE, (
     _cfg("baud_code", 1, "RTU baud: 0 9600, 1 19200, 2 38400, 3 57600, 4 115200 (restart)", 0, 4),
     _cfg("parity_code", 2, "RTU parity: 0 none, 1 even, 2 odd (restart)", 0, 2),
     _cfg("stop_bits", 3, "RTU stop bits 1 or 2 (restart)", 1, 2),
-    _cfg("interval_s", 4, "statistics interval length (restart)", 10, 3600, "s"),
-    _cfg("lanes", 5, f"lanes N (restart)", 1, MAX_LANES),
+    _cfg("interval_s", 4, "statistics interval length, traffic.interval_s (restart)", 1, 0xFFFF, "s"),
+    _cfg("lanes", 5, "lanes N the outputs serve (restart)", 0, MAX_LANES),
     _cfg("can_enable", 6, "CAN output 0/1 (applied at once)", 0, 1),
     _cfg("can_bitrate_code", 7, "CAN bitrate: 0 125k, 1 250k, 2 500k, 3 1M (restart)", 0, 3),
     _cfg("can_sensor_id", 8, "ARS408 sensor id 0-7, id offset 0x10 x id (applied at once)", 0, 7),
@@ -218,14 +229,22 @@ CONFIG = Block("configuration", CONFIG_BASE, CONFIG_SIZE, (
          f"to discard them; reads 0. 0x{CMD_REBOOT:04X} (reboot) is refused (exception 03)", 0, 0xFFFF),
     Reg("generation", 91, "u16", "configuration generation: +1 on every successful apply (read-only)", na=False),
     Reg("command_status", 92, "u16", "last command: 0 none, 1 applied, 2 rejected (inconsistent values), 3 discarded", na=False),
-), "Holding registers, read/write when outputs.modbus.config_writes is true (otherwise every write "
-   "gets exception 01). Writes are validated per register (exception 03 when out of range) and staged: "
-   "reads return the staged values; nothing takes effect before the command register is written. "
-   "Registers 2042-2089 and 2093-2099 are reserved. Values marked (restart) are kept and flagged "
-   "(status bit 7) but take effect only after a restart; persisting them is the job of the configuration file.",
+), "Holding registers showing the running configuration. Writable when outputs.modbus.config_writes is true "
+   "(otherwise FC6/FC16 are not served: exception 01 at every address). Writes are validated per register "
+   "(exception 02 for a register that is not writable, 03 for a value out of range) and staged: reads return "
+   "the staged values; nothing takes effect before the command register is written. Registers 2042-2089 and "
+   "2093-2099 are reserved. Values marked (restart) are kept and flagged (status bit 7) but take effect only "
+   "after a restart; persisting them is the job of the configuration file. Lane geometry (2010-2041) shows the "
+   "configured lanes in use (traffic.lane_mode = configured); applying it replaces them in the traffic layer at "
+   "the next frame. The applied geometry must keep the lanes 1..N in use (N = register 9), and each lane's "
+   "edges ordered; otherwise the command gets exception 03. With learned lanes, or without a traffic layer, the "
+   "geometry reads 0 (not in use: the lane blocks' lane_id shows the learned directions) and is not writable "
+   "(exception 02).",
    writable=True)
 
 BLOCKS: tuple[Block, ...] = (IDENT, STATUS, LANE, TRACK_HDR, TRACK, CONFIG)
+#: offsets in the configuration block of the lane geometry registers
+GEOMETRY_OFFSETS = frozenset(r.offset for r in _LANE_GEOM)
 _LANE_OFF = {r.name: r.offset for r in LANE.regs}
 _LANE_IDX = {r.name: i for i, r in enumerate(LANE.regs)}
 IMAGE_SIZE = CONFIG_BASE + CONFIG_SIZE
@@ -426,10 +445,11 @@ class ImageBuilder:
     def _lane(self, img: list[int], k: int, snap: Snapshot, now_unix: float) -> None:
         ls = snap.lane_stats[k]
         stale = snap.stats_stale[k]
+        direction = lane_direction_code(snap.lane_directions[k] if k < len(snap.lane_directions) else None)
         cached = self._lane_cache[k]
         a = LANE_BASE + k * LANE_STRIDE
-        if cached is None or cached[0] is not ls or cached[1] != stale:
-            vals: dict[str, Any] = {"lane_id": (k + 1) | (0xFF << 8), "cumulative_volume": snap.cumulative_volume[k],
+        if cached is None or cached[0] is not ls or cached[1] != (stale, direction):
+            vals: dict[str, Any] = {"lane_id": (k + 1) | (direction << 8), "cumulative_volume": snap.cumulative_volume[k],
                                     "wrong_way_count": snap.wrong_way_count[k] & 0xFFFF}
             if ls is None:
                 vals.update({r.name: None for r in LANE.regs if r.na})
@@ -442,7 +462,8 @@ class ImageBuilder:
                 vals.update(grouped)
                 vals.update(
                     volume=ls.volume, occupancy=occ, mean_speed=None if ls.volume == 0 else ls.mean_speed_kmh,
-                    speed_p85=ls.speed_p85_kmh, headway=ls.headway_s, gap=ls.gap_s, mean_length=None,
+                    speed_p85=ls.speed_p85_kmh, headway=ls.headway_s, gap=ls.gap_s,
+                    mean_length=getattr(ls, "mean_length_m", None),
                     ntcip_occupancy=NTCIP_OCC_WATCHDOG_FAULT if (stale or occ is None) else min(200, int(round(occ * 2))),
                     ntcip_volume=min(int(ls.volume), 255), interval_seq=ls.sequence & 0xFF,
                     interval_length_s=ls.interval_s,
@@ -452,7 +473,7 @@ class ImageBuilder:
             for reg in LANE.regs:
                 if reg.name in vals:
                     words[reg.offset: reg.offset + reg.size] = encode(reg, vals[reg.name])
-            self._lane_cache[k] = (ls, stale, words)
+            self._lane_cache[k] = (ls, (stale, direction), words)
         else:
             words = cached[2]
         img[a: a + LANE_STRIDE] = words
@@ -522,9 +543,16 @@ def markdown() -> str:
         "and Modbus TCP and updated once per frame, whole.",
         "",
         "* **Address** is the 0-based PDU address on the wire. **Input** (FC4) and **Holding** (FC3) are the "
-        "1-based register numbers (30001 + address, 40001 + address); mbpoll `-r` takes these unless `-0`.",
-        "* FC3 and FC4 read the same registers. Only the configuration block accepts FC6/FC16. Other function "
-        "codes: exception 01; addresses outside the blocks: exception 02; bad values: exception 03.",
+        "register numbers a PLC or SCADA tag uses (30001 + address, 40001 + address). **mbpoll -r** is the "
+        "1-based reference mbpoll takes (address + 1): `-t 3` reads it with FC4, `-t 4` with FC3; e.g. the magic "
+        "(address 0, 30001) is `mbpoll -m tcp -p 5020 -t 3 -r 1 -1 127.0.0.1`, the interval length (address 2004, "
+        "42005) `mbpoll -m tcp -p 5020 -t 4 -r 2005 -1 127.0.0.1`. With `-0`, mbpoll takes the address itself.",
+        "* Function codes served: FC3 and FC4 (the same registers), FC6 and FC16 (the configuration block, only "
+        "with `outputs.modbus.config_writes`). Exception responses follow the Modbus Application Protocol v1.1b3 "
+        "(function code + 0x80): 01 for any other function code (FC1, FC5, FC8, FC17, FC43 device identification, "
+        "...), for FC6/FC16 while writes are off, and for a request too short to hold its fields; 02 for addresses "
+        "outside the blocks or not writable; 03 for a quantity outside 1-125 (FC3/FC4) or 1-123 with a matching "
+        "byte count (FC16), and for values out of range. Over RTU, function codes pymodbus cannot frame get no reply.",
         "* 16-bit values are big-endian; **32-bit values are two registers, high word first** "
         f"(registers 2-3 read 0x{WORD_ORDER_TEST >> 16:04X}, 0x{WORD_ORDER_TEST & 0xFFFF:04X}; mbpoll needs `-B`).",
         "* Fixed point: physical value = register x scale. **n/a** = not available: 0xFFFF (u16), 0x8000 (s16), "
@@ -535,6 +563,9 @@ def markdown() -> str:
         "status bit 15 and the alarm register show it, the track table empties, lane presence goes to the "
         "fail-safe state (default all on, bit 9 of `live`) and lane statistics are flagged stale "
         f"(bit 8 of `live`, NTCIP occupancy {NTCIP_OCC_WATCHDOG_FAULT}).",
+        "* When the frame loop sends no image for `outputs.modbus.stale_image_s` (1 s: frozen, hung or crashed), the "
+        "Modbus server process shows the same fault itself (alarm 4, loop state "
+        f"{LOOP_STATE_NO_IMAGE}), and clears it with the next image.",
         "* Readable ranges: " + ", ".join(f"{a}-{b - 1}" for a, b in READ_RANGES) + ".",
         "",
     ]
@@ -548,8 +579,8 @@ def markdown() -> str:
             out.append(f"Instance k = 0..{block.repeat - 1} at {block.base} + {block.stride}*k; addresses below are "
                        "instance 0 (lane 1 / record 0).")
             out.append("")
-        out.append("| Offset | Address | Input | Holding | Name | Type | Scale / unit | n/a | Description |")
-        out.append("|---:|---:|---:|---:|---|---|---|---|---|")
+        out.append("| Offset | Address | mbpoll -r | Input | Holding | Name | Type | Scale / unit | n/a | Description |")
+        out.append("|---:|---:|---:|---:|---:|---|---|---|---|---|")
         for reg in block.regs:
             a = block.address(reg)
             addr = f"{a}-{a + 1}" if reg.size == 2 else f"{a}"
@@ -558,7 +589,7 @@ def markdown() -> str:
             if reg.writable:
                 rng = f" Range {reg.lo * reg.scale:g}..{reg.hi * reg.scale:g} {reg.unit}".rstrip() + "."
             doc, typ = reg.doc.replace("|", "\\|"), _type_text(reg).replace("|", "\\|")
-            out.append(f"| +{reg.offset} | {addr} | {inp} | {40001 + a} | {reg.name} | {typ} | "
+            out.append(f"| +{reg.offset} | {addr} | {a + 1} | {inp} | {40001 + a} | {reg.name} | {typ} | "
                        f"{_scale_text(reg)} | {_na_text(reg)} | {doc}.{rng} |")
         out.append("")
     return "\n".join(out)
@@ -585,3 +616,79 @@ def default_config_words(values: dict[str, int]) -> list[int]:
 def config_values(words: list[int]) -> dict[str, Any]:
     return {reg.name: decode(reg, words[reg.offset: reg.offset + reg.size]) for reg in CONFIG.regs}
 
+
+
+# --- lanes in use <-> lane geometry registers ---------------------------------------------------
+def lane_direction_code(direction: int | None) -> int:
+    """A traffic-layer lane direction (+1 away from the radar, -1 toward it, 0 both) -> register code."""
+    if direction is None:
+        return NA_U8
+    return DIR_RECEDING if direction > 0 else DIR_APPROACHING if direction < 0 else DIR_BOTH
+
+
+def lane_geometry_values(lanes: Iterable[Any]) -> dict[str, Any]:
+    """Configuration register values (name -> physical value) of the lanes in use (objects with
+    ``center_m``, ``width_m``, ``direction``); lanes beyond the first MAX_LANES are not shown."""
+    values: dict[str, Any] = {}
+    for k, ln in enumerate(list(lanes)[:MAX_LANES]):
+        half = 0.5 * float(ln.width_m)
+        values.update({f"lane{k + 1}_x_min": float(ln.center_m) - half, f"lane{k + 1}_x_max": float(ln.center_m) + half,
+                       f"lane{k + 1}_direction": lane_direction_code(ln.direction), f"lane{k + 1}_enabled": 1})
+    return values
+
+
+def lane_geometry(values: dict[str, Any]) -> list[tuple[float, float, int]]:
+    """``(x_min_m, x_max_m, direction +1/-1)`` of the enabled lanes of decoded configuration values, in order."""
+    out = []
+    for k in range(1, MAX_LANES + 1):
+        if values.get(f"lane{k}_enabled"):
+            d = 1 if values[f"lane{k}_direction"] == DIR_RECEDING else -1
+            out.append((float(values[f"lane{k}_x_min"]), float(values[f"lane{k}_x_max"]), d))
+    return out
+
+
+# --- the Modbus server's own view of a silent frame loop ----------------------------------------
+def no_image_fault(image: Any, silent_s: float, presence: str = "on") -> list[int]:
+    """``image`` as the server process serves it when the frame loop sent nothing for ``silent_s``: the
+    fault the frame loop's own watchdog would show (status bit 15 and stale bits, alarm 4, loop state
+    :data:`LOOP_STATE_NO_IMAGE`, frame rate 0, track table empty, lanes stale with NTCIP fault code and
+    fail-safe presence per ``presence`` on/off/hold) and ``since_last_frame`` counted on."""
+    img = list(image)
+    st = STATUS.base
+    off = {r.name: r.offset for r in STATUS.regs}
+    bits = img[st] & ~((1 << ST_RADAR_OK) | (1 << ST_TRACKING))
+    bits |= (1 << ST_ANY_FAULT) | (1 << ST_STATS_STALE)
+    if presence != "hold":
+        bits |= 1 << ST_FAILSAFE
+    img[st] = bits
+    img[st + off["alarm"]] = ALARM_NO_PUBLISH
+    img[st + off["frame_rate"]] = 0
+    img[st + off["track_count"]] = 0
+    img[st + off["loop_state"]] = LOOP_STATE_NO_IMAGE
+    since_reg = STATUS.regs[_STATUS_IDX["since_last_frame"]]
+    since = decode(since_reg, [img[st + off["since_last_frame"]]])
+    if since is not None:
+        img[st + off["since_last_frame"]] = encode(since_reg, since + silent_s)[0]
+    n = min(img[IDENT.base + 9], MAX_LANES)
+    for k in range(n):
+        a = LANE_BASE + k * LANE_STRIDE
+        live = img[a + _LANE_OFF["live"]] | (1 << LV_STALE)
+        if presence == "on":
+            live |= 1 << LV_PRESENCE
+        elif presence == "off":
+            live &= ~(1 << LV_PRESENCE)
+        if presence != "hold":
+            live |= 1 << LV_FAILSAFE
+        img[a + _LANE_OFF["live"]] = live
+        img[a + _LANE_OFF["ntcip_occupancy"]] = NTCIP_OCC_WATCHDOG_FAULT
+    img[TRACK_HEADER + 1] = 0  # valid_records
+    empty = _na_block(TRACK)
+    tear = img[TRACK_HEADER] & 0xFF
+    for k in range(TRACK_SLOTS):
+        a = TRACK_BASE + k * TRACK_RECORD
+        img[a: a + TRACK_RECORD] = empty
+        img[a + 7] = (tear << 8) | NA_U8
+    return img
+
+
+_STATUS_IDX = {r.name: i for i, r in enumerate(STATUS.regs)}

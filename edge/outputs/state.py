@@ -9,14 +9,15 @@ goes to the configured fail-safe state and lane statistics are flagged stale.
 
 Lane numbering: ``LaneStats.lane``, ``TrackState.lane`` and ``TrafficEvent.lane`` are lane indices
 0..n_lanes-1, the same index as ``FrameResult.presence``; Modbus and CAN publish them as lane
-numbers 1..N.
+numbers 1..N. The lanes' directions come from the traffic layer's lanes in use (a ``lanes`` callable,
+read on every update: configured lanes, or learned ones once learned).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 from edge.outputs.config import FailsafeConfig
 
@@ -66,12 +67,15 @@ class Snapshot:
     profile: str
     n_lanes: int
     failsafe_presence: bool = False
+    #: per lane: +1 away from the radar (receding), -1 toward it (approaching), 0 both, None unknown
+    lane_directions: tuple[int | None, ...] = ()
 
 
 class OutputState:
     """Single-writer state machine: ``update(result, health) -> Snapshot`` and ``check(now_ns)``."""
 
-    def __init__(self, n_lanes: int, failsafe: FailsafeConfig | None = None) -> None:
+    def __init__(self, n_lanes: int, failsafe: FailsafeConfig | None = None,
+                 lanes: Callable[[], Sequence[Any]] | None = None) -> None:
         if not 0 <= n_lanes <= MAX_LANES:
             raise ValueError(f"n_lanes must be 0..{MAX_LANES}, got {n_lanes}")
         self.n_lanes = n_lanes
@@ -92,6 +96,8 @@ class OutputState:
         self._rate_hz = 0.0
         self._profile = ""
         self._started_ns: int | None = None
+        self._lanes = lanes
+        self._dirs: tuple[Any, tuple[int | None, ...]] = (None, (None,) * n_lanes)
 
     @property
     def last(self) -> Snapshot | None:
@@ -141,6 +147,16 @@ class OutputState:
         return self._snapshot(now_ns, last.health, False, False, (False,) * self.n_lanes, ALARM_NO_PUBLISH,
                               store=False)
 
+    def _directions(self) -> tuple[int | None, ...]:
+        """Direction per lane of the lanes in use (cached while the provider returns the same object)."""
+        if self._lanes is None:
+            return self._dirs[1]
+        lanes = self._lanes()
+        if lanes is not self._dirs[0]:
+            known = [_direction(ln) for ln in list(lanes)[: self.n_lanes]]
+            self._dirs = (lanes, tuple(known) + (None,) * (self.n_lanes - len(known)))
+        return self._dirs[1]
+
     def _alarm(self, health: LoopHealth, now: int) -> int:
         if health.state == "stopped":
             return ALARM_STOPPED
@@ -176,11 +192,16 @@ class OutputState:
             interval_end_ns=self._interval_end_ns, stats_stale=tuple(stale), cumulative_volume=tuple(self._cum),
             wrong_way_count=tuple(self._ww), fault=fault, alarm=alarm,
             frame_rate_hz=0.0 if fault else self._rate_hz, profile=self._profile, n_lanes=self.n_lanes,
-            failsafe_presence=fault and self.cfg.presence != "hold",
+            failsafe_presence=fault and self.cfg.presence != "hold", lane_directions=self._directions(),
         )
         if store:
             self._last = snap
         return snap
+
+
+def _direction(lane: Any) -> int:
+    d = int(lane.direction)
+    return 1 if d > 0 else -1 if d < 0 else 0
 
 
 def finite(x: float | None) -> float | None:

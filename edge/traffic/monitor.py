@@ -184,6 +184,15 @@ class TrafficMonitor:
             return self.yaw_rad, self._yaw_sigma_cfg
         return est, min(se, self._yaw_sigma_cfg)
 
+    def set_lanes(self, lanes) -> None:
+        """Replace the configured lanes, same count: ``(center_m, width_m, direction +1 away / -1 toward)`` each
+        (a Modbus lane geometry apply); from the next frame on tracks are assigned to them."""
+        if self.config.lane_mode != "configured" or len(lanes) != len(self.lanes):
+            raise ValueError(f"lane geometry needs {len(self.lanes)} configured lanes (lane_mode "
+                             f"{self.config.lane_mode}), got {len(lanes)}")
+        self.lanes = tuple(Lane(float(c), float(w), 1 if d > 0 else -1) for c, w, d in lanes)
+        log.info("lanes set: %s", [(round(ln.center_m, 2), round(ln.width_m, 2), ln.direction_name) for ln in self.lanes])
+
     @property
     def n_lanes(self) -> int:
         """Lanes known now; with learned lanes not yet learned, as many as ``lane_centers_m`` lists

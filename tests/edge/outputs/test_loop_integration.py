@@ -67,7 +67,9 @@ def outputs(request):
     clk = FakeClock(start_ns=50_000_000_000)
     channel = f"loop-{request.node.name}"
     rx = can.Bus(interface="virtual", channel=channel)
-    mb = ModbusSink(ModbusConfig(tcp_port=0), N_LANES, clock_ns=clk.now_ns, watchdog_period_s=3600.0).start()
+    # fake clock: the server process's own silence watch (real clock, stale_image_s) is kept out of this test
+    mb = ModbusSink(ModbusConfig(tcp_port=0, stale_image_s=600.0), N_LANES, clock_ns=clk.now_ns,
+                    watchdog_period_s=3600.0).start()
     cs = CanSink(CanConfig(interface="virtual", channel=channel), N_LANES, clock_ns=clk.now_ns,
                  bus_factory=lambda: can.Bus(interface="virtual", channel=channel), threaded=False)
     client = ModbusTcpClient(*mb.tcp_address[:1], port=mb.tcp_address[1], timeout=2, retries=0)

@@ -21,6 +21,7 @@ from tests.edge.outputs.helpers import PERIOD_NS, health, make_lane_stats, make_
 
 T0 = 1_000_000_000
 N_LANES = 4
+QUIET_S = 600.0  # the server's own silence watch (real clock) never fires in tests that publish on a fake timeline
 
 
 def _publish(sink, seq, rng, lanes=False):
@@ -36,9 +37,11 @@ def _publish(sink, seq, rng, lanes=False):
 def tcp_sink(request):
     writes = getattr(request, "param", False)
     # the tests publish on a fake timeline starting at T0: the watchdog must use the same clock, or
-    # it sees every published frame as ancient and faults the image while the tests read it
-    sink = ModbusSink(ModbusConfig(tcp_host="127.0.0.1", tcp_port=0, config_writes=writes), N_LANES,
-                      clock_ns=lambda: T0).start()
+    # it sees every published frame as ancient and faults the image while the tests read it. The
+    # server process's own silence watch runs on the real clock: QUIET_S keeps it out of these tests.
+    sink = ModbusSink(ModbusConfig(tcp_host="127.0.0.1", tcp_port=0, config_writes=bool(writes), stale_image_s=QUIET_S),
+                      N_LANES, clock_ns=lambda: T0, geometry_lanes=writes if writes and writes is not True else None
+                      ).start()
     yield sink
     sink.close()
 
@@ -80,15 +83,18 @@ def test_illegal_addresses_give_exception_02(client, address, count):
 
 
 def test_writes_are_refused_when_config_writes_are_off(client):
-    rr = client.write_register(R.CONFIG_BASE + 4, 30, device_id=1)
-    assert rr.isError() and rr.exception_code == 1
-    rr = client.write_register(R.STATUS.base, 1, device_id=1)  # telemetry is read-only
-    assert rr.isError() and rr.exception_code == 2
+    # with config_writes off FC6/FC16 are not served: 01 at every address, as the register docs say
+    # (this test used to expect 02 for telemetry addresses, which contradicted the docs)
+    for address in (R.CONFIG_BASE + 4, R.STATUS.base, 0):
+        rr = client.write_register(address, 30, device_id=1)
+        assert rr.isError() and rr.exception_code == 1 and rr.function_code == 0x86
+        rr = client.write_registers(address, [1, 2], device_id=1)
+        assert rr.isError() and rr.exception_code == 1 and rr.function_code == 0x90
     rr = client.read_coils(0, count=8, device_id=1)
-    assert rr.isError() and rr.exception_code == 1
+    assert rr.isError() and rr.exception_code == 1 and rr.function_code == 0x81
 
 
-@pytest.mark.parametrize("tcp_sink", [True], indirect=True)
+@pytest.mark.parametrize("tcp_sink", [1], indirect=True)  # writes on, one configured lane's geometry writable
 def test_config_writes_validated_staged_and_applied(tcp_sink, client):
     applied = []
     tcp_sink.on_apply = lambda before, after: applied.append(after)
@@ -99,7 +105,7 @@ def test_config_writes_validated_staged_and_applied(tcp_sink, client):
     assert client.write_register(base + 50, 1, device_id=1).exception_code == 2
     assert client.write_register(R.GENERATION_ADDR, 9, device_id=1).exception_code == 2
     # out of range -> 03, nothing staged
-    assert client.write_register(base + 4, 5, device_id=1).exception_code == 3
+    assert client.write_register(base + 4, 0, device_id=1).exception_code == 3
     assert client.write_registers(base + 6, [1, 9], device_id=1).exception_code == 3
     # staged: visible on read, not applied
     assert not client.write_registers(base + 4, [120, 2], device_id=1).isError()
@@ -204,7 +210,7 @@ def pty_pair(tmp_path):
 @pytest.fixture
 def rtu_sink(pty_pair):
     # a pty refuses parity settings (EINVAL), so the pty test runs 8N1; the default 8E1 is for real UARTs
-    cfg = ModbusConfig(tcp_enabled=False, rtu_port=pty_pair[0], unit_id=3, rtu_parity="N")
+    cfg = ModbusConfig(tcp_enabled=False, rtu_port=pty_pair[0], unit_id=3, rtu_parity="N", stale_image_s=QUIET_S)
     sink = ModbusSink(cfg, N_LANES).start()
     yield sink, pty_pair[1]
     sink.close()
@@ -223,7 +229,7 @@ def test_rtu_reads_and_silence_for_other_unit_ids(rtu_sink):
         assert rr.registers == img[R.LANE_BASE: R.LANE_BASE + 32]
         rr = c.read_holding_registers(R.TRACK_HEADER, count=125, device_id=3)
         assert rr.registers == img[R.TRACK_HEADER: R.TRACK_HEADER + 125]
-        assert c.write_register(0, 1, device_id=3).exception_code == 2
+        assert c.write_register(0, 1, device_id=3).exception_code == 1  # writes off: FC6 not served (was 02)
         assert c.read_holding_registers(400, count=1, device_id=3).exception_code == 2
         with pytest.raises(ModbusIOException):
             c.read_holding_registers(0, count=1, device_id=4)  # another device on the line: no reply
@@ -262,7 +268,7 @@ def test_mbpoll_tcp(tcp_sink):
     assert _mbpoll_values(p.stdout) == {21: 4660}, p.stdout  # register number 40021 = address 20: frame counter
     p = subprocess.run([exe, "-m", "tcp", "-p", str(port), "-a", "1", "-t", "4", "-r", "1", "-1", host, "9"],
                        capture_output=True, text=True, timeout=20)
-    assert p.returncode != 0 and "Illegal data address" in p.stderr
+    assert p.returncode != 0 and "Illegal function" in p.stderr  # writes off: FC6 not served (was 02 before)
 
 
 def test_mbpoll_rtu_unit_id(rtu_sink):
@@ -375,5 +381,388 @@ def test_a_dead_server_process_is_restarted_with_the_applied_configuration():
             assert c.read_holding_registers(R.GENERATION_ADDR, count=1, device_id=1).registers == [1]
         finally:
             c.close()
+    finally:
+        sink.close()
+
+
+# --- issue 27: conformance with the Modbus Application Protocol v1.1b3 --------------------------
+def _raw(port: int, pdu: bytes, uid: int = 1, tid: int = 0x4242) -> bytes:
+    """Send one request PDU in an MBAP header written by hand; the response PDU (function code first)."""
+    import socket
+    import struct
+
+    with socket.create_connection(("127.0.0.1", port), timeout=3) as s:
+        s.sendall(struct.pack(">HHHB", tid, 0, len(pdu) + 1, uid) + pdu)
+        head = b""
+        while len(head) < 7:
+            chunk = s.recv(7 - len(head))
+            assert chunk, "connection closed without a response"
+            head += chunk
+        rtid, pid, length, ruid = struct.unpack(">HHHB", head)
+        assert (rtid, pid, ruid) == (tid, 0, uid)
+        body = b""
+        while len(body) < length - 1:
+            chunk = s.recv(length - 1 - len(body))
+            assert chunk, "connection closed mid-response"
+            body += chunk
+    return body
+
+
+def _pdu(fc: int, *words: int, tail: bytes = b"") -> bytes:
+    return bytes([fc]) + b"".join((w & 0xFFFF).to_bytes(2, "big") for w in words) + tail
+
+
+REFUSED_ALWAYS = [
+    (bytes([4, 0, 0, 0, 0]), 0x84, 3),  # FC4 quantity 0 (was 0x80/01)
+    (bytes([4, 0, 0, 0, 126]), 0x84, 3),  # FC4 quantity 126
+    (bytes([3, 0, 0, 0, 0]), 0x83, 3),
+    (bytes([3, 0, 0, 0, 126]), 0x83, 3),
+    (bytes([0x41, 0, 0, 0, 1]), 0xC1, 1),  # unknown function code (was 0x80/01)
+    (bytes([4, 0, 0]), 0x84, 1),  # truncated PDU (was 0x80/01)
+    (bytes([3]), 0x83, 1),
+    (bytes([1, 0, 0, 0, 8]), 0x81, 1),  # read coils
+    (bytes([2, 0, 0, 0, 8]), 0x82, 1),  # read discrete inputs
+    (bytes([5, 0, 0, 0xFF, 0]), 0x85, 1),  # write single coil (was 02)
+    (bytes([7]), 0x87, 1),  # read exception status (was answered)
+    (bytes([8, 0, 0, 0x12, 0x34]), 0x88, 1),  # diagnostics echo (was answered)
+    (bytes([0x11]), 0x91, 1),  # report server id (was answered "Pymodbus")
+    (bytes([0x2B, 0x0E, 1, 0]), 0xAB, 1),  # read device identification (was answered)
+    (_pdu(0x17, 0, 1, 2000, 1, tail=bytes([2, 0, 1])), 0x97, 1),  # read/write multiple registers
+]
+
+
+@pytest.mark.parametrize("tcp_sink", [False, 1], indirect=True)
+@pytest.mark.parametrize("pdu,fc,code", REFUSED_ALWAYS)
+def test_raw_pdus_get_spec_exception_responses(tcp_sink, pdu, fc, code):
+    body = _raw(tcp_sink.tcp_address[1], pdu)
+    assert body == bytes([fc, code]), body.hex()
+    assert b"Pymodbus" not in body
+
+
+WRITES = [
+    (_pdu(6, 0, 1), 0x86, 2),  # FC6 to telemetry: not writable
+    (_pdu(6, 2050, 1), 0x86, 2),  # reserved configuration register
+    (_pdu(6, 2091, 1), 0x86, 2),  # the generation counter is read-only
+    (_pdu(6, 2004, 0), 0x86, 3),  # interval 0 s: value out of range
+    (_pdu(6, 2012, 2), 0x86, 3),  # lane 1 direction 2 (both) is not a configured-lane direction
+    (_pdu(16, 0, 1, tail=bytes([2, 0, 1])), 0x90, 2),  # FC16 to telemetry
+    (_pdu(16, 2004, 2, tail=bytes([2, 0, 30])), 0x90, 3),  # byte count 2 for 2 registers
+    (_pdu(16, 2004, 0, tail=bytes([0])), 0x90, 3),  # quantity 0
+    (bytes([6, 0x07]), 0x86, 1),  # truncated
+]
+
+
+@pytest.mark.parametrize("tcp_sink", [1], indirect=True)
+def test_raw_writes_get_02_for_addresses_and_03_for_values_with_writes_on(tcp_sink):
+    port = tcp_sink.tcp_address[1]
+    for pdu, fc, code in WRITES:
+        assert _raw(port, pdu) == bytes([fc, code]), pdu.hex()
+    assert _raw(port, _pdu(6, 2004, 30)) == _pdu(6, 2004, 30)  # FC6 echo: staged
+    assert _raw(port, _pdu(3, 2004, 1)) == bytes([3, 2, 0, 30])
+    assert _raw(port, bytes([4, 0, 0, 0, 1])) == bytes([4, 2, 0x54, 0x52])  # valid requests still served
+    tcp_sink.request_counters()
+    assert tcp_sink.sync() and tcp_sink.sync()
+    assert tcp_sink.server_counters["exceptions"] >= len(WRITES)
+
+
+def test_raw_writes_while_config_writes_are_off_get_01(tcp_sink):
+    port = tcp_sink.tcp_address[1]
+    for pdu in (_pdu(6, 2004, 30), _pdu(6, 0, 1), _pdu(16, 2004, 1, tail=bytes([2, 0, 30]))):
+        assert _raw(port, pdu) == bytes([pdu[0] | 0x80, 1])
+
+
+def test_request_problem_table():
+    from edge.outputs.modbus import request_problem
+
+    assert request_problem(4, bytes([0, 0, 0, 125]), False) is None
+    assert request_problem(4, bytes([0, 0, 0, 126]), False) == 3
+    assert request_problem(16, bytes([0x07, 0xD0, 0, 1, 2, 0, 1]), True) is None
+    assert request_problem(16, bytes([0x07, 0xD0, 0, 1, 2, 0, 1]), False) == 1
+    assert request_problem(16, bytes([0x07, 0xD0, 0, 2, 4, 0, 1]), True) == 3  # values missing
+    assert request_problem(0x2B, bytes([0x0E, 1, 0]), True) == 1
+
+
+@pytest.mark.parametrize("tcp_sink", [1], indirect=True)
+def test_mbpoll_gets_the_spec_exceptions(tcp_sink):
+    exe = _mbpoll()
+    host, port = tcp_sink.tcp_address
+    base = [exe, "-m", "tcp", "-p", str(port), "-a", "1", "-1", "-o", "2"]
+
+    def run(*args):
+        p = subprocess.run(base + list(args), capture_output=True, text=True, timeout=20)
+        assert p.returncode != 0, p.stdout
+        return p.stderr
+
+    assert "Illegal function" in run("-t", "0", "-r", "1", host)  # FC1
+    assert "Illegal function" in run("-t", "1", "-r", "1", host)  # FC2
+    assert "Illegal function" in run("-t", "0", "-r", "1", host, "1")  # FC5 (was: illegal data address)
+    assert "Illegal data address" in run("-t", "4", "-r", "1", host, "9")  # FC6 to telemetry
+    assert "Illegal data address" in run("-t", "4", "-r", "1", host, "9", "9")  # FC16 to telemetry
+    assert "Illegal data value" in run("-t", "4", "-r", "2005", host, "0")  # interval 0 s
+    assert "Illegal data address" in run("-t", "3", "-r", "30001", host)  # the number a PLC shows is not -r
+
+
+def test_mbpoll_rtu_report_server_id_is_refused(rtu_sink):
+    """FC17 used to answer, naming the device "Pymodbus"."""
+    exe = _mbpoll()
+    sink, port = rtu_sink
+    p = subprocess.run([exe, "-m", "rtu", "-a", "3", "-b", "19200", "-P", "none", "-u", "-1", "-o", "2", port],
+                       capture_output=True, text=True, timeout=20)
+    assert "Report slave ID failed" in p.stderr and "Illegal function" in p.stderr, p.stdout + p.stderr  # (exit 0)
+    assert "Pymodbus" not in p.stdout + p.stderr
+
+
+# --- issue 27: the configuration block is the running configuration; geometry writes act ---------
+def _traffic_sinks(writes: bool, lane_mode: str = "configured"):
+    from edge.config import load_config
+    from edge.outputs import build_sinks
+    from edge.traffic import TrafficMonitor
+
+    cfg = load_config(env={}, overrides={
+        "outputs.modbus.tcp_port": 0, "outputs.modbus.config_writes": writes, "outputs.modbus.stale_image_s": 1.9,
+        "traffic.interval_s": 10.0, "traffic.lane_mode": lane_mode, "traffic.lane_centers_m": [-1.75, 1.75, 5.5],
+        "traffic.lane_widths_m": [3.5, 3.5, 4.0], "traffic.lane_directions": ["toward", "away", "away"],
+        "traffic.estimate_yaw": False, "outputs.can.bitrate": 250_000, "outputs.can.sensor_id": 3,
+    })
+    monitor = TrafficMonitor(cfg.section("traffic"))
+    sinks = build_sinks(cfg, monitor.n_lanes, strict=True, traffic=monitor)
+    mb = next(s for s in sinks if isinstance(s, ModbusSink))
+    c = ModbusTcpClient(*mb.tcp_address[:1], port=mb.tcp_address[1], timeout=2, retries=0)
+    assert c.connect()
+    return monitor, sinks, mb, c
+
+
+def _close(sinks, c):
+    c.close()
+    for s in sinks:
+        s.close()
+
+
+def _track(x_m: float, y_m: float = 30.0):
+    from edge.types import TrackState
+
+    return TrackState(track_id=5, x_m=x_m, y_m=y_m, vx_mps=0.0, vy_mps=-20.0, range_m=float(np.hypot(x_m, y_m)),
+                      radial_speed_mps=-20.0, az_rad=float(np.arctan2(x_m, y_m)), age_frames=10, hits=10)
+
+
+def _config(c) -> dict:
+    regs = c.read_holding_registers(R.CONFIG_BASE, count=R.CONFIG_SIZE, device_id=1).registers
+    return R.config_values(regs)
+
+
+def test_configuration_block_reads_the_running_configuration():
+    """Register 2004 read 60 with a 10 s interval, the geometry 0/disabled with configured lanes, lane_id's
+    direction byte 0xFF."""
+    monitor, sinks, mb, c = _traffic_sinks(writes=False)
+    try:
+        v = _config(c)
+        assert v["interval_s"] == 10 and v["lanes"] == 3
+        assert (v["can_bitrate_code"], v["can_sensor_id"], v["can_enable"]) == (1, 3, 0)
+        assert [v[f"lane{k}_enabled"] for k in range(1, 9)] == [1, 1, 1, 0, 0, 0, 0, 0]
+        assert (v["lane1_x_min"], v["lane1_x_max"], v["lane1_direction"]) == (pytest.approx(-3.5), 0, R.DIR_APPROACHING)
+        assert (v["lane3_x_min"], v["lane3_x_max"], v["lane3_direction"]) == (pytest.approx(3.5), 7.5, R.DIR_RECEDING)
+        mb.publish(make_result(1, T0, (), (False,) * 3), health(T0, T0))
+        assert mb.sync()
+        ids = c.read_input_registers(R.LANE_BASE, count=1, device_id=1).registers + [
+            c.read_input_registers(R.LANE_BASE + k * R.LANE_STRIDE, count=1, device_id=1).registers[0] for k in (1, 2)]
+        assert ids == [0x0001, 0x0102, 0x0103]
+    finally:
+        _close(sinks, c)
+
+
+def test_lane_geometry_writes_move_tracks_to_other_lanes():
+    """Geometry writes were applied (generation +1) but nothing used them."""
+    monitor, sinks, mb, c = _traffic_sinks(writes=True)
+    try:
+        assert monitor.update((_track(1.0),), T0).tracks[0].lane == 1  # lane 2: 0 .. 3.5 m
+        # the road shifted 1.5 m: lanes -2.0 .. 1.5 .. 5.0 .. 9.0 m; the track at 1.0 m is now in lane 1
+        assert not c.write_registers(R.CONFIG_BASE + 10, [-20 & 0xFFFF, 15, 0, 1, 15, 50, 1, 1, 50, 90],
+                                     device_id=1).isError()
+        assert monitor.update((_track(1.0),), T0 + PERIOD_NS).tracks[0].lane == 1  # staged only
+        assert not c.write_register(R.CMD_ADDR, R.CMD_APPLY, device_id=1).isError()
+        assert mb.sync()  # the frame loop's side takes the applied configuration (between frames)
+        assert monitor.update((_track(1.0),), T0 + 2 * PERIOD_NS).tracks[0].lane == 0
+        assert [(ln.center_m, ln.width_m, ln.direction) for ln in monitor.lanes] == [
+            (pytest.approx(-0.25), pytest.approx(3.5), -1), (pytest.approx(3.25), pytest.approx(3.5), 1),
+            (pytest.approx(7.0), pytest.approx(4.0), 1)]
+        assert not mb.links.config_pending_restart  # geometry takes effect at once
+        # a direction change is published in lane_id
+        assert not c.write_register(R.CONFIG_BASE + 12, R.DIR_RECEDING, device_id=1).isError()
+        assert not c.write_register(R.CMD_ADDR, R.CMD_APPLY, device_id=1).isError()
+        assert mb.sync()
+        mb.publish(make_result(1, T0, (), (False,) * 3), health(T0, T0))
+        assert mb.sync()
+        assert c.read_input_registers(R.LANE_BASE, count=1, device_id=1).registers == [0x0101]
+        # the lane count is the configuration file's: enabling lane 4 or disabling lane 3 is refused
+        for reg, value in ((R.CONFIG_BASE + 25, 1), (R.CONFIG_BASE + 21, 0)):
+            assert not c.write_register(reg, value, device_id=1).isError()
+            rr = c.write_register(R.CMD_ADDR, R.CMD_APPLY, device_id=1)
+            assert rr.isError() and rr.exception_code == 3
+            assert not c.write_register(R.CMD_ADDR, R.CMD_RESTART_COMMS, device_id=1).isError()
+        assert mb.sync() and len(monitor.lanes) == 3
+    finally:
+        _close(sinks, c)
+
+
+def test_lane_geometry_is_not_writable_with_learned_lanes():
+    monitor, sinks, mb, c = _traffic_sinks(writes=True, lane_mode="learned")
+    try:
+        v = _config(c)
+        assert not any(v[f"lane{k}_enabled"] for k in range(1, 9))  # nothing configured: learned lanes are not config
+        rr = c.write_register(R.CONFIG_BASE + 10, 10, device_id=1)
+        assert rr.isError() and rr.exception_code == 2
+        assert not c.write_register(R.CONFIG_BASE + 4, 30, device_id=1).isError()  # the rest stays writable
+        mb.publish(make_result(1, T0, (), (False,) * 3), health(T0, T0))
+        assert mb.sync()
+        assert c.read_input_registers(R.LANE_BASE, count=1, device_id=1).registers == [0xFF01]  # not learned yet
+    finally:
+        _close(sinks, c)
+
+
+# --- issue 27: the server process shows a silent frame loop itself ------------------------------
+def test_server_process_serves_the_fault_when_no_image_arrives():
+    """The watchdog thread lives in the frame loop's process and stops with it (SIGSTOP, deadlock): the
+    server kept serving the last image, status OK, since_last_frame 0."""
+    import array
+    import socket
+
+    from edge.outputs.modbus import _Server
+
+    t = [100.0]
+    a, b = socket.socketpair()
+    try:
+        builder = R.ImageBuilder(2, wall_clock=lambda: 0.0, temperature=lambda: None)
+        srv = _Server(ModbusConfig(stale_image_s=1.0), array.array("H", builder.initial_image()), [0] * R.CONFIG_SIZE,
+                      a, clock_s=lambda: t[0])
+        t[0] += 5.0
+        assert list(srv.served()) == builder.initial_image()  # not armed before the loop's first image
+        from edge.outputs.state import OutputState
+
+        st_ = OutputState(2)
+        img = builder.build(st_.update(make_result(3, T0, (), (True, False)), health(T0, T0)))
+        srv.take_image(array.array("H", img))
+        t[0] += 1.0
+        assert list(srv.served()) == img  # exactly stale_image_s: not yet
+        t[0] += 0.05
+        f = R.decode_block(R.STATUS, list(srv.served())[R.STATUS.base: R.STATUS.base + R.STATUS.size])
+        assert f["alarm"] == 4 and f["loop_state"] == R.LOOP_STATE_NO_IMAGE and f["status_bits"] & (1 << R.ST_ANY_FAULT)
+        assert f["since_last_frame"] == pytest.approx(1.0, abs=0.051)
+        t[0] += 3.0
+        f = R.decode_block(R.STATUS, list(srv.served())[R.STATUS.base: R.STATUS.base + R.STATUS.size])
+        assert f["since_last_frame"] == pytest.approx(4.0, abs=0.051)  # keeps counting
+        srv.take_image(array.array("H", builder.build(st_.update(None, health(T0 + 10**9, T0)))))
+        assert list(srv.served()) != img and srv.served()[R.STATUS.base + 1] == 0  # alarm cleared
+        assert srv.counters["no_image_faults"] == 1
+    finally:
+        a.close()
+        b.close()
+
+
+def _drain(stream, lines, port_found):
+    for line in stream:
+        lines.append(line)
+        m = re.search(r"Modbus TCP listening on 127\.0\.0\.1:(\d+)", line)
+        if m:
+            port_found.append(int(m.group(1)))
+
+
+def _status(c):
+    return R.decode_block(R.STATUS, c.read_input_registers(R.STATUS.base, count=R.STATUS.size, device_id=1).registers)
+
+
+def _poll_until(c, pred, timeout_s):
+    """Poll the status block until ``pred`` holds; (elapsed s, status) or (None, last status) at the deadline."""
+    import time
+
+    t0 = time.monotonic()
+    st = None
+    while time.monotonic() - t0 < timeout_s:
+        st = _status(c)
+        if pred(st):
+            return time.monotonic() - t0, st
+    return None, st
+
+
+def test_sigstop_of_the_frame_loop_is_visible_over_modbus_within_2_s():
+    """Acceptance (issue 27): `radar-edge run` frozen with SIGSTOP (its Modbus server child keeps running):
+    a poller sees the fault within 2 s; SIGCONT clears it. Before, status stayed OK with since_last_frame 0."""
+    import os
+    import signal
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "edge", "-v", "run", "--duration", "120", "--status-every", "0",
+         "--set", "outputs.modbus.tcp_port=0"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(root)},
+        cwd=root)
+    lines, port = [], []
+    reader = threading.Thread(target=_drain, args=(proc.stderr, lines, port), daemon=True)  # never let the pipe fill
+    reader.start()
+    c = None
+    try:
+        import time
+
+        deadline = time.monotonic() + 60
+        while not port and time.monotonic() < deadline and proc.poll() is None:
+            reader.join(0.1)  # wait for the log line (bounded by the deadline), not a fixed sleep
+        assert port, "".join(lines[-30:])
+        c = ModbusTcpClient("127.0.0.1", port=port[0], timeout=2, retries=0)
+        assert c.connect()
+        ok = lambda st: st["loop_state"] == 1 and not st["status_bits"] & (1 << R.ST_ANY_FAULT)  # noqa: E731
+        fault = lambda st: (st["status_bits"] & (1 << R.ST_ANY_FAULT) and st["alarm"] == 4  # noqa: E731
+                            and st["loop_state"] == R.LOOP_STATE_NO_IMAGE)
+        elapsed, st = _poll_until(c, ok, 60)
+        assert elapsed is not None, st
+        os.kill(proc.pid, signal.SIGSTOP)  # the main process only: its Modbus server child keeps serving
+        try:
+            elapsed, st = _poll_until(c, fault, 5)
+            assert elapsed is not None and elapsed <= 2.0, (elapsed, st)
+            assert not st["status_bits"] & (1 << R.ST_RADAR_OK) and st["since_last_frame"] >= 1.0
+        finally:
+            os.kill(proc.pid, signal.SIGCONT)
+        elapsed, st = _poll_until(c, ok, 10)
+        assert elapsed is not None, st
+    finally:
+        if c is not None:
+            c.close()
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+
+
+def test_documented_mbpoll_command_lines_read_the_documented_registers():
+    """The docs said mbpoll -r takes 30001/40001 numbers: `-r 30001` is an illegal data address. The command
+    lines the register map prints, and its mbpoll -r column, read what they document."""
+    from edge.outputs.modbus import initial_config_words
+
+    exe = _mbpoll()
+    cfg = ModbusConfig(tcp_port=0, stale_image_s=QUIET_S)
+    sink = ModbusSink(cfg, N_LANES, config_words=initial_config_words(cfg, N_LANES, None, 10.0)).start()
+    try:
+        port = sink.tcp_address[1]
+        doc = R.markdown()
+        examples = re.findall(r"`(mbpoll -m tcp -p 5020 [^`]*)`", doc)
+        assert len(examples) == 2, examples
+        got = []
+        for line in examples:
+            argv = line.replace("-p 5020", f"-p {port}").split()
+            p = subprocess.run([exe] + argv[1:], capture_output=True, text=True, timeout=20)
+            assert p.returncode == 0, p.stderr
+            got.append(_mbpoll_values(p.stdout))
+        assert got == [{1: R.MAP_MAGIC}, {2005: 10}]  # magic (30001), interval length (42005)
+        rows = {m[2]: (int(m[0]), int(m[1])) for m in re.findall(r"^\| \+\d+ \| (\d+) \| (\d+) \| \d+ \| \d+ \| (\w+) \|",
+                                                                    doc, re.M)}
+        for name, table, value in (("magic", "3", R.MAP_MAGIC), ("lanes", "3", N_LANES), ("interval_s", "4", 10),
+                                   ("lane_stride", "4", R.LANE_STRIDE)):
+            address, ref = rows[name]
+            assert ref == address + 1
+            p = subprocess.run([exe, "-m", "tcp", "-p", str(port), "-t", table, "-r", str(ref), "-1", "127.0.0.1"],
+                               capture_output=True, text=True, timeout=20)
+            assert _mbpoll_values(p.stdout) == {ref: value}, (name, p.stdout, p.stderr)
     finally:
         sink.close()

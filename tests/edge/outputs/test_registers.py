@@ -214,3 +214,95 @@ def test_numpy_scalars_from_pipelines_are_encoded():
     rec = _decode_instance(img, R.TRACK, 0)
     assert rec["track_id"] == 5 and rec["class_lane"] == (1, 1) and rec["vy"] == pytest.approx(-20.0)
     assert rec["x"] == pytest.approx(1.2, abs=0.11) and rec["prob_tear"] == (50, 1)
+
+
+# --- issue 27: truthful values ------------------------------------------------------------------
+def _lane(center, width, direction):
+    from edge.traffic.lanes import Lane
+
+    return Lane(center, width, direction)
+
+
+def test_lane_id_high_byte_is_the_direction_of_the_lanes_in_use():
+    """Before, the high byte was 0xFF (unknown) whatever the lanes' directions."""
+    in_use = [()]  # learned lanes not learned yet
+    st_ = OutputState(4, lanes=lambda: in_use[0])
+    b = R.ImageBuilder(4, wall_clock=lambda: 0.0, temperature=lambda: None)
+    lanes = make_lane_stats(np.random.default_rng(3), 4, seq=1)
+    img = b.build(st_.update(make_result(1, T0, (), (False,) * 4, lanes), health(T0, T0)))
+    assert [_decode_instance(img, R.LANE, k)["lane_id"] for k in range(4)] == [0xFF01, 0xFF02, 0xFF03, 0xFF04]
+    in_use[0] = (_lane(-5.25, 3.5, -1), _lane(-1.75, 3.5, -1), _lane(1.75, 3.5, 1), _lane(5.25, 3.5, 1))
+    img = b.build(st_.update(make_result(2, T0 + PERIOD_NS, (), (False,) * 4), health(T0 + PERIOD_NS, T0 + PERIOD_NS)))
+    ids = [_decode_instance(img, R.LANE, k)["lane_id"] for k in range(4)]
+    assert [i & 0xFF for i in ids] == [1, 2, 3, 4]
+    assert [i >> 8 for i in ids] == [R.DIR_APPROACHING, R.DIR_APPROACHING, R.DIR_RECEDING, R.DIR_RECEDING]
+    in_use[0] = (_lane(0.0, 7.0, 0),)  # one lane carrying both directions; lanes 2-4 unknown
+    img = b.build(st_.update(make_result(3, T0 + 2 * PERIOD_NS, (), (False,) * 4), health(T0 + 2 * PERIOD_NS, T0)))
+    assert [_decode_instance(img, R.LANE, k)["lane_id"] >> 8 for k in range(4)] == [R.DIR_BOTH, 0xFF, 0xFF, 0xFF]
+
+
+def test_mean_length_from_lane_stats_and_gap_na():
+    """mean_length read n/a whatever LaneStats said; a NaN gap or length must read n/a, never a number."""
+    from dataclasses import replace
+
+    st_ = OutputState(2)
+    b = R.ImageBuilder(2, wall_clock=lambda: 0.0, temperature=lambda: None)
+    a, c = make_lane_stats(np.random.default_rng(4), 2, seq=3)
+    lanes = (replace(a, volume=12, mean_length_m=4.63, gap_s=2.5), replace(c, volume=1, gap_s=float("nan")))
+    img = b.build(st_.update(make_result(1, T0, (), (False, False), lanes), health(T0, T0)))
+    l1, l2 = _decode_instance(img, R.LANE, 0), _decode_instance(img, R.LANE, 1)
+    assert l1["mean_length"] == pytest.approx(4.6) and l1["gap"] == pytest.approx(2.5)
+    assert l2["mean_length"] is None and l2["gap"] is None
+    assert img[R.LANE_BASE + R.LANE_STRIDE + 9] == R.NA_U16 and img[R.LANE_BASE + R.LANE_STRIDE + 8] == R.NA_U16
+
+
+def test_configuration_words_show_the_running_configuration():
+    """Register 2004 read 60 and the lane geometry 0/disabled whatever the traffic layer ran with."""
+    from edge.outputs.config import CanConfig, ModbusConfig
+    from edge.outputs.modbus import initial_config_words
+
+    lanes = (_lane(-1.75, 3.5, -1), _lane(1.75, 3.5, 1), _lane(5.5, 4.0, 1))
+    words = initial_config_words(ModbusConfig(unit_id=7), 3, CanConfig(bitrate=250_000, sensor_id=2), 10.0, lanes)
+    v = R.config_values(words)
+    assert v["interval_s"] == 10 and v["lanes"] == 3 and v["unit_id"] == 7
+    assert v["can_bitrate_code"] == 1 and v["can_sensor_id"] == 2 and v["can_enable"] == 0
+    assert [v[f"lane{k}_enabled"] for k in range(1, 9)] == [1, 1, 1, 0, 0, 0, 0, 0]
+    assert (v["lane1_x_min"], v["lane1_x_max"], v["lane1_direction"]) == (pytest.approx(-3.5), 0.0, R.DIR_APPROACHING)
+    assert (v["lane3_x_min"], v["lane3_x_max"], v["lane3_direction"]) == (pytest.approx(3.5), 7.5, R.DIR_RECEDING)
+    assert R.lane_geometry(v) == [(pytest.approx(-3.5), 0.0, -1), (0.0, pytest.approx(3.5), 1),
+                                  (pytest.approx(3.5), 7.5, 1)]
+
+
+def test_no_image_fault_view():
+    """What the Modbus server process serves when the frame loop went silent (before: the last image, healthy)."""
+    st_ = OutputState(2)
+    b = R.ImageBuilder(2, wall_clock=lambda: 0.0, temperature=lambda: None)
+    tracks = make_tracks(np.random.default_rng(2), 5)
+    img = b.build(st_.update(make_result(7, T0, tracks, (False, True), make_lane_stats(np.random.default_rng(2), 2, 1)),
+                             health(T0 + 300_000_000, T0)))
+    assert _decode_instance(img, R.STATUS)["since_last_frame"] == pytest.approx(0.3)
+    for presence, bit0 in (("on", (1, 1)), ("off", (0, 0)), ("hold", (0, 1))):
+        f = R.no_image_fault(img, 2.5, presence)
+        s = _decode_instance(f, R.STATUS)
+        assert s["status_bits"] & (1 << R.ST_ANY_FAULT) and s["status_bits"] & (1 << R.ST_STATS_STALE)
+        assert not s["status_bits"] & (1 << R.ST_RADAR_OK)
+        assert bool(s["status_bits"] & (1 << R.ST_FAILSAFE)) == (presence != "hold")
+        assert s["alarm"] == 4 and s["loop_state"] == R.LOOP_STATE_NO_IMAGE and s["frame_rate"] == 0
+        assert s["since_last_frame"] == pytest.approx(2.8) and s["track_count"] == 0
+        assert _decode_instance(f, R.TRACK_HDR)["valid_records"] == 0
+        assert _decode_instance(f, R.TRACK, 0)["track_id"] is None
+        for k in range(2):
+            lane = _decode_instance(f, R.LANE, k)
+            assert lane["live"] & (1 << R.LV_STALE) and lane["ntcip_occupancy"] == R.NTCIP_OCC_WATCHDOG_FAULT
+            assert lane["live"] & 1 == bit0[k]
+    assert _decode_instance(img, R.STATUS)["alarm"] == 0  # the image itself is not changed
+
+
+def test_docs_give_addresses_as_mbpoll_and_a_plc_type_them():
+    """The docs said mbpoll -r takes the 30001/40001 numbers: -r 30001 is an illegal address."""
+    doc = R.markdown()
+    assert "mbpoll `-r` takes these" not in doc
+    assert "| Offset | Address | mbpoll -r | Input | Holding |" in doc
+    assert "| +0 | 0 | 1 | 30001 | 40001 | magic |" in doc
+    assert "| +4 | 2004 | 2005 | 32005 | 42005 | interval_s |" in doc
+    assert "`mbpoll -m tcp -p 5020 -t 3 -r 1 -1 127.0.0.1`" in doc
