@@ -85,7 +85,8 @@ class LaneIntervalTruth:
             if prev is None:
                 continue
             t_p, s_p = prev
-            if (s_p - self.line_m) * (sn - self.line_m) < 0 and (sn - s_p) * self.lane_dir[k] > 0:
+            crossed = (s_p - self.line_m) * (sn - self.line_m) < 0 or (sn == self.line_m and s_p != sn)
+            if crossed and (sn - s_p) * self.lane_dir[k] > 0:
                 tc = t_p + (self.line_m - s_p) / (sn - s_p) * (t_s - t_p)
                 self.crossings.setdefault(k, []).append(_Crossing(tc, float(v), float(ln), i))
         if dt > 0:
