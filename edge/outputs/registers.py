@@ -153,7 +153,7 @@ LANE = Block("lane", LANE_BASE, LANE_STRIDE, (
     _r("speed_p85", 6, "u16", "85th-percentile speed", "km/h", 0.1),
     _r("headway", 7, "u16", "mean headway, front to front", "s", 0.01),
     _r("gap", 8, "u16", "mean gap, back to front", "s", 0.01),
-    _r("mean_length", 9, "u16", "mean vehicle length (not measured yet: n/a)", "m", 0.1),
+    _r("mean_length", 9, "u16", "mean measured vehicle length (n/a: none measured)", "m", 0.1),
     _r("live", 10, "bits", "live, every frame: bit0 presence (call), 1 queue (not detected yet: 0), 2 wrong-way "
        "vehicle now, 8 statistics stale, 9 fail-safe presence, 10 no interval closed yet", na=False),
     _r("cumulative_volume", 11, "u32", "vehicles since start", na=False),
@@ -442,7 +442,7 @@ class ImageBuilder:
                 vals.update(grouped)
                 vals.update(
                     volume=ls.volume, occupancy=occ, mean_speed=None if ls.volume == 0 else ls.mean_speed_kmh,
-                    speed_p85=ls.speed_p85_kmh, headway=ls.headway_s, gap=ls.gap_s, mean_length=None,
+                    speed_p85=ls.speed_p85_kmh, headway=ls.headway_s, gap=ls.gap_s, mean_length=ls.mean_length_m,
                     ntcip_occupancy=NTCIP_OCC_WATCHDOG_FAULT if (stale or occ is None) else min(200, int(round(occ * 2))),
                     ntcip_volume=min(int(ls.volume), 255), interval_seq=ls.sequence & 0xFF,
                     interval_length_s=ls.interval_s,
