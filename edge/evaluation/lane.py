@@ -54,6 +54,15 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   against its lane to its first alarm and ``alarm_range_m``, its ground range then.
 * ``stopped_vehicle``: the ``stopped_vehicle`` alarms scored the same way: ``vehicles`` = vehicles standing
   (slower than 0.5 m/s) in a lane in view for 5 s, ``delay_s`` from when they came to a standstill.
+* ``intervals`` (scenarios with ``[[lane]]`` tables): each closed interval record of the traffic layer against the
+  truth of its lane and interval (:mod:`edge.evaluation.lane_intervals`: volume, occupancy over the presence zone
+  from the vehicles' true positions and lengths, mean and 85th-percentile speed, headway, gap, counts per length
+  class, mean length), errors over all lanes and per lane with the share within the acceptance tolerances, and
+  every interval's measured/true pair (``records``);
+* ``vehicle_lengths``: of the vehicles whose near face crossed the detection line, the latest length and class
+  published on their assigned tracks against their true length, its length class and their body class (by kind
+  and by body class; a vehicle never measured counts as wrong); per target ``length_m_true``/``length_m_est``,
+  ``length_class_true``/``length_class_est``;
 * ``count_mismatches``: the true crossings left unmatched (``missed``) and the counted ones left unmatched
   (``extra``) when each lane's two lists are matched one-to-one by time (at most
   ``edge.evaluation.counting.COUNT_MATCH_S`` apart).
