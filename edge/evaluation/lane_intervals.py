@@ -192,14 +192,16 @@ def score_intervals(records, truth: dict[tuple[int, int], dict], t0_s: float, in
             "gap_error_pct": _errors(gap_pct, TOLERANCES["gap_pct"]),
             # the gap over all intervals with both values: the run's mean gap, measured against true
             "gap_mean_s": [float(np.mean(gaps_m)) if gaps_m else None, float(np.mean(gaps_t)) if gaps_t else None],
-            "gap_intervals_na": sum(1 for r in sel if not math.isfinite(r["gap_s"][0]) and math.isfinite(r["gap_s"][1])),
+            "gap_intervals_na": sum(1 for r in sel
+                                    if not math.isfinite(r["gap_s"][0]) and math.isfinite(r["gap_s"][1])),
             "mean_length_error_m": _errors(d("mean_length_m"), None),
             "class_count_error": {c: _errors([r["class_counts"].get(c, [0, 0])[0] - r["class_counts"].get(c, [0, 0])[1]
                                               for r in sel], None) for c in classes},
         }
 
     lanes = sorted({r["lane"] for r in rows})
-    return {"all_lanes": summary(rows), "per_lane": {str(k): summary([r for r in rows if r["lane"] == k]) for k in lanes},
+    return {"all_lanes": summary(rows),
+            "per_lane": {str(k): summary([r for r in rows if r["lane"] == k]) for k in lanes},
             "records": rows}
 
 
@@ -220,11 +222,13 @@ def score_vehicles(vehicles: list[dict], class_names: tuple[str, ...]) -> dict:
             "length_error_m": ({"mean": float(e.mean()), "sd": float(e.std()), "mean_abs": float(np.abs(e).mean()),
                                 "p5": float(np.percentile(e, 5)), "p95": float(np.percentile(e, 95))}
                                if e.size else None),
-            "length_class_accuracy": (sum(v["length_class_est"] == v["length_class_true"] for v in sel) / n) if n else None,
+            "length_class_accuracy": ((sum(v["length_class_est"] == v["length_class_true"] for v in sel) / n)
+                                      if n else None),
             "body_class_accuracy": (sum(v["length_class_est"] == v["class"] for v in sel) / n) if n else None,
         }
     return {
         "by_kind": {k: group([v for v in vehicles if v["kind"] == k]) for k in sorted({v["kind"] for v in vehicles})},
-        "by_class": {c: group([v for v in vehicles if v["class"] == c]) for c in sorted({v["class"] for v in vehicles})},
+        "by_class": {c: group([v for v in vehicles if v["class"] == c])
+                     for c in sorted({v["class"] for v in vehicles})},
         "all": group(vehicles),
     }

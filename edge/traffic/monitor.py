@@ -362,7 +362,8 @@ class TrafficMonitor:
             memo = self._memo.get(tid)
             fresh = memo is None or tr.age_frames < memo.age
             if fresh:
-                memo = self._memo[tid] = _Memo(tr.age_frames, s[j], t_ns, speed[j], meter=LengthMeter(cfg.length_outliers))
+                memo = self._memo[tid] = _Memo(tr.age_frames, s[j], t_ns, speed[j],
+                                               meter=LengthMeter(cfg.length_outliers))
             meter = memo.meter
             if ext is not None and r_lo <= tr.range_m <= r_hi and ext[j] == ext[j]:  # (not NaN)
                 meter.add(ext[j])
