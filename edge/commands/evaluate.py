@@ -17,7 +17,10 @@ Runs a scenario through its profile's pipeline without real-time pacing and comp
 with the simulator's ground truth. The JSON report (DESIGN §6 keys) holds per-target figures
 (tracked fraction, position RMSE, speed error, class) and a summary (detection probability, false
 tracks per minute, id switches, lane accuracy, per-lane count error, classification accuracy and
-confusion matrix), plus frame times against the budget."""
+confusion matrix), plus frame times against the budget. Lane profile: each closed interval's per-lane statistics
+(volume, occupancy, mean and 85th-percentile speed, headway, gap, counts per length class) against the truth, and
+each vehicle's measured length and length class against its true one. With --json, a rounded summary and those
+tables are printed (the file keeps full precision)."""
 EPILOG = """\
 examples:
   radar-edge evaluate --scenario highway4 --json out/highway4.json
@@ -60,8 +63,69 @@ def run(args: argparse.Namespace) -> int:
         out = Path(args.json)
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(text + "\n", encoding="utf-8")
-        s = report.get("summary", {})
-        print(f"{args.scenario}: " + ", ".join(f"{k}={v}" for k, v in s.items() if not isinstance(v, (dict, list))))
+        print(console_summary(report))
     else:
         print(text)
     return 0
+
+
+def _num(v) -> str:
+    """A figure for the console: 3 decimals, 1 from 100 on (the JSON keeps full precision); n/a for None/NaN."""
+    if v is None or (isinstance(v, float) and v != v):
+        return "n/a"
+    if isinstance(v, bool) or isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return f"{v:.1f}" if abs(v) >= 100 else f"{v:.3f}"
+    return str(v)
+
+
+def _table(header: list[str], rows: list[list]) -> list[str]:
+    cells = [header] + [[_num(c) for c in r] for r in rows]
+    w = [max(len(r[i]) for r in cells) for i in range(len(header))]
+    return ["  " + "  ".join(c.rjust(w[i]) if i else c.ljust(w[i]) for i, c in enumerate(r)) for r in cells]
+
+
+def _err(e: dict | None, pct: bool = False) -> list:
+    """mean, mean |e|, max |e| and share within tolerance of an error summary."""
+    if not e or not e.get("n"):
+        return ["n/a"] * 4
+    within = e.get("within_tolerance")
+    return [e["mean"], e["mean_abs"], e["max_abs"], "" if within is None else f"{100 * within:.0f}%"]
+
+
+def console_summary(report: dict) -> str:
+    """The report's summary for a terminal: one scalar a line, rounded; for the lane profile tables of the interval
+    statistics and vehicle lengths against the truth."""
+    s = report.get("summary", {})
+    lines = [f"{report.get('scenario')} (seed {report.get('seed')}, {report.get('frames')} frames)"]
+    lines += [f"  {k:<34} {_num(v)}" for k, v in s.items() if not isinstance(v, (dict, list))]
+    if isinstance(s.get("count_error_per_lane"), list):
+        lines.append(f"  {'count_error_per_lane':<34} {s['count_error_per_lane']}")
+    iv = s.get("intervals")
+    if iv:
+        lines.append("interval statistics against the truth (measured - true; within: share of intervals in tolerance)")
+        rows = []
+        for name, unit, key in (("volume", "veh", "volume_error"), ("occupancy", "pp", "occupancy_error_pp"),
+                                ("mean speed", "km/h", "mean_speed_error_kmh"),
+                                ("85th pct speed", "km/h", "speed_p85_error_kmh"), ("headway", "s", "headway_error_s"),
+                                ("gap", "%", "gap_error_pct"), ("mean length", "m", "mean_length_error_m")):
+            a = iv["all_lanes"][key]
+            per = [_num(iv["per_lane"][k][key]["mean_abs"]) for k in sorted(iv["per_lane"], key=int)]
+            rows.append([f"{name} ({unit})", a["n"], *_err(a)[:3], _err(a)[3], " ".join(per)])
+        lines += _table(["quantity", "n", "mean", "mean|e|", "max|e|", "within", "mean|e| per lane"], rows)
+        g = iv["all_lanes"].get("gap_mean_s")
+        if g:
+            lines.append(f"  mean gap over the run: measured {_num(g[0])} s, true {_num(g[1])} s; "
+                         f"intervals with a true gap but none measured: {iv['all_lanes'].get('gap_intervals_na')}")
+    vl = s.get("vehicle_lengths")
+    if vl:
+        lines.append("vehicle lengths of the vehicles that crossed the line (measured - true)")
+        rows = []
+        for name, g in list(vl["by_kind"].items()) + [(f"[{c}]", g) for c, g in vl["by_class"].items()]:
+            e = g["length_error_m"] or {}
+            rows.append([name, g["vehicles"], g["length_measured_fraction"], e.get("mean"), e.get("sd"),
+                         e.get("p5"), e.get("p95"), g["length_class_accuracy"], g["body_class_accuracy"]])
+        lines += _table(["kind [body class]", "n", "measured", "err mean m", "sd", "p5", "p95", "class acc",
+                         "body class acc"], rows)
+    return "\n".join(lines)

@@ -377,3 +377,21 @@ def nearest_of_clusters(range_m: np.ndarray, v_mps: np.ndarray, x_m: np.ndarray,
     body = (ahead & (dv <= speed_mps)).any(axis=1)
     ghost = (ahead & (dv <= tol) & ~body[None, :]).any(axis=1)  # behind a near face, within the ghost law
     return ~(body | ghost)
+
+
+def body_extent(range_m: np.ndarray, v_mps: np.ndarray, x_m: np.ndarray, keep: np.ndarray, *, length_m: float,
+                speed_mps: float, lateral_m: float) -> np.ndarray:
+    """Range extent ``(n,)`` (m, slant) of each kept detection's body: the farthest detection at most ``length_m``
+    behind it in range, within ``speed_mps`` in radial speed and ``lateral_m`` across (the rule by which
+    :func:`nearest_of_clusters` drops it as the same vehicle's body); 0 where none, NaN for detections not kept.
+    A vehicle's scatterers span its length, so over its passage the largest extents are its length."""
+    n = range_m.size
+    out = np.full(n, np.nan, np.float32)
+    k = keep.nonzero()[0]
+    if not k.size:
+        return out
+    r = range_m[None, :] - range_m[k, None]  # (kept, all): > 0 behind the kept detection
+    same = (r > 0) & (r <= length_m) & (np.abs(v_mps[None, :] - v_mps[k, None]) <= speed_mps) & (
+        np.abs(x_m[None, :] - x_m[k, None]) <= lateral_m)
+    out[k] = np.where(same, r, 0.0).max(axis=1) if n else 0.0
+    return out

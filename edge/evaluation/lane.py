@@ -54,6 +54,15 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   against its lane to its first alarm and ``alarm_range_m``, its ground range then.
 * ``stopped_vehicle``: the ``stopped_vehicle`` alarms scored the same way: ``vehicles`` = vehicles standing
   (slower than 0.5 m/s) in a lane in view for 5 s, ``delay_s`` from when they came to a standstill.
+* ``intervals`` (scenarios with ``[[lane]]`` tables): each closed interval record of the traffic layer against the
+  truth of its lane and interval (:mod:`edge.evaluation.lane_intervals`: volume, occupancy over the presence zone
+  from the vehicles' true positions and lengths, mean and 85th-percentile speed, headway, gap, counts per length
+  class, mean length), errors over all lanes and per lane with the share within the acceptance tolerances, and
+  every interval's measured/true pair (``records``);
+* ``vehicle_lengths``: of the vehicles whose near face crossed the detection line, the latest length and class
+  published on their assigned tracks against their true length, its length class and their body class (by kind
+  and by body class; a vehicle never measured counts as wrong); per target ``length_m_true``/``length_m_est``,
+  ``length_class_true``/``length_class_est``;
 * ``count_mismatches``: the true crossings left unmatched (``missed``) and the counted ones left unmatched
   (``extra``) when each lane's two lists are matched one-to-one by time (at most
   ``edge.evaluation.counting.COUNT_MATCH_S`` apart).
@@ -73,6 +82,7 @@ from scipy.optimize import linear_sum_assignment
 
 from edge.dsp.pairing import PairingModel
 from edge.evaluation.counting import CountTally
+from edge.evaluation.lane_intervals import LaneIntervalTruth, length_class, score_intervals, score_vehicles
 from edge.evaluation.track_log import TrackLogRecorder
 from edge.pipeline import StageTimer
 from edge.pipelines.lane import LanePipeline
@@ -173,10 +183,14 @@ def _rmse_within(sq_err: list[float], rng: list[float]) -> dict[str, float]:
 class _TargetAcc:
     __slots__ = ("cls", "lanes", "n_view", "n_hit", "sq_err", "err_rng", "err_xy", "spd_err", "ids", "last_id",
                  "switches", "n_raw", "vr_true", "vr_est", "dir_true", "wrong_frames", "wrong_first_t", "stand_since_t",
-                 "stopped_t", "first_hit", "last_hit", "lane_ok")
+                 "stopped_t", "first_hit", "last_hit", "lane_ok", "kind", "length_m", "len_pub", "cls_pub")
 
-    def __init__(self, cls: str) -> None:
+    def __init__(self, cls: str, kind: str = "", length_m: float = 0.0) -> None:
         self.cls = cls
+        self.kind = kind or cls  # body type (hw_sim.vehicles.BODY_TYPES: van and bus too)
+        self.length_m = length_m
+        self.len_pub: float | None = None  # the latest length and class published on its assigned track
+        self.cls_pub: str | None = None
         self.lanes: list[int] = []
         self.n_view = self.n_hit = self.n_raw = self.switches = self.lane_ok = 0
         self.sq_err: list[float] = []
@@ -285,6 +299,11 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     bin_hz = np.array([sg.sample_rate_hz / sg.n_samples for sg in fe.waveform.segments])
     beamwidth = fe.waveform.wavelength_m / (fe.n_rx * fe.rx_spacing_m)
     pd_overlap: dict[tuple[str, bool], list[int]] = {}  # (class, overlapping) -> [in view, tracked]
+    # per-lane interval truth (edge.evaluation.lane_intervals) and the traffic layer's closed interval records
+    class_edges, class_names = tuple(traffic_cfg.length_class_edges_m), tuple(traffic_cfg.length_class_names)
+    itruth = LaneIntervalTruth(n_lanes, line, traffic_cfg.presence_zone_m, traffic_cfg.interval_s,
+                               tuple(lane_dir) + (1,) * (n_lanes - len(lane_dir)), class_edges, class_names)
+    interval_records = []
 
     it = range(n_frames)
     if progress:
@@ -305,6 +324,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         for ev in new_events:
             events.append({"kind": ev.kind, "track_id": ev.track_id, "lane": ev.lane, "t_s": round(f.t_s, 3)})
         tally.add_frame(res.lane_stats, pipe.traffic)
+        interval_records.extend(res.lane_stats)
 
         tr = f.truth
         veh = [k for k in range(len(tr)) if tr.cls[k] != "clutter"]
@@ -327,6 +347,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         # y): the point the tracks follow, so a vehicle whose near face has crossed as the run ends (or had as it
         # began) is counted by both or neither
         ref_y = ref_w[:, 1] - scene.pose.y_m
+        if lane_dir:
+            itruth.add_frame(float(f.t_s), ids, lanes, ref_y, tr.position_m[veh][:, 1] - scene.pose.y_m, lengths,
+                             np.hypot(vel[:, 0], vel[:, 1]))
         for j, i in enumerate(ids):
             s_prev = prev_s.get(int(i))
             # in the lane's direction of travel: the volume the traffic layer counts (a wrong-way driver is an
@@ -358,7 +381,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         for j, i in enumerate(ids):
             a = acc.get(int(i))
             if a is None:
-                a = acc[int(i)] = _TargetAcc(tr.cls[veh[j]])
+                a = acc[int(i)] = _TargetAcc(tr.cls[veh[j]], getattr(by_id[int(i)], "kind", ""), float(lengths[j]))
             if not in_view[j]:
                 continue
             a.n_view += 1
@@ -392,6 +415,10 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             rc[2] += 1
             ro[1] += 1
             t = tracks[k]
+            if t.length_m is not None:
+                a.len_pub = t.length_m
+            if t.cls is not None:
+                a.cls_pub = t.cls
             if a.first_hit < 0:
                 a.first_hit = a.n_view - 1
             a.last_hit = a.n_view - 1
@@ -454,6 +481,11 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             "id_switches": a.switches,
             "lane_accuracy": a.lane_ok / a.n_hit if a.n_hit else None,
             "predicted_class": None,
+            "kind": a.kind,
+            "length_m_true": a.length_m if a.length_m > 0 else None,
+            "length_m_est": a.len_pub,
+            "length_class_true": length_class(a.length_m, class_edges, class_names) if a.length_m > 0 else None,
+            "length_class_est": a.cls_pub,
             "direction_true": "receding" if a.dir_true > 0 else "approaching",
             "direction_est": (None if not a.vr_est else ("receding" if np.mean(a.vr_est) > 0 else "approaching")),
             "mean_radial_speed_kmh_true": float(np.mean(a.vr_true)) if a.vr_true else None,
@@ -531,6 +563,13 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         "classification_accuracy": None,
         "confusion_matrix": None,
     }
+    if lane_dir:
+        # per-lane interval statistics against the truth, and the lengths and classes of the vehicles that crossed
+        crossed = {i for _, _, i, _ in true_cross}
+        summary["intervals"] = score_intervals(interval_records, itruth.intervals(), itruth.t0_s or 0.0,
+                                               traffic_cfg.interval_s, class_names)
+        summary["vehicle_lengths"] = score_vehicles(
+            [t for t in targets if t["id"] in crossed and t["length_m_true"] is not None], class_names)
     budget_ms = period * 1e3
     track_log = None
     if recorder is not None:

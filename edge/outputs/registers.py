@@ -462,8 +462,7 @@ class ImageBuilder:
                 vals.update(grouped)
                 vals.update(
                     volume=ls.volume, occupancy=occ, mean_speed=None if ls.volume == 0 else ls.mean_speed_kmh,
-                    speed_p85=ls.speed_p85_kmh, headway=ls.headway_s, gap=ls.gap_s,
-                    mean_length=getattr(ls, "mean_length_m", None),
+                    speed_p85=ls.speed_p85_kmh, headway=ls.headway_s, gap=ls.gap_s, mean_length=ls.mean_length_m,
                     ntcip_occupancy=NTCIP_OCC_WATCHDOG_FAULT if (stale or occ is None) else min(200, int(round(occ * 2))),
                     ntcip_volume=min(int(ls.volume), 255), interval_seq=ls.sequence & 0xFF,
                     interval_length_s=ls.interval_s,

@@ -34,7 +34,9 @@ All parameters are in :class:`LaneConfig` (section ``pipeline.lane``); the track
 layer read ``track.pdaf`` and ``traffic``. Intermediates for plots: ``power`` (segments x bins, linear),
 ``threshold`` and ``noise`` (linear; NaN away from local maxima unless ``cfar_full_threshold``),
 ``peak_freqs_hz`` (per segment), pairing counts (``n_aided_pairs`` from tracks), ``angle_spectrum``.
-Detections carry ``extra["resolved_pair"]`` (>= 0: the two detections split from one share the value) and
+Detections carry ``extra["body_extent_m"]`` (along-road length of the body behind the detection, from the detections
+dropped as its body: the vehicle length the traffic layer measures), ``extra["resolved_pair"]`` (>= 0: the two
+detections split from one share the value) and
 ``extra["unresolved_pair"]`` (bool: the resolver found two sources in the cell but could not split them).
 """
 
@@ -52,7 +54,7 @@ import scipy.fft
 from edge.dsp.angle import bartlett_consensus, peak_coherence, steering_matrix
 from edge.dsp.cfar import os_cfar, os_cfar_at_padded, os_cfar_scale, reference_index
 from edge.dsp.geometry import polar_to_ground
-from edge.dsp.pairing import PairingModel, nearest_of_clusters, pair_beats
+from edge.dsp.pairing import PairingModel, body_extent, nearest_of_clusters, pair_beats
 from edge.dsp.peaks import interpolate_peak, local_maxima
 from edge.dsp.resolve import CellResolver, ResolverConfig
 from edge.dsp.range_fft import make_window
@@ -382,6 +384,10 @@ class LaneConfig:
 
 
 _SEG4 = np.arange(4)  # the four segments, as an index
+
+#: a detection within this range and radial speed of a track is the one it follows (its near face), for its length
+_TRACK_DET_RANGE_M = 1.5
+_TRACK_DET_SPEED_MPS = 1.0
 
 #: up to this many confirmed tracks the track-aided pairing predicts them in plain Python floats
 _AIDED_SMALL = 10
@@ -716,6 +722,7 @@ class LanePipeline(Pipeline):
                 az = self._unalias_by_lane(rng, vel, az)
             x, y = polar_to_ground(rng, az, cfg.mounting_height_m, cfg.target_height_m)
             sel = None  # all kept
+            body = None
             if cfg.cluster_length_m > 0 and rng.size > 1:
                 keep = nearest_of_clusters(rng, vel, x, length_m=cfg.cluster_length_m,
                                            speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m,
@@ -728,11 +735,16 @@ class LanePipeline(Pipeline):
                     keep &= ~self._against_lane_glint(rng, vel, az, x, y, keep)
                 if not keep.all():
                     sel = keep.nonzero()[0]
+                body = self._body_extent(rng, vel, x, keep)
+            elif cfg.cluster_length_m > 0:  # one detection or none: no body behind it
+                body = np.zeros(rng.size, np.float32)
             if sel is None:  # the arrays themselves (nothing reads or writes them after this)
                 det = Detections(rng, vel, az, snr_db, x, y, {"pair_residual_hz": res, "resolved_pair": pair_of})
             else:
                 det = Detections(rng[sel], vel[sel], az[sel], snr_db[sel], x[sel], y[sel],
                                  {"pair_residual_hz": res[sel], "resolved_pair": pair_of[sel]})
+            if body is not None:
+                det.extra["body_extent_m"] = body if sel is None else body[sel]
             if coh is not None:
                 det.extra["angle_coherence"] = coh if sel is None else coh[sel]
             if unresolved is not None:
@@ -743,6 +755,37 @@ class LanePipeline(Pipeline):
             "angle_grid_rad": self._grid, "angle_spectrum": aspec,
         }
         return det, inter
+
+    def _body_extent(self, rng: np.ndarray, vel: np.ndarray, x: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """Per detection the along-road length of the body behind it (``body_extent``'s slant range extent, as
+        ground distance along the road at the detection's lateral offset; NaN for dropped detections)."""
+        cfg = self.config
+        ext = body_extent(rng, vel, x, keep, length_m=cfg.cluster_length_m, speed_mps=cfg.cluster_speed_mps,
+                          lateral_m=cfg.cluster_lateral_m)
+        dz2 = np.float32((cfg.mounting_height_m - cfg.target_height_m) ** 2)
+        x2 = x * x
+        near = np.sqrt(np.maximum(rng * rng - dz2 - x2, np.float32(0)))
+        far_r = rng + ext
+        far = np.sqrt(np.maximum(far_r * far_r - dz2 - x2, np.float32(0)))
+        return far - near
+
+    def track_extents(self, tracks, det: Detections) -> np.ndarray | None:
+        """Per published track the body extent (m) of the detection it follows this frame: the nearest in range
+        within 1.5 m of its range and 1 m/s of its radial speed; NaN without one (None without extents)."""
+        body = det.extra.get("body_extent_m")
+        if body is None:
+            return None
+        out = np.full(len(tracks), np.nan)
+        if not len(det) or not len(tracks):
+            return out
+        tr = np.array([(t.range_m, t.radial_speed_mps) for t in tracks], dtype=np.float64).reshape(-1, 2)
+        dr = np.abs(det.range_m[None, :].astype(np.float64) - tr[:, :1])
+        near = (dr <= _TRACK_DET_RANGE_M) & (np.abs(det.radial_speed_mps[None, :] - tr[:, 1:]) <= _TRACK_DET_SPEED_MPS)
+        hit = near.any(axis=1)
+        if hit.any():
+            j = np.where(near, dr, np.inf).argmin(axis=1)
+            out[hit] = body[j[hit]]
+        return out
 
     def _segment_bounds(self, rows: np.ndarray) -> list[tuple[int, int]]:
         """``(start, end)`` of each segment's run in ``rows`` (sorted segment numbers of peaks)."""
@@ -1069,7 +1112,8 @@ class LanePipeline(Pipeline):
         if self.traffic_tap is not None:  # (the traffic layer's input, e.g. for evaluate --record-tracks)
             self.traffic_tap(tracks, frame.t_ns, self.tracker.published_motion_x_m)
         with timer.stage("traffic"):
-            upd = self.traffic.update(tracks, frame.t_ns, self.tracker.published_motion_x_m)
+            upd = self.traffic.update(tracks, frame.t_ns, self.tracker.published_motion_x_m,
+                                      self.track_extents(tracks, det))
             self.tracker.road_yaw_rad = self.traffic.yaw_rad  # the IMM's lane-keeping direction
         return FrameResult(
             profile=self.profile, seq=frame.seq, t_ns=frame.t_ns, detections=det, tracks=upd.tracks,

@@ -104,15 +104,33 @@ class TrafficConfig:
         default=5.0, metadata={"unit": "m", "doc": "length of the presence zone centred on the detection line "
                                                    "(occupancy = time a vehicle overlaps it)", "min": 0.1, "max": 100.0})
     default_vehicle_length_m: float = field(
-        default=4.5, metadata={"unit": "m", "doc": "vehicle length when a track has none (presence, gap)",
+        default=4.5, metadata={"unit": "m", "doc": "length a vehicle is taken to have in the occupancy while its own "
+                                                   "is not measured (the gap is then n/a)",
                                "min": 0.5, "max": 30.0})
+    length_range_m: tuple[float, ...] = field(
+        default=(20.0, 150.0),
+        metadata={"unit": "m", "doc": "slant ranges (nearest, farthest) where a track's body extent is measured: nearer, "
+                                      "the body smears over many bins; farther, its far end drowns in the noise",
+                  "min": 0.0, "max": 1000.0})
+    length_min_frames: int = field(
+        default=10, metadata={"doc": "frames with a detection in length_range_m before a track's length is measured "
+                                     "(until then its length and class are n/a)", "min": 1, "max": 100000})
+    length_outliers: int = field(
+        default=2, metadata={"doc": "a track's length is its (this + 1)-th largest body extent: this many larger ones are "
+                                    "taken for another vehicle or a glint behind it", "min": 0, "max": 100})
+    length_min_m: float = field(
+        default=1.5, metadata={"unit": "m", "doc": "range resolution of the body extent (two 0.75 m bins): a vehicle "
+                                                   "whose measured length is below it is shorter than can be measured "
+                                                   "(length n/a, the shortest length class)", "min": 0.0, "max": 10.0})
     length_class_edges_m: tuple[float, ...] = field(
-        default=(3.0, 5.6, 8.0),
-        metadata={"unit": "m", "doc": "length class boundaries (a track with a class from the classifier counts "
+        default=(3.05, 5.79),
+        metadata={"unit": "m", "doc": "length class boundaries (10 ft and 19 ft: the Maine DOT length bins for FHWA "
+                                      "Scheme F, classes 1 / 2-3 / 4-13; a track with a class from a classifier counts "
                                       "under that class instead)", "min": 0.1, "max": 50.0})
     length_class_names: tuple[str, ...] = field(
-        default=("motorcycle", "car", "van", "truck"),
-        metadata={"doc": "names of the length classes (one more than the edges)"})
+        default=("motorcycle", "car", "truck"),
+        metadata={"doc": "names of the length classes (one more than the edges; the Modbus and CAN class counts "
+                         "group motorcycle, car, truck and bus, anything else counts as other)"})
     count_min_gap_s: float = field(
         default=0.0, metadata={"unit": "s", "doc": "a crossing this soon after a counted one in the same lane at the "
                                                    "same speed (count_twin_speed_mps) is that vehicle's second track (the "
@@ -260,3 +278,5 @@ class TrafficConfig:
             raise ValueError("length_class_names needs one more entry than length_class_edges_m")
         if list(self.length_class_edges_m) != sorted(self.length_class_edges_m):
             raise ValueError("length_class_edges_m must be increasing")
+        if len(self.length_range_m) != 2 or not self.length_range_m[0] < self.length_range_m[1]:
+            raise ValueError("length_range_m needs two increasing values (nearest, farthest)")

@@ -5,7 +5,7 @@ Public API (stable; used by ``edge.pipelines.lane``)::
     from edge.traffic import TrafficConfig, TrafficMonitor
     monitor = TrafficMonitor(cfg.section("traffic"))
     upd = monitor.update(tracks, t_ns)   # tracks: tuple[TrackState, ...] from edge.track
-    upd.tracks        # the same tracks with ``lane`` set (None off every lane)
+    upd.tracks        # the same tracks with ``lane``, ``length_m`` and ``cls`` set (None: off every lane, not measured)
     upd.presence      # tuple[bool, ...], one flag per lane: a vehicle overlaps the presence zone
     upd.lane_stats    # tuple[LaneStats, ...], non-empty on the frame that closes an interval
     upd.events        # tuple[TrafficEvent, ...]: wrong_way, stopped_vehicle (once per occurrence)
@@ -31,6 +31,11 @@ at its along-road speed, unless a crossing of about that time and speed was coun
 (``count_late_match_*``: the same vehicle's earlier track), and not if that time lies before the monitor's
 first frame. No ground truth is used: the rules rest on what one vehicle's tracks can look like.
 
+Lengths and classes: each confirmed track's length is measured from the body extents the lane pipeline finds
+behind its detections (``update(..., extent_m=...)``; :class:`edge.traffic.stats.LengthMeter`); the tracks returned
+carry it in ``length_m`` and its length class (``length_class_names``) in ``cls``, both None until measured (a
+track's own ``cls``, from a classifier, is kept). Interval records read the lengths when the interval closes.
+
 Events: ``wrong_way`` when a track in a lane moves against the lane's direction faster than
 ``wrong_way_min_speed_mps`` for ``wrong_way_min_frames`` frames in a row (once per track), counting
 only frames with a detection where its lane is sure (``wrong_way_lane_sigmas`` times range x the yaw's and the
@@ -54,7 +59,7 @@ import numpy as np
 from edge.traffic.calibration import Calibration, CalibrationError, CalibrationWriter, load_calibration
 from edge.traffic.config import TrafficConfig
 from edge.traffic.lanes import Lane, LaneLearner, YawEstimator, assign_lanes_with_margin, configured_lanes
-from edge.traffic.stats import Crossing, IntervalStatistics
+from edge.traffic.stats import Crossing, IntervalStatistics, LengthMeter
 from edge.types import LaneStats, TrackState, TrafficEvent
 
 log = logging.getLogger(__name__)
@@ -82,20 +87,24 @@ class _Memo:
     stopped_since_ns: int | None = None
     stopped_emitted: bool = False
     counted: bool = False  # the track's vehicle was counted at the detection line (count_once_per_track)
+    meter: LengthMeter | None = None  # its length measurement (edge.traffic.stats)
 
 
 #: TrackState validates in ``__post_init__``: then only ``dataclasses.replace`` is a faithful copy
 _TRACK_POST_INIT = hasattr(TrackState, "__post_init__")
 
 
-def _with_lane(tr: TrackState, lane: int | None) -> TrackState:
-    """``dataclasses.replace(tr, lane=lane)`` without its per-call field introspection (hot path)."""
+def _with(tr: TrackState, lane: int | None, cls: str | None, length_m: float | None) -> TrackState:
+    """``dataclasses.replace(tr, lane=lane, cls=cls, length_m=length_m)`` without its per-call field introspection
+    (hot path)."""
     if _TRACK_POST_INIT:
-        return dataclasses.replace(tr, lane=lane)
+        return dataclasses.replace(tr, lane=lane, cls=cls, length_m=length_m)
     out = object.__new__(TrackState)  # a frozen dataclass without __post_init__: copy its fields
     d = out.__dict__
     d.update(tr.__dict__)
     d["lane"] = lane
+    d["cls"] = cls
+    d["length_m"] = length_m
     return out
 
 
@@ -219,7 +228,7 @@ class TrafficMonitor:
         return any(abs(c.t_ns - t_ns) <= tol_ns and abs(c.speed_mps - speed_mps) < dv_mps for c in recent)
 
     def _count_late(self, tr: TrackState, lane: int, direction: int, s_m: float, vs_mps: float, speed_mps: float,
-                    length_m: float, t_ns: int, margin_m: float) -> bool:
+                    meter: LengthMeter, t_ns: int, margin_m: float) -> bool:
         """A track first seen (confirmed) past the detection line: its vehicle crossed the line untracked (its
         earlier track was lost or taken over by a neighbour just before the line and it was re-born after it;
         or it crossed while still tentative). Counted at the crossing time extrapolated back at its along-road
@@ -250,8 +259,7 @@ class TrafficMonitor:
                 if (other is not None and 0 <= k < len(self.lanes) and self.lanes[k].direction == direction
                         and self._counted_near(other.recent, tc, speed_mps, twin_ns, cfg.count_late_twin_speed_mps)):
                     return False
-        cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
-        acc.add(Crossing(tc, speed_mps, length_m, cls))
+        acc.add(Crossing(tc, speed_mps, float("nan"), tr.cls, meter))
         return True
 
     def _same_wrong_way_driver(self, conf: list[TrackState], j: int, s: list[float], vs: list[float]) -> bool:
@@ -269,10 +277,13 @@ class TrafficMonitor:
                 return True
         return False
 
-    def update(self, tracks: tuple[TrackState, ...], t_ns: int, yaw_x_m: np.ndarray | None = None) -> TrafficUpdate:
+    def update(self, tracks: tuple[TrackState, ...], t_ns: int, yaw_x_m: np.ndarray | None = None,
+               extent_m: np.ndarray | None = None) -> TrafficUpdate:
         """``yaw_x_m``: per track of ``tracks`` the across-boresight position the yaw estimator takes instead of
         ``x_m`` (the motion model's, when the published one comes from a filter that assumes the road direction:
-        ``track.pdaf.lateral_smoother``; its tracks would vote for the yaw they assumed)."""
+        ``track.pdaf.lateral_smoother``; its tracks would vote for the yaw they assumed). ``extent_m``: per track
+        the along-road extent of the body behind its detection this frame (NaN without one; the lane pipeline's
+        ``body_extent_m``): the tracks' lengths are measured from it (without it, lengths and classes stay n/a)."""
         cfg = self.config
         sel = [k for k, t in enumerate(tracks) if t.confirmed and t.track_id > 0]
         conf = [tracks[k] for k in sel]
@@ -339,9 +350,17 @@ class TrafficMonitor:
         lane_idx = lane_idx.tolist()
         id_list = ids.tolist()
         presence = [False] * n_lanes
+        ext = None
+        if extent_m is not None and len(extent_m) == len(tracks):
+            ext = np.asarray(extent_m, dtype=np.float64)[sel].tolist()
+        r_lo, r_hi = cfg.length_range_m
+        stats = self.stats
+        default_length = cfg.default_vehicle_length_m
+        zone_lo = cfg.detection_line_m - 0.5 * cfg.presence_zone_m
+        zone_hi = cfg.detection_line_m + 0.5 * cfg.presence_zone_m
+        reach = zone_lo - 20.0  # a near face this far before the zone cannot put a body (17 m at most) into it
         events: list[TrafficEvent] = []
         out_tracks: dict[int, TrackState] = {}
-        half_zone = 0.5 * cfg.presence_zone_m
         line = cfg.detection_line_m
         seen = set()
         for j, tr in enumerate(conf):
@@ -349,13 +368,19 @@ class TrafficMonitor:
             seen.add(tid)
             k = lane_idx[j]
             lane = k if k >= 0 else None
-            length = tr.length_m if tr.length_m is not None else cfg.default_vehicle_length_m
             memo = self._memo.get(tid)
-            if memo is None or tr.age_frames < memo.age:
-                memo = self._memo[tid] = _Memo(tr.age_frames, s[j], t_ns, speed[j])
+            fresh = memo is None or tr.age_frames < memo.age
+            if fresh:
+                memo = self._memo[tid] = _Memo(tr.age_frames, s[j], t_ns, speed[j],
+                                               meter=LengthMeter(cfg.length_outliers))
+            meter = memo.meter
+            if ext is not None and r_lo <= tr.range_m <= r_hi and ext[j] == ext[j]:  # (not NaN)
+                meter.add(ext[j])
+            length_pub, cls_pub = stats.measured(meter)
+            if fresh:
                 if lane is not None and cfg.count_late_max_m > 0:
                     memo.counted = self._count_late(tr, lane, lanes[k].direction, s[j], vs[j], speed[j],
-                                                    float(length), t_ns, float(margin[j]))
+                                                    meter, t_ns, float(margin[j]))
             else:
                 # detection line crossing (either direction), time interpolated
                 s0, s1 = memo.s_m, s[j]
@@ -371,16 +396,18 @@ class TrafficMonitor:
                 if crossed and c_lane is not None and not against and not (memo.counted and cfg.count_once_per_track):
                     f = (line - s0) / (s1 - s0)
                     tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))
-                    cls = tr.cls if tr.cls is not None else self.stats.length_class(tr.length_m)
-                    acc = self.stats.lane(c_lane)
+                    acc = stats.lane(c_lane)
                     if not self._same_vehicle(acc, tc, speed[j]):
-                        acc.add(Crossing(tc, speed[j], float(length), cls))
+                        acc.add(Crossing(tc, speed[j], float("nan"), tr.cls, meter))
                         memo.counted = True
                 memo.age, memo.s_m, memo.t_ns = tr.age_frames, s1, t_ns
                 memo.max_speed_mps = max(memo.max_speed_mps, speed[j])
             if lane is not None:
-                if abs(s[j] - line) <= half_zone + 0.5 * length:
-                    presence[k] = True
+                # the body spans the near face s to s + L (farther from the radar in either direction of travel)
+                if reach <= s[j] <= zone_hi:
+                    stats.lane(k).samples.append((t_ns, dt_ns, s[j], meter))
+                    if s[j] + (length_pub if length_pub is not None else default_length) >= zone_lo:
+                        presence[k] = True
                 # wrong way
                 # only frames with a detection count: a track seeded with a wrong velocity (a steep near
                 # detection) that coasts out of view must not raise the event on its prediction alone; nor
@@ -407,12 +434,16 @@ class TrafficMonitor:
             elif speed[j] >= cfg.stopped_speed_mps:
                 memo.stopped_since_ns = None
             memo.hits = tr.hits
-            out_tracks[id(tr)] = _with_lane(tr, lane) if tr.lane != lane else tr
+            if tr.cls is not None:
+                cls_pub = tr.cls
+            out_tracks[id(tr)] = tr if (tr.lane, tr.cls, tr.length_m) == (lane, cls_pub, length_pub) else _with(
+                tr, lane, cls_pub, length_pub)
         for tid in [k for k in self._memo if k not in seen]:
             del self._memo[tid]
-        for k, p in enumerate(presence):
-            if p:
-                self.stats.lane(k).occupied_ns += dt_ns
-        closed = self.stats.tick(t_ns, n_lanes)
-        published = tuple(out_tracks.get(id(t), t) for t in tracks)
+        for k in range(n_lanes):
+            stats.lane(k).frames.append((t_ns, dt_ns))
+        closed = stats.tick(t_ns, n_lanes)
+        # tracks not confirmed: no length measured (the tracker's own is the spread of its detections, not a length)
+        published = tuple(out_tracks.get(id(t)) or (t if t.length_m is None else _with(t, t.lane, t.cls, None))
+                          for t in tracks)
         return TrafficUpdate(published, tuple(presence), closed, tuple(events))

@@ -10,7 +10,7 @@ import pytest
 from edge.dsp.angle import bartlett, steering_matrix
 from edge.dsp.cfar import os_cfar, os_cfar_pfa, os_cfar_scale, reference_index
 from edge.dsp.geometry import polar_to_ground
-from edge.dsp.pairing import PairingModel, nearest_of_clusters, pair_beats
+from edge.dsp.pairing import PairingModel, body_extent, nearest_of_clusters, pair_beats
 from edge.dsp.peaks import interpolate_peak, local_maxima
 from edge.dsp.range_fft import make_window
 from hal.waveform import simo_frontend
@@ -154,6 +154,16 @@ def test_nearest_of_clusters_measures_the_ghost_law_from_near_faces():
     assert nearest_of_clusters(r, v, x, **kw).tolist() == [True, False, True, False, False]
     assert nearest_of_clusters(r, v, x, ghost_from_near_faces=False, **kw).tolist() == [True, False, False, False,
                                                                                         False]
+
+
+def test_body_extent_is_the_farthest_detection_of_the_same_body():
+    r = np.array([100.0, 102.0, 105.0, 100.5, 140.0, 103.0])
+    v = np.array([-20.0, -20.1, -20.0, -20.0, -20.0, -25.0])  # the 6th: a ghost of another speed
+    x = np.array([-1.7, -1.6, -1.8, 1.8, -1.7, -1.7])
+    keep = nearest_of_clusters(r, v, x, length_m=7.0, speed_mps=0.6, lateral_m=1.5)
+    ext = body_extent(r, v, x, keep, length_m=7.0, speed_mps=0.6, lateral_m=1.5)
+    assert ext[[0, 3, 4]].tolist() == [5.0, 0.0, 0.0]  # near face 100 m to 105 m; alone; alone
+    assert np.isnan(ext[[1, 2]]).all()
 
 
 # --- angle and geometry ------------------------------------------------------------------------

@@ -34,37 +34,89 @@ def test_config_section_registered_and_checked():
         TrafficConfig(lane_centers_m=(0.0, 3.5), lane_widths_m=(3.5, 3.5, 3.5))
 
 
-def test_interval_statistics_against_hand_computed_values():
-    cfg = TrafficConfig(interval_s=10.0, detection_line_m=50.0, presence_zone_m=5.0, **ONE_LANE)
-    mon = TrafficMonitor(cfg)
-    # (id, speed m/s, crossing time s, length m, class)
-    vehicles = [(1, 20.0, 1.05, 4.5, None), (2, 25.0, 3.05, None, "car"), (3, 10.0, 6.05, 11.0, None)]
-    closed = []
-    presence_frames = 0
-    for k in range(0, 121):
+def _run_vehicles(mon, vehicles, n_frames=121, extents=True):
+    """Vehicles ``(id, speed m/s, crossing time s, body extent m or None, class)`` crossing y = 50 m in lane 0,
+    each seen 3 s either side of its crossing; the pipeline's body extent is its length in every frame."""
+    closed, presence_frames, last = [], 0, {}
+    for k in range(0, n_frames):
         t = k * 0.1
-        tracks = []
+        tracks, ext = [], []
         for tid, v, tc, length, cls in vehicles:
             if abs(t - tc) <= 3.0:
                 age = int(round((t - (tc - 3.0)) / 0.1)) + 1
-                tracks.append(_ts(tid, 0.2, 50.0 + v * (t - tc), 0.0, v, age, length, cls))
-        upd = mon.update(tuple(tracks), k * DT_NS)
+                tracks.append(_ts(tid, 0.2, 50.0 + v * (t - tc), 0.0, v, age, 0.5, cls))  # tracker: 0.5 m spread
+                ext.append(float("nan") if length is None else length)
+        upd = mon.update(tuple(tracks), k * DT_NS, extent_m=np.array(ext) if extents else None)
         presence_frames += upd.presence[0]
         assert all(tr.lane == 0 for tr in upd.tracks)
+        last.update((tr.track_id, tr) for tr in upd.tracks)
         closed.extend(upd.lane_stats)
+    return closed, presence_frames, last
+
+
+def test_interval_statistics_against_hand_computed_values():
+    """Lengths come from the body extents, not the tracker's 0.5 m spread; gap and occupancy use them (the old
+    code used the tracker's length: every vehicle a motorcycle, gap ~ headway, body centred on the near face)."""
+    cfg = TrafficConfig(interval_s=10.0, detection_line_m=50.0, presence_zone_m=5.0, **ONE_LANE)
+    mon = TrafficMonitor(cfg)
+    # (id, speed m/s, crossing time s, length m, class from a classifier)
+    vehicles = [(1, 20.0, 1.05, 4.4, None), (2, 25.0, 3.05, None, "car"), (3, 10.0, 6.02, 11.2, None)]
+    closed, presence_frames, last = _run_vehicles(mon, vehicles)
     assert len(closed) == 1
     s = closed[0]
     assert (s.lane, s.sequence, s.interval_start_ns, s.interval_s) == (0, 0, 0, 10.0)
     assert s.volume == 3
     assert s.mean_speed_kmh == pytest.approx((72 + 90 + 36) / 3)
     assert s.speed_p85_kmh == pytest.approx(72 + 0.7 * 18)  # rank 0.85 * 2 = 1.7 between 72 and 90
-    assert s.headway_s == pytest.approx((2.0 + 3.0) / 2)
-    # gap = headway - leader length / leader speed; vehicle 2 has no length -> default 4.5 m
-    assert s.gap_s == pytest.approx(((2.0 - 4.5 / 20) + (3.0 - 4.5 / 25)) / 2)
-    # presence: |s - 50| <= 2.5 + L/2 -> frames 0.9..1.2 (4), 2.9..3.2 (4), 5.3..6.8 (16) -> 2.4 s of 10 s
+    assert s.headway_s == pytest.approx((2.0 + 2.97) / 2)
+    # gap = headway - leader length / leader speed; vehicle 2's length is unknown: its follower has no gap
+    assert s.gap_s == pytest.approx(2.0 - 4.4 / 20)
+    # presence: the body spans s .. s + L; the zone is 47.5 .. 52.5 -> frames 0.8..1.1 (4), 2.8..3.1 (4, the
+    # unmeasured car taken as 4.5 m), 4.7..6.2 (16) -> 2.4 s of 10 s (the interval reads the lengths at its close);
+    # the live flag reads the length known at the frame: at 0.7 s vehicle 1 had 8 frames measured (4.5 m: present)
+    assert presence_frames == 25
     assert s.occupancy_pct == pytest.approx(24.0)
-    assert presence_frames == 24
-    assert s.class_counts == {"motorcycle": 0, "car": 2, "van": 0, "truck": 1}
+    assert s.class_counts == {"motorcycle": 0, "car": 2, "truck": 1}
+    assert s.mean_length_m == pytest.approx((4.4 + 11.2) / 2)
+    # the tracks carry the measured length and its class; the classifier's class is kept, no length made up
+    assert (last[1].length_m, last[1].cls) == (pytest.approx(4.4), "car")
+    assert (last[2].length_m, last[2].cls) == (None, "car")
+    assert (last[3].length_m, last[3].cls) == (pytest.approx(11.2), "truck")
+
+
+def test_without_extents_lengths_classes_and_gaps_are_not_made_up():
+    cfg = TrafficConfig(interval_s=10.0, detection_line_m=50.0, presence_zone_m=5.0, **ONE_LANE)
+    vehicles = [(1, 20.0, 1.05, 4.4, None), (2, 25.0, 3.05, 4.4, None)]
+    closed, _, last = _run_vehicles(TrafficMonitor(cfg), vehicles, extents=False)
+    s = closed[0]
+    assert s.volume == 2 and s.headway_s == pytest.approx(2.0)
+    assert math.isnan(s.gap_s) and math.isnan(s.mean_length_m)
+    assert s.class_counts == {"motorcycle": 0, "car": 0, "truck": 0, "unknown": 2}
+    assert all(t.length_m is None and t.cls is None for t in last.values())  # not the tracker's 0.5 m
+
+
+def test_length_needs_frames_in_the_measuring_range_and_skips_outliers():
+    from edge.traffic.stats import LengthMeter
+
+    m = LengthMeter(outliers=2)
+    for e in (4.0, 0.0, 2.9, 4.4, 0.0, 4.3, 16.0, 4.4, 9.0):
+        m.add(e)
+    assert m.estimate_m(min_frames=10) is None  # 9 frames
+    m.add(0.0)
+    assert m.estimate_m(min_frames=10) == 4.4  # the third largest: 16 and 9 m (a follower, a glint) skipped
+    # a vehicle shorter than the range resolution: the shortest class, no length
+    cfg = TrafficConfig(**ONE_LANE)
+    mon = TrafficMonitor(cfg)
+    short = LengthMeter(cfg.length_outliers)
+    for _ in range(12):
+        short.add(0.0)
+    assert mon.stats.measured(short) == (None, "motorcycle")
+    # extents measured outside length_range_m (20-150 m by default) do not count
+    mon = TrafficMonitor(cfg)
+    for k in range(30):
+        y = 200.0 - 2.0 * k
+        upd = mon.update((_ts(1, 0.2, y, 0.0, -20.0, k + 1),), k * DT_NS, extent_m=np.array([4.4]))
+    assert upd.tracks[0].length_m is None and upd.tracks[0].cls is None
 
 
 def test_empty_interval_gives_nan_and_sequence_rolls_over():
