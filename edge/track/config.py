@@ -445,7 +445,8 @@ class PdafConfig:
     publish_length: bool = field(
         default=True, metadata={"doc": "publish length_m = sqrt(12) x the learned along-heading spread of a moving "
                                        "track (uniform scatterers over the length); meaningful only when the "
-                                       "detection chain reports several peaks per vehicle"})
+                                       "detection chain reports several peaks per vehicle (the lane profile's traffic layer "
+                                       "publishes the body's range extent instead)"})
     publish_tentative: bool = field(
         default=False, metadata={"doc": "also publish tentative tracks (confirmed=False, track_id=0)"})
     reanchor_m: float = field(

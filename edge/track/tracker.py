@@ -69,7 +69,8 @@ Beyond Lim's single-point PDAF, what a roadside radar needs (all parameters in `
 - extended vehicles: a car or truck gives several detections spread over its length; each track
   learns the along-heading spread of its detections (``ext_var``) and adds it to ``R`` along its
   heading, so the gate holds the whole vehicle and PDAF averages its points; ``length_m`` is
-  published as ``sqrt(12 ext_var)``;
+  published as ``sqrt(12 ext_var)`` (the lane profile's traffic layer replaces it with the length
+  measured from the body's range extent, :mod:`edge.traffic.monitor`);
 - seniority: confirmed tracks share detections (PDAF, or cheap JPDA by default); a tentative track
   only uses detections no more senior track validated;
 - seeding: detections inside a wide exclusion gate or the same-vehicle box of a track never seed;
