@@ -72,6 +72,16 @@ def machine() -> str:
     return f"{kind}_{'+'.join(simd) or 'baseline'}".lower().replace(" ", "")
 
 
+#: the machine kind a newer x86-64 CPU (AVX2 and FMA, with or without AVX-512) can stand in for, and the
+#: environment that holds numpy and OpenBLAS to its instruction set (see the module docstring)
+STAND_IN_KIND = "openblas-haswell_x86_v3"
+STAND_IN_ENV = {
+    "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX AVX512_CNL "
+                                "AVX512_ICL AVX512_SPR",
+    "OPENBLAS_CORETYPE": "Haswell",
+}
+
+
 def fixture_path(stem: str, kind: str | None = None) -> Path:
     return DATA_DIR / (kind or machine()) / f"{stem}.npz"
 
