@@ -373,15 +373,15 @@ def test_cell_split_equals_the_plain_implementation():
 
 def test_published_track_states_equal_the_dataclass_constructor():
     from edge.track.tracker import _track_state
-    from edge.traffic.monitor import _with_lane
+    from edge.traffic.monitor import _with
     from edge.types import TrackState
 
     for ln in (None, 4.5):
         fast = _track_state(7, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 0.1, 3, 2, True, ln)
         plain = TrackState(7, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 0.1, 3, 2, True, length_m=ln)
         assert fast == plain and list(vars(fast).items()) == list(vars(plain).items()) and hash(fast) == hash(plain)
-        laned = _with_lane(fast, 2)
-        assert laned == TrackState(7, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 0.1, 3, 2, True, lane=2, length_m=ln)
+        laned = _with(fast, 2, "car", ln)
+        assert laned == TrackState(7, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 0.1, 3, 2, True, lane=2, cls="car", length_m=ln)
         assert fast.lane is None  # the original is untouched
     with pytest.raises(AttributeError):  # still frozen
         fast.x_m = 0.0

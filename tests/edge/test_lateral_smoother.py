@@ -176,7 +176,8 @@ def test_misaimed_radar_yaw_is_learned_from_the_motion_models_positions(monkeypa
 
     motion = mean_lane_accuracy()
     monkeypatch.setattr(monitor.TrafficMonitor, "update",
-                        lambda self, tracks, t_ns, yaw_x_m=None: update(self, tracks, t_ns, None))
+                        lambda self, tracks, t_ns, yaw_x_m=None, extent_m=None: update(self, tracks, t_ns, None,
+                                                                                     extent_m))
     published = mean_lane_accuracy()
     assert motion > 0.70, motion
     assert motion > published + 0.03, (motion, published)
