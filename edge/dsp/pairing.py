@@ -350,7 +350,8 @@ def _accept(order: list, cand_rows: list, vel, f: tuple, model: PairingModel, ma
 def nearest_of_clusters(range_m: np.ndarray, v_mps: np.ndarray, x_m: np.ndarray, *, length_m: float,
                         speed_mps: float, lateral_m: float, ghost_speed_per_m: float = 0.0,
                         ghost_speed_mps: float = 0.0, ghost_length_m: float = 0.0,
-                        ghost_from_near_faces: bool = True) -> np.ndarray:
+                        ghost_from_near_faces: bool = True,
+                        with_extent: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Keep mask ``(n,)``: drop a detection when another one lies at most ``length_m`` nearer in range,
     within ``speed_mps`` in radial speed and ``lateral_m`` across -- the same vehicle seen further
     along its body. An extended vehicle then yields its nearest face, the point that stays visible and
@@ -361,20 +362,32 @@ def nearest_of_clusters(range_m: np.ndarray, v_mps: np.ndarray, x_m: np.ndarray,
     keeps): a ghost lies within its body, so one behind a vehicle's far end is another vehicle (a truck 17 m
     behind a 6 m van, 2.5 m/s faster, was 11 m behind the van's rear face and dropped in every frame it
     was detected there).
+    With ``with_extent`` also returns each detection's body extent ``(n,)`` (m, slant): the farthest detection
+    the first rule drops behind it, 0 where none (what :func:`body_extent` computes for the kept ones).
     """
     r = range_m[:, None] - range_m[None, :]  # r[i, j] > 0: j nearer than i
     dv = np.abs(v_mps[:, None] - v_mps[None, :])
     beside = np.abs(x_m[:, None] - x_m[None, :]) <= lateral_m
     ahead = (r > 0) & (r <= length_m) & beside
+    same = ahead & (dv <= speed_mps)  # same[i, j]: i is j's body
+    keep = _keep_of_clusters(r, dv, ahead, same, speed_mps, ghost_speed_per_m, ghost_speed_mps, ghost_length_m,
+                             ghost_from_near_faces)
+    if not with_extent:
+        return keep
+    return keep, (np.where(same, r, 0.0).max(axis=0) if r.size else np.zeros(range_m.size, range_m.dtype))
+
+
+def _keep_of_clusters(r, dv, ahead, same, speed_mps, ghost_speed_per_m, ghost_speed_mps, ghost_length_m,
+                      ghost_from_near_faces) -> np.ndarray:
     if not (ghost_speed_mps > 0 and ghost_length_m > 0):
-        return ~(ahead & (dv <= speed_mps)).any(axis=1)
+        return ~same.any(axis=1)
     # a wrong pairing between two of the body's scatterers lies between them (within half the body behind
     # its near face), off their speed by ghost_speed_per_m / 2 per metre of their spacing
     tol = np.where(r <= ghost_length_m, np.maximum(speed_mps, np.minimum(ghost_speed_mps, ghost_speed_per_m * r)),
                    speed_mps)
     if not ghost_from_near_faces:
         return ~(ahead & (dv <= tol)).any(axis=1)
-    body = (ahead & (dv <= speed_mps)).any(axis=1)
+    body = same.any(axis=1)
     ghost = (ahead & (dv <= tol) & ~body[None, :]).any(axis=1)  # behind a near face, within the ghost law
     return ~(body | ghost)
 
@@ -384,7 +397,8 @@ def body_extent(range_m: np.ndarray, v_mps: np.ndarray, x_m: np.ndarray, keep: n
     """Range extent ``(n,)`` (m, slant) of each kept detection's body: the farthest detection at most ``length_m``
     behind it in range, within ``speed_mps`` in radial speed and ``lateral_m`` across (the rule by which
     :func:`nearest_of_clusters` drops it as the same vehicle's body); 0 where none, NaN for detections not kept.
-    A vehicle's scatterers span its length, so over its passage the largest extents are its length."""
+    A vehicle's scatterers span its length, so over its passage the largest extents are its length. The reference
+    for ``nearest_of_clusters(..., with_extent=True)``, which the pipeline uses (one pairwise pass for both)."""
     n = range_m.size
     out = np.full(n, np.nan, np.float32)
     k = keep.nonzero()[0]

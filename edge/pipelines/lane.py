@@ -54,7 +54,7 @@ import scipy.fft
 from edge.dsp.angle import bartlett_consensus, peak_coherence, steering_matrix
 from edge.dsp.cfar import os_cfar, os_cfar_at_padded, os_cfar_scale, reference_index
 from edge.dsp.geometry import polar_to_ground
-from edge.dsp.pairing import PairingModel, body_extent, nearest_of_clusters, pair_beats
+from edge.dsp.pairing import PairingModel, nearest_of_clusters, pair_beats
 from edge.dsp.peaks import interpolate_peak, local_maxima
 from edge.dsp.resolve import CellResolver, ResolverConfig
 from edge.dsp.range_fft import make_window
@@ -724,18 +724,19 @@ class LanePipeline(Pipeline):
             sel = None  # all kept
             body = None
             if cfg.cluster_length_m > 0 and rng.size > 1:
-                keep = nearest_of_clusters(rng, vel, x, length_m=cfg.cluster_length_m,
-                                           speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m,
-                                           ghost_speed_per_m=cfg.cluster_ghost_speed_per_m,
-                                           ghost_speed_mps=cfg.cluster_ghost_speed_mps,
-                                           ghost_length_m=cfg.cluster_ghost_length_m,
-                                           ghost_from_near_faces=cfg.cluster_ghost_from_near_face)
+                keep, ext = nearest_of_clusters(rng, vel, x, length_m=cfg.cluster_length_m,
+                                                speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m,
+                                                ghost_speed_per_m=cfg.cluster_ghost_speed_per_m,
+                                                ghost_speed_mps=cfg.cluster_ghost_speed_mps,
+                                                ghost_length_m=cfg.cluster_ghost_length_m,
+                                                ghost_from_near_faces=cfg.cluster_ghost_from_near_face,
+                                                with_extent=True)
                 if (cfg.cluster_against_lane_speed_mps > 0 and self.traffic is not None and self.traffic.lanes
                         and keep.sum() > 1):
                     keep &= ~self._against_lane_glint(rng, vel, az, x, y, keep)
                 if not keep.all():
                     sel = keep.nonzero()[0]
-                body = self._body_extent(rng, vel, x, keep)
+                body = self._body_extent(rng, x, ext, keep)
             elif cfg.cluster_length_m > 0:  # one detection or none: no body behind it
                 body = np.zeros(rng.size, np.float32)
             if sel is None:  # the arrays themselves (nothing reads or writes them after this)
@@ -756,12 +757,11 @@ class LanePipeline(Pipeline):
         }
         return det, inter
 
-    def _body_extent(self, rng: np.ndarray, vel: np.ndarray, x: np.ndarray, keep: np.ndarray) -> np.ndarray:
-        """Per detection the along-road length of the body behind it (``body_extent``'s slant range extent, as
-        ground distance along the road at the detection's lateral offset; NaN for dropped detections)."""
+    def _body_extent(self, rng: np.ndarray, x: np.ndarray, ext: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """Per detection the along-road length of the body behind it (``ext``: its slant range extent, from
+        ``nearest_of_clusters``), as ground distance along the road at its lateral offset; NaN for dropped ones."""
         cfg = self.config
-        ext = body_extent(rng, vel, x, keep, length_m=cfg.cluster_length_m, speed_mps=cfg.cluster_speed_mps,
-                          lateral_m=cfg.cluster_lateral_m)
+        ext = np.where(keep, ext, np.float32(np.nan))
         dz2 = np.float32((cfg.mounting_height_m - cfg.target_height_m) ** 2)
         x2 = x * x
         near = np.sqrt(np.maximum(rng * rng - dz2 - x2, np.float32(0)))

@@ -166,6 +166,23 @@ def test_body_extent_is_the_farthest_detection_of_the_same_body():
     assert np.isnan(ext[[1, 2]]).all()
 
 
+@pytest.mark.parametrize("ghost_speed_mps", [0.0, 3.0])
+def test_nearest_of_clusters_gives_the_reference_body_extent(ghost_speed_mps):
+    rng = np.random.default_rng(11)
+    for n in (0, 1, 2, 15, 40):
+        r = rng.uniform(20.0, 120.0, n).astype(np.float32)
+        v = rng.choice([-25.0, -20.0, 22.0], n).astype(np.float32) + rng.normal(0, 0.3, n).astype(np.float32)
+        x = rng.choice([-5.25, -1.75, 1.75], n).astype(np.float32) + rng.normal(0, 0.4, n).astype(np.float32)
+        kw = dict(length_m=17.0, speed_mps=0.6, lateral_m=1.5)
+        keep, ext = nearest_of_clusters(r, v, x, **kw, ghost_speed_mps=ghost_speed_mps, ghost_length_m=12.0,
+                                        ghost_speed_per_m=0.5, with_extent=True)
+        np.testing.assert_array_equal(keep, nearest_of_clusters(r, v, x, **kw, ghost_speed_mps=ghost_speed_mps,
+                                                                ghost_length_m=12.0, ghost_speed_per_m=0.5))
+        ref = body_extent(r, v, x, keep, **kw)
+        np.testing.assert_array_equal(ext[keep], ref[keep])
+        assert ext.shape == (n,) and (n < 15 or (ext[keep] > 0).any())
+
+
 # --- angle and geometry ------------------------------------------------------------------------
 
 def _snapshots(az_deg, n_snap, snr_db, rng, gains=None):
