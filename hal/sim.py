@@ -89,6 +89,7 @@ class SimSource(RadarSource):
         self._scenario = sc
         seed = sc.seed if self.seed_opt is None else self.seed_opt
         self.seed = seed
+        self._board = sc.sim_board()
         self._sim = FrameSimulator(self._board, sc.build_scene(seed), seed)
         period = self.frontend.waveform.frame_period_s
         self._scenario_frames = max(1, int(round(sc.duration_s / period)))

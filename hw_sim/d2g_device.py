@@ -458,7 +458,6 @@ class D2GEmulator:
         power_on_direction: int = 2,
         clock: SteppedClock | None = None,
     ) -> None:
-        from hw_sim.boards import D2G_BOARD
         from hw_sim.scenario import load_scenario
         from hw_sim.simulator import FrameSimulator
 
@@ -467,8 +466,9 @@ class D2GEmulator:
             raise ValueError(f"scenario {sc.name!r} is for board {sc.board!r}, not the Distance2Go")
         self.scenario = sc
         self.seed = sc.seed if seed is None else seed
-        self._sim = FrameSimulator(D2G_BOARD, sc.build_scene(self.seed), self.seed)
-        self._sim_shape = D2G_BOARD.frontend.frame_shape
+        board = sc.sim_board()
+        self._sim = FrameSimulator(board, sc.build_scene(self.seed), self.seed)
+        self._sim_shape = board.frontend.frame_shape
         self.quiet_s = quiet_s
         self._tmpdir = None if link else tempfile.mkdtemp(prefix="radar-edge-d2g-")
         self.port = link or os.path.join(self._tmpdir, "ttyD2G")

@@ -71,6 +71,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from hw_sim.physics import Physics, PhysicsError, parse_physics
 from hw_sim.scene import CLASSES, Clutter, LinearTrajectory, RadarPose, Scene, Target
 
 
@@ -99,11 +100,18 @@ class Scenario:
     lanes: tuple[Lane, ...] = ()
     raw: dict[str, Any] = field(default_factory=dict)
     source: str = ""
+    physics: Physics = field(default_factory=Physics)
+
+    def sim_board(self):
+        """The simulated board this scenario runs on, with its ``[physics]`` choices applied."""
+        from hw_sim.boards import board_for
+
+        return board_for(self.board, self.physics)
 
     def build_scene(self, seed: int | None = None) -> Scene:
         """A fresh, deterministic :class:`Scene` for ``seed`` (defaults to the scenario's)."""
         s = self.seed if seed is None else seed
-        scene = Scene(pose=self.pose, seed=s)
+        scene = Scene(pose=self.pose, seed=s, physics=self.physics)
         for t in _targets(self.raw, self.source):
             scene.add_target(t)
         cl = self.raw.get("clutter", [])
@@ -204,7 +212,11 @@ def parse_scenario(raw: dict[str, Any], source: str = "<string>") -> Scenario:
         if d not in ("toward", "away"):
             raise ScenarioError(f"{source}: lane[{n}].direction must be 'toward' or 'away'")
         lanes.append(Lane(_num(ln, "center_x_m", where=f"{source}: lane[{n}]."), _num(ln, "width_m", 3.5), d))
-    known = {"scenario", "radar", "lane", "target", "clutter", *GENERATORS}
+    try:
+        physics = parse_physics(raw.get("physics"), f"{source}: physics.")
+    except PhysicsError as exc:
+        raise ScenarioError(str(exc)) from None
+    known = {"scenario", "radar", "lane", "target", "clutter", "physics", *GENERATORS}
     extra = sorted(set(raw) - known)
     if extra:
         raise ScenarioError(f"{source}: unknown table(s) {extra}; known: {sorted(known)}")
@@ -218,6 +230,7 @@ def parse_scenario(raw: dict[str, Any], source: str = "<string>") -> Scenario:
         lanes=tuple(lanes),
         raw=raw,
         source=source,
+        physics=physics,
     )
     sc.build_scene()  # validate targets and generators now, not mid-run
     return sc
@@ -228,8 +241,67 @@ def builtin_names() -> list[str]:
     return sorted(p.name[: -len(".toml")] for p in files.iterdir() if p.name.endswith(".toml"))
 
 
-def load_scenario(name_or_path: str) -> Scenario:
-    """Load a built-in scenario by name, or a TOML file by path."""
+def apply_patch(raw: dict[str, Any], patch: dict[str, Any] | None) -> dict[str, Any]:
+    """A copy of a scenario's TOML document with ``patch`` applied (the corpus's variants).
+
+    A table merges into the table of the same name, key by key (recursively); a table patched onto an
+    array of tables (``traffic = { weave_sdlp_m = 0.2 }`` onto ``[[traffic]]``) merges into every element;
+    an array of tables is appended to the array of the same name; any other value replaces.
+    """
+    import copy
+
+    out = copy.deepcopy(raw)
+    for key, val in (patch or {}).items():
+        cur = out.get(key)
+        if isinstance(val, dict) and isinstance(cur, dict):
+            out[key] = apply_patch(cur, val)
+        elif isinstance(val, dict) and isinstance(cur, list) and all(isinstance(e, dict) for e in cur):
+            out[key] = [apply_patch(e, val) for e in cur]
+        elif isinstance(val, list) and isinstance(cur, list) and all(isinstance(e, dict) for e in val + cur):
+            out[key] = cur + copy.deepcopy(val)
+        else:
+            out[key] = copy.deepcopy(val)
+    return out
+
+
+def patch_from_assignments(items: list[str] | tuple[str, ...]) -> dict[str, Any]:
+    """``["radar.height_m=10", "physics.preset='v1'"]`` -> a patch for :func:`apply_patch`.
+
+    Values are TOML values; a bare word that is not one is taken as a string (``physics.preset=v1``).
+    """
+    patch: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ScenarioError(f"scenario override {item!r} must be KEY=VALUE, e.g. radar.height_m=10")
+        try:
+            val = tomllib.loads(f"v = {text.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            val = text.strip()
+        node = patch
+        parts = key.split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ScenarioError(f"scenario override {item!r} conflicts with an earlier one")
+        node[parts[-1]] = val
+    return patch
+
+
+def patched(sc: Scenario, patch: dict[str, Any] | None) -> Scenario:
+    """``sc`` re-parsed with ``patch`` applied to its TOML document (itself when there is none)."""
+    if not patch:
+        return sc
+    return parse_scenario(apply_patch(sc.raw, patch), f"{sc.source} (patched)")
+
+
+def load_scenario(name_or_path: str, patch: dict[str, Any] | None = None) -> Scenario:
+    """Load a built-in scenario by name, or a TOML file by path; ``patch`` (:func:`apply_patch`) changes it."""
+    return patched(_load_scenario(name_or_path), patch)
+
+
+def _load_scenario(name_or_path: str) -> Scenario:
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
         if not p.is_file():
@@ -258,11 +330,12 @@ def load_scenario(name_or_path: str) -> Scenario:
 EVENT_SCENARIOS: dict[str, Callable[..., Scenario]] = {}
 
 
-def load_scenario_for_eval(name_or_path: str, events: int | None = None) -> Scenario:
+def load_scenario_for_eval(name_or_path: str, events: int | None = None,
+                           patch: dict[str, Any] | None = None) -> Scenario:
     """A scenario for ``radar-edge evaluate``: an event generator (takes ``events``) or a file/name."""
     if name_or_path in EVENT_SCENARIOS:
-        return EVENT_SCENARIOS[name_or_path](events=events)
-    return load_scenario(name_or_path)
+        return patched(EVENT_SCENARIOS[name_or_path](events=events), patch)
+    return load_scenario(name_or_path, patch)
 
 
 # the road-traffic generators ([[vehicle]], [[traffic]], [[guardrail]], [[multipath]]) register themselves

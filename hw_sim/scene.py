@@ -21,6 +21,8 @@ from typing import Protocol
 
 import numpy as np
 
+from hw_sim.physics import Physics
+
 #: a decorrelating target slower than this stands still and keeps its scattering phases (Scene.scatterers)
 STANDING_MPS = 0.05
 
@@ -185,6 +187,7 @@ class Scene:
     targets: list[Target] = field(default_factory=list)
     clutter: Clutter | None = None
     seed: int = 0
+    physics: Physics = field(default_factory=Physics)
 
     def __post_init__(self) -> None:
         self._phase: dict[int, np.ndarray] = {}

@@ -129,7 +129,6 @@ def build_reference_set(
     """
     from edge.config import load_config
     from edge.dsp.range_doppler import RangeDopplerProcessor
-    from hw_sim.boards import board_for
     from hw_sim.events import SLOT_S, frame_view, single_random, visible
     from hw_sim.simulator import FrameSimulator
 
@@ -146,7 +145,7 @@ def build_reference_set(
     feat_cfg: FeatureConfig = cfg.section("classify.features")
     n_events = 4 * events_per_class
     scenario = single_random(events=n_events, keep_right=vehicle_lanes == "keep_right")
-    board = board_for(scenario.board)
+    board = scenario.sim_board()
     fe = board.frontend
     scene = scenario.build_scene(seed)
     sim = FrameSimulator(board, scene, seed)

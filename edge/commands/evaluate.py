@@ -25,6 +25,7 @@ EPILOG = """\
 examples:
   radar-edge evaluate --scenario highway4 --json out/highway4.json
   radar-edge evaluate --scenario multi-random --events 20 --seed 3 --json out/multi.json
+  radar-edge evaluate --scenario highway4-traffic --seed 7 --scenario-set radar.height_m=10 --json out/h10.json
   radar-edge evaluate --scenario highway4-traffic --seed 5 --record-tracks out/s5-tracks.npz --json out/s5.json
   radar-edge replay-traffic out/s5-tracks.npz --set traffic.count_late_twin_s=0   # counting rules, in seconds
 """
@@ -41,6 +42,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "of the detection line, for radar-edge replay-traffic (about 17 MB for ten minutes of "
                         "four-lane traffic)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--scenario-set", action="append", default=[], metavar="KEY=VALUE",
+                   help="change the simulated world, e.g. radar.height_m=10, physics.preset=v1 or "
+                        "traffic.weave_sdlp_m=0.2 (set on every [[traffic]] table); TOML values, repeatable")
     add_config_arguments(p)
 
 
@@ -54,9 +58,16 @@ def run(args: argparse.Namespace) -> int:
     if progress and not available("tqdm"):
         logging.getLogger(__name__).warning("no progress bar: tqdm is not installed (%s)", install_hint("tqdm"))
         progress = False
+    from hw_sim.scenario import ScenarioError, patch_from_assignments
+
+    try:
+        patch = patch_from_assignments(args.scenario_set)
+    except ScenarioError as exc:
+        print(f"radar-edge evaluate: {exc}", file=sys.stderr)
+        return 2
     report = evaluate(
         args.scenario, seed=args.seed, frames=args.frames, events=args.events, config=cfg,
-        progress=progress, record_tracks=args.record_tracks,
+        progress=progress, record_tracks=args.record_tracks, patch=patch,
     )
     text = json.dumps(report, indent=2, sort_keys=False)
     if args.json:

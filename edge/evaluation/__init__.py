@@ -13,11 +13,12 @@ from edge.pipeline import BOARD_PROFILE
 
 
 def evaluate(scenario: str, *, seed: int | None, frames: int | None, events: int | None, config: Any, progress: bool = False,
-             record_tracks: str | None = None) -> dict:
-    """``record_tracks``: a path for the traffic layer's input (lane profile only, :mod:`edge.evaluation.track_log`)."""
+             record_tracks: str | None = None, patch: dict | None = None) -> dict:
+    """``record_tracks``: a path for the traffic layer's input (lane profile only, :mod:`edge.evaluation.track_log`);
+    ``patch``: changes to the scenario's TOML document (:func:`hw_sim.scenario.apply_patch`)."""
     from hw_sim.scenario import load_scenario_for_eval
 
-    sc = load_scenario_for_eval(scenario, events=events)
+    sc = load_scenario_for_eval(scenario, events=events, patch=patch)
     profile = BOARD_PROFILE[sc.board]
     try:
         mod = importlib.import_module(f"edge.evaluation.{profile}")

@@ -248,13 +248,12 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     """The report of the module docstring. ``record_tracks``: also write the traffic layer's input and the true
     crossings there (:mod:`edge.evaluation.track_log`, for ``radar-edge replay-traffic``)."""
     from edge.config import load_config
-    from hw_sim.boards import SIMO_BOARD
     from hw_sim.simulator import FrameSimulator
 
     if config is None:
         config = load_config(env={})
     seed = sc.seed if seed is None else seed
-    board = SIMO_BOARD
+    board = sc.sim_board()
     fe = board.frontend
     period = fe.waveform.frame_period_s
     n_frames = frames if frames else max(1, int(round(sc.duration_s / period)))

@@ -35,14 +35,14 @@ def detection_errors(sc, *, seed: int, frames: int | None = None, config: Any = 
     from edge.pipeline import StageTimer
     from edge.pipelines.lane import LanePipeline
     from hal.frame import RawFrame
-    from hw_sim.boards import SIMO_BOARD
     from hw_sim.simulator import FrameSimulator
 
     config = load_config(env={}) if config is None else config
-    fe = SIMO_BOARD.frontend
+    board = sc.sim_board()
+    fe = board.frontend
     n_frames = frames or max(1, int(round(sc.duration_s / fe.waveform.frame_period_s)))
     scene = sc.build_scene(seed)
-    sim = FrameSimulator(SIMO_BOARD, scene, seed)
+    sim = FrameSimulator(board, scene, seed)
     pipe = LanePipeline(fe, *_installer_config(config, sc))
     by_id = {tg.id: tg for tg in scene.targets}
     timer = StageTimer(window=16)

@@ -71,12 +71,11 @@ def _interval_distance(r: np.ndarray, lo: float, hi: float) -> np.ndarray:
 
 def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int | None, config: Any,
              progress: bool = False) -> dict:
-    from hw_sim.boards import board_for
     from hw_sim.events import SURVEILLANCE_CLASSES, event_truth, frame_view
     from hw_sim.simulator import FrameSimulator
 
     s = scenario.seed if seed is None else int(seed)
-    board = board_for(scenario.board)
+    board = scenario.sim_board()
     fe = board.frontend
     period = fe.waveform.frame_period_s
     n_frames = int(frames) if frames else max(1, int(round(scenario.duration_s / period)))
