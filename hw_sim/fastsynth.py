@@ -25,12 +25,18 @@ from __future__ import annotations
 import numpy as np
 
 from hal.waveform import SPEED_OF_LIGHT_MPS
+from hw_sim.radio import road_bounce_factor
 from hw_sim.scene import RadarPose, ScattererSet
 
 
 def synthesize_if_fast(board, pose: RadarPose, scat: ScattererSet, t_frame_s: float, rng: np.random.Generator,
-                       *, noise: bool = True, leakage: bool = True) -> np.ndarray:
-    """Complex IF in ADC counts, ``(n_rx, n_chirps, n_samples)`` complex128 (see module docstring)."""
+                       *, noise: bool = True, leakage: bool = True,
+                       chirp_phase: np.ndarray | None = None) -> np.ndarray:
+    """Complex IF in ADC counts, ``(n_rx, n_chirps, n_samples)`` complex128 (see module docstring).
+
+    The road-bounce factor (``board.road``) and the per-chirp phase error ``chirp_phase`` ``(n_chirps,)``
+    enter the per-scatterer weights exactly as in the reference synthesis.
+    """
     fe = board.frontend
     wf = fe.waveform
     c = SPEED_OF_LIGHT_MPS
@@ -41,7 +47,7 @@ def synthesize_if_fast(board, pose: RadarPose, scat: ScattererSet, t_frame_s: fl
     rot = pose.rotation()
     tx_pos = pose.position
     rx_pos = tx_pos + board.rx_positions_radar() @ rot
-    counts_gain = board.radio.counts_per_sqrt_w(board.reference_bandwidth_hz())
+    counts_gain = board.radio.signal_counts_gain(board.reference_bandwidth_hz())
 
     if scat.rcs_m2.size:
         rel = pose.to_radar(scat.position_m)
@@ -79,7 +85,12 @@ def synthesize_if_fast(board, pose: RadarPose, scat: ScattererSet, t_frame_s: fl
             # residual is a zero-mean ramp (exact peak phase to first order)
             a = fs0 * tau - 0.5 * S * tau * tau + ph0[:, None, None] + S * (tau - tm[:, None, :]) * t_n.mean()
             a -= np.floor(a)
-            w = (amp[:, None, None] * np.exp(2j * np.pi * a)).astype(np.complex64)  # (K, R, C)
+            w = amp[:, None, None] * np.exp(2j * np.pi * a)  # (K, R, C)
+            if board.road is not None:
+                w *= road_bounce_factor(board.radio, board.road, tx_pos, rot, p, lam)[:, None, :]
+            if chirp_phase is not None:
+                w *= chirp_phase[None, None, row:row + n_c]
+            w = w.astype(np.complex64)
             b = (fs0 * tdm + S * tm - S * tm * tdm).astype(np.float32)
             q = (S * tdm - 0.5 * S * tdm * tdm).astype(np.float32)
             t32 = t_n.astype(np.float32)

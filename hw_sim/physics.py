@@ -26,10 +26,76 @@ class Physics:
     #: name of the preset the record started from ("" = the defaults)
     preset: str = ""
 
+    # --- antennas, propagation, receiver (hw_sim.radio, hw_sim.synth, hw_sim.boards.apply_physics) ---
+    #: elevation beamwidths of the SIMO board's antennas (Lim et al. 2021 give none): "gain-implied" =
+    #: the widths that Table 1's gains and azimuth widths imply with Kraus' 32000 / (th_az th_el)
+    #: (TX 75 deg, RX 73 deg; arithmetic in hw_sim.radio.elevation_beamwidth_deg), "wide" = the lossless
+    #: upper bound 41253 / (th_az th_el) (TX 97 deg, RX 94 deg), "narrow" = 12 / 14 deg (the v1 assumption).
+    #: The Distance2Go keeps its datasheet 42 x 20 deg whatever this says.
+    elevation: str = "gain-implied"
+    #: road-bounce multipath: every scatterer's echo is multiplied by the four-path (two-ray each way)
+    #: propagation factor over a flat road (hw_sim.radio.road_bounce_factor)
+    road_bounce: bool = True
+    #: relative permittivity and loss tangent of the road surface at 24 GHz (dry asphalt, about 3-5 with a
+    #: small loss; Li & Sarabandi, IEEE TAP 47(5) 1999, measured about 3.2 - j0.1 at millimetre waves)
+    road_permittivity: float = 3.2
+    road_loss_tangent: float = 0.03
+    #: RMS height of the road surface's roughness (mm), for the Ament/Rayleigh factor of the specular
+    #: reflection exp(-2 (2 pi sigma_h sin psi / lambda)^2); dense asphalt texture is 1-3 mm
+    road_roughness_mm: float = 2.0
+    #: polarisation of the antennas relative to the road: "horizontal" (E parallel to the road, |Gamma| near
+    #: 1 at grazing, no Brewster angle: the stronger multipath) or "vertical"
+    polarisation: str = "horizontal"
+    #: receiver I/Q imbalance: gain of Q relative to I (dB) and quadrature phase error (deg); a few tenths
+    #: of a dB and a few degrees are typical of 24 GHz homodyne MMICs (Infineon BGT24MTR12/BGT24LTR11 class)
+    iq_gain_imbalance_db: float = 0.3
+    iq_phase_imbalance_deg: float = 3.0
+    #: DC offset per I and Q rail after the IF amplifier and ADC (counts RMS over units, drawn per seed and
+    #: channel): the ADC's offset error and the residual mixer DC, a few LSB on a 12-bit converter
+    dc_offset_counts: float = 4.0
+    #: per-chirp residual phase noise after range correlation (deg RMS), common to the RX channels (one LO);
+    #: the arithmetic is in hw_sim.radio (above ReceiverImperfections)
+    phase_noise_deg_rms: float = 0.2
+    #: per-element gain (dB RMS) and phase (deg RMS) errors left uncorrected by the board's calibration
+    #: vector (drift with temperature and ageing after factory calibration), drawn per seed
+    channel_mismatch_db: float = 0.5
+    channel_mismatch_deg: float = 5.0
+    #: unit-to-unit / radome / temperature offset of the whole receive chain (dB): scales every echo and the
+    #: TX->RX leakage, not the thermal noise
+    gain_offset_db: float = 0.0
+
+    def __post_init__(self) -> None:
+        for key, allowed in _CHOICES.items():
+            if getattr(self, key) not in allowed:
+                raise ValueError(f"{key} must be one of {list(allowed)}, got {getattr(self, key)!r}")
+        for key in ("road_permittivity",):
+            if getattr(self, key) < 1.0:
+                raise ValueError(f"{key} must be >= 1, got {getattr(self, key)!r}")
+        for key in ("road_loss_tangent", "road_roughness_mm", "dc_offset_counts", "phase_noise_deg_rms",
+                    "channel_mismatch_db", "channel_mismatch_deg"):
+            if getattr(self, key) < 0.0:
+                raise ValueError(f"{key} must be >= 0, got {getattr(self, key)!r}")
+
+
+#: allowed values of the string fields
+_CHOICES: dict[str, tuple[str, ...]] = {
+    "elevation": ("gain-implied", "wide", "narrow"),
+    "polarisation": ("horizontal", "vertical"),
+}
+
 
 #: named presets: field -> value (fields not listed keep their defaults)
 PRESETS: dict[str, dict[str, Any]] = {
-    "v1": {},
+    "v1": {
+        "elevation": "narrow",
+        "road_bounce": False,
+        "iq_gain_imbalance_db": 0.0,
+        "iq_phase_imbalance_deg": 0.0,
+        "dc_offset_counts": 0.0,
+        "phase_noise_deg_rms": 0.0,
+        "channel_mismatch_db": 0.0,
+        "channel_mismatch_deg": 0.0,
+    },
 }
 
 

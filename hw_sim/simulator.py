@@ -36,6 +36,6 @@ class FrameSimulator:
         t = n * self.period_s
         scat = self.scene.scatterers(t, np.random.default_rng([self.seed, n, 0x5C]))
         rng = np.random.default_rng([self.seed, n, 0x5EED])
-        x = synthesize_if(self.board, self.scene.pose, scat, t, rng)
+        x = synthesize_if(self.board, self.scene.pose, scat, t, rng, seed=self.seed)
         i, q = quantize(x, self.board.frontend.adc_bits)
         return SimFrame(n, t, i, q, self.scene.truth(t))

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hal.waveform import SPEED_OF_LIGHT_MPS, FrontendInfo
-from hw_sim.radio import RadioModel
+from hw_sim.radio import RadioModel, ReceiverImperfections, RoadSurface, road_bounce_factor
 from hw_sim.scene import RadarPose, ScattererSet
 
 
@@ -38,6 +38,10 @@ class SimBoard:
     #: use :func:`hw_sim.fastsynth.synthesize_if_fast` (one exponential per scatterer and sample, not per
     #: element too); for many-scatterer scenes on multi-element boards
     fast_synthesis: bool = False
+    #: the road that reflects every echo (:func:`hw_sim.radio.road_bounce_factor`); None = free space
+    road: RoadSurface | None = None
+    #: the receive chain's imperfections (:class:`hw_sim.radio.ReceiverImperfections`); None = ideal
+    receiver: ReceiverImperfections | None = None
 
     def rx_positions_radar(self) -> np.ndarray:
         n = self.frontend.n_rx
@@ -58,15 +62,35 @@ def synthesize_if(
     *,
     noise: bool = True,
     leakage: bool = True,
+    seed: int = 0,
 ) -> np.ndarray:
     """Complex IF in ADC counts (before quantisation), shape ``(n_rx, n_chirps, n_samples)``, complex128.
 
-    ``scat`` holds the scatterers at ``t_frame_s``; each moves on a straight line during the frame.
+    ``scat`` holds the scatterers at ``t_frame_s``; each moves on a straight line during the frame. With
+    ``board.road`` every echo carries the road-bounce factor (per scatterer and chirp). With
+    ``board.receiver`` the echoes get a per-chirp phase error drawn from ``rng`` (only with ``noise``; drawn
+    before every other draw of the frame, so with it off the frame's draws are those of an ideal receiver),
+    and the whole IF the unit's channel mismatch, I/Q imbalance and DC offset, drawn from ``seed`` (the
+    scene's: one unit per seed).
     """
+    rx = board.receiver
+    chirp_phase = None
+    if rx is not None and noise and rx.phase_noise_deg_rms > 0:
+        n_ch = board.frontend.frame_shape[1]
+        chirp_phase = np.exp(1j * np.radians(rx.phase_noise_deg_rms) * rng.standard_normal(n_ch))
     if board.fast_synthesis:
         from hw_sim.fastsynth import synthesize_if_fast
 
-        return synthesize_if_fast(board, pose, scat, t_frame_s, rng, noise=noise, leakage=leakage)
+        out = synthesize_if_fast(board, pose, scat, t_frame_s, rng, noise=noise, leakage=leakage, chirp_phase=chirp_phase)
+    else:
+        out = _synthesize_if_reference(board, pose, scat, t_frame_s, rng, noise, leakage, chirp_phase)
+    if rx is not None and rx.active:
+        out = rx.apply(out, seed)
+    return out
+
+
+def _synthesize_if_reference(board, pose, scat, t_frame_s, rng, noise, leakage, chirp_phase):
+    """The reference synthesis (one exponential per scatterer, element and sample); see synthesize_if."""
     fe = board.frontend
     wf = fe.waveform
     c = SPEED_OF_LIGHT_MPS
@@ -78,7 +102,7 @@ def synthesize_if(
     radar_pos = pose.position
     tx_pos = radar_pos
     rx_pos = radar_pos + board.rx_positions_radar() @ rot  # (n_rx, 3) world
-    counts_gain = board.radio.counts_per_sqrt_w(board.reference_bandwidth_hz())
+    counts_gain = board.radio.signal_counts_gain(board.reference_bandwidth_hz())
 
     k = scat.rcs_m2.size
     if k:
@@ -124,9 +148,15 @@ def synthesize_if(
             cyc = fs0 * tau + S * t_n * tau - 0.5 * S * tau * tau + ph0[:, None, None, None]
             cyc -= np.floor(cyc)
             sig = np.exp(2j * np.pi * cyc) * amp[:, None, None, None]
+            if board.road is not None:
+                bounce = road_bounce_factor(board.radio, board.road, radar_pos, rot, p, lam)  # (K, C)
+                sig *= bounce[:, None, :, None]
             if jitter is not None and static.any():
                 sig[static] *= jitter[None, row : row + seg.n_chirps, None]
-            out[:, row : row + seg.n_chirps, :] += sig.sum(axis=0)
+            sig = sig.sum(axis=0)
+            if chirp_phase is not None:
+                sig *= chirp_phase[None, row : row + seg.n_chirps, None]
+            out[:, row : row + seg.n_chirps, :] += sig
         if leakage and board.radio.leakage_power_dbm > -200:
             a_l = np.sqrt(10.0 ** ((board.radio.leakage_power_dbm - 30.0) / 10.0)) * counts_gain
             tau_l = 2.0 * board.radio.leakage_range_m / c
@@ -144,6 +174,13 @@ def synthesize_if(
     if board.channel_gain:
         out *= np.asarray(board.channel_gain, dtype=np.complex128)[:, None, None]
     return out
+
+
+def clipped_fraction(if_counts: np.ndarray, adc_bits: int = 12) -> float:
+    """Fraction of I and Q samples of ``if_counts`` beyond the ADC's signed range (clipped by :func:`quantize`)."""
+    lo, hi = -(2 ** (adc_bits - 1)) - 0.5, 2 ** (adc_bits - 1) - 0.5
+    rails = np.concatenate([if_counts.real.ravel(), if_counts.imag.ravel()])
+    return float(np.mean((rails < lo) | (rails >= hi)))
 
 
 def quantize(if_counts: np.ndarray, adc_bits: int = 12) -> tuple[np.ndarray, np.ndarray]:
