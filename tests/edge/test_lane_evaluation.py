@@ -12,6 +12,8 @@ from edge.config import load_config
 from edge.evaluation.lane import _rmse_within, evaluate
 from hw_sim.scenario import load_scenario
 
+V1 = {"physics": {"preset": "v1"}}  # the v1 instrument (hw_sim.physics.PRESETS)
+
 
 def test_highway4_short_run_meets_accuracy_floor():
     """150 frames (5 s) of highway4: six point vehicles 20-260 m, Swerling I.
@@ -23,7 +25,8 @@ def test_highway4_short_run_meets_accuracy_floor():
     tracker's 5-of-7 confirmation limit the tracked fraction (0.94-0.97 over 10 s); 0.85 catches a
     broken detection chain or tracker hand-over.
     """
-    rep = evaluate(load_scenario("highway4"), seed=11, frames=150, config=load_config(env={}))
+    # figure measured on the v1 instrument; the corpus reports the physical defaults
+    rep = evaluate(load_scenario("highway4", V1), seed=11, frames=150, config=load_config(env={}))
     s = rep["summary"]
     assert rep["profile"] == "lane" and rep["frames"] == 150 and len(rep["targets"]) == 6
     assert s["detection_probability"] >= 0.85
@@ -97,7 +100,8 @@ def test_side_by_side_is_resolved_into_two_tracks_by_angle():
     seeds 3, 8, 21: tracked fractions 0.67-0.82 (the first ~15 frames are needed to resolve them), lane
     accuracy 1.0; without the resolver one car is tracked in 0.27-0.32 of the frames, with a track
     between the lanes (RMSE 1.3-1.7 m)."""
-    rep = evaluate(load_scenario("side-by-side"), seed=8, frames=90, config=load_config(env={}))
+    # figure measured on the v1 instrument; the corpus reports the physical defaults
+    rep = evaluate(load_scenario("side-by-side", V1), seed=8, frames=90, config=load_config(env={}))
     fr = sorted(t["tracked_fraction"] for t in rep["targets"])
     assert len(fr) == 2 and fr[0] >= 0.6
     assert rep["summary"]["lane_accuracy"] >= 0.95

@@ -145,7 +145,8 @@ def test_highway4_motorcycle_position_rmse():
     the straight-line filter, 0.04 m with it), every vehicle within 0.15 m."""
     cfg = load_config(env={})  # the straight-line filter on, as by default
     assert cfg.section("track.pdaf").lateral_smoother
-    res = evaluate("highway4", seed=1, frames=None, events=None, config=cfg)
+    # figure measured on the v1 instrument; the corpus reports the physical defaults
+    res = evaluate("highway4", seed=1, frames=None, events=None, config=cfg, patch={"physics": {"preset": "v1"}})
     by_id = {t["id"]: t for t in res["targets"]}
     assert by_id[5]["class"] == "motorcycle"
     assert by_id[5]["position_rmse_m"] < 0.1
@@ -171,8 +172,9 @@ def test_misaimed_radar_yaw_is_learned_from_the_motion_models_positions(monkeypa
     update = monitor.TrafficMonitor.update
 
     def mean_lane_accuracy() -> float:
-        return float(np.mean([evaluate("highway4-misaimed", seed=seed, frames=120, events=None,
-                                       config=cfg)["summary"]["lane_accuracy"] for seed in range(1, 7)]))
+        # figure measured on the v1 instrument; the corpus reports the physical defaults
+        return float(np.mean([evaluate("highway4-misaimed", seed=seed, frames=120, events=None, config=cfg,
+                                       patch={"physics": {"preset": "v1"}})["summary"]["lane_accuracy"] for seed in range(1, 7)]))
 
     motion = mean_lane_accuracy()
     monkeypatch.setattr(monitor.TrafficMonitor, "update",
