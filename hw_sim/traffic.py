@@ -136,7 +136,7 @@ def build_vehicle(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generat
             t_start_s=_num(spec, "start_s", -math.inf, where) if "start_s" in spec else -math.inf,
             t_end_s=_num(spec, "end_s", math.inf, where) if "end_s" in spec else math.inf,
             length_m=spec.get("length_m"), rcs_m2=spec.get("rcs_m2"), swerling=int(spec.get("swerling", 0)),
-            lane_switch=switch,
+            lane_switch=switch, physics=scene.physics,
         )
         scene.add_target(veh)
     except ValueError as exc:
@@ -191,7 +191,8 @@ def build_traffic(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generat
                     v = prev_v
             kind = kinds[int(rng.choice(len(kinds), p=w))]
             traj = RoadTrajectory(x0, y_entry, d, (t,), (v,))
-            made.append(make_vehicle(vid, kind, traj, lane=lane, rng=rng, t_start_s=t, t_end_s=t + path_m / v))
+            made.append(make_vehicle(vid, kind, traj, lane=lane, rng=rng, t_start_s=t, t_end_s=t + path_m / v,
+                                     physics=scene.physics))
             vid += 1
             prev_t, prev_v = t, v
     if off_sd > 0 or sdlp > 0:
