@@ -267,17 +267,17 @@ class Scene:
         power = np.exp(2.0 * GLINT_LOGAMP_SD_NP * proc[:, 1] - 2.0 * GLINT_LOGAMP_SD_NP ** 2)
         return np.mod(phase, 1.0), power
 
-    def _shadow(self, out: ScattererSet, t_s: float) -> ScattererSet:
+    def _shadow(self, out: ScattererSet, t_s: float, frames: dict[int, tuple[np.ndarray, np.ndarray]]) -> ScattererSet:
         """Attenuate by ``Physics.shadow_loss_db`` every scatterer whose line of sight to the radar passes
-        through another vehicle's body box (footprint length x width, road to ``body_height_m``)."""
+        through another vehicle's body box (footprint length x width, road to ``body_height_m``); ``frames``: target
+        index -> (body rotation, reference point) of the active targets."""
         radar = self.pose.position
         hit = np.zeros(out.rcs_m2.size, dtype=bool)
         for k, tg in enumerate(self.targets):
             h = getattr(tg, "body_height_m", None)
-            if h is None or not tg.active(t_s):
+            if h is None or k not in frames:
                 continue
-            rot = tg.heading_rotation(t_s)
-            ctr = np.asarray(tg.trajectory.position(t_s), dtype=np.float64)
+            rot, ctr = frames[k]
             r0 = rot.T @ (radar - ctr)  # radar in the box frame
             d = (out.position_m - ctr) @ rot - r0  # (K, 3) segment radar -> scatterer, box frame
             lo = np.array([-tg.width_m / 2.0, -tg.length_m / 2.0, 0.0])
@@ -304,12 +304,14 @@ class Scene:
         if rng is None:
             rng = np.random.default_rng([self.seed, int(round(t_s * 1e6)), 0x5C])
         pos, vel, rcs, ph, idx = [], [], [], [], []
+        frames: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for k, tg in enumerate(self.targets):
             if not tg.active(t_s):
                 continue
             rot = tg.heading_rotation(t_s)
             off, off_v = tg.scatterers(t_s)
             p_ref = np.asarray(tg.trajectory.position(t_s), dtype=np.float64)
+            frames[k] = (rot, p_ref)
             v_ref = np.asarray(tg.trajectory.velocity(t_s), dtype=np.float64)
             pos.append(p_ref + off @ rot.T)
             vel.append(v_ref + off_v @ rot.T)
@@ -348,7 +350,7 @@ class Scene:
             np.concatenate(pos), np.concatenate(vel), np.concatenate(rcs), np.concatenate(ph), np.concatenate(idx)
         )
         if self.physics.shadowing:
-            out = self._shadow(out, t_s)
+            out = self._shadow(out, t_s, frames)
         if self.pose.occluded_behind:  # the overpass deck: nothing behind the plane of its face is seen
             yaw = math.radians(self.pose.yaw_deg)
             d = out.position_m[:, :2] - np.array([self.pose.x_m, self.pose.y_m])

@@ -260,6 +260,80 @@ class RoadTrajectory:
         return np.stack([vx, vy, np.zeros(t.shape)], axis=-1)
 
 
+@dataclass(frozen=True, eq=False)
+class SampledTrajectory(RoadTrajectory):
+    """A :class:`RoadTrajectory` whose along-road motion is precomputed: distance travelled ``s_m`` and speed
+    ``v_mps`` on the grid ``t0_s + i * dt_s``, cubic Hermite interpolation between samples (position and its
+    derivative, the velocity, stay consistent), constant speed outside the grid. The lateral motion (lane
+    changes, weave, offset) is :class:`RoadTrajectory`'s. Any instant can be evaluated in any order."""
+
+    t0_s: float = 0.0
+    dt_s: float = 0.1
+    s_m: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    v_mps: np.ndarray = field(default_factory=lambda: np.zeros(1))
+
+    def _hermite(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n = self.s_m.size
+        if t.ndim == 0 and n >= 2:  # one instant (a frame): the same formula without array overhead
+            tf = float(t)
+            u = (tf - self.t0_s) / self.dt_s
+            if u < 0.0:
+                return np.float64(self.s_m[0] + self.v_mps[0] * (tf - self.t0_s)), np.float64(self.v_mps[0])
+            if u > n - 1:
+                te = self.t0_s + (n - 1) * self.dt_s
+                return np.float64(self.s_m[-1] + self.v_mps[-1] * (tf - te)), np.float64(self.v_mps[-1])
+            i = min(int(u), n - 2)
+            x = u - i
+            s0, s1 = float(self.s_m[i]), float(self.s_m[i + 1])
+            m0, m1 = float(self.v_mps[i]) * self.dt_s, float(self.v_mps[i + 1]) * self.dt_s
+            x2, x3 = x * x, x * x * x
+            sv = (2 * x3 - 3 * x2 + 1) * s0 + (x3 - 2 * x2 + x) * m0 + (-2 * x3 + 3 * x2) * s1 + (x3 - x2) * m1
+            vv = ((6 * x2 - 6 * x) * s0 + (3 * x2 - 4 * x + 1) * m0 + (-6 * x2 + 6 * x) * s1 + (3 * x2 - 2 * x) * m1) / self.dt_s
+            return np.float64(sv), np.float64(vv)
+        u = (t - self.t0_s) / self.dt_s
+        i = np.clip(np.floor(u).astype(np.int64), 0, max(n - 2, 0))
+        if n < 2:
+            return self.s_m[0] + self.v_mps[0] * (t - self.t0_s), np.full(t.shape, self.v_mps[0])
+        x = u - i
+        inside = (u >= 0.0) & (u <= n - 1)
+        s0, s1 = self.s_m[i], self.s_m[i + 1]
+        m0, m1 = self.v_mps[i] * self.dt_s, self.v_mps[i + 1] * self.dt_s
+        x2, x3 = x * x, x * x * x
+        s = (2 * x3 - 3 * x2 + 1) * s0 + (x3 - 2 * x2 + x) * m0 + (-2 * x3 + 3 * x2) * s1 + (x3 - x2) * m1
+        v = ((6 * x2 - 6 * x) * s0 + (3 * x2 - 4 * x + 1) * m0 + (-6 * x2 + 6 * x) * s1 + (3 * x2 - 2 * x) * m1) / self.dt_s
+        t_end = self.t0_s + (n - 1) * self.dt_s
+        s_out = np.where(u < 0.0, self.s_m[0] + self.v_mps[0] * (t - self.t0_s),
+                         self.s_m[-1] + self.v_mps[-1] * (t - t_end))
+        v_out = np.where(u < 0.0, self.v_mps[0], self.v_mps[-1])
+        return np.where(inside, s, s_out), np.where(inside, v, v_out)
+
+    def _s(self, t: np.ndarray) -> np.ndarray:
+        return self._hermite(t)[0]
+
+    def _x(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if t.ndim:
+            return super()._x(t)
+        tf = float(t)  # one instant: RoadTrajectory's lateral motion without array overhead
+        x, vx = self.x0_m, 0.0
+        for t0, dur, dx in self.lane_changes:
+            u = min(max((tf - t0) / dur, 0.0), 1.0)
+            x += dx * (1.0 - math.cos(math.pi * u)) / 2.0
+            if t0 < tf < t0 + dur:
+                vx += dx * math.pi / (2.0 * dur) * math.sin(math.pi * u)
+        if self.weave is not None:
+            amp, period, phase = self.weave
+            w = 2.0 * math.pi / period
+            x += amp * math.sin(w * tf + phase)
+            vx += amp * w * math.cos(w * tf + phase)
+        return np.float64(x), np.float64(vx)
+
+    def velocity(self, t_s):
+        t = np.asarray(t_s, dtype=np.float64)
+        _, vx = self._x(t)
+        vy = self.direction * self._hermite(t)[1]
+        return np.stack([vx, vy, np.zeros(t.shape)], axis=-1)
+
+
 @dataclass
 class Vehicle(Target):
     """An extended road vehicle; ``lane_switch`` lists ``(t_s, new_lane)`` (the lane changes at the

@@ -127,3 +127,99 @@ def test_v1_preset_reproduces_the_old_scatterers_exactly():
         assert float((s.rcs_m2 * w).sum()) == pytest.approx(rcs, rel=1e-12)
         assert float((s.phase_cycles * w).sum()) == pytest.approx(phase, rel=1e-12)
         assert float((s.velocity_mps[:, 1] * w).sum()) == pytest.approx(vy, rel=1e-12)
+
+
+FOUR_LANES = """
+[scenario]
+name = "t"
+board = "simo"
+duration_s = 300.0
+seed = 11
+[[lane]]
+center_x_m = -5.25
+[[lane]]
+center_x_m = -1.75
+[[lane]]
+center_x_m = 1.75
+direction = "away"
+[[lane]]
+center_x_m = 5.25
+direction = "away"
+[[traffic]]
+flow_veh_h = 1200.0
+speed_kmh_mean = 100.0
+speed_kmh_sd = 15.0
+min_headway_s = 1.5
+range_m = 320.0
+"""
+
+
+def _four_lanes(extra: str = ""):
+    import tomllib
+
+    from hw_sim.scenario import parse_scenario
+
+    return parse_scenario(tomllib.loads(FOUR_LANES + extra), "test")
+
+
+def test_idm_traffic_keeps_safe_gaps_changes_lanes_and_keeps_truth_lanes():
+    from hw_sim.vehicles import Vehicle
+
+    sc = _four_lanes()
+    scene = sc.build_scene()
+    vehicles = [t for t in scene.targets if isinstance(t, Vehicle)]
+    centres = np.array([ln.center_x_m for ln in sc.lanes])
+    same_side = {0: {0, 1}, 1: {0, 1}, 2: {2, 3}, 3: {2, 3}}
+    n_changes = sum(len(v.lane_switch) for v in vehicles)
+    assert n_changes >= 10  # overtaking happens on both carriageways
+    for v in vehicles:
+        lanes = [v.lane] + [ln for _, ln in v.lane_switch]
+        assert all(b in same_side[a] and abs(centres[b] - centres[a]) < 4.0 for a, b in zip(lanes, lanes[1:]))
+    min_headway, min_gap, overtakes = np.inf, np.inf, 0
+    order: dict[int, list[int]] = {}
+    for t in np.arange(0.0, 300.0, 0.5):
+        act = [v for v in vehicles if v.active(t)]
+        pos = np.array([v.trajectory.position(t) for v in act])
+        vel = np.array([v.trajectory.velocity(t) for v in act])
+        lane = np.array([v.lane_at(t) for v in act])
+        switching = np.array([any(abs(t - ts) < 0.05 for ts, _ in v.lane_switch) for v in act])
+        nearest = np.argmin(np.abs(pos[:, :1] - centres[None, :]), axis=1)
+        assert np.all((nearest == lane) | switching), t  # the truth lane is the lane the vehicle is in
+        for ln in range(4):
+            idx = np.flatnonzero(lane == ln)
+            d = act[idx[0]].heading_sign if idx.size else 1
+            o = idx[np.argsort(pos[idx, 1] * d)]
+            for f, lead in zip(o[:-1], o[1:]):
+                gap = (pos[lead, 1] - pos[f, 1]) * d - 0.5 * (act[lead].length_m + act[f].length_m)
+                min_gap = min(min_gap, gap)
+                if abs(vel[f, 1]) > 5.0:
+                    min_headway = min(min_headway, gap / abs(vel[f, 1]))
+        for side, lanes in ((1, (2, 3)), (-1, (0, 1))):
+            ids = [act[i].id for i in np.argsort(pos[:, 1] * side) if lane[i] in lanes]
+            prev = [i for i in order.get(side, []) if i in ids]
+            overtakes += int([i for i in ids if i in prev] != prev)
+            order[side] = ids
+    assert min_gap > 0.0  # no collisions
+    assert min_headway > 0.5, min_headway
+    assert overtakes > 0  # the order along a carriageway changes (v1 traffic never overtakes)
+
+
+def test_idm_traffic_is_deterministic_in_any_frame_order_and_weaves_by_default():
+    sc = _four_lanes()
+    a, b = sc.build_scene(), sc.build_scene()
+    times = [0.0, 123.456, 17.0, 299.0]
+    for ta, tb in zip(a.targets, b.targets):
+        assert ta.id == tb.id and ta.lane_switch == tb.lane_switch
+        fwd = [tuple(ta.trajectory.position(t)) + tuple(ta.trajectory.velocity(t)) for t in times]
+        rev = [tuple(tb.trajectory.position(t)) + tuple(tb.trajectory.velocity(t)) for t in reversed(times)]
+        assert fwd == rev[::-1]
+        t = np.array(times)  # the vectorised and the one-instant evaluations agree
+        assert np.allclose(ta.trajectory.position(t), [ta.trajectory.position(x) for x in times], atol=1e-9)
+    # the physical defaults: every driver has an own offset and weaves (SDLP 0.2 m); a [[traffic]] key overrides
+    defaults = parse_physics({})
+    weaves = [t.trajectory.weave for t in a.targets]
+    assert all(w is not None and w[0] == pytest.approx(defaults.weave_sdlp_m * 2 ** 0.5) for w in weaves)
+    offsets = np.array([t.trajectory.x0_m - sc.lanes[t.lane].center_x_m for t in a.targets])
+    assert np.std(offsets) == pytest.approx(defaults.lateral_offset_sd_m, rel=0.25)
+    plain = _four_lanes("weave_sdlp_m = 0.0\nlateral_offset_sd_m = 0.0\n").build_scene()
+    assert all(t.trajectory.weave is None and t.trajectory.x0_m == sc.lanes[t.lane].center_x_m for t in plain.targets)
