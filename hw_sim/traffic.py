@@ -32,11 +32,11 @@ TOML tables (units in names; lanes are indices into the scenario's ``[[lane]]`` 
     min_headway_s = 1.2          # time headway is min_headway_s + exponential
     range_m = 320.0              # vehicles enter/leave this far from the radar
     mix = { car = 0.72, van = 0.1, truck = 0.12, bus = 0.02, motorcycle = 0.04 }
-    lateral_offset_sd_m = 0.0    # each driver's own offset from the lane centre (normal, clipped at 2.5 sd)
-    weave_sdlp_m = 0.0           # each driver's slow wander inside the lane (SDLP, a sinusoid of ...
+    lateral_offset_sd_m = 0.25   # each driver's own offset from the lane centre (normal, clipped at 2.5 sd)
+    weave_sdlp_m = 0.2           # each driver's slow wander inside the lane (SDLP, a sinusoid of ...
     weave_period_s = [8.0, 20.0] # ... a period drawn uniformly from this range and a random phase)
                                  # (on-road driving tests at motorway speed measure SDLPs of about 0.2 m;
-                                 # both 0 by default: every vehicle on its lane centre, as before)
+                                 # defaults: Physics.lateral_offset_sd_m and Physics.weave_sdlp_m, 0 in the v1 preset)
 
     [[guardrail]]                # static posts along the road (clutter)
     x_m = -7.5
@@ -50,10 +50,19 @@ TOML tables (units in names; lanes are indices into the scenario's ``[[lane]]`` 
     plane_x_m = 8.0              # (noise barrier, guard rail) at this lateral position
     loss_db = 12.0               # the ghost's RCS is the vehicle's reduced by this
 
-Random vehicles get ids after the largest explicit id. Vehicles in one lane never overtake each other:
-a follower that would catch up inside the road section takes its leader's speed (so platoons form behind slow
-vehicles, as on a road without overtaking, and the mean speed on the road is below ``speed_kmh_mean``). Traffic is generated
-from before ``t = 0`` so that the road is already populated when the scenario starts. A ghost is a
+Random vehicles get ids after the largest explicit id. ``Physics.traffic_model`` chooses how they drive:
+
+* ``"idm"`` (default): each driver's desired speed is drawn as above; the Intelligent Driver Model (Treiber, Hennecke
+  & Helbing 2000) follows the vehicle ahead and MOBIL (Kesting, Treiber & Helbing 2007) changes to an adjacent lane
+  of the same direction (of this table's lanes) when a safe gap offers a gain, so fast drivers overtake slow ones.
+  The motion is integrated once at scene build (:func:`_idm_traffic`) and kept as sampled paths.
+* ``"v1"``: constant speeds, and vehicles in one lane never overtake each other: a follower that would catch up
+  inside the road section takes its leader's speed (so platoons form behind slow vehicles, as on a road without
+  overtaking, and the mean speed on the road is below ``speed_kmh_mean``).
+
+Either way the mean speed on the road is below ``speed_kmh_mean``. Traffic is generated from before ``t = 0`` so that
+the road is already populated when the scenario starts. Explicit ``[[vehicle]]`` tables are not part of the car
+following (they drive their own profiles). A ghost is a
 :class:`hw_sim.scene.Target` of class ``clutter`` with no lane: a track on it is a false track.
 """
 
