@@ -30,7 +30,7 @@ class Physics:
     #: scattering phase and amplitude of a moving vehicle's scattering centres: "aspect" = smooth random
     #: functions of the aspect angle (correlation width lambda / (2 d) for a centre of size d) plus a slow
     #: body vibration, so glint is correlated over frames (extended-target glint: Delano, Proc. IRE 41, 1953;
-    #: Skolnik, Radar Handbook 3rd ed., ch. 7 on target fluctuation); "white" = new random phases every frame
+    #: Skolnik (ed.), Radar Handbook 3rd ed. 2008, on RCS fluctuation); "white" = new random phases every frame
     glint: str = "aspect"
     #: rms body vibration (mm) of each scattering centre along the line of sight ("aspect" glint only), a
     #: Gaussian process scaled with speed up to 10 m/s: suspension and body modes of road vehicles
@@ -68,6 +68,10 @@ class Physics:
                               ("traffic_model", ("idm", "v1"))):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        if self.glint_vibration_s <= 0 or min(self.glint_vibration_mm, self.shadow_loss_db, self.weave_sdlp_m,
+                                              self.lateral_offset_sd_m) < 0:
+            raise ValueError("glint_vibration_s must be > 0; glint_vibration_mm, shadow_loss_db, weave_sdlp_m and "
+                             "lateral_offset_sd_m >= 0")
 
 
 #: named presets: field -> value (fields not listed keep their defaults)

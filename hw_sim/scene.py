@@ -250,7 +250,7 @@ class Scene:
         ``Physics.glint_vibration_mm`` and correlation time ``glint_vibration_s``, scaled with speed up to
         :data:`VIBRATION_FULL_MPS`. Both are functions of time, so any frame can be made in any order. The
         power factor has mean 1. Basis: glint of a target of several scattering centres (Delano, Proc. IRE 41,
-        1778, 1953; Skolnik, Radar Handbook 3rd ed., ch. 7).
+        1778, 1953; Skolnik (ed.), Radar Handbook 3rd ed. 2008, on RCS fluctuation).
         """
         n = tg.rcs_m2.size
         size = getattr(tg, "centre_size_m", None)

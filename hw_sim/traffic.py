@@ -399,7 +399,8 @@ def _idm_traffic(scene: Scene, sc: Scenario, lanes: list[int], rng: np.random.Ge
                 S[k, on], V[k, on] = s[on], v[on]
                 v_new = v[on] + a * IDM_DT_S
                 stop = v_new < 0.0
-                ds = np.where(stop, -v[on] ** 2 / (2.0 * np.minimum(a, -1e-9)), v[on] * IDM_DT_S + 0.5 * a * IDM_DT_S ** 2)
+                ds = np.where(stop, -v[on] ** 2 / (2.0 * np.minimum(a, -1e-9)),  # comes to a stop inside the step
+                              v[on] * IDM_DT_S + 0.5 * a * IDM_DT_S ** 2)
                 s[on] += ds
                 v[on] = np.maximum(v_new, 0.0)
                 last[on] = k

@@ -288,7 +288,8 @@ class SampledTrajectory(RoadTrajectory):
             m0, m1 = float(self.v_mps[i]) * self.dt_s, float(self.v_mps[i + 1]) * self.dt_s
             x2, x3 = x * x, x * x * x
             sv = (2 * x3 - 3 * x2 + 1) * s0 + (x3 - 2 * x2 + x) * m0 + (-2 * x3 + 3 * x2) * s1 + (x3 - x2) * m1
-            vv = ((6 * x2 - 6 * x) * s0 + (3 * x2 - 4 * x + 1) * m0 + (-6 * x2 + 6 * x) * s1 + (3 * x2 - 2 * x) * m1) / self.dt_s
+            vv = ((6 * x2 - 6 * x) * s0 + (3 * x2 - 4 * x + 1) * m0
+                  + (-6 * x2 + 6 * x) * s1 + (3 * x2 - 2 * x) * m1) / self.dt_s
             return np.float64(sv), np.float64(vv)
         u = (t - self.t0_s) / self.dt_s
         i = np.clip(np.floor(u).astype(np.int64), 0, max(n - 2, 0))
@@ -300,7 +301,8 @@ class SampledTrajectory(RoadTrajectory):
         m0, m1 = self.v_mps[i] * self.dt_s, self.v_mps[i + 1] * self.dt_s
         x2, x3 = x * x, x * x * x
         s = (2 * x3 - 3 * x2 + 1) * s0 + (x3 - 2 * x2 + x) * m0 + (-2 * x3 + 3 * x2) * s1 + (x3 - x2) * m1
-        v = ((6 * x2 - 6 * x) * s0 + (3 * x2 - 4 * x + 1) * m0 + (-6 * x2 + 6 * x) * s1 + (3 * x2 - 2 * x) * m1) / self.dt_s
+        v = ((6 * x2 - 6 * x) * s0 + (3 * x2 - 4 * x + 1) * m0
+             + (-6 * x2 + 6 * x) * s1 + (3 * x2 - 2 * x) * m1) / self.dt_s
         t_end = self.t0_s + (n - 1) * self.dt_s
         s_out = np.where(u < 0.0, self.s_m[0] + self.v_mps[0] * (t - self.t0_s),
                          self.s_m[-1] + self.v_mps[-1] * (t - t_end))

@@ -28,7 +28,8 @@ def _echo(glint: str, kind: str, n_frames: int = 120) -> np.ndarray:
         s = scene.scatterers(t)
         r = np.linalg.norm(s.position_m - POSE.position, axis=1)
         r0 = np.linalg.norm(veh.trajectory.position(t) - POSE.position)
-        out.append(np.sum(np.sqrt(s.rcs_m2) * np.exp(2j * np.pi * (s.phase_cycles + 2.0 * (r - r0) / GLINT_WAVELENGTH_M))))
+        cycles = s.phase_cycles + 2.0 * (r - r0) / GLINT_WAVELENGTH_M
+        out.append(np.sum(np.sqrt(s.rcs_m2) * np.exp(2j * np.pi * cycles)))
     return np.asarray(out)
 
 
@@ -106,6 +107,11 @@ def test_physics_choices_are_checked():
         parse_physics({"glint": "pink"})
     with pytest.raises(PhysicsError, match="traffic_model"):
         parse_physics({"traffic_model": "nagel"})
+    with pytest.raises(PhysicsError, match="glint_vibration_s"):
+        parse_physics({"glint_vibration_s": 0.0})
+    v1 = parse_physics({"preset": "v1"})
+    assert (v1.glint, v1.body, v1.shadowing, v1.traffic_model, v1.weave_sdlp_m, v1.lateral_offset_sd_m) == \
+        ("white", "near-face", False, "v1", 0.0, 0.0)
 
 
 #: scatterers of highway4-traffic (seed 7) at three instants, measured with the simulator before issue 28:
