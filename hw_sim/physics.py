@@ -64,6 +64,43 @@ class Physics:
     #: TX->RX leakage, not the thermal noise
     gain_offset_db: float = 0.0
 
+    # --- vehicles (hw_sim.vehicles, hw_sim.scene, hw_sim.traffic) ---
+    #: scattering phase and amplitude of a moving vehicle's scattering centres: "aspect" = smooth random
+    #: functions of the aspect angle (correlation width lambda / (2 d) for a centre of size d) plus a slow
+    #: body vibration, so glint is correlated over frames (extended-target glint: Delano, Proc. IRE 41, 1953;
+    #: Skolnik (ed.), Radar Handbook 3rd ed. 2008, on RCS fluctuation); "white" = new random phases every frame
+    glint: str = "aspect"
+    #: rms body vibration (mm) of each scattering centre along the line of sight ("aspect" glint only), a
+    #: Gaussian process scaled with speed up to 10 m/s: suspension and body modes of road vehicles
+    #: (1-2 Hz heave/pitch, panel vibration) move points by millimetres (Gillespie, Fundamentals of Vehicle
+    #: Dynamics, SAE 1992, ch. 5)
+    glint_vibration_mm: float = 1.0
+    #: correlation time (s) of that vibration (Gaussian correlation exp(-t^2 / 2 T^2)); ~1/(2 pi f) for the
+    #: 1-1.5 Hz sprung-mass mode
+    glint_vibration_s: float = 0.15
+    #: vehicle scatterer layout: "centres" = scattering centres at several heights per body type (bumper,
+    #: licence plate, lights, wheel houses, mirrors, pillars, roof edge; cab, box edges; wheels, fork,
+    #: engine, rider), the near face below half the RCS; "near-face" = three near-face points with 70 %
+    #: of the RCS, sides 25 %, far face 5 %
+    body: str = "centres"
+    #: a scatterer whose line of sight to the radar passes through another vehicle's body box is attenuated by
+    #: ``shadow_loss_db`` (knife-edge diffraction over a vehicle body at 24 GHz: the Fresnel radius a few
+    #: metres behind it is ~0.2-0.4 m, so a point well inside the shadow sees the ITU-R P.526 knife-edge
+    #: loss J(v) ~ 20 dB at v ~ 2)
+    shadowing: bool = True
+    #: attenuation (dB, two-way power) of a shadowed scatterer
+    shadow_loss_db: float = 20.0
+    #: random traffic: "idm" = Intelligent Driver Model car following (Treiber, Hennecke & Helbing, Phys.
+    #: Rev. E 62, 1805, 2000) with MOBIL-like lane changes (Kesting, Treiber & Helbing, Transp. Res.
+    #: Rec. 1999, 86, 2007);
+    #: "v1" = constant-speed platoons without overtaking
+    traffic_model: str = "idm"
+    #: default SDLP (m) of random drivers' weave inside the lane (a ``[[traffic]]`` key overrides it);
+    #: on-road motorway driving measures ~0.2 m (Verster & Roth, Int. J. Gen. Med. 4, 359, 2011)
+    weave_sdlp_m: float = 0.2
+    #: default sd (m) of each random driver's own offset from the lane centre ([[traffic]] overrides it)
+    lateral_offset_sd_m: float = 0.25
+
     def __post_init__(self) -> None:
         for key, allowed in _CHOICES.items():
             if getattr(self, key) not in allowed:
@@ -75,12 +112,19 @@ class Physics:
                     "channel_mismatch_db", "channel_mismatch_deg"):
             if getattr(self, key) < 0.0:
                 raise ValueError(f"{key} must be >= 0, got {getattr(self, key)!r}")
+        if self.glint_vibration_s <= 0 or min(self.glint_vibration_mm, self.shadow_loss_db, self.weave_sdlp_m,
+                                              self.lateral_offset_sd_m) < 0:
+            raise ValueError("glint_vibration_s must be > 0; glint_vibration_mm, shadow_loss_db, weave_sdlp_m and "
+                             "lateral_offset_sd_m >= 0")
 
 
 #: allowed values of the string fields
 _CHOICES: dict[str, tuple[str, ...]] = {
     "elevation": ("gain-implied", "wide", "narrow"),
     "polarisation": ("horizontal", "vertical"),
+    "glint": ("aspect", "white"),
+    "body": ("centres", "near-face"),
+    "traffic_model": ("idm", "v1"),
 }
 
 
@@ -95,6 +139,8 @@ PRESETS: dict[str, dict[str, Any]] = {
         "phase_noise_deg_rms": 0.0,
         "channel_mismatch_db": 0.0,
         "channel_mismatch_deg": 0.0,
+        "glint": "white", "body": "near-face", "shadowing": False, "traffic_model": "v1",
+        "weave_sdlp_m": 0.0, "lateral_offset_sd_m": 0.0,
     },
 }
 

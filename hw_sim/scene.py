@@ -26,6 +26,21 @@ from hw_sim.physics import Physics
 #: a decorrelating target slower than this stands still and keeps its scattering phases (Scene.scatterers)
 STANDING_MPS = 0.05
 
+#: wavelength (m) the aspect glint model scales with: the 24 GHz ISM band of both boards (24.0-24.25 GHz)
+GLINT_WAVELENGTH_M = 299_792_458.0 / 24.125e9
+#: random sinusoids per Gaussian process of the aspect glint model (spectral representation, Shinozuka &
+#: Deodatis, Appl. Mech. Rev. 44, 1991: a sum of M cosines with Gaussian random frequencies has the Gaussian
+#: correlation function; 8 make the process close to Gaussian)
+GLINT_TERMS = 8
+#: rms of a centre's scattering phase over aspect (cycles): the phase of a small extended centre wraps over a
+#: full cycle within a few correlation widths
+GLINT_PHASE_SD_CYCLES = 0.5
+#: rms of a centre's log-amplitude over aspect (neper; 0.35 Np = 3 dB rms in power, the scintillation of a
+#: single vehicle part at 24-77 GHz is a few dB)
+GLINT_LOGAMP_SD_NP = 0.35
+#: speed (m/s) above which road-induced body vibration has its full amplitude (Physics.glint_vibration_mm)
+VIBRATION_FULL_MPS = 10.0
+
 #: class names used in ground truth and by the classifier, in a fixed order
 CLASSES: tuple[str, ...] = ("pedestrian", "car", "motorcycle", "truck", "bicycle", "clutter")
 
@@ -191,6 +206,7 @@ class Scene:
 
     def __post_init__(self) -> None:
         self._phase: dict[int, np.ndarray] = {}
+        self._glint: dict[int, tuple[np.ndarray, ...]] = {}
 
     def add_target(self, target: Target) -> None:
         if any(t.id == target.id for t in self.targets):
@@ -205,22 +221,97 @@ class Scene:
             self._phase[tid] = ph
         return ph
 
+    def _glint_params(self, tid: int, size_m: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Random draws of the aspect glint model for one target's centres, seeded by (scene seed, target id)."""
+        g = self._glint.get(tid)
+        if g is None or g[0].shape[0] != size_m.size:
+            r = np.random.default_rng([self.seed, tid & 0x7FFFFFFF, 0x611E7])
+            k, m = size_m.size, GLINT_TERMS
+            # correlation width in aspect of a centre of extent d: lambda / (2 d) rad (the two-way path difference
+            # across it changes by one wavelength); Gaussian random frequencies of sd 1 / width
+            inv_w = (2.0 * size_m / GLINT_WAVELENGTH_M)[:, None, None]
+            freq = r.normal(0.0, 1.0, (k, 2, m, 2)) * inv_w[..., None]  # (K, phase|amp, M, az|el), rad/rad
+            arg0 = r.uniform(0.0, 2.0 * np.pi, (k, 2, m))
+            vib_w = r.normal(0.0, 1.0, (k, m)) / self.physics.glint_vibration_s  # rad/s
+            vib0 = r.uniform(0.0, 2.0 * np.pi, (k, m))
+            base = r.random(k)
+            g = (freq, arg0, vib_w, vib0, base)
+            self._glint[tid] = g
+        return g
+
+    def _aspect_glint(self, tg: Target, t_s: float, p_ref: np.ndarray, v_ref: np.ndarray,
+                      rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Scattering phase (cycles) and power factor of a moving target's centres (``Physics.glint = "aspect"``).
+
+        Each centre's extra phase and log-amplitude are smooth Gaussian random functions of the aspect angle
+        (azimuth and elevation of the radar seen from the body) with correlation width lambda / (2 d)
+        (:attr:`Vehicle.centre_size_m` = d, 0.5 m by default); its path length to the radar is in the geometry
+        already. On top, each centre vibrates along the line of sight by a Gaussian process of rms
+        ``Physics.glint_vibration_mm`` and correlation time ``glint_vibration_s``, scaled with speed up to
+        :data:`VIBRATION_FULL_MPS`. Both are functions of time, so any frame can be made in any order. The
+        power factor has mean 1. Basis: glint of a target of several scattering centres (Delano, Proc. IRE 41,
+        1778, 1953; Skolnik (ed.), Radar Handbook 3rd ed. 2008, on RCS fluctuation).
+        """
+        n = tg.rcs_m2.size
+        size = getattr(tg, "centre_size_m", None)
+        size = np.full(n, 0.5) if size is None else np.asarray(size, dtype=np.float64)
+        freq, arg0, vib_w, vib0, base = self._glint_params(tg.id, size)
+        los = rot.T @ (self.pose.position - p_ref)  # radar seen from the body (body frame)
+        asp = np.array([math.atan2(los[0], los[1]), math.atan2(los[2], math.hypot(los[0], los[1]))])
+        scale = math.sqrt(2.0 / GLINT_TERMS)
+        proc = scale * np.cos(freq @ asp + arg0).sum(axis=2)  # (K, 2) unit-variance processes
+        speed = math.hypot(float(v_ref[0]), float(v_ref[1]))
+        vib_mm = self.physics.glint_vibration_mm * min(1.0, speed / VIBRATION_FULL_MPS)
+        vib = vib_mm * 1e-3 * scale * np.cos(vib_w * t_s + vib0).sum(axis=1)  # (K,) m along the line of sight
+        phase = base + GLINT_PHASE_SD_CYCLES * proc[:, 0] + 2.0 * vib / GLINT_WAVELENGTH_M
+        power = np.exp(2.0 * GLINT_LOGAMP_SD_NP * proc[:, 1] - 2.0 * GLINT_LOGAMP_SD_NP ** 2)
+        return np.mod(phase, 1.0), power
+
+    def _shadow(self, out: ScattererSet, t_s: float, frames: dict[int, tuple[np.ndarray, np.ndarray]]) -> ScattererSet:
+        """Attenuate by ``Physics.shadow_loss_db`` every scatterer whose line of sight to the radar passes
+        through another vehicle's body box (footprint length x width, road to ``body_height_m``); ``frames``: target
+        index -> (body rotation, reference point) of the active targets."""
+        radar = self.pose.position
+        hit = np.zeros(out.rcs_m2.size, dtype=bool)
+        for k, tg in enumerate(self.targets):
+            h = getattr(tg, "body_height_m", None)
+            if h is None or k not in frames:
+                continue
+            rot, ctr = frames[k]
+            r0 = rot.T @ (radar - ctr)  # radar in the box frame
+            d = (out.position_m - ctr) @ rot - r0  # (K, 3) segment radar -> scatterer, box frame
+            lo = np.array([-tg.width_m / 2.0, -tg.length_m / 2.0, 0.0])
+            hi = np.array([tg.width_m / 2.0, tg.length_m / 2.0, h])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t1 = (lo - r0) / d
+                t2 = (hi - r0) / d
+            t_in = np.nanmax(np.minimum(t1, t2), axis=1)
+            t_out = np.nanmin(np.maximum(t1, t2), axis=1)
+            hit |= (t_in < t_out) & (t_in < 1.0 - 1e-9) & (t_out > 0.0) & (out.target_index != k)
+        if not hit.any():
+            return out
+        rcs = np.where(hit, out.rcs_m2 * 10.0 ** (-self.physics.shadow_loss_db / 10.0), out.rcs_m2)
+        return ScattererSet(out.position_m, out.velocity_mps, rcs, out.phase_cycles, out.target_index)
+
     def scatterers(self, t_s: float, rng: np.random.Generator | None = None) -> ScattererSet:
         """Every scatterer at time ``t_s``.
 
         Swerling factors are drawn from ``rng`` (one draw per target per call, i.e. per frame); by
         default from a generator seeded with the scene seed and the time, so a frame is the same
-        whatever frames were synthesised before it.
+        whatever frames were synthesised before it. The scattering phases and amplitudes of moving vehicles
+        follow ``Physics.glint``, shadowing by vehicle bodies ``Physics.shadowing``.
         """
         if rng is None:
             rng = np.random.default_rng([self.seed, int(round(t_s * 1e6)), 0x5C])
         pos, vel, rcs, ph, idx = [], [], [], [], []
+        frames: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for k, tg in enumerate(self.targets):
             if not tg.active(t_s):
                 continue
             rot = tg.heading_rotation(t_s)
             off, off_v = tg.scatterers(t_s)
             p_ref = np.asarray(tg.trajectory.position(t_s), dtype=np.float64)
+            frames[k] = (rot, p_ref)
             v_ref = np.asarray(tg.trajectory.velocity(t_s), dtype=np.float64)
             pos.append(p_ref + off @ rot.T)
             vel.append(v_ref + off_v @ rot.T)
@@ -230,10 +321,18 @@ class Scene:
             elif tg.swerling == 3:
                 r = r * rng.gamma(2.0, 0.5)
             rcs.append(r)
-            # a target whose micro-motion (vibration, pitch: millimetres at lambda = 12 mm) decorrelates its
-            # glint from frame to frame draws new scattering phases every frame -- while it moves: a vehicle
-            # standing still (a breakdown, engine off) keeps fixed phases, a static echo the clutter map can learn
-            # (the draw is made either way, so the other targets' draws stay those of the moving case)
+            if getattr(tg, "glint_decorrelates", False) and self.physics.glint == "aspect":
+                # a vehicle standing still keeps its aspect and does not vibrate: fixed phases, a static echo
+                glint_ph, glint_pow = self._aspect_glint(tg, t_s, p_ref, v_ref, rot)
+                rcs[-1] = r * glint_pow
+                ph.append(glint_ph)
+                idx.append(np.full(r.size, k, dtype=np.int32))
+                continue
+            # "white" (v1): a target whose micro-motion (vibration, pitch: millimetres at lambda = 12 mm)
+            # decorrelates its glint from frame to frame draws new scattering phases every frame -- while it
+            # moves: a vehicle standing still (a breakdown, engine off) keeps fixed phases, a static echo the
+            # clutter map can learn (the draw is made either way, so the other targets' draws stay those of the
+            # moving case)
             fresh = rng.random(r.size) if getattr(tg, "glint_decorrelates", False) else None
             moving = fresh is not None and v_ref[0] * v_ref[0] + v_ref[1] * v_ref[1] >= STANDING_MPS * STANDING_MPS
             ph.append(fresh if moving else self._scatter_phase(tg.id, r.size))
@@ -250,6 +349,8 @@ class Scene:
         out = ScattererSet(
             np.concatenate(pos), np.concatenate(vel), np.concatenate(rcs), np.concatenate(ph), np.concatenate(idx)
         )
+        if self.physics.shadowing:
+            out = self._shadow(out, t_s, frames)
         if self.pose.occluded_behind:  # the overpass deck: nothing behind the plane of its face is seen
             yaw = math.radians(self.pose.yaw_deg)
             d = out.position_m[:, :2] - np.array([self.pose.x_m, self.pose.y_m])

@@ -32,11 +32,11 @@ TOML tables (units in names; lanes are indices into the scenario's ``[[lane]]`` 
     min_headway_s = 1.2          # time headway is min_headway_s + exponential
     range_m = 320.0              # vehicles enter/leave this far from the radar
     mix = { car = 0.72, van = 0.1, truck = 0.12, bus = 0.02, motorcycle = 0.04 }
-    lateral_offset_sd_m = 0.0    # each driver's own offset from the lane centre (normal, clipped at 2.5 sd)
-    weave_sdlp_m = 0.0           # each driver's slow wander inside the lane (SDLP, a sinusoid of ...
+    lateral_offset_sd_m = 0.25   # each driver's own offset from the lane centre (normal, clipped at 2.5 sd)
+    weave_sdlp_m = 0.2           # each driver's slow wander inside the lane (SDLP, a sinusoid of ...
     weave_period_s = [8.0, 20.0] # ... a period drawn uniformly from this range and a random phase)
                                  # (on-road driving tests at motorway speed measure SDLPs of about 0.2 m;
-                                 # both 0 by default: every vehicle on its lane centre, as before)
+                                 # defaults: Physics.lateral_offset_sd_m and Physics.weave_sdlp_m, 0 in the v1 preset)
 
     [[guardrail]]                # static posts along the road (clutter)
     x_m = -7.5
@@ -50,10 +50,19 @@ TOML tables (units in names; lanes are indices into the scenario's ``[[lane]]`` 
     plane_x_m = 8.0              # (noise barrier, guard rail) at this lateral position
     loss_db = 12.0               # the ghost's RCS is the vehicle's reduced by this
 
-Random vehicles get ids after the largest explicit id. Vehicles in one lane never overtake each other:
-a follower that would catch up inside the road section takes its leader's speed (so platoons form behind slow
-vehicles, as on a road without overtaking, and the mean speed on the road is below ``speed_kmh_mean``). Traffic is generated
-from before ``t = 0`` so that the road is already populated when the scenario starts. A ghost is a
+Random vehicles get ids after the largest explicit id. ``Physics.traffic_model`` chooses how they drive:
+
+* ``"idm"`` (default): each driver's desired speed is drawn as above; the Intelligent Driver Model (Treiber, Hennecke
+  & Helbing 2000) follows the vehicle ahead and MOBIL (Kesting, Treiber & Helbing 2007) changes to an adjacent lane
+  of the same direction (of this table's lanes) when a safe gap offers a gain, so fast drivers overtake slow ones.
+  The motion is integrated once at scene build (:func:`_idm_traffic`) and kept as sampled paths.
+* ``"v1"``: constant speeds, and vehicles in one lane never overtake each other: a follower that would catch up
+  inside the road section takes its leader's speed (so platoons form behind slow vehicles, as on a road without
+  overtaking, and the mean speed on the road is below ``speed_kmh_mean``).
+
+Either way the mean speed on the road is below ``speed_kmh_mean``. Traffic is generated from before ``t = 0`` so that
+the road is already populated when the scenario starts. Explicit ``[[vehicle]]`` tables are not part of the car
+following (they drive their own profiles). A ghost is a
 :class:`hw_sim.scene.Target` of class ``clutter`` with no lane: a track on it is a false track.
 """
 
@@ -67,7 +76,7 @@ import numpy as np
 
 from hw_sim.scenario import GENERATORS, Scenario, ScenarioError, _num
 from hw_sim.scene import Clutter, Scene, Target
-from hw_sim.vehicles import BODY_TYPES, RoadTrajectory, Vehicle, make_vehicle
+from hw_sim.vehicles import BODY_TYPES, RoadTrajectory, SampledTrajectory, Vehicle, make_vehicle
 
 #: vehicles enter "away" lanes this far behind the radar's foot (under the overpass)
 AWAY_ENTRY_Y_M = -20.0
@@ -136,7 +145,7 @@ def build_vehicle(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generat
             t_start_s=_num(spec, "start_s", -math.inf, where) if "start_s" in spec else -math.inf,
             t_end_s=_num(spec, "end_s", math.inf, where) if "end_s" in spec else math.inf,
             length_m=spec.get("length_m"), rcs_m2=spec.get("rcs_m2"), swerling=int(spec.get("swerling", 0)),
-            lane_switch=switch,
+            lane_switch=switch, physics=scene.physics,
         )
         scene.add_target(veh)
     except ValueError as exc:
@@ -164,8 +173,8 @@ def build_traffic(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generat
     if flow <= 0 or v_mean <= 0 or h_min <= 0 or (w < 0).any() or w.sum() <= 0:
         raise ScenarioError(f"{where}flow_veh_h, speed_kmh_mean, min_headway_s and mix weights must be positive")
     w = w / w.sum()
-    off_sd = _num(spec, "lateral_offset_sd_m", 0.0, where)
-    sdlp = _num(spec, "weave_sdlp_m", 0.0, where)
+    off_sd = _num(spec, "lateral_offset_sd_m", scene.physics.lateral_offset_sd_m, where)
+    sdlp = _num(spec, "weave_sdlp_m", scene.physics.weave_sdlp_m, where)
     period = spec.get("weave_period_s", [8.0, 20.0])
     if (off_sd < 0 or sdlp < 0 or not isinstance(period, list) or len(period) != 2
             or not all(isinstance(p, (int, float)) for p in period) or not 0 < period[0] <= period[1]):
@@ -176,7 +185,10 @@ def build_traffic(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generat
     mean_gap = 3600.0 / flow
     vid = _next_id(scene)
     made: list[Vehicle] = []
-    for lane in lanes:
+    if scene.physics.traffic_model == "idm":
+        made = _idm_traffic(scene, sc, lanes, rng, vid=vid, kinds=kinds, weights=w, t_from=-t_fill, path_m=path_m,
+                            r_max=r_max, mean_gap=mean_gap, h_min=h_min, v_mean=v_mean, v_sd=v_sd, v_min=v_min)
+    for lane in (lanes if scene.physics.traffic_model == "v1" else ()):
         d = _direction(sc, lane)
         y_entry = r_max if d < 0 else AWAY_ENTRY_Y_M
         x0 = sc.lanes[lane].center_x_m
@@ -191,7 +203,8 @@ def build_traffic(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generat
                     v = prev_v
             kind = kinds[int(rng.choice(len(kinds), p=w))]
             traj = RoadTrajectory(x0, y_entry, d, (t,), (v,))
-            made.append(make_vehicle(vid, kind, traj, lane=lane, rng=rng, t_start_s=t, t_end_s=t + path_m / v))
+            made.append(make_vehicle(vid, kind, traj, lane=lane, rng=rng, t_start_s=t, t_end_s=t + path_m / v,
+                                     physics=scene.physics))
             vid += 1
             prev_t, prev_v = t, v
     if off_sd > 0 or sdlp > 0:
@@ -204,8 +217,211 @@ def build_traffic(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generat
             tr = veh.trajectory
             veh.trajectory = dataclasses.replace(tr, x0_m=tr.x0_m + o,
                                                  weave=(sdlp * math.sqrt(2.0), p, ph) if sdlp > 0 else None)
+            if veh.lane_switch:
+                veh.lane_switch = _crossings(veh, sc)
     for veh in made:
         scene.add_target(veh)
+
+
+#: Intelligent Driver Model, motorway parameters of Treiber, Hennecke & Helbing, Phys. Rev. E 62, 1805 (2000),
+#: Table 1: safe time headway T (s), maximum acceleration a (m/s^2), comfortable deceleration b (m/s^2), jam
+#: distance s0 (m), acceleration exponent delta. Each driver's desired speed v0 is drawn from the [[traffic]] table.
+IDM_T_S, IDM_A_MPS2, IDM_B_MPS2, IDM_S0_M, IDM_DELTA = 1.6, 0.73, 1.67, 2.0, 4
+#: integration step (s) of the precomputed traffic (ballistic update; Treiber & Kesting, Traffic Flow Dynamics,
+#: Springer 2013, ch. 11: steps up to ~0.5 s are accurate for the IDM)
+IDM_DT_S = 0.25
+#: MOBIL lane-change rule (Kesting, Treiber & Helbing, Transp. Res. Rec. 1999, 86, 2007): a driver changes to an
+#: adjacent lane of the same direction when the new follower need not brake harder than b_safe (m/s^2) and its own
+#: acceleration gain plus politeness p times the followers' gains exceeds the threshold (m/s^2); p is drawn per driver
+#: uniformly from [0, MOBIL_POLITENESS_MAX] (the paper's range 0-0.5)
+MOBIL_B_SAFE_MPS2, MOBIL_THRESHOLD_MPS2, MOBIL_POLITENESS_MAX = 4.0, 0.1, 0.5
+#: smallest time gap (s) a driver accepts to the new leader and leaves to the new follower (at the follower's
+#: speed, plus s0); accepted merging gaps on motorways are rarely below ~1 s (e.g. Daamen, Loot & Hoogendoorn,
+#: Transp. Res. Rec. 2188, 2010)
+MOBIL_MIN_TIME_GAP_S = 0.8
+#: how often (s) a driver considers a lane change, how long (s) the half-cosine lateral move takes (lane changes on
+#: motorways last 3-6 s, mean ~4.6 s: Toledo & Zohar, Transp. Res. Rec. 1999, 2007), and the pause (s) after one
+MOBIL_CHECK_S, LANE_CHANGE_S, LANE_CHANGE_PAUSE_S = 1.0, 4.0, 10.0
+
+
+def _crossings(veh: Vehicle, sc: Scenario) -> tuple[tuple[float, int], ...]:
+    """Truth lane switches of a lane-changing vehicle: when its reference point, with its own offset and weave,
+    crosses the boundary to the new lane (sampled every 10 ms inside each lane change)."""
+    centres = np.array([ln.center_x_m for ln in sc.lanes])
+    out = []
+    for (t0, dur, _dx), (_t_mid, new) in zip(veh.trajectory.lane_changes, veh.lane_switch):
+        t = np.arange(t0, t0 + dur + 0.01, 0.01)
+        x = veh.trajectory.position(t)[:, 0]
+        inside = np.argmin(np.abs(x[:, None] - centres[None, :]), axis=1) == new
+        out.append((float(t[np.argmax(inside)]) if inside.any() else t0 + dur / 2.0, new))
+    return tuple(out)
+
+
+def _idm_acc(v, v0, gap, dv):
+    """IDM acceleration (m/s^2) at speed ``v`` with desired speed ``v0``, bumper-to-bumper ``gap`` (m; inf on a free
+    road) and approach rate ``dv = v - v_leader``."""
+    s_star = IDM_S0_M + np.maximum(0.0, v * IDM_T_S + v * dv / (2.0 * math.sqrt(IDM_A_MPS2 * IDM_B_MPS2)))
+    return IDM_A_MPS2 * (1.0 - (v / v0) ** IDM_DELTA - (s_star / np.maximum(gap, 0.1)) ** 2)
+
+
+def _idm_traffic(scene: Scene, sc: Scenario, lanes: list[int], rng: np.random.Generator, *, vid: int, kinds, weights,
+                 t_from: float, path_m: float, r_max: float, mean_gap: float, h_min: float, v_mean: float,
+                 v_sd: float, v_min: float) -> list[Vehicle]:
+    """Random traffic driven by the IDM with MOBIL lane changes, integrated at scene build on a grid of
+    :data:`IDM_DT_S` from ``t_from`` to the scenario's end and kept as :class:`SampledTrajectory` paths.
+
+    Arrivals per lane as in the v1 model (time headway ``h_min`` + exponential, desired speed normal, at least
+    ``v_min``); a vehicle enters once the gap to the last one in its lane is safe, at its desired speed or, when
+    that would close in too fast, at its leader's. Lane changes only between adjacent lanes of this table of the
+    same direction; the truth lane switches at the middle of the move."""
+    n_steps = int(math.ceil((sc.duration_s + 1.0 - t_from) / IDM_DT_S)) + 1
+    check_every = max(1, int(round(MOBIL_CHECK_S / IDM_DT_S)))
+    made: list[Vehicle] = []
+    groups: dict[int, list[int]] = {}
+    for ln in lanes:
+        groups.setdefault(_direction(sc, ln), []).append(ln)
+    # arrivals of every lane, drawn lane by lane
+    arr: list[tuple[int, float, float, str, float, float]] = []  # (lane, t, v0, kind, length, politeness)
+    for lane in lanes:
+        t = t_from
+        while t < sc.duration_s:
+            t += h_min + rng.exponential(max(mean_gap - h_min, 1e-3))
+            v0 = max(v_min, rng.normal(v_mean, v_sd))
+            kind = kinds[int(rng.choice(len(kinds), p=weights))]
+            length = float(rng.uniform(*BODY_TYPES[kind].length_m))
+            arr.append((lane, t, v0, kind, length, float(rng.uniform(0.0, MOBIL_POLITENESS_MAX))))
+    for d, group in sorted(groups.items()):
+        xs = {ln: sc.lanes[ln].center_x_m for ln in group}
+        order_x = sorted(group, key=lambda ln: xs[ln])
+        spacing = min((abs(xs[b] - xs[a]) for a, b in zip(order_x, order_x[1:])), default=0.0)
+        adjacent = {ln: [m for m in order_x if m != ln and abs(xs[m] - xs[ln]) <= 1.5 * spacing] for ln in group}
+        mine = [a for a in arr if a[0] in xs]
+        n = len(mine)
+        lane = np.array([a[0] for a in mine])
+        t_arr = np.array([a[1] for a in mine])
+        v0 = np.array([a[2] for a in mine])
+        length = np.array([a[4] for a in mine])
+        polite = np.array([a[5] for a in mine])
+        s = np.zeros(n)
+        v = np.zeros(n)
+        state = np.zeros(n, dtype=np.int8)  # 0 waiting to enter, 1 on the road, 2 gone
+        first = np.full(n, -1)
+        last = np.full(n, -1)
+        pause_until = np.full(n, -math.inf)
+        changes: list[list[tuple[float, float, float]]] = [[] for _ in range(n)]
+        switches: list[list[tuple[float, int]]] = [[] for _ in range(n)]
+        entry_lane = lane.copy()
+        S = np.full((n_steps, n), np.nan)
+        V = np.full((n_steps, n), np.nan)
+        waiting = {ln: [i for i in np.argsort(t_arr, kind="stable") if lane[i] == ln] for ln in group}
+
+        def neighbours(on: np.ndarray):
+            """Leader index (-1: none) of every vehicle on the road, per current lane."""
+            lead = np.full(n, -1)
+            for ln in group:
+                idx = on[lane[on] == ln]
+                if idx.size > 1:
+                    o = idx[np.argsort(-s[idx], kind="stable")]
+                    lead[o[1:]] = o[:-1]
+            return lead
+
+        def gap_to(i, j):
+            return s[j] - s[i] - 0.5 * (length[i] + length[j])
+
+        def acc_behind(i, j):
+            """IDM acceleration of ``i`` behind ``j`` (-1: free road)."""
+            if j < 0:
+                return float(_idm_acc(v[i], v0[i], math.inf, 0.0))
+            return float(_idm_acc(v[i], v0[i], gap_to(i, j), v[i] - v[j]))
+
+        for k in range(n_steps):
+            t = t_from + k * IDM_DT_S
+            # entries
+            for ln in group:
+                q = waiting[ln]
+                while q and t_arr[q[0]] <= t:
+                    i = q[0]
+                    in_lane = np.flatnonzero((state == 1) & (lane == ln))
+                    ve = v0[i]
+                    if in_lane.size:
+                        j = in_lane[np.argmin(s[in_lane])]
+                        g = s[j] - 0.5 * (length[i] + length[j])
+                        if g < IDM_S0_M + v[j] * 0.6 * IDM_T_S:
+                            break  # no safe gap yet: the vehicle waits at the entry
+                        if g < IDM_S0_M + ve * IDM_T_S:
+                            ve = min(ve, v[j])
+                    q.pop(0)
+                    state[i], s[i], v[i], first[i] = 1, 0.0, ve, k
+            on = np.flatnonzero(state == 1)
+            lead = neighbours(on)
+            # lane changes (MOBIL), drivers in random order
+            if k % check_every == 0 and on.size:
+                for i in rng.permutation(on):
+                    if t < pause_until[i] or not 20.0 < s[i] < path_m - 60.0:
+                        continue
+                    a_now = acc_behind(i, lead[i])
+                    of = np.flatnonzero((lead == i) & (state == 1))
+                    of = int(of[0]) if of.size else -1
+                    best, best_gain = None, MOBIL_THRESHOLD_MPS2
+                    for ln in adjacent[lane[i]]:
+                        cand = on[(lane[on] == ln) & (on != i)]
+                        ahead, behind = cand[s[cand] >= s[i]], cand[s[cand] < s[i]]
+                        nl = int(ahead[np.argmin(s[ahead])]) if ahead.size else -1
+                        nf = int(behind[np.argmax(s[behind])]) if behind.size else -1
+                        if ((nl >= 0 and gap_to(i, nl) < IDM_S0_M + MOBIL_MIN_TIME_GAP_S * v[i])
+                                or (nf >= 0 and gap_to(nf, i) < IDM_S0_M + MOBIL_MIN_TIME_GAP_S * v[nf])):
+                            continue
+                        nf_new = acc_behind(nf, i) if nf >= 0 else 0.0
+                        if nf_new < -MOBIL_B_SAFE_MPS2:
+                            continue
+                        gain = acc_behind(i, nl) - a_now
+                        if nf >= 0:
+                            gain += polite[i] * (nf_new - acc_behind(nf, nl))
+                        if of >= 0:
+                            gain += polite[i] * (acc_behind(of, lead[i]) - acc_behind(of, i))
+                        if gain > best_gain:
+                            best, best_gain = ln, gain
+                    if best is not None:
+                        changes[i].append((t, LANE_CHANGE_S, xs[best] - xs[lane[i]]))
+                        switches[i].append((t + LANE_CHANGE_S / 2.0, int(best)))
+                        lane[i] = best
+                        pause_until[i] = t + LANE_CHANGE_S + LANE_CHANGE_PAUSE_S
+                        lead = neighbours(on)
+            # car following: ballistic update
+            if on.size:
+                has = lead[on] >= 0
+                gap = np.full(on.size, math.inf)
+                dv = np.zeros(on.size)
+                li = lead[on][has]
+                gap[has] = s[li] - s[on][has] - 0.5 * (length[on][has] + length[li])
+                dv[has] = v[on][has] - v[li]
+                a = _idm_acc(v[on], v0[on], gap, dv)
+                S[k, on], V[k, on] = s[on], v[on]
+                v_new = v[on] + a * IDM_DT_S
+                stop = v_new < 0.0
+                ds = np.where(stop, -v[on] ** 2 / (2.0 * np.minimum(a, -1e-9)),  # comes to a stop inside the step
+                              v[on] * IDM_DT_S + 0.5 * a * IDM_DT_S ** 2)
+                s[on] += ds
+                v[on] = np.maximum(v_new, 0.0)
+                last[on] = k
+                gone = on[s[on] - 0.5 * length[on] > path_m]
+                state[gone] = 2
+        y_entry = r_max if d < 0 else AWAY_ENTRY_Y_M
+        for i in range(n):
+            if first[i] < 0:
+                continue
+            a, b = first[i], last[i]
+            t0 = t_from + a * IDM_DT_S
+            traj = SampledTrajectory(
+                xs[int(entry_lane[i])], y_entry, d, (t0,), (float(V[a, i]),), tuple(changes[i]),
+                t0_s=t0, dt_s=IDM_DT_S, s_m=S[a:b + 1, i].copy(), v_mps=V[a:b + 1, i].copy())
+            t_end = t_from + b * IDM_DT_S if state[i] == 2 else math.inf
+            made.append(make_vehicle(vid + i, mine[i][3], traj, lane=int(entry_lane[i]), rng=rng, t_start_s=t0,
+                                     t_end_s=t_end, length_m=float(length[i]), lane_switch=tuple(switches[i]),
+                                     physics=scene.physics))
+        vid += n
+    made.sort(key=lambda veh: veh.id)
+    return made
 
 
 def build_guardrail(scene: Scene, sc: Scenario, spec: dict, rng: np.random.Generator) -> None:

@@ -131,7 +131,8 @@ def build(scenario: str, seed: int, interval_s: float):
     from hw_sim.scenario import load_scenario_for_eval
     from hw_sim.simulator import FrameSimulator
 
-    sc = load_scenario_for_eval(scenario)
+    # figures measured on the v1 instrument; the corpus reports the physical defaults
+    sc = load_scenario_for_eval(scenario, patch={"physics": {"preset": "v1"}})
     config = load_config(env={})
     lane_cfg, track_cfg, traffic_cfg = _installer_config(config, sc)
     traffic_cfg = dataclasses.replace(traffic_cfg, interval_s=interval_s)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from hw_sim import SIMO_BOARD, FrameSimulator, RadarPose
+from hw_sim.physics import parse_physics
 from hw_sim.scenario import ScenarioError, builtin_names, load_scenario, parse_scenario
 from hw_sim.scene import CLASSES, ScattererSet
 from hw_sim.synth import synthesize_if
@@ -47,9 +48,10 @@ def test_fast_synthesis_matches_the_reference_synthesis():
 
 def test_vehicle_scatterers_put_most_rcs_on_the_face_towards_the_radar():
     rng = np.random.default_rng(1)
+    v1 = parse_physics({"preset": "v1"})  # figure measured on the v1 instrument; the corpus reports the physical defaults
     for kind, body in BODY_TYPES.items():
         for d in (-1, 1):
-            v = make_vehicle(1, kind, RoadTrajectory(0.0, 100.0, d, (0.0,), (20.0,)), lane=0, rng=rng)
+            v = make_vehicle(1, kind, RoadTrajectory(0.0, 100.0, d, (0.0,), (20.0,)), lane=0, rng=rng, physics=v1)
             assert v.cls in CLASSES
             assert body.length_m[0] <= v.length_m <= body.length_m[1]
             assert v.rcs_m2.sum() == pytest.approx(body.rcs_m2)
@@ -98,7 +100,10 @@ lane_change_duration_s = 2.0
 
 
 def test_random_traffic_flow_speeds_no_overtaking_and_determinism():
+    # the v1 traffic model (platoons without overtaking); the IDM's test is in test_vehicle_physics.py
     sc = _scenario("""
+[physics]
+preset = "v1"
 [[traffic]]
 flow_veh_h = 1200.0
 speed_kmh_mean = 100.0
@@ -253,8 +258,10 @@ def test_drivers_keep_their_own_offset_and_weave_inside_the_lane():
     """lateral_offset_sd_m and weave_sdlp_m: the same vehicles (ids, kinds, lengths, entry times, speeds) as without
     them, each off its lane centre by its own offset (spread as configured) and wandering around it with the
     configured SDLP; the velocity is the position's derivative; bad values are refused by name."""
-    plain = _scenario("[[traffic]]\nflow_veh_h = 1200.0\n", duration_s=600.0).build_scene()
-    sc = _scenario("[[traffic]]\nflow_veh_h = 1200.0\nlateral_offset_sd_m = 0.2\nweave_sdlp_m = 0.18\n",
+    # figure measured on the v1 instrument; the corpus reports the physical defaults
+    v1 = '[physics]\npreset = "v1"\n'
+    plain = _scenario(v1 + "[[traffic]]\nflow_veh_h = 1200.0\n", duration_s=600.0).build_scene()
+    sc = _scenario(v1 + "[[traffic]]\nflow_veh_h = 1200.0\nlateral_offset_sd_m = 0.2\nweave_sdlp_m = 0.18\n",
                    duration_s=600.0)
     scene = sc.build_scene()
     assert [(t.id, t.kind, t.length_m, t.t_start_s, t.trajectory.speed_mps) for t in scene.targets] == \
