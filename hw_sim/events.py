@@ -256,9 +256,10 @@ class SiteVehicle(Target):
             p = np.asarray(self.trajectory.position(t_s), dtype=float) + off[:nb] @ rot.T
             los = np.asarray(self.radar_m) - p
             los = (los / np.linalg.norm(los, axis=1, keepdims=True)) @ rot  # body frame, towards the radar
-            cos_inc = np.einsum("kj,kj->k", los, self.normals)
-            panel = np.any(self.normals != 0.0, axis=1)
-            g = np.where(panel, plate_lobe(cos_inc, self.panel_m), 1.0)
+            normals = self.normals[:nb]
+            cos_inc = np.einsum("kj,kj->k", los, normals)
+            panel = np.any(normals != 0.0, axis=1)
+            g = np.where(panel, plate_lobe(cos_inc, self.panel_m[:nb]), 1.0)
             rcs = self._base_rcs.copy()
             rcs[:nb] = self._base_rcs[:nb] * g
             self.rcs_m2 = rcs
@@ -514,12 +515,116 @@ def _d2g_target_table(scene: Scene, scenario: Any, spec: dict, rng: np.random.Ge
     )
 
 
+# --- static surroundings (Physics.site_clutter) ---------------------------------------------------------
+
+#: Billingsley's exponential Doppler spectrum of wind-blown foliage, P(v) ~ exp(-beta |v|): beta (s/m) for a
+#: breeze of 7-15 mph (Billingsley, Low-Angle Radar Land Clutter, 2002, Table 6.3); rms leaf speed sqrt(2)/beta
+FOLIAGE_BETA_S_PER_M = 8.0
+#: sinusoids per leaf scatterer (frequencies of branches and leaves, Hz)
+FOLIAGE_MODES = 4
+FOLIAGE_HZ = (0.5, 3.0)
+#: first id of the site's swaying objects (far above any event's 100 * (event + 1) + k)
+FOLIAGE_ID0 = 900_000
+#: "urban" additions, world frame (radar at the origin, road along +y): parked cars (centre x, y, total RCS),
+#: the fence's intermediate posts (the v1 posts are every 4 m), the wall of a building behind the fence, and
+#: trees (trunk x, y; crown height) and a bush on the far sidewalk and beside the radar
+URBAN_PARKED_CARS = ((10.3, 11.0, 10.0), (10.3, 16.5, 10.0))
+URBAN_FENCE_POSTS = tuple((-2.0, y, 1.0, 3.0) for y in (8.0, 12.0, 16.0, 20.0))
+URBAN_WALL_X_M = -3.5
+URBAN_TREES = ((9.3, 9.0, 4.0), (9.3, 22.0, 4.0))
+URBAN_BUSHES = ((-1.2, 8.0, 0.7),)
+
+
+@dataclass
+class Foliage(Target):
+    """Leaves of a tree crown or bush: scatterers about fixed points, each displaced along its own random
+    direction by a sum of :data:`FOLIAGE_MODES` sinusoids, so its speed is a zero-mean random process with
+    rms ``sqrt(2) / beta`` (Billingsley's exponential spectrum's width) and its phase wanders over several
+    wavelengths; deterministic in time (any frame in any order). Class "clutter": not a target of the truth.
+    """
+
+    direction: np.ndarray | None = None  # (K, 3) unit
+    amp_m: np.ndarray | None = None  # (K, M)
+    freq_hz: np.ndarray | None = None  # (K, M)
+    phase0: np.ndarray | None = None  # (K, M)
+
+    def scatterers(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        arg = 2 * np.pi * self.freq_hz * t_s + self.phase0
+        d = np.sum(self.amp_m * np.sin(arg), axis=1)
+        v = np.sum(self.amp_m * 2 * np.pi * self.freq_hz * np.cos(arg), axis=1)
+        return self.offsets_m + d[:, None] * self.direction, v[:, None] * self.direction
+
+
+def foliage(target_id: int, centre, radius_m: float, n: int, total_rcs_m2: float, rng: np.random.Generator,
+            beta_s_per_m: float = FOLIAGE_BETA_S_PER_M) -> Foliage:
+    """A crown/bush of ``n`` leaf scatterers in a sphere of ``radius_m`` about ``centre`` (world, m)."""
+    u = rng.normal(size=(n, 3))
+    off = u / np.linalg.norm(u, axis=1, keepdims=True) * radius_m * rng.random((n, 1)) ** (1 / 3)
+    dirs = rng.normal(size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    f = rng.uniform(*FOLIAGE_HZ, (n, FOLIAGE_MODES))
+    v_rms = math.sqrt(2.0) / beta_s_per_m * rng.uniform(0.5, 1.5, (n, 1))  # sheltered and exposed leaves
+    amp = v_rms * math.sqrt(2.0 / FOLIAGE_MODES) / (2 * np.pi * f)  # each mode's speed amplitude
+    return Foliage(
+        id=target_id, cls="clutter", trajectory=LinearTrajectory(tuple(float(c) for c in centre), (0.0, 0.0, 0.0)),
+        offsets_m=off, rcs_m2=_shares(rng, n, total_rcs_m2), swerling=0, direction=dirs, amp_m=amp, freq_hz=f,
+        phase0=rng.uniform(0, 2 * np.pi, (n, FOLIAGE_MODES)),
+    )
+
+
+def urban_static(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Static points (K, 3) and RCS (K,) the "urban" site adds: parked cars (a :func:`car_body` each, parked
+    along the road), the fence's intermediate posts (every 2 m with the v1 posts), tree trunks, and a
+    building wall (at grazing incidence a wall returns from its discontinuities -- window frames, pipes,
+    joints -- not specularly: points every metre at two heights, 0.3 m^2 each)."""
+    pts, rcs = [], []
+    for x, y, total in URBAN_PARKED_CARS:
+        off, r = car_body(rng, total)
+        pts.append(off + np.array([x, y, 0.0]))
+        rcs.append(r)
+    pts.append(np.array([p[:3] for p in URBAN_FENCE_POSTS]))
+    rcs.append(np.array([p[3] for p in URBAN_FENCE_POSTS]))
+    pts.append(np.array([[x, y, 1.5] for x, y, _ in URBAN_TREES]))
+    rcs.append(np.full(len(URBAN_TREES), 1.0))
+    wy = np.arange(2.0, 25.0, 1.0)
+    pts.append(np.array([[URBAN_WALL_X_M, y, z] for y in wy for z in (1.0, 2.5)]))
+    rcs.append(np.full(2 * wy.size, 0.3))
+    return np.concatenate(pts), np.concatenate(rcs)
+
+
+def _d2g_site_table(scene: Scene, scenario: Any, spec: dict, rng: np.random.Generator) -> None:
+    """``[[d2g_site]]`` (no keys): the scene is the surveillance site; add the surroundings of
+    ``[physics] site_clutter`` beyond the ``[[clutter]]`` points (v1: nothing). Seeded by the scene's seed
+    alone, after the events, so the events and their draws are those of v1."""
+    from hw_sim.scenario import ScenarioError
+
+    if spec:
+        raise ScenarioError(f"d2g_site takes no keys, got {sorted(spec)}")
+    if scene.physics.site_clutter == "v1":
+        return
+    aux = np.random.default_rng([scene.seed, 0x517E])
+    pts, rcs = urban_static(aux)
+    if scene.clutter is None:
+        scene.clutter = Clutter(position_m=pts, rcs_m2=rcs)
+    else:
+        scene.clutter = Clutter(np.concatenate([scene.clutter.position_m, pts]),
+                                np.concatenate([scene.clutter.rcs_m2, rcs]))
+    k = 0
+    for x, y, h in URBAN_TREES:  # crown: 12 leaf clusters, 2 m^2 in all
+        scene.add_target(foliage(FOLIAGE_ID0 + k, (x, y, h), 1.5, 12, 2.0, aux))
+        k += 1
+    for x, y, h in URBAN_BUSHES:  # 6 clusters, 0.5 m^2
+        scene.add_target(foliage(FOLIAGE_ID0 + k, (x, y, h), 0.5, 6, 0.5, aux))
+        k += 1
+
+
 def site_raw(name: str, description: str, duration_s: float) -> dict[str, Any]:
     """The raw scenario dict of the surveillance site (radar pose and clutter), no targets yet."""
     return {
         "scenario": {"name": name, "board": "d2g", "description": description, "duration_s": duration_s, "seed": 1},
         "radar": {"height_m": SITE_HEIGHT_M, "yaw_deg": SITE_YAW_DEG},
         "clutter": [{"x_m": x, "y_m": y, "z_m": z, "rcs_m2": r} for x, y, z, r in SITE_CLUTTER],
+        "d2g_site": [{}],
     }
 
 
@@ -584,7 +689,8 @@ def frame_view(scene: Scene, t_s: float, half_sector_deg: float = SEEN_HALF_SECT
     board's sidelobe floor sees a target passing beside it, or just behind it, at a few metres)."""
     sc = scene.scatterers(t_s, np.random.default_rng(0))
     tix = sc.target_index
-    mov = tix >= 0
+    site = np.array([tg.cls == "clutter" for tg in scene.targets] + [True])  # [-1]: static clutter
+    mov = ~site[tix]
     if not mov.any():
         z = np.zeros(0)
         return FrameView(np.zeros(0, dtype=int), (), z, z, z, z, np.zeros(0, dtype=bool))
@@ -658,6 +764,7 @@ def register() -> None:
 
     GENERATORS.setdefault("d2g_events", _d2g_events_table)
     GENERATORS.setdefault("d2g_target", _d2g_target_table)
+    GENERATORS.setdefault("d2g_site", _d2g_site_table)  # after the events: its targets come last
     EVENT_SCENARIOS.setdefault("single-random", single_random)
     EVENT_SCENARIOS.setdefault("multi-random", multi_random)
 
