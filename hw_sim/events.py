@@ -19,6 +19,12 @@ Bodies (body frame ``x`` right, ``y`` forward, ``z`` up; reference point = footp
 * truck/bus: 30-50 scatterers on the front face, both sides at two heights, axles and rear doors;
   7-12 m long; about 18 dBsm.
 
+Under the default ``[physics]`` (:mod:`hw_sim.physics`) the pedestrian is the Boulic et al. 1990 walker
+(:class:`hw_sim.pedestrian.BoulicPedestrian`, ``gait``), vehicle panels (bumpers, doors, tailgate) have a flat
+plate's aspect lobe over a diffuse floor (``vehicle_lobes``), wheels turn (``wheels``: rim and tread points, 0
+to 2v), and the site adds parked cars, a denser fence, a wall and swaying trees (``site_clutter = "urban"``,
+the ``[[d2g_site]]`` table); ``preset = "v1"`` restores the rigid isotropic bodies and the seven objects.
+
 Scatterer RCS shares are random per target (gamma-distributed), total RCS lognormal around the class
 mean (sigma 3 dB for vehicles), Swerling III for most vehicles (I for some), speeds uniform in the
 class range. Ground-truth identities: target ``id = 100 * (event + 1) + k``.

@@ -1,4 +1,9 @@
-"""Articulated pedestrian: torso, head, swinging arms and legs (micro-Doppler at the gait frequency).
+"""Articulated pedestrians: two micro-Doppler models, chosen by ``[physics] gait``.
+
+``"boulic"`` (default, :class:`BoulicPedestrian`): the joint trajectories of Boulic, Magnenat-Thalmann &
+Thalmann 1990 (fitted to measured gait) on twelve ellipsoid segments whose RCS follows the aspect, the model
+of Chen's micro-Doppler book; swing feet reach 3-4.5x the walking speed, shank centres 2-3x, the torso
+oscillates about the walking speed. ``"sinusoid"`` (v1, :class:`Pedestrian`) is described below.
 
 A walking or jogging person is modelled, after the usual kinematic simplifications of gait models
 (Boulic et al.), as nine point scatterers in the body frame (``x`` right, ``y`` forward, ``z`` up)
