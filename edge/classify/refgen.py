@@ -117,6 +117,7 @@ def build_reference_set(
     passage_half_sector_deg: float = PASSAGE_HALF_SECTOR_DEG,
     vehicle_lanes: str = "any",
     progress: Callable[[int, int], None] | None = None,
+    physics: Any = None,
 ) -> ReferenceSet:
     """Build a reference set from ``4 * events_per_class`` simulated single-target events.
 
@@ -126,6 +127,9 @@ def build_reference_set(
     is called after every event. ``vehicle_lanes``: ``"any"`` (default) draws a vehicle's direction
     independently of its lane (``hw_sim.events``, ``keep_right=False``), ``"keep_right"`` is the
     evaluation generators' two-way road (approaching in the near lane, receding in the far one).
+    ``physics`` (a :class:`hw_sim.physics.Physics`) is the simulator's instrument; default: the v1 preset,
+    on which the shipped set was built (``Physics()`` builds on the physical defaults: Boulic walkers,
+    vehicle lobes and wheels, the urban site).
     """
     from edge.config import load_config
     from edge.dsp.range_doppler import RangeDopplerProcessor
@@ -144,7 +148,10 @@ def build_reference_set(
     sc_cfg = cfg.section("pipeline.surveillance")
     feat_cfg: FeatureConfig = cfg.section("classify.features")
     n_events = 4 * events_per_class
+    from hw_sim.physics import parse_physics
+
     scenario = single_random(events=n_events, keep_right=vehicle_lanes == "keep_right")
+    scenario = dataclasses.replace(scenario, physics=parse_physics({"preset": "v1"}) if physics is None else physics)
     board = scenario.sim_board()
     fe = board.frontend
     scene = scenario.build_scene(seed)
