@@ -127,9 +127,8 @@ def build_reference_set(
     is called after every event. ``vehicle_lanes``: ``"any"`` (default) draws a vehicle's direction
     independently of its lane (``hw_sim.events``, ``keep_right=False``), ``"keep_right"`` is the
     evaluation generators' two-way road (approaching in the near lane, receding in the far one).
-    ``physics`` (a :class:`hw_sim.physics.Physics`) is the simulator's instrument; default: the v1 preset,
-    on which the shipped set was built (``Physics()`` builds on the physical defaults: Boulic walkers,
-    vehicle lobes and wheels, the urban site).
+    ``physics`` (a :class:`hw_sim.physics.Physics`) is the simulator's instrument; default: the scenario's
+    (the physical defaults); ``parse_physics({"preset": "v1"})`` is the instrument the shipped set was built on.
     """
     from edge.config import load_config
     from edge.dsp.range_doppler import RangeDopplerProcessor
@@ -148,10 +147,9 @@ def build_reference_set(
     sc_cfg = cfg.section("pipeline.surveillance")
     feat_cfg: FeatureConfig = cfg.section("classify.features")
     n_events = 4 * events_per_class
-    from hw_sim.physics import parse_physics
-
     scenario = single_random(events=n_events, keep_right=vehicle_lanes == "keep_right")
-    scenario = dataclasses.replace(scenario, physics=parse_physics({"preset": "v1"}) if physics is None else physics)
+    if physics is not None:
+        scenario = dataclasses.replace(scenario, physics=physics)
     board = scenario.sim_board()
     fe = board.frontend
     scene = scenario.build_scene(seed)

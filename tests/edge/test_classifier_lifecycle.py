@@ -59,11 +59,7 @@ def test_recordings_give_the_synthetic_builders_features(tmp_path):
     write_event_recordings(tmp_path, 8, seed=77)
     ref_rec = recordings_reference_set([tmp_path], cfg)  # labels from the recordings' ground truth
     # the recordings are of the evaluation generator's keep-right road
-    # on the instrument the recordings were made with (the scenario's defaults)
-    from hw_sim.physics import Physics
-
-    ref_syn = build_reference_set(events_per_class=2, seed=77, config=cfg, vehicle_lanes="keep_right",
-                                  physics=Physics())
+    ref_syn = build_reference_set(events_per_class=2, seed=77, config=cfg, vehicle_lanes="keep_right")
     np.testing.assert_array_equal(ref_rec.labels, ref_syn.labels)
     np.testing.assert_allclose(ref_rec.features, ref_syn.features, rtol=1e-6)
     forced = recordings_reference_set([sorted(tmp_path.glob("*.npz"))[0]], cfg, label="truck")
