@@ -19,6 +19,12 @@ Bodies (body frame ``x`` right, ``y`` forward, ``z`` up; reference point = footp
 * truck/bus: 30-50 scatterers on the front face, both sides at two heights, axles and rear doors;
   7-12 m long; about 18 dBsm.
 
+Under the default ``[physics]`` (:mod:`hw_sim.physics`) the pedestrian is the Boulic et al. 1990 walker
+(:class:`hw_sim.pedestrian.BoulicPedestrian`, ``gait``), vehicle panels (bumpers, doors, tailgate) have a flat
+plate's aspect lobe over a diffuse floor (``vehicle_lobes``), wheels turn (``wheels``: rim and tread points, 0
+to 2v), and the site adds parked cars, a denser fence, a wall and swaying trees (``site_clutter = "urban"``,
+the ``[[d2g_site]]`` table); ``preset = "v1"`` restores the rigid isotropic bodies and the seven objects.
+
 Scatterer RCS shares are random per target (gamma-distributed), total RCS lognormal around the class
 mean (sigma 3 dB for vehicles), Swerling III for most vehicles (I for some), speeds uniform in the
 class range. Ground-truth identities: target ``id = 100 * (event + 1) + k``.
@@ -44,8 +50,9 @@ from typing import Any
 
 import numpy as np
 
-from hw_sim.pedestrian import Pedestrian
-from hw_sim.scene import GroundTruth, LinearTrajectory, RadarPose, Scene, Target
+from hw_sim.pedestrian import BoulicPedestrian, Pedestrian, height_for_cycle
+from hw_sim.physics import Physics
+from hw_sim.scene import Clutter, GroundTruth, LinearTrajectory, RadarPose, Scene, Target
 
 #: the four classes of the surveillance profile (Tavanti), in the order of its confusion matrices
 SURVEILLANCE_CLASSES: tuple[str, ...] = ("car", "pedestrian", "truck", "motorcycle")
@@ -142,6 +149,157 @@ def truck_body(rng: np.random.Generator, total_rcs_m2: float) -> tuple[np.ndarra
 
 BODIES = {"car": car_body, "motorcycle": motorcycle_body, "truck": truck_body}
 
+# --- aspect lobes and rotating wheels (Physics.vehicle_lobes, Physics.wheels) ----------------------------
+
+#: wavelength of the Distance2Go (m), for the panels' lobes
+WAVELENGTH_M = 299_792_458.0 / 24.125e9
+#: a panel's diffuse floor relative to its specular peak: edges, seams and curvature keep an off-specular
+#: panel visible some 13 dB down (the spread of measured car RCS over aspect away from the broadside and
+#: head-on flashes; Schuler, Becker & Wiesbeck, IEEE Trans. Antennas Propag. 56(11), 2008)
+LOBE_FLOOR = 0.05
+#: effective flat length (m) of a panel across the plane of incidence: a curved body panel reflects
+#: coherently only over about a Fresnel zone sqrt(lambda R / 2) of its curvature radius R (0.5-5 m), so its
+#: lobe is a few degrees wide, not the sub-degree lobe of a 1.7 m flat plate
+PANEL_LENGTH_M = (0.08, 0.25)
+#: wheel radius (m) by class; rim scatterers at RIM_FRACTION of it, tread scatterers on the tyre
+WHEEL_RADIUS_M = {"car": 0.31, "motorcycle": 0.32, "truck": 0.5}
+RIM_FRACTION = 0.6
+#: scatterers per wheel (alternately tread and rim, evenly spaced in angle) and the share of the static
+#: wheel-arch point's RCS they take over (the arch edge keeps the rest)
+WHEEL_POINTS = 6
+WHEEL_SHARE = 0.5
+
+
+def panel_normals(cls: str, off: np.ndarray) -> np.ndarray:
+    """(K, 3) outward unit normals of the body's flat panels (zero for point-like scatterers: wheel arches,
+    mirrors, roof, windscreen, rider, axles), from where each scatterer sits on the body's outline."""
+    n = np.zeros_like(off)
+    if cls == "motorcycle":
+        return n  # fork, engine, rider: curved, no flat panel
+    y = off[:, 1]
+    l2 = float(np.max(np.abs(y)))
+    front, rear = y > l2 - 0.35, y < -l2 + 0.35
+    n[front, 1] = 1.0
+    n[rear, 1] = -1.0
+    # doors and side panels: on the side outline above the wheels (car mirrors, higher and outside it, excluded)
+    ax = np.abs(off[:, 0])
+    w2 = float(np.max(ax[off[:, 2] < 0.9])) if cls == "car" else float(np.max(ax))
+    side = (np.abs(ax - w2) < 0.02) & ~front & ~rear & (off[:, 2] > 0.55)
+    if cls == "car":
+        side &= off[:, 2] < 0.9
+    n[side, 0] = np.sign(off[side, 0])
+    return n
+
+
+def wheel_centres(cls: str, off: np.ndarray) -> np.ndarray:
+    """Indices of the body scatterers that mark a wheel (car wheel arches, truck axles, motorcycle wheels)."""
+    if cls == "car":
+        return np.array([5, 6, 7, 8])
+    if cls == "motorcycle":
+        return np.array([0, 4])
+    return np.flatnonzero(np.isclose(off[:, 2], 0.5) & (np.abs(off[:, 0]) > 0.5))
+
+
+def plate_lobe(cos_inc: np.ndarray, length_m: np.ndarray) -> np.ndarray:
+    """Power gain of a flat panel seen at incidence angle theta (``cos_inc`` = cos theta; <= 0: facing away):
+    cos^2 theta sinc^2(2 L sin theta / lambda) (the flat plate's physical-optics pattern, Knott et al. 2004
+    eq. 6.21, peak 1) above the diffuse floor :data:`LOBE_FLOOR`; a panel facing away is hidden by the body
+    and keeps a tenth of the floor (edge diffraction)."""
+    c = np.clip(cos_inc, -1.0, 1.0)
+    s = np.sqrt(1.0 - c * c)
+    g = c * c * np.sinc(2.0 * length_m * s / WAVELENGTH_M) ** 2
+    return np.where(c > 0.0, np.maximum(g, LOBE_FLOOR), 0.1 * LOBE_FLOOR)
+
+
+@dataclass
+class SiteVehicle(Target):
+    """A surveillance-site vehicle body with aspect lobes on its panels and/or rotating wheels.
+
+    ``normals`` (K, 3) are the panels' outward normals (zero: isotropic point), ``panel_m`` their effective
+    flat lengths; the wheels add ``WHEEL_POINTS`` scatterers per wheel after the K body points, turning at
+    ``omega = v / R`` so a tread point moves at 0 (on the road) to 2v (on top) along the heading. ``rcs_m2``
+    holds the RCS at the instant of the last :meth:`scatterers` call (the scene reads it right after);
+    ``radar_m`` is the radar's world position, for the aspect.
+    """
+
+    normals: np.ndarray | None = None
+    panel_m: np.ndarray | None = None
+    radar_m: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    wheel_hub_m: np.ndarray | None = None  # (W, 3) body frame
+    wheel_radius_m: float = 0.3
+    wheel_phase0: np.ndarray | None = None  # (W,) rad
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self._base_off = self.offsets_m.copy()
+        self._base_rcs = self.rcs_m2.copy()
+        nw = 0 if self.wheel_hub_m is None else len(self.wheel_hub_m)
+        k = np.arange(WHEEL_POINTS)
+        self._wheel_rho = np.where(k % 2 == 0, 1.0, RIM_FRACTION) * self.wheel_radius_m
+        self._wheel_ang = 2 * np.pi * k / WHEEL_POINTS
+        self._n_body = self._base_off.shape[0] - nw * WHEEL_POINTS
+
+    def _speed(self, t_s: float) -> float:
+        v = np.asarray(self.trajectory.velocity(t_s), dtype=float)
+        return float(math.hypot(v[0], v[1]))
+
+    def scatterers(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        off = self._base_off.copy()
+        vel = np.zeros_like(off)
+        nb = self._n_body
+        if self.wheel_hub_m is not None and len(self.wheel_hub_m):
+            w = self._speed(t_s) / self.wheel_radius_m
+            # psi measured from the forward direction in the body's y-z plane, turning so the top moves forward
+            psi = self.wheel_phase0[:, None] + self._wheel_ang[None, :] - w * t_s  # (W, P)
+            rho = self._wheel_rho[None, :]
+            hub = self.wheel_hub_m[:, None, :]
+            pts = hub + np.stack([np.zeros_like(psi), rho * np.cos(psi), rho * np.sin(psi)], -1)
+            vp = np.stack([np.zeros_like(psi), rho * w * np.sin(psi), -rho * w * np.cos(psi)], -1)
+            off[nb:] = pts.reshape(-1, 3)
+            vel[nb:] = vp.reshape(-1, 3)
+        if self.normals is not None:
+            rot = self.heading_rotation(t_s)
+            p = np.asarray(self.trajectory.position(t_s), dtype=float) + off[:nb] @ rot.T
+            los = np.asarray(self.radar_m) - p
+            los = (los / np.linalg.norm(los, axis=1, keepdims=True)) @ rot  # body frame, towards the radar
+            normals = self.normals[:nb]
+            cos_inc = np.einsum("kj,kj->k", los, normals)
+            panel = np.any(normals != 0.0, axis=1)
+            g = np.where(panel, plate_lobe(cos_inc, self.panel_m[:nb]), 1.0)
+            rcs = self._base_rcs.copy()
+            rcs[:nb] = self._base_rcs[:nb] * g
+            self.rcs_m2 = rcs
+        return off, vel
+
+
+def site_vehicle(cls: str, off: np.ndarray, rcs: np.ndarray, aux: np.random.Generator, physics: Physics,
+                 radar_m) -> dict:
+    """Keyword arguments of a :class:`SiteVehicle` for a body (``off``, ``rcs``) under ``physics``; random
+    choices (panel lengths, wheel angles) from ``aux``, never from the event generator."""
+    kw: dict = {"radar_m": tuple(float(v) for v in radar_m)}
+    off = np.asarray(off, dtype=float)
+    rcs = np.asarray(rcs, dtype=float).copy()
+    if physics.wheels:
+        idx = wheel_centres(cls, off)
+        r = WHEEL_RADIUS_M[cls]
+        hubs = off[idx].copy()
+        hubs[:, 2] = r
+        moved = rcs[idx] * WHEEL_SHARE
+        rcs[idx] -= moved
+        wheel_rcs = np.repeat(moved / WHEEL_POINTS, WHEEL_POINTS)
+        kw.update(wheel_hub_m=hubs, wheel_radius_m=r, wheel_phase0=aux.uniform(0.0, 2 * np.pi, len(idx)))
+        body_n = off.shape[0]
+        off = np.concatenate([off, np.zeros((len(idx) * WHEEL_POINTS, 3))])
+        rcs = np.concatenate([rcs, wheel_rcs])
+    else:
+        body_n = off.shape[0]
+    if physics.vehicle_lobes:
+        normals = np.zeros((off.shape[0], 3))
+        normals[:body_n] = panel_normals(cls, off[:body_n])
+        kw.update(normals=normals, panel_m=aux.uniform(*PANEL_LENGTH_M, off.shape[0]))
+    kw.update(offsets_m=off, rcs_m2=rcs)
+    return kw
+
 
 def random_rcs(cls: str, rng: np.random.Generator) -> float:
     mean, sigma_db, _ = CLASS_RCS_SPEED[cls]
@@ -166,8 +324,18 @@ def make_target(
     t_end_s: float,
     total_rcs_m2: float | None = None,
     stride_hz: float | None = None,
+    physics: Physics | None = None,
+    radar_m=(0.0, 0.0, SITE_HEIGHT_M),
+    seed: int = 0,
 ) -> Target:
-    """A randomised body of class ``cls`` on ``trajectory`` (speed taken from the trajectory)."""
+    """A randomised body of class ``cls`` on ``trajectory`` (speed taken from the trajectory).
+
+    ``physics`` (default: the defaults) chooses the pedestrian model and the vehicles' lobes and wheels;
+    their extra random choices come from a generator of (``seed``, ``target_id``), so ``rng`` is drawn
+    exactly as under the v1 instrument and the events stay the same. ``radar_m``: the radar's world position.
+    """
+    physics = Physics() if physics is None else physics
+    aux = np.random.default_rng([seed, target_id & 0x7FFFFFFF, 0xA5EC])
     rcs = random_rcs(cls, rng) if total_rcs_m2 is None else total_rcs_m2
     v = np.asarray(trajectory.v, dtype=float)
     speed = float(math.hypot(v[0], v[1]))
@@ -175,6 +343,15 @@ def make_target(
         if stride_hz is None:
             # stride frequency grows with speed: ~0.9 Hz walking at 1.3 m/s, ~1.4 Hz jogging at 2.8 m/s
             stride_hz = float(np.clip(0.55 + 0.3 * speed, 0.75, 1.6) * rng.uniform(0.93, 1.07))
+        if physics.gait == "boulic":
+            # the body height whose Boulic cycle is this stride frequency, kept within adult heights (the
+            # cycle then follows Boulic's law for that height)
+            height = float(np.clip(height_for_cycle(max(speed, 0.1), stride_hz), 1.5, 1.95))
+            return BoulicPedestrian.make(
+                target_id, trajectory, total_rcs_m2=rcs, speed_mps=max(speed, 0.1), height_m=height,
+                gait_phase_rad=float(rng.uniform(0, 2 * math.pi)), radar_m=radar_m, swerling=1,
+                t_start_s=t_start_s, t_end_s=t_end_s,
+            )
         return Pedestrian.make(
             target_id, trajectory, total_rcs_m2=rcs, speed_mps=max(speed, 0.1), stride_hz=stride_hz,
             gait_phase_rad=float(rng.uniform(0, 2 * math.pi)), swerling=1, t_start_s=t_start_s, t_end_s=t_end_s,
@@ -184,9 +361,14 @@ def make_target(
     except KeyError:
         raise ValueError(f"no surveillance body for class {cls!r}; expected one of {SURVEILLANCE_CLASSES}") from None
     off, rcs_k = body(rng, rcs)
+    swerling = 3 if rng.random() < 0.7 else 1
+    if physics.vehicle_lobes or physics.wheels:
+        kw = site_vehicle(cls, off, rcs_k, aux, physics, radar_m)
+        return SiteVehicle(id=target_id, cls=cls, trajectory=trajectory, swerling=swerling, t_start_s=t_start_s,
+                           t_end_s=t_end_s, **kw)
     return Target(
         id=target_id, cls=cls, trajectory=trajectory, offsets_m=off, rcs_m2=rcs_k,
-        swerling=3 if rng.random() < 0.7 else 1, t_start_s=t_start_s, t_end_s=t_end_s,
+        swerling=swerling, t_start_s=t_start_s, t_end_s=t_end_s,
     )
 
 
@@ -274,7 +456,8 @@ def add_event(
             lane_starts[path.lane].append(start)
         traj = LinearTrajectory(path.p0, path.v, t0_s=start)
         scene.add_target(
-            make_target(cls, 100 * (event + 1) + k, traj, rng, t_start_s=start, t_end_s=start + path.duration_s)
+            make_target(cls, 100 * (event + 1) + k, traj, rng, t_start_s=start, t_end_s=start + path.duration_s,
+                        physics=scene.physics, radar_m=scene.pose.position, seed=scene.seed)
         )
 
 
@@ -332,9 +515,113 @@ def _d2g_target_table(scene: Scene, scenario: Any, spec: dict, rng: np.random.Ge
         make_target(
             cls, tid, traj, np.random.default_rng([scene.seed, tid, 0xB0D7]), t_start_s=start,
             t_end_s=_num(spec, "end_s", 1e9, where), total_rcs_m2=None if rcs is None else float(rcs),
-            stride_hz=None if stride is None else float(stride),
+            stride_hz=None if stride is None else float(stride), physics=scene.physics,
+            radar_m=scene.pose.position, seed=scene.seed,
         )
     )
+
+
+# --- static surroundings (Physics.site_clutter) ---------------------------------------------------------
+
+#: Billingsley's exponential Doppler spectrum of wind-blown foliage, P(v) ~ exp(-beta |v|): beta (s/m) for a
+#: breeze of 7-15 mph (Billingsley, Low-Angle Radar Land Clutter, 2002, Table 6.3); rms leaf speed sqrt(2)/beta
+FOLIAGE_BETA_S_PER_M = 8.0
+#: sinusoids per leaf scatterer (frequencies of branches and leaves, Hz)
+FOLIAGE_MODES = 4
+FOLIAGE_HZ = (0.5, 3.0)
+#: first id of the site's swaying objects (far above any event's 100 * (event + 1) + k)
+FOLIAGE_ID0 = 900_000
+#: "urban" additions, world frame (radar at the origin, road along +y): parked cars (centre x, y, total RCS),
+#: the fence's intermediate posts (the v1 posts are every 4 m), the wall of a building behind the fence, and
+#: trees (trunk x, y; crown height) and a bush on the far sidewalk and beside the radar
+URBAN_PARKED_CARS = ((10.3, 11.0, 10.0), (10.3, 16.5, 10.0))
+URBAN_FENCE_POSTS = tuple((-2.0, y, 1.0, 3.0) for y in (8.0, 12.0, 16.0, 20.0))
+URBAN_WALL_X_M = -3.5
+URBAN_TREES = ((9.3, 9.0, 4.0), (9.3, 22.0, 4.0))
+URBAN_BUSHES = ((-1.2, 8.0, 0.7),)
+
+
+@dataclass
+class Foliage(Target):
+    """Leaves of a tree crown or bush: scatterers about fixed points, each displaced along its own random
+    direction by a sum of :data:`FOLIAGE_MODES` sinusoids, so its speed is a zero-mean random process with
+    rms ``sqrt(2) / beta`` (Billingsley's exponential spectrum's width) and its phase wanders over several
+    wavelengths; deterministic in time (any frame in any order). Class "clutter": not a target of the truth.
+    """
+
+    direction: np.ndarray | None = None  # (K, 3) unit
+    amp_m: np.ndarray | None = None  # (K, M)
+    freq_hz: np.ndarray | None = None  # (K, M)
+    phase0: np.ndarray | None = None  # (K, M)
+
+    def scatterers(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        arg = 2 * np.pi * self.freq_hz * t_s + self.phase0
+        d = np.sum(self.amp_m * np.sin(arg), axis=1)
+        v = np.sum(self.amp_m * 2 * np.pi * self.freq_hz * np.cos(arg), axis=1)
+        return self.offsets_m + d[:, None] * self.direction, v[:, None] * self.direction
+
+
+def foliage(target_id: int, centre, radius_m: float, n: int, total_rcs_m2: float, rng: np.random.Generator,
+            beta_s_per_m: float = FOLIAGE_BETA_S_PER_M) -> Foliage:
+    """A crown/bush of ``n`` leaf scatterers in a sphere of ``radius_m`` about ``centre`` (world, m)."""
+    u = rng.normal(size=(n, 3))
+    off = u / np.linalg.norm(u, axis=1, keepdims=True) * radius_m * rng.random((n, 1)) ** (1 / 3)
+    dirs = rng.normal(size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    f = rng.uniform(*FOLIAGE_HZ, (n, FOLIAGE_MODES))
+    v_rms = math.sqrt(2.0) / beta_s_per_m * rng.uniform(0.5, 1.5, (n, 1))  # sheltered and exposed leaves
+    amp = v_rms * math.sqrt(2.0 / FOLIAGE_MODES) / (2 * np.pi * f)  # each mode's speed amplitude
+    return Foliage(
+        id=target_id, cls="clutter", trajectory=LinearTrajectory(tuple(float(c) for c in centre), (0.0, 0.0, 0.0)),
+        offsets_m=off, rcs_m2=_shares(rng, n, total_rcs_m2), swerling=0, direction=dirs, amp_m=amp, freq_hz=f,
+        phase0=rng.uniform(0, 2 * np.pi, (n, FOLIAGE_MODES)),
+    )
+
+
+def urban_static(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Static points (K, 3) and RCS (K,) the "urban" site adds: parked cars (a :func:`car_body` each, parked
+    along the road), the fence's intermediate posts (every 2 m with the v1 posts), tree trunks, and a
+    building wall (at grazing incidence a wall returns from its discontinuities -- window frames, pipes,
+    joints -- not specularly: points every metre at two heights, 0.3 m^2 each)."""
+    pts, rcs = [], []
+    for x, y, total in URBAN_PARKED_CARS:
+        off, r = car_body(rng, total)
+        pts.append(off + np.array([x, y, 0.0]))
+        rcs.append(r)
+    pts.append(np.array([p[:3] for p in URBAN_FENCE_POSTS]))
+    rcs.append(np.array([p[3] for p in URBAN_FENCE_POSTS]))
+    pts.append(np.array([[x, y, 1.5] for x, y, _ in URBAN_TREES]))
+    rcs.append(np.full(len(URBAN_TREES), 1.0))
+    wy = np.arange(2.0, 25.0, 1.0)
+    pts.append(np.array([[URBAN_WALL_X_M, y, z] for y in wy for z in (1.0, 2.5)]))
+    rcs.append(np.full(2 * wy.size, 0.3))
+    return np.concatenate(pts), np.concatenate(rcs)
+
+
+def _d2g_site_table(scene: Scene, scenario: Any, spec: dict, rng: np.random.Generator) -> None:
+    """``[[d2g_site]]`` (no keys): the scene is the surveillance site; add the surroundings of
+    ``[physics] site_clutter`` beyond the ``[[clutter]]`` points (v1: nothing). Seeded by the scene's seed
+    alone, after the events, so the events and their draws are those of v1."""
+    from hw_sim.scenario import ScenarioError
+
+    if spec:
+        raise ScenarioError(f"d2g_site takes no keys, got {sorted(spec)}")
+    if scene.physics.site_clutter == "v1":
+        return
+    aux = np.random.default_rng([scene.seed, 0x517E])
+    pts, rcs = urban_static(aux)
+    if scene.clutter is None:
+        scene.clutter = Clutter(position_m=pts, rcs_m2=rcs)
+    else:
+        scene.clutter = Clutter(np.concatenate([scene.clutter.position_m, pts]),
+                                np.concatenate([scene.clutter.rcs_m2, rcs]))
+    k = 0
+    for x, y, h in URBAN_TREES:  # crown: 12 leaf clusters, 2 m^2 in all
+        scene.add_target(foliage(FOLIAGE_ID0 + k, (x, y, h), 1.5, 12, 2.0, aux))
+        k += 1
+    for x, y, h in URBAN_BUSHES:  # 6 clusters, 0.5 m^2
+        scene.add_target(foliage(FOLIAGE_ID0 + k, (x, y, h), 0.5, 6, 0.5, aux))
+        k += 1
 
 
 def site_raw(name: str, description: str, duration_s: float) -> dict[str, Any]:
@@ -343,6 +630,7 @@ def site_raw(name: str, description: str, duration_s: float) -> dict[str, Any]:
         "scenario": {"name": name, "board": "d2g", "description": description, "duration_s": duration_s, "seed": 1},
         "radar": {"height_m": SITE_HEIGHT_M, "yaw_deg": SITE_YAW_DEG},
         "clutter": [{"x_m": x, "y_m": y, "z_m": z, "rcs_m2": r} for x, y, z, r in SITE_CLUTTER],
+        "d2g_site": [{}],
     }
 
 
@@ -407,7 +695,8 @@ def frame_view(scene: Scene, t_s: float, half_sector_deg: float = SEEN_HALF_SECT
     board's sidelobe floor sees a target passing beside it, or just behind it, at a few metres)."""
     sc = scene.scatterers(t_s, np.random.default_rng(0))
     tix = sc.target_index
-    mov = tix >= 0
+    site = np.array([tg.cls == "clutter" for tg in scene.targets] + [True])  # [-1]: static clutter
+    mov = ~site[tix]
     if not mov.any():
         z = np.zeros(0)
         return FrameView(np.zeros(0, dtype=int), (), z, z, z, z, np.zeros(0, dtype=bool))
@@ -481,6 +770,7 @@ def register() -> None:
 
     GENERATORS.setdefault("d2g_events", _d2g_events_table)
     GENERATORS.setdefault("d2g_target", _d2g_target_table)
+    GENERATORS.setdefault("d2g_site", _d2g_site_table)  # after the events: its targets come last
     EVENT_SCENARIOS.setdefault("single-random", single_random)
     EVENT_SCENARIOS.setdefault("multi-random", multi_random)
 

@@ -101,6 +101,24 @@ class Physics:
     #: default sd (m) of each random driver's own offset from the lane centre ([[traffic]] overrides it)
     lateral_offset_sd_m: float = 0.25
 
+    # --- surveillance site (Distance2Go, hw_sim.events / hw_sim.pedestrian) ---
+    #: pedestrian micro-Doppler model: "boulic" = limb kinematics of Boulic, Magnenat-Thalmann & Thalmann
+    #: 1990 (The Visual Computer 6:344-358; joint trajectories fitted to measured gait as functions of the
+    #: relative velocity, the model of Chen, The Micro-Doppler Effect in Radar, 2011, ch. 5) with ellipsoid
+    #: segments; "sinusoid" = eight point scatterers swinging sinusoidally (hw_sim.pedestrian, v1)
+    gait: str = "boulic"
+    #: vehicle scatterers on flat panels (bumpers, doors, tailgate) have a flat plate's aspect lobe
+    #: cos^2 * sinc^2 (Knott, Shaeffer & Tuley, Radar Cross Section, 2nd ed. 2004, ch. 6) above a diffuse
+    #: floor; false = every scatterer isotropic (v1)
+    vehicle_lobes: bool = True
+    #: vehicle wheels rotate: rim and tread scatterers with the rim's tangential velocity, so the wheel's
+    #: micro-Doppler spans 0..2v (Chen 2011, ch. 4); false = static wheel-arch points only (v1)
+    wheels: bool = True
+    #: static surroundings of the surveillance site: "urban" = the v1 objects plus parked cars (several
+    #: scatterers each), a fence with posts every 2 m, a building wall and trees/bushes whose leaves sway in
+    #: the wind (Billingsley, Low-Angle Radar Land Clutter, 2002, ch. 6); "v1" = the seven point objects only
+    site_clutter: str = "urban"
+
     def __post_init__(self) -> None:
         for key, allowed in _CHOICES.items():
             if getattr(self, key) not in allowed:
@@ -125,6 +143,8 @@ _CHOICES: dict[str, tuple[str, ...]] = {
     "glint": ("aspect", "white"),
     "body": ("centres", "near-face"),
     "traffic_model": ("idm", "v1"),
+    "gait": ("boulic", "sinusoid"),
+    "site_clutter": ("urban", "v1"),
 }
 
 
@@ -141,6 +161,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "channel_mismatch_deg": 0.0,
         "glint": "white", "body": "near-face", "shadowing": False, "traffic_model": "v1",
         "weave_sdlp_m": 0.0, "lateral_offset_sd_m": 0.0,
+        "gait": "sinusoid", "vehicle_lobes": False, "wheels": False, "site_clutter": "v1",
     },
 }
 

@@ -116,6 +116,7 @@ def recordings_reference_set(
     for path in it:
         rec = Recording(path)
         truth_classes = {c for k in range(len(rec)) for c in (getattr(rec.truth(k), "cls", None) or ())}
+        truth_classes.discard("clutter")  # the site's swaying foliage (hw_sim.events.Foliage) is no target
         if extractor is None or extractor.rd.frontend != rec.frontend:
             extractor = EventFeatureExtractor(rec.frontend, config)
         frames = (RawFrame(seq=int(rec.seq[k]), t_ns=int(rec.t_ns[k]), i=rec.i[k], q=rec.q[k], frontend=rec.frontend)

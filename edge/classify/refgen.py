@@ -117,6 +117,7 @@ def build_reference_set(
     passage_half_sector_deg: float = PASSAGE_HALF_SECTOR_DEG,
     vehicle_lanes: str = "any",
     progress: Callable[[int, int], None] | None = None,
+    physics: Any = None,
 ) -> ReferenceSet:
     """Build a reference set from ``4 * events_per_class`` simulated single-target events.
 
@@ -126,6 +127,8 @@ def build_reference_set(
     is called after every event. ``vehicle_lanes``: ``"any"`` (default) draws a vehicle's direction
     independently of its lane (``hw_sim.events``, ``keep_right=False``), ``"keep_right"`` is the
     evaluation generators' two-way road (approaching in the near lane, receding in the far one).
+    ``physics`` (a :class:`hw_sim.physics.Physics`) is the simulator's instrument; default: the scenario's
+    (the physical defaults); ``parse_physics({"preset": "v1"})`` is the instrument the shipped set was built on.
     """
     from edge.config import load_config
     from edge.dsp.range_doppler import RangeDopplerProcessor
@@ -145,6 +148,8 @@ def build_reference_set(
     feat_cfg: FeatureConfig = cfg.section("classify.features")
     n_events = 4 * events_per_class
     scenario = single_random(events=n_events, keep_right=vehicle_lanes == "keep_right")
+    if physics is not None:
+        scenario = dataclasses.replace(scenario, physics=physics)
     board = scenario.sim_board()
     fe = board.frontend
     scene = scenario.build_scene(seed)

@@ -15,8 +15,8 @@ from edge.dsp.range_doppler import RangeDopplerProcessor
 from hal import open_radar
 
 
-def _frames(n: int, seed: int = 1):
-    src = open_radar(f"sim://d2g?scenario=empty-d2g&realtime=0&seed={seed}")
+def _frames(n: int, seed: int = 1, scenario: str = "empty-d2g"):
+    src = open_radar(f"sim://d2g?scenario={scenario}&realtime=0&seed={seed}")
     src.open()
     try:
         return list(itertools.islice(iter(src), n)), src.frontend
@@ -24,8 +24,20 @@ def _frames(n: int, seed: int = 1):
         src.close()
 
 
-def test_threshold_is_mean_of_maxima_plus_margin_and_empty_scene_gives_no_cluster():
-    frames, fe = _frames(30)
+def _v1_empty_site(tmp_path) -> str:
+    """empty-d2g on the v1 instrument (seven point objects, no swaying foliage), as a scenario file."""
+    from importlib import resources
+
+    text = resources.files("hw_sim").joinpath("scenarios", "empty-d2g.toml").read_text(encoding="utf-8")
+    path = tmp_path / "empty-d2g-v1.toml"
+    path.write_text(text + '\n[physics]\npreset = "v1"\n', encoding="utf-8")
+    return str(path)
+
+
+def test_threshold_is_mean_of_maxima_plus_margin_and_empty_scene_gives_no_cluster(tmp_path):
+    # figure measured on the v1 instrument; the corpus reports the physical defaults
+    site = _v1_empty_site(tmp_path)
+    frames, fe = _frames(30, scenario=site)
     rdp = RangeDopplerProcessor(fe)
     res = calibrate.calibrate_threshold(frames, rdp, margin_std=3.0)
     maxima = np.array([rdp.process(f.iq()).amplitude.max() for f in frames])
@@ -37,7 +49,7 @@ def test_threshold_is_mean_of_maxima_plus_margin_and_empty_scene_gives_no_cluste
     assert res["median_range_of_maximum_m"] < 1.0
     # fresh empty frames (another seed) at that threshold: no DBSCAN cluster in any frame
     db = CylinderDbscan(rdp.n_range, rdp.n_doppler_fft, rdp.range_bin_m, rdp.cylinder_radius_kmh, 1.9, 80)
-    others, _ = _frames(30, seed=7)
+    others, _ = _frames(30, seed=7, scenario=site)
     assert all(db.fit(rdp.process(f.iq()).amplitude >= res["th_rd"]).n_clusters == 0 for f in others)
 
 
