@@ -1,6 +1,6 @@
 """The lane tracker's cheaper code paths compute what the plain forms compute (issue 9).
 
-End to end the lane golden fixtures (tests/edge/test_lane_golden.py) pin the tracker's outputs; these
+The stage fixtures (tests/edge/test_lane_stages.py) pin the tracker's outputs on recorded detections; these
 tests pin the pieces: the inline TrackState construction, the IMM update of both modes by broadcasting
 (against the flat (track, mode) rows with repeated weights) and the row operations of the track table.
 """
