@@ -22,10 +22,9 @@ def _nice_ticks(lo: float, hi: float, n: int = 4) -> list[float]:
     mag = 10 ** math.floor(math.log10(raw))
     step = min((s * mag for s in (1, 2, 2.5, 5, 10) if s * mag >= raw), default=10 * mag)
     start = math.floor(lo / step) * step
-    ticks, t = [], start
-    while t <= hi + step * 0.5 and len(ticks) < 12:
-        ticks.append(round(t, 12))
-        t += step
+    ticks = [start]
+    while ticks[-1] < hi - 1e-12 * max(1.0, abs(hi)) and len(ticks) < 24:
+        ticks.append(round(start + len(ticks) * step, 12))
     return ticks
 
 

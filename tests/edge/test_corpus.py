@@ -203,3 +203,12 @@ def test_shipped_corpora_parse(name):
     for part in ("dev", "holdout"):
         assert c.jobs(part)
         check_scenarios(c, part)
+
+
+@pytest.mark.parametrize("lo, hi", [(0.75, 0.851), (0.0, 0.0), (0.0012, 0.0034), (3.0, 250.0), (-2.0, 0.5)])
+def test_plot_axis_ticks_cover_every_value(lo, hi):
+    from edge.evaluation.corpus_plot import _nice_ticks
+
+    t = _nice_ticks(lo, hi)
+    assert t[0] <= lo and t[-1] >= hi and 3 <= len(t) <= 24
+    assert np.allclose(np.diff(t), t[1] - t[0])
