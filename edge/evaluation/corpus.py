@@ -284,12 +284,20 @@ def load_corpus(path: str | Path) -> Corpus:
 
 
 def check_scenarios(corpus: Corpus, part: str) -> None:
-    """Load every (scenario, variant) of ``part`` once with its patch: unknown scenarios, bad patches and scenarios
-    of the other profile stop the corpus before any worker starts."""
+    """Load every (scenario, variant) of ``part`` once with its patch, and every variant's settings: unknown
+    scenarios, bad patches or settings and scenarios of the other profile stop the corpus before any worker
+    starts."""
     from edge.pipeline import BOARD_PROFILE
     from hw_sim.physics import PhysicsError
     from hw_sim.scenario import ScenarioError, load_scenario_for_eval
 
+    from edge.config import ConfigError, load_config, parse_set_option
+
+    for v in corpus.variants:
+        try:
+            load_config(None, env={}, overrides=dict(parse_set_option(x) for x in v.set))
+        except ConfigError as exc:
+            raise CorpusError(f"{corpus.source}: variant {v.name!r}: {exc}") from exc
     done = set()
     for j in corpus.jobs(part):
         key = (j["scenario"], j["variant"])

@@ -108,6 +108,10 @@ def test_corpus_refuses_a_scenario_of_the_other_profile(tmp_path, capsys):
                     '[[run]]\npart = "dev"\nscenario = "highway4-traffic"\nseeds = [1]\nframes = 5\n')
     assert main(["evaluate", "--corpus", str(path), "--no-progress"]) == 2
     assert "runs the lane profile, the corpus is surveillance" in capsys.readouterr().err
+    path.write_text('[corpus]\nname = "c"\nprofile = "lane"\n[[variant]]\nname = "x"\nset = ["track.pdaf.nope=1"]\n'
+                    '[[run]]\npart = "dev"\nscenario = "highway4-traffic"\nseeds = [1]\nframes = 5\n')
+    assert main(["evaluate", "--corpus", str(path), "--no-progress"]) == 2
+    assert "variant 'x'" in capsys.readouterr().err
 
 
 def test_pooled_proportion_and_its_bootstrap_interval_on_constructed_runs():
