@@ -25,6 +25,7 @@ COMMANDS: tuple[str, ...] = (
     "edge.commands.simulate",
     "edge.commands.replay",
     "edge.commands.evaluate",
+    "edge.commands.ablate",
     "edge.commands.replay_traffic",
     "edge.commands.fit_noise",
     "edge.commands.bench",

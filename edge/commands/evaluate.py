@@ -20,7 +20,12 @@ tracks per minute, id switches, lane accuracy, per-lane count error, classificat
 confusion matrix), plus frame times against the budget. Lane profile: each closed interval's per-lane statistics
 (volume, occupancy, mean and 85th-percentile speed, headway, gap, counts per length class) against the truth, and
 each vehicle's measured length and length class against its true one. With --json, a rounded summary and those
-tables are printed (the file keeps full precision)."""
+tables are printed (the file keeps full precision).
+
+With --corpus FILE instead of --scenario, runs every (run, seed, variant) of one part of a declared evaluation corpus
+(edge.evaluation.corpus: scenarios x variants x seeds, dev and holdout) in --jobs worker processes, and writes one
+JSON with each run's figures and tallies and the metrics pooled per variant and over all runs as ratios of sums,
+each with a 95 % cluster-bootstrap confidence interval over runs; --plot draws them as an SVG."""
 EPILOG = """\
 examples:
   radar-edge evaluate --scenario highway4 --json out/highway4.json
@@ -28,11 +33,19 @@ examples:
   radar-edge evaluate --scenario highway4-traffic --seed 7 --scenario-set radar.height_m=10 --json out/h10.json
   radar-edge evaluate --scenario highway4-traffic --seed 5 --record-tracks out/s5-tracks.npz --json out/s5.json
   radar-edge replay-traffic out/s5-tracks.npz --set traffic.count_late_twin_s=0   # counting rules, in seconds
+  radar-edge evaluate --corpus corpus/lane.toml --part dev --jobs 2 --json out/lane-dev.json --plot out/lane-dev.svg
+  radar-edge evaluate --corpus corpus/surveillance.toml --part both --jobs 2 --json out/surv.json
 """
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scenario", required=True, help="built-in scenario name, event generator, or .toml path")
+    p.add_argument("--scenario", help="built-in scenario name, event generator, or .toml path (or --corpus)")
+    p.add_argument("--corpus", metavar="FILE", help="an evaluation corpus file (TOML, edge.evaluation.corpus) "
+                   "instead of --scenario")
+    p.add_argument("--part", choices=("dev", "holdout", "both"), default="dev",
+                   help="--corpus: which part to run (default dev)")
+    p.add_argument("--jobs", type=int, default=1, metavar="N", help="--corpus: worker processes (default 1)")
+    p.add_argument("--plot", metavar="OUT.svg", help="--corpus: also draw the pooled metrics with their intervals"),
     p.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
     p.add_argument("--frames", type=int, default=None, help="limit the number of frames")
     p.add_argument("--events", type=int, default=None, help="number of events for event generators")
@@ -53,6 +66,11 @@ def run(args: argparse.Namespace) -> int:
 
     from edge.extras import available, install_hint
 
+    if (args.corpus is None) == (args.scenario is None):
+        print("radar-edge evaluate: give either --scenario or --corpus", file=sys.stderr)
+        return 2
+    if args.corpus is not None:
+        return run_corpus(args)
     cfg = config_from_args(args)
     progress = not args.no_progress and sys.stderr.isatty()
     if progress and not available("tqdm"):
@@ -77,6 +95,48 @@ def run(args: argparse.Namespace) -> int:
         print(console_summary(report))
     else:
         print(text)
+    return 0
+
+
+def run_corpus(args: argparse.Namespace) -> int:
+    """``--corpus``: every run of the part(s) in worker processes, then the pooled document (module doc)."""
+    from edge.evaluation.corpus import check_scenarios, console_table, corpus_document, load_corpus, run_jobs
+    from edge.evaluation.corpus_plot import write_corpus_svg
+
+    for opt in ("seed", "frames", "events", "record_tracks"):
+        if getattr(args, opt) is not None:
+            print(f"radar-edge evaluate: --{opt.replace('_', '-')} does not apply to --corpus (the corpus file "
+                  "declares its runs)", file=sys.stderr)
+            return 2
+    if args.scenario_set:
+        print("radar-edge evaluate: --scenario-set does not apply to --corpus (declare a variant)", file=sys.stderr)
+        return 2
+    if args.jobs < 1:
+        print("radar-edge evaluate: --jobs must be at least 1", file=sys.stderr)
+        return 2
+    config_from_args(args)  # a bad --config or --set stops here, before any worker starts
+    corpus = load_corpus(args.corpus)
+    parts = ("dev", "holdout") if args.part == "both" else (args.part,)
+    for part in parts:
+        check_scenarios(corpus, part)
+    results = {}
+    for part in parts:
+        jobs = [dict(j, config=args.config, extra_set=list(args.set)) for j in corpus.jobs(part)]
+        if not jobs:
+            print(f"radar-edge evaluate: the corpus has no {part} runs", file=sys.stderr)
+            return 2
+        results[part] = run_jobs(jobs, args.jobs, progress=not args.no_progress, desc=f"corpus {part}")
+    doc = corpus_document(corpus, results, list(args.set))
+    text = json.dumps(doc, indent=2)
+    if args.json:
+        out = Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(text + "\n", encoding="utf-8")
+    else:
+        print(text)
+    if args.plot:
+        write_corpus_svg(doc, args.plot)
+    print(console_table(doc), file=sys.stdout if args.json else sys.stderr)
     return 0
 
 

@@ -35,6 +35,9 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   vehicle once its centre passes ``range_m`` (380 m in the built-in scenarios) while its track, on the
   rear face two metres nearer, rightly coasts on for a few frames; ``false_tracks_per_min`` over the
   evaluated time;
+  ``false_tracks_first_30s``: those whose episode began in the first ``START_S`` (30) seconds. Every run starts
+  the pipeline cold with traffic already on the road (the traffic generator populates it before t = 0), and no
+  figure leaves the first seconds out, so start-up phantoms count; this one makes them visible;
 * ``lane_accuracy``: assigned pairs whose track lane equals the vehicle's true lane at that frame (per vehicle
   too, over its assigned frames);
 * ``detection_probability_by_overlap``: per class, the detection probability over the in-view frames where
@@ -63,6 +66,11 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   published on their assigned tracks against their true length, its length class and their body class (by kind
   and by body class; a vehicle never measured counts as wrong); per target ``length_m_true``/``length_m_est``,
   ``length_class_true``/``length_class_est``;
+* ``tallies``: the sums and counts behind the headline figures (frames in view and tracked, all and ``separate``;
+  false tracks, in all and in the first 30 s, and the minutes; true volume and the sum of |measured - true| over
+  lanes; squared position error and its frame count within ``TALLY_RANGE_M`` (200 m); |speed error| sum and count;
+  lane-correct and lane-assigned frames), so that the evaluation corpus (:mod:`edge.evaluation.corpus`) pools runs
+  as ratios of sums;
 * ``count_mismatches``: the true crossings left unmatched (``missed``) and the counted ones left unmatched
   (``extra``) when each lane's two lists are matched one-to-one by time (at most
   ``edge.evaluation.counting.COUNT_MATCH_S`` apart).
@@ -96,6 +104,8 @@ GATE_M = 3.0
 RANGE_BIN_M = 50.0
 OVERLAP_BINS = 1.5  # a beat this many FFT bins from another vehicle's span shares its peak (Hann main lobe: 2)
 OVERLAP_SEGMENTS = 2  # ... in this many of the four segments (the pairing tolerates one shared peak)
+TALLY_RANGE_M = 200.0  # the pooled position error (summary ``tallies``) counts assigned frames within this ground range
+START_S = 30.0  # ``false_tracks_first_30s``: false tracks confirmed this soon after the (cold) start
 
 
 def _installer_config(config: Any, sc) -> tuple[Any, Any, Any]:
@@ -243,6 +253,36 @@ def _stopped_score(acc: dict[int, "_TargetAcc"], alarms: list[tuple[int | None, 
     return _event_score({i: a.stopped_t for i, a in acc.items() if a.stopped_t is not None}, alarms, "vehicles")
 
 
+def _tallies(acc: dict[int, "_TargetAcc"], pd_overlap: dict, false_eps: list, n_start: int, n_frames: int,
+             period: float, counts: dict, sq_200: list, lane_ok: int, lane_n: int) -> dict:
+    """The run's sums and counts behind its figures (module doc), so that runs pool as ratios of sums: every
+    frame from the first on counts (a run starts with traffic already flowing, as after a power cut)."""
+    sep = [v for (_, overlapping), v in pd_overlap.items() if not overlapping]
+    true_v, meas_v = counts["volume_true_per_lane"], counts["volume_measured_per_lane"]
+    return {
+        "minutes": n_frames * period / 60.0,
+        "minutes_first_30s": n_start * period / 60.0,
+        "vehicle_frames_in_view": int(sum(a.n_view for a in acc.values())),
+        "vehicle_frames_tracked": int(sum(a.n_hit for a in acc.values())),
+        # vehicles sharing no range-Doppler cell and beam with another (detection_probability_by_overlap), <= 300 m
+        "separate_frames_in_view": int(sum(v[0] for v in sep)),
+        "separate_frames_tracked": int(sum(v[1] for v in sep)),
+        "false_tracks": len(false_eps),
+        # false confirmed tracks whose episode began in the first START_S seconds (start-up phantoms)
+        "false_tracks_first_30s": sum(1 for ep in false_eps if ep[0] < n_start),
+        "id_switches": int(sum(a.switches for a in acc.values())),
+        "count_true": int(sum(true_v)),
+        "count_abs_error": int(sum(abs(m - t) for m, t in zip(meas_v, true_v))),
+        # position error of assigned frames within TALLY_RANGE_M ground range
+        "position_sq_error_sum_m2": float(sq_200[0]),
+        "position_n": int(sq_200[1]),
+        "speed_abs_error_sum_kmh": float(sum(sum(a.spd_err) for a in acc.values())),
+        "speed_n": int(sum(len(a.spd_err) for a in acc.values())),
+        "lane_correct": int(lane_ok),
+        "lane_assigned": int(lane_n),
+    }
+
+
 def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: int | None = None,
              config: Any = None, progress: bool = False, record_tracks: str | Path | None = None) -> dict:
     """The report of the module docstring. ``record_tracks``: also write the traffic layer's input and the true
@@ -280,6 +320,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     episodes: dict[int, list[int]] = {}  # track id -> [start frame, last frame, frames, assigned frames]
     closed_eps: list[list[int]] = []
     lane_ok = lane_n = 0
+    sq_200 = [0.0, 0]  # position squared error (m^2) summed over assigned frames within TALLY_RANGE_M, and their number
     range_bins: dict[int, list[float]] = {}
     pd_bins: dict[int, list[int]] = {}  # range bin -> [in view, detected, tracked]
     pd_cls_bins: dict[tuple[str, int], list[int]] = {}  # (class, range bin) -> [in view, detected, tracked]
@@ -428,6 +469,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             a.err_rng.append(float(ground_rng[j]))
             a.err_xy.append((float(exy[0]), float(exy[1])))
             range_bins.setdefault(int(ground_rng[j] // RANGE_BIN_M), []).append(e2)
+            if ground_rng[j] <= TALLY_RANGE_M:
+                sq_200[0] += e2
+                sq_200[1] += 1
             a.spd_err.append(abs(t.speed_mps * 3.6 - speed_kmh[j]))
             a.vr_true.append(float(tr.radial_speed_mps[veh[j]]) * 3.6)
             a.vr_est.append(t.radial_speed_mps * 3.6)
@@ -455,7 +499,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     counts = tally.summary(true_cross)
 
     duration_min = n_frames * period / 60.0
-    false_tracks = sum(1 for ep in closed_eps if ep[2] > 0 and ep[3] < 0.5 * ep[2])
+    false_eps = [ep for ep in closed_eps if ep[2] > 0 and ep[3] < 0.5 * ep[2]]
+    false_tracks = len(false_eps)
+    n_start = min(n_frames, int(math.ceil(START_S / period - 1e-9)))  # frames of the first START_S seconds
     targets = []
     for i, a in sorted(acc.items()):
         if a.n_view == 0:
@@ -561,6 +607,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         "stopped_vehicle": _stopped_score(acc, stop_event_vehicle) if lane_dir else None,
         "classification_accuracy": None,
         "confusion_matrix": None,
+        "false_tracks_first_30s": sum(1 for ep in false_eps if ep[0] < n_start),
+        # sums and counts behind the figures, for pooling runs as ratios of sums (edge.evaluation.corpus)
+        "tallies": _tallies(acc, pd_overlap, false_eps, n_start, n_frames, period, counts, sq_200, lane_ok, lane_n),
     }
     if lane_dir:
         # per-lane interval statistics against the truth, and the lengths and classes of the vehicles that crossed

@@ -30,6 +30,10 @@ Scoring:
 * **Confusion matrix**: ``matrix[i][j]`` = targets of true class ``labels[i]`` predicted as
   ``labels[j]``; the last column, ``missed``, counts targets without a track.
 
+``tallies`` in the summary holds the sums and counts behind the figures (classification of single- and
+multi-target events' targets, detection frames, speed and range errors, false tracks, minutes, classified events per
+tracked passage) so that the evaluation corpus (:mod:`edge.evaluation.corpus`) pools runs as ratios of sums.
+
 Lane fields (``lane``, ``lane_accuracy``, ``count_error_per_lane``) are null: the profile has no lanes.
 """
 
@@ -67,6 +71,41 @@ class _Instance:
 def _interval_distance(r: np.ndarray, lo: float, hi: float) -> np.ndarray:
     """Distance of ranges ``r`` to the interval ``[lo, hi]`` (0 inside)."""
     return np.maximum(0.0, np.maximum(lo - r, r - hi))
+
+
+def _tallies(targets: list[dict], truths: dict, hits: dict[int, np.ndarray], false_tracks: int, minutes: float,
+             range_sq: dict[int, tuple[float, int]]) -> dict:
+    """The run's sums and counts behind its figures: classification of the targets of single-target events (one
+    target in the slot) and of multi-target ones, detection before tracking over visible frames, the |mean radial
+    speed| errors, the squared range errors of the matched tracks, false tracks and minutes, and the classified
+    events per tracked passage (above 1 where a passage's track split)."""
+    size: dict[int, int] = {}
+    for t in truths.values():
+        size[t.event] = size.get(t.event, 0) + 1
+    single = [r for r in targets if size.get(r["event"], 0) == 1]
+    multi = [r for r in targets if size.get(r["event"], 0) > 1]
+    tracked = [r for r in targets if r["n_tracks"] > 0]
+    spd = [r["speed_mae_kmh"] for r in targets if r["speed_mae_kmh"] is not None]
+    return {
+        "minutes": minutes,
+        "events": len(size),
+        "targets": len(targets),
+        "single_targets": len(single),
+        "single_correct": sum(1 for r in single if r["predicted_class"] == r["class"]),
+        "multi_targets": len(multi),
+        "multi_correct": sum(1 for r in multi if r["predicted_class"] == r["class"]),
+        "correct": sum(1 for r in targets if r["predicted_class"] == r["class"]),
+        "direction_correct": sum(1 for r in targets if r["direction_est"] == r["direction_true"]),
+        "detected_frames": int(sum(int(np.sum(h)) for h in hits.values())),
+        "visible_frames": int(sum(h.size for h in hits.values())),
+        "speed_abs_error_sum_kmh": float(sum(spd)),
+        "speed_n": len(spd),
+        "range_sq_error_sum_m2": float(sum(v[0] for v in range_sq.values())),
+        "range_n": int(sum(v[1] for v in range_sq.values())),
+        "false_tracks": int(false_tracks),
+        "passages_tracked": len(tracked),
+        "passage_events": int(sum(r["n_tracks"] for r in targets)),
+    }
 
 
 def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int | None, config: Any,
@@ -156,6 +195,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
     targets = []
     correct = classified = 0
     speed_err, rmse_all, splits = [], [], 0
+    range_sq: dict[int, tuple[float, int]] = {}  # per target: squared range errors summed, their number
     for tid, t in truths.items():
         mine = [i for i in done if i.target == tid and i.event is not None]
         tracked_frames = {n for i in done if i.target == tid for n in i.frames}
@@ -174,6 +214,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
             ev = main.event
             err = np.asarray([e for i in mine for e in i.range_err])
             rm = float(np.sqrt(np.mean(err**2))) if err.size else None
+            range_sq[tid] = (float(np.sum(err**2)), int(err.size))
             v_est = float(ev.mean_radial_speed_kmh)
             row.update({
                 "predicted_class": ev.cls, "class_probability": ev.probabilities.get(ev.cls),
@@ -241,6 +282,8 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
             ),
             "detection_probability_per_class": per_class,
             "false_tracks": false_tracks,
+            # sums and counts behind the figures, for pooling runs as ratios of sums (edge.evaluation.corpus)
+            "tallies": _tallies(targets, truths, hits, false_tracks, minutes, range_sq),
         },
         "frame_time_ms": {
             "p50": float(np.percentile(frame_ms, 50)),

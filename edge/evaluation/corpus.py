@@ -1,0 +1,526 @@
+"""The evaluation corpus: scenarios x variants x seeds in two parts, run in parallel and pooled with confidence
+intervals (issue 28).
+
+A corpus file (TOML) declares what is evaluated. Schema (keys not listed are refused)::
+
+    [corpus]
+    name = "lane"                 # required
+    profile = "lane"              # required: "lane" or "surveillance"; every run's scenario must run this profile
+    description = "..."
+    bootstrap_resamples = 2000    # cluster-bootstrap resamples per confidence interval
+    bootstrap_seed = 0            # seed of the resampling (the figures are deterministic)
+
+    [[variant]]                   # one way the world (or the installer) differs; names unique
+    name = "v1"
+    description = "..."
+    patch = { physics = { preset = "v1" } }   # a scenario patch (hw_sim.scenario.apply_patch); default none
+    set = ["traffic.interval_s=60"]           # pipeline configuration an installer would change for it
+                                              # (as --set SECTION.KEY=VALUE); default none
+
+    [[run]]                       # scenario runs of one part
+    part = "dev"                  # required: "dev" (developed on) or "holdout" (reported, never tuned on)
+    scenario = "highway4-traffic" # required: built-in name, event generator or .toml path
+    seeds = [5, 7007]             # required, distinct
+    variants = ["defaults", "v1"] # names; default every variant
+    duration_s = 60.0             # or frames = 1800; default the scenario's duration
+    events = 4                    # event generators (surveillance): events per run
+    cold_start = true             # the pipeline starts with traffic already on the road (the only start the
+                                  # lane evaluation has: the traffic generator populates the road before
+                                  # t = 0 and no figure leaves the first seconds out); false is refused
+
+A seed of a scenario may appear in one part only: a corpus whose ``dev`` and ``holdout`` runs share a
+(scenario, seed) is refused, as is a (part, scenario, seed, variant) listed twice.
+
+Every (run, seed, variant) is one *run*, evaluated by the profile's evaluation (:mod:`edge.evaluation.lane`,
+:mod:`edge.evaluation.surveillance`) in a worker process. The result (:func:`corpus_document`) holds, per part:
+
+* ``runs``: per run its key, the summary's scalar figures, its ``tallies`` (sums and counts) and its metrics;
+* ``pooled``: per variant and over all runs, each metric of :data:`METRICS` pooled as a ratio of sums over the
+  runs (proportions: sum of successes / sum of trials; rates: sum of events / sum of minutes; RMSE:
+  sqrt(sum of squares / n); MAE: sum |e| / n; count error: sum |measured - true| / sum true) with a 95 %
+  percentile confidence interval from a cluster bootstrap (Davison & Hinkley, *Bootstrap Methods and their
+  Application*, 1997, §3.8): the independent units are the (scenario, seed) pairs, not the frames of a run, nor the
+  variants of one seed, which share its traffic. With one run (or one seed) the interval is ``None`` and
+  ``ci_note`` says why.
+
+Results do not depend on the number of workers: each run is seeded and the resampling is seeded and ordered by
+the corpus, not by completion.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+PARTS = ("dev", "holdout")
+PROFILES = ("lane", "surveillance")
+DEFAULT_RESAMPLES = 2000
+#: environment of the worker processes: one BLAS/OpenMP thread each (the workers are the parallelism) and a fixed
+#: string hash seed (set iteration order), so a run's figures do not depend on the process it ran in
+WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "PYTHONHASHSEED": "0"}
+
+
+class CorpusError(ValueError):
+    """A corpus file does not follow the schema or reuses a seed across parts; the message names the key."""
+
+
+@dataclass(frozen=True)
+class Metric:
+    """A pooled figure: ``num`` / ``den`` summed over runs (tally keys), its square root for an RMSE."""
+
+    name: str
+    num: str
+    den: str
+    unit: str
+    doc: str
+    sqrt: bool = False
+
+    def of(self, num: np.ndarray | float, den: np.ndarray | float) -> np.ndarray | float:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v = np.divide(num, den)
+        return np.sqrt(v) if self.sqrt else v
+
+
+#: per profile, the pooled metrics (tally keys from the evaluations' ``summary.tallies``)
+METRICS: dict[str, tuple[Metric, ...]] = {
+    "lane": (
+        Metric("detection_probability_separate", "separate_frames_tracked", "separate_frames_in_view", "",
+               "tracked / in-view frames of vehicles sharing no range-Doppler cell and beam with another, 10-300 m"),
+        Metric("detection_probability", "vehicle_frames_tracked", "vehicle_frames_in_view", "",
+               "tracked / in-view frames of all vehicles"),
+        Metric("false_tracks_per_min", "false_tracks", "minutes", "1/min",
+               "confirmed false tracks per minute, from the cold start on"),
+        Metric("false_tracks_first_30s_per_min", "false_tracks_first_30s", "minutes_first_30s", "1/min",
+               "false tracks begun in the first 30 s after the cold start, per minute of those 30 s"),
+        Metric("count_error_per_lane", "count_abs_error", "count_true", "",
+               "sum over lanes of |measured - true| volume / true volume"),
+        Metric("position_rmse_m", "position_sq_error_sum_m2", "position_n", "m",
+               "position error of assigned frames within 200 m (eq. 20 pooled over frames)", sqrt=True),
+        Metric("speed_mae_kmh", "speed_abs_error_sum_kmh", "speed_n", "km/h", "|track speed - speed|"),
+        Metric("lane_accuracy", "lane_correct", "lane_assigned", "", "assigned frames in the true lane"),
+        Metric("id_switches_per_min", "id_switches", "minutes", "1/min", "track id changes along a vehicle"),
+    ),
+    "surveillance": (
+        Metric("classification_accuracy_single", "single_correct", "single_targets", "",
+               "targets of single-target events classified right (missed = wrong)"),
+        Metric("classification_accuracy_multi", "multi_correct", "multi_targets", "",
+               "targets of multi-target events classified right (missed = wrong)"),
+        Metric("classification_accuracy", "correct", "targets", "", "all targets classified right"),
+        Metric("detection_probability", "detected_frames", "visible_frames", "",
+               "visible frames with a cluster within 2.5 m of the target, before tracking"),
+        Metric("speed_mae_kmh", "speed_abs_error_sum_kmh", "speed_n", "km/h", "|estimated - true| mean radial speed"),
+        Metric("range_rmse_m", "range_sq_error_sum_m2", "range_n", "m", "range error of matched tracks", sqrt=True),
+        Metric("direction_accuracy", "direction_correct", "targets", "", "targets with the right direction"),
+        Metric("false_tracks_per_min", "false_tracks", "minutes", "1/min", "classified tracks matching no target"),
+        Metric("events_per_passage", "passage_events", "passages_tracked", "",
+               "classified events per tracked target passage (1 = no split)"),
+    ),
+}
+
+
+@dataclass(frozen=True)
+class Variant:
+    name: str
+    patch: dict = field(default_factory=dict)
+    set: tuple[str, ...] = ()
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    part: str
+    scenario: str
+    seeds: tuple[int, ...]
+    variants: tuple[str, ...]
+    duration_s: float | None = None
+    frames: int | None = None
+    events: int | None = None
+    cold_start: bool = True
+
+
+@dataclass(frozen=True)
+class Corpus:
+    name: str
+    profile: str
+    variants: tuple[Variant, ...]
+    runs: tuple[RunSpec, ...]
+    description: str = ""
+    bootstrap_resamples: int = DEFAULT_RESAMPLES
+    bootstrap_seed: int = 0
+    source: str = ""
+
+    def variant(self, name: str) -> Variant:
+        return next(v for v in self.variants if v.name == name)
+
+    def jobs(self, part: str) -> list[dict]:
+        """The runs of ``part`` in corpus order: run table, then seed, then variant."""
+        out = []
+        for k, r in enumerate(self.runs):
+            if r.part != part:
+                continue
+            for seed in r.seeds:
+                for vn in r.variants:
+                    v = self.variant(vn)
+                    out.append({"run": k, "part": part, "scenario": r.scenario, "seed": seed, "variant": vn,
+                                "duration_s": r.duration_s, "frames": r.frames, "events": r.events,
+                                "cold_start": r.cold_start, "patch": v.patch, "set": list(v.set)})
+        return out
+
+
+def _check_keys(d: dict, allowed: set[str], where: str) -> None:
+    bad = sorted(set(d) - allowed)
+    if bad:
+        raise CorpusError(f"{where}: unknown key(s) {bad}; known: {sorted(allowed)}")
+
+
+def parse_corpus(raw: dict[str, Any], source: str = "<string>") -> Corpus:
+    """A corpus document (the module doc's schema) checked and parsed; :class:`CorpusError` names the problem."""
+    _check_keys(raw, {"corpus", "variant", "run"}, source)
+    head = raw.get("corpus")
+    if not isinstance(head, dict):
+        raise CorpusError(f"{source}: a [corpus] table with name and profile is required")
+    _check_keys(head, {"name", "profile", "description", "bootstrap_resamples", "bootstrap_seed"}, f"{source} [corpus]")
+    name, profile = head.get("name"), head.get("profile")
+    if not isinstance(name, str) or not name:
+        raise CorpusError(f"{source}: corpus.name is required")
+    if profile not in PROFILES:
+        raise CorpusError(f"{source}: corpus.profile must be one of {list(PROFILES)}, got {profile!r}")
+    resamples = head.get("bootstrap_resamples", DEFAULT_RESAMPLES)
+    if not isinstance(resamples, int) or resamples < 100:
+        raise CorpusError(f"{source}: corpus.bootstrap_resamples must be an integer >= 100")
+    bseed = head.get("bootstrap_seed", 0)
+    if not isinstance(bseed, int) or bseed < 0:
+        raise CorpusError(f"{source}: corpus.bootstrap_seed must be a non-negative integer")
+
+    variants: list[Variant] = []
+    for i, v in enumerate(raw.get("variant", [{"name": "defaults"}])):
+        where = f"{source} variant[{i}]"
+        _check_keys(v, {"name", "patch", "set", "description"}, where)
+        vn = v.get("name")
+        if not isinstance(vn, str) or not vn:
+            raise CorpusError(f"{where}: name is required")
+        if any(x.name == vn for x in variants):
+            raise CorpusError(f"{where}: variant name {vn!r} is used twice")
+        patch = v.get("patch", {})
+        sets = v.get("set", [])
+        if not isinstance(patch, dict):
+            raise CorpusError(f"{where} ({vn}): patch must be a table")
+        if not isinstance(sets, list) or not all(isinstance(s, str) and "=" in s for s in sets):
+            raise CorpusError(f"{where} ({vn}): set must be a list of \"section.key=value\" strings")
+        variants.append(Variant(vn, patch, tuple(sets), str(v.get("description", ""))))
+
+    runs: list[RunSpec] = []
+    names = [v.name for v in variants]
+    for i, r in enumerate(raw.get("run", [])):
+        where = f"{source} run[{i}]"
+        _check_keys(r, {"part", "scenario", "seeds", "variants", "duration_s", "frames", "events", "cold_start"}, where)
+        if r.get("part") not in PARTS:
+            raise CorpusError(f"{where}: part must be one of {list(PARTS)}, got {r.get('part')!r}")
+        if not isinstance(r.get("scenario"), str):
+            raise CorpusError(f"{where}: scenario is required")
+        seeds = r.get("seeds")
+        if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and not isinstance(s, bool)
+                                                              for s in seeds):
+            raise CorpusError(f"{where}: seeds must be a non-empty list of integers")
+        if len(set(seeds)) != len(seeds):
+            raise CorpusError(f"{where}: seeds repeat: {seeds}")
+        vs = r.get("variants", names)
+        unknown = [x for x in vs if x not in names]
+        if unknown:
+            raise CorpusError(f"{where}: unknown variant(s) {unknown}; declared: {names}")
+        if "duration_s" in r and "frames" in r:
+            raise CorpusError(f"{where}: give duration_s or frames, not both")
+        dur, frames, events = r.get("duration_s"), r.get("frames"), r.get("events")
+        if dur is not None and (not isinstance(dur, (int, float)) or dur <= 0):
+            raise CorpusError(f"{where}: duration_s must be a positive number")
+        if frames is not None and (not isinstance(frames, int) or frames <= 0):
+            raise CorpusError(f"{where}: frames must be a positive integer")
+        if events is not None and (not isinstance(events, int) or events <= 0):
+            raise CorpusError(f"{where}: events must be a positive integer")
+        cold = r.get("cold_start", True)
+        if not isinstance(cold, bool):
+            raise CorpusError(f"{where}: cold_start must be true or false")
+        if not cold:
+            raise CorpusError(f"{where}: cold_start = false (a pipeline warmed up before scoring) is not implemented: "
+                              "every run starts the pipeline with traffic already flowing")
+        runs.append(RunSpec(r["part"], r["scenario"], tuple(seeds), tuple(vs),
+                            float(dur) if dur is not None else None, frames, events, cold))
+    if not runs:
+        raise CorpusError(f"{source}: no [[run]] tables")
+    # a seed of a scenario in one part only; each (part, scenario, seed, variant) once
+    parts_of: dict[tuple[str, int], set[str]] = {}
+    seen: set[tuple] = set()
+    for r in runs:
+        for s in r.seeds:
+            parts_of.setdefault((r.scenario, s), set()).add(r.part)
+            for v in r.variants:
+                key = (r.part, r.scenario, s, v)
+                if key in seen:
+                    raise CorpusError(f"{source}: {r.part} lists scenario {r.scenario!r} seed {s} variant {v!r} twice")
+                seen.add(key)
+    shared = sorted(f"{sc} seed {s}" for (sc, s), p in parts_of.items() if len(p) > 1)
+    if shared:
+        raise CorpusError(f"{source}: dev and holdout must use disjoint seeds, but both use {', '.join(shared)}")
+    return Corpus(name, profile, tuple(variants), tuple(runs), str(head.get("description", "")), resamples, bseed,
+                  source)
+
+
+def load_corpus(path: str | Path) -> Corpus:
+    p = Path(path)
+    if not p.is_file():
+        raise CorpusError(f"corpus file {str(p)!r} not found")
+    try:
+        raw = tomllib.loads(p.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise CorpusError(f"{p}: not valid TOML: {exc}") from exc
+    return parse_corpus(raw, str(p))
+
+
+def check_scenarios(corpus: Corpus, part: str) -> None:
+    """Load every (scenario, variant) of ``part`` once with its patch, and every variant's settings: unknown
+    scenarios, bad patches or settings and scenarios of the other profile stop the corpus before any worker
+    starts."""
+    from edge.pipeline import BOARD_PROFILE
+    from hw_sim.physics import PhysicsError
+    from hw_sim.scenario import ScenarioError, load_scenario_for_eval
+
+    from edge.config import ConfigError, load_config, parse_set_option
+
+    for v in corpus.variants:
+        try:
+            load_config(None, env={}, overrides=dict(parse_set_option(x) for x in v.set))
+        except ConfigError as exc:
+            raise CorpusError(f"{corpus.source}: variant {v.name!r}: {exc}") from exc
+    done = set()
+    for j in corpus.jobs(part):
+        key = (j["scenario"], j["variant"])
+        if key in done:
+            continue
+        done.add(key)
+        try:
+            sc = load_scenario_for_eval(j["scenario"], events=j["events"], patch=j["patch"] or None)
+        except (ScenarioError, PhysicsError) as exc:
+            raise CorpusError(f"{corpus.source}: scenario {j['scenario']!r} variant {j['variant']!r}: {exc}") from exc
+        if BOARD_PROFILE[sc.board] != corpus.profile:
+            raise CorpusError(f"{corpus.source}: scenario {j['scenario']!r} runs the {BOARD_PROFILE[sc.board]} profile, "
+                              f"the corpus is {corpus.profile}")
+
+
+# --- one run, in a worker -------------------------------------------------------------------------------------------
+
+
+def run_job(job: dict) -> dict:
+    """Evaluate one (run, seed, variant): the record of :func:`corpus_document`'s ``runs`` without metrics.
+
+    ``job``: a :meth:`Corpus.jobs` entry plus ``config`` (a configuration file or None) and ``extra_set`` (the
+    command line's and an ablated rule's ``SECTION.KEY=VALUE``, applied after the variant's ``set``)."""
+    import importlib
+
+    from edge.config import load_config, parse_set_option
+    from edge.pipeline import BOARD_PROFILE
+    from hw_sim.scenario import load_scenario_for_eval
+
+    overrides = dict(parse_set_option(s) for s in list(job["set"]) + list(job.get("extra_set", ())))
+    config = load_config(job.get("config"), overrides=overrides)
+    sc = load_scenario_for_eval(job["scenario"], events=job["events"], patch=job["patch"] or None)
+    profile = BOARD_PROFILE[sc.board]
+    mod = importlib.import_module(f"edge.evaluation.{profile}")
+    frames = job["frames"]
+    if frames is None and job["duration_s"] is not None:
+        frames = max(1, int(round(job["duration_s"] / sc.sim_board().frontend.waveform.frame_period_s)))
+    report = mod.evaluate(sc, seed=job["seed"], frames=frames, events=job["events"], config=config, progress=False)
+    s = report["summary"]
+    figures = {k: v for k, v in s.items() if isinstance(v, (int, float, str, bool)) or v is None}
+    for k in ("count_error_per_lane", "volume_true_per_lane", "volume_measured_per_lane"):
+        if isinstance(s.get(k), list):
+            figures[k] = s[k]
+    return {"run": job["run"], "scenario": job["scenario"], "seed": job["seed"], "variant": job["variant"],
+            "frames": report["frames"], "cold_start": job["cold_start"], "profile": profile,
+            "figures": figures, "tallies": s["tallies"]}
+
+
+def _worker_init() -> None:  # pragma: no cover - runs in the workers
+    os.environ.update(WORKER_ENV)
+
+
+def run_jobs(jobs: list[dict], n_workers: int, progress: bool = True,
+             label: Callable[[dict], str] | None = None, desc: str = "corpus") -> list[dict]:
+    """Run ``jobs`` in ``n_workers`` spawned processes (one BLAS thread each); the results in ``jobs``' order.
+
+    Progress: a tqdm bar over runs on stderr when tqdm is installed, else one line per finished run."""
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    from edge.extras import available
+
+    label = label or (lambda j: f"{j['scenario']} seed {j['seed']} {j['variant']}")
+    saved = {k: os.environ.get(k) for k in WORKER_ENV}
+    os.environ.update(WORKER_ENV)  # inherited by the spawned workers before they import numpy
+    results: list[dict | None] = [None] * len(jobs)
+    bar = None
+    if progress and available("tqdm"):
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(jobs), unit="run", desc=desc, file=sys.stderr)
+    try:
+        with cf.ProcessPoolExecutor(max_workers=max(1, n_workers), mp_context=mp.get_context("spawn"),
+                                    initializer=_worker_init) as ex:
+            futs = {ex.submit(run_job, j): k for k, j in enumerate(jobs)}
+            done_n = 0
+            for fut in cf.as_completed(futs):
+                k = futs[fut]
+                results[k] = fut.result()
+                done_n += 1
+                if bar is not None:
+                    bar.set_postfix_str(label(jobs[k]), refresh=False)
+                    bar.update(1)
+                elif progress:
+                    print(f"{desc} [{done_n}/{len(jobs)}] {label(jobs[k])}", file=sys.stderr, flush=True)
+    finally:
+        if bar is not None:
+            bar.close()
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    return results  # type: ignore[return-value]
+
+
+# --- pooling --------------------------------------------------------------------------------------------------------
+
+
+def resample_weights(clusters: list, resamples: int, seed: int, stream: int) -> np.ndarray | None:
+    """(resamples, runs) multiplicities of a cluster bootstrap: ``clusters`` names each run's cluster (its
+    (scenario, seed): the variants of one seed share its traffic, so they are not independent of each other); each
+    row draws as many clusters as there are with replacement, and a run weighs as its cluster was drawn. From the seed
+    and a stream number (one per pooled group); None for fewer than two clusters."""
+    keys = list(dict.fromkeys(clusters))
+    if len(keys) < 2:
+        return None
+    rng = np.random.default_rng([seed, stream])
+    w = rng.multinomial(len(keys), np.full(len(keys), 1.0 / len(keys)), size=resamples).astype(np.float64)
+    return w[:, [keys.index(c) for c in clusters]]
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if v is not None and np.isfinite(v) else None
+
+
+def pool(tallies: list[dict], metrics: Iterable[Metric], weights: np.ndarray | None) -> dict:
+    """Each metric pooled over the runs' ``tallies`` as a ratio of sums, with a 95 % percentile interval from the
+    bootstrap ``weights`` ((resamples, runs) multiplicities, :func:`resample_weights`; None: no interval, there
+    being one run or one seed)."""
+    out = {}
+    n = len(tallies)
+    for m in metrics:
+        num = np.array([float(t.get(m.num, 0.0)) for t in tallies])
+        den = np.array([float(t.get(m.den, 0.0)) for t in tallies])
+        value = _finite(m.of(num.sum(), den.sum())) if den.sum() > 0 else None
+        rec: dict[str, Any] = {"value": value, "ci95": None, "runs": n, "numerator": float(num.sum()),
+                               "denominator": float(den.sum())}
+        if weights is None:
+            rec["ci_note"] = "n/a: one run" if n < 2 else "n/a: one seed"
+        elif value is None:
+            rec["ci_note"] = "n/a: no data"
+        else:
+            b = m.of(weights @ num, weights @ den)
+            b = b[np.isfinite(b)]
+            if b.size < 0.9 * weights.shape[0]:
+                rec["ci_note"] = "n/a: too few resamples with data"
+            else:
+                lo, hi = np.percentile(b, [2.5, 97.5])
+                rec["ci95"] = [float(lo), float(hi)]
+        out[m.name] = rec
+    return out
+
+
+def run_metrics(tallies: dict, metrics: Iterable[Metric]) -> dict:
+    """One run's metrics from its own tallies (None where it has no data)."""
+    return {m.name: (_finite(m.of(float(tallies.get(m.num, 0.0)), float(tallies[m.den])))
+                     if float(tallies.get(m.den, 0.0)) > 0 else None) for m in metrics}
+
+
+def _cluster(r: dict) -> tuple:
+    """A run's bootstrap cluster: its scenario and seed (the variants of a seed share its traffic)."""
+    return (r["scenario"], r["seed"])
+
+
+def pooled_part(corpus: Corpus, results: list[dict], stream0: int = 0) -> dict:
+    """Per variant and over all runs of one part, the pooled metrics (module doc)."""
+    metrics = METRICS[corpus.profile]
+    groups: dict[str, list[dict]] = {v.name: [] for v in corpus.variants}
+    for r in results:
+        groups[r["variant"]].append(r)
+    by_variant = {}
+    for k, (vn, rs) in enumerate(groups.items()):
+        if not rs:
+            continue
+        w = resample_weights([_cluster(r) for r in rs], corpus.bootstrap_resamples, corpus.bootstrap_seed,
+                             stream0 + k + 1)
+        by_variant[vn] = _with_seeds(pool([r["tallies"] for r in rs], metrics, w), rs)
+    w = resample_weights([_cluster(r) for r in results], corpus.bootstrap_resamples, corpus.bootstrap_seed, stream0)
+    return {"by_variant": by_variant, "all": _with_seeds(pool([r["tallies"] for r in results], metrics, w), results)}
+
+
+def _with_seeds(pooled: dict, results: list[dict]) -> dict:
+    n = len({_cluster(r) for r in results})
+    for rec in pooled.values():
+        rec["seeds"] = n
+    return pooled
+
+
+def corpus_document(corpus: Corpus, parts: dict[str, list[dict]], config_set: list[str] | None = None) -> dict:
+    """The JSON document of ``radar-edge evaluate --corpus``: per part, the runs and the pooled metrics."""
+    metrics = METRICS[corpus.profile]
+    doc: dict[str, Any] = {
+        "corpus": corpus.name, "profile": corpus.profile, "source": corpus.source,
+        "description": corpus.description, "set": list(config_set or []),
+        "method": {"pooling": "ratio of sums over runs", "ci": "95 % percentile, cluster (per-run) bootstrap",
+                   "resamples": corpus.bootstrap_resamples, "seed": corpus.bootstrap_seed},
+        "metrics": {m.name: {"unit": m.unit, "doc": m.doc, "numerator": m.num, "denominator": m.den,
+                             "sqrt": m.sqrt} for m in metrics},
+        "variants": {v.name: {"patch": v.patch, "set": list(v.set), "description": v.description}
+                     for v in corpus.variants},
+        "parts": {},
+    }
+    for i, (part, results) in enumerate(parts.items()):
+        runs = [dict(r, metrics=run_metrics(r["tallies"], metrics)) for r in results]
+        doc["parts"][part] = {"runs": runs,
+                              "pooled": pooled_part(corpus, results, stream0=1000 * (PARTS.index(part) + 1))}
+    return doc
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "n/a"
+    if isinstance(v, float):
+        return f"{v:.1f}" if abs(v) >= 100 else f"{v:.4f}" if abs(v) < 1 else f"{v:.3f}"
+    return str(v)
+
+
+def _ci(rec: dict) -> str:
+    return f"[{_fmt(rec['ci95'][0])}, {_fmt(rec['ci95'][1])}]" if rec.get("ci95") else "n/a"
+
+
+def console_table(doc: dict) -> str:
+    """Per part, per metric the pooled value and 95 % interval per variant and over all runs."""
+    lines = []
+    for part, p in doc["parts"].items():
+        lines.append(f"{doc['corpus']} ({doc['profile']}), part {part}: {len(p['runs'])} runs; pooled value "
+                     "[95 % cluster-bootstrap interval]")
+        groups = list(p["pooled"]["by_variant"].items()) + [("all", p["pooled"]["all"])]
+        rows = [["metric", "variant", "runs", "value", "95 % CI"]]
+        for m in doc["metrics"]:
+            for k, (g, rec) in enumerate(groups):
+                rows.append([m if k == 0 else "", g, str(rec[m]["runs"]), _fmt(rec[m]["value"]), _ci(rec[m])])
+        w = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+        lines += ["  " + "  ".join(c.ljust(w[i]) for i, c in enumerate(r)).rstrip() for r in rows]
+    return "\n".join(lines)

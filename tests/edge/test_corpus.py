@@ -1,0 +1,218 @@
+"""The evaluation corpus (edge.evaluation.corpus) and rule ablation (edge.evaluation.ablation), through the CLI on the
+CI smoke corpus (corpus/smoke.toml: two seeds x two variants of 40 frames) and on constructed tallies."""
+
+import json
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from edge.cli import main
+from edge.evaluation.corpus import (METRICS, CorpusError, Metric, parse_corpus, pool, resample_weights, run_job,
+                                   run_metrics)
+
+SMOKE = Path(__file__).resolve().parents[2] / "corpus" / "smoke.toml"
+REPO = SMOKE.parent.parent
+
+
+def _corpus(runs: list[dict], variants: list[dict] | None = None, profile: str = "lane") -> dict:
+    return {"corpus": {"name": "t", "profile": profile}, "variant": variants or [{"name": "defaults"}], "run": runs}
+
+
+def test_smoke_corpus_json_pools_ratio_of_sums_and_does_not_depend_on_jobs(tmp_path, capsys):
+    out1, out2, svg = tmp_path / "j1.json", tmp_path / "j2.json", tmp_path / "plot.svg"
+    assert main(["evaluate", "--corpus", str(SMOKE), "--part", "dev", "--jobs", "2", "--no-progress",
+                 "--json", str(out2), "--plot", str(svg)]) == 0
+    table = capsys.readouterr().out
+    assert "detection_probability_separate" in table and "95 % CI" in table
+    assert main(["evaluate", "--corpus", str(SMOKE), "--part", "dev", "--jobs", "1", "--no-progress",
+                 "--json", str(out1)]) == 0
+    d1, d2 = json.loads(out1.read_text()), json.loads(out2.read_text())
+    assert d1 == d2  # seeded runs and resampling, ordered by the corpus: the worker count changes nothing
+
+    part = d2["parts"]["dev"]
+    assert list(d2["parts"]) == ["dev"]
+    assert [(r["seed"], r["variant"]) for r in part["runs"]] == [(5, "defaults"), (5, "v1"), (7007, "defaults"),
+                                                                 (7007, "v1")]
+    names = [m.name for m in METRICS["lane"]]
+    assert list(d2["metrics"]) == names
+    for r in part["runs"]:
+        assert r["frames"] == 40 and r["cold_start"] is True
+        assert r["tallies"]["vehicle_frames_in_view"] > 100 and r["tallies"]["minutes"] == pytest.approx(40 * 0.033 / 60)
+        assert "false_tracks_first_30s" in r["figures"] and set(r["metrics"]) == set(names)
+        # a run's own figure from its tallies equals the evaluation's summary figure
+        assert r["metrics"]["detection_probability"] == pytest.approx(r["figures"]["detection_probability"])
+        assert r["metrics"]["lane_accuracy"] == pytest.approx(r["figures"]["lane_accuracy"])
+    assert set(part["pooled"]["by_variant"]) == {"defaults", "v1"}
+    for group, runs in (("all", part["runs"]), ("defaults", part["runs"][0::2])):
+        rec = part["pooled"]["all"] if group == "all" else part["pooled"]["by_variant"][group]
+        for m in METRICS["lane"]:
+            num = sum(r["tallies"][m.num] for r in runs)
+            den = sum(r["tallies"][m.den] for r in runs)
+            want = math.sqrt(num / den) if m.sqrt else num / den
+            assert rec[m.name]["value"] == pytest.approx(want), (group, m.name)
+            assert rec[m.name]["runs"] == len(runs) and rec[m.name]["seeds"] == 2
+            lo, hi = rec[m.name]["ci95"]
+            assert lo <= rec[m.name]["value"] + 1e-12 and rec[m.name]["value"] - 1e-12 <= hi
+    # position RMSE over frames within 200 m, speed MAE: sensible magnitudes on this road
+    assert 0.0 < part["pooled"]["all"]["position_rmse_m"]["value"] < 2.0
+    assert 0.5 < part["pooled"]["all"]["detection_probability_separate"]["value"] <= 1.0
+
+    root = ET.parse(svg).getroot()
+    texts = [t.text for t in root.iter("{http://www.w3.org/2000/svg}text")]
+    assert all(any(t and t.startswith(n) for t in texts) for n in names)  # a panel per metric
+    assert len(list(root.iter("{http://www.w3.org/2000/svg}circle"))) >= 3 * len(names)  # dev points + legend
+
+
+def test_corpus_refuses_seed_shared_between_dev_and_holdout(tmp_path, capsys):
+    bad = _corpus([{"part": "dev", "scenario": "highway4-traffic", "seeds": [1, 2], "frames": 10},
+                   {"part": "holdout", "scenario": "highway4-traffic", "seeds": [3, 2], "frames": 10}])
+    with pytest.raises(CorpusError, match="disjoint seeds.*highway4-traffic seed 2"):
+        parse_corpus(bad)
+    # the same seed of another scenario is allowed
+    ok = _corpus([{"part": "dev", "scenario": "highway4-traffic", "seeds": [1, 2]},
+                  {"part": "holdout", "scenario": "wrong-way-traffic", "seeds": [2]}])
+    assert len(parse_corpus(ok).jobs("holdout")) == 1
+    path = tmp_path / "bad.toml"
+    path.write_text('[corpus]\nname = "b"\nprofile = "lane"\n'
+                    '[[run]]\npart = "dev"\nscenario = "highway4-traffic"\nseeds = [4]\nframes = 5\n'
+                    '[[run]]\npart = "holdout"\nscenario = "highway4-traffic"\nseeds = [4]\nframes = 5\n')
+    assert main(["evaluate", "--corpus", str(path), "--part", "holdout", "--no-progress"]) == 2
+    assert "disjoint seeds" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"run": [{"part": "dev", "scenario": "x", "seeds": [1], "seed": 3}]}, "unknown key"),
+    ({"run": [{"part": "test", "scenario": "x", "seeds": [1]}]}, "part must be one of"),
+    ({"run": [{"part": "dev", "scenario": "x", "seeds": [1], "variants": ["nope"]}]}, "unknown variant"),
+    ({"run": [{"part": "dev", "scenario": "x", "seeds": [1, 1]}]}, "seeds repeat"),
+    ({"run": [{"part": "dev", "scenario": "x", "seeds": [1]}, {"part": "dev", "scenario": "x", "seeds": [1]}]},
+     "twice"),
+    ({"run": [{"part": "dev", "scenario": "x", "seeds": [1], "frames": 5, "duration_s": 1.0}]}, "not both"),
+    ({"run": [{"part": "dev", "scenario": "x", "seeds": [1], "cold_start": False}]}, "not implemented"),
+    ({"variant": [{"name": "a"}, {"name": "a"}]}, "used twice"),
+    ({"variant": [{"name": "a", "set": ["no-equals"]}]}, "section.key=value"),
+])
+def test_corpus_schema_errors_name_the_key(change, message):
+    raw = _corpus([{"part": "dev", "scenario": "x", "seeds": [1]}])
+    raw.update(change)
+    with pytest.raises(CorpusError, match=message):
+        parse_corpus(raw)
+
+
+def test_corpus_refuses_a_scenario_of_the_other_profile(tmp_path, capsys):
+    path = tmp_path / "c.toml"
+    path.write_text('[corpus]\nname = "c"\nprofile = "surveillance"\n'
+                    '[[run]]\npart = "dev"\nscenario = "highway4-traffic"\nseeds = [1]\nframes = 5\n')
+    assert main(["evaluate", "--corpus", str(path), "--no-progress"]) == 2
+    assert "runs the lane profile, the corpus is surveillance" in capsys.readouterr().err
+    path.write_text('[corpus]\nname = "c"\nprofile = "lane"\n[[variant]]\nname = "x"\nset = ["track.pdaf.nope=1"]\n'
+                    '[[run]]\npart = "dev"\nscenario = "highway4-traffic"\nseeds = [1]\nframes = 5\n')
+    assert main(["evaluate", "--corpus", str(path), "--no-progress"]) == 2
+    assert "variant 'x'" in capsys.readouterr().err
+
+
+def test_pooled_proportion_and_its_bootstrap_interval_on_constructed_runs():
+    m = Metric("p", "hits", "trials", "", "")
+    rng = np.random.default_rng(11)
+    p_true = 0.9
+    trials = rng.integers(50, 400, size=12)
+    runs = [{"hits": int(rng.binomial(t, p_true)), "trials": int(t)} for t in trials]
+    w = resample_weights(list(range(12)), 2000, 0, 0)
+    rec = pool(runs, [m], w)["p"]
+    assert rec["value"] == sum(r["hits"] for r in runs) / sum(r["trials"] for r in runs)  # ratio of sums
+    assert rec["value"] != pytest.approx(np.mean([r["hits"] / r["trials"] for r in runs]), abs=1e-9)
+    lo, hi = rec["ci95"]
+    assert lo < p_true < hi and lo < rec["value"] < hi
+    assert 0.005 < hi - lo < 0.08
+    # the interval covers the truth in about 95 % of repeated corpora (12 runs each)
+    cover = 0
+    for k in range(200):
+        r2 = np.random.default_rng(1000 + k)
+        t2 = r2.integers(50, 400, size=12)
+        rs = [{"hits": int(r2.binomial(t, p_true)), "trials": int(t)} for t in t2]
+        lo, hi = pool(rs, [m], resample_weights(list(range(12)), 1000, k, 0))["p"]["ci95"]
+        cover += lo <= p_true <= hi
+    assert 0.86 <= cover / 200 <= 0.99
+    # an RMSE pools as sqrt(sum of squares / n)
+    rm = Metric("rmse", "sq", "n", "m", "", sqrt=True)
+    assert pool([{"sq": 4.0, "n": 1}, {"sq": 14.0, "n": 2}], [rm], None)["rmse"]["value"] == pytest.approx(math.sqrt(6))
+    # one run: no interval, and it says so
+    one = pool(runs[:1], [m], resample_weights([0], 2000, 0, 0))["p"]
+    assert one["ci95"] is None and one["ci_note"] == "n/a: one run"
+    assert run_metrics({"hits": 3, "trials": 0}, [m]) == {"p": None}
+
+
+def test_bootstrap_clusters_are_seeds_not_variants():
+    # two variants of each of three seeds: a resample draws seeds, and both variants of a drawn seed come with it
+    w = resample_weights([("s", 1), ("s", 1), ("s", 2), ("s", 2), ("s", 3), ("s", 3)], 500, 0, 0)
+    assert np.array_equal(w[:, 0], w[:, 1]) and np.array_equal(w[:, 2], w[:, 3])
+    assert np.all(w.sum(axis=1) == 6)
+    assert resample_weights([("s", 1), ("s", 1)], 500, 0, 0) is None  # one seed: no interval
+
+
+def test_surveillance_run_job_tallies_match_its_summary():
+    job = {"run": 0, "part": "dev", "scenario": "multi-random", "seed": 5, "variant": "defaults", "duration_s": None,
+           "frames": None, "events": 1, "cold_start": True, "patch": {}, "set": []}
+    r = run_job(job)
+    t, f = r["tallies"], r["figures"]
+    assert r["profile"] == "surveillance" and t["events"] == 1 and t["targets"] >= 2
+    assert t["multi_targets"] == t["targets"] and t["single_targets"] == 0
+    got = run_metrics(t, METRICS["surveillance"])
+    assert got["classification_accuracy"] == pytest.approx(f["classification_accuracy"])
+    assert got["classification_accuracy_multi"] == pytest.approx(f["classification_accuracy"])
+    assert got["detection_probability"] == pytest.approx(f["detection_probability"])
+    assert got["classification_accuracy_single"] is None
+
+
+def test_ablation_of_a_rule_that_changes_nothing_and_of_one_that_does(tmp_path, capsys):
+    corpus = tmp_path / "c.toml"
+    corpus.write_text('[corpus]\nname = "abl"\nprofile = "lane"\nbootstrap_resamples = 500\n'
+                      '[[run]]\npart = "dev"\nscenario = "highway4-traffic"\nseeds = [5, 7007]\nframes = 40\n')
+    rules = tmp_path / "rules.toml"
+    # a surveillance setting cannot change a lane run; one motion model instead of the IMM changes the tracks
+    rules.write_text('[[rule]]\nname = "no-op"\nset = ["pipeline.surveillance.min_points=5"]\n'
+                     '[[rule]]\nname = "cv"\nset = ["track.pdaf.motion_model=cv"]\n')
+    out = tmp_path / "abl.json"
+    assert main(["ablate", "--corpus", str(corpus), "--rules", str(rules), "--jobs", "2", "--no-progress",
+                 "--json", str(out)]) == 0
+    assert "difference" in capsys.readouterr().out
+    doc = json.loads(out.read_text())
+    assert [r["name"] for r in doc["rules"]] == ["no-op", "cv"]
+    assert len(doc["baseline"]["runs"]) == 2
+    noop, cv = (r["difference"] for r in doc["rules"])
+    for name, d in noop.items():
+        assert d["difference"] == 0.0 and d["ci95"] == [0.0, 0.0], name
+    assert [r["tallies"] for r in doc["rules"][0]["runs"]] == [r["tallies"] for r in doc["baseline"]["runs"]]
+    changed = [n for n, d in cv.items() if d["difference"] not in (0.0, None)]
+    assert changed, cv
+    for n in changed:
+        assert cv[n]["difference"] == pytest.approx(cv[n]["ablated"] - cv[n]["baseline"])
+        lo, hi = cv[n]["ci95"]
+        assert lo <= cv[n]["difference"] <= hi
+
+
+def test_ablate_refuses_an_unknown_setting(tmp_path, capsys):
+    assert main(["ablate", "--corpus", str(SMOKE), "--rule", "track.pdaf.no_such_rule=0", "--no-progress"]) == 2
+    assert "no_such_rule" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["lane.toml", "surveillance.toml", "smoke.toml"])
+def test_shipped_corpora_parse(name):
+    from edge.evaluation.corpus import check_scenarios, load_corpus
+
+    c = load_corpus(REPO / "corpus" / name)
+    for part in ("dev", "holdout"):
+        assert c.jobs(part)
+        check_scenarios(c, part)
+
+
+@pytest.mark.parametrize("lo, hi", [(0.75, 0.851), (0.0, 0.0), (0.0012, 0.0034), (3.0, 250.0), (-2.0, 0.5)])
+def test_plot_axis_ticks_cover_every_value(lo, hi):
+    from edge.evaluation.corpus_plot import _nice_ticks
+
+    t = _nice_ticks(lo, hi)
+    assert t[0] <= lo and t[-1] >= hi and 3 <= len(t) <= 24
+    assert np.allclose(np.diff(t), t[1] - t[0])
