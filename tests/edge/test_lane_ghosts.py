@@ -138,7 +138,8 @@ def _split_beside_car_120(skip_shared: bool) -> tuple[int, int]:
     from hw_sim.scenario import load_scenario
     from hw_sim.simulator import FrameSimulator
 
-    sc = load_scenario("highway4-traffic")
+    # figures measured on the v1 instrument; the corpus reports the physical defaults
+    sc = load_scenario("highway4-traffic", {"physics": {"preset": "v1"}})
     config = load_config(env={}, overrides={"pipeline.lane.angle_skip_shared_looks": skip_shared})
     sim = FrameSimulator(SIMO_BOARD, sc.build_scene(7012), 7012)
     pipe = LanePipeline(FE, *_installer_config(config, sc))
