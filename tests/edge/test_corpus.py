@@ -216,3 +216,21 @@ def test_plot_axis_ticks_cover_every_value(lo, hi):
     t = _nice_ticks(lo, hi)
     assert t[0] <= lo and t[-1] >= hi and 3 <= len(t) <= 24
     assert np.allclose(np.diff(t), t[1] - t[0])
+
+
+def test_shipped_lane_rules_parse_and_each_switch_changes_a_default():
+    """corpus/lane-rules.toml: every rule's settings are valid and differ from the running defaults (a rule
+    whose 'off' setting equals its default would ablate nothing)."""
+    from edge.config import load_config, parse_set_option
+    from edge.evaluation.ablation import check_rules, load_rules
+
+    rules = load_rules(REPO / "corpus" / "lane-rules.toml")
+    check_rules(rules)
+    base = load_config(None, env={})
+    assert len({r.name for r in rules}) == len(rules) >= 10
+    for r in rules:
+        for item in r.set:
+            key, val = parse_set_option(item)
+            section, _, field = key.rpartition(".")
+            off = load_config(None, env={}, overrides={key: val})
+            assert getattr(off.section(section), field) != getattr(base.section(section), field), r.name
