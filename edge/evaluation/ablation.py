@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from edge.evaluation.corpus import METRICS, Corpus, CorpusError, _cluster, _finite, _fmt, resample_weights, run_metrics
+from edge.evaluation.corpus import (METRICS, Corpus, CorpusError, _cluster, _finite, _fmt, _percentile_ci,
+                                    resample_weights, run_metrics)
 
 
 @dataclass(frozen=True)
@@ -103,13 +104,7 @@ def paired_difference(base: list[dict], abl: list[dict], corpus: Corpus, stream:
         elif w is None:
             rec["ci_note"] = "n/a: one seed"
         else:
-            d = m.of(w @ na, w @ da) - m.of(w @ nb, w @ db)
-            d = d[np.isfinite(d)]
-            if d.size < 0.9 * w.shape[0]:
-                rec["ci_note"] = "n/a: too few resamples with data"
-            else:
-                lo, hi = np.percentile(d, [2.5, 97.5])
-                rec["ci95"] = [float(lo), float(hi)]
+            _percentile_ci(rec, m.of(w @ na, w @ da) - m.of(w @ nb, w @ db))
         out[m.name] = rec
     return out
 

@@ -431,15 +431,20 @@ def pool(tallies: list[dict], metrics: Iterable[Metric], weights: np.ndarray | N
         elif value is None:
             rec["ci_note"] = "n/a: no data"
         else:
-            b = m.of(weights @ num, weights @ den)
-            b = b[np.isfinite(b)]
-            if b.size < 0.9 * weights.shape[0]:
-                rec["ci_note"] = "n/a: too few resamples with data"
-            else:
-                lo, hi = np.percentile(b, [2.5, 97.5])
-                rec["ci95"] = [float(lo), float(hi)]
+            _percentile_ci(rec, m.of(weights @ num, weights @ den))
         out[m.name] = rec
     return out
+
+
+def _percentile_ci(rec: dict, resampled: np.ndarray) -> None:
+    """Set ``rec["ci95"]`` to the 2.5-97.5 % percentiles of a metric's bootstrap resamples, or ``rec["ci_note"]``
+    when under 90 % of them have data."""
+    b = resampled[np.isfinite(resampled)]
+    if b.size < 0.9 * resampled.shape[0]:
+        rec["ci_note"] = "n/a: too few resamples with data"
+    else:
+        lo, hi = np.percentile(b, [2.5, 97.5])
+        rec["ci95"] = [float(lo), float(hi)]
 
 
 def run_metrics(tallies: dict, metrics: Iterable[Metric]) -> dict:
