@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from pathlib import Path
 
-from edge.commands.common import add_config_arguments, config_from_args
+from edge.commands.common import add_config_arguments, config_from_args, emit_json
 
 NAME = "ablate"
 HELP = "rule ablation: run a corpus once per rule switched off and tabulate each metric's paired difference"
@@ -66,12 +64,6 @@ def run(args: argparse.Namespace) -> int:
     base = results[:n]
     ablated = {rule.name: results[n * (i + 1): n * (i + 2)] for i, rule in enumerate(rules)}
     doc = ablation_document(corpus, args.part, rules, base, ablated, list(args.set))
-    text = json.dumps(doc, indent=2)
-    if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(text + "\n", encoding="utf-8")
-    else:
-        print(text)
+    emit_json(doc, args.json)
     print(console_table(doc), file=sys.stdout if args.json else sys.stderr)
     return 0

@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
-from pathlib import Path
 
-from edge.commands.common import add_config_arguments, config_from_args
+from edge.commands.common import add_config_arguments, config_from_args, emit_json
 
 NAME = "evaluate"
 HELP = "score a pipeline against simulator ground truth (RMSE, detection probability, confusion matrix)"
@@ -87,14 +85,9 @@ def run(args: argparse.Namespace) -> int:
         args.scenario, seed=args.seed, frames=args.frames, events=args.events, config=cfg,
         progress=progress, record_tracks=args.record_tracks, patch=patch,
     )
-    text = json.dumps(report, indent=2, sort_keys=False)
+    emit_json(report, args.json)
     if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(text + "\n", encoding="utf-8")
         print(console_summary(report))
-    else:
-        print(text)
     return 0
 
 
@@ -127,13 +120,7 @@ def run_corpus(args: argparse.Namespace) -> int:
             return 2
         results[part] = run_jobs(jobs, args.jobs, progress=not args.no_progress, desc=f"corpus {part}")
     doc = corpus_document(corpus, results, list(args.set))
-    text = json.dumps(doc, indent=2)
-    if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(text + "\n", encoding="utf-8")
-    else:
-        print(text)
+    emit_json(doc, args.json)
     if args.plot:
         write_corpus_svg(doc, args.plot)
     print(console_table(doc), file=sys.stdout if args.json else sys.stderr)

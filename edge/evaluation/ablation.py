@@ -18,7 +18,6 @@ the interval [0, 0]).
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from edge.evaluation.corpus import (METRICS, Corpus, CorpusError, _cluster, _finite, _fmt, _percentile_ci,
+                                    read_toml,
                                     resample_weights, run_metrics)
 
 
@@ -46,12 +46,7 @@ def rule_from_assignment(text: str) -> Rule:
 def load_rules(path: str | Path) -> list[Rule]:
     """The ``[[rule]]`` tables of a rules file (module doc)."""
     p = Path(path)
-    if not p.is_file():
-        raise CorpusError(f"rules file {str(p)!r} not found")
-    try:
-        raw = tomllib.loads(p.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise CorpusError(f"{p}: not valid TOML: {exc}") from exc
+    raw = read_toml(p, "rules file")
     bad = sorted(set(raw) - {"rule"})
     if bad:
         raise CorpusError(f"{p}: unknown table(s) {bad}; a rules file holds [[rule]] tables")

@@ -272,15 +272,19 @@ def parse_corpus(raw: dict[str, Any], source: str = "<string>") -> Corpus:
                   source)
 
 
-def load_corpus(path: str | Path) -> Corpus:
+def read_toml(path: str | Path, what: str) -> dict:
+    """A TOML file's document; a missing file or bad TOML raises :class:`CorpusError` naming ``what`` it is."""
     p = Path(path)
     if not p.is_file():
-        raise CorpusError(f"corpus file {str(p)!r} not found")
+        raise CorpusError(f"{what} {str(p)!r} not found")
     try:
-        raw = tomllib.loads(p.read_text(encoding="utf-8"))
+        return tomllib.loads(p.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise CorpusError(f"{p}: not valid TOML: {exc}") from exc
-    return parse_corpus(raw, str(p))
+
+
+def load_corpus(path: str | Path) -> Corpus:
+    return parse_corpus(read_toml(path, "corpus file"), str(path))
 
 
 def check_scenarios(corpus: Corpus, part: str) -> None:
