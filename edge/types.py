@@ -143,6 +143,9 @@ class ClassifiedEvent:
     start_ns: int
     end_ns: int
     features: dict[str, float] = field(default_factory=dict)
+    # the Doppler alias of mean_radial_speed_kmh could not be determined (too few frames, or the range rate lies
+    # near an alias boundary): the speed is a best guess, to be published as n/a
+    speed_uncertain: bool = False
 
 
 @dataclass

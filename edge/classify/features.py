@@ -154,6 +154,27 @@ class FeatureConfig:
         metadata={"unit": "km/h", "doc": "see event_speed_cap_range_m: the cap applies to targets whose far frames are at "
                   "least this fast (vehicles; faster than a jogger)", "min": 0.0, "max": 200.0},
     )
+    event_speed_alias: str = field(
+        default="history",
+        metadata={"doc": "beyond the paper: how the event speed's Doppler alias is chosen: history = one alias for the "
+                  "track's whole life, its Dopplers unwrapped in time against its Theil-Sen range rate (of the leading "
+                  "edge of a long body, event_speed_alias_edge_m; RadialSpeedEstimator.history_alias), frame = each "
+                  "frame's alias from the middle-half range rate (event_speed_leading_edge_m)",
+                  "choices": ("history", "frame")},
+    )
+    event_speed_alias_edge_m: float = field(
+        default=3.0,
+        metadata={"unit": "m", "doc": "history alias: a track whose clusters' median range extent is at least this has "
+                  "its range rate from its leading edge too (the faster of the two is taken: a long body's centroid "
+                  "lags its front while it enters or leaves the 24 m view); 0 = the centroid only",
+                  "min": 0.0, "max": 30.0},
+    )
+    event_speed_alias_margin_kmh: float = field(
+        default=3.2,
+        metadata={"unit": "km/h", "doc": "history alias: the alias is certain when the mean unwrapped Doppler lies within "
+                  "this of the range rate (v_max = 5.35 km/h on the Distance2Go would be a coin toss) and the track has "
+                  "three frames; otherwise the event's speed_uncertain is set", "min": 0.0, "max": 100.0},
+    )
     extent_percentile: float = field(
         default=90.0,
         metadata={"unit": "%", "doc": "beyond the paper: the track's range_extent_m feature is this percentile of "
@@ -556,6 +577,28 @@ class RadialSpeedEstimator:
             for c, x in zip(cols, row):
                 c.append(x)
 
+    def merge(self, other: "RadialSpeedEstimator") -> None:
+        """Add the frames of ``other`` (another part of the same body) at times this one has no frame of."""
+        have = set(self._t)
+        rows = [row for row in zip(other._t, other._r, other._v, other._lo, other._hi) if row[0] not in have]
+        rows = sorted(rows + list(zip(self._t, self._r, self._v, self._lo, self._hi)))
+        rows = rows[-self._t.maxlen:] if self._t.maxlen else rows
+        cols = (self._t, self._r, self._v, self._lo, self._hi)
+        for c in cols:
+            c.clear()
+        for row in rows:
+            for c, x in zip(cols, row):
+                c.append(x)
+
+    def wrapped(self) -> np.ndarray:
+        """The wrapped Doppler of every frame kept (km/h, oldest first)."""
+        return np.array(self._v, dtype=np.float64)
+
+    def range_rate_kmh(self) -> float:
+        """Theil-Sen slope of the centroid range over the whole history (km/h); NaN below two frames."""
+        t, r = self.history()
+        return self._theil_sen_kmh(t, r)
+
     def history(self) -> tuple[np.ndarray, np.ndarray]:
         """``(t_s, range_m)`` of every frame kept (float64 arrays, oldest first)."""
         return np.array(self._t, dtype=np.float64), np.array(self._r, dtype=np.float64)
@@ -624,7 +667,9 @@ class RadialSpeedEstimator:
         ``cap_min_kmh``, the frames with |speed| above ``c + cap_margin_kmh`` (a straight-moving target's
         radial speed never exceeds its speed, which the far frames show: such a frame took a wrong
         alias) are left out (all kept if none would remain)."""
-        v = self.speeds_kmh(leading_edge_m)
+        return self._capped(self.speeds_kmh(leading_edge_m), cap_range_m, cap_margin_kmh, cap_min_kmh)
+
+    def _capped(self, v: np.ndarray, cap_range_m: float, cap_margin_kmh: float, cap_min_kmh: float) -> np.ndarray:
         if cap_range_m <= 0 or v.size == 0:
             return v
         far = np.array(self._r) >= cap_range_m
@@ -652,6 +697,83 @@ class RadialSpeedEstimator:
             return math.nan
         keep = np.abs(v - np.median(v)) <= self.vmax_kmh
         return float(np.mean(v[keep]))
+
+    @staticmethod
+    def _theil_sen_kmh(t: np.ndarray, r: np.ndarray) -> float:
+        """Median of the pairwise slopes of ``r`` against ``t`` (km/h; robust to a frame or two whose cluster
+        lost or gained part of the body); NaN below two frames."""
+        if t.size < 2:
+            return math.nan
+        i, j = np.triu_indices(t.size, 1)
+        dt = t[j] - t[i]
+        ok = dt > 0
+        return float(np.median((r[j] - r[i])[ok] / dt[ok])) * 3.6 if ok.any() else math.nan
+
+    def unwrapped_kmh(self) -> np.ndarray:
+        """The wrapped Dopplers made continuous in time (period ``2 v_max``): the radial speed profile up to
+        one alias common to the whole history (a target's radial speed changes by less than ``v_max``
+        between frames, even while it passes beside the radar)."""
+        v = np.array(self._v, dtype=np.float64)
+        if v.size < 2:
+            return v
+        period = 2.0 * self.vmax_kmh
+        d = np.diff(v)
+        d = (d + 0.5 * period) % period - 0.5 * period
+        return v[0] + np.concatenate(([0.0], np.cumsum(d)))
+
+    def history_alias(self, leading_edge_m: float = 3.0, margin_kmh: float = 3.2
+                      ) -> tuple[np.ndarray, float, bool]:
+        """Per-frame unaliased speeds against one reference for the whole history: ``(speeds_kmh,
+        range_rate_kmh, certain)``.
+
+        The reference is the track's range rate over its whole life: the Theil-Sen slope of the centroid
+        range and, for a body whose median range extent is at least ``leading_edge_m``, of its leading edge
+        (the far edge receding, the near edge approaching). While a long vehicle enters or leaves the 24 m
+        view its centroid lags its front, so of the two the faster one in the centroid's direction is taken.
+        Each frame's Doppler takes the alias nearest to it (``v = v_w + 2 v_max round((rho - v_w) / 2 v_max)``).
+        The alias is *certain* when the trimmed mean of those speeds lies within ``margin_kmh`` of the range
+        rate (an offset of ``v_max``, half an alias step, would be a coin toss) and the history has at least
+        three frames; otherwise the event flags its speed as uncertain. Empty speeds and NaN below two frames."""
+        n = len(self._t)
+        if n < 2:
+            return np.zeros(0), math.nan, False
+        t, r = np.array(self._t), np.array(self._r)
+        rho_c = self._theil_sen_kmh(t, r)
+        rho = rho_c
+        if leading_edge_m > 0 and math.isfinite(rho_c):
+            lo, hi = np.array(self._lo), np.array(self._hi)
+            known = np.isfinite(hi - lo)
+            if np.count_nonzero(known) >= 3 and float(np.median((hi - lo)[known])) >= leading_edge_m:
+                rho_e = self._theil_sen_kmh(t[known], (hi if rho_c > 0 else lo)[known])
+                if math.isfinite(rho_e) and rho_e * rho_c > 0 and abs(rho_e) > abs(rho_c):
+                    rho = rho_e
+        if not math.isfinite(rho):
+            return np.zeros(0), math.nan, False
+        v = self.dealias(np.array(self._v), rho)
+        keep = np.abs(v - np.median(v)) <= self.vmax_kmh
+        certain = n >= 3 and abs(float(np.mean(v[keep])) - rho) <= margin_kmh
+        return v, rho, certain
+
+    def event_speed_kmh(self, alias: str = "history", statistic: str = "trimmed_mean", leading_edge_m: float = 0.0,
+                        alias_edge_m: float = 3.0, alias_margin_kmh: float = 3.2, **cap) -> tuple[float, bool]:
+        """The mean radial speed of the passage (km/h) and whether its alias is certain.
+
+        ``alias = "history"``: one alias for the whole history (:meth:`history_alias` with ``alias_edge_m`` and
+        ``alias_margin_kmh``); ``"frame"``: each frame's alias from the middle-half range rate
+        (:meth:`speeds_kmh` with ``leading_edge_m``; certain from three frames on). ``statistic``: ``median`` or
+        ``trimmed_mean`` (within ``v_max`` of the median) of the per-frame speeds left by the cap (``cap``: the
+        keywords of :meth:`capped_speeds_kmh`)."""
+        if alias == "history":
+            v, _, certain = self.history_alias(alias_edge_m, alias_margin_kmh)
+        else:
+            v, certain = self.speeds_kmh(leading_edge_m), len(self) >= 3
+        v = self._capped(v, cap.get("cap_range_m", 0.0), cap.get("cap_margin_kmh", 0.5), cap.get("cap_min_kmh", 13.0))
+        if not v.size:
+            return math.nan, False
+        if statistic == "median":
+            return float(np.median(v)), certain
+        keep = np.abs(v - np.median(v)) <= self.vmax_kmh
+        return float(np.mean(v[keep])), certain
 
     def current_radial_speed_kmh(self) -> float:
         n = len(self._t)

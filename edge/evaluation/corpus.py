@@ -121,6 +121,12 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("false_tracks_per_min", "false_tracks", "minutes", "1/min", "classified tracks matching no target"),
         Metric("events_per_passage", "passage_events", "passages_tracked", "",
                "classified events per tracked target passage (1 = no split)"),
+        Metric("one_event_fraction", "single_passages_one_event", "single_passages_tracked", "",
+               "tracked single-target passages that ended as exactly one event (no split, no stray fragment)"),
+        Metric("alias_step_fraction", "vehicles_alias_off", "vehicles_with_speed", "",
+               "vehicles whose mean radial speed is off by more than half the Doppler alias step (2 v_max)"),
+        Metric("speed_uncertain_fraction", "vehicles_speed_uncertain", "vehicles_with_speed", "",
+               "vehicles whose event flags the speed as uncertain (alias not determined)"),
     ),
 }
 

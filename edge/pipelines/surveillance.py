@@ -166,7 +166,8 @@ class SurveillancePipeline(Pipeline):
             tracks = self._provisional_classes(step.tracks)
         self._last_t_ns = frame.t_ns
         inter: dict[str, Any] = {"th_rd": cfg.th_rd, "level": level, "n_points": len(clu), "n_clusters": clu.n_clusters,
-                                 "track_cluster_range_m": assoc}
+                                 "track_cluster_range_m": assoc,
+                                 "tracks_ended_without_event": step.intermediates.get("ended_without_event", [])}
         if cfg.keep_map:
             inter.update({"rd_map": m, "range_m": rd.range_m, "radial_speed_kmh": rd.radial_speed_kmh,
                           "range_bin": rb, "doppler_bin": db, "labels": clu.labels})

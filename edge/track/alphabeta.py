@@ -328,6 +328,23 @@ class AlphaBetaConfig:
                   "started after it (Tavanti Test 3's motorcycle, lost while it crosses the jogger, otherwise gives "
                   "two events on some seeds)"},
     )
+    body_length_m: float = field(
+        default=12.0,
+        metadata={"unit": "m", "doc": "beyond the paper: a track that ends while another track of a vehicle lives (or "
+                  "ends in the same frame) is a part of that vehicle's body when their frames overlap in time "
+                  "(passage_gap_frames), its clusters lie within this range of the other's in the median frame, their "
+                  "wrapped Dopplers agree within body_doppler_kmh (median over the frames paired) and neither range "
+                  "rate points the other way: its frames join the other track (one event for the passage: a truck's "
+                  "front, body and rear split into two or three clusters, each with a track). The living track must be "
+                  "a vehicle's, at least rigid_min_speed_kmh fast (its event speed or range rate), so walkers crossing "
+                  "keep their tracks and nothing joins static clutter. 12 m: the body of a bus or truck seen along the road; 0 = off", "min": 0.0, "max": 30.0},
+    )
+    body_doppler_kmh: float = field(
+        default=3.0,
+        metadata={"unit": "km/h", "doc": "see body_length_m: largest median difference of the two tracks' wrapped "
+                  "Dopplers (on the +-v_max circle) of frames at most passage_gap_frames apart", "min": 0.0,
+                  "max": 100.0},
+    )
     max_track_id: int = field(
         default=255,
         metadata={"doc": "track ids are 1..max_track_id, smallest free first and recycled (fits CAN/Modbus)",

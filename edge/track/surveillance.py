@@ -139,6 +139,10 @@ class SurveillanceStep:
     intermediates: dict[str, Any] = field(default_factory=dict)
 
 
+def _finite_or_zero(x: float) -> float:
+    return x if math.isfinite(x) else 0.0
+
+
 class SurveillanceTracker:
     """See the module docstring. ``threshold`` is th_RD in the map's amplitude unit."""
 
@@ -188,10 +192,12 @@ class SurveillanceTracker:
         self.continued = 0  # ended tracks continued by a later track of the same target
         self.rigid_merges = 0  # younger tracks merged into an older one as parts of one rigid body
         self.rigid_parts = 0  # new tracks merged in their first frame into the body a part was merged into
+        self.body_parts = 0  # ended tracks joined to a live track of the same vehicle body (body_length_m)
         self.passages = 0  # short tracks of a vehicle's passage beside the radar joined to its track
         self._rigid: dict[tuple[int, int], list[float]] = {}  # (older, younger) -> separations of the frames counted
         self._body: dict[int, tuple[float, float]] = {}  # track id -> range offsets of the parts merged into it
         self._start_ns: dict[int, int] = {}  # track id -> start of the earliest track it continues
+        self._forgotten: list[int] = []  # ids forgotten in this frame (ended, dropped or joined to another track)
 
     @classmethod
     def from_config(cls, frontend: FrontendInfo, config: Any, threshold: float) -> "SurveillanceTracker":
@@ -220,6 +226,7 @@ class SurveillanceTracker:
         """
         if level is None:
             level = float(np.max(points.amplitude)) if len(points) else 0.0
+        self._forgotten = []
         sig = self.extractor(points)
         valid = sig.n_points > 0
         labels = np.flatnonzero(valid)
@@ -298,7 +305,9 @@ class SurveillanceTracker:
         if seg.ended or seg.discarded:
             out.extend(self._close_tracks())
         tracks = tuple(self._track_state(tr, t_s) for tr in self.tracker.confirmed())
-        inter = {"centroids": sig.centroid[valid], "cluster_labels": labels, "level": level, "merged_tracks": merged}
+        done_ids = {ev.track_id for ev in out}
+        inter = {"centroids": sig.centroid[valid], "cluster_labels": labels, "level": level, "merged_tracks": merged,
+                 "ended_without_event": [i for i in self._forgotten if i not in done_ids]}
         return SurveillanceStep(tracks, tuple(out), seg, sig, tstep, inter)
 
     def close(self, t_ns: int | None = None) -> tuple[ClassifiedEvent, ...]:
@@ -439,6 +448,10 @@ class SurveillanceTracker:
                                            self._start_ns.get(tid, int(tr.created_ns)))
                 self.passages += 1
                 self._forget(tid, counted=False)
+            elif is_ended and (body := self._body_partner(tr, alive | later)) is not None:
+                self._join(body, tid, int(tr.created_ns))
+                self.body_parts += 1
+                self._forget(tid, counted=False)
             elif is_ended and (succ := self._successor(tr, alive)) is not None:
                 self._log[succ].extend(self._log[tid])
                 self._speed[succ].prepend(self._speed[tid])
@@ -501,6 +514,52 @@ class SurveillanceTracker:
                 continue
             d = float(np.min(np.where(near, np.abs(r_x[:, None] - r_y[None, :]), np.inf)))
             if d <= cfg.rigid_length_m and d < best_d:
+                best, best_d = tid, d
+        return best
+
+    def _join(self, keep: int, gone: int, gone_created_ns: int) -> None:
+        """Track ``gone`` (ending) saw the same body as ``keep``: its signature rows and its frames of radial speed
+        join ``keep``'s, and ``keep``'s event starts where the earlier of the two did."""
+        if keep in self._log and gone in self._log:
+            self._log[keep].extend(self._log[gone])
+        if keep in self._speed and gone in self._speed:
+            self._speed[keep].merge(self._speed[gone])
+        self._start_ns[keep] = min(self._start_ns.get(keep, int(self._created_ns(keep)) or gone_created_ns),
+                                   self._start_ns.get(gone, gone_created_ns))
+
+    def _body_partner(self, tr: AlphaBetaTrack, candidates: set[int]) -> int | None:
+        """The track of the vehicle whose body the ending track ``tr`` is a part of (``body_length_m``,
+        ``body_doppler_kmh``, ``passage_gap_frames``, ``rigid_min_speed_kmh``), or None; the nearest in range wins."""
+        cfg = self.tracker.config
+        if cfg.body_length_m <= 0 or not candidates:
+            return None
+        spd = self._speed.get(tr.track_id)
+        if spd is None or len(spd) < 2 or tr.track_id not in self._log:
+            return None
+        period = 2.0 * self.cylinder.vmax_kmh
+        dt_max = (cfg.passage_gap_frames + 0.5) * self.frame_period_s
+        t_x, r_x = spd.history()
+        w_x = spd.wrapped()
+        rate_x = _finite_or_zero(spd.range_rate_kmh())
+        best, best_d = None, math.inf
+        for tid in candidates:
+            other = self._speed.get(tid)
+            if tid == tr.track_id or other is None or len(other) < 2 or tid not in self._log:
+                continue
+            rate_y = _finite_or_zero(other.range_rate_kmh())
+            if not max(abs(rate_y), abs(_finite_or_zero(other.mean_radial_speed_kmh()))) >= cfg.rigid_min_speed_kmh:
+                continue
+            if rate_x * rate_y < 0 and min(abs(rate_x), abs(rate_y)) >= cfg.passage_speed_kmh:
+                continue  # moving apart: two targets passing each other
+            t_y, r_y = other.history()
+            dt = np.abs(t_x[:, None] - t_y[None, :])
+            k = np.argmin(dt, axis=1)
+            near = dt[np.arange(t_x.size), k] <= dt_max
+            if np.count_nonzero(near) < max(1, near.size // 2):
+                continue
+            d = float(np.median(np.abs(r_x[near] - r_y[k[near]])))
+            dw = (w_x[near] - other.wrapped()[k[near]] + 0.5 * period) % period - 0.5 * period
+            if d <= cfg.body_length_m and abs(float(np.median(dw))) <= cfg.body_doppler_kmh and d < best_d:
                 best, best_d = tid, d
         return best
 
@@ -633,6 +692,7 @@ class SurveillanceTracker:
         return False
 
     def _forget(self, track_id: int, counted: bool = True) -> None:
+        self._forgotten.append(track_id)
         self._log.pop(track_id, None)
         for other in self._links.pop(track_id, {}):
             self._links.get(other, {}).pop(track_id, None)
@@ -656,16 +716,15 @@ class SurveillanceTracker:
         acc = (log_.accumulator(pct, self.extractor.speed_vmax_kmh) if log_ is not None and len(log_) > own.n
                else own)
         x = acc.features()
-        v = math.nan
+        v, certain = math.nan, False
         if spd is not None:
             fc = self.extractor.config
-            lead = fc.event_speed_leading_edge_m
             cap = {"cap_range_m": fc.event_speed_cap_range_m, "cap_margin_kmh": fc.event_speed_cap_margin_kmh,
                    "cap_min_kmh": fc.event_speed_cap_min_kmh}
-            v = (spd.trimmed_mean_radial_speed_kmh(lead, **cap) if fc.event_speed == "trimmed_mean"
-                 else spd.mean_radial_speed_kmh(lead, **cap))
+            v, certain = spd.event_speed_kmh(fc.event_speed_alias, fc.event_speed, fc.event_speed_leading_edge_m,
+                                             fc.event_speed_alias_edge_m, fc.event_speed_alias_margin_kmh, **cap)
         if not math.isfinite(v):
-            v = acc.mean_radial_speed_kmh()
+            v, certain = acc.mean_radial_speed_kmh(), False
         if self.classifier is not None and np.all(np.isfinite(x)):
             names = self.classifier.classes
             p = self.classifier.predict_proba(x[None, :])[0]
@@ -687,6 +746,7 @@ class SurveillanceTracker:
             start_ns=start_ns,
             end_ns=int(tr.last_seen_ns),
             features=feats,
+            speed_uncertain=not certain,
         )
 
     def _track_state(self, tr: AlphaBetaTrack, t_s: float) -> TrackState:
