@@ -157,8 +157,8 @@ class FeatureConfig:
     event_speed_alias: str = field(
         default="history",
         metadata={"doc": "beyond the paper: how the event speed's Doppler alias is chosen: history = one alias for the "
-                  "track's whole life, its Dopplers unwrapped in time against its Theil-Sen range rate (of the leading "
-                  "edge of a long body, event_speed_alias_edge_m; RadialSpeedEstimator.history_alias), frame = each "
+                  "track's whole life, each frame's Doppler against the middle-half range rate of all its frames (and "
+                  "of the leading edge of a long body, event_speed_alias_edge_m; RadialSpeedEstimator.history_alias), frame = each "
                   "frame's alias from the middle-half range rate (event_speed_leading_edge_m)",
                   "choices": ("history", "frame")},
     )
@@ -171,8 +171,8 @@ class FeatureConfig:
     )
     event_speed_alias_margin_kmh: float = field(
         default=3.2,
-        metadata={"unit": "km/h", "doc": "history alias: the alias is certain when the mean unwrapped Doppler lies within "
-                  "this of the range rate (v_max = 5.35 km/h on the Distance2Go would be a coin toss) and the track has "
+        metadata={"unit": "km/h", "doc": "history alias: the alias is certain when the trimmed mean of the unaliased speeds "
+                  "lies within this of the range rate (v_max = 5.35 km/h on the Distance2Go would be a coin toss) and the track has "
                   "three frames; otherwise the event's speed_uncertain is set", "min": 0.0, "max": 100.0},
     )
     extent_percentile: float = field(
@@ -590,6 +590,10 @@ class RadialSpeedEstimator:
             for c, x in zip(cols, row):
                 c.append(x)
 
+    def extents(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(range_lo_m, range_hi_m)`` of every frame kept (NaN where not given)."""
+        return np.array(self._lo, dtype=np.float64), np.array(self._hi, dtype=np.float64)
+
     def wrapped(self) -> np.ndarray:
         """The wrapped Doppler of every frame kept (km/h, oldest first)."""
         return np.array(self._v, dtype=np.float64)
@@ -709,26 +713,16 @@ class RadialSpeedEstimator:
         ok = dt > 0
         return float(np.median((r[j] - r[i])[ok] / dt[ok])) * 3.6 if ok.any() else math.nan
 
-    def unwrapped_kmh(self) -> np.ndarray:
-        """The wrapped Dopplers made continuous in time (period ``2 v_max``): the radial speed profile up to
-        one alias common to the whole history (a target's radial speed changes by less than ``v_max``
-        between frames, even while it passes beside the radar)."""
-        v = np.array(self._v, dtype=np.float64)
-        if v.size < 2:
-            return v
-        period = 2.0 * self.vmax_kmh
-        d = np.diff(v)
-        d = (d + 0.5 * period) % period - 0.5 * period
-        return v[0] + np.concatenate(([0.0], np.cumsum(d)))
-
     def history_alias(self, leading_edge_m: float = 3.0, margin_kmh: float = 3.2
                       ) -> tuple[np.ndarray, float, bool]:
         """Per-frame unaliased speeds against one reference for the whole history: ``(speeds_kmh,
         range_rate_kmh, certain)``.
 
-        The reference is the track's range rate over its whole life: the Theil-Sen slope of the centroid
-        range and, for a body whose median range extent is at least ``leading_edge_m``, of its leading edge
-        (the far edge receding, the near edge approaching). While a long vehicle enters or leaves the 24 m
+        The reference is the track's range rate over its whole life, re-decided from all frames kept: the
+        least-squares slope over the middle half of the frames (:meth:`reference_rate_kmh`; the ends are where the
+        radial speed of a target passing beside the radar turns) of the centroid range and, for a body whose
+        median range extent is at least ``leading_edge_m``, of its leading edge (the far edge receding, the near
+        edge approaching). While a long vehicle enters or leaves the 24 m
         view its centroid lags its front, so of the two the faster one in the centroid's direction is taken.
         Each frame's Doppler takes the alias nearest to it (``v = v_w + 2 v_max round((rho - v_w) / 2 v_max)``).
         The alias is *certain* when the trimmed mean of those speeds lies within ``margin_kmh`` of the range
@@ -738,13 +732,13 @@ class RadialSpeedEstimator:
         if n < 2:
             return np.zeros(0), math.nan, False
         t, r = np.array(self._t), np.array(self._r)
-        rho_c = self._theil_sen_kmh(t, r)
+        rho_c = self._middle_slope_kmh(t, r)
         rho = rho_c
         if leading_edge_m > 0 and math.isfinite(rho_c):
             lo, hi = np.array(self._lo), np.array(self._hi)
             known = np.isfinite(hi - lo)
             if np.count_nonzero(known) >= 3 and float(np.median((hi - lo)[known])) >= leading_edge_m:
-                rho_e = self._theil_sen_kmh(t[known], (hi if rho_c > 0 else lo)[known])
+                rho_e = self._middle_slope_kmh(t[known], (hi if rho_c > 0 else lo)[known])
                 if math.isfinite(rho_e) and rho_e * rho_c > 0 and abs(rho_e) > abs(rho_c):
                     rho = rho_e
         if not math.isfinite(rho):

@@ -77,7 +77,7 @@ class LiveView:
                 self._events.append(f"{t:+9.1f} s  {e.kind:<16} track #{e.track_id}  lane {e.lane}")
             for c in result.classifications:
                 self._events.append(f"{t:+9.1f} s  {c.cls:<16} track #{c.track_id}  {c.direction} "
-                                    f"{c.mean_radial_speed_kmh:.1f} km/h  p={max(c.probabilities.values(), default=0):.2f}")
+                                    f"{'n/a' if c.speed_uncertain else f'{c.mean_radial_speed_kmh:.1f}'} km/h  p={max(c.probabilities.values(), default=0):.2f}")
         now = self.clock_s()
         if now - self._last_draw < self.period_s:
             return

@@ -339,6 +339,13 @@ class AlphaBetaConfig:
                   "a vehicle's, at least rigid_min_speed_kmh fast (its event speed or range rate), so walkers crossing "
                   "keep their tracks and nothing joins static clutter. 12 m: the body of a bus or truck seen along the road; 0 = off", "min": 0.0, "max": 30.0},
     )
+    body_gap_m: float = field(
+        default=2.5,
+        metadata={"unit": "m", "doc": "see body_length_m: largest median gap in range between the two tracks' cluster "
+                  "extents (extent_level_db) of frames paired: parts of one body are adjacent clusters that DBSCAN "
+                  "(eps 1.9) cut apart, while a walker a car passes at the walker's wrapped Doppler lies metres from "
+                  "the car's cells", "min": 0.0, "max": 30.0},
+    )
     body_doppler_kmh: float = field(
         default=3.0,
         metadata={"unit": "km/h", "doc": "see body_length_m: largest median difference of the two tracks' wrapped "

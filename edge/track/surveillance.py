@@ -197,6 +197,7 @@ class SurveillanceTracker:
         self._rigid: dict[tuple[int, int], list[float]] = {}  # (older, younger) -> separations of the frames counted
         self._body: dict[int, tuple[float, float]] = {}  # track id -> range offsets of the parts merged into it
         self._start_ns: dict[int, int] = {}  # track id -> start of the earliest track it continues
+        self._batch_created: dict[int, int] = {}  # track id -> creation time, of the tracks ending in this batch
         self._forgotten: list[int] = []  # ids forgotten in this frame (ended, dropped or joined to another track)
 
     @classmethod
@@ -427,6 +428,7 @@ class SurveillanceTracker:
         batch = sorted([(tr, True) for tr in ended] + [(tr, False) for tr in dropped],
                        key=lambda e: (self._acc[e[0].track_id].n if e[0].track_id in self._acc else 0))
         later = {tr.track_id for tr, _ in batch}
+        self._batch_created = {tr.track_id: int(tr.created_ns) for tr, _ in batch}  # ending now: out of the tracker
         out: list[ClassifiedEvent] = []
         for tr, is_ended in batch:
             tid = tr.track_id
@@ -524,8 +526,11 @@ class SurveillanceTracker:
             self._log[keep].extend(self._log[gone])
         if keep in self._speed and gone in self._speed:
             self._speed[keep].merge(self._speed[gone])
-        self._start_ns[keep] = min(self._start_ns.get(keep, int(self._created_ns(keep)) or gone_created_ns),
-                                   self._start_ns.get(gone, gone_created_ns))
+        own = self._start_ns.get(keep)
+        if own is None:
+            own = next((int(t.created_ns) for t in self.tracker.tracks if t.track_id == keep),
+                       self._batch_created.get(keep, gone_created_ns))
+        self._start_ns[keep] = min(own, self._start_ns.get(gone, gone_created_ns))
 
     def _body_partner(self, tr: AlphaBetaTrack, candidates: set[int]) -> int | None:
         """The track of the vehicle whose body the ending track ``tr`` is a part of (``body_length_m``,
@@ -540,6 +545,7 @@ class SurveillanceTracker:
         dt_max = (cfg.passage_gap_frames + 0.5) * self.frame_period_s
         t_x, r_x = spd.history()
         w_x = spd.wrapped()
+        lo_x, hi_x = spd.extents()
         rate_x = _finite_or_zero(spd.range_rate_kmh())
         best, best_d = None, math.inf
         for tid in candidates:
@@ -558,8 +564,12 @@ class SurveillanceTracker:
             if np.count_nonzero(near) < max(1, near.size // 2):
                 continue
             d = float(np.median(np.abs(r_x[near] - r_y[k[near]])))
+            lo_y, hi_y = other.extents()
+            gap = np.maximum(0.0, np.maximum(lo_x[near] - hi_y[k[near]], lo_y[k[near]] - hi_x[near]))
+            gap = float(np.median(np.where(np.isfinite(gap), gap, np.abs(r_x[near] - r_y[k[near]]))))
             dw = (w_x[near] - other.wrapped()[k[near]] + 0.5 * period) % period - 0.5 * period
-            if d <= cfg.body_length_m and abs(float(np.median(dw))) <= cfg.body_doppler_kmh and d < best_d:
+            if (d <= cfg.body_length_m and gap <= cfg.body_gap_m and abs(float(np.median(dw))) <= cfg.body_doppler_kmh
+                    and d < best_d):
                 best, best_d = tid, d
         return best
 

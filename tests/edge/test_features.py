@@ -329,3 +329,39 @@ def test_event_speed_leaves_out_frames_faster_than_the_target():
     # a slow target (far frames below cap_min_kmh), or one without two far frames, is left alone
     assert est.capped_speeds_kmh(cap_range_m=10.0, cap_min_kmh=30.0).size == v.size
     assert est.capped_speeds_kmh(cap_range_m=20.0).size == v.size
+
+
+def test_history_alias_takes_a_long_bodys_leading_edge_and_flags_what_it_cannot_decide():
+    """A truck receding at 25.8 km/h, 10 m long, seen for 12 frames while it leaves beside the radar: its centroid
+    moves 6 km/h slower (more of the body comes into view behind the front every frame) and takes the alias one step
+    too slow, frame by frame; its far edge moves at its speed. A car seen in two frames gets no certain alias."""
+    t = np.arange(12) * 0.2
+    v_true = 25.8
+    front = 6.0 + v_true / 3.6 * t
+    centroid = 3.0 + (v_true - 6.0) / 3.6 * t
+    est = RadialSpeedEstimator(VMAX)
+    for tk, rk, hk, vk in zip(t, centroid, front, wrapped(np.full(t.size, v_true))):
+        est.add(tk, rk, vk, range_lo_m=rk - 4.0, range_hi_m=hk)
+    v_frame, _ = est.event_speed_kmh("frame")
+    assert v_frame == pytest.approx(v_true - 2 * VMAX, abs=0.2)  # one alias step too slow
+    v, certain = est.event_speed_kmh("history", alias_edge_m=3.0)
+    assert v == pytest.approx(v_true, abs=0.2) and certain
+    # the centroid only: wrong, and it says so (its rate lies 4.7 km/h from the speed it picks, nearly v_max)
+    v_c, certain_c = est.event_speed_kmh("history", alias_edge_m=0.0)
+    assert v_c == pytest.approx(v_true - 2 * VMAX, abs=0.2) and not certain_c
+    short = RadialSpeedEstimator(VMAX)
+    for tk, rk, vk in zip(t[:2], 10.0 + 30.0 / 3.6 * t[:2], wrapped(np.full(2, 30.0))):
+        short.add(tk, rk, vk)
+    assert not short.event_speed_kmh("history")[1]
+
+
+def test_merge_adds_the_frames_another_part_saw():
+    a, b = RadialSpeedEstimator(VMAX), RadialSpeedEstimator(VMAX)
+    for k in range(4):
+        a.add(0.2 * k, 10.0 + k, 1.0)
+    for k in range(2, 7):
+        b.add(0.2 * k, 12.0 + k, 1.5)
+    a.merge(b)
+    t, r = a.history()
+    np.testing.assert_allclose(t, 0.2 * np.arange(7))
+    np.testing.assert_allclose(r, [10, 11, 12, 13, 16, 17, 18])  # a's own frames kept where both saw one

@@ -41,7 +41,8 @@ def car_front_and_rear(n, v=16.5):
 
 @pytest.mark.parametrize("min_speed, tracks_at_end", [(13.0, 1), (0.0, 2)])
 def test_front_and_rear_of_one_car_become_one_track(min_speed, tracks_at_end):
-    st, ids, events = run(AlphaBetaConfig(rigid_min_speed_kmh=min_speed), car_front_and_rear, 14)
+    # the rigid-body rule alone (the body rule, body_length_m, would join the parts when the rear track ends)
+    st, ids, events = run(AlphaBetaConfig(rigid_min_speed_kmh=min_speed, body_length_m=0.0), car_front_and_rear, 14)
     assert len(ids[-1]) == tracks_at_end
     assert len(events) == tracks_at_end
     assert st.rigid_merges == (1 if min_speed > 0 else 0)
@@ -179,3 +180,39 @@ def test_trimmed_mean_speed_follows_the_mean_where_the_median_follows_the_far_fr
     assert est.trimmed_mean_radial_speed_kmh() == pytest.approx(float(np.mean(v)), abs=0.05)
     assert est.mean_radial_speed_kmh() == pytest.approx(17.5, abs=0.01)  # the median: the far frames
     assert abs(float(np.mean(v)) - 17.5) > 0.5
+
+
+def truck_front_and_body(n, v=20.0):
+    """A truck receding at ``v`` km/h: its front cluster from frame 0 on, a body cluster 3.5 m behind it from frame 2
+    to frame 9 at a Doppler 2 km/h lower (beyond rigid_doppler_kmh: the body's aspect differs), then lost (the body
+    leaves the beam first)."""
+    r = 4.0 + v / 3.6 * T * n
+    out = [(r + 3.5, v, 400)]
+    if 2 <= n <= 9:
+        out.append((r, v - 2.0, 300))
+    return out
+
+
+def car_passing_a_walker(n):
+    """A car receding at 20 km/h passes a pedestrian walking away at 4 km/h 5 m from it; the walker is lost at 10."""
+    out = [(14.0 + 20.0 / 3.6 * T * n, 20.0, 400)]
+    if n <= 10:
+        out.append((9.0 + 4.0 / 3.6 * T * n, 4.0, 150))
+    return out
+
+
+@pytest.mark.parametrize("body_m, events_expected", [(12.0, 1), (0.0, 2)])
+def test_a_trucks_body_track_joins_its_front_track(body_m, events_expected):
+    st, _, events = run(AlphaBetaConfig(body_length_m=body_m), truck_front_and_body, 16)
+    assert len(events) == events_expected
+    assert st.body_parts == (1 if body_m else 0)
+    if body_m:
+        (ev,) = events
+        assert ev.mean_radial_speed_kmh == pytest.approx(20.0, abs=1.0) and not ev.speed_uncertain
+        assert ev.start_ns == 0
+
+
+def test_a_walker_beside_a_car_keeps_its_own_event():
+    st, _, events = run(AlphaBetaConfig(body_length_m=12.0), car_passing_a_walker, 16)
+    assert st.body_parts == 0 and len(events) == 2
+    assert sorted(round(e.mean_radial_speed_kmh) for e in events) == [4, 20]
