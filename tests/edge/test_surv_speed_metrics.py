@@ -1,0 +1,42 @@
+"""Speed-alias and one-event-per-passage tallies of the surveillance evaluation (issue 31), on constructed rows."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from edge.evaluation.surveillance import _Instance, _speed_and_passage_tallies
+from edge.types import ClassifiedEvent
+
+STEP = 10.7
+
+
+def _truth(tid, event, first, last):
+    return SimpleNamespace(id=tid, event=event, first_frame=first, last_frame=last)
+
+
+def _row(tid, event, cls, v_true, v_est, n_tracks=1, uncertain=False):
+    return {"id": tid, "event": event, "class": cls, "mean_radial_speed_kmh_true": v_true,
+            "mean_radial_speed_kmh_est": v_est, "speed_mae_kmh": None if v_est is None else abs(v_est - v_true),
+            "n_tracks": n_tracks, "speed_uncertain": uncertain}
+
+
+def _view(ids, lo, hi):
+    return SimpleNamespace(id=np.array(ids), range_min_m=np.array(lo, dtype=float), range_max_m=np.array(hi, dtype=float))
+
+
+def test_alias_steps_uncertain_flags_and_passages_of_one_event():
+    truths = {100: _truth(100, 0, 0, 9), 200: _truth(200, 1, 20, 29), 300: _truth(300, 2, 40, 49)}
+    rows = [_row(100, 0, "truck", 23.8, 13.1),  # one alias step slow
+            _row(200, 1, "car", -31.0, -31.4, uncertain=True),
+            _row(300, 2, "pedestrian", 4.0, 4.2)]
+    views = [_view([100], [5.0], [15.0]) for _ in range(10)] + [_view([], [], []) for _ in range(50)]
+    ev = ClassifiedEvent(7, "car", {}, 20.0, "receding", 0, 0)
+    frag = _Instance(7, frames=[2, 3, 4], ranges=[16.0, 17.0, 30.0], event=ev)  # beside the truck in 2 of 3 frames
+    clutter = _Instance(8, frames=[41, 42], ranges=[60.0, 60.0], event=ev)  # far from the walker: not its passage
+    t = _speed_and_passage_tallies(rows, truths, [frag, clutter], views, STEP)
+    assert t == {"vehicles_with_speed": 2, "vehicles_alias_off": 1, "vehicles_speed_uncertain": 1,
+                 "single_passages_tracked": 3, "single_passages_one_event": 2}
+    assert [r["speed_alias_steps"] for r in rows] == [-1, 0, 0]
+    assert [r["passage_events"] for r in rows] == [2, 1, 1]
