@@ -54,7 +54,9 @@ _SPECS = {m.name: {s.name: s for s in m.signals} for m in BY_NAME.values()}
 
 
 def dyn_prop(t: TrackState) -> int:
-    """ARS408 dynamic property from the track's velocity (boresight receding +)."""
+    """ARS408 dynamic property from the track's velocity (boresight receding +); 4 unknown when it is n/a."""
+    if not (math.isfinite(t.vx_mps) and math.isfinite(t.vy_mps)):
+        return 4  # unknown: a speed not measured (the surveillance profile's alias not yet certain)
     if math.hypot(t.vx_mps, t.vy_mps) < 0.5:
         return 1  # stationary
     if abs(t.vx_mps) > abs(t.vy_mps):
@@ -65,7 +67,7 @@ def dyn_prop(t: TrackState) -> int:
 def heading_deg(t: TrackState) -> float | None:
     """Heading of the velocity in the ARS408 frame (0 = receding along the boresight, left +); None when the
     track is slower than 0.5 m/s."""
-    if math.hypot(t.vx_mps, t.vy_mps) <= 0.5:
+    if not math.hypot(t.vx_mps, t.vy_mps) > 0.5:  # NaN (speed n/a) too
         return None
     return math.degrees(math.atan2(-t.vx_mps, t.vy_mps))
 

@@ -20,7 +20,9 @@ speeds, each the cluster's wrapped Doppler with its alias chosen by the range ra
 (of the body's leading edge for a long one, ``event_speed_leading_edge_m``), without the frames
 faster than the target's far frames (``event_speed_cap_range_m``: wrong aliases beside the radar)
 (:class:`~edge.classify.features.RadialSpeedEstimator`, km/h, positive receding); the least-squares
-range rate when that is not available.
+range rate when that is not available. With ``event_speed_alias = "history"`` (default) the alias is chosen against
+the range rate of the track's whole history (of a long body's leading edge too), and the event's
+``speed_uncertain`` is set when that choice is not sure (:meth:`~edge.classify.features.RadialSpeedEstimator.history_alias`).
 
 Beyond the paper (``track.alphabeta`` options; 0 restores the paper): once a track has clusters in
 ``doppler_range_rate_frames`` frames, its alpha-beta range rate is replaced after every update by its
@@ -62,6 +64,10 @@ measured on multi-random dev seeds (field docs):
   near the radar, slow or at the vehicle's speed) next to a live vehicle track in place and time is
   that vehicle seen while it passes beside the radar, its Doppler near zero: its signatures join the
   vehicle's (Tavanti Test 1's departing car);
+* *body parts* (``body_length_m``, ``body_gap_m``, ``body_doppler_kmh``): a track that ends while a vehicle's track
+  lives, whose clusters were adjacent to that track's (extents within ``body_gap_m``, centres within
+  ``body_length_m``) at its wrapped Doppler, is a part of that body (a truck's front, body and rear split by DBSCAN):
+  its frames join the living track, one event for the passage;
 * *merge guard needs another target* (``merge_other_required``): an enlarged cluster holds a track on
   its prediction only when another track is near it; an approaching car growing six-fold alone is
   itself, not a merge.
@@ -84,7 +90,9 @@ wrapped map and only serves the association (Tavanti §II-D: with ``alpha = 0.19
 car by metres), so the published kinematics come from the measured clusters: ``radial_speed_mps``
 is the unaliased radial speed of the latest frame (wrapped Doppler + alias from the range rate; the
 filtered rate ``u_r`` until two frames exist) and ``range_m`` the last centroid's range moved on by
-that speed over the time since it was seen (never below 0). The Distance2Go has one
+that speed over the time since it was seen (never below 0). With ``classify.features.event_speed_alias =
+"history"`` the published speed is NaN (n/a on Modbus and CAN) while the alias of the track's whole history is
+not certain or the latest frame's speed is not on it. The Distance2Go has one
 receive channel, so the azimuth is unknown (NaN) and, as in
 :meth:`edge.types.Detections.from_polar`, the target is placed on boresight (``x = 0``, ``y = range``).
 A published id that disappears from ``tracks`` without a :class:`~edge.types.ClassifiedEvent` was
@@ -764,6 +772,14 @@ class SurveillanceTracker:
         v_kmh = spd.current_radial_speed_kmh() if spd is not None else math.nan
         v = v_kmh / 3.6 if math.isfinite(v_kmh) else float(tr.state[5]) / self.frame_period_s
         r = max(0.0, float(tr.last_measurement[2]) + v * (t_s - self._seen_t.get(tr.track_id, t_s)))
+        fc = self.extractor.config
+        if fc.event_speed_alias == "history":
+            # published only when its alias is sure: the whole history's alias is certain and the latest frame's
+            # speed is on it (else n/a: an alias step is 10.7 km/h)
+            hv, _, certain = (spd.history_alias(fc.event_speed_alias_edge_m, fc.event_speed_alias_margin_kmh)
+                              if spd is not None else (np.zeros(0), math.nan, False))
+            if not (certain and hv.size and math.isfinite(v_kmh) and abs(hv[-1] - v_kmh) <= self.cylinder.vmax_kmh):
+                v = math.nan
         return TrackState(
             track_id=tr.track_id,
             x_m=0.0,

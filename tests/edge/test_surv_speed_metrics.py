@@ -5,6 +5,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from edge.evaluation.surveillance import _Instance, _speed_and_passage_tallies
 from edge.types import ClassifiedEvent
@@ -40,3 +41,30 @@ def test_alias_steps_uncertain_flags_and_passages_of_one_event():
                  "single_passages_tracked": 3, "single_passages_one_event": 2}
     assert [r["speed_alias_steps"] for r in rows] == [-1, 0, 0]
     assert [r["passage_events"] for r in rows] == [2, 1, 1]
+
+
+def test_a_speed_whose_alias_is_not_sure_is_published_as_not_available():
+    """A target whose range moves 5 km/h off its Doppler (half an alias step: which alias is a coin toss) is
+    published with radial speed NaN, n/a on CAN (DynProp unknown) and Modbus; one whose range agrees is published."""
+    import math
+
+    from edge.outputs.can_out import dyn_prop
+    from edge.outputs.registers import TRACK, decode, encode
+    from edge.track.surveillance import SurveillanceTracker
+    from hal.waveform import d2g_frontend
+    from tests.edge.survscene import blob, points
+
+    def published(v_range):
+        st = SurveillanceTracker(d2g_frontend(), 2.0, classify=False)
+        out = []
+        for n in range(10):
+            step = st.update(int(n * 0.2e9), points(blob(5.0 + v_range / 3.6 * 0.2 * n, 20.0, 300, 0)), seq=n)
+            out += [t for t in step.tracks]
+        return out
+
+    sure = published(20.0)
+    assert len(sure) >= 5 and all(t.radial_speed_mps * 3.6 == pytest.approx(20.0, abs=1.0) for t in sure[2:])
+    unsure = published(25.0)
+    assert unsure and all(math.isnan(t.radial_speed_mps) for t in unsure)
+    assert dyn_prop(unsure[-1]) == 4
+    assert decode(TRACK.regs[5], encode(TRACK.regs[5], unsure[-1].vy_mps)) is None
