@@ -63,8 +63,8 @@ PROFILE = "surveillance"
 MATCH_RANGE_M = 2.5
 MIN_MATCH_OVERLAP = 0.5
 MIN_DETECTED_FRAMES = 3
-#: an unmatched event whose track stayed within this of a single target's scatterers is a fragment of that passage
-PASSAGE_BODY_M = 5.0
+#: an unmatched event whose track stayed this close to a single target's scatterers is a fragment of that passage
+PASSAGE_BODY_M = MATCH_RANGE_M
 
 
 @dataclass

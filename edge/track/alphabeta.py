@@ -332,25 +332,32 @@ class AlphaBetaConfig:
         default=12.0,
         metadata={"unit": "m", "doc": "beyond the paper: a track that ends while another track of a vehicle lives (or "
                   "ends in the same frame) is a part of that vehicle's body when their frames overlap in time "
-                  "(passage_gap_frames), its clusters lie within this range of the other's in the median frame, their "
-                  "wrapped Dopplers agree within body_doppler_kmh (median over the frames paired) and neither range "
-                  "rate points the other way: its frames join the other track (one event for the passage: a truck's "
-                  "front, body and rear split into two or three clusters, each with a track). The living track must be "
-                  "a vehicle's, at least rigid_min_speed_kmh fast (its event speed or range rate), so walkers crossing "
-                  "keep their tracks and nothing joins static clutter. 12 m: the body of a bus or truck seen along the road; 0 = off", "min": 0.0, "max": 30.0},
+                  "(passage_gap_frames) and, over the frames paired, its clusters' centres lie within this range of the "
+                  "other's (median) at a wrapped Doppler within body_doppler_kmh, and the two are adjacent (extents "
+                  "within body_gap_m) or move together (whole-life range rates within body_rate_kmh): its frames join "
+                  "the other track (one event for the passage: a truck's front, body and rear split into two or three "
+                  "clusters, each with a track). The living track must be a vehicle's, at least rigid_min_speed_kmh "
+                  "fast (its event speed or range rate), so walkers crossing keep their tracks and nothing joins static "
+                  "clutter; two range rates of opposite sign, both at least passage_speed_kmh, are two targets crossing. 12 m: the body of a bus or truck seen along the road; 0 = off", "min": 0.0, "max": 30.0},
     )
     body_gap_m: float = field(
         default=2.5,
         metadata={"unit": "m", "doc": "see body_length_m: largest median gap in range between the two tracks' cluster "
-                  "extents (extent_level_db) of frames paired: parts of one body are adjacent clusters that DBSCAN "
-                  "(eps 1.9) cut apart, while a walker a car passes at the walker's wrapped Doppler lies metres from "
-                  "the car's cells", "min": 0.0, "max": 30.0},
+                  "extents (extent_level_db) of the frames paired for parts joined without a common range rate (a "
+                  "track that began on static clutter has a meaningless one; DBSCAN cuts a body at gaps of eps = "
+                  "1.9 m)", "min": 0.0, "max": 30.0},
     )
     body_doppler_kmh: float = field(
-        default=3.0,
+        default=4.0,
         metadata={"unit": "km/h", "doc": "see body_length_m: largest median difference of the two tracks' wrapped "
-                  "Dopplers (on the +-v_max circle) of frames at most passage_gap_frames apart", "min": 0.0,
-                  "max": 100.0},
+                  "Dopplers (on the +-v_max circle) of the frames paired (a car's front and rear passing beside the "
+                  "radar are seen at aspects 3-4 km/h apart)", "min": 0.0, "max": 100.0},
+    )
+    body_rate_kmh: float = field(
+        default=6.0,
+        metadata={"unit": "km/h", "doc": "see body_length_m: largest difference of the two tracks' Theil-Sen range "
+                  "rates over their whole lives (parts of one body move together; a walker a car passes at the "
+                  "walker's wrapped Doppler does not)", "min": 0.0, "max": 100.0},
     )
     max_track_id: int = field(
         default=255,

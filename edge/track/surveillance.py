@@ -64,10 +64,10 @@ measured on multi-random dev seeds (field docs):
   near the radar, slow or at the vehicle's speed) next to a live vehicle track in place and time is
   that vehicle seen while it passes beside the radar, its Doppler near zero: its signatures join the
   vehicle's (Tavanti Test 1's departing car);
-* *body parts* (``body_length_m``, ``body_gap_m``, ``body_doppler_kmh``): a track that ends while a vehicle's track
-  lives, whose clusters were adjacent to that track's (extents within ``body_gap_m``, centres within
-  ``body_length_m``) at its wrapped Doppler, is a part of that body (a truck's front, body and rear split by DBSCAN):
-  its frames join the living track, one event for the passage;
+* *body parts* (``body_length_m``, ``body_gap_m``, ``body_doppler_kmh``, ``body_rate_kmh``): a track that ends while
+  a vehicle's track lives, whose clusters were near that track's (centres within ``body_length_m``) at its wrapped
+  Doppler, adjacent (extents within ``body_gap_m``) or moving at its range rate, is a part of that body (a truck's
+  front, body and rear split by DBSCAN): its frames join the living track, one event for the passage;
 * *merge guard needs another target* (``merge_other_required``): an enlarged cluster holds a track on
   its prediction only when another track is near it; an approaching car growing six-fold alone is
   itself, not a merge.
@@ -564,7 +564,7 @@ class SurveillanceTracker:
             if not max(abs(rate_y), abs(_finite_or_zero(other.mean_radial_speed_kmh()))) >= cfg.rigid_min_speed_kmh:
                 continue
             if rate_x * rate_y < 0 and min(abs(rate_x), abs(rate_y)) >= cfg.passage_speed_kmh:
-                continue  # moving apart: two targets passing each other
+                continue  # moving apart: two targets crossing each other
             t_y, r_y = other.history()
             dt = np.abs(t_x[:, None] - t_y[None, :])
             k = np.argmin(dt, axis=1)
@@ -576,8 +576,8 @@ class SurveillanceTracker:
             gap = np.maximum(0.0, np.maximum(lo_x[near] - hi_y[k[near]], lo_y[k[near]] - hi_x[near]))
             gap = float(np.median(np.where(np.isfinite(gap), gap, np.abs(r_x[near] - r_y[k[near]]))))
             dw = (w_x[near] - other.wrapped()[k[near]] + 0.5 * period) % period - 0.5 * period
-            if (d <= cfg.body_length_m and gap <= cfg.body_gap_m and abs(float(np.median(dw))) <= cfg.body_doppler_kmh
-                    and d < best_d):
+            together = gap <= cfg.body_gap_m or abs(rate_x - rate_y) <= cfg.body_rate_kmh
+            if d <= cfg.body_length_m and abs(float(np.median(dw))) <= cfg.body_doppler_kmh and together and d < best_d:
                 best, best_d = tid, d
         return best
 
