@@ -578,10 +578,17 @@ class RadialSpeedEstimator:
                 c.append(x)
 
     def merge(self, other: "RadialSpeedEstimator") -> None:
-        """Add the frames of ``other`` (another part of the same body) at times this one has no frame of."""
+        """Add the frames of ``other`` (another part of the same body) at times this one has no frame of; where both
+        have one, this one's centroid and Doppler stay and the range extent becomes the union of the two parts'."""
+        theirs = {t: (lo, hi) for t, lo, hi in zip(other._t, other._lo, other._hi)}
+        own = []
+        for t, r, v, lo, hi in zip(self._t, self._r, self._v, self._lo, self._hi):
+            if t in theirs:
+                lo, hi = float(np.fmin(lo, theirs[t][0])), float(np.fmax(hi, theirs[t][1]))
+            own.append((t, r, v, lo, hi))
         have = set(self._t)
         rows = [row for row in zip(other._t, other._r, other._v, other._lo, other._hi) if row[0] not in have]
-        rows = sorted(rows + list(zip(self._t, self._r, self._v, self._lo, self._hi)))
+        rows = sorted(rows + own)
         rows = rows[-self._t.maxlen:] if self._t.maxlen else rows
         cols = (self._t, self._r, self._v, self._lo, self._hi)
         for c in cols:

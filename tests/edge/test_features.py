@@ -358,10 +358,13 @@ def test_history_alias_takes_a_long_bodys_leading_edge_and_flags_what_it_cannot_
 def test_merge_adds_the_frames_another_part_saw():
     a, b = RadialSpeedEstimator(VMAX), RadialSpeedEstimator(VMAX)
     for k in range(4):
-        a.add(0.2 * k, 10.0 + k, 1.0)
+        a.add(0.2 * k, 10.0 + k, 1.0, 9.0 + k, 11.0 + k)
     for k in range(2, 7):
-        b.add(0.2 * k, 12.0 + k, 1.5)
+        b.add(0.2 * k, 12.0 + k, 1.5, 11.0 + k, 14.0 + k)
     a.merge(b)
     t, r = a.history()
     np.testing.assert_allclose(t, 0.2 * np.arange(7))
     np.testing.assert_allclose(r, [10, 11, 12, 13, 16, 17, 18])  # a's own frames kept where both saw one
+    lo, hi = a.extents()
+    np.testing.assert_allclose(lo, [9, 10, 11, 12, 15, 16, 17])
+    np.testing.assert_allclose(hi, [11, 12, 16, 17, 18, 19, 20])  # where both saw the body: the union of the parts

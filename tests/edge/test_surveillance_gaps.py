@@ -203,7 +203,8 @@ def test_signature_log_unites_two_clusters_of_a_frame_as_one_signature():
 def _split_vehicle_run(gap_m: float, fragment_offset_m: float, frames=range(3, 9)):
     """A receding vehicle (1500 cells) whose cluster splits off a 150-cell fragment ``fragment_offset_m``
     behind it in ``frames`` (long enough for the fragment's own track to be confirmed)."""
-    st = SurveillanceTracker(FE, 2.0, tracking=AlphaBetaConfig(fragment_gap_m=gap_m), classify=False)
+    # the fragment rule alone (the body rule, body_length_m, would join a part moving with the vehicle when it ends)
+    st = SurveillanceTracker(FE, 2.0, tracking=AlphaBetaConfig(fragment_gap_m=gap_m, body_length_m=0.0), classify=False)
     v = 18.0
     events = []
     for n in range(20):
