@@ -126,6 +126,7 @@ from edge.classify.reference import load_reference_set
 from edge.track.alphabeta import AlphaBetaConfig, AlphaBetaTrack, AlphaBetaTracker, TrackerStep
 from edge.track.events import EventConfig, EventSegmenter, SegmentStep
 from edge.types import ClassifiedEvent, FrontendInfo, TrackState
+from hal.waveform import characteristics
 
 log = logging.getLogger(__name__)
 
@@ -169,6 +170,9 @@ class SurveillanceTracker:
         self.frame_period_s = frontend.waveform.frame_period_s
         self.extractor = SignatureExtractor(features or FeatureConfig(), frontend)
         self.cylinder = self.extractor.cylinder
+        # a receding body's far edge nearer the board's largest range than this is cut off (history alias)
+        self._edge_limit_m = (characteristics(frontend).max_unambiguous_range_m
+                              - self.extractor.config.event_speed_alias_edge_clip_m)
         self.tracker = AlphaBetaTracker(tracking or AlphaBetaConfig(), self.cylinder)
         if self.tracker.config.merge_ratio > 0:
             self.tracker.occlusion_test = self._hidden_in
@@ -740,7 +744,8 @@ class SurveillanceTracker:
             cap = {"cap_range_m": fc.event_speed_cap_range_m, "cap_margin_kmh": fc.event_speed_cap_margin_kmh,
                    "cap_min_kmh": fc.event_speed_cap_min_kmh}
             v, certain = spd.event_speed_kmh(fc.event_speed_alias, fc.event_speed, fc.event_speed_leading_edge_m,
-                                             fc.event_speed_alias_edge_m, fc.event_speed_alias_margin_kmh, **cap)
+                                             fc.event_speed_alias_edge_m, fc.event_speed_alias_margin_kmh,
+                                             self._edge_limit_m, **cap)
         if not math.isfinite(v):
             v, certain = acc.mean_radial_speed_kmh(), False
         if self.classifier is not None and np.all(np.isfinite(x)):
@@ -776,7 +781,8 @@ class SurveillanceTracker:
         if fc.event_speed_alias == "history":
             # published only when its alias is sure: the whole history's alias is certain and the latest frame's
             # speed is on it (else n/a: an alias step is 10.7 km/h)
-            hv, _, certain = (spd.history_alias(fc.event_speed_alias_edge_m, fc.event_speed_alias_margin_kmh)
+            hv, _, certain = (spd.history_alias(fc.event_speed_alias_edge_m, fc.event_speed_alias_margin_kmh,
+                                                self._edge_limit_m)
                               if spd is not None else (np.zeros(0), math.nan, False))
             if not (certain and hv.size and math.isfinite(v_kmh) and abs(hv[-1] - v_kmh) <= self.cylinder.vmax_kmh):
                 v = math.nan

@@ -368,3 +368,18 @@ def test_merge_adds_the_frames_another_part_saw():
     lo, hi = a.extents()
     np.testing.assert_allclose(lo, [9, 10, 11, 12, 15, 16, 17])
     np.testing.assert_allclose(hi, [11, 12, 16, 17, 18, 19, 20])  # where both saw the body: the union of the parts
+
+
+def test_history_alias_leaves_out_a_far_edge_cut_off_at_the_largest_range():
+    """The truck's front leaves the 24 m view half-way: its far edge then stays at 23.9 m, and a leading-edge rate
+    over all frames is too slow for the right alias; without the frames beyond 21 m it is the truck's."""
+    t = np.arange(14) * 0.2
+    v_true = 25.8
+    front = np.minimum(15.0 + v_true / 3.6 * t, 23.9)
+    centroid = 6.0 + (v_true - 9.0) / 3.6 * t
+    est = RadialSpeedEstimator(VMAX)
+    for tk, rk, hk, vk in zip(t, centroid, front, wrapped(np.full(t.size, v_true))):
+        est.add(tk, rk, vk, range_lo_m=rk - 4.0, range_hi_m=hk)
+    assert est.event_speed_kmh("history")[0] == pytest.approx(v_true - 2 * VMAX, abs=0.2)
+    v, certain = est.event_speed_kmh("history", edge_limit_m=21.0)
+    assert v == pytest.approx(v_true, abs=0.2) and certain
