@@ -58,6 +58,7 @@ from edge.dsp.pairing import PairingModel, nearest_of_clusters, pair_beats
 from edge.dsp.peaks import interpolate_peak, local_maxima
 from edge.dsp.resolve import CellResolver, ResolverConfig
 from edge.dsp.range_fft import make_window
+from edge.lane.clutter import ClutterMap
 from edge.pipeline import Pipeline, PipelineError, StageTimer
 from edge.traffic.lanes import assign_lanes
 from edge.types import Detections, FrameResult, FrontendInfo, RawFrame
@@ -393,30 +394,6 @@ _TRACK_DET_SPEED_MPS = 1.0
 _AIDED_SMALL = 10
 
 
-def _median_of_frames(frames: np.ndarray) -> np.ndarray:
-    """``np.median(z.real, axis=0) + 1j * np.median(z.imag, axis=0)`` of the complex64 spectra ``z`` (frames on the
-    first axis) of the first frames: np.median's value (the middle element, or the mean of the middle two: their
-    float32 sum halved; NaN where a NaN is among the values) from one sort of contiguous rows, each cell's real or
-    imaginary part over the frames. np.median selects along the strided frame axis instead: 9 ms of CPU time for
-    16 frames of 4 x 4 x 1024 bins on the development machine, in a single frame; the transpose and sort take
-    1.5 ms. (Storing each frame straight into the transposed layout would spread the transpose over the first
-    frames, but its strided writes cost more than the copy.)"""
-    k = frames.shape[0]
-    v = frames.view(np.float32).reshape(k, -1).T.copy()  # (cells x re/im, frames)
-    v.sort(axis=1)
-    h = k // 2
-    if k % 2:
-        m = v[:, h]
-    else:
-        m = v[:, h - 1] + v[:, h]
-        m /= 2
-    last = np.isnan(v[:, -1])  # NaN sorts last
-    if last.any():
-        m[last] = np.nan
-    m = m.reshape(frames.shape[1:] + (2,))
-    return m[..., 0] + 1j * m[..., 1]
-
-
 def _segment_slopes(fe: FrontendInfo) -> np.ndarray:
     return np.array([s.slope_hz_per_s for s in fe.waveform.segments])
 
@@ -447,7 +424,6 @@ class LanePipeline(Pipeline):
         self._window_scaled = self.window if self._post_scale else self.window * np.float32(1.0 / n)
         self._sq = np.empty(frontend.frame_shape + (2,), dtype=np.float32)  # |re|^2, |im|^2 scratch
         self._sq_sum = np.empty(frontend.frame_shape, dtype=np.float32)
-        self._diff = np.empty(frontend.frame_shape, dtype=np.complex64)  # clutter-map scratch
         fs = np.array([s.sample_rate_hz for s in wf.segments])
         self._bin_hz = fs / n  # (4,)
         self._freq = (np.fft.fftfreq(n)[None, :] * fs[:, None])  # (4, n) float64 signed Hz per bin
@@ -462,12 +438,6 @@ class LanePipeline(Pipeline):
         self._n_ref = 2 * cfg.cfar_train_cells
         self._rank = max(1, min(self._n_ref, int(round(cfg.cfar_rank_fraction * self._n_ref))))
         self.cfar_scale = os_cfar_scale(cfg.cfar_pfa, self._n_ref, self._rank, n_looks=n_rx)
-        period = wf.frame_period_s
-        self._alpha = np.float32(1.0 - math.exp(-period / cfg.clutter_map_time_s)) if cfg.clutter_map_time_s > 0 else 0.0
-        self._background = np.zeros(frontend.frame_shape, dtype=np.complex64)  # (rx, seg, bin) static-clutter map
-        self._map_frames = 0
-        k_init = cfg.clutter_map_init_frames if self._alpha > 0 else 0
-        self._map_init = np.zeros((k_init,) + tuple(frontend.frame_shape), np.complex64) if k_init > 1 else None
         self._cap = np.float32(10.0 ** (cfg.cfar_cap_db / 10.0))
         self._ref_index = reference_index(n, cfg.cfar_train_cells, cfg.cfar_guard_cells)
         self._half = cfg.cfar_train_cells + cfg.cfar_guard_cells  # circular padding of the power rows
@@ -493,8 +463,9 @@ class LanePipeline(Pipeline):
                              np.zeros(0, np.float32))  # no track-aided pairs (read, never written)
         self._model = PairingModel.from_waveform(wf)
         self._model_ab = np.stack([self._model.a, self._model.b], axis=1)  # (4, 2): beat = a R + b v per segment
-        # a static echo's FFT bins per metre of range in each segment (negative on a down-chirp): _hold_standing
-        self._bins_per_m = (self._model.a / self._bin_hz).tolist()
+        # a static echo's FFT bins per metre of range in each segment (negative on a down-chirp)
+        self.clutter = ClutterMap(cfg, tuple(frontend.frame_shape), wf.frame_period_s,
+                                  (self._model.a / self._bin_hz).tolist())
         self._tol = (cfg.pair_tolerance_bins * self._bin_hz[2], cfg.pair_tolerance_bins * self._bin_hz[3])
         self._near_tol = (cfg.pair_near_tolerance_bins * self._bin_hz[2],
                           cfg.pair_near_tolerance_bins * self._bin_hz[3])
@@ -553,24 +524,7 @@ class LanePipeline(Pipeline):
             spec = scipy.fft.fft(iq, axis=-1, overwrite_x=True, workers=1)  # (rx, seg, bin) complex64
             if self._post_scale:
                 spec *= np.float32(1.0 / self.n_bins)
-            if self._alpha > 0:
-                # the map starts empty and learns as a running mean over the first frames (weight
-                # 1/(n + warm-up)), then with the time constant: guard-rail posts are gone within seconds
-                # of a start instead of a minute (their wrong pairings made tracks hop along the rail);
-                # initialising it with the first frame alone would leave that frame's vehicles' images
-                alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
-                d = np.subtract(spec, self._background, out=self._diff)
-                d *= alpha
-                if cfg.clutter_map_hold_speed_mps > 0 and self.tracker is not None:
-                    self._hold_standing(d)
-                self._background += d
-                if self._map_init is not None:  # the first frames are kept; then the map is their median
-                    self._map_init[self._map_frames] = spec
-                    if self._map_frames + 1 == self._map_init.shape[0]:
-                        self._background[...] = _median_of_frames(self._map_init)
-                        self._map_init = None
-                self._map_frames += 1
-                spec -= self._background
+            self.clutter.subtract(spec, self.tracker.tracks if self.tracker is not None else None)
             # non-coherent sum over the channels, written into the middle of a circularly padded row per
             # segment (the OS-CFAR windows read across the ends); ``power`` is a view of it
             h, n = self._half, self.n_bins
@@ -1000,26 +954,6 @@ class LanePipeline(Pipeline):
         edge.traffic.lanes.to_road computes it (its operations only: the lanes' coordinate)."""
         yaw = self.traffic.yaw_rad
         return x.astype(np.float64) * math.cos(yaw) + y.astype(np.float64) * math.sin(yaw)
-
-    def _hold_standing(self, d: np.ndarray) -> None:
-        """Zero the clutter-map update ``d`` (rx, seg, bin) in the range bins of stopped confirmed tracks
-        (``clutter_map_hold_speed_mps``): a static echo at zero Doppler, beat a_k R in segment k."""
-        cfg = self.config
-        tr = self.tracker.tracks
-        if not tr.confirmed.any():
-            return
-        x = tr.x
-        stop = tr.confirmed & tr.moved & (np.hypot(x[:, 2], x[:, 3]) < cfg.clutter_map_hold_speed_mps)
-        if not stop.any():
-            return
-        h = cfg.mounting_height_m - cfg.target_height_m
-        n = self.n_bins
-        for g in np.hypot(x[stop, 0], x[stop, 1]).tolist():
-            r0 = math.sqrt(max(g - 3.0, 0.0) ** 2 + h * h)
-            r1 = math.sqrt((g + cfg.clutter_map_hold_length_m) ** 2 + h * h)
-            for k, a in enumerate(self._bins_per_m):
-                lo, hi = sorted((a * r0, a * r1))
-                d[:, k, np.arange(math.floor(lo) - 1, math.ceil(hi) + 2) % n] = 0
 
     def _against_lane_glint(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, x: np.ndarray,
                             y: np.ndarray, keep: np.ndarray) -> np.ndarray:

@@ -352,12 +352,12 @@ def record_run(scenario: str, seed: int, frames: int, fe_frames=(), spec_frames=
             rows.put("yaw", k, np.array([[pipe.traffic.yaw_rad, pipe.traffic.yaw_sigma_rad]]))
             return upd
 
-        real_hold = pipe._hold_standing
+        real_hold = pipe.clutter._hold_standing
         held = {"any": False}
 
-        def hold(d):
+        def hold(d, tracks):
             before = d.copy()
-            real_hold(d)
+            real_hold(d, tracks)
             held["any"] = not np.array_equal(before, d, equal_nan=True)
 
         timer = StageTimer(16)
@@ -369,18 +369,18 @@ def record_run(scenario: str, seed: int, frames: int, fe_frames=(), spec_frames=
             ctx.enter_context(patched(pipe.resolver, "step", resolve))
             ctx.enter_context(patched(pipe.tracker, "step", track))
             ctx.enter_context(patched(pipe.traffic, "update", traffic))
-            ctx.enter_context(patched(pipe, "_hold_standing", hold))
+            ctx.enter_context(patched(pipe.clutter, "_hold_standing", hold))
             for f in it(frames):
                 k = cur["k"] = f.seq
                 angle_last.update(snaps=np.zeros((0, 4, pipe.frontend.n_rx), np.complex64),
                                   kept_used=(np.zeros((0, 4), bool), np.zeros((0, 4), bool)))
                 rows.put("t_ns", k, np.array([f.t_ns], np.int64))
                 if k in fe_frames:
-                    assert pipe._map_init is None
+                    assert pipe.clutter._map_init is None
                     rows.put("fe_i", k, f.i[None])
                     rows.put("fe_q", k, f.q[None])
-                    rows.put("fe_background", k, pipe._background[None].copy())
-                    rows.put("fe_map_frames", k, np.array([pipe._map_frames]))
+                    rows.put("fe_background", k, pipe.clutter._background[None].copy())
+                    rows.put("fe_map_frames", k, np.array([pipe.clutter._map_frames]))
                 held["any"] = False
                 res = pipe.process(f, timer)
                 inter = res.intermediates
@@ -554,9 +554,9 @@ def check_spectra(data, meta) -> dict[int, list[str]]:
     real_fft = lane_mod.scipy.fft.fft
     for k in meta["fe_frames"]:
         pipe, _ = build(meta["scenario"], meta["seed"], meta["interval_s"], patch=meta["patch"])
-        pipe._map_init = None
-        pipe._background[...] = fr.get("fe_background", k)[0]
-        pipe._map_frames = int(fr.get("fe_map_frames", k)[0])
+        pipe.clutter._map_init = None
+        pipe.clutter._background[...] = fr.get("fe_background", k)[0]
+        pipe.clutter._map_frames = int(fr.get("fe_map_frames", k)[0])
         got = {}
 
         def fft(*a, **kw):
@@ -570,7 +570,7 @@ def check_spectra(data, meta) -> dict[int, list[str]]:
         ref = fr.get("spec", k)[0]
         new = got["spec"]
         # per row: relative to its largest raw bin (the TX leakage before clutter removal dominates the round-off)
-        raw = np.abs(ref + pipe._background).max(axis=-1, keepdims=True).astype(np.float64)
+        raw = np.abs(ref + pipe.clutter._background).max(axis=-1, keepdims=True).astype(np.float64)
         atol, rtol = TOLERANCE["spec"]
         diff = np.abs(ref.astype(np.complex128) - new)
         bad = diff > atol + rtol * raw

@@ -489,7 +489,7 @@ def test_cell_association_equals_the_array_form():
 
 @pytest.mark.parametrize("k", [2, 3, 16])
 def test_clutter_map_start_median_equals_np_median(k):
-    from edge.pipelines.lane import _median_of_frames
+    from edge.lane.clutter import _median_of_frames
 
     rng = np.random.default_rng(k)
     z = ((rng.standard_normal((k, 4, 4, 64)) + 1j * rng.standard_normal((k, 4, 4, 64))) * 1000).astype(np.complex64)
