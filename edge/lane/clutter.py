@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from edge.lane.records import Feedback
+
 
 def _median_of_frames(frames: np.ndarray) -> np.ndarray:
     """``np.median(z.real, axis=0) + 1j * np.median(z.imag, axis=0)`` of the complex64 spectra ``z`` (frames on the
@@ -63,10 +65,10 @@ class ClutterMap:
         """(rx, seg, bin) complex64: the map as it stands."""
         return self._background
 
-    def subtract(self, spec: np.ndarray, tracks: Any = None) -> None:
+    def subtract(self, spec: np.ndarray, feedback: Feedback) -> None:
         """Update the map with the spectra ``spec`` (rx, seg, bin) complex64 and subtract it from them in place.
-        ``tracks`` (columns ``x``, ``confirmed``, ``moved``; None without a tracker): the map is held in the range
-        bins of stopped confirmed tracks (``clutter_map_hold_speed_mps``)."""
+        The map is held in the range bins of stopped confirmed tracks of ``feedback``
+        (``clutter_map_hold_speed_mps``)."""
         if not self._alpha > 0:
             return
         cfg = self.config
@@ -77,8 +79,8 @@ class ClutterMap:
         alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
         d = np.subtract(spec, self._background, out=self._diff)
         d *= alpha
-        if cfg.clutter_map_hold_speed_mps > 0 and tracks is not None:
-            self._hold_standing(d, tracks)
+        if cfg.clutter_map_hold_speed_mps > 0:
+            self._hold_standing(d, feedback)
         self._background += d
         if self._map_init is not None:  # the first frames are kept; then the map is their median
             self._map_init[self._map_frames] = spec
@@ -88,14 +90,14 @@ class ClutterMap:
         self._map_frames += 1
         spec -= self._background
 
-    def _hold_standing(self, d: np.ndarray, tracks: Any) -> None:
+    def _hold_standing(self, d: np.ndarray, feedback: Feedback) -> None:
         """Zero the clutter-map update ``d`` (rx, seg, bin) in the range bins of stopped confirmed tracks
         (``clutter_map_hold_speed_mps``): a static echo at zero Doppler, beat a_k R in segment k."""
         cfg = self.config
-        tr = tracks
+        tr = feedback
         if not tr.confirmed.any():
             return
-        x = tr.x
+        x = tr.track_state
         stop = tr.confirmed & tr.moved & (np.hypot(x[:, 2], x[:, 3]) < cfg.clutter_map_hold_speed_mps)
         if not stop.any():
             return
