@@ -10,8 +10,6 @@ A filter is called as ``filter(candidates, feedback) -> candidates`` (:class:`ed
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from edge.dsp.geometry import polar_to_ground

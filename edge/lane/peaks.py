@@ -46,6 +46,7 @@ class PeakStage:
         self.pad = cfg.cfar_train_cells + cfg.cfar_guard_cells  # circular padding of the power rows
         self._bin_shift = n.bit_length() - 1 if n & (n - 1) == 0 else None
         self._nan_rows = np.full((n_seg, n), np.nan, np.float32)
+        self._is_max, self._ge = np.empty((n_seg, n), bool), np.empty((n_seg, n), bool)  # local-maximum scratch
         self._tiny = np.float32(1e-30)
         self._seg_ends = np.arange(1, n_seg + 1)
 
@@ -70,8 +71,8 @@ class PeakStage:
                                                  & self.valid))
                 weak = (wr, wc, np.stack([ppad[wr, wc + h + o] for o in (-1, 0, 1)], axis=1))
         else:  # only local maxima can be reported: evaluate the ordered statistic there
-            is_max = power > ppad[:, h - 1:h - 1 + n]
-            is_max &= power >= ppad[:, h + 1:h + 1 + n]
+            is_max = np.greater(power, ppad[:, h - 1:h - 1 + n], out=self._is_max)
+            is_max &= np.greater_equal(power, ppad[:, h + 1:h + 1 + n], out=self._ge)
             is_max &= self.valid
             flat = is_max.reshape(-1).nonzero()[0]
             if self._bin_shift is not None:  # a power of two: np.divmod's values by a shift and a mask

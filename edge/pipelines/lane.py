@@ -46,37 +46,27 @@ from edge.types import Detections, FrameResult, FrontendInfo, RawFrame
 
 @dataclass(frozen=True)
 class LaneConfig:
-    """Signal processing of the lane profile (Lim §III-A); defaults follow the paper where it gives values."""
+    """Signal processing of the lane profile (Lim §III-A); defaults follow the paper where it gives values. Why the
+    values beyond the paper are what they are: docs/decisions/0003-lane-stages.md."""
 
     window: str = field(default="hann", metadata={
         "doc": "range window applied before every FFT", "choices": ("hann", "hamming", "blackman", "kaiser", "boxcar")})
     clutter_map_time_s: float = field(default=20.0, metadata={
-        "unit": "s", "doc": "time constant of the static-clutter map: an exponential average of each channel's "
-               "complex spectrum subtracted before detection (guard rails, gantries, poles and the TX leakage "
-               "vanish; a vehicle standing much longer than this fades too); 0 = off",
+        "unit": "s", "doc": "time constant of the static-clutter map, an exponential average of each channel's complex "
+               "spectrum subtracted before detection (guard rails, gantries, poles, TX leakage); 0 = off",
         "min": 0.0, "max": 3600.0})
     clutter_map_hold_speed_mps: float = field(default=1.0, metadata={
-        "unit": "m/s", "doc": "the clutter map is not updated in the range bins of a confirmed track that once moved "
-               "and is now slower than this (from 3 m before its near face to clutter_map_hold_length_m behind): a "
-               "stopped vehicle (a breakdown, engine off: a static echo) would otherwise fade into the map within "
-               "about clutter_map_time_s and its track be lost while it stands. Measured, off -> on, stopped-vehicle "
-               "seeds 1-3 (a car standing a minute, a van 40 s): the car tracked in 0.43/0.45/0.72 -> 0.99/1.0/1.0 "
-               "of its frames, the van 1.0/0.84/0.93 -> 1.0, id switches 2/4/5 -> 3/0/2, confirmed false tracks "
-               "0/1/2 -> 5/0/1 (seed 1: ghosts at 4 m/s beside the two standing vehicles); 0 = off",
+        "unit": "m/s", "doc": "the clutter map is not updated in the range bins of a confirmed track that once moved and "
+               "is now slower than this, so a stopped vehicle does not fade into the map; 0 = off",
         "min": 0.0, "max": 10.0})
     clutter_map_hold_length_m: float = field(default=20.0, metadata={
-        "unit": "m", "doc": "... range held behind a stopped track's near face (its body: a truck and more)",
-        "min": 0.0, "max": 100.0})
+        "unit": "m", "doc": "range held behind a stopped track's near face (its body)", "min": 0.0, "max": 100.0})
     clutter_map_warmup_frames: int = field(default=60, metadata={
-        "doc": "the clutter map starts as a running mean, frame n weighted max(1/(n + this), 1 - exp(-T/time "
-               "constant)): static clutter is learned in seconds, a vehicle of the first frames stays in it at "
-               "1/this of its amplitude (-36 dB) only", "min": 1, "max": 1_000_000})
+        "doc": "the clutter map starts as a running mean: frame n is weighted max(1/(n + this), 1 - exp(-T/time "
+               "constant))", "min": 1, "max": 1_000_000})
     cfar_pfa: float = field(default=1e-3, metadata={
-        "doc": "design false-alarm probability per cell of the OS-CFAR (sets the threshold scale). Lim gives no "
-               "value; 1e-3 (about 4 noise peaks per frame over 4 x 1024 cells) is affordable because a target "
-               "needs peaks in all four segments that agree in range, speed and angle: measured on highway4 and "
-               "highway4-traffic, 1e-3 gives no false track and 15 points more detection probability than 1e-6",
-        "min": 1e-12, "max": 0.1})
+        "doc": "design false-alarm probability per cell of the OS-CFAR (sets its threshold scale); a target also "
+               "needs agreeing peaks in all four segments", "min": 1e-12, "max": 0.1})
     cfar_train_cells: int = field(default=16, metadata={
         "doc": "OS-CFAR reference cells on each side of the cell under test", "min": 2, "max": 128})
     cfar_guard_cells: int = field(default=2, metadata={
@@ -85,46 +75,32 @@ class LaneConfig:
         "doc": "rank of the ordered statistic as a fraction of the reference cells (Rohling: 3/4)",
         "min": 0.05, "max": 1.0})
     cfar_cap_db: float = field(default=9.0, metadata={
-        "unit": "dB", "doc": "the OS-CFAR noise estimate is capped at the segment's median power plus this: "
-               "an extended vehicle (or several) filling the reference window cannot mask itself. Where the beats "
-               "of several vehicles crowd (a receding car 10-25 m away shares the fast-up bins of approaching "
-               "vehicles 35 m farther) more than a quarter of the window holds echoes and the cap sets the "
-               "threshold; measured on highway4-traffic seeds 5, 6, 7 (3000 frames each) against 12 dB: car Pd "
-               "+0.2 points, summed count error 4 -> 2, false tracks 7 -> 8, 0.03 ms more per frame",
-        "min": 0.0, "max": 100.0})
+        "unit": "dB", "doc": "the OS-CFAR noise estimate is capped at the segment's median power plus this, so "
+               "echoes filling the reference window cannot mask themselves", "min": 0.0, "max": 100.0})
     cfar_full_threshold: bool = field(default=False, metadata={
-        "doc": "compute the OS-CFAR threshold at every bin (for plots); off: only at local maxima, the only cells "
-               "that can become peaks (same detections, a fifth of the work); other bins read NaN"})
+        "doc": "compute the OS-CFAR threshold at every bin (for plots); off: only at local maxima (the same "
+               "detections), other bins read NaN"})
     min_range_m: float = field(default=5.0, metadata={
         "unit": "m", "doc": "nearest slant range reported (TX->RX leakage and the overpass itself are closer)",
         "min": 0.0, "max": 100.0})
     max_range_m: float = field(default=375.0, metadata={
-        "unit": "m", "doc": "farthest slant range reported (design range 300 m; a car fades out at 350-390 m and an "
-               "approaching one is tracked from there, so its track is confirmed when it reaches 300 m: on "
-               "highway4-traffic seed 1 (2 min) car Pd at 250-300 m 0.92 with 330 m, 0.94 with 375 m; 384 m is the "
-               "unambiguous range at standstill)", "min": 10.0, "max": 400.0})
+        "unit": "m", "doc": "farthest slant range reported: beyond the 300 m design range, so an approaching car's "
+               "track is confirmed by 300 m (384 m is the unambiguous range at standstill)", "min": 10.0, "max": 400.0})
     max_speed_kmh: float = field(default=250.0, metadata={
         "unit": "km/h", "doc": "largest radial speed a pairing may have", "min": 10.0, "max": 400.0})
     max_peaks_per_segment: int = field(default=128, metadata={
         "doc": "strongest CFAR peaks kept per segment (bounds the pairing work)", "min": 1, "max": 1024})
     pair_tolerance_bins: float = field(default=1.0, metadata={
-        "doc": "a fast pairing is confirmed when slow-segment peaks lie within this many slow-segment bins "
-               "of both predictions (ghost rejection); an extended vehicle's unresolved scatterers shift its peaks "
-               "by up to about a bin", "min": 0.05, "max": 5.0})
+        "doc": "a fast-segment pairing is confirmed when slow-segment peaks lie within this many slow-segment bins "
+               "of both predictions (ghost rejection)", "min": 0.05, "max": 5.0})
     pair_near_tolerance_bins: float = field(default=1.5, metadata={
-        "doc": "pair_tolerance_bins for candidates nearer than pair_near_range_m. Near the overpass a vehicle's "
-               "radial speed changes within the 33 ms frame (radial acceleration v^2 h^2 / R^3 with h the lateral "
-               "and height offset: 30 m/s^2 at 12 m, 100 km/h, an outer lane, i.e. a slow bin between the segments) "
-               "and its body spans many bins and degrees seen from the radar's height, so the four segments' peaks "
-               "agree less well; measured on highway4-traffic seeds 5 and 6 (3000 frames): receding cars at 10-25 "
-               "m were paired in about half their frames with 1.0 (a slow segment 1.0-1.5 bins off the fast pair's "
-               "prediction)", "min": 0.05, "max": 5.0})
+        "doc": "pair_tolerance_bins nearer than pair_near_range_m, where a vehicle's radial speed changes within "
+               "the frame (radial acceleration v^2 h^2 / R^3) and its body spans many bins", "min": 0.05, "max": 5.0})
     pair_near_range_m: float = field(default=40.0, metadata={
-        "unit": "m", "doc": "slant range up to which pair_near_tolerance_bins applies (the radial acceleration "
-               "falls with R^3: 1 m/s^2 beyond about 40 m); 0 = off", "min": 0.0, "max": 400.0})
+        "unit": "m", "doc": "slant range up to which pair_near_tolerance_bins applies; 0 = off", "min": 0.0, "max": 400.0})
     pair_max_shared_peaks: int = field(default=1, metadata={
         "doc": "a pairing may share this many of its four peaks with better pairings (vehicles whose beats "
-               "coincide in one segment); 0 = every peak belongs to one pairing", "min": 0, "max": 3})
+               "coincide in one segment)", "min": 0, "max": 3})
     angle_step_deg: float = field(default=0.25, metadata={
         "unit": "deg", "doc": "Bartlett grid step (refined by a parabola)", "min": 0.01, "max": 2.0})
     angle_max_deg: float = field(default=19.0, metadata={
@@ -132,143 +108,82 @@ class LaneConfig:
         "min": 1.0, "max": 90.0})
     angle_outlier_deg: float = field(default=2.0, metadata={
         "unit": "deg", "doc": "a segment whose own Bartlett maximum is farther than this from the median of the four "
-               "is left out of the angle estimate (another vehicle shares its bin); 90 = keep all",
-        "min": 0.1, "max": 90.0})
+               "is left out of the angle; 90 = keep all", "min": 0.1, "max": 90.0})
     angle_outlier_lateral_m: float = field(default=1.0, metadata={
-        "unit": "m", "doc": "... widened near the radar to this lateral distance at the detection's range "
-               "(max(angle_outlier_deg, this / range)): a car 12 m away spans 9 deg and each segment's maximum "
-               "lands on another part of its body (1.0 m: 4.8 deg at 12 m, the 2 deg floor from 29 m on; less than "
-               "half the 3.5 m lane spacing, so the peaks of two vehicles in adjacent lanes still disagree)",
-        "min": 0.0, "max": 10.0})
+        "unit": "m", "doc": "... widened near the radar to this lateral distance at the detection's range, "
+               "max(angle_outlier_deg, this / range): a near vehicle spans degrees", "min": 0.0, "max": 10.0})
     angle_skip_shared_looks: bool = field(default=True, metadata={
-        "doc": "leave a segment out of a detection's angle (and of the side-by-side resolver's looks) when its peak "
-               "bin is also the peak of another accepted pairing (within angle_shared_bins): two vehicles whose beats "
-               "coincide in that segment, the weaker or nearer-in-angle visitor passing angle_outlier_deg; kept where "
-               "fewer than two agreeing segments would remain. In busy traffic 15 % of detections have such a "
-               "segment (highway4-traffic seed 7012, 1000 frames). Measured, off -> on: highway4 seeds 7001-7040, "
-               "per-seed mean position RMSE lower on 37 of 40 (summed 2.642 -> 2.502 m), seeds with a vehicle over "
-               "0.15 m 5 -> 4, no false track either way; highway4-traffic ten minutes, seeds 5, 7007, 7012, 7015, "
-               "7016, 7018, 7019, 7020: position RMSE mean 0.251-0.274 -> 0.221-0.246 m (every seed), counted "
-               "crossings matching no vehicle 7 -> 1, vehicles not counted 5 -> 8 (two of the new ones crossed "
-               "untracked in both runs and had been counted late by chance; the third, a coasting truck track "
-               "drifting sideways in both runs, crossed the line 0.1 m beyond the lane boundary), id switches 283 -> "
-               "264, confirmed false tracks 134 -> 116, car detection probability within 0.001; the phantom that the "
-               "resolver split off car 120 of seed 7012 (another vehicle in two of its segments) is gone"})
+        "doc": "leave a segment out of a detection's angle (and of the resolver's looks) when its peak is also the "
+               "peak of another accepted pairing of another speed, unless fewer than two agreeing segments remain"})
     angle_shared_bins: int = field(default=1, metadata={
-        "doc": "peaks this many FFT bins apart or closer in one segment count as shared (a Hann window's main lobe "
-               "spans +-2 bins: two beats a bin apart merge into one peak)", "min": 0, "max": 4})
+        "doc": "peaks this many FFT bins apart or closer in one segment count as shared", "min": 0, "max": 4})
     angle_shared_speed_mps: float = field(default=1.0, metadata={
-        "unit": "m/s", "doc": "... only with a pairing whose radial speed differs by more than this (another "
-               "vehicle; one vehicle's scatterers pair into several detections of its speed a bin or two apart)",
+        "unit": "m/s", "doc": "... only with a pairing whose radial speed differs by more than this (another vehicle)",
         "min": 0.0, "max": 20.0})
     angle_min_agreeing: int = field(default=3, metadata={
-        "doc": "a pairing is kept only if at least this many of the four segments agree on its angle: the peaks "
-               "of a ghost pairing come from different vehicles and point in different directions",
-        "min": 1, "max": 4})
+        "doc": "a pairing is kept only if at least this many of the four segments agree on its angle (a ghost "
+               "pairing's peaks point in different directions)", "min": 1, "max": 4})
     aided_pairing: bool = field(default=True, metadata={
-        "doc": "confirmed tracks (and far approaching tentative ones: aided_tentative_min_range_m) that got no "
-               "pairing look for their own peaks near their predicted beat frequencies (near vehicles smear over "
-               "several bins and the four segments stop agreeing within pair_tolerance_bins)"})
+        "doc": "confirmed tracks (and far approaching tentative ones) that got no pairing look for their own peaks "
+               "near their predicted beat frequencies"})
     aided_window_bins: float = field(default=3.0, metadata={
         "doc": "search half-width around a track's predicted beat frequency, in bins of each segment",
         "min": 0.5, "max": 20.0})
     aided_min_segments: int = field(default=4, metadata={
-        "doc": "segments that must hold a peak near the prediction (range and speed are fitted to them). Measured "
-               "on highway4-misaimed seed 11 (90 s): 4 raises the detection probability 0.933 -> 0.934 with "
-               "id switches 13 -> 12; 3 gives 0.936 but 22 id switches (tracks live on other vehicles' peaks)",
+        "doc": "segments that must hold a peak near the prediction (range and speed are fitted to them)",
         "min": 2, "max": 4})
     aided_pfa: float = field(default=1e-2, metadata={
-        "doc": "false-alarm probability of the lower OS-CFAR threshold at which a confirmed track's search also takes "
-               "local maxima that missed cfar_pfa (the track says where to look: four segments within "
-               "aided_window_bins of their predictions and a range/speed fit inside the aided gates make a noise "
-               "coincidence rare); 0 = only the cfar_pfa peaks. A car near 300 m or under the overpass crosses "
-               "the cfar_pfa threshold in all four segments in about 60 % of its frames only",
-        "min": 0.0, "max": 0.1})
+        "doc": "false-alarm probability of the lower OS-CFAR threshold whose local maxima a track's search also "
+               "takes; 0 = only the cfar_pfa peaks", "min": 0.0, "max": 0.1})
     aided_gate_m: float = field(default=2.5, metadata={
         "unit": "m", "doc": "fitted range within this of the track's predicted slant range (and an existing "
                "pairing this close means the track needs no help)", "min": 0.1, "max": 20.0})
     aided_gate_mps: float = field(default=1.5, metadata={
         "unit": "m/s", "doc": "... and fitted radial speed within this of the prediction", "min": 0.1, "max": 20.0})
     aided_tentative_min_range_m: float = field(default=200.0, metadata={
-        "unit": "m", "doc": "tentative tracks at least this far (ground range), surely moving (the tracker's "
-               "moving test), approaching and with aided_tentative_min_hits hits, search for their own peaks as confirmed tracks do (0 = confirmed "
-               "tracks only). Far cars cross the cfar_pfa threshold in all four segments in a third to a half of "
-               "their frames (glint; the outer lane's weaker; a car beside another at a few metres' range and m/s "
-               "also loses its slow-segment peak in the neighbour's stronger one), so their tentative tracks missed "
-               "5 of 10 and expired while the neighbour's confirmed track was the only one (the evaluator's 'confirmed "
-               "track nearby, assigned to the adjacent-lane neighbour'). highway4-traffic dev seeds 5/6/7 (6000 frames), "
-               "car Pd 0.984/0.982/0.981 -> 0.989/0.989/0.987 (250-300 m: 0.955/0.947/0.943 -> 0.972/0.981/0.973), "
-               "false tracks 8/7/4 and per-lane counts unchanged, id switches 13/18/9 -> 12/18/10; seed 31: 0.981 -> "
-               "0.986, id switches 18 -> 20; 10 min, seeds 5/6: 0.985/0.984 -> 0.990/0.989 (250-300 m: 0.959/0.963 -> "
-               "0.978/0.986), false tracks 15/12, counts and lane accuracy unchanged, id switches 38/48 -> 34/48. "
-               "What is left there: frames in which the car's peaks miss the lower threshold as well. Without the "
-               "approaching rule seed 5 got a false track at 250 m in a receding lane, from 150 m one more",
+        "unit": "m", "doc": "tentative tracks at least this far (ground range) that once moved and have "
+               "aided_tentative_min_hits hits search for their own peaks too; 0 = confirmed tracks only",
         "min": 0.0, "max": 1000.0})
     aided_tentative_min_hits: int = field(default=2, metadata={
-        "doc": "... once they have this many hits (1, every far seed: car Pd 0.001 higher on seeds 5/6/7, lane "
-               "accuracy 0.0004 lower on seed 7)", "min": 1, "max": 32})
+        "doc": "... once they have this many hits", "min": 1, "max": 32})
     aided_tentative_approaching: bool = field(default=True, metadata={
-        "doc": "... and only while they approach (the far edge is where approaching vehicles come into view; a "
-               "receding vehicle there has had its track for 250 m)"})
+        "doc": "... and only while they approach (the far edge is where approaching vehicles come into view)"})
     resolve_pairs: bool = field(default=True, metadata={
-        "doc": "split a detection in two when its range-speed cell's spatial covariance, accumulated over frames, "
-               "holds two vehicles at different angles (side by side at the same range and speed; "
-               "edge.lane.resolve)"})
+        "doc": "split a detection in two when its range-speed cell's spatial covariance over frames holds two "
+               "vehicles at different angles (edge.lane.resolve)"})
     resolve_memory_frames: float = field(default=8.0, metadata={
         "doc": "memory (frames) of the per-cell covariance: longer resolves farther, shorter lags less",
         "min": 1.0, "max": 100.0})
     resolve_min_frames: int = field(default=6, metadata={
         "doc": "frames a cell must have been followed before it may be split", "min": 2, "max": 100})
     resolve_min_split_frames: int = field(default=4, metadata={
-        "doc": "a cell is split only after it was found to hold two vehicles in this many frames in a row (a "
-               "passing vehicle's echo in one look, or one noisy frame, is brief)", "min": 1, "max": 100})
+        "doc": "a cell is split only after it was found to hold two vehicles in this many frames in a row",
+        "min": 1, "max": 100})
     resolve_min_eig_ratio: float = field(default=0.05, metadata={
         "doc": "second eigenvalue of the cell covariance relative to the first above which two sources are "
-               "considered (one vehicle's spread scatterers stay below)", "min": 1e-4, "max": 1.0})
+               "considered", "min": 1e-4, "max": 1.0})
     resolve_min_noise_ratio: float = field(default=8.0, metadata={
         "doc": "... and relative to the mean of the noise eigenvalues", "min": 1.0, "max": 1e4})
     resolve_pair_hint_eig_ratio: float = field(default=0.02, metadata={
-        "doc": "a cell not split whose second eigenvalue is above this fraction of the first (and resolve_min_noise_ratio "
-               "above the noise) marks its detection extra['unresolved_pair']: two sources too close in angle to be "
-               "split (two cars side by side at 100-120 m: 0.026-0.05 while their two-source fit already finds both "
-               "lanes; one point-like vehicle about 0.01), whose one angle lies between them. The tracker's lateral "
-               "filter does not draw a straight line through such detections (track.pdaf.lateral_smoother)",
-        "min": 1e-4, "max": 1.0})
+        "doc": "a cell not split whose second eigenvalue is above this fraction of the first marks its detection "
+               "extra['unresolved_pair']: two sources too close in angle to split", "min": 1e-4, "max": 1.0})
     resolve_min_power_ratio: float = field(default=0.1, metadata={
         "doc": "... and the weaker of the two fitted sources carries at least this fraction of the stronger one's "
-               "power (a vehicle with a brief visitor in one of its looks has a strong and a faint source)",
-        "min": 0.0, "max": 1.0})
+               "power", "min": 0.0, "max": 1.0})
     resolve_min_lateral_m: float = field(default=2.5, metadata={
         "unit": "m", "doc": "the two fitted directions must lie at least this far apart across at the cell's range "
-               "(more than one vehicle's width; adjacent lanes are 3.5 m apart)", "min": 0.5, "max": 20.0})
+               "(more than a vehicle's width)", "min": 0.5, "max": 20.0})
     resolve_boundary_fraction: float = field(default=0.25, metadata={
-        "doc": "when lanes are known (configured or learned), a split is kept only if its two directions lie in "
-               "adjacent lanes and their midpoint within this fraction of the lane spacing from the boundary "
-               "between them (a truck's two sides straddle one lane's centre instead)", "min": 0.0, "max": 1.0})
+        "doc": "with lanes, a split is kept only if its two directions lie in adjacent lanes and their midpoint "
+               "within this fraction of the lane spacing from the boundary between them", "min": 0.0, "max": 1.0})
     resolve_follow_direction: bool = field(default=True, metadata={
-        "doc": "steer a cell's covariance memory along with its vehicle's direction (sin(az) scales with 1/range at a "
-               "fixed lateral position) before adding a frame: without it the memory of a vehicle near the radar, "
-               "whose direction sweeps by degrees within resolve_memory_frames, held its earlier direction as a "
-               "second source and the cell was split into the vehicle and a phantom 3 m further out, in the next "
-               "lane (highway4-traffic seeds 31 and 57: tracks beside receding cars at 30-40 m counted in lane 3). "
-               "Measured with resolve_skip_bodies and resolve_same_direction on highway4-traffic seeds 5, 6, 7 "
-               "(6000 frames each) against all three off: summed |count error| 3 -> 2 (the three tracks counted "
-               "beside receding vehicles gone; a car hidden beside another in the next lane at its speed, counted "
-               "through a split before, missed on seed 7), false tracks 19 -> 19, id switches 43 -> 40, detection "
-               "probability within 0.001; side-by-side seeds 3, 5, 6, 8, 21 (300 frames) tracked fractions within "
-               "0.1 per car"})
+        "doc": "steer a cell's covariance memory along with its vehicle's direction (sin(az) scales with 1/range) "
+               "before adding a frame"})
     resolve_skip_bodies: bool = field(default=True, metadata={
-        "doc": "no split of a cell that lies behind a nearer detection of the same vehicle (up to cluster_length_m "
-               "nearer, within cluster_speed_mps and cluster_lateral_m of the cell's unsplit position): a vehicle's "
-               "body puts its two sides (or a side and its far face) in one range bin, a rank-two covariance the "
-               "4-element array cannot resolve, and the two-source fit pushed one direction into the next lane, 3-4 m "
-               "beside the vehicle, where it seeded tracks that were counted (highway4-traffic seed 31: beside a "
-               "receding van and an approaching truck); two vehicles side by side are the nearest detections of "
-               "both"})
+        "doc": "no split of a cell behind a nearer detection of the same vehicle (within cluster_length_m, "
+               "cluster_speed_mps, cluster_lateral_m): its body, which the 4-element array cannot resolve"})
     resolve_same_direction: bool = field(default=True, metadata={
-        "doc": "when lanes are known, a split is kept only if both its lanes carry the cell's direction of travel "
-               "(the sign of its radial speed): two vehicles in one range-speed cell move the same way, and a body "
-               "split across the median put a track against its lane's direction (a wrong-way alarm)"})
+        "doc": "with lanes, a split is kept only if both its lanes carry the cell's direction of travel"})
     calibration_gain: tuple[float, ...] = field(default=(1.0, 1.0, 1.0, 1.0), metadata={
         "doc": "per-channel amplitude of the receive paths (divided out before the angle estimate)",
         "min": 1e-3, "max": 1e3})
@@ -281,15 +196,11 @@ class LaneConfig:
         "unit": "m", "doc": "height of the dominant vehicle scatterers (bumper) for the ground projection",
         "min": 0.0, "max": 5.0})
     cluster_length_m: float = field(default=17.0, metadata={
-        "unit": "m", "doc": "detections at most this much farther than another one with the same radial speed and "
-               "lateral position are the same vehicle's body and dropped (0 = keep every detection); 17 m holds the "
-               "longest truck (16.5 m): with 7 m, the rear half of a truck seeded a second track that lived for "
-               "seconds (a false track, an id switch when it took over, a track on the body instead of the near face). "
-               "A follower this close at the same speed is hidden meanwhile (0.6 s headway at 100 km/h)",
+        "unit": "m", "doc": "detections at most this much farther than another with the same radial speed and "
+               "lateral position are that vehicle's body and dropped (the longest truck: 16.5 m); 0 = keep all",
         "min": 0.0, "max": 30.0})
     cluster_speed_mps: float = field(default=0.6, metadata={
-        "unit": "m/s", "doc": "radial speed difference within which detections can be one vehicle (the body's own "
-               "scatterers share its speed)",
+        "unit": "m/s", "doc": "radial speed difference within which detections can be one vehicle",
         "min": 0.0, "max": 10.0})
     cluster_lateral_m: float = field(default=1.5, metadata={
         "unit": "m", "doc": "lateral difference within which detections can be one vehicle (half a lane)",
@@ -297,69 +208,33 @@ class LaneConfig:
     tracking: bool = field(default=True, metadata={
         "doc": "run the PDAF tracker and the traffic layer (off: detections only)"})
     unalias_by_lane: bool = field(default=True, metadata={
-        "doc": "when lanes are known, a moving detection that lands in a lane of the other direction of travel is "
-               "moved to its grating-lobe alias (sin(az) +- lambda/d) if that lies in a lane of its own direction: "
-               "near vehicles in outer lanes lie beyond the +-19.5 deg unambiguous sector and appeared mirrored "
-               "across the road as receding vehicles in approaching lanes (8 of 12 false tracks on highway4-traffic "
-               "seed 2, first 2 min)"})
+        "doc": "with lanes, a moving detection in a lane of the other direction is moved to its grating-lobe alias "
+               "(sin(az) +- lambda/d) if that lies in a lane of its own direction"})
     unalias_min_speed_mps: float = field(default=1.0, metadata={
-        "unit": "m/s", "doc": "radial speed below which a detection's direction of travel is unknown (not unaliased)",
+        "unit": "m/s", "doc": "radial speed below which a detection's direction of travel is unknown",
         "min": 0.0, "max": 50.0})
     cluster_ghost_speed_mps: float = field(default=6.0, metadata={
-        "unit": "m/s", "doc": "wrong pairings among a body's scatterers: a long vehicle's equally spaced scatterers "
-               "(near face, side scatterers every L/5, far face) at R'-2u, R'-u, R'+u, R'+2u fit a target at R' with "
-               "speed v +- u a/b exactly in all four segments (a/b = 1.66 m/s per m of the fast segments; pair "
-               "residual ~1 Hz), so ghosts at v +- 5 m/s appear 6-10 m behind a truck's near face. Detections behind "
-               "a nearer one are dropped up to this speed difference, but at most cluster_ghost_speed_per_m x their "
-               "distance behind and at most cluster_ghost_length_m behind; 0 = off. Measured on highway4-traffic "
-               "seeds 5, 6, 7 (3000 frames each): the ghosts of receding trucks seeded tracks running ahead of them "
-               "across the detection line (false tracks 12 -> 7, summed count error 6 -> 4; 0.83 and 0.9 m/s per m "
-               "alike); crossing keeps both ids",
+        "unit": "m/s", "doc": "wrong pairings among a body's scatterers: detections behind a nearer one are dropped "
+               "up to this speed difference (bounded by cluster_ghost_speed_per_m and cluster_ghost_length_m); 0 = off",
         "min": 0.0, "max": 20.0})
     cluster_ghost_speed_per_m: float = field(default=0.9, metadata={
-        "unit": "m/s per m", "doc": "... the ghost law: a ghost lies at least 2u behind the near face and is off by "
-               "u a/b, i.e. at most a / (2 b) = 0.83 m/s per metre behind; 0.9 leaves room for the least-squares fit "
-               "over the four segments (a ghost exactly 2u behind came out at 0.834) and still keeps a car 3 m behind "
-               "a van at 2.8 m/s more (crossing; 1.7 dropped it)",
-        "min": 0.0, "max": 10.0})
+        "unit": "m/s per m", "doc": "... at most this speed difference per metre behind (a ghost 2u behind the "
+               "near face is off by u a/b: a / (2 b) = 0.83 m/s per m)", "min": 0.0, "max": 10.0})
     cluster_ghost_length_m: float = field(default=12.0, metadata={
-        "unit": "m", "doc": "... and only up to this far behind (a ghost at R' needs a scatterer 2u beyond it on the "
-               "body: R' <= 16.5 m - 2u; seen up to 9 m behind trucks)", "min": 0.0, "max": 30.0})
+        "unit": "m", "doc": "... and only up to this far behind", "min": 0.0, "max": 30.0})
     cluster_against_lane_speed_mps: float = field(default=0.3, metadata={
-        "unit": "m/s", "doc": "angle glint of a vehicle's body: a detection in a lane of the other direction of "
-               "travel (moving against it) that lies up to cluster_length_m behind a nearer detection within this "
-               "radial speed of it, and within the array's beamwidth in angle, is dropped (when lanes are known). Two "
-               "scatterers of one range cell in antiphase pull the 4-element Bartlett peak aside by up to a "
-               "beamwidth: an approaching truck's body at 45-60 m showed up 5-6 m beside it, in the receding lane, "
-               "at the truck's speed (within 0.15 m/s) in a third of the frames, and seeded a track that raised a "
-               "false wrong_way alarm (highway4-traffic seeds 5, 7015, 7016). A wrong-way driver pacing a vehicle of "
-               "the other carriageway this closely is dropped while it does. Measured, off -> on (with "
-               "traffic.wrong_way_azimuth_sigma_deg), highway4-traffic ten minutes, seeds 5, 7007, 7012, 7015, 7016, "
-               "7018, 7019, 7020: confirmed false tracks 116 -> 73, id switches 264 -> 238, false wrong_way alarms "
-               "5 -> 0, per-lane counts the same, car detection probability the same or 1e-4 lower (3 seeds); "
-               "highway4 seeds 7001-7040, side-by-side and crossing 1-8 unchanged; 0 = off",
-        "min": 0.0, "max": 10.0})
+        "unit": "m/s", "doc": "with lanes, a detection moving against its lane up to cluster_length_m behind a "
+               "nearer detection within this radial speed and a beamwidth is dropped (angle glint of a vehicle's "
+               "body); 0 = off", "min": 0.0, "max": 10.0})
     cluster_against_lane_margin_m: float = field(default=1.0, metadata={
-        "unit": "m", "doc": "... only where the lanes this far to either side (plus the traffic layer's wrong-way "
-               "lane uncertainty: traffic.wrong_way_lane_sigmas x range x the yaw's and the tracks' azimuth "
-               "uncertainty) run the same way: a receding car by the median can show up just across it, beside a "
-               "vehicle of its speed in the next lane (the glints lay 3 m and more inside)",
-        "min": 0.0, "max": 10.0})
+        "unit": "m", "doc": "... only where the lanes this far to either side (plus the wrong-way lane uncertainty "
+               "of the traffic layer) run the same way", "min": 0.0, "max": 10.0})
     cluster_ghost_from_near_face: bool = field(default=True, metadata={
-        "doc": "... measured from a near face only (a detection with no nearer one of its speed within "
-               "cluster_length_m): a ghost lies within its body, while a detection behind another vehicle's far end "
-               "is the next vehicle (highway4-traffic seed 7018: a truck 17 m behind a 6 m van, 2.5 m/s faster, lay "
-               "11 m behind the van's rear face and was dropped in every frame; its track coasted and drifted a "
-               "lane over). Measured, off -> on, highway4-traffic ten minutes, seeds 5, 7007, 7012, 7015, 7016, "
-               "7018, 7019, 7020: vehicles not counted 8 -> 6, counted crossings matching no vehicle 1 -> 0, summed "
-               "|count error| per lane 9 -> 6, id switches 264 -> 256, confirmed false tracks 116 -> 120; highway4 "
-               "seeds 7001-7040 unchanged"})
+        "doc": "... the ghost rule measured from a near face only (a detection behind another vehicle's far end "
+               "is the next vehicle)"})
     clutter_map_init_frames: int = field(default=16, metadata={
-        "doc": "after this many frames the clutter map is replaced by the per-bin median (real and imaginary parts) "
-               "of those frames: static returns, above all the TX->RX leakage 80 dB over the noise at DC, are then "
-               "removed exactly, while the running mean alone leaves (warm-up - 1)/(n + warm-up) of them for minutes "
-               "and masks every beat near zero frequency (vehicles 10-35 m from the radar); a vehicle moves through "
-               "a bin in a frame or two and stays out of the median; 0 = running mean only",
+        "doc": "after this many frames the clutter map is replaced by the per-bin median of those frames (static "
+               "returns removed exactly, vehicles passing through a bin left out); 0 = running mean only",
         "min": 0, "max": 256})
 
 
