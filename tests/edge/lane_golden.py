@@ -241,7 +241,7 @@ def _cfar_rows(pipe, inter) -> dict[str, np.ndarray]:
     r, c = np.nonzero(np.isfinite(noise))
     power = inter["power"]
     nz = noise[r, c]
-    margin = power[r, c].astype(np.float64) / (nz.astype(np.float64) * float(pipe._scale32))
+    margin = power[r, c].astype(np.float64) / (nz.astype(np.float64) * float(pipe.peaks.scale32))
     pf = inter["peak_freqs_hz"]
     return {"cfar_row": r.astype(np.int16), "cfar_col": c.astype(np.int16), "noise": nz, "margin": margin,
             "peak_freq_hz": np.concatenate(pf), "peak_seg": np.concatenate([np.full(len(f), k, np.int8)
@@ -250,7 +250,9 @@ def _cfar_rows(pipe, inter) -> dict[str, np.ndarray]:
 
 def record_run(scenario: str, seed: int, frames: int, fe_frames=(), spec_frames=(), interval_s: float = 5.0):
     """Run the scene once through the pipeline with every stage boundary tapped; returns (arrays, meta)."""
-    import edge.pipelines.lane as lane_mod
+    import edge.lane.angles as angle_mod
+    import edge.lane.pairs as pair_mod
+    import edge.lane.spectra as spectra_mod
     from edge.pipeline import StageTimer
     from threadpoolctl import threadpool_limits
 
@@ -261,8 +263,8 @@ def record_run(scenario: str, seed: int, frames: int, fe_frames=(), spec_frames=
         cfg = pipe.config
         assert cfg.clutter_map_init_frames <= min(fe_frames | spec_frames, default=10**9)
         cur = {"k": -1, "spec": None}
-        real_fft = lane_mod.scipy.fft.fft
-        real_pair, real_bartlett = lane_mod.pair_beats, lane_mod.bartlett_consensus
+        real_fft = spectra_mod.scipy.fft.fft
+        real_pair, real_bartlett = pair_mod.pair_beats, angle_mod.bartlett_consensus
 
         def fft(*a, **kw):
             cur["spec"] = out = real_fft(*a, **kw)
@@ -303,7 +305,8 @@ def record_run(scenario: str, seed: int, frames: int, fe_frames=(), spec_frames=
             rows.put("angle_used", k, used)
             return out
 
-        real_resolve = pipe.resolver.step
+        resolver = pipe.resolve.resolver
+        real_resolve = resolver.step
 
         def resolve(rng, vel, looks, az=None):
             split, ang = real_resolve(rng, vel, looks, az)
@@ -315,7 +318,7 @@ def record_run(scenario: str, seed: int, frames: int, fe_frames=(), spec_frames=
                 rows.put(f"res_in_{name}", k, v)
             rows.put("res_split", k, split)
             rows.put("res_ang", k, ang)
-            rows.put("res_two", k, pipe.resolver.two_sources.copy())
+            rows.put("res_two", k, resolver.two_sources.copy())
             return split, ang
 
         real_track = pipe.tracker.step
@@ -352,35 +355,35 @@ def record_run(scenario: str, seed: int, frames: int, fe_frames=(), spec_frames=
             rows.put("yaw", k, np.array([[pipe.traffic.yaw_rad, pipe.traffic.yaw_sigma_rad]]))
             return upd
 
-        real_hold = pipe._hold_standing
+        real_hold = pipe.clutter._hold_standing
         held = {"any": False}
 
-        def hold(d):
+        def hold(d, tracks):
             before = d.copy()
-            real_hold(d)
+            real_hold(d, tracks)
             held["any"] = not np.array_equal(before, d, equal_nan=True)
 
         timer = StageTimer(16)
         ctx = contextlib.ExitStack()
         with ctx:
-            ctx.enter_context(patched(lane_mod, "scipy", types.SimpleNamespace(fft=types.SimpleNamespace(fft=fft))))
-            ctx.enter_context(patched(lane_mod, "pair_beats", pair))
-            ctx.enter_context(patched(lane_mod, "bartlett_consensus", bartlett))
-            ctx.enter_context(patched(pipe.resolver, "step", resolve))
+            ctx.enter_context(patched(spectra_mod, "scipy", types.SimpleNamespace(fft=types.SimpleNamespace(fft=fft))))
+            ctx.enter_context(patched(pair_mod, "pair_beats", pair))
+            ctx.enter_context(patched(angle_mod, "bartlett_consensus", bartlett))
+            ctx.enter_context(patched(resolver, "step", resolve))
             ctx.enter_context(patched(pipe.tracker, "step", track))
             ctx.enter_context(patched(pipe.traffic, "update", traffic))
-            ctx.enter_context(patched(pipe, "_hold_standing", hold))
+            ctx.enter_context(patched(pipe.clutter, "_hold_standing", hold))
             for f in it(frames):
                 k = cur["k"] = f.seq
                 angle_last.update(snaps=np.zeros((0, 4, pipe.frontend.n_rx), np.complex64),
                                   kept_used=(np.zeros((0, 4), bool), np.zeros((0, 4), bool)))
                 rows.put("t_ns", k, np.array([f.t_ns], np.int64))
                 if k in fe_frames:
-                    assert pipe._map_init is None
+                    assert pipe.clutter._map_init is None
                     rows.put("fe_i", k, f.i[None])
                     rows.put("fe_q", k, f.q[None])
-                    rows.put("fe_background", k, pipe._background[None].copy())
-                    rows.put("fe_map_frames", k, np.array([pipe._map_frames]))
+                    rows.put("fe_background", k, pipe.clutter._background[None].copy())
+                    rows.put("fe_map_frames", k, np.array([pipe.clutter._map_frames]))
                 held["any"] = False
                 res = pipe.process(f, timer)
                 inter = res.intermediates
@@ -392,8 +395,9 @@ def record_run(scenario: str, seed: int, frames: int, fe_frames=(), spec_frames=
                         rows.put(f"cfar_{name}" if not name.startswith("cfar_") else name, k, v)
     meta = {"scenario": scenario, "seed": seed, "frames": frames, "interval_s": interval_s, "patch": V1_PATCH,
             "fe_frames": sorted(fe_frames), "spec_frames": sorted(spec_frames), "pair_kw": _jsonable(pair_kw),
-            "angle_kw": angle_kw, "steer": [np.real(pipe._steer).tolist(), np.imag(pipe._steer).tolist()],
-            "steer_dtype": str(pipe._steer.dtype), "grid": pipe._grid.tolist(), "cfar_scale": float(pipe._scale32),
+            "angle_kw": angle_kw, "steer": [np.real(pipe.angles.steer).tolist(), np.imag(pipe.angles.steer).tolist()],
+            "steer_dtype": str(pipe.angles.steer.dtype), "grid": pipe.angles.grid.tolist(),
+            "cfar_scale": float(pipe.peaks.scale32),
             "versions": _versions()}
     return rows.arrays(), meta
 
@@ -545,18 +549,18 @@ def check_angle(data, meta, rng=None) -> dict[int, list[str]]:
 def check_spectra(data, meta) -> dict[int, list[str]]:
     """Per frame of ``fe_frames``: the front end (windowed FFT, clutter-map update and subtraction) from the recorded
     raw I/Q and clutter map; the spectrum compared per (channel, segment) row relative to its largest bin."""
-    import edge.pipelines.lane as lane_mod
+    import edge.lane.spectra as spectra_mod
     from edge.pipeline import StageTimer
     from hal.frame import RawFrame
 
     fr = Frames(data)
     out = {}
-    real_fft = lane_mod.scipy.fft.fft
+    real_fft = spectra_mod.scipy.fft.fft
     for k in meta["fe_frames"]:
         pipe, _ = build(meta["scenario"], meta["seed"], meta["interval_s"], patch=meta["patch"])
-        pipe._map_init = None
-        pipe._background[...] = fr.get("fe_background", k)[0]
-        pipe._map_frames = int(fr.get("fe_map_frames", k)[0])
+        pipe.clutter._map_init = None
+        pipe.clutter._background[...] = fr.get("fe_background", k)[0]
+        pipe.clutter._map_frames = int(fr.get("fe_map_frames", k)[0])
         got = {}
 
         def fft(*a, **kw):
@@ -564,13 +568,13 @@ def check_spectra(data, meta) -> dict[int, list[str]]:
             return s
 
         t_ns = int(fr.get("t_ns", k)[0])
-        with patched(lane_mod, "scipy", types.SimpleNamespace(fft=types.SimpleNamespace(fft=fft))):
+        with patched(spectra_mod, "scipy", types.SimpleNamespace(fft=types.SimpleNamespace(fft=fft))):
             pipe.detect(RawFrame(k, t_ns, fr.get("fe_i", k)[0], fr.get("fe_q", k)[0], pipe.frontend, None),
                         StageTimer(16))
         ref = fr.get("spec", k)[0]
         new = got["spec"]
         # per row: relative to its largest raw bin (the TX leakage before clutter removal dominates the round-off)
-        raw = np.abs(ref + pipe._background).max(axis=-1, keepdims=True).astype(np.float64)
+        raw = np.abs(ref + pipe.clutter._background).max(axis=-1, keepdims=True).astype(np.float64)
         atol, rtol = TOLERANCE["spec"]
         diff = np.abs(ref.astype(np.complex128) - new)
         bad = diff > atol + rtol * raw
@@ -586,7 +590,7 @@ def replay(data, meta, rng=None) -> dict[str, dict[int, list[str]]]:
     """The stateful stages replayed from frame 0 on recorded inputs (see the module docstring); per stage, per frame,
     the differences. ``detect`` runs at ``spec_frames`` from the recorded spectrum; ``resolve`` is compared at the
     other frames (at the detect frames it runs inside detect)."""
-    import edge.pipelines.lane as lane_mod
+    import edge.lane.spectra as spectra_mod
     from edge.pipeline import StageTimer
     from edge.types import Detections
     from hal.frame import RawFrame
@@ -607,7 +611,7 @@ def replay(data, meta, rng=None) -> dict[str, dict[int, list[str]]]:
             if k in spec_frames:
                 spec = fr.get("spec", k)[0]  # (not perturbed: power and CFAR are exact float32 arithmetic on it)
                 fake = types.SimpleNamespace(fft=types.SimpleNamespace(fft=lambda *a, **kw: spec.copy()))
-                with patched(lane_mod, "scipy", fake):
+                with patched(spectra_mod, "scipy", fake):
                     det, inter = pipe.detect(RawFrame(k, t_ns, zeros, zeros, pipe.frontend, None), timer)
                 w = f"frame {k} detect "
                 errs = []
@@ -633,11 +637,11 @@ def replay(data, meta, rng=None) -> dict[str, dict[int, list[str]]]:
             else:  # the resolver is stepped every frame (with no detections too)
                 looks = _jitter(rng, _looks(fr.get("angle_in_snaps", k), fr.get("angle_kept", k),
                                             fr.get("angle_used", k), meta["angle_kw"]["min_agreeing"]))
-                split, ang = pipe.resolver.step(fr.get("res_in_rng", k), fr.get("res_in_vel", k), looks,
+                split, ang = pipe.resolve.resolver.step(fr.get("res_in_rng", k), fr.get("res_in_vel", k), looks,
                                                 _jitter(rng, fr.get("res_in_az", k)))
                 w = f"frame {k} resolve "
                 out["resolve"][k] = (compare("split", fr.get("res_split", k), split, where=w)
-                                     + compare("two_sources", fr.get("res_two", k), pipe.resolver.two_sources, where=w)
+                                     + compare("two_sources", fr.get("res_two", k), pipe.resolve.resolver.two_sources, where=w)
                                      + compare("ang", fr.get("res_ang", k), ang, where=w))
             # the tracker on the recorded detections
             cols = {n: _jitter(rng, fr.get(f"det_{n}", k)) for n in det_names}

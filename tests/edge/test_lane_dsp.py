@@ -348,7 +348,7 @@ def _two_source_frames(th_deg, powers, n_frames, range_m=100.0, v_mps=-25.0, snr
 
 
 def _resolver():
-    from edge.dsp.resolve import CellResolver, ResolverConfig
+    from edge.lane.resolve import CellResolver, ResolverConfig
     from edge.dsp.angle import steering_matrix as sm
 
     grid = np.arange(-math.radians(19.0), math.radians(19.0) + 1e-9, math.radians(0.25)).astype(np.float32)
@@ -395,7 +395,7 @@ def test_resolver_marks_a_pair_too_close_to_split_and_not_one_car():
     the lanes). On the simulated board two cars side by side at 100-120 m give 0.026-0.05, under the 0.05 that
     splits; these synthetic pairs decorrelate faster, so the split test is raised out of reach here instead. One
     car's near face (scatterers 0.5 m apart) is not marked."""
-    from edge.dsp.resolve import CellResolver, ResolverConfig
+    from edge.lane.resolve import CellResolver, ResolverConfig
     from edge.dsp.angle import steering_matrix as sm
 
     grid = np.arange(-math.radians(19.0), math.radians(19.0) + 1e-9, math.radians(0.25)).astype(np.float32)

@@ -96,7 +96,7 @@ def test_evaluate_command_writes_design_keys(tmp_path, capsys):
 
 def test_side_by_side_is_resolved_into_two_tracks_by_angle():
     """Two cars at equal range and speed in adjacent lanes, 90 frames (3 s, 120 -> 45 m). One peak per
-    segment holds both; the per-cell covariance over frames resolves them (edge.dsp.resolve). Measured on
+    segment holds both; the per-cell covariance over frames resolves them (edge.lane.resolve). Measured on
     seeds 3, 8, 21: tracked fractions 0.67-0.82 (the first ~15 frames are needed to resolve them), lane
     accuracy 1.0; without the resolver one car is tracked in 0.27-0.32 of the frames, with a track
     between the lanes (RMSE 1.3-1.7 m)."""

@@ -10,7 +10,7 @@ import pytest
 from hw_sim import SIMO_BOARD
 
 from edge.dsp.angle import bartlett_consensus, steering_matrix
-from edge.dsp.resolve import CellResolver, ResolverConfig
+from edge.lane.resolve import CellResolver, ResolverConfig
 from edge.dsp.pairing import Pairs, PairingModel, pair_beats
 from edge.dsp.cfar import circular_pad, os_cfar, os_cfar_at, os_cfar_at_padded, reference_index
 
@@ -459,7 +459,7 @@ def _associate_reference(res: CellResolver, range_m: np.ndarray, v_mps: np.ndarr
 
 
 def test_cell_association_equals_the_array_form():
-    from edge.dsp.resolve import _Cells
+    from edge.lane.resolve import _Cells
 
     grid = np.radians(np.arange(-19.0, 19.0 + 1e-9, 0.25)).astype(np.float32)
     res = CellResolver(ResolverConfig(), steering_matrix(4, 0.0186, 0.01244, grid), grid, 0.033, 1.5)
@@ -489,7 +489,7 @@ def test_cell_association_equals_the_array_form():
 
 @pytest.mark.parametrize("k", [2, 3, 16])
 def test_clutter_map_start_median_equals_np_median(k):
-    from edge.pipelines.lane import _median_of_frames
+    from edge.lane.clutter import _median_of_frames
 
     rng = np.random.default_rng(k)
     z = ((rng.standard_normal((k, 4, 4, 64)) + 1j * rng.standard_normal((k, 4, 4, 64))) * 1000).astype(np.complex64)
@@ -638,7 +638,7 @@ def test_split_features_one_gather_equals_the_general_form():
 def test_track_aided_predictions_small_and_array_paths_agree(monkeypatch):
     """The confirmed tracks' predicted range, speed and beats, and which of them already have a pairing within the
     aided gates: the plain-Python path (a handful of tracks) and the array path give the same values."""
-    from edge.pipelines import lane
+    from edge.lane import pairs as lane
     from edge.pipelines.lane import LaneConfig, LanePipeline
 
     pipe = LanePipeline(SIMO_BOARD.frontend, LaneConfig())
@@ -661,9 +661,9 @@ def test_track_aided_predictions_small_and_array_paths_agree(monkeypatch):
         pairs = Pairs(np.zeros((pr.size, 4), np.int64), pr, pv, np.zeros(pr.size, np.float32), 0, 0)
         sel = np.arange(len(tr))
         monkeypatch.setattr(lane, "_AIDED_SMALL", 10_000)
-        small = pipe._aided_predictions(sel, dt, pairs)
+        small = pipe.pairs.aided_predictions(tr.x, sel, dt, pairs)
         monkeypatch.setattr(lane, "_AIDED_SMALL", -1)
-        full = pipe._aided_predictions(sel, dt, pairs)
+        full = pipe.pairs.aided_predictions(tr.x, sel, dt, pairs)
         assert (small is None) == (full is None)
         if small is not None:
             for a, b in zip(small, full):

@@ -1,4 +1,4 @@
-"""Ghosts beside vehicles from the side-by-side resolver (edge.dsp.resolve) and the rules that refuse them.
+"""Ghosts beside vehicles from the side-by-side resolver (edge.lane.resolve) and the rules that refuse them.
 
 A range-speed cell that lies behind a nearer detection of the same vehicle is that vehicle's body (its two
 sides, or a side and its far face, in one range bin): the two-source fit of its rank-two covariance put one
@@ -29,6 +29,19 @@ def _az(x_m: float, range_m: float, cfg: LaneConfig = LaneConfig()) -> float:
     return math.asin(x_m / range_m)
 
 
+def _is_body(pipe, rng, vel, az, split):
+    from edge.lane.angles import SplitNotBody
+
+    return SplitNotBody(pipe.config).is_body(rng, vel, az, split)
+
+
+def _straddles(pipe, r, v, ang):
+    from edge.lane.angles import SplitStraddlesLanes
+
+    (rule,) = [f for f in pipe.resolve.split_filters if isinstance(f, SplitStraddlesLanes)]
+    return rule.straddles(r, v, ang, pipe.feedback())
+
+
 def test_split_cell_behind_the_near_face_of_its_vehicle_is_its_body():
     pipe = _pipe()
     # 0: a truck's near face at 50 m in lane 0; 1: a cell 12 m behind it at its speed (its far end);
@@ -39,10 +52,10 @@ def test_split_cell_behind_the_near_face_of_its_vehicle_is_its_body():
     az = np.array([_az(-5.25, 50.0), _az(-4.6, 62.0), _az(-4.6, 62.0), _az(1.75, 62.0), _az(-5.25, 45.0)],
                   np.float32)
     split = np.array([False, True, True, True, True])
-    body = pipe._split_is_body(rng, vel, az, split)
+    body = _is_body(pipe, rng, vel, az, split)
     assert body.tolist() == [False, True, False, False, False]
     # only split detections are judged
-    assert not pipe._split_is_body(rng, vel, az, np.array([False, False, True, True, True])).any()
+    assert not _is_body(pipe, rng, vel, az, np.array([False, False, True, True, True])).any()
 
 
 def test_a_body_cell_is_not_split_and_side_by_side_cells_still_are():
@@ -54,12 +67,12 @@ def test_a_body_cell_is_not_split_and_side_by_side_cells_still_are():
     az = np.array([_az(-5.25, 50.0), _az(-4.6, 62.0)], np.float32)
     split = np.array([False, True])
     assert on.config.resolve_skip_bodies and not off.config.resolve_skip_bodies
-    assert (split & ~on._split_is_body(rng, vel, az, split)).tolist() == [False, False]
+    assert (split & ~_is_body(on, rng, vel, az, split)).tolist() == [False, False]
     # two cars side by side at one range are the nearest detections of both: their cell is split
     rng2 = np.array([62.0], np.float32)
     vel2 = np.array([25.0], np.float32)
     az2 = np.array([_az(3.5, 62.0)], np.float32)
-    assert not on._split_is_body(rng2, vel2, az2, np.array([True])).any()
+    assert not _is_body(on, rng2, vel2, az2, np.array([True])).any()
 
 
 def test_split_across_lanes_of_opposite_directions_is_refused():
@@ -71,10 +84,10 @@ def test_split_across_lanes_of_opposite_directions_is_refused():
     receding = np.array([20.0, 20.0, 20.0], np.float32)
     approaching = -receding
     # lanes 1|2 straddle the median: never; lanes 2|3 (away) only for a receding cell; 0|1 (toward) only approaching
-    assert pipe._split_straddles_lanes(r, receding, ang).tolist() == [False, True, False]
-    assert pipe._split_straddles_lanes(r, approaching, ang).tolist() == [False, False, True]
+    assert _straddles(pipe, r, receding, ang).tolist() == [False, True, False]
+    assert _straddles(pipe, r, approaching, ang).tolist() == [False, False, True]
     off = _pipe(resolve_same_direction=False)
-    assert off._split_straddles_lanes(r, receding, ang).tolist() == [True, True, True]
+    assert _straddles(off, r, receding, ang).tolist() == [True, True, True]
 
 
 # --- the resolver's memory follows the direction of its vehicle -----------------------------------------------
@@ -85,7 +98,7 @@ def _sweep(follow: bool, seed: int, lateral_m=(1.75,), offsets_m=(-0.9, -0.63, 0
     its direction cosine x / R sweeps. Scatterers at ``lateral + offsets`` (a car's rear face and sides) with
     new random phases every frame, coherent in the four looks of a frame."""
     from edge.dsp.angle import steering_matrix
-    from edge.dsp.resolve import CellResolver, ResolverConfig
+    from edge.lane.resolve import CellResolver, ResolverConfig
 
     lam = FE.waveform.wavelength_m
     grid = np.arange(-math.radians(19.0), math.radians(19.0) + 1e-9, math.radians(0.25)).astype(np.float32)

@@ -110,6 +110,6 @@ def test_ghost_law_keeps_a_car_overtaking_a_van_close_behind():
 
 def test_aided_threshold_is_below_the_detection_threshold_and_can_be_switched_off():
     pipe = LanePipeline(FE, LaneConfig(), None, None)
-    assert pipe._aided_scale32 is not None and 1.0 < pipe._aided_scale32 < pipe.cfar_scale
-    assert LanePipeline(FE, LaneConfig(aided_pfa=0.0), None, None)._aided_scale32 is None
-    assert LanePipeline(FE, LaneConfig(tracking=False), None, None)._aided_scale32 is None
+    assert pipe.peaks.aided_scale32 is not None and 1.0 < pipe.peaks.aided_scale32 < pipe.cfar_scale
+    assert LanePipeline(FE, LaneConfig(aided_pfa=0.0), None, None).peaks.aided_scale32 is None
+    assert LanePipeline(FE, LaneConfig(tracking=False), None, None).peaks.aided_scale32 is None

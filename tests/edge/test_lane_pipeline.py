@@ -52,8 +52,8 @@ def test_hot_path_is_single_precision():
     p = LanePipeline(FE, LaneConfig(mounting_height_m=7.0, tracking=False))
     fr = next(_single_car_frames())
     det, inter = p.detect(fr, StageTimer())
-    assert p._iq.dtype == np.complex64
-    assert p.window.dtype == np.float32
+    assert p.spectra._iq.dtype == np.complex64
+    assert p.spectra.window.dtype == np.float32
     for k in ("power", "threshold", "noise", "angle_spectrum"):
         assert inter[k].dtype == np.float32, k
     for a in (det.range_m, det.radial_speed_mps, det.az_rad, det.snr_db, det.x_m, det.y_m):
@@ -140,18 +140,18 @@ def test_track_aided_pairing_recovers_a_smeared_near_vehicle():
     tr.last_t_ns = 0
     t_ns = 33_000_000
     r, v, f = _predicted_beats(p, x, y, vy, t_ns)
-    off = np.array([2.0, 2.0, -1.5, 1.5]) * p._bin_hz
-    freqs = tuple(np.array([f[k] + off[k], f[k] + 40 * p._bin_hz[k]]) for k in range(4))
-    bins = tuple(np.round(fk / p._bin_hz[k]).astype(np.int64) % p.n_bins for k, fk in enumerate(freqs))
+    off = np.array([2.0, 2.0, -1.5, 1.5]) * p.peaks.bin_hz
+    freqs = tuple(np.array([f[k] + off[k], f[k] + 40 * p.peaks.bin_hz[k]]) for k in range(4))
+    bins = tuple(np.round(fk / p.peaks.bin_hz[k]).astype(np.int64) % p.n_bins for k, fk in enumerate(freqs))
     cfg = p.config
-    pairs = pair_beats(freqs, p._model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
-                       max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=p._tol)
+    pairs = pair_beats(freqs, p.pairs.model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
+                       max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=p.pairs.tol)
     assert not (np.abs(pairs.range_m - r) < 3).any()
-    b, rng, vel, _ = p._track_aided_pairs(freqs, bins, pairs, t_ns)
+    b, rng, vel, _ = p.pairs.track_aided(freqs, bins, pairs, t_ns, p.feedback())
     assert rng.size == 1 and abs(rng[0] - r) < 1.0 and abs(vel[0] - v) < 1.5  # 2-bin offsets: 1.2 m/s
     assert (b[0] == [bk[0] for bk in bins]).all()
-    two = tuple(fk if k < 2 else fk + 50 * p._bin_hz[k] for k, fk in enumerate(freqs))
-    assert p._track_aided_pairs(two, bins, pairs, t_ns)[1].size == 0
+    two = tuple(fk if k < 2 else fk + 50 * p.peaks.bin_hz[k] for k, fk in enumerate(freqs))
+    assert p.pairs.track_aided(two, bins, pairs, t_ns, p.feedback())[1].size == 0
 
 
 def _predicted_beats(p, x: float, y: float, vy: float, t_ns: int):
@@ -161,7 +161,7 @@ def _predicted_beats(p, x: float, y: float, vy: float, t_ns: int):
     dz = p.config.mounting_height_m - p.config.target_height_m
     r = math.sqrt(x * x + yy * yy + dz * dz)
     v = (yy * vy) / r
-    return r, v, p._model.predict(np.array(r), np.array(v))
+    return r, v, p.pairs.model.predict(np.array(r), np.array(v))
 
 
 def _aided_for_tentative(config, y=260.0, vy=-30.0, hits=2, moved=True):
@@ -178,13 +178,13 @@ def _aided_for_tentative(config, y=260.0, vy=-30.0, hits=2, moved=True):
     tr.last_t_ns = 0
     t_ns = 33_000_000
     r, v, f = _predicted_beats(p, x, y, vy, t_ns)
-    freqs = tuple(np.array([f[k] + 0.3 * p._bin_hz[k]]) for k in range(4))
-    bins = tuple(np.round(fk / p._bin_hz[k]).astype(np.int64) % p.n_bins for k, fk in enumerate(freqs))
+    freqs = tuple(np.array([f[k] + 0.3 * p.peaks.bin_hz[k]]) for k in range(4))
+    bins = tuple(np.round(fk / p.peaks.bin_hz[k]).astype(np.int64) % p.n_bins for k, fk in enumerate(freqs))
     cfg = p.config
     # the four-segment pairing would find it too; the aided search is asked directly (no pairing given)
-    pairs = pair_beats(tuple(np.zeros(0) for _ in range(4)), p._model, min_range_m=cfg.min_range_m,
-                       max_range_m=cfg.max_range_m, max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=p._tol)
-    _, rng, vel, _ = p._track_aided_pairs(freqs, bins, pairs, t_ns)
+    pairs = pair_beats(tuple(np.zeros(0) for _ in range(4)), p.pairs.model, min_range_m=cfg.min_range_m,
+                       max_range_m=cfg.max_range_m, max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=p.pairs.tol)
+    _, rng, vel, _ = p.pairs.track_aided(freqs, bins, pairs, t_ns, p.feedback())
     return rng, vel, r, v
 
 
@@ -292,7 +292,7 @@ def test_a_trucks_angle_glint_in_the_other_carriageway_is_dropped(tmp_path):
 
 
 def test_against_lane_glint_rule_keeps_other_vehicles():
-    """_against_lane_glint on hand-made detections: only the one against its lane, behind a nearer detection of
+    """AgainstLaneGlint on hand-made detections: only the one against its lane, behind a nearer detection of
     its speed within a beamwidth, is dropped -- not a receding car in its own lane, not a wrong-way driver at
     another speed or farther behind, not a car beside the truck in the same direction at the same speed."""
     from edge.traffic import TrafficConfig
@@ -301,13 +301,20 @@ def test_against_lane_glint_rule_keeps_other_vehicles():
                      traffic_config=TrafficConfig(lane_centers_m=(-5.25, -1.75, 1.75, 5.25),
                                                   lane_directions=("toward", "toward", "away", "away"),
                                                   lane_widths_m=(3.5,) * 4, estimate_yaw=False))
+    from edge.lane.detections import AgainstLaneGlint
+
+    (rule,) = [f for f in p.detections.filters if isinstance(f, AgainstLaneGlint)]
+
+    def glint(*a):
+        return rule.glint(*a, p.feedback())
+
     #            truck face  glint     receding   ww slower  ww far    car beside (lane 0)
     x = np.array([-1.75,     3.5,      1.75,      5.25,      3.5,      -5.25], np.float32)
     y = np.array([45.0,      50.0,     52.0,      55.0,      66.0,     47.0], np.float32)
     v = np.array([-19.0,     -19.1,    19.0,      -17.0,     -19.0,    -19.0], np.float32)
     rng = np.hypot(x, y).astype(np.float32)
     az = np.arctan2(x, y).astype(np.float32)
-    got = p._against_lane_glint(rng, v, az, x, y, np.ones(x.size, bool))
+    got = glint(rng, v, az, x, y, np.ones(x.size, bool))
     assert got.tolist() == [False, True, False, False, False, False]
     # a receding car by the median shown 0.5 m across it, beside a receding car of its speed 5 m nearer: within
     # cluster_against_lane_margin_m of its own direction's lanes, kept; 1.5 m across, dropped
@@ -315,13 +322,13 @@ def test_against_lane_glint_rule_keeps_other_vehicles():
         x2 = np.array([5.25, -across], np.float32)
         y2 = np.array([45.0, 50.0], np.float32)
         v2 = np.array([19.0, 19.1], np.float32)
-        got = p._against_lane_glint(np.hypot(x2, y2).astype(np.float32), v2, np.arctan2(x2, y2).astype(np.float32),
-                                    x2, y2, np.ones(2, bool))
+        got = glint(np.hypot(x2, y2).astype(np.float32), v2, np.arctan2(x2, y2).astype(np.float32),
+                      x2, y2, np.ones(2, bool))
         assert got.tolist() == [False, dropped]
     # the truck's face not kept (no nearer detection of its speed): the glint stays
     keep = np.ones(x.size, bool)
     keep[0] = False
-    assert not p._against_lane_glint(rng, v, az, x, y, keep).any()
+    assert not glint(rng, v, az, x, y, keep).any()
 
 
 _STOPPING_CAR = """

@@ -1,4 +1,6 @@
-"""Two vehicles in one range-speed cell, resolved in angle over several frames.
+"""Two vehicles in one range-speed cell, resolved in angle over several frames (the lane profile's angles stage keeps
+one :class:`CellResolver`: its memory of the cells lives across frames, which is why it is not in the stateless
+:mod:`edge.dsp`).
 
 Two vehicles side by side in adjacent lanes at the same range and speed give the same beat
 frequency in all four chirp segments: one peak per segment, one pairing, and a Bartlett angle that
@@ -35,12 +37,6 @@ near the radar by degrees within the memory. With ``follow_direction`` every cel
 by that shift (``sin(az) (1 - R_new / R_old)``, a diagonal phase ramp over the elements) before a frame is
 added; otherwise the memory of a receding car leaving the overpass holds its direction of half a second
 earlier as a second source, and the fit splits the car into itself and a phantom 3 m further out.
-
-Cost (issue 9, third pass; thread CPU time per frame on recorded highway4, per-frame minimum over 9 runs, shared
-development machine, three measurements): :meth:`CellResolver.step` 176-186 -> 140-146 us p50, 278-302 -> 210-231 us
-p99, with the same outputs bit for bit -- the association and the per-cell counters in plain Python, the memory
-steering on the 7 element lags, each covariance gathered and written back once, the fine search's neighbour pairs and
-the pairs' angles tabulated.
 """
 
 from __future__ import annotations

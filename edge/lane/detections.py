@@ -1,0 +1,196 @@
+"""Stage 5, detections (Lim §III-A; eq. 16 for a raised radar): ground-plane x/y of every detection, then the
+road-geometry filters, each a small object switched by its ``pipeline.lane`` key:
+
+* :class:`UnaliasByLane` (before the projection): a grating-lobe alias moved back into a lane of its direction;
+* :class:`NearFaces`: a vehicle's body (detections behind its near face at its speed) and the ghosts of wrong
+  pairings among its scatterers dropped; the body's length measured;
+* :class:`AgainstLaneGlint`: angle glint of a vehicle's body in a lane of the other direction dropped.
+
+A filter is called as ``filter(candidates, feedback) -> candidates`` (:class:`edge.lane.records.Candidates`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from edge.dsp.geometry import polar_to_ground
+from edge.dsp.pairing import nearest_of_clusters
+from edge.lane.records import Angles, Candidates, Feedback
+from edge.lane.road import RoadFrame
+from edge.traffic.lanes import assign_lanes
+from edge.types import Detections, FrontendInfo
+
+
+class UnaliasByLane:
+    """Grating lobes: with d = 1.5 lambda the array measures sin(az) only modulo lambda/d (+-19.5 deg). A vehicle
+    close to the radar in an outer lane lies beyond that and shows up mirrored across the road. A moving detection
+    (``unalias_min_speed_mps``) that lands in a lane of the other direction of travel is moved to its alias
+    (sin(az) +- lambda/d) if that lies in a lane of its own direction (``unalias_by_lane``; only with lanes)."""
+
+    def __init__(self, frontend: FrontendInfo, config, road: RoadFrame) -> None:
+        self.config = config
+        self.road = road
+        self.period = frontend.waveform.wavelength_m / frontend.rx_spacing_m  # grating-lobe period in sin(az)
+        self._offsets = np.array([0.0, self.period, -self.period])[:, None]  # (3, 1)
+
+    def __call__(self, c: Candidates, feedback: Feedback) -> Candidates:
+        if not (feedback.lanes and c.range_m.size):
+            return c
+        az = self.unalias(c.range_m, c.radial_speed_mps, c.az_rad, feedback)
+        return c if az is c.az_rad else Candidates(c.range_m, c.radial_speed_mps, az, c.x_m, c.y_m, c.keep,
+                                                   c.body_extent_m)
+
+    def unalias(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, feedback: Feedback) -> np.ndarray:
+        """``az`` with the aliases moved (``az`` itself when none is)."""
+        cfg = self.config
+        lanes = feedback.lanes
+        period = self.period
+        # an alias is sin(az) +- period away, i.e. about period x range across: only near detections can have
+        # both themselves and their alias on the road (the rest is left alone at the cost of one comparison)
+        span, dirs = self.road.lane_arrays(lanes)
+        near = np.abs(v_mps) >= np.float32(cfg.unalias_min_speed_mps)
+        near &= range_m <= np.float32(span / period + cfg.mounting_height_m)
+        idx = near.nonzero()[0]
+        if idx.size == 0:
+            return az
+        # itself and the two neighbouring grating lobes, (3, n)
+        cand = np.sin(az[idx].astype(np.float64)) + self._offsets
+        # the lane direction of all three in one pass (the cost is per call, not per element); the road frame's
+        # lateral offset as to_road computes it
+        x, y = polar_to_ground(range_m[idx], np.arcsin(np.minimum(np.maximum(cand, -1.0), 1.0)),
+                               cfg.mounting_height_m, cfg.target_height_m)
+        u = self.road.across_road(x, y, feedback.yaw_rad)
+        d = dirs[assign_lanes(u.reshape(-1), lanes)].reshape(3, -1)  # direction, 0 outside every lane (-1 -> 0)
+        sign = np.sign(v_mps[idx])  # +1 receding: lanes "away"
+        bad = d[0] == -sign
+        if not bad.any():
+            return az
+        az = az.copy()
+        for j in (1, 2):
+            alt = cand[j]
+            ok = bad & (np.abs(alt) <= 1.0)
+            ok &= d[j] == sign
+            az[idx[ok]] = np.arcsin(alt[ok]).astype(np.float32)
+            bad &= ~ok
+        return az
+
+
+class NearFaces:
+    """A vehicle is reported by its nearest face (edge.dsp.pairing.nearest_of_clusters): detections up to
+    ``cluster_length_m`` behind a nearer one within ``cluster_speed_mps`` and ``cluster_lateral_m`` are its body,
+    and wrong pairings among its scatterers (speed off by the ghost law, ``cluster_ghost_*``) its ghosts; both are
+    dropped. The body's along-road length is kept per detection (``body_extent_m``)."""
+
+    def __init__(self, config) -> None:
+        self.config = config
+        self._dz2 = np.float32((config.mounting_height_m - config.target_height_m) ** 2)
+
+    def __call__(self, c: Candidates, feedback: Feedback) -> Candidates:
+        cfg = self.config
+        rng = c.range_m
+        if rng.size <= 1:  # one detection or none: no body behind it
+            return Candidates(rng, c.radial_speed_mps, c.az_rad, c.x_m, c.y_m, c.keep, np.zeros(rng.size, np.float32))
+        keep, ext = nearest_of_clusters(rng, c.radial_speed_mps, c.x_m, length_m=cfg.cluster_length_m,
+                                        speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m,
+                                        ghost_speed_per_m=cfg.cluster_ghost_speed_per_m,
+                                        ghost_speed_mps=cfg.cluster_ghost_speed_mps,
+                                        ghost_length_m=cfg.cluster_ghost_length_m,
+                                        ghost_from_near_faces=cfg.cluster_ghost_from_near_face,
+                                        with_extent=True)
+        keep &= c.keep
+        return Candidates(rng, c.radial_speed_mps, c.az_rad, c.x_m, c.y_m, keep,
+                          self.body_extent(rng, c.x_m, ext, keep))
+
+    def body_extent(self, rng: np.ndarray, x: np.ndarray, ext: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """Per detection the along-road length of the body behind it (``ext``: its slant range extent, from
+        ``nearest_of_clusters``), as ground distance along the road at its lateral offset; NaN for dropped ones."""
+        ext = np.where(keep, ext, np.float32(np.nan))
+        dz2 = self._dz2
+        x2 = x * x
+        near = np.sqrt(np.maximum(rng * rng - dz2 - x2, np.float32(0)))
+        far_r = rng + ext
+        far = np.sqrt(np.maximum(far_r * far_r - dz2 - x2, np.float32(0)))
+        return far - near
+
+
+class AgainstLaneGlint:
+    """Angle glint of a vehicle's body: a kept detection moving against the lane it lies in (faster than
+    ``unalias_min_speed_mps``) with a kept detection not against its lane up to ``cluster_length_m`` nearer, within
+    ``cluster_against_lane_speed_mps`` in radial speed and a beamwidth (lambda / (N d) in sin az) in angle, is
+    dropped. Only where the direction is sure: the lanes ``cluster_against_lane_margin_m`` plus
+    ``feedback.lane_sigmas`` x range x ``feedback.direction_sigma_rad`` to either side run the same way."""
+
+    def __init__(self, frontend: FrontendInfo, config, road: RoadFrame) -> None:
+        self.config = config
+        self.road = road
+        # Rayleigh width lambda / (N d) in sin(az)
+        self.beamwidth_sin = frontend.waveform.wavelength_m / frontend.rx_spacing_m / frontend.n_rx
+
+    def __call__(self, c: Candidates, feedback: Feedback) -> Candidates:
+        if not feedback.lanes or c.keep.sum() <= 1:
+            return c
+        keep = c.keep & ~self.glint(c.range_m, c.radial_speed_mps, c.az_rad, c.x_m, c.y_m, c.keep, feedback)
+        return Candidates(c.range_m, c.radial_speed_mps, c.az_rad, c.x_m, c.y_m, keep, c.body_extent_m)
+
+    def glint(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, x: np.ndarray, y: np.ndarray,
+              keep: np.ndarray, feedback: Feedback) -> np.ndarray:
+        """(n,) bool: the kept detections that are glint of a nearer vehicle's body."""
+        cfg = self.config
+        lanes = feedback.lanes
+        _, dirs = self.road.lane_arrays(lanes)
+        u = self.road.across_road(x, y, feedback.yaw_rad)
+        against = keep & (dirs[assign_lanes(u, lanes)] * v_mps < -np.float32(cfg.unalias_min_speed_mps))
+        out = np.zeros(range_m.shape, bool)
+        if not against.any():
+            return out
+        sigma = feedback.direction_sigma_rad
+        idx = against.nonzero()[0]
+        half = cfg.cluster_against_lane_margin_m + feedback.lane_sigmas * sigma * range_m[idx]
+        for side in (-half, half):
+            against[idx] &= dirs[assign_lanes(u[idx] + side, lanes)] * v_mps[idx] < -np.float32(
+                cfg.unalias_min_speed_mps)
+        if not against.any():
+            return out
+        idx = against.nonzero()[0]
+        own = keep & ~against
+        r = range_m[idx, None] - range_m[None, :]  # > 0: the other one nearer
+        sin_az = np.sin(az.astype(np.float64))
+        out[idx] = (own[None, :] & (r > 0) & (r <= cfg.cluster_length_m)
+                    & (np.abs(v_mps[idx, None] - v_mps[None, :]) <= cfg.cluster_against_lane_speed_mps)
+                    & (np.abs(sin_az[idx, None] - sin_az[None, :]) <= self.beamwidth_sin)).any(axis=1)
+        return out
+
+
+class DetectionStage:
+    """Ground-plane geometry and the road-geometry filters, as configured."""
+
+    def __init__(self, frontend: FrontendInfo, config, road: RoadFrame) -> None:
+        cfg = self.config = config
+        #: filters of the direction, before the projection
+        self.direction_filters: tuple = (UnaliasByLane(frontend, cfg, road),) if cfg.unalias_by_lane else ()
+        #: filters of the projected detections, in order
+        self.filters: tuple = ()
+        if cfg.cluster_length_m > 0:
+            self.filters += (NearFaces(cfg),)
+            if cfg.cluster_against_lane_speed_mps > 0:
+                self.filters += (AgainstLaneGlint(frontend, cfg, road),)
+
+    def __call__(self, a: Angles, feedback: Feedback) -> Detections:
+        cfg = self.config
+        c = Candidates(a.range_m, a.radial_speed_mps, a.az_rad, None, None, None)
+        for f in self.direction_filters:
+            c = f(c, feedback)
+        rng, vel, az = c.range_m, c.radial_speed_mps, c.az_rad
+        x, y = polar_to_ground(rng, az, cfg.mounting_height_m, cfg.target_height_m)
+        c = Candidates(rng, vel, az, x, y, np.ones(rng.size, bool))
+        for f in self.filters:
+            c = f(c, feedback)
+        extra = {"pair_residual_hz": a.residual_hz, "resolved_pair": a.resolved_pair}
+        if c.body_extent_m is not None:
+            extra["body_extent_m"] = c.body_extent_m
+        if a.unresolved_pair is not None:
+            extra["unresolved_pair"] = a.unresolved_pair
+        if c.keep.all():  # the arrays themselves (nothing reads or writes them after this)
+            return Detections(rng, vel, az, a.snr_db, x, y, extra)
+        sel = c.keep.nonzero()[0]
+        return Detections(rng[sel], vel[sel], az[sel], a.snr_db[sel], x[sel], y[sel],
+                          {k: v[sel] for k, v in extra.items()})

@@ -1,0 +1,195 @@
+"""Stage 3, pairs (Lim §III-A): four-segment pairing of the peaks into slant range and radial speed, ghosts
+of wrong pairings rejected by the slow segments (edge.dsp.pairing); then track-aided pairing: a track that got no
+pairing takes the peaks nearest its predicted beats in all four segments and fits range and speed to them."""
+
+from __future__ import annotations
+
+import bisect
+import itertools
+import math
+
+import numpy as np
+
+from edge.dsp.pairing import PairingModel, pair_beats
+from edge.lane.records import Feedback, PairList, Peaks
+from edge.types import FrontendInfo
+
+_SEG4 = np.arange(4)  # the four segments, as an index
+
+#: up to this many tracks the track-aided pairing predicts them in plain Python floats
+_AIDED_SMALL = 10
+
+
+class PairStage:
+    """Pairing of the four segments' peaks, with the tracks' help (``aided_*``)."""
+
+    def __init__(self, frontend: FrontendInfo, config, bin_hz: np.ndarray) -> None:
+        cfg = self.config = config
+        wf = frontend.waveform
+        self.n_bins = wf.n_samples
+        self.bin_hz = bin_hz  # (4,) Hz per FFT bin of each segment
+        self.model = PairingModel.from_waveform(wf)
+        self._model_ab = np.stack([self.model.a, self.model.b], axis=1)  # (4, 2): beat = a R + b v per segment
+        self.tol = (cfg.pair_tolerance_bins * bin_hz[2], cfg.pair_tolerance_bins * bin_hz[3])
+        self._near_tol = (cfg.pair_near_tolerance_bins * bin_hz[2], cfg.pair_near_tolerance_bins * bin_hz[3])
+        self._aided_window_hz = cfg.aided_window_bins * bin_hz  # (4,)
+        self._aided = bool(cfg.aided_pairing and cfg.tracking)
+        self._pad_inf, self._pad_zero = np.zeros(0), np.zeros(0, np.int64)  # padding rows of track_aided
+        self._aided_empty = (np.zeros((0, 4), np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32),
+                             np.zeros(0, np.float32))  # no track-aided pairs (read, never written)
+        self._no_bins = np.zeros((0, 4), np.int64)
+        self._no_bins.flags.writeable = False
+
+    def __call__(self, peaks: Peaks, t_ns: int, feedback: Feedback) -> PairList:
+        """Pairings of ``peaks`` at frame time ``t_ns`` (ns), the tracks of ``feedback`` helping."""
+        cfg = self.config
+        freqs, bins = peaks.freqs_hz, peaks.bins
+        pairs = pair_beats(freqs, self.model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
+                           max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self.tol,
+                           max_shared=cfg.pair_max_shared_peaks, near_tolerance_hz=self._near_tol,
+                           near_range_m=cfg.pair_near_range_m)
+        p_rng, p_vel, p_res = pairs.range_m, pairs.radial_speed_mps, pairs.residual_hz
+        # (n, 4 seg) bins: the peaks of the four segments are consecutive in ``all_bins``
+        all_bins = np.concatenate(bins)
+        seg_start = np.array(list(itertools.accumulate((b.size for b in bins[:-1]), initial=0)))
+        pk = all_bins[pairs.peak_index + seg_start] if p_rng.size else self._no_bins
+        n_aided = 0
+        if self._aided and feedback.n_tracks:
+            weak = (peaks.weak_freqs_hz, peaks.weak_bins) if peaks.weak_freqs_hz is not None else None
+            a_bins, a_rng, a_vel, a_res = self.track_aided(freqs, bins, pairs, t_ns, feedback, weak)
+            n_aided = a_rng.size
+            if n_aided:
+                pk = np.concatenate([pk, a_bins])
+                p_rng, p_vel, p_res = (np.concatenate([u, w]) for u, w in ((p_rng, a_rng), (p_vel, a_vel),
+                                                                          (p_res, a_res)))
+        return PairList(pk, p_rng, p_vel, p_res, pairs.n_candidates, pairs.n_ghosts, n_aided)
+
+    def track_aided(self, freqs, bins, pairs, t_ns: int, feedback: Feedback, weak=None):
+        """Pairings of confirmed tracks that the four-segment pairing missed (a near vehicle's echo is smeared
+        over several bins by its body, and the peaks of the four segments no longer agree within a bin), and of
+        tentative tracks that approach from at least ``aided_tentative_min_range_m`` with
+        ``aided_tentative_min_hits`` hits (a far car's peaks cross the detection threshold in all four segments
+        in only part of its frames, and its track must confirm before it gets to 300 m).
+
+        Each such track without a pairing near it predicts its beat frequency in every segment (slant
+        range and speed from its state at this frame's time); the nearest unused peak within
+        ``aided_window_bins`` is taken in each segment, at least ``aided_min_segments`` must be found, and
+        range and speed are fitted to them by least squares; the fit must lie within ``aided_gate_m`` and
+        ``aided_gate_mps`` of the prediction. A segment without a peak is read at its predicted bin for
+        the angle. ``weak``: per segment, the frequencies and bins of local maxima above the lower ``aided_pfa``
+        threshold only (searched as well, after the detected peaks). Returns ``(bins (m, 4), range_m, v_mps,
+        residual_hz)``."""
+        cfg = self.config
+        tr = feedback
+        empty = self._aided_empty
+        sel = tr.confirmed
+        if cfg.aided_tentative_min_range_m > 0:  # far tentative tracks with a few hits search as well
+            far = ~sel & tr.moved & (tr.hits >= cfg.aided_tentative_min_hits)  # moved: not static clutter
+            if far.any():
+                x = tr.track_state
+                far &= np.hypot(x[:, 0], x[:, 1]) >= cfg.aided_tentative_min_range_m
+                if cfg.aided_tentative_approaching:
+                    far &= x[:, 0] * x[:, 2] + x[:, 1] * x[:, 3] < 0.0
+                sel = sel | far
+        sel = sel.nonzero()[0]
+        if sel.size == 0 or tr.t_ns is None:
+            return empty
+        dt = max((t_ns - tr.t_ns) * 1e-9, 0.0)
+        pred = self.aided_predictions(tr.track_state, sel, dt, pairs)
+        if pred is None:
+            return empty
+        r_hat, v_hat, f_hat = pred
+        # all four segments at once: peaks in a (segment, peak) table padded with +inf, used peaks at +inf
+        counts = [fk.size for fk in freqs]
+        w_counts = [fk.size for fk in weak[0]] if weak is not None else [0, 0, 0, 0]
+        width = max(c + w for c, w in zip(counts, w_counts))
+        if width == 0:
+            return empty
+        # four segments; the weak peaks after the detected ones (pairs.peak_index stays valid); one concatenation
+        # each (padding: views of cached +inf / 0 rows)
+        if self._pad_inf.size < width:
+            self._pad_inf, self._pad_zero = np.full(2 * width, np.inf), np.zeros(2 * width, np.int64)
+        fp, bp = [], []
+        for k in range(4):
+            fp.append(freqs[k])
+            bp.append(bins[k])
+            if w_counts[k]:
+                fp.append(weak[0][k])
+                bp.append(weak[1][k])
+            fp.append(self._pad_inf[:width - counts[k] - w_counts[k]])
+            bp.append(self._pad_zero[:width - counts[k] - w_counts[k]])
+        table = np.concatenate(fp, dtype=np.float64).reshape(4, width)
+        btab = np.concatenate(bp, dtype=np.int64).reshape(4, width)
+        seg = _SEG4
+        if pairs.range_m.size:
+            table[seg, pairs.peak_index] = np.inf
+        d = np.abs(table - f_hat[:, :, None])  # (m, 4, peaks)
+        j = d.argmin(axis=2)  # (m, 4): the first nearest in each segment's peak order
+        found = np.minimum.reduce(d, axis=2) <= self._aided_window_hz  # the minimum is d at j
+        fsel = np.where(found, table[seg, j], 0.0)
+        good = np.add.reduce(found, axis=1) >= cfg.aided_min_segments
+        if not good.any():
+            return empty
+        A = self._model_ab  # (4, 2)
+        w = found[good].astype(np.float64)
+        fs = fsel[good]
+        nrm = np.einsum("mk,ki,kj->mij", w, A, A)
+        rhs = np.einsum("mk,ki,mk->mi", w, A, fs)
+        sol = np.linalg.solve(nrm, rhs[:, :, None])[:, :, 0]  # (g, 2): range, speed
+        resid = np.sqrt((w * (fs - sol @ A.T) ** 2).sum(axis=1) / w.sum(axis=1))
+        close = (np.abs(sol[:, 0] - r_hat[good]) < cfg.aided_gate_m) & (np.abs(sol[:, 1] - v_hat[good]) < cfg.aided_gate_mps)
+        g = good.nonzero()[0][close]
+        # a segment without a peak is read at its predicted bin (np.round's value)
+        out_bins = np.where(found[g], btab[seg, j[g]], np.rint(f_hat[g] / self.bin_hz).astype(np.int64) % self.n_bins)
+        return (out_bins, sol[close, 0].astype(np.float32), sol[close, 1].astype(np.float32),
+                resid[close].astype(np.float32))
+
+    def aided_predictions(self, track_state: np.ndarray, sel: np.ndarray, dt: float, pairs) -> tuple | None:
+        """``(range_m (m,), v_mps (m,), beats (m, 4))`` predicted at this frame for the tracks ``sel`` (rows of
+        ``track_state``, (n, 4) x, y, vx, vy) that lie inside the range limits, move (|v| >= 1 m/s) and have no
+        pairing within the aided gates; None if none. A handful of tracks in plain Python floats (the float64
+        operations of the array form in the same order; the pairings looked at only within twice the range gate,
+        found by a binary search), more as arrays."""
+        cfg = self.config
+        dz = cfg.mounting_height_m - cfg.target_height_m
+        r_lo, r_hi, gate_m, gate_mps = cfg.min_range_m, cfg.max_range_m, cfg.aided_gate_m, cfg.aided_gate_mps
+        if sel.size > _AIDED_SMALL:
+            st = track_state[sel]
+            x, y = st[:, 0] + st[:, 2] * dt, st[:, 1] + st[:, 3] * dt
+            r_hat = np.sqrt(x * x + y * y + dz * dz)
+            v_hat = (x * st[:, 2] + y * st[:, 3]) / r_hat
+            ok = (r_hat >= r_lo) & (r_hat <= r_hi) & (np.abs(v_hat) >= 1.0)
+            if pairs.range_m.size:  # already paired
+                near = (np.abs(pairs.range_m[None, :] - r_hat[:, None]) < gate_m) & (
+                    np.abs(pairs.radial_speed_mps[None, :] - v_hat[:, None]) < gate_mps)
+                ok &= ~near.any(axis=1)
+            idx = ok.nonzero()[0]
+            if idx.size == 0:
+                return None
+            r_hat, v_hat = r_hat[idx], v_hat[idx]
+            return r_hat, v_hat, self.model.predict(r_hat, v_hat)
+        dz2 = dz * dz
+        paired = sorted(zip(pairs.range_m.tolist(), pairs.radial_speed_mps.tolist()))
+        paired_r = [pr for pr, _ in paired]
+        ordered = math.isfinite(sum(paired_r))  # (a NaN would leave the order undefined: then all are looked at)
+        r_l, v_l = [], []
+        for x0, y0, vx, vy in track_state.take(sel, axis=0)[:, :4].tolist():  # x, y, vx, vy
+            x, y = x0 + vx * dt, y0 + vy * dt
+            r = math.sqrt(x * x + y * y + dz2)
+            v = (x * vx + y * vy) / r
+            if not (r >= r_lo and r <= r_hi and abs(v) >= 1.0):
+                continue
+            near = paired
+            if ordered:  # (rounding cannot move a pairing across a window twice the gate)
+                lo = bisect.bisect_left(paired_r, r - 2.0 * gate_m)
+                near = paired[lo:bisect.bisect_right(paired_r, r + 2.0 * gate_m, lo)]
+            if any(abs(pr - r) < gate_m and abs(pv - v) < gate_mps for pr, pv in near):
+                continue  # already paired
+            r_l.append(r)
+            v_l.append(v)
+        if not r_l:
+            return None
+        a0, a1, a2, a3, b0, b1, b2, b3 = self.model.coefficients
+        f_hat = np.array([(r * a0 + v * b0, r * a1 + v * b1, r * a2 + v * b2, r * a3 + v * b3)
+                          for r, v in zip(r_l, v_l)])  # (m, 4): PairingModel.predict's values
+        return np.array(r_l), np.array(v_l), f_hat

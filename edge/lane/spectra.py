@@ -1,0 +1,57 @@
+"""Stage 1, spectra (Lim §III-A): int16 I/Q -> windowed range FFT of every segment and channel -> the static-clutter
+map subtracted -> power summed non-coherently over the channels (circularly padded rows for the OS-CFAR)."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.fft
+
+from edge.dsp.range_fft import make_window
+from edge.lane.clutter import ClutterMap
+from edge.lane.records import Feedback, Spectra
+from edge.types import FrontendInfo, RawFrame
+
+
+class SpectraStage:
+    """Windowed range FFT and clutter removal; keeps the frame's scratch buffers and the :class:`ClutterMap`."""
+
+    def __init__(self, frontend: FrontendInfo, config, clutter: ClutterMap, pad: int) -> None:
+        n = frontend.waveform.n_samples
+        self.n_bins = n
+        self.window = make_window(config.window, n)
+        self.clutter = clutter
+        self.pad = pad  # the OS-CFAR's reference and guard cells per side
+        self._iq = np.empty(frontend.frame_shape, dtype=np.complex64)
+        # the window times the FFT's 1/n scale when n is a power of two (scaling by 2^-k before the FFT
+        # is exact, the same spectrum bit for bit as scaling after it); one multiply less per frame
+        self._post_scale = n & (n - 1) != 0
+        self._window_scaled = self.window if self._post_scale else self.window * np.float32(1.0 / n)
+        self._sq = np.empty(frontend.frame_shape + (2,), dtype=np.float32)  # |re|^2, |im|^2 scratch
+        self._sq_sum = np.empty(frontend.frame_shape, dtype=np.float32)
+
+    def to_complex(self, frame: RawFrame) -> np.ndarray:
+        """int16 I/Q -> (rx, seg, bin) complex64, windowed on the way (a buffer the stage keeps)."""
+        iq = self._iq
+        np.multiply(frame.i, self._window_scaled, out=iq.real)
+        np.multiply(frame.q, self._window_scaled, out=iq.imag)
+        return iq
+
+    def __call__(self, iq: np.ndarray, feedback: Feedback) -> Spectra:
+        """Range FFT of :meth:`to_complex`'s output (overwritten), clutter map subtracted, channel power."""
+        spec = scipy.fft.fft(iq, axis=-1, overwrite_x=True, workers=1)  # (rx, seg, bin) complex64
+        if self._post_scale:
+            spec *= np.float32(1.0 / self.n_bins)
+        self.clutter.subtract(spec, feedback)
+        # non-coherent sum over the channels, written into the middle of a circularly padded row per
+        # segment (the OS-CFAR windows read across the ends); ``power`` is a view of it
+        h, n = self.pad, self.n_bins
+        sq = np.multiply(spec.view(np.float32), spec.view(np.float32), out=self._sq.reshape(spec.shape[:-1] + (-1,)))
+        sq = sq.reshape(self._sq.shape)
+        np.add(sq[..., 0], sq[..., 1], out=self._sq_sum)
+        # a new array each frame: the power is published with the frame's intermediates
+        ppad = np.empty((spec.shape[1], n + 2 * h), np.float32)
+        power = ppad[:, h:h + n]
+        np.add.reduce(self._sq_sum, axis=0, out=power)  # (seg, bin) float32 (ndarray.sum without its wrapper)
+        ppad[:, :h] = ppad[:, n:n + h]
+        ppad[:, n + h:] = ppad[:, h:2 * h]
+        return Spectra(spec, ppad, h)
