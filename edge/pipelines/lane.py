@@ -91,6 +91,14 @@ class LaneConfig:
         "doc": "the clutter map starts as a running mean, frame n weighted max(1/(n + this), 1 - exp(-T/time "
                "constant)): static clutter is learned in seconds, a vehicle of the first frames stays in it at "
                "1/this of its amplitude (-36 dB) only", "min": 1, "max": 1_000_000})
+    clutter_map_static_factor: float = field(default=8.0, metadata={
+        "doc": "the clutter map learns a bin only while it stands: where its frame-to-frame change, summed over the "
+               "channels, is at most this many times the segment's median change (a moving echo's phase turns and "
+               "its beat moves between frames; a standing one changes by noise alone); 0 = every bin learns",
+        "min": 0.0, "max": 1e6})
+    clutter_map_static_rel: float = field(default=0.05, metadata={
+        "doc": "... plus this fraction of the bin's own amplitude (the frame-to-frame change of a strong standing "
+               "echo under phase noise: 0.2 deg per chirp is 0.5 %)", "min": 0.0, "max": 1.0})
     cfar_pfa: float = field(default=1e-3, metadata={
         "doc": "design false-alarm probability per cell of the OS-CFAR (sets the threshold scale). Lim gives no "
                "value; 1e-3 (about 4 noise peaks per frame over 4 x 1024 cells) is affordable because a target "
@@ -466,6 +474,7 @@ class LanePipeline(Pipeline):
         self._alpha = np.float32(1.0 - math.exp(-period / cfg.clutter_map_time_s)) if cfg.clutter_map_time_s > 0 else 0.0
         self._background = np.zeros(frontend.frame_shape, dtype=np.complex64)  # (rx, seg, bin) static-clutter map
         self._map_frames = 0
+        self._prev_spec = None  # the last frame's raw spectrum (clutter_map_static_factor)
         k_init = cfg.clutter_map_init_frames if self._alpha > 0 else 0
         self._map_init = np.zeros((k_init,) + tuple(frontend.frame_shape), np.complex64) if k_init > 1 else None
         self._cap = np.float32(10.0 ** (cfg.cfar_cap_db / 10.0))
@@ -561,6 +570,8 @@ class LanePipeline(Pipeline):
                 alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
                 d = np.subtract(spec, self._background, out=self._diff)
                 d *= alpha
+                if cfg.clutter_map_static_factor > 0:
+                    self._hold_moving(spec, d)
                 if cfg.clutter_map_hold_speed_mps > 0 and self.tracker is not None:
                     self._hold_standing(d)
                 self._background += d
@@ -1000,6 +1011,25 @@ class LanePipeline(Pipeline):
         edge.traffic.lanes.to_road computes it (its operations only: the lanes' coordinate)."""
         yaw = self.traffic.yaw_rad
         return x.astype(np.float64) * math.cos(yaw) + y.astype(np.float64) * math.sin(yaw)
+
+    def _hold_moving(self, spec: np.ndarray, d: np.ndarray) -> None:
+        """Zero the clutter-map update ``d`` (rx, seg, bin) where the spectrum ``spec`` changed since the last
+        frame by more than noise and phase noise explain (``clutter_map_static_factor``, ``clutter_map_static_rel``):
+        what moves stays out of the map. Keeps this frame's spectrum for the next."""
+        prev = self._prev_spec
+        if prev is None:
+            self._prev_spec = spec.copy()
+            return
+        cfg = self.config
+        dv = np.subtract(spec, prev, out=prev).view(np.float32)
+        sq = (dv * dv).reshape(spec.shape + (2,)).sum(axis=(0, 3))  # (seg, bin): sum over rx of |change|^2
+        n = sq.shape[1]
+        med = np.partition(sq, n // 2, axis=1)[:, n // 2]
+        sv = spec.view(np.float32)
+        own = (sv * sv).reshape(spec.shape + (2,)).sum(axis=(0, 3))
+        moving = sq > med[:, None] * np.float32(cfg.clutter_map_static_factor) + own * np.float32(cfg.clutter_map_static_rel ** 2)
+        d[:, moving] = 0
+        np.copyto(prev, spec)
 
     def _hold_standing(self, d: np.ndarray) -> None:
         """Zero the clutter-map update ``d`` (rx, seg, bin) in the range bins of stopped confirmed tracks
