@@ -39,3 +39,19 @@ class FrameSimulator:
         x = synthesize_if(self.board, self.scene.pose, scat, t, rng, seed=self.seed)
         i, q = quantize(x, self.board.frontend.adc_bits)
         return SimFrame(n, t, i, q, self.scene.truth(t))
+
+
+class FrameCache:
+    """A :class:`FrameSimulator` whose frames are kept once made: several evaluations of one recording (a rule
+    ablation's baseline and each ablated configuration) read the same frames and pay for the synthesis once."""
+
+    def __init__(self, sim: FrameSimulator) -> None:
+        self.sim = sim
+        self.board, self.scene, self.seed, self.period_s = sim.board, sim.scene, sim.seed, sim.period_s
+        self._frames: dict[int, SimFrame] = {}
+
+    def frame(self, n: int) -> SimFrame:
+        f = self._frames.get(n)
+        if f is None:
+            f = self._frames[n] = self.sim.frame(n)
+        return f

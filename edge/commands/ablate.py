@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     for rule in rules:
         # the rule's settings come last: they switch the rule off whatever the variant or --set says
         jobs += [dict(j, extra_set=list(args.set) + list(rule.set), rule=rule.name) for j in base_jobs]
-    results = run_jobs(jobs, args.jobs, progress=not args.no_progress, desc=f"ablate {args.part}",
+    results = run_jobs(jobs, args.jobs, progress=not args.no_progress, desc=f"ablate {args.part}", share_frames=True,
                        label=lambda j: f"{j.get('rule', 'baseline')}: {j['scenario']} seed {j['seed']} {j['variant']}")
     n = len(base_jobs)
     base = results[:n]

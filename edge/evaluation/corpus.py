@@ -326,11 +326,24 @@ def check_scenarios(corpus: Corpus, part: str) -> None:
 # --- one run, in a worker -------------------------------------------------------------------------------------------
 
 
-def run_job(job: dict) -> dict:
+def _world_key(job: dict) -> tuple:
+    """Jobs with equal keys simulate the same frames (the configuration does not change the simulated world)."""
+    return (job["scenario"], job["seed"], job["events"], job["frames"], job["duration_s"], repr(job["patch"]))
+
+
+def run_job_group(jobs: list[dict]) -> list[dict]:
+    """:func:`run_job` for jobs of one simulated world (:func:`_world_key`), the frames made once and shared
+    (lane profile; other profiles simulate per job)."""
+    cache: dict = {}
+    return [run_job(j, cache) for j in jobs]
+
+
+def run_job(job: dict, cache: dict | None = None) -> dict:
     """Evaluate one (run, seed, variant): the record of :func:`corpus_document`'s ``runs`` without metrics.
 
     ``job``: a :meth:`Corpus.jobs` entry plus ``config`` (a configuration file or None) and ``extra_set`` (the
-    command line's and an ablated rule's ``SECTION.KEY=VALUE``, applied after the variant's ``set``)."""
+    command line's and an ablated rule's ``SECTION.KEY=VALUE``, applied after the variant's ``set``). ``cache``:
+    a dict in which a lane run keeps its simulated frames for the next job of the same world."""
     import importlib
 
     from edge.config import load_config, parse_set_option
@@ -345,7 +358,16 @@ def run_job(job: dict) -> dict:
     frames = job["frames"]
     if frames is None and job["duration_s"] is not None:
         frames = max(1, int(round(job["duration_s"] / sc.sim_board().frontend.waveform.frame_period_s)))
-    report = mod.evaluate(sc, seed=job["seed"], frames=frames, events=job["events"], config=config, progress=False)
+    kw = {}
+    if cache is not None and profile == "lane":
+        from hw_sim.simulator import FrameCache, FrameSimulator
+
+        if "world" not in cache:
+            scene = sc.build_scene(job["seed"])
+            cache["world"] = (scene, FrameCache(FrameSimulator(sc.sim_board(), scene, job["seed"])))
+        kw["world"] = cache["world"]
+    report = mod.evaluate(sc, seed=job["seed"], frames=frames, events=job["events"], config=config, progress=False,
+                          **kw)
     s = report["summary"]
     figures = {k: v for k, v in s.items() if isinstance(v, (int, float, str, bool)) or v is None}
     for k in ("count_error_per_lane", "volume_true_per_lane", "volume_measured_per_lane"):
@@ -361,8 +383,9 @@ def _worker_init() -> None:  # pragma: no cover - runs in the workers
 
 
 def run_jobs(jobs: list[dict], n_workers: int, progress: bool = True,
-             label: Callable[[dict], str] | None = None, desc: str = "corpus") -> list[dict]:
+             label: Callable[[dict], str] | None = None, desc: str = "corpus", share_frames: bool = False) -> list[dict]:
     """Run ``jobs`` in ``n_workers`` spawned processes (one BLAS thread each); the results in ``jobs``' order.
+    ``share_frames``: jobs of one simulated world run in one worker on frames made once (:func:`run_job_group`).
 
     Progress: a tqdm bar over runs on stderr when tqdm is installed, else one line per finished run."""
     import concurrent.futures as cf
@@ -382,17 +405,21 @@ def run_jobs(jobs: list[dict], n_workers: int, progress: bool = True,
     try:
         with cf.ProcessPoolExecutor(max_workers=max(1, n_workers), mp_context=mp.get_context("spawn"),
                                     initializer=_worker_init) as ex:
-            futs = {ex.submit(run_job, j): k for k, j in enumerate(jobs)}
+            groups: dict[tuple, list[int]] = {}
+            for k, j in enumerate(jobs):
+                groups.setdefault(_world_key(j) if share_frames else (k,), []).append(k)
+            futs = {ex.submit(run_job_group, [jobs[k] for k in ks]): ks for ks in groups.values()}
             done_n = 0
             for fut in cf.as_completed(futs):
-                k = futs[fut]
-                results[k] = fut.result()
-                done_n += 1
+                ks = futs[fut]
+                for k, r in zip(ks, fut.result()):
+                    results[k] = r
+                done_n += len(ks)
                 if bar is not None:
-                    bar.set_postfix_str(label(jobs[k]), refresh=False)
-                    bar.update(1)
+                    bar.set_postfix_str(label(jobs[ks[-1]]), refresh=False)
+                    bar.update(len(ks))
                 elif progress:
-                    print(f"{desc} [{done_n}/{len(jobs)}] {label(jobs[k])}", file=sys.stderr, flush=True)
+                    print(f"{desc} [{done_n}/{len(jobs)}] {label(jobs[ks[-1]])}", file=sys.stderr, flush=True)
     finally:
         if bar is not None:
             bar.close()

@@ -284,9 +284,12 @@ def _tallies(acc: dict[int, "_TargetAcc"], pd_overlap: dict, false_eps: list, n_
 
 
 def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: int | None = None,
-             config: Any = None, progress: bool = False, record_tracks: str | Path | None = None) -> dict:
+             config: Any = None, progress: bool = False, record_tracks: str | Path | None = None,
+             world: tuple | None = None) -> dict:
     """The report of the module docstring. ``record_tracks``: also write the traffic layer's input and the true
-    crossings there (:mod:`edge.evaluation.track_log`, for ``radar-edge replay-traffic``)."""
+    crossings there (:mod:`edge.evaluation.track_log`, for ``radar-edge replay-traffic``). ``world``: the
+    ``(scene, simulator)`` of ``sc`` and ``seed`` to use (e.g. a :class:`hw_sim.simulator.FrameCache` shared by
+    several evaluations of one recording); built here by default."""
     from edge.config import load_config
     from hw_sim.simulator import FrameSimulator
 
@@ -297,8 +300,11 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     fe = board.frontend
     period = fe.waveform.frame_period_s
     n_frames = frames if frames else max(1, int(round(sc.duration_s / period)))
-    scene = sc.build_scene(seed)
-    sim = FrameSimulator(board, scene, seed)
+    if world is None:
+        scene = sc.build_scene(seed)
+        sim = FrameSimulator(board, scene, seed)
+    else:
+        scene, sim = world
     lane_cfg, track_cfg, traffic_cfg = _installer_config(config, sc)
     pipe = LanePipeline(fe, lane_cfg, track_cfg, traffic_cfg)
     recorder = None

@@ -53,6 +53,7 @@ class ClutterMap:
         self._background = np.zeros(frame_shape, dtype=np.complex64)  # (rx, seg, bin) static-clutter map
         self._diff = np.empty(frame_shape, dtype=np.complex64)  # clutter-map scratch
         self._map_frames = 0
+        self._prev = None  # the last frame's raw spectra (clutter_map_static_factor)
         k_init = cfg.clutter_map_init_frames if self._alpha > 0 else 0
         self._map_init = np.zeros((k_init,) + tuple(frame_shape), np.complex64) if k_init > 1 else None
 
@@ -67,8 +68,8 @@ class ClutterMap:
 
     def subtract(self, spec: np.ndarray, feedback: Feedback) -> None:
         """Update the map with the spectra ``spec`` (rx, seg, bin) complex64 and subtract it from them in place.
-        The map is held in the range bins of stopped confirmed tracks of ``feedback``
-        (``clutter_map_hold_speed_mps``)."""
+        The map learns only bins that stand still from frame to frame (``clutter_map_static_factor``) and is held
+        in the range bins of stopped confirmed tracks of ``feedback`` (``clutter_map_hold_speed_mps``)."""
         if not self._alpha > 0:
             return
         cfg = self.config
@@ -79,6 +80,8 @@ class ClutterMap:
         alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
         d = np.subtract(spec, self._background, out=self._diff)
         d *= alpha
+        if cfg.clutter_map_static_factor > 0:
+            self._hold_moving(spec, d)
         if cfg.clutter_map_hold_speed_mps > 0:
             self._hold_standing(d, feedback)
         self._background += d
@@ -89,6 +92,25 @@ class ClutterMap:
                 self._map_init = None
         self._map_frames += 1
         spec -= self._background
+
+    def _hold_moving(self, spec: np.ndarray, d: np.ndarray) -> None:
+        """Zero the update ``d`` (rx, seg, bin) where the spectra changed since the last frame by more than noise
+        and phase noise explain: what moves stays out of the map. Keeps ``spec`` for the next frame."""
+        prev = self._prev
+        if prev is None:
+            self._prev = spec.copy()
+            return
+        cfg = self.config
+        dv = np.subtract(spec, prev, out=prev).view(np.float32)
+        change = (dv * dv).reshape(spec.shape + (2,)).sum(axis=(0, 3))  # (seg, bin): sum over rx of |change|^2
+        n = change.shape[1]
+        med = np.partition(change, n // 2, axis=1)[:, n // 2]
+        sv = spec.view(np.float32)
+        own = (sv * sv).reshape(spec.shape + (2,)).sum(axis=(0, 3))
+        moving = change > med[:, None] * np.float32(cfg.clutter_map_static_factor) + own * np.float32(
+            cfg.clutter_map_static_rel ** 2)
+        d[:, moving] = 0
+        np.copyto(prev, spec)
 
     def _hold_standing(self, d: np.ndarray, feedback: Feedback) -> None:
         """Zero the clutter-map update ``d`` (rx, seg, bin) in the range bins of stopped confirmed tracks

@@ -64,6 +64,13 @@ class LaneConfig:
     clutter_map_warmup_frames: int = field(default=60, metadata={
         "doc": "the clutter map starts as a running mean: frame n is weighted max(1/(n + this), 1 - exp(-T/time "
                "constant))", "min": 1, "max": 1_000_000})
+    clutter_map_static_factor: float = field(default=8.0, metadata={
+        "doc": "the clutter map learns a bin only while it stands still: its frame-to-frame change, summed over the "
+               "channels, at most this many times the segment's median change (a moving echo's phase and beat change "
+               "between frames); 0 = every bin learns", "min": 0.0, "max": 1e6})
+    clutter_map_static_rel: float = field(default=0.05, metadata={
+        "doc": "... plus this fraction of the bin's own amplitude (a strong standing echo under phase noise)",
+        "min": 0.0, "max": 1.0})
     cfar_pfa: float = field(default=1e-3, metadata={
         "doc": "design false-alarm probability per cell of the OS-CFAR (sets its threshold scale); a target also "
                "needs agreeing peaks in all four segments", "min": 1e-12, "max": 0.1})

@@ -131,18 +131,6 @@ class TrafficConfig:
         default=("motorcycle", "car", "truck"),
         metadata={"doc": "names of the length classes (one more than the edges; the Modbus and CAN class counts "
                          "group motorcycle, car, truck and bus, anything else counts as other)"})
-    count_min_gap_s: float = field(
-        default=0.0, metadata={"unit": "s", "doc": "a crossing this soon after a counted one in the same lane at the "
-                                                   "same speed (count_twin_speed_mps) is that vehicle's second track (the "
-                                                   "front and rear of a 16 m truck are 0.75 s apart at 80 km/h); 0 = off "
-                                                   "(default: the tracker no longer confirms a second track on one "
-                                                   "vehicle and count_same_vehicle_s covers its ghosts, while 0.8 s "
-                                                   "dropped two cars following 0.6-0.7 s behind another at about its "
-                                                   "speed: highway4-traffic seed 7, 6000 frames, lanes 0 and 1 -1)",
-                               "min": 0.0, "max": 10.0})
-    count_twin_speed_mps: float = field(
-        default=2.0, metadata={"unit": "m/s", "doc": "speed difference within which two crossings can be one "
-                                                     "vehicle", "min": 0.0, "max": 50.0})
     count_same_vehicle_s: float = field(
         default=0.4, metadata={"unit": "s", "doc": "a crossing this close in time to a counted one in the same lane is "
                                                    "that vehicle whatever its speed: the ghost tracks of a truck's body "

@@ -21,8 +21,7 @@ id is recycled (its ``age_frames`` drops).
 Counting (volume at the detection line, one count per vehicle however its tracks behave): a confirmed track
 crossing the line in its lane's direction of travel is counted at the interpolated crossing time, unless a
 crossing was counted in the lane less than ``count_same_vehicle_s`` before or after (a truck body's ghost
-tracks cross with it, at another speed), or up to ``count_min_gap_s`` before at the same speed (off by
-default), or the track was counted already (``count_once_per_track``: a track that jumped back behind the
+tracks cross with it, at another speed), or the track was counted already (``count_once_per_track``: a track that jumped back behind the
 line and crossed it again is still one vehicle). A track crossing against its lane's direction (a receding
 truck's ghost drifting into the approaching lanes) is not counted; a wrong-way driver is an event. A track
 crossing outside every lane but within ``count_outside_lane_m`` of the nearest counts in that lane. A track
@@ -208,19 +207,12 @@ class TrafficMonitor:
         (what the outputs reserve at start)."""
         return len(self.lanes) or len(self.config.lane_centers_m)
 
-    def _same_vehicle(self, acc, tc_ns: int, speed_mps: float) -> bool:
+    def _same_vehicle(self, acc, tc_ns: int) -> bool:
         """A crossing at ``tc_ns`` is a vehicle already counted in the lane: within ``count_same_vehicle_s`` of a
         counted crossing whatever its speed (two vehicles of one lane are never that close; the ghost tracks of a
-        truck's body cross right with it at v +- 5-8 m/s), or up to ``count_min_gap_s`` after one at the same
-        speed (the second track on a long truck's rear)."""
-        cfg = self.config
-        near_ns = int(cfg.count_same_vehicle_s * 1e9)
-        gap_ns = int(cfg.count_min_gap_s * 1e9)
-        for c in acc.recent:
-            d = tc_ns - c.t_ns
-            if abs(d) < near_ns or (0 <= d < gap_ns and abs(c.speed_mps - speed_mps) < cfg.count_twin_speed_mps):
-                return True
-        return False
+        truck's body cross right with it at v +- 5-8 m/s)."""
+        near_ns = int(self.config.count_same_vehicle_s * 1e9)
+        return any(abs(tc_ns - c.t_ns) < near_ns for c in acc.recent)
 
     @staticmethod
     def _counted_near(recent, t_ns: int, speed_mps: float, tol_ns: int, dv_mps: float) -> bool:
@@ -249,7 +241,7 @@ class TrafficMonitor:
         if self._first_t_ns is None or tc <= self._first_t_ns:  # crossed before the monitor started
             return False
         acc = self.stats.lane(lane)
-        if self._same_vehicle(acc, tc, speed_mps) or self._counted_near(
+        if self._same_vehicle(acc, tc) or self._counted_near(
                 acc.recent, tc, speed_mps, int(cfg.count_late_match_s * 1e9), cfg.count_late_match_speed_mps):
             return False
         if cfg.count_late_twin_s > 0:
@@ -397,7 +389,7 @@ class TrafficMonitor:
                     f = (line - s0) / (s1 - s0)
                     tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))
                     acc = stats.lane(c_lane)
-                    if not self._same_vehicle(acc, tc, speed[j]):
+                    if not self._same_vehicle(acc, tc):
                         acc.add(Crossing(tc, speed[j], float("nan"), tr.cls, meter))
                         memo.counted = True
                 memo.age, memo.s_m, memo.t_ns = tr.age_frames, s1, t_ns

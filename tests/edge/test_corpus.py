@@ -11,6 +11,7 @@ import pytest
 
 from edge.cli import main
 from edge.evaluation.corpus import (METRICS, CorpusError, Metric, parse_corpus, pool, resample_weights, run_job,
+                                    run_job_group,
                                    run_metrics)
 
 SMOKE = Path(__file__).resolve().parents[2] / "corpus" / "smoke.toml"
@@ -192,6 +193,17 @@ def test_ablation_of_a_rule_that_changes_nothing_and_of_one_that_does(tmp_path, 
         assert cv[n]["difference"] == pytest.approx(cv[n]["ablated"] - cv[n]["baseline"])
         lo, hi = cv[n]["ci95"]
         assert lo <= cv[n]["difference"] <= hi
+
+
+def test_lane_jobs_of_one_world_share_frames_and_report_as_if_simulated_alone():
+    base = {"run": 0, "part": "dev", "scenario": "highway4-traffic", "seed": 7007, "variant": "defaults",
+            "duration_s": None, "frames": 30, "events": None, "cold_start": True, "patch": {}, "set": []}
+    cv = dict(base, extra_set=["track.pdaf.motion_model=cv"])
+    alone = [run_job(base), run_job(cv)]
+    shared = run_job_group([base, cv])
+    assert [r["tallies"] for r in shared] == [r["tallies"] for r in alone]
+    assert [r["figures"] for r in shared] == [r["figures"] for r in alone]
+    assert alone[0]["tallies"] != alone[1]["tallies"]  # the two configurations differ, so the test can tell
 
 
 def test_ablate_refuses_an_unknown_setting(tmp_path, capsys):

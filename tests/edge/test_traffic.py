@@ -429,23 +429,6 @@ def test_yaw_estimate_standard_error_shrinks_with_votes():
     assert 0.5 * 0.004 / 20 < est.stderr_rad < 2.0 * 0.004 / 20
 
 
-@pytest.mark.parametrize("gap_s,expected", [(0.5, 1), (1.2, 2)])
-def test_the_second_track_of_one_truck_is_not_counted_twice(gap_s, expected):
-    """Two tracks in one lane crossing the detection line gap_s apart at the same speed: 0.5 s is the
-    front and rear of one long truck (one vehicle), 1.2 s two vehicles."""
-    cfg = TrafficConfig(estimate_yaw=False, count_min_gap_s=0.8, interval_s=60.0)
-    mon = TrafficMonitor(cfg)
-    v = 25.0
-    lag = int(round(gap_s / 0.1))
-    for k in range(80):
-        y1 = 30.0 + v * k * 0.1
-        trs = [_ts(1, 1.75, y1, 0.0, v, k + 1)]
-        if k >= lag:
-            trs.append(_ts(2, 1.75, 30.0 + v * (k - lag) * 0.1, 0.0, v, k - lag + 1))
-        mon.update(tuple(trs), int(k * 0.1e9))
-    assert len(mon.stats.lane(2).crossings) == expected
-
-
 @pytest.mark.parametrize("direction_only,expected", [(True, 0), (False, 1)])
 def test_a_crossing_against_the_lane_direction_is_not_counted(direction_only, expected):
     """A receding track in an approaching lane (a truck's ghost) crossing the line is not in the volume; an
@@ -550,11 +533,9 @@ def test_tracks_already_past_the_line_at_start_are_not_counted():
 @pytest.mark.parametrize("lag_s,dv_mps,expected", [
     (0.2, 5.0, 1),  # a truck body's ghost track crossing right after the truck, 5 m/s faster: one vehicle
     (0.6, 5.0, 2),  # 0.6 s later at another speed: a second vehicle
-    (0.6, 0.5, 1),  # 0.6 s later at the same speed: the second track on a long truck (count_min_gap_s)
 ])
 def test_crossings_moments_apart_in_one_lane_are_one_vehicle(lag_s, dv_mps, expected):
-    cfg = TrafficConfig(estimate_yaw=False, interval_s=60.0, count_same_vehicle_s=0.4, count_min_gap_s=0.8,
-                        count_twin_speed_mps=2.0, count_late_max_m=0.0)
+    cfg = TrafficConfig(estimate_yaw=False, interval_s=60.0, count_same_vehicle_s=0.4, count_late_max_m=0.0)
     mon = TrafficMonitor(cfg)
     v1, v2 = 25.0, 25.0 + dv_mps
     t2 = 1.0 + lag_s  # crossing times: 1.0 s and t2
