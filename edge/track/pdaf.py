@@ -183,7 +183,7 @@ class InnovationsEach(Innovations):
     ``det_s`` (T, M); ``s_track`` (T, n, n) is ``H P H' + R_t`` without the detections' noise."""
 
     s_track: np.ndarray | None = None
-    #: (T,) gate volume of the validated detections, set by :func:`association_weights_each` (the IMM update reuses it)
+    #: (T,) gate volume of the validated detections, set by :func:`association_weights` (the IMM update reuses it)
     gate_volume: np.ndarray | None = None
 
 

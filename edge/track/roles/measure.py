@@ -12,7 +12,7 @@ import numpy as np
 
 from edge.track import kalman
 from edge.track.config import MeasurementConfig
-from edge.track.pdaf import (Innovations, InnovationsEach, PairInnovations, combined_update, combined_update_pairs,
+from edge.track.pdaf import (Innovations, PairInnovations, combined_update, combined_update_pairs,
                              gate_volume_each, innovations, innovations_each, mahalanobis_d2, pair_innovations,
                              unit_ball_volume)
 from edge.track import imm
