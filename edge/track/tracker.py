@@ -94,9 +94,7 @@ class PdafTracker:
             self.updater.update(tr, pred, mp, hyp, meas)
             self.measurement_model.learn(tr, pred.x, mp, hyp.beta, meas.z.shape[0])
             self.confirmer.score(tr, mp.inn, hyp.gated, n)
-            d2_excl = self.measurement_model.seed_exclusion_d2(mp, pred.x,
-                                                               self.associator.cfg.seed_exclusion_noise == "constant")
-            used = self.associator.claimed(d2_excl, n)
+            used = self.associator.claimed(mp, pred.x, self.measurement_model)  # inside an exclusion gate: no seed
             hit = hyp.gated.any(axis=1)
             tr.count(hit)
             frame = Frame(meas, dt_s, pred, mp, hyp, hit, used)

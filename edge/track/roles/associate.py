@@ -59,6 +59,9 @@ class PdaAssociator:
                                                  self.cfg.association, allowed)
         return Hypotheses(beta, beta0, gated)
 
-    def claimed(self, d2_exclusion: np.ndarray, n: int) -> np.ndarray:
-        """(M,) detections inside some track's exclusion gate (they never seed)."""
-        return (d2_exclusion <= self.exclusion_gamma[n]).any(axis=0)
+    def claimed(self, mp, xp: np.ndarray, measurement_model) -> np.ndarray:
+        """(M,) detections inside some track's exclusion gate (they never seed): the association's distances, or
+        with ``seed_exclusion_noise = "constant"`` those of the constant noise model
+        (:meth:`edge.track.roles.measure.MeasurementModel.seed_exclusion_d2`)."""
+        d2 = measurement_model.seed_exclusion_d2(mp, xp, self.cfg.seed_exclusion_noise == "constant")
+        return (d2 <= self.exclusion_gamma[mp.zh.shape[1]]).any(axis=0)
