@@ -8,7 +8,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from edge.track import PdafConfig, PdafTracker
+from edge.track import PdafConfig, PdafTracker, pdaf
+from edge.track.roles import measure as measure_module
 from edge.track.pdaf import association_weights, gate_threshold, innovations_each
 from tests.edge.trackscene import Vehicle, frames
 
@@ -73,15 +74,26 @@ def _run(pregate: bool, cfg: PdafConfig, scene, n_frames: int, seed: int):
 
 
 @pytest.mark.parametrize("exclusion", ["constant", "snr"])
-def test_tracker_outputs_are_the_same_with_and_without_the_pregate(exclusion):
+def test_tracker_outputs_are_the_same_with_and_without_the_pregate(exclusion, monkeypatch):
     """Sixteen vehicles in four lanes over 20-260 m with clutter: the published tracks and the whole track table are
     identical with and without the pre-gate (the exclusion gate's noise model sets the pre-gate's threshold)."""
+    monkeypatch.setattr(pdaf, "_PREGATE_MIN_PAIRS", 0)  # on for every frame, however few the pairs
+    pruned = []
+    real = pdaf.innovations_each
+
+    def spy(*args):
+        inn = real(*args)
+        pruned.append(int(np.isinf(inn.d2).sum()))
+        return inn
+
+    monkeypatch.setattr(measure_module, "innovations_each", spy)
     rng = np.random.default_rng(5)
     scene = [Vehicle(x, y, 0.0, v, length_m=4.5) for x, v in ((-5.25, -27.0), (-1.75, -22.0), (1.75, 25.0),
                                                                 (5.25, 30.0)) for y in rng.uniform(20, 260, 4)]
     cfg = dataclasses.replace(PdafConfig(), seed_exclusion_noise=exclusion)
     (a, ta), (b, tb) = _run(True, cfg, scene, 60, 2), _run(False, cfg, scene, 60, 2)
     assert a == b
+    assert sum(pruned) > 1000  # the pre-gate ruled pairs out
     assert sum(len(x) for x in a) > 200  # tracks confirmed and published
     for col in type(ta)._COLUMNS:
         assert np.array_equal(getattr(ta, col), getattr(tb, col)), col
