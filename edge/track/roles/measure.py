@@ -170,6 +170,11 @@ class MeasurementModel:
         self._innovations(meas, pred, mp, prune_gamma)
         return mp
 
+    def _innovations(self, meas: Measurements, pred: Prediction, mp: MeasurementPrediction,
+                     prune_gamma: float | None) -> None:
+        """Set ``mp.inn`` (and ``mp.inn_m`` where the noise model computes the modes' with it)."""
+        raise NotImplementedError("a noise model: ConstantNoiseModel or SnrNoiseModel")
+
     def seed_exclusion_d2(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool) -> np.ndarray:
         """(T, M) squared distances of the seed-exclusion gate: the association's, or (``constant``) those under the
         constant noise model (the same innovations, ``S`` = the track's part plus the constant sensor noise)."""
