@@ -6,7 +6,8 @@ Lane profile (Lim et al. §III-B)::
     tracker = PdafTracker(cfg.section("track.pdaf"))
     tracks = tracker.step(detections, t_ns)   # tuple[edge.types.TrackState, ...]
 
-See :mod:`edge.track.tracker` for the contract, :mod:`edge.track.pdaf` for eqs. 17-19 and
+See :mod:`edge.track.tracker` for the contract and the algorithm, :mod:`edge.track.roles` for the roles it runs
+(built from the per-role sections of :mod:`edge.track.config`), :mod:`edge.track.pdaf` for eqs. 17-19 and
 :mod:`edge.track.kalman` for the constant-velocity filter, :mod:`edge.track.imm` for the interacting
 multiple models (lane keeping / manoeuvring) that run on top of it by default.
 """

@@ -1,5 +1,5 @@
 """Score-based track confirmation: the sequential log-likelihood-ratio track score (Blackman & Popoli 1999,
-§6.2; the PDA form of Musicki et al.'s IPDA), next to the M-of-N rule of :class:`edge.track.tracker.MofNInitiator`.
+§6.2; the PDA form of Musicki et al.'s IPDA), next to the M-of-N rule of :class:`edge.track.roles.confirm.Confirmer`.
 
 A tentative track is either a vehicle (H1) or a run of false detections (H0). Per frame its score ``L`` (the log
 of the likelihood ratio of H1 to H0 over its life) grows by the log of this frame's ratio

@@ -199,7 +199,7 @@ def test_pdaf_matches_stonesoup_pda_one_target_in_clutter():
 # --- one R per detection (measurement_noise = "snr") ---------------------------------------------------------------
 
 from edge.track import imm  # noqa: E402
-from edge.track.pdaf import (_sym_inv_det, association_weights_each, combined_update_each,  # noqa: E402
+from edge.track.pdaf import (_sym_inv_det, association_weights, combined_update,  # noqa: E402
                              gate_volume_each, innovations_each)
 
 
@@ -240,13 +240,13 @@ def test_per_detection_path_with_one_common_r_is_the_constant_r_pdaf(method, n):
     np.testing.assert_allclose(each.det_s, np.repeat(one.det_s[:, None], m, axis=1), rtol=1e-9)
     gamma = gate_threshold(0.99, n)
     b1, b01, g1 = association_weights(one, gamma, 0.9, 0.99, method)
-    b2, b02, g2 = association_weights_each(each, gamma, 0.9, 0.99, method)
+    b2, b02, g2 = association_weights(each, gamma, 0.9, 0.99, method)
     assert g1.any() and (~g1).any()
     np.testing.assert_array_equal(g1, g2)
     np.testing.assert_allclose(b2, b1, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(b02, b01, rtol=1e-9)
     x1, p1 = combined_update(xp, pp, h, one, b1, b01)
-    x2, p2 = combined_update_each(xp, pp, h, each, b2, b02)
+    x2, p2 = combined_update(xp, pp, h, each, b2, b02)
     np.testing.assert_allclose(x2, x1, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(p2, p1, rtol=1e-8, atol=1e-10)
     vol = unit_ball_volume(n) * gamma ** (n / 2) * np.sqrt(one.det_s)
@@ -265,9 +265,9 @@ def test_per_detection_update_is_the_moment_matched_mixture_of_per_hypothesis_ka
     r_meas = c @ c.transpose(0, 2, 1) * rng.uniform(0.01, 1.0, m)[:, None, None] + np.eye(n)[None] * 0.01
     z = zh[rng.integers(0, t, m)] + rng.normal(0, 0.5, (m, n))
     inn = innovations_each(z, zh, h, pp, r_track, r_meas)
-    beta, beta0, gated = association_weights_each(inn, gate_threshold(0.99, n), 0.9, 0.99, "pdaf")
+    beta, beta0, gated = association_weights(inn, gate_threshold(0.99, n), 0.9, 0.99, "pdaf")
     assert (gated.sum(axis=1) >= 2).any()
-    x, p = combined_update_each(xp, pp, h, inn, beta, beta0)
+    x, p = combined_update(xp, pp, h, inn, beta, beta0)
     for i in range(t):
         means, covs, ws = [xp[i]], [pp[i]], [beta0[i]]
         for j in range(m):

@@ -14,6 +14,8 @@ import pytest
 
 from edge.track import PdafConfig, PdafTracker, TrackTable, imm
 from edge.track import tracker as tracker_module
+from edge.track.roles import build_roles
+from edge.track.roles import initiate as initiate_module
 from edge.track.pdaf import Innovations, combined_update, innovations
 from edge.types import TrackState
 from tests.edge.trackscene import Vehicle, frames
@@ -188,8 +190,9 @@ def test_imm_prediction_cache_follows_yaw_and_period_changes():
     tracks.append(x, np.repeat(np.eye(4)[None], 3, axis=0), 1.0, 0.6)
     for dt, yaw in [(0.033, 0.0), (0.033, 0.01), (0.034, 0.01), (0.034, -0.02), (0.033, -0.02), (0.033, 0.0)]:
         fresh = tracker_module.ImmPredictor(cfg)
-        for a, b in zip(cached.predict(tracks, dt, yaw), fresh.predict(tracks, dt, yaw)):
-            np.testing.assert_array_equal(a, b)
+        a, b = cached.predict(tracks, dt, yaw), fresh.predict(tracks, dt, yaw)
+        for name in ("x", "p", "xm", "pm", "c"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
         fk, qk = imm.keep_model(dt, yaw, cfg.imm_keep_tau_s, cfg.imm_keep_q_across_m2ps3, cfg.q_along_m2ps3)
         np.testing.assert_array_equal(cached._cached[2][0], fk)
         np.testing.assert_array_equal(cached._cached[3][0], qk)
@@ -212,7 +215,7 @@ def test_keep_model_closed_form_is_the_rotated_model(yaw):
 
 
 def test_deleter_pairs_are_triu_indices_for_any_sequence_of_track_counts():
-    deleter = tracker_module.TrackDeleter(PdafConfig())
+    deleter = build_roles(PdafConfig()).deleter
     rng = np.random.default_rng(9)
     for t in [2, 5, 3, 31, 32, 33, 2, 70, 40, 0, 1, *rng.integers(0, 150, size=20).tolist()]:
         ia, ib = deleter.pairs(t)
@@ -248,10 +251,9 @@ def test_seed_merge_in_plain_python_equals_the_array_form(with_pairs, monkeypatc
         meas = tracker_module.Measurements(z, snr, True, pair)
         out = []
         for plain_max in (0, 100):
-            monkeypatch.setattr(tracker_module, "_SEED_MERGE_PLAIN_MAX", plain_max)
+            monkeypatch.setattr(initiate_module, "_SEED_MERGE_PLAIN_MAX", plain_max)
             tracks = TrackTable()
-            tracker_module.MofNInitiator(cfg, tracker_module.MeasurementModel(cfg)).initiate(
-                tracks, meas, np.zeros(m, bool))
+            build_roles(cfg).initiator.initiate(tracks, meas, np.zeros(m, bool))
             out.append(tracks)
         assert np.array_equal(out[0].x, out[1].x) and np.array_equal(out[0].p, out[1].p)
         assert np.array_equal(out[0].pm, out[1].pm)
@@ -261,7 +263,7 @@ def test_seed_merge_in_plain_python_equals_the_array_form(with_pairs, monkeypatc
 
 def test_tracker_outputs_equal_with_the_plain_seed_merge_off(monkeypatch):
     fast = _published(PdafConfig(), 80)
-    monkeypatch.setattr(tracker_module, "_SEED_MERGE_PLAIN_MAX", 0)
+    monkeypatch.setattr(initiate_module, "_SEED_MERGE_PLAIN_MAX", 0)
     assert _published(PdafConfig(), 80) == fast
 
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 from scipy.stats import multivariate_normal
 
-from edge.track import PdafConfig, PdafTracker
+from edge.track import PdafTracker
 from edge.track.score import confirm_threshold, false_density, score_increment
 from tests.edge.trackscene import Vehicle, frames, scene_config
 
@@ -104,20 +104,3 @@ def test_peak_coherence_one_source_two_sources_and_noise():
     kept[1, 1:] = False
     assert peak_coherence(snaps[1:], steer, np.array([k1]), kept[1:])[0] < 0.8
     assert peak_coherence(np.zeros((0, 4, 4), np.complex64), steer, np.zeros(0, int), np.zeros((0, 4), bool)).size == 0
-
-
-def test_a_strong_incoherent_detection_does_not_seed_but_a_weak_one_does():
-    from edge.types import Detections
-
-    def det(coh, snr):
-        d = Detections.from_polar([40.0], [20.0], [0.05], [snr])
-        d.extra["angle_coherence"] = np.array([coh])
-        return d
-
-    for coh, snr, seeds in ((0.6, 20.0, 0), (0.95, 20.0, 1), (0.6, 8.0, 1)):
-        tr = PdafTracker(PdafConfig(seed_min_coherence=0.8))  # an option, off by default
-        tr.step(det(coh, snr), 0)
-        assert len(tr.tracks) == seeds, (coh, snr)
-    tr = PdafTracker(PdafConfig(seed_min_coherence=0.0))  # off: every moving detection seeds
-    tr.step(det(0.6, 20.0), 0)
-    assert len(tr.tracks) == 1

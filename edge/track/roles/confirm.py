@@ -1,0 +1,103 @@
+"""Confirmer role: when a tentative track becomes a published vehicle (M of N hits, or the sequential track score of
+:mod:`edge.track.score`; surely moving; not on a confirmed track's body), and when it can no longer."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from edge.track import score
+from edge.track.config import AssociationConfig, ConfirmerConfig
+from edge.track.pdaf import Innovations, gate_threshold
+from edge.track.roles.box import SameVehicleBox
+from edge.track.roles.measure import heading
+from edge.track.smallmat import inv_quad2
+from edge.track.table import IdPool, TrackTable
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Confirmer"]
+
+
+class Confirmer:
+    """Confirmation by ``confirmation`` (m_of_n, score, either), once the track surely moves, unless a confirmed track
+    moving alike lies on it (``confirm_block_*``); tentative tracks that can no longer confirm expire."""
+
+    def __init__(self, cfg: ConfirmerConfig, assoc: AssociationConfig, box: SameVehicleBox) -> None:
+        self.cfg, self.box = cfg, box
+        self._prob_gate = assoc.prob_gate
+        self._mask_n = np.uint32((1 << cfg.confirm_n) - 1)
+        self.uses_score = cfg.confirmation in ("score", "either")
+        self._score_confirm = score.confirm_threshold(cfg.score_false_confirm_prob, cfg.score_true_reject_prob)
+        self._score_drop = -score.confirm_threshold(cfg.score_true_reject_prob, cfg.score_false_confirm_prob)
+        self._density = {n: score.false_density(cfg.score_false_density_m2, cfg.score_speed_span_mps, n) for n in (2, 3)}
+        self._moving_gamma = gate_threshold(cfg.moving_prob, 2)
+
+    @property
+    def confirmed_log_odds(self) -> float:
+        """Wald's confirmation threshold: the evidence (log-odds) a confirmation stands for."""
+        return self._score_confirm
+
+    def score(self, tracks: TrackTable, inn: Innovations, gated: np.ndarray, n: int) -> None:
+        """Add this frame's log-likelihood ratio to every track's score (:func:`edge.track.score.score_increment`)."""
+        if self.uses_score:
+            c = self.cfg
+            tracks.score += score.score_increment(inn.d2, inn.det_s, gated, n, c.score_prob_detect, self._prob_gate,
+                                                  self._density[n])
+
+    def update_moving(self, tracks: TrackTable) -> None:
+        """Moving for sure: the velocity is significantly non-zero (``v' P_v^-1 v``) and fast enough."""
+        v = tracks.x[:, 2:4]
+        d2v = inv_quad2(tracks.p[:, 2:4, 2:4], v)
+        tracks.moved |= (d2v > self._moving_gamma) & (np.hypot(v[:, 0], v[:, 1]) >= self.cfg.confirm_min_speed_mps)
+
+    def _ready(self, tracks: TrackTable) -> np.ndarray:
+        """Tentative tracks that pass the confirmation test (``confirmation``), before the moving and block rules."""
+        c = self.cfg
+        out = ~tracks.confirmed
+        if c.confirmation == "score":
+            return out & (tracks.score >= self._score_confirm)
+        mofn = np.bitwise_count(tracks.history & self._mask_n) >= c.confirm_m
+        if c.confirmation == "either":
+            mofn |= tracks.score >= self._score_confirm
+        return out & mofn
+
+    def confirm(self, tracks: TrackTable, ids: IdPool) -> None:
+        c = self.cfg
+        merge_lateral_m, merge_speed_mps = self.box.cfg.merge_lateral_m, self.box.cfg.merge_speed_mps
+        ready = self._ready(tracks) & tracks.moved
+        if c.confirm_block_along_m > 0 and ready.any() and tracks.confirmed.any():
+            # a second track on a long vehicle (its front and its rear half) waits for the duplicate check
+            r, k = np.flatnonzero(ready), np.flatnonzero(tracks.confirmed)
+            xk = tracks.x.take(k, axis=0)
+            d = tracks.x.take(r, axis=0)[:, None, :] - xk[None, :, :]
+            u, _ = heading(xk)  # speed compared along the confirmed track's heading (a young track's
+            dv = d[..., 2] * u[None, :, 0] + d[..., 3] * u[None, :, 1]  # lateral speed is still noise)
+            along = np.abs(d[..., 1]) < c.confirm_block_along_m
+            blocked = (along & (((np.abs(d[..., 0]) < merge_lateral_m) & (np.abs(dv) < merge_speed_mps))
+                                | ((np.abs(d[..., 0]) < c.confirm_block_lateral_m) & (d[..., 1] > c.confirm_block_behind_m)
+                                   & (np.abs(dv) < c.confirm_block_speed_mps)
+                                   & (np.hypot(xk[:, 0], xk[:, 1]) < c.confirm_block_max_range_m)[None, :])
+                                )).any(axis=1)
+            ready[r[blocked]] = False
+        for i in ready.nonzero()[0]:
+            tid = ids.acquire()
+            if tid is None:
+                log.warning("no free track id (max %d): track stays tentative", c.max_track_id)
+                break
+            tracks.track_id[i] = tid
+            tracks.confirmed[i] = True
+
+    def tentative_expired(self, tracks: TrackTable) -> np.ndarray:
+        """Tentative tracks that can no longer reach M hits in their last N frames (or Wald's lower threshold)."""
+        c = self.cfg
+        if c.confirmation == "score":
+            return ~tracks.confirmed & (tracks.score <= self._score_drop)
+        recent = tracks.history & self._mask_n
+        counts = np.bitwise_count(recent)
+        out = ~tracks.confirmed & (tracks.age >= c.confirm_n) & (counts < c.confirm_m) & (tracks.misses > 0)
+        if c.tentative_keep_from_m > 0 and out.any():  # far tracks: only once hardly anything hits any more
+            far = np.hypot(tracks.x[:, 0], tracks.x[:, 1]) > c.tentative_keep_from_m
+            out &= ~far | (counts < c.tentative_keep_min_hits)
+        return out

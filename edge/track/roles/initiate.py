@@ -1,0 +1,148 @@
+"""Initiator role: tentative tracks from detections no track explains, one seed per vehicle."""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from edge.track.config import FieldOfViewConfig, InitiatorConfig
+from edge.track.roles.box import SameVehicleBox, box_close
+from edge.track.roles.measure import MeasurementModel, MeasurementPrediction
+from edge.track.table import Measurements, TrackTable
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SeedInitiator"]
+
+_SEED_MERGE_PLAIN_MAX = 8  # seed candidates up to which SeedInitiator merges them in plain Python
+
+
+class SeedInitiator:
+    """Seeds from the detections outside every track's exclusion gate and same-vehicle box, moving, in the field of
+    view; of one frame's candidates within one merge box the strongest seeds. With a radial speed the seed moves
+    along the road (``road_yaw_rad`` off the boresight): its speed along the road from the radial speed (sd
+    ``init_along_speed_sigma_mps``, widened near the radar by the measurement model's mast-geometry term),
+    ``init_lateral_speed_sigma_mps`` across it."""
+
+    def __init__(self, cfg: InitiatorConfig, fov: FieldOfViewConfig, box: SameVehicleBox,
+                 measurement_model: MeasurementModel, predictor=None) -> None:
+        self.cfg, self.fov, self.box = cfg, fov, box
+        self.meas_model = measurement_model
+        self.predictor = predictor  # told of new rows (its per-model state), if any
+
+    def initiate(self, tracks: TrackTable, meas: Measurements, used: np.ndarray, road_yaw_rad: float = 0.0,
+                 mp: MeasurementPrediction | None = None) -> int:
+        """Seed tentative tracks; ``used`` (M,) the detections tracks claimed. Returns the number of seeds."""
+        c, box = self.cfg, self.box
+        z = meas.z
+        rho = np.hypot(z[:, 0], z[:, 1])
+        # a detection split from a merged one (two vehicles side by side) lies inside the gate of the track
+        # that followed the merged detection: it may seed unless a track sits right on it
+        resolved = meas.pair >= 0 if meas.pair is not None else np.zeros(z.shape[0], bool)
+        cand = (~used | resolved) & (rho >= self.fov.min_range_m) & (rho <= self.fov.max_range_m)
+        if meas.with_radial_speed:
+            cand &= np.abs(z[:, 2]) >= c.seed_min_radial_speed_mps
+        if len(tracks) and cand.any():
+            xt = tracks.x
+            lat = box.lateral_m(xt[:, :2])[:, None]
+            if meas.pair is not None:
+                lat = np.where(resolved[None, :], box.cfg.merge_lateral_m, lat)
+            d = xt[:, None, :2] - z[None, :, :2]  # (T, M, 2)
+            near = (np.abs(d[..., 0]) < lat) & (np.abs(d[..., 1]) < box.along_m(tracks)[:, None])
+            if meas.with_radial_speed:  # ... and moving like the track
+                rho_t = np.maximum(np.hypot(xt[:, 0], xt[:, 1]), 1e-3)
+                vr_t = (xt[:, 0] * xt[:, 2] + xt[:, 1] * xt[:, 3]) / rho_t
+                near &= np.abs(vr_t[:, None] - z[None, :, 2]) < c.seed_merge_speed_mps
+            cand &= ~near.any(axis=0)
+        idx = cand.nonzero()[0]
+        if idx.size == 0:
+            return 0
+        # one seed per vehicle: drop a candidate when a stronger one lies in its merge box
+        zc = z.take(idx, axis=0)
+        if idx.size == 1:  # one candidate: nothing to merge
+            seed_idx = idx
+        elif idx.size <= _SEED_MERGE_PLAIN_MAX:  # a handful: the same comparisons on Python floats, pair by pair
+            seed_idx = self._merge_seeds_plain(idx, zc, meas.snr_db.take(idx), resolved.take(idx),
+                                               meas.with_radial_speed)
+        else:
+            snr = meas.snr_db[idx]
+            lat_c = np.where(resolved[idx][None, :] & resolved[idx][:, None], box.cfg.merge_lateral_m,
+                             box.lateral_m(zc[:, :2])[:, None])
+            close = box_close(zc[:, :2], zc[:, :2], lat_c, c.init_merge_along_m)
+            if meas.with_radial_speed:  # detections of one vehicle share its radial speed
+                close &= np.abs(zc[:, None, 2] - zc[None, :, 2]) < c.seed_merge_speed_mps
+            order = np.arange(idx.size)
+            stronger = (snr[None, :] > snr[:, None]) | ((snr[None, :] == snr[:, None]) & (order[None, :] < order[:, None]))
+            seed_idx = idx.compress(~(close & stronger).any(axis=1))
+        seeds = z.take(seed_idx, axis=0)
+        room = c.max_tracks - len(tracks)
+        if room <= 0:
+            log.debug("track table full (%d): %d seeds dropped", c.max_tracks, seeds.shape[0])
+            return 0
+        seeds, seed_idx = seeds[:room], seed_idx[:room]
+        k = seeds.shape[0]
+        x0 = np.zeros((k, 4))
+        x0[:, :2] = seeds[:, :2]
+        p0 = np.zeros((k, 4, 4))
+        if self.meas_model.per_detection:  # the seed's own noise (its SNR)
+            # computed for the seeds only, or taken from this frame's (the same values)
+            r = (self.meas_model.of_detections(meas, 2, rows=seed_idx) if mp is None or mp.rm is None
+                 else mp.rm.take(seed_idx, axis=0)[:, :2, :2])
+        else:
+            _, _, r = self.meas_model.at(x0, False)
+        p0[:, :2, :2] = r
+        var_s = None
+        if meas.with_radial_speed:
+            # road direction e_s = (-sin yaw, cos yaw), across it e_u = (cos yaw, sin yaw): v = v_s e_s with
+            # v_r = v_s (e_s . p) / |p|
+            cy, sy = math.cos(road_yaw_rad), math.sin(road_yaw_rad)
+            proj = cy * seeds[:, 1] - sy * seeds[:, 0]  # e_s . p
+            rho_s = np.hypot(seeds[:, 0], seeds[:, 1])
+            ok = np.abs(proj) > 1.0
+            if ok.all():  # the usual case: no seed right beside the radar across the road
+                v_s = seeds[:, 2] * rho_s / proj
+                var_s = c.init_along_speed_sigma_mps**2  # one value for all seeds: the covariances below once
+            else:
+                v_s = np.where(ok, seeds[:, 2] * rho_s / np.where(ok, proj, 1.0), 0.0)
+                var_s = np.where(ok, c.init_along_speed_sigma_mps**2, c.init_speed_sigma_mps**2)
+            if self.meas_model.near_speed_on:
+                # near the radar the seed's speed is blurred by its body's spread (MeasurementModel.near_speed_sd)
+                var_s = var_s + self.meas_model.near_speed_sd(seeds[:, :2], v_s) ** 2
+            x0[:, 2], x0[:, 3] = -sy * v_s, cy * v_s
+            var_u = c.init_lateral_speed_sigma_mps**2
+            p0[:, 2, 2] = cy * cy * var_u + sy * sy * var_s
+            p0[:, 3, 3] = sy * sy * var_u + cy * cy * var_s
+            p0[:, 2, 3] = p0[:, 3, 2] = cy * sy * (var_u - var_s)
+        else:
+            p0[:, 2, 2] = p0[:, 3, 3] = c.init_speed_sigma_mps**2
+        tracks.append(x0, p0, self.meas_model.initial_extent_var)
+        if self.predictor is not None:
+            self.predictor.seeded(tracks, k, road_yaw_rad, var_s)
+        return k
+
+    def _merge_seeds_plain(self, idx: np.ndarray, zc: np.ndarray, snr: np.ndarray, resolved: np.ndarray,
+                           with_radial_speed: bool) -> np.ndarray:
+        """The merge of :meth:`initiate`'s candidates (a candidate goes when a stronger one, or an equally strong
+        earlier one, lies in its merge box at its radial speed) for a handful of them, in plain Python: the same
+        float64 differences and comparisons as the (A, A) array form, a few calls fewer."""
+        c = self.cfg
+        rows = zc.tolist()
+        sl = snr.tolist()
+        res = resolved.tolist()
+        lat_i = self.box.lateral_m(zc[:, :2]).tolist()
+        lat_pair, along, dv = self.box.cfg.merge_lateral_m, c.init_merge_along_m, c.seed_merge_speed_mps
+        keep = []
+        for i, zi in enumerate(rows):
+            si, ri, li = sl[i], res[i], lat_i[i]
+            for j, zj in enumerate(rows):
+                sj = sl[j]
+                if not (sj > si or (sj == si and j < i)):  # j is not stronger (never itself)
+                    continue
+                if (abs(zi[0] - zj[0]) < (lat_pair if ri and res[j] else li) and abs(zi[1] - zj[1]) < along
+                        and (not with_radial_speed or abs(zi[2] - zj[2]) < dv)):
+                    break
+            else:
+                keep.append(i)
+        return idx.take(np.array(keep, dtype=np.intp))

@@ -1,0 +1,149 @@
+"""Post-step roles, run after the update and the hit counters: the straight-line lateral filter that gives the
+published lateral position, and re-anchoring a track on its vehicle's near face. A post-step changes only its own
+columns and the tracks' common state; it returns the rows whose state it moved so that the roles that keep their own
+per-track state restart them (``restart``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from edge.track import kalman
+from edge.track.config import LateralSmootherConfig, ReanchorConfig
+from edge.track.pdaf import gate_threshold
+from edge.track.roles.associate import Hypotheses
+from edge.track.roles.box import SameVehicleBox
+from edge.track.roles.delete import carrying_detection
+from edge.track.roles.measure import MeasurementModel, MeasurementPrediction, Prediction
+from edge.track.table import Measurements, TrackTable
+
+__all__ = ["Frame", "LateralSmoother", "Reanchor"]
+
+
+@dataclass
+class Frame:
+    """What the post-steps may read of this frame: the measurements, the time step, the prediction, the measurement
+    prediction, the association, the tracks hit (T,) and the detections claimed (M,; a post-step may claim more)."""
+
+    meas: Measurements
+    dt_s: float
+    pred: Prediction
+    mp: MeasurementPrediction
+    hyp: Hypotheses
+    hit: np.ndarray
+    used: np.ndarray
+
+
+class LateralSmoother:
+    """A straight-line filter per track across the boresight (``tracks.lat``: ``[x, vx]``), outside the IMM's mixing,
+    updated with the association's weights and each detection's own lateral noise (:mod:`edge.track.kalman`). It
+    restarts from the motion model's estimate when a Hausman test or a CUSUM of the likelihood ratio says the vehicle
+    left the line, and is held there while the predictor's manoeuvring mode is likely or while the detection that
+    carries the track is an unresolved pair."""
+
+    def __init__(self, cfg: LateralSmootherConfig, predictor) -> None:
+        self.cfg = cfg
+        self.predictor = predictor  # its manoeuvre probability, if it has modes (``manoeuvring``)
+        self._gamma = gate_threshold(cfg.lateral_smoother_reset_prob, 1)
+
+    def run(self, tracks: TrackTable, frame: Frame) -> np.ndarray | None:
+        cfg = self.cfg
+        tr = tracks
+        meas, beta, r, rm = frame.meas, frame.hyp.beta, frame.mp.r, frame.mp.rm
+        xp, pp = frame.pred.x, frame.pred.p
+        new = tr.age == 2  # seeded last frame: its lateral speed is the road direction's, give or take a little
+        if new.any():
+            tr.lat_p[new, 1, 1] = np.minimum(tr.lat_p[new, 1, 1], cfg.lateral_smoother_init_speed_sigma_mps**2)
+            tr.lat_p[new, 0, 1] = tr.lat_p[new, 1, 0] = 0.0
+        lat, lat_p = kalman.lateral_predict(tr.lat, tr.lat_p, frame.dt_s, cfg.lateral_smoother_q_m2ps3)
+        ti, mi = np.nonzero(beta > 0)
+        cusum = tr.lat_cusum
+        if ti.size:
+            var = r[ti, 0, 0] if rm is None else r[ti, 0, 0] + rm[mi, 0, 0]
+            z, w = meas.z[mi, 0], beta[ti, mi]
+            llr = kalman.lateral_log_likelihood_ratio(len(tr), ti, w, z, var, lat[:, 0], lat_p[:, 0, 0], xp[:, 0],
+                                                      pp[:, 0, 0])
+            cusum = np.maximum(cusum + llr, 0.0)
+            lat, lat_p = kalman.lateral_pda_update(lat, lat_p, z, var, ti, w)
+        ref, ref_p = tr.x[:, 0::2], tr.p[:, 0::2, 0::2]
+        off = kalman.lateral_inconsistent(lat, lat_p, ref, ref_p, self._gamma, cfg.lateral_smoother_min_var_fraction)
+        off |= cusum > cfg.lateral_smoother_cusum_nats
+        hold = keep = None
+        if cfg.lateral_smoother_hold_manoeuvre_prob < 1.0:
+            keep = self.predictor.manoeuvring(tr)
+            if keep is not None:
+                hold = keep[0] > cfg.lateral_smoother_hold_manoeuvre_prob  # the IMM says: manoeuvring
+                off |= hold
+        if cfg.lateral_smoother_hold_unresolved and meas.unresolved is not None and ti.size:
+            # a detection of two vehicles too close in angle to split (its angle lies between them) carries the track:
+            # no straight line through it, the motion model's position until the pair splits
+            best, strong = carrying_detection(beta)
+            off |= meas.unresolved[best] & strong  # (with the motion model's own lateral speed: it may be crossing)
+        if off.any():
+            lat[off], lat_p[off] = ref[off], ref_p[off]
+            cusum = np.where(off, 0.0, cusum)
+            if hold is not None and hold.any():
+                # held during a manoeuvre: the lateral speed of the lane-keeping mode (decaying to the road's), so a
+                # line that starts again as the manoeuvre ends does not keep the manoeuvre's speed across
+                _, xk, pk = keep
+                lat[hold, 1] = xk[hold, 2]
+                lat_p[hold, 1, 1] = pk[hold, 2, 2]
+                lat_p[hold, 0, 1] = lat_p[hold, 1, 0] = pk[hold, 0, 2]
+        tr.lat, tr.lat_p, tr.lat_cusum = lat, lat_p, cusum
+        return None
+
+    def restart(self, tracks: TrackTable, rows: np.ndarray) -> None:
+        """The line restarts from the rows' (moved) state."""
+        tracks.lat[rows] = tracks.x[rows, 0::2]
+        tracks.lat_p[rows] = tracks.p[rows, 0::2, 0::2]
+        tracks.lat_cusum[rows] = 0.0
+
+
+class Reanchor:
+    """A confirmed track that missed moves to the nearest unclaimed detection between ``reanchor_min_m`` and
+    ``reanchor_m`` nearer, in line with it (``merge_lateral_m``) and at its radial speed: the near face of the
+    vehicle whose body the track sat on. The detection is claimed (no seed)."""
+
+    def __init__(self, cfg: ReanchorConfig, box: SameVehicleBox, measurement_model: MeasurementModel) -> None:
+        self.cfg, self.box = cfg, box
+        self.measurement_model = measurement_model
+
+    def run(self, tracks: TrackTable, frame: Frame) -> np.ndarray | None:
+        c = self.cfg
+        meas, gated, hit, used = frame.meas, frame.hyp.gated, frame.hit, frame.used
+        if not (meas.z.shape[0] and meas.with_radial_speed):
+            return None
+        tr = tracks
+        miss = (tr.confirmed & ~hit).nonzero()[0]
+        if miss.size == 0:
+            return None
+        free = (~gated.any(axis=0)).nonzero()[0]
+        if free.size == 0:
+            return None
+        st, z = tr.x.take(miss, axis=0), meas.z.take(free, axis=0)
+        rho_t = np.maximum(np.hypot(st[:, 0], st[:, 1]), 1e-3)
+        vr_t = (st[:, 0] * st[:, 2] + st[:, 1] * st[:, 3]) / rho_t
+        ok = np.abs(vr_t[:, None] - z[None, :, 2]) < c.reanchor_speed_mps
+        if c.reanchor_receding_only:  # an approaching track is on its near face from afar
+            ok &= (vr_t > 0.0)[:, None]
+        if not ok.any():  # the usual frame: no unclaimed detection at a missed track's radial speed
+            return None
+        nearer = rho_t[:, None] - np.hypot(z[:, 0], z[:, 1])[None, :]  # (k, f) > 0: the detection is nearer
+        ok &= ((nearer > c.reanchor_min_m) & (nearer <= c.reanchor_m)
+               & (np.abs(st[:, 0, None] - z[None, :, 0]) < self.box.cfg.merge_lateral_m))
+        has = ok.any(axis=1)
+        if not has.any():
+            return None
+        i = miss[has]
+        j = free[np.argmax(np.where(ok, nearer, -np.inf), axis=1)[has]]  # the nearest: the near face
+        tr.x[i, :2] = meas.z[j, :2]
+        _, _, r = self.measurement_model.at(tr.x[i], False)  # a jump: the constant model's (wider) noise
+        tr.p[i, :2, :2] = r
+        tr.p[i, :2, 2:] = 0.0
+        tr.p[i, 2:, :2] = 0.0
+        tr.hits[i] += 1
+        tr.misses[i] = 0
+        tr.history[i] |= np.uint32(1)
+        used[j] = True
+        return i
