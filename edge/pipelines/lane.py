@@ -279,10 +279,6 @@ class LanePipeline(Pipeline):
         self.resolve = (ResolveStage(frontend, cfg, self.angles.steer, self.angles.grid, road)
                         if cfg.resolve_pairs else None)
         self.detections = DetectionStage(frontend, cfg, road)
-        if cfg.tracking and getattr(track_config, "seed_min_coherence", 0.0) > 0:
-            # (the tracker would silently seed from every detection: the lane stages no longer compute the coherence)
-            raise PipelineError("track.pdaf.seed_min_coherence is not supported by the lane pipeline (it no longer "
-                                "computes the angle coherence); set it to 0")
         self.tracker = self.traffic = None
         if cfg.tracking:
             from edge.track import PdafConfig, PdafTracker

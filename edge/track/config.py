@@ -283,11 +283,6 @@ class PdafConfig(PublishConfig, ReanchorConfig, LateralSmootherConfig, DeleterCo
     """Parameters of :class:`edge.track.PdafTracker` (TOML section ``track.pdaf``): every role section's fields
     under one flat key each; defaults follow Lim et al. §III-B where it gives them."""
 
-    @property
-    def seed_min_coherence(self) -> float:
-        """Removed option (coherence-gated seeding, off by default); 0 for the lane pipeline's remaining reader."""
-        return 0.0
-
 
 _S = TypeVar("_S")
 

@@ -79,14 +79,3 @@ def test_each_road_geometry_filter_is_switched_by_its_config_key(override, gone)
     every = {UnaliasByLane, NearFaces, AgainstLaneGlint, SplitNotBody, SplitStraddlesLanes}
     p = LanePipeline(FE, dataclasses.replace(LaneConfig(), **override), None, None)
     assert _kinds(p) == every - gone
-
-
-def test_seed_min_coherence_is_refused_rather_than_ignored():
-    """The lane stages no longer compute the angle coherence that track.pdaf.seed_min_coherence (off by default)
-    needs: asking for it is an error, not a silent no-op."""
-    from edge.pipeline import PipelineError
-    from edge.track import PdafConfig
-
-    with pytest.raises(PipelineError, match="seed_min_coherence"):
-        LanePipeline(FE, LaneConfig(), PdafConfig(seed_min_coherence=0.8))
-    LanePipeline(FE, LaneConfig(tracking=False), PdafConfig(seed_min_coherence=0.8))  # no tracker: nothing to seed
