@@ -8,8 +8,9 @@ stays a rounding difference. A fixture (``data/golden/<stem>.npz``, one per entr
 every frame of a short seeded run of the scene (built as ``radar-edge evaluate`` builds it, the simulator pinned
 to the v1 instrument, lane statistics every 5 s, BLAS on one thread as on the device)::
 
-    spectra     raw int16 I/Q + clutter map before the frame   -> complex spectra after clutter removal
-                (only the frames of ``fe_frames``: 200 kB each)
+    spectra     raw int16 I/Q + clutter map and the last frame's -> complex spectra after clutter removal
+                spectra before the frame
+                (only the frames of ``fe_frames``: 330 kB each)
     detect      spectra + the replayed tracker/resolver/lanes  -> CFAR peaks (noise, margin), pairing counts,
                 (only the frames of ``spec_frames``)              detections with their extras
     pairing     peak frequencies of the four segments          -> pairs (peak indices, range, speed, residual)
@@ -384,6 +385,7 @@ def record_run(scenario: str, seed: int, frames: int, fe_frames=(), spec_frames=
                     rows.put("fe_q", k, f.q[None])
                     rows.put("fe_background", k, pipe.clutter._background[None].copy())
                     rows.put("fe_map_frames", k, np.array([pipe.clutter._map_frames]))
+                    rows.put("fe_prev", k, pipe.clutter._prev[None].copy())
                 held["any"] = False
                 res = pipe.process(f, timer)
                 inter = res.intermediates
@@ -561,6 +563,7 @@ def check_spectra(data, meta) -> dict[int, list[str]]:
         pipe.clutter._map_init = None
         pipe.clutter._background[...] = fr.get("fe_background", k)[0]
         pipe.clutter._map_frames = int(fr.get("fe_map_frames", k)[0])
+        pipe.clutter._prev = fr.get("fe_prev", k)[0].copy()  # the last frame's spectra (what stands still)
         got = {}
 
         def fft(*a, **kw):
