@@ -155,11 +155,12 @@ class FeatureConfig:
                   "least this fast (vehicles; faster than a jogger)", "min": 0.0, "max": 200.0},
     )
     event_speed_alias: str = field(
-        default="history",
+        default="frame",
         metadata={"doc": "beyond the paper: how the event speed's Doppler alias is chosen: history = one alias for the "
                   "track's whole life, each frame's Doppler against the middle-half range rate of all its frames (and "
                   "of the leading edge of a long body, event_speed_alias_edge_m; RadialSpeedEstimator.history_alias), frame = each "
-                  "frame's alias from the middle-half range rate (event_speed_leading_edge_m)",
+                  "frame's alias from the middle-half range rate (event_speed_leading_edge_m; the default: history "
+                  "did not measure better on the surveillance holdout, docs/decisions/0004)",
                   "choices": ("history", "frame")},
     )
     event_speed_alias_edge_m: float = field(

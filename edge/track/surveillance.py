@@ -20,7 +20,7 @@ speeds, each the cluster's wrapped Doppler with its alias chosen by the range ra
 (of the body's leading edge for a long one, ``event_speed_leading_edge_m``), without the frames
 faster than the target's far frames (``event_speed_cap_range_m``: wrong aliases beside the radar)
 (:class:`~edge.classify.features.RadialSpeedEstimator`, km/h, positive receding); the least-squares
-range rate when that is not available. With ``event_speed_alias = "history"`` (default) the alias is chosen against
+range rate when that is not available. With ``event_speed_alias = "history"`` (not the default: see its config doc) the alias is chosen against
 the range rate of the track's whole history (of a long body's leading edge too), and the event's
 ``speed_uncertain`` is set when that choice is not sure (:meth:`~edge.classify.features.RadialSpeedEstimator.history_alias`).
 

@@ -44,10 +44,11 @@ def test_alias_steps_uncertain_flags_and_passages_of_one_event():
 
 
 def test_a_speed_whose_alias_is_not_sure_is_published_as_not_available():
-    """A target whose range moves 5 km/h off its Doppler (half an alias step: which alias is a coin toss) is
+    """With the alias chosen from the whole history: a target whose range moves 5 km/h off its Doppler (half an alias step: which alias is a coin toss) is
     published with radial speed NaN, n/a on CAN (DynProp unknown) and Modbus; one whose range agrees is published."""
     import math
 
+    from edge.classify.features import FeatureConfig
     from edge.outputs.can_out import dyn_prop
     from edge.outputs.registers import TRACK, decode, encode
     from edge.track.surveillance import SurveillanceTracker
@@ -55,7 +56,8 @@ def test_a_speed_whose_alias_is_not_sure_is_published_as_not_available():
     from tests.edge.survscene import blob, points
 
     def published(v_range):
-        st = SurveillanceTracker(d2g_frontend(), 2.0, classify=False)
+        st = SurveillanceTracker(d2g_frontend(), 2.0, classify=False,
+                                 features=FeatureConfig(event_speed_alias="history"))
         out = []
         for n in range(10):
             step = st.update(int(n * 0.2e9), points(blob(5.0 + v_range / 3.6 * 0.2 * n, 20.0, 300, 0)), seq=n)
