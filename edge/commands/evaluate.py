@@ -30,7 +30,7 @@ examples:
   radar-edge evaluate --scenario multi-random --events 20 --seed 3 --json out/multi.json
   radar-edge evaluate --scenario highway4-traffic --seed 7 --scenario-set radar.height_m=10 --json out/h10.json
   radar-edge evaluate --scenario highway4-traffic --seed 5 --record-tracks out/s5-tracks.npz --json out/s5.json
-  radar-edge replay-traffic out/s5-tracks.npz --set traffic.count_late_twin_s=0   # counting rules, in seconds
+  radar-edge replay-traffic out/s5-tracks.npz --set traffic.count_late_max_m=0   # counting rules, in seconds
   radar-edge evaluate --corpus corpus/lane.toml --part dev --jobs 2 --json out/lane-dev.json --plot out/lane-dev.svg
   radar-edge evaluate --corpus corpus/surveillance.toml --part both --jobs 2 --json out/surv.json
 """

@@ -27,7 +27,7 @@ EPILOG = """\
 examples:
   radar-edge evaluate --scenario highway4-traffic --seed 5 --record-tracks out/s5-tracks.npz --json out/s5.json
   radar-edge replay-traffic out/s5-tracks.npz                                  # the evaluation's counts again
-  radar-edge replay-traffic out/s5-tracks.npz --set traffic.count_late_twin_s=0 --json out/s5-no-twin.json
+  radar-edge replay-traffic out/s5-tracks.npz --set traffic.count_late_max_m=0 --json out/s5-no-late.json
   radar-edge replay-traffic out/s*-tracks.npz --set traffic.count_same_vehicle_s=0.5   # several runs, one table
 """
 

@@ -2,7 +2,7 @@
 
 ``radar-edge evaluate --scenario highway4-traffic --record-tracks run.npz`` saves, frame by frame, the tracks the
 traffic layer (:class:`edge.traffic.TrafficMonitor`) was given and the true crossings of the detection line.
-``radar-edge replay-traffic run.npz --set traffic.count_late_twin_s=0`` runs the traffic layer again on them with
+``radar-edge replay-traffic run.npz --set traffic.count_late_max_m=0`` runs the traffic layer again on them with
 other settings and scores its counts against the same truth (:mod:`edge.evaluation.counting`): seconds for what
 takes a ten-minute evaluation, so that counting rules, lane geometry and interval settings can be tried and
 compared on the same traffic. With the recorded settings the replay gives the evaluation's counts exactly.

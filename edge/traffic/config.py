@@ -171,21 +171,6 @@ class TrafficConfig:
     count_late_match_speed_mps: float = field(
         default=3.0, metadata={"unit": "m/s", "doc": "... at a speed within this is that vehicle again",
                                "min": 0.0, "max": 50.0})
-    count_late_twin_s: float = field(
-        default=0.05, metadata={"unit": "s", "doc": "a late crossing within this of one counted in an adjacent lane "
-                                                    "of the same direction ...", "min": 0.0, "max": 5.0})
-    count_late_twin_speed_mps: float = field(
-        default=0.3, metadata={"unit": "m/s", "doc": "... at a speed within this is that vehicle seen a second time "
-                                                     "at another angle (a ghost beside a truck, a phantom of the "
-                                                     "side-by-side resolver: its range and speed are the vehicle's "
-                                                     "own), not a vehicle that crossed untracked. highway4-traffic "
-                                                     "seeds 5, 6, 7005, 7007: the 4 extra late counts (ghosts of three "
-                                                     "trucks and a car; no vehicle crossed in their lane within 0.3 s) "
-                                                     "were 0.006-0.012 s and 0.04-0.13 m/s from such a twin, the 12 "
-                                                     "right ones at least 0.115 s or 0.94 m/s from any. Crossings at "
-                                                     "the line are not tested so: real pairs side by side cross within "
-                                                     "0.01 s at one speed. 0 s = off",
-                                       "min": 0.0, "max": 50.0})
     count_once_per_track: bool = field(
         default=True, metadata={"doc": "a track is counted at the detection line once (by its crossing or as a late "
                                        "crossing): one that moved back behind the line and crossed it again is the same "
@@ -199,16 +184,6 @@ class TrafficConfig:
                                        "truck, drifting into the approaching lanes, where they even raise wrong_way "
                                        "on their sparse detections) were counted there (highway4-traffic seed 6, "
                                        "6000 frames: lane 1 +2 -> 0)"})
-    count_outside_lane_m: float = field(
-        default=1.0, metadata={"unit": "m", "doc": "a track crossing the detection line outside every lane but at most "
-                                                   "this far outside the nearest one is counted in it (in its "
-                                                   "direction of travel): a coasting track's lateral error loses its "
-                                                   "vehicle otherwise (highway4-traffic with weaving drivers, seed 5: "
-                                                   "a truck's track 0.01 m past the outer lane's edge after eight "
-                                                   "frames without a detection; replayed on 26 ten-minute runs, plain, "
-                                                   "weaving and unseen seeds: that truck counted, nothing else "
-                                                   "changed); 0 = only tracks inside a lane count",
-                               "min": 0.0, "max": 5.0})
     wrong_way_min_speed_mps: float = field(
         default=3.0, metadata={"unit": "m/s", "doc": "against the lane direction at least this fast is wrong-way",
                                "min": 0.1, "max": 100.0})

@@ -24,7 +24,6 @@ crossing was counted in the lane less than ``count_same_vehicle_s`` before or af
 tracks cross with it, at another speed), or the track was counted already (``count_once_per_track``: a track that jumped back behind the
 line and crossed it again is still one vehicle). A track crossing against its lane's direction (a receding
 truck's ghost drifting into the approaching lanes) is not counted; a wrong-way driver is an event. A track
-crossing outside every lane but within ``count_outside_lane_m`` of the nearest counts in that lane. A track
 first seen up to ``count_late_max_m`` past the line counts its vehicle at the crossing time extrapolated back
 at its along-road speed, unless a crossing of about that time and speed was counted in the lane
 (``count_late_match_*``: the same vehicle's earlier track), and not if that time lies before the monitor's
@@ -225,8 +224,7 @@ class TrafficMonitor:
         earlier track was lost or taken over by a neighbour just before the line and it was re-born after it;
         or it crossed while still tentative). Counted at the crossing time extrapolated back at its along-road
         speed, unless a crossing in the lane at about that time and speed was already counted (the same vehicle's
-        earlier track, or a second track on a long truck), or one in an adjacent lane of its direction at that time
-        and speed (``count_late_twin_*``: the vehicle's ghost at another angle). ``margin_m``: how far inside its
+        earlier track, or a second track on a long truck). ``margin_m``: how far inside its
         lane it lies, for the longer reach of receding tracks (``count_late_receding_max_m``). Returns whether it
         was counted."""
         cfg = self.config
@@ -244,13 +242,6 @@ class TrafficMonitor:
         if self._same_vehicle(acc, tc) or self._counted_near(
                 acc.recent, tc, speed_mps, int(cfg.count_late_match_s * 1e9), cfg.count_late_match_speed_mps):
             return False
-        if cfg.count_late_twin_s > 0:
-            twin_ns = int(cfg.count_late_twin_s * 1e9)
-            for k in (lane - 1, lane + 1):  # the adjacent lanes of the same direction of travel
-                other = self.stats.lanes.get(k)
-                if (other is not None and 0 <= k < len(self.lanes) and self.lanes[k].direction == direction
-                        and self._counted_near(other.recent, tc, speed_mps, twin_ns, cfg.count_late_twin_speed_mps)):
-                    return False
         acc.add(Crossing(tc, speed_mps, float("nan"), tr.cls, meter))
         return True
 
@@ -380,11 +371,7 @@ class TrafficMonitor:
                 # the volume counts vehicles travelling in the lane's direction: the ghost of a receding truck
                 # drifting into the approaching lanes is not one (a wrong-way driver is reported as an event)
                 against = cfg.count_lane_direction_only and lane is not None and vs[j] * lanes[k].direction < 0
-                c_lane = lane  # the lane it is counted in: its own, or the nearest just outside which it crossed
-                # (margin: inside the nearest lane's edge, negative outside it; -inf without lanes)
-                if crossed and lane is None and -margin[j] <= cfg.count_outside_lane_m:
-                    c_lane = min(range(n_lanes), key=lambda i: abs(u[j] - lanes[i].center_m))
-                    against = cfg.count_lane_direction_only and vs[j] * lanes[c_lane].direction < 0
+                c_lane = lane
                 if crossed and c_lane is not None and not against and not (memo.counted and cfg.count_once_per_track):
                     f = (line - s0) / (s1 - s0)
                     tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))

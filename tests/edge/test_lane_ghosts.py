@@ -138,7 +138,7 @@ def test_two_cars_side_by_side_receding_are_still_split_with_the_memory_followin
 
 # --- a look shared with another vehicle is not a second source ------------------------------------------------
 
-def _split_beside_car_120(skip_shared: bool) -> tuple[int, int]:
+def _split_beside_car_120(skip_shared: bool, static_factor: float | None = None) -> tuple[int, int]:
     """highway4-traffic seed 7012, frames 14700-14910 (frames are simulated independently: a run can start
     anywhere): car 120 approaches in lane 0 (x -5.25 m) from 80 to 43 m. Car 266 (lane 1, 10 m/s faster, 12-16 m
     nearer) shares the slow down-chirp's bin with it from frame 14876 on, and car 599 (lane 3, receding) its fast
@@ -153,7 +153,10 @@ def _split_beside_car_120(skip_shared: bool) -> tuple[int, int]:
 
     # figures measured on the v1 instrument; the corpus reports the physical defaults
     sc = load_scenario("highway4-traffic", {"physics": {"preset": "v1"}})
-    config = load_config(env={}, overrides={"pipeline.lane.angle_skip_shared_looks": skip_shared})
+    over = {"pipeline.lane.angle_skip_shared_looks": skip_shared}
+    if static_factor is not None:
+        over["pipeline.lane.clutter_map_static_factor"] = static_factor
+    config = load_config(env={}, overrides=over)
     sim = FrameSimulator(SIMO_BOARD, sc.build_scene(7012), 7012)
     pipe = LanePipeline(FE, *_installer_config(config, sc))
     timer = StageTimer(window=8)
@@ -173,7 +176,13 @@ def _split_beside_car_120(skip_shared: bool) -> tuple[int, int]:
 def test_a_vehicle_in_one_segment_of_another_does_not_split_it_into_a_phantom():
     """Without the shared looks left out, the resolver's memory of car 120 holds car 266 (and car 599) as a second
     source at -2.4 m and splits it from frame 14893 on; the phantom becomes a confirmed track in lane 1 and was
-    counted there (the +2 of lane 1 at stop 21). With them left out, nothing beside car 120 is split."""
-    splits, phantom = _split_beside_car_120(False)
+    counted there (the +2 of lane 1 at stop 21). With them left out, nothing beside car 120 is split.
+
+    The phantom track counts are those of the clutter map this was measured with (every bin learning,
+    ``clutter_map_static_factor = 0``): with the default map, which learns only standing bins, nothing is split
+    either, but car 120's angle glint alone (no split) gives a confirmed track beside it in 31 of these frames: the
+    glint beside vehicles that issue 29 leaves open (docs/lane-rules.md)."""
+    splits, phantom = _split_beside_car_120(False, static_factor=0.0)
     assert splits >= 4 and phantom >= 5
-    assert _split_beside_car_120(True) == (0, 0)
+    assert _split_beside_car_120(True, static_factor=0.0) == (0, 0)
+    assert _split_beside_car_120(True)[0] == 0
