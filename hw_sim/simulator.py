@@ -47,7 +47,6 @@ class FrameCache:
 
     def __init__(self, sim: FrameSimulator) -> None:
         self.sim = sim
-        self.board, self.scene, self.seed, self.period_s = sim.board, sim.scene, sim.seed, sim.period_s
         self._frames: dict[int, SimFrame] = {}
 
     def frame(self, n: int) -> SimFrame:
