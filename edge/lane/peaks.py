@@ -62,6 +62,16 @@ class PeakStage:
             self._k_bin_hz = np.ascontiguousarray(self.bin_hz, dtype=np.float64)
             self._k_aided = np.float32(0.0 if self.aided_scale32 is None else self.aided_scale32)
 
+    def __getstate__(self) -> dict:
+        """Copies and pickles hold whether the kernel ran, not the module (a module does not pickle)."""
+        state = dict(self.__dict__)
+        state["kernel"] = state["kernel"] is not None
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self.kernel = native.load("_peaks") if state["kernel"] else None
+
     def __call__(self, spectra: Spectra, want_weak: bool) -> Peaks:
         """Peaks of ``spectra``; ``want_weak``: also the local maxima between the aided and the detection
         threshold (only when a confirmed track may use them). The compiled kernel when built, else (and for the

@@ -106,3 +106,14 @@ def test_kernel_equals_reference_on_hw_sim_frames():
     for f in frames(60):
         pipe.process(f, timer)
     assert seen["frames"] == 60 and seen["weak"] > 10 and seen["peaks"] > 300
+
+
+def test_stage_copies_and_pickles_with_its_kernel():
+    """A pipeline is deep-copied (tests, replays) and may be pickled: the stage keeps using the kernel."""
+    import copy
+    import pickle
+
+    _kernel_or_skip()
+    st = _stage()
+    for other in (copy.deepcopy(st), pickle.loads(pickle.dumps(st))):
+        assert other.kernel is st.kernel is not None
