@@ -1,4 +1,5 @@
 # cython: language_level=3
+# distutils: extra_compile_args = -ffp-contract=off
 """Peak stage kernel (edge.lane.peaks.PeakStage): circular local maxima, OS-CFAR at those cells only, the split into
 detected and weak (track-aided) peaks, and the parabolic sub-bin interpolation through the log-power.
 
