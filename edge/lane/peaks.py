@@ -9,6 +9,7 @@ import numpy as np
 from edge.dsp.cfar import os_cfar, os_cfar_at_padded, os_cfar_scale, reference_index
 from edge.dsp.peaks import interpolate_peak, local_maxima
 from edge.lane.records import Peaks, Spectra
+from edge import native
 from edge.types import FrontendInfo
 from hal.waveform import SPEED_OF_LIGHT_MPS
 
@@ -49,10 +50,73 @@ class PeakStage:
         self._is_max, self._ge = np.empty((n_seg, n), bool), np.empty((n_seg, n), bool)  # local-maximum scratch
         self._tiny = np.float32(1e-30)
         self._seg_ends = np.arange(1, n_seg + 1)
+        #: the compiled kernel (edge/native/_peaks.pyx), None: the numpy reference runs
+        self.kernel = native.load("_peaks")
+        if self.kernel is not None:
+            m = n_seg * (n // 2 + 1)  # at most this many local maxima (strict on the left)
+            self._valid_u8 = np.ascontiguousarray(self.valid, dtype=np.uint8)
+            self._k_rows, self._k_cols = np.empty(m, np.int64), np.empty(m, np.int64)
+            self._k_cells, self._k_hit = np.empty((m, 3), np.float32), np.empty(m, np.uint8)
+            self._k_freq, self._k_scratch = np.empty(m, np.float64), np.empty(m, np.float32)
+            self._k_comp, self._k_npad = self.kernel.rank_network(self._n_ref, self._rank)
+            self._k_bin_hz = np.ascontiguousarray(self.bin_hz, dtype=np.float64)
+            self._k_aided = np.float32(0.0 if self.aided_scale32 is None else self.aided_scale32)
+
+    def __getstate__(self) -> dict:
+        """Copies and pickles hold whether the kernel ran, not the module (a module does not pickle)."""
+        state = dict(self.__dict__)
+        state["kernel"] = state["kernel"] is not None
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self.kernel = native.load("_peaks") if state["kernel"] else None
 
     def __call__(self, spectra: Spectra, want_weak: bool) -> Peaks:
         """Peaks of ``spectra``; ``want_weak``: also the local maxima between the aided and the detection
-        threshold (only when a confirmed track may use them)."""
+        threshold (only when a confirmed track may use them). The compiled kernel when built, else (and for the
+        full threshold curve) :meth:`reference`; the two give the same peaks bit for bit."""
+        if self.kernel is None or self.config.cfar_full_threshold:
+            return self.reference(spectra, want_weak)
+        return self._compiled(spectra, want_weak)
+
+    def _compiled(self, spectra: Spectra, want_weak: bool) -> Peaks:
+        """:meth:`reference` by the kernel: selection, OS-CFAR and interpolation in one pass over the cells."""
+        cfg, n = self.config, self.n_bins
+        power = spectra.power
+        floor = np.partition(power.view(np.int32), n // 2, axis=-1)[:, n // 2].view(np.float32)
+        cap = floor * self._cap  # (4,)
+        noise = self._nan_rows.copy()
+        ppad = spectra.power_padded
+        if ppad.dtype != np.float32 or not ppad.flags.c_contiguous:
+            ppad = np.ascontiguousarray(ppad, dtype=np.float32)
+        want_weak = bool(want_weak and self.aided_scale32 is not None)
+        m = self.kernel.select(ppad, self._valid_u8, cfg.cfar_train_cells, cfg.cfar_guard_cells, self._rank,
+                               self._k_comp, self._k_npad, cap, self.scale32, self._k_aided, want_weak, noise,
+                               self._k_rows, self._k_cols, self._k_cells, self._k_hit, self._k_scratch)
+        thr = noise * self.scale32
+        rows, cols, cells = self._k_rows[:m].copy(), self._k_cols[:m].copy(), self._k_cells[:m]
+        lg = np.log(cells)  # numpy's float32 log, as the reference's (the cells are floored at 1e-30)
+        f = self._k_freq[:m]
+        self.kernel.interpolate(lg, rows, cols, self._freq_flat, self._k_bin_hz, n, f)
+        f = f.copy()
+        hit = self._k_hit[:m].view(bool)
+        weak_f = weak_b = None
+        if want_weak:
+            wk = ~hit
+            wr, wc, wf = rows[wk], cols[wk], f[wk]
+            rows, cols, f = rows[hit], cols[hit], f[hit]
+            bounds = self._segment_bounds(wr)
+            weak_f, weak_b = tuple(wf[b:e] for b, e in bounds), tuple(wc[b:e] for b, e in bounds)
+        bounds = self._segment_bounds(rows)
+        if max(e - b for b, e in bounds) > cfg.max_peaks_per_segment:
+            freqs, bins = self._strongest_peaks(power, rows, cols)
+        else:
+            freqs, bins = [f[b:e] for b, e in bounds], [cols[b:e] for b, e in bounds]
+        return Peaks(tuple(freqs), tuple(bins), noise, thr, floor, weak_f, weak_b)
+
+    def reference(self, spectra: Spectra, want_weak: bool) -> Peaks:
+        """The numpy implementation of :meth:`__call__` (the kernel's reference and fallback)."""
         cfg = self.config
         ppad, power, h, n = spectra.power_padded, spectra.power, self.pad, self.n_bins
         weak = None

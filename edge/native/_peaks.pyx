@@ -1,0 +1,187 @@
+# cython: language_level=3
+# distutils: extra_compile_args = -ffp-contract=off
+"""Peak stage kernel (edge.lane.peaks.PeakStage): circular local maxima, OS-CFAR at those cells only, the split into
+detected and weak (track-aided) peaks, and the parabolic sub-bin interpolation through the log-power.
+
+The selection rules are those of the numpy reference (PeakStage.reference): a local maximum is strictly above its
+left neighbour and at least its right one; the noise estimate is the ``rank``-th smallest of the ``2 n_train``
+reference cells (Rohling's OS-CFAR), capped at ``cap`` per segment; a peak is detected when its power exceeds
+``noise * scale`` (float32 arithmetic, as numpy's). The logarithm of the interpolation is left to the caller (numpy's
+float32 ``log``, so the frequencies equal the reference's bit for bit).
+"""
+
+cimport cython
+
+
+cdef extern from *:
+    """
+    /* OS-CFAR noise of up to 8 cells at once: their reference windows as the 8 lanes of a comparator network
+       (Batcher's odd-even merge sort, pruned to the comparators the rank's output depends on), in GCC/Clang
+       vector types (SSE on x86-64, NEON on arm64). A lane's comparator is min/max (no NaN, no -0 in a power: the
+       values of a sort). */
+    typedef float kdet_v4 __attribute__((vector_size(16)));
+    typedef int kdet_i4 __attribute__((vector_size(16)));
+    #if defined(__SSE__)
+    #include <xmmintrin.h>
+    #define KDET_MIN(x, y) ((kdet_v4)_mm_min_ps((__m128)(x), (__m128)(y)))
+    #define KDET_MAX(x, y) ((kdet_v4)_mm_max_ps((__m128)(x), (__m128)(y)))
+    #elif defined(__ARM_NEON)
+    #include <arm_neon.h>
+    #define KDET_MIN(x, y) ((kdet_v4)vminq_f32((float32x4_t)(x), (float32x4_t)(y)))
+    #define KDET_MAX(x, y) ((kdet_v4)vmaxq_f32((float32x4_t)(x), (float32x4_t)(y)))
+    #else
+    static inline kdet_v4 kdet_sel(kdet_v4 x, kdet_v4 y, kdet_i4 m) {
+        return (kdet_v4)(((kdet_i4)x & m) | ((kdet_i4)y & ~m));
+    }
+    #define KDET_MIN(x, y) kdet_sel((x), (y), (x) < (y))
+    #define KDET_MAX(x, y) kdet_sel((y), (x), (x) < (y))
+    #endif
+    #define KDET_LANES 8
+    #define KDET_MAX_PAD 128
+    static void kdet_os_noise(const float *const *win, int nb, int n_train, int off, int npad, int rank,
+                              const int *comp, int ncomp, float *out) {
+        kdet_v4 w[KDET_MAX_PAD * 2];
+        float *f = (float *)w;
+        int i, l, t;
+        for (i = 0; i < npad; i++)
+            for (l = 0; l < KDET_LANES; l++)
+                f[i * KDET_LANES + l] = __builtin_inff();
+        for (l = 0; l < nb; l++) {
+            const float *x = win[l];
+            for (i = 0; i < n_train; i++) {
+                f[i * KDET_LANES + l] = x[i];
+                f[(n_train + i) * KDET_LANES + l] = x[off + 1 + i];
+            }
+        }
+        for (t = 0; t < ncomp; t++) {
+            kdet_v4 *a = w + 2 * comp[2 * t], *b = w + 2 * comp[2 * t + 1];
+            for (l = 0; l < 2; l++) {
+                kdet_v4 x = a[l], y = b[l];
+                a[l] = KDET_MIN(x, y);
+                b[l] = KDET_MAX(x, y);
+            }
+        }
+        for (l = 0; l < nb; l++)
+            out[l] = f[(rank - 1) * KDET_LANES + l];
+    }
+    """
+    int KDET_LANES
+    int KDET_MAX_PAD
+    void kdet_os_noise(const float* const* win, int nb, int n_train, int off, int npad, int rank, const int* comp,
+                       int ncomp, float* out) noexcept nogil
+
+
+def rank_network(int n_ref, int rank):
+    """Comparators ``(k, 2)`` int32 of Batcher's odd-even merge sort over the next power of two >= ``n_ref`` (the
+    extra inputs +inf), only those the ``rank``-th smallest (1-based) depends on, in order; and that power."""
+    import numpy as np
+
+    n = 1
+    while n < n_ref:
+        n *= 2
+    pairs = []
+    p = 1
+    while p < n:
+        k = p
+        while k >= 1:
+            for j in range(k % p, n - k, 2 * k):
+                for i in range(min(k, n - j - k)):
+                    if (i + j) // (2 * p) == (i + j + k) // (2 * p):
+                        pairs.append((i + j, i + j + k))
+            k //= 2
+        p *= 2
+    need, kept = {rank - 1}, []
+    for i, j in reversed(pairs):
+        if i in need or j in need:
+            need |= {i, j}
+            kept.append((i, j))
+    return np.array(kept[::-1], np.int32).reshape(-1, 2), n
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def select(const float[:, ::1] ppad, const unsigned char[:, ::1] valid, int n_train, int n_guard, int rank,
+           const int[:, ::1] comp, int npad, const float[::1] cap, float scale, float aided_scale, bint want_weak,
+           float[:, ::1] noise, long[::1] rows, long[::1] cols, float[:, ::1] cells, unsigned char[::1] is_hit,
+           float[::1] scratch):
+    """Local maxima of the padded power rows ``ppad`` (seg, n + 2 half), ``half = n_train + n_guard``, inside
+    ``valid`` (seg, n): their OS-CFAR noise (the ``rank``-th smallest reference cell by the network ``comp`` over
+    ``npad`` inputs, :func:`rank_network`; capped at ``cap`` per segment; written into ``noise`` (seg, n), which
+    the caller filled with NaN), and those that are detected (power > noise * scale) or, with ``want_weak``,
+    weak (not detected, power > noise * aided_scale). Writes per kept maximum, in (segment, bin) order, its
+    ``rows``, ``cols``, its power and two neighbours floored at 1e-30 into ``cells`` (m, 3), and ``is_hit`` (1
+    detected, 0 weak); ``rows``, ``cols`` and ``scratch`` must hold every local maximum (seg * (n / 2 + 1)).
+    Returns m."""
+    cdef int n_seg = valid.shape[0], n = valid.shape[1]
+    cdef int half = n_train + n_guard, r, c, m = 0, k, n_max = 0, nb
+    cdef float p, nz, ub, tiny = 1e-30
+    cdef const float* row
+    cdef const float* win[8]
+    if npad > KDET_MAX_PAD or npad < 2 * n_train or rank < 1 or rank > 2 * n_train or KDET_LANES != 8:
+        raise ValueError("reference window too large or rank out of range")
+    with nogil:
+        for r in range(n_seg):  # the local maxima (strictly above the left neighbour, at least the right one)
+            row = &ppad[r, half]
+            for c in range(n):
+                if valid[r, c] and row[c] > row[c - 1] and row[c] >= row[c + 1]:
+                    rows[n_max] = r
+                    cols[n_max] = c
+                    n_max += 1
+        k = 0
+        while k < n_max:  # their noise, eight at a time
+            nb = n_max - k
+            if nb > 8:
+                nb = 8
+            for c in range(nb):
+                win[c] = &ppad[rows[k + c], cols[k + c]]
+            kdet_os_noise(win, nb, n_train, half + n_guard, npad, rank, &comp[0, 0], comp.shape[0], &scratch[k])
+            k += nb
+        for k in range(n_max):  # the decisions (rows, cols compacted in place: m <= k)
+            r = rows[k]
+            c = cols[k]
+            row = &ppad[r, half]
+            nz = scratch[k]
+            if cap[r] < nz:
+                nz = cap[r]
+            noise[r, c] = nz
+            p = row[c]
+            if p > nz * scale:
+                is_hit[m] = 1
+            elif want_weak and p > nz * aided_scale:
+                is_hit[m] = 0
+            else:
+                continue
+            rows[m] = r
+            cols[m] = c
+            ub = row[c - 1]
+            cells[m, 0] = ub if ub > tiny else tiny
+            cells[m, 1] = p if p > tiny else tiny
+            ub = row[c + 1]
+            cells[m, 2] = ub if ub > tiny else tiny
+            m += 1
+    return m
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def interpolate(const float[:, ::1] lg, const long[::1] rows, const long[::1] cols, const double[::1] freq_flat,
+                const double[::1] bin_hz, int n_bins, double[::1] out):
+    """Signed beat frequencies (Hz) ``out[:m]`` of the peaks ``rows``, ``cols`` from the log-power ``lg`` (m, 3) of
+    each peak and its neighbours: a parabola's vertex, clipped to half a bin (edge.dsp.peaks.interpolate_peak)."""
+    cdef Py_ssize_t i, m = lg.shape[0]
+    cdef float lm, l0, lp, den, d
+    cdef float two = 2.0, hlf = 0.5, zero = 0.0  # float32 constants: each operation rounds to float32, as numpy's
+    with nogil:
+        for i in range(m):
+            lm = lg[i, 0]
+            l0 = lg[i, 1]
+            lp = lg[i, 2]
+            den = (lm - two * l0) + lp
+            d = zero
+            if den < zero:
+                d = (hlf * (lm - lp)) / den
+            if d < -hlf:
+                d = -hlf
+            if d > hlf:
+                d = hlf
+            out[i] = freq_flat[rows[i] * n_bins + cols[i]] + <double>d * bin_hz[rows[i]]
