@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from edge import native
@@ -109,3 +110,41 @@ def test_failed_build_installs_the_fallback(tmp_path):
     assert out.returncode == 0, out.stderr
     assert "numpy fallback will run" in out.stderr
     assert not list((tmp_path / "lib").rglob("*.so"))
+
+
+def test_end_to_end_comparison_finds_a_difference():
+    """edge.native.check's comparison: equal outputs agree; a changed value or a lost track does not."""
+    from edge.native.check import agree, compare
+
+    def rec(x, ids):
+        return {"range_m": np.array([x, 2.0]), "track_id": np.array(ids), "track_x_m": np.array([1.0] * len(ids))}
+
+    a = [rec(10.0, [1, 2]), rec(11.0, [1])]
+    assert agree(compare(a, [rec(10.0, [1, 2]), rec(11.0, [1])]))
+    moved = compare(a, [rec(10.0, [1, 2]), rec(11.0 + 1e-6, [1])])
+    assert not agree(moved) and moved["max_abs_diff"]["range_m"] == pytest.approx(1e-6)
+    assert agree(moved, atol=1e-5)
+    lost = compare(a, [rec(10.0, [1]), rec(11.0, [1])])
+    assert lost["count_mismatch_frames"] == [0] and not agree(lost, atol=1.0)
+
+
+def test_pi_installer_installs_the_toolchain(tmp_path):
+    """deploy/install.sh installs the C toolchain before pip builds the package (and its kernels) on the Pi."""
+    out = subprocess.run(["bash", str(ROOT / "deploy/install.sh"), "--root", str(tmp_path / "img"), "--dry-run"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    apt = next(i for i, line in enumerate(lines) if "apt-get install" in line)
+    pip = next(i for i, line in enumerate(lines) if "/pip install" in line)
+    assert "build-essential" in lines[apt] and "python3-dev" in lines[apt] and apt < pip
+
+
+def test_wheel_manifest_ships_compiled_kernels_only():
+    """A wheel carries the compiled modules, not the .pyx/.c (pyproject exclude-package-data); the sdist the .pyx
+    (MANIFEST.in), from which the target builds them."""
+    import tomllib
+
+    excl = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["exclude-package-data"]
+    assert {"*.pyx", "*.c"} <= set(excl["edge.native"])
+    manifest = (ROOT / "MANIFEST.in").read_text().splitlines()
+    assert "include edge/native/*.pyx" in manifest and "exclude edge/native/*.c" in manifest
