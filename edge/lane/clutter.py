@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from edge import native
 from edge.lane.records import Feedback
 
 
@@ -56,6 +57,11 @@ class ClutterMap:
         self._prev = None  # the last frame's raw spectra (clutter_map_static_factor)
         k_init = cfg.clutter_map_init_frames if self._alpha > 0 else 0
         self._map_init = np.zeros((k_init,) + tuple(frame_shape), np.complex64) if k_init > 1 else None
+        self.kernel = native.load("_spectra")  # compiled update, static test and subtraction; None: numpy
+        if self.kernel is not None:
+            self._change = np.empty(frame_shape[1:], np.float32)  # (seg, bin) scratch of the static test
+            self._own = np.empty(frame_shape[1:], np.float32)
+            self._work = np.empty(frame_shape[-1], np.float32)
 
     @property
     def enabled(self) -> bool:
@@ -78,12 +84,23 @@ class ClutterMap:
         # of a start instead of a minute (their wrong pairings made tracks hop along the rail);
         # initialising it with the first frame alone would leave that frame's vehicles' images
         alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
-        d = np.subtract(spec, self._background, out=self._diff)
-        d *= alpha
-        if cfg.clutter_map_static_factor > 0:
-            self._hold_moving(spec, d)
+        k = self.kernel
+        if k is not None and cfg.clutter_map_static_factor > 0 and self._prev is not None and spec.flags.c_contiguous:
+            d = self._diff  # the update and _hold_moving in one kernel (edge/native/_spectra.pyx)
+            k.update_hold_moving(spec, self._background, self._prev, d, alpha,
+                                 np.float32(cfg.clutter_map_static_factor), np.float32(cfg.clutter_map_static_rel ** 2),
+                                 self._change, self._own, self._work)
+        else:
+            d = np.subtract(spec, self._background, out=self._diff)
+            d *= alpha
+            if cfg.clutter_map_static_factor > 0:
+                self._hold_moving(spec, d)
         if cfg.clutter_map_hold_speed_mps > 0:
             self._hold_standing(d, feedback)
+        if k is not None and self._map_init is None and spec.flags.c_contiguous:
+            k.apply_map(spec, self._background, d)  # background += d; spec -= background
+            self._map_frames += 1
+            return
         self._background += d
         if self._map_init is not None:  # the first frames are kept; then the map is their median
             self._map_init[self._map_frames] = spec
