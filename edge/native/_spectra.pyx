@@ -20,13 +20,13 @@ def to_complex(const short[:, :, ::1] i, const short[:, :, ::1] q, const float[:
                float complex[:, :, ::1] out):
     """``out = (i + 1j q) * w``: int16 I/Q (rx, seg, bin) to complex64, windowed (``w`` float32, per bin)."""
     cdef Py_ssize_t a, b, k, n0 = i.shape[0], n1 = i.shape[1], n2 = i.shape[2]
-    cdef float re, im
+    cdef float* o
     for a in range(n0):
         for b in range(n1):
+            o = <float*>&out[a, b, 0]  # interleaved re, im
             for k in range(n2):
-                re = <float>i[a, b, k] * w[k]
-                im = <float>q[a, b, k] * w[k]
-                out[a, b, k] = re + 1j * im
+                o[2 * k] = <float>i[a, b, k] * w[k]
+                o[2 * k + 1] = <float>q[a, b, k] * w[k]
 
 
 cdef float _select(float* v, Py_ssize_t n, Py_ssize_t kth) noexcept nogil:
@@ -64,17 +64,21 @@ def update_hold_moving(const float complex[:, :, ::1] spec, const float complex[
     then ``prev = spec``. ``change``, ``own`` (seg, bin) and ``work`` (bin) are scratch. Shapes (rx, seg, bin)."""
     cdef Py_ssize_t n_rx = spec.shape[0], n_seg = spec.shape[1], n = spec.shape[2], r, s, k
     cdef float dr, di, sr, si, c, o, med, thr
-    cdef float complex z
+    cdef const float* sp
+    cdef const float* pp
+    cdef const float* bp
+    cdef float* dp
     for s in range(n_seg):
         for k in range(n):
             c = 0.0
             o = 0.0
             for r in range(n_rx):
-                z = spec[r, s, k]
-                sr = z.real
-                si = z.imag
-                dr = sr - prev[r, s, k].real
-                di = si - prev[r, s, k].imag
+                sp = <const float*>&spec[r, s, k]
+                pp = <const float*>&prev[r, s, k]
+                sr = sp[0]
+                si = sp[1]
+                dr = sr - pp[0]
+                di = si - pp[1]
                 c = c + dr * dr
                 c = c + di * di
                 o = o + sr * sr
@@ -92,26 +96,33 @@ def update_hold_moving(const float complex[:, :, ::1] spec, const float complex[
             c = own[s, k] * rel2
             if change[s, k] > thr + c:
                 for r in range(n_rx):
-                    d[r, s, k] = 0
+                    dp = <float*>&d[r, s, k]
+                    dp[0] = 0.0
+                    dp[1] = 0.0
             else:
                 for r in range(n_rx):
-                    z = spec[r, s, k]
-                    d[r, s, k] = ((z.real - background[r, s, k].real) * alpha
-                                  + 1j * ((z.imag - background[r, s, k].imag) * alpha))
+                    sp = <const float*>&spec[r, s, k]
+                    bp = <const float*>&background[r, s, k]
+                    dp = <float*>&d[r, s, k]
+                    dp[0] = (sp[0] - bp[0]) * alpha
+                    dp[1] = (sp[1] - bp[1]) * alpha
 
 
 def apply_map(float complex[:, :, ::1] spec, float complex[:, :, ::1] background,
               const float complex[:, :, ::1] d):
     """``background += d; spec -= background`` (rx, seg, bin) complex64, in one pass."""
     cdef Py_ssize_t n0 = spec.shape[0], n1 = spec.shape[1], n2 = spec.shape[2], a, b, k
-    cdef float br, bi
+    cdef float* sp
+    cdef float* bp
+    cdef const float* dp
     for a in range(n0):
         for b in range(n1):
-            for k in range(n2):
-                br = background[a, b, k].real + d[a, b, k].real
-                bi = background[a, b, k].imag + d[a, b, k].imag
-                background[a, b, k] = br + 1j * bi
-                spec[a, b, k] = (spec[a, b, k].real - br) + 1j * (spec[a, b, k].imag - bi)
+            sp = <float*>&spec[a, b, 0]
+            bp = <float*>&background[a, b, 0]
+            dp = <const float*>&d[a, b, 0]
+            for k in range(2 * n2):  # re and im alike
+                bp[k] = bp[k] + dp[k]
+                sp[k] = sp[k] - bp[k]
 
 
 def channel_power(const float complex[:, :, ::1] spec, float[:, ::1] ppad, Py_ssize_t h):
@@ -119,14 +130,15 @@ def channel_power(const float complex[:, :, ::1] spec, float[:, ::1] ppad, Py_ss
     into ``ppad[:, h:h+n]`` with ``h`` cells of circular padding each side (seg, n + 2h) float32."""
     cdef Py_ssize_t n_rx = spec.shape[0], n_seg = spec.shape[1], n = spec.shape[2], r, s, k
     cdef float p, re, im
+    cdef const float* sp
     for s in range(n_seg):
         for k in range(n):
-            re = spec[0, s, k].real
-            im = spec[0, s, k].imag
-            p = re * re + im * im
+            sp = <const float*>&spec[0, s, k]
+            p = sp[0] * sp[0] + sp[1] * sp[1]
             for r in range(1, n_rx):
-                re = spec[r, s, k].real
-                im = spec[r, s, k].imag
+                sp = <const float*>&spec[r, s, k]
+                re = sp[0]
+                im = sp[1]
                 p = p + (re * re + im * im)
             ppad[s, h + k] = p
         for k in range(h):
