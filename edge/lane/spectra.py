@@ -35,7 +35,8 @@ class SpectraStage:
         """int16 I/Q -> (rx, seg, bin) complex64, windowed on the way (a buffer the stage keeps)."""
         iq = self._iq
         k = self.kernel
-        if k is not None and frame.i.flags.c_contiguous and frame.q.flags.c_contiguous:
+        if (k is not None and frame.i.shape == iq.shape == frame.q.shape and frame.i.dtype == frame.q.dtype == np.int16
+                and frame.i.flags.c_contiguous and frame.q.flags.c_contiguous):  # else numpy (and its errors)
             k.to_complex(frame.i, frame.q, self._window_scaled, iq)
             return iq
         np.multiply(frame.i, self._window_scaled, out=iq.real)
