@@ -121,7 +121,7 @@ log "building the radar-edge sdist (compiled inside the arm64 root, as on the Pi
 tar tzf "$WHEELS"/radar_edge-*.tar.gz | grep -q 'edge/native/_probe.pyx' || { echo "$PROG: the sdist lacks the kernels' .pyx" >&2; exit 1; }
 log "downloading aarch64 wheels of the dependencies and of the build requirements"
 mapfile -t REQS < <(cd "$SRC" && "$PY" -c 'import tomllib; p = tomllib.load(open("pyproject.toml", "rb"))
-print("\n".join(p["project"]["dependencies"] + p["build-system"]["requires"]))')
+print("\n".join(dict.fromkeys(p["project"]["dependencies"] + p["build-system"]["requires"]))))')
 "$PY" -m pip download -q --only-binary=:all: --python-version 3.11 --implementation cp --abi cp311 --abi abi3 --abi none \
   --platform manylinux_2_28_aarch64 --platform manylinux_2_27_aarch64 --platform manylinux_2_17_aarch64 \
   --platform manylinux2014_aarch64 --platform any -d "$WHEELS" "${REQS[@]}"

@@ -16,6 +16,12 @@ from edge.pipeline import build_pipeline
 from tests.native.conftest import require_kernel
 
 
+@pytest.fixture(autouse=True)
+def _kernel_built():
+    """Fail (skip under RADAR_EDGE_KERNELS=0) before any fixture synthesises frames."""
+    require_kernel("_spectra")
+
+
 @pytest.fixture(scope="module")
 def frames():
     return synth_frames("simo", "highway4-traffic", 1, 40)
