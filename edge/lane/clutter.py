@@ -72,12 +72,15 @@ class ClutterMap:
         """(rx, seg, bin) complex64: the map as it stands."""
         return self._background
 
-    def subtract(self, spec: np.ndarray, feedback: Feedback) -> None:
+    def subtract(self, spec: np.ndarray, feedback: Feedback, power_out: np.ndarray | None = None, pad: int = 0) -> bool:
         """Update the map with the spectra ``spec`` (rx, seg, bin) complex64 and subtract it from them in place.
         The map learns only bins that stand still from frame to frame (``clutter_map_static_factor``) and is held
-        in the range bins of stopped confirmed tracks of ``feedback`` (``clutter_map_hold_speed_mps``)."""
+        in the range bins of stopped confirmed tracks of ``feedback`` (``clutter_map_hold_speed_mps``).
+        With the compiled kernel and ``power_out`` (seg, bin + 2 ``pad``) float32, it also writes the channel power
+        of the result there, circularly padded (as :class:`edge.lane.spectra.SpectraStage` does), and returns True;
+        False when the caller must compute the power."""
         if not self._alpha > 0:
-            return
+            return False
         cfg = self.config
         # the map starts empty and learns as a running mean over the first frames (weight
         # 1/(n + warm-up)), then with the time constant: guard-rail posts are gone within seconds
@@ -98,9 +101,12 @@ class ClutterMap:
         if cfg.clutter_map_hold_speed_mps > 0:
             self._hold_standing(d, feedback)
         if k is not None and self._map_init is None and spec.flags.c_contiguous:
-            k.apply_map(spec, self._background, d)  # background += d; spec -= background
             self._map_frames += 1
-            return
+            if power_out is not None:  # background += d; spec -= background; channel power: one pass
+                k.apply_map_power(spec, self._background, d, power_out, pad)
+                return True
+            k.apply_map(spec, self._background, d)  # background += d; spec -= background
+            return False
         self._background += d
         if self._map_init is not None:  # the first frames are kept; then the map is their median
             self._map_init[self._map_frames] = spec
@@ -109,6 +115,7 @@ class ClutterMap:
                 self._map_init = None
         self._map_frames += 1
         spec -= self._background
+        return False
 
     def _hold_moving(self, spec: np.ndarray, d: np.ndarray) -> None:
         """Zero the update ``d`` (rx, seg, bin) where the spectra changed since the last frame by more than noise

@@ -48,12 +48,13 @@ class SpectraStage:
         spec = scipy.fft.fft(iq, axis=-1, overwrite_x=True, workers=1)  # (rx, seg, bin) complex64
         if self._post_scale:
             spec *= np.float32(1.0 / self.n_bins)
-        self.clutter.subtract(spec, feedback)
         # non-coherent sum over the channels, written into the middle of a circularly padded row per
         # segment (the OS-CFAR windows read across the ends); ``power`` is a view of it
         h, n = self.pad, self.n_bins
         # a new array each frame: the power is published with the frame's intermediates
         ppad = np.empty((spec.shape[1], n + 2 * h), np.float32)
+        if self.clutter.subtract(spec, feedback, ppad if self.kernel is not None else None, h):
+            return Spectra(spec, ppad, h)  # the compiled clutter map wrote the power in the same pass
         if self.kernel is not None:
             self.kernel.channel_power(spec, ppad, h)
             return Spectra(spec, ppad, h)

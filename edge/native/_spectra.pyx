@@ -144,3 +144,35 @@ def channel_power(const float complex[:, :, ::1] spec, float[:, ::1] ppad, Py_ss
         for k in range(h):
             ppad[s, k] = ppad[s, n + k]
             ppad[s, n + h + k] = ppad[s, h + k]
+
+
+def apply_map_power(float complex[:, :, ::1] spec, float complex[:, :, ::1] background,
+                    const float complex[:, :, ::1] d, float[:, ::1] ppad, Py_ssize_t h):
+    """:func:`apply_map` and :func:`channel_power` in one pass: ``background += d; spec -= background``, and the
+    channel sum of the result into ``ppad`` (same order of summation as :func:`channel_power`)."""
+    cdef Py_ssize_t n_rx = spec.shape[0], n_seg = spec.shape[1], n = spec.shape[2], r, s, k
+    cdef float p, re, im
+    cdef float* sp
+    cdef float* bp
+    cdef const float* dp
+    for s in range(n_seg):
+        for k in range(n):
+            p = 0.0
+            for r in range(n_rx):
+                sp = <float*>&spec[r, s, k]
+                bp = <float*>&background[r, s, k]
+                dp = <const float*>&d[r, s, k]
+                bp[0] = bp[0] + dp[0]
+                bp[1] = bp[1] + dp[1]
+                re = sp[0] - bp[0]
+                im = sp[1] - bp[1]
+                sp[0] = re
+                sp[1] = im
+                if r == 0:
+                    p = re * re + im * im
+                else:
+                    p = p + (re * re + im * im)
+            ppad[s, h + k] = p
+        for k in range(h):
+            ppad[s, k] = ppad[s, n + k]
+            ppad[s, n + h + k] = ppad[s, h + k]

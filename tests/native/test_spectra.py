@@ -103,6 +103,21 @@ def test_apply_map_and_channel_power_equal_numpy():
     assert np.array_equal(ppad[:, :h], ref[:, -h:]) and np.array_equal(ppad[:, -h:], ref[:, :h])
 
 
+def test_apply_map_power_equals_numpy():
+    k = require_kernel("_spectra")
+    rng = np.random.default_rng(4)
+    shape, h = (4, 4, 256), 12
+    spec, bg, d = _cspec(rng, shape), _cspec(rng, shape), _cspec(rng, shape, 0.1)
+    bg_ref = bg + d
+    spec_ref = spec - bg_ref
+    sq = spec_ref.view(np.float32).reshape(shape + (2,)) ** 2
+    ref = np.add.reduce(sq[..., 0] + sq[..., 1], axis=0)
+    ppad = np.empty((4, 256 + 2 * h), np.float32)
+    k.apply_map_power(spec, bg, d, ppad, h)
+    assert np.array_equal(bg, bg_ref) and np.array_equal(spec, spec_ref)
+    assert np.array_equal(ppad, np.concatenate([ref[:, -h:], ref, ref[:, :h]], axis=1))
+
+
 def test_spectra_stage_equals_numpy_on_recorded_frames(frames):
     """40 frames of highway4-traffic: the map's initial median, its warm-up and the static test, frame by frame."""
     require_kernel("_spectra")
