@@ -2,9 +2,11 @@
 # radar-edge installer for Raspberry Pi OS bookworm (64-bit) -- idempotent; run it again to update.
 #
 # What it does (each step reports "installed", "updated", "unchanged" or "skipped: why"):
-#   1. system packages (python3-venv, can-utils, iproute2, ...)                      [apt-get]
+#   1. system packages (python3-venv, can-utils, iproute2, ...) and the C toolchain
+#      that builds the compiled kernels (build-essential, python3-dev)               [apt-get]
 #   2. service user `radar-edge` (system user, member of `dialout`)                  [useradd]
-#   3. virtual environment /opt/radar-edge/venv with the radar-edge package           [pip]
+#   3. virtual environment /opt/radar-edge/venv with the radar-edge package, its
+#      kernels (edge/native) compiled here; says whether they load                   [pip]
 #   4. /etc/radar-edge/radar-edge.toml from the commented example (never overwritten;
 #      the shipped example is always refreshed as radar-edge.example.toml)
 #   5. udev rule: Distance2Go (USB 058B:0058) -> /dev/radar-d2g, group dialout, mode 0660,
@@ -234,7 +236,9 @@ EOF
 # --- steps --------------------------------------------------------------------------------------
 step_apt() {
   [ "$DO_APT" = 1 ] || { say skipped "system packages (--no-apt)"; return 0; }
-  local pkgs="python3 python3-venv python3-pip iproute2 can-utils ca-certificates"
+  # build-essential + python3-dev: pip compiles the post-FFT kernels (edge/native/*.pyx) on the Pi; without
+  # them the package still installs and runs the slower numpy fallback (doctor warns)
+  local pkgs="python3 python3-venv python3-pip python3-dev build-essential iproute2 can-utils ca-certificates"
   if [ "$SYSTEM" = 1 ] && [ "$DRY_RUN" = 0 ]; then
     local missing="" p
     for p in $pkgs; do dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"; done
@@ -288,6 +292,15 @@ step_venv() {
     "$venv/bin/pip" install -q --upgrade "$spec"
   fi
   say installed "radar-edge $("$venv/bin/python" -c 'import importlib.metadata as m; print(m.version("radar-edge"))') in $venv"
+  step_kernels "$venv"
+}
+
+# the compiled kernels built by pip above: loaded, or missing (no compiler: the numpy fallback runs, slower)
+step_kernels() {
+  local venv=$1 line
+  line=$(cd / && RADAR_EDGE_KERNELS=1 "$venv/bin/python" -c 'from edge import native; print(native.status()); raise SystemExit(1 if native.missing() else 0)') \
+    && say ok "$line" \
+    || say warning "${line:-the kernel check did not run}; install build-essential and python3-dev (drop --no-apt) and run $PROG again"
 }
 
 step_config() {

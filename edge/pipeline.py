@@ -152,6 +152,9 @@ def build_pipeline(profile: str, frontend: FrontendInfo, config: Any) -> Pipelin
     the surveillance profile its tracker and classifier) provides a classmethod
     ``from_config(frontend, config)`` taking the whole resolved configuration, used instead.
     """
+    from edge import native
+
+    native.warn_if_missing()  # once per process: a kernel that is not built leaves the slower numpy fallback
     cls = pipeline_class(profile)
     if hasattr(cls, "from_config"):
         return cls.from_config(frontend, config)

@@ -22,7 +22,12 @@ The frame is also reported in thread CPU time ("frame CPU time": no preemption b
 and, with --repeat N, as percentiles of each frame's fastest run ("frame min/runs"): on a shared
 machine other processes disturb a few frames of every run, and three disturbed frames set a p99
 of 300 frames. --instructions adds instructions per frame under valgrind's callgrind, counted after
-a warm-up in a replay child whose imports run uninstrumented: the repeatable speed figure."""
+a warm-up in a replay child whose imports run uninstrumented: the repeatable speed figure.
+With --tracks (lane profile) it also reports the frame cost against the number of confirmed
+tracks: a scene of N cars in slow queues on eight lanes per N (default 5, 20, 64), detection as usual
+and the tracker fed every car of the ground truth (--tracks-detections pipeline: the pipeline's own
+detections, which lose cars in dense queues), frame p50/p99 after a warm-up in which they confirm.
+docs/performance.md converts the figures to a Raspberry Pi 4 / 5 estimate."""
 EPILOG = """\
 examples:
   radar-edge bench --profile lane --frames 300 --json out/bench-lane.json
@@ -30,6 +35,7 @@ examples:
   radar-edge bench --profile surveillance --frames 100
   radar-edge bench --profile minimal --no-peer --no-startup
   radar-edge bench --profile lane --scenario highway4-traffic --instructions --no-peer --no-startup
+  radar-edge bench --profile lane --no-peer --no-startup --frames 100 --tracks 5,20,64 --json out/tracks.json
 """
 
 
@@ -52,6 +58,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="frames run before counting (default 100: tracks confirmed, clutter map learnt)")
     p.add_argument("--instr-frames", type=int, default=50, metavar="N", help="frames counted (default 50)")
     p.add_argument("--json", metavar="OUT", help="write the JSON report here")
+    p.add_argument("--tracks", nargs="?", const="5,20,64", metavar="N,N,...",
+                   help="also report the lane frame cost against the number of confirmed tracks (default 5,20,64)")
+    p.add_argument("--tracks-frames", type=int, default=150, metavar="N",
+                   help="timed frames per track count, after 45 warm-up frames (default 150)")
+    p.add_argument("--tracks-detections", choices=("truth", "pipeline"), default="truth",
+                   help="what the tracker gets in the track-count scenes: every car of the ground truth (default) "
+                        "or the pipeline's own detections")
     add_config_arguments(p)
 
 
@@ -71,9 +84,17 @@ def run(args: argparse.Namespace) -> int:
         if args.instr_warmup < 0 or args.instr_frames < 1:
             raise ValueError("--instr-warmup must be >= 0 and --instr-frames >= 1")
     cfg = config_from_args(args)
+    counts = _counts(args.tracks) if args.tracks else ()
+    if counts and args.profile != "lane":
+        raise ValueError("--tracks measures the lane profile: use --profile lane")
     rep = run_bench(args.profile, cfg, frames=args.frames, scenario=args.scenario, seed=args.seed,
                     peer=not args.no_peer, startup=not args.no_startup, progress=sys.stderr.isatty(),
                     peer_frames=args.peer_frames, repeat=args.repeat)
+    if counts:
+        from edge.bench.tracks import run_tracks
+
+        rep["tracks"] = run_tracks(cfg, counts, frames=args.tracks_frames, seed=args.seed,
+                                   progress=sys.stderr.isatty(), detections=args.tracks_detections)
     if args.instructions:
         from edge.bench import board_of, synth_frames
         from edge.bench.instructions import measure
@@ -88,6 +109,16 @@ def run(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps(rep, indent=2) + "\n", encoding="utf-8")
     print("\n".join(report_lines(rep)))
     return 0
+
+
+def _counts(text: str) -> tuple[int, ...]:
+    try:
+        counts = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--tracks wants comma-separated counts such as 5,20,64, got {text!r}") from None
+    if not counts or min(counts) < 1:
+        raise ValueError(f"--tracks counts must be positive, got {text!r}")
+    return counts
 
 
 def report_lines(rep: dict) -> list[str]:
@@ -143,6 +174,10 @@ def report_lines(rep: dict) -> list[str]:
         if st.get("run_peak_rss_mb"):
             line += f", peak RSS {st['run_peak_rss_mb']:.0f} MB"
     out.append(line)
+    if rep.get("tracks"):
+        from edge.bench.tracks import report_lines as track_lines
+
+        out.extend(track_lines(rep["tracks"]))
     env = rep.get("threads_env") or {}
     if env and not all(v == "1" for v in env.values()):
         out.append("note: OMP_NUM_THREADS/OPENBLAS_NUM_THREADS are not 1: BLAS may use threads (the service "

@@ -8,13 +8,14 @@ import sys
 from edge.commands.common import add_config_arguments
 
 NAME = "doctor"
-HELP = "check the installation: config, serial ports, board, CAN, Modbus, model, temperature, clock"
+HELP = "check the installation: config, serial ports, board, CAN, Modbus, model, kernels, temperature, clock"
 DESCRIPTION = """\
 Checks, in order: the configuration file; the radar source (the Distance2Go's serial port and its
 permissions for the service user, then the board itself: it is opened, its endpoint list read and
 one frame received); Modbus RTU (the RS-485 UART, not the serial console) and the Modbus TCP port;
 the CAN interface (up, bitrate as configured, bus state, restart-ms); the model files and their
-input schema; the recordings directory and its quota; the CPU temperature and throttling
+input schema; the recordings directory and its quota; the compiled kernels (a warning when the
+numpy fallback runs); the CPU temperature and throttling
 (`vcgencmd get_throttled`); clock synchronisation (timedatectl, chrony).
 
 Each line is ok, warn, FAIL or skipped (with the reason); a failure is followed by the fix. Exit

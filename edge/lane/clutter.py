@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from edge import native
 from edge.lane.records import Feedback
 
 
@@ -56,6 +57,11 @@ class ClutterMap:
         self._prev = None  # the last frame's raw spectra (clutter_map_static_factor)
         k_init = cfg.clutter_map_init_frames if self._alpha > 0 else 0
         self._map_init = np.zeros((k_init,) + tuple(frame_shape), np.complex64) if k_init > 1 else None
+        self.kernel = native.load("_spectra")  # compiled update, static test and subtraction; None: numpy
+        if self.kernel is not None:
+            self._change = np.empty(frame_shape[1:], np.float32)  # (seg, bin) scratch of the static test
+            self._own = np.empty(frame_shape[1:], np.float32)
+            self._work = np.empty(frame_shape[-1], np.float32)
 
     @property
     def enabled(self) -> bool:
@@ -66,24 +72,41 @@ class ClutterMap:
         """(rx, seg, bin) complex64: the map as it stands."""
         return self._background
 
-    def subtract(self, spec: np.ndarray, feedback: Feedback) -> None:
+    def subtract(self, spec: np.ndarray, feedback: Feedback, power_out: np.ndarray | None = None, pad: int = 0) -> bool:
         """Update the map with the spectra ``spec`` (rx, seg, bin) complex64 and subtract it from them in place.
         The map learns only bins that stand still from frame to frame (``clutter_map_static_factor``) and is held
-        in the range bins of stopped confirmed tracks of ``feedback`` (``clutter_map_hold_speed_mps``)."""
+        in the range bins of stopped confirmed tracks of ``feedback`` (``clutter_map_hold_speed_mps``).
+        With the compiled kernel and ``power_out`` (seg, bin + 2 ``pad``) float32, it also writes the channel power
+        of the result there, circularly padded (as :class:`edge.lane.spectra.SpectraStage` does), and returns True;
+        False when the caller must compute the power."""
         if not self._alpha > 0:
-            return
+            return False
         cfg = self.config
         # the map starts empty and learns as a running mean over the first frames (weight
         # 1/(n + warm-up)), then with the time constant: guard-rail posts are gone within seconds
         # of a start instead of a minute (their wrong pairings made tracks hop along the rail);
         # initialising it with the first frame alone would leave that frame's vehicles' images
         alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
-        d = np.subtract(spec, self._background, out=self._diff)
-        d *= alpha
-        if cfg.clutter_map_static_factor > 0:
-            self._hold_moving(spec, d)
+        k = self.kernel
+        if k is not None and cfg.clutter_map_static_factor > 0 and self._prev is not None and spec.flags.c_contiguous:
+            d = self._diff  # the update and _hold_moving in one kernel (edge/native/_spectra.pyx)
+            k.update_hold_moving(spec, self._background, self._prev, d, alpha,
+                                 np.float32(cfg.clutter_map_static_factor), np.float32(cfg.clutter_map_static_rel ** 2),
+                                 self._change, self._own, self._work)
+        else:
+            d = np.subtract(spec, self._background, out=self._diff)
+            d *= alpha
+            if cfg.clutter_map_static_factor > 0:
+                self._hold_moving(spec, d)
         if cfg.clutter_map_hold_speed_mps > 0:
             self._hold_standing(d, feedback)
+        if k is not None and self._map_init is None and spec.flags.c_contiguous:
+            self._map_frames += 1
+            if power_out is not None:  # background += d; spec -= background; channel power: one pass
+                k.apply_map_power(spec, self._background, d, power_out, pad)
+                return True
+            k.apply_map(spec, self._background, d)  # background += d; spec -= background
+            return False
         self._background += d
         if self._map_init is not None:  # the first frames are kept; then the map is their median
             self._map_init[self._map_frames] = spec
@@ -92,6 +115,7 @@ class ClutterMap:
                 self._map_init = None
         self._map_frames += 1
         spec -= self._background
+        return False
 
     def _hold_moving(self, spec: np.ndarray, d: np.ndarray) -> None:
         """Zero the update ``d`` (rx, seg, bin) where the spectra changed since the last frame by more than noise

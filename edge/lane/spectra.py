@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.fft
 
+from edge import native
 from edge.dsp.range_fft import make_window
 from edge.lane.clutter import ClutterMap
 from edge.lane.records import Feedback, Spectra
@@ -28,10 +29,16 @@ class SpectraStage:
         self._window_scaled = self.window if self._post_scale else self.window * np.float32(1.0 / n)
         self._sq = np.empty(frontend.frame_shape + (2,), dtype=np.float32)  # |re|^2, |im|^2 scratch
         self._sq_sum = np.empty(frontend.frame_shape, dtype=np.float32)
+        self.kernel = native.load("_spectra")  # compiled windowing and channel sum (edge/native); None: numpy
 
     def to_complex(self, frame: RawFrame) -> np.ndarray:
         """int16 I/Q -> (rx, seg, bin) complex64, windowed on the way (a buffer the stage keeps)."""
         iq = self._iq
+        k = self.kernel
+        if (k is not None and frame.i.shape == iq.shape == frame.q.shape and frame.i.dtype == frame.q.dtype == np.int16
+                and frame.i.flags.c_contiguous and frame.q.flags.c_contiguous):  # else numpy (and its errors)
+            k.to_complex(frame.i, frame.q, self._window_scaled, iq)
+            return iq
         np.multiply(frame.i, self._window_scaled, out=iq.real)
         np.multiply(frame.q, self._window_scaled, out=iq.imag)
         return iq
@@ -41,15 +48,19 @@ class SpectraStage:
         spec = scipy.fft.fft(iq, axis=-1, overwrite_x=True, workers=1)  # (rx, seg, bin) complex64
         if self._post_scale:
             spec *= np.float32(1.0 / self.n_bins)
-        self.clutter.subtract(spec, feedback)
         # non-coherent sum over the channels, written into the middle of a circularly padded row per
         # segment (the OS-CFAR windows read across the ends); ``power`` is a view of it
         h, n = self.pad, self.n_bins
+        # a new array each frame: the power is published with the frame's intermediates
+        ppad = np.empty((spec.shape[1], n + 2 * h), np.float32)
+        if self.clutter.subtract(spec, feedback, ppad if self.kernel is not None else None, h):
+            return Spectra(spec, ppad, h)  # the compiled clutter map wrote the power in the same pass
+        if self.kernel is not None:
+            self.kernel.channel_power(spec, ppad, h)
+            return Spectra(spec, ppad, h)
         sq = np.multiply(spec.view(np.float32), spec.view(np.float32), out=self._sq.reshape(spec.shape[:-1] + (-1,)))
         sq = sq.reshape(self._sq.shape)
         np.add(sq[..., 0], sq[..., 1], out=self._sq_sum)
-        # a new array each frame: the power is published with the frame's intermediates
-        ppad = np.empty((spec.shape[1], n + 2 * h), np.float32)
         power = ppad[:, h:h + n]
         np.add.reduce(self._sq_sum, axis=0, out=power)  # (seg, bin) float32 (ndarray.sum without its wrapper)
         ppad[:, :h] = ppad[:, n:n + h]

@@ -15,9 +15,10 @@ from types import ModuleType
 log = logging.getLogger(__name__)
 
 #: kernel module names (``edge/native/<name>.pyx``) the product uses
-KERNELS: tuple[str, ...] = ("_probe", "_peaks")
+KERNELS: tuple[str, ...] = ("_probe", "_spectra", "_peaks")
 
 _cache: dict[str, ModuleType | None] = {}
+_errors: dict[str, str] = {}  # why a kernel did not load (the ImportError's message)
 _warned = False
 
 
@@ -33,8 +34,10 @@ def load(name: str) -> ModuleType | None:
     if name not in _cache:
         try:
             _cache[name] = importlib.import_module(f"{__name__}.{name}")
-        except ImportError:
+        except ImportError as exc:  # not built, or built for another Python/numpy
             _cache[name] = None
+            _errors[name] = str(exc)
+            log.debug("kernel %s not loaded: %s", name, exc)
     return _cache[name]
 
 
@@ -43,6 +46,11 @@ def missing() -> list[str]:
     if not enabled():
         return []
     return [k for k in KERNELS if load(k) is None]
+
+
+def error(name: str) -> str | None:
+    """Why kernel ``name`` did not load (None when it loaded or was not tried)."""
+    return _errors.get(name)
 
 
 def status() -> str:

@@ -627,6 +627,27 @@ def check_service(sys_: System) -> list[Check]:
     return [Check("service", "ok", detail)]
 
 
+def check_kernels(sys_: System | None = None) -> list[Check]:
+    """The compiled post-FFT kernels (``edge.native``) of this interpreter's installation: all loaded (ok), some
+    not built (warn: the numpy fallback runs, correct but several times slower), or disabled on purpose with
+    ``RADAR_EDGE_KERNELS=0`` (skipped). Not judged for another root (``--root``): only this interpreter's
+    installation can be imported."""
+    from edge import native
+
+    if sys_ is not None and str(sys_.root) != "/":
+        return [Check("kernels", "skipped", "not checked inside --root (only this interpreter's installation)")]
+    if not native.enabled():
+        return [Check("kernels", "skipped", native.status())]
+    gone = native.missing()
+    if gone:
+        return [Check("kernels", "warn", native.status(),
+                      "sudo apt-get install build-essential python3-dev, then reinstall to build them: "
+                      "sudo deploy/install.sh on the Pi, or pip install -e . in a checkout",
+                      data={"missing": gone})]
+    return [Check("kernels", "ok", f"{native.status()}: {', '.join(native.KERNELS)}",
+                  data={"loaded": list(native.KERNELS)})]
+
+
 def run_checks(sys_: System, config_path: str | None = None, overrides: dict[str, Any] | None = None,
                *, open_board: bool = True) -> list[Check]:
     checks, cfg = check_config(sys_, config_path, dict(overrides or {}))
@@ -637,6 +658,7 @@ def run_checks(sys_: System, config_path: str | None = None, overrides: dict[str
             checks.extend(_guard(fn))
     else:
         checks.append(Check("outputs", "skipped", "the configuration does not load"))
+    checks.extend(_guard(lambda: check_kernels(sys_)))
     checks.extend(_guard(lambda: check_user(sys_)))
     checks.extend(_guard(lambda: check_service(sys_)))
     checks.extend(_guard(lambda: check_temperature(sys_)))

@@ -1,0 +1,178 @@
+# cython: language_level=3
+"""Compiled kernels of the lane profile's spectra stage (edge/lane/spectra.py, edge/lane/clutter.py).
+
+The numpy code of :class:`edge.lane.spectra.SpectraStage` and :class:`edge.lane.clutter.ClutterMap` is the
+reference. Every operation is the same float32 arithmetic element by element (setup.py compiles with
+-ffp-contract=off: no fused multiply-add, which would round differently from numpy), and the sums of squares
+over the channels are taken in numpy's order (channel by channel, real before imaginary, from zero), so the
+results are bit-identical; tests/native/test_spectra.py checks it on random inputs, on recorded frames and
+end to end. Should a numpy release change the order of its reductions, the change and own energies of the
+static test, and the channel power, could differ in the last bit (relative 1e-7): the tests would show it.
+"""
+
+cimport cython
+from libc.string cimport memcpy
+
+import numpy as np
+
+
+def to_complex(const short[:, :, ::1] i, const short[:, :, ::1] q, const float[::1] w,
+               float complex[:, :, ::1] out):
+    """``out = (i + 1j q) * w``: int16 I/Q (rx, seg, bin) to complex64, windowed (``w`` float32, per bin)."""
+    cdef Py_ssize_t a, b, k, n0 = i.shape[0], n1 = i.shape[1], n2 = i.shape[2]
+    cdef float* o
+    for a in range(n0):
+        for b in range(n1):
+            o = <float*>&out[a, b, 0]  # interleaved re, im
+            for k in range(n2):
+                o[2 * k] = <float>i[a, b, k] * w[k]
+                o[2 * k + 1] = <float>q[a, b, k] * w[k]
+
+
+cdef float _select(float* v, Py_ssize_t n, Py_ssize_t kth) noexcept nogil:
+    """The ``kth`` smallest of ``v[:n]`` (Hoare's selection, in place; NaN-free input)."""
+    cdef Py_ssize_t lo = 0, hi = n - 1, a, b
+    cdef float pivot, t
+    while lo < hi:
+        pivot = v[(lo + hi) // 2]
+        a = lo
+        b = hi
+        while a <= b:
+            while v[a] < pivot:
+                a += 1
+            while v[b] > pivot:
+                b -= 1
+            if a <= b:
+                t = v[a]; v[a] = v[b]; v[b] = t
+                a += 1
+                b -= 1
+        if kth <= b:
+            hi = b
+        elif kth >= a:
+            lo = a
+        else:
+            break
+    return v[kth]
+
+
+def update_hold_moving(const float complex[:, :, ::1] spec, const float complex[:, :, ::1] background,
+                       float complex[:, :, ::1] prev, float complex[:, :, ::1] d, float alpha,
+                       float factor, float rel2, float[:, ::1] change, float[:, ::1] own, float[::1] work):
+    """The clutter map's update with its static test (``ClutterMap.subtract`` up to ``_hold_moving``):
+    ``d = alpha (spec - background)``, zero in the (seg, bin) cells whose change since ``prev`` (summed over
+    the channels, |.|^2) exceeds ``factor`` x its segment's median plus ``rel2`` x the cell's own energy;
+    then ``prev = spec``. ``change``, ``own`` (seg, bin) and ``work`` (bin) are scratch. Shapes (rx, seg, bin)."""
+    cdef Py_ssize_t n_rx = spec.shape[0], n_seg = spec.shape[1], n = spec.shape[2], r, s, k
+    cdef float dr, di, sr, si, c, o, med, thr
+    cdef const float* sp
+    cdef const float* pp
+    cdef const float* bp
+    cdef float* dp
+    for s in range(n_seg):
+        for k in range(n):
+            c = 0.0
+            o = 0.0
+            for r in range(n_rx):
+                sp = <const float*>&spec[r, s, k]
+                pp = <const float*>&prev[r, s, k]
+                sr = sp[0]
+                si = sp[1]
+                dr = sr - pp[0]
+                di = si - pp[1]
+                c = c + dr * dr
+                c = c + di * di
+                o = o + sr * sr
+                o = o + si * si
+            change[s, k] = c
+            own[s, k] = o
+    for r in range(n_rx):
+        for s in range(n_seg):
+            memcpy(&prev[r, s, 0], &spec[r, s, 0], n * sizeof(float complex))
+    for s in range(n_seg):
+        memcpy(&work[0], &change[s, 0], n * sizeof(float))
+        med = _select(&work[0], n, n // 2)
+        thr = med * factor
+        for k in range(n):
+            c = own[s, k] * rel2
+            if change[s, k] > thr + c:
+                for r in range(n_rx):
+                    dp = <float*>&d[r, s, k]
+                    dp[0] = 0.0
+                    dp[1] = 0.0
+            else:
+                for r in range(n_rx):
+                    sp = <const float*>&spec[r, s, k]
+                    bp = <const float*>&background[r, s, k]
+                    dp = <float*>&d[r, s, k]
+                    dp[0] = (sp[0] - bp[0]) * alpha
+                    dp[1] = (sp[1] - bp[1]) * alpha
+
+
+def apply_map(float complex[:, :, ::1] spec, float complex[:, :, ::1] background,
+              const float complex[:, :, ::1] d):
+    """``background += d; spec -= background`` (rx, seg, bin) complex64, in one pass."""
+    cdef Py_ssize_t n0 = spec.shape[0], n1 = spec.shape[1], n2 = spec.shape[2], a, b, k
+    cdef float* sp
+    cdef float* bp
+    cdef const float* dp
+    for a in range(n0):
+        for b in range(n1):
+            sp = <float*>&spec[a, b, 0]
+            bp = <float*>&background[a, b, 0]
+            dp = <const float*>&d[a, b, 0]
+            for k in range(2 * n2):  # re and im alike
+                bp[k] = bp[k] + dp[k]
+                sp[k] = sp[k] - bp[k]
+
+
+def channel_power(const float complex[:, :, ::1] spec, float[:, ::1] ppad, Py_ssize_t h):
+    """Non-coherent sum over the channels, ``sum_r (re^2 + im^2)`` channel by channel as numpy's ``add.reduce``,
+    into ``ppad[:, h:h+n]`` with ``h`` cells of circular padding each side (seg, n + 2h) float32."""
+    cdef Py_ssize_t n_rx = spec.shape[0], n_seg = spec.shape[1], n = spec.shape[2], r, s, k
+    cdef float p, re, im
+    cdef const float* sp
+    for s in range(n_seg):
+        for k in range(n):
+            sp = <const float*>&spec[0, s, k]
+            p = sp[0] * sp[0] + sp[1] * sp[1]
+            for r in range(1, n_rx):
+                sp = <const float*>&spec[r, s, k]
+                re = sp[0]
+                im = sp[1]
+                p = p + (re * re + im * im)
+            ppad[s, h + k] = p
+        for k in range(h):
+            ppad[s, k] = ppad[s, n + k]
+            ppad[s, n + h + k] = ppad[s, h + k]
+
+
+def apply_map_power(float complex[:, :, ::1] spec, float complex[:, :, ::1] background,
+                    const float complex[:, :, ::1] d, float[:, ::1] ppad, Py_ssize_t h):
+    """:func:`apply_map` and :func:`channel_power` in one pass: ``background += d; spec -= background``, and the
+    channel sum of the result into ``ppad`` (same order of summation as :func:`channel_power`)."""
+    cdef Py_ssize_t n_rx = spec.shape[0], n_seg = spec.shape[1], n = spec.shape[2], r, s, k
+    cdef float p, re, im
+    cdef float* sp
+    cdef float* bp
+    cdef const float* dp
+    for s in range(n_seg):
+        for k in range(n):
+            p = 0.0
+            for r in range(n_rx):
+                sp = <float*>&spec[r, s, k]
+                bp = <float*>&background[r, s, k]
+                dp = <const float*>&d[r, s, k]
+                bp[0] = bp[0] + dp[0]
+                bp[1] = bp[1] + dp[1]
+                re = sp[0] - bp[0]
+                im = sp[1] - bp[1]
+                sp[0] = re
+                sp[1] = im
+                if r == 0:
+                    p = re * re + im * im
+                else:
+                    p = p + (re * re + im * im)
+            ppad[s, h + k] = p
+        for k in range(h):
+            ppad[s, k] = ppad[s, n + k]
+            ppad[s, n + h + k] = ppad[s, h + k]

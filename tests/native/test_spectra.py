@@ -1,0 +1,142 @@
+"""The ``_spectra`` kernel (windowing, clutter-map update with its static test, subtraction, channel sum) equals
+the numpy reference of edge/lane/spectra.py and edge/lane/clutter.py bit for bit: on random inputs, on a
+recorded run of the spectra stage, and end to end (detections and confirmed tracks of the lane pipeline)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from edge.bench import synth_frames
+from edge.config import load_config
+from edge.native.check import agree, compare, outputs
+from edge.pipeline import build_pipeline
+from tests.native.conftest import require_kernel
+
+
+@pytest.fixture(autouse=True)
+def _kernel_built():
+    """Fail (skip under RADAR_EDGE_KERNELS=0) before any fixture synthesises frames."""
+    require_kernel("_spectra")
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return synth_frames("simo", "highway4-traffic", 1, 40)
+
+
+def _lane(frames, kernel):
+    pipe = build_pipeline("lane", frames[0].frontend, load_config(env={}))
+    if not kernel:
+        pipe.spectra.kernel = None
+        pipe.clutter.kernel = None
+    return pipe
+
+
+def _cspec(rng, shape, scale=1.0):
+    return (rng.normal(0, scale, shape) + 1j * rng.normal(0, scale, shape)).astype(np.complex64)
+
+
+@settings(max_examples=25, deadline=None, derandomize=True)
+@given(n_rx=st.integers(1, 4), n_seg=st.integers(1, 4), n=st.sampled_from([8, 64, 256]), seed=st.integers(0, 2**16))
+def test_to_complex_equals_numpy(n_rx, n_seg, n, seed):
+    k = require_kernel("_spectra")
+    rng = np.random.default_rng(seed)
+    i = rng.integers(-32768, 32768, (n_rx, n_seg, n), dtype=np.int16)
+    q = rng.integers(-32768, 32768, (n_rx, n_seg, n), dtype=np.int16)
+    w = rng.random(n).astype(np.float32) / np.float32(n)
+    ref = np.empty(i.shape, np.complex64)
+    np.multiply(i, w, out=ref.real)
+    np.multiply(q, w, out=ref.imag)
+    out = np.empty(i.shape, np.complex64)
+    k.to_complex(i, q, w, out)
+    assert np.array_equal(out, ref)
+
+
+@settings(max_examples=25, deadline=None, derandomize=True)
+@given(n_rx=st.integers(1, 4), n_seg=st.integers(1, 4), n=st.sampled_from([7, 64, 257]), seed=st.integers(0, 2**16),
+       moving_share=st.floats(0.0, 0.5))
+def test_update_hold_moving_equals_numpy(n_rx, n_seg, n, seed, moving_share):
+    from edge.lane.clutter import ClutterMap
+
+    k = require_kernel("_spectra")
+    rng = np.random.default_rng(seed)
+    shape = (n_rx, n_seg, n)
+    prev = _cspec(rng, shape)
+    spec = prev + _cspec(rng, shape, 0.05)  # static: small change ...
+    hot = rng.random((n_seg, n)) < moving_share
+    spec[:, hot] += _cspec(rng, (n_rx, int(hot.sum())), 3.0)  # ... and moving cells
+    bg = _cspec(rng, shape)
+    alpha, factor, rel = np.float32(0.02), 8.0, 0.05
+
+    class Cfg:
+        clutter_map_static_factor = factor
+        clutter_map_static_rel = rel
+
+    ref_map = ClutterMap.__new__(ClutterMap)
+    ref_map.config, ref_map._prev = Cfg, prev.copy()
+    d_ref = np.subtract(spec, bg) * alpha
+    ref_map._hold_moving(spec, d_ref)
+    prev_k, d_k = prev.copy(), np.empty(shape, np.complex64)
+    k.update_hold_moving(spec, bg, prev_k, d_k, alpha, np.float32(factor), np.float32(rel ** 2),
+                         np.empty((n_seg, n), np.float32), np.empty((n_seg, n), np.float32), np.empty(n, np.float32))
+    assert np.array_equal(d_k, d_ref)
+    assert np.array_equal(prev_k, ref_map._prev) and np.array_equal(prev_k, spec)
+
+
+def test_apply_map_and_channel_power_equal_numpy():
+    k = require_kernel("_spectra")
+    rng = np.random.default_rng(3)
+    shape, h = (4, 4, 128), 10
+    spec, bg, d = _cspec(rng, shape), _cspec(rng, shape), _cspec(rng, shape, 0.1)
+    bg_ref = bg + d
+    spec_ref = spec - bg_ref
+    k.apply_map(spec, bg, d)
+    assert np.array_equal(bg, bg_ref) and np.array_equal(spec, spec_ref)
+    sq = spec.view(np.float32).reshape(shape + (2,)) ** 2
+    ref = np.add.reduce(sq[..., 0] + sq[..., 1], axis=0)
+    ppad = np.empty((4, 128 + 2 * h), np.float32)
+    k.channel_power(spec, ppad, h)
+    assert np.array_equal(ppad[:, h:-h], ref)
+    assert np.array_equal(ppad[:, :h], ref[:, -h:]) and np.array_equal(ppad[:, -h:], ref[:, :h])
+
+
+def test_apply_map_power_equals_numpy():
+    k = require_kernel("_spectra")
+    rng = np.random.default_rng(4)
+    shape, h = (4, 4, 256), 12
+    spec, bg, d = _cspec(rng, shape), _cspec(rng, shape), _cspec(rng, shape, 0.1)
+    bg_ref = bg + d
+    spec_ref = spec - bg_ref
+    sq = spec_ref.view(np.float32).reshape(shape + (2,)) ** 2
+    ref = np.add.reduce(sq[..., 0] + sq[..., 1], axis=0)
+    ppad = np.empty((4, 256 + 2 * h), np.float32)
+    k.apply_map_power(spec, bg, d, ppad, h)
+    assert np.array_equal(bg, bg_ref) and np.array_equal(spec, spec_ref)
+    assert np.array_equal(ppad, np.concatenate([ref[:, -h:], ref, ref[:, :h]], axis=1))
+
+
+def test_spectra_stage_equals_numpy_on_recorded_frames(frames):
+    """40 frames of highway4-traffic: the map's initial median, its warm-up and the static test, frame by frame."""
+    require_kernel("_spectra")
+    fast, ref = _lane(frames, True), _lane(frames, False)
+    assert fast.spectra.kernel is not None and fast.clutter.kernel is not None
+    fb = ref.feedback()
+    for f in frames:
+        a = fast.spectra(fast.spectra.to_complex(f), fb)
+        b = ref.spectra(ref.spectra.to_complex(f), fb)
+        assert np.array_equal(a.spec, b.spec)
+        assert np.array_equal(a.power_padded, b.power_padded)
+    assert np.array_equal(fast.clutter.background, ref.clutter.background)
+
+
+def test_lane_pipeline_end_to_end_equal():
+    """highway4-traffic, seed 1, 120 frames: identical detections and confirmed tracks with and without kernels."""
+    require_kernel("_spectra")
+    fr = synth_frames("simo", "highway4-traffic", 1, 120)
+    cfg = load_config(env={})
+    rep = compare(outputs("lane", fr, cfg, use_kernels=True), outputs("lane", fr, cfg, use_kernels=False))
+    assert rep["detections"] > 500 and rep["confirmed_track_frames"] > 300
+    assert agree(rep, atol=0.0), rep
