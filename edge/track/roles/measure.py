@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge import native
 from edge.track import kalman
 from edge.track.config import MeasurementConfig
 from edge.track.pdaf import (Innovations, PairInnovations, combined_update, combined_update_pairs,
@@ -81,6 +82,8 @@ class MeasurementModel:
         self._az_sigma_rad = math.radians(cfg.azimuth_sigma_deg)
         self.height_m = 0.0  # radar above the targets (PdafTracker.sensor_height_m): near_speed_spread_m's geometry
         self._head: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None  # (xp, heading(xp))
+        #: the compiled association/update core (``edge.native._track``), or None: the numpy reference runs
+        self.kernel = native.load("_track")
 
     @property
     def use_radial_speed(self) -> bool:
@@ -210,12 +213,12 @@ class ConstantNoiseModel(MeasurementModel):
 
     def _innovations(self, meas, pred, mp, prune_gamma) -> None:
         if mp.hm is None:
-            mp.inn = innovations(meas.z, mp.zh, mp.h, pred.p, mp.r)
+            mp.inn = innovations(meas.z, mp.zh, mp.h, pred.p, mp.r, self.kernel)
             return
         t = pred.x.shape[0]  # the combined prediction and both modes in one computation
         inn_all = innovations(meas.z, np.concatenate([mp.zh, mp.zhm]), np.concatenate([mp.h, mp.hm]),
                               np.concatenate([pred.p, pred.pm.reshape(2 * t, 4, 4)]),
-                              np.concatenate([mp.r, mp.r.repeat(2, axis=0)]))
+                              np.concatenate([mp.r, mp.r.repeat(2, axis=0)]), self.kernel)
         mp.inn, mp.inn_m = _rows(inn_all, slice(0, t)), _rows(inn_all, slice(t, None))
 
     def state_update(self, xp, pp, mp: MeasurementPrediction, beta, beta0):
@@ -249,12 +252,12 @@ class SnrNoiseModel(MeasurementModel):
         return self.of_detections(meas)
 
     def _innovations(self, meas, pred, mp, prune_gamma) -> None:
-        mp.inn = innovations_each(meas.z, mp.zh, mp.h, pred.p, mp.r, mp.rm, prune_gamma)
+        mp.inn = innovations_each(meas.z, mp.zh, mp.h, pred.p, mp.r, mp.rm, prune_gamma, self.kernel)
 
     def seed_exclusion_d2(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool) -> np.ndarray:
         if not constant:
             return mp.inn.d2
-        return mahalanobis_d2(mp.inn.v, self.with_sensor(xp, mp.inn.s_track))
+        return mahalanobis_d2(mp.inn.v, self.with_sensor(xp, mp.inn.s_track), self.kernel)
 
     def state_update(self, xp, pp, mp: MeasurementPrediction, beta, beta0):
         """The PDAF posterior with one gain per hypothesis (:func:`edge.track.pdaf.combined_update`)."""
