@@ -123,3 +123,48 @@ def quad_d2(const double[:, :, ::1] v, const double[:, :, ::1] s_inv):
                 else:
                     out[t, m] = _quad2(&s_inv[t, 0, 0], &v[t, m, 0])
     return out_a
+
+
+from libc.math cimport hypot, fabs
+
+
+def same_speed_pairs(const double[:, ::1] x, double merge_speed_mps):
+    """The first test of :meth:`edge.track.roles.delete.TrackDeleter.duplicates` over all track pairs ``a < b``
+    (row-major, the order of ``np.triu_indices``): the pairs whose velocities agree within ``merge_speed_mps``
+    along their common heading, with the same arithmetic. Returns ``ia``, ``ib`` (K,) int64, ``dx`` (K, 4) the
+    state differences and ``ux``, ``uy`` (K,) the common heading."""
+    cdef Py_ssize_t nt = x.shape[0], a, b, k = 0, cap = 16, i
+    ia_a = np.empty(cap, dtype=np.int64)
+    ib_a = np.empty(cap, dtype=np.int64)
+    dx_a = np.empty((cap, 4))
+    u_a = np.empty((cap, 2))
+    cdef long long[::1] ia = ia_a
+    cdef long long[::1] ib = ib_a
+    cdef double[:, ::1] dx = dx_a
+    cdef double[:, ::1] u = u_a
+    cdef double s0, s1, h, nrm, ux, uy
+    for a in range(nt):
+        for b in range(a + 1, nt):
+            s0 = x[a, 2] + x[b, 2]
+            s1 = x[a, 3] + x[b, 3]
+            h = hypot(s0, s1)
+            nrm = h if (h >= 1e-9 or h != h) else 1e-9  # np.maximum (NaN propagates)
+            ux = s0 / nrm
+            uy = s1 / nrm
+            if not (fabs((x[a, 2] - x[b, 2]) * ux + (x[a, 3] - x[b, 3]) * uy) < merge_speed_mps):
+                continue
+            if k == cap:
+                cap *= 2
+                ia_a = np.resize(ia_a, cap)
+                ib_a = np.resize(ib_a, cap)
+                dx_a = np.resize(dx_a, (cap, 4))
+                u_a = np.resize(u_a, (cap, 2))
+                ia, ib, dx, u = ia_a, ib_a, dx_a, u_a
+            ia[k] = a
+            ib[k] = b
+            for i in range(4):
+                dx[k, i] = x[a, i] - x[b, i]
+            u[k, 0] = ux
+            u[k, 1] = uy
+            k += 1
+    return ia_a[:k], ib_a[:k], dx_a[:k], u_a[:k, 0], u_a[:k, 1]

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from edge import native
 from edge.track.config import DeleterConfig, FieldOfViewConfig
 from edge.track.pdaf import gate_threshold
 from edge.track.roles.box import SameVehicleBox
@@ -38,6 +39,8 @@ class TrackDeleter:
         self._state_gamma = gate_threshold(cfg.merge_state_prob, 4)
         self._pairs: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # track count -> np.triu_indices(t, 1)
         self._pairs_all: tuple[np.ndarray, np.ndarray] = np.triu_indices(32, 1)  # for up to 32 tracks (grows)
+        #: the compiled pair test of :meth:`duplicates` (``edge.native._track``), or None: numpy
+        self.kernel = native.load("_track")
 
     def pairs(self, t: int) -> tuple[np.ndarray, np.ndarray]:
         """``np.triu_indices(t, 1)`` (row-major pairs ``a < b``), cached per track count; a new count takes the
@@ -76,16 +79,21 @@ class TrackDeleter:
         if t < 2:
             return out
         x = tracks.x
-        ia, ib = self.pairs(t)
         # speed difference along the pair's common heading, and across it: a duplicate born with a wrong
         # lateral velocity (a far, noisy seed) drifts onto its vehicle with metres per second across
-        xa, xb = x.take(ia, axis=0), x.take(ib, axis=0)  # take: rows without the fancy-indexing machinery
-        dx = xa - xb  # (pairs, 4): position and velocity differences
-        vsum = xa[:, 2:4] + xb[:, 2:4]
-        nrm = np.maximum(np.hypot(vsum[:, 0], vsum[:, 1]), 1e-9)
-        ux, uy = vsum[:, 0] / nrm, vsum[:, 1] / nrm
-        dvx, dvy = dx[:, 2], dx[:, 3]
-        keep = np.abs(dvx * ux + dvy * uy) < self.box.cfg.merge_speed_mps
+        if self.kernel is not None:  # the same test, pair by pair, keeping only the pairs that pass
+            ia, ib, dx, ux, uy = self.kernel.same_speed_pairs(np.ascontiguousarray(x, dtype=np.float64),
+                                                              self.box.cfg.merge_speed_mps)
+            keep = np.ones(ia.size, dtype=bool)
+        else:
+            ia, ib = self.pairs(t)
+            xa, xb = x.take(ia, axis=0), x.take(ib, axis=0)  # take: rows without the fancy-indexing machinery
+            dx = xa - xb  # (pairs, 4): position and velocity differences
+            vsum = xa[:, 2:4] + xb[:, 2:4]
+            nrm = np.maximum(np.hypot(vsum[:, 0], vsum[:, 1]), 1e-9)
+            ux, uy = vsum[:, 0] / nrm, vsum[:, 1] / nrm
+            dvx, dvy = dx[:, 2], dx[:, 3]
+            keep = np.abs(dvx * ux + dvy * uy) < self.box.cfg.merge_speed_mps
         if resolved is not None:  # tracks on the two members of a resolved pair are two vehicles
             pair, det = resolved
             keep &= ~((pair[ia] >= 0) & (pair[ia] == pair[ib]) & (det[ia] != det[ib]))

@@ -1,0 +1,151 @@
+"""The compiled tracker core (edge.native._track) against its numpy reference (edge.track.pdaf, the duplicate test of
+edge.track.roles.delete): bit-identical on random frames and on recorded ones, and the lane pipeline's confirmed
+tracks identical with and without the kernels. Missing kernel: these tests fail, except under
+RADAR_EDGE_KERNELS=0, where they skip."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from edge import native
+from edge.track import PdafConfig, PdafTracker
+from edge.track.pdaf import gate_threshold, innovations, innovations_each, mahalanobis_d2
+from edge.track.synthetic import road_frames
+from tests.edge.test_track_pregate import _random_frame
+
+if not native.enabled():
+    pytest.skip("RADAR_EDGE_KERNELS=0: the numpy reference runs, no kernel to compare", allow_module_level=True)
+
+K = native.load("_track")
+_FIELDS = ("v", "d2", "s", "s_inv", "det_s", "s_track")
+
+
+def test_the_kernel_is_built():
+    assert K is not None, "edge.native._track is not built (pip install -e . with a C compiler)"
+
+
+def _same(a, b) -> bool:
+    return all(np.array_equal(getattr(a, f), getattr(b, f)) for f in _FIELDS if hasattr(a, f))
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("t,m", [(90, 140), (30, 40), (5, 8), (1, 1), (0, 5), (4, 0)])
+@pytest.mark.parametrize("n", [2, 3])
+def test_innovations_each_is_bit_identical(seed, t, m, n):
+    rng = np.random.default_rng(seed)
+    z, zh, h, p, r_track, r_meas = _random_frame(rng, max(t, 1), max(m, 2))
+    z, zh, h, p, r_track = z[:m, :n], zh[:t, :n], h[:t, :n], p[:t], r_track[:t, :n, :n]
+    r_meas = np.ascontiguousarray(r_meas[:m, :n, :n])
+    for prune in (None, gate_threshold(0.99, n)):
+        ref = innovations_each(z, zh, h, p, r_track, r_meas, prune)
+        assert _same(ref, innovations_each(z, zh, h, p, r_track, r_meas, prune, K))
+    ref = innovations(z, zh, h, p, r_track)
+    assert _same(ref, innovations(z, zh, h, p, r_track, kernel=K))
+    assert np.array_equal(mahalanobis_d2(ref.v, ref.s), mahalanobis_d2(ref.v, ref.s, K))
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(st.lists(st.floats(-1e3, 1e3, allow_nan=False), min_size=12, max_size=12),
+       st.floats(1e-4, 1e4), st.floats(-0.99, 0.99))
+def test_inverse_and_distance_of_one_pair_are_bit_identical(vals, scale, corr):
+    """One pair, any 3x3 covariance with a correlation: the cofactor inverse and the quadratic form."""
+    z = np.array([vals[:3]])
+    zh = np.array([vals[3:6]])
+    h = np.zeros((1, 3, 4))
+    h[0, :3, :3] = np.diag(np.abs(vals[6:9]) * 1e-3 + 1.0)
+    p = np.eye(4)[None] * scale
+    r_track = np.diag(np.abs(vals[9:12]) + 0.1)[None].copy()
+    r_track[0, 0, 1] = r_track[0, 1, 0] = corr * np.sqrt(r_track[0, 0, 0] * r_track[0, 1, 1])
+    r_meas = np.eye(3)[None] * 0.5
+    assert _same(innovations_each(z, zh, h, p, r_track, r_meas), innovations_each(z, zh, h, p, r_track, r_meas,
+                                                                                  kernel=K))
+
+
+def _tables(rng, t):
+    """A track table of ``t`` tracks on four lanes, some pairs nearly alike (duplicates), some close in speed."""
+    tr = PdafTracker(PdafConfig())
+    base = np.column_stack([rng.choice([-5.25, -1.75, 1.75, 5.25], t), rng.uniform(10, 250, t),
+                            rng.normal(0, 0.3, t), rng.choice([-25.0, 25.0], t) + rng.normal(0, 0.5, t)])
+    twin = rng.uniform(size=t) < 0.3
+    base[twin] = np.roll(base, 1, axis=0)[twin] + rng.normal(0, [0.3, 1.0, 0.2, 0.3], (int(twin.sum()), 4))
+    base[rng.integers(0, t, 2)] = 0.0  # standing tracks: the common heading's floor
+    p = np.eye(4)[None] * rng.uniform(0.05, 2.0, (t, 1, 1))
+    tr.tracks.append(base, p, 1.0)
+    tb = tr.tracks
+    tb.confirmed[:] = rng.uniform(size=t) < 0.7
+    tb.hits[:] = rng.integers(1, 30, t)
+    tb.close_run[:] = rng.integers(0, 4, t)
+    return tr.deleter, tb
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("t", [2, 3, 20, 64, 100])
+def test_duplicates_pair_test_is_identical(seed, t):
+    rng = np.random.default_rng(seed)
+    deleter, tb = _tables(rng, t)
+    assert deleter.kernel is K
+    runs = tb.close_run.copy()
+    pair = rng.integers(-1, 3, t)
+    resolved = (pair, rng.integers(0, 5, t))
+    for res in (None, resolved):
+        tb.close_run = runs.copy()
+        fast = deleter.duplicates(tb, res)
+        fast_runs = tb.close_run.copy()
+        tb.close_run = runs.copy()
+        deleter.kernel = None
+        try:
+            ref = deleter.duplicates(tb, res)
+        finally:
+            deleter.kernel = K
+        assert np.array_equal(fast, ref) and np.array_equal(fast_runs, tb.close_run)
+    ia, ib, dx, ux, uy = K.same_speed_pairs(tb.x, 3.0)
+    assert (ia < ib).all() and np.array_equal(dx, tb.x[ia] - tb.x[ib])
+
+
+def _run_tracker(frames, use_kernels: bool):
+    tr = PdafTracker(PdafConfig())
+    if not use_kernels:
+        tr.measurement_model.kernel = tr.deleter.kernel = None
+    out = []
+    for t_ns, det in frames:
+        out.append(tr.step(det, t_ns))
+    return out
+
+
+def test_tracker_on_a_busy_road_is_identical_with_the_kernels():
+    """48 vehicles and clutter (the pre-gate on, thousands of pairs): every published track the same, bit for bit."""
+    frames = list(road_frames(48, 90, clutter_per_frame=15.0, seed=3))
+    fast, ref = _run_tracker(frames, True), _run_tracker(frames, False)
+    assert sum(len(o) for o in ref) > 48 * 40
+    assert fast == ref
+
+
+def test_lane_pipeline_confirmed_tracks_identical(monkeypatch):
+    """highway4-traffic seed 1, 120 frames through the lane pipeline with and without the compiled kernels:
+    the same detections and the same published tracks, bit for bit."""
+    from edge.bench import board_of, synth_frames
+    from edge.config import load_config
+    from edge.pipeline import StageTimer, build_pipeline
+
+    frames = synth_frames(board_of("lane"), "highway4-traffic", 1, 120)
+    fe = frames[0].frontend
+
+    def run():
+        pipe = build_pipeline("lane", fe, load_config(env={}))
+        out = [pipe.process(f, StageTimer(16)) for f in frames]
+        pipe.close()
+        return out
+
+    fast = run()
+    monkeypatch.setenv("RADAR_EDGE_KERNELS", "0")
+    ref = run()
+    n_conf = 0
+    for a, b in zip(fast, ref):
+        for col in ("x_m", "y_m", "radial_speed_mps", "snr_db"):
+            assert np.array_equal(getattr(a.detections, col), getattr(b.detections, col))
+        assert a.tracks == b.tracks
+        n_conf += sum(1 for t in a.tracks if t.confirmed)
+    assert n_conf > 500  # a busy road: the comparison covers many confirmed tracks
