@@ -168,3 +168,136 @@ def same_speed_pairs(const double[:, ::1] x, double merge_speed_mps):
             u[k, 1] = uy
             k += 1
     return ia_a[:k], ib_a[:k], dx_a[:k], u_a[:k, 0], u_a[:k, 1]
+
+
+cdef void _update_rows(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] h,
+                       const long long[::1] rows, const double[:, ::1] v, const double[:, :, ::1] s_inv,
+                       const double[::1] w, double[:, ::1] x, double[:, :, ::1] p) noexcept nogil:
+    """The per-hypothesis PDAF update of :func:`edge.track.pdaf.combined_update_pairs` (pairs with ``w > 0``):
+    ``x = x^- + sum w dx``, ``P = P^- - (sum w K) H P^- + sum w dx dx' - dx_bar dx_bar'``, symmetrised."""
+    cdef Py_ssize_t nr = xs.shape[0], npair = rows.shape[0], n = h.shape[1]
+    cdef Py_ssize_t r, q, i, j, l
+    cdef double ph[4][3]
+    cdef double kk[4][3]
+    cdef double dx[4]
+    cdef double wq, acc
+    # accumulators per row: dx_bar (4), k_bar (4 x n), spread (4 x 4), in x and p (x starts at 0, p at 0)
+    for r in range(nr):
+        for i in range(4):
+            x[r, i] = 0.0
+            for j in range(4):
+                p[r, i, j] = 0.0
+    # p holds sum w dx dx' and the k_bar terms are applied per pair as -w K (H P^-): the same sums, per pair
+    for q in range(npair):
+        wq = w[q]
+        if not (wq > 0.0):
+            continue
+        r = rows[q]
+        for i in range(4):
+            for j in range(n):
+                acc = 0.0
+                for l in range(4):
+                    acc = acc + ps[r, i, l] * h[r, j, l]
+                ph[i][j] = acc
+        for i in range(4):
+            for j in range(n):
+                acc = 0.0
+                for l in range(n):
+                    acc = acc + ph[i][l] * s_inv[q, l, j]
+                kk[i][j] = acc
+        for i in range(4):
+            acc = 0.0
+            for j in range(n):
+                acc = acc + kk[i][j] * v[q, j]
+            dx[i] = acc
+        for i in range(4):
+            x[r, i] += wq * dx[i]
+            for j in range(4):
+                # K_q H P^- = K_q (P^- H')' = K_q ph'
+                acc = 0.0
+                for l in range(n):
+                    acc = acc + kk[i][l] * ph[j][l]
+                p[r, i, j] += wq * dx[i] * dx[j] - wq * acc
+    for r in range(nr):
+        for i in range(4):
+            for j in range(4):
+                p[r, i, j] = ps[r, i, j] + p[r, i, j] - x[r, i] * x[r, j]
+        for i in range(4):
+            for j in range(i + 1, 4):
+                acc = 0.5 * (p[r, i, j] + p[r, j, i])
+                p[r, i, j] = acc
+                p[r, j, i] = acc
+        for i in range(4):
+            x[r, i] = xs[r, i] + x[r, i]
+
+
+def update_pairs(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] h,
+                 const long long[::1] rows, const double[:, ::1] v, const double[:, :, ::1] s_inv,
+                 const double[::1] w):
+    """:func:`edge.track.pdaf.combined_update_pairs` for pairs ``rows`` (P,) with innovations ``v`` (P, n), inverse
+    covariances ``s_inv`` (P, n, n) and weights ``w`` (P,) -> (x (R, 4), P (R, 4, 4)); equal to rounding."""
+    x_a = np.empty((xs.shape[0], 4))
+    p_a = np.empty((xs.shape[0], 4, 4))
+    cdef double[:, ::1] x = x_a
+    cdef double[:, :, ::1] p = p_a
+    with nogil:
+        _update_rows(xs, ps, h, rows, v, s_inv, w, x, p)
+    return x_a, p_a
+
+
+def pair_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] h,
+                const double[:, ::1] zh, const double[:, :, ::1] r_track, const double[:, ::1] z,
+                const double[:, :, ::1] r_meas, const long long[::1] rows, const long long[::1] cols,
+                const double[::1] scale, bint scaled, const double[::1] w):
+    """:func:`edge.track.pdaf.pair_innovations` (``S = H P H' + R_t (position block scaled) + R_m`` per pair,
+    ``rows`` into the state rows, ``cols`` into the detections) followed by :func:`update_pairs`: returns ``x``,
+    ``P`` and the pairs' ``v`` (P, n), ``d2`` (P,), ``det_s`` (P,) for the mode likelihoods. Equal to rounding
+    (``H P H'`` is summed here, numpy hands it to BLAS)."""
+    cdef Py_ssize_t npair = rows.shape[0], n = z.shape[1], q, i, j, l, r, m
+    v_a = np.empty((npair, n))
+    d2_a = np.empty(npair)
+    det_a = np.empty(npair)
+    si_a = np.empty((npair, n, n))
+    cdef double[:, ::1] v = v_a
+    cdef double[::1] d2 = d2_a
+    cdef double[::1] det = det_a
+    cdef double[:, :, ::1] si = si_a
+    cdef double hp[3][4]
+    cdef double s[9]
+    cdef double acc, f
+    with nogil:
+        for q in range(npair):
+            r = rows[q]
+            m = cols[q]
+            for i in range(n):
+                for j in range(4):
+                    acc = 0.0
+                    for l in range(4):
+                        acc = acc + h[r, i, l] * ps[r, l, j]
+                    hp[i][j] = acc
+            for i in range(n):
+                for j in range(n):
+                    acc = 0.0
+                    for l in range(4):
+                        acc = acc + hp[i][l] * h[r, j, l]
+                    f = r_track[r, i, j]
+                    if scaled and i < 2 and j < 2:
+                        f = f * scale[q]
+                    s[i * n + j] = acc + f
+            for i in range(n):
+                for j in range(i + 1, n):
+                    acc = 0.5 * (s[i * n + j] + s[j * n + i])
+                    s[i * n + j] = acc
+                    s[j * n + i] = acc
+            for i in range(n * n):
+                s[i] = s[i] + r_meas[m, i // n, i % n]
+            for i in range(n):
+                v[q, i] = z[m, i] - zh[r, i]
+            if n == 3:
+                det[q] = _inv3(s, &si[q, 0, 0])
+                d2[q] = _quad3(&si[q, 0, 0], &v[q, 0])
+            else:
+                det[q] = _inv2(s, &si[q, 0, 0])
+                d2[q] = _quad2(&si[q, 0, 0], &v[q, 0])
+    x_a, p_a = update_pairs(xs, ps, h, rows, v_a, si_a, w)
+    return x_a, p_a, v_a, d2_a, det_a

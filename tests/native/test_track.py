@@ -1,6 +1,7 @@
 """The compiled tracker core (edge.native._track) against its numpy reference (edge.track.pdaf, the duplicate test of
-edge.track.roles.delete): bit-identical on random frames and on recorded ones, and the lane pipeline's confirmed
-tracks identical with and without the kernels. Missing kernel: these tests fail, except under
+edge.track.roles.delete): the innovations and the duplicate test bit-identical, the per-hypothesis update equal to
+rounding (RTOL), on random frames and on recorded ones; the lane pipeline's detections identical and its published
+tracks the same to rounding (PUBLISHED_ATOL) with and without the kernels. Missing kernel: these tests fail, except under
 RADAR_EDGE_KERNELS=0, where they skip."""
 
 from __future__ import annotations
@@ -105,8 +106,83 @@ def test_duplicates_pair_test_is_identical(seed, t):
     assert (ia < ib).all() and np.array_equal(dx, tb.x[ia] - tb.x[ib])
 
 
-def _run_tracker(frames, use_kernels: bool):
-    tr = PdafTracker(PdafConfig())
+def _pairs_frame(rng, n_rows: int, m: int, n: int):
+    """Mode rows with states and covariances, detections, and validated pairs (1-3 per row, some rows none)."""
+    xs = np.column_stack([rng.normal(0, 4, n_rows), rng.uniform(10, 250, n_rows), rng.normal(0, 0.5, n_rows),
+                          rng.normal(0, 25, n_rows)])
+    a = rng.normal(0, 1, (n_rows, 4, 4))
+    ps = a @ a.transpose(0, 2, 1) * rng.uniform(0.05, 2.0, (n_rows, 1, 1)) + 0.01 * np.eye(4)
+    from edge.track import kalman
+    zh, h = kalman.measurement_prediction(xs, n == 3)
+    r_track = np.zeros((n_rows, n, n))
+    r_track[:, 0, 0] = r_track[:, 1, 1] = rng.uniform(0.2, 3.0, n_rows)
+    r_track[:, 0, 1] = r_track[:, 1, 0] = rng.uniform(-0.1, 0.1, n_rows)
+    if n == 3:
+        r_track[:, 2, 2] = 0.09
+    rows = np.sort(rng.integers(0, n_rows, 2 * n_rows))
+    cols = rng.integers(0, m, rows.size)
+    z = zh[rng.integers(0, n_rows, m)] + rng.normal(0, 1.0, (m, n))
+    r_meas = np.zeros((m, n, n))
+    r_meas[:, 0, 0], r_meas[:, 1, 1] = rng.uniform(0.05, 4.0, m), rng.uniform(0.05, 0.5, m)
+    w = rng.uniform(0.0, 0.5, rows.size)
+    w[rng.uniform(size=w.size) < 0.1] = 0.0  # underflowed weights
+    return xs, ps, h, zh, r_track, z, r_meas, rows, cols, w
+
+
+#: relative tolerance of the compiled per-hypothesis update against numpy (H P H' and the per-row sums are
+#: summed in another order than numpy's BLAS products; measured: a few 1e-16, states 1e-12 m after 150 frames)
+RTOL = 1e-12
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("n", [2, 3])
+@pytest.mark.parametrize("scaled", [False, True])
+def test_pair_update_equals_numpy_to_rounding(seed, n, scaled):
+    from edge.track.pdaf import PairInnovations, combined_update_pairs, pair_innovations
+
+    rng = np.random.default_rng(seed)
+    xs, ps, h, zh, r_track, z, r_meas, rows, cols, w = _pairs_frame(rng, 40, 30, n)
+    scale = np.where(rng.uniform(size=rows.size) < 0.5, 0.3, 1.0)
+    pin = pair_innovations(z, zh, h, ps, r_track, r_meas, rows, cols, scale if scaled else None)
+    pos = w > 0
+    x_ref, p_ref = combined_update_pairs(xs, ps, h, PairInnovations(rows[pos], cols[pos], pin.v[pos], pin.d2[pos],
+                                                                    pin.s_inv[pos], pin.det_s[pos]), w[pos])
+    x, p, v, d2, det_s = K.pair_update(xs, ps, h, zh, r_track, z, r_meas, rows, cols,
+                                       scale if scaled else np.zeros(0), scaled, w)
+    assert np.array_equal(v, pin.v)
+    np.testing.assert_allclose(d2, pin.d2, rtol=RTOL)
+    np.testing.assert_allclose(det_s, pin.det_s, rtol=RTOL)
+    np.testing.assert_allclose(x, x_ref, rtol=RTOL, atol=RTOL * np.abs(x_ref).max())
+    np.testing.assert_allclose(p, p_ref, rtol=RTOL, atol=RTOL * np.abs(p_ref).max())
+    assert np.array_equal(p, p.transpose(0, 2, 1))
+    untouched = np.setdiff1d(np.arange(xs.shape[0]), rows[pos])
+    assert untouched.size and np.array_equal(x[untouched], xs[untouched])
+    x2, p2 = K.update_pairs(xs, ps, h, rows, pin.v, np.ascontiguousarray(pin.s_inv), w)
+    np.testing.assert_allclose(x2, x_ref, rtol=RTOL, atol=RTOL * np.abs(x_ref).max())
+    np.testing.assert_allclose(p2, p_ref, rtol=RTOL, atol=RTOL * np.abs(p_ref).max())
+
+
+#: absolute tolerance on published positions (m), speeds (m/s), their sds and the existence probability between
+#: the kernel and numpy paths (measured: 6e-13 over 7000 published tracks, IMM and CV)
+PUBLISHED_ATOL = 1e-9
+_EXACT = ("track_id", "age_frames", "hits", "confirmed", "lane", "cls")
+
+
+def assert_same_published(fast, ref):
+    """The same tracks (ids, ages, hits, confirmation exact) with every float within PUBLISHED_ATOL."""
+    assert len(fast) == len(ref)
+    for a, b in zip(fast, ref):
+        da, db = vars(a), vars(b)
+        assert da.keys() == db.keys()
+        for key in da:
+            if key in _EXACT or da[key] is None or db[key] is None:
+                assert da[key] == db[key], key
+            else:
+                assert abs(da[key] - db[key]) <= PUBLISHED_ATOL, (key, da[key], db[key])
+
+
+def _run_tracker(frames, use_kernels: bool, motion: str = "imm"):
+    tr = PdafTracker(PdafConfig(motion_model=motion))
     if not use_kernels:
         tr.measurement_model.kernel = tr.deleter.kernel = None
     out = []
@@ -115,17 +191,20 @@ def _run_tracker(frames, use_kernels: bool):
     return out
 
 
-def test_tracker_on_a_busy_road_is_identical_with_the_kernels():
-    """48 vehicles and clutter (the pre-gate on, thousands of pairs): every published track the same, bit for bit."""
+@pytest.mark.parametrize("motion", ["imm", "cv"])
+def test_tracker_on_a_busy_road_is_identical_with_the_kernels(motion):
+    """48 vehicles and clutter (the pre-gate on, thousands of pairs): the same published tracks, to rounding."""
     frames = list(road_frames(48, 90, clutter_per_frame=15.0, seed=3))
-    fast, ref = _run_tracker(frames, True), _run_tracker(frames, False)
+    fast = _run_tracker(frames, True, motion)
+    ref = _run_tracker(frames, False, motion)
     assert sum(len(o) for o in ref) > 48 * 40
-    assert fast == ref
+    for a, b in zip(fast, ref):
+        assert_same_published(a, b)
 
 
 def test_lane_pipeline_confirmed_tracks_identical(monkeypatch):
     """highway4-traffic seed 1, 120 frames through the lane pipeline with and without the compiled kernels:
-    the same detections and the same published tracks, bit for bit."""
+    the same detections, bit for bit, and the same published tracks, to rounding."""
     from edge.bench import board_of, synth_frames
     from edge.config import load_config
     from edge.pipeline import StageTimer, build_pipeline
@@ -146,6 +225,6 @@ def test_lane_pipeline_confirmed_tracks_identical(monkeypatch):
     for a, b in zip(fast, ref):
         for col in ("x_m", "y_m", "radial_speed_mps", "snr_db"):
             assert np.array_equal(getattr(a.detections, col), getattr(b.detections, col))
-        assert a.tracks == b.tracks
+        assert_same_published(a.tracks, b.tracks)
         n_conf += sum(1 for t in a.tracks if t.confirmed)
     assert n_conf > 500  # a busy road: the comparison covers many confirmed tracks

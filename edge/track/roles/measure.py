@@ -261,6 +261,11 @@ class SnrNoiseModel(MeasurementModel):
 
     def state_update(self, xp, pp, mp: MeasurementPrediction, beta, beta0):
         """The PDAF posterior with one gain per hypothesis (:func:`edge.track.pdaf.combined_update`)."""
+        if self.kernel is not None:  # equal to rounding
+            t, m = np.nonzero(beta > 0)
+            c = np.ascontiguousarray
+            return self.kernel.update_pairs(c(xp), c(pp), c(mp.h), c(t), mp.inn.v[t, m], mp.inn.s_inv[t, m],
+                                            beta[t, m])
         return combined_update(xp, pp, mp.h, mp.inn, beta, beta0)
 
     def mode_update(self, pred: Prediction, mp: MeasurementPrediction, meas, beta, beta0, gated, gamma: float,
@@ -277,9 +282,26 @@ class SnrNoiseModel(MeasurementModel):
             zp = mp.zhm[rows, :2]
             nearer = ((meas.z[cols, :2] - zp) * zp).sum(axis=1) < 0.0
             scale = np.where(nearer, self.cfg.extent_near_side_factor, 1.0)
-        pin = pair_innovations(meas.z, mp.zhm, mp.hm, ps, np.repeat(mp.r, 2, axis=0), mp.rm, rows, cols, scale)
         wg = beta[ti, mi]
         w = np.concatenate([wg, wg])
+        if self.kernel is not None:  # the pairs' innovations and the update in one pass (equal to rounding)
+            c = np.ascontiguousarray
+            xu, pu, v, d2, det_s = self.kernel.pair_update(
+                c(xs), c(ps), c(mp.hm), c(mp.zhm), np.repeat(mp.r, 2, axis=0), c(meas.z), c(mp.rm), rows, cols,
+                _NO_SCALE if scale is None else scale, scale is not None, w)
+            pin = PairInnovations(rows, cols, v, d2, None, det_s)
+        else:
+            pin, xu, pu = self._pair_update(xs, ps, mp, meas, rows, cols, scale, wg, w)
+        inn = mp.inn
+        vol = inn.gate_volume if inn.gate_volume is not None else gate_volume_each(inn, gated, gamma)
+        lik = imm.mode_likelihood_pairs(pin, 2 * t, np.repeat(vol, 2), np.repeat(gated.sum(axis=1), 2),
+                                        prob_detect, prob_gate).reshape(t, 2)
+        return xu.reshape(t, 2, 4), pu.reshape(t, 2, 4, 4), lik
+
+    @staticmethod
+    def _pair_update(xs, ps, mp: MeasurementPrediction, meas, rows, cols, scale, wg, w):
+        """The numpy reference of the mode rows' pair innovations and per-hypothesis update -> (pin, x, P)."""
+        pin = pair_innovations(meas.z, mp.zhm, mp.hm, ps, np.repeat(mp.r, 2, axis=0), mp.rm, rows, cols, scale)
         if (wg > 0).all():  # the usual case (a validated pair has a positive weight unless it underflows)
             xu, pu = combined_update_pairs(xs, ps, mp.hm, pin, w)
         else:
@@ -287,11 +309,10 @@ class SnrNoiseModel(MeasurementModel):
             xu, pu = combined_update_pairs(xs, ps, mp.hm, PairInnovations(rows[pos], cols[pos], pin.v[pos],
                                                                           pin.d2[pos], pin.s_inv[pos],
                                                                           pin.det_s[pos]), w[pos])
-        inn = mp.inn
-        vol = inn.gate_volume if inn.gate_volume is not None else gate_volume_each(inn, gated, gamma)
-        lik = imm.mode_likelihood_pairs(pin, 2 * t, np.repeat(vol, 2), np.repeat(gated.sum(axis=1), 2),
-                                        prob_detect, prob_gate).reshape(t, 2)
-        return xu.reshape(t, 2, 4), pu.reshape(t, 2, 4, 4), lik
+        return pin, xu, pu
+
+
+_NO_SCALE = np.zeros(0)
 
 
 def _rows(inn: Innovations, rows: slice) -> Innovations:
