@@ -128,46 +128,62 @@ def quad_d2(const double[:, :, ::1] v, const double[:, :, ::1] s_inv):
 from libc.math cimport hypot, fabs
 
 
-def same_speed_pairs(const double[:, ::1] x, double merge_speed_mps):
-    """The first test of :meth:`edge.track.roles.delete.TrackDeleter.duplicates` over all track pairs ``a < b``
-    (row-major, the order of ``np.triu_indices``): the pairs whose velocities agree within ``merge_speed_mps``
-    along their common heading, with the same arithmetic. Returns ``ia``, ``ib`` (K,) int64, ``dx`` (K, 4) the
-    state differences and ``ux``, ``uy`` (K,) the common heading."""
-    cdef Py_ssize_t nt = x.shape[0], a, b, k = 0, cap = 16, i
-    ia_a = np.empty(cap, dtype=np.int64)
-    ib_a = np.empty(cap, dtype=np.int64)
-    dx_a = np.empty((cap, 4))
-    u_a = np.empty((cap, 2))
-    cdef long long[::1] ia = ia_a
-    cdef long long[::1] ib = ib_a
-    cdef double[:, ::1] dx = dx_a
-    cdef double[:, ::1] u = u_a
-    cdef double s0, s1, h, nrm, ux, uy
+cdef inline double _max_nan(double a, double b) noexcept nogil:
+    """np.maximum: the larger, NaN if either is NaN."""
+    if a != a or b != b:
+        return a + b
+    return a if a >= b else b
+
+
+def duplicate_pairs(const double[:, ::1] x, double merge_speed_mps, double merge_lateral_m,
+                    const double[::1] reach_m, double merge_lateral_speed_mps, const double[::1] pdx,
+                    const double[::1] pdy, double state_gamma, const long long[::1] pair,
+                    const long long[::1] det, bint resolved):
+    """The pair tests of :meth:`edge.track.roles.delete.TrackDeleter.duplicates` over all track pairs ``a < b``
+    (row-major), with its arithmetic: velocities alike along the common heading (and not the two members of a
+    resolved pair: ``pair``, ``det`` per track when ``resolved``); then a pair is *boxed* (within
+    ``merge_lateral_m`` across and ``max(reach_a, reach_b)`` along) or, with lateral speeds alike, a candidate for the
+    state test when its marginal distances pass (``dx^2 < gamma (pdx_a + pdx_b)``, the same in y).
+
+    Returns ``run`` (T,) bool (the track is in some boxed pair), the boxed pairs ``ba``, ``bb`` (B,) int64 with
+    ``bkeep`` (B,) bool (lateral speeds alike), and the state-test candidates ``ra``, ``rb`` (R,) with their state
+    differences ``rdx`` (R, 4)."""
+    cdef Py_ssize_t nt = x.shape[0], a, b, i
+    run_a = np.zeros(nt, dtype=bool)
+    cdef cnp.npy_bool[::1] run = run_a
+    cdef list boxed = [], rest = []
+    cdef double s0, s1, h, nrm, ux, uy, d0, d1, d2_, d3
+    cdef bint is_boxed, keep
     for a in range(nt):
         for b in range(a + 1, nt):
             s0 = x[a, 2] + x[b, 2]
             s1 = x[a, 3] + x[b, 3]
             h = hypot(s0, s1)
-            nrm = h if (h >= 1e-9 or h != h) else 1e-9  # np.maximum (NaN propagates)
+            nrm = _max_nan(h, 1e-9)
             ux = s0 / nrm
             uy = s1 / nrm
-            if not (fabs((x[a, 2] - x[b, 2]) * ux + (x[a, 3] - x[b, 3]) * uy) < merge_speed_mps):
+            d2_ = x[a, 2] - x[b, 2]
+            d3 = x[a, 3] - x[b, 3]
+            if not (fabs(d2_ * ux + d3 * uy) < merge_speed_mps):
                 continue
-            if k == cap:
-                cap *= 2
-                ia_a = np.resize(ia_a, cap)
-                ib_a = np.resize(ib_a, cap)
-                dx_a = np.resize(dx_a, (cap, 4))
-                u_a = np.resize(u_a, (cap, 2))
-                ia, ib, dx, u = ia_a, ib_a, dx_a, u_a
-            ia[k] = a
-            ib[k] = b
-            for i in range(4):
-                dx[k, i] = x[a, i] - x[b, i]
-            u[k, 0] = ux
-            u[k, 1] = uy
-            k += 1
-    return ia_a[:k], ib_a[:k], dx_a[:k], u_a[:k, 0], u_a[:k, 1]
+            if resolved and pair[a] >= 0 and pair[a] == pair[b] and det[a] != det[b]:
+                continue
+            d0 = x[a, 0] - x[b, 0]
+            d1 = x[a, 1] - x[b, 1]
+            keep = fabs(d2_ * uy - d3 * ux) < merge_lateral_speed_mps
+            is_boxed = (fabs(d0) < merge_lateral_m) and (fabs(d1) < _max_nan(reach_m[a], reach_m[b]))
+            if is_boxed:
+                run[a] = run[b] = True
+                boxed.append((a, b, keep))
+            elif keep and d0 * d0 < state_gamma * (pdx[a] + pdx[b]) and d1 * d1 < state_gamma * (pdy[a] + pdy[b]):
+                rest.append((a, b, d0, d1, d2_, d3))
+    ba = np.array([q[0] for q in boxed], dtype=np.int64)
+    bb = np.array([q[1] for q in boxed], dtype=np.int64)
+    bkeep = np.array([q[2] for q in boxed], dtype=bool)
+    ra = np.array([q[0] for q in rest], dtype=np.int64)
+    rb = np.array([q[1] for q in rest], dtype=np.int64)
+    rdx = np.array([q[2:] for q in rest], dtype=np.float64).reshape(len(rest), 4)
+    return run_a, ba, bb, bkeep, ra, rb, rdx
 
 
 cdef void _update_rows(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] h,

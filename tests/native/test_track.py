@@ -102,8 +102,7 @@ def test_duplicates_pair_test_is_identical(seed, t):
         finally:
             deleter.kernel = K
         assert np.array_equal(fast, ref) and np.array_equal(fast_runs, tb.close_run)
-    ia, ib, dx, ux, uy = K.same_speed_pairs(tb.x, 3.0)
-    assert (ia < ib).all() and np.array_equal(dx, tb.x[ia] - tb.x[ib])
+    assert not fast.all() and (t < 20 or fast.any())  # tables with duplicates and distinct vehicles
 
 
 def _pairs_frame(rng, n_rows: int, m: int, n: int):
