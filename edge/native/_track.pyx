@@ -317,3 +317,86 @@ def pair_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const doubl
                 d2[q] = _quad2(&si[q, 0, 0], &v[q, 0])
     x_a, p_a = update_pairs(xs, ps, h, rows, v_a, si_a, w)
     return x_a, p_a, v_a, d2_a, det_a
+
+
+cdef double _pairwise_sum(const double* a, Py_ssize_t n) noexcept nogil:
+    """numpy's pairwise summation of a contiguous row (``np.add.reduce`` over the last axis): sequential below 8
+    terms, eight interleaved partial sums up to 128, halves (at a multiple of 8) beyond."""
+    cdef Py_ssize_t i, j, n2
+    cdef double res
+    cdef double r[8]
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res = res + a[i]
+        return res
+    if n <= 128:
+        for j in range(8):
+            r[j] = a[j]
+        i = 8
+        while i < n - (n % 8):
+            for j in range(8):
+                r[j] = r[j] + a[i + j]
+            i += 8
+        res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+        while i < n:
+            res = res + a[i]
+            i += 1
+        return res
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise_sum(a, n2) + _pairwise_sum(a + n2, n - n2)
+
+
+cdef inline double _min_nan(double a, double b) noexcept nogil:
+    """np.minimum: the smaller, NaN if either is NaN."""
+    if a != a or b != b:
+        return a + b
+    return a if a <= b else b
+
+
+def update_extent(const double[:, :, ::1] v, const double[:, ::1] s2_track, const double[:, :, :, ::1] s_pair,
+                  bint per_pair, const double[:, ::1] beta, const double[:, ::1] u, const double[::1] w,
+                  const double[::1] ext_var, double alpha, double max_var):
+    """:meth:`edge.track.roles.measure.MeasurementModel.update_extent` with the same arithmetic, summation order
+    included (numpy's pairwise sums over the detections, sequential sums of ``S``): the new (T,) along-heading
+    spread. ``s2_track`` (T, 4): the position block of the track's ``S`` (when not ``per_pair``); ``s_pair``
+    (T, M, n, n): ``S`` per pair (when ``per_pair``)."""
+    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], n = v.shape[2], t, m, k
+    out_a = np.empty(nt)
+    cdef double[::1] out = out_a
+    buf_a = np.empty(max(nm, 1))
+    cdef double[::1] buf = buf_a
+    cdef double wsum, m2, den, a, b, along, sample, u0, u1
+    cdef double s2[4]
+    with nogil:
+        for t in range(nt):
+            wsum = _pairwise_sum(&beta[t, 0], nm) if nm else 0.0
+            if not (wsum > 0.5 and w[t] >= 1.0):
+                out[t] = ext_var[t]
+                continue
+            u0 = u[t, 0]
+            u1 = u[t, 1]
+            for m in range(nm):
+                a = v[t, m, 0] * u0 + v[t, m, 1] * u1
+                buf[m] = beta[t, m] * a * a
+            den = _max_nan(wsum, 1e-12)
+            m2 = _pairwise_sum(&buf[0], nm) / den
+            if per_pair:
+                for k in range(4):
+                    s2[k] = 0.0
+                for m in range(nm):
+                    b = beta[t, m]
+                    s2[0] = s2[0] + s_pair[t, m, 0, 0] * b
+                    s2[1] = s2[1] + s_pair[t, m, 0, 1] * b
+                    s2[2] = s2[2] + s_pair[t, m, 1, 0] * b
+                    s2[3] = s2[3] + s_pair[t, m, 1, 1] * b
+                for k in range(4):
+                    s2[k] = s2[k] / den
+            else:
+                for k in range(4):
+                    s2[k] = s2_track[t, k]
+            along = u0 * (s2[0] * u0 + s2[1] * u1) + u1 * (s2[2] * u0 + s2[3] * u1)
+            sample = _min_nan(_max_nan(m2 - (along - ext_var[t]), 0.0), max_var)
+            out[t] = (1.0 - alpha) * ext_var[t] + alpha * sample
+    return out_a

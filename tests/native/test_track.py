@@ -227,3 +227,36 @@ def test_lane_pipeline_confirmed_tracks_identical(monkeypatch):
         assert_same_published(a.tracks, b.tracks)
         n_conf += sum(1 for t in a.tracks if t.confirmed)
     assert n_conf > 500  # a busy road: the comparison covers many confirmed tracks
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("t,m", [(30, 40), (64, 140), (5, 7), (3, 0)])
+@pytest.mark.parametrize("per_pair", [True, False])
+def test_update_extent_is_bit_identical(seed, t, m, per_pair):
+    """The along-heading spread learnt from a frame: the kernel sums in numpy's order (pairwise over the
+    detections), so the result is the same bit for bit."""
+    mm, xp, ext_var, inn, beta = _extent_case(np.random.default_rng(seed), t, m, per_pair)
+    assert mm.kernel is K
+    fast = mm.update_extent(xp, ext_var, inn, beta)
+    mm.kernel = None
+    ref = mm.update_extent(xp, ext_var, inn, beta)
+    assert np.array_equal(fast, ref)
+    assert m == 0 or (fast != ext_var).any()  # some tracks learnt
+
+
+def _extent_case(rng, t, m, per_pair):
+    from edge.track.roles.measure import SnrNoiseModel, ConstantNoiseModel
+    from edge.track.config import MeasurementConfig, section
+    from edge.track.pdaf import Innovations
+
+    cfg = section(PdafConfig(), MeasurementConfig)
+    mm = SnrNoiseModel(cfg) if per_pair else ConstantNoiseModel(cfg)
+    xp = np.column_stack([rng.normal(0, 4, t), rng.uniform(10, 250, t), rng.normal(0, 0.5, t),
+                          rng.choice([-25.0, 0.3, 25.0], t) + rng.normal(0, 0.5, t)])
+    v = rng.normal(0, 1.5, (t, m, 3))
+    a = rng.normal(0, 1, (t, m, 3, 3) if per_pair else (t, 3, 3))
+    s = a @ a.swapaxes(-1, -2) + np.eye(3)
+    beta = np.where(rng.uniform(size=(t, m)) < 0.2, rng.uniform(0, 1, (t, m)), 0.0)
+    beta[rng.uniform(size=t) < 0.3] *= 0.1  # some tracks with little weight (no update)
+    inn = Innovations(v, np.zeros((t, m)), s, s, np.ones(s.shape[:-2]))
+    return mm, xp, rng.uniform(0.1, 4.0, t), inn, beta

@@ -188,6 +188,14 @@ class MeasurementModel:
         ``E[a^2] - u' (H P H' + R_sensor) u``, ``R_sensor`` = ``S`` without the extent term."""
         c = self.cfg
         u, w = self._head[1] if self._head is not None and self._head[0] is xp else heading(xp)
+        if self.kernel is not None and inn.v.shape[2] >= 2:  # the same arithmetic and summation order
+            per_pair = inn.s.ndim == 4
+            s2_track = _NO_S2 if per_pair else np.ascontiguousarray(inn.s[:, :2, :2]).reshape(-1, 4)
+            return self.kernel.update_extent(np.ascontiguousarray(inn.v), s2_track,
+                                             np.ascontiguousarray(inn.s) if per_pair else _NO_S_PAIR, per_pair,
+                                             np.ascontiguousarray(beta, dtype=np.float64), np.ascontiguousarray(u),
+                                             np.ascontiguousarray(w), np.ascontiguousarray(ext_var), c.extent_alpha,
+                                             c.extent_max_sigma_m**2)
         a = inn.v[:, :, 0] * u[:, None, 0] + inn.v[:, :, 1] * u[:, None, 1]  # (T, M) along-heading innovation
         wsum = beta.sum(axis=1)
         ok = (wsum > 0.5) & (w >= 1.0)
@@ -313,6 +321,8 @@ class SnrNoiseModel(MeasurementModel):
 
 
 _NO_SCALE = np.zeros(0)
+_NO_S2 = np.zeros((0, 4))
+_NO_S_PAIR = np.zeros((0, 0, 0, 0))
 
 
 def _rows(inn: Innovations, rows: slice) -> Innovations:
