@@ -400,3 +400,84 @@ def update_extent(const double[:, :, ::1] v, const double[:, ::1] s2_track, cons
             sample = _min_nan(_max_nan(m2 - (along - ext_var[t]), 0.0), max_var)
             out[t] = (1.0 - alpha) * ext_var[t] + alpha * sample
     return out_a
+
+
+from libc.math cimport exp, sqrt, INFINITY
+
+
+def associate_each(const double[:, ::1] d2, const double[:, ::1] det_s, double gamma, double vol_factor,
+                   double norm_factor, double prob_detect, double b, bint jpda, const cnp.npy_bool[::1] confirmed,
+                   const double[::1] rank, bint seniority, const cnp.npy_bool[::1] pair_ok, bint with_pairs):
+    """The association of :class:`edge.track.roles.associate.PdaAssociator` with one ``S`` per (track, detection)
+    (:func:`edge.track.pdaf.association_weights` on :class:`edge.track.pdaf.InnovationsEach`), with its arithmetic
+    and summation order: seniority (``rank`` (T,): inf for confirmed tracks, else their hits; a tentative track
+    only sees detections no more senior track validated, unless ``pair_ok``), the gate ``d2 <= gamma``, the gate
+    volume ``vol_factor * mean sqrt|S|`` over the validated detections, the likelihoods
+    ``P_D N(v; 0, S) V / M_t`` and the PDAF (or, ``jpda``, cheap JPDA) weights with ``b = 1 - P_G P_D``.
+    ``norm_factor`` is ``(2 pi)^(n/2)``. Returns ``beta`` (T, M), ``beta0`` (T,), ``gated`` (T, M) bool and the gate
+    volumes (T,)."""
+    cdef Py_ssize_t nt = d2.shape[0], nm = d2.shape[1], t, m
+    beta_a = np.empty((nt, nm))
+    beta0_a = np.empty(nt)
+    gated_a = np.empty((nt, nm), dtype=bool)
+    vol_a = np.empty(nt)
+    root_a = np.empty((nt, nm))
+    owner_a = np.empty(nm)
+    sm_a = np.zeros(nm)
+    buf_a = np.empty(max(nm, 1))
+    st_a = np.empty(nt)
+    cdef double[:, ::1] beta = beta_a
+    cdef double[::1] beta0 = beta0_a
+    cdef cnp.npy_bool[:, ::1] gated = gated_a
+    cdef double[::1] vol = vol_a
+    cdef double[:, ::1] root = root_a
+    cdef double[::1] owner = owner_a
+    cdef double[::1] sm = sm_a
+    cdef double[::1] buf = buf_a
+    cdef double[::1] st = st_a
+    cdef long long k
+    cdef double scale, mean_root, lik, q
+    with nogil:
+        if seniority:  # the most senior rank among the tracks that validated each detection
+            for m in range(nm):
+                owner[m] = -INFINITY
+            for t in range(nt):
+                for m in range(nm):
+                    if d2[t, m] <= gamma and rank[t] > owner[m]:
+                        owner[m] = rank[t]
+        for t in range(nt):
+            k = 0
+            for m in range(nm):
+                gated[t, m] = d2[t, m] <= gamma and (not seniority or confirmed[t] or rank[t] >= owner[m]
+                                                     or (with_pairs and pair_ok[m]))
+                k += gated[t, m]
+                root[t, m] = sqrt(det_s[t, m])
+                buf[m] = root[t, m] * (1.0 if gated[t, m] else 0.0)
+            if k > 0:
+                mean_root = _pairwise_sum(&buf[0], nm) / <double> k
+            else:
+                mean_root = _pairwise_sum(&root[t, 0], nm) / <double> nm
+            vol[t] = vol_factor * mean_root
+            scale = prob_detect * vol[t] / <double> (k if k > 1 else 1)
+            for m in range(nm):
+                if gated[t, m]:
+                    q = d2[t, m]
+                    q = q if q <= gamma or q != q else gamma  # np.minimum(d2, gamma)
+                    beta[t, m] = exp(-0.5 * q) * scale / (norm_factor * root[t, m])
+                else:
+                    beta[t, m] = 0.0
+                sm[m] = sm[m] + beta[t, m]
+            st[t] = _pairwise_sum(&beta[t, 0], nm)
+        if nm == 1:  # numpy reduces a single column pairwise (its only axis left), not row after row
+            sm[0] = _pairwise_sum(&beta[0, 0], nt)
+        for t in range(nt):
+            if jpda:
+                for m in range(nm):
+                    lik = beta[t, m]
+                    beta[t, m] = lik / (st[t] + sm[m] - lik + b)
+                beta0[t] = 1.0 - _pairwise_sum(&beta[t, 0], nm)
+            else:
+                for m in range(nm):
+                    beta[t, m] = beta[t, m] / (b + st[t])
+                beta0[t] = b / (b + st[t])
+    return beta_a, beta0_a, gated_a, vol_a

@@ -180,10 +180,49 @@ def assert_same_published(fast, ref):
                 assert abs(da[key] - db[key]) <= PUBLISHED_ATOL, (key, da[key], db[key])
 
 
+def numpy_only(tracker: PdafTracker) -> PdafTracker:
+    """The tracker with every role on its numpy reference."""
+    tracker.measurement_model.kernel = tracker.deleter.kernel = tracker.associator.kernel = None
+    return tracker
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("method", ["pdaf", "jpda"])
+@pytest.mark.parametrize("t,m", [(90, 140), (20, 16), (12, 1), (1, 5), (3, 3)])
+def test_association_is_bit_identical(seed, method, t, m):
+    """Gate, seniority, gate volumes and PDAF/JPDA weights; some tentative tracks, some resolved pairs."""
+    from edge.track.config import AssociationConfig, section
+    from edge.track.roles.associate import PdaAssociator
+    from edge.track.table import Measurements
+
+    rng = np.random.default_rng(seed)
+    z, zh, h, p, r_track, r_meas = _random_frame(rng, t, max(m, 2))
+    z, r_meas = z[:m], np.ascontiguousarray(r_meas[:m])
+    a = PdaAssociator(section(PdafConfig(association=method), AssociationConfig))
+    assert a.kernel is K
+    inn = innovations_each(z, zh, h, p, r_track, r_meas, gate_threshold(0.99, 3), K)
+    confirmed = rng.uniform(size=t) < 0.6
+    hits = rng.integers(1, 5, t)
+    for pair in (None, rng.integers(-3, 2, m)):
+        for conf in (confirmed, np.ones(t, bool)):
+            meas = Measurements(z, np.zeros(m), True, pair)
+            fast = a.associate(meas, inn, conf, hits)
+            vol_fast, inn.gate_volume = inn.gate_volume, None
+            a.kernel = None
+            try:
+                ref = a.associate(meas, inn, conf, hits)
+            finally:
+                a.kernel = K
+            assert np.array_equal(fast.gated, ref.gated)
+            assert np.array_equal(fast.beta, ref.beta) and np.array_equal(fast.beta0, ref.beta0)
+            assert np.array_equal(vol_fast, inn.gate_volume)
+    assert t * m < 100 or ref.gated.sum() >= 5  # frames with validated pairs
+
+
 def _run_tracker(frames, use_kernels: bool, motion: str = "imm"):
     tr = PdafTracker(PdafConfig(motion_model=motion))
     if not use_kernels:
-        tr.measurement_model.kernel = tr.deleter.kernel = None
+        numpy_only(tr)
     out = []
     for t_ns, det in frames:
         out.append(tr.step(det, t_ns))
