@@ -481,3 +481,25 @@ def associate_each(const double[:, ::1] d2, const double[:, ::1] det_s, double g
                     beta[t, m] = beta[t, m] / (b + st[t])
                 beta0[t] = b / (b + st[t])
     return beta_a, beta0_a, gated_a, vol_a
+
+
+def near_tracks(const double[:, ::1] xt, const double[:, ::1] z, const double[::1] lat_m, const double[::1] along_m,
+                const cnp.npy_bool[::1] resolved, double pair_lateral_m, const double[::1] vr_t, bint radial,
+                double merge_speed_mps):
+    """(M,) bool: detection ``m`` lies in some track's same-vehicle box (``|dx| < lat_m[t]``, or ``pair_lateral_m``
+    for a resolved detection, and ``|dy| < along_m[t]``) and, with ``radial``, moves like it (``|vr_t[t] - z[m, 2]|
+    < merge_speed_mps``): the seed block of :meth:`edge.track.roles.initiate.SeedInitiator.initiate`, same
+    arithmetic."""
+    cdef Py_ssize_t nt = xt.shape[0], nm = z.shape[0], t, m
+    out_a = np.zeros(nm, dtype=bool)
+    cdef cnp.npy_bool[::1] out = out_a
+    cdef double lat
+    with nogil:
+        for m in range(nm):
+            for t in range(nt):
+                lat = pair_lateral_m if resolved[m] else lat_m[t]
+                if (fabs(xt[t, 0] - z[m, 0]) < lat and fabs(xt[t, 1] - z[m, 1]) < along_m[t]
+                        and (not radial or fabs(vr_t[t] - z[m, 2]) < merge_speed_mps)):
+                    out[m] = True
+                    break
+    return out_a

@@ -183,7 +183,33 @@ def assert_same_published(fast, ref):
 def numpy_only(tracker: PdafTracker) -> PdafTracker:
     """The tracker with every role on its numpy reference."""
     tracker.measurement_model.kernel = tracker.deleter.kernel = tracker.associator.kernel = None
+    tracker.initiator.kernel = None
     return tracker
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("t,m", [(20, 30), (64, 140), (3, 12)])
+def test_seed_block_is_identical(seed, t, m):
+    """The initiator's test of detections against the tracks' same-vehicle boxes (and radial speeds)."""
+    from edge.track.table import Measurements
+
+    rng = np.random.default_rng(seed)
+    deleter, tb = _tables(rng, t)
+    z = np.column_stack([tb.x[rng.integers(0, t, m), :2] + rng.normal(0, 3.0, (m, 2)), rng.normal(0, 25, m)])
+    tr = PdafTracker(PdafConfig())
+    assert tr.initiator.kernel is K
+    for pair in (None, rng.integers(-3, 2, m)):
+        meas = Measurements(z, rng.uniform(5, 30, m), True, pair)
+        resolved = meas.pair >= 0 if meas.pair is not None else np.zeros(m, bool)
+        fast = tr.initiator._near_kernel(tb, meas, resolved)
+        assert np.array_equal(fast, tr.initiator._near(tb, meas, resolved))
+        assert not fast.all()
+    assert t < 20 or fast.any()
+
+
+def _copy_table(tb):
+    import copy
+    return copy.deepcopy(tb)
 
 
 @pytest.mark.parametrize("seed", range(6))
