@@ -503,3 +503,97 @@ def near_tracks(const double[:, ::1] xt, const double[:, ::1] z, const double[::
                     out[m] = True
                     break
     return out_a
+
+
+cdef inline void _moment_match_row(const double* xm, const double* pm, double w0, double w1, double* x,
+                                   double* p) noexcept nogil:
+    """Two-mode moment matching of one track: ``x = w0 x_0 + w1 x_1``, ``P = w0 P_0 + w1 P_1 + d d'``,
+    ``d = (x_0 - x_1) sqrt(w0 w1)``."""
+    cdef double d[4]
+    cdef double r = sqrt(w0 * w1)
+    cdef int i, j
+    for i in range(4):
+        x[i] = w0 * xm[i] + w1 * xm[4 + i]
+        d[i] = (xm[i] - xm[4 + i]) * r
+    for i in range(4):
+        for j in range(4):
+            p[4 * i + j] = w0 * pm[4 * i + j] + w1 * pm[16 + 4 * i + j] + d[i] * d[j]
+
+
+def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const double[:, ::1] mu,
+                const double[:, :, ::1] pi, const double[:, :, ::1] f, const double[:, :, ::1] q):
+    """IMM mixing, mode-matched prediction and moment matching of all tracks (:func:`edge.track.imm.mix`,
+    :func:`edge.track.imm.predict_modes`, :func:`edge.track.imm.moment_match`): ``xm`` (T, 2, 4), ``pm``
+    (T, 2, 4, 4), ``mu`` (T, 2), ``pi`` (1, 2, 2) or (T, 2, 2), ``f``, ``q`` (2, 4, 4) -> ``x`` (T, 4), ``p``
+    (T, 4, 4), ``xpm`` (T, 2, 4), ``ppm`` (T, 2, 4, 4), ``c`` (T, 2). Equal to numpy to rounding (its small matrix
+    products are BLAS's)."""
+    cdef Py_ssize_t nt = xm.shape[0], t, i, j, k, l, mode, src
+    x_a = np.empty((nt, 4))
+    p_a = np.empty((nt, 4, 4))
+    xpm_a = np.empty((nt, 2, 4))
+    ppm_a = np.empty((nt, 2, 4, 4))
+    c_a = np.empty((nt, 2))
+    cdef double[:, ::1] x = x_a
+    cdef double[:, :, ::1] p = p_a
+    cdef double[:, :, ::1] xpm = xpm_a
+    cdef double[:, :, :, ::1] ppm = ppm_a
+    cdef double[:, ::1] c = c_a
+    cdef double w[2][2]
+    cdef double joint[2][2]
+    cdef double x0[4]
+    cdef double p0[4][4]
+    cdef double fp[4][4]
+    cdef double dvec[4]
+    cdef double acc, den
+    with nogil:
+        for t in range(nt):
+            src = t if pi.shape[0] > 1 else 0
+            for i in range(2):
+                for j in range(2):
+                    joint[i][j] = mu[t, i] * pi[src, i, j]
+            for j in range(2):
+                c[t, j] = joint[0][j] + joint[1][j]
+                den = _max_nan(c[t, j], 1e-300)
+                for i in range(2):
+                    w[i][j] = joint[i][j] / den
+            for k in range(4):
+                dvec[k] = xm[t, 0, k] - xm[t, 1, k]
+            for mode in range(2):
+                for k in range(4):
+                    x0[k] = w[0][mode] * xm[t, 0, k] + w[1][mode] * xm[t, 1, k]
+                for k in range(4):
+                    for l in range(4):
+                        p0[k][l] = (w[0][mode] * pm[t, 0, k, l] + w[1][mode] * pm[t, 1, k, l]
+                                    + (w[0][mode] * w[1][mode]) * (dvec[k] * dvec[l]))
+                for k in range(4):
+                    acc = 0.0
+                    for l in range(4):
+                        acc = acc + f[mode, k, l] * x0[l]
+                    xpm[t, mode, k] = acc
+                for k in range(4):
+                    for l in range(4):
+                        acc = 0.0
+                        for i in range(4):
+                            acc = acc + f[mode, k, i] * p0[i][l]
+                        fp[k][l] = acc
+                for k in range(4):
+                    for l in range(4):
+                        acc = 0.0
+                        for i in range(4):
+                            acc = acc + fp[k][i] * f[mode, l, i]
+                        ppm[t, mode, k, l] = acc + q[mode, k, l]
+            _moment_match_row(&xpm[t, 0, 0], &ppm[t, 0, 0, 0], c[t, 0], c[t, 1], &x[t, 0], &p[t, 0, 0])
+    return x_a, p_a, xpm_a, ppm_a, c_a
+
+
+def moment_match(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const double[:, ::1] w):
+    """:func:`edge.track.imm.moment_match` of all tracks -> ``x`` (T, 4), ``p`` (T, 4, 4); equal to rounding."""
+    cdef Py_ssize_t nt = xm.shape[0], t
+    x_a = np.empty((nt, 4))
+    p_a = np.empty((nt, 4, 4))
+    cdef double[:, ::1] x = x_a
+    cdef double[:, :, ::1] p = p_a
+    with nogil:
+        for t in range(nt):
+            _moment_match_row(&xm[t, 0, 0], &pm[t, 0, 0, 0], w[t, 0], w[t, 1], &x[t, 0], &p[t, 0, 0])
+    return x_a, p_a

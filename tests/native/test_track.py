@@ -161,6 +161,38 @@ def test_pair_update_equals_numpy_to_rounding(seed, n, scaled):
     np.testing.assert_allclose(p2, p_ref, rtol=RTOL, atol=RTOL * np.abs(p_ref).max())
 
 
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("per_track_pi", [False, True])
+def test_imm_cycle_equals_numpy_to_rounding(seed, per_track_pi):
+    from edge.track import imm
+
+    rng = np.random.default_rng(seed)
+    t = 40
+    xm = np.column_stack([rng.normal(0, 4, t), rng.uniform(10, 250, t), rng.normal(0, 0.5, t),
+                          rng.normal(0, 25, t)])[:, None, :] + rng.normal(0, 0.3, (t, 2, 4))
+    a = rng.normal(0, 1, (t, 2, 4, 4))
+    pm = a @ a.swapaxes(-1, -2) + 0.01 * np.eye(4)
+    mu = rng.uniform(0.001, 1.0, (t, 1))
+    mu = np.hstack([mu, 1.0 - mu])
+    pi = imm.switch_matrix(0.01, 0.1)
+    if per_track_pi:
+        pi = np.repeat(pi[None], t, axis=0)
+        pi[:, 0, 1] = rng.uniform(0.001, 0.05, t)
+        pi[:, 0, 0] = 1.0 - pi[:, 0, 1]
+    f = np.stack([imm.keep_model(0.033, 0.1, 3.0, 0.01, 2.0)[0], np.eye(4) + np.diag([0.033, 0.033], 2)])
+    q = np.stack([imm.keep_model(0.033, 0.1, 3.0, 0.01, 2.0)[1], 0.01 * np.eye(4)])
+    x0, p0, c_ref = imm.mix(xm, pm, mu, pi)
+    xpm_ref, ppm_ref = imm.predict_modes(x0, p0, f, q)
+    x_ref, p_ref = imm.moment_match(xpm_ref, ppm_ref, c_ref)
+    x, p, xpm, ppm, c = K.imm_predict(xm, pm, mu, pi if pi.ndim == 3 else pi[None], f, q)
+    assert np.array_equal(c, c_ref)
+    for got, ref in ((xpm, xpm_ref), (ppm, ppm_ref), (x, x_ref), (p, p_ref)):
+        np.testing.assert_allclose(got, ref, rtol=RTOL, atol=RTOL * np.abs(ref).max())
+    x2, p2 = K.moment_match(xpm_ref, ppm_ref, c_ref)
+    np.testing.assert_allclose(x2, x_ref, rtol=RTOL, atol=RTOL * np.abs(x_ref).max())
+    np.testing.assert_allclose(p2, p_ref, rtol=RTOL, atol=RTOL * np.abs(p_ref).max())
+
+
 #: absolute tolerance on published positions (m), speeds (m/s), their sds and the existence probability between
 #: the kernel and numpy paths (measured: 6e-13 over 7000 published tracks, IMM and CV)
 PUBLISHED_ATOL = 1e-9
@@ -184,6 +216,9 @@ def numpy_only(tracker: PdafTracker) -> PdafTracker:
     """The tracker with every role on its numpy reference."""
     tracker.measurement_model.kernel = tracker.deleter.kernel = tracker.associator.kernel = None
     tracker.initiator.kernel = None
+    for role in (tracker.predictor, tracker.updater):
+        if hasattr(role, "kernel"):
+            role.kernel = None
     return tracker
 
 
