@@ -597,3 +597,71 @@ def moment_match(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, cons
         for t in range(nt):
             _moment_match_row(&xm[t, 0, 0], &pm[t, 0, 0, 0], w[t, 0], w[t, 1], &x[t, 0], &p[t, 0, 0])
     return x_a, p_a
+
+
+def imm_mode_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] hm,
+                    const double[:, ::1] zhm, const double[:, :, ::1] r_track, const double[:, ::1] z,
+                    const double[:, :, ::1] r_meas, const cnp.npy_bool[:, ::1] gated, const double[:, ::1] beta,
+                    double near_factor, bint scaled, const double[::1] vol, double prob_detect, double prob_gate):
+    """Both IMM modes' PDAF posteriors over the validated pairs and the modes' likelihoods
+    (:meth:`edge.track.roles.measure.SnrNoiseModel.mode_update`, :func:`edge.track.imm.mode_likelihood_pairs`):
+    rows ``(track, mode)`` of ``xs`` (2T, 4), ``ps``, ``hm``, ``zhm``; ``r_track`` (T, n, n) the track's part of
+    ``R``; ``gated``, ``beta`` (T, M); with ``scaled`` a detection nearer than the mode's prediction counts
+    ``near_factor`` of the position block of ``r_track``; ``vol`` (T,) the gate volumes. Returns ``xm`` (2T, 4),
+    ``pm`` (2T, 4, 4) and the likelihoods (T, 2). Equal to numpy to rounding."""
+    cdef Py_ssize_t nt = gated.shape[0], nm = gated.shape[1], n = z.shape[1], t, m, k = 0, npair = 0, half, q
+    cdef Py_ssize_t mode, row
+    cdef long long ng
+    for t in range(nt):
+        for m in range(nm):
+            npair += gated[t, m]
+    rows_a = np.empty(2 * npair, dtype=np.int64)
+    cols_a = np.empty(2 * npair, dtype=np.int64)
+    w_a = np.empty(2 * npair)
+    sc_a = np.ones(2 * npair)
+    r_rep_a = np.empty((2 * nt, n, n))
+    cdef long long[::1] rows = rows_a
+    cdef long long[::1] cols = cols_a
+    cdef double[::1] w = w_a
+    cdef double[::1] sc = sc_a
+    cdef double[:, :, ::1] r_rep = r_rep_a
+    cdef double a0, a1
+    half = npair
+    for t in range(nt):
+        for m in range(nm):
+            if gated[t, m]:
+                for mode in range(2):
+                    q = k + mode * half
+                    rows[q] = 2 * t + mode
+                    cols[q] = m
+                    w[q] = beta[t, m]
+                    if scaled:
+                        row = 2 * t + mode
+                        a0 = (z[m, 0] - zhm[row, 0]) * zhm[row, 0]
+                        a1 = (z[m, 1] - zhm[row, 1]) * zhm[row, 1]
+                        sc[q] = near_factor if a0 + a1 < 0.0 else 1.0
+                k += 1
+        for mode in range(2):
+            r_rep[2 * t + mode, :, :] = r_track[t, :, :]
+    x_a, p_a, v_a, d2_a, det_a = pair_update(xs, ps, hm, zhm, r_rep_a, z, r_meas, rows_a, cols_a, sc_a, scaled,
+                                             w_a)
+    cdef double[::1] d2 = d2_a
+    cdef double[::1] det = det_a
+    dens_a = np.zeros(2 * nt)
+    cdef double[::1] dens = dens_a
+    cdef double c_norm = (2.0 * np.pi) ** (n / 2.0)
+    cdef double dq
+    for q in range(2 * npair):
+        dq = d2[q]
+        dq = dq if dq <= 700.0 or dq != dq else 700.0
+        dens[rows[q]] += exp(-0.5 * dq) / (c_norm * sqrt(det[q]))
+    lik_a = np.empty((nt, 2))
+    cdef double[:, ::1] lik = lik_a
+    for t in range(nt):
+        ng = 0
+        for m in range(nm):
+            ng += gated[t, m]
+        for mode in range(2):
+            lik[t, mode] = (1.0 - prob_gate * prob_detect) + prob_detect * vol[t] / <double> (ng if ng > 1 else 1) \
+                * dens[2 * t + mode]
+    return x_a, p_a, lik_a

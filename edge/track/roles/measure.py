@@ -282,6 +282,15 @@ class SnrNoiseModel(MeasurementModel):
         the mode's prediction counts ``extent_near_side_factor`` of the extent (the track is on the near face)."""
         t = pred.x.shape[0]
         xs, ps = pred.xm.reshape(2 * t, 4), pred.pm.reshape(2 * t, 4, 4)  # rows (track, mode)
+        if self.kernel is not None:  # pairs, updates and likelihoods in one call (equal to rounding)
+            inn = mp.inn
+            vol = inn.gate_volume if inn.gate_volume is not None else gate_volume_each(inn, gated, gamma)
+            c = np.ascontiguousarray
+            xu, pu, lik = self.kernel.imm_mode_update(
+                c(xs), c(ps), c(mp.hm), c(mp.zhm), c(mp.r), c(meas.z), c(mp.rm), c(gated), c(beta),
+                self.cfg.extent_near_side_factor, self.cfg.extent_near_side_factor != 1.0, c(vol), prob_detect,
+                prob_gate)
+            return xu.reshape(t, 2, 4), pu.reshape(t, 2, 4, 4), lik
         ti, mi = np.nonzero(gated)
         rows = np.concatenate([2 * ti, 2 * ti + 1])
         cols = np.concatenate([mi, mi])
@@ -292,14 +301,7 @@ class SnrNoiseModel(MeasurementModel):
             scale = np.where(nearer, self.cfg.extent_near_side_factor, 1.0)
         wg = beta[ti, mi]
         w = np.concatenate([wg, wg])
-        if self.kernel is not None:  # the pairs' innovations and the update in one pass (equal to rounding)
-            c = np.ascontiguousarray
-            xu, pu, v, d2, det_s = self.kernel.pair_update(
-                c(xs), c(ps), c(mp.hm), c(mp.zhm), np.repeat(mp.r, 2, axis=0), c(meas.z), c(mp.rm), rows, cols,
-                _NO_SCALE if scale is None else scale, scale is not None, w)
-            pin = PairInnovations(rows, cols, v, d2, None, det_s)
-        else:
-            pin, xu, pu = self._pair_update(xs, ps, mp, meas, rows, cols, scale, wg, w)
+        pin, xu, pu = self._pair_update(xs, ps, mp, meas, rows, cols, scale, wg, w)
         inn = mp.inn
         vol = inn.gate_volume if inn.gate_volume is not None else gate_volume_each(inn, gated, gamma)
         lik = imm.mode_likelihood_pairs(pin, 2 * t, np.repeat(vol, 2), np.repeat(gated.sum(axis=1), 2),
