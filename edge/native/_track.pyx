@@ -71,9 +71,9 @@ def innovations_each(const double[:, ::1] z, const double[:, ::1] zh, const doub
     cdef Py_ssize_t t, m, i, nn = n * n
     v_a = np.empty((nt, nm, n))
     d2_a = np.empty((nt, nm))
-    s_a = np.zeros((nt, nm, n, n))
-    si_a = np.zeros((nt, nm, n, n))
-    det_a = np.ones((nt, nm))
+    s_a = np.empty((nt, nm, n, n))  # every entry is written below (np.zeros would clear them all first)
+    si_a = np.empty((nt, nm, n, n))
+    det_a = np.empty((nt, nm))
     cdef double[:, :, ::1] v = v_a
     cdef double[:, ::1] d2 = d2_a
     cdef double[:, :, :, ::1] s = s_a
@@ -96,6 +96,10 @@ def innovations_each(const double[:, ::1] z, const double[:, ::1] zh, const doub
                             far = True
                     if far:
                         d2[t, m] = inf
+                        det[t, m] = 1.0
+                        for i in range(nn):
+                            s[t, m, i // n, i % n] = 0.0
+                            si[t, m, i // n, i % n] = 0.0
                         continue
                 sp = &s[t, m, 0, 0]
                 for i in range(nn):
@@ -665,3 +669,92 @@ def imm_mode_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const d
             lik[t, mode] = (1.0 - prob_gate * prob_detect) + prob_detect * vol[t] / <double> (ng if ng > 1 else 1) \
                 * dens[2 * t + mode]
     return x_a, p_a, lik_a
+
+
+from libc.math cimport log
+
+
+def lateral_step(const double[:, ::1] lat0, const double[:, :, ::1] lat_p0, double dt, double q,
+                 const double[:, ::1] beta, const double[::1] z0, const double[::1] var_track,
+                 const double[::1] var_meas, bint per_detection, const double[::1] x_ref, const double[::1] var_ref,
+                 const double[::1] cusum0, const double[:, ::1] ref, const double[:, :, ::1] ref_p, double gamma,
+                 double min_fraction, double cusum_nats):
+    """One frame of the straight-line lateral filter of every track (:class:`edge.track.roles.post.LateralSmoother`:
+    :func:`edge.track.kalman.lateral_predict`, :func:`edge.track.kalman.lateral_log_likelihood_ratio`, the CUSUM,
+    :func:`edge.track.kalman.lateral_pda_update` and :func:`edge.track.kalman.lateral_inconsistent`) with the
+    association weights ``beta`` (T, M), the detections' lateral positions ``z0`` (M,) and variances
+    ``var_track[t] (+ var_meas[m])``; the motion model's prediction ``x_ref``, ``var_ref`` (T,) and posterior
+    ``ref`` (T, 2), ``ref_p`` (T, 2, 2) = ``[x, vx]``. Returns the updated ``lat`` (T, 2), ``lat_p`` (T, 2, 2),
+    ``cusum`` (T,) and ``off`` (T,) bool (the line disagrees with the motion model: restart). Equal to numpy to
+    rounding."""
+    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], t, m, i, j
+    lat_a = np.empty((nt, 2))
+    lat_p_a = np.empty((nt, 2, 2))
+    cusum_a = np.empty(nt)
+    off_a = np.empty(nt, dtype=bool)
+    cdef double[:, ::1] x = lat_a
+    cdef double[:, :, ::1] p = lat_p_a
+    cdef double[::1] cusum = cusum_a
+    cdef cnp.npy_bool[::1] off = off_a
+    cdef double q3 = q * dt ** 3 / 3.0, q2 = q * dt ** 2 / 2.0, q1 = q * dt
+    cdef double p00, p01, p11, xs, vs, w, r, s_s, s_r, v_s, v_r, llr, k0, k1, dx0, dx1, d, vr0, vr1, c
+    cdef double sx0, sx1, sk0, sk1, s00, s01, s10, s11
+    cdef bint any_pair
+    with nogil:
+        for t in range(nt):
+            p00 = lat_p0[t, 0, 0]
+            p01 = lat_p0[t, 0, 1]
+            p11 = lat_p0[t, 1, 1]
+            xs = lat0[t, 0] + dt * lat0[t, 1]
+            vs = lat0[t, 1]
+            p00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q3
+            p01 = p01 + dt * p11 + q2
+            p11 = p11 + q1
+            llr = 0.0
+            any_pair = False
+            sx0 = sx1 = sk0 = sk1 = s00 = s01 = s10 = s11 = 0.0
+            for m in range(nm):
+                w = beta[t, m]
+                if not (w > 0.0):
+                    continue
+                any_pair = True
+                r = var_track[t] + var_meas[m] if per_detection else var_track[t]
+                s_s = p00 + r
+                s_r = var_ref[t] + r
+                v_s = z0[m] - xs
+                v_r = z0[m] - x_ref[t]
+                llr += w * (0.5 * (log(s_s / s_r) + v_s * v_s / s_s - v_r * v_r / s_r))
+                k0 = p00 / s_s
+                k1 = p01 / s_s
+                dx0 = k0 * v_s
+                dx1 = k1 * v_s
+                sx0 += w * dx0
+                sx1 += w * dx1
+                sk0 += w * k0
+                sk1 += w * k1
+                s00 += w * dx0 * dx0
+                s01 += w * dx0 * dx1
+                s10 += w * dx1 * dx0
+                s11 += w * dx1 * dx1
+            if any_pair:
+                c = cusum0[t] + llr
+                cusum[t] = c if c > 0.0 else 0.0
+            else:
+                cusum[t] = cusum0[t]
+            x[t, 0] = xs + sx0
+            x[t, 1] = vs + sx1
+            # P - k_bar P[0, :] + S - dx_bar dx_bar', symmetrised
+            p[t, 0, 0] = p00 - sk0 * p00 + s00 - sx0 * sx0
+            p[t, 1, 1] = p11 - sk1 * p01 + s11 - sx1 * sx1
+            d = 0.5 * ((p01 - sk0 * p01 + s01 - sx0 * sx1) + (p01 - sk1 * p00 + s10 - sx1 * sx0))
+            p[t, 0, 1] = d
+            p[t, 1, 0] = d
+            # the Hausman test against the motion model, and the CUSUM
+            vr0 = ref_p[t, 0, 0]
+            vr1 = ref_p[t, 1, 1]
+            d = _max_nan(vr0 - p[t, 0, 0], min_fraction * vr0)
+            off[t] = (x[t, 0] - ref[t, 0]) ** 2 > gamma * _max_nan(d, 1e-12)
+            d = _max_nan(vr1 - p[t, 1, 1], min_fraction * vr1)
+            off[t] = off[t] or (x[t, 1] - ref[t, 1]) ** 2 > gamma * _max_nan(d, 1e-12)
+            off[t] = off[t] or cusum[t] > cusum_nats
+    return lat_a, lat_p_a, cusum_a, off_a

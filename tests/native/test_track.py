@@ -225,6 +225,38 @@ def test_imm_mode_update_on_recorded_frames_equals_numpy_to_rounding(near_factor
     assert checked > 100
 
 
+def test_lateral_line_on_recorded_frames_equals_numpy_to_rounding():
+    """The straight-line lateral filter of every track on the tracker's own frames (30 vehicles, clutter), kernel
+    against numpy on the same inputs each frame."""
+    import copy
+
+    from edge.track.roles.post import LateralSmoother
+
+    tr = PdafTracker(PdafConfig())
+    (smoother,) = [p for p in tr.post_steps if isinstance(p, LateralSmoother)]
+    assert smoother.kernel is K
+    run, checked = smoother.run, []
+
+    def both(tracks, frame):
+        ref = copy.deepcopy(tracks)
+        smoother.kernel = None
+        try:
+            run(ref, frame)
+        finally:
+            smoother.kernel = K
+        out = run(tracks, frame)
+        for col in ("lat", "lat_p", "lat_cusum"):
+            got, want = getattr(tracks, col), getattr(ref, col)
+            np.testing.assert_allclose(got, want, rtol=RTOL, atol=RTOL * max(np.abs(want).max(initial=0.0), 1.0))
+        checked.append(len(tracks))
+        return out
+
+    smoother.run = both
+    for t_ns, det in road_frames(30, 60, clutter_per_frame=10.0, seed=7):
+        tr.step(det, t_ns)
+    assert sum(checked) > 1000
+
+
 #: absolute tolerance on published positions (m), speeds (m/s), their sds and the existence probability between
 #: the kernel and numpy paths (measured: 6e-13 over 7000 published tracks, IMM and CV)
 PUBLISHED_ATOL = 1e-9
