@@ -21,13 +21,15 @@ runs on the same one. Set OMP_NUM_THREADS=1 for strictly single-threaded library
 The frame is also reported in thread CPU time ("frame CPU time": no preemption by other processes)
 and, with --repeat N, as percentiles of each frame's fastest run ("frame min/runs"): on a shared
 machine other processes disturb a few frames of every run, and three disturbed frames set a p99
-of 300 frames."""
+of 300 frames. --instructions adds instructions per frame under valgrind's callgrind, counted after
+a warm-up in a replay child whose imports run uninstrumented: the repeatable speed figure."""
 EPILOG = """\
 examples:
   radar-edge bench --profile lane --frames 300 --json out/bench-lane.json
   OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 radar-edge bench --profile lane --repeat 5
   radar-edge bench --profile surveillance --frames 100
   radar-edge bench --profile minimal --no-peer --no-startup
+  radar-edge bench --profile lane --scenario highway4-traffic --instructions --no-peer --no-startup
 """
 
 
@@ -43,6 +45,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeat", type=int, default=1, metavar="N",
                    help="time the pipeline and the bound N times, keep the lowest p99, and report each frame's "
                         "fastest run as 'frame min/runs' (busy machines; default 1)")
+    p.add_argument("--instructions", action="store_true",
+                   help="also count instructions per frame of the pipeline and the FFT-only bound under valgrind's "
+                        "callgrind (repeatable on any machine of the architecture; needs valgrind)")
+    p.add_argument("--instr-warmup", type=int, default=100, metavar="N",
+                   help="frames run before counting (default 100: tracks confirmed, clutter map learnt)")
+    p.add_argument("--instr-frames", type=int, default=50, metavar="N", help="frames counted (default 50)")
     p.add_argument("--json", metavar="OUT", help="write the JSON report here")
     add_config_arguments(p)
 
@@ -55,10 +63,26 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"unknown or unavailable profile {args.profile!r}; available: {', '.join(sorted(PIPELINES))}")
     if args.frames < 10:
         raise ValueError("--frames must be at least 10 for a meaningful p99")
+    if args.instructions:
+        from edge.bench.instructions import valgrind_missing
+
+        if valgrind_missing():
+            raise ValueError(valgrind_missing())
+        if args.instr_warmup < 0 or args.instr_frames < 1:
+            raise ValueError("--instr-warmup must be >= 0 and --instr-frames >= 1")
     cfg = config_from_args(args)
     rep = run_bench(args.profile, cfg, frames=args.frames, scenario=args.scenario, seed=args.seed,
                     peer=not args.no_peer, startup=not args.no_startup, progress=sys.stderr.isatty(),
                     peer_frames=args.peer_frames, repeat=args.repeat)
+    if args.instructions:
+        from edge.bench import board_of, synth_frames
+        from edge.bench.instructions import measure
+
+        n = args.instr_warmup + 2 * args.instr_frames
+        frames = synth_frames(board_of(args.profile), args.scenario, args.seed, n)
+        config_args = ([f"--config={args.config}"] if args.config else []) + [f"--set={s}" for s in args.set]
+        rep["instructions"] = measure(frames, args.profile, warmup=args.instr_warmup, frames=args.instr_frames,
+                                      config_args=config_args)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(rep, indent=2) + "\n", encoding="utf-8")
@@ -105,6 +129,13 @@ def report_lines(rep: dict) -> list[str]:
             parts = [f"{k} p50 {v['p50_us']:.0f} us / p99 {v['p99_us']:.0f} us"
                      for k, v in (("onnxruntime", lat.get("onnxruntime")), ("numpy", lat.get("numpy"))) if v]
             out.append(f"classifier per query (batch {lat.get('batch', 1)}): " + ", ".join(parts))
+    ins = rep.get("instructions")
+    if ins:
+        line = (f"instructions per frame (callgrind, {ins['frames']} frames after {ins['warmup_frames']}): "
+                f"pipeline {ins['pipeline_per_frame'] / 1e6:.2f} M")
+        if ins.get("fft_bound_per_frame"):
+            line += f", FFT-only bound {ins['fft_bound_per_frame'] / 1e6:.2f} M ({ins['ratio']:.1f}x)"
+        out.append(line)
     line = f"peak RSS {rep['peak_rss_mb']:.0f} MB (this process)"
     if rep.get("startup_s"):
         st = rep.get("startup") or {}
