@@ -1,4 +1,5 @@
 # cython: language_level=3
+# distutils: extra_compile_args = -ffp-contract=off
 """Compiled core of the lane tracker's association and update (issue 30), for all tracks at once.
 
 The numpy references are in :mod:`edge.track.pdaf` (``innovations_each``, ``mahalanobis_d2``,
