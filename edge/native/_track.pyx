@@ -81,6 +81,9 @@ def innovations_each(const double[:, ::1] z, const double[:, ::1] zh, const doub
     cdef double[:, :, :, ::1] si = si_a
     cdef double[:, ::1] det = det_a
     cdef double* sp
+    cdef double* sip
+    cdef const double* stp
+    cdef const double* rmp
     cdef double* vp
     cdef bint far
     cdef double inf = float("inf")
@@ -98,13 +101,17 @@ def innovations_each(const double[:, ::1] z, const double[:, ::1] zh, const doub
                     if far:
                         d2[t, m] = inf
                         det[t, m] = 1.0
+                        sp = &s[t, m, 0, 0]
+                        sip = &si[t, m, 0, 0]
                         for i in range(nn):
-                            s[t, m, i // n, i % n] = 0.0
-                            si[t, m, i // n, i % n] = 0.0
+                            sp[i] = 0.0
+                            sip[i] = 0.0
                         continue
                 sp = &s[t, m, 0, 0]
+                stp = &st[t, 0, 0]
+                rmp = &rm[m, 0, 0]
                 for i in range(nn):
-                    sp[i] = st[t, i // n, i % n] + rm[m, i // n, i % n]
+                    sp[i] = stp[i] + rmp[i]
                 if n == 3:
                     det[t, m] = _inv3(sp, &si[t, m, 0, 0])
                     d2[t, m] = _quad3(&si[t, m, 0, 0], vp)
