@@ -68,12 +68,16 @@ def _quad_terms(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 _QUAD_TERMS = {n: _quad_terms(n) for n in (1, 2, 3)}
 
 
-def innovations(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, r: np.ndarray) -> Innovations:
-    """``z`` (M, n), ``z_hat`` (T, n), ``h`` (T, n, 4), ``p`` (T, 4, 4), ``r`` (T, n, n)."""
+def innovations(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, r: np.ndarray,
+                kernel=None) -> Innovations:
+    """``z`` (M, n), ``z_hat`` (T, n), ``h`` (T, n, 4), ``p`` (T, 4, 4), ``r`` (T, n, n). ``kernel``: the compiled
+    ``edge.native._track`` for the distances (bit-identical), or None for numpy."""
     s = h @ p @ h.transpose(0, 2, 1) + r
     s = 0.5 * (s + s.transpose(0, 2, 1))
     s_inv, det_s = inv_det(s)
     v = z[None, :, :] - z_hat[:, None, :]  # (T, M, n)
+    if kernel is not None and v.shape[2] in (2, 3):
+        return Innovations(v, kernel.quad_d2(v, np.ascontiguousarray(s_inv)), s, s_inv, det_s)
     return Innovations(v, _quad(v, s_inv), s, s_inv, det_s)
 
 
@@ -88,10 +92,14 @@ def _quad(v: np.ndarray, s_inv: np.ndarray) -> np.ndarray:
     return np.add.reduce(terms, axis=2)  # fewer than 8 terms: summed one after the other (no pairwise blocks)
 
 
-def mahalanobis_d2(v: np.ndarray, s: np.ndarray) -> np.ndarray:
+def mahalanobis_d2(v: np.ndarray, s: np.ndarray, kernel=None) -> np.ndarray:
     """(T, M) squared Mahalanobis distances of innovations ``v`` (T, M, n) under one covariance per track
-    ``s`` (T, n, n): the ``d2`` of :func:`innovations` for innovations already computed."""
-    return _quad(v, inv_det(s)[0])
+    ``s`` (T, n, n): the ``d2`` of :func:`innovations` for innovations already computed. ``kernel``: the compiled
+    ``edge.native._track`` (the same arithmetic), or None for numpy."""
+    s_inv = inv_det(s)[0]
+    if kernel is not None and v.shape[2] in (2, 3):
+        return kernel.quad_d2(np.ascontiguousarray(v), np.ascontiguousarray(s_inv))
+    return _quad(v, s_inv)
 
 
 def association_weights(
@@ -214,7 +222,7 @@ _PREGATE_MIN_PAIRS = 512
 
 
 def innovations_each(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, r_track: np.ndarray,
-                     r_meas: np.ndarray, prune_gamma: float | None = None) -> InnovationsEach:
+                     r_meas: np.ndarray, prune_gamma: float | None = None, kernel=None) -> InnovationsEach:
     """``z`` (M, n), ``z_hat`` (T, n), ``h`` (T, n, 4), ``p`` (T, 4, 4), ``r_track`` (T, n, n) the track's part of
     ``R``, ``r_meas`` (M, n, n) each detection's part: ``S_tm = H_t P_t H_t' + r_track_t + r_meas_m``.
 
@@ -222,9 +230,18 @@ def innovations_each(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndar
     ``v' S^-1 v >= v_i^2 / S_ii`` for every component ``i``, so a pair with ``v_i^2 > gamma S_ii`` in any component
     lies outside every gate of threshold ``gamma`` or less; ``S`` is inverted only for the other pairs. A pruned pair
     gets ``d2 = inf``, ``S = S^-1 = 0`` and ``|S| = 1`` (outside the gate none of them is read). Applied from
-    ``_PREGATE_MIN_PAIRS`` pairs on."""
+    ``_PREGATE_MIN_PAIRS`` pairs on.
+
+    ``kernel``: the compiled ``edge.native._track``, which computes the pairs (pre-gate, ``S``, its inverse and
+    determinant, ``d2``) in one pass with the same arithmetic (bit-identical); None: numpy."""
     st = h @ p @ h.transpose(0, 2, 1) + r_track
     st = 0.5 * (st + st.transpose(0, 2, 1))
+    if kernel is not None and z.shape[1] in (2, 3):
+        prune = prune_gamma is not None and z_hat.shape[0] * z.shape[0] >= _PREGATE_MIN_PAIRS
+        lim = prune_gamma * (1.0 + _PREGATE_MARGIN) if prune else 0.0
+        v, d2, s, s_inv, det_s = kernel.innovations_each(np.ascontiguousarray(z), np.ascontiguousarray(z_hat),
+                                                         st, np.ascontiguousarray(r_meas), lim, prune)
+        return InnovationsEach(v, d2, s, s_inv, det_s, st)
     v = z[None, :, :] - z_hat[:, None, :]  # (T, M, n)
     if prune_gamma is not None and v.shape[0] * v.shape[1] >= _PREGATE_MIN_PAIRS:
         n = v.shape[2]

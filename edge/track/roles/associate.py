@@ -6,13 +6,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
+from edge import native
 from edge.track.config import AssociationConfig
-from edge.track.pdaf import Innovations, association_weights, gate_threshold
+from edge.track.pdaf import Innovations, InnovationsEach, association_weights, gate_threshold, unit_ball_volume
 from edge.track.table import Measurements
 
 __all__ = ["Hypotheses", "PdaAssociator"]
+
+_NO_RANK = np.zeros(0)
+_NO_PAIR = np.zeros(0, dtype=bool)
 
 
 @dataclass
@@ -34,6 +40,8 @@ class PdaAssociator:
         self.exclusion_gamma = {n: gate_threshold(max(cfg.init_exclusion_prob, cfg.prob_gate), n) for n in (2, 3)}
         #: the exact pre-gate (:func:`edge.track.pdaf.innovations_each`); off only to test that it changes nothing
         self.pregate = True
+        #: the compiled association (``edge.native._track``) for one ``S`` per pair, or None: numpy
+        self.kernel = native.load("_track")
 
     def prune_gamma(self, n: int) -> float | None:
         """The largest gate threshold applied to the association's distances (the validation gate, or the
@@ -47,6 +55,8 @@ class PdaAssociator:
         """Confirmed tracks share detections (PDAF/JPDA); a tentative track only sees detections that no more senior
         track validated (confirmed first, then more hits), unless the detection is one of a resolved pair."""
         gamma = self._gamma[meas.z.shape[1]]
+        if self.kernel is not None and isinstance(inn, InnovationsEach) and inn.d2.size:
+            return self._associate_kernel(meas, inn, gamma, confirmed, seniority)
         if confirmed.all():  # no tentative track: every track may use every detection
             allowed = None
         else:
@@ -57,6 +67,24 @@ class PdaAssociator:
                 allowed |= (meas.pair >= 0)[None, :]
         beta, beta0, gated = association_weights(inn, gamma, self.cfg.prob_detect, self.cfg.prob_gate,
                                                  self.cfg.association, allowed)
+        return Hypotheses(beta, beta0, gated)
+
+    def _associate_kernel(self, meas: Measurements, inn: InnovationsEach, gamma: float, confirmed: np.ndarray,
+                          seniority: np.ndarray) -> Hypotheses:
+        """:meth:`associate` in the compiled kernel (the same arithmetic and summation order as numpy's)."""
+        c = self.cfg
+        n = meas.z.shape[1]
+        if c.association not in ("pdaf", "jpda"):
+            raise ValueError(f"unknown association method {c.association!r}: choose pdaf or jpda")
+        senior = not confirmed.all()
+        rank = np.where(confirmed, np.inf, seniority.astype(float)) if senior else _NO_RANK
+        pair_ok = (meas.pair >= 0) if meas.pair is not None else _NO_PAIR
+        beta, beta0, gated, vol = self.kernel.associate_each(
+            np.ascontiguousarray(inn.d2), np.ascontiguousarray(inn.det_s), gamma,
+            unit_ball_volume(n) * gamma ** (n / 2.0), (2.0 * math.pi) ** (n / 2.0), c.prob_detect,
+            1.0 - c.prob_gate * c.prob_detect, c.association == "jpda", np.ascontiguousarray(confirmed, dtype=bool),
+            rank, senior, pair_ok, meas.pair is not None)
+        inn.gate_volume = vol
         return Hypotheses(beta, beta0, gated)
 
     def claimed(self, mp, xp: np.ndarray, measurement_model) -> np.ndarray:

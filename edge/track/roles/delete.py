@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from edge import native
 from edge.track.config import DeleterConfig, FieldOfViewConfig
 from edge.track.pdaf import gate_threshold
 from edge.track.roles.box import SameVehicleBox
@@ -13,6 +14,8 @@ from edge.track.roles.measure import extent_cov
 from edge.track.table import TrackTable
 
 __all__ = ["TrackDeleter", "resolved_pairs"]
+
+_NO_ROWS = np.zeros(0, dtype=np.int64)
 
 
 def resolved_pairs(pair: np.ndarray | None, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -38,6 +41,8 @@ class TrackDeleter:
         self._state_gamma = gate_threshold(cfg.merge_state_prob, 4)
         self._pairs: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # track count -> np.triu_indices(t, 1)
         self._pairs_all: tuple[np.ndarray, np.ndarray] = np.triu_indices(32, 1)  # for up to 32 tracks (grows)
+        #: the compiled pair tests of :meth:`duplicates` (``edge.native._track``), or None: numpy
+        self.kernel = native.load("_track")
 
     def pairs(self, t: int) -> tuple[np.ndarray, np.ndarray]:
         """``np.triu_indices(t, 1)`` (row-major pairs ``a < b``), cached per track count; a new count takes the
@@ -76,9 +81,11 @@ class TrackDeleter:
         if t < 2:
             return out
         x = tracks.x
-        ia, ib = self.pairs(t)
+        if self.kernel is not None:
+            return self._duplicates_kernel(tracks, resolved)
         # speed difference along the pair's common heading, and across it: a duplicate born with a wrong
         # lateral velocity (a far, noisy seed) drifts onto its vehicle with metres per second across
+        ia, ib = self.pairs(t)
         xa, xb = x.take(ia, axis=0), x.take(ib, axis=0)  # take: rows without the fancy-indexing machinery
         dx = xa - xb  # (pairs, 4): position and velocity differences
         vsum = xa[:, 2:4] + xb[:, 2:4]
@@ -111,8 +118,21 @@ class TrackDeleter:
         if sel.size == 0:
             return out
         ia, ib, close, dx = ia[sel], ib[sel], boxed[sel], dx.take(sel, axis=0)
-        # the diagonal of extent_cov(x, ext_var) (the whole matrices only for the pairs that need a solve),
-        # column by column: heading() without its two-column forms
+        pdx, pdy = self._position_spread(tracks)
+        # a marginal Mahalanobis distance never exceeds the joint one: prune before the 4x4 solves
+        dxx, dxy = dx[:, 0], dx[:, 1]
+        marg = dxx * dxx < self._state_gamma * (pdx[ia] + pdx[ib])
+        marg &= dxy * dxy < self._state_gamma * (pdy[ia] + pdy[ib])
+        rest = (marg & ~close).nonzero()[0]
+        if rest.size:
+            close[rest] = self._state_close(tracks, ia[rest], ib[rest], dx.take(rest, axis=0))
+        return self._juniors(tracks, ia[close], ib[close], out)
+
+    @staticmethod
+    def _position_spread(tracks: TrackTable) -> tuple[np.ndarray, np.ndarray]:
+        """(T,) x and y variances of each track's position plus the diagonal of ``extent_cov(x, ext_var)``, column
+        by column (heading() without its two-column forms)."""
+        x = tracks.x
         sp = np.hypot(x[:, 2], x[:, 3])
         nrm_t = np.maximum(sp, 1e-9)
         ux_t, uy_t = x[:, 2] / nrm_t, x[:, 3] / nrm_t
@@ -120,23 +140,48 @@ class TrackDeleter:
         iso = 1.0 - w
         pdx = tracks.p[:, 0, 0] + tracks.ext_var * (w * (ux_t * ux_t) + iso)
         pdy = tracks.p[:, 1, 1] + tracks.ext_var * (w * (uy_t * uy_t) + iso)
-        # a marginal Mahalanobis distance never exceeds the joint one: prune before the 4x4 solves
-        dxx, dxy = dx[:, 0], dx[:, 1]
-        marg = dxx * dxx < self._state_gamma * (pdx[ia] + pdx[ib])
-        marg &= dxy * dxy < self._state_gamma * (pdy[ia] + pdy[ib])
-        rest = (marg & ~close).nonzero()[0]
-        if rest.size:
-            ext = extent_cov(x, tracks.ext_var)
-            ja, jb = ia[rest], ib[rest]
-            psum = tracks.p.take(ja, axis=0) + tracks.p.take(jb, axis=0)
-            psum[:, :2, :2] += ext.take(ja, axis=0) + ext.take(jb, axis=0)
-            d = dx.take(rest, axis=0)
-            d2 = (d[:, None, :] @ np.linalg.solve(psum, d[:, :, None]))[:, 0, 0]
-            close[rest] = d2 < self._state_gamma
-        ia, ib = ia[close], ib[close]
+        return pdx, pdy
+
+    def _state_close(self, tracks: TrackTable, ja: np.ndarray, jb: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """Pairs ``(ja, jb)`` with state differences ``d`` whose states are statistically indistinguishable (the
+        position covariances widened by the vehicles' along-heading spread)."""
+        ext = extent_cov(tracks.x, tracks.ext_var)
+        psum = tracks.p.take(ja, axis=0) + tracks.p.take(jb, axis=0)
+        psum[:, :2, :2] += ext.take(ja, axis=0) + ext.take(jb, axis=0)
+        d2 = (d[:, None, :] @ np.linalg.solve(psum, d[:, :, None]))[:, 0, 0]
+        return d2 < self._state_gamma
+
+    @staticmethod
+    def _juniors(tracks: TrackTable, ia: np.ndarray, ib: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """``out`` with the junior track of each duplicate pair ``(ia, ib)`` set."""
         if ia.size == 0:
             return out
         rank = tracks.confirmed.astype(np.int64) * (1 << 40) + tracks.hits.astype(np.int64) * (1 << 20) + tracks.age
         b_senior = (rank[ib] > rank[ia]) | ((rank[ib] == rank[ia]) & (ib < ia))
         out[np.where(b_senior, ia, ib)] = True
+        return out
+
+    def _duplicates_kernel(self, tracks: TrackTable, resolved) -> np.ndarray:
+        """:meth:`duplicates` with the pair tests in the compiled kernel (one pass over the pairs, the same
+        arithmetic); the 4x4 state test and the choice of the junior stay here."""
+        c, box = self.cfg, self.box.cfg
+        t = len(tracks)
+        pdx, pdy = self._position_spread(tracks)
+        if resolved is None:
+            pair = det = _NO_ROWS
+        else:
+            pair, det = (np.ascontiguousarray(a, dtype=np.int64) for a in resolved)
+        run, ba, bb, bkeep, ra, rb, rdx = self.kernel.duplicate_pairs(
+            np.ascontiguousarray(tracks.x), box.merge_speed_mps, box.merge_lateral_m, self.box.along_m(tracks),
+            c.merge_lateral_speed_mps, pdx, pdy, self._state_gamma, pair, det, resolved is not None)
+        if ba.size:
+            tracks.close_run = np.where(run, tracks.close_run + 1, 0).astype(np.int32, copy=False)
+            bkeep |= np.minimum(tracks.close_run[ba], tracks.close_run[bb]) >= c.merge_persist_frames
+        else:
+            tracks.close_run = np.zeros(t, np.int32)
+        out = np.zeros(t, dtype=bool)
+        out = self._juniors(tracks, ba[bkeep], bb[bkeep], out)
+        if ra.size:
+            close = self._state_close(tracks, ra, rb, rdx)
+            out = self._juniors(tracks, ra[close], rb[close], out)
         return out

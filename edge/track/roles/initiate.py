@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from edge import native
 from edge.track.config import FieldOfViewConfig, InitiatorConfig
 from edge.track.roles.box import SameVehicleBox, box_close
 from edge.track.roles.measure import MeasurementModel, MeasurementPrediction
@@ -31,6 +32,8 @@ class SeedInitiator:
         self.cfg, self.fov, self.box = cfg, fov, box
         self.meas_model = measurement_model
         self.predictor = predictor  # told of new rows (its per-model state), if any
+        #: the compiled seed block (``edge.native._track``), or None: numpy
+        self.kernel = native.load("_track")
 
     def initiate(self, tracks: TrackTable, meas: Measurements, used: np.ndarray, road_yaw_rad: float = 0.0,
                  mp: MeasurementPrediction | None = None) -> int:
@@ -45,17 +48,8 @@ class SeedInitiator:
         if meas.with_radial_speed:
             cand &= np.abs(z[:, 2]) >= c.seed_min_radial_speed_mps
         if len(tracks) and cand.any():
-            xt = tracks.x
-            lat = box.lateral_m(xt[:, :2])[:, None]
-            if meas.pair is not None:
-                lat = np.where(resolved[None, :], box.cfg.merge_lateral_m, lat)
-            d = xt[:, None, :2] - z[None, :, :2]  # (T, M, 2)
-            near = (np.abs(d[..., 0]) < lat) & (np.abs(d[..., 1]) < box.along_m(tracks)[:, None])
-            if meas.with_radial_speed:  # ... and moving like the track
-                rho_t = np.maximum(np.hypot(xt[:, 0], xt[:, 1]), 1e-3)
-                vr_t = (xt[:, 0] * xt[:, 2] + xt[:, 1] * xt[:, 3]) / rho_t
-                near &= np.abs(vr_t[:, None] - z[None, :, 2]) < c.seed_merge_speed_mps
-            cand &= ~near.any(axis=0)
+            cand &= ~(self._near_kernel(tracks, meas, resolved) if self.kernel is not None
+                      else self._near(tracks, meas, resolved))
         idx = cand.nonzero()[0]
         if idx.size == 0:
             return 0
@@ -121,6 +115,35 @@ class SeedInitiator:
         if self.predictor is not None:
             self.predictor.seeded(tracks, k, road_yaw_rad, var_s)
         return k
+
+    def _near(self, tracks: TrackTable, meas: Measurements, resolved: np.ndarray) -> np.ndarray:
+        """(M,) detections in some track's same-vehicle box (a resolved one: ``merge_lateral_m`` across) and, with
+        a radial speed, moving like it: they do not seed."""
+        xt, z, box = tracks.x, meas.z, self.box
+        lat = box.lateral_m(xt[:, :2])[:, None]
+        if meas.pair is not None:
+            lat = np.where(resolved[None, :], box.cfg.merge_lateral_m, lat)
+        d = xt[:, None, :2] - z[None, :, :2]  # (T, M, 2)
+        near = (np.abs(d[..., 0]) < lat) & (np.abs(d[..., 1]) < box.along_m(tracks)[:, None])
+        if meas.with_radial_speed:  # ... and moving like the track
+            rho_t = np.maximum(np.hypot(xt[:, 0], xt[:, 1]), 1e-3)
+            vr_t = (xt[:, 0] * xt[:, 2] + xt[:, 1] * xt[:, 3]) / rho_t
+            near &= np.abs(vr_t[:, None] - z[None, :, 2]) < self.cfg.seed_merge_speed_mps
+        return near.any(axis=0)
+
+    def _near_kernel(self, tracks: TrackTable, meas: Measurements, resolved: np.ndarray) -> np.ndarray:
+        """:meth:`_near` in the compiled kernel (the same arithmetic)."""
+        xt, z, box = tracks.x, meas.z, self.box
+        if meas.with_radial_speed:
+            rho_t = np.maximum(np.hypot(xt[:, 0], xt[:, 1]), 1e-3)
+            vr_t = (xt[:, 0] * xt[:, 2] + xt[:, 1] * xt[:, 3]) / rho_t
+        else:
+            vr_t = np.zeros(xt.shape[0])
+        return self.kernel.near_tracks(np.ascontiguousarray(xt), np.ascontiguousarray(z),
+                                       np.ascontiguousarray(box.lateral_m(xt[:, :2]), dtype=np.float64),
+                                       np.ascontiguousarray(box.along_m(tracks), dtype=np.float64),
+                                       np.ascontiguousarray(resolved, dtype=bool), box.cfg.merge_lateral_m, vr_t,
+                                       meas.with_radial_speed, self.cfg.seed_merge_speed_mps)
 
     def _merge_seeds_plain(self, idx: np.ndarray, zc: np.ndarray, snr: np.ndarray, resolved: np.ndarray,
                            with_radial_speed: bool) -> np.ndarray:

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge import native
 from edge.track import kalman
 from edge.track.config import MeasurementConfig
 from edge.track.pdaf import (Innovations, PairInnovations, combined_update, combined_update_pairs,
@@ -81,6 +82,8 @@ class MeasurementModel:
         self._az_sigma_rad = math.radians(cfg.azimuth_sigma_deg)
         self.height_m = 0.0  # radar above the targets (PdafTracker.sensor_height_m): near_speed_spread_m's geometry
         self._head: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None  # (xp, heading(xp))
+        #: the compiled association/update core (``edge.native._track``), or None: the numpy reference runs
+        self.kernel = native.load("_track")
 
     @property
     def use_radial_speed(self) -> bool:
@@ -185,6 +188,14 @@ class MeasurementModel:
         ``E[a^2] - u' (H P H' + R_sensor) u``, ``R_sensor`` = ``S`` without the extent term."""
         c = self.cfg
         u, w = self._head[1] if self._head is not None and self._head[0] is xp else heading(xp)
+        if self.kernel is not None and inn.v.shape[2] >= 2:  # the same arithmetic and summation order
+            per_pair = inn.s.ndim == 4
+            s2_track = _NO_S2 if per_pair else np.ascontiguousarray(inn.s[:, :2, :2]).reshape(-1, 4)
+            return self.kernel.update_extent(np.ascontiguousarray(inn.v), s2_track,
+                                             np.ascontiguousarray(inn.s) if per_pair else _NO_S_PAIR, per_pair,
+                                             np.ascontiguousarray(beta, dtype=np.float64), np.ascontiguousarray(u),
+                                             np.ascontiguousarray(w), np.ascontiguousarray(ext_var), c.extent_alpha,
+                                             c.extent_max_sigma_m**2)
         a = inn.v[:, :, 0] * u[:, None, 0] + inn.v[:, :, 1] * u[:, None, 1]  # (T, M) along-heading innovation
         wsum = beta.sum(axis=1)
         ok = (wsum > 0.5) & (w >= 1.0)
@@ -210,12 +221,12 @@ class ConstantNoiseModel(MeasurementModel):
 
     def _innovations(self, meas, pred, mp, prune_gamma) -> None:
         if mp.hm is None:
-            mp.inn = innovations(meas.z, mp.zh, mp.h, pred.p, mp.r)
+            mp.inn = innovations(meas.z, mp.zh, mp.h, pred.p, mp.r, self.kernel)
             return
         t = pred.x.shape[0]  # the combined prediction and both modes in one computation
         inn_all = innovations(meas.z, np.concatenate([mp.zh, mp.zhm]), np.concatenate([mp.h, mp.hm]),
                               np.concatenate([pred.p, pred.pm.reshape(2 * t, 4, 4)]),
-                              np.concatenate([mp.r, mp.r.repeat(2, axis=0)]))
+                              np.concatenate([mp.r, mp.r.repeat(2, axis=0)]), self.kernel)
         mp.inn, mp.inn_m = _rows(inn_all, slice(0, t)), _rows(inn_all, slice(t, None))
 
     def state_update(self, xp, pp, mp: MeasurementPrediction, beta, beta0):
@@ -249,15 +260,20 @@ class SnrNoiseModel(MeasurementModel):
         return self.of_detections(meas)
 
     def _innovations(self, meas, pred, mp, prune_gamma) -> None:
-        mp.inn = innovations_each(meas.z, mp.zh, mp.h, pred.p, mp.r, mp.rm, prune_gamma)
+        mp.inn = innovations_each(meas.z, mp.zh, mp.h, pred.p, mp.r, mp.rm, prune_gamma, self.kernel)
 
     def seed_exclusion_d2(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool) -> np.ndarray:
         if not constant:
             return mp.inn.d2
-        return mahalanobis_d2(mp.inn.v, self.with_sensor(xp, mp.inn.s_track))
+        return mahalanobis_d2(mp.inn.v, self.with_sensor(xp, mp.inn.s_track), self.kernel)
 
     def state_update(self, xp, pp, mp: MeasurementPrediction, beta, beta0):
         """The PDAF posterior with one gain per hypothesis (:func:`edge.track.pdaf.combined_update`)."""
+        if self.kernel is not None:  # equal to rounding
+            t, m = np.nonzero(beta > 0)
+            c = np.ascontiguousarray
+            return self.kernel.update_pairs(c(xp), c(pp), c(mp.h), c(t), mp.inn.v[t, m], mp.inn.s_inv[t, m],
+                                            beta[t, m])
         return combined_update(xp, pp, mp.h, mp.inn, beta, beta0)
 
     def mode_update(self, pred: Prediction, mp: MeasurementPrediction, meas, beta, beta0, gated, gamma: float,
@@ -266,6 +282,15 @@ class SnrNoiseModel(MeasurementModel):
         the mode's prediction counts ``extent_near_side_factor`` of the extent (the track is on the near face)."""
         t = pred.x.shape[0]
         xs, ps = pred.xm.reshape(2 * t, 4), pred.pm.reshape(2 * t, 4, 4)  # rows (track, mode)
+        if self.kernel is not None:  # pairs, updates and likelihoods in one call (equal to rounding)
+            inn = mp.inn
+            vol = inn.gate_volume if inn.gate_volume is not None else gate_volume_each(inn, gated, gamma)
+            c = np.ascontiguousarray
+            xu, pu, lik = self.kernel.imm_mode_update(
+                c(xs), c(ps), c(mp.hm), c(mp.zhm), c(mp.r), c(meas.z), c(mp.rm), c(gated), c(beta),
+                self.cfg.extent_near_side_factor, self.cfg.extent_near_side_factor != 1.0, c(vol), prob_detect,
+                prob_gate)
+            return xu.reshape(t, 2, 4), pu.reshape(t, 2, 4, 4), lik
         ti, mi = np.nonzero(gated)
         rows = np.concatenate([2 * ti, 2 * ti + 1])
         cols = np.concatenate([mi, mi])
@@ -274,9 +299,19 @@ class SnrNoiseModel(MeasurementModel):
             zp = mp.zhm[rows, :2]
             nearer = ((meas.z[cols, :2] - zp) * zp).sum(axis=1) < 0.0
             scale = np.where(nearer, self.cfg.extent_near_side_factor, 1.0)
-        pin = pair_innovations(meas.z, mp.zhm, mp.hm, ps, np.repeat(mp.r, 2, axis=0), mp.rm, rows, cols, scale)
         wg = beta[ti, mi]
         w = np.concatenate([wg, wg])
+        pin, xu, pu = self._pair_update(xs, ps, mp, meas, rows, cols, scale, wg, w)
+        inn = mp.inn
+        vol = inn.gate_volume if inn.gate_volume is not None else gate_volume_each(inn, gated, gamma)
+        lik = imm.mode_likelihood_pairs(pin, 2 * t, np.repeat(vol, 2), np.repeat(gated.sum(axis=1), 2),
+                                        prob_detect, prob_gate).reshape(t, 2)
+        return xu.reshape(t, 2, 4), pu.reshape(t, 2, 4, 4), lik
+
+    @staticmethod
+    def _pair_update(xs, ps, mp: MeasurementPrediction, meas, rows, cols, scale, wg, w):
+        """The numpy reference of the mode rows' pair innovations and per-hypothesis update -> (pin, x, P)."""
+        pin = pair_innovations(meas.z, mp.zhm, mp.hm, ps, np.repeat(mp.r, 2, axis=0), mp.rm, rows, cols, scale)
         if (wg > 0).all():  # the usual case (a validated pair has a positive weight unless it underflows)
             xu, pu = combined_update_pairs(xs, ps, mp.hm, pin, w)
         else:
@@ -284,11 +319,12 @@ class SnrNoiseModel(MeasurementModel):
             xu, pu = combined_update_pairs(xs, ps, mp.hm, PairInnovations(rows[pos], cols[pos], pin.v[pos],
                                                                           pin.d2[pos], pin.s_inv[pos],
                                                                           pin.det_s[pos]), w[pos])
-        inn = mp.inn
-        vol = inn.gate_volume if inn.gate_volume is not None else gate_volume_each(inn, gated, gamma)
-        lik = imm.mode_likelihood_pairs(pin, 2 * t, np.repeat(vol, 2), np.repeat(gated.sum(axis=1), 2),
-                                        prob_detect, prob_gate).reshape(t, 2)
-        return xu.reshape(t, 2, 4), pu.reshape(t, 2, 4, 4), lik
+        return pin, xu, pu
+
+
+_NO_SCALE = np.zeros(0)
+_NO_S2 = np.zeros((0, 4))
+_NO_S_PAIR = np.zeros((0, 0, 0, 0))
 
 
 def _rows(inn: Innovations, rows: slice) -> Innovations:

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge import native
 from edge.track import kalman
 from edge.track.config import LateralSmootherConfig, ReanchorConfig
 from edge.track.pdaf import gate_threshold
@@ -19,6 +20,8 @@ from edge.track.roles.measure import MeasurementModel, MeasurementPrediction, Pr
 from edge.track.table import Measurements, TrackTable
 
 __all__ = ["Frame", "LateralSmoother", "Reanchor"]
+
+_NO_VAR = np.zeros(0)
 
 
 @dataclass
@@ -46,6 +49,8 @@ class LateralSmoother:
         self.cfg = cfg
         self.predictor = predictor  # its manoeuvre probability, if it has modes (``manoeuvring``)
         self._gamma = gate_threshold(cfg.lateral_smoother_reset_prob, 1)
+        #: the compiled line filter (``edge.native._track``), or None: numpy
+        self.kernel = native.load("_track")
 
     def run(self, tracks: TrackTable, frame: Frame) -> np.ndarray | None:
         cfg = self.cfg
@@ -56,26 +61,24 @@ class LateralSmoother:
         if new.any():
             tr.lat_p[new, 1, 1] = np.minimum(tr.lat_p[new, 1, 1], cfg.lateral_smoother_init_speed_sigma_mps**2)
             tr.lat_p[new, 0, 1] = tr.lat_p[new, 1, 0] = 0.0
-        lat, lat_p = kalman.lateral_predict(tr.lat, tr.lat_p, frame.dt_s, cfg.lateral_smoother_q_m2ps3)
-        ti, mi = np.nonzero(beta > 0)
-        cusum = tr.lat_cusum
-        if ti.size:
-            var = r[ti, 0, 0] if rm is None else r[ti, 0, 0] + rm[mi, 0, 0]
-            z, w = meas.z[mi, 0], beta[ti, mi]
-            llr = kalman.lateral_log_likelihood_ratio(len(tr), ti, w, z, var, lat[:, 0], lat_p[:, 0, 0], xp[:, 0],
-                                                      pp[:, 0, 0])
-            cusum = np.maximum(cusum + llr, 0.0)
-            lat, lat_p = kalman.lateral_pda_update(lat, lat_p, z, var, ti, w)
         ref, ref_p = tr.x[:, 0::2], tr.p[:, 0::2, 0::2]
-        off = kalman.lateral_inconsistent(lat, lat_p, ref, ref_p, self._gamma, cfg.lateral_smoother_min_var_fraction)
-        off |= cusum > cfg.lateral_smoother_cusum_nats
+        if self.kernel is not None:  # predict, likelihood ratio, update and tests in one pass (equal to rounding)
+            c = np.ascontiguousarray
+            lat, lat_p, cusum, off = self.kernel.lateral_step(
+                c(tr.lat), c(tr.lat_p), frame.dt_s, cfg.lateral_smoother_q_m2ps3, c(beta), c(meas.z[:, 0]),
+                c(r[:, 0, 0]), c(rm[:, 0, 0]) if rm is not None else _NO_VAR, rm is not None, c(xp[:, 0]),
+                c(pp[:, 0, 0]), c(tr.lat_cusum), c(ref), c(ref_p), self._gamma,
+                cfg.lateral_smoother_min_var_fraction, cfg.lateral_smoother_cusum_nats)
+            any_pair = beta.size > 0 and bool((beta > 0).any())
+        else:
+            lat, lat_p, cusum, off, any_pair = self._line(tr, frame, ref, ref_p)
         hold = keep = None
         if cfg.lateral_smoother_hold_manoeuvre_prob < 1.0:
             keep = self.predictor.manoeuvring(tr)
             if keep is not None:
                 hold = keep[0] > cfg.lateral_smoother_hold_manoeuvre_prob  # the IMM says: manoeuvring
                 off |= hold
-        if cfg.lateral_smoother_hold_unresolved and meas.unresolved is not None and ti.size:
+        if cfg.lateral_smoother_hold_unresolved and meas.unresolved is not None and any_pair:
             # a detection of two vehicles too close in angle to split (its angle lies between them) carries the track:
             # no straight line through it, the motion model's position until the pair splits
             best, strong = carrying_detection(beta)
@@ -92,6 +95,26 @@ class LateralSmoother:
                 lat_p[hold, 0, 1] = lat_p[hold, 1, 0] = pk[hold, 0, 2]
         tr.lat, tr.lat_p, tr.lat_cusum = lat, lat_p, cusum
         return None
+
+    def _line(self, tr: TrackTable, frame: Frame, ref: np.ndarray, ref_p: np.ndarray):
+        """The numpy reference of one frame of the lines: predicted, tested against the detections (CUSUM of the
+        likelihood ratio), updated and tested against the motion model -> (lat, lat_p, cusum, off, any pair)."""
+        cfg = self.cfg
+        meas, beta, r, rm = frame.meas, frame.hyp.beta, frame.mp.r, frame.mp.rm
+        xp, pp = frame.pred.x, frame.pred.p
+        lat, lat_p = kalman.lateral_predict(tr.lat, tr.lat_p, frame.dt_s, cfg.lateral_smoother_q_m2ps3)
+        ti, mi = np.nonzero(beta > 0)
+        cusum = tr.lat_cusum
+        if ti.size:
+            var = r[ti, 0, 0] if rm is None else r[ti, 0, 0] + rm[mi, 0, 0]
+            z, w = meas.z[mi, 0], beta[ti, mi]
+            llr = kalman.lateral_log_likelihood_ratio(len(tr), ti, w, z, var, lat[:, 0], lat_p[:, 0, 0], xp[:, 0],
+                                                      pp[:, 0, 0])
+            cusum = np.maximum(cusum + llr, 0.0)
+            lat, lat_p = kalman.lateral_pda_update(lat, lat_p, z, var, ti, w)
+        off = kalman.lateral_inconsistent(lat, lat_p, ref, ref_p, self._gamma, cfg.lateral_smoother_min_var_fraction)
+        off |= cusum > cfg.lateral_smoother_cusum_nats
+        return lat, lat_p, cusum, off, bool(ti.size)
 
     def restart(self, tracks: TrackTable, rows: np.ndarray) -> None:
         """The line restarts from the rows' (moved) state."""

@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 
+from edge import native
 from edge.track import imm, kalman
 from edge.track.config import AssociationConfig, MotionConfig
 from edge.track.roles.associate import Hypotheses
@@ -54,6 +55,8 @@ class ImmPredictor:
     def __init__(self, cfg: MotionConfig) -> None:
         self.cfg = cfg
         self.pi = imm.switch_matrix(cfg.imm_p_keep_to_manoeuvre, cfg.imm_p_manoeuvre_to_keep)
+        #: the compiled IMM cycle (``edge.native._track``), or None: numpy
+        self.kernel = native.load("_track")
         self._cached: tuple[float, float, np.ndarray, np.ndarray] | None = None  # (dt, yaw, F (2,4,4), Q (2,4,4))
 
     def _far_switch(self, rho: np.ndarray) -> np.ndarray:
@@ -81,6 +84,11 @@ class ImmPredictor:
         pi = self.pi
         if c.imm_far_p_keep_to_manoeuvre < c.imm_p_keep_to_manoeuvre and len(tracks):
             pi = self._far_switch(np.hypot(tracks.x[:, 0], tracks.x[:, 1]))
+        if self.kernel is not None:  # mixing, prediction and moment matching in one pass (equal to rounding)
+            c = np.ascontiguousarray
+            xp, pp, xpm, ppm, cj = self.kernel.imm_predict(c(tracks.xm), c(tracks.pm), c(tracks.mu),
+                                                            c(pi if pi.ndim == 3 else pi[None]), f, q)
+            return Prediction(xp, pp, xpm, ppm, cj)
         x0, p0, cj = imm.mix(tracks.xm, tracks.pm, tracks.mu, pi)
         xpm, ppm = imm.predict_modes(x0, p0, f, q)
         xp, pp = imm.moment_match(xpm, ppm, cj)
@@ -135,6 +143,8 @@ class ImmPdaUpdater:
         self.assoc, self.motion = assoc, motion
         self.measurement_model = measurement_model
         self.gamma = gamma  # gamma(n): the validation gate threshold
+        #: the compiled moment matching (``edge.native._track``), or None: numpy
+        self.kernel = native.load("_track")
 
     def update(self, tracks: TrackTable, pred: Prediction, mp: MeasurementPrediction, hyp: Hypotheses,
                meas: Measurements) -> None:
@@ -143,4 +153,8 @@ class ImmPdaUpdater:
                                                          self.assoc.prob_gate)
         tracks.mu = imm.update_mode_probabilities(pred.c, lik, self.motion.imm_min_mode_prob)
         tracks.xm, tracks.pm = xm, pm
-        tracks.x, tracks.p = imm.moment_match(xm, pm, tracks.mu)
+        if self.kernel is not None:  # equal to rounding
+            tracks.x, tracks.p = self.kernel.moment_match(np.ascontiguousarray(xm), np.ascontiguousarray(pm),
+                                                          np.ascontiguousarray(tracks.mu))
+        else:
+            tracks.x, tracks.p = imm.moment_match(xm, pm, tracks.mu)

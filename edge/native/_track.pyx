@@ -1,0 +1,768 @@
+# cython: language_level=3
+# distutils: extra_compile_args = -ffp-contract=off
+"""Compiled core of the lane tracker's association and update (issue 30), for all tracks at once.
+
+The numpy references are in :mod:`edge.track.pdaf` (``innovations_each``, ``mahalanobis_d2``,
+``pair_innovations`` + ``combined_update_pairs``); the roles call these kernels through
+:mod:`edge.track.kernels` when they are built.
+
+- :func:`innovations_each` and :func:`quad_d2` do the same float64 operations in the same order as the numpy
+  reference (the cofactor inverse of :func:`edge.track.smallmat.inv_det`, the quadratic form summed term after
+  term in the order i <= j): bit-identical on x86-64 (built without contraction into fused multiply-adds).
+- :func:`pair_update` (the per-hypothesis PDAF update over the validated pairs) replaces small matrix products
+  that numpy hands to BLAS; it equals the reference to rounding (relative 1e-12 on states and covariances).
+"""
+
+import numpy as np
+cimport numpy as cnp
+
+cnp.import_array()
+
+
+cdef inline double _inv3(const double* a, double* out) noexcept nogil:
+    """out = inv(a) (3x3 row-major) by cofactors in the order of smallmat.inv_det; returns det(a)."""
+    cdef double adj[9]
+    cdef int i, j
+    cdef double det
+    for i in range(3):
+        for j in range(3):
+            adj[3 * i + j] = (a[3 * ((j + 1) % 3) + (i + 1) % 3] * a[3 * ((j + 2) % 3) + (i + 2) % 3]
+                              - a[3 * ((j + 1) % 3) + (i + 2) % 3] * a[3 * ((j + 2) % 3) + (i + 1) % 3])
+    det = a[0] * adj[0] + a[1] * adj[3] + a[2] * adj[6]
+    for i in range(9):
+        out[i] = adj[i] / det
+    return det
+
+
+cdef inline double _inv2(const double* a, double* out) noexcept nogil:
+    cdef double det = a[0] * a[3] - a[1] * a[2]
+    out[0] = a[3] / det
+    out[1] = (-a[1]) / det
+    out[2] = (-a[2]) / det
+    out[3] = a[0] / det
+    return det
+
+
+cdef inline double _quad3(const double* si, const double* v) noexcept nogil:
+    """v' S^-1 v as pdaf._quad_each: terms (S^-1_ij * (1|2)) * v_i * v_j for i <= j, summed in that order."""
+    cdef double acc = si[0] * v[0] * v[0]
+    acc = acc + si[1] * 2.0 * v[0] * v[1]
+    acc = acc + si[2] * 2.0 * v[0] * v[2]
+    acc = acc + si[4] * v[1] * v[1]
+    acc = acc + si[5] * 2.0 * v[1] * v[2]
+    acc = acc + si[8] * v[2] * v[2]
+    return acc
+
+
+cdef inline double _quad2(const double* si, const double* v) noexcept nogil:
+    cdef double acc = si[0] * v[0] * v[0]
+    acc = acc + si[1] * 2.0 * v[0] * v[1]
+    acc = acc + si[3] * v[1] * v[1]
+    return acc
+
+
+def innovations_each(const double[:, ::1] z, const double[:, ::1] zh, const double[:, :, ::1] st,
+                     const double[:, :, ::1] rm, double lim, bint prune):
+    """``v`` (T, M, n), ``d2`` (T, M), ``s``, ``s_inv`` (T, M, n, n), ``det_s`` (T, M) of
+    :func:`edge.track.pdaf.innovations_each` from ``z`` (M, n), ``z_hat`` (T, n), the track part ``st`` (T, n, n)
+    (``H P H' + R_t``, symmetrised) and ``rm`` (M, n, n). ``prune``: the exact pre-gate with threshold ``lim``
+    (``gamma (1 + margin)``): a pair with ``v_i^2 > lim (st_ii + rm_ii)`` in a component gets ``d2 = inf``,
+    ``S = S^-1 = 0``, ``|S| = 1``. n = 2 or 3."""
+    cdef Py_ssize_t nt = zh.shape[0], nm = z.shape[0], n = z.shape[1]
+    cdef Py_ssize_t t, m, i, nn = n * n
+    v_a = np.empty((nt, nm, n))
+    d2_a = np.empty((nt, nm))
+    s_a = np.empty((nt, nm, n, n))  # every entry is written below (np.zeros would clear them all first)
+    si_a = np.empty((nt, nm, n, n))
+    det_a = np.empty((nt, nm))
+    cdef double[:, :, ::1] v = v_a
+    cdef double[:, ::1] d2 = d2_a
+    cdef double[:, :, :, ::1] s = s_a
+    cdef double[:, :, :, ::1] si = si_a
+    cdef double[:, ::1] det = det_a
+    cdef double* sp
+    cdef double* sip
+    cdef const double* stp
+    cdef const double* rmp
+    cdef double* vp
+    cdef bint far
+    cdef double inf = float("inf")
+    with nogil:
+        for t in range(nt):
+            for m in range(nm):
+                vp = &v[t, m, 0]
+                for i in range(n):
+                    vp[i] = z[m, i] - zh[t, i]
+                if prune:
+                    far = False
+                    for i in range(n):
+                        if vp[i] * vp[i] > lim * (st[t, i, i] + rm[m, i, i]):
+                            far = True
+                    if far:
+                        d2[t, m] = inf
+                        det[t, m] = 1.0
+                        sp = &s[t, m, 0, 0]
+                        sip = &si[t, m, 0, 0]
+                        for i in range(nn):
+                            sp[i] = 0.0
+                            sip[i] = 0.0
+                        continue
+                sp = &s[t, m, 0, 0]
+                stp = &st[t, 0, 0]
+                rmp = &rm[m, 0, 0]
+                for i in range(nn):
+                    sp[i] = stp[i] + rmp[i]
+                if n == 3:
+                    det[t, m] = _inv3(sp, &si[t, m, 0, 0])
+                    d2[t, m] = _quad3(&si[t, m, 0, 0], vp)
+                else:
+                    det[t, m] = _inv2(sp, &si[t, m, 0, 0])
+                    d2[t, m] = _quad2(&si[t, m, 0, 0], vp)
+    return v_a, d2_a, s_a, si_a, det_a
+
+
+def quad_d2(const double[:, :, ::1] v, const double[:, :, ::1] s_inv):
+    """(T, M) ``v' S_t^-1 v`` of innovations ``v`` (T, M, n) with one symmetric ``S_t^-1`` (T, n, n) per track:
+    :func:`edge.track.pdaf._quad`, term for term. n = 2 or 3."""
+    cdef Py_ssize_t nt = v.shape[0], nm = v.shape[1], n = v.shape[2], t, m
+    out_a = np.empty((nt, nm))
+    cdef double[:, ::1] out = out_a
+    with nogil:
+        for t in range(nt):
+            for m in range(nm):
+                if n == 3:
+                    out[t, m] = _quad3(&s_inv[t, 0, 0], &v[t, m, 0])
+                else:
+                    out[t, m] = _quad2(&s_inv[t, 0, 0], &v[t, m, 0])
+    return out_a
+
+
+from libc.math cimport hypot, fabs
+
+
+cdef inline double _max_nan(double a, double b) noexcept nogil:
+    """np.maximum: the larger, NaN if either is NaN."""
+    if a != a or b != b:
+        return a + b
+    return a if a >= b else b
+
+
+def duplicate_pairs(const double[:, ::1] x, double merge_speed_mps, double merge_lateral_m,
+                    const double[::1] reach_m, double merge_lateral_speed_mps, const double[::1] pdx,
+                    const double[::1] pdy, double state_gamma, const long long[::1] pair,
+                    const long long[::1] det, bint resolved):
+    """The pair tests of :meth:`edge.track.roles.delete.TrackDeleter.duplicates` over all track pairs ``a < b``
+    (row-major), with its arithmetic: velocities alike along the common heading (and not the two members of a
+    resolved pair: ``pair``, ``det`` per track when ``resolved``); then a pair is *boxed* (within
+    ``merge_lateral_m`` across and ``max(reach_a, reach_b)`` along) or, with lateral speeds alike, a candidate for the
+    state test when its marginal distances pass (``dx^2 < gamma (pdx_a + pdx_b)``, the same in y).
+
+    Returns ``run`` (T,) bool (the track is in some boxed pair), the boxed pairs ``ba``, ``bb`` (B,) int64 with
+    ``bkeep`` (B,) bool (lateral speeds alike), and the state-test candidates ``ra``, ``rb`` (R,) with their state
+    differences ``rdx`` (R, 4)."""
+    cdef Py_ssize_t nt = x.shape[0], a, b, i
+    run_a = np.zeros(nt, dtype=bool)
+    cdef cnp.npy_bool[::1] run = run_a
+    cdef list boxed = [], rest = []
+    cdef double s0, s1, h, nrm, ux, uy, d0, d1, d2_, d3
+    cdef bint is_boxed, keep
+    for a in range(nt):
+        for b in range(a + 1, nt):
+            s0 = x[a, 2] + x[b, 2]
+            s1 = x[a, 3] + x[b, 3]
+            h = hypot(s0, s1)
+            nrm = _max_nan(h, 1e-9)
+            ux = s0 / nrm
+            uy = s1 / nrm
+            d2_ = x[a, 2] - x[b, 2]
+            d3 = x[a, 3] - x[b, 3]
+            if not (fabs(d2_ * ux + d3 * uy) < merge_speed_mps):
+                continue
+            if resolved and pair[a] >= 0 and pair[a] == pair[b] and det[a] != det[b]:
+                continue
+            d0 = x[a, 0] - x[b, 0]
+            d1 = x[a, 1] - x[b, 1]
+            keep = fabs(d2_ * uy - d3 * ux) < merge_lateral_speed_mps
+            is_boxed = (fabs(d0) < merge_lateral_m) and (fabs(d1) < _max_nan(reach_m[a], reach_m[b]))
+            if is_boxed:
+                run[a] = run[b] = True
+                boxed.append((a, b, keep))
+            elif keep and d0 * d0 < state_gamma * (pdx[a] + pdx[b]) and d1 * d1 < state_gamma * (pdy[a] + pdy[b]):
+                rest.append((a, b, d0, d1, d2_, d3))
+    ba = np.array([q[0] for q in boxed], dtype=np.int64)
+    bb = np.array([q[1] for q in boxed], dtype=np.int64)
+    bkeep = np.array([q[2] for q in boxed], dtype=bool)
+    ra = np.array([q[0] for q in rest], dtype=np.int64)
+    rb = np.array([q[1] for q in rest], dtype=np.int64)
+    rdx = np.array([q[2:] for q in rest], dtype=np.float64).reshape(len(rest), 4)
+    return run_a, ba, bb, bkeep, ra, rb, rdx
+
+
+cdef void _update_rows(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] h,
+                       const long long[::1] rows, const double[:, ::1] v, const double[:, :, ::1] s_inv,
+                       const double[::1] w, double[:, ::1] x, double[:, :, ::1] p) noexcept nogil:
+    """The per-hypothesis PDAF update of :func:`edge.track.pdaf.combined_update_pairs` (pairs with ``w > 0``):
+    ``x = x^- + sum w dx``, ``P = P^- - (sum w K) H P^- + sum w dx dx' - dx_bar dx_bar'``, symmetrised."""
+    cdef Py_ssize_t nr = xs.shape[0], npair = rows.shape[0], n = h.shape[1]
+    cdef Py_ssize_t r, q, i, j, l
+    cdef double ph[4][3]
+    cdef double kk[4][3]
+    cdef double dx[4]
+    cdef double wq, acc
+    # accumulators per row: dx_bar (4), k_bar (4 x n), spread (4 x 4), in x and p (x starts at 0, p at 0)
+    for r in range(nr):
+        for i in range(4):
+            x[r, i] = 0.0
+            for j in range(4):
+                p[r, i, j] = 0.0
+    # p holds sum w dx dx' and the k_bar terms are applied per pair as -w K (H P^-): the same sums, per pair
+    for q in range(npair):
+        wq = w[q]
+        if not (wq > 0.0):
+            continue
+        r = rows[q]
+        for i in range(4):
+            for j in range(n):
+                acc = 0.0
+                for l in range(4):
+                    acc = acc + ps[r, i, l] * h[r, j, l]
+                ph[i][j] = acc
+        for i in range(4):
+            for j in range(n):
+                acc = 0.0
+                for l in range(n):
+                    acc = acc + ph[i][l] * s_inv[q, l, j]
+                kk[i][j] = acc
+        for i in range(4):
+            acc = 0.0
+            for j in range(n):
+                acc = acc + kk[i][j] * v[q, j]
+            dx[i] = acc
+        for i in range(4):
+            x[r, i] += wq * dx[i]
+            for j in range(4):
+                # K_q H P^- = K_q (P^- H')' = K_q ph'
+                acc = 0.0
+                for l in range(n):
+                    acc = acc + kk[i][l] * ph[j][l]
+                p[r, i, j] += wq * dx[i] * dx[j] - wq * acc
+    for r in range(nr):
+        for i in range(4):
+            for j in range(4):
+                p[r, i, j] = ps[r, i, j] + p[r, i, j] - x[r, i] * x[r, j]
+        for i in range(4):
+            for j in range(i + 1, 4):
+                acc = 0.5 * (p[r, i, j] + p[r, j, i])
+                p[r, i, j] = acc
+                p[r, j, i] = acc
+        for i in range(4):
+            x[r, i] = xs[r, i] + x[r, i]
+
+
+def update_pairs(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] h,
+                 const long long[::1] rows, const double[:, ::1] v, const double[:, :, ::1] s_inv,
+                 const double[::1] w):
+    """:func:`edge.track.pdaf.combined_update_pairs` for pairs ``rows`` (P,) with innovations ``v`` (P, n), inverse
+    covariances ``s_inv`` (P, n, n) and weights ``w`` (P,) -> (x (R, 4), P (R, 4, 4)); equal to rounding."""
+    x_a = np.empty((xs.shape[0], 4))
+    p_a = np.empty((xs.shape[0], 4, 4))
+    cdef double[:, ::1] x = x_a
+    cdef double[:, :, ::1] p = p_a
+    with nogil:
+        _update_rows(xs, ps, h, rows, v, s_inv, w, x, p)
+    return x_a, p_a
+
+
+def pair_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] h,
+                const double[:, ::1] zh, const double[:, :, ::1] r_track, const double[:, ::1] z,
+                const double[:, :, ::1] r_meas, const long long[::1] rows, const long long[::1] cols,
+                const double[::1] scale, bint scaled, const double[::1] w):
+    """:func:`edge.track.pdaf.pair_innovations` (``S = H P H' + R_t (position block scaled) + R_m`` per pair,
+    ``rows`` into the state rows, ``cols`` into the detections) followed by :func:`update_pairs`: returns ``x``,
+    ``P`` and the pairs' ``v`` (P, n), ``d2`` (P,), ``det_s`` (P,) for the mode likelihoods. Equal to rounding
+    (``H P H'`` is summed here, numpy hands it to BLAS)."""
+    cdef Py_ssize_t npair = rows.shape[0], n = z.shape[1], q, i, j, l, r, m
+    v_a = np.empty((npair, n))
+    d2_a = np.empty(npair)
+    det_a = np.empty(npair)
+    si_a = np.empty((npair, n, n))
+    cdef double[:, ::1] v = v_a
+    cdef double[::1] d2 = d2_a
+    cdef double[::1] det = det_a
+    cdef double[:, :, ::1] si = si_a
+    cdef double hp[3][4]
+    cdef double s[9]
+    cdef double acc, f
+    with nogil:
+        for q in range(npair):
+            r = rows[q]
+            m = cols[q]
+            for i in range(n):
+                for j in range(4):
+                    acc = 0.0
+                    for l in range(4):
+                        acc = acc + h[r, i, l] * ps[r, l, j]
+                    hp[i][j] = acc
+            for i in range(n):
+                for j in range(n):
+                    acc = 0.0
+                    for l in range(4):
+                        acc = acc + hp[i][l] * h[r, j, l]
+                    f = r_track[r, i, j]
+                    if scaled and i < 2 and j < 2:
+                        f = f * scale[q]
+                    s[i * n + j] = acc + f
+            for i in range(n):
+                for j in range(i + 1, n):
+                    acc = 0.5 * (s[i * n + j] + s[j * n + i])
+                    s[i * n + j] = acc
+                    s[j * n + i] = acc
+            for i in range(n * n):
+                s[i] = s[i] + r_meas[m, i // n, i % n]
+            for i in range(n):
+                v[q, i] = z[m, i] - zh[r, i]
+            if n == 3:
+                det[q] = _inv3(s, &si[q, 0, 0])
+                d2[q] = _quad3(&si[q, 0, 0], &v[q, 0])
+            else:
+                det[q] = _inv2(s, &si[q, 0, 0])
+                d2[q] = _quad2(&si[q, 0, 0], &v[q, 0])
+    x_a, p_a = update_pairs(xs, ps, h, rows, v_a, si_a, w)
+    return x_a, p_a, v_a, d2_a, det_a
+
+
+cdef double _pairwise_sum(const double* a, Py_ssize_t n) noexcept nogil:
+    """numpy's pairwise summation of a contiguous row (``np.add.reduce`` over the last axis): sequential below 8
+    terms, eight interleaved partial sums up to 128, halves (at a multiple of 8) beyond."""
+    cdef Py_ssize_t i, j, n2
+    cdef double res
+    cdef double r[8]
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res = res + a[i]
+        return res
+    if n <= 128:
+        for j in range(8):
+            r[j] = a[j]
+        i = 8
+        while i < n - (n % 8):
+            for j in range(8):
+                r[j] = r[j] + a[i + j]
+            i += 8
+        res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+        while i < n:
+            res = res + a[i]
+            i += 1
+        return res
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise_sum(a, n2) + _pairwise_sum(a + n2, n - n2)
+
+
+cdef inline double _min_nan(double a, double b) noexcept nogil:
+    """np.minimum: the smaller, NaN if either is NaN."""
+    if a != a or b != b:
+        return a + b
+    return a if a <= b else b
+
+
+def update_extent(const double[:, :, ::1] v, const double[:, ::1] s2_track, const double[:, :, :, ::1] s_pair,
+                  bint per_pair, const double[:, ::1] beta, const double[:, ::1] u, const double[::1] w,
+                  const double[::1] ext_var, double alpha, double max_var):
+    """:meth:`edge.track.roles.measure.MeasurementModel.update_extent` with the same arithmetic, summation order
+    included (numpy's pairwise sums over the detections, sequential sums of ``S``): the new (T,) along-heading
+    spread. ``s2_track`` (T, 4): the position block of the track's ``S`` (when not ``per_pair``); ``s_pair``
+    (T, M, n, n): ``S`` per pair (when ``per_pair``)."""
+    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], n = v.shape[2], t, m, k
+    out_a = np.empty(nt)
+    cdef double[::1] out = out_a
+    buf_a = np.empty(max(nm, 1))
+    cdef double[::1] buf = buf_a
+    cdef double wsum, m2, den, a, b, along, sample, u0, u1
+    cdef double s2[4]
+    with nogil:
+        for t in range(nt):
+            wsum = _pairwise_sum(&beta[t, 0], nm) if nm else 0.0
+            if not (wsum > 0.5 and w[t] >= 1.0):
+                out[t] = ext_var[t]
+                continue
+            u0 = u[t, 0]
+            u1 = u[t, 1]
+            for m in range(nm):
+                a = v[t, m, 0] * u0 + v[t, m, 1] * u1
+                buf[m] = beta[t, m] * a * a
+            den = _max_nan(wsum, 1e-12)
+            m2 = _pairwise_sum(&buf[0], nm) / den
+            if per_pair:
+                for k in range(4):
+                    s2[k] = 0.0
+                for m in range(nm):
+                    b = beta[t, m]
+                    s2[0] = s2[0] + s_pair[t, m, 0, 0] * b
+                    s2[1] = s2[1] + s_pair[t, m, 0, 1] * b
+                    s2[2] = s2[2] + s_pair[t, m, 1, 0] * b
+                    s2[3] = s2[3] + s_pair[t, m, 1, 1] * b
+                for k in range(4):
+                    s2[k] = s2[k] / den
+            else:
+                for k in range(4):
+                    s2[k] = s2_track[t, k]
+            along = u0 * (s2[0] * u0 + s2[1] * u1) + u1 * (s2[2] * u0 + s2[3] * u1)
+            sample = _min_nan(_max_nan(m2 - (along - ext_var[t]), 0.0), max_var)
+            out[t] = (1.0 - alpha) * ext_var[t] + alpha * sample
+    return out_a
+
+
+from libc.math cimport exp, sqrt, INFINITY
+
+
+def associate_each(const double[:, ::1] d2, const double[:, ::1] det_s, double gamma, double vol_factor,
+                   double norm_factor, double prob_detect, double b, bint jpda, const cnp.npy_bool[::1] confirmed,
+                   const double[::1] rank, bint seniority, const cnp.npy_bool[::1] pair_ok, bint with_pairs):
+    """The association of :class:`edge.track.roles.associate.PdaAssociator` with one ``S`` per (track, detection)
+    (:func:`edge.track.pdaf.association_weights` on :class:`edge.track.pdaf.InnovationsEach`), with its arithmetic
+    and summation order: seniority (``rank`` (T,): inf for confirmed tracks, else their hits; a tentative track
+    only sees detections no more senior track validated, unless ``pair_ok``), the gate ``d2 <= gamma``, the gate
+    volume ``vol_factor * mean sqrt|S|`` over the validated detections, the likelihoods
+    ``P_D N(v; 0, S) V / M_t`` and the PDAF (or, ``jpda``, cheap JPDA) weights with ``b = 1 - P_G P_D``.
+    ``norm_factor`` is ``(2 pi)^(n/2)``. Returns ``beta`` (T, M), ``beta0`` (T,), ``gated`` (T, M) bool and the gate
+    volumes (T,)."""
+    cdef Py_ssize_t nt = d2.shape[0], nm = d2.shape[1], t, m
+    beta_a = np.empty((nt, nm))
+    beta0_a = np.empty(nt)
+    gated_a = np.empty((nt, nm), dtype=bool)
+    vol_a = np.empty(nt)
+    root_a = np.empty((nt, nm))
+    owner_a = np.empty(nm)
+    sm_a = np.zeros(nm)
+    buf_a = np.empty(max(nm, 1))
+    st_a = np.empty(nt)
+    cdef double[:, ::1] beta = beta_a
+    cdef double[::1] beta0 = beta0_a
+    cdef cnp.npy_bool[:, ::1] gated = gated_a
+    cdef double[::1] vol = vol_a
+    cdef double[:, ::1] root = root_a
+    cdef double[::1] owner = owner_a
+    cdef double[::1] sm = sm_a
+    cdef double[::1] buf = buf_a
+    cdef double[::1] st = st_a
+    cdef long long k
+    cdef double scale, mean_root, lik, q
+    with nogil:
+        if seniority:  # the most senior rank among the tracks that validated each detection
+            for m in range(nm):
+                owner[m] = -INFINITY
+            for t in range(nt):
+                for m in range(nm):
+                    if d2[t, m] <= gamma and rank[t] > owner[m]:
+                        owner[m] = rank[t]
+        for t in range(nt):
+            k = 0
+            for m in range(nm):
+                gated[t, m] = d2[t, m] <= gamma and (not seniority or confirmed[t] or rank[t] >= owner[m]
+                                                     or (with_pairs and pair_ok[m]))
+                k += gated[t, m]
+                root[t, m] = sqrt(det_s[t, m])
+                buf[m] = root[t, m] * (1.0 if gated[t, m] else 0.0)
+            if k > 0:
+                mean_root = _pairwise_sum(&buf[0], nm) / <double> k
+            else:
+                mean_root = _pairwise_sum(&root[t, 0], nm) / <double> nm
+            vol[t] = vol_factor * mean_root
+            scale = prob_detect * vol[t] / <double> (k if k > 1 else 1)
+            for m in range(nm):
+                if gated[t, m]:
+                    q = d2[t, m]
+                    q = q if q <= gamma or q != q else gamma  # np.minimum(d2, gamma)
+                    beta[t, m] = exp(-0.5 * q) * scale / (norm_factor * root[t, m])
+                else:
+                    beta[t, m] = 0.0
+                sm[m] = sm[m] + beta[t, m]
+            st[t] = _pairwise_sum(&beta[t, 0], nm)
+        if nm == 1:  # numpy reduces a single column pairwise (its only axis left), not row after row
+            sm[0] = _pairwise_sum(&beta[0, 0], nt)
+        for t in range(nt):
+            if jpda:
+                for m in range(nm):
+                    lik = beta[t, m]
+                    beta[t, m] = lik / (st[t] + sm[m] - lik + b)
+                beta0[t] = 1.0 - _pairwise_sum(&beta[t, 0], nm)
+            else:
+                for m in range(nm):
+                    beta[t, m] = beta[t, m] / (b + st[t])
+                beta0[t] = b / (b + st[t])
+    return beta_a, beta0_a, gated_a, vol_a
+
+
+def near_tracks(const double[:, ::1] xt, const double[:, ::1] z, const double[::1] lat_m, const double[::1] along_m,
+                const cnp.npy_bool[::1] resolved, double pair_lateral_m, const double[::1] vr_t, bint radial,
+                double merge_speed_mps):
+    """(M,) bool: detection ``m`` lies in some track's same-vehicle box (``|dx| < lat_m[t]``, or ``pair_lateral_m``
+    for a resolved detection, and ``|dy| < along_m[t]``) and, with ``radial``, moves like it (``|vr_t[t] - z[m, 2]|
+    < merge_speed_mps``): the seed block of :meth:`edge.track.roles.initiate.SeedInitiator.initiate`, same
+    arithmetic."""
+    cdef Py_ssize_t nt = xt.shape[0], nm = z.shape[0], t, m
+    out_a = np.zeros(nm, dtype=bool)
+    cdef cnp.npy_bool[::1] out = out_a
+    cdef double lat
+    with nogil:
+        for m in range(nm):
+            for t in range(nt):
+                lat = pair_lateral_m if resolved[m] else lat_m[t]
+                if (fabs(xt[t, 0] - z[m, 0]) < lat and fabs(xt[t, 1] - z[m, 1]) < along_m[t]
+                        and (not radial or fabs(vr_t[t] - z[m, 2]) < merge_speed_mps)):
+                    out[m] = True
+                    break
+    return out_a
+
+
+cdef inline void _moment_match_row(const double* xm, const double* pm, double w0, double w1, double* x,
+                                   double* p) noexcept nogil:
+    """Two-mode moment matching of one track: ``x = w0 x_0 + w1 x_1``, ``P = w0 P_0 + w1 P_1 + d d'``,
+    ``d = (x_0 - x_1) sqrt(w0 w1)``."""
+    cdef double d[4]
+    cdef double r = sqrt(w0 * w1)
+    cdef int i, j
+    for i in range(4):
+        x[i] = w0 * xm[i] + w1 * xm[4 + i]
+        d[i] = (xm[i] - xm[4 + i]) * r
+    for i in range(4):
+        for j in range(4):
+            p[4 * i + j] = w0 * pm[4 * i + j] + w1 * pm[16 + 4 * i + j] + d[i] * d[j]
+
+
+def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const double[:, ::1] mu,
+                const double[:, :, ::1] pi, const double[:, :, ::1] f, const double[:, :, ::1] q):
+    """IMM mixing, mode-matched prediction and moment matching of all tracks (:func:`edge.track.imm.mix`,
+    :func:`edge.track.imm.predict_modes`, :func:`edge.track.imm.moment_match`): ``xm`` (T, 2, 4), ``pm``
+    (T, 2, 4, 4), ``mu`` (T, 2), ``pi`` (1, 2, 2) or (T, 2, 2), ``f``, ``q`` (2, 4, 4) -> ``x`` (T, 4), ``p``
+    (T, 4, 4), ``xpm`` (T, 2, 4), ``ppm`` (T, 2, 4, 4), ``c`` (T, 2). Equal to numpy to rounding (its small matrix
+    products are BLAS's)."""
+    cdef Py_ssize_t nt = xm.shape[0], t, i, j, k, l, mode, src
+    x_a = np.empty((nt, 4))
+    p_a = np.empty((nt, 4, 4))
+    xpm_a = np.empty((nt, 2, 4))
+    ppm_a = np.empty((nt, 2, 4, 4))
+    c_a = np.empty((nt, 2))
+    cdef double[:, ::1] x = x_a
+    cdef double[:, :, ::1] p = p_a
+    cdef double[:, :, ::1] xpm = xpm_a
+    cdef double[:, :, :, ::1] ppm = ppm_a
+    cdef double[:, ::1] c = c_a
+    cdef double w[2][2]
+    cdef double joint[2][2]
+    cdef double x0[4]
+    cdef double p0[4][4]
+    cdef double fp[4][4]
+    cdef double dvec[4]
+    cdef double acc, den
+    with nogil:
+        for t in range(nt):
+            src = t if pi.shape[0] > 1 else 0
+            for i in range(2):
+                for j in range(2):
+                    joint[i][j] = mu[t, i] * pi[src, i, j]
+            for j in range(2):
+                c[t, j] = joint[0][j] + joint[1][j]
+                den = _max_nan(c[t, j], 1e-300)
+                for i in range(2):
+                    w[i][j] = joint[i][j] / den
+            for k in range(4):
+                dvec[k] = xm[t, 0, k] - xm[t, 1, k]
+            for mode in range(2):
+                for k in range(4):
+                    x0[k] = w[0][mode] * xm[t, 0, k] + w[1][mode] * xm[t, 1, k]
+                for k in range(4):
+                    for l in range(4):
+                        p0[k][l] = (w[0][mode] * pm[t, 0, k, l] + w[1][mode] * pm[t, 1, k, l]
+                                    + (w[0][mode] * w[1][mode]) * (dvec[k] * dvec[l]))
+                for k in range(4):
+                    acc = 0.0
+                    for l in range(4):
+                        acc = acc + f[mode, k, l] * x0[l]
+                    xpm[t, mode, k] = acc
+                for k in range(4):
+                    for l in range(4):
+                        acc = 0.0
+                        for i in range(4):
+                            acc = acc + f[mode, k, i] * p0[i][l]
+                        fp[k][l] = acc
+                for k in range(4):
+                    for l in range(4):
+                        acc = 0.0
+                        for i in range(4):
+                            acc = acc + fp[k][i] * f[mode, l, i]
+                        ppm[t, mode, k, l] = acc + q[mode, k, l]
+            _moment_match_row(&xpm[t, 0, 0], &ppm[t, 0, 0, 0], c[t, 0], c[t, 1], &x[t, 0], &p[t, 0, 0])
+    return x_a, p_a, xpm_a, ppm_a, c_a
+
+
+def moment_match(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const double[:, ::1] w):
+    """:func:`edge.track.imm.moment_match` of all tracks -> ``x`` (T, 4), ``p`` (T, 4, 4); equal to rounding."""
+    cdef Py_ssize_t nt = xm.shape[0], t
+    x_a = np.empty((nt, 4))
+    p_a = np.empty((nt, 4, 4))
+    cdef double[:, ::1] x = x_a
+    cdef double[:, :, ::1] p = p_a
+    with nogil:
+        for t in range(nt):
+            _moment_match_row(&xm[t, 0, 0], &pm[t, 0, 0, 0], w[t, 0], w[t, 1], &x[t, 0], &p[t, 0, 0])
+    return x_a, p_a
+
+
+def imm_mode_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] hm,
+                    const double[:, ::1] zhm, const double[:, :, ::1] r_track, const double[:, ::1] z,
+                    const double[:, :, ::1] r_meas, const cnp.npy_bool[:, ::1] gated, const double[:, ::1] beta,
+                    double near_factor, bint scaled, const double[::1] vol, double prob_detect, double prob_gate):
+    """Both IMM modes' PDAF posteriors over the validated pairs and the modes' likelihoods
+    (:meth:`edge.track.roles.measure.SnrNoiseModel.mode_update`, :func:`edge.track.imm.mode_likelihood_pairs`):
+    rows ``(track, mode)`` of ``xs`` (2T, 4), ``ps``, ``hm``, ``zhm``; ``r_track`` (T, n, n) the track's part of
+    ``R``; ``gated``, ``beta`` (T, M); with ``scaled`` a detection nearer than the mode's prediction counts
+    ``near_factor`` of the position block of ``r_track``; ``vol`` (T,) the gate volumes. Returns ``xm`` (2T, 4),
+    ``pm`` (2T, 4, 4) and the likelihoods (T, 2). Equal to numpy to rounding."""
+    cdef Py_ssize_t nt = gated.shape[0], nm = gated.shape[1], n = z.shape[1], t, m, k = 0, npair = 0, half, q
+    cdef Py_ssize_t mode, row
+    cdef long long ng
+    for t in range(nt):
+        for m in range(nm):
+            npair += gated[t, m]
+    rows_a = np.empty(2 * npair, dtype=np.int64)
+    cols_a = np.empty(2 * npair, dtype=np.int64)
+    w_a = np.empty(2 * npair)
+    sc_a = np.ones(2 * npair)
+    r_rep_a = np.empty((2 * nt, n, n))
+    cdef long long[::1] rows = rows_a
+    cdef long long[::1] cols = cols_a
+    cdef double[::1] w = w_a
+    cdef double[::1] sc = sc_a
+    cdef double[:, :, ::1] r_rep = r_rep_a
+    cdef double a0, a1
+    half = npair
+    for t in range(nt):
+        for m in range(nm):
+            if gated[t, m]:
+                for mode in range(2):
+                    q = k + mode * half
+                    rows[q] = 2 * t + mode
+                    cols[q] = m
+                    w[q] = beta[t, m]
+                    if scaled:
+                        row = 2 * t + mode
+                        a0 = (z[m, 0] - zhm[row, 0]) * zhm[row, 0]
+                        a1 = (z[m, 1] - zhm[row, 1]) * zhm[row, 1]
+                        sc[q] = near_factor if a0 + a1 < 0.0 else 1.0
+                k += 1
+        for mode in range(2):
+            r_rep[2 * t + mode, :, :] = r_track[t, :, :]
+    x_a, p_a, v_a, d2_a, det_a = pair_update(xs, ps, hm, zhm, r_rep_a, z, r_meas, rows_a, cols_a, sc_a, scaled,
+                                             w_a)
+    cdef double[::1] d2 = d2_a
+    cdef double[::1] det = det_a
+    dens_a = np.zeros(2 * nt)
+    cdef double[::1] dens = dens_a
+    cdef double c_norm = (2.0 * np.pi) ** (n / 2.0)
+    cdef double dq
+    for q in range(2 * npair):
+        dq = d2[q]
+        dq = dq if dq <= 700.0 or dq != dq else 700.0
+        dens[rows[q]] += exp(-0.5 * dq) / (c_norm * sqrt(det[q]))
+    lik_a = np.empty((nt, 2))
+    cdef double[:, ::1] lik = lik_a
+    for t in range(nt):
+        ng = 0
+        for m in range(nm):
+            ng += gated[t, m]
+        for mode in range(2):
+            lik[t, mode] = (1.0 - prob_gate * prob_detect) + prob_detect * vol[t] / <double> (ng if ng > 1 else 1) \
+                * dens[2 * t + mode]
+    return x_a, p_a, lik_a
+
+
+from libc.math cimport log
+
+
+def lateral_step(const double[:, ::1] lat0, const double[:, :, ::1] lat_p0, double dt, double q,
+                 const double[:, ::1] beta, const double[::1] z0, const double[::1] var_track,
+                 const double[::1] var_meas, bint per_detection, const double[::1] x_ref, const double[::1] var_ref,
+                 const double[::1] cusum0, const double[:, ::1] ref, const double[:, :, ::1] ref_p, double gamma,
+                 double min_fraction, double cusum_nats):
+    """One frame of the straight-line lateral filter of every track (:class:`edge.track.roles.post.LateralSmoother`:
+    :func:`edge.track.kalman.lateral_predict`, :func:`edge.track.kalman.lateral_log_likelihood_ratio`, the CUSUM,
+    :func:`edge.track.kalman.lateral_pda_update` and :func:`edge.track.kalman.lateral_inconsistent`) with the
+    association weights ``beta`` (T, M), the detections' lateral positions ``z0`` (M,) and variances
+    ``var_track[t] (+ var_meas[m])``; the motion model's prediction ``x_ref``, ``var_ref`` (T,) and posterior
+    ``ref`` (T, 2), ``ref_p`` (T, 2, 2) = ``[x, vx]``. Returns the updated ``lat`` (T, 2), ``lat_p`` (T, 2, 2),
+    ``cusum`` (T,) and ``off`` (T,) bool (the line disagrees with the motion model: restart). Equal to numpy to
+    rounding."""
+    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], t, m, i, j
+    lat_a = np.empty((nt, 2))
+    lat_p_a = np.empty((nt, 2, 2))
+    cusum_a = np.empty(nt)
+    off_a = np.empty(nt, dtype=bool)
+    cdef double[:, ::1] x = lat_a
+    cdef double[:, :, ::1] p = lat_p_a
+    cdef double[::1] cusum = cusum_a
+    cdef cnp.npy_bool[::1] off = off_a
+    cdef double q3 = q * dt ** 3 / 3.0, q2 = q * dt ** 2 / 2.0, q1 = q * dt
+    cdef double p00, p01, p11, xs, vs, w, r, s_s, s_r, v_s, v_r, llr, k0, k1, dx0, dx1, d, vr0, vr1, c
+    cdef double sx0, sx1, sk0, sk1, s00, s01, s10, s11
+    cdef bint any_pair
+    with nogil:
+        for t in range(nt):
+            p00 = lat_p0[t, 0, 0]
+            p01 = lat_p0[t, 0, 1]
+            p11 = lat_p0[t, 1, 1]
+            xs = lat0[t, 0] + dt * lat0[t, 1]
+            vs = lat0[t, 1]
+            p00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q3
+            p01 = p01 + dt * p11 + q2
+            p11 = p11 + q1
+            llr = 0.0
+            any_pair = False
+            sx0 = sx1 = sk0 = sk1 = s00 = s01 = s10 = s11 = 0.0
+            for m in range(nm):
+                w = beta[t, m]
+                if not (w > 0.0):
+                    continue
+                any_pair = True
+                r = var_track[t] + var_meas[m] if per_detection else var_track[t]
+                s_s = p00 + r
+                s_r = var_ref[t] + r
+                v_s = z0[m] - xs
+                v_r = z0[m] - x_ref[t]
+                llr += w * (0.5 * (log(s_s / s_r) + v_s * v_s / s_s - v_r * v_r / s_r))
+                k0 = p00 / s_s
+                k1 = p01 / s_s
+                dx0 = k0 * v_s
+                dx1 = k1 * v_s
+                sx0 += w * dx0
+                sx1 += w * dx1
+                sk0 += w * k0
+                sk1 += w * k1
+                s00 += w * dx0 * dx0
+                s01 += w * dx0 * dx1
+                s10 += w * dx1 * dx0
+                s11 += w * dx1 * dx1
+            if any_pair:
+                c = cusum0[t] + llr
+                cusum[t] = c if c > 0.0 else 0.0
+            else:
+                cusum[t] = cusum0[t]
+            x[t, 0] = xs + sx0
+            x[t, 1] = vs + sx1
+            # P - k_bar P[0, :] + S - dx_bar dx_bar', symmetrised
+            p[t, 0, 0] = p00 - sk0 * p00 + s00 - sx0 * sx0
+            p[t, 1, 1] = p11 - sk1 * p01 + s11 - sx1 * sx1
+            d = 0.5 * ((p01 - sk0 * p01 + s01 - sx0 * sx1) + (p01 - sk1 * p00 + s10 - sx1 * sx0))
+            p[t, 0, 1] = d
+            p[t, 1, 0] = d
+            # the Hausman test against the motion model, and the CUSUM
+            vr0 = ref_p[t, 0, 0]
+            vr1 = ref_p[t, 1, 1]
+            d = _max_nan(vr0 - p[t, 0, 0], min_fraction * vr0)
+            off[t] = (x[t, 0] - ref[t, 0]) ** 2 > gamma * _max_nan(d, 1e-12)
+            d = _max_nan(vr1 - p[t, 1, 1], min_fraction * vr1)
+            off[t] = off[t] or (x[t, 1] - ref[t, 1]) ** 2 > gamma * _max_nan(d, 1e-12)
+            off[t] = off[t] or cusum[t] > cusum_nats
+    return lat_a, lat_p_a, cusum_a, off_a
