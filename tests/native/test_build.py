@@ -128,6 +128,12 @@ def test_end_to_end_comparison_finds_a_difference():
     assert agree(moved, atol=1e-5)
     lost = compare(a, [rec(10.0, [1]), rec(11.0, [1])])
     assert lost["count_mismatch_frames"] == [0] and not agree(lost, atol=1.0)
+    # tracks: rounding (1e-12) passes the default track tolerance, a millimetre does not
+    b = [rec(10.0, [1, 2]), rec(11.0, [1])]
+    b[1]["track_x_m"] = b[1]["track_x_m"] + 1e-12
+    assert agree(compare(a, b))
+    b[1]["track_x_m"] = b[1]["track_x_m"] + 1e-3
+    assert not agree(compare(a, b)) and agree(compare(a, b), track_atol=1e-2)
 
 
 def test_pi_installer_installs_the_toolchain(tmp_path):
