@@ -847,3 +847,72 @@ def publish_rows(const double[:, :] x, const double[:, :, :] p, const cnp.int64_
             lo = 700.0
         out[k, 13] = 1.0 / (1.0 + exp(-lo))
     return out_arr
+
+
+cdef inline double _np_min(double a, double b) noexcept nogil:
+    """numpy.minimum for one pair (a NaN in either gives NaN)."""
+    return a if (a <= b or a != a) else b
+
+
+def measure_predict(const double[:, :] xp, Py_ssize_t t, bint with_rs, const double[:] ext_var, double rs_var,
+                    bint near_on, double h2_spread):
+    """:meth:`edge.track.roles.measure.MeasurementModel.predict`'s numbers without the sensor noise (the SNR noise
+    model), in one call: ``z_hat`` (N, n) and ``H`` (N, n, 4) of every row of ``xp`` (N, 4) (``kalman.
+    measurement_prediction``), and for its first ``t`` rows the heading ``u`` (t, 2) and weight ``w`` (t,)
+    (``measure.heading``) and the track's part of ``R`` (t, n, n): the extent ``ext_var`` along the heading
+    (``measure.extent_cov``), the radial-speed variance ``rs_var`` plus, with ``near_on``, the near-radar term
+    (``near_speed_sd`` with ``h2_spread`` = height^2 x near_speed_spread_m). The same elementwise operations as the
+    numpy reference: bit-identical."""
+    cdef Py_ssize_t nrow = xp.shape[0], i
+    cdef int n = 3 if with_rs else 2
+    zh_arr = np.empty((nrow, n))
+    h_arr = np.zeros((nrow, n, 4))
+    r_arr = np.zeros((t, n, n))
+    u_arr = np.empty((t, 2))
+    w_arr = np.empty(t)
+    cdef double[:, ::1] zh = zh_arr
+    cdef double[:, :, ::1] h = h_arr
+    cdef double[:, :, ::1] r = r_arr
+    cdef double[:, ::1] u = u_arr
+    cdef double[::1] w = w_arr
+    cdef double x, y, vx, vy, rho, vr, sp, d, u0, u1, wi, e, g, av, sd
+    for i in range(nrow):
+        x, y, vx, vy = xp[i, 0], xp[i, 1], xp[i, 2], xp[i, 3]
+        h[i, 0, 0] = 1.0
+        h[i, 1, 1] = 1.0
+        zh[i, 0] = x
+        zh[i, 1] = y
+        if with_rs:
+            rho = hypot(x, y)
+            rho = rho if (rho >= 1e-3 or rho != rho) else 1e-3
+            vr = (x * vx + y * vy) / rho
+            zh[i, 2] = vr
+            h[i, 2, 0] = (vx - vr * x / rho) / rho
+            h[i, 2, 1] = (vy - vr * y / rho) / rho
+            h[i, 2, 2] = x / rho
+            h[i, 2, 3] = y / rho
+    for i in range(t):
+        x, y, vx, vy = xp[i, 0], xp[i, 1], xp[i, 2], xp[i, 3]
+        sp = hypot(vx, vy)
+        d = sp if (sp >= 1e-9 or sp != sp) else 1e-9
+        u0 = vx / d
+        u1 = vy / d
+        wi = sp if (sp >= 0.0 or sp != sp) else 0.0
+        wi = wi if (wi <= 1.0 or wi != wi) else 1.0
+        u[i, 0] = u0
+        u[i, 1] = u1
+        w[i] = wi
+        e = ext_var[i]
+        r[i, 0, 0] = 0.0 + e * (wi * (u0 * u0) + 1.0 * (1.0 - wi))
+        r[i, 0, 1] = 0.0 + e * (wi * (u0 * u1) + 0.0 * (1.0 - wi))
+        r[i, 1, 0] = 0.0 + e * (wi * (u1 * u0) + 0.0 * (1.0 - wi))
+        r[i, 1, 1] = 0.0 + e * (wi * (u1 * u1) + 1.0 * (1.0 - wi))
+        if with_rs:
+            r[i, 2, 2] = rs_var
+            if near_on:
+                g = hypot(x, y)
+                g = g if (g >= 1.0 or g != g) else 1.0
+                av = fabs(zh[i, 2])
+                sd = _np_min(av * h2_spread / (g * g * g), av + 1.0)
+                r[i, 2, 2] = rs_var + sd * sd
+    return zh_arr, h_arr, r_arr, u_arr, w_arr
