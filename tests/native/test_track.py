@@ -493,3 +493,25 @@ def test_measurement_prediction_is_bit_identical(motion, height):
     for t_ns, det in road_frames(30, 60, clutter_per_frame=10.0, seed=5):
         tr.step(det, t_ns)
     assert sum(checked) > 1000  # with the radial-speed row
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("n", [2, 3])
+def test_detection_noise_is_bit_identical(seed, n):
+    """The SNR model's per-detection sensor noise (``snr_noise``) against ``kalman.snr_polar_noise`` on random
+    detections: SNRs below, inside and above the clip range, positions at and near the radar; every row, subsets."""
+    from edge.track.table import Measurements
+
+    rng = np.random.default_rng(seed)
+    m = 200
+    z = np.column_stack([rng.normal(0, 30, m), rng.uniform(-5, 250, m), rng.normal(0, 25, m)])[:, :n]
+    z[:3, :2] = [[0.0, 0.0], [1e-7, 0.0], [0.0, -1e-7]]
+    meas = Measurements(z, rng.uniform(-20.0, 90.0, m), n == 3)
+    mm = PdafTracker(PdafConfig()).measurement_model
+    assert mm.kernel is K
+    rows = rng.choice(m, 40, replace=False)
+    fast = (mm.of_detections(meas), mm.of_detections(meas, 2, rows=rows))
+    mm.kernel = None
+    ref = (mm.of_detections(meas), mm.of_detections(meas, 2, rows=rows))
+    for a, b in zip(fast, ref):
+        assert a.shape == b.shape and np.array_equal(a, b)

@@ -104,6 +104,10 @@ class MeasurementModel:
         c = self.cfg
         n = meas.z.shape[1] if n is None else n
         z, snr_db = (meas.z, meas.snr_db) if rows is None else (meas.z.take(rows, axis=0), meas.snr_db.take(rows))
+        if self.kernel is not None:  # bit-identical
+            return self.kernel.snr_noise(z, snr_db, c.snr_min_db, c.snr_max_db, c.snr_range_sigma_m**2,
+                                         c.snr_range_floor_m**2, math.radians(c.snr_azimuth_sigma_deg)**2,
+                                         math.radians(c.snr_azimuth_floor_deg)**2, c.snr_extent_sigma_m**2, n)
         rp = kalman.snr_polar_noise(z[:, :2], snr_db, c.snr_range_sigma_m, c.snr_range_floor_m,
                                     math.radians(c.snr_azimuth_sigma_deg), math.radians(c.snr_azimuth_floor_deg),
                                     c.snr_extent_sigma_m, (c.snr_min_db, c.snr_max_db))
