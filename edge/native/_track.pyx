@@ -947,3 +947,46 @@ def snr_noise(const double[:, :] z, const double[:] snr_db, double lo_db, double
         out[i, 0, 1] = s * c * (var_r - rr2)
         out[i, 1, 0] = out[i, 0, 1]
     return out_arr
+
+
+def moving_expired(const double[:, :] x, const double[:, :, :] p, const cnp.uint32_t[:] history,
+                   const cnp.int32_t[:] age, const cnp.int32_t[:] misses, const cnp.uint8_t[:] confirmed,
+                   cnp.uint8_t[:] moved, const double[:] score, double moving_gamma, double min_speed_mps,
+                   bint by_score, cnp.uint32_t mask_n, int confirm_m, int confirm_n, double score_drop,
+                   double keep_from_m, int keep_min_hits):
+    """The confirmer's per-frame flags in one pass (:class:`edge.track.roles.confirm.Confirmer`): ``moved`` |= the
+    velocity is significantly non-zero and fast enough (``update_moving``, in place), and the tentative tracks that
+    can no longer confirm (``tentative_expired``; ``by_score``: Wald's lower threshold, else M of N with the far
+    tracks' ``keep_*`` rule), returned as uint8 ``(T,)``. The same operations as numpy (``smallmat.inv_quad2``):
+    bit-identical."""
+    cdef Py_ssize_t t = x.shape[0], i
+    out_arr = np.zeros(t, np.uint8)
+    cdef cnp.uint8_t[::1] out = out_arr
+    cdef double v0, v1, num, d2v
+    cdef int counts
+    cdef bint e
+    for i in range(t):
+        v0, v1 = x[i, 2], x[i, 3]
+        num = (p[i, 3, 3] * v0 * v0 - (p[i, 2, 3] + p[i, 3, 2]) * v0 * v1) + p[i, 2, 2] * v1 * v1
+        d2v = num / (p[i, 2, 2] * p[i, 3, 3] - p[i, 2, 3] * p[i, 3, 2])
+        if d2v > moving_gamma and hypot(v0, v1) >= min_speed_mps:
+            moved[i] = 1
+        if confirmed[i]:
+            continue
+        if by_score:
+            e = score[i] <= score_drop
+        else:
+            counts = _popcount32(history[i] & mask_n)
+            e = age[i] >= confirm_n and counts < confirm_m and misses[i] > 0
+            if e and keep_from_m > 0.0 and hypot(x[i, 0], x[i, 1]) > keep_from_m and not counts < keep_min_hits:
+                e = False
+        out[i] = e
+    return out_arr
+
+
+cdef inline int _popcount32(cnp.uint32_t v) noexcept nogil:
+    cdef int c = 0
+    while v:
+        v &= v - 1
+        c += 1
+    return c

@@ -106,8 +106,8 @@ class PdafTracker:
                 if moved is not None:
                     for role in self._stateful:
                         role.restart(tr, moved)
-            self.confirmer.update_moving(tr)
-            dead = self.deleter.delete(tr, resolved_pairs(meas.pair, hyp.beta)) | self.confirmer.tentative_expired(tr)
+            expired = self.confirmer.moving_and_expired(tr)  # (the deleter reads neither moved nor these columns)
+            dead = self.deleter.delete(tr, resolved_pairs(meas.pair, hyp.beta)) | expired
             for tid in tr.track_id[dead & tr.confirmed]:
                 self.ids.release(int(tid))
             if dead.any():

@@ -281,7 +281,7 @@ def assert_same_published(fast, ref):
 def numpy_only(tracker: PdafTracker) -> PdafTracker:
     """The tracker with every role on its numpy reference."""
     tracker.measurement_model.kernel = tracker.deleter.kernel = tracker.associator.kernel = None
-    tracker.initiator.kernel = tracker.kernel = None
+    tracker.initiator.kernel = tracker.kernel = tracker.confirmer.kernel = None
     for role in (tracker.predictor, tracker.updater):
         if hasattr(role, "kernel"):
             role.kernel = None
@@ -515,3 +515,35 @@ def test_detection_noise_is_bit_identical(seed, n):
     ref = (mm.of_detections(meas), mm.of_detections(meas, 2, rows=rows))
     for a, b in zip(fast, ref):
         assert a.shape == b.shape and np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("confirmation,keep_from", [("m_of_n", 200.0), ("m_of_n", 0.0), ("score", 200.0),
+                                                    ("either", 60.0)])
+def test_moving_and_expired_is_identical(confirmation, keep_from):
+    """The confirmer's moving flags and expired tentative tracks from the ``moving_expired`` kernel against numpy
+    (``update_moving``, ``tentative_expired``) on the tracker's own tables each frame (30 vehicles with clutter)."""
+    import copy
+
+    tr = PdafTracker(PdafConfig(confirmation=confirmation, tentative_keep_from_m=keep_from))
+    conf = tr.confirmer
+    assert conf.kernel is K
+    run, expired_total, moved_total = conf.moving_and_expired, [0], [0]
+
+    def both(tracks):
+        ref = copy.deepcopy(tracks)
+        conf.kernel = None
+        try:
+            want = run(ref)
+        finally:
+            conf.kernel = K
+        got = run(tracks)
+        assert got.dtype == want.dtype == bool and np.array_equal(got, want)
+        assert np.array_equal(tracks.moved, ref.moved)
+        expired_total[0] += int(want.sum())
+        moved_total[0] += int(ref.moved.sum())
+        return got
+
+    conf.moving_and_expired = both
+    for t_ns, det in road_frames(30, 70, clutter_per_frame=12.0, seed=9):
+        tr.step(det, t_ns)
+    assert expired_total[0] > 20 and moved_total[0] > 500
