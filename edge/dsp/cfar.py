@@ -29,7 +29,7 @@ def os_cfar_pfa(scale: float, n_ref: int, rank: int, n_looks: int = 1) -> float:
     if not 1 <= rank <= n_ref:
         raise ValueError(f"rank must be in 1..{n_ref}, got {rank}")
     # Gamma(n_looks) quantile and survival function as regularised incomplete gamma functions (what
-    # scipy.stats.gamma evaluates; scipy.stats itself is not imported: ~0.7 s of start-up)
+    # scipy.stats.gamma evaluates; scipy.stats is not imported for it: slow to import)
     # integrate over the order statistic's distribution on a fine grid of its CDF value u = F(y)
     u = np.linspace(0.0, 1.0, 20001)[1:-1]
     y = scipy.special.gammaincinv(n_looks, u)

@@ -41,7 +41,7 @@ __all__ = ["gate_threshold", "unit_ball_volume", "Innovations", "innovations", "
 def gate_threshold(prob_gate: float, n: int) -> float:
     """``gamma`` of eq. 17: the chi-square quantile of ``P_G`` with ``n`` degrees of freedom."""
     # chi2.ppf(P_G, n) = 2 P^-1(n / 2, P_G), P^-1 the inverse regularised lower incomplete gamma function (what
-    # scipy.stats.chi2 evaluates; scipy.stats is not imported for it: ~0.7 s of start-up)
+    # scipy.stats.chi2 evaluates; scipy.stats is not imported for it: slow to import)
     return float(2.0 * scipy.special.gammaincinv(n / 2.0, prob_gate))
 
 
