@@ -21,25 +21,24 @@ import functools
 import math
 
 import numpy as np
-import scipy.optimize
 import scipy.special
-import scipy.stats
 
 
 def os_cfar_pfa(scale: float, n_ref: int, rank: int, n_looks: int = 1) -> float:
     """False-alarm probability of OS-CFAR for threshold factor ``scale`` (see module docstring)."""
     if not 1 <= rank <= n_ref:
         raise ValueError(f"rank must be in 1..{n_ref}, got {rank}")
-    g = scipy.stats.gamma(n_looks)
+    # Gamma(n_looks) quantile and survival function as regularised incomplete gamma functions (what
+    # scipy.stats.gamma evaluates; scipy.stats is not imported for it: slow to import)
     # integrate over the order statistic's distribution on a fine grid of its CDF value u = F(y)
     u = np.linspace(0.0, 1.0, 20001)[1:-1]
-    y = g.ppf(u)
+    y = scipy.special.gammaincinv(n_looks, u)
     log_beta = (
         math.lgamma(n_ref + 1) - math.lgamma(rank) - math.lgamma(n_ref - rank + 1)
         + (rank - 1) * np.log(u) + (n_ref - rank) * np.log1p(-u)
     )
     dens_u = np.exp(log_beta)  # density of U = F(Y_(k)) (a Beta(k, N-k+1))
-    surv = g.sf(scale * y)
+    surv = scipy.special.gammaincc(n_looks, scale * y)
     return float(np.trapezoid(dens_u * surv, u))
 
 
@@ -56,7 +55,9 @@ def os_cfar_scale(pfa: float, n_ref: int, rank: int, n_looks: int = 1) -> float:
         hi *= 2.0
         if hi > 1e9:
             raise ValueError("cannot reach the requested pfa with this window")
-    return float(scipy.optimize.brentq(f, 1e-9, hi, xtol=1e-6, rtol=1e-9))
+    from scipy.optimize import brentq  # here, not at import: scipy.optimize costs start-up time
+
+    return float(brentq(f, 1e-9, hi, xtol=1e-6, rtol=1e-9))
 
 
 def reference_offsets(n_train: int, n_guard: int) -> np.ndarray:

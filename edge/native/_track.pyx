@@ -766,3 +766,227 @@ def lateral_step(const double[:, ::1] lat0, const double[:, :, ::1] lat_p0, doub
             off[t] = off[t] or (x[t, 1] - ref[t, 1]) ** 2 > gamma * _max_nan(d, 1e-12)
             off[t] = off[t] or cusum[t] > cusum_nats
     return lat_a, lat_p_a, cusum_a, off_a
+
+
+from libc.math cimport atan2, NAN
+
+#: columns of :func:`publish_rows`' output
+PUBLISH_COLUMNS = ("x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps", "az_rad", "length_m", "has_length",
+                   "x_sd_m", "y_sd_m", "vx_sd_mps", "vy_sd_mps", "existence_probability", "motion_x_m")
+
+
+cdef inline double _np_max(double a, double b) noexcept nogil:
+    """numpy.maximum for one pair (a NaN in either gives NaN)."""
+    return a if (a >= b or a != a) else b
+
+
+def publish_rows(const double[:, :] x, const double[:, :, :] p, const cnp.int64_t[::1] idx, const double[:, :] lat,
+                 const double[:, :, :] lat_p, const double[:] lat_cusum, const double[:] ext_var, const double[:] score,
+                 const cnp.uint8_t[:] confirmed, bint smoother, double cusum_threshold, bint publish_length,
+                 double confirmed_log_odds):
+    """The numbers of :meth:`edge.track.tracker.PdafTracker.published` for the rows ``idx`` of the track table, in one
+    call: ``(n, 15)`` float64 with the columns :data:`PUBLISH_COLUMNS` (``length_m`` is read where ``has_length`` is
+    1). The same elementwise operations as the numpy reference (``lateral_blend``, ``hypot``, ``arctan2``, ``sqrt``,
+    ``exp``; libm's): bit-identical."""
+    cdef Py_ssize_t n = idx.shape[0], k, i
+    cdef int c_i
+    out_arr = np.empty((n, 15))
+    cdef double[:, ::1] out = out_arr
+    cdef bint blend = False
+    cdef double p0 = 0.0, c, t, pr, w, xs, xr, rho, num, d, lat_sd, lo
+    if smoother:
+        for k in range(n):
+            if lat_cusum[idx[k]] != 0.0:
+                blend = True
+                break
+        t = cusum_threshold if cusum_threshold < 700.0 else 700.0
+        p0 = 1.0 / (1.0 + exp(t))
+    for k in range(n):
+        i = idx[k]
+        xr = x[i, 0]
+        out[k, 14] = xr
+        if smoother:
+            xs = lat[i, 0]
+            if blend:
+                t = cusum_threshold - lat_cusum[i]
+                if t > 700.0:
+                    t = 700.0
+                pr = 1.0 / (1.0 + exp(t))
+                w = (pr - p0) / (1.0 - p0)
+                xs = xs + w * (xr - xs)
+            out[k, 0] = xs
+        else:
+            out[k, 0] = xr
+        out[k, 1] = x[i, 1]
+        out[k, 2] = x[i, 2]
+        out[k, 3] = x[i, 3]
+        rho = hypot(out[k, 0], out[k, 1])
+        num = out[k, 0] * out[k, 2] + out[k, 1] * out[k, 3]
+        out[k, 4] = rho
+        out[k, 5] = num / rho if rho > 0.0 else 0.0
+        out[k, 6] = atan2(out[k, 0], out[k, 1])
+        if publish_length and hypot(out[k, 2], out[k, 3]) >= 1.0:
+            out[k, 7] = sqrt(12.0 * ext_var[i])
+            out[k, 8] = 1.0
+        else:
+            out[k, 7] = NAN
+            out[k, 8] = 0.0
+        for c_i in range(4):
+            d = p[i, c_i, c_i]
+            out[k, 9 + c_i] = sqrt(d if (d >= 0.0 or d != d) else 0.0)
+        if smoother:
+            d = lat_p[i, 0, 0]
+            lat_sd = sqrt(d if (d >= 0.0 or d != d) else 0.0)
+            out[k, 9] = _np_max(lat_sd, out[k, 9]) if lat_cusum[i] > 0.0 else lat_sd
+        lo = score[i]
+        if confirmed[i]:
+            lo = _np_max(lo, confirmed_log_odds)
+        if lo < -700.0:
+            lo = -700.0
+        elif lo > 700.0:
+            lo = 700.0
+        out[k, 13] = 1.0 / (1.0 + exp(-lo))
+    return out_arr
+
+
+cdef inline double _np_min(double a, double b) noexcept nogil:
+    """numpy.minimum for one pair (a NaN in either gives NaN)."""
+    return a if (a <= b or a != a) else b
+
+
+def measure_predict(const double[:, :] xp, Py_ssize_t t, bint with_rs, const double[:] ext_var, double rs_var,
+                    bint near_on, double h2_spread):
+    """:meth:`edge.track.roles.measure.MeasurementModel.predict`'s numbers without the sensor noise (the SNR noise
+    model), in one call: ``z_hat`` (N, n) and ``H`` (N, n, 4) of every row of ``xp`` (N, 4) (``kalman.
+    measurement_prediction``), and for its first ``t`` rows the heading ``u`` (t, 2) and weight ``w`` (t,)
+    (``measure.heading``) and the track's part of ``R`` (t, n, n): the extent ``ext_var`` along the heading
+    (``measure.extent_cov``), the radial-speed variance ``rs_var`` plus, with ``near_on``, the near-radar term
+    (``near_speed_sd`` with ``h2_spread`` = height^2 x near_speed_spread_m). The same elementwise operations as the
+    numpy reference: bit-identical."""
+    cdef Py_ssize_t nrow = xp.shape[0], i
+    cdef int n = 3 if with_rs else 2
+    zh_arr = np.empty((nrow, n))
+    h_arr = np.zeros((nrow, n, 4))
+    r_arr = np.zeros((t, n, n))
+    u_arr = np.empty((t, 2))
+    w_arr = np.empty(t)
+    cdef double[:, ::1] zh = zh_arr
+    cdef double[:, :, ::1] h = h_arr
+    cdef double[:, :, ::1] r = r_arr
+    cdef double[:, ::1] u = u_arr
+    cdef double[::1] w = w_arr
+    cdef double x, y, vx, vy, rho, vr, sp, d, u0, u1, wi, e, g, av, sd
+    for i in range(nrow):
+        x, y, vx, vy = xp[i, 0], xp[i, 1], xp[i, 2], xp[i, 3]
+        h[i, 0, 0] = 1.0
+        h[i, 1, 1] = 1.0
+        zh[i, 0] = x
+        zh[i, 1] = y
+        if with_rs:
+            rho = hypot(x, y)
+            rho = rho if (rho >= 1e-3 or rho != rho) else 1e-3
+            vr = (x * vx + y * vy) / rho
+            zh[i, 2] = vr
+            h[i, 2, 0] = (vx - vr * x / rho) / rho
+            h[i, 2, 1] = (vy - vr * y / rho) / rho
+            h[i, 2, 2] = x / rho
+            h[i, 2, 3] = y / rho
+    for i in range(t):
+        x, y, vx, vy = xp[i, 0], xp[i, 1], xp[i, 2], xp[i, 3]
+        sp = hypot(vx, vy)
+        d = sp if (sp >= 1e-9 or sp != sp) else 1e-9
+        u0 = vx / d
+        u1 = vy / d
+        wi = sp if (sp >= 0.0 or sp != sp) else 0.0
+        wi = wi if (wi <= 1.0 or wi != wi) else 1.0
+        u[i, 0] = u0
+        u[i, 1] = u1
+        w[i] = wi
+        e = ext_var[i]
+        r[i, 0, 0] = 0.0 + e * (wi * (u0 * u0) + 1.0 * (1.0 - wi))
+        r[i, 0, 1] = 0.0 + e * (wi * (u0 * u1) + 0.0 * (1.0 - wi))
+        r[i, 1, 0] = 0.0 + e * (wi * (u1 * u0) + 0.0 * (1.0 - wi))
+        r[i, 1, 1] = 0.0 + e * (wi * (u1 * u1) + 1.0 * (1.0 - wi))
+        if with_rs:
+            r[i, 2, 2] = rs_var
+            if near_on:
+                g = hypot(x, y)
+                g = g if (g >= 1.0 or g != g) else 1.0
+                av = fabs(zh[i, 2])
+                sd = _np_min(av * h2_spread / (g * g * g), av + 1.0)
+                r[i, 2, 2] = rs_var + sd * sd
+    return zh_arr, h_arr, r_arr, u_arr, w_arr
+
+
+from libc.math cimport pow
+
+
+def snr_noise(const double[:, :] z, const double[:] snr_db, double lo_db, double hi_db, double range_var0,
+              double range_floor_var, double az_var0, double az_floor_var, double floor_var, int n):
+    """``(M, n, n)`` sensor noise of each detection from its SNR (:func:`edge.track.kalman.snr_polar_noise` in the
+    first two rows and columns, zeros elsewhere; the arguments are its sigmas squared): the same elementwise
+    operations as numpy, bit-identical."""
+    cdef Py_ssize_t m = z.shape[0], i
+    out_arr = np.zeros((m, n, n))
+    cdef double[:, :, ::1] out = out_arr
+    cdef double v, snr, var_r, var_az, r, rs, s, c, rr2
+    for i in range(m):
+        v = snr_db[i]
+        v = v if (v >= lo_db or v != v) else lo_db
+        v = v if (v <= hi_db or v != v) else hi_db
+        snr = pow(10.0, v / 10.0)
+        var_r = range_var0 / snr + range_floor_var
+        var_az = az_var0 / snr + az_floor_var
+        r = hypot(z[i, 0], z[i, 1])
+        rs = r if (r >= 1e-6 or r != r) else 1e-6
+        s = z[i, 0] / rs
+        c = z[i, 1] / rs
+        rr2 = r * r * var_az
+        out[i, 0, 0] = s * s * var_r + c * c * rr2 + floor_var
+        out[i, 1, 1] = c * c * var_r + s * s * rr2 + floor_var
+        out[i, 0, 1] = s * c * (var_r - rr2)
+        out[i, 1, 0] = out[i, 0, 1]
+    return out_arr
+
+
+def moving_expired(const double[:, :] x, const double[:, :, :] p, const cnp.uint32_t[:] history,
+                   const cnp.int32_t[:] age, const cnp.int32_t[:] misses, const cnp.uint8_t[:] confirmed,
+                   cnp.uint8_t[:] moved, const double[:] score, double moving_gamma, double min_speed_mps,
+                   bint by_score, cnp.uint32_t mask_n, int confirm_m, int confirm_n, double score_drop,
+                   double keep_from_m, int keep_min_hits):
+    """The confirmer's per-frame flags in one pass (:class:`edge.track.roles.confirm.Confirmer`): ``moved`` |= the
+    velocity is significantly non-zero and fast enough (``update_moving``, in place), and the tentative tracks that
+    can no longer confirm (``tentative_expired``; ``by_score``: Wald's lower threshold, else M of N with the far
+    tracks' ``keep_*`` rule), returned as uint8 ``(T,)``. The same operations as numpy (``smallmat.inv_quad2``):
+    bit-identical."""
+    cdef Py_ssize_t t = x.shape[0], i
+    out_arr = np.zeros(t, np.uint8)
+    cdef cnp.uint8_t[::1] out = out_arr
+    cdef double v0, v1, num, d2v
+    cdef int counts
+    cdef bint e
+    for i in range(t):
+        v0, v1 = x[i, 2], x[i, 3]
+        num = (p[i, 3, 3] * v0 * v0 - (p[i, 2, 3] + p[i, 3, 2]) * v0 * v1) + p[i, 2, 2] * v1 * v1
+        d2v = num / (p[i, 2, 2] * p[i, 3, 3] - p[i, 2, 3] * p[i, 3, 2])
+        if d2v > moving_gamma and hypot(v0, v1) >= min_speed_mps:
+            moved[i] = 1
+        if confirmed[i]:
+            continue
+        if by_score:
+            e = score[i] <= score_drop
+        else:
+            counts = _popcount32(history[i] & mask_n)
+            e = age[i] >= confirm_n and counts < confirm_m and misses[i] > 0
+            if e and keep_from_m > 0.0 and hypot(x[i, 0], x[i, 1]) > keep_from_m and not counts < keep_min_hits:
+                e = False
+        out[i] = e
+    return out_arr
+
+
+cdef inline int _popcount32(cnp.uint32_t v) noexcept nogil:
+    cdef int c = 0
+    while v:
+        v &= v - 1
+        c += 1
+    return c

@@ -24,6 +24,7 @@ import logging
 
 import numpy as np
 
+from edge import native
 from edge.track import kalman
 from edge.track.config import PdafConfig
 from edge.track.roles import Frame, build_roles, resolved_pairs
@@ -58,6 +59,8 @@ class PdafTracker:
         self.deleter = roles.deleter
         self.post_steps = roles.post_steps
         self._stateful = roles.stateful
+        #: the compiled ``edge.native._track`` for :meth:`published` (None: the numpy reference)
+        self.kernel = native.load("_track")
         self.road_yaw_rad = 0.0  # direction of the road off the boresight (the lane pipeline sets its estimate)
         # lateral_smoother: the motion model's x_m of the last published tracks (the published x_m is the line's)
         self.published_motion_x_m: np.ndarray | None = None
@@ -103,8 +106,8 @@ class PdafTracker:
                 if moved is not None:
                     for role in self._stateful:
                         role.restart(tr, moved)
-            self.confirmer.update_moving(tr)
-            dead = self.deleter.delete(tr, resolved_pairs(meas.pair, hyp.beta)) | self.confirmer.tentative_expired(tr)
+            expired = self.confirmer.moving_and_expired(tr)  # (the deleter reads neither moved nor these columns)
+            dead = self.deleter.delete(tr, resolved_pairs(meas.pair, hyp.beta)) | expired
             for tid in tr.track_id[dead & tr.confirmed]:
                 self.ids.release(int(tid))
             if dead.any():
@@ -126,6 +129,8 @@ class PdafTracker:
             if self.config.lateral_smoother:
                 self.published_motion_x_m = None
             return ()
+        if self.kernel is not None:
+            return self._published_kernel(idx)
         st = tr.x.take(idx, axis=0)
         if self.config.lateral_smoother:  # the lateral position of the straight-line filter ...
             self.published_motion_x_m = st[:, 0].copy()
@@ -165,6 +170,34 @@ class PdafTracker:
                 "radial_speed_mps": v, "az_rad": a, "age_frames": age, "hits": hits, "confirmed": conf, "lane": None,
                 "cls": None, "class_probability": None, "rcs_dbsm": None, "length_m": ln, "x_sd_m": xs, "y_sd_m": ys,
                 "vx_sd_mps": vxs, "vy_sd_mps": vys, "existence_probability": pe})
+            out.append(o)
+        return tuple(out)
+
+    def _published_kernel(self, idx: np.ndarray) -> tuple[TrackState, ...]:
+        """:meth:`published` for the rows ``idx`` with the numbers from one ``publish_rows`` call (bit-identical)."""
+        tr, cfg = self.tracks, self.config
+        num = self.kernel.publish_rows(tr.x, tr.p, idx.astype(np.int64, copy=False), tr.lat, tr.lat_p, tr.lat_cusum,
+                                       tr.ext_var, tr.score, tr.confirmed.view(np.uint8), cfg.lateral_smoother,
+                                       cfg.lateral_smoother_cusum_nats, cfg.publish_length,
+                                       self.confirmer.confirmed_log_odds)
+        if cfg.lateral_smoother:
+            self.published_motion_x_m = num[:, 14].copy()
+        rows = zip(tr.track_id[idx].tolist(), num.tolist(), tr.age[idx].tolist(), tr.hits[idx].tolist(),
+                   tr.confirmed[idx].tolist())
+        if not _TRACK_STATE_PLAIN:
+            return tuple(TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=ln if has_ln else None,
+                                    x_sd_m=xs, y_sd_m=ys, vx_sd_mps=vxs, vy_sd_mps=vys, existence_probability=pe)
+                         for tid, (x, y, vx, vy, r, v, a, ln, has_ln, xs, ys, vxs, vys, pe, _), age, hits, conf
+                         in rows)
+        new, set_dict, cls = _new_object, _set_dict, TrackState
+        out = []
+        for tid, (x, y, vx, vy, r, v, a, ln, has_ln, xs, ys, vxs, vys, pe, _), age, hits, conf in rows:
+            o = new(cls)
+            set_dict(o, "__dict__", {
+                "track_id": tid, "x_m": x, "y_m": y, "vx_mps": vx, "vy_mps": vy, "range_m": r,
+                "radial_speed_mps": v, "az_rad": a, "age_frames": age, "hits": hits, "confirmed": conf, "lane": None,
+                "cls": None, "class_probability": None, "rcs_dbsm": None, "length_m": ln if has_ln else None,
+                "x_sd_m": xs, "y_sd_m": ys, "vx_sd_mps": vxs, "vy_sd_mps": vys, "existence_probability": pe})
             out.append(o)
         return tuple(out)
 

@@ -36,6 +36,7 @@ re-learned with a different count, the interval in progress mixes the two number
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -132,11 +133,13 @@ class IntervalStatistics:
         self.lanes: dict[int, LaneAccumulator] = {}
         self.class_names = tuple(cfg.length_class_names)
         self._edges = np.asarray(cfg.length_class_edges_m, dtype=np.float64)
+        self._edge_list = self._edges.tolist()  # (bisect on Python floats: numpy's per-call cost, once per track)
 
     def length_class(self, length_m: float | None) -> str:
         if length_m is None or not math.isfinite(length_m):
             return "unknown"
-        return self.class_names[int(np.searchsorted(self._edges, length_m, side="right"))]
+        # np.searchsorted(self._edges, length_m, side="right") for a finite length
+        return self.class_names[bisect.bisect_right(self._edge_list, float(length_m))]
 
     def measured(self, meter: LengthMeter | None) -> tuple[float | None, str | None]:
         """(published length or None, length class or None) of a length measurement: the length is n/a below

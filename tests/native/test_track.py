@@ -281,7 +281,7 @@ def assert_same_published(fast, ref):
 def numpy_only(tracker: PdafTracker) -> PdafTracker:
     """The tracker with every role on its numpy reference."""
     tracker.measurement_model.kernel = tracker.deleter.kernel = tracker.associator.kernel = None
-    tracker.initiator.kernel = None
+    tracker.initiator.kernel = tracker.kernel = tracker.confirmer.kernel = None
     for role in (tracker.predictor, tracker.updater):
         if hasattr(role, "kernel"):
             role.kernel = None
@@ -426,3 +426,124 @@ def _extent_case(rng, t, m, per_pair):
     beta[rng.uniform(size=t) < 0.3] *= 0.1  # some tracks with little weight (no update)
     inn = Innovations(v, np.zeros((t, m)), s, s, np.ones(s.shape[:-2]))
     return mm, xp, rng.uniform(0.1, 4.0, t), inn, beta
+
+
+def _published_both(tr: PdafTracker):
+    """(kernel, numpy) results of ``tr.published()`` on the same table, and both paths' motion-model x."""
+    fast = tr.published()
+    fast_x = tr.published_motion_x_m
+    tr.kernel = None
+    try:
+        ref = tr.published()
+    finally:
+        tr.kernel = K
+    return fast, ref, fast_x, tr.published_motion_x_m
+
+
+@pytest.mark.parametrize("smoother,length,tentative,motion", [
+    (True, True, False, "imm"), (False, True, False, "imm"), (True, False, True, "cv"), (False, False, True, "cv")])
+def test_published_is_bit_identical(smoother, length, tentative, motion):
+    """``PdafTracker.published`` from the ``publish_rows`` kernel against numpy on the tracker's own tables (30
+    vehicles with clutter, every frame): every field exactly equal, None where numpy has None."""
+    tr = PdafTracker(PdafConfig(motion_model=motion, lateral_smoother=smoother, publish_length=length,
+                                publish_tentative=tentative))
+    assert tr.kernel is K
+    n, blended, lengths = 0, 0, 0
+    for t_ns, det in road_frames(30, 70, clutter_per_frame=10.0, seed=11):
+        tr.step(det, t_ns)
+        fast, ref, fx, rx = _published_both(tr)
+        assert [vars(a) for a in fast] == [vars(b) for b in ref]
+        assert (fx is None and rx is None) or np.array_equal(fx, rx)
+        n += len(ref)
+        blended += int(smoother and (tr.tracks.lat_cusum != 0).any())
+        lengths += sum(1 for b in ref if b.length_m is not None)
+    assert n > 30 * 30
+    assert not smoother or blended > 10  # the lateral blend ran
+    assert not length or lengths > 300
+
+
+@pytest.mark.parametrize("motion,height", [("imm", 6.0), ("cv", 0.0), ("imm", 0.0)])
+def test_measurement_prediction_is_bit_identical(motion, height):
+    """``MeasurementModel.predict`` (SNR noise model) from the ``measure_predict`` kernel against numpy on the
+    tracker's own predictions each frame (30 vehicles with clutter): z_hat, H, the track's R, the modes' z_hat and H,
+    the heading kept for the extent update and the distances, all exactly equal."""
+    tr = PdafTracker(PdafConfig(motion_model=motion))
+    tr.sensor_height_m = height
+    mm = tr.measurement_model
+    assert mm.kernel is K and mm.per_detection
+    predict, checked = mm.predict, []
+
+    def both(pred, meas, ext_var, prune_gamma=None):
+        mm.kernel = None
+        try:
+            ref = predict(pred, meas, ext_var, prune_gamma)
+            head_ref = mm._head
+        finally:
+            mm.kernel = K
+        out = predict(pred, meas, ext_var, prune_gamma)
+        for f in ("zh", "h", "r", "rm", "zhm", "hm"):
+            a, b = getattr(out, f), getattr(ref, f)
+            assert (a is None and b is None) or np.array_equal(a, b), f
+        assert np.array_equal(out.inn.d2, ref.inn.d2)
+        assert mm._head[0] is head_ref[0] and all(np.array_equal(a, b) for a, b in zip(mm._head[1], head_ref[1]))
+        checked.append(len(pred.x) * (out.zh.shape[1] == 3))
+        return out
+
+    mm.predict = both
+    for t_ns, det in road_frames(30, 60, clutter_per_frame=10.0, seed=5):
+        tr.step(det, t_ns)
+    assert sum(checked) > 1000  # with the radial-speed row
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("n", [2, 3])
+def test_detection_noise_is_bit_identical(seed, n):
+    """The SNR model's per-detection sensor noise (``snr_noise``) against ``kalman.snr_polar_noise`` on random
+    detections: SNRs below, inside and above the clip range, positions at and near the radar; every row, subsets."""
+    from edge.track.table import Measurements
+
+    rng = np.random.default_rng(seed)
+    m = 200
+    z = np.column_stack([rng.normal(0, 30, m), rng.uniform(-5, 250, m), rng.normal(0, 25, m)])[:, :n]
+    z[:3, :2] = [[0.0, 0.0], [1e-7, 0.0], [0.0, -1e-7]]
+    meas = Measurements(z, rng.uniform(-20.0, 90.0, m), n == 3)
+    mm = PdafTracker(PdafConfig()).measurement_model
+    assert mm.kernel is K
+    rows = rng.choice(m, 40, replace=False)
+    fast = (mm.of_detections(meas), mm.of_detections(meas, 2, rows=rows))
+    mm.kernel = None
+    ref = (mm.of_detections(meas), mm.of_detections(meas, 2, rows=rows))
+    for a, b in zip(fast, ref):
+        assert a.shape == b.shape and np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("confirmation,keep_from", [("m_of_n", 200.0), ("m_of_n", 0.0), ("score", 200.0),
+                                                    ("either", 60.0)])
+def test_moving_and_expired_is_identical(confirmation, keep_from):
+    """The confirmer's moving flags and expired tentative tracks from the ``moving_expired`` kernel against numpy
+    (``update_moving``, ``tentative_expired``) on the tracker's own tables each frame (30 vehicles with clutter)."""
+    import copy
+
+    tr = PdafTracker(PdafConfig(confirmation=confirmation, tentative_keep_from_m=keep_from))
+    conf = tr.confirmer
+    assert conf.kernel is K
+    run, expired_total, moved_total = conf.moving_and_expired, [0], [0]
+
+    def both(tracks):
+        ref = copy.deepcopy(tracks)
+        conf.kernel = None
+        try:
+            want = run(ref)
+        finally:
+            conf.kernel = K
+        got = run(tracks)
+        assert got.dtype == want.dtype == bool and np.array_equal(got, want)
+        assert np.array_equal(tracks.moved, ref.moved)
+        expired_total[0] += int(want.sum())
+        moved_total[0] += int(ref.moved.sum())
+        return got
+
+    conf.moving_and_expired = both
+    for t_ns, det in road_frames(30, 70, clutter_per_frame=12.0, seed=9):
+        tr.step(det, t_ns)
+    assert expired_total[0] > 20 and moved_total[0] > 500

@@ -7,6 +7,7 @@ import logging
 
 import numpy as np
 
+from edge import native
 from edge.track import score
 from edge.track.config import AssociationConfig, ConfirmerConfig
 from edge.track.pdaf import Innovations, gate_threshold
@@ -33,6 +34,8 @@ class Confirmer:
         self._score_drop = -score.confirm_threshold(cfg.score_true_reject_prob, cfg.score_false_confirm_prob)
         self._density = {n: score.false_density(cfg.score_false_density_m2, cfg.score_speed_span_mps, n) for n in (2, 3)}
         self._moving_gamma = gate_threshold(cfg.moving_prob, 2)
+        #: the compiled ``edge.native._track`` for :meth:`moving_and_expired` (None: the numpy reference)
+        self.kernel = native.load("_track")
 
     @property
     def confirmed_log_odds(self) -> float:
@@ -88,6 +91,23 @@ class Confirmer:
                 break
             tracks.track_id[i] = tid
             tracks.confirmed[i] = True
+
+    def moving_and_expired(self, tracks: TrackTable) -> np.ndarray:
+        """:meth:`update_moving`, then :meth:`tentative_expired`'s mask: one kernel call when it is built."""
+        if self.kernel is None:
+            self.update_moving(tracks)
+            return self.tentative_expired(tracks)
+        c = self.cfg
+        moved = tracks.moved.view(np.uint8)
+        if not moved.flags.writeable:
+            tracks.moved = tracks.moved.copy()
+            moved = tracks.moved.view(np.uint8)
+        out = self.kernel.moving_expired(tracks.x, tracks.p, tracks.history, tracks.age, tracks.misses,
+                                         tracks.confirmed.view(np.uint8), moved, tracks.score, self._moving_gamma,
+                                         c.confirm_min_speed_mps, c.confirmation == "score", self._mask_n, c.confirm_m,
+                                         c.confirm_n, self._score_drop, c.tentative_keep_from_m,
+                                         c.tentative_keep_min_hits)
+        return out.view(bool)
 
     def tentative_expired(self, tracks: TrackTable) -> np.ndarray:
         """Tentative tracks that can no longer reach M hits in their last N frames (or Wald's lower threshold)."""

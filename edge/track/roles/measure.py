@@ -104,6 +104,10 @@ class MeasurementModel(native.KernelUser):
         c = self.cfg
         n = meas.z.shape[1] if n is None else n
         z, snr_db = (meas.z, meas.snr_db) if rows is None else (meas.z.take(rows, axis=0), meas.snr_db.take(rows))
+        if self.kernel is not None:  # bit-identical
+            return self.kernel.snr_noise(z, snr_db, c.snr_min_db, c.snr_max_db, c.snr_range_sigma_m**2,
+                                         c.snr_range_floor_m**2, math.radians(c.snr_azimuth_sigma_deg)**2,
+                                         math.radians(c.snr_azimuth_floor_deg)**2, c.snr_extent_sigma_m**2, n)
         rp = kalman.snr_polar_noise(z[:, :2], snr_db, c.snr_range_sigma_m, c.snr_range_floor_m,
                                     math.radians(c.snr_azimuth_sigma_deg), math.radians(c.snr_azimuth_floor_deg),
                                     c.snr_extent_sigma_m, (c.snr_min_db, c.snr_max_db))
@@ -163,6 +167,10 @@ class MeasurementModel(native.KernelUser):
         gate of that chi-square threshold need not be computed exactly, :func:`edge.track.pdaf.innovations_each`)."""
         t = pred.x.shape[0]
         rm = self.detection_noise(meas)
+        if self.kernel is not None and rm is not None:  # the track's part only: one kernel call (bit-identical)
+            mp = self._predict_kernel(pred, meas, ext_var, rm)
+            self._innovations(meas, pred, mp, prune_gamma)
+            return mp
         both = zhm = hm = None
         if pred.xm is not None:
             zh_all, h_all = kalman.measurement_prediction(np.concatenate([pred.x, pred.xm.reshape(2 * t, 4)]),
@@ -172,6 +180,20 @@ class MeasurementModel(native.KernelUser):
         mp = MeasurementPrediction(zh, h, r, rm, None, zhm, hm)
         self._innovations(meas, pred, mp, prune_gamma)
         return mp
+
+    def _predict_kernel(self, pred: Prediction, meas: Measurements, ext_var: np.ndarray,
+                        rm: np.ndarray) -> MeasurementPrediction:
+        """:meth:`predict`'s measurement prediction without the sensor noise (it comes per detection, ``rm``) from
+        the ``measure_predict`` kernel: ``z_hat``, ``H`` of every state row, the heading and ``R`` of the tracks."""
+        c, t = self.cfg, pred.x.shape[0]
+        xp = pred.x if pred.xm is None else np.concatenate([pred.x, pred.xm.reshape(2 * t, 4)])
+        zh, h, r, u, w = self.kernel.measure_predict(xp, t, meas.with_radial_speed, ext_var, c.radial_speed_sigma_mps**2,
+                                                     self.near_speed_on, self.height_m * self.height_m
+                                                     * c.near_speed_spread_m)
+        self._head = (pred.x, (u, w))  # update_extent reuses it for the same prediction
+        if pred.xm is None:
+            return MeasurementPrediction(zh, h, r, rm, None, None, None)
+        return MeasurementPrediction(zh[:t], h[:t], r, rm, None, zh[t:], h[t:])
 
     def _innovations(self, meas: Measurements, pred: Prediction, mp: MeasurementPrediction,
                      prune_gamma: float | None) -> None:
