@@ -41,7 +41,7 @@ __all__ = ["PdafTracker", "TrackTable", "IdPool", "Measurements", "CvPredictor",
            "SeedInitiator", "TrackDeleter", "heading", "extent_cov"]
 
 
-class PdafTracker:
+class PdafTracker(native.KernelUser):
     """Multi-target PDAF (or cheap JPDA) tracker of the lane profile; see the module docstring for the algorithm.
 
     ``road_yaw_rad`` (the road direction off the boresight, set by the lane pipeline from the traffic layer) and

@@ -21,7 +21,7 @@ log = logging.getLogger(__name__)
 __all__ = ["Confirmer"]
 
 
-class Confirmer:
+class Confirmer(native.KernelUser):
     """Confirmation by ``confirmation`` (m_of_n, score, either), once the track surely moves, unless a confirmed track
     moving alike lies on it (``confirm_block_*``); tentative tracks that can no longer confirm expire."""
 
