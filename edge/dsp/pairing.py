@@ -341,6 +341,20 @@ def _accept(order: list, cand_rows: list, vel, f: tuple, model: PairingModel, ma
         fm = np.array([[f0[p0], f1[p1], f2[p2], f3[p3]] for p0, p1, p2, p3 in rows])  # (n, 4) float64
     else:  # more: one gather from the concatenated peak lists
         fm = np.concatenate(f)[idx + model.offsets((f[0].size, f[1].size, f[2].size))]
+    return _refine(idx, fm, model, n_cand, n_ghost)
+
+
+def refine_pairs(idx: np.ndarray, f: tuple, model: PairingModel, n_cand: int, n_ghost: int) -> Pairs:
+    """Step 5 of :func:`pair_beats` for accepted pairs ``idx`` ``(n, 4)`` (peak index per segment) of the four
+    segments' peak frequencies ``f`` (Hz, float64): range and speed by least squares over the four frequencies (used
+    by the compiled pairing kernel, edge/native/_pairs.pyx, which does steps 1-4)."""
+    if idx.shape[0] == 0:
+        return _no_pairs(n_cand, n_ghost)
+    fm = np.concatenate(f)[idx + model.offsets((f[0].size, f[1].size, f[2].size))]
+    return _refine(idx, fm, model, n_cand, n_ghost)
+
+
+def _refine(idx: np.ndarray, fm: np.ndarray, model: PairingModel, n_cand: int, n_ghost: int) -> Pairs:
     sol = fm @ model.pinv_t  # (n, 2): the least-squares (R0, v) over the four frequencies
     res = np.sqrt(np.add.reduce((sol @ model.matrix_t - fm) ** 2, axis=1) / 4.0)  # RMS (np.mean)
     return Pairs(idx, sol[:, 0].astype(np.float32), sol[:, 1].astype(np.float32), res.astype(np.float32),

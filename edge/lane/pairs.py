@@ -10,11 +10,16 @@ import math
 
 import numpy as np
 
-from edge.dsp.pairing import PairingModel, pair_beats
+from edge import native
+from edge.dsp.pairing import PairingModel, Pairs, pair_beats, refine_pairs
 from edge.lane.records import Feedback, PairList, Peaks
 from edge.types import FrontendInfo
 
 _SEG4 = np.arange(4)  # the four segments, as an index
+
+#: speed difference (m/s) beyond which an accepted pair sharing peaks with others is a wrong pairing on one long
+#: vehicle (pair_beats' ``ghost_speed_mps``, its default)
+_GHOST_SPEED_MPS = 1.5
 
 #: up to this many tracks the track-aided pairing predicts them in plain Python floats
 _AIDED_SMALL = 10
@@ -39,15 +44,47 @@ class PairStage:
                              np.zeros(0, np.float32))  # no track-aided pairs (read, never written)
         self._no_bins = np.zeros((0, 4), np.int64)
         self._no_bins.flags.writeable = False
+        #: the compiled pairing kernel (edge/native/_pairs.pyx), None: the numpy reference (pair_beats) runs
+        self.kernel = native.load("_pairs")
+        self._coef = np.array(self.model.coefficients, np.float64)
+
+    def __getstate__(self):
+        """Copies and pickles hold whether the kernel ran, not the module (a module does not pickle)."""
+        state = self.__dict__.copy()
+        state["kernel"] = state["kernel"] is not None
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self.kernel = native.load("_pairs") if state["kernel"] else None
+
+    def pair(self, freqs: tuple) -> Pairs:
+        """The four-segment pairing of ``freqs`` (Hz, per segment): the compiled kernel when built, else
+        :func:`edge.dsp.pairing.pair_beats` (:meth:`reference`)."""
+        if self.kernel is None:
+            return self.reference(freqs)
+        cfg = self.config
+        f = tuple(np.ascontiguousarray(fk, dtype=np.float64) for fk in freqs)
+        near = cfg.pair_near_range_m if cfg.pair_near_range_m > 0 else 0.0
+        rows, n_cand, n_ghost = self.kernel.pair(*f, self._coef, cfg.min_range_m, cfg.max_range_m,
+                                                 cfg.max_speed_kmh / 3.6, self.tol[0], self.tol[1],
+                                                 self._near_tol[0], self._near_tol[1], near,
+                                                 cfg.pair_max_shared_peaks, _GHOST_SPEED_MPS)
+        return refine_pairs(rows, f, self.model, n_cand, n_ghost)
+
+    def reference(self, freqs: tuple) -> Pairs:
+        """The numpy pairing (the kernel's reference and fallback)."""
+        cfg = self.config
+        return pair_beats(freqs, self.model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
+                          max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self.tol,
+                          max_shared=cfg.pair_max_shared_peaks, near_tolerance_hz=self._near_tol,
+                          near_range_m=cfg.pair_near_range_m, ghost_speed_mps=_GHOST_SPEED_MPS)
 
     def __call__(self, peaks: Peaks, t_ns: int, feedback: Feedback) -> PairList:
         """Pairings of ``peaks`` at frame time ``t_ns`` (ns), the tracks of ``feedback`` helping."""
         cfg = self.config
         freqs, bins = peaks.freqs_hz, peaks.bins
-        pairs = pair_beats(freqs, self.model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
-                           max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self.tol,
-                           max_shared=cfg.pair_max_shared_peaks, near_tolerance_hz=self._near_tol,
-                           near_range_m=cfg.pair_near_range_m)
+        pairs = self.pair(freqs)
         p_rng, p_vel, p_res = pairs.range_m, pairs.radial_speed_mps, pairs.residual_hz
         # (n, 4 seg) bins: the peaks of the four segments are consecutive in ``all_bins``
         all_bins = np.concatenate(bins)
