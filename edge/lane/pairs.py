@@ -136,6 +136,18 @@ class PairStage:
         if pred is None:
             return empty
         r_hat, v_hat, f_hat = pred
+        if self.kernel is not None:  # the nearest unused peaks in the kernel (the same picks as below)
+            found, fsel, bsel, good = self.kernel.aided_search(
+                tuple(np.ascontiguousarray(f, np.float64) for f in freqs),
+                tuple(np.ascontiguousarray(b, np.int64) for b in bins),
+                None if weak is None else tuple(np.ascontiguousarray(f, np.float64) for f in weak[0]),
+                None if weak is None else tuple(np.ascontiguousarray(b, np.int64) for b in weak[1]),
+                np.ascontiguousarray(pairs.peak_index, np.int64).reshape(-1, 4), np.ascontiguousarray(f_hat),
+                self._aided_window_hz, cfg.aided_min_segments)
+            found, good = found.view(bool), good.view(bool)
+            if not good.any():
+                return empty
+            return self._aided_fit(found, fsel, good, r_hat, v_hat, f_hat, bsel)
         # all four segments at once: peaks in a (segment, peak) table padded with +inf, used peaks at +inf
         counts = [fk.size for fk in freqs]
         w_counts = [fk.size for fk in weak[0]] if weak is not None else [0, 0, 0, 0]
@@ -167,6 +179,12 @@ class PairStage:
         good = np.add.reduce(found, axis=1) >= cfg.aided_min_segments
         if not good.any():
             return empty
+        return self._aided_fit(found, fsel, good, r_hat, v_hat, f_hat, np.where(found, btab[seg, j], -1))
+
+    def _aided_fit(self, found, fsel, good, r_hat, v_hat, f_hat, bsel):
+        """Least-squares range and speed of the tracks with enough peaks (``good``) from their found peaks
+        (``found``, ``fsel`` (m, 4) Hz, ``bsel`` their bins), gated against the predictions; see track_aided."""
+        cfg = self.config
         A = self._model_ab  # (4, 2)
         w = found[good].astype(np.float64)
         fs = fsel[good]
@@ -177,7 +195,7 @@ class PairStage:
         close = (np.abs(sol[:, 0] - r_hat[good]) < cfg.aided_gate_m) & (np.abs(sol[:, 1] - v_hat[good]) < cfg.aided_gate_mps)
         g = good.nonzero()[0][close]
         # a segment without a peak is read at its predicted bin (np.round's value)
-        out_bins = np.where(found[g], btab[seg, j[g]], np.rint(f_hat[g] / self.bin_hz).astype(np.int64) % self.n_bins)
+        out_bins = np.where(found[g], bsel[g], np.rint(f_hat[g] / self.bin_hz).astype(np.int64) % self.n_bins)
         return (out_bins, sol[close, 0].astype(np.float32), sol[close, 1].astype(np.float32),
                 resid[close].astype(np.float32))
 

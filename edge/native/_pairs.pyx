@@ -220,3 +220,76 @@ def pair(const double[::1] f0, const double[::1] f1, const double[::1] f2, const
     finally:
         free(g2); free(g3); free(k2); free(k3); free(rows); free(vel); free(cost); free(order); free(used)
         free(keep); free(shared); free(ghost)
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def aided_search(tuple freqs, tuple bins, tuple weak_freqs, tuple weak_bins, const long long[:, ::1] used,
+                 const double[:, ::1] f_hat, const double[::1] window_hz, int min_segments):
+    """The peak search of track-aided pairing (edge.lane.pairs.PairStage.track_aided's reference): for each
+    predicted track (row of ``f_hat`` (m, 4), Hz) and segment, the nearest peak (detected ones, then weak ones, in
+    their list order; the first of equal distances) not used by a pairing (``used`` (n, 4): peak index per segment
+    of the accepted pairs), found if within ``window_hz[k]``. Returns ``(found (m, 4) uint8, f (m, 4) float64: the
+    found peak's frequency, 0 where none, bins (m, 4) int64: its FFT bin, -1 where none, good (m,) uint8: at least
+    ``min_segments`` found)``."""
+    cdef int m = f_hat.shape[0], n_used = used.shape[0], i, k, j, nd, nw, best, cnt
+    cdef double d, dmin, p
+    cdef const double[::1] fd
+    cdef const double[::1] fw
+    cdef const long long[::1] bd
+    cdef const long long[::1] bw
+    found = np.zeros((m, 4), np.uint8)
+    fsel = np.zeros((m, 4), np.float64)
+    bsel = np.full((m, 4), -1, np.int64)
+    good = np.zeros(m, np.uint8)
+    cdef unsigned char[:, ::1] fo = found
+    cdef double[:, ::1] fs = fsel
+    cdef long long[:, ::1] bs = bsel
+    cdef unsigned char[::1] go = good
+    cdef unsigned char *taken
+    for k in range(4):
+        fd = freqs[k]
+        bd = bins[k]
+        nd = fd.shape[0]
+        if weak_freqs is not None:
+            fw = weak_freqs[k]
+            bw = weak_bins[k]
+            nw = fw.shape[0]
+        else:
+            fw = fd[:0]
+            bw = bd[:0]
+            nw = 0
+        taken = <unsigned char *>malloc(nd + 1)
+        if taken == NULL:
+            raise MemoryError()
+        for j in range(nd):
+            taken[j] = 0
+        for i in range(n_used):
+            taken[used[i, k]] = 1
+        for i in range(m):
+            p = f_hat[i, k]
+            best = -1
+            dmin = 0.0
+            for j in range(nd):
+                if taken[j]:
+                    continue
+                d = fabs(fd[j] - p)
+                if best < 0 or d < dmin:
+                    best, dmin = j, d
+            for j in range(nw):
+                d = fabs(fw[j] - p)
+                if best < 0 or d < dmin:
+                    best, dmin = nd + j, d
+            if best >= 0 and dmin <= window_hz[k]:
+                fo[i, k] = 1
+                if best < nd:
+                    fs[i, k] = fd[best]
+                    bs[i, k] = bd[best]
+                else:
+                    fs[i, k] = fw[best - nd]
+                    bs[i, k] = bw[best - nd]
+        free(taken)
+    for i in range(m):
+        cnt = fo[i, 0] + fo[i, 1] + fo[i, 2] + fo[i, 3]
+        go[i] = cnt >= min_segments
+    return found, fsel, bsel, good

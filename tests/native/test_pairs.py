@@ -34,12 +34,15 @@ def assert_same_pairs(a, b) -> None:
         np.testing.assert_array_equal(x, y, err_msg=name)
 
 
-def _random_freqs(rng, model: PairingModel, n_veh: int, drop: float):
+def _random_freqs(rng, model: PairingModel, n_veh: int, drop: float, targets: list | None = None):
     """Peaks of ``n_veh`` vehicles of 1-6 scatterers (3 m apart, the body's ghost pairings among them) plus noise
-    peaks; each peak missed with probability ``drop`` in each segment; frequency jitter of a tenth of a bin."""
+    peaks; each peak missed with probability ``drop`` in each segment; frequency jitter of a tenth of a bin.
+    ``targets``: if given, each vehicle's (near-face range, speed) is appended."""
     rs, vs = [], []
     for _ in range(n_veh):
         r0, v = rng.uniform(3.0, 380.0), rng.uniform(-45.0, 45.0)
+        if targets is not None:
+            targets.append((r0, v))
         k = rng.integers(1, 7)
         rs.extend(r0 + 3.0 * np.arange(k))
         vs.extend([v] * k)
@@ -116,3 +119,93 @@ def test_kernel_equals_reference_on_recorded_peaks(stem):
         n_frames += 1
         n_pairs += ref.range_m.size
     assert n_frames > 100 and n_pairs > 200
+
+
+def _aided_both(stage: PairStage, *args):
+    """track_aided with the kernel and with its numpy reference (the stage's kernel switched off)."""
+    out = stage.track_aided(*args)
+    k, stage.kernel = stage.kernel, None
+    try:
+        ref = stage.track_aided(*args)
+    finally:
+        stage.kernel = k
+    return out, ref
+
+
+def _assert_same_aided(out, ref) -> None:
+    assert len(out) == len(ref) == 4
+    for x, y in zip(out, ref):
+        assert x.dtype == y.dtype and x.shape == y.shape
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_aided_search_equals_reference_on_random_tracks(seed):
+    """Tracks at random positions (a third near a vehicle whose peaks are present, some of them paired), peaks of
+    other vehicles and noise, weak peaks in half the cases: the same track-aided pairs from the kernel's search."""
+    require_kernel("_pairs")
+    from edge.lane.records import Feedback
+
+    rng = np.random.default_rng(100 + seed)
+    stage = _stage(aided_min_segments=(2, 3, 4)[seed % 3])
+    cfg = stage.config
+    dz = cfg.mounting_height_m - cfg.target_height_m
+    n_out = 0
+    for trial in range(10):
+        n_veh = int(rng.integers(1, 12))
+        targets: list = []
+        freqs = _random_freqs(rng, stage.model, n_veh, 0.3, targets)
+        bins = tuple(np.rint(f / BIN_HZ[s]).astype(np.int64) % FE.waveform.n_samples for s, f in enumerate(freqs))
+        weak = None
+        if trial % 2:
+            wf = _random_freqs(rng, stage.model, 3, 0.5)
+            weak = (wf, tuple(np.rint(f / BIN_HZ[s]).astype(np.int64) % FE.waveform.n_samples
+                              for s, f in enumerate(wf)))
+        pairs = stage.reference(freqs)
+        # tracks on the vehicles (on the boresight, a little off their range and speed) and elsewhere
+        rows = []
+        for r0, v in targets:
+            r = r0 + rng.normal(0.0, 0.3)
+            y = np.sqrt(max(r * r - dz * dz, 1.0))
+            rows.append((0.0, y, 0.0, (v + rng.normal(0.0, 0.2)) * r / y))
+        for _ in range(int(rng.integers(0, 5))):
+            rows.append((rng.uniform(-8.0, 8.0), rng.uniform(5.0, 350.0), 0.0, rng.uniform(-40.0, 40.0)))
+        state = np.array(rows, dtype=np.float64)
+        n_tr = state.shape[0]
+        fb = Feedback(t_ns=0, track_state=state, confirmed=rng.random(n_tr) < 0.8, moved=np.ones(n_tr, bool),
+                      hits=rng.integers(0, 10, n_tr))
+        out, ref = _aided_both(stage, freqs, bins, pairs, 0, fb, weak)
+        _assert_same_aided(out, ref)
+        n_out += ref[1].size
+    assert n_out > 0  # the search found peaks and the fits passed their gates
+
+
+def test_aided_search_equals_reference_in_the_pipeline(monkeypatch):
+    """Every track-aided search of a seeded highway4-traffic run (120 frames): the kernel's picks and the fits
+    equal the reference's."""
+    require_kernel("_pairs")
+    from tests.edge import lane_golden as g
+
+    pipe, frames = g.build("highway4-traffic", 1, 5.0)
+    stage = pipe.pairs
+    real = stage.track_aided
+    n = {"calls": 0, "pairs": 0}
+
+    def spy(*args):
+        out = real(*args)
+        k, stage.kernel = stage.kernel, None
+        try:
+            ref = real(*args)
+        finally:
+            stage.kernel = k
+        _assert_same_aided(out, ref)
+        n["calls"] += 1
+        n["pairs"] += ref[1].size
+        return out
+
+    monkeypatch.setattr(stage, "track_aided", spy)
+    from edge.pipeline import StageTimer
+    t = StageTimer(16)
+    for f in frames(120):
+        pipe.process(f, t)
+    assert n["calls"] > 50 and n["pairs"] > 5
