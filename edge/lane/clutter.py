@@ -37,7 +37,7 @@ def _median_of_frames(frames: np.ndarray) -> np.ndarray:
     return m[..., 0] + 1j * m[..., 1]
 
 
-class ClutterMap:
+class ClutterMap(native.KernelUser):
     """The static-clutter map: (rx, seg, bin) complex64 background, learned per frame and subtracted in place.
 
     ``config`` is the lane profile's :class:`edge.pipelines.lane.LaneConfig` (``clutter_map_*``, mounting and

@@ -14,7 +14,7 @@ from edge.types import FrontendInfo
 from hal.waveform import SPEED_OF_LIGHT_MPS
 
 
-class PeakStage:
+class PeakStage(native.KernelUser):
     """OS-CFAR detection and peak interpolation of the four segments' power rows."""
 
     def __init__(self, frontend: FrontendInfo, config) -> None:
@@ -61,16 +61,6 @@ class PeakStage:
             self._k_comp, self._k_npad = self.kernel.rank_network(self._n_ref, self._rank)
             self._k_bin_hz = np.ascontiguousarray(self.bin_hz, dtype=np.float64)
             self._k_aided = np.float32(0.0 if self.aided_scale32 is None else self.aided_scale32)
-
-    def __getstate__(self) -> dict:
-        """Copies and pickles hold whether the kernel ran, not the module (a module does not pickle)."""
-        state = dict(self.__dict__)
-        state["kernel"] = state["kernel"] is not None
-        return state
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-        self.kernel = native.load("_peaks") if state["kernel"] else None
 
     def __call__(self, spectra: Spectra, want_weak: bool) -> Peaks:
         """Peaks of ``spectra``; ``want_weak``: also the local maxima between the aided and the detection

@@ -13,7 +13,7 @@ from edge.lane.records import Feedback, Spectra
 from edge.types import FrontendInfo, RawFrame
 
 
-class SpectraStage:
+class SpectraStage(native.KernelUser):
     """Windowed range FFT and clutter removal; keeps the frame's scratch buffers and the :class:`ClutterMap`."""
 
     def __init__(self, frontend: FrontendInfo, config, clutter: ClutterMap, pad: int) -> None:

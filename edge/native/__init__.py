@@ -70,3 +70,24 @@ def warn_if_missing() -> None:
     if not _warned and missing():
         log.warning("%s", status())
         _warned = True
+
+
+class _KernelName:
+    """A loaded kernel module's stand-in in a pickle or a deep copy (a module does not pickle)."""
+
+    __slots__ = ("name",)
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+
+class KernelUser:
+    """Mixin for a stage or role that keeps a kernel module as an attribute: copies and pickles hold the kernel's
+    name and load it again, so a pipeline deep-copies and pickles with its kernels."""
+
+    def __getstate__(self) -> dict:
+        return {k: _KernelName(v.__name__) if isinstance(v, ModuleType) else v for k, v in self.__dict__.items()}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update({k: importlib.import_module(v.name) if isinstance(v, _KernelName) else v
+                              for k, v in state.items()})

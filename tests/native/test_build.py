@@ -150,3 +150,38 @@ def test_wheel_manifest_ships_compiled_kernels_only():
     assert {"*.pyx", "*.c"} <= set(excl["edge.native"])
     manifest = (ROOT / "MANIFEST.in").read_text().splitlines()
     assert "include edge/native/*.pyx" in manifest and "exclude edge/native/*.c" in manifest
+
+
+def test_lane_pipeline_copies_and_pickles_with_its_kernels():
+    """Every stage and role holding a kernel module deep-copies and pickles (tests and replays copy pipelines),
+    and the copy still runs the same compiled modules."""
+    import copy
+    import pickle
+    from types import ModuleType
+
+    from hal.waveform import simo_frontend
+    from edge.pipelines.lane import LaneConfig, LanePipeline
+
+    for name in ("_spectra", "_peaks", "_track"):
+        require_kernel(name)
+    pipe = LanePipeline(simo_frontend(), LaneConfig())
+
+    def kernels(obj, seen=None, depth=0):
+        seen = set() if seen is None else seen
+        found = []
+        if id(obj) in seen or depth > 6:
+            return found
+        seen.add(id(obj))
+        for v in getattr(obj, "__dict__", {}).values():
+            if isinstance(v, ModuleType) and v.__name__.startswith("edge.native."):
+                found.append(v)
+            elif hasattr(v, "__dict__") and type(v).__module__.startswith("edge."):
+                found += kernels(v, seen, depth + 1)
+        return found
+
+    before = kernels(pipe)
+    assert {m.__name__ for m in before} >= {"edge.native._spectra", "edge.native._peaks", "edge.native._track"}
+    for other in (copy.deepcopy(pipe), pickle.loads(pickle.dumps(pipe))):
+        after = kernels(other)
+        assert [m.__name__ for m in after] == [m.__name__ for m in before]
+        assert all(a is b for a, b in zip(after, before))

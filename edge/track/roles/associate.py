@@ -30,7 +30,7 @@ class Hypotheses:
     gated: np.ndarray
 
 
-class PdaAssociator:
+class PdaAssociator(native.KernelUser):
     """Gate and association probabilities of every track x detection pair."""
 
     def __init__(self, cfg: AssociationConfig) -> None:

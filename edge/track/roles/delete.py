@@ -33,7 +33,7 @@ def carrying_detection(beta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return best, beta[np.arange(beta.shape[0]), best] > 0.5
 
 
-class TrackDeleter:
+class TrackDeleter(native.KernelUser):
     """Deletion: misses in a row, diverged covariance, out of the field, duplicates of an older track."""
 
     def __init__(self, cfg: DeleterConfig, fov: FieldOfViewConfig, box: SameVehicleBox) -> None:

@@ -20,7 +20,7 @@ __all__ = ["SeedInitiator"]
 _SEED_MERGE_PLAIN_MAX = 8  # seed candidates up to which SeedInitiator merges them in plain Python
 
 
-class SeedInitiator:
+class SeedInitiator(native.KernelUser):
     """Seeds from the detections outside every track's exclusion gate and same-vehicle box, moving, in the field of
     view; of one frame's candidates within one merge box the strongest seeds. With a radial speed the seed moves
     along the road (``road_yaw_rad`` off the boresight): its speed along the road from the radial speed (sd

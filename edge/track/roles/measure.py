@@ -70,7 +70,7 @@ def extent_cov(xp: np.ndarray, ext_var: np.ndarray, head: tuple[np.ndarray, np.n
     return ext_var[:, None, None] * (w[:, None, None] * uu + iso)
 
 
-class MeasurementModel:
+class MeasurementModel(native.KernelUser):
     """What both noise models share: ``z_hat``, ``H`` and the track's part of ``R`` at its prediction (the extent of
     an extended vehicle: ``extent_sigma_m`` across, the learned ``ext_var`` along its heading, isotropic below 1 m/s;
     the radial-speed noise, blurred near the radar by the mast geometry), and the learning of ``ext_var``."""

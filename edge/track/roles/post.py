@@ -38,7 +38,7 @@ class Frame:
     used: np.ndarray
 
 
-class LateralSmoother:
+class LateralSmoother(native.KernelUser):
     """A straight-line filter per track across the boresight (``tracks.lat``: ``[x, vx]``), outside the IMM's mixing,
     updated with the association's weights and each detection's own lateral noise (:mod:`edge.track.kalman`). It
     restarts from the motion model's estimate when a Hausman test or a CUSUM of the likelihood ratio says the vehicle

@@ -46,7 +46,7 @@ class CvPredictor:
         return None
 
 
-class ImmPredictor:
+class ImmPredictor(native.KernelUser):
     """IMM mixing and mode-matched prediction: lane keeping along the road at ``road_yaw_rad`` and the
     constant-velocity model for manoeuvres. Per track: ``tracks.xm``, ``tracks.pm``, ``tracks.mu``."""
 
@@ -134,7 +134,7 @@ class PdaUpdater:
         tracks.x, tracks.p = self.measurement_model.state_update(pred.x, pred.p, mp, hyp.beta, hyp.beta0)
 
 
-class ImmPdaUpdater:
+class ImmPdaUpdater(native.KernelUser):
     """Both modes' PDAF posteriors with the combined prediction's weights, mode probabilities from each mode's
     likelihood of the validated detections, the moment-matched state (:class:`ImmPredictor`)."""
 
