@@ -20,7 +20,7 @@ from edge.lane.road import RoadFrame
 from edge.types import FrontendInfo
 
 
-class AngleStage:
+class AngleStage(native.KernelUser):
     """Bartlett consensus over the segments of every pairing."""
 
     def __init__(self, frontend: FrontendInfo, config, want_looks: bool) -> None:
@@ -37,16 +37,6 @@ class AngleStage:
         self._want_looks = want_looks  # the resolver's input
         #: the compiled consensus (edge/native/_angles.pyx), None: the numpy reference (bartlett_consensus) runs
         self.kernel = native.load("_angles")
-
-    def __getstate__(self):
-        """Copies and pickles hold whether the kernel ran, not the module (a module does not pickle)."""
-        state = self.__dict__.copy()
-        state["kernel"] = state["kernel"] is not None
-        return state
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        self.kernel = native.load("_angles") if state["kernel"] else None
 
     def consensus(self, snaps: np.ndarray, outlier, pk: np.ndarray, p_vel: np.ndarray) -> tuple:
         """Bartlett consensus of ``snaps`` (n, seg, rx): the compiled kernel after numpy's beamforming product

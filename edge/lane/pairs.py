@@ -25,7 +25,7 @@ _GHOST_SPEED_MPS = 1.5
 _AIDED_SMALL = 10
 
 
-class PairStage:
+class PairStage(native.KernelUser):
     """Pairing of the four segments' peaks, with the tracks' help (``aided_*``)."""
 
     def __init__(self, frontend: FrontendInfo, config, bin_hz: np.ndarray) -> None:
@@ -47,16 +47,6 @@ class PairStage:
         #: the compiled pairing kernel (edge/native/_pairs.pyx), None: the numpy reference (pair_beats) runs
         self.kernel = native.load("_pairs")
         self._coef = np.array(self.model.coefficients, np.float64)
-
-    def __getstate__(self):
-        """Copies and pickles hold whether the kernel ran, not the module (a module does not pickle)."""
-        state = self.__dict__.copy()
-        state["kernel"] = state["kernel"] is not None
-        return state
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        self.kernel = native.load("_pairs") if state["kernel"] else None
 
     def pair(self, freqs: tuple) -> Pairs:
         """The four-segment pairing of ``freqs`` (Hz, per segment): the compiled kernel when built, else
