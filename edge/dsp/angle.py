@@ -34,6 +34,12 @@ def _conj_t(steering: np.ndarray) -> np.ndarray:
     return hit[1].T
 
 
+def beamform(snapshots: np.ndarray, steering: np.ndarray) -> np.ndarray:
+    """``a^H x`` for every grid angle: ``snapshots`` complex64 ``(n_det, n_snap, n_rx)``, ``steering`` ``(n_grid,
+    n_rx)`` -> complex64 ``(n_det, n_snap, n_grid)`` (the product :func:`bartlett_consensus` starts from)."""
+    return snapshots @ _conj_t(steering)
+
+
 def steering_matrix(n_rx: int, spacing_m: float, wavelength_m: float, grid_rad: np.ndarray) -> np.ndarray:
     """``(n_grid, n_rx)`` complex64 steering vectors, normalised to unit norm."""
     m = np.arange(n_rx)
@@ -96,7 +102,7 @@ def bartlett_consensus(snapshots: np.ndarray, steering: np.ndarray, grid_rad: np
     if n_det == 0:
         none = np.zeros((0, n_snap), bool)
         return np.zeros(0, np.float32), np.zeros((0, grid_rad.size), np.float32), none, none
-    y = snapshots @ _conj_t(steering)  # (n_det, n_snap, n_grid)
+    y = beamform(snapshots, steering)  # (n_det, n_snap, n_grid)
     q = y.view(y.real.dtype)  # (n_det, n_snap, 2 n_grid): re, im interleaved
     q = q * q
     p = q[..., 0::2] + q[..., 1::2]  # re * re + im * im (float32), in two calls instead of three

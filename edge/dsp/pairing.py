@@ -341,6 +341,20 @@ def _accept(order: list, cand_rows: list, vel, f: tuple, model: PairingModel, ma
         fm = np.array([[f0[p0], f1[p1], f2[p2], f3[p3]] for p0, p1, p2, p3 in rows])  # (n, 4) float64
     else:  # more: one gather from the concatenated peak lists
         fm = np.concatenate(f)[idx + model.offsets((f[0].size, f[1].size, f[2].size))]
+    return _refine(idx, fm, model, n_cand, n_ghost)
+
+
+def refine_pairs(idx: np.ndarray, f: tuple, model: PairingModel, n_cand: int, n_ghost: int) -> Pairs:
+    """Step 5 of :func:`pair_beats` for accepted pairs ``idx`` ``(n, 4)`` (peak index per segment) of the four
+    segments' peak frequencies ``f`` (Hz, float64): range and speed by least squares over the four frequencies (used
+    by the compiled pairing kernel, edge/native/_pairs.pyx, which does steps 1-4)."""
+    if idx.shape[0] == 0:
+        return _no_pairs(n_cand, n_ghost)
+    fm = np.concatenate(f)[idx + model.offsets((f[0].size, f[1].size, f[2].size))]
+    return _refine(idx, fm, model, n_cand, n_ghost)
+
+
+def _refine(idx: np.ndarray, fm: np.ndarray, model: PairingModel, n_cand: int, n_ghost: int) -> Pairs:
     sol = fm @ model.pinv_t  # (n, 2): the least-squares (R0, v) over the four frequencies
     res = np.sqrt(np.add.reduce((sol @ model.matrix_t - fm) ** 2, axis=1) / 4.0)  # RMS (np.mean)
     return Pairs(idx, sol[:, 0].astype(np.float32), sol[:, 1].astype(np.float32), res.astype(np.float32),
@@ -348,48 +362,23 @@ def _accept(order: list, cand_rows: list, vel, f: tuple, model: PairingModel, ma
 
 
 def nearest_of_clusters(range_m: np.ndarray, v_mps: np.ndarray, x_m: np.ndarray, *, length_m: float,
-                        speed_mps: float, lateral_m: float, ghost_speed_per_m: float = 0.0,
-                        ghost_speed_mps: float = 0.0, ghost_length_m: float = 0.0,
-                        ghost_from_near_faces: bool = True,
+                        speed_mps: float, lateral_m: float,
                         with_extent: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Keep mask ``(n,)``: drop a detection when another one lies at most ``length_m`` nearer in range,
     within ``speed_mps`` in radial speed and ``lateral_m`` across -- the same vehicle seen further
     along its body. An extended vehicle then yields its nearest face, the point that stays visible and
     that the tracker follows (several detections of one body would pull a track between its faces).
-    ``ghost_speed_mps`` > 0 also drops wrong pairings among the body's scatterers: up to ``ghost_length_m``
-    behind and ``ghost_speed_mps`` off in speed, but no more than ``ghost_speed_per_m`` per metre behind.
-    With ``ghost_from_near_faces`` that distance is taken from a near face only (a detection the first rule
-    keeps): a ghost lies within its body, so one behind a vehicle's far end is another vehicle (a truck 17 m
-    behind a 6 m van, 2.5 m/s faster, was 11 m behind the van's rear face and dropped in every frame it
-    was detected there).
     With ``with_extent`` also returns each detection's body extent ``(n,)`` (m, slant): the farthest detection
-    the first rule drops behind it, 0 where none (what :func:`body_extent` computes for the kept ones).
+    the rule drops behind it, 0 where none (what :func:`body_extent` computes for the kept ones).
     """
     r = range_m[:, None] - range_m[None, :]  # r[i, j] > 0: j nearer than i
     dv = np.abs(v_mps[:, None] - v_mps[None, :])
     beside = np.abs(x_m[:, None] - x_m[None, :]) <= lateral_m
-    ahead = (r > 0) & (r <= length_m) & beside
-    same = ahead & (dv <= speed_mps)  # same[i, j]: i is j's body
-    keep = _keep_of_clusters(r, dv, ahead, same, speed_mps, ghost_speed_per_m, ghost_speed_mps, ghost_length_m,
-                             ghost_from_near_faces)
+    same = (r > 0) & (r <= length_m) & beside & (dv <= speed_mps)  # same[i, j]: i is j's body
+    keep = ~same.any(axis=1)
     if not with_extent:
         return keep
     return keep, (np.where(same, r, 0.0).max(axis=0) if r.size else np.zeros(range_m.size, range_m.dtype))
-
-
-def _keep_of_clusters(r, dv, ahead, same, speed_mps, ghost_speed_per_m, ghost_speed_mps, ghost_length_m,
-                      ghost_from_near_faces) -> np.ndarray:
-    if not (ghost_speed_mps > 0 and ghost_length_m > 0):
-        return ~same.any(axis=1)
-    # a wrong pairing between two of the body's scatterers lies between them (within half the body behind
-    # its near face), off their speed by ghost_speed_per_m / 2 per metre of their spacing
-    tol = np.where(r <= ghost_length_m, np.maximum(speed_mps, np.minimum(ghost_speed_mps, ghost_speed_per_m * r)),
-                   speed_mps)
-    if not ghost_from_near_faces:
-        return ~(ahead & (dv <= tol)).any(axis=1)
-    body = same.any(axis=1)
-    ghost = (ahead & (dv <= tol) & ~body[None, :]).any(axis=1)  # behind a near face, within the ghost law
-    return ~(body | ghost)
 
 
 def body_extent(range_m: np.ndarray, v_mps: np.ndarray, x_m: np.ndarray, keep: np.ndarray, *, length_m: float,

@@ -10,7 +10,8 @@ import math
 
 import numpy as np
 
-from edge.dsp.angle import bartlett_consensus, steering_matrix
+from edge import native
+from edge.dsp.angle import bartlett_consensus, beamform, steering_matrix
 from edge.dsp.geometry import polar_to_ground
 from edge.dsp.pairing import nearest_of_clusters
 from edge.lane.records import Angles, Feedback, PairList, Spectra
@@ -19,7 +20,7 @@ from edge.lane.road import RoadFrame
 from edge.types import FrontendInfo
 
 
-class AngleStage:
+class AngleStage(native.KernelUser):
     """Bartlett consensus over the segments of every pairing."""
 
     def __init__(self, frontend: FrontendInfo, config, want_looks: bool) -> None:
@@ -34,6 +35,33 @@ class AngleStage:
         self._inv_cal = (1.0 / cal).astype(np.complex64)
         self._seg_bin0 = np.arange(len(wf.segments)) * wf.n_samples  # first bin of each segment, (rx, seg*bin) view
         self._want_looks = want_looks  # the resolver's input
+        #: the compiled consensus (edge/native/_angles.pyx), None: the numpy reference (bartlett_consensus) runs
+        self.kernel = native.load("_angles")
+
+    def consensus(self, snaps: np.ndarray, outlier, pk: np.ndarray, p_vel: np.ndarray) -> tuple:
+        """Bartlett consensus of ``snaps`` (n, seg, rx): the compiled kernel after numpy's beamforming product
+        when built, else :meth:`reference`. Returns ``(az, spectrum, kept, used)`` as bartlett_consensus."""
+        if self.kernel is None:
+            return self.reference(snaps, outlier, pk, p_vel)
+        cfg = self.config
+        n = snaps.shape[0]
+        y = beamform(snaps, self.steer)
+        q = y.view(y.real.dtype)
+        outl = (np.ascontiguousarray(outlier, np.float32) if np.ndim(outlier)
+                else np.full(n, outlier, np.float32))
+        bins = np.ascontiguousarray(pk, np.int64) if cfg.angle_skip_shared_looks else None
+        az, spec, kept, used = self.kernel.consensus(q, self.grid, outl, bins, cfg.angle_shared_bins,
+                                                     cfg.angle_min_agreeing, 2,
+                                                     np.ascontiguousarray(p_vel, np.float32),
+                                                     np.float32(cfg.angle_shared_speed_mps))
+        return az, spec, kept.view(bool), used.view(bool)
+
+    def reference(self, snaps: np.ndarray, outlier, pk: np.ndarray, p_vel: np.ndarray) -> tuple:
+        """The numpy consensus (edge.dsp.angle.bartlett_consensus: the kernel's reference and fallback)."""
+        cfg = self.config
+        return bartlett_consensus(snaps, self.steer, self.grid, outlier, pk if cfg.angle_skip_shared_looks else None,
+                                  cfg.angle_shared_bins, cfg.angle_min_agreeing, speeds=p_vel,
+                                  min_speed_diff=cfg.angle_shared_speed_mps)
 
     def __call__(self, spectra: Spectra, noise: np.ndarray, floor: np.ndarray, pairs: PairList) -> Angles:
         """Angles of ``pairs`` from the spectra; the SNR against the CFAR ``noise`` (seg, bin) or the segment's
@@ -49,10 +77,7 @@ class AngleStage:
             if cfg.angle_outlier_lateral_m > 0:  # wider near the radar, where a vehicle spans degrees
                 outlier = np.maximum(outlier, np.float32(cfg.angle_outlier_lateral_m)
                                      / np.maximum(p_rng, np.float32(1.0)))
-            az, aspec, kept, used = bartlett_consensus(
-                snaps, self.steer, self.grid, outlier, pk if cfg.angle_skip_shared_looks else None,
-                cfg.angle_shared_bins, cfg.angle_min_agreeing, speeds=p_vel,
-                min_speed_diff=cfg.angle_shared_speed_mps)
+            az, aspec, kept, used = self.consensus(snaps, outlier, pk, p_vel)
             p0 = power[0, pk[:, 0]]
             n0 = noise[0, pk[:, 0]]
             n0 = np.where(np.isfinite(n0), n0, floor[0])  # a track-aided pair may read a non-peak bin

@@ -2,8 +2,8 @@
 road-geometry filters, each a small object switched by its ``pipeline.lane`` key:
 
 * :class:`UnaliasByLane` (before the projection): a grating-lobe alias moved back into a lane of its direction;
-* :class:`NearFaces`: a vehicle's body (detections behind its near face at its speed) and the ghosts of wrong
-  pairings among its scatterers dropped; the body's length measured;
+* :class:`NearFaces`: a vehicle's body (detections behind its near face at its speed) dropped; the body's length
+  measured;
 * :class:`AgainstLaneGlint`: angle glint of a vehicle's body in a lane of the other direction dropped.
 
 A filter is called as ``filter(candidates, feedback) -> candidates`` (:class:`edge.lane.records.Candidates`)."""
@@ -77,8 +77,7 @@ class UnaliasByLane:
 class NearFaces:
     """A vehicle is reported by its nearest face (edge.dsp.pairing.nearest_of_clusters): detections up to
     ``cluster_length_m`` behind a nearer one within ``cluster_speed_mps`` and ``cluster_lateral_m`` are its body,
-    and wrong pairings among its scatterers (speed off by the ghost law, ``cluster_ghost_*``) its ghosts; both are
-    dropped. The body's along-road length is kept per detection (``body_extent_m``)."""
+    and are dropped. The body's along-road length is kept per detection (``body_extent_m``)."""
 
     def __init__(self, config) -> None:
         self.config = config
@@ -91,10 +90,6 @@ class NearFaces:
             return Candidates(rng, c.radial_speed_mps, c.az_rad, c.x_m, c.y_m, c.keep, np.zeros(rng.size, np.float32))
         keep, ext = nearest_of_clusters(rng, c.radial_speed_mps, c.x_m, length_m=cfg.cluster_length_m,
                                         speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m,
-                                        ghost_speed_per_m=cfg.cluster_ghost_speed_per_m,
-                                        ghost_speed_mps=cfg.cluster_ghost_speed_mps,
-                                        ghost_length_m=cfg.cluster_ghost_length_m,
-                                        ghost_from_near_faces=cfg.cluster_ghost_from_near_face,
                                         with_extent=True)
         keep &= c.keep
         return Candidates(rng, c.radial_speed_mps, c.az_rad, c.x_m, c.y_m, keep,

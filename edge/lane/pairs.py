@@ -10,17 +10,22 @@ import math
 
 import numpy as np
 
-from edge.dsp.pairing import PairingModel, pair_beats
+from edge import native
+from edge.dsp.pairing import PairingModel, Pairs, pair_beats, refine_pairs
 from edge.lane.records import Feedback, PairList, Peaks
 from edge.types import FrontendInfo
 
 _SEG4 = np.arange(4)  # the four segments, as an index
 
+#: speed difference (m/s) beyond which an accepted pair sharing peaks with others is a wrong pairing on one long
+#: vehicle (pair_beats' ``ghost_speed_mps``, its default)
+_GHOST_SPEED_MPS = 1.5
+
 #: up to this many tracks the track-aided pairing predicts them in plain Python floats
 _AIDED_SMALL = 10
 
 
-class PairStage:
+class PairStage(native.KernelUser):
     """Pairing of the four segments' peaks, with the tracks' help (``aided_*``)."""
 
     def __init__(self, frontend: FrontendInfo, config, bin_hz: np.ndarray) -> None:
@@ -39,15 +44,37 @@ class PairStage:
                              np.zeros(0, np.float32))  # no track-aided pairs (read, never written)
         self._no_bins = np.zeros((0, 4), np.int64)
         self._no_bins.flags.writeable = False
+        #: the compiled pairing kernel (edge/native/_pairs.pyx), None: the numpy reference (pair_beats) runs
+        self.kernel = native.load("_pairs")
+        self._coef = np.array(self.model.coefficients, np.float64)
+
+    def pair(self, freqs: tuple) -> Pairs:
+        """The four-segment pairing of ``freqs`` (Hz, per segment): the compiled kernel when built, else
+        :func:`edge.dsp.pairing.pair_beats` (:meth:`reference`)."""
+        if self.kernel is None:
+            return self.reference(freqs)
+        cfg = self.config
+        f = tuple(np.ascontiguousarray(fk, dtype=np.float64) for fk in freqs)
+        near = cfg.pair_near_range_m if cfg.pair_near_range_m > 0 else 0.0
+        rows, n_cand, n_ghost = self.kernel.pair(*f, self._coef, cfg.min_range_m, cfg.max_range_m,
+                                                 cfg.max_speed_kmh / 3.6, self.tol[0], self.tol[1],
+                                                 self._near_tol[0], self._near_tol[1], near,
+                                                 cfg.pair_max_shared_peaks, _GHOST_SPEED_MPS)
+        return refine_pairs(rows, f, self.model, n_cand, n_ghost)
+
+    def reference(self, freqs: tuple) -> Pairs:
+        """The numpy pairing (the kernel's reference and fallback)."""
+        cfg = self.config
+        return pair_beats(freqs, self.model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
+                          max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self.tol,
+                          max_shared=cfg.pair_max_shared_peaks, near_tolerance_hz=self._near_tol,
+                          near_range_m=cfg.pair_near_range_m, ghost_speed_mps=_GHOST_SPEED_MPS)
 
     def __call__(self, peaks: Peaks, t_ns: int, feedback: Feedback) -> PairList:
         """Pairings of ``peaks`` at frame time ``t_ns`` (ns), the tracks of ``feedback`` helping."""
         cfg = self.config
         freqs, bins = peaks.freqs_hz, peaks.bins
-        pairs = pair_beats(freqs, self.model, min_range_m=cfg.min_range_m, max_range_m=cfg.max_range_m,
-                           max_speed_mps=cfg.max_speed_kmh / 3.6, tolerance_hz=self.tol,
-                           max_shared=cfg.pair_max_shared_peaks, near_tolerance_hz=self._near_tol,
-                           near_range_m=cfg.pair_near_range_m)
+        pairs = self.pair(freqs)
         p_rng, p_vel, p_res = pairs.range_m, pairs.radial_speed_mps, pairs.residual_hz
         # (n, 4 seg) bins: the peaks of the four segments are consecutive in ``all_bins``
         all_bins = np.concatenate(bins)
@@ -99,6 +126,18 @@ class PairStage:
         if pred is None:
             return empty
         r_hat, v_hat, f_hat = pred
+        if self.kernel is not None:  # the nearest unused peaks in the kernel (the same picks as below)
+            found, fsel, bsel, good = self.kernel.aided_search(
+                tuple(np.ascontiguousarray(f, np.float64) for f in freqs),
+                tuple(np.ascontiguousarray(b, np.int64) for b in bins),
+                None if weak is None else tuple(np.ascontiguousarray(f, np.float64) for f in weak[0]),
+                None if weak is None else tuple(np.ascontiguousarray(b, np.int64) for b in weak[1]),
+                np.ascontiguousarray(pairs.peak_index, np.int64).reshape(-1, 4), np.ascontiguousarray(f_hat),
+                self._aided_window_hz, cfg.aided_min_segments)
+            found, good = found.view(bool), good.view(bool)
+            if not good.any():
+                return empty
+            return self._aided_fit(found, fsel, good, r_hat, v_hat, f_hat, bsel)
         # all four segments at once: peaks in a (segment, peak) table padded with +inf, used peaks at +inf
         counts = [fk.size for fk in freqs]
         w_counts = [fk.size for fk in weak[0]] if weak is not None else [0, 0, 0, 0]
@@ -130,6 +169,12 @@ class PairStage:
         good = np.add.reduce(found, axis=1) >= cfg.aided_min_segments
         if not good.any():
             return empty
+        return self._aided_fit(found, fsel, good, r_hat, v_hat, f_hat, np.where(found, btab[seg, j], -1))
+
+    def _aided_fit(self, found, fsel, good, r_hat, v_hat, f_hat, bsel):
+        """Least-squares range and speed of the tracks with enough peaks (``good``) from their found peaks
+        (``found``, ``fsel`` (m, 4) Hz, ``bsel`` their bins), gated against the predictions; see track_aided."""
+        cfg = self.config
         A = self._model_ab  # (4, 2)
         w = found[good].astype(np.float64)
         fs = fsel[good]
@@ -140,7 +185,7 @@ class PairStage:
         close = (np.abs(sol[:, 0] - r_hat[good]) < cfg.aided_gate_m) & (np.abs(sol[:, 1] - v_hat[good]) < cfg.aided_gate_mps)
         g = good.nonzero()[0][close]
         # a segment without a peak is read at its predicted bin (np.round's value)
-        out_bins = np.where(found[g], btab[seg, j[g]], np.rint(f_hat[g] / self.bin_hz).astype(np.int64) % self.n_bins)
+        out_bins = np.where(found[g], bsel[g], np.rint(f_hat[g] / self.bin_hz).astype(np.int64) % self.n_bins)
         return (out_bins, sol[close, 0].astype(np.float32), sol[close, 1].astype(np.float32),
                 resid[close].astype(np.float32))
 

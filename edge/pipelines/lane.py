@@ -220,15 +220,6 @@ class LaneConfig:
     unalias_min_speed_mps: float = field(default=1.0, metadata={
         "unit": "m/s", "doc": "radial speed below which a detection's direction of travel is unknown",
         "min": 0.0, "max": 50.0})
-    cluster_ghost_speed_mps: float = field(default=6.0, metadata={
-        "unit": "m/s", "doc": "wrong pairings among a body's scatterers: detections behind a nearer one are dropped "
-               "up to this speed difference (bounded by cluster_ghost_speed_per_m and cluster_ghost_length_m); 0 = off",
-        "min": 0.0, "max": 20.0})
-    cluster_ghost_speed_per_m: float = field(default=0.9, metadata={
-        "unit": "m/s per m", "doc": "... at most this speed difference per metre behind (a ghost 2u behind the "
-               "near face is off by u a/b: a / (2 b) = 0.83 m/s per m)", "min": 0.0, "max": 10.0})
-    cluster_ghost_length_m: float = field(default=12.0, metadata={
-        "unit": "m", "doc": "... and only up to this far behind", "min": 0.0, "max": 30.0})
     cluster_against_lane_speed_mps: float = field(default=0.3, metadata={
         "unit": "m/s", "doc": "with lanes, a detection moving against its lane up to cluster_length_m behind a "
                "nearer detection within this radial speed and a beamwidth is dropped (angle glint of a vehicle's "
@@ -236,9 +227,6 @@ class LaneConfig:
     cluster_against_lane_margin_m: float = field(default=1.0, metadata={
         "unit": "m", "doc": "... only where the lanes this far to either side (plus the wrong-way lane uncertainty "
                "of the traffic layer) run the same way", "min": 0.0, "max": 10.0})
-    cluster_ghost_from_near_face: bool = field(default=True, metadata={
-        "doc": "... the ghost rule measured from a near face only (a detection behind another vehicle's far end "
-               "is the next vehicle)"})
     clutter_map_init_frames: int = field(default=16, metadata={
         "doc": "after this many frames the clutter map is replaced by the per-bin median of those frames (static "
                "returns removed exactly, vehicles passing through a bin left out); 0 = running mean only",

@@ -262,6 +262,8 @@ def record_run(scenario: str, seed: int, frames: int, fe_frames=(), spec_frames=
     with threadpool_limits(limits=1):
         pipe, it = build(scenario, seed, interval_s, patch=V1_PATCH)
         cfg = pipe.config
+        # the pairing and the angles are recorded from their numpy references (patched below)
+        pipe.pairs.kernel = pipe.angles.kernel = None
         assert cfg.clutter_map_init_frames <= min(fe_frames | spec_frames, default=10**9)
         cur = {"k": -1, "spec": None}
         real_fft = spectra_mod.scipy.fft.fft

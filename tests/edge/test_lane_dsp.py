@@ -140,22 +140,6 @@ def test_nearest_of_clusters_keeps_the_near_face():
     assert keep.tolist() == [True, False, False, True, True]
 
 
-def test_nearest_of_clusters_measures_the_ghost_law_from_near_faces():
-    """highway4-traffic seed 7018: a 6 m van (near face 60.0 m, rear face 66.0 m, -21.6 m/s) and a truck 17 m behind
-    the van's near face at -24.1 m/s, its own side scatterer 2.6 m further. The truck lies 11 m behind the van's rear
-    face and 2.5 m/s off, inside the ghost law taken from any nearer detection (0.9 m/s per m, up to 12 m), so it was
-    dropped; from the van's near face it is 17 m behind, beyond any ghost of the van's body. A real ghost, 7 m
-    behind the truck's near face and 4 m/s off, is still dropped."""
-    r = np.array([60.0, 66.0, 77.0, 79.6, 84.0])
-    v = np.array([-21.6, -21.6, -24.1, -24.1, -20.1])
-    x = np.full(5, -1.75)
-    kw = dict(length_m=17.0, speed_mps=0.6, lateral_m=1.5, ghost_speed_per_m=0.9, ghost_speed_mps=6.0,
-              ghost_length_m=12.0)
-    assert nearest_of_clusters(r, v, x, **kw).tolist() == [True, False, True, False, False]
-    assert nearest_of_clusters(r, v, x, ghost_from_near_faces=False, **kw).tolist() == [True, False, False, False,
-                                                                                        False]
-
-
 def test_body_extent_is_the_farthest_detection_of_the_same_body():
     r = np.array([100.0, 102.0, 105.0, 100.5, 140.0, 103.0])
     v = np.array([-20.0, -20.1, -20.0, -20.0, -20.0, -25.0])  # the 6th: a ghost of another speed
@@ -166,18 +150,15 @@ def test_body_extent_is_the_farthest_detection_of_the_same_body():
     assert np.isnan(ext[[1, 2]]).all()
 
 
-@pytest.mark.parametrize("ghost_speed_mps", [0.0, 3.0])
-def test_nearest_of_clusters_gives_the_reference_body_extent(ghost_speed_mps):
+def test_nearest_of_clusters_gives_the_reference_body_extent():
     rng = np.random.default_rng(11)
     for n in (0, 1, 2, 15, 40):
         r = rng.uniform(20.0, 120.0, n).astype(np.float32)
         v = rng.choice([-25.0, -20.0, 22.0], n).astype(np.float32) + rng.normal(0, 0.3, n).astype(np.float32)
         x = rng.choice([-5.25, -1.75, 1.75], n).astype(np.float32) + rng.normal(0, 0.4, n).astype(np.float32)
         kw = dict(length_m=17.0, speed_mps=0.6, lateral_m=1.5)
-        keep, ext = nearest_of_clusters(r, v, x, **kw, ghost_speed_mps=ghost_speed_mps, ghost_length_m=12.0,
-                                        ghost_speed_per_m=0.5, with_extent=True)
-        np.testing.assert_array_equal(keep, nearest_of_clusters(r, v, x, **kw, ghost_speed_mps=ghost_speed_mps,
-                                                                ghost_length_m=12.0, ghost_speed_per_m=0.5))
+        keep, ext = nearest_of_clusters(r, v, x, **kw, with_extent=True)
+        np.testing.assert_array_equal(keep, nearest_of_clusters(r, v, x, **kw))
         ref = body_extent(r, v, x, keep, **kw)
         np.testing.assert_array_equal(ext[keep], ref[keep])
         assert ext.shape == (n,) and (n < 15 or (ext[keep] > 0).any())

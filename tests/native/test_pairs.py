@@ -1,0 +1,211 @@
+"""The pairing kernel (edge/native/_pairs.pyx, steps 1-4 of the pairing; step 5 stays numpy) against its numpy
+reference (edge.dsp.pairing.pair_beats): the same accepted pairs, ranges, speeds, residuals and counts bit for bit,
+on random peak lists (vehicles of several scatterers, whose cross-pairings are ghosts; ties; empty segments) and on
+the peak frequencies recorded in the lane stage fixtures (hw_sim frames)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from edge.dsp.pairing import PairingModel, pair_beats
+from edge.lane.pairs import _GHOST_SPEED_MPS, PairStage
+from edge.pipelines.lane import LaneConfig
+from hw_sim.boards import SIMO_BOARD
+from tests.native.conftest import require_kernel
+
+FE = SIMO_BOARD.frontend
+BIN_HZ = np.array([s.sample_rate_hz / FE.waveform.n_samples for s in FE.waveform.segments])
+
+
+def _stage(**overrides) -> PairStage:
+    return PairStage(FE, dataclasses.replace(LaneConfig(), **overrides), BIN_HZ)
+
+
+def assert_same_pairs(a, b) -> None:
+    assert (a.n_candidates, a.n_ghosts) == (b.n_candidates, b.n_ghosts)
+    assert a.peak_index.dtype == b.peak_index.dtype
+    np.testing.assert_array_equal(a.peak_index.reshape(-1, 4), b.peak_index.reshape(-1, 4))
+    for name in ("range_m", "radial_speed_mps", "residual_hz"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.dtype == y.dtype, name
+        np.testing.assert_array_equal(x, y, err_msg=name)
+
+
+def _random_freqs(rng, model: PairingModel, n_veh: int, drop: float, targets: list | None = None):
+    """Peaks of ``n_veh`` vehicles of 1-6 scatterers (3 m apart, the body's ghost pairings among them) plus noise
+    peaks; each peak missed with probability ``drop`` in each segment; frequency jitter of a tenth of a bin.
+    ``targets``: if given, each vehicle's (near-face range, speed) is appended."""
+    rs, vs = [], []
+    for _ in range(n_veh):
+        r0, v = rng.uniform(3.0, 380.0), rng.uniform(-45.0, 45.0)
+        if targets is not None:
+            targets.append((r0, v))
+        k = rng.integers(1, 7)
+        rs.extend(r0 + 3.0 * np.arange(k))
+        vs.extend([v] * k)
+    f = model.predict(np.array(rs, dtype=np.float64), np.array(vs, dtype=np.float64)) if rs else np.zeros((0, 4))
+    out = []
+    for s in range(4):
+        fs = f[:, s] + rng.normal(0.0, 0.1 * BIN_HZ[s], f.shape[0])
+        fs = fs[rng.random(fs.size) >= drop]
+        noise = rng.uniform(-0.5, 0.5, rng.integers(0, 4)) * BIN_HZ[s] * FE.waveform.n_samples
+        out.append(np.concatenate([fs, noise]).astype(np.float64))
+    return tuple(out)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_kernel_equals_reference_on_random_peaks(seed):
+    require_kernel("_pairs")
+    rng = np.random.default_rng(seed)
+    overrides = [{}, {"pair_max_shared_peaks": 0}, {"pair_near_range_m": 0.0}, {"pair_max_shared_peaks": 2}]
+    stage = _stage(**overrides[seed % len(overrides)])
+    assert stage.kernel is not None
+    n_pairs = 0
+    for n_veh in (0, 1, 3, 8, 20):
+        for drop in (0.0, 0.2):
+            freqs = _random_freqs(rng, stage.model, n_veh, drop)
+            ref = stage.reference(freqs)
+            assert_same_pairs(stage.pair(freqs), ref)
+            n_pairs += ref.range_m.size
+    assert n_pairs > 10
+
+
+def test_kernel_equals_reference_with_ties_and_empty_segments():
+    """Two peaks at the same distance from a prediction (the lower frequency wins) and a segment without peaks."""
+    stage = _stage()
+    require_kernel("_pairs")
+    f = stage.model.predict(np.array([50.0, 120.0]), np.array([-20.0, 25.0]))  # (2, 4)
+    tie = (f[:, 0], f[:, 1], np.concatenate([f[:, 2] - 0.3 * BIN_HZ[2], f[:, 2] + 0.3 * BIN_HZ[2]]), f[:, 3])
+    ref = stage.reference(tie)
+    assert ref.range_m.size == 2
+    assert_same_pairs(stage.pair(tie), ref)
+    for s in range(4):
+        empty = tuple(np.zeros(0) if k == s else f[:, k] for k in range(4))
+        assert_same_pairs(stage.pair(empty), stage.reference(empty))
+
+
+@pytest.mark.parametrize("stem", ["lane_stages_misaimed_s31", "lane_stages_side_by_side_s31",
+                                  "lane_stages_wrong_way_s6"])
+def test_kernel_equals_reference_on_recorded_peaks(stem):
+    """The peak frequencies of every recorded frame of the stage fixtures (seeded hw_sim runs), paired with the
+    fixture's own arguments."""
+    kern = require_kernel("_pairs")
+    from edge.dsp.pairing import refine_pairs
+    from tests.edge import lane_golden as g
+
+    data, meta = g.load(g.fixture_path(stem))
+    fr = g.Frames(data)
+    kw = dict(meta["pair_kw"])
+    model = PairingModel(np.array(kw.pop("model_a")), np.array(kw.pop("model_b")))
+    tol, near_tol = tuple(kw["tolerance_hz"]), kw.get("near_tolerance_hz")
+    near_r = kw.get("near_range_m", 0.0) if near_tol is not None else 0.0
+    near_tol = tuple(near_tol) if near_tol is not None else tol
+    ghost = kw.get("ghost_speed_mps", _GHOST_SPEED_MPS)
+    coef = np.array(model.coefficients)
+    n_frames = n_pairs = 0
+    for k in range(meta["frames"]):
+        if not fr.has("pair_counts", k):
+            continue
+        freqs = tuple(np.ascontiguousarray(fr.get(f"pair_in_f{s}", k), np.float64) for s in range(4))
+        ref = pair_beats(freqs, model, **{**kw, "tolerance_hz": tol,
+                                          "near_tolerance_hz": near_tol if near_r > 0 else None})
+        rows, n_cand, n_ghost = kern.pair(*freqs, coef, kw["min_range_m"], kw["max_range_m"], kw["max_speed_mps"],
+                                          tol[0], tol[1], near_tol[0], near_tol[1], near_r,
+                                          kw.get("max_shared", 1), ghost)
+        assert_same_pairs(refine_pairs(rows, freqs, model, n_cand, n_ghost), ref)
+        n_frames += 1
+        n_pairs += ref.range_m.size
+    assert n_frames > 100 and n_pairs > 200
+
+
+def _aided_both(stage: PairStage, *args):
+    """track_aided with the kernel and with its numpy reference (the stage's kernel switched off)."""
+    out = stage.track_aided(*args)
+    k, stage.kernel = stage.kernel, None
+    try:
+        ref = stage.track_aided(*args)
+    finally:
+        stage.kernel = k
+    return out, ref
+
+
+def _assert_same_aided(out, ref) -> None:
+    assert len(out) == len(ref) == 4
+    for x, y in zip(out, ref):
+        assert x.dtype == y.dtype and x.shape == y.shape
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_aided_search_equals_reference_on_random_tracks(seed):
+    """Tracks at random positions (a third near a vehicle whose peaks are present, some of them paired), peaks of
+    other vehicles and noise, weak peaks in half the cases: the same track-aided pairs from the kernel's search."""
+    require_kernel("_pairs")
+    from edge.lane.records import Feedback
+
+    rng = np.random.default_rng(100 + seed)
+    stage = _stage(aided_min_segments=(2, 3, 4)[seed % 3])
+    cfg = stage.config
+    dz = cfg.mounting_height_m - cfg.target_height_m
+    n_out = 0
+    for trial in range(10):
+        n_veh = int(rng.integers(1, 12))
+        targets: list = []
+        freqs = _random_freqs(rng, stage.model, n_veh, 0.3, targets)
+        bins = tuple(np.rint(f / BIN_HZ[s]).astype(np.int64) % FE.waveform.n_samples for s, f in enumerate(freqs))
+        weak = None
+        if trial % 2:
+            wf = _random_freqs(rng, stage.model, 3, 0.5)
+            weak = (wf, tuple(np.rint(f / BIN_HZ[s]).astype(np.int64) % FE.waveform.n_samples
+                              for s, f in enumerate(wf)))
+        pairs = stage.reference(freqs)
+        # tracks on the vehicles (on the boresight, a little off their range and speed) and elsewhere
+        rows = []
+        for r0, v in targets:
+            r = r0 + rng.normal(0.0, 0.3)
+            y = np.sqrt(max(r * r - dz * dz, 1.0))
+            rows.append((0.0, y, 0.0, (v + rng.normal(0.0, 0.2)) * r / y))
+        for _ in range(int(rng.integers(0, 5))):
+            rows.append((rng.uniform(-8.0, 8.0), rng.uniform(5.0, 350.0), 0.0, rng.uniform(-40.0, 40.0)))
+        state = np.array(rows, dtype=np.float64)
+        n_tr = state.shape[0]
+        fb = Feedback(t_ns=0, track_state=state, confirmed=rng.random(n_tr) < 0.8, moved=np.ones(n_tr, bool),
+                      hits=rng.integers(0, 10, n_tr))
+        out, ref = _aided_both(stage, freqs, bins, pairs, 0, fb, weak)
+        _assert_same_aided(out, ref)
+        n_out += ref[1].size
+    assert n_out > 0  # the search found peaks and the fits passed their gates
+
+
+def test_aided_search_equals_reference_in_the_pipeline(monkeypatch):
+    """Every track-aided search of a seeded highway4-traffic run (120 frames): the kernel's picks and the fits
+    equal the reference's."""
+    require_kernel("_pairs")
+    from tests.edge import lane_golden as g
+
+    pipe, frames = g.build("highway4-traffic", 1, 5.0)
+    stage = pipe.pairs
+    real = stage.track_aided
+    n = {"calls": 0, "pairs": 0}
+
+    def spy(*args):
+        out = real(*args)
+        k, stage.kernel = stage.kernel, None
+        try:
+            ref = real(*args)
+        finally:
+            stage.kernel = k
+        _assert_same_aided(out, ref)
+        n["calls"] += 1
+        n["pairs"] += ref[1].size
+        return out
+
+    monkeypatch.setattr(stage, "track_aided", spy)
+    from edge.pipeline import StageTimer
+    t = StageTimer(16)
+    for f in frames(120):
+        pipe.process(f, t)
+    assert n["calls"] > 50 and n["pairs"] > 5
