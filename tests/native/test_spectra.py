@@ -86,6 +86,12 @@ def test_update_hold_moving_equals_numpy(n_rx, n_seg, n, seed, moving_share):
     assert np.array_equal(prev_k, ref_map._prev) and np.array_equal(prev_k, spec)
 
 
+def _channel_power(spec: np.ndarray) -> np.ndarray:
+    """numpy reference of the channel sum: |spec|^2 summed over the receive channels, (seg, bin) float32."""
+    sq = spec.view(np.float32).reshape(spec.shape + (2,)) ** 2
+    return np.add.reduce(sq[..., 0] + sq[..., 1], axis=0)
+
+
 def test_apply_map_and_channel_power_equal_numpy():
     k = require_kernel("_spectra")
     rng = np.random.default_rng(3)
@@ -95,8 +101,7 @@ def test_apply_map_and_channel_power_equal_numpy():
     spec_ref = spec - bg_ref
     k.apply_map(spec, bg, d)
     assert np.array_equal(bg, bg_ref) and np.array_equal(spec, spec_ref)
-    sq = spec.view(np.float32).reshape(shape + (2,)) ** 2
-    ref = np.add.reduce(sq[..., 0] + sq[..., 1], axis=0)
+    ref = _channel_power(spec)
     ppad = np.empty((4, 128 + 2 * h), np.float32)
     k.channel_power(spec, ppad, h)
     assert np.array_equal(ppad[:, h:-h], ref)
@@ -110,8 +115,7 @@ def test_apply_map_power_equals_numpy():
     spec, bg, d = _cspec(rng, shape), _cspec(rng, shape), _cspec(rng, shape, 0.1)
     bg_ref = bg + d
     spec_ref = spec - bg_ref
-    sq = spec_ref.view(np.float32).reshape(shape + (2,)) ** 2
-    ref = np.add.reduce(sq[..., 0] + sq[..., 1], axis=0)
+    ref = _channel_power(spec_ref)
     ppad = np.empty((4, 256 + 2 * h), np.float32)
     k.apply_map_power(spec, bg, d, ppad, h)
     assert np.array_equal(bg, bg_ref) and np.array_equal(spec, spec_ref)
