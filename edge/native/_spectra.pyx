@@ -63,49 +63,58 @@ def update_hold_moving(const float complex[:, :, ::1] spec, const float complex[
     the channels, |.|^2) exceeds ``factor`` x its segment's median plus ``rel2`` x the cell's own energy;
     then ``prev = spec``. ``change``, ``own`` (seg, bin) and ``work`` (bin) are scratch. Shapes (rx, seg, bin)."""
     cdef Py_ssize_t n_rx = spec.shape[0], n_seg = spec.shape[1], n = spec.shape[2], r, s, k
-    cdef float dr, di, sr, si, c, o, med, thr
+    cdef float dr, di, sr, si, med, thr, v0, v1
     cdef const float* sp
     cdef const float* pp
     cdef const float* bp
     cdef float* dp
-    for s in range(n_seg):
-        for k in range(n):
-            c = 0.0
-            o = 0.0
-            for r in range(n_rx):
-                sp = <const float*>&spec[r, s, k]
-                pp = <const float*>&prev[r, s, k]
-                sr = sp[0]
-                si = sp[1]
-                dr = sr - pp[0]
-                di = si - pp[1]
-                c = c + dr * dr
-                c = c + di * di
-                o = o + sr * sr
-                o = o + si * si
-            change[s, k] = c
-            own[s, k] = o
+    cdef float* cp
+    cdef float* op
+    for s in range(n_seg):  # channel by channel, bins innermost (contiguous): the same sums per cell
+        cp = &change[s, 0]
+        op = &own[s, 0]
+        for r in range(n_rx):
+            sp = <const float*>&spec[r, s, 0]
+            pp = <const float*>&prev[r, s, 0]
+            if r == 0:
+                for k in range(n):
+                    sr = sp[2 * k]
+                    si = sp[2 * k + 1]
+                    dr = sr - pp[2 * k]
+                    di = si - pp[2 * k + 1]
+                    cp[k] = dr * dr + di * di
+                    op[k] = sr * sr + si * si
+            else:
+                for k in range(n):
+                    sr = sp[2 * k]
+                    si = sp[2 * k + 1]
+                    dr = sr - pp[2 * k]
+                    di = si - pp[2 * k + 1]
+                    cp[k] = (cp[k] + dr * dr) + di * di
+                    op[k] = (op[k] + sr * sr) + si * si
     for r in range(n_rx):
         for s in range(n_seg):
             memcpy(&prev[r, s, 0], &spec[r, s, 0], n * sizeof(float complex))
     for s in range(n_seg):
-        memcpy(&work[0], &change[s, 0], n * sizeof(float))
+        cp = &change[s, 0]
+        op = &own[s, 0]
+        memcpy(&work[0], cp, n * sizeof(float))
         med = _select(&work[0], n, n // 2)
         thr = med * factor
-        for k in range(n):
-            c = own[s, k] * rel2
-            if change[s, k] > thr + c:
-                for r in range(n_rx):
-                    dp = <float*>&d[r, s, k]
-                    dp[0] = 0.0
-                    dp[1] = 0.0
-            else:
-                for r in range(n_rx):
-                    sp = <const float*>&spec[r, s, k]
-                    bp = <const float*>&background[r, s, k]
-                    dp = <float*>&d[r, s, k]
-                    dp[0] = (sp[0] - bp[0]) * alpha
-                    dp[1] = (sp[1] - bp[1]) * alpha
+        for k in range(n):  # 1 where the cell moved (its map holds), else 0
+            work[k] = 1.0 if cp[k] > thr + op[k] * rel2 else 0.0
+        for r in range(n_rx):
+            sp = <const float*>&spec[r, s, 0]
+            bp = <const float*>&background[r, s, 0]
+            dp = <float*>&d[r, s, 0]
+            for k in range(n):
+                v0 = (sp[2 * k] - bp[2 * k]) * alpha
+                v1 = (sp[2 * k + 1] - bp[2 * k + 1]) * alpha
+                if work[k] != 0.0:
+                    v0 = 0.0
+                    v1 = 0.0
+                dp[2 * k] = v0
+                dp[2 * k + 1] = v1
 
 
 def apply_map(float complex[:, :, ::1] spec, float complex[:, :, ::1] background,
@@ -148,31 +157,36 @@ def channel_power(const float complex[:, :, ::1] spec, float[:, ::1] ppad, Py_ss
 
 def apply_map_power(float complex[:, :, ::1] spec, float complex[:, :, ::1] background,
                     const float complex[:, :, ::1] d, float[:, ::1] ppad, Py_ssize_t h):
-    """:func:`apply_map` and :func:`channel_power` in one pass: ``background += d; spec -= background``, and the
-    channel sum of the result into ``ppad`` (same order of summation as :func:`channel_power`)."""
+    """:func:`apply_map` and :func:`channel_power`: ``background += d; spec -= background``, and the channel sum
+    of the result into ``ppad`` (same order of summation as :func:`channel_power`)."""
     cdef Py_ssize_t n_rx = spec.shape[0], n_seg = spec.shape[1], n = spec.shape[2], r, s, k
-    cdef float p, re, im
+    cdef float re, im
     cdef float* sp
-    cdef float* bp
+    cdef float* pp
     cdef const float* dp
-    for s in range(n_seg):
-        for k in range(n):
-            p = 0.0
-            for r in range(n_rx):
-                sp = <float*>&spec[r, s, k]
-                bp = <float*>&background[r, s, k]
-                dp = <const float*>&d[r, s, k]
-                bp[0] = bp[0] + dp[0]
-                bp[1] = bp[1] + dp[1]
-                re = sp[0] - bp[0]
-                im = sp[1] - bp[1]
-                sp[0] = re
-                sp[1] = im
-                if r == 0:
-                    p = re * re + im * im
-                else:
-                    p = p + (re * re + im * im)
-            ppad[s, h + k] = p
+    cdef float* bq
+    for r in range(n_rx):
+        for s in range(n_seg):
+            sp = <float*>&spec[r, s, 0]
+            bq = <float*>&background[r, s, 0]
+            dp = <const float*>&d[r, s, 0]
+            for k in range(2 * n):  # re and im alike
+                bq[k] = bq[k] + dp[k]
+                sp[k] = sp[k] - bq[k]
+    for s in range(n_seg):  # channel by channel, bins innermost: the same sums per cell
+        pp = &ppad[s, h]
+        for r in range(n_rx):
+            sp = <float*>&spec[r, s, 0]
+            if r == 0:
+                for k in range(n):
+                    re = sp[2 * k]
+                    im = sp[2 * k + 1]
+                    pp[k] = re * re + im * im
+            else:
+                for k in range(n):
+                    re = sp[2 * k]
+                    im = sp[2 * k + 1]
+                    pp[k] = pp[k] + (re * re + im * im)
         for k in range(h):
             ppad[s, k] = ppad[s, n + k]
             ppad[s, n + h + k] = ppad[s, h + k]
