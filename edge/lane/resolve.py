@@ -84,6 +84,17 @@ class _Cells:
     streak: list = field(default_factory=list)  # int, frames in a row found split
 
 
+def _cmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a * b`` for complex64 arrays of one shape with one rounding per real operation (numpy's complex product may
+    fuse a multiply and an add, machine by machine): ``(ar br - ai bi, ar bi + ai br)``."""
+    fa, fb = a.view(np.float32), b.view(np.float32)
+    ar, ai, br, bi = fa[..., 0::2], fa[..., 1::2], fb[..., 0::2], fb[..., 1::2]
+    out = np.empty_like(fa)
+    out[..., 0::2] = ar * br - ai * bi
+    out[..., 1::2] = ar * bi + ai * br
+    return out.view(np.complex64)
+
+
 class CellResolver:
     """Per-cell covariance memory and the two-source split (see the module docstring)."""
 
@@ -126,6 +137,8 @@ class CellResolver:
         # their features gathered once (gathering (2926, 16) rows every frame cost 80 us, 15 times the product);
         # used as the same transposed view as before (BLAS picks its kernel by the layout)
         self._coarse_feat = self._pair_feat[self._coarse]
+        self._coarse_feat64 = self._coarse_feat.astype(np.float64)
+        self._pair_feat64 = self._pair_feat.astype(np.float64)
         # the fine search's 3 x 3 neighbour pairs (i + di, j + dj, clipped to the grid) of every coarse pair, the
         # coarse pair itself where a neighbour is not a pair (i >= j): (n_coarse, 9) pair rows
         top = n_grid - 1
@@ -160,11 +173,7 @@ class CellResolver:
         self.two_sources = two_sources = np.zeros(n_det, bool)
         # association: predicted cell range against detections, nearest first, one-to-one
         match = self._associate(range_m, v_mps) if len(c.range_m) and n_det else [-1] * n_det
-        # outer products of the normalised looks, averaged over looks
-        norm = np.sqrt(np.add.reduce((snapshots.conj() * snapshots).real, axis=2, keepdims=True))  # np.linalg.norm
-        x = snapshots / np.maximum(norm, np.float32(1e-30))
-        n_looks = np.maximum(np.add.reduce(norm[:, :, 0] > 0, axis=1), 1).astype(np.float32)  # all-zero looks left out
-        r_new = np.einsum("nsa,nsb->nab", x, x.conj()) / n_looks[:, None, None]  # (n, rx, rx)
+        r_new, norm = self._outer(snapshots)
         # the detections that followed a cell and their cells (distinct: one-to-one)
         hi_l = [d for d, m in enumerate(match) if m >= 0]
         k_l = [match[d] for d in hi_l]
@@ -173,14 +182,15 @@ class CellResolver:
             rh, vh = range_m[hi], v_mps[hi]
             cov = c.cov[k]  # gathered once, updated, written back once
             if cfg.follow_direction and az_rad is not None:
-                cov *= self._steer_memory(rh, np.array([c.range_m[j] for j in k_l]), az_rad[hi])
+                cov = _cmul(cov, self._steer_memory(rh, np.array([c.range_m[j] for j in k_l]), az_rad[hi]))
             # the weight of this frame: max(1 / n, 1 / memory) in float64, rounded to float32 (as astype)
             a_l = []
             for j in k_l:
                 c.n[j] += 1
                 a_l.append(max(1.0 / c.n[j], 1.0 / cfg.memory_frames))
             a = np.array(a_l, dtype=np.float32)
-            cov += a[:, None, None] * (r_new[hi] - cov)
+            cf = cov.view(np.float32)  # (real weights: the same rounding as the complex form)
+            cf += a[:, None, None] * (r_new[hi].view(np.float32) - cf)
             c.cov[k] = cov
             ready_pos = []  # positions in hi_l of the cells followed long enough, moving
             for p, (j, r, v) in enumerate(zip(k_l, rh.tolist(), vh.tolist())):
@@ -228,6 +238,34 @@ class CellResolver:
             self.cells = _Cells([cc.range_m[j] for j in o], [cc.v_mps[j] for j in o], cc.cov[o],
                                 [cc.n[j] for j in o], [cc.misses[j] for j in o], [cc.streak[j] for j in o])
         return split, angles
+
+    def _outer(self, snapshots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(r_new (n, rx, rx) complex64, norm (n, looks, 1) float32)``: each look normalised to unit length (an
+        all-zero look left out), the outer products ``x x^H`` averaged over the looks. Written on the float32 parts
+        with one rounding per operation (no fused multiply-add), so that compiled code gives the same bits on
+        every machine: ``|x|^2`` summed over the elements in order, ``x = s * (1 / |s|)``, the products summed over
+        the looks in order, times ``1 / looks``."""
+        n, n_looks_all, n_rx = snapshots.shape
+        s = snapshots.view(np.float32).reshape(n, n_looks_all, n_rx, 2)
+        sr, si = s[..., 0], s[..., 1]
+        p = sr * sr + si * si  # (n, looks, rx)
+        acc = p[:, :, 0].copy()
+        for a in range(1, n_rx):
+            acc += p[:, :, a]
+        norm = np.sqrt(acc)[:, :, None]
+        inv = np.float32(1.0) / np.maximum(norm, np.float32(1e-30))
+        xr, xi = sr * inv, si * inv
+        re = xr[:, :, :, None] * xr[:, :, None, :] + xi[:, :, :, None] * xi[:, :, None, :]  # (n, looks, rx, rx)
+        im = xi[:, :, :, None] * xr[:, :, None, :] - xr[:, :, :, None] * xi[:, :, None, :]
+        r = np.empty((n, n_rx, n_rx, 2), np.float32)
+        r[..., 0] = re[:, 0]
+        r[..., 1] = im[:, 0]
+        for k in range(1, n_looks_all):
+            r[..., 0] += re[:, k]
+            r[..., 1] += im[:, k]
+        n_looks = np.maximum(np.add.reduce(norm[:, :, 0] > 0, axis=1), 1).astype(np.float32)  # all-zero looks out
+        r *= (np.float32(1.0) / n_looks)[:, None, None, None]
+        return r.view(np.complex64)[..., 0], norm
 
     def _associate(self, range_m: np.ndarray, v_mps: np.ndarray) -> list[int]:
         """The cell of each detection (-1: none): pairs inside the range and speed gates (the cell's range
@@ -279,8 +317,11 @@ class CellResolver:
         evaluated for the ``2 rx - 1`` lags and gathered into the ``rx x rx`` layout (the same values)."""
         shift = np.sin(az_rad.astype(np.float64)) * (1.0 - range_m / np.maximum(old_range_m, 1e-3))
         ph = (-2.0 * np.pi * self._d_over_lam) * shift.astype(np.float32)[:, None] * self._lags  # (k, 2 rx - 1)
-        f = (np.cos(ph) + 1j * np.sin(ph)).astype(np.complex64)
-        return f.take(self._lag_index, axis=1)  # (k, rx, rx)
+        ph = ph.astype(np.float64)  # cos and sin in float64 (the C library's), rounded to float32
+        f = np.empty(ph.shape + (2,), np.float32)
+        f[..., 0] = np.cos(ph)
+        f[..., 1] = np.sin(ph)
+        return f.view(np.complex64)[..., 0].take(self._lag_index, axis=1)  # (k, rx, rx)
 
     def _features(self, m: np.ndarray, scale_offdiag: float) -> np.ndarray:
         """``(k, rx, rx)`` Hermitian -> ``(k, rx^2)`` float32: diagonal, then Re and Im of the upper triangle."""
@@ -296,7 +337,7 @@ class CellResolver:
         """Which of the covariances ``(k, rx, rx)`` hold two resolved vehicles, and their angles; and which hold two
         sources, resolved or not (``pair_hint_eig_ratio``, :attr:`CellResolver.two_sources`)."""
         cfg = self.cfg
-        w = np.linalg.eigvalsh(cov)  # ascending
+        w = np.linalg.eigvalsh(cov.astype(np.complex128))  # ascending, in float64 (decisions away from rounding)
         noise = np.maximum(np.add.reduce(w[:, : self.n_rx - 2], axis=1) / (self.n_rx - 2), 1e-12)  # np.mean
         above_noise = w[:, -2] >= cfg.min_noise_ratio * noise
         hint = above_noise & (w[:, -2] >= cfg.pair_hint_eig_ratio * w[:, -1])
@@ -306,16 +347,17 @@ class CellResolver:
             return idx, np.zeros((0, 2), np.float32), hint
         cov = cov[idx]
         fr = self._features(cov, scale_offdiag=2.0)  # (k, 16)
-        best_coarse = np.argmax(fr @ self._coarse_feat.T, axis=1)  # (k,) positions in the coarse list
+        fr = fr.astype(np.float64)  # products of float32 numbers are exact in float64: sums differ by 1e-16 at most
+        best_coarse = np.argmax(fr @ self._coarse_feat64.T, axis=1)  # (k,) positions in the coarse list
         rows = self._fine_rows[best_coarse]  # (k, 9): the neighbours of the best coarse pair
-        fine = np.einsum("kf,kpf->kp", fr, self._pair_feat[rows])
+        fine = np.einsum("kf,kpf->kp", fr, self._pair_feat64[rows])
         best = rows[np.arange(idx.size), np.argmax(fine, axis=1)]
         th = self._pair_th[best]  # (k, 2)
         lateral = range_m[idx] * self._pair_dsin[best]  # |sin th_j - sin th_i| x range
         # powers of the two fitted sources, diag(B+ R B+^H): a vehicle with a brief visitor in one of its
         # looks (another vehicle's beat in one segment) has a strong and a faint source, not two vehicles
-        bp = self._pinv[best]  # (k, 2, rx)
-        pw = np.einsum("kar,krs,kas->ka", bp, cov, bp.conj()).real
+        bp = self._pinv[best].astype(np.complex128)  # (k, 2, rx)
+        pw = np.einsum("kar,krs,kas->ka", bp, cov.astype(np.complex128), bp.conj()).real
         ratio = np.minimum.reduce(pw, axis=1) / np.maximum(np.maximum.reduce(pw, axis=1), 1e-30)  # min / max
         ok = (lateral >= cfg.min_lateral_m) & (ratio >= cfg.min_power_ratio)
         return idx[ok], th[ok].astype(np.float32), hint
