@@ -171,7 +171,7 @@ class ResolveStage:
                            pair_hint_eig_ratio=cfg.resolve_pair_hint_eig_ratio,
                            min_lateral_m=cfg.resolve_min_lateral_m, min_power_ratio=cfg.resolve_min_power_ratio,
                            follow_direction=cfg.resolve_follow_direction),
-            steer, grid, wf.frame_period_s, frontend.rx_spacing_m / wf.wavelength_m)
+            steer, grid, wf.frame_period_s, frontend.rx_spacing_m / wf.wavelength_m, kernel=native.load("_resolve"))
         # checks of a split, in order (each narrows the split mask)
         self.split_filters: tuple = (SplitStraddlesLanes(cfg, road),) + (
             (SplitNotBody(cfg),) if cfg.resolve_skip_bodies else ())

@@ -47,8 +47,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from edge import native
+
 
 _NEIGHBOURS = np.array([-1, 0, 1])  # the fine search around the best coarse pair
+_NO_AZ = np.zeros(0, np.float32)  # the kernel's azimuths when the memory is not steered
 
 
 @dataclass(frozen=True)
@@ -95,14 +98,16 @@ def _cmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out.view(np.complex64)
 
 
-class CellResolver:
+class CellResolver(native.KernelUser):
     """Per-cell covariance memory and the two-source split (see the module docstring)."""
 
     def __init__(self, cfg: ResolverConfig, steering: np.ndarray, grid_rad: np.ndarray, frame_period_s: float,
-                 spacing_wavelengths: float) -> None:
+                 spacing_wavelengths: float, kernel=None) -> None:
         """``steering`` (grid, rx) over ``grid_rad``; ``spacing_wavelengths``: the array's element spacing d / lambda
-        (the phase ramp of :meth:`_steer_memory`)."""
+        (the phase ramp of :meth:`_steer_memory`). ``kernel``: the compiled step (edge/native/_resolve.pyx, from
+        ``edge.native.load("_resolve")``), None: the numpy reference (:meth:`reference_step`) runs."""
         self.cfg = cfg
+        self.kernel = kernel
         self.period_s = frame_period_s
         self._min_speed32 = float(np.float32(cfg.min_speed_mps))  # compared with float32 speeds, as array code does
         self.grid = grid_rad
@@ -151,10 +156,18 @@ class CellResolver:
         m = np.arange(n_rx)  # the element lag a - b of every covariance entry, as an index into the lags
         self._lags = np.arange(-(n_rx - 1), n_rx).astype(np.float32)  # (2 rx - 1,)
         self._lag_index = (m[:, None] - m[None, :]) + (n_rx - 1)  # (rx, rx)
+        # the kernel's tables (float32 views of the complex ones)
+        self._k_pair_th = np.ascontiguousarray(self._pair_th, np.float32)
+        self._k_pair_dsin = np.ascontiguousarray(self._pair_dsin, np.float32)
+        self._k_pinv = np.ascontiguousarray(self._pinv).view(np.float32)  # (P, 2, 2 rx)
+        self._k_fine_rows = np.ascontiguousarray(self._fine_rows, np.int64)
+        self._k_phase = float(np.float32(-2.0 * np.pi * self._d_over_lam))
         self.reset()
 
     def reset(self) -> None:
         self.cells = _Cells(cov=np.zeros((0, self.n_rx, self.n_rx), np.complex64))
+        if self.kernel is not None:  # the kernel's table: arrays
+            self.cells = _Cells(np.zeros(0), np.zeros(0), self.cells.cov, *(np.zeros(0, np.int64) for _ in range(3)))
         self.two_sources = np.zeros(0, bool)
 
     def step(self, range_m: np.ndarray, v_mps: np.ndarray, snapshots: np.ndarray,
@@ -163,8 +176,31 @@ class CellResolver:
 
         ``snapshots``: complex64 ``(n, n_looks, n_rx)`` (calibrated; a look of zeros is left out). ``angles``
         is NaN where not split. ``az_rad`` (n,): the detections' angles; with ``follow_direction`` a cell's
-        memory is steered along with its vehicle's direction (see :meth:`_steer_memory`).
+        memory is steered along with its vehicle's direction (see :meth:`_steer_memory`). The compiled kernel
+        when built (one call), else :meth:`reference_step`.
         """
+        if self.kernel is None:
+            return self.reference_step(range_m, v_mps, snapshots, az_rad)
+        cfg = self.cfg
+        c = self.cells
+        follow = cfg.follow_direction and az_rad is not None
+        n = range_m.shape[0]
+        out = self.kernel.step(
+            c.range_m, c.v_mps, c.cov.view(np.float32), c.n, c.misses, c.streak,
+            np.ascontiguousarray(range_m, np.float32), np.ascontiguousarray(v_mps, np.float32),
+            np.ascontiguousarray(snapshots, np.complex64).reshape(n, -1, self.n_rx).view(np.float32),
+            np.ascontiguousarray(az_rad, np.float32) if follow else _NO_AZ,
+            follow, self.period_s, cfg.range_gate_m, cfg.speed_gate_mps, cfg.memory_frames, cfg.min_frames,
+            cfg.min_split_frames, cfg.max_misses, cfg.min_eig_ratio, cfg.min_noise_ratio, cfg.pair_hint_eig_ratio,
+            cfg.min_lateral_m, cfg.min_power_ratio, self._min_speed32, cfg.max_cells, self._k_phase,
+            self._coarse_feat, self._k_fine_rows, self._pair_feat, self._k_pair_th, self._k_pair_dsin, self._k_pinv)
+        self.cells = _Cells(out[3], out[4], out[5].view(np.complex64), out[6], out[7], out[8])
+        self.two_sources = out[2].view(bool)
+        return out[0].view(bool), out[1]
+
+    def reference_step(self, range_m: np.ndarray, v_mps: np.ndarray, snapshots: np.ndarray,
+                       az_rad: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`step` in numpy and plain Python (the kernel's reference and fallback)."""
         cfg = self.cfg
         c = self.cells
         n_det = range_m.size
@@ -246,7 +282,7 @@ class CellResolver:
         every machine: ``|x|^2`` summed over the elements in order, ``x = s * (1 / |s|)``, the products summed over
         the looks in order, times ``1 / looks``."""
         n, n_looks_all, n_rx = snapshots.shape
-        s = snapshots.view(np.float32).reshape(n, n_looks_all, n_rx, 2)
+        s = np.ascontiguousarray(snapshots, np.complex64).view(np.float32).reshape(n, n_looks_all, n_rx, 2)
         sr, si = s[..., 0], s[..., 1]
         p = sr * sr + si * si  # (n, looks, rx)
         acc = p[:, :, 0].copy()
