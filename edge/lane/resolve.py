@@ -188,7 +188,7 @@ class CellResolver(native.KernelUser):
         out = self.kernel.step(
             c.range_m, c.v_mps, c.cov.view(np.float32), c.n, c.misses, c.streak,
             np.ascontiguousarray(range_m, np.float32), np.ascontiguousarray(v_mps, np.float32),
-            np.ascontiguousarray(snapshots, np.complex64).reshape(n, -1, self.n_rx).view(np.float32),
+            np.ascontiguousarray(snapshots, np.complex64).view(np.float32),
             np.ascontiguousarray(az_rad, np.float32) if follow else _NO_AZ,
             follow, self.period_s, cfg.range_gate_m, cfg.speed_gate_mps, cfg.memory_frames, cfg.min_frames,
             cfg.min_split_frames, cfg.max_misses, cfg.min_eig_ratio, cfg.min_noise_ratio, cfg.pair_hint_eig_ratio,
