@@ -161,6 +161,7 @@ class CellResolver(native.KernelUser):
         self._k_pair_dsin = np.ascontiguousarray(self._pair_dsin, np.float32)
         self._k_pinv = np.ascontiguousarray(self._pinv).view(np.float32)  # (P, 2, 2 rx)
         self._k_fine_rows = np.ascontiguousarray(self._fine_rows, np.int64)
+        self._k_coarse_t = np.ascontiguousarray(self._coarse_feat64.T)  # (rx^2, coarse pairs)
         self._k_phase = float(np.float32(-2.0 * np.pi * self._d_over_lam))
         self.reset()
 
@@ -193,7 +194,7 @@ class CellResolver(native.KernelUser):
             follow, self.period_s, cfg.range_gate_m, cfg.speed_gate_mps, cfg.memory_frames, cfg.min_frames,
             cfg.min_split_frames, cfg.max_misses, cfg.min_eig_ratio, cfg.min_noise_ratio, cfg.pair_hint_eig_ratio,
             cfg.min_lateral_m, cfg.min_power_ratio, self._min_speed32, cfg.max_cells, self._k_phase,
-            self._coarse_feat, self._k_fine_rows, self._pair_feat, self._k_pair_th, self._k_pair_dsin, self._k_pinv)
+            self._k_coarse_t, self._k_fine_rows, self._pair_feat, self._k_pair_th, self._k_pair_dsin, self._k_pinv)
         self.cells = _Cells(out[3], out[4], out[5].view(np.complex64), out[6], out[7], out[8])
         self.two_sources = out[2].view(bool)
         return out[0].view(bool), out[1]

@@ -1,5 +1,5 @@
 # cython: language_level=3
-# distutils: extra_compile_args = -ffp-contract=off
+# distutils: extra_compile_args = -ffp-contract=off -O3
 """Resolver kernel (edge.lane.resolve.CellResolver.step, its numpy reference): one frame of the side-by-side
 resolver in one call: the cell association, the looks' outer products, the memory's steering and update, the
 two-source test and fit of the cells followed long enough, the split streaks and the cell table's ageing, dropping,
@@ -45,39 +45,56 @@ cdef int _cmp_cand(const void *pa, const void *pb) noexcept nogil:
 @cython.cdivision(True)
 cdef void _eigvals_hermitian(const float *cf, int n_rx, double *w, double *a) noexcept nogil:
     """Ascending eigenvalues ``w`` (n_rx) of the Hermitian matrix whose float32 (re, im) rows are ``cf`` (n_rx x
-    2 n_rx), from the real symmetric form [[Re, -Im], [Im, Re]] (each eigenvalue twice) by cyclic Jacobi rotations
-    in float64; ``a``: (2 n_rx)^2 scratch."""
-    cdef int m = 2 * n_rx, i, j, p, q, k, sweep
-    cdef double re, im, off, diag, theta, t, c, s, apq, akp, akq, x
-    for i in range(n_rx):
-        for j in range(n_rx):
-            re = cf[i * 2 * n_rx + 2 * j]
-            im = cf[i * 2 * n_rx + 2 * j + 1]
-            a[i * m + j] = re
-            a[(i + n_rx) * m + j + n_rx] = re
-            a[i * m + j + n_rx] = -im
-            a[(i + n_rx) * m + j] = im
-    # (the Hermitian input's own rounding: symmetrise)
+    2 n_rx), by cyclic complex Jacobi rotations in float64 (each pivot's phase moved onto its column, then the real
+    rotation that zeroes it); ``a``: 2 n_rx^2 scratch (real parts, then imaginary parts)."""
+    cdef int m = n_rx, i, j, p, q, k, sweep
+    cdef double *ar = a
+    cdef double *ai = a + m * m
+    cdef double x, y, mag, wr, wi, theta, t, c, s, pr_, pi_, qr_, qi_
+    cdef bint rotated
     for i in range(m):
+        for j in range(m):
+            ar[i * m + j] = cf[i * 2 * m + 2 * j]
+            ai[i * m + j] = cf[i * 2 * m + 2 * j + 1]
+    for i in range(m):  # (the input's own rounding: Hermitian exactly)
+        ai[i * m + i] = 0.0
         for j in range(i + 1, m):
-            x = 0.5 * (a[i * m + j] + a[j * m + i])
-            a[i * m + j] = x
-            a[j * m + i] = x
+            x = 0.5 * (ar[i * m + j] + ar[j * m + i])
+            y = 0.5 * (ai[i * m + j] - ai[j * m + i])
+            ar[i * m + j] = x
+            ar[j * m + i] = x
+            ai[i * m + j] = y
+            ai[j * m + i] = -y
     for sweep in range(100):
-        off = 0.0
-        diag = 0.0
-        for p in range(m):
-            diag += a[p * m + p] * a[p * m + p]
-            for q in range(p + 1, m):
-                off += a[p * m + q] * a[p * m + q]
-        if off <= 1e-36 * diag or off == 0.0:
-            break
+        rotated = False
         for p in range(m - 1):
             for q in range(p + 1, m):
-                apq = a[p * m + q]
-                if apq == 0.0:
+                mag = sqrt(ar[p * m + q] * ar[p * m + q] + ai[p * m + q] * ai[p * m + q])
+                if mag <= 1e-18 * (fabs(ar[p * m + p]) + fabs(ar[q * m + q])):  # below rounding: zero
+                    ar[p * m + q] = 0.0
+                    ai[p * m + q] = 0.0
+                    ar[q * m + p] = 0.0
+                    ai[q * m + p] = 0.0
                     continue
-                theta = (a[q * m + q] - a[p * m + p]) / (2.0 * apq)
+                rotated = True
+                # column q times conj(a_pq) / |a_pq|, row q times its conjugate: a_pq becomes |a_pq|
+                wr = ar[p * m + q] / mag
+                wi = -ai[p * m + q] / mag
+                for k in range(m):
+                    if k == q:
+                        continue
+                    x = ar[k * m + q] * wr - ai[k * m + q] * wi
+                    y = ar[k * m + q] * wi + ai[k * m + q] * wr
+                    ar[k * m + q] = x
+                    ai[k * m + q] = y
+                    ar[q * m + k] = x
+                    ai[q * m + k] = -y
+                ar[p * m + q] = mag
+                ai[p * m + q] = 0.0
+                ar[q * m + p] = mag
+                ai[q * m + p] = 0.0
+                # the real rotation that zeroes a_pq
+                theta = (ar[q * m + q] - ar[p * m + p]) / (2.0 * mag)
                 if fabs(theta) > 1e150:
                     t = 0.5 / theta
                 else:
@@ -86,30 +103,39 @@ cdef void _eigvals_hermitian(const float *cf, int n_rx, double *w, double *a) no
                         t = -t
                 c = 1.0 / sqrt(t * t + 1.0)
                 s = t * c
-                for k in range(m):  # columns p, q
-                    akp = a[k * m + p]
-                    akq = a[k * m + q]
-                    a[k * m + p] = c * akp - s * akq
-                    a[k * m + q] = s * akp + c * akq
-                for k in range(m):  # rows p, q
-                    akp = a[p * m + k]
-                    akq = a[q * m + k]
-                    a[p * m + k] = c * akp - s * akq
-                    a[q * m + k] = s * akp + c * akq
-                a[p * m + q] = 0.0
-                a[q * m + p] = 0.0
-    # the 2 n_rx diagonal values sorted; every eigenvalue appears twice
+                for k in range(m):
+                    if k == p or k == q:
+                        continue
+                    pr_ = ar[k * m + p]
+                    pi_ = ai[k * m + p]
+                    qr_ = ar[k * m + q]
+                    qi_ = ai[k * m + q]
+                    x = c * pr_ - s * qr_
+                    y = c * pi_ - s * qi_
+                    ar[k * m + p] = x
+                    ai[k * m + p] = y
+                    ar[p * m + k] = x
+                    ai[p * m + k] = -y
+                    x = s * pr_ + c * qr_
+                    y = s * pi_ + c * qi_
+                    ar[k * m + q] = x
+                    ai[k * m + q] = y
+                    ar[q * m + k] = x
+                    ai[q * m + k] = -y
+                x = ar[p * m + p] - t * mag
+                ar[q * m + q] = ar[q * m + q] + t * mag
+                ar[p * m + p] = x
+                ar[p * m + q] = 0.0
+                ar[q * m + p] = 0.0
+        if not rotated:
+            break
     for i in range(m):
-        a[i] = a[i * m + i]
-    for i in range(1, m):
-        x = a[i]
+        x = ar[i * m + i]
         j = i
-        while j > 0 and a[j - 1] > x:
-            a[j] = a[j - 1]
+        while j > 0 and w[j - 1] > x:
+            w[j] = w[j - 1]
             j -= 1
-        a[j] = x
-    for i in range(n_rx):
-        w[i] = 0.5 * (a[2 * i] + a[2 * i + 1])
+        w[j] = x
 
 
 @cython.boundscheck(False)
@@ -133,6 +159,17 @@ cdef Py_ssize_t _argmax_rows(const double *fr, const float[:, ::1] feat, const l
                 best = i
         elif not best_nan and (i == 0 or score > best_score):
             best_score = score
+            best = i
+    return best
+
+
+cdef Py_ssize_t _argmax(const double *x, Py_ssize_t n) noexcept nogil:
+    """np.argmax of ``x`` (n): the first maximum, or the first NaN."""
+    cdef Py_ssize_t i, best = 0
+    for i in range(n):
+        if x[i] != x[i]:
+            return i
+        if x[i] > x[best]:
             best = i
     return best
 
@@ -165,7 +202,7 @@ def step(const double[::1] c_range, const double[::1] c_v, const float[:, :, ::1
          long long min_frames, long long min_split_frames, long long max_misses, double min_eig_ratio,
          double min_noise_ratio, double pair_hint_eig_ratio, float min_lateral, double min_power_ratio,
          double min_speed32, Py_ssize_t max_cells, float phase_per_lag,
-         const float[:, ::1] coarse_feat, const long long[:, ::1] fine_rows, const float[:, ::1] pair_feat,
+         const double[:, ::1] coarse_t, const long long[:, ::1] fine_rows, const float[:, ::1] pair_feat,
          const float[:, ::1] pair_th, const float[::1] pair_dsin, const float[:, :, ::1] pinv):
     """One frame of :meth:`edge.lane.resolve.CellResolver.step`.
 
@@ -173,7 +210,7 @@ def step(const double[::1] c_range, const double[::1] c_v, const float[:, :, ::1
     counts ``c_n``, ``c_misses``, ``c_streak`` int64. Detections (n): ``rng``, ``vel``, ``az`` float32 (``az``
     used with ``follow``), ``looks`` the complex64 snapshots' float32 view (n, looks, 2 rx). ``phase_per_lag``: the
     steering phase per unit shift and element lag, float32 (-2 pi d / lambda). Tables of the resolver: the coarse
-    pairs' features (nc, rx^2), their 3 x 3 fine neighbours' rows (nc, 9), every pair's features (P, rx^2), angles
+    pairs' features transposed, float64 (rx^2, nc), their 3 x 3 fine neighbours' rows (nc, 9), every pair's features (P, rx^2), angles
     (P, 2), direction-cosine spread (P,) and source estimator ``pinv`` (P, 2, 2 rx) float32 view.
 
     Returns ``(split (n,) uint8, angles (n, 2) float32, two_sources (n,) uint8, range, v, cov (m', rx, 2 rx)
@@ -181,7 +218,7 @@ def step(const double[::1] c_range, const double[::1] c_v, const float[:, :, ::1
     cdef Py_ssize_t m = c_range.shape[0], n = rng.shape[0], n_looks_all = looks.shape[1]
     cdef int n_rx = looks.shape[2] // 2 if n else c_cov.shape[1]
     cdef int F = n_rx * n_rx
-    cdef Py_ssize_t nc = coarse_feat.shape[0], n_fine = fine_rows.shape[1]
+    cdef Py_ssize_t nc = coarse_t.shape[1], n_fine = fine_rows.shape[1]
     cdef Py_ssize_t i, j, d, k, s, a, b, l, cnt, n_cand, n_keep, n_new, n_out, best, bc, p
     cdef int r_, s_, lag
     cdef float sr, si, acc, nrm, inv, xr_a, xi_a, xr_b, xi_b, scale, wgt, cr, ci, fr_, fi_, shift32, ph
@@ -225,10 +262,13 @@ def step(const double[::1] c_range, const double[::1] c_v, const float[:, :, ::1
     cdef float *xr = <float *>malloc((n_looks_all * n_rx + 1) * sizeof(float))
     cdef float *xi = <float *>malloc((n_looks_all * n_rx + 1) * sizeof(float))
     cdef Py_ssize_t *order = NULL
+    cdef double *scores = <double *>malloc((nc + 1) * sizeof(double))
+    if scores == NULL:
+        raise MemoryError()
     if (match == NULL or taken == NULL or now == NULL or cand == NULL or p_el == NULL or fac == NULL
             or lagf == NULL or w == NULL or scratch == NULL or fr == NULL or xr == NULL or xi == NULL):
         free(match); free(taken); free(now); free(cand); free(p_el); free(fac); free(lagf); free(w); free(scratch)
-        free(fr); free(xr); free(xi)
+        free(fr); free(xr); free(xi); free(scores)
         raise MemoryError()
     try:
         # --- association: pairs inside the gates, cheapest first (ties: detection, then cell), one to one
@@ -350,7 +390,13 @@ def step(const double[::1] c_range, const double[::1] c_v, const float[:, :, ::1
                         for b in range(a + 1, n_rx):
                             fr[p] = <double>(<float>2.0 * cov[k, a, 2 * b + 1])
                             p += 1
-                    bc = _argmax_rows(fr, coarse_feat, NULL, 0, nc, F)
+                    # the coarse pairs' fits, feature by feature over all pairs (a loop the compiler vectorises)
+                    for i in range(nc):
+                        scores[i] = fr[0] * coarse_t[0, i]
+                    for j in range(1, F):
+                        for i in range(nc):
+                            scores[i] = scores[i] + fr[j] * coarse_t[j, i]
+                    bc = _argmax(scores, nc)
                     best = fine_rows[bc, _argmax_rows(fr, pair_feat, &fine_rows[bc, 0], 0, n_fine, F)]
                     lateral = rng[d] * pair_dsin[best]
                     # powers of the two fitted sources, diag(B+ R B+^H)
@@ -438,7 +484,7 @@ def step(const double[::1] c_range, const double[::1] c_v, const float[:, :, ::1
         return split_arr, ang_arr, two_arr, o_range, o_v, o_cov, o_n, o_miss, o_streak
     finally:
         free(match); free(taken); free(now); free(cand); free(p_el); free(fac); free(lagf); free(w); free(scratch)
-        free(fr); free(xr); free(xi); free(order)
+        free(fr); free(xr); free(xi); free(order); free(scores)
 
 
 @cython.boundscheck(False)
