@@ -195,8 +195,7 @@ def eigvals(const float[:, :, ::1] cov):
 @cython.boundscheck(False)
 @cython.wraparound(False)
 @cython.cdivision(True)
-def step(const double[::1] c_range, const double[::1] c_v, const float[:, :, ::1] c_cov, const long long[::1] c_n,
-         const long long[::1] c_misses, const long long[::1] c_streak,
+def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
          const float[::1] rng, const float[::1] vel, const float[:, :, ::1] looks, const float[::1] az,
          bint follow, double period_s, double range_gate, double speed_gate, double memory_frames,
          long long min_frames, long long min_split_frames, long long max_misses, double min_eig_ratio,
@@ -215,8 +214,8 @@ def step(const double[::1] c_range, const double[::1] c_v, const float[:, :, ::1
 
     Returns ``(split (n,) uint8, angles (n, 2) float32, two_sources (n,) uint8, range, v, cov (m', rx, 2 rx)
     float32, n, misses, streak)``: the new cell table."""
-    cdef Py_ssize_t m = c_range.shape[0], n = rng.shape[0], n_looks_all = looks.shape[1]
-    cdef int n_rx = looks.shape[2] // 2 if n else c_cov.shape[1]
+    cdef Py_ssize_t m = len(c_range_in), n = rng.shape[0], n_looks_all = looks.shape[1]
+    cdef int n_rx = looks.shape[2] // 2 if n else c_cov_in.shape[1]
     cdef int F = n_rx * n_rx
     cdef Py_ssize_t nc = coarse_t.shape[1], n_fine = fine_rows.shape[1]
     cdef Py_ssize_t i, j, d, k, s, a, b, l, cnt, n_cand, n_keep, n_new, n_out, best, bc, p
@@ -236,17 +235,17 @@ def step(const double[::1] c_range, const double[::1] c_v, const float[:, :, ::1
     rnew_arr = np.zeros((n, n_rx, 2 * n_rx), np.float32)
     cdef float[:, :, ::1] rnew = rnew_arr
     # the followed cells' state, updated here (copies: the inputs stay as they were)
-    cov_arr = np.array(c_cov, np.float32) if m else np.zeros((0, n_rx, 2 * n_rx), np.float32)
+    cov_arr = np.array(c_cov_in, np.float32)
     cdef float[:, :, ::1] cov = cov_arr
-    n_arr = np.array(c_n, np.int64) if m else np.zeros(0, np.int64)
+    n_arr = np.array(c_n_in, np.int64)
     cdef long long[::1] cn = n_arr
-    misses_arr = np.array(c_misses, np.int64) if m else np.zeros(0, np.int64)
+    misses_arr = np.array(c_misses_in, np.int64)
     cdef long long[::1] cmiss = misses_arr
-    streak_arr = np.array(c_streak, np.int64) if m else np.zeros(0, np.int64)
+    streak_arr = np.array(c_streak_in, np.int64)
     cdef long long[::1] cstreak = streak_arr
-    range_arr = np.array(c_range, np.float64) if m else np.zeros(0, np.float64)
+    range_arr = np.array(c_range_in, np.float64)
     cdef double[::1] crange = range_arr
-    v_arr = np.array(c_v, np.float64) if m else np.zeros(0, np.float64)
+    v_arr = np.array(c_v_in, np.float64)
     cdef double[::1] cv = v_arr
 
     cdef Py_ssize_t *match = <Py_ssize_t *>malloc((n + 1) * sizeof(Py_ssize_t))
@@ -281,9 +280,9 @@ def step(const double[::1] c_range, const double[::1] c_v, const float[:, :, ::1
         if m and n:
             for d in range(n):
                 for k in range(m):
-                    pr = c_range[k] + c_v[k] * period_s
+                    pr = crange[k] + cv[k] * period_s
                     dr = fabs(<double>rng[d] - pr)
-                    dv = fabs(<double>vel[d] - c_v[k])
+                    dv = fabs(<double>vel[d] - cv[k])
                     if dr <= range_gate and dv <= speed_gate:
                         cand[n_cand].cost = dr / range_gate + dv / speed_gate
                         cand[n_cand].d = d
