@@ -662,9 +662,9 @@ def test_track_aided_predictions_small_and_array_paths_agree(monkeypatch):
         pairs = Pairs(np.zeros((pr.size, 4), np.int64), pr, pv, np.zeros(pr.size, np.float32), 0, 0)
         sel = np.arange(len(tr))
         monkeypatch.setattr(lane, "_AIDED_SMALL", 10_000)
-        small = pipe.pairs.aided_predictions(tr.x, sel, dt, pairs)
+        small = pipe.pairs.reference_predictions(tr.x, sel, dt, pairs)
         monkeypatch.setattr(lane, "_AIDED_SMALL", -1)
-        full = pipe.pairs.aided_predictions(tr.x, sel, dt, pairs)
+        full = pipe.pairs.reference_predictions(tr.x, sel, dt, pairs)
         assert (small is None) == (full is None)
         if small is not None:
             for a, b in zip(small, full):
