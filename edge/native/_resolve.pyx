@@ -221,7 +221,7 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
     cdef Py_ssize_t i, j, d, k, s, a, b, l, cnt, n_cand, n_keep, n_new, n_out, best, bc, p
     cdef int r_, s_, lag
     cdef float sr, si, acc, nrm, inv, xr_a, xi_a, xr_b, xi_b, scale, wgt, cr, ci, fr_, fi_, shift32, ph
-    cdef double pr, dr, dv, shift, old, w_lo, noise, score, best_score, lateral_d, pa0, pa1, ratio
+    cdef double pr, dr, dv, shift, old, w_lo, noise, pa0, pa1, ratio
     cdef double br, bi, qr, qi, tr, ti, accr, lo, hi
     cdef float lateral
     cdef bint any_now, above, hint, two
@@ -253,7 +253,6 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
     cdef unsigned char *now = <unsigned char *>malloc(n + 1)
     cdef Cand *cand = <Cand *>malloc((n * m + 1) * sizeof(Cand))
     cdef float *p_el = <float *>malloc((n_rx + 1) * sizeof(float))
-    cdef float *fac = <float *>malloc((2 * F + 2) * sizeof(float))
     cdef float *lagf = <float *>malloc((4 * n_rx + 2) * sizeof(float))
     cdef double *w = <double *>malloc((n_rx + 1) * sizeof(double))
     cdef double *scratch = <double *>malloc((4 * F + 2) * sizeof(double))
@@ -264,9 +263,8 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
     cdef double *scores = <double *>malloc((nc + 1) * sizeof(double))
     if scores == NULL:
         raise MemoryError()
-    if (match == NULL or taken == NULL or now == NULL or cand == NULL or p_el == NULL or fac == NULL
-            or lagf == NULL or w == NULL or scratch == NULL or fr == NULL or xr == NULL or xi == NULL):
-        free(match); free(taken); free(now); free(cand); free(p_el); free(fac); free(lagf); free(w); free(scratch)
+    if (match == NULL or taken == NULL or now == NULL or cand == NULL or p_el == NULL or lagf == NULL or w == NULL or scratch == NULL or fr == NULL or xr == NULL or xi == NULL):
+        free(match); free(taken); free(now); free(cand); free(p_el); free(lagf); free(w); free(scratch)
         free(fr); free(xr); free(xi); free(scores)
         raise MemoryError()
     try:
@@ -482,7 +480,7 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
               vel, rnew)
         return split_arr, ang_arr, two_arr, o_range, o_v, o_cov, o_n, o_miss, o_streak
     finally:
-        free(match); free(taken); free(now); free(cand); free(p_el); free(fac); free(lagf); free(w); free(scratch)
+        free(match); free(taken); free(now); free(cand); free(p_el); free(lagf); free(w); free(scratch)
         free(fr); free(xr); free(xi); free(order); free(scores)
 
 
