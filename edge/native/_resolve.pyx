@@ -261,9 +261,8 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
     cdef float *xi = <float *>malloc((n_looks_all * n_rx + 1) * sizeof(float))
     cdef Py_ssize_t *order = NULL
     cdef double *scores = <double *>malloc((nc + 1) * sizeof(double))
-    if scores == NULL:
-        raise MemoryError()
-    if (match == NULL or taken == NULL or now == NULL or cand == NULL or p_el == NULL or lagf == NULL or w == NULL or scratch == NULL or fr == NULL or xr == NULL or xi == NULL):
+    if (match == NULL or taken == NULL or now == NULL or cand == NULL or p_el == NULL or lagf == NULL or w == NULL
+            or scratch == NULL or fr == NULL or xr == NULL or xi == NULL or scores == NULL):
         free(match); free(taken); free(now); free(cand); free(p_el); free(lagf); free(w); free(scratch)
         free(fr); free(xr); free(xi); free(scores)
         raise MemoryError()
