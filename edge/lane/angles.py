@@ -37,6 +37,8 @@ class AngleStage(native.KernelUser):
         self._want_looks = want_looks  # the resolver's input
         #: the compiled consensus (edge/native/_angles.pyx), None: the numpy reference (bartlett_consensus) runs
         self.kernel = native.load("_angles")
+        #: the compiled output (SNR, kept pairings, looks: edge/native/_anglesout.pyx), None: numpy (below)
+        self._k_out = native.load("_anglesout")
 
     def consensus(self, snaps: np.ndarray, outlier, pk: np.ndarray, p_vel: np.ndarray) -> tuple:
         """Bartlett consensus of ``snaps`` (n, seg, rx): the compiled kernel after numpy's beamforming product
@@ -78,6 +80,16 @@ class AngleStage(native.KernelUser):
                 outlier = np.maximum(outlier, np.float32(cfg.angle_outlier_lateral_m)
                                      / np.maximum(p_rng, np.float32(1.0)))
             az, aspec, kept, used = self.consensus(snaps, outlier, pk, p_vel)
+            if self._k_out is not None and pk.dtype == np.int64 and all(
+                    a.dtype == np.float32 for a in (p_rng, p_vel, pairs.residual_hz, az, noise, floor)):
+                out = self._k_out.finish(
+                    spectra.power_padded, spectra.pad, np.ascontiguousarray(noise), floor[0], np.ascontiguousarray(pk),
+                    np.ascontiguousarray(p_rng), np.ascontiguousarray(p_vel), np.ascontiguousarray(pairs.residual_hz),
+                    np.ascontiguousarray(az), np.ascontiguousarray(kept).view(np.uint8),
+                    np.ascontiguousarray(used).view(np.uint8),
+                    np.ascontiguousarray(snaps, np.complex64).view(np.float32), cfg.angle_min_agreeing,
+                    self._want_looks)
+                return Angles(*out[:5], np.full(out[0].size, -1, np.int32), None, aspec, out[5])
             p0 = power[0, pk[:, 0]]
             n0 = noise[0, pk[:, 0]]
             n0 = np.where(np.isfinite(n0), n0, floor[0])  # a track-aided pair may read a non-peak bin
@@ -171,7 +183,7 @@ class ResolveStage:
                            pair_hint_eig_ratio=cfg.resolve_pair_hint_eig_ratio,
                            min_lateral_m=cfg.resolve_min_lateral_m, min_power_ratio=cfg.resolve_min_power_ratio,
                            follow_direction=cfg.resolve_follow_direction),
-            steer, grid, wf.frame_period_s, frontend.rx_spacing_m / wf.wavelength_m)
+            steer, grid, wf.frame_period_s, frontend.rx_spacing_m / wf.wavelength_m, kernel=native.load("_resolve"))
         # checks of a split, in order (each narrows the split mask)
         self.split_filters: tuple = (SplitStraddlesLanes(cfg, road),) + (
             (SplitNotBody(cfg),) if cfg.resolve_skip_bodies else ())

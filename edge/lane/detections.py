@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from edge import native
 from edge.dsp.geometry import polar_to_ground
 from edge.dsp.pairing import nearest_of_clusters
 from edge.lane.records import Angles, Candidates, Feedback
@@ -74,7 +75,7 @@ class UnaliasByLane:
         return az
 
 
-class NearFaces:
+class NearFaces(native.KernelUser):
     """A vehicle is reported by its nearest face (edge.dsp.pairing.nearest_of_clusters): detections up to
     ``cluster_length_m`` behind a nearer one within ``cluster_speed_mps`` and ``cluster_lateral_m`` are its body,
     and are dropped. The body's along-road length is kept per detection (``body_extent_m``)."""
@@ -82,8 +83,25 @@ class NearFaces:
     def __init__(self, config) -> None:
         self.config = config
         self._dz2 = np.float32((config.mounting_height_m - config.target_height_m) ** 2)
+        #: the compiled pass (edge/native/_faces.pyx), None: the numpy reference (:meth:`reference`) runs
+        self.kernel = native.load("_faces")
+        self._k_args = (np.float32(config.cluster_length_m), np.float32(config.cluster_speed_mps),
+                        np.float32(config.cluster_lateral_m), self._dz2)
 
     def __call__(self, c: Candidates, feedback: Feedback) -> Candidates:
+        rng = c.range_m
+        if rng.size <= 1:  # one detection or none: no body behind it
+            return Candidates(rng, c.radial_speed_mps, c.az_rad, c.x_m, c.y_m, c.keep, np.zeros(rng.size, np.float32))
+        if (self.kernel is None or rng.dtype != np.float32 or c.radial_speed_mps.dtype != np.float32
+                or c.x_m.dtype != np.float32):
+            return self.reference(c, feedback)
+        keep, ext = self.kernel.near_faces(np.ascontiguousarray(rng), np.ascontiguousarray(c.radial_speed_mps),
+                                           np.ascontiguousarray(c.x_m), np.ascontiguousarray(c.keep).view(np.uint8),
+                                           *self._k_args)
+        return Candidates(rng, c.radial_speed_mps, c.az_rad, c.x_m, c.y_m, keep.view(bool), ext)
+
+    def reference(self, c: Candidates, feedback: Feedback) -> Candidates:
+        """The numpy form of :meth:`__call__` (the kernel's reference and fallback)."""
         cfg = self.config
         rng = c.range_m
         if rng.size <= 1:  # one detection or none: no body behind it

@@ -47,6 +47,8 @@ class PairStage(native.KernelUser):
         #: the compiled pairing kernel (edge/native/_pairs.pyx), None: the numpy reference (pair_beats) runs
         self.kernel = native.load("_pairs")
         self._coef = np.array(self.model.coefficients, np.float64)
+        #: the compiled track-aided predictions (edge/native/_aided.pyx), None: :meth:`reference_predictions`
+        self._k_aided_pred = native.load("_aided")
 
     def pair(self, freqs: tuple) -> Pairs:
         """The four-segment pairing of ``freqs`` (Hz, per segment): the compiled kernel when built, else
@@ -192,7 +194,21 @@ class PairStage(native.KernelUser):
     def aided_predictions(self, track_state: np.ndarray, sel: np.ndarray, dt: float, pairs) -> tuple | None:
         """``(range_m (m,), v_mps (m,), beats (m, 4))`` predicted at this frame for the tracks ``sel`` (rows of
         ``track_state``, (n, 4) x, y, vx, vy) that lie inside the range limits, move (|v| >= 1 m/s) and have no
-        pairing within the aided gates; None if none. A handful of tracks in plain Python floats (the float64
+        pairing within the aided gates; None if none. The compiled kernel (edge/native/_aided.pyx) when built,
+        else :meth:`reference_predictions` (the same values)."""
+        k = self._k_aided_pred
+        if k is None or track_state.dtype != np.float64:
+            return self.reference_predictions(track_state, sel, dt, pairs)
+        cfg = self.config
+        dz = cfg.mounting_height_m - cfg.target_height_m
+        r, v, f = k.predictions(np.ascontiguousarray(track_state), np.ascontiguousarray(sel, np.int64), dt,
+                                np.ascontiguousarray(pairs.range_m, np.float32),
+                                np.ascontiguousarray(pairs.radial_speed_mps, np.float32), dz * dz, cfg.min_range_m,
+                                cfg.max_range_m, cfg.aided_gate_m, cfg.aided_gate_mps, self._coef)
+        return (r, v, f) if r.size else None
+
+    def reference_predictions(self, track_state: np.ndarray, sel: np.ndarray, dt: float, pairs) -> tuple | None:
+        """:meth:`aided_predictions` without the kernel: a handful of tracks in plain Python floats (the float64
         operations of the array form in the same order; the pairings looked at only within twice the range gate,
         found by a binary search), more as arrays."""
         cfg = self.config

@@ -47,8 +47,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from edge import native
+
 
 _NEIGHBOURS = np.array([-1, 0, 1])  # the fine search around the best coarse pair
+_NO_AZ = np.zeros(0, np.float32)  # the kernel's azimuths when the memory is not steered
 
 
 @dataclass(frozen=True)
@@ -84,14 +87,27 @@ class _Cells:
     streak: list = field(default_factory=list)  # int, frames in a row found split
 
 
-class CellResolver:
+def _cmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a * b`` for complex64 arrays of one shape with one rounding per real operation (numpy's complex product may
+    fuse a multiply and an add, machine by machine): ``(ar br - ai bi, ar bi + ai br)``."""
+    fa, fb = a.view(np.float32), b.view(np.float32)
+    ar, ai, br, bi = fa[..., 0::2], fa[..., 1::2], fb[..., 0::2], fb[..., 1::2]
+    out = np.empty_like(fa)
+    out[..., 0::2] = ar * br - ai * bi
+    out[..., 1::2] = ar * bi + ai * br
+    return out.view(np.complex64)
+
+
+class CellResolver(native.KernelUser):
     """Per-cell covariance memory and the two-source split (see the module docstring)."""
 
     def __init__(self, cfg: ResolverConfig, steering: np.ndarray, grid_rad: np.ndarray, frame_period_s: float,
-                 spacing_wavelengths: float) -> None:
+                 spacing_wavelengths: float, kernel=None) -> None:
         """``steering`` (grid, rx) over ``grid_rad``; ``spacing_wavelengths``: the array's element spacing d / lambda
-        (the phase ramp of :meth:`_steer_memory`)."""
+        (the phase ramp of :meth:`_steer_memory`). ``kernel``: the compiled step (edge/native/_resolve.pyx, from
+        ``edge.native.load("_resolve")``), None: the numpy reference (:meth:`reference_step`) runs."""
         self.cfg = cfg
+        self.kernel = kernel
         self.period_s = frame_period_s
         self._min_speed32 = float(np.float32(cfg.min_speed_mps))  # compared with float32 speeds, as array code does
         self.grid = grid_rad
@@ -126,6 +142,8 @@ class CellResolver:
         # their features gathered once (gathering (2926, 16) rows every frame cost 80 us, 15 times the product);
         # used as the same transposed view as before (BLAS picks its kernel by the layout)
         self._coarse_feat = self._pair_feat[self._coarse]
+        self._coarse_feat64 = self._coarse_feat.astype(np.float64)
+        self._pair_feat64 = self._pair_feat.astype(np.float64)
         # the fine search's 3 x 3 neighbour pairs (i + di, j + dj, clipped to the grid) of every coarse pair, the
         # coarse pair itself where a neighbour is not a pair (i >= j): (n_coarse, 9) pair rows
         top = n_grid - 1
@@ -138,10 +156,19 @@ class CellResolver:
         m = np.arange(n_rx)  # the element lag a - b of every covariance entry, as an index into the lags
         self._lags = np.arange(-(n_rx - 1), n_rx).astype(np.float32)  # (2 rx - 1,)
         self._lag_index = (m[:, None] - m[None, :]) + (n_rx - 1)  # (rx, rx)
+        # the kernel's tables (float32 views of the complex ones)
+        self._k_pair_th = np.ascontiguousarray(self._pair_th, np.float32)
+        self._k_pair_dsin = np.ascontiguousarray(self._pair_dsin, np.float32)
+        self._k_pinv = np.ascontiguousarray(self._pinv).view(np.float32)  # (P, 2, 2 rx)
+        self._k_fine_rows = np.ascontiguousarray(self._fine_rows, np.int64)
+        self._k_coarse_t = np.ascontiguousarray(self._coarse_feat64.T)  # (rx^2, coarse pairs)
+        self._k_phase = float(np.float32(-2.0 * np.pi * self._d_over_lam))
         self.reset()
 
     def reset(self) -> None:
         self.cells = _Cells(cov=np.zeros((0, self.n_rx, self.n_rx), np.complex64))
+        if self.kernel is not None:  # the kernel's table: arrays
+            self.cells = _Cells(np.zeros(0), np.zeros(0), self.cells.cov, *(np.zeros(0, np.int64) for _ in range(3)))
         self.two_sources = np.zeros(0, bool)
 
     def step(self, range_m: np.ndarray, v_mps: np.ndarray, snapshots: np.ndarray,
@@ -150,8 +177,31 @@ class CellResolver:
 
         ``snapshots``: complex64 ``(n, n_looks, n_rx)`` (calibrated; a look of zeros is left out). ``angles``
         is NaN where not split. ``az_rad`` (n,): the detections' angles; with ``follow_direction`` a cell's
-        memory is steered along with its vehicle's direction (see :meth:`_steer_memory`).
+        memory is steered along with its vehicle's direction (see :meth:`_steer_memory`). The compiled kernel
+        when built (one call), else :meth:`reference_step`.
         """
+        if self.kernel is None:
+            return self.reference_step(range_m, v_mps, snapshots, az_rad)
+        cfg = self.cfg
+        c = self.cells
+        follow = cfg.follow_direction and az_rad is not None
+        n = range_m.shape[0]
+        out = self.kernel.step(
+            c.range_m, c.v_mps, c.cov.view(np.float32), c.n, c.misses, c.streak,
+            np.ascontiguousarray(range_m, np.float32), np.ascontiguousarray(v_mps, np.float32),
+            np.ascontiguousarray(snapshots, np.complex64).view(np.float32),
+            np.ascontiguousarray(az_rad, np.float32) if follow else _NO_AZ,
+            follow, self.period_s, cfg.range_gate_m, cfg.speed_gate_mps, cfg.memory_frames, cfg.min_frames,
+            cfg.min_split_frames, cfg.max_misses, cfg.min_eig_ratio, cfg.min_noise_ratio, cfg.pair_hint_eig_ratio,
+            cfg.min_lateral_m, cfg.min_power_ratio, self._min_speed32, cfg.max_cells, self._k_phase,
+            self._k_coarse_t, self._k_fine_rows, self._pair_feat, self._k_pair_th, self._k_pair_dsin, self._k_pinv)
+        self.cells = _Cells(out[3], out[4], out[5].view(np.complex64), out[6], out[7], out[8])
+        self.two_sources = out[2].view(bool)
+        return out[0].view(bool), out[1]
+
+    def reference_step(self, range_m: np.ndarray, v_mps: np.ndarray, snapshots: np.ndarray,
+                       az_rad: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`step` in numpy and plain Python (the kernel's reference and fallback)."""
         cfg = self.cfg
         c = self.cells
         n_det = range_m.size
@@ -160,11 +210,7 @@ class CellResolver:
         self.two_sources = two_sources = np.zeros(n_det, bool)
         # association: predicted cell range against detections, nearest first, one-to-one
         match = self._associate(range_m, v_mps) if len(c.range_m) and n_det else [-1] * n_det
-        # outer products of the normalised looks, averaged over looks
-        norm = np.sqrt(np.add.reduce((snapshots.conj() * snapshots).real, axis=2, keepdims=True))  # np.linalg.norm
-        x = snapshots / np.maximum(norm, np.float32(1e-30))
-        n_looks = np.maximum(np.add.reduce(norm[:, :, 0] > 0, axis=1), 1).astype(np.float32)  # all-zero looks left out
-        r_new = np.einsum("nsa,nsb->nab", x, x.conj()) / n_looks[:, None, None]  # (n, rx, rx)
+        r_new, norm = self._outer(snapshots)
         # the detections that followed a cell and their cells (distinct: one-to-one)
         hi_l = [d for d, m in enumerate(match) if m >= 0]
         k_l = [match[d] for d in hi_l]
@@ -173,14 +219,15 @@ class CellResolver:
             rh, vh = range_m[hi], v_mps[hi]
             cov = c.cov[k]  # gathered once, updated, written back once
             if cfg.follow_direction and az_rad is not None:
-                cov *= self._steer_memory(rh, np.array([c.range_m[j] for j in k_l]), az_rad[hi])
+                cov = _cmul(cov, self._steer_memory(rh, np.array([c.range_m[j] for j in k_l]), az_rad[hi]))
             # the weight of this frame: max(1 / n, 1 / memory) in float64, rounded to float32 (as astype)
             a_l = []
             for j in k_l:
                 c.n[j] += 1
                 a_l.append(max(1.0 / c.n[j], 1.0 / cfg.memory_frames))
             a = np.array(a_l, dtype=np.float32)
-            cov += a[:, None, None] * (r_new[hi] - cov)
+            cf = cov.view(np.float32)  # (real weights: the same rounding as the complex form)
+            cf += a[:, None, None] * (r_new[hi].view(np.float32) - cf)
             c.cov[k] = cov
             ready_pos = []  # positions in hi_l of the cells followed long enough, moving
             for p, (j, r, v) in enumerate(zip(k_l, rh.tolist(), vh.tolist())):
@@ -228,6 +275,34 @@ class CellResolver:
             self.cells = _Cells([cc.range_m[j] for j in o], [cc.v_mps[j] for j in o], cc.cov[o],
                                 [cc.n[j] for j in o], [cc.misses[j] for j in o], [cc.streak[j] for j in o])
         return split, angles
+
+    def _outer(self, snapshots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(r_new (n, rx, rx) complex64, norm (n, looks, 1) float32)``: each look normalised to unit length (an
+        all-zero look left out), the outer products ``x x^H`` averaged over the looks. Written on the float32 parts
+        with one rounding per operation (no fused multiply-add), so that compiled code gives the same bits on
+        every machine: ``|x|^2`` summed over the elements in order, ``x = s * (1 / |s|)``, the products summed over
+        the looks in order, times ``1 / looks``."""
+        n, n_looks_all, n_rx = snapshots.shape
+        s = np.ascontiguousarray(snapshots, np.complex64).view(np.float32).reshape(n, n_looks_all, n_rx, 2)
+        sr, si = s[..., 0], s[..., 1]
+        p = sr * sr + si * si  # (n, looks, rx)
+        acc = p[:, :, 0].copy()
+        for a in range(1, n_rx):
+            acc += p[:, :, a]
+        norm = np.sqrt(acc)[:, :, None]
+        inv = np.float32(1.0) / np.maximum(norm, np.float32(1e-30))
+        xr, xi = sr * inv, si * inv
+        re = xr[:, :, :, None] * xr[:, :, None, :] + xi[:, :, :, None] * xi[:, :, None, :]  # (n, looks, rx, rx)
+        im = xi[:, :, :, None] * xr[:, :, None, :] - xr[:, :, :, None] * xi[:, :, None, :]
+        r = np.empty((n, n_rx, n_rx, 2), np.float32)
+        r[..., 0] = re[:, 0]
+        r[..., 1] = im[:, 0]
+        for k in range(1, n_looks_all):
+            r[..., 0] += re[:, k]
+            r[..., 1] += im[:, k]
+        n_looks = np.maximum(np.add.reduce(norm[:, :, 0] > 0, axis=1), 1).astype(np.float32)  # all-zero looks out
+        r *= (np.float32(1.0) / n_looks)[:, None, None, None]
+        return r.view(np.complex64)[..., 0], norm
 
     def _associate(self, range_m: np.ndarray, v_mps: np.ndarray) -> list[int]:
         """The cell of each detection (-1: none): pairs inside the range and speed gates (the cell's range
@@ -279,8 +354,11 @@ class CellResolver:
         evaluated for the ``2 rx - 1`` lags and gathered into the ``rx x rx`` layout (the same values)."""
         shift = np.sin(az_rad.astype(np.float64)) * (1.0 - range_m / np.maximum(old_range_m, 1e-3))
         ph = (-2.0 * np.pi * self._d_over_lam) * shift.astype(np.float32)[:, None] * self._lags  # (k, 2 rx - 1)
-        f = (np.cos(ph) + 1j * np.sin(ph)).astype(np.complex64)
-        return f.take(self._lag_index, axis=1)  # (k, rx, rx)
+        ph = ph.astype(np.float64)  # cos and sin in float64 (the C library's), rounded to float32
+        f = np.empty(ph.shape + (2,), np.float32)
+        f[..., 0] = np.cos(ph)
+        f[..., 1] = np.sin(ph)
+        return f.view(np.complex64)[..., 0].take(self._lag_index, axis=1)  # (k, rx, rx)
 
     def _features(self, m: np.ndarray, scale_offdiag: float) -> np.ndarray:
         """``(k, rx, rx)`` Hermitian -> ``(k, rx^2)`` float32: diagonal, then Re and Im of the upper triangle."""
@@ -296,7 +374,7 @@ class CellResolver:
         """Which of the covariances ``(k, rx, rx)`` hold two resolved vehicles, and their angles; and which hold two
         sources, resolved or not (``pair_hint_eig_ratio``, :attr:`CellResolver.two_sources`)."""
         cfg = self.cfg
-        w = np.linalg.eigvalsh(cov)  # ascending
+        w = np.linalg.eigvalsh(cov.astype(np.complex128))  # ascending, in float64 (decisions away from rounding)
         noise = np.maximum(np.add.reduce(w[:, : self.n_rx - 2], axis=1) / (self.n_rx - 2), 1e-12)  # np.mean
         above_noise = w[:, -2] >= cfg.min_noise_ratio * noise
         hint = above_noise & (w[:, -2] >= cfg.pair_hint_eig_ratio * w[:, -1])
@@ -306,16 +384,17 @@ class CellResolver:
             return idx, np.zeros((0, 2), np.float32), hint
         cov = cov[idx]
         fr = self._features(cov, scale_offdiag=2.0)  # (k, 16)
-        best_coarse = np.argmax(fr @ self._coarse_feat.T, axis=1)  # (k,) positions in the coarse list
+        fr = fr.astype(np.float64)  # products of float32 numbers are exact in float64: sums differ by 1e-16 at most
+        best_coarse = np.argmax(fr @ self._coarse_feat64.T, axis=1)  # (k,) positions in the coarse list
         rows = self._fine_rows[best_coarse]  # (k, 9): the neighbours of the best coarse pair
-        fine = np.einsum("kf,kpf->kp", fr, self._pair_feat[rows])
+        fine = np.einsum("kf,kpf->kp", fr, self._pair_feat64[rows])
         best = rows[np.arange(idx.size), np.argmax(fine, axis=1)]
         th = self._pair_th[best]  # (k, 2)
         lateral = range_m[idx] * self._pair_dsin[best]  # |sin th_j - sin th_i| x range
         # powers of the two fitted sources, diag(B+ R B+^H): a vehicle with a brief visitor in one of its
         # looks (another vehicle's beat in one segment) has a strong and a faint source, not two vehicles
-        bp = self._pinv[best]  # (k, 2, rx)
-        pw = np.einsum("kar,krs,kas->ka", bp, cov, bp.conj()).real
+        bp = self._pinv[best].astype(np.complex128)  # (k, 2, rx)
+        pw = np.einsum("kar,krs,kas->ka", bp, cov.astype(np.complex128), bp.conj()).real
         ratio = np.minimum.reduce(pw, axis=1) / np.maximum(np.maximum.reduce(pw, axis=1), 1e-30)  # min / max
         ok = (lateral >= cfg.min_lateral_m) & (ratio >= cfg.min_power_ratio)
         return idx[ok], th[ok].astype(np.float32), hint

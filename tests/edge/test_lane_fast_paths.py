@@ -10,7 +10,7 @@ import pytest
 from hw_sim import SIMO_BOARD
 
 from edge.dsp.angle import bartlett_consensus, steering_matrix
-from edge.lane.resolve import CellResolver, ResolverConfig
+from edge.lane.resolve import CellResolver, ResolverConfig, _cmul
 from edge.dsp.pairing import Pairs, PairingModel, pair_beats
 from edge.dsp.cfar import circular_pad, os_cfar, os_cfar_at, os_cfar_at_padded, reference_index
 
@@ -318,28 +318,29 @@ def test_bartlett_consensus_scalar_refinement_equals_the_plain_implementation():
 def split_reference(self, cov: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Which of the covariances ``(k, rx, rx)`` hold two resolved vehicles, and their angles."""
     cfg = self.cfg
-    w = np.linalg.eigvalsh(cov)  # ascending
+    w = np.linalg.eigvalsh(cov.astype(np.complex128))  # ascending (float64, as CellResolver since kernel _resolve)
     noise = np.maximum(w[:, : self.n_rx - 2].mean(axis=1), 1e-12)
     two = (w[:, -2] >= cfg.min_eig_ratio * w[:, -1]) & (w[:, -2] >= cfg.min_noise_ratio * noise)
     idx = np.flatnonzero(two)
     if idx.size == 0:
         return idx, np.zeros((0, 2), np.float32)
-    fr = self._features(cov[idx], scale_offdiag=2.0)  # (k, 16)
-    coarse = self._coarse[np.argmax(fr @ self._pair_feat[self._coarse].T, axis=1)]  # (k,) pair rows
+    fr = self._features(cov[idx], scale_offdiag=2.0).astype(np.float64)  # (k, 16)
+    pf = self._pair_feat.astype(np.float64)
+    coarse = self._coarse[np.argmax(fr @ pf[self._coarse].T, axis=1)]  # (k,) pair rows
     ci, cj = self._pair_i[coarse], self._pair_j[coarse]
     d = np.array([-1, 0, 1])
     fi = np.clip(ci[:, None, None] + d[None, :, None], 0, self.grid.size - 1)  # (k, 3, 1)
     fj = np.clip(cj[:, None, None] + d[None, None, :], 0, self.grid.size - 1)  # (k, 1, 3)
     rows = self._pair_index[fi, fj].reshape(idx.size, -1)  # (k, 9), -1 where i >= j
     rows = np.where(rows >= 0, rows, coarse[:, None])
-    fine = np.einsum("kf,kpf->kp", fr, self._pair_feat[rows])
+    fine = np.einsum("kf,kpf->kp", fr, pf[rows])
     best = rows[np.arange(idx.size), np.argmax(fine, axis=1)]
     th = np.stack([self.grid[self._pair_i[best]], self.grid[self._pair_j[best]]], axis=1)
     lateral = range_m[idx] * np.abs(np.sin(th[:, 1]) - np.sin(th[:, 0]))
     # powers of the two fitted sources, diag(B+ R B+^H): a vehicle with a brief visitor in one of its
     # looks (another vehicle's beat in one segment) has a strong and a faint source, not two vehicles
-    bp = self._pinv[best]  # (k, 2, rx)
-    pw = np.einsum("kar,krs,kas->ka", bp, cov[idx], bp.conj()).real
+    bp = self._pinv[best].astype(np.complex128)  # (k, 2, rx)
+    pw = np.einsum("kar,krs,kas->ka", bp, cov[idx].astype(np.complex128), bp.conj()).real
     ratio = pw.min(axis=1) / np.maximum(pw.max(axis=1), 1e-30)
     ok = (lateral >= cfg.min_lateral_m) & (ratio >= cfg.min_power_ratio)
     return idx[ok], th[ok].astype(np.float32)
@@ -530,10 +531,7 @@ def _step_reference(res: CellResolver, c: _ArrayCells, range_m, v_mps, snapshots
             if not taken_d[d] and not taken_c[k]:
                 taken_d[d] = taken_c[k] = True
                 match[d] = k
-    norm = np.sqrt(np.add.reduce((snapshots.conj() * snapshots).real, axis=2, keepdims=True))
-    x = snapshots / np.maximum(norm, np.float32(1e-30))
-    n_looks = np.maximum((norm[:, :, 0] > 0).sum(axis=1), 1).astype(np.float32)
-    r_new = np.einsum("nsa,nsb->nab", x, x.conj()) / n_looks[:, None, None]
+    r_new, _ = res._outer(snapshots)  # (the products with one rounding each, shared with the list form)
     hit = match >= 0
     seen = np.zeros(len(c.range_m), bool)
     if hit.any():
@@ -545,7 +543,10 @@ def _step_reference(res: CellResolver, c: _ArrayCells, range_m, v_mps, snapshots
             m = np.arange(res.n_rx)
             lag = (m[:, None] - m[None, :]).astype(np.float32)
             ph = (-2.0 * np.pi * res._d_over_lam) * shift.astype(np.float32)[:, None, None] * lag
-            c.cov[k] *= (np.cos(ph) + 1j * np.sin(ph)).astype(np.complex64)
+            ph = ph.astype(np.float64)
+            f = np.empty(ph.shape + (2,), np.float32)
+            f[..., 0], f[..., 1] = np.cos(ph), np.sin(ph)
+            c.cov[k] = _cmul(c.cov[k], f.view(np.complex64)[..., 0])
         a = np.maximum(1.0 / c.n[k], 1.0 / cfg.memory_frames).astype(np.float32)
         c.cov[k] += a[:, None, None] * (r_new[hit] - c.cov[k])
         c.range_m[k] = range_m[hit]
@@ -661,9 +662,9 @@ def test_track_aided_predictions_small_and_array_paths_agree(monkeypatch):
         pairs = Pairs(np.zeros((pr.size, 4), np.int64), pr, pv, np.zeros(pr.size, np.float32), 0, 0)
         sel = np.arange(len(tr))
         monkeypatch.setattr(lane, "_AIDED_SMALL", 10_000)
-        small = pipe.pairs.aided_predictions(tr.x, sel, dt, pairs)
+        small = pipe.pairs.reference_predictions(tr.x, sel, dt, pairs)
         monkeypatch.setattr(lane, "_AIDED_SMALL", -1)
-        full = pipe.pairs.aided_predictions(tr.x, sel, dt, pairs)
+        full = pipe.pairs.reference_predictions(tr.x, sel, dt, pairs)
         assert (small is None) == (full is None)
         if small is not None:
             for a, b in zip(small, full):

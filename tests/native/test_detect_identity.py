@@ -10,7 +10,7 @@ from edge import native
 from edge.pipeline import StageTimer
 
 #: the kernels this check covers
-DETECT_KERNELS = ("_spectra", "_peaks", "_track", "_pairs", "_angles")
+DETECT_KERNELS = ("_spectra", "_peaks", "_track", "_pairs", "_angles", "_resolve", "_faces", "_aided", "_anglesout")
 #: relative tolerance on track floats: the tracker kernel's small matrix products sum in another order than BLAS
 TRACK_RTOL = 1e-9
 
@@ -44,6 +44,10 @@ def test_kernels_and_reference_give_identical_detections_and_tracks(monkeypatch)
     assert fast.peaks.kernel is not None and slow.peaks.kernel is None
     assert fast.pairs.kernel is not None and slow.pairs.kernel is None
     assert fast.angles.kernel is not None and slow.angles.kernel is None
+    assert fast.resolve.resolver.kernel is not None and slow.resolve.resolver.kernel is None
+    assert fast.detections.filters[0].kernel is not None and slow.detections.filters[0].kernel is None
+    assert fast.pairs._k_aided_pred is not None and slow.pairs._k_aided_pred is None
+    assert fast.angles._k_out is not None and slow.angles._k_out is None
     ta, tb = StageTimer(16), StageTimer(16)
     n_det = n_trk = 0
     for f in frames(120):
