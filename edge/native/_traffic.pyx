@@ -11,7 +11,7 @@ contraction into fused multiply-adds).
 """
 
 cimport cython
-from libc.math cimport sqrt
+from libc.math cimport sqrt, hypot, fabs, INFINITY
 
 import numpy as np
 
@@ -135,3 +135,68 @@ def yaw_live_terms(const double[:, ::1] acc, const unsigned char[::1] live, cons
             w[n_out] = a0 * major / mn
             n_out += 1
     return num_a[:n_out], den_a[:n_out], w_a[:n_out]
+
+
+def track_kin(list conf):
+    """The traffic monitor's per-track table of the confirmed tracks ``conf`` (TrackState objects):
+    ``(kin, ids, age)``, ``kin`` (n, 6) float64 = track id, age (frames), x, y (m), vx, vy (m/s), as the
+    reference's ``np.array`` of tuples; ``ids``, ``age`` (n,) int64."""
+    cdef Py_ssize_t n = len(conf), i
+    kin_a = np.empty((n, 6))
+    ids_a = np.empty(n, dtype=np.int64)
+    age_a = np.empty(n, dtype=np.int64)
+    cdef double[:, ::1] kin = kin_a
+    cdef long long[::1] ids = ids_a, age = age_a
+    for i in range(n):
+        t = conf[i]
+        ids[i] = t.track_id
+        age[i] = t.age_frames
+        kin[i, 0] = <double>ids[i]
+        kin[i, 1] = <double>age[i]
+        kin[i, 2] = t.x_m
+        kin[i, 3] = t.y_m
+        kin[i, 4] = t.vx_mps
+        kin[i, 5] = t.vy_mps
+    return kin_a, ids_a, age_a
+
+
+@cython.cdivision(True)
+def road_lanes(const double[:, ::1] kin, double cy, double sy, const double[::1] centers, const double[::1] half_w,
+               double sure_k):
+    """The road frame and the lanes of the tracks in ``kin`` (:func:`track_kin`) for a yaw of cos ``cy``, sin ``sy``:
+    as Python lists, the along-road position ``s`` (m) and speed ``vs`` (m/s), the speed (m/s), the lane index
+    (-1 off every lane; the nearest centre, the first on a tie), the margin inside that lane's nearer edge (m;
+    -inf without lanes) and whether the lane is sure (inside it by ``sure_k`` x range; ``sure_k`` <= 0: any
+    lane). The reference is the numpy code of ``TrafficMonitor.update`` with
+    :func:`edge.traffic.lanes.assign_lanes_with_margin`."""
+    cdef Py_ssize_t n = kin.shape[0], nl = centers.shape[0], i, l, k
+    cdef double x, y, vx, vy, u, d, dmin, m
+    s_l, vs_l, sp_l, lane_l, mg_l, sure_l = [], [], [], [], [], []
+    for i in range(n):
+        x = kin[i, 2]
+        y = kin[i, 3]
+        vx = kin[i, 4]
+        vy = kin[i, 5]
+        u = x * cy + y * sy
+        s_l.append(-x * sy + y * cy)
+        vs_l.append(-vx * sy + vy * cy)
+        sp_l.append(hypot(vx, vy))
+        if nl == 0:
+            lane_l.append(-1)
+            mg_l.append(-INFINITY)
+            sure_l.append(False)
+            continue
+        k = 0
+        dmin = fabs(u - centers[0])
+        for l in range(1, nl):
+            d = fabs(u - centers[l])
+            if d < dmin:  # (argmin: the first of equal distances; NaN: numpy's argmin takes the first NaN)
+                dmin = d
+                k = l
+        m = half_w[k] - dmin
+        if not (m >= 0.0):
+            k = -1
+        lane_l.append(k)
+        mg_l.append(m)
+        sure_l.append(k >= 0 and (sure_k <= 0.0 or m >= sure_k * hypot(x, y)))
+    return s_l, vs_l, sp_l, lane_l, mg_l, sure_l

@@ -54,6 +54,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge import native
 from edge.traffic.calibration import Calibration, CalibrationError, CalibrationWriter, load_calibration
 from edge.traffic.config import TrafficConfig
 from edge.traffic.lanes import Lane, LaneLearner, YawEstimator, assign_lanes_with_margin, configured_lanes
@@ -106,7 +107,7 @@ def _with(tr: TrackState, lane: int | None, cls: str | None, length_m: float | N
     return out
 
 
-class TrafficMonitor:
+class TrafficMonitor(native.KernelUser):
     def __init__(self, config: TrafficConfig | None = None) -> None:
         self.config = cfg = config or TrafficConfig()
         self.yaw_rad = math.radians(cfg.mounting_yaw_deg)
@@ -117,6 +118,9 @@ class TrafficMonitor:
         self.learner = LaneLearner(cfg)
         self.stats = IntervalStatistics(cfg)
         self._memo: dict[int, _Memo] = {}
+        #: the compiled per-track work (edge.native._traffic), None: the numpy/Python reference
+        self._kernel = native.load("_traffic")
+        self._lane_arrays: tuple = (None, None, None)  # (lanes, centres, half widths) for the kernel
         self._last_t_ns: int | None = None
         self._first_t_ns: int | None = None
         self._next_learn_ns: int | None = None
@@ -276,10 +280,14 @@ class TrafficMonitor:
         if self._first_t_ns is None:
             self._first_t_ns = t_ns
         # one (n, 6) array: track id, age, x, y, vx, vy (ids and ages are exact in float64)
-        kin = np.array([(t.track_id, t.age_frames, t.x_m, t.y_m, t.vx_mps, t.vy_mps) for t in conf],
-                       dtype=np.float64).reshape(-1, 6)
-        ids = kin[:, 0].astype(np.int64)
-        age = kin[:, 1].astype(np.int64)
+        kern = self._kernel
+        if kern is not None:
+            kin, ids, age = kern.track_kin(conf)
+        else:
+            kin = np.array([(t.track_id, t.age_frames, t.x_m, t.y_m, t.vx_mps, t.vy_mps) for t in conf],
+                           dtype=np.float64).reshape(-1, 6)
+            ids = kin[:, 0].astype(np.int64)
+            age = kin[:, 1].astype(np.int64)
         x, y, vx, vy = kin[:, 2], kin[:, 3], kin[:, 4], kin[:, 5]
 
         # mounting yaw and lanes
@@ -316,21 +324,30 @@ class TrafficMonitor:
 
         # the road frame (to_road's operations; of the velocities only the along-road part is used)
         cy, sy = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
-        u, s_arr = x * cy + y * sy, -x * sy + y * cy
-        vs_arr = -vx * sy + vy * cy
-        # plain Python floats for the per-track loop (numpy scalars are slow one at a time)
-        s, vs = s_arr.tolist(), vs_arr.tolist()
-        speed = np.hypot(vx, vy).tolist()
-        lane_idx, margin = assign_lanes_with_margin(u, lanes)
         # wrong-way gate: the track is wrong_way_lane_sigmas standard deviations inside its lane, the lateral
         # uncertainty being range x the yaw's (a wrong yaw turns the road frame about the radar) and the track's
         # own azimuth error's
-        sure = lane_idx >= 0
         lat_sigma = math.hypot(yaw_sigma, math.radians(cfg.wrong_way_azimuth_sigma_deg))
-        if lat_sigma > 0.0 and cfg.wrong_way_lane_sigmas > 0.0:
-            sure &= margin >= cfg.wrong_way_lane_sigmas * lat_sigma * np.hypot(x, y)
-        lane_sure = sure.tolist()
-        lane_idx = lane_idx.tolist()
+        gated = lat_sigma > 0.0 and cfg.wrong_way_lane_sigmas > 0.0
+        if kern is not None:
+            if self._lane_arrays[0] is not lanes:  # (the lanes change rarely)
+                self._lane_arrays = (lanes, np.array([ln.center_m for ln in lanes], dtype=np.float64),
+                                     0.5 * np.array([ln.width_m for ln in lanes], dtype=np.float64))
+            s, vs, speed, lane_idx, margin, lane_sure = kern.road_lanes(
+                kin, cy, sy, self._lane_arrays[1], self._lane_arrays[2],
+                cfg.wrong_way_lane_sigmas * lat_sigma if gated else -1.0)
+        else:
+            u, s_arr = x * cy + y * sy, -x * sy + y * cy
+            vs_arr = -vx * sy + vy * cy
+            # plain Python floats for the per-track loop (numpy scalars are slow one at a time)
+            s, vs = s_arr.tolist(), vs_arr.tolist()
+            speed = np.hypot(vx, vy).tolist()
+            lane_idx, margin = assign_lanes_with_margin(u, lanes)
+            sure = lane_idx >= 0
+            if gated:
+                sure &= margin >= cfg.wrong_way_lane_sigmas * lat_sigma * np.hypot(x, y)
+            lane_sure = sure.tolist()
+            lane_idx = lane_idx.tolist()
         id_list = ids.tolist()
         presence = [False] * n_lanes
         ext = None
