@@ -11,7 +11,7 @@ contraction into fused multiply-adds).
 """
 
 cimport cython
-from libc.math cimport sqrt, hypot, fabs, INFINITY
+from libc.math cimport sqrt, hypot, fabs, rint, INFINITY
 
 import numpy as np
 
@@ -137,11 +137,21 @@ def yaw_live_terms(const double[:, ::1] acc, const unsigned char[::1] live, cons
     return num_a[:n_out], den_a[:n_out], w_a[:n_out]
 
 
-def track_kin(list conf):
-    """The traffic monitor's per-track table of the confirmed tracks ``conf`` (TrackState objects):
-    ``(kin, ids, age)``, ``kin`` (n, 6) float64 = track id, age (frames), x, y (m), vx, vy (m/s), as the
+def track_kin(tuple tracks):
+    """The traffic monitor's per-track table of the confirmed tracks (``confirmed`` and ``track_id`` > 0) of
+    ``tracks`` (TrackState objects): ``(conf, sel, kin, ids, age)``, ``conf`` those tracks, ``sel`` (n,) int64 their
+    indices in ``tracks``, ``kin`` (n, 6) float64 = track id, age (frames), x, y (m), vx, vy (m/s), as the
     reference's ``np.array`` of tuples; ``ids``, ``age`` (n,) int64."""
-    cdef Py_ssize_t n = len(conf), i
+    cdef Py_ssize_t m = len(tracks), i, n = 0
+    sel_a = np.empty(m, dtype=np.int64)
+    cdef long long[::1] sel = sel_a
+    conf = []
+    for i in range(m):
+        t = tracks[i]
+        if t.confirmed and t.track_id > 0:
+            conf.append(t)
+            sel[n] = i
+            n += 1
     kin_a = np.empty((n, 6))
     ids_a = np.empty(n, dtype=np.int64)
     age_a = np.empty(n, dtype=np.int64)
@@ -157,7 +167,7 @@ def track_kin(list conf):
         kin[i, 3] = t.y_m
         kin[i, 4] = t.vx_mps
         kin[i, 5] = t.vy_mps
-    return kin_a, ids_a, age_a
+    return conf, sel_a[:n], kin_a, ids_a, age_a
 
 
 @cython.cdivision(True)
@@ -200,3 +210,179 @@ def road_lanes(const double[:, ::1] kin, double cy, double sy, const double[::1]
         mg_l.append(m)
         sure_l.append(k >= 0 and (sure_k <= 0.0 or m >= sure_k * hypot(x, y)))
     return s_l, vs_l, sp_l, lane_l, mg_l, sure_l
+
+
+# columns of the traffic monitor's integer memo table ``mi`` (one row per track id)
+DEF M_LIVE = 0        # the row holds a running track
+DEF M_AGE = 1         # its age (frames) when last seen
+DEF M_T = 2           # time it was last seen (ns)
+DEF M_WRONG = 3       # frames in a row against its lane's direction
+DEF M_WRONG_EMIT = 4  # wrong_way raised for it
+DEF M_HITS = 5        # its hit count when last seen (-1: new)
+DEF M_STOP_VALID = 6  # it stands (M_STOP_SINCE holds the time it stopped)
+DEF M_STOP_SINCE = 7
+DEF M_STOP_EMIT = 8   # stopped_vehicle raised for this stop
+DEF M_COUNTED = 9     # its vehicle was counted at the detection line
+M_COLS = 10
+# columns of the float memo table ``mf``: along-road position when last seen (m), its largest speed (m/s)
+MF_COLS = 2
+
+
+@cython.cdivision(True)
+def monitor_pass(list conf, const long long[::1] ids, long long[:, ::1] mi, double[:, ::1] mf, list meters,
+                 meter_cls, list s, list vs, list speed, list lane_idx, list lane_sure, const long long[::1] lane_dir,
+                 ext, long long t_ns, long long dt_ns, tuple p, list sample_lists, tuple class_names, list edges, with_fn):
+    """The per-track loop of :meth:`edge.traffic.TrafficMonitor.update` (its reference, ``_track_pass``) over the
+    confirmed tracks ``conf`` (ids ``ids``) in one call, their memory in the tables ``mi`` (cap, M_COLS) int64 and
+    ``mf`` (cap, MF_COLS) float64 indexed by track id and ``meters`` (their LengthMeter objects, ``meter_cls``).
+    ``s``, ``vs``, ``speed``, ``lane_idx``, ``lane_sure``: :func:`road_lanes`'s; ``lane_dir``: +1/-1 per lane;
+    ``ext``: body extent per track (m, NaN: none) or None; ``t_ns``, ``dt_ns``: the frame's time and duration (ns);
+    ``p``: the configuration's parameters (``TrafficMonitor._pass_params``);
+    ``sample_lists``: each lane's presence samples; ``with_fn``: the TrackState copy with lane, class and length.
+
+    Updates the tables, meters and samples; rows of ids not in ``ids`` end. Returns ``(out, presence, events,
+    actions)``: the published track per entry of ``conf``, a presence flag per lane, events ``(kind, id, lane)`` in
+    order, and the counting decisions left to the caller in track order: ``(0, j, lane)`` a new track to try
+    ``_count_late`` for, ``(1, j, lane, tc_ns)`` a crossing to count unless the lane counted its vehicle."""
+    cdef Py_ssize_t n = len(conf), cap = mi.shape[0], n_lanes = len(sample_lists), j, i, k
+    cdef long long tid, age, hits, tc, t0
+    cdef double sj, vsj, spj, s0, f, e, est, L
+    cdef bint fresh, has_ext = ext is not None, crossed, against
+    cdef double[::1] ext_v
+    cdef double line = p[0], r_lo = p[1], r_hi = p[2], default_length = p[3], zone_lo = p[4], zone_hi = p[5]
+    cdef double reach = p[6], ww_speed = p[7], stopped_speed = p[8], moving_speed = p[9], same_m = p[10]
+    cdef double same_v = p[11], length_min_m = p[12]
+    cdef long long ww_frames = p[13], stopped_min_ns = p[14], min_frames = p[15], keep = p[16]
+    cdef bint late_on = p[17], dir_only = p[18], once = p[19]
+    if has_ext:
+        ext_v = ext
+    seen_a = np.zeros(cap, dtype=np.uint8)
+    cdef unsigned char[::1] seen = seen_a
+    presence = [False] * n_lanes
+    out = [None] * n
+    events = []
+    actions = []
+    for j in range(n):
+        tr = conf[j]
+        tid = ids[j]
+        seen[tid] = 1
+        k = lane_idx[j]
+        lane = k if k >= 0 else None
+        age = tr.age_frames
+        sj = s[j]
+        vsj = vs[j]
+        spj = speed[j]
+        fresh = not mi[tid, M_LIVE] or age < mi[tid, M_AGE]
+        if fresh:
+            mi[tid, M_LIVE] = 1
+            mi[tid, M_AGE] = age
+            mi[tid, M_T] = t_ns
+            mi[tid, M_WRONG] = 0
+            mi[tid, M_WRONG_EMIT] = 0
+            mi[tid, M_HITS] = -1
+            mi[tid, M_STOP_VALID] = 0
+            mi[tid, M_STOP_SINCE] = 0
+            mi[tid, M_STOP_EMIT] = 0
+            mi[tid, M_COUNTED] = 0
+            mf[tid, 0] = sj
+            mf[tid, 1] = spj
+            meters[tid] = meter_cls(keep - 1)
+        meter = meters[tid]
+        if has_ext:
+            e = ext_v[j]
+            if r_lo <= tr.range_m <= r_hi and e == e:  # (not NaN): LengthMeter.add
+                meter.frames += 1
+                top = meter.top
+                if len(top) < keep:
+                    top.append(e)
+                    top.sort(reverse=True)
+                elif e > top[len(top) - 1]:
+                    top[len(top) - 1] = e
+                    top.sort(reverse=True)
+        # IntervalStatistics.measured
+        length_pub = cls_pub = None
+        top = meter.top
+        if not (meter.frames < min_frames or len(top) < keep):
+            est_o = top[len(top) - 1]
+            est = est_o
+            if est >= length_min_m:
+                length_pub = est_o
+            if est - est == 0.0:  # length_class: bisect_right over the edges ("unknown" when not finite)
+                i = 0
+                while i < len(edges) and not (est < edges[i]):
+                    i += 1
+                cls_pub = class_names[i]
+            else:
+                cls_pub = "unknown"
+        if fresh:
+            if lane is not None and late_on:
+                actions.append((0, j, k))
+        else:
+            s0 = mf[tid, 0]
+            crossed = (s0 - line) * (sj - line) < 0 or (sj == line and s0 != line)
+            against = dir_only and lane is not None and vsj * lane_dir[k] < 0
+            if crossed and lane is not None and not against and not (mi[tid, M_COUNTED] and once):
+                f = (line - s0) / (sj - s0)
+                t0 = mi[tid, M_T]
+                tc = t0 + <long long>rint(f * <double>(t_ns - t0))
+                actions.append((1, j, k, tc))
+            mi[tid, M_AGE] = age
+            mf[tid, 0] = sj
+            mi[tid, M_T] = t_ns
+            if spj > mf[tid, 1]:  # max(max_speed, speed)
+                mf[tid, 1] = spj
+        if lane is not None:
+            if reach <= sj <= zone_hi:
+                sample_lists[k].append((t_ns, dt_ns, s[j], meter))
+                L = length_pub if length_pub is not None else default_length
+                if sj + L >= zone_lo:
+                    presence[k] = True
+            hits = tr.hits
+            if hits > mi[tid, M_HITS] and lane_sure[j]:
+                if vsj * lane_dir[k] < -ww_speed:
+                    mi[tid, M_WRONG] += 1
+                else:
+                    mi[tid, M_WRONG] = 0
+            if mi[tid, M_WRONG] >= ww_frames and not mi[tid, M_WRONG_EMIT]:
+                mi[tid, M_WRONG_EMIT] = 1
+                if not _same_wrong_way_driver(conf, ids, mi, s, vs, j, same_m, same_v):
+                    events.append(("wrong_way", tid, lane))
+        if spj < stopped_speed and mf[tid, 1] >= moving_speed and lane is not None:
+            if not mi[tid, M_STOP_VALID]:
+                mi[tid, M_STOP_VALID] = 1
+                mi[tid, M_STOP_SINCE] = t_ns
+            if not mi[tid, M_STOP_EMIT] and t_ns - mi[tid, M_STOP_SINCE] >= stopped_min_ns:
+                mi[tid, M_STOP_EMIT] = 1
+                events.append(("stopped_vehicle", tid, lane))
+        elif spj >= moving_speed:
+            mi[tid, M_STOP_VALID] = 0
+            mi[tid, M_STOP_EMIT] = 0
+        elif spj >= stopped_speed:
+            mi[tid, M_STOP_VALID] = 0
+        mi[tid, M_HITS] = tr.hits
+        tcls = tr.cls
+        if tcls is not None:
+            cls_pub = tcls
+        out[j] = tr if (tr.lane, tcls, tr.length_m) == (lane, cls_pub, length_pub) else with_fn(
+            tr, lane, cls_pub, length_pub)
+    for i in range(cap):
+        if mi[i, M_LIVE] and not seen[i]:
+            mi[i, M_LIVE] = 0
+            meters[i] = None
+    return out, presence, events, actions
+
+
+cdef bint _same_wrong_way_driver(list conf, const long long[::1] ids, long long[:, ::1] mi, list s, list vs,
+                                 Py_ssize_t j, double same_m, double same_v):
+    """TrafficMonitor._same_wrong_way_driver on the memo table (rows as they stand at track ``j``'s turn)."""
+    cdef Py_ssize_t i
+    cdef long long tid
+    cdef double sj = s[j], vsj = vs[j]
+    if same_v <= 0.0:
+        return False
+    for i in range(len(conf)):
+        tid = ids[i]
+        if (i != j and mi[tid, M_LIVE] and mi[tid, M_WRONG_EMIT] and conf[i].age_frames >= mi[tid, M_AGE]
+                and fabs(<double>s[i] - sj) <= same_m and fabs(<double>vs[i] - vsj) <= same_v):
+            return True
+    return False
