@@ -13,6 +13,7 @@ from edge import native
 from edge.pipeline import StageTimer
 from edge.traffic import TrafficConfig, TrafficMonitor
 from edge.traffic.lanes import YawEstimator
+from edge.types import TrackState
 from tests.native.conftest import require_kernel
 
 
@@ -107,3 +108,67 @@ def test_traffic_monitor_with_the_kernel_publishes_what_the_reference_does(monke
         n_lane += sum(t.lane is not None for t in a.tracks)
         n_stats += len(a.lane_stats)
     assert n_lane > 1000 and n_stats >= 4
+
+
+def _random_scene(seed: int, n_frames: int):
+    """Seeded frames of tracks for the monitor: vehicles in and between the default lanes at +-5-35 m/s (some
+    against their lane, some stopping), ids recycled, tracks not confirmed, coasting (hits not growing), body
+    extents (some NaN), a classifier's class and the tracker's length on some; 10 frames per second."""
+    rng = np.random.default_rng(seed)
+    live: dict[int, list] = {}  # id -> [x, y, vx, vy, age, hits, cls, stop_at]
+    for f in range(n_frames):
+        for tid in list(live):
+            v = live[tid]
+            if rng.random() < 0.02 or not -20.0 < v[1] < 260.0:
+                del live[tid]
+            elif rng.random() < 0.005:
+                v[4] = v[5] = 0  # recycled
+        while len(live) < 12 and rng.random() < 0.5:
+            tid = int(rng.integers(1, 60))
+            vy = rng.choice([-1.0, 1.0]) * rng.uniform(5.0, 35.0)
+            live.setdefault(tid, [rng.choice([-5.25, -1.75, 1.75, 5.25, 7.5]) + rng.normal(0, 0.6),
+                                  rng.uniform(10.0, 200.0), rng.normal(0, 0.2), vy, 0, 0,
+                                  rng.choice([None, None, "car"]), f + int(rng.integers(5, 400))])
+        tracks, ext = [], []
+        for tid, v in live.items():
+            if f >= v[7]:
+                v[2] = v[3] = 0.0  # stopped
+            v[0] += 0.1 * v[2]
+            v[1] += 0.1 * v[3]
+            v[4] += 1
+            v[5] += rng.random() < 0.9
+            r = math.hypot(v[0], v[1])
+            tracks.append(TrackState(tid, v[0], v[1], v[2], v[3], r, (v[0] * v[2] + v[1] * v[3]) / r,
+                                     math.atan2(v[0], v[1]), v[4], v[5], v[4] > 2 or rng.random() < 0.3, cls=v[6],
+                                     length_m=None if rng.random() < 0.7 else 1.0))
+            ext.append(float("nan") if rng.random() < 0.3 else rng.uniform(0.0, 20.0))
+        tracks.append(TrackState(0, 1.0, 30.0, 0.0, 1.0, 30.0, 1.0, 0.03, 1, 1, True))  # id 0: never followed
+        yield tuple(tracks), f * 100_000_000, np.array(ext + [np.nan])
+
+
+@pytest.mark.parametrize("seed, estimate_yaw", [(1, False), (2, True), (3, True)])
+def test_traffic_monitor_kernel_equals_the_reference_on_random_scenes(monkeypatch, seed, estimate_yaw):
+    """Random inputs: counts, late counts, lengths and classes, presence, wrong-way and stopped-vehicle events
+    of the monitor with the kernel and with RADAR_EDGE_KERNELS=0 agree frame for frame."""
+    require_kernel("_traffic")
+    cfg = TrafficConfig(estimate_yaw=estimate_yaw, interval_s=5.0, wrong_way_min_frames=5, stopped_min_s=3.0,
+                        length_min_frames=3, yaw_min_tracks=4)
+    fast = TrafficMonitor(cfg)
+    monkeypatch.setenv("RADAR_EDGE_KERNELS", "0")
+    ref = TrafficMonitor(cfg)
+    monkeypatch.delenv("RADAR_EDGE_KERNELS")
+    assert fast._kernel is not None and ref._kernel is None
+    kinds: dict[str, int] = {}
+    volume = n_len = 0
+    for tracks, t_ns, ext in _random_scene(seed, 900):
+        a, b = fast.update(tracks, t_ns, extent_m=ext), ref.update(tracks, t_ns, extent_m=ext)
+        assert a.tracks == b.tracks, t_ns
+        assert a.presence == b.presence and a.events == b.events, t_ns
+        assert repr(a.lane_stats) == repr(b.lane_stats), t_ns
+        assert fast.yaw_rad == ref.yaw_rad, t_ns
+        for e in a.events:
+            kinds[e.kind] = kinds.get(e.kind, 0) + 1
+        volume += sum(st.volume for st in a.lane_stats)
+        n_len += sum(t.length_m is not None and t.lane is not None for t in a.tracks)
+    assert kinds.get("wrong_way", 0) > 0 and kinds.get("stopped_vehicle", 0) > 0, kinds
+    assert volume > 20 and n_len > 100
