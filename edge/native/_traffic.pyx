@@ -31,15 +31,18 @@ cdef inline void _sort_by_seq(long long *ids, Py_ssize_t n, const long long[::1]
 
 @cython.cdivision(True)
 def yaw_add(double[:, ::1] acc, unsigned char[::1] live, long long[::1] seq, long long next_seq,
-            const long long[::1] ids, const long long[::1] age, const double[::1] x, const double[::1] y):
+            const long long[:] ids, const long long[:] age, const double[:] x, const double[:] y):
     """One frame of :meth:`YawEstimator.add` on the table: accumulates the confirmed tracks ``ids`` (with their
     ``age`` and position ``x``, ``y`` in m); a recycled id (its age dropped) and a running track not in ``ids``
     end. Returns ``(ended, next_seq)``: the ended tracks' sums (k, 7) in the order the reference votes (recycled
-    ones in track order, then the others in insertion order) and the next insertion stamp. The caller makes the
-    table hold every id (``cap > max(ids)``)."""
+    ones in track order, then the others in insertion order) and the next insertion stamp; None, changing
+    nothing, when an id does not fit the table (``id >= cap``: the caller grows it and calls again)."""
     cdef Py_ssize_t n = ids.shape[0], cap = live.shape[0], i, j, k, n_end = 0, n_gone = 0
     cdef long long tid
     cdef double a, xi, yi
+    for i in range(n):
+        if ids[i] < 0 or ids[i] >= cap:
+            return None
     seen_a = np.zeros(cap, dtype=np.uint8)
     cdef unsigned char[::1] seen = seen_a
     ended_a = np.empty((n + cap, 7))
@@ -229,22 +232,26 @@ MF_COLS = 2
 
 
 @cython.cdivision(True)
-def monitor_pass(list conf, const long long[::1] ids, long long[:, ::1] mi, double[:, ::1] mf, list meters,
-                 meter_cls, list s, list vs, list speed, list lane_idx, list lane_sure, const long long[::1] lane_dir,
-                 ext, long long t_ns, long long dt_ns, tuple p, list sample_lists, tuple class_names, list edges, with_fn):
+def monitor_pass(tuple tracks, const long long[::1] sel, list conf, const long long[::1] ids, long long[:, ::1] mi,
+                 double[:, ::1] mf, list meters, meter_cls, list s, list vs, list speed, list lane_idx, list lane_sure,
+                 const long long[::1] lane_dir, ext, long long t_ns, long long dt_ns, tuple p, list accs,
+                 tuple class_names, list edges, track_cls, with_fn):
     """The per-track loop of :meth:`edge.traffic.TrafficMonitor.update` (its reference, ``_track_pass``) over the
     confirmed tracks ``conf`` (ids ``ids``) in one call, their memory in the tables ``mi`` (cap, M_COLS) int64 and
     ``mf`` (cap, MF_COLS) float64 indexed by track id and ``meters`` (their LengthMeter objects, ``meter_cls``).
     ``s``, ``vs``, ``speed``, ``lane_idx``, ``lane_sure``: :func:`road_lanes`'s; ``lane_dir``: +1/-1 per lane;
     ``ext``: body extent per track (m, NaN: none) or None; ``t_ns``, ``dt_ns``: the frame's time and duration (ns);
-    ``p``: the configuration's parameters (``TrafficMonitor._pass_params``);
-    ``sample_lists``: each lane's presence samples; ``with_fn``: the TrackState copy with lane, class and length.
+    ``p``: the configuration's parameters (``TrafficMonitor._pass_params``); ``accs``: each lane's
+    LaneAccumulator (presence samples and frames are appended); ``tracks``: all tracks, ``sel`` the indices of
+    ``conf`` in it; ``with_fn``: the TrackState copy with lane, class and length (None: copy the instance dict of
+    ``track_cls``, a frozen dataclass without ``__post_init__``, as ``monitor._with`` does).
 
-    Updates the tables, meters and samples; rows of ids not in ``ids`` end. Returns ``(out, presence, events,
-    actions)``: the published track per entry of ``conf``, a presence flag per lane, events ``(kind, id, lane)`` in
-    order, and the counting decisions left to the caller in track order: ``(0, j, lane)`` a new track to try
-    ``_count_late`` for, ``(1, j, lane, tc_ns)`` a crossing to count unless the lane counted its vehicle."""
-    cdef Py_ssize_t n = len(conf), cap = mi.shape[0], n_lanes = len(sample_lists), j, i, k
+    Updates the tables, meters and lanes' samples; rows of ids not in ``ids`` end. Returns ``(published, presence,
+    events, actions)``: the published tracks (a tuple like ``tracks``), a presence flag per lane, events ``(kind,
+    id, lane)`` in order, and the counting decisions left to the caller in track order: ``(0, j, lane)`` a new track
+    to try ``_count_late`` for, ``(1, j, lane, tc_ns)`` a crossing to count unless the lane counted its vehicle.
+    None, changing nothing, when an id does not fit the tables (the caller grows them and calls again)."""
+    cdef Py_ssize_t n = len(conf), cap = mi.shape[0], n_lanes = len(accs), j, i, k
     cdef long long tid, age, hits, tc, t0
     cdef double sj, vsj, spj, s0, f, e, est, L
     cdef bint fresh, has_ext = ext is not None, crossed, against
@@ -254,8 +261,12 @@ def monitor_pass(list conf, const long long[::1] ids, long long[:, ::1] mi, doub
     cdef double same_v = p[11], length_min_m = p[12]
     cdef long long ww_frames = p[13], stopped_min_ns = p[14], min_frames = p[15], keep = p[16]
     cdef bint late_on = p[17], dir_only = p[18], once = p[19]
+    for j in range(n):
+        if ids[j] < 0 or ids[j] >= cap:
+            return None
     if has_ext:
         ext_v = ext
+    sample_lists = [acc.samples for acc in accs]
     seen_a = np.zeros(cap, dtype=np.uint8)
     cdef unsigned char[::1] seen = seen_a
     presence = [False] * n_lanes
@@ -363,13 +374,40 @@ def monitor_pass(list conf, const long long[::1] ids, long long[:, ::1] mi, doub
         tcls = tr.cls
         if tcls is not None:
             cls_pub = tcls
-        out[j] = tr if (tr.lane, tcls, tr.length_m) == (lane, cls_pub, length_pub) else with_fn(
-            tr, lane, cls_pub, length_pub)
+        out[j] = tr if (tr.lane, tcls, tr.length_m) == (lane, cls_pub, length_pub) else _copy_with(
+            tr, lane, cls_pub, length_pub, track_cls, with_fn)
     for i in range(cap):
         if mi[i, M_LIVE] and not seen[i]:
             mi[i, M_LIVE] = 0
             meters[i] = None
-    return out, presence, events, actions
+    frame = (t_ns, dt_ns)
+    for acc in accs:
+        acc.frames.append(frame)
+    if n == len(tracks):
+        published = tuple(out)
+    else:  # tracks not confirmed: no length measured
+        pub = list(tracks)
+        for i in range(len(tracks)):
+            t = pub[i]
+            if t.length_m is not None:
+                pub[i] = _copy_with(t, t.lane, t.cls, None, track_cls, with_fn)
+        for j in range(n):
+            pub[sel[j]] = out[j]
+        published = tuple(pub)
+    return published, presence, events, actions
+
+
+cdef object _copy_with(tr, lane, cls, length, track_cls, with_fn):
+    """``monitor._with(tr, lane, cls, length)``."""
+    if with_fn is not None:
+        return with_fn(tr, lane, cls, length)
+    out = track_cls.__new__(track_cls)
+    d = out.__dict__
+    d.update(tr.__dict__)
+    d["lane"] = lane
+    d["cls"] = cls
+    d["length_m"] = length
+    return out
 
 
 cdef bint _same_wrong_way_driver(list conf, const long long[::1] ids, long long[:, ::1] mi, list s, list vs,

@@ -122,12 +122,13 @@ class YawEstimator(native.KernelUser):
     def add(self, ids: np.ndarray, age: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
         """Accumulate this frame's confirmed tracks; tracks that ended (or whose id was recycled) vote."""
         if self._k is not None:
-            ids = np.ascontiguousarray(ids, dtype=np.int64)
-            if ids.size and int(ids.max()) >= self._live.shape[0]:
-                self._grow(int(ids.max()) + 1)
-            ended, self._next_seq = self._k.yaw_add(
-                self._acc, self._live, self._seq, self._next_seq, ids, np.ascontiguousarray(age, dtype=np.int64),
-                np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64))
+            ids, age = np.asarray(ids, dtype=np.int64), np.asarray(age, dtype=np.int64)
+            x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+            while (res := self._k.yaw_add(self._acc, self._live, self._seq, self._next_seq, ids, age, x, y)) is None:
+                if int(ids.min()) < 0:
+                    raise ValueError("track ids are >= 0")
+                self._grow(int(ids.max()) + 1)  # an id beyond the table
+            ended, self._next_seq = res
             for row in ended.tolist():
                 self._vote(row)
             self._n_live = ids.size  # (the running tracks are this frame's: the others ended)

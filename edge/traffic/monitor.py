@@ -291,20 +291,24 @@ class TrafficMonitor(native.KernelUser):
         stats = self.stats
         lanes = self.lanes
         n_lanes = len(lanes)
-        if ids.size and int(ids.max()) >= self._mi.shape[0]:
-            old = self._mi.shape[0]
+        ext = None
+        if extent_m is not None and len(extent_m) == len(tracks):
+            ext = np.ascontiguousarray(np.asarray(extent_m, dtype=np.float64)[sel])
+        while True:
+            res = self._kernel.monitor_pass(
+                tracks, sel, conf, ids, self._mi, self._mf, self._meters, LengthMeter, s, vs, speed, lane_idx,
+                lane_sure, self._lane_arrays[3], ext, t_ns, dt_ns, self._pass_params(),
+                [stats.lane(k) for k in range(n_lanes)], stats.class_names, stats._edge_list, TrackState,
+                _with if _TRACK_POST_INIT else None)
+            if res is not None:
+                break
+            old = self._mi.shape[0]  # a track id beyond the tables: grow them
             cap = max(int(ids.max()) + 1, 2 * old, 64)
             mi, mf = np.zeros((cap, self._mi.shape[1]), dtype=np.int64), np.zeros((cap, self._mf.shape[1]))
             mi[:old], mf[:old] = self._mi, self._mf
             self._mi, self._mf = mi, mf
             self._meters.extend([None] * (cap - old))
-        ext = None
-        if extent_m is not None and len(extent_m) == len(tracks):
-            ext = np.ascontiguousarray(np.asarray(extent_m, dtype=np.float64)[sel])
-        out, presence, raw_events, actions = self._kernel.monitor_pass(
-            conf, ids, self._mi, self._mf, self._meters, LengthMeter, s, vs, speed, lane_idx, lane_sure,
-            self._lane_arrays[3], ext, t_ns, dt_ns, self._pass_params(), [stats.lane(k).samples for k in range(n_lanes)],
-            stats.class_names, stats._edge_list, _with)
+        published, presence, raw_events, actions = res
         for a in actions:  # (few: tracks born in a lane and crossings)
             j, k = a[1], a[2]
             tid = id_list[j]
@@ -317,16 +321,7 @@ class TrafficMonitor(native.KernelUser):
                 if not self._same_vehicle(acc, a[3]):
                     acc.add(Crossing(a[3], speed[j], float("nan"), conf[j].cls, meter))
                     self._mi[tid, 9] = 1
-        for k in range(n_lanes):
-            stats.lane(k).frames.append((t_ns, dt_ns))
         closed = stats.tick(t_ns, n_lanes)
-        if len(conf) == len(tracks):
-            published = tuple(out)
-        else:  # tracks not confirmed: no length measured
-            pub = [t if t.length_m is None else _with(t, t.lane, t.cls, None) for t in tracks]
-            for k, o in zip(sel.tolist(), out):
-                pub[k] = o
-            published = tuple(pub)
         return TrafficUpdate(published, tuple(presence), closed,
                              tuple(TrafficEvent(kind, tid, lane, t_ns) for kind, tid, lane in raw_events))
 
@@ -340,7 +335,8 @@ class TrafficMonitor(native.KernelUser):
         cfg = self.config
         kern = self._kernel
         if kern is not None:
-            conf, sel, kin, ids, age = kern.track_kin(tuple(tracks))
+            tracks = tuple(tracks)
+            conf, sel, kin, ids, age = kern.track_kin(tracks)
         else:
             sel = [k for k, t in enumerate(tracks) if t.confirmed and t.track_id > 0]
             conf = [tracks[k] for k in sel]
