@@ -424,3 +424,107 @@ cdef bint _same_wrong_way_driver(list conf, const long long[::1] ids, long long[
                 and fabs(<double>s[i] - sj) <= same_m and fabs(<double>vs[i] - vsj) <= same_v):
             return True
     return False
+
+
+cdef double _pairwise_sum(const double *a, Py_ssize_t n) noexcept nogil:
+    """``numpy.add.reduce`` of a contiguous float64 array of ``n`` values, numpy's pairwise summation (8 partial
+    sums per block of up to 128), so the sum is bit-identical to numpy's."""
+    cdef Py_ssize_t i, k, n2
+    cdef double r[8]
+    cdef double res
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[i]
+        return res
+    if n <= 128:
+        for k in range(8):
+            r[k] = a[k]
+        i = 8
+        while i < n - (n % 8):
+            for k in range(8):
+                r[k] += a[i + k]
+            i += 8
+        res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+        while i < n:
+            res += a[i]
+            i += 1
+        return res
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise_sum(a, n2) + _pairwise_sum(a + n2, n - n2)
+
+
+@cython.cdivision(True)
+def weighted_median(votes, const double[::1] live, const double[::1] w):
+    """The start-up yaw estimate of :meth:`YawEstimator.estimate_rad` for up to 64 votes: the ended tracks'
+    ``votes`` (rad, each weighted as the largest live weight, or 1) and the running tracks' ``live`` votes (rad)
+    with weights ``w``. Returns ``(median, stderr)`` (rad): the weighted median (the first value, in stable order of
+    value, whose cumulative weight reaches half the total) and ``_median_stderr``'s error, in the reference's
+    operations and summation order; None for more than 64 votes or a NaN among them or their weights (the
+    caller's numpy path)."""
+    cdef Py_ssize_t nv = len(votes), nl = live.shape[0], n = nv + nl, i, j
+    cdef double top, x, wx, sw, mean, n_eff, var, d, half, acc
+    if n > 64:
+        return None
+    cdef double v[64]
+    cdef double wt[64]
+    cdef double tmp[64]
+    cdef int order[64]
+    cdef int oi
+    top = 1.0
+    if nl:
+        top = w[0]
+        for i in range(1, nl):
+            if w[i] > top:
+                top = w[i]
+    i = 0
+    for x in votes:
+        v[i] = x
+        wt[i] = top
+        i += 1
+    for j in range(nl):
+        v[nv + j] = live[j]
+        wt[nv + j] = w[j]
+    for i in range(n):
+        if v[i] != v[i] or wt[i] != wt[i]:
+            return None
+    # _median_stderr
+    if n < 2:
+        se = INFINITY
+    else:
+        sw = _pairwise_sum(wt, n)
+        if sw <= 0.0:
+            se = INFINITY
+        else:
+            for i in range(n):
+                tmp[i] = wt[i] * v[i]
+            mean = _pairwise_sum(tmp, n) / sw
+            for i in range(n):
+                tmp[i] = wt[i] * wt[i]
+            n_eff = sw * sw / _pairwise_sum(tmp, n)
+            if n_eff <= 1.0:
+                se = INFINITY
+            else:
+                for i in range(n):
+                    d = v[i] - mean
+                    tmp[i] = wt[i] * (d * d)
+                var = _pairwise_sum(tmp, n) / sw * n_eff / (n_eff - 1.0)
+                se = 1.2533 * sqrt(var / n_eff)
+    # stable sort by value (insertion sort), cumulative weights, bisect_left at half the total
+    for i in range(n):
+        oi = i
+        j = i - 1
+        while j >= 0 and v[order[j]] > v[oi]:
+            order[j + 1] = order[j]
+            j -= 1
+        order[j + 1] = oi
+    acc = 0.0
+    for i in range(n):
+        acc = wt[order[i]] if i == 0 else acc + wt[order[i]]
+        tmp[i] = acc
+    half = 0.5 * tmp[n - 1]
+    i = 0
+    while i < n and tmp[i] < half:
+        i += 1
+    return v[order[i]], se

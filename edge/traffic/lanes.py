@@ -248,6 +248,9 @@ class YawEstimator(native.KernelUser):
         if len(votes_l) + live.size < self.cfg.yaw_min_tracks:
             self._stderr = None
             return None
+        if self._k is not None and (res := self._k.weighted_median(self._votes, live, w)) is not None:
+            self._stderr = res[1]
+            return res[0]
         top = float(np.maximum.reduce(w)) if w.size else 1.0  # (w.max() without its wrapper)
         if len(votes_l) + live.size <= 64:  # a handful of tracks: the same weighted median in plain Python
             vals, wts = votes_l + live.tolist(), [top] * len(votes_l) + w.tolist()

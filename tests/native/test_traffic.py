@@ -172,3 +172,24 @@ def test_traffic_monitor_kernel_equals_the_reference_on_random_scenes(monkeypatc
         n_len += sum(t.length_m is not None and t.lane is not None for t in a.tracks)
     assert kinds.get("wrong_way", 0) > 0 and kinds.get("stopped_vehicle", 0) > 0, kinds
     assert volume > 20 and n_len > 100
+
+
+def test_start_up_weighted_median_and_its_error_equal_the_reference_bit_for_bit(monkeypatch):
+    """The kernel's weighted median and standard error (numpy's pairwise summation) against the reference's plain
+    Python / numpy path, on random votes and weights, ties included; beyond 64 votes the kernel declines."""
+    k = require_kernel("_traffic")
+    rng = np.random.default_rng(7)
+    for trial in range(400):
+        nv, nl = int(rng.integers(0, 20)), int(rng.integers(1, 45))
+        votes = rng.normal(0.02, 0.01, nv).tolist()
+        live = rng.normal(0.02, 0.02, nl)
+        if trial % 4 == 0:
+            live = np.round(live, 2)  # ties between values
+        w = rng.uniform(0.1, 10.0, nl) ** 3
+        ref = YawEstimator(TrafficConfig(yaw_min_tracks=nv + 1, yaw_window_tracks=64), kernels=False)
+        ref._votes.extend(votes)
+        monkeypatch.setattr(ref, "live_votes_weighted", lambda live=live, w=w: (live, w))
+        want = ref.estimate_rad()
+        got = k.weighted_median(ref._votes, np.ascontiguousarray(live), w)
+        assert got is not None and got[0] == want and _same_float(got[1], ref.stderr_rad), trial
+    assert k.weighted_median([0.0] * 40, np.zeros(25), np.ones(25)) is None  # 65 votes: the numpy path
