@@ -10,7 +10,7 @@ from edge import native
 from edge.pipeline import StageTimer
 
 #: the kernels this check covers
-DETECT_KERNELS = ("_spectra", "_peaks", "_track", "_pairs", "_angles")
+DETECT_KERNELS = ("_spectra", "_peaks", "_track", "_pairs", "_angles", "_traffic")
 #: relative tolerance on track floats: the tracker kernel's small matrix products sum in another order than BLAS
 TRACK_RTOL = 1e-9
 

@@ -193,3 +193,30 @@ def test_start_up_weighted_median_and_its_error_equal_the_reference_bit_for_bit(
         got = k.weighted_median(ref._votes, np.ascontiguousarray(live), w)
         assert got is not None and got[0] == want and _same_float(got[1], ref.stderr_rad), trial
     assert k.weighted_median([0.0] * 40, np.zeros(25), np.ones(25)) is None  # 65 votes: the numpy path
+
+
+def test_lane_pipeline_with_and_without_the_traffic_kernel_publishes_the_same(monkeypatch):
+    """End to end, only the traffic layer switched: the lane pipeline on highway4-traffic (seed 1, 120 frames, lane
+    statistics every 2 s)
+    with the traffic kernel and with the traffic reference (all other kernels as built) gives identical
+    detections, published tracks (lanes, lengths, classes included), presence, lane statistics and events."""
+    require_kernel("_traffic")
+    from tests.edge import lane_golden as g
+
+    fast, frames = g.build("highway4-traffic", 1, 2.0)  # (lane statistics every 2 s)
+    slow, _ = g.build("highway4-traffic", 1, 2.0)
+    monkeypatch.setenv("RADAR_EDGE_KERNELS", "0")
+    slow.traffic = TrafficMonitor(slow.traffic.config)
+    monkeypatch.delenv("RADAR_EDGE_KERNELS")
+    assert fast.traffic._kernel is not None and slow.traffic._kernel is None
+    ta, tb = StageTimer(16), StageTimer(16)
+    n_lane = n_stats = 0
+    for f in frames(120):
+        a, b = fast.process(f, ta), slow.process(f, tb)
+        np.testing.assert_array_equal(a.detections.range_m, b.detections.range_m, err_msg=f"frame {f.seq}")
+        assert a.tracks == b.tracks, f.seq
+        assert a.presence == b.presence and a.events == b.events, f.seq
+        assert repr(a.lane_stats) == repr(b.lane_stats), f.seq
+        n_lane += sum(t.lane is not None for t in a.tracks)
+        n_stats += len(a.lane_stats)
+    assert n_lane > 500 and n_stats >= 4  # (one interval closed, four lanes)
