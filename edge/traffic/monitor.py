@@ -89,6 +89,9 @@ class _Memo:
     meter: LengthMeter | None = None  # its length measurement (edge.traffic.stats)
 
 
+#: columns of the kernel's memo table (``_M_COLS`` wide): ``M_COUNTED`` and ``M_COLS`` of edge/native/_traffic.pyx
+_M_COUNTED, _M_COLS = 9, 10
+
 #: TrackState validates in ``__post_init__``: then only ``dataclasses.replace`` is a faithful copy
 _TRACK_POST_INIT = hasattr(TrackState, "__post_init__")
 
@@ -123,7 +126,7 @@ class TrafficMonitor(native.KernelUser):
         self._lane_arrays: tuple = (None,) * 4  # (lanes, centres, half widths, directions) for the kernel
         #: the kernel's memory of the tracks it follows, one row per track id (edge.native._traffic's M_* columns;
         #: mf: along-road position when last seen, largest speed) and their length meters
-        self._mi = np.zeros((0, 10), dtype=np.int64)
+        self._mi = np.zeros((0, _M_COLS), dtype=np.int64)
         self._mf = np.zeros((0, 2))
         self._meters: list[LengthMeter | None] = []
         self._params: tuple = (None, None)  # (config, the kernel's parameters from it)
@@ -314,13 +317,13 @@ class TrafficMonitor(native.KernelUser):
             tid = id_list[j]
             meter = self._meters[tid]
             if a[0] == 0:
-                self._mi[tid, 9] = self._count_late(conf[j], k, lanes[k].direction, s[j], vs[j], speed[j], meter,
-                                                    t_ns, float(margin[j]))
+                self._mi[tid, _M_COUNTED] = self._count_late(conf[j], k, lanes[k].direction, s[j], vs[j], speed[j],
+                                                             meter, t_ns, float(margin[j]))
             else:
                 acc = stats.lane(k)
                 if not self._same_vehicle(acc, a[3]):
                     acc.add(Crossing(a[3], speed[j], float("nan"), conf[j].cls, meter))
-                    self._mi[tid, 9] = 1
+                    self._mi[tid, _M_COUNTED] = 1
         closed = stats.tick(t_ns, n_lanes)
         return TrafficUpdate(published, tuple(presence), closed,
                              tuple(TrafficEvent(kind, tid, lane, t_ns) for kind, tid, lane in raw_events))
