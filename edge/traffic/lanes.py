@@ -32,6 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge import native
+
 __all__ = ["Lane", "to_road", "assign_lanes", "assign_lanes_with_margin", "YawEstimator", "LaneLearner", "configured_lanes"]
 
 
@@ -88,19 +90,53 @@ _lane_arrays: tuple = (None, None, None)
 _SMALL = 24
 
 
-class YawEstimator:
+class YawEstimator(native.KernelUser):
     """Mounting yaw from the directions of straight tracks (see the module docstring)."""
 
-    def __init__(self, cfg) -> None:
+    def __init__(self, cfg, kernels: bool = True) -> None:
+        """``kernels``: use the compiled kernel ``edge.native._traffic`` when it is built (False: the Python
+        reference on a dict of sums)."""
         self.cfg = cfg
         self._sums: dict[int, list[float]] = {}  # track_id -> [n, sx, sy, sxx, syy, sxy, age]
+        #: the kernel's table of the same sums, indexed by track id (edge.native._traffic): rows, running flags,
+        #: insertion order
+        self._k = native.load("_traffic") if kernels else None
+        self._acc = np.zeros((0, 7))
+        self._live = np.zeros(0, dtype=np.uint8)
+        self._seq = np.zeros(0, dtype=np.int64)
+        self._next_seq = 0
+        self._n_live = 0
         self._votes: deque[float] = deque(maxlen=cfg.yaw_window_tracks)
         self._n_voted = 0  # votes ever cast (the median of the window changes only with a new one)
         self._median: tuple[int, float, float] | None = None  # (_n_voted, median of the window, its stderr)
         self._stderr: float | None = None  # standard error of the last estimate
 
+    def _grow(self, cap: int) -> None:
+        """Make the kernel's table hold track ids below ``cap``."""
+        old = self._live.shape[0]
+        cap = max(cap, 2 * old, 64)
+        acc, live, seq = np.zeros((cap, 7)), np.zeros(cap, dtype=np.uint8), np.zeros(cap, dtype=np.int64)
+        acc[:old], live[:old], seq[:old] = self._acc, self._live, self._seq
+        self._acc, self._live, self._seq = acc, live, seq
+
     def add(self, ids: np.ndarray, age: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
         """Accumulate this frame's confirmed tracks; tracks that ended (or whose id was recycled) vote."""
+        if self._k is not None:
+            ids, age = np.asarray(ids, dtype=np.int64), np.asarray(age, dtype=np.int64)
+            x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+            while (res := self._k.yaw_add(self._acc, self._live, self._seq, self._next_seq, ids, age, x, y)) is None:
+                if int(ids.min()) < 0:
+                    raise ValueError("track ids are >= 0")
+                self._grow(int(ids.max()) + 1)  # an id beyond the table
+            ended, self._next_seq = res
+            for row in ended.tolist():
+                self._vote(row)
+            self._n_live = ids.size  # (the running tracks are this frame's: the others ended)
+            return
+        self.add_reference(ids, age, x, y)
+
+    def add_reference(self, ids: np.ndarray, age: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
+        """:meth:`add` in Python on the dict of sums (the kernel's reference)."""
         seen = set()
         for i, a, xi, yi in zip(ids.tolist(), age.tolist(), x.tolist(), y.tolist()):
             acc = self._sums.get(i)
@@ -152,6 +188,12 @@ class YawEstimator:
         straight so far): at start-up they give the estimate long before enough tracks have ended.
         Weights: the inverse variance of a line's angle fitted to ``n`` points spread ``sd_along`` along
         and ``sd_across`` across it, ``n sd_along^2 / sd_across^2`` (long, dense, straight tracks count most)."""
+        if self._k is not None:
+            if not self._n_live:
+                return np.zeros(0), np.zeros(0)
+            num, den, w = self._k.yaw_live_terms(self._acc, self._live, self._seq, self.cfg.yaw_live_min_length_m,
+                                                 self.cfg.yaw_max_lateral_sd_m)
+            return -(0.5 * np.arctan2(num, den)), w
         if not self._sums:
             return np.zeros(0), np.zeros(0)
         if len(self._sums) <= _SMALL:
@@ -206,6 +248,9 @@ class YawEstimator:
         if len(votes_l) + live.size < self.cfg.yaw_min_tracks:
             self._stderr = None
             return None
+        if self._k is not None and (res := self._k.weighted_median(self._votes, live, w)) is not None:
+            self._stderr = res[1]
+            return res[0]
         top = float(np.maximum.reduce(w)) if w.size else 1.0  # (w.max() without its wrapper)
         if len(votes_l) + live.size <= 64:  # a handful of tracks: the same weighted median in plain Python
             vals, wts = votes_l + live.tolist(), [top] * len(votes_l) + w.tolist()

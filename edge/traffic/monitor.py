@@ -54,6 +54,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge import native
 from edge.traffic.calibration import Calibration, CalibrationError, CalibrationWriter, load_calibration
 from edge.traffic.config import TrafficConfig
 from edge.traffic.lanes import Lane, LaneLearner, YawEstimator, assign_lanes_with_margin, configured_lanes
@@ -88,6 +89,9 @@ class _Memo:
     meter: LengthMeter | None = None  # its length measurement (edge.traffic.stats)
 
 
+#: columns of the kernel's memo table (``_M_COLS`` wide): ``M_COUNTED`` and ``M_COLS`` of edge/native/_traffic.pyx
+_M_COUNTED, _M_COLS = 9, 10
+
 #: TrackState validates in ``__post_init__``: then only ``dataclasses.replace`` is a faithful copy
 _TRACK_POST_INIT = hasattr(TrackState, "__post_init__")
 
@@ -106,7 +110,7 @@ def _with(tr: TrackState, lane: int | None, cls: str | None, length_m: float | N
     return out
 
 
-class TrafficMonitor:
+class TrafficMonitor(native.KernelUser):
     def __init__(self, config: TrafficConfig | None = None) -> None:
         self.config = cfg = config or TrafficConfig()
         self.yaw_rad = math.radians(cfg.mounting_yaw_deg)
@@ -117,6 +121,15 @@ class TrafficMonitor:
         self.learner = LaneLearner(cfg)
         self.stats = IntervalStatistics(cfg)
         self._memo: dict[int, _Memo] = {}
+        #: the compiled per-track work (edge.native._traffic), None: the numpy/Python reference
+        self._kernel = native.load("_traffic")
+        self._lane_arrays: tuple = (None,) * 4  # (lanes, centres, half widths, directions) for the kernel
+        #: the kernel's memory of the tracks it follows, one row per track id (edge.native._traffic's M_* columns;
+        #: mf: along-road position when last seen, largest speed) and their length meters
+        self._mi = np.zeros((0, _M_COLS), dtype=np.int64)
+        self._mf = np.zeros((0, 2))
+        self._meters: list[LengthMeter | None] = []
+        self._params: tuple = (None, None)  # (config, the kernel's parameters from it)
         self._last_t_ns: int | None = None
         self._first_t_ns: int | None = None
         self._next_learn_ns: int | None = None
@@ -260,6 +273,61 @@ class TrafficMonitor:
                 return True
         return False
 
+    def _pass_params(self) -> tuple:
+        """The configuration's parameters of ``_traffic.monitor_pass`` (in its order)."""
+        cfg = self.config
+        if self._params[0] is not cfg:
+            zone_lo = cfg.detection_line_m - 0.5 * cfg.presence_zone_m
+            self._params = (cfg, (
+                cfg.detection_line_m, cfg.length_range_m[0], cfg.length_range_m[1], cfg.default_vehicle_length_m,
+                zone_lo, cfg.detection_line_m + 0.5 * cfg.presence_zone_m, zone_lo - 20.0,
+                cfg.wrong_way_min_speed_mps, cfg.stopped_speed_mps, cfg.moving_speed_mps, cfg.wrong_way_same_driver_m,
+                cfg.wrong_way_same_driver_speed_mps, cfg.length_min_m, cfg.wrong_way_min_frames,
+                int(cfg.stopped_min_s * 1e9), cfg.length_min_frames, cfg.length_outliers + 1,
+                cfg.count_late_max_m > 0, cfg.count_lane_direction_only, cfg.count_once_per_track))
+        return self._params[1]
+
+    def _kernel_pass(self, tracks, conf, sel, ids, id_list, s, vs, speed, lane_idx, margin, lane_sure, extent_m,
+                     t_ns: int, dt_ns: int) -> TrafficUpdate:
+        """The per-track part of :meth:`update` with the kernel (``_traffic.monitor_pass``); the counting decisions
+        that read and add the lanes' counted crossings stay here, in the reference's order."""
+        stats = self.stats
+        lanes = self.lanes
+        n_lanes = len(lanes)
+        ext = None
+        if extent_m is not None and len(extent_m) == len(tracks):
+            ext = np.ascontiguousarray(np.asarray(extent_m, dtype=np.float64)[sel])
+        while True:
+            res = self._kernel.monitor_pass(
+                tracks, sel, conf, ids, self._mi, self._mf, self._meters, LengthMeter, s, vs, speed, lane_idx,
+                lane_sure, self._lane_arrays[3], ext, t_ns, dt_ns, self._pass_params(),
+                [stats.lane(k) for k in range(n_lanes)], stats.class_names, stats._edge_list, TrackState,
+                _with if _TRACK_POST_INIT else None)
+            if res is not None:
+                break
+            old = self._mi.shape[0]  # a track id beyond the tables: grow them
+            cap = max(int(ids.max()) + 1, 2 * old, 64)
+            mi, mf = np.zeros((cap, self._mi.shape[1]), dtype=np.int64), np.zeros((cap, self._mf.shape[1]))
+            mi[:old], mf[:old] = self._mi, self._mf
+            self._mi, self._mf = mi, mf
+            self._meters.extend([None] * (cap - old))
+        published, presence, raw_events, actions = res
+        for a in actions:  # (few: tracks born in a lane and crossings)
+            j, k = a[1], a[2]
+            tid = id_list[j]
+            meter = self._meters[tid]
+            if a[0] == 0:
+                self._mi[tid, _M_COUNTED] = self._count_late(conf[j], k, lanes[k].direction, s[j], vs[j], speed[j],
+                                                             meter, t_ns, float(margin[j]))
+            else:
+                acc = stats.lane(k)
+                if not self._same_vehicle(acc, a[3]):
+                    acc.add(Crossing(a[3], speed[j], float("nan"), conf[j].cls, meter))
+                    self._mi[tid, _M_COUNTED] = 1
+        closed = stats.tick(t_ns, n_lanes)
+        return TrafficUpdate(published, tuple(presence), closed,
+                             tuple(TrafficEvent(kind, tid, lane, t_ns) for kind, tid, lane in raw_events))
+
     def update(self, tracks: tuple[TrackState, ...], t_ns: int, yaw_x_m: np.ndarray | None = None,
                extent_m: np.ndarray | None = None) -> TrafficUpdate:
         """``yaw_x_m``: per track of ``tracks`` the across-boresight position the yaw estimator takes instead of
@@ -268,18 +336,24 @@ class TrafficMonitor:
         the along-road extent of the body behind its detection this frame (NaN without one; the lane pipeline's
         ``body_extent_m``): the tracks' lengths are measured from it (without it, lengths and classes stay n/a)."""
         cfg = self.config
-        sel = [k for k, t in enumerate(tracks) if t.confirmed and t.track_id > 0]
-        conf = [tracks[k] for k in sel]
+        kern = self._kernel
+        if kern is not None:
+            tracks = tuple(tracks)
+            conf, sel, kin, ids, age = kern.track_kin(tracks)
+        else:
+            sel = [k for k, t in enumerate(tracks) if t.confirmed and t.track_id > 0]
+            conf = [tracks[k] for k in sel]
         dt_ns = 0 if self._last_t_ns is None else max(t_ns - self._last_t_ns, 0)
         dt_ns = min(dt_ns, 1_000_000_000)  # a stall does not count as occupied time
         self._last_t_ns = t_ns
         if self._first_t_ns is None:
             self._first_t_ns = t_ns
         # one (n, 6) array: track id, age, x, y, vx, vy (ids and ages are exact in float64)
-        kin = np.array([(t.track_id, t.age_frames, t.x_m, t.y_m, t.vx_mps, t.vy_mps) for t in conf],
-                       dtype=np.float64).reshape(-1, 6)
-        ids = kin[:, 0].astype(np.int64)
-        age = kin[:, 1].astype(np.int64)
+        if kern is None:
+            kin = np.array([(t.track_id, t.age_frames, t.x_m, t.y_m, t.vx_mps, t.vy_mps) for t in conf],
+                           dtype=np.float64).reshape(-1, 6)
+            ids = kin[:, 0].astype(np.int64)
+            age = kin[:, 1].astype(np.int64)
         x, y, vx, vy = kin[:, 2], kin[:, 3], kin[:, 4], kin[:, 5]
 
         # mounting yaw and lanes
@@ -316,22 +390,35 @@ class TrafficMonitor:
 
         # the road frame (to_road's operations; of the velocities only the along-road part is used)
         cy, sy = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
-        u, s_arr = x * cy + y * sy, -x * sy + y * cy
-        vs_arr = -vx * sy + vy * cy
-        # plain Python floats for the per-track loop (numpy scalars are slow one at a time)
-        s, vs = s_arr.tolist(), vs_arr.tolist()
-        speed = np.hypot(vx, vy).tolist()
-        lane_idx, margin = assign_lanes_with_margin(u, lanes)
         # wrong-way gate: the track is wrong_way_lane_sigmas standard deviations inside its lane, the lateral
         # uncertainty being range x the yaw's (a wrong yaw turns the road frame about the radar) and the track's
         # own azimuth error's
-        sure = lane_idx >= 0
         lat_sigma = math.hypot(yaw_sigma, math.radians(cfg.wrong_way_azimuth_sigma_deg))
-        if lat_sigma > 0.0 and cfg.wrong_way_lane_sigmas > 0.0:
-            sure &= margin >= cfg.wrong_way_lane_sigmas * lat_sigma * np.hypot(x, y)
-        lane_sure = sure.tolist()
-        lane_idx = lane_idx.tolist()
+        gated = lat_sigma > 0.0 and cfg.wrong_way_lane_sigmas > 0.0
+        if kern is not None:
+            if self._lane_arrays[0] is not lanes:  # (the lanes change rarely)
+                self._lane_arrays = (lanes, np.array([ln.center_m for ln in lanes], dtype=np.float64),
+                                     0.5 * np.array([ln.width_m for ln in lanes], dtype=np.float64),
+                                     np.array([ln.direction for ln in lanes], dtype=np.int64))
+            s, vs, speed, lane_idx, margin, lane_sure = kern.road_lanes(
+                kin, cy, sy, self._lane_arrays[1], self._lane_arrays[2],
+                cfg.wrong_way_lane_sigmas * lat_sigma if gated else -1.0)
+        else:
+            u, s_arr = x * cy + y * sy, -x * sy + y * cy
+            vs_arr = -vx * sy + vy * cy
+            # plain Python floats for the per-track loop (numpy scalars are slow one at a time)
+            s, vs = s_arr.tolist(), vs_arr.tolist()
+            speed = np.hypot(vx, vy).tolist()
+            lane_idx, margin = assign_lanes_with_margin(u, lanes)
+            sure = lane_idx >= 0
+            if gated:
+                sure &= margin >= cfg.wrong_way_lane_sigmas * lat_sigma * np.hypot(x, y)
+            lane_sure = sure.tolist()
+            lane_idx = lane_idx.tolist()
         id_list = ids.tolist()
+        if kern is not None:
+            return self._kernel_pass(tracks, conf, sel, ids, id_list, s, vs, speed, lane_idx, margin, lane_sure,
+                                     extent_m, t_ns, dt_ns)
         presence = [False] * n_lanes
         ext = None
         if extent_m is not None and len(extent_m) == len(tracks):

@@ -422,7 +422,7 @@ def test_start_up_live_votes_plain_python_path_is_bit_identical_to_the_array_pat
     from edge.traffic import TrafficConfig
 
     rng = np.random.default_rng(11)
-    est = lanes_mod.YawEstimator(TrafficConfig())
+    est = lanes_mod.YawEstimator(TrafficConfig(), kernels=False)  # (the kernel path has no _SMALL switch)
     n_votes = 0
     for frame in range(80):
         ids = np.arange(1, 11)

@@ -1,0 +1,530 @@
+# cython: language_level=3
+# distutils: extra_compile_args = -ffp-contract=off
+"""Compiled core of the traffic layer's per-track work (issue 30): the mounting-yaw estimator's running sums.
+
+The reference is :class:`edge.traffic.lanes.YawEstimator` on its dict of per-track sums (``add``,
+``_live_votes_small``). Here the sums are a struct-of-arrays table indexed by track id (track ids are small
+recycled integers): ``acc`` (cap, 7) = n, sum x, sum y, sum x^2, sum y^2, sum xy, last age; ``live`` (cap,) 1 while
+the track runs; ``seq`` (cap,) the order in which the reference's dict would hold the track (insertion order; a
+recycled id keeps its place). Same float64 operations in the same order: bit-identical (built without
+contraction into fused multiply-adds).
+"""
+
+cimport cython
+from libc.math cimport sqrt, hypot, fabs, rint, INFINITY
+
+import numpy as np
+
+
+cdef inline void _sort_by_seq(long long *ids, Py_ssize_t n, const long long[::1] seq) noexcept nogil:
+    """Insertion sort of ``ids`` by ``seq[id]`` (a handful of running tracks)."""
+    cdef Py_ssize_t i, j
+    cdef long long k
+    for i in range(1, n):
+        k = ids[i]
+        j = i - 1
+        while j >= 0 and seq[ids[j]] > seq[k]:
+            ids[j + 1] = ids[j]
+            j -= 1
+        ids[j + 1] = k
+
+
+@cython.cdivision(True)
+def yaw_add(double[:, ::1] acc, unsigned char[::1] live, long long[::1] seq, long long next_seq,
+            const long long[:] ids, const long long[:] age, const double[:] x, const double[:] y):
+    """One frame of :meth:`YawEstimator.add` on the table: accumulates the confirmed tracks ``ids`` (with their
+    ``age`` and position ``x``, ``y`` in m); a recycled id (its age dropped) and a running track not in ``ids``
+    end. Returns ``(ended, next_seq)``: the ended tracks' sums (k, 7) in the order the reference votes (recycled
+    ones in track order, then the others in insertion order) and the next insertion stamp; None, changing
+    nothing, when an id does not fit the table (``id >= cap``: the caller grows it and calls again)."""
+    cdef Py_ssize_t n = ids.shape[0], cap = live.shape[0], i, j, k, n_end = 0, n_gone = 0
+    cdef long long tid
+    cdef double a, xi, yi
+    for i in range(n):
+        if ids[i] < 0 or ids[i] >= cap:
+            return None
+    seen_a = np.zeros(cap, dtype=np.uint8)
+    cdef unsigned char[::1] seen = seen_a
+    ended_a = np.empty((n + cap, 7))
+    cdef double[:, ::1] ended = ended_a
+    gone_a = np.empty(cap, dtype=np.int64)
+    cdef long long[::1] gone = gone_a
+    for i in range(n):
+        tid = ids[i]
+        a = <double>age[i]
+        xi = x[i]
+        yi = y[i]
+        if live[tid] and a < acc[tid, 6]:  # id recycled: the old track ended
+            for k in range(7):
+                ended[n_end, k] = acc[tid, k]
+            n_end += 1
+            for k in range(7):
+                acc[tid, k] = 0.0
+        elif not live[tid]:
+            live[tid] = 1
+            seq[tid] = next_seq
+            next_seq += 1
+            for k in range(7):
+                acc[tid, k] = 0.0
+        acc[tid, 0] += 1.0
+        acc[tid, 1] += xi
+        acc[tid, 2] += yi
+        acc[tid, 3] += xi * xi
+        acc[tid, 4] += yi * yi
+        acc[tid, 5] += xi * yi
+        acc[tid, 6] = a
+        seen[tid] = 1
+    for j in range(cap):
+        if live[j] and not seen[j]:
+            gone[n_gone] = j
+            n_gone += 1
+    if n_gone > 1:
+        _sort_by_seq(&gone[0], n_gone, seq)
+    for i in range(n_gone):
+        tid = gone[i]
+        for k in range(7):
+            ended[n_end, k] = acc[tid, k]
+        n_end += 1
+        live[tid] = 0
+    return ended_a[:n_end], next_seq
+
+
+@cython.cdivision(True)
+def yaw_live_terms(const double[:, ::1] acc, const unsigned char[::1] live, const long long[::1] seq,
+                   double min_len, double max_sd):
+    """The running tracks that already vote (:meth:`YawEstimator._live_votes_small`'s test, in insertion order):
+    ``(num, den, w)``, the vote being ``-0.5 atan2(num, den)`` (rad) and ``w`` its weight. ``min_len``:
+    ``yaw_live_min_length_m`` (m); ``max_sd``: ``yaw_max_lateral_sd_m`` (m)."""
+    cdef Py_ssize_t cap = live.shape[0], j, i, n_live = 0, n_out = 0
+    cdef long long tid
+    cdef double a0, n, mx, my, cxx, cyy, cxy, half_tr, det, disc, major, minor, r, mn
+    ids_a = np.empty(cap, dtype=np.int64)
+    cdef long long[::1] ids = ids_a
+    for j in range(cap):
+        if live[j]:
+            ids[n_live] = j
+            n_live += 1
+    if n_live > 1:
+        _sort_by_seq(&ids[0], n_live, seq)
+    num_a = np.empty(n_live)
+    den_a = np.empty(n_live)
+    w_a = np.empty(n_live)
+    cdef double[::1] num = num_a, den = den_a, w = w_a
+    for i in range(n_live):
+        tid = ids[i]
+        a0 = acc[tid, 0]
+        n = a0 if a0 > 1.0 else 1.0
+        mx = acc[tid, 1] / n
+        my = acc[tid, 2] / n
+        cxx = acc[tid, 3] / n - mx * mx
+        cyy = acc[tid, 4] / n - my * my
+        cxy = acc[tid, 5] / n - mx * my
+        half_tr = 0.5 * (cxx + cyy)
+        det = cxx * cyy - cxy * cxy
+        r = half_tr * half_tr - det
+        if 0.0 > r:  # Python's max(r, 0.0): r unless 0.0 is larger (NaN stays)
+            r = 0.0
+        disc = sqrt(r)
+        major = half_tr + disc
+        minor = half_tr - disc
+        if 0.0 > minor:
+            minor = 0.0
+        if a0 >= 3 and sqrt(major * 12.0) >= min_len and sqrt(minor) <= max_sd:
+            mn = minor
+            if 0.01 > mn:
+                mn = 0.01
+            num[n_out] = 2.0 * cxy
+            den[n_out] = cyy - cxx
+            w[n_out] = a0 * major / mn
+            n_out += 1
+    return num_a[:n_out], den_a[:n_out], w_a[:n_out]
+
+
+def track_kin(tuple tracks):
+    """The traffic monitor's per-track table of the confirmed tracks (``confirmed`` and ``track_id`` > 0) of
+    ``tracks`` (TrackState objects): ``(conf, sel, kin, ids, age)``, ``conf`` those tracks, ``sel`` (n,) int64 their
+    indices in ``tracks``, ``kin`` (n, 6) float64 = track id, age (frames), x, y (m), vx, vy (m/s), as the
+    reference's ``np.array`` of tuples; ``ids``, ``age`` (n,) int64."""
+    cdef Py_ssize_t m = len(tracks), i, n = 0
+    sel_a = np.empty(m, dtype=np.int64)
+    cdef long long[::1] sel = sel_a
+    conf = []
+    for i in range(m):
+        t = tracks[i]
+        if t.confirmed and t.track_id > 0:
+            conf.append(t)
+            sel[n] = i
+            n += 1
+    kin_a = np.empty((n, 6))
+    ids_a = np.empty(n, dtype=np.int64)
+    age_a = np.empty(n, dtype=np.int64)
+    cdef double[:, ::1] kin = kin_a
+    cdef long long[::1] ids = ids_a, age = age_a
+    for i in range(n):
+        t = conf[i]
+        ids[i] = t.track_id
+        age[i] = t.age_frames
+        kin[i, 0] = <double>ids[i]
+        kin[i, 1] = <double>age[i]
+        kin[i, 2] = t.x_m
+        kin[i, 3] = t.y_m
+        kin[i, 4] = t.vx_mps
+        kin[i, 5] = t.vy_mps
+    return conf, sel_a[:n], kin_a, ids_a, age_a
+
+
+@cython.cdivision(True)
+def road_lanes(const double[:, ::1] kin, double cy, double sy, const double[::1] centers, const double[::1] half_w,
+               double sure_k):
+    """The road frame and the lanes of the tracks in ``kin`` (:func:`track_kin`) for a yaw of cos ``cy``, sin ``sy``:
+    as Python lists, the along-road position ``s`` (m) and speed ``vs`` (m/s), the speed (m/s), the lane index
+    (-1 off every lane; the nearest centre, the first on a tie), the margin inside that lane's nearer edge (m;
+    -inf without lanes) and whether the lane is sure (inside it by ``sure_k`` x range; ``sure_k`` <= 0: any
+    lane). The reference is the numpy code of ``TrafficMonitor.update`` with
+    :func:`edge.traffic.lanes.assign_lanes_with_margin`."""
+    cdef Py_ssize_t n = kin.shape[0], nl = centers.shape[0], i, l, k
+    cdef double x, y, vx, vy, u, d, dmin, m
+    s_l, vs_l, sp_l, lane_l, mg_l, sure_l = [], [], [], [], [], []
+    for i in range(n):
+        x = kin[i, 2]
+        y = kin[i, 3]
+        vx = kin[i, 4]
+        vy = kin[i, 5]
+        u = x * cy + y * sy
+        s_l.append(-x * sy + y * cy)
+        vs_l.append(-vx * sy + vy * cy)
+        sp_l.append(hypot(vx, vy))
+        if nl == 0:
+            lane_l.append(-1)
+            mg_l.append(-INFINITY)
+            sure_l.append(False)
+            continue
+        k = 0
+        dmin = fabs(u - centers[0])
+        for l in range(1, nl):
+            d = fabs(u - centers[l])
+            if d < dmin:  # (argmin: the first of equal distances; NaN: numpy's argmin takes the first NaN)
+                dmin = d
+                k = l
+        m = half_w[k] - dmin
+        if not (m >= 0.0):
+            k = -1
+        lane_l.append(k)
+        mg_l.append(m)
+        sure_l.append(k >= 0 and (sure_k <= 0.0 or m >= sure_k * hypot(x, y)))
+    return s_l, vs_l, sp_l, lane_l, mg_l, sure_l
+
+
+# columns of the traffic monitor's integer memo table ``mi`` (one row per track id)
+DEF M_LIVE = 0        # the row holds a running track
+DEF M_AGE = 1         # its age (frames) when last seen
+DEF M_T = 2           # time it was last seen (ns)
+DEF M_WRONG = 3       # frames in a row against its lane's direction
+DEF M_WRONG_EMIT = 4  # wrong_way raised for it
+DEF M_HITS = 5        # its hit count when last seen (-1: new)
+DEF M_STOP_VALID = 6  # it stands (M_STOP_SINCE holds the time it stopped)
+DEF M_STOP_SINCE = 7
+DEF M_STOP_EMIT = 8   # stopped_vehicle raised for this stop
+DEF M_COUNTED = 9     # its vehicle was counted at the detection line
+M_COLS = 10
+# columns of the float memo table ``mf``: along-road position when last seen (m), its largest speed (m/s)
+MF_COLS = 2
+
+
+@cython.cdivision(True)
+def monitor_pass(tuple tracks, const long long[::1] sel, list conf, const long long[::1] ids, long long[:, ::1] mi,
+                 double[:, ::1] mf, list meters, meter_cls, list s, list vs, list speed, list lane_idx, list lane_sure,
+                 const long long[::1] lane_dir, ext, long long t_ns, long long dt_ns, tuple p, list accs,
+                 tuple class_names, list edges, track_cls, with_fn):
+    """The per-track loop of :meth:`edge.traffic.TrafficMonitor.update` (its reference, ``_track_pass``) over the
+    confirmed tracks ``conf`` (ids ``ids``) in one call, their memory in the tables ``mi`` (cap, M_COLS) int64 and
+    ``mf`` (cap, MF_COLS) float64 indexed by track id and ``meters`` (their LengthMeter objects, ``meter_cls``).
+    ``s``, ``vs``, ``speed``, ``lane_idx``, ``lane_sure``: :func:`road_lanes`'s; ``lane_dir``: +1/-1 per lane;
+    ``ext``: body extent per track (m, NaN: none) or None; ``t_ns``, ``dt_ns``: the frame's time and duration (ns);
+    ``p``: the configuration's parameters (``TrafficMonitor._pass_params``); ``accs``: each lane's
+    LaneAccumulator (presence samples and frames are appended); ``tracks``: all tracks, ``sel`` the indices of
+    ``conf`` in it; ``with_fn``: the TrackState copy with lane, class and length (None: copy the instance dict of
+    ``track_cls``, a frozen dataclass without ``__post_init__``, as ``monitor._with`` does).
+
+    Updates the tables, meters and lanes' samples; rows of ids not in ``ids`` end. Returns ``(published, presence,
+    events, actions)``: the published tracks (a tuple like ``tracks``), a presence flag per lane, events ``(kind,
+    id, lane)`` in order, and the counting decisions left to the caller in track order: ``(0, j, lane)`` a new track
+    to try ``_count_late`` for, ``(1, j, lane, tc_ns)`` a crossing to count unless the lane counted its vehicle.
+    None, changing nothing, when an id does not fit the tables (the caller grows them and calls again)."""
+    cdef Py_ssize_t n = len(conf), cap = mi.shape[0], n_lanes = len(accs), j, i, k
+    cdef long long tid, age, hits, tc, t0
+    cdef double sj, vsj, spj, s0, f, e, est, L
+    cdef bint fresh, has_ext = ext is not None, crossed, against
+    cdef double[::1] ext_v
+    cdef double line = p[0], r_lo = p[1], r_hi = p[2], default_length = p[3], zone_lo = p[4], zone_hi = p[5]
+    cdef double reach = p[6], ww_speed = p[7], stopped_speed = p[8], moving_speed = p[9], same_m = p[10]
+    cdef double same_v = p[11], length_min_m = p[12]
+    cdef long long ww_frames = p[13], stopped_min_ns = p[14], min_frames = p[15], keep = p[16]
+    cdef bint late_on = p[17], dir_only = p[18], once = p[19]
+    for j in range(n):
+        if ids[j] < 0 or ids[j] >= cap:
+            return None
+    if has_ext:
+        ext_v = ext
+    sample_lists = [acc.samples for acc in accs]
+    seen_a = np.zeros(cap, dtype=np.uint8)
+    cdef unsigned char[::1] seen = seen_a
+    presence = [False] * n_lanes
+    out = [None] * n
+    events = []
+    actions = []
+    for j in range(n):
+        tr = conf[j]
+        tid = ids[j]
+        seen[tid] = 1
+        k = lane_idx[j]
+        lane = k if k >= 0 else None
+        age = tr.age_frames
+        sj = s[j]
+        vsj = vs[j]
+        spj = speed[j]
+        fresh = not mi[tid, M_LIVE] or age < mi[tid, M_AGE]
+        if fresh:
+            mi[tid, M_LIVE] = 1
+            mi[tid, M_AGE] = age
+            mi[tid, M_T] = t_ns
+            mi[tid, M_WRONG] = 0
+            mi[tid, M_WRONG_EMIT] = 0
+            mi[tid, M_HITS] = -1
+            mi[tid, M_STOP_VALID] = 0
+            mi[tid, M_STOP_SINCE] = 0
+            mi[tid, M_STOP_EMIT] = 0
+            mi[tid, M_COUNTED] = 0
+            mf[tid, 0] = sj
+            mf[tid, 1] = spj
+            meters[tid] = meter_cls(keep - 1)
+        meter = meters[tid]
+        if has_ext:
+            e = ext_v[j]
+            if r_lo <= tr.range_m <= r_hi and e == e:  # (not NaN): LengthMeter.add
+                meter.frames += 1
+                top = meter.top
+                if len(top) < keep:
+                    top.append(e)
+                    top.sort(reverse=True)
+                elif e > top[len(top) - 1]:
+                    top[len(top) - 1] = e
+                    top.sort(reverse=True)
+        # IntervalStatistics.measured
+        length_pub = cls_pub = None
+        top = meter.top
+        if not (meter.frames < min_frames or len(top) < keep):
+            est_o = top[len(top) - 1]
+            est = est_o
+            if est >= length_min_m:
+                length_pub = est_o
+            if est - est == 0.0:  # length_class: bisect_right over the edges ("unknown" when not finite)
+                i = 0
+                while i < len(edges) and not (est < edges[i]):
+                    i += 1
+                cls_pub = class_names[i]
+            else:
+                cls_pub = "unknown"
+        if fresh:
+            if lane is not None and late_on:
+                actions.append((0, j, k))
+        else:
+            s0 = mf[tid, 0]
+            crossed = (s0 - line) * (sj - line) < 0 or (sj == line and s0 != line)
+            against = dir_only and lane is not None and vsj * lane_dir[k] < 0
+            if crossed and lane is not None and not against and not (mi[tid, M_COUNTED] and once):
+                f = (line - s0) / (sj - s0)
+                t0 = mi[tid, M_T]
+                tc = t0 + <long long>rint(f * <double>(t_ns - t0))
+                actions.append((1, j, k, tc))
+            mi[tid, M_AGE] = age
+            mf[tid, 0] = sj
+            mi[tid, M_T] = t_ns
+            if spj > mf[tid, 1]:  # max(max_speed, speed)
+                mf[tid, 1] = spj
+        if lane is not None:
+            if reach <= sj <= zone_hi:
+                sample_lists[k].append((t_ns, dt_ns, s[j], meter))
+                L = length_pub if length_pub is not None else default_length
+                if sj + L >= zone_lo:
+                    presence[k] = True
+            hits = tr.hits
+            if hits > mi[tid, M_HITS] and lane_sure[j]:
+                if vsj * lane_dir[k] < -ww_speed:
+                    mi[tid, M_WRONG] += 1
+                else:
+                    mi[tid, M_WRONG] = 0
+            if mi[tid, M_WRONG] >= ww_frames and not mi[tid, M_WRONG_EMIT]:
+                mi[tid, M_WRONG_EMIT] = 1
+                if not _same_wrong_way_driver(conf, ids, mi, s, vs, j, same_m, same_v):
+                    events.append(("wrong_way", tid, lane))
+        if spj < stopped_speed and mf[tid, 1] >= moving_speed and lane is not None:
+            if not mi[tid, M_STOP_VALID]:
+                mi[tid, M_STOP_VALID] = 1
+                mi[tid, M_STOP_SINCE] = t_ns
+            if not mi[tid, M_STOP_EMIT] and t_ns - mi[tid, M_STOP_SINCE] >= stopped_min_ns:
+                mi[tid, M_STOP_EMIT] = 1
+                events.append(("stopped_vehicle", tid, lane))
+        elif spj >= moving_speed:
+            mi[tid, M_STOP_VALID] = 0
+            mi[tid, M_STOP_EMIT] = 0
+        elif spj >= stopped_speed:
+            mi[tid, M_STOP_VALID] = 0
+        mi[tid, M_HITS] = tr.hits
+        tcls = tr.cls
+        if tcls is not None:
+            cls_pub = tcls
+        out[j] = tr if (tr.lane, tcls, tr.length_m) == (lane, cls_pub, length_pub) else _copy_with(
+            tr, lane, cls_pub, length_pub, track_cls, with_fn)
+    for i in range(cap):
+        if mi[i, M_LIVE] and not seen[i]:
+            mi[i, M_LIVE] = 0
+            meters[i] = None
+    frame = (t_ns, dt_ns)
+    for acc in accs:
+        acc.frames.append(frame)
+    if n == len(tracks):
+        published = tuple(out)
+    else:  # tracks not confirmed: no length measured
+        pub = list(tracks)
+        for i in range(len(tracks)):
+            t = pub[i]
+            if t.length_m is not None:
+                pub[i] = _copy_with(t, t.lane, t.cls, None, track_cls, with_fn)
+        for j in range(n):
+            pub[sel[j]] = out[j]
+        published = tuple(pub)
+    return published, presence, events, actions
+
+
+cdef object _copy_with(tr, lane, cls, length, track_cls, with_fn):
+    """``monitor._with(tr, lane, cls, length)``."""
+    if with_fn is not None:
+        return with_fn(tr, lane, cls, length)
+    out = track_cls.__new__(track_cls)
+    d = out.__dict__
+    d.update(tr.__dict__)
+    d["lane"] = lane
+    d["cls"] = cls
+    d["length_m"] = length
+    return out
+
+
+cdef bint _same_wrong_way_driver(list conf, const long long[::1] ids, long long[:, ::1] mi, list s, list vs,
+                                 Py_ssize_t j, double same_m, double same_v):
+    """TrafficMonitor._same_wrong_way_driver on the memo table (rows as they stand at track ``j``'s turn)."""
+    cdef Py_ssize_t i
+    cdef long long tid
+    cdef double sj = s[j], vsj = vs[j]
+    if same_v <= 0.0:
+        return False
+    for i in range(len(conf)):
+        tid = ids[i]
+        if (i != j and mi[tid, M_LIVE] and mi[tid, M_WRONG_EMIT] and conf[i].age_frames >= mi[tid, M_AGE]
+                and fabs(<double>s[i] - sj) <= same_m and fabs(<double>vs[i] - vsj) <= same_v):
+            return True
+    return False
+
+
+cdef double _pairwise_sum(const double *a, Py_ssize_t n) noexcept nogil:
+    """``numpy.add.reduce`` of a contiguous float64 array of ``n`` values, numpy's pairwise summation (8 partial
+    sums per block of up to 128), so the sum is bit-identical to numpy's."""
+    cdef Py_ssize_t i, k, n2
+    cdef double r[8]
+    cdef double res
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[i]
+        return res
+    if n <= 128:
+        for k in range(8):
+            r[k] = a[k]
+        i = 8
+        while i < n - (n % 8):
+            for k in range(8):
+                r[k] += a[i + k]
+            i += 8
+        res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+        while i < n:
+            res += a[i]
+            i += 1
+        return res
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise_sum(a, n2) + _pairwise_sum(a + n2, n - n2)
+
+
+@cython.cdivision(True)
+def weighted_median(votes, const double[::1] live, const double[::1] w):
+    """The start-up yaw estimate of :meth:`YawEstimator.estimate_rad` for up to 64 votes: the ended tracks'
+    ``votes`` (rad, each weighted as the largest live weight, or 1) and the running tracks' ``live`` votes (rad)
+    with weights ``w``. Returns ``(median, stderr)`` (rad): the weighted median (the first value, in stable order of
+    value, whose cumulative weight reaches half the total) and ``_median_stderr``'s error, in the reference's
+    operations and summation order; None for more than 64 votes or a NaN among them or their weights (the
+    caller's numpy path)."""
+    cdef Py_ssize_t nv = len(votes), nl = live.shape[0], n = nv + nl, i, j
+    cdef double top, x, wx, sw, mean, n_eff, var, d, half, acc
+    if n > 64:
+        return None
+    cdef double v[64]
+    cdef double wt[64]
+    cdef double tmp[64]
+    cdef int order[64]
+    cdef int oi
+    top = 1.0
+    if nl:
+        top = w[0]
+        for i in range(1, nl):
+            if w[i] > top:
+                top = w[i]
+    i = 0
+    for x in votes:
+        v[i] = x
+        wt[i] = top
+        i += 1
+    for j in range(nl):
+        v[nv + j] = live[j]
+        wt[nv + j] = w[j]
+    for i in range(n):
+        if v[i] != v[i] or wt[i] != wt[i]:
+            return None
+    # _median_stderr
+    if n < 2:
+        se = INFINITY
+    else:
+        sw = _pairwise_sum(wt, n)
+        if sw <= 0.0:
+            se = INFINITY
+        else:
+            for i in range(n):
+                tmp[i] = wt[i] * v[i]
+            mean = _pairwise_sum(tmp, n) / sw
+            for i in range(n):
+                tmp[i] = wt[i] * wt[i]
+            n_eff = sw * sw / _pairwise_sum(tmp, n)
+            if n_eff <= 1.0:
+                se = INFINITY
+            else:
+                for i in range(n):
+                    d = v[i] - mean
+                    tmp[i] = wt[i] * (d * d)
+                var = _pairwise_sum(tmp, n) / sw * n_eff / (n_eff - 1.0)
+                se = 1.2533 * sqrt(var / n_eff)
+    # stable sort by value (insertion sort), cumulative weights, bisect_left at half the total
+    for i in range(n):
+        oi = i
+        j = i - 1
+        while j >= 0 and v[order[j]] > v[oi]:
+            order[j + 1] = order[j]
+            j -= 1
+        order[j + 1] = oi
+    acc = 0.0
+    for i in range(n):
+        acc = wt[order[i]] if i == 0 else acc + wt[order[i]]
+        tmp[i] = acc
+    half = 0.5 * tmp[n - 1]
+    i = 0
+    while i < n and tmp[i] < half:
+        i += 1
+    return v[order[i]], se
