@@ -15,7 +15,7 @@ from types import ModuleType
 log = logging.getLogger(__name__)
 
 #: kernel module names (``edge/native/<name>.pyx``) the product uses
-KERNELS: tuple[str, ...] = ("_probe", "_spectra", "_peaks", "_track", "_pairs", "_angles")
+KERNELS: tuple[str, ...] = ("_probe", "_spectra", "_peaks", "_track", "_pairs", "_angles", "_dbscan")
 
 _cache: dict[str, ModuleType | None] = {}
 _errors: dict[str, str] = {}  # why a kernel did not load (the ImportError's message)

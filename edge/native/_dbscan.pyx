@@ -1,0 +1,283 @@
+# cython: language_level=3
+# distutils: extra_compile_args = -ffp-contract=off
+"""DBSCAN stage kernel (edge.dsp.dbscan.CylinderDbscan.fit): the whole clustering of one thresholded range-Doppler
+map in one call, with the labels of the numpy reference (CylinderDbscan.reference).
+
+On the (range bin, Doppler bin) lattice whose Doppler axis is a circle, the eps-neighbourhood of a bin is, row by row
+(range offset ``di``), a circular interval of Doppler offsets ``[-lo[di], hi[di]]`` (the reference's kernel
+``d <= eps``, handed in by the caller). So:
+
+1. neighbour counts: per point, one circular window sum per row offset on per-row prefix sums of the mask (exact
+   integers, as the reference's rounded FFT convolution);
+2. core connectivity: union-find over core points, first with their 8-neighbours on the lattice (Doppler wrapping),
+   then, when more than one group is left, from every boundary core point to every run of core bins inside its
+   window (a run is one group already);
+3. dense cluster ids in the order of each cluster's first core point in row-major order (the reference's order:
+   ``ndimage.label`` numbers groups by first bin, the union keeps the smallest);
+4. border points: the nearest boundary core point (squared distance in the cylinder coordinates ``[R cos, R sin, r]``,
+   summed as the reference does) inside the window; ties go to the smallest cluster id.
+"""
+
+cimport cython
+import numpy as np
+cimport numpy as cnp
+
+cnp.import_array()
+
+
+cdef inline int _find(int[::1] parent, int x) noexcept nogil:
+    cdef int r = x
+    while parent[r] != r:
+        r = parent[r]
+    cdef int nxt
+    while parent[x] != r:
+        nxt = parent[x]
+        parent[x] = r
+        x = nxt
+    return r
+
+
+cdef inline void _union(int[::1] parent, int a, int b) noexcept nogil:
+    a = _find(parent, a)
+    b = _find(parent, b)
+    if a < b:
+        parent[b] = a
+    elif b < a:
+        parent[a] = b
+
+
+cdef inline int _win_sum(const int[:, ::1] pre, int row, int j, int lo, int hi, int nd) noexcept nogil:
+    """Mask points of ``row`` in the circular column window ``[j - lo, j + hi]``."""
+    cdef int a = j - lo, b = j + hi
+    if lo + hi + 1 >= nd:
+        return pre[row, nd]
+    if a < 0:
+        return pre[row, nd] - pre[row, a + nd] + pre[row, b + 1]
+    if b >= nd:
+        return pre[row, nd] - pre[row, a] + pre[row, b - nd + 1]
+    return pre[row, b + 1] - pre[row, a]
+
+
+cdef inline void _union_runs(int[::1] parent, const int[:, ::1] idx, const int[:, ::1] nxt, int k, int row, int s,
+                             int t) noexcept nogil:
+    """Join point ``k`` with every run of core bins of ``row`` in columns ``s..t`` (one union per run)."""
+    cdef int c = nxt[row, s]
+    while c <= t:
+        _union(parent, k, idx[row, c])
+        while c <= t and idx[row, c] >= 0:
+            c += 1
+        c = nxt[row, c]
+
+
+def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo, const int[::1] hi,
+        const double[::1] cosv, const double[::1] sinv, double range_bin_m):
+    """Cluster the nonzero bins of ``mask`` ``(n_range, n_doppler)``.
+
+    ``m_row`` (n_range,) core threshold per range row; ``lo``/``hi`` (2h+1,) the window of row offset ``di - h``;
+    ``cosv``/``sinv`` (n_doppler,) the cylinder coordinates of each Doppler bin (km/h), ``range_bin_m`` metres per
+    range bin. Returns ``(range_bin, doppler_bin, labels, core, n_clusters, counts)`` as the reference's Clusters.
+    """
+    cdef Py_ssize_t nr = mask.shape[0], nd = mask.shape[1]
+    cdef int h = (lo.shape[0] - 1) // 2
+    cdef Py_ssize_t i, j, k, n = 0
+    cdef int di, r2, c, a, b, e, p, q, m_i
+    with nogil:
+        for i in range(nr):
+            for j in range(nd):
+                n += mask[i, j] != 0
+    ri_a = np.empty(n, dtype=np.intp)
+    dj_a = np.empty(n, dtype=np.intp)
+    lab_a = np.full(n, -1, dtype=np.int32)
+    core_a = np.zeros(n, dtype=np.bool_)
+    cnt_a = np.zeros(n, dtype=np.int32)
+    if n == 0:
+        return ri_a, dj_a, lab_a, core_a, 0, cnt_a
+    cdef Py_ssize_t[::1] ri = ri_a
+    cdef Py_ssize_t[::1] dj = dj_a
+    cdef int[::1] lab = lab_a
+    cdef cnp.npy_bool[::1] core = core_a
+    cdef int[::1] cnt = cnt_a
+    pre_a = np.zeros((nr, nd + 1), dtype=np.int32)
+    idx_a = np.full((nr, nd), -1, dtype=np.int32)  # point index of each core bin, -1 elsewhere
+    row_n_a = np.zeros(nr, dtype=np.int32)
+    cdef int[:, ::1] pre = pre_a
+    cdef int[:, ::1] idx = idx_a
+    cdef int[::1] row_n = row_n_a
+    parent_a = np.arange(n, dtype=np.int32)
+    cdef int[::1] parent = parent_a
+    cdef int n_core = 0, n_groups, n_clu = 0
+    cdef bint is_bnd
+    cdef double d2, best_d2, x0, x1, x2, t0, t1, t2
+    cdef int best_lab
+    with nogil:
+        # points in row-major order, per-row prefix sums of the mask
+        k = 0
+        for i in range(nr):
+            for j in range(nd):
+                pre[i, j + 1] = pre[i, j] + (mask[i, j] != 0)
+                if mask[i, j] != 0:
+                    ri[k] = i
+                    dj[k] = j
+                    k += 1
+            row_n[i] = pre[i, nd]
+        # 1. neighbour counts and core points
+        for k in range(n):
+            i = ri[k]
+            c = 0
+            for di in range(-h, h + 1):
+                r2 = <int>i + di
+                if r2 < 0 or r2 >= nr or row_n[r2] == 0:
+                    continue
+                c += _win_sum(pre, r2, <int>dj[k], lo[di + h], hi[di + h], <int>nd)
+            cnt[k] = c
+            if c >= m_row[i]:
+                core[k] = True
+                idx[i, dj[k]] = <int>k
+                n_core += 1
+    if n_core == 0:
+        return ri_a, dj_a, lab_a, core_a, 0, cnt_a
+    # runs of core bins per row: end of the run at each core bin, next core bin at or after each column
+    nxt_a = np.empty((nr, nd + 1), dtype=np.int32)
+    cdef int[:, ::1] nxt = nxt_a
+    with nogil:
+        # 2. 8-connectivity (left, and the three bins of the row above; Doppler wraps)
+        n_groups = n_core
+        for k in range(n):
+            if not core[k]:
+                continue
+            i = ri[k]
+            j = dj[k]
+            for e in range(-1, 2):
+                q = idx[i, (j + e + nd) % nd] if e != 0 else -1
+                if q >= 0 and q < k:
+                    a = _find(parent, <int>k)
+                    b = _find(parent, q)
+                    if a != b:
+                        _union(parent, a, b)
+                        n_groups -= 1
+                if i > 0:
+                    q = idx[i - 1, (j + e + nd) % nd]
+                    if q >= 0:
+                        a = _find(parent, <int>k)
+                        b = _find(parent, q)
+                        if a != b:
+                            _union(parent, a, b)
+                            n_groups -= 1
+        if n_groups > 1:
+            for i in range(nr):
+                nxt[i, nd] = <int>nd
+                for j in range(nd - 1, -1, -1):
+                    nxt[i, j] = <int>j if idx[i, j] >= 0 else nxt[i, j + 1]
+            # boundary core bins: some 8-neighbour is not core (rows outside the map count as core)
+            for k in range(n):
+                if not core[k]:
+                    continue
+                i = ri[k]
+                j = dj[k]
+                is_bnd = False
+                for di in range(-1, 2):
+                    r2 = <int>i + di
+                    if r2 < 0 or r2 >= nr:
+                        continue
+                    for e in range(-1, 2):
+                        if idx[r2, (j + e + nd) % nd] < 0:
+                            is_bnd = True
+                if not is_bnd:
+                    continue
+                for di in range(-h, h + 1):
+                    r2 = <int>i + di
+                    if r2 < 0 or r2 >= nr or row_n[r2] == 0:
+                        continue
+                    a = lo[di + h]
+                    b = hi[di + h]
+                    if a + b + 1 >= nd:
+                        a = 0
+                        b = <int>nd - 1
+                    else:
+                        a = <int>j - a
+                        b = <int>j + b
+                    # columns a..b, circular: at most two linear segments; one union per run of core bins
+                    if a < 0:
+                        _union_runs(parent, idx, nxt, <int>k, r2, a + <int>nd, <int>nd - 1)
+                        _union_runs(parent, idx, nxt, <int>k, r2, 0, b)
+                    elif b >= nd:
+                        _union_runs(parent, idx, nxt, <int>k, r2, a, <int>nd - 1)
+                        _union_runs(parent, idx, nxt, <int>k, r2, 0, b - <int>nd)
+                    else:
+                        _union_runs(parent, idx, nxt, <int>k, r2, a, b)
+        # 3. dense ids in order of first core point
+        for k in range(n):
+            lab[k] = -1
+        for k in range(n):
+            if core[k]:
+                a = _find(parent, <int>k)
+                if lab[a] < 0:  # the root is its component's smallest (first) point
+                    lab[a] = n_clu
+                    n_clu += 1
+        for k in range(n):
+            if core[k]:
+                lab[k] = lab[_find(parent, <int>k)]
+    # 4. border points (needs boundary flags of all core bins)
+    bnd_a = np.zeros((nr, nd), dtype=np.uint8)
+    cdef cnp.uint8_t[:, ::1] bnd = bnd_a
+    cdef bint any_border = False
+    with nogil:
+        for k in range(n):
+            if not core[k]:
+                any_border = True
+                break
+        if any_border:
+            for i in range(nr):
+                nxt[i, nd] = <int>nd
+                for j in range(nd - 1, -1, -1):
+                    nxt[i, j] = <int>j if idx[i, j] >= 0 else nxt[i, j + 1]
+            for k in range(n):
+                if not core[k]:
+                    continue
+                i = ri[k]
+                j = dj[k]
+                is_bnd = j == 0 or j == nd - 1  # the reference's seam columns
+                for di in range(-1, 2):
+                    r2 = <int>i + di
+                    if r2 < 0 or r2 >= nr:
+                        continue
+                    for e in range(-1, 2):
+                        if idx[r2, (j + e + nd) % nd] < 0:
+                            is_bnd = True
+                bnd[i, j] = is_bnd
+            for k in range(n):
+                if core[k]:
+                    continue
+                i = ri[k]
+                j = dj[k]
+                x0 = cosv[j]
+                x1 = sinv[j]
+                x2 = <double>i * range_bin_m
+                best_d2 = 1e300
+                best_lab = -1
+                for di in range(-h, h + 1):
+                    r2 = <int>i + di
+                    if r2 < 0 or r2 >= nr or row_n[r2] == 0:
+                        continue
+                    a = lo[di + h]
+                    b = hi[di + h]
+                    if a + b + 1 >= nd:
+                        a = 0
+                        b = <int>nd - 1
+                    else:
+                        a = <int>j - a
+                        b = <int>j + b
+                    for c in range(a, b + 1):
+                        m_i = (c + <int>nd) % <int>nd
+                        if not bnd[r2, m_i]:
+                            continue
+                        t0 = x0 - cosv[m_i]
+                        t1 = x1 - sinv[m_i]
+                        t2 = x2 - <double>r2 * range_bin_m
+                        d2 = (t0 * t0 + t1 * t1) + t2 * t2
+                        q = lab[idx[r2, m_i]]
+                        if d2 < best_d2 or (d2 == best_d2 and q < best_lab):
+                            best_d2 = d2
+                            best_lab = q
+                lab[k] = best_lab
+    return ri_a, dj_a, lab_a, core_a, n_clu, cnt_a
