@@ -25,7 +25,7 @@ cimport numpy as cnp
 cnp.import_array()
 
 
-cdef inline int _find(int[::1] parent, int x) noexcept nogil:
+cdef inline int _find(int *parent, int x) noexcept nogil:
     cdef int r = x
     while parent[r] != r:
         r = parent[r]
@@ -37,7 +37,7 @@ cdef inline int _find(int[::1] parent, int x) noexcept nogil:
     return r
 
 
-cdef inline void _union(int[::1] parent, int a, int b) noexcept nogil:
+cdef inline void _union(int *parent, int a, int b) noexcept nogil:
     a = _find(parent, a)
     b = _find(parent, b)
     if a < b:
@@ -46,27 +46,24 @@ cdef inline void _union(int[::1] parent, int a, int b) noexcept nogil:
         parent[a] = b
 
 
-cdef inline int _win_sum(const int[:, ::1] pre, int row, int j, int lo, int hi, int nd) noexcept nogil:
-    """Mask points of ``row`` in the circular column window ``[j - lo, j + hi]``."""
-    cdef int a = j - lo, b = j + hi
-    if lo + hi + 1 >= nd:
-        return pre[row, nd]
-    if a < 0:
-        return pre[row, nd] - pre[row, a + nd] + pre[row, b + 1]
-    if b >= nd:
-        return pre[row, nd] - pre[row, a] + pre[row, b - nd + 1]
-    return pre[row, b + 1] - pre[row, a]
+cdef inline int _wrap(int c, int nd) noexcept nogil:
+    """Column ``c`` in ``[-nd, 2 nd)`` wrapped onto ``[0, nd)``."""
+    if c < 0:
+        return c + nd
+    if c >= nd:
+        return c - nd
+    return c
 
 
-cdef inline void _union_runs(int[::1] parent, const int[:, ::1] idx, const int[:, ::1] nxt, int k, int row, int s,
-                             int t) noexcept nogil:
-    """Join point ``k`` with every run of core bins of ``row`` in columns ``s..t`` (one union per run)."""
-    cdef int c = nxt[row, s]
+cdef inline void _union_runs(int *parent, const int *idx, const int *nxt, int k, int s, int t) noexcept nogil:
+    """Join point ``k`` with every run of core bins of a row (``idx``, ``nxt``) in columns ``s..t`` (one union per
+    run)."""
+    cdef int c = nxt[s]
     while c <= t:
-        _union(parent, k, idx[row, c])
-        while c <= t and idx[row, c] >= 0:
+        _union(parent, k, idx[c])
+        while c <= t and idx[c] >= 0:
             c += 1
-        c = nxt[row, c]
+        c = nxt[c]
 
 
 def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo, const int[::1] hi,
@@ -97,48 +94,78 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
     cdef int[::1] lab = lab_a
     cdef cnp.npy_bool[::1] core = core_a
     cdef int[::1] cnt = cnt_a
-    pre_a = np.zeros((nr, nd + 1), dtype=np.int32)
+    # per-row prefix sums over three laps of the Doppler circle (columns -nd .. 2 nd - 1), with h rows of zeros above
+    # and below the map: every window sum is one subtraction, without branches
+    cdef Py_ssize_t w3 = 3 * nd + 1
+    ext_a = np.zeros((nr + 2 * h, w3), dtype=np.int32)
     idx_a = np.full((nr, nd), -1, dtype=np.int32)  # point index of each core bin, -1 elsewhere
     row_n_a = np.zeros(nr, dtype=np.int32)
-    cdef int[:, ::1] pre = pre_a
+    off_a = np.empty((2, 2 * h + 1), dtype=np.intp)
+    cdef int[:, ::1] ext = ext_a
     cdef int[:, ::1] idx = idx_a
     cdef int[::1] row_n = row_n_a
+    cdef Py_ssize_t[:, ::1] off = off_a
     parent_a = np.arange(n, dtype=np.int32)
     cdef int[::1] parent = parent_a
+    cdef int *pp = &parent[0]
     cdef int n_core = 0, n_groups, n_clu = 0
     cdef bint is_bnd
     cdef double d2, best_d2, x0, x1, x2, t0, t1, t2
-    cdef int best_lab
+    cdef int best_lab, tot
+    cdef int *er
+    cdef const int *rp
     with nogil:
+        for di in range(2 * h + 1):
+            a = lo[di]
+            b = hi[di]
+            if a + b + 1 >= nd:  # the whole circle, once
+                a = 0
+                b = <int>nd - 1
+            off[0, di] = b + 1 + nd
+            off[1, di] = nd - a
         # points in row-major order, per-row prefix sums of the mask
         k = 0
         for i in range(nr):
+            if k == n:
+                break
+            er = &ext[i + h, 0]
+            tot = 0
             for j in range(nd):
-                pre[i, j + 1] = pre[i, j] + (mask[i, j] != 0)
                 if mask[i, j] != 0:
                     ri[k] = i
                     dj[k] = j
                     k += 1
-            row_n[i] = pre[i, nd]
+                    tot += 1
+                er[nd + j + 1] = tot
+            row_n[i] = tot
+            if tot:
+                for j in range(nd + 1):
+                    er[j] = er[nd + j] - tot
+                    er[2 * nd + j] = er[nd + j] + tot
+            else:
+                er[nd] = 0
         # 1. neighbour counts and core points
         for k in range(n):
             i = ri[k]
+            j = dj[k]
+            rp = &ext[i, 0]  # padded row i is map row i - h
             c = 0
-            for di in range(-h, h + 1):
-                r2 = <int>i + di
-                if r2 < 0 or r2 >= nr or row_n[r2] == 0:
-                    continue
-                c += _win_sum(pre, r2, <int>dj[k], lo[di + h], hi[di + h], <int>nd)
+            for di in range(2 * h + 1):
+                c += rp[j + off[0, di]] - rp[j + off[1, di]]
+                rp += w3
             cnt[k] = c
             if c >= m_row[i]:
                 core[k] = True
-                idx[i, dj[k]] = <int>k
+                idx[i, j] = <int>k
                 n_core += 1
     if n_core == 0:
         return ri_a, dj_a, lab_a, core_a, 0, cnt_a
     # runs of core bins per row: end of the run at each core bin, next core bin at or after each column
     nxt_a = np.empty((nr, nd + 1), dtype=np.int32)
     cdef int[:, ::1] nxt = nxt_a
+    grp_a = np.empty(n, dtype=np.int32)
+    cdef int[::1] grp = grp_a
+    cdef int big = -1
     with nogil:
         # 2. 8-connectivity (left, and the three bins of the row above; Doppler wraps)
         n_groups = n_core
@@ -148,29 +175,42 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
             i = ri[k]
             j = dj[k]
             for e in range(-1, 2):
-                q = idx[i, (j + e + nd) % nd] if e != 0 else -1
+                q = idx[i, _wrap(<int>j + e, <int>nd)] if e != 0 else -1
                 if q >= 0 and q < k:
-                    a = _find(parent, <int>k)
-                    b = _find(parent, q)
+                    a = _find(pp, <int>k)
+                    b = _find(pp, q)
                     if a != b:
-                        _union(parent, a, b)
+                        _union(pp, a, b)
                         n_groups -= 1
                 if i > 0:
-                    q = idx[i - 1, (j + e + nd) % nd]
+                    q = idx[i - 1, _wrap(<int>j + e, <int>nd)]
                     if q >= 0:
-                        a = _find(parent, <int>k)
-                        b = _find(parent, q)
+                        a = _find(pp, <int>k)
+                        b = _find(pp, q)
                         if a != b:
-                            _union(parent, a, b)
+                            _union(pp, a, b)
                             n_groups -= 1
         if n_groups > 1:
             for i in range(nr):
+                if row_n[i] == 0:
+                    continue
                 nxt[i, nd] = <int>nd
                 for j in range(nd - 1, -1, -1):
                     nxt[i, j] = <int>j if idx[i, j] >= 0 else nxt[i, j + 1]
+            # the largest lattice group's points need not search: every pair of groups within eps has one group
+            # that is not the largest, and the window relation is symmetric
+            for k in range(n):
+                lab[k] = 0
+            for k in range(n):
+                if core[k]:
+                    a = _find(pp, <int>k)
+                    grp[k] = a
+                    lab[a] += 1
+                    if big < 0 or lab[a] > lab[big]:
+                        big = a
             # boundary core bins: some 8-neighbour is not core (rows outside the map count as core)
             for k in range(n):
-                if not core[k]:
+                if not core[k] or grp[k] == big:
                     continue
                 i = ri[k]
                 j = dj[k]
@@ -180,7 +220,7 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                     if r2 < 0 or r2 >= nr:
                         continue
                     for e in range(-1, 2):
-                        if idx[r2, (j + e + nd) % nd] < 0:
+                        if idx[r2, _wrap(<int>j + e, <int>nd)] < 0:
                             is_bnd = True
                 if not is_bnd:
                     continue
@@ -198,25 +238,25 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                         b = <int>j + b
                     # columns a..b, circular: at most two linear segments; one union per run of core bins
                     if a < 0:
-                        _union_runs(parent, idx, nxt, <int>k, r2, a + <int>nd, <int>nd - 1)
-                        _union_runs(parent, idx, nxt, <int>k, r2, 0, b)
+                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, a + <int>nd, <int>nd - 1)
+                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, 0, b)
                     elif b >= nd:
-                        _union_runs(parent, idx, nxt, <int>k, r2, a, <int>nd - 1)
-                        _union_runs(parent, idx, nxt, <int>k, r2, 0, b - <int>nd)
+                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, a, <int>nd - 1)
+                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, 0, b - <int>nd)
                     else:
-                        _union_runs(parent, idx, nxt, <int>k, r2, a, b)
+                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, a, b)
         # 3. dense ids in order of first core point
         for k in range(n):
             lab[k] = -1
         for k in range(n):
             if core[k]:
-                a = _find(parent, <int>k)
+                a = _find(pp, <int>k)
                 if lab[a] < 0:  # the root is its component's smallest (first) point
                     lab[a] = n_clu
                     n_clu += 1
         for k in range(n):
             if core[k]:
-                lab[k] = lab[_find(parent, <int>k)]
+                lab[k] = lab[_find(pp, <int>k)]
     # 4. border points (needs boundary flags of all core bins)
     bnd_a = np.zeros((nr, nd), dtype=np.uint8)
     cdef cnp.uint8_t[:, ::1] bnd = bnd_a
@@ -228,6 +268,8 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                 break
         if any_border:
             for i in range(nr):
+                if row_n[i] == 0:
+                    continue
                 nxt[i, nd] = <int>nd
                 for j in range(nd - 1, -1, -1):
                     nxt[i, j] = <int>j if idx[i, j] >= 0 else nxt[i, j + 1]
@@ -242,7 +284,7 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                     if r2 < 0 or r2 >= nr:
                         continue
                     for e in range(-1, 2):
-                        if idx[r2, (j + e + nd) % nd] < 0:
+                        if idx[r2, _wrap(<int>j + e, <int>nd)] < 0:
                             is_bnd = True
                 bnd[i, j] = is_bnd
             for k in range(n):
@@ -268,7 +310,7 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                         a = <int>j - a
                         b = <int>j + b
                     for c in range(a, b + 1):
-                        m_i = (c + <int>nd) % <int>nd
+                        m_i = _wrap(c, <int>nd)
                         if not bnd[r2, m_i]:
                             continue
                         t0 = x0 - cosv[m_i]
