@@ -97,11 +97,16 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
     # per-row prefix sums over three laps of the Doppler circle (columns -nd .. 2 nd - 1), with h rows of zeros above
     # and below the map: every window sum is one subtraction, without branches
     cdef Py_ssize_t w3 = 3 * nd + 1
-    ext_a = np.zeros((nr + 2 * h, w3), dtype=np.int32)
+    # (rows without points, and the h rows beyond each edge, point at one row of zeros: no large zero fill)
+    ext_a = np.empty((nr, w3), dtype=np.int32)
+    zero_a = np.zeros(w3, dtype=np.int32)
+    rows_a = np.empty(nr + 2 * h, dtype=np.intp)  # padded row -> address of its prefix row
     idx_a = np.full((nr, nd), -1, dtype=np.int32)  # point index of each core bin, -1 elsewhere
     row_n_a = np.zeros(nr, dtype=np.int32)
     off_a = np.empty((2, 2 * h + 1), dtype=np.intp)
     cdef int[:, ::1] ext = ext_a
+    cdef int[::1] zero = zero_a
+    cdef Py_ssize_t[::1] rows = rows_a
     cdef int[:, ::1] idx = idx_a
     cdef int[::1] row_n = row_n_a
     cdef Py_ssize_t[:, ::1] off = off_a
@@ -128,7 +133,7 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
         for i in range(nr):
             if k == n:
                 break
-            er = &ext[i + h, 0]
+            er = &ext[i, 0]
             tot = 0
             for j in range(nd):
                 if mask[i, j] != 0:
@@ -139,20 +144,22 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                 er[nd + j + 1] = tot
             row_n[i] = tot
             if tot:
+                er[nd] = 0
                 for j in range(nd + 1):
                     er[j] = er[nd + j] - tot
                     er[2 * nd + j] = er[nd + j] + tot
-            else:
-                er[nd] = 0
+        for i in range(nr + 2 * h):
+            rows[i] = <Py_ssize_t>&zero[0]
+            if h <= i < nr + h and row_n[i - h] > 0:
+                rows[i] = <Py_ssize_t>&ext[i - h, 0]
         # 1. neighbour counts and core points
         for k in range(n):
             i = ri[k]
             j = dj[k]
-            rp = &ext[i, 0]  # padded row i is map row i - h
             c = 0
-            for di in range(2 * h + 1):
+            for di in range(2 * h + 1):  # padded row i + di is map row i + di - h
+                rp = <const int *>rows[i + di]
                 c += rp[j + off[0, di]] - rp[j + off[1, di]]
-                rp += w3
             cnt[k] = c
             if c >= m_row[i]:
                 core[k] = True
@@ -258,8 +265,8 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
             if core[k]:
                 lab[k] = lab[_find(pp, <int>k)]
     # 4. border points (needs boundary flags of all core bins)
-    bnd_a = np.zeros((nr, nd), dtype=np.uint8)
-    cdef cnp.uint8_t[:, ::1] bnd = bnd_a
+    bnd_a = np.zeros(n, dtype=np.uint8)  # per point: a boundary core bin
+    cdef cnp.uint8_t[::1] bnd = bnd_a
     cdef bint any_border = False
     with nogil:
         for k in range(n):
@@ -286,7 +293,7 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                     for e in range(-1, 2):
                         if idx[r2, _wrap(<int>j + e, <int>nd)] < 0:
                             is_bnd = True
-                bnd[i, j] = is_bnd
+                bnd[k] = is_bnd
             for k in range(n):
                 if core[k]:
                     continue
@@ -311,7 +318,8 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                         b = <int>j + b
                     for c in range(a, b + 1):
                         m_i = _wrap(c, <int>nd)
-                        if not bnd[r2, m_i]:
+                        p = idx[r2, m_i]
+                        if p < 0 or not bnd[p]:
                             continue
                         t0 = x0 - cosv[m_i]
                         t1 = x1 - sinv[m_i]
