@@ -151,3 +151,15 @@ def test_kernel_equals_reference_on_simulated_frames():
         n_pts += len(ref)
         n_clu += ref.n_clusters
     assert n_pts > 1000 and n_clu > 5
+
+
+def test_stage_with_kernel_deep_copies_and_pickles():
+    import copy
+    import pickle
+
+    require_kernel("_dbscan")
+    db = _db()
+    mask = _blobs(np.random.default_rng(3), (RDP.n_range, RDP.n_doppler_fft), 3, 0.005)
+    for other in (copy.deepcopy(db), pickle.loads(pickle.dumps(db))):
+        assert other.kernel is db.kernel
+        assert_same(other.fit(mask), db.fit(mask))
