@@ -558,6 +558,7 @@ class RadialSpeedEstimator:
         self._v: deque[float] = deque(maxlen=max_frames)
         self._lo: deque[float] = deque(maxlen=max_frames)
         self._hi: deque[float] = deque(maxlen=max_frames)
+        self._current: float | None = None  # current_radial_speed_kmh of the frames as they are (None: not known)
 
     def add(self, t_s: float, range_m: float, doppler_wrapped_kmh: float, range_lo_m: float = math.nan,
             range_hi_m: float = math.nan) -> None:
@@ -568,6 +569,7 @@ class RadialSpeedEstimator:
             self._v.append(float(doppler_wrapped_kmh))
             self._lo.append(float(range_lo_m))
             self._hi.append(float(range_hi_m))
+            self._current = None
 
     def __len__(self) -> int:
         return len(self._t)
@@ -576,6 +578,7 @@ class RadialSpeedEstimator:
         """Put the frames of ``earlier`` (another track of the same target, ended before this one
         started) before this one's; frames not earlier than this one's first are ignored."""
         t0 = self._t[0] if self._t else math.inf
+        self._current = None
         rows = [row for row in zip(earlier._t, earlier._r, earlier._v, earlier._lo, earlier._hi) if row[0] < t0]
         rows += list(zip(self._t, self._r, self._v, self._lo, self._hi))
         rows = rows[-self._t.maxlen:] if self._t.maxlen else rows
@@ -589,6 +592,7 @@ class RadialSpeedEstimator:
     def merge(self, other: "RadialSpeedEstimator") -> None:
         """Add the frames of ``other`` (another part of the same body) at times this one has no frame of; where both
         have one, this one's centroid and Doppler stay and the range extent becomes the union of the two parts'."""
+        self._current = None
         theirs = {t: (lo, hi) for t, lo, hi in zip(other._t, other._lo, other._hi)}
         own = []
         for t, r, v, lo, hi in zip(self._t, self._r, self._v, self._lo, self._hi):
@@ -790,6 +794,14 @@ class RadialSpeedEstimator:
         return float(np.mean(v[keep])), certain
 
     def current_radial_speed_kmh(self) -> float:
+        """The latest frame's unaliased radial speed (km/h): its wrapped Doppler with the alias nearest the least-squares
+        range rate of the last ``window_s`` seconds (at least three frames); NaN below two frames. Kept until the
+        frames change (the tracker asks several times per frame)."""
+        if self._current is None:
+            self._current = self._current_radial_speed_kmh()
+        return self._current
+
+    def _current_radial_speed_kmh(self) -> float:
         n = len(self._t)
         if n < 2:
             return math.nan

@@ -22,7 +22,12 @@ so the whole algorithm runs on arrays, with no per-point Python and no callback 
    ``eps`` are tested with a KD-tree nearest-neighbour query (``scipy.spatial.cKDTree``) and joined
    by union-find over groups (a loop over groups, never over points).
 3. **Border points**: a non-core point joins the cluster of its nearest core point if that point is
-   within ``eps`` (the nearest core point is again a boundary bin: one KD-tree query).
+   within ``eps`` (the nearest core point is again a boundary bin: one KD-tree query); equally near
+   core points of two clusters give the smaller cluster id.
+
+Cluster ids follow the order of each cluster's first core point in row-major order. The compiled
+kernel ``edge/native/_dbscan.pyx`` does the same in one call per map (:meth:`CylinderDbscan.fit`);
+:meth:`CylinderDbscan.reference` is this numpy code, which the tests compare it against.
 
 Optionally (``min_samples_far``, ``far_range_m``) the core-point threshold is lower from a range on
 (a range-dependent ``M``; beyond the paper). With one ``M`` everywhere, the result equals
@@ -39,6 +44,8 @@ import numpy as np
 import scipy.fft
 import scipy.ndimage
 import scipy.spatial
+
+from edge import native
 
 _EPS_TOL = 1e-9  # relative slack so that distances equal to eps count as neighbours (<= eps)
 
@@ -58,7 +65,7 @@ class Clusters:
         return int(self.labels.size)
 
 
-class CylinderDbscan:
+class CylinderDbscan(native.KernelUser):
     """DBSCAN with radius ``eps`` and ``min_samples`` on the wrapped lattice of a range-Doppler map.
 
     ``n_range`` x ``n_doppler`` bins, ``range_bin_m`` metres per range bin, cylinder radius
@@ -97,6 +104,12 @@ class CylinderDbscan:
         self._cos = self.radius_kmh * np.cos(th)
         self._sin = self.radius_kmh * np.sin(th)
         self._struct = np.ones((3, 3), dtype=bool)
+        # the kernel row of range offset di as a circular Doppler interval [-lo, hi] (chord grows with |dj|)
+        self._lo, self._hi = _row_intervals(kern)
+        #: the compiled kernel (edge/native/_dbscan.pyx), None: the numpy reference runs
+        # the kernel joins 8-neighbour core bins across the Doppler seam too: only right when they are within eps
+        eight = self._lo is not None and h >= 1 and bool(np.all(kern[:, [0, 1, -1]][h - 1 : h + 2]))
+        self.kernel = native.load("_dbscan") if eight else None
 
     def coordinates(self, range_bin: np.ndarray, doppler_bin: np.ndarray) -> np.ndarray:
         """``(N, 3)`` float64 cylinder coordinates ``[v', v'', r]`` of lattice points."""
@@ -132,7 +145,19 @@ class CylinderDbscan:
         return out
 
     def fit(self, mask: np.ndarray) -> Clusters:
-        """Cluster the ``True`` bins of ``mask`` (``(n_range, n_doppler)`` bool)."""
+        """Cluster the ``True`` bins of ``mask`` (``(n_range, n_doppler)`` bool): the compiled kernel when built,
+        else :meth:`reference`."""
+        if self.kernel is None:
+            return self.reference(mask)
+        if mask.shape != (self.n_range, self.n_doppler):
+            raise ValueError(f"mask shape {mask.shape} != {(self.n_range, self.n_doppler)}")
+        ri, dj, labels, core, n_clu, counts = self.kernel.fit(
+            np.ascontiguousarray(mask).view(np.uint8), self._m_row, self._lo, self._hi, self._cos, self._sin,
+            self.range_bin_m)
+        return Clusters(ri, dj, labels, core, int(n_clu), counts)
+
+    def reference(self, mask: np.ndarray) -> Clusters:
+        """The numpy implementation of :meth:`fit` (see the module docstring)."""
         if mask.shape != (self.n_range, self.n_doppler):
             raise ValueError(f"mask shape {mask.shape} != {(self.n_range, self.n_doppler)}")
         ri, dj = np.nonzero(mask)
@@ -165,14 +190,21 @@ class CylinderDbscan:
         comp = self._merge_groups(b_xyz, b_lab, n_lab) if n_lab > 1 else np.zeros(1, dtype=np.int32)
         n_clu = int(comp.max()) + 1
         labels[core] = comp[lab_grid[ri[core], dj[core]] - 1]
-        # border points: nearest core point within eps
+        # border points: nearest core point within eps (squared distance summed as ((x^2 + y^2) + z^2), so the kernel
+        # rounds alike), equally near ones -> the smallest cluster id; the tree's k nearest hold every tie
         nc = ~core
         if nc.any():
-            d, idx = tree.query(self.coordinates(ri[nc], dj[nc]), k=1, distance_upper_bound=self._r)
-            ok = np.isfinite(d)
-            lab_nc = np.full(int(nc.sum()), -1, dtype=np.int32)
-            lab_nc[ok] = comp[b_lab[idx[ok]]]
-            labels[nc] = lab_nc
+            q = self.coordinates(ri[nc], dj[nc])
+            k = min(8, len(b_xyz))
+            _, idx = tree.query(q, k=k, distance_upper_bound=self._r)
+            idx = idx.reshape(len(q), k)
+            ok = idx < len(b_xyz)
+            safe = np.where(ok, idx, 0)
+            t = q[:, None, :] - b_xyz[safe]
+            d2 = np.where(ok, (t[..., 0] * t[..., 0] + t[..., 1] * t[..., 1]) + t[..., 2] * t[..., 2], np.inf)
+            lab_k = np.where(ok, comp[b_lab[safe]], np.iinfo(np.int32).max)
+            best = np.where(d2 == d2.min(axis=1, keepdims=True), lab_k, np.iinfo(np.int32).max).min(axis=1)
+            labels[nc] = np.where(ok.any(axis=1), best, -1).astype(np.int32)
         return Clusters(ri, dj, labels, core, int(n_clu), counts)
 
     def _merge_groups(self, xyz: np.ndarray, lab: np.ndarray, n_lab: int) -> np.ndarray:
@@ -215,6 +247,28 @@ class CylinderDbscan:
         roots = np.array([find(i) for i in range(n_lab)])
         _, dense = np.unique(roots, return_inverse=True)
         return dense.astype(np.int32)
+
+
+def _row_intervals(kern: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Each row of a neighbourhood kernel ``(2h+1, n_doppler)`` (offsets mod n_doppler) as a circular interval
+    ``[-lo, hi]`` of Doppler offsets: int32 ``(lo, hi)``, or ``(None, None)`` when a row is not such an interval (the
+    kernel then cannot run). A full row gives ``lo + hi + 1 >= n_doppler``."""
+    nd = kern.shape[1]
+    lo = np.zeros(kern.shape[0], dtype=np.int32)
+    hi = np.zeros(kern.shape[0], dtype=np.int32)
+    for k, row in enumerate(kern):
+        if row.all():
+            lo[k], hi[k] = 0, nd - 1
+            continue
+        if not row[0]:
+            return None, None
+        hi[k] = int(np.argmin(row)) - 1  # offsets 0..hi
+        lo[k] = int(np.argmin(row[::-1][: nd - 1]) if not row[::-1][: nd - 1].all() else nd - 1)
+        want = np.zeros(nd, dtype=bool)
+        want[np.arange(-lo[k], hi[k] + 1) % nd] = True
+        if not np.array_equal(want, row):
+            return None, None
+    return lo, hi
 
 
 def centroids(points: np.ndarray, labels: np.ndarray, n_clusters: int, radius: float) -> tuple[np.ndarray, np.ndarray]:

@@ -101,8 +101,12 @@ class RangeDopplerProcessor:
         rd = scipy.fft.fft(rng, n=self.n_doppler_fft, axis=0, workers=1)  # (N_D, n_range)
         amp = np.abs(rd)
         amp *= self._scale
-        amp = scipy.fft.fftshift(amp, axes=0).T  # (n_range, N_D)
-        return RangeDopplerMap(np.ascontiguousarray(amp, dtype=np.float32), u)
+        # fftshift along Doppler and transpose to (n_range, N_D) in one copy: out[:, k] = amp[(k - N_D // 2) % N_D]
+        nd, s = self.n_doppler_fft, self.n_doppler_fft // 2
+        out = np.empty((self.n_range, nd), dtype=np.float32)
+        out[:, s:] = amp[: nd - s].T
+        out[:, :s] = amp[nd - s :].T
+        return RangeDopplerMap(out, u)
 
     # --- cylinder ---------------------------------------------------------------------------------
 

@@ -1,6 +1,8 @@
 """Compiled kernels against the numpy reference, end to end: the same frames through a profile's pipeline once
 with the kernels and once with ``RADAR_EDGE_KERNELS=0``, then the detections and the confirmed tracks of every
-frame compared (identical, or the largest difference when they are not).
+frame compared (identical, or the largest difference when they are not); for the surveillance profile
+(``--profile surveillance``, scenario tavanti-test1 by default) also the tracks' provisional classes and every
+classified event (exactly).
 
 ``python -m edge.native.check --scenario highway4-traffic --frames 120`` (synthesised frames) or
 ``python -m edge.native.check --recording rec.npz``; exit status 0 when both paths agree within ``--atol``
@@ -53,22 +55,36 @@ def outputs(profile: str, frames: list, config: Any, *, use_kernels: bool) -> li
             rec["track_id"] = np.array([t.track_id for t in conf], dtype=np.int64)
             for k in TRACK_FIELDS:
                 rec["track_" + k] = np.array([getattr(t, k) for t in conf], dtype=np.float64)
+            # surveillance: provisional classes of the tracks and the events classified in this frame
+            rec["track_cls"] = [(t.cls, t.class_probability) for t in conf]
+            rec["events"] = [_event(e) for e in r.classifications]
             out.append(rec)
+        flush = getattr(pipe, "flush", None)
+        if out and flush is not None:
+            out[-1]["events"] = out[-1]["events"] + [_event(e) for e in flush()]
     finally:
         pipe.close()
     return out
 
 
+def _event(e: Any) -> tuple:
+    """A classified event as a comparable tuple (exact floats)."""
+    return (e.track_id, e.cls, tuple(sorted(e.probabilities.items())), e.mean_radial_speed_kmh, e.direction,
+            e.start_ns, e.end_ns, tuple(sorted(e.features.items())), e.speed_uncertain)
+
+
 def compare(a: list[dict[str, np.ndarray]], b: list[dict[str, np.ndarray]]) -> dict[str, Any]:
     """Frames whose detection count or confirmed-track ids differ, and the largest absolute difference per
     field over the frames where they agree (0.0 everywhere: bit-identical)."""
-    rep: dict[str, Any] = {"frames": len(a), "count_mismatch_frames": [], "max_abs_diff": {}}
+    rep: dict[str, Any] = {"frames": len(a), "count_mismatch_frames": [], "max_abs_diff": {}, "class_mismatch_frames": []}
     for k, (x, y) in enumerate(zip(a, b)):
+        if x.get("events") != y.get("events") or x.get("track_cls") != y.get("track_cls"):
+            rep["class_mismatch_frames"].append(k)
         if x["range_m"].size != y["range_m"].size or not np.array_equal(x["track_id"], y["track_id"]):
             rep["count_mismatch_frames"].append(k)
             continue
         for key in x:
-            if key == "track_id" or x[key].size == 0:
+            if key in ("track_id", "track_cls", "events") or x[key].size == 0:
                 continue
             diff = np.abs(x[key] - y[key])
             both_nan = np.isnan(x[key]) & np.isnan(y[key])
@@ -76,6 +92,7 @@ def compare(a: list[dict[str, np.ndarray]], b: list[dict[str, np.ndarray]]) -> d
             rep["max_abs_diff"][key] = max(rep["max_abs_diff"].get(key, 0.0), m)
     rep["detections"] = int(sum(x["range_m"].size for x in a))
     rep["confirmed_track_frames"] = int(sum(x["track_id"].size for x in a))
+    rep["events"] = int(sum(len(x.get("events", ())) for x in a))
     return rep
 
 
@@ -86,13 +103,14 @@ TRACK_ATOL = 1e-9
 
 def agree(rep: dict[str, Any], atol: float = 0.0, track_atol: float = TRACK_ATOL) -> bool:
     """Same counts and ids in every frame; detections within ``atol``, tracks within ``track_atol``."""
-    return not rep["count_mismatch_frames"] and all(
+    return not rep["count_mismatch_frames"] and not rep.get("class_mismatch_frames") and all(
         v <= (track_atol if k.startswith("track_") else atol) for k, v in rep["max_abs_diff"].items())
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m edge.native.check", description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenario", default="highway4-traffic")
+    p.add_argument("--scenario", default=None,
+                   help="hw_sim scenario (default highway4-traffic; tavanti-test1 for --profile surveillance)")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--frames", type=int, default=120)
     p.add_argument("--recording", help="a recording (.npz) instead of synthesised frames")
@@ -120,18 +138,22 @@ def main(argv: list[str] | None = None) -> int:
     else:
         from edge.bench import synth_frames
 
-        frames = synth_frames("simo" if args.profile in ("auto", "lane") else "d2g", args.scenario, args.seed,
+        scenario = args.scenario or ("tavanti-test1" if args.profile == "surveillance" else "highway4-traffic")
+        frames = synth_frames("simo" if args.profile in ("auto", "lane") else "d2g", scenario, args.seed,
                               args.frames)
     profile = resolve_profile(args.profile, frames[0].frontend.board)
     cfg = load_config(None)
     rep = compare(outputs(profile, frames, cfg, use_kernels=True), outputs(profile, frames, cfg, use_kernels=False))
     ok = agree(rep, args.atol, args.track_atol)
     print(f"{profile} profile, {rep['frames']} frames, {rep['detections']} detections, "
-          f"{rep['confirmed_track_frames']} confirmed track-frames: "
+          f"{rep['confirmed_track_frames']} confirmed track-frames, {rep['events']} events: "
           + ("kernels == numpy reference" if ok else "DIFFERENT") + f" (atol {args.atol:g})")
     if rep["count_mismatch_frames"]:
         print(f"  detection count or confirmed track ids differ in {len(rep['count_mismatch_frames'])} frames, "
               f"first {rep['count_mismatch_frames'][:5]}")
+    if rep["class_mismatch_frames"]:
+        print(f"  track classes or classified events differ in {len(rep['class_mismatch_frames'])} frames, "
+              f"first {rep['class_mismatch_frames'][:5]}")
     for k, v in sorted(rep["max_abs_diff"].items()):
         if v > 0:
             print(f"  max |difference| {k}: {v:.3g}")

@@ -1,0 +1,333 @@
+# cython: language_level=3
+# distutils: extra_compile_args = -ffp-contract=off
+"""DBSCAN stage kernel (edge.dsp.dbscan.CylinderDbscan.fit): the whole clustering of one thresholded range-Doppler
+map in one call, with the labels of the numpy reference (CylinderDbscan.reference).
+
+On the (range bin, Doppler bin) lattice whose Doppler axis is a circle, the eps-neighbourhood of a bin is, row by row
+(range offset ``di``), a circular interval of Doppler offsets ``[-lo[di], hi[di]]`` (the reference's kernel
+``d <= eps``, handed in by the caller). So:
+
+1. neighbour counts: per point, one circular window sum per row offset on per-row prefix sums of the mask (exact
+   integers, as the reference's rounded FFT convolution);
+2. core connectivity: union-find over core points, first with their 8-neighbours on the lattice (Doppler wrapping),
+   then, when more than one group is left, from every boundary core point to every run of core bins inside its
+   window (a run is one group already);
+3. dense cluster ids in the order of each cluster's first core point in row-major order (the reference's order:
+   ``ndimage.label`` numbers groups by first bin, the union keeps the smallest);
+4. border points: the nearest boundary core point (squared distance in the cylinder coordinates ``[R cos, R sin, r]``,
+   summed as the reference does) inside the window; ties go to the smallest cluster id.
+"""
+
+cimport cython
+import numpy as np
+cimport numpy as cnp
+
+cnp.import_array()
+
+
+cdef inline int _find(int *parent, int x) noexcept nogil:
+    cdef int r = x
+    while parent[r] != r:
+        r = parent[r]
+    cdef int nxt
+    while parent[x] != r:
+        nxt = parent[x]
+        parent[x] = r
+        x = nxt
+    return r
+
+
+cdef inline void _union(int *parent, int a, int b) noexcept nogil:
+    a = _find(parent, a)
+    b = _find(parent, b)
+    if a < b:
+        parent[b] = a
+    elif b < a:
+        parent[a] = b
+
+
+cdef inline int _wrap(int c, int nd) noexcept nogil:
+    """Column ``c`` in ``[-nd, 2 nd)`` wrapped onto ``[0, nd)``."""
+    if c < 0:
+        return c + nd
+    if c >= nd:
+        return c - nd
+    return c
+
+
+cdef inline void _union_runs(int *parent, const int *idx, const int *nxt, int k, int s, int t) noexcept nogil:
+    """Join point ``k`` with every run of core bins of a row (``idx``, ``nxt``) in columns ``s..t`` (one union per
+    run)."""
+    cdef int c = nxt[s]
+    while c <= t:
+        _union(parent, k, idx[c])
+        while c <= t and idx[c] >= 0:
+            c += 1
+        c = nxt[c]
+
+
+def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo, const int[::1] hi,
+        const double[::1] cosv, const double[::1] sinv, double range_bin_m):
+    """Cluster the nonzero bins of ``mask`` ``(n_range, n_doppler)``.
+
+    ``m_row`` (n_range,) core threshold per range row; ``lo``/``hi`` (2h+1,) the window of row offset ``di - h``;
+    ``cosv``/``sinv`` (n_doppler,) the cylinder coordinates of each Doppler bin (km/h), ``range_bin_m`` metres per
+    range bin. Returns ``(range_bin, doppler_bin, labels, core, n_clusters, counts)`` as the reference's Clusters.
+    """
+    cdef Py_ssize_t nr = mask.shape[0], nd = mask.shape[1]
+    cdef int h = (lo.shape[0] - 1) // 2
+    cdef Py_ssize_t i, j, k, n = 0
+    cdef int di, r2, c, a, b, e, p, q, m_i
+    with nogil:
+        for i in range(nr):
+            for j in range(nd):
+                n += mask[i, j] != 0
+    ri_a = np.empty(n, dtype=np.intp)
+    dj_a = np.empty(n, dtype=np.intp)
+    lab_a = np.full(n, -1, dtype=np.int32)
+    core_a = np.zeros(n, dtype=np.bool_)
+    cnt_a = np.zeros(n, dtype=np.int32)
+    if n == 0:
+        return ri_a, dj_a, lab_a, core_a, 0, cnt_a
+    cdef Py_ssize_t[::1] ri = ri_a
+    cdef Py_ssize_t[::1] dj = dj_a
+    cdef int[::1] lab = lab_a
+    cdef cnp.npy_bool[::1] core = core_a
+    cdef int[::1] cnt = cnt_a
+    # per-row prefix sums over three laps of the Doppler circle (columns -nd .. 2 nd - 1), with h rows of zeros above
+    # and below the map: every window sum is one subtraction, without branches
+    cdef Py_ssize_t w3 = 3 * nd + 1
+    # (rows without points, and the h rows beyond each edge, point at one row of zeros: no large zero fill)
+    ext_a = np.empty((nr, w3), dtype=np.int32)
+    zero_a = np.zeros(w3, dtype=np.int32)
+    rows_a = np.empty(nr + 2 * h, dtype=np.intp)  # padded row -> address of its prefix row
+    idx_a = np.full((nr, nd), -1, dtype=np.int32)  # point index of each core bin, -1 elsewhere
+    row_n_a = np.zeros(nr, dtype=np.int32)
+    off_a = np.empty((2, 2 * h + 1), dtype=np.intp)
+    cdef int[:, ::1] ext = ext_a
+    cdef int[::1] zero = zero_a
+    cdef Py_ssize_t[::1] rows = rows_a
+    cdef int[:, ::1] idx = idx_a
+    cdef int[::1] row_n = row_n_a
+    cdef Py_ssize_t[:, ::1] off = off_a
+    parent_a = np.arange(n, dtype=np.int32)
+    cdef int[::1] parent = parent_a
+    cdef int *pp = &parent[0]
+    cdef int n_core = 0, n_groups, n_clu = 0
+    cdef bint is_bnd
+    cdef double d2, best_d2, x0, x1, x2, t0, t1, t2
+    cdef int best_lab, tot
+    cdef int *er
+    cdef const int *rp
+    with nogil:
+        for di in range(2 * h + 1):
+            a = lo[di]
+            b = hi[di]
+            if a + b + 1 >= nd:  # the whole circle, once
+                a = 0
+                b = <int>nd - 1
+            off[0, di] = b + 1 + nd
+            off[1, di] = nd - a
+        # points in row-major order, per-row prefix sums of the mask
+        k = 0
+        for i in range(nr):
+            if k == n:
+                break
+            er = &ext[i, 0]
+            tot = 0
+            for j in range(nd):
+                if mask[i, j] != 0:
+                    ri[k] = i
+                    dj[k] = j
+                    k += 1
+                    tot += 1
+                er[nd + j + 1] = tot
+            row_n[i] = tot
+            if tot:
+                er[nd] = 0
+                for j in range(nd + 1):
+                    er[j] = er[nd + j] - tot
+                    er[2 * nd + j] = er[nd + j] + tot
+        for i in range(nr + 2 * h):
+            rows[i] = <Py_ssize_t>&zero[0]
+            if h <= i < nr + h and row_n[i - h] > 0:
+                rows[i] = <Py_ssize_t>&ext[i - h, 0]
+        # 1. neighbour counts and core points
+        for k in range(n):
+            i = ri[k]
+            j = dj[k]
+            c = 0
+            for di in range(2 * h + 1):  # padded row i + di is map row i + di - h
+                rp = <const int *>rows[i + di]
+                c += rp[j + off[0, di]] - rp[j + off[1, di]]
+            cnt[k] = c
+            if c >= m_row[i]:
+                core[k] = True
+                idx[i, j] = <int>k
+                n_core += 1
+    if n_core == 0:
+        return ri_a, dj_a, lab_a, core_a, 0, cnt_a
+    # runs of core bins per row: end of the run at each core bin, next core bin at or after each column
+    nxt_a = np.empty((nr, nd + 1), dtype=np.int32)
+    cdef int[:, ::1] nxt = nxt_a
+    grp_a = np.empty(n, dtype=np.int32)
+    cdef int[::1] grp = grp_a
+    cdef int big = -1
+    with nogil:
+        # 2. 8-connectivity (left, and the three bins of the row above; Doppler wraps)
+        n_groups = n_core
+        for k in range(n):
+            if not core[k]:
+                continue
+            i = ri[k]
+            j = dj[k]
+            for e in range(-1, 2):
+                q = idx[i, _wrap(<int>j + e, <int>nd)] if e != 0 else -1
+                if q >= 0 and q < k:
+                    a = _find(pp, <int>k)
+                    b = _find(pp, q)
+                    if a != b:
+                        _union(pp, a, b)
+                        n_groups -= 1
+                if i > 0:
+                    q = idx[i - 1, _wrap(<int>j + e, <int>nd)]
+                    if q >= 0:
+                        a = _find(pp, <int>k)
+                        b = _find(pp, q)
+                        if a != b:
+                            _union(pp, a, b)
+                            n_groups -= 1
+        if n_groups > 1:
+            for i in range(nr):
+                if row_n[i] == 0:
+                    continue
+                nxt[i, nd] = <int>nd
+                for j in range(nd - 1, -1, -1):
+                    nxt[i, j] = <int>j if idx[i, j] >= 0 else nxt[i, j + 1]
+            # the largest lattice group's points need not search: every pair of groups within eps has one group
+            # that is not the largest, and the window relation is symmetric
+            for k in range(n):
+                lab[k] = 0
+            for k in range(n):
+                if core[k]:
+                    a = _find(pp, <int>k)
+                    grp[k] = a
+                    lab[a] += 1
+                    if big < 0 or lab[a] > lab[big]:
+                        big = a
+            # boundary core bins: some 8-neighbour is not core (rows outside the map count as core)
+            for k in range(n):
+                if not core[k] or grp[k] == big:
+                    continue
+                i = ri[k]
+                j = dj[k]
+                is_bnd = False
+                for di in range(-1, 2):
+                    r2 = <int>i + di
+                    if r2 < 0 or r2 >= nr:
+                        continue
+                    for e in range(-1, 2):
+                        if idx[r2, _wrap(<int>j + e, <int>nd)] < 0:
+                            is_bnd = True
+                if not is_bnd:
+                    continue
+                for di in range(-h, h + 1):
+                    r2 = <int>i + di
+                    if r2 < 0 or r2 >= nr or row_n[r2] == 0:
+                        continue
+                    a = lo[di + h]
+                    b = hi[di + h]
+                    if a + b + 1 >= nd:
+                        a = 0
+                        b = <int>nd - 1
+                    else:
+                        a = <int>j - a
+                        b = <int>j + b
+                    # columns a..b, circular: at most two linear segments; one union per run of core bins
+                    if a < 0:
+                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, a + <int>nd, <int>nd - 1)
+                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, 0, b)
+                    elif b >= nd:
+                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, a, <int>nd - 1)
+                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, 0, b - <int>nd)
+                    else:
+                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, a, b)
+        # 3. dense ids in order of first core point
+        for k in range(n):
+            lab[k] = -1
+        for k in range(n):
+            if core[k]:
+                a = _find(pp, <int>k)
+                if lab[a] < 0:  # the root is its component's smallest (first) point
+                    lab[a] = n_clu
+                    n_clu += 1
+        for k in range(n):
+            if core[k]:
+                lab[k] = lab[_find(pp, <int>k)]
+    # 4. border points (needs boundary flags of all core bins)
+    bnd_a = np.zeros(n, dtype=np.uint8)  # per point: a boundary core bin
+    cdef cnp.uint8_t[::1] bnd = bnd_a
+    cdef bint any_border = False
+    with nogil:
+        for k in range(n):
+            if not core[k]:
+                any_border = True
+                break
+        if any_border:
+            for i in range(nr):
+                if row_n[i] == 0:
+                    continue
+                nxt[i, nd] = <int>nd
+                for j in range(nd - 1, -1, -1):
+                    nxt[i, j] = <int>j if idx[i, j] >= 0 else nxt[i, j + 1]
+            for k in range(n):
+                if not core[k]:
+                    continue
+                i = ri[k]
+                j = dj[k]
+                is_bnd = j == 0 or j == nd - 1  # the reference's seam columns
+                for di in range(-1, 2):
+                    r2 = <int>i + di
+                    if r2 < 0 or r2 >= nr:
+                        continue
+                    for e in range(-1, 2):
+                        if idx[r2, _wrap(<int>j + e, <int>nd)] < 0:
+                            is_bnd = True
+                bnd[k] = is_bnd
+            for k in range(n):
+                if core[k]:
+                    continue
+                i = ri[k]
+                j = dj[k]
+                x0 = cosv[j]
+                x1 = sinv[j]
+                x2 = <double>i * range_bin_m
+                best_d2 = 1e300
+                best_lab = -1
+                for di in range(-h, h + 1):
+                    r2 = <int>i + di
+                    if r2 < 0 or r2 >= nr or row_n[r2] == 0:
+                        continue
+                    a = lo[di + h]
+                    b = hi[di + h]
+                    if a + b + 1 >= nd:
+                        a = 0
+                        b = <int>nd - 1
+                    else:
+                        a = <int>j - a
+                        b = <int>j + b
+                    for c in range(a, b + 1):
+                        m_i = _wrap(c, <int>nd)
+                        p = idx[r2, m_i]
+                        if p < 0 or not bnd[p]:
+                            continue
+                        t0 = x0 - cosv[m_i]
+                        t1 = x1 - sinv[m_i]
+                        t2 = x2 - <double>r2 * range_bin_m
+                        d2 = (t0 * t0 + t1 * t1) + t2 * t2
+                        q = lab[idx[r2, m_i]]
+                        if d2 < best_d2 or (d2 == best_d2 and q < best_lab):
+                            best_d2 = d2
+                            best_lab = q
+                lab[k] = best_lab
+    return ri_a, dj_a, lab_a, core_a, n_clu, cnt_a
