@@ -61,19 +61,29 @@ cdef inline double _quad2(const double* si, const double* v) noexcept nogil:
     return acc
 
 
+cdef object _checked_out(object a, tuple shape):
+    """``a`` if it is a C-contiguous float64 array of ``shape`` (the kernels index without bounds checks)."""
+    if not isinstance(a, np.ndarray) or a.dtype != np.float64 or tuple(a.shape) != shape \
+            or not a.flags.c_contiguous or not a.flags.writeable:
+        raise ValueError(f"output buffer must be a writeable C-contiguous float64 array of shape {shape}")
+    return a
+
+
 def innovations_each(const double[:, ::1] z, const double[:, ::1] zh, const double[:, :, ::1] st,
-                     const double[:, :, ::1] rm, double lim, bint prune):
+                     const double[:, :, ::1] rm, double lim, bint prune, v_out=None, s_out=None, si_out=None):
     """``v`` (T, M, n), ``d2`` (T, M), ``s``, ``s_inv`` (T, M, n, n), ``det_s`` (T, M) of
     :func:`edge.track.pdaf.innovations_each` from ``z`` (M, n), ``z_hat`` (T, n), the track part ``st`` (T, n, n)
     (``H P H' + R_t``, symmetrised) and ``rm`` (M, n, n). ``prune``: the exact pre-gate with threshold ``lim``
     (``gamma (1 + margin)``): a pair with ``v_i^2 > lim (st_ii + rm_ii)`` in a component gets ``d2 = inf``,
-    ``S = S^-1 = 0``, ``|S| = 1``. n = 2 or 3."""
+    ``S = S^-1 = 0``, ``|S| = 1``. n = 2 or 3. ``v_out``, ``s_out``, ``si_out``: C-contiguous float64 arrays of the
+    shapes of ``v``, ``s``, ``s_inv`` to write them into (every entry is written) and return, or None: new arrays."""
     cdef Py_ssize_t nt = zh.shape[0], nm = z.shape[0], n = z.shape[1]
     cdef Py_ssize_t t, m, i, nn = n * n
-    v_a = np.empty((nt, nm, n))
+    v_a = np.empty((nt, nm, n)) if v_out is None else _checked_out(v_out, (nt, nm, n))
     d2_a = np.empty((nt, nm))
-    s_a = np.empty((nt, nm, n, n))  # every entry is written below (np.zeros would clear them all first)
-    si_a = np.empty((nt, nm, n, n))
+    # every entry is written below (np.zeros would clear them all first)
+    s_a = np.empty((nt, nm, n, n)) if s_out is None else _checked_out(s_out, (nt, nm, n, n))
+    si_a = np.empty((nt, nm, n, n)) if si_out is None else _checked_out(si_out, (nt, nm, n, n))
     det_a = np.empty((nt, nm))
     cdef double[:, :, ::1] v = v_a
     cdef double[:, ::1] d2 = d2_a

@@ -50,6 +50,34 @@ def test_innovations_each_is_bit_identical(seed, t, m, n):
     assert np.array_equal(mahalanobis_d2(ref.v, ref.s), mahalanobis_d2(ref.v, ref.s, K))
 
 
+def test_innovations_each_into_reused_buffers_is_bit_identical():
+    """Frames of different sizes through one PairBuffers (grown, then reused with stale contents from a larger
+    frame): each result equals the numpy reference; the views share the buffers; copies start empty."""
+    import copy
+    import pickle
+
+    from edge.track.pdaf import PairBuffers
+
+    buf = PairBuffers()
+    rng = np.random.default_rng(7)
+    shared = []
+    for t, m, n in [(30, 40, 3), (90, 140, 3), (20, 10, 3), (90, 140, 2), (5, 8, 3), (0, 5, 3), (4, 0, 2)]:
+        z, zh, h, p, r_track, r_meas = _random_frame(rng, max(t, 1), max(m, 2))
+        z, zh, h, p, r_track = z[:m, :n], zh[:t, :n], h[:t, :n], p[:t], r_track[:t, :n, :n]
+        r_meas = np.ascontiguousarray(r_meas[:m, :n, :n])
+        for prune in (None, gate_threshold(0.99, n)):
+            ref = innovations_each(z, zh, h, p, r_track, r_meas, prune)
+            got = innovations_each(z, zh, h, p, r_track, r_meas, prune, K, buf)
+            assert _same(ref, got)
+            if t * m:
+                shared.append(np.shares_memory(got.s, buf.views(1, 1, 1)[1]))
+    assert all(shared) and len(shared) >= 8
+    assert copy.deepcopy(buf)._flat is None and pickle.loads(pickle.dumps(buf))._flat is None
+    with pytest.raises(ValueError, match="output buffer"):
+        K.innovations_each(np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((4, 2, 2)), np.zeros((3, 2, 2)), 1.0, False,
+                           np.zeros((5, 3, 2)), None, None)
+
+
 @settings(max_examples=60, deadline=None, derandomize=True)
 @given(st.lists(st.floats(-1e3, 1e3, allow_nan=False), min_size=12, max_size=12),
        st.floats(1e-4, 1e4), st.floats(-0.99, 0.99))

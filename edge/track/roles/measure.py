@@ -13,7 +13,7 @@ import numpy as np
 from edge import native
 from edge.track import kalman
 from edge.track.config import MeasurementConfig
-from edge.track.pdaf import (Innovations, PairInnovations, combined_update, combined_update_pairs,
+from edge.track.pdaf import (Innovations, PairBuffers, PairInnovations, combined_update, combined_update_pairs,
                              gate_volume_each, innovations, innovations_each, mahalanobis_d2, pair_innovations,
                              unit_ball_volume)
 from edge.track import imm
@@ -84,6 +84,8 @@ class MeasurementModel(native.KernelUser):
         self._head: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None  # (xp, heading(xp))
         #: the compiled association/update core (``edge.native._track``), or None: the numpy reference runs
         self.kernel = native.load("_track")
+        #: storage the kernel reuses frame to frame for the pairs' innovations (``v``, ``S``, ``S^-1``)
+        self._pair_buffers = PairBuffers()
 
     @property
     def use_radial_speed(self) -> bool:
@@ -282,7 +284,8 @@ class SnrNoiseModel(MeasurementModel):
         return self.of_detections(meas)
 
     def _innovations(self, meas, pred, mp, prune_gamma) -> None:
-        mp.inn = innovations_each(meas.z, mp.zh, mp.h, pred.p, mp.r, mp.rm, prune_gamma, self.kernel)
+        mp.inn = innovations_each(meas.z, mp.zh, mp.h, pred.p, mp.r, mp.rm, prune_gamma, self.kernel,
+                                  self._pair_buffers)
 
     def seed_exclusion_d2(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool) -> np.ndarray:
         if not constant:
