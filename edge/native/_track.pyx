@@ -1000,3 +1000,67 @@ cdef inline int _popcount32(cnp.uint32_t v) noexcept nogil:
         v &= v - 1
         c += 1
     return c
+
+
+def claimed_any(const double[:, :, ::1] v, const double[:, :, ::1] s, double gamma):
+    """(M,) uint8: detections with ``v' S_t^-1 v <= gamma`` for some track ``t`` -- ``(mahalanobis_d2(v, s) <=
+    gamma).any(axis=0)`` of :mod:`edge.track.pdaf` (the inverse of :func:`edge.track.smallmat.inv_det` and the terms
+    of ``_quad``, bit-identical) in one pass: innovations ``v`` (T, M, n), one ``S`` (T, n, n) per track. n = 2, 3."""
+    cdef Py_ssize_t nt = v.shape[0], nm = v.shape[1], n = v.shape[2], t, m, i
+    out_a = np.zeros(nm, dtype=np.uint8)
+    cdef cnp.uint8_t[::1] out = out_a
+    cdef double a[9]
+    cdef double si[9]
+    cdef double d2
+    if n != 2 and n != 3:
+        raise ValueError("claimed_any: n must be 2 or 3")
+    if s.shape[0] != nt or s.shape[1] != n or s.shape[2] != n:
+        raise ValueError("claimed_any: s must be (T, n, n) with v's T and n")
+    with nogil:
+        for t in range(nt):
+            for i in range(n * n):
+                a[i] = (&s[t, 0, 0])[i]
+            if n == 3:
+                _inv3(a, si)
+            else:
+                _inv2(a, si)
+            for m in range(nm):
+                if out[m]:
+                    continue
+                if n == 3:
+                    d2 = _quad3(si, &v[t, m, 0])
+                else:
+                    d2 = _quad2(si, &v[t, m, 0])
+                if d2 <= gamma:
+                    out[m] = 1
+    return out_a
+
+
+def mode_probabilities_match(const double[:, ::1] c, const double[:, ::1] lik, double floor,
+                             const double[:, :, ::1] xm, const double[:, :, :, ::1] pm):
+    """The IMM's step 4 and moment matching in one pass: ``mu`` (T, 2) of
+    :func:`edge.track.imm.update_mode_probabilities` (``c``, ``lik`` (T, 2), ``floor``; the same operations, NaN
+    handling of ``np.maximum`` included: bit-identical), then ``x`` (T, 4), ``p`` (T, 4, 4) of :func:`moment_match`
+    with ``mu`` (equal to rounding) -> (mu, x, p)."""
+    cdef Py_ssize_t nt = c.shape[0], t
+    if lik.shape[0] != nt or xm.shape[0] != nt or pm.shape[0] != nt or c.shape[1] != 2 or lik.shape[1] != 2:
+        raise ValueError("mode_probabilities_match: c, lik (T, 2), xm (T, 2, 4), pm (T, 2, 4, 4)")
+    mu_a = np.empty((nt, 2))
+    x_a = np.empty((nt, 4))
+    p_a = np.empty((nt, 4, 4))
+    cdef double[:, ::1] mu = mu_a
+    cdef double[:, ::1] x = x_a
+    cdef double[:, :, ::1] p = p_a
+    cdef double m0, m1, den
+    with nogil:
+        for t in range(nt):
+            m0 = c[t, 0] * lik[t, 0]
+            m1 = c[t, 1] * lik[t, 1]
+            den = _max_nan(m0 + m1, 1e-300)
+            m0 = _max_nan(m0 / den, floor)
+            m1 = _max_nan(m1 / den, floor)
+            den = m0 + m1
+            mu[t, 0] = m0 / den
+            mu[t, 1] = m1 / den
+            _moment_match_row(&xm[t, 0, 0], &pm[t, 0, 0, 0], mu[t, 0], mu[t, 1], &x[t, 0], &p[t, 0, 0])
+    return mu_a, x_a, p_a

@@ -575,3 +575,49 @@ def test_moving_and_expired_is_identical(confirmation, keep_from):
     for t_ns, det in road_frames(30, 70, clutter_per_frame=12.0, seed=9):
         tr.step(det, t_ns)
     assert expired_total[0] > 20 and moved_total[0] > 500
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("t,m", [(90, 140), (30, 40), (5, 8), (1, 1), (3, 0)])
+@pytest.mark.parametrize("n", [2, 3])
+def test_seed_exclusion_claimed_is_identical(seed, t, m, n):
+    """The claimed detections of the constant-noise exclusion gate: the kernel's inverse, distances and test equal
+    ``(mahalanobis_d2(v, S) <= gamma).any(axis=0)``, also for thresholds right at a pair's distance."""
+    rng = np.random.default_rng(seed)
+    z, zh, h, p, r_track, r_meas = _random_frame(rng, t, max(m, 2))
+    v = np.ascontiguousarray(z[None, :m, :n] - zh[:, None, :n])
+    s = np.ascontiguousarray((h @ p @ h.transpose(0, 2, 1) + r_track)[:, :n, :n])
+    s[:, 0, 1] += rng.normal(0, 1e-3, t)  # not quite symmetric: the general cofactors, as inv_det
+    d2 = mahalanobis_d2(v, s)
+    gammas = [gate_threshold(0.999, n), 1e-3, np.inf] + ([float(np.median(d2))] if d2.size else [])
+    for gamma in gammas:
+        got = K.claimed_any(v, s, gamma)
+        assert got.dtype == np.uint8
+        assert np.array_equal(got.view(bool), (d2 <= gamma).any(axis=0))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_mode_probabilities_and_moment_match(seed):
+    """The IMM's mode probabilities bit-identical to numpy (floor, underflow to 0 and NaN rows included), the
+    moment-matched state equal to rounding."""
+    from edge.track import imm
+
+    rng = np.random.default_rng(seed)
+    t = 50
+    c = rng.uniform(0.0, 1.0, (t, 1))
+    c = np.hstack([c, 1.0 - c])
+    lik = rng.uniform(0.0, 5.0, (t, 2)) * 10.0 ** rng.uniform(-300, 3, (t, 1))
+    lik[0] = 0.0
+    lik[1, 1] = np.nan
+    lik[2] = [1e-320, 0.0]
+    xm = rng.normal(0, 10, (t, 2, 4))
+    a = rng.normal(0, 1, (t, 2, 4, 4))
+    pm = a @ a.swapaxes(-1, -2) + 0.01 * np.eye(4)
+    mu, x, p = K.mode_probabilities_match(c, lik, 1e-3, xm, pm)
+    mu_ref = imm.update_mode_probabilities(c, lik, 1e-3)
+    assert np.array_equal(mu, mu_ref, equal_nan=True)
+    ok = np.isfinite(mu_ref).all(axis=1)
+    assert ok.sum() == t - 1
+    x_ref, p_ref = imm.moment_match(xm[ok], pm[ok], mu_ref[ok])
+    np.testing.assert_allclose(x[ok], x_ref, rtol=1e-12, atol=1e-12 * np.abs(x_ref).max())
+    np.testing.assert_allclose(p[ok], p_ref, rtol=1e-12, atol=1e-12 * np.abs(p_ref).max())

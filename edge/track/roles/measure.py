@@ -207,6 +207,11 @@ class MeasurementModel(native.KernelUser):
         constant noise model (the same innovations, ``S`` = the track's part plus the constant sensor noise)."""
         return mp.inn.d2
 
+    def seed_exclusion_claimed(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool,
+                               gamma: float) -> np.ndarray:
+        """(M,) detections with a squared distance of :meth:`seed_exclusion_d2` at most ``gamma`` to some track."""
+        return (self.seed_exclusion_d2(mp, xp, constant) <= gamma).any(axis=0)
+
     def update_extent(self, xp, ext_var, inn: Innovations, beta: np.ndarray) -> np.ndarray:
         """Learn the along-heading spread from the weighted along-heading innovations of this frame:
         ``E[a^2] - u' (H P H' + R_sensor) u``, ``R_sensor`` = ``S`` without the extent term."""
@@ -291,6 +296,14 @@ class SnrNoiseModel(MeasurementModel):
         if not constant:
             return mp.inn.d2
         return mahalanobis_d2(mp.inn.v, self.with_sensor(xp, mp.inn.s_track), self.kernel)
+
+    def seed_exclusion_claimed(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool,
+                               gamma: float) -> np.ndarray:
+        if self.kernel is None or not constant or mp.inn.v.shape[2] not in (2, 3):
+            return super().seed_exclusion_claimed(mp, xp, constant, gamma)
+        # the inverses, distances and the test in one kernel call (bit-identical)
+        return self.kernel.claimed_any(np.ascontiguousarray(mp.inn.v), self.with_sensor(xp, mp.inn.s_track),
+                                       gamma).view(bool)
 
     def state_update(self, xp, pp, mp: MeasurementPrediction, beta, beta0):
         """The PDAF posterior with one gain per hypothesis (:func:`edge.track.pdaf.combined_update`)."""

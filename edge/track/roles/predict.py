@@ -151,10 +151,11 @@ class ImmPdaUpdater(native.KernelUser):
         xm, pm, lik = self.measurement_model.mode_update(pred, mp, meas, hyp.beta, hyp.beta0, hyp.gated,
                                                          self.gamma(meas.z.shape[1]), self.assoc.prob_detect,
                                                          self.assoc.prob_gate)
-        tracks.mu = imm.update_mode_probabilities(pred.c, lik, self.motion.imm_min_mode_prob)
         tracks.xm, tracks.pm = xm, pm
-        if self.kernel is not None:  # equal to rounding
-            tracks.x, tracks.p = self.kernel.moment_match(np.ascontiguousarray(xm), np.ascontiguousarray(pm),
-                                                          np.ascontiguousarray(tracks.mu))
+        if self.kernel is not None:  # mode probabilities (bit-identical) and moment matching (equal to rounding)
+            c = np.ascontiguousarray
+            tracks.mu, tracks.x, tracks.p = self.kernel.mode_probabilities_match(
+                c(pred.c), c(lik), self.motion.imm_min_mode_prob, c(xm), c(pm))
         else:
+            tracks.mu = imm.update_mode_probabilities(pred.c, lik, self.motion.imm_min_mode_prob)
             tracks.x, tracks.p = imm.moment_match(xm, pm, tracks.mu)
