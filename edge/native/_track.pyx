@@ -543,13 +543,24 @@ cdef inline void _moment_match_row(const double* xm, const double* pm, double w0
 
 
 def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const double[:, ::1] mu,
-                const double[:, :, ::1] pi, const double[:, :, ::1] f, const double[:, :, ::1] q):
+                const double[:, :, ::1] pi, const double[:, :, ::1] f, const double[:, :, ::1] q,
+                const double[:, ::1] x_far=None, double far_from_m=0.0, double far_span_m=1.0,
+                double log_p_near=0.0, double log_p_far=0.0):
     """IMM mixing, mode-matched prediction and moment matching of all tracks (:func:`edge.track.imm.mix`,
     :func:`edge.track.imm.predict_modes`, :func:`edge.track.imm.moment_match`): ``xm`` (T, 2, 4), ``pm``
     (T, 2, 4, 4), ``mu`` (T, 2), ``pi`` (1, 2, 2) or (T, 2, 2), ``f``, ``q`` (2, 4, 4) -> ``x`` (T, 4), ``p``
     (T, 4, 4), ``xpm`` (T, 2, 4), ``ppm`` (T, 2, 4, 4), ``c`` (T, 2). Equal to numpy to rounding (its small matrix
-    products are BLAS's)."""
+    products are BLAS's).
+
+    ``x_far`` (T, 4), the tracks' states: the first row of each track's switching matrix from its ground range
+    instead (``ImmPredictor._far_switch``, the same operations: ``u = min(max((rho - far_from_m) / far_span_m, 0),
+    1)``, ``p = exp((1 - u) log_p_near + u log_p_far)``, row ``(1 - p, p)``); the second row is ``pi[0, 1]``."""
     cdef Py_ssize_t nt = xm.shape[0], t, i, j, k, l, mode, src
+    cdef bint far = x_far is not None
+    cdef double pi_t[2][2]
+    cdef double u, pk
+    if far and (x_far.shape[0] != nt or x_far.shape[1] < 2):
+        raise ValueError("imm_predict: x_far must be (T, 4)")
     x_a = np.empty((nt, 4))
     p_a = np.empty((nt, 4, 4))
     xpm_a = np.empty((nt, 2, 4))
@@ -570,9 +581,20 @@ def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const
     with nogil:
         for t in range(nt):
             src = t if pi.shape[0] > 1 else 0
+            if far:
+                u = _np_min(_np_max((hypot(x_far[t, 0], x_far[t, 1]) - far_from_m) / far_span_m, 0.0), 1.0)
+                pk = exp((1.0 - u) * log_p_near + u * log_p_far)
+                pi_t[0][0] = 1.0 - pk
+                pi_t[0][1] = pk
+                pi_t[1][0] = pi[0, 1, 0]
+                pi_t[1][1] = pi[0, 1, 1]
+            else:
+                for i in range(2):
+                    for j in range(2):
+                        pi_t[i][j] = pi[src, i, j]
             for i in range(2):
                 for j in range(2):
-                    joint[i][j] = mu[t, i] * pi[src, i, j]
+                    joint[i][j] = mu[t, i] * pi_t[i][j]
             for j in range(2):
                 c[t, j] = joint[0][j] + joint[1][j]
                 den = _max_nan(c[t, j], 1e-300)
@@ -1064,3 +1086,51 @@ def mode_probabilities_match(const double[:, ::1] c, const double[:, ::1] lik, d
             mu[t, 1] = m1 / den
             _moment_match_row(&xm[t, 0, 0], &pm[t, 0, 0, 0], mu[t, 0], mu[t, 1], &x[t, 0], &p[t, 0, 0])
     return mu_a, x_a, p_a
+
+
+def reanchor_match(const double[:, ::1] x, const cnp.uint8_t[::1] confirmed, const cnp.uint8_t[::1] hit,
+                   const cnp.uint8_t[:, ::1] gated, const double[:, ::1] z, double speed_mps, bint receding_only,
+                   double min_m, double max_m, double lateral_m):
+    """The matches of ``edge.track.roles.post.Reanchor.run`` (the same operations): each confirmed track that
+    missed (``confirmed``, ``hit`` (T,)) and the nearest detection no track validated (``gated`` (T, M)) that lies
+    between ``min_m`` (exclusive) and ``max_m`` nearer than the track in ground range, within ``lateral_m`` across
+    and ``speed_mps`` in radial speed (``receding_only``: receding tracks only); ``x`` (T, 4), ``z`` (M, 3) ->
+    track rows ``i`` and detection rows ``j`` (int64, tracks in row order; the first of equally near)."""
+    cdef Py_ssize_t nt = x.shape[0], nm = z.shape[0], t, m, k = 0
+    if confirmed.shape[0] != nt or hit.shape[0] != nt or gated.shape[0] != nt or gated.shape[1] != nm \
+            or z.shape[1] < 3 or x.shape[1] < 4:
+        raise ValueError("reanchor_match: x (T, 4), confirmed, hit (T,), gated (T, M), z (M, 3)")
+    i_a = np.empty(nt, dtype=np.int64)
+    j_a = np.empty(nt, dtype=np.int64)
+    free_a = np.ones(nm, dtype=np.uint8)
+    cdef cnp.int64_t[::1] io = i_a
+    cdef cnp.int64_t[::1] jo = j_a
+    cdef cnp.uint8_t[::1] free = free_a
+    cdef double rho_t, vr_t, nearer, best
+    cdef Py_ssize_t arg
+    with nogil:
+        for t in range(nt):
+            for m in range(nm):
+                if gated[t, m]:
+                    free[m] = 0
+        for t in range(nt):
+            if not confirmed[t] or hit[t]:
+                continue
+            rho_t = _np_max(hypot(x[t, 0], x[t, 1]), 1e-3)
+            vr_t = (x[t, 0] * x[t, 2] + x[t, 1] * x[t, 3]) / rho_t
+            if receding_only and not (vr_t > 0.0):
+                continue
+            arg = -1
+            best = -INFINITY
+            for m in range(nm):
+                if not free[m] or not (fabs(vr_t - z[m, 2]) < speed_mps):
+                    continue
+                nearer = rho_t - hypot(z[m, 0], z[m, 1])
+                if nearer > min_m and nearer <= max_m and fabs(x[t, 0] - z[m, 0]) < lateral_m and nearer > best:
+                    best = nearer
+                    arg = m
+            if arg >= 0:
+                io[k] = t
+                jo[k] = arg
+                k += 1
+    return i_a[:k].copy(), j_a[:k].copy()
