@@ -61,19 +61,29 @@ cdef inline double _quad2(const double* si, const double* v) noexcept nogil:
     return acc
 
 
+cdef object _checked_out(object a, tuple shape):
+    """``a`` if it is a C-contiguous float64 array of ``shape`` (the kernels index without bounds checks)."""
+    if not isinstance(a, np.ndarray) or a.dtype != np.float64 or tuple(a.shape) != shape \
+            or not a.flags.c_contiguous or not a.flags.writeable:
+        raise ValueError(f"output buffer must be a writeable C-contiguous float64 array of shape {shape}")
+    return a
+
+
 def innovations_each(const double[:, ::1] z, const double[:, ::1] zh, const double[:, :, ::1] st,
-                     const double[:, :, ::1] rm, double lim, bint prune):
+                     const double[:, :, ::1] rm, double lim, bint prune, v_out=None, s_out=None, si_out=None):
     """``v`` (T, M, n), ``d2`` (T, M), ``s``, ``s_inv`` (T, M, n, n), ``det_s`` (T, M) of
     :func:`edge.track.pdaf.innovations_each` from ``z`` (M, n), ``z_hat`` (T, n), the track part ``st`` (T, n, n)
     (``H P H' + R_t``, symmetrised) and ``rm`` (M, n, n). ``prune``: the exact pre-gate with threshold ``lim``
     (``gamma (1 + margin)``): a pair with ``v_i^2 > lim (st_ii + rm_ii)`` in a component gets ``d2 = inf``,
-    ``S = S^-1 = 0``, ``|S| = 1``. n = 2 or 3."""
+    ``S = S^-1 = 0``, ``|S| = 1``. n = 2 or 3. ``v_out``, ``s_out``, ``si_out``: C-contiguous float64 arrays of the
+    shapes of ``v``, ``s``, ``s_inv`` to write them into (every entry is written) and return, or None: new arrays."""
     cdef Py_ssize_t nt = zh.shape[0], nm = z.shape[0], n = z.shape[1]
     cdef Py_ssize_t t, m, i, nn = n * n
-    v_a = np.empty((nt, nm, n))
+    v_a = np.empty((nt, nm, n)) if v_out is None else _checked_out(v_out, (nt, nm, n))
     d2_a = np.empty((nt, nm))
-    s_a = np.empty((nt, nm, n, n))  # every entry is written below (np.zeros would clear them all first)
-    si_a = np.empty((nt, nm, n, n))
+    # every entry is written below (np.zeros would clear them all first)
+    s_a = np.empty((nt, nm, n, n)) if s_out is None else _checked_out(s_out, (nt, nm, n, n))
+    si_a = np.empty((nt, nm, n, n)) if si_out is None else _checked_out(si_out, (nt, nm, n, n))
     det_a = np.empty((nt, nm))
     cdef double[:, :, ::1] v = v_a
     cdef double[:, ::1] d2 = d2_a
@@ -533,13 +543,24 @@ cdef inline void _moment_match_row(const double* xm, const double* pm, double w0
 
 
 def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const double[:, ::1] mu,
-                const double[:, :, ::1] pi, const double[:, :, ::1] f, const double[:, :, ::1] q):
+                const double[:, :, ::1] pi, const double[:, :, ::1] f, const double[:, :, ::1] q,
+                const double[:, ::1] x_far=None, double far_from_m=0.0, double far_span_m=1.0,
+                double log_p_near=0.0, double log_p_far=0.0):
     """IMM mixing, mode-matched prediction and moment matching of all tracks (:func:`edge.track.imm.mix`,
     :func:`edge.track.imm.predict_modes`, :func:`edge.track.imm.moment_match`): ``xm`` (T, 2, 4), ``pm``
     (T, 2, 4, 4), ``mu`` (T, 2), ``pi`` (1, 2, 2) or (T, 2, 2), ``f``, ``q`` (2, 4, 4) -> ``x`` (T, 4), ``p``
     (T, 4, 4), ``xpm`` (T, 2, 4), ``ppm`` (T, 2, 4, 4), ``c`` (T, 2). Equal to numpy to rounding (its small matrix
-    products are BLAS's)."""
+    products are BLAS's).
+
+    ``x_far`` (T, 4), the tracks' states: the first row of each track's switching matrix from its ground range
+    instead (``ImmPredictor._far_switch``, the same operations: ``u = min(max((rho - far_from_m) / far_span_m, 0),
+    1)``, ``p = exp((1 - u) log_p_near + u log_p_far)``, row ``(1 - p, p)``); the second row is ``pi[0, 1]``."""
     cdef Py_ssize_t nt = xm.shape[0], t, i, j, k, l, mode, src
+    cdef bint far = x_far is not None
+    cdef double pi_t[2][2]
+    cdef double u, pk
+    if far and (x_far.shape[0] != nt or x_far.shape[1] < 2):
+        raise ValueError("imm_predict: x_far must be (T, 4)")
     x_a = np.empty((nt, 4))
     p_a = np.empty((nt, 4, 4))
     xpm_a = np.empty((nt, 2, 4))
@@ -560,9 +581,20 @@ def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const
     with nogil:
         for t in range(nt):
             src = t if pi.shape[0] > 1 else 0
+            if far:
+                u = _np_min(_np_max((hypot(x_far[t, 0], x_far[t, 1]) - far_from_m) / far_span_m, 0.0), 1.0)
+                pk = exp((1.0 - u) * log_p_near + u * log_p_far)
+                pi_t[0][0] = 1.0 - pk
+                pi_t[0][1] = pk
+                pi_t[1][0] = pi[0, 1, 0]
+                pi_t[1][1] = pi[0, 1, 1]
+            else:
+                for i in range(2):
+                    for j in range(2):
+                        pi_t[i][j] = pi[src, i, j]
             for i in range(2):
                 for j in range(2):
-                    joint[i][j] = mu[t, i] * pi[src, i, j]
+                    joint[i][j] = mu[t, i] * pi_t[i][j]
             for j in range(2):
                 c[t, j] = joint[0][j] + joint[1][j]
                 den = _max_nan(c[t, j], 1e-300)
@@ -990,3 +1022,115 @@ cdef inline int _popcount32(cnp.uint32_t v) noexcept nogil:
         v &= v - 1
         c += 1
     return c
+
+
+def claimed_any(const double[:, :, ::1] v, const double[:, :, ::1] s, double gamma):
+    """(M,) uint8: detections with ``v' S_t^-1 v <= gamma`` for some track ``t`` -- ``(mahalanobis_d2(v, s) <=
+    gamma).any(axis=0)`` of :mod:`edge.track.pdaf` (the inverse of :func:`edge.track.smallmat.inv_det` and the terms
+    of ``_quad``, bit-identical) in one pass: innovations ``v`` (T, M, n), one ``S`` (T, n, n) per track. n = 2, 3."""
+    cdef Py_ssize_t nt = v.shape[0], nm = v.shape[1], n = v.shape[2], t, m, i
+    out_a = np.zeros(nm, dtype=np.uint8)
+    cdef cnp.uint8_t[::1] out = out_a
+    cdef double a[9]
+    cdef double si[9]
+    cdef double d2
+    if n != 2 and n != 3:
+        raise ValueError("claimed_any: n must be 2 or 3")
+    if s.shape[0] != nt or s.shape[1] != n or s.shape[2] != n:
+        raise ValueError("claimed_any: s must be (T, n, n) with v's T and n")
+    with nogil:
+        for t in range(nt):
+            for i in range(n * n):
+                a[i] = (&s[t, 0, 0])[i]
+            if n == 3:
+                _inv3(a, si)
+            else:
+                _inv2(a, si)
+            for m in range(nm):
+                if out[m]:
+                    continue
+                if n == 3:
+                    d2 = _quad3(si, &v[t, m, 0])
+                else:
+                    d2 = _quad2(si, &v[t, m, 0])
+                if d2 <= gamma:
+                    out[m] = 1
+    return out_a
+
+
+def mode_probabilities_match(const double[:, ::1] c, const double[:, ::1] lik, double floor,
+                             const double[:, :, ::1] xm, const double[:, :, :, ::1] pm):
+    """The IMM's step 4 and moment matching in one pass: ``mu`` (T, 2) of
+    :func:`edge.track.imm.update_mode_probabilities` (``c``, ``lik`` (T, 2), ``floor``; the same operations, NaN
+    handling of ``np.maximum`` included: bit-identical), then ``x`` (T, 4), ``p`` (T, 4, 4) of :func:`moment_match`
+    with ``mu`` (equal to rounding) -> (mu, x, p)."""
+    cdef Py_ssize_t nt = c.shape[0], t
+    if lik.shape[0] != nt or xm.shape[0] != nt or pm.shape[0] != nt or c.shape[1] != 2 or lik.shape[1] != 2:
+        raise ValueError("mode_probabilities_match: c, lik (T, 2), xm (T, 2, 4), pm (T, 2, 4, 4)")
+    mu_a = np.empty((nt, 2))
+    x_a = np.empty((nt, 4))
+    p_a = np.empty((nt, 4, 4))
+    cdef double[:, ::1] mu = mu_a
+    cdef double[:, ::1] x = x_a
+    cdef double[:, :, ::1] p = p_a
+    cdef double m0, m1, den
+    with nogil:
+        for t in range(nt):
+            m0 = c[t, 0] * lik[t, 0]
+            m1 = c[t, 1] * lik[t, 1]
+            den = _max_nan(m0 + m1, 1e-300)
+            m0 = _max_nan(m0 / den, floor)
+            m1 = _max_nan(m1 / den, floor)
+            den = m0 + m1
+            mu[t, 0] = m0 / den
+            mu[t, 1] = m1 / den
+            _moment_match_row(&xm[t, 0, 0], &pm[t, 0, 0, 0], mu[t, 0], mu[t, 1], &x[t, 0], &p[t, 0, 0])
+    return mu_a, x_a, p_a
+
+
+def reanchor_match(const double[:, ::1] x, const cnp.uint8_t[::1] confirmed, const cnp.uint8_t[::1] hit,
+                   const cnp.uint8_t[:, ::1] gated, const double[:, ::1] z, double speed_mps, bint receding_only,
+                   double min_m, double max_m, double lateral_m):
+    """The matches of ``edge.track.roles.post.Reanchor.run`` (the same operations): each confirmed track that
+    missed (``confirmed``, ``hit`` (T,)) and the nearest detection no track validated (``gated`` (T, M)) that lies
+    between ``min_m`` (exclusive) and ``max_m`` nearer than the track in ground range, within ``lateral_m`` across
+    and ``speed_mps`` in radial speed (``receding_only``: receding tracks only); ``x`` (T, 4), ``z`` (M, 3) ->
+    track rows ``i`` and detection rows ``j`` (int64, tracks in row order; the first of equally near)."""
+    cdef Py_ssize_t nt = x.shape[0], nm = z.shape[0], t, m, k = 0
+    if confirmed.shape[0] != nt or hit.shape[0] != nt or gated.shape[0] != nt or gated.shape[1] != nm \
+            or z.shape[1] < 3 or x.shape[1] < 4:
+        raise ValueError("reanchor_match: x (T, 4), confirmed, hit (T,), gated (T, M), z (M, 3)")
+    i_a = np.empty(nt, dtype=np.int64)
+    j_a = np.empty(nt, dtype=np.int64)
+    free_a = np.ones(nm, dtype=np.uint8)
+    cdef cnp.int64_t[::1] io = i_a
+    cdef cnp.int64_t[::1] jo = j_a
+    cdef cnp.uint8_t[::1] free = free_a
+    cdef double rho_t, vr_t, nearer, best
+    cdef Py_ssize_t arg
+    with nogil:
+        for t in range(nt):
+            for m in range(nm):
+                if gated[t, m]:
+                    free[m] = 0
+        for t in range(nt):
+            if not confirmed[t] or hit[t]:
+                continue
+            rho_t = _np_max(hypot(x[t, 0], x[t, 1]), 1e-3)
+            vr_t = (x[t, 0] * x[t, 2] + x[t, 1] * x[t, 3]) / rho_t
+            if receding_only and not (vr_t > 0.0):
+                continue
+            arg = -1
+            best = -INFINITY
+            for m in range(nm):
+                if not free[m] or not (fabs(vr_t - z[m, 2]) < speed_mps):
+                    continue
+                nearer = rho_t - hypot(z[m, 0], z[m, 1])
+                if nearer > min_m and nearer <= max_m and fabs(x[t, 0] - z[m, 0]) < lateral_m and nearer > best:
+                    best = nearer
+                    arg = m
+            if arg >= 0:
+                io[k] = t
+                jo[k] = arg
+                k += 1
+    return i_a[:k].copy(), j_a[:k].copy()

@@ -34,7 +34,8 @@ import scipy.special
 from edge.track.smallmat import inv_det
 
 __all__ = ["gate_threshold", "unit_ball_volume", "Innovations", "innovations", "mahalanobis_d2", "association_weights",
-           "combined_update", "InnovationsEach", "innovations_each", "gate_volume_each", "PairInnovations",
+           "combined_update", "InnovationsEach", "innovations_each", "PairBuffers", "gate_volume_each",
+           "PairInnovations",
            "pair_innovations", "combined_update_pairs"]
 
 
@@ -223,8 +224,39 @@ _PREGATE_MARGIN = 1e-6
 _PREGATE_MIN_PAIRS = 512
 
 
+class PairBuffers:
+    """Reusable storage for the (track, detection) arrays of :func:`innovations_each`'s kernel path: ``v``, ``S`` and
+    ``S^-1`` of every pair (with 64+ tracks about 0.7 MB each). Fresh arrays of that size come from the allocator as
+    new pages each frame (glibc returns large blocks to the OS), and the page faults cost several times the
+    arithmetic; one grown buffer is written in place instead. The arrays returned are views, valid until the next
+    frame that uses the same buffers. Copies and pickles start empty."""
+
+    def __init__(self) -> None:
+        self._flat: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def views(self, t: int, m: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """C-contiguous float64 views ``v`` (t, m, n), ``s`` and ``s_inv`` (t, m, n, n) of the buffers (grown, by
+        at least half, when too small); their contents are undefined."""
+        need = t * m * n * n
+        if self._flat is None or self._flat[1].size < need:
+            size = max(need, 0 if self._flat is None else self._flat[1].size * 3 // 2, 1024)
+            self._flat = (np.empty(size), np.empty(size), np.empty(size))
+        fv, fs, fsi = self._flat
+        return (fv[:t * m * n].reshape(t, m, n), fs[:need].reshape(t, m, n, n), fsi[:need].reshape(t, m, n, n))
+
+    def __getstate__(self) -> dict:
+        return {}
+
+    def __setstate__(self, state: dict) -> None:
+        self._flat = None
+
+    def __deepcopy__(self, memo) -> "PairBuffers":
+        return PairBuffers()
+
+
 def innovations_each(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, r_track: np.ndarray,
-                     r_meas: np.ndarray, prune_gamma: float | None = None, kernel=None) -> InnovationsEach:
+                     r_meas: np.ndarray, prune_gamma: float | None = None, kernel=None,
+                     buffers: PairBuffers | None = None) -> InnovationsEach:
     """``z`` (M, n), ``z_hat`` (T, n), ``h`` (T, n, 4), ``p`` (T, 4, 4), ``r_track`` (T, n, n) the track's part of
     ``R``, ``r_meas`` (M, n, n) each detection's part: ``S_tm = H_t P_t H_t' + r_track_t + r_meas_m``.
 
@@ -235,14 +267,17 @@ def innovations_each(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndar
     ``_PREGATE_MIN_PAIRS`` pairs on.
 
     ``kernel``: the compiled ``edge.native._track``, which computes the pairs (pre-gate, ``S``, its inverse and
-    determinant, ``d2``) in one pass with the same arithmetic (bit-identical); None: numpy."""
+    determinant, ``d2``) in one pass with the same arithmetic (bit-identical); None: numpy. ``buffers``: the kernel
+    writes ``v``, ``S`` and ``S^-1`` into these (:class:`PairBuffers`; the result's arrays are then views, valid until
+    their next use)."""
     st = h @ p @ h.transpose(0, 2, 1) + r_track
     st = 0.5 * (st + st.transpose(0, 2, 1))
     if kernel is not None and z.shape[1] in (2, 3):
         prune = prune_gamma is not None and z_hat.shape[0] * z.shape[0] >= _PREGATE_MIN_PAIRS
         lim = prune_gamma * (1.0 + _PREGATE_MARGIN) if prune else 0.0
+        out = (None, None, None) if buffers is None else buffers.views(z_hat.shape[0], z.shape[0], z.shape[1])
         v, d2, s, s_inv, det_s = kernel.innovations_each(np.ascontiguousarray(z), np.ascontiguousarray(z_hat),
-                                                         st, np.ascontiguousarray(r_meas), lim, prune)
+                                                         st, np.ascontiguousarray(r_meas), lim, prune, *out)
         return InnovationsEach(v, d2, s, s_inv, det_s, st)
     v = z[None, :, :] - z_hat[:, None, :]  # (T, M, n)
     if prune_gamma is not None and v.shape[0] * v.shape[1] >= _PREGATE_MIN_PAIRS:

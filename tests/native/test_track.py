@@ -6,6 +6,8 @@ RADAR_EDGE_KERNELS=0, where they skip."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -48,6 +50,34 @@ def test_innovations_each_is_bit_identical(seed, t, m, n):
     ref = innovations(z, zh, h, p, r_track)
     assert _same(ref, innovations(z, zh, h, p, r_track, kernel=K))
     assert np.array_equal(mahalanobis_d2(ref.v, ref.s), mahalanobis_d2(ref.v, ref.s, K))
+
+
+def test_innovations_each_into_reused_buffers_is_bit_identical():
+    """Frames of different sizes through one PairBuffers (grown, then reused with stale contents from a larger
+    frame): each result equals the numpy reference; the views share the buffers; copies start empty."""
+    import copy
+    import pickle
+
+    from edge.track.pdaf import PairBuffers
+
+    buf = PairBuffers()
+    rng = np.random.default_rng(7)
+    shared = []
+    for t, m, n in [(30, 40, 3), (90, 140, 3), (20, 10, 3), (90, 140, 2), (5, 8, 3), (0, 5, 3), (4, 0, 2)]:
+        z, zh, h, p, r_track, r_meas = _random_frame(rng, max(t, 1), max(m, 2))
+        z, zh, h, p, r_track = z[:m, :n], zh[:t, :n], h[:t, :n], p[:t], r_track[:t, :n, :n]
+        r_meas = np.ascontiguousarray(r_meas[:m, :n, :n])
+        for prune in (None, gate_threshold(0.99, n)):
+            ref = innovations_each(z, zh, h, p, r_track, r_meas, prune)
+            got = innovations_each(z, zh, h, p, r_track, r_meas, prune, K, buf)
+            assert _same(ref, got)
+            if t * m:
+                shared.append(np.shares_memory(got.s, buf.views(1, 1, 1)[1]))
+    assert all(shared) and len(shared) >= 8
+    assert copy.deepcopy(buf)._flat is None and pickle.loads(pickle.dumps(buf))._flat is None
+    with pytest.raises(ValueError, match="output buffer"):
+        K.innovations_each(np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((4, 2, 2)), np.zeros((3, 2, 2)), 1.0, False,
+                           np.zeros((5, 3, 2)), None, None)
 
 
 @settings(max_examples=60, deadline=None, derandomize=True)
@@ -547,3 +577,124 @@ def test_moving_and_expired_is_identical(confirmation, keep_from):
     for t_ns, det in road_frames(30, 70, clutter_per_frame=12.0, seed=9):
         tr.step(det, t_ns)
     assert expired_total[0] > 20 and moved_total[0] > 500
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("t,m", [(90, 140), (30, 40), (5, 8), (1, 1), (3, 0)])
+@pytest.mark.parametrize("n", [2, 3])
+def test_seed_exclusion_claimed_is_identical(seed, t, m, n):
+    """The claimed detections of the constant-noise exclusion gate: the kernel's inverse, distances and test equal
+    ``(mahalanobis_d2(v, S) <= gamma).any(axis=0)``, also for thresholds right at a pair's distance."""
+    rng = np.random.default_rng(seed)
+    z, zh, h, p, r_track, r_meas = _random_frame(rng, t, max(m, 2))
+    v = np.ascontiguousarray(z[None, :m, :n] - zh[:, None, :n])
+    s = np.ascontiguousarray((h @ p @ h.transpose(0, 2, 1) + r_track)[:, :n, :n])
+    s[:, 0, 1] += rng.normal(0, 1e-3, t)  # not quite symmetric: the general cofactors, as inv_det
+    d2 = mahalanobis_d2(v, s)
+    gammas = [gate_threshold(0.999, n), 1e-3, np.inf] + ([float(np.median(d2))] if d2.size else [])
+    for gamma in gammas:
+        got = K.claimed_any(v, s, gamma)
+        assert got.dtype == np.uint8
+        assert np.array_equal(got.view(bool), (d2 <= gamma).any(axis=0))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_mode_probabilities_and_moment_match(seed):
+    """The IMM's mode probabilities bit-identical to numpy (floor, underflow to 0 and NaN rows included), the
+    moment-matched state equal to rounding."""
+    from edge.track import imm
+
+    rng = np.random.default_rng(seed)
+    t = 50
+    c = rng.uniform(0.0, 1.0, (t, 1))
+    c = np.hstack([c, 1.0 - c])
+    lik = rng.uniform(0.0, 5.0, (t, 2)) * 10.0 ** rng.uniform(-300, 3, (t, 1))
+    lik[0] = 0.0
+    lik[1, 1] = np.nan
+    lik[2] = [1e-320, 0.0]
+    xm = rng.normal(0, 10, (t, 2, 4))
+    a = rng.normal(0, 1, (t, 2, 4, 4))
+    pm = a @ a.swapaxes(-1, -2) + 0.01 * np.eye(4)
+    mu, x, p = K.mode_probabilities_match(c, lik, 1e-3, xm, pm)
+    mu_ref = imm.update_mode_probabilities(c, lik, 1e-3)
+    assert np.array_equal(mu, mu_ref, equal_nan=True)
+    ok = np.isfinite(mu_ref).all(axis=1)
+    assert ok.sum() == t - 1
+    x_ref, p_ref = imm.moment_match(xm[ok], pm[ok], mu_ref[ok])
+    np.testing.assert_allclose(x[ok], x_ref, rtol=1e-12, atol=1e-12 * np.abs(x_ref).max())
+    np.testing.assert_allclose(p[ok], p_ref, rtol=1e-12, atol=1e-12 * np.abs(p_ref).max())
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_imm_predict_with_far_switch_equals_numpy(seed):
+    """The switching matrices built in the kernel from the tracks' ranges (``x_far``) equal
+    ``ImmPredictor._far_switch``: the predicted mode probabilities bit-identical, the prediction to rounding; ranges
+    before, inside and beyond the fall, and one track on the radar."""
+    from edge.track import imm
+    from edge.track.config import MotionConfig
+    from edge.track.roles.predict import ImmPredictor
+
+    cfg = MotionConfig()
+    assert cfg.imm_far_p_keep_to_manoeuvre < cfg.imm_p_keep_to_manoeuvre  # the default uses the far switch
+    pred = ImmPredictor(cfg)
+    rng = np.random.default_rng(seed)
+    t = 60
+    x = np.column_stack([rng.normal(0, 4, t), rng.uniform(0, 300, t), rng.normal(0, 0.5, t), rng.normal(0, 25, t)])
+    x[0, :2] = 0.0
+    x[1, :2] = [0.0, cfg.imm_far_from_m]
+    x[2, :2] = [0.0, cfg.imm_far_to_m]
+    xm = x[:, None, :] + rng.normal(0, 0.3, (t, 2, 4))
+    a = rng.normal(0, 1, (t, 2, 4, 4))
+    pm = a @ a.swapaxes(-1, -2) + 0.01 * np.eye(4)
+    mu = rng.uniform(0.001, 1.0, (t, 1))
+    mu = np.hstack([mu, 1.0 - mu])
+    f = np.stack([imm.keep_model(0.033, 0.1, 3.0, 0.01, 2.0)[0], np.eye(4) + np.diag([0.033, 0.033], 2)])
+    q = np.stack([imm.keep_model(0.033, 0.1, 3.0, 0.01, 2.0)[1], 0.01 * np.eye(4)])
+    pi = pred._far_switch(np.hypot(x[:, 0], x[:, 1]))
+    ref = K.imm_predict(xm, pm, mu, pi, f, q)
+    got = K.imm_predict(xm, pm, mu, np.ascontiguousarray(pred.pi[None]), f, q, x, cfg.imm_far_from_m,
+                        max(cfg.imm_far_to_m - cfg.imm_far_from_m, 1e-9), math.log(cfg.imm_p_keep_to_manoeuvre),
+                        math.log(cfg.imm_far_p_keep_to_manoeuvre))
+    assert np.array_equal(got[4], ref[4])  # c: the switching matrices were the same
+    for g, r in zip(got, ref):
+        assert np.array_equal(g, r)  # the same kernel arithmetic after the switch
+    x0, p0, c_ref = imm.mix(xm, pm, mu, pi)
+    assert np.array_equal(got[4], c_ref)
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("receding_only", [True, False])
+def test_reanchor_match_is_identical(seed, receding_only):
+    """Re-anchoring's matches (missed confirmed tracks and their nearest unclaimed detection) from the kernel equal
+    the numpy reference ``Reanchor.matches``, on frames built so that many tracks have candidates."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from edge.track.config import ReanchorConfig, SameVehicleConfig
+    from edge.track.roles.box import SameVehicleBox
+    from edge.track.roles.post import Reanchor
+
+    cfg = replace(ReanchorConfig(), reanchor_receding_only=receding_only)
+    if cfg.reanchor_m <= 0:
+        cfg = replace(cfg, reanchor_m=8.0)
+    role = Reanchor(cfg, SameVehicleBox(SameVehicleConfig(), 1.0), None)
+    rng = np.random.default_rng(seed)
+    t, m = 40, 30
+    x = np.column_stack([rng.normal(0, 3, t), rng.uniform(10, 200, t), rng.normal(0, 0.3, t), rng.normal(0, 20, t)])
+    near = rng.integers(0, t, m)  # detections a little nearer than some track, at its radial speed
+    rho = np.hypot(x[near, 0], x[near, 1])
+    vr = (x[near, 0] * x[near, 2] + x[near, 1] * x[near, 3]) / rho
+    back = rng.uniform(-1.0, cfg.reanchor_m + 2.0, m)
+    z = np.column_stack([x[near, 0] * (rho - back) / rho + rng.normal(0, 0.5, m), x[near, 1] * (rho - back) / rho,
+                         vr + rng.normal(0, 0.5, m)])
+    z[:4] = z[4:8]  # equally near duplicates: the first wins
+    tracks = SimpleNamespace(x=x, confirmed=rng.uniform(size=t) < 0.8)
+    gated = rng.uniform(size=(t, m)) < 0.005
+    frame = SimpleNamespace(meas=SimpleNamespace(z=z), hyp=SimpleNamespace(gated=gated),
+                            hit=gated.any(axis=1) | (rng.uniform(size=t) < 0.2))
+    ref = role.matches(tracks, frame)
+    i, j = K.reanchor_match(x, tracks.confirmed.view(np.uint8), frame.hit.view(np.uint8), gated.view(np.uint8), z,
+                            cfg.reanchor_speed_mps, receding_only, cfg.reanchor_min_m, cfg.reanchor_m,
+                            role.box.cfg.merge_lateral_m)
+    assert ref is not None and ref[0].size >= 2  # the frame exercises the matching
+    assert np.array_equal(i, ref[0]) and np.array_equal(j, ref[1])

@@ -91,5 +91,5 @@ class PdaAssociator(native.KernelUser):
         """(M,) detections inside some track's exclusion gate (they never seed): the association's distances, or
         with ``seed_exclusion_noise = "constant"`` those of the constant noise model
         (:meth:`edge.track.roles.measure.MeasurementModel.seed_exclusion_d2`)."""
-        d2 = measurement_model.seed_exclusion_d2(mp, xp, self.cfg.seed_exclusion_noise == "constant")
-        return (d2 <= self.exclusion_gamma[mp.zh.shape[1]]).any(axis=0)
+        return measurement_model.seed_exclusion_claimed(mp, xp, self.cfg.seed_exclusion_noise == "constant",
+                                                        self.exclusion_gamma[mp.zh.shape[1]])

@@ -13,7 +13,7 @@ import numpy as np
 from edge import native
 from edge.track import kalman
 from edge.track.config import MeasurementConfig
-from edge.track.pdaf import (Innovations, PairInnovations, combined_update, combined_update_pairs,
+from edge.track.pdaf import (Innovations, PairBuffers, PairInnovations, combined_update, combined_update_pairs,
                              gate_volume_each, innovations, innovations_each, mahalanobis_d2, pair_innovations,
                              unit_ball_volume)
 from edge.track import imm
@@ -84,6 +84,8 @@ class MeasurementModel(native.KernelUser):
         self._head: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None  # (xp, heading(xp))
         #: the compiled association/update core (``edge.native._track``), or None: the numpy reference runs
         self.kernel = native.load("_track")
+        #: storage the kernel reuses frame to frame for the pairs' innovations (``v``, ``S``, ``S^-1``)
+        self._pair_buffers = PairBuffers()
 
     @property
     def use_radial_speed(self) -> bool:
@@ -205,6 +207,11 @@ class MeasurementModel(native.KernelUser):
         constant noise model (the same innovations, ``S`` = the track's part plus the constant sensor noise)."""
         return mp.inn.d2
 
+    def seed_exclusion_claimed(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool,
+                               gamma: float) -> np.ndarray:
+        """(M,) detections with a squared distance of :meth:`seed_exclusion_d2` at most ``gamma`` to some track."""
+        return (self.seed_exclusion_d2(mp, xp, constant) <= gamma).any(axis=0)
+
     def update_extent(self, xp, ext_var, inn: Innovations, beta: np.ndarray) -> np.ndarray:
         """Learn the along-heading spread from the weighted along-heading innovations of this frame:
         ``E[a^2] - u' (H P H' + R_sensor) u``, ``R_sensor`` = ``S`` without the extent term."""
@@ -282,12 +289,21 @@ class SnrNoiseModel(MeasurementModel):
         return self.of_detections(meas)
 
     def _innovations(self, meas, pred, mp, prune_gamma) -> None:
-        mp.inn = innovations_each(meas.z, mp.zh, mp.h, pred.p, mp.r, mp.rm, prune_gamma, self.kernel)
+        mp.inn = innovations_each(meas.z, mp.zh, mp.h, pred.p, mp.r, mp.rm, prune_gamma, self.kernel,
+                                  self._pair_buffers)
 
     def seed_exclusion_d2(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool) -> np.ndarray:
         if not constant:
             return mp.inn.d2
         return mahalanobis_d2(mp.inn.v, self.with_sensor(xp, mp.inn.s_track), self.kernel)
+
+    def seed_exclusion_claimed(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool,
+                               gamma: float) -> np.ndarray:
+        if self.kernel is None or not constant or mp.inn.v.shape[2] not in (2, 3):
+            return super().seed_exclusion_claimed(mp, xp, constant, gamma)
+        # the inverses, distances and the test in one kernel call (bit-identical)
+        return self.kernel.claimed_any(np.ascontiguousarray(mp.inn.v), self.with_sensor(xp, mp.inn.s_track),
+                                       gamma).view(bool)
 
     def state_update(self, xp, pp, mp: MeasurementPrediction, beta, beta0):
         """The PDAF posterior with one gain per hypothesis (:func:`edge.track.pdaf.combined_update`)."""

@@ -123,7 +123,7 @@ class LateralSmoother(native.KernelUser):
         tracks.lat_cusum[rows] = 0.0
 
 
-class Reanchor:
+class Reanchor(native.KernelUser):
     """A confirmed track that missed moves to the nearest unclaimed detection between ``reanchor_min_m`` and
     ``reanchor_m`` nearer, in line with it (``merge_lateral_m``) and at its radial speed: the near face of the
     vehicle whose body the track sat on. The detection is claimed (no seed)."""
@@ -131,12 +131,45 @@ class Reanchor:
     def __init__(self, cfg: ReanchorConfig, box: SameVehicleBox, measurement_model: MeasurementModel) -> None:
         self.cfg, self.box = cfg, box
         self.measurement_model = measurement_model
+        #: the compiled matching (``edge.native._track``), or None: numpy (:meth:`matches`)
+        self.kernel = native.load("_track")
 
     def run(self, tracks: TrackTable, frame: Frame) -> np.ndarray | None:
-        c = self.cfg
-        meas, gated, hit, used = frame.meas, frame.hyp.gated, frame.hit, frame.used
+        meas, used = frame.meas, frame.used
         if not (meas.z.shape[0] and meas.with_radial_speed):
             return None
+        tr = tracks
+        if self.kernel is not None:  # the same tests in one pass (identical)
+            c = self.cfg
+            i, j = self.kernel.reanchor_match(np.ascontiguousarray(tr.x), tr.confirmed.view(np.uint8),
+                                              np.ascontiguousarray(frame.hit).view(np.uint8),
+                                              np.ascontiguousarray(frame.hyp.gated).view(np.uint8),
+                                              np.ascontiguousarray(meas.z), c.reanchor_speed_mps,
+                                              c.reanchor_receding_only, c.reanchor_min_m, c.reanchor_m,
+                                              self.box.cfg.merge_lateral_m)
+            if i.size == 0:
+                return None
+        else:
+            found = self.matches(tr, frame)
+            if found is None:
+                return None
+            i, j = found
+        tr.x[i, :2] = meas.z[j, :2]
+        _, _, r = self.measurement_model.at(tr.x[i], False)  # a jump: the constant model's (wider) noise
+        tr.p[i, :2, :2] = r
+        tr.p[i, :2, 2:] = 0.0
+        tr.p[i, 2:, :2] = 0.0
+        tr.hits[i] += 1
+        tr.misses[i] = 0
+        tr.history[i] |= np.uint32(1)
+        used[j] = True
+        return i
+
+    def matches(self, tracks: TrackTable, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None:
+        """The numpy reference of the matching: rows ``(i, j)`` of the tracks that move and their detections, or
+        None."""
+        c = self.cfg
+        meas, gated, hit = frame.meas, frame.hyp.gated, frame.hit
         tr = tracks
         miss = (tr.confirmed & ~hit).nonzero()[0]
         if miss.size == 0:
@@ -160,13 +193,4 @@ class Reanchor:
             return None
         i = miss[has]
         j = free[np.argmax(np.where(ok, nearer, -np.inf), axis=1)[has]]  # the nearest: the near face
-        tr.x[i, :2] = meas.z[j, :2]
-        _, _, r = self.measurement_model.at(tr.x[i], False)  # a jump: the constant model's (wider) noise
-        tr.p[i, :2, :2] = r
-        tr.p[i, :2, 2:] = 0.0
-        tr.p[i, 2:, :2] = 0.0
-        tr.hits[i] += 1
-        tr.misses[i] = 0
-        tr.history[i] |= np.uint32(1)
-        used[j] = True
-        return i
+        return i, j

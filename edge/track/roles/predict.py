@@ -55,6 +55,7 @@ class ImmPredictor(native.KernelUser):
     def __init__(self, cfg: MotionConfig) -> None:
         self.cfg = cfg
         self.pi = imm.switch_matrix(cfg.imm_p_keep_to_manoeuvre, cfg.imm_p_manoeuvre_to_keep)
+        self._pi1 = np.ascontiguousarray(self.pi[None])  # (1, 2, 2): the kernel's form
         #: the compiled IMM cycle (``edge.native._track``), or None: numpy
         self.kernel = native.load("_track")
         self._cached: tuple[float, float, np.ndarray, np.ndarray] | None = None  # (dt, yaw, F (2,4,4), Q (2,4,4))
@@ -82,13 +83,20 @@ class ImmPredictor(native.KernelUser):
             f[0], q[0] = imm.keep_model(dt_s, yaw_rad, c.imm_keep_tau_s, c.imm_keep_q_across_m2ps3, c.q_along_m2ps3)
             self._cached = (dt_s, yaw_rad, f, q)
         pi = self.pi
-        if c.imm_far_p_keep_to_manoeuvre < c.imm_p_keep_to_manoeuvre and len(tracks):
-            pi = self._far_switch(np.hypot(tracks.x[:, 0], tracks.x[:, 1]))
-        if self.kernel is not None:  # mixing, prediction and moment matching in one pass (equal to rounding)
-            c = np.ascontiguousarray
-            xp, pp, xpm, ppm, cj = self.kernel.imm_predict(c(tracks.xm), c(tracks.pm), c(tracks.mu),
-                                                            c(pi if pi.ndim == 3 else pi[None]), f, q)
+        far = c.imm_far_p_keep_to_manoeuvre < c.imm_p_keep_to_manoeuvre and len(tracks)
+        if self.kernel is not None:  # switching, mixing, prediction and moment matching in one pass (to rounding)
+            a = np.ascontiguousarray
+            if far:  # the switching matrices of _far_switch, built in the kernel
+                xp, pp, xpm, ppm, cj = self.kernel.imm_predict(
+                    a(tracks.xm), a(tracks.pm), a(tracks.mu), self._pi1, f, q, a(tracks.x), c.imm_far_from_m,
+                    max(c.imm_far_to_m - c.imm_far_from_m, 1e-9), math.log(c.imm_p_keep_to_manoeuvre),
+                    math.log(c.imm_far_p_keep_to_manoeuvre))
+            else:
+                xp, pp, xpm, ppm, cj = self.kernel.imm_predict(a(tracks.xm), a(tracks.pm), a(tracks.mu),
+                                                                self._pi1, f, q)
             return Prediction(xp, pp, xpm, ppm, cj)
+        if far:
+            pi = self._far_switch(np.hypot(tracks.x[:, 0], tracks.x[:, 1]))
         x0, p0, cj = imm.mix(tracks.xm, tracks.pm, tracks.mu, pi)
         xpm, ppm = imm.predict_modes(x0, p0, f, q)
         xp, pp = imm.moment_match(xpm, ppm, cj)
@@ -151,10 +159,11 @@ class ImmPdaUpdater(native.KernelUser):
         xm, pm, lik = self.measurement_model.mode_update(pred, mp, meas, hyp.beta, hyp.beta0, hyp.gated,
                                                          self.gamma(meas.z.shape[1]), self.assoc.prob_detect,
                                                          self.assoc.prob_gate)
-        tracks.mu = imm.update_mode_probabilities(pred.c, lik, self.motion.imm_min_mode_prob)
         tracks.xm, tracks.pm = xm, pm
-        if self.kernel is not None:  # equal to rounding
-            tracks.x, tracks.p = self.kernel.moment_match(np.ascontiguousarray(xm), np.ascontiguousarray(pm),
-                                                          np.ascontiguousarray(tracks.mu))
+        if self.kernel is not None:  # mode probabilities (bit-identical) and moment matching (equal to rounding)
+            c = np.ascontiguousarray
+            tracks.mu, tracks.x, tracks.p = self.kernel.mode_probabilities_match(
+                c(pred.c), c(lik), self.motion.imm_min_mode_prob, c(xm), c(pm))
         else:
+            tracks.mu = imm.update_mode_probabilities(pred.c, lik, self.motion.imm_min_mode_prob)
             tracks.x, tracks.p = imm.moment_match(xm, pm, tracks.mu)
