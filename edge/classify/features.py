@@ -452,7 +452,7 @@ class TrackFeatureAccumulator:
 
     __slots__ = ("n", "_s_mean", "_s_m2", "_g_mean", "_g_m2", "_t0", "_last_t", "_last_r",
                  "_abs_v_sum", "_n_v", "_st", "_sr", "_stt", "_str", "first_t_s", "last_t_s", "_ext",
-                 "extent_percentile", "_doppler")
+                 "extent_percentile", "_doppler", "_features")
 
     def __init__(self, extent_percentile: float = 90.0, max_frames: int = 4096, vmax_kmh: float | None = None) -> None:
         self.n = 0
@@ -466,10 +466,12 @@ class TrackFeatureAccumulator:
         self.extent_percentile = float(extent_percentile)
         # with vmax_kmh: E(|v_r|) from the unaliased Doppler of the frames given one (see FeatureConfig)
         self._doppler = RadialSpeedEstimator(vmax_kmh, max_frames=max_frames) if vmax_kmh else None
+        self._features: np.ndarray | None = None  # features() of the frames as they are (None: not computed)
 
     def add(self, t_s: float, circular_variance: float, rcs: float, range_m: float,
             extent_m: float = math.nan, doppler_kmh: float = math.nan) -> None:
         t_s, s, g, r = float(t_s), float(circular_variance), float(rcs), float(range_m)
+        self._features = None
         if math.isfinite(extent_m):
             self._ext.append(float(extent_m))
         if self._doppler is not None:
@@ -510,7 +512,14 @@ class TrackFeatureAccumulator:
 
     def features(self) -> np.ndarray:
         """``(6,)`` float64 in :data:`FEATURE_NAMES` order; NaN where fewer than two frames (the
-        variances and the speed) or no extent was measured."""
+        variances and the speed) or no extent was measured. Kept until the next :meth:`add` (the
+        pipeline asks every frame for each live track's provisional class, also of tracks that had no
+        cluster); a new array each call."""
+        if self._features is None:
+            self._features = self._compute_features()
+        return self._features.copy()
+
+    def _compute_features(self) -> np.ndarray:
         n = self.n
         var_s = self._s_m2 / (n - 1) if n > 1 else math.nan
         var_g = self._g_m2 / (n - 1) if n > 1 else math.nan
