@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from edge import native
 from edge.track.cylinder import Cylinder
 from edge.types import FrontendInfo
 from hal.waveform import SPEED_OF_LIGHT_MPS, characteristics
@@ -284,7 +285,7 @@ class ClusterSignatures:
         return int(self.n_points.size)
 
 
-class SignatureExtractor:
+class SignatureExtractor(native.KernelUser):
     """Eqs. 17-18 and cluster centroids for every cluster of a frame at once."""
 
     def __init__(self, config: FeatureConfig, frontend: FrontendInfo) -> None:
@@ -298,6 +299,8 @@ class SignatureExtractor:
         self.extent_ratio = float(10.0 ** (-config.extent_level_db / 20.0))  # amplitude ratio
         # TrackFeatureAccumulator(vmax_kmh=...): E(|v_r|) from the unaliased Doppler (speed_feature = "doppler")
         self.speed_vmax_kmh = self.cylinder.vmax_kmh if config.speed_feature == "doppler" else None
+        #: the compiled cluster sums (edge/native/_survsig.pyx), None: the numpy reference (:meth:`_sums`) runs
+        self.kernel = native.load("_survsig")
 
     def beat_hz(self, range_m: np.ndarray) -> np.ndarray:
         """Beat frequency of a range (``f_b = 2 mu r / c``), floored at half an FFT bin."""
@@ -318,24 +321,39 @@ class SignatureExtractor:
         lab = lab.astype(np.intp, copy=False)
         th = self.cylinder.angle_of_speed(dop).astype(np.float32, copy=False)
         cos, sin = np.cos(th), np.sin(th)
-        n = np.bincount(lab, minlength=L)
+        if self.kernel is not None and lab.size:  # (no points: the reference, whose empty bincounts are integer)
+            sums = np.empty((8, L))
+            self.kernel.cluster_sums(np.ascontiguousarray(lab), np.ascontiguousarray(rng), np.ascontiguousarray(amp),
+                                     cos, sin, np.float32(self.extent_ratio), sums,
+                                     np.empty(L, dtype=np.float32))
+            n_f, c, s, r_sum, ca, sa, lo, hi = sums
+            n = n_f.astype(np.intp)
+        else:
+            n, c, s, r_sum, ca, sa, lo, hi = self._sums(lab, rng, amp, cos, sin, L)
         nz = np.maximum(n, 1)
-        c = np.bincount(lab, cos, minlength=L)
-        s = np.bincount(lab, sin, minlength=L)
         rbar = np.hypot(c, s) / nz
         circ = np.where(n > 0, 1.0 - rbar, np.nan)
-        mean_r = np.where(n > 0, np.bincount(lab, rng, minlength=L) / nz, np.nan)
+        mean_r = np.where(n > 0, r_sum / nz, np.nan)
         ang = np.arctan2(s, c)
         centroid = np.stack(
             [self.cylinder.radius_kmh * np.cos(ang), self.cylinder.radius_kmh * np.sin(ang), mean_r], axis=1
         )
         rcs = self._rcs(lab, rng, amp, rb, db, L)
         rcs[n == 0] = np.nan
+        dop_mean = np.where(n > 0, self.cylinder.speed_of_angle(np.arctan2(sa, ca)), np.nan)
+        return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop_mean, c, s, lo, hi)
+
+    def _sums(self, lab, rng, amp, cos, sin, L) -> tuple[np.ndarray, ...]:
+        """The numpy reference of the kernel's per-cluster sums: cells (int), sums of cos, sin, range (m),
+        amplitude times cos and sin, and the range extent's ends (:meth:`_extent`)."""
+        n = np.bincount(lab, minlength=L)
+        c = np.bincount(lab, cos, minlength=L)
+        s = np.bincount(lab, sin, minlength=L)
+        r_sum = np.bincount(lab, rng, minlength=L)
         ca = np.bincount(lab, amp * cos, minlength=L)
         sa = np.bincount(lab, amp * sin, minlength=L)
-        dop_mean = np.where(n > 0, self.cylinder.speed_of_angle(np.arctan2(sa, ca)), np.nan)
         lo, hi = self._extent(lab, rng, amp, L)
-        return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop_mean, c, s, lo, hi)
+        return n, c, s, r_sum, ca, sa, lo, hi
 
     def _extent(self, lab, rng, amp, L) -> tuple[np.ndarray, np.ndarray]:
         """Range span of each cluster's cells within ``extent_level_db`` of its strongest cell."""
