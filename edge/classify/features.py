@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from edge import native
 from edge.track.cylinder import Cylinder
 from edge.types import FrontendInfo
 from hal.waveform import SPEED_OF_LIGHT_MPS, characteristics
@@ -284,7 +285,7 @@ class ClusterSignatures:
         return int(self.n_points.size)
 
 
-class SignatureExtractor:
+class SignatureExtractor(native.KernelUser):
     """Eqs. 17-18 and cluster centroids for every cluster of a frame at once."""
 
     def __init__(self, config: FeatureConfig, frontend: FrontendInfo) -> None:
@@ -298,6 +299,8 @@ class SignatureExtractor:
         self.extent_ratio = float(10.0 ** (-config.extent_level_db / 20.0))  # amplitude ratio
         # TrackFeatureAccumulator(vmax_kmh=...): E(|v_r|) from the unaliased Doppler (speed_feature = "doppler")
         self.speed_vmax_kmh = self.cylinder.vmax_kmh if config.speed_feature == "doppler" else None
+        #: the compiled cluster sums (edge/native/_survsig.pyx), None: the numpy reference (:meth:`_sums`) runs
+        self.kernel = native.load("_survsig")
 
     def beat_hz(self, range_m: np.ndarray) -> np.ndarray:
         """Beat frequency of a range (``f_b = 2 mu r / c``), floored at half an FFT bin."""
@@ -318,24 +321,39 @@ class SignatureExtractor:
         lab = lab.astype(np.intp, copy=False)
         th = self.cylinder.angle_of_speed(dop).astype(np.float32, copy=False)
         cos, sin = np.cos(th), np.sin(th)
-        n = np.bincount(lab, minlength=L)
+        if self.kernel is not None and lab.size:  # (no points: the reference, whose empty bincounts are integer)
+            sums = np.empty((8, L))
+            self.kernel.cluster_sums(np.ascontiguousarray(lab), np.ascontiguousarray(rng), np.ascontiguousarray(amp),
+                                     cos, sin, np.float32(self.extent_ratio), sums,
+                                     np.empty(L, dtype=np.float32))
+            n_f, c, s, r_sum, ca, sa, lo, hi = sums
+            n = n_f.astype(np.intp)
+        else:
+            n, c, s, r_sum, ca, sa, lo, hi = self._sums(lab, rng, amp, cos, sin, L)
         nz = np.maximum(n, 1)
-        c = np.bincount(lab, cos, minlength=L)
-        s = np.bincount(lab, sin, minlength=L)
         rbar = np.hypot(c, s) / nz
         circ = np.where(n > 0, 1.0 - rbar, np.nan)
-        mean_r = np.where(n > 0, np.bincount(lab, rng, minlength=L) / nz, np.nan)
+        mean_r = np.where(n > 0, r_sum / nz, np.nan)
         ang = np.arctan2(s, c)
         centroid = np.stack(
             [self.cylinder.radius_kmh * np.cos(ang), self.cylinder.radius_kmh * np.sin(ang), mean_r], axis=1
         )
         rcs = self._rcs(lab, rng, amp, rb, db, L)
         rcs[n == 0] = np.nan
+        dop_mean = np.where(n > 0, self.cylinder.speed_of_angle(np.arctan2(sa, ca)), np.nan)
+        return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop_mean, c, s, lo, hi)
+
+    def _sums(self, lab, rng, amp, cos, sin, L) -> tuple[np.ndarray, ...]:
+        """The numpy reference of the kernel's per-cluster sums: cells (int), sums of cos, sin, range (m),
+        amplitude times cos and sin, and the range extent's ends (:meth:`_extent`)."""
+        n = np.bincount(lab, minlength=L)
+        c = np.bincount(lab, cos, minlength=L)
+        s = np.bincount(lab, sin, minlength=L)
+        r_sum = np.bincount(lab, rng, minlength=L)
         ca = np.bincount(lab, amp * cos, minlength=L)
         sa = np.bincount(lab, amp * sin, minlength=L)
-        dop_mean = np.where(n > 0, self.cylinder.speed_of_angle(np.arctan2(sa, ca)), np.nan)
         lo, hi = self._extent(lab, rng, amp, L)
-        return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop_mean, c, s, lo, hi)
+        return n, c, s, r_sum, ca, sa, lo, hi
 
     def _extent(self, lab, rng, amp, L) -> tuple[np.ndarray, np.ndarray]:
         """Range span of each cluster's cells within ``extent_level_db`` of its strongest cell."""
@@ -452,7 +470,7 @@ class TrackFeatureAccumulator:
 
     __slots__ = ("n", "_s_mean", "_s_m2", "_g_mean", "_g_m2", "_t0", "_last_t", "_last_r",
                  "_abs_v_sum", "_n_v", "_st", "_sr", "_stt", "_str", "first_t_s", "last_t_s", "_ext",
-                 "extent_percentile", "_doppler")
+                 "extent_percentile", "_doppler", "_features")
 
     def __init__(self, extent_percentile: float = 90.0, max_frames: int = 4096, vmax_kmh: float | None = None) -> None:
         self.n = 0
@@ -466,10 +484,12 @@ class TrackFeatureAccumulator:
         self.extent_percentile = float(extent_percentile)
         # with vmax_kmh: E(|v_r|) from the unaliased Doppler of the frames given one (see FeatureConfig)
         self._doppler = RadialSpeedEstimator(vmax_kmh, max_frames=max_frames) if vmax_kmh else None
+        self._features: np.ndarray | None = None  # features() of the frames as they are (None: not computed)
 
     def add(self, t_s: float, circular_variance: float, rcs: float, range_m: float,
             extent_m: float = math.nan, doppler_kmh: float = math.nan) -> None:
         t_s, s, g, r = float(t_s), float(circular_variance), float(rcs), float(range_m)
+        self._features = None
         if math.isfinite(extent_m):
             self._ext.append(float(extent_m))
         if self._doppler is not None:
@@ -510,7 +530,14 @@ class TrackFeatureAccumulator:
 
     def features(self) -> np.ndarray:
         """``(6,)`` float64 in :data:`FEATURE_NAMES` order; NaN where fewer than two frames (the
-        variances and the speed) or no extent was measured."""
+        variances and the speed) or no extent was measured. Kept until the next :meth:`add` (the
+        pipeline asks every frame for each live track's provisional class, also of tracks that had no
+        cluster); a new array each call."""
+        if self._features is None:
+            self._features = self._compute_features()
+        return self._features.copy()
+
+    def _compute_features(self) -> np.ndarray:
         n = self.n
         var_s = self._s_m2 / (n - 1) if n > 1 else math.nan
         var_g = self._g_m2 / (n - 1) if n > 1 else math.nan
