@@ -10,6 +10,8 @@ A filter is called as ``filter(candidates, feedback) -> candidates`` (:class:`ed
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from edge import native
@@ -21,7 +23,7 @@ from edge.traffic.lanes import assign_lanes
 from edge.types import Detections, FrontendInfo
 
 
-class UnaliasByLane:
+class UnaliasByLane(native.KernelUser):
     """Grating lobes: with d = 1.5 lambda the array measures sin(az) only modulo lambda/d (+-19.5 deg). A vehicle
     close to the radar in an outer lane lies beyond that and shows up mirrored across the road. A moving detection
     (``unalias_min_speed_mps``) that lands in a lane of the other direction of travel is moved to its alias
@@ -32,6 +34,11 @@ class UnaliasByLane:
         self.road = road
         self.period = frontend.waveform.wavelength_m / frontend.rx_spacing_m  # grating-lobe period in sin(az)
         self._offsets = np.array([0.0, self.period, -self.period])[:, None]  # (3, 1)
+        dz = config.mounting_height_m - config.target_height_m
+        self._dz2 = dz * dz  # (m^2, float64)
+        #: the compiled pass (edge/native/_unalias.pyx), None: :meth:`reference` runs
+        self.kernel = native.load("_unalias")
+        self._k_lanes: tuple = (None, None)  # (lanes, their (centre, half width, direction) float64 arrays)
 
     def __call__(self, c: Candidates, feedback: Feedback) -> Candidates:
         if not (feedback.lanes and c.range_m.size):
@@ -41,7 +48,26 @@ class UnaliasByLane:
                                                    c.body_extent_m)
 
     def unalias(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, feedback: Feedback) -> np.ndarray:
-        """``az`` with the aliases moved (``az`` itself when none is)."""
+        """``az`` with the aliases moved (``az`` itself when none is): the compiled kernel when built, else
+        :meth:`reference` (the same angles)."""
+        k = self.kernel
+        if k is None or not all(a.dtype == np.float32 for a in (range_m, v_mps, az)):
+            return self.reference(range_m, v_mps, az, feedback)
+        cfg = self.config
+        lanes = feedback.lanes
+        if self._k_lanes[0] is not lanes:  # the lanes change rarely (see RoadFrame)
+            self._k_lanes = (lanes, (np.array([ln.center_m for ln in lanes], np.float64),
+                                     0.5 * np.array([ln.width_m for ln in lanes], np.float64),
+                                     np.array([ln.direction for ln in lanes], np.float64)))
+        span, _ = self.road.lane_arrays(lanes)
+        out = k.unalias(np.ascontiguousarray(range_m), np.ascontiguousarray(v_mps), np.ascontiguousarray(az),
+                        *self._k_lanes[1], np.float32(cfg.unalias_min_speed_mps),
+                        np.float32(span / self.period + cfg.mounting_height_m), self.period, self._dz2,
+                        math.cos(feedback.yaw_rad), math.sin(feedback.yaw_rad))
+        return az if out is None else out
+
+    def reference(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, feedback: Feedback) -> np.ndarray:
+        """The numpy form of :meth:`unalias` (the kernel's reference and fallback)."""
         cfg = self.config
         lanes = feedback.lanes
         period = self.period
@@ -55,10 +81,13 @@ class UnaliasByLane:
             return az
         # itself and the two neighbouring grating lobes, (3, n)
         cand = np.sin(az[idx].astype(np.float64)) + self._offsets
-        # the lane direction of all three in one pass (the cost is per call, not per element); the road frame's
-        # lateral offset as to_road computes it
-        x, y = polar_to_ground(range_m[idx], np.arcsin(np.minimum(np.maximum(cand, -1.0), 1.0)),
-                               cfg.mounting_height_m, cfg.target_height_m)
+        # the lane direction of all three in one pass (the cost is per call, not per element): the ground position
+        # (eq. 16, in float64 from sin az: x = r sin az, y^2 = r^2 cos^2 az - dz^2) and the road frame's lateral
+        # offset as to_road computes it
+        s = np.minimum(np.maximum(cand, -1.0), 1.0)
+        r = range_m[idx].astype(np.float64)
+        x = r * s
+        y = np.sqrt(np.maximum((r * r) * (1.0 - s * s) - self._dz2, 0.0))
         u = self.road.across_road(x, y, feedback.yaw_rad)
         d = dirs[assign_lanes(u.reshape(-1), lanes)].reshape(3, -1)  # direction, 0 outside every lane (-1 -> 0)
         sign = np.sign(v_mps[idx])  # +1 receding: lanes "away"

@@ -1,0 +1,79 @@
+# cython: language_level=3
+# distutils: extra_compile_args = -ffp-contract=off
+"""Grating-lobe unaliasing kernel (edge.lane.detections.UnaliasByLane.unalias, its numpy reference): per near moving
+detection its direction and the two neighbouring grating lobes (sin az +- lambda / d) projected to the ground and to
+the road's lateral offset, each assigned to a lane; a detection in a lane of the other direction of travel is moved
+to an alias that lies in a lane of its own. float64 as the reference, one rounding per operation; sin and asin are
+the C library's (numpy's float64 sin and arcsin on x86-64 without AVX-512 and on arm64)."""
+
+cimport cython
+from libc.math cimport sin, asin, sqrt, fabs, fabsf
+
+import numpy as np
+
+
+cdef inline double _lane_dir(double u, const double[::1] centre, const double[::1] half_w,
+                             const double[::1] dirs) noexcept nogil:
+    """Direction (+1, -1) of the lane holding lateral offset ``u`` (m), 0 outside every lane (assign_lanes: the
+    nearest centre, the first on a tie, must hold ``u`` within its half width)."""
+    cdef Py_ssize_t l, k = 0, n = centre.shape[0]
+    cdef double d, best = fabs(u - centre[0])
+    for l in range(1, n):
+        d = fabs(u - centre[l])
+        if d < best:
+            best = d
+            k = l
+    if not (half_w[k] - best >= 0.0):
+        return 0.0
+    return dirs[k]
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+@cython.cdivision(True)
+def unalias(const float[::1] rng, const float[::1] v, const float[::1] az, const double[::1] centre,
+            const double[::1] half_w, const double[::1] dirs, float min_speed, float max_range, double period,
+            double dz2, double cos_yaw, double sin_yaw):
+    """``rng``, ``v``, ``az`` (n,) float32: slant range (m), radial speed (m/s), angle (rad); lanes: ``centre``,
+    ``half_w`` (L,) m and ``dirs`` (L,) +-1 (L >= 1); detections with |v| >= ``min_speed`` and range <=
+    ``max_range`` are looked at; ``period``: the grating-lobe period in sin az; ``dz2``: the squared height
+    difference (m^2); ``cos_yaw``, ``sin_yaw``: the road's direction. Returns the new angles (n,) float32, or None
+    when none moves."""
+    cdef Py_ssize_t n = rng.shape[0], i, j
+    cdef double s0, s, r, x, y2, u, sign, d0, dj, alt
+    cdef double offs[3]
+    cdef double dj_[3]
+    offs[0] = 0.0
+    offs[1] = period
+    offs[2] = -period
+    out_arr = None
+    cdef float[::1] out
+    for i in range(n):
+        if not (fabsf(v[i]) >= min_speed and rng[i] <= max_range):
+            continue
+        sign = 1.0 if v[i] > 0 else (-1.0 if v[i] < 0 else (0.0 if v[i] == 0 else v[i]))
+        s0 = sin(<double>az[i])
+        r = <double>rng[i]
+        for j in range(3):
+            s = s0 + offs[j]
+            if s < -1.0:
+                s = -1.0
+            if s > 1.0:
+                s = 1.0
+            x = r * s
+            y2 = (r * r) * (1.0 - s * s) - dz2
+            if y2 < 0.0:
+                y2 = 0.0
+            u = x * cos_yaw + sqrt(y2) * sin_yaw
+            dj_[j] = _lane_dir(u, centre, half_w, dirs)
+        if not (dj_[0] == -sign):
+            continue
+        for j in range(1, 3):
+            alt = s0 + offs[j]
+            if fabs(alt) <= 1.0 and dj_[j] == sign:
+                if out_arr is None:
+                    out_arr = np.array(az, np.float32)
+                    out = out_arr
+                out[i] = <float>asin(alt)
+                break
+    return out_arr
