@@ -187,9 +187,10 @@ class AgainstLaneGlint:
         sigma = feedback.direction_sigma_rad
         idx = against.nonzero()[0]
         half = cfg.cluster_against_lane_margin_m + feedback.lane_sigmas * sigma * range_m[idx]
-        for side in (-half, half):
-            against[idx] &= dirs[assign_lanes(u[idx] + side, lanes)] * v_mps[idx] < -np.float32(
-                cfg.unalias_min_speed_mps)
+        # both sides in one assignment (u - half is u + (-half) bit for bit)
+        ui = u[idx]
+        sides = dirs[assign_lanes(np.concatenate([ui - half, ui + half]), lanes)].reshape(2, -1) * v_mps[idx]
+        against[idx] &= (sides < -np.float32(cfg.unalias_min_speed_mps)).all(axis=0)
         if not against.any():
             return out
         idx = against.nonzero()[0]
