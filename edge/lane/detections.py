@@ -23,6 +23,13 @@ from edge.traffic.lanes import assign_lanes
 from edge.types import Detections, FrontendInfo
 
 
+def _lane_table(lanes) -> tuple:
+    """The kernels' lane arrays (edge/native/_unalias.pyx): centres (m), half widths (m), directions (+-1), float64
+    (the values edge.traffic.lanes.assign_lanes compares with)."""
+    return (np.array([ln.center_m for ln in lanes], np.float64), 0.5 * np.array([ln.width_m for ln in lanes], np.float64),
+            np.array([ln.direction for ln in lanes], np.float64))
+
+
 class UnaliasByLane(native.KernelUser):
     """Grating lobes: with d = 1.5 lambda the array measures sin(az) only modulo lambda/d (+-19.5 deg). A vehicle
     close to the radar in an outer lane lies beyond that and shows up mirrored across the road. A moving detection
@@ -56,9 +63,7 @@ class UnaliasByLane(native.KernelUser):
         cfg = self.config
         lanes = feedback.lanes
         if self._k_lanes[0] is not lanes:  # the lanes change rarely (see RoadFrame)
-            self._k_lanes = (lanes, (np.array([ln.center_m for ln in lanes], np.float64),
-                                     0.5 * np.array([ln.width_m for ln in lanes], np.float64),
-                                     np.array([ln.direction for ln in lanes], np.float64)))
+            self._k_lanes = (lanes, _lane_table(lanes))
         span, _ = self.road.lane_arrays(lanes)
         out = k.unalias(np.ascontiguousarray(range_m), np.ascontiguousarray(v_mps), np.ascontiguousarray(az),
                         *self._k_lanes[1], np.float32(cfg.unalias_min_speed_mps),
@@ -154,7 +159,7 @@ class NearFaces(native.KernelUser):
         return far - near
 
 
-class AgainstLaneGlint:
+class AgainstLaneGlint(native.KernelUser):
     """Angle glint of a vehicle's body: a kept detection moving against the lane it lies in (faster than
     ``unalias_min_speed_mps``) with a kept detection not against its lane up to ``cluster_length_m`` nearer, within
     ``cluster_against_lane_speed_mps`` in radial speed and a beamwidth (lambda / (N d) in sin az) in angle, is
@@ -166,6 +171,9 @@ class AgainstLaneGlint:
         self.road = road
         # Rayleigh width lambda / (N d) in sin(az)
         self.beamwidth_sin = frontend.waveform.wavelength_m / frontend.rx_spacing_m / frontend.n_rx
+        #: the compiled pass (edge/native/_unalias.pyx, ``glint``), None: :meth:`reference` runs
+        self.kernel = native.load("_unalias")
+        self._k_lanes: tuple = (None, None)  # (lanes, their (centre, half width, direction) float64 arrays)
 
     def __call__(self, c: Candidates, feedback: Feedback) -> Candidates:
         if not feedback.lanes or c.keep.sum() <= 1:
@@ -175,7 +183,32 @@ class AgainstLaneGlint:
 
     def glint(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, x: np.ndarray, y: np.ndarray,
               keep: np.ndarray, feedback: Feedback) -> np.ndarray:
-        """(n,) bool: the kept detections that are glint of a nearer vehicle's body."""
+        """(n,) bool: the kept detections that are glint of a nearer vehicle's body. The compiled kernel when built,
+        else :meth:`reference` (the same mask)."""
+        cfg = self.config
+        k_sigma = feedback.lane_sigmas * feedback.direction_sigma_rad
+        margin = cfg.cluster_against_lane_margin_m
+        if (self.kernel is None or not all(a.dtype == np.float32 for a in (range_m, v_mps, az, x, y))
+                or type(k_sigma) not in (int, float) or type(margin) not in (int, float)
+                or type(cfg.cluster_length_m) not in (int, float)
+                or type(cfg.cluster_against_lane_speed_mps) not in (int, float)):
+            return self.reference(range_m, v_mps, az, x, y, keep, feedback)  # (the reference's float32 rounding
+            # of Python scalars, NEP 50, is what the kernel reproduces)
+        lanes = feedback.lanes
+        if self._k_lanes[0] is not lanes:  # the lanes change rarely (see RoadFrame)
+            self._k_lanes = (lanes, _lane_table(lanes))
+        out = self.kernel.glint(np.ascontiguousarray(range_m), np.ascontiguousarray(v_mps), np.ascontiguousarray(az),
+                                np.ascontiguousarray(x), np.ascontiguousarray(y),
+                                np.ascontiguousarray(keep).view(np.uint8), *self._k_lanes[1],
+                                math.cos(feedback.yaw_rad), math.sin(feedback.yaw_rad),
+                                np.float32(cfg.unalias_min_speed_mps), np.float32(margin), np.float32(k_sigma),
+                                np.float32(cfg.cluster_length_m), np.float32(cfg.cluster_against_lane_speed_mps),
+                                self.beamwidth_sin)
+        return out.view(bool)
+
+    def reference(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, x: np.ndarray, y: np.ndarray,
+                  keep: np.ndarray, feedback: Feedback) -> np.ndarray:
+        """The numpy form of :meth:`glint` (the kernel's reference and fallback)."""
         cfg = self.config
         lanes = feedback.lanes
         _, dirs = self.road.lane_arrays(lanes)

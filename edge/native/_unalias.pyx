@@ -77,3 +77,54 @@ def unalias(const float[::1] rng, const float[::1] v, const float[::1] az, const
                 out[i] = <float>asin(alt)
                 break
     return out_arr
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+@cython.cdivision(True)
+def glint(const float[::1] rng, const float[::1] v, const float[::1] az, const float[::1] x, const float[::1] y,
+          const unsigned char[::1] keep, const double[::1] centre, const double[::1] half_w, const double[::1] dirs,
+          double cos_yaw, double sin_yaw, float min_speed, float margin, float k_sigma, float length, float speed,
+          double beamwidth_sin):
+    """edge.lane.detections.AgainstLaneGlint.glint in one pass. ``rng``, ``v``, ``az``, ``x``, ``y`` (n,) float32
+    (m, m/s, rad, m, m); ``keep`` (n,) uint8; lanes as :func:`unalias`; ``min_speed`` (m/s); the direction margin
+    ``margin + k_sigma * range`` (m, float32 as the reference's); ``length`` (m), ``speed`` (m/s), ``beamwidth_sin``
+    the gates to a nearer vehicle. Returns (n,) uint8: the kept detections that are glint of a nearer body."""
+    cdef Py_ssize_t n = rng.shape[0], i, j
+    cdef double u, sv
+    cdef float half, dr
+    out_arr = np.zeros(n, np.uint8)
+    cdef unsigned char[::1] out = out_arr
+    against_arr = np.zeros(n, np.uint8)
+    cdef unsigned char[::1] against = against_arr
+    cdef bint any_against = False
+    cdef double neg = -<double>min_speed
+    for i in range(n):
+        if not keep[i]:
+            continue
+        sv = <double>v[i]
+        u = <double>x[i] * cos_yaw + <double>y[i] * sin_yaw
+        if not (_lane_dir(u, centre, half_w, dirs) * sv < neg):
+            continue
+        half = margin + k_sigma * rng[i]
+        if (_lane_dir(u - <double>half, centre, half_w, dirs) * sv < neg
+                and _lane_dir(u + <double>half, centre, half_w, dirs) * sv < neg):
+            against[i] = 1
+            any_against = True
+    if not any_against:
+        return out_arr
+    sin_arr = np.empty(n, np.float64)
+    cdef double[::1] s = sin_arr
+    for j in range(n):
+        s[j] = sin(<double>az[j])
+    for i in range(n):
+        if not against[i]:
+            continue
+        for j in range(n):
+            if not keep[j] or against[j]:
+                continue
+            dr = rng[i] - rng[j]
+            if dr > 0 and dr <= length and fabsf(v[i] - v[j]) <= speed and fabs(s[i] - s[j]) <= beamwidth_sin:
+                out[i] = 1
+                break
+    return out_arr
