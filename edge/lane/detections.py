@@ -10,6 +10,8 @@ A filter is called as ``filter(candidates, feedback) -> candidates`` (:class:`ed
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from edge import native
@@ -21,7 +23,14 @@ from edge.traffic.lanes import assign_lanes
 from edge.types import Detections, FrontendInfo
 
 
-class UnaliasByLane:
+def _lane_table(lanes) -> tuple:
+    """The kernels' lane arrays (edge/native/_unalias.pyx): centres (m), half widths (m), directions (+-1), float64
+    (the values edge.traffic.lanes.assign_lanes compares with)."""
+    return (np.array([ln.center_m for ln in lanes], np.float64), 0.5 * np.array([ln.width_m for ln in lanes], np.float64),
+            np.array([ln.direction for ln in lanes], np.float64))
+
+
+class UnaliasByLane(native.KernelUser):
     """Grating lobes: with d = 1.5 lambda the array measures sin(az) only modulo lambda/d (+-19.5 deg). A vehicle
     close to the radar in an outer lane lies beyond that and shows up mirrored across the road. A moving detection
     (``unalias_min_speed_mps``) that lands in a lane of the other direction of travel is moved to its alias
@@ -32,6 +41,11 @@ class UnaliasByLane:
         self.road = road
         self.period = frontend.waveform.wavelength_m / frontend.rx_spacing_m  # grating-lobe period in sin(az)
         self._offsets = np.array([0.0, self.period, -self.period])[:, None]  # (3, 1)
+        dz = config.mounting_height_m - config.target_height_m
+        self._dz2 = dz * dz  # (m^2, float64)
+        #: the compiled pass (edge/native/_unalias.pyx), None: :meth:`reference` runs
+        self.kernel = native.load("_unalias")
+        self._k_lanes: tuple = (None, None)  # (lanes, their (centre, half width, direction) float64 arrays)
 
     def __call__(self, c: Candidates, feedback: Feedback) -> Candidates:
         if not (feedback.lanes and c.range_m.size):
@@ -41,7 +55,24 @@ class UnaliasByLane:
                                                    c.body_extent_m)
 
     def unalias(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, feedback: Feedback) -> np.ndarray:
-        """``az`` with the aliases moved (``az`` itself when none is)."""
+        """``az`` with the aliases moved (``az`` itself when none is): the compiled kernel when built, else
+        :meth:`reference` (the same angles)."""
+        k = self.kernel
+        if k is None or not all(a.dtype == np.float32 for a in (range_m, v_mps, az)):
+            return self.reference(range_m, v_mps, az, feedback)
+        cfg = self.config
+        lanes = feedback.lanes
+        if self._k_lanes[0] is not lanes:  # the lanes change rarely (see RoadFrame)
+            self._k_lanes = (lanes, _lane_table(lanes))
+        span, _ = self.road.lane_arrays(lanes)
+        out = k.unalias(np.ascontiguousarray(range_m), np.ascontiguousarray(v_mps), np.ascontiguousarray(az),
+                        *self._k_lanes[1], np.float32(cfg.unalias_min_speed_mps),
+                        np.float32(span / self.period + cfg.mounting_height_m), self.period, self._dz2,
+                        math.cos(feedback.yaw_rad), math.sin(feedback.yaw_rad))
+        return az if out is None else out
+
+    def reference(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, feedback: Feedback) -> np.ndarray:
+        """The numpy form of :meth:`unalias` (the kernel's reference and fallback)."""
         cfg = self.config
         lanes = feedback.lanes
         period = self.period
@@ -55,10 +86,13 @@ class UnaliasByLane:
             return az
         # itself and the two neighbouring grating lobes, (3, n)
         cand = np.sin(az[idx].astype(np.float64)) + self._offsets
-        # the lane direction of all three in one pass (the cost is per call, not per element); the road frame's
-        # lateral offset as to_road computes it
-        x, y = polar_to_ground(range_m[idx], np.arcsin(np.minimum(np.maximum(cand, -1.0), 1.0)),
-                               cfg.mounting_height_m, cfg.target_height_m)
+        # the lane direction of all three in one pass (the cost is per call, not per element): the ground position
+        # (eq. 16, in float64 from sin az: x = r sin az, y^2 = r^2 cos^2 az - dz^2) and the road frame's lateral
+        # offset as to_road computes it
+        s = np.minimum(np.maximum(cand, -1.0), 1.0)
+        r = range_m[idx].astype(np.float64)
+        x = r * s
+        y = np.sqrt(np.maximum((r * r) * (1.0 - s * s) - self._dz2, 0.0))
         u = self.road.across_road(x, y, feedback.yaw_rad)
         d = dirs[assign_lanes(u.reshape(-1), lanes)].reshape(3, -1)  # direction, 0 outside every lane (-1 -> 0)
         sign = np.sign(v_mps[idx])  # +1 receding: lanes "away"
@@ -125,7 +159,7 @@ class NearFaces(native.KernelUser):
         return far - near
 
 
-class AgainstLaneGlint:
+class AgainstLaneGlint(native.KernelUser):
     """Angle glint of a vehicle's body: a kept detection moving against the lane it lies in (faster than
     ``unalias_min_speed_mps``) with a kept detection not against its lane up to ``cluster_length_m`` nearer, within
     ``cluster_against_lane_speed_mps`` in radial speed and a beamwidth (lambda / (N d) in sin az) in angle, is
@@ -137,6 +171,9 @@ class AgainstLaneGlint:
         self.road = road
         # Rayleigh width lambda / (N d) in sin(az)
         self.beamwidth_sin = frontend.waveform.wavelength_m / frontend.rx_spacing_m / frontend.n_rx
+        #: the compiled pass (edge/native/_unalias.pyx, ``glint``), None: :meth:`reference` runs
+        self.kernel = native.load("_unalias")
+        self._k_lanes: tuple = (None, None)  # (lanes, their (centre, half width, direction) float64 arrays)
 
     def __call__(self, c: Candidates, feedback: Feedback) -> Candidates:
         if not feedback.lanes or c.keep.sum() <= 1:
@@ -146,7 +183,32 @@ class AgainstLaneGlint:
 
     def glint(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, x: np.ndarray, y: np.ndarray,
               keep: np.ndarray, feedback: Feedback) -> np.ndarray:
-        """(n,) bool: the kept detections that are glint of a nearer vehicle's body."""
+        """(n,) bool: the kept detections that are glint of a nearer vehicle's body. The compiled kernel when built,
+        else :meth:`reference` (the same mask)."""
+        cfg = self.config
+        k_sigma = feedback.lane_sigmas * feedback.direction_sigma_rad
+        margin = cfg.cluster_against_lane_margin_m
+        if (self.kernel is None or not all(a.dtype == np.float32 for a in (range_m, v_mps, az, x, y))
+                or type(k_sigma) not in (int, float) or type(margin) not in (int, float)
+                or type(cfg.cluster_length_m) not in (int, float)
+                or type(cfg.cluster_against_lane_speed_mps) not in (int, float)):
+            return self.reference(range_m, v_mps, az, x, y, keep, feedback)  # (the reference's float32 rounding
+            # of Python scalars, NEP 50, is what the kernel reproduces)
+        lanes = feedback.lanes
+        if self._k_lanes[0] is not lanes:  # the lanes change rarely (see RoadFrame)
+            self._k_lanes = (lanes, _lane_table(lanes))
+        out = self.kernel.glint(np.ascontiguousarray(range_m), np.ascontiguousarray(v_mps), np.ascontiguousarray(az),
+                                np.ascontiguousarray(x), np.ascontiguousarray(y),
+                                np.ascontiguousarray(keep).view(np.uint8), *self._k_lanes[1],
+                                math.cos(feedback.yaw_rad), math.sin(feedback.yaw_rad),
+                                np.float32(cfg.unalias_min_speed_mps), np.float32(margin), np.float32(k_sigma),
+                                np.float32(cfg.cluster_length_m), np.float32(cfg.cluster_against_lane_speed_mps),
+                                self.beamwidth_sin)
+        return out.view(bool)
+
+    def reference(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, x: np.ndarray, y: np.ndarray,
+                  keep: np.ndarray, feedback: Feedback) -> np.ndarray:
+        """The numpy form of :meth:`glint` (the kernel's reference and fallback)."""
         cfg = self.config
         lanes = feedback.lanes
         _, dirs = self.road.lane_arrays(lanes)
@@ -158,9 +220,10 @@ class AgainstLaneGlint:
         sigma = feedback.direction_sigma_rad
         idx = against.nonzero()[0]
         half = cfg.cluster_against_lane_margin_m + feedback.lane_sigmas * sigma * range_m[idx]
-        for side in (-half, half):
-            against[idx] &= dirs[assign_lanes(u[idx] + side, lanes)] * v_mps[idx] < -np.float32(
-                cfg.unalias_min_speed_mps)
+        # both sides in one assignment (u - half is u + (-half) bit for bit)
+        ui = u[idx]
+        sides = dirs[assign_lanes(np.concatenate([ui - half, ui + half]), lanes)].reshape(2, -1) * v_mps[idx]
+        against[idx] &= (sides < -np.float32(cfg.unalias_min_speed_mps)).all(axis=0)
         if not against.any():
             return out
         idx = against.nonzero()[0]

@@ -11,7 +11,7 @@ from edge.pipeline import StageTimer
 
 #: the kernels this check covers
 DETECT_KERNELS = ("_spectra", "_peaks", "_track", "_pairs", "_angles", "_resolve", "_faces", "_aided", "_anglesout",
-                  "_traffic")
+                  "_unalias", "_traffic")
 #: relative tolerance on track floats: the tracker kernel's small matrix products sum in another order than BLAS
 TRACK_RTOL = 1e-9
 

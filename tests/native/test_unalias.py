@@ -1,0 +1,175 @@
+"""The grating-lobe unaliasing kernel (edge/native/_unalias.pyx) against its numpy reference
+(UnaliasByLane.reference): the same angles bit for bit, on random near detections over random lane layouts (values
+on the lane edges, both directions of travel, NaN) and on seeded hw_sim runs through the lane pipeline."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from edge.lane.detections import AgainstLaneGlint, UnaliasByLane
+from edge.lane.records import Feedback
+from edge.lane.road import RoadFrame
+from edge.pipelines.lane import LaneConfig
+from edge.traffic.lanes import Lane
+from tests.native.conftest import require_kernel
+
+
+def _feedback(lanes, yaw: float) -> Feedback:
+    fb = Feedback.none()
+    return dataclasses.replace(fb, lanes=lanes, yaw_rad=yaw)
+
+
+def _stage(cfg):
+    from hw_sim.scenario import load_scenario_for_eval
+
+    fe = load_scenario_for_eval("highway4-traffic").sim_board().frontend
+    return UnaliasByLane(fe, cfg, RoadFrame())
+
+
+def _assert_same(a: np.ndarray, b: np.ndarray) -> None:
+    assert a.dtype == b.dtype == np.float32
+    np.testing.assert_array_equal(a.view(np.int32), b.view(np.int32))
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_kernel_equals_reference_on_random_detections(seed):
+    require_kernel("_unalias")
+    rng = np.random.default_rng(seed)
+    cfg = dataclasses.replace(LaneConfig(), mounting_height_m=float(rng.choice([1.0, 6.0, 8.0])))
+    stage = _stage(cfg)
+    assert stage.kernel is not None
+    moved = 0
+    for n in (1, 3, 10, 40, 80, 80, 80):
+        # a road: lanes toward the radar on one side, away on the other, its middle off the radar's axis, and now
+        # and then a lane against its side's direction
+        n_l = int(rng.integers(1, 7))
+        width = float(rng.choice([3.5, 3.75]))
+        c0 = float(rng.uniform(-3.0, 3.0))
+        centres = [c0 + (k - (n_l - 1) / 2) * width for k in range(n_l)]
+        lanes = tuple(Lane(c, width, (1 if c > c0 else -1) * (-1 if rng.random() < 0.1 else 1)) for c in centres)
+        fb = _feedback(lanes, float(rng.normal(0.0, 0.05)))
+        r = rng.uniform(0.5, 30.0, n).astype(np.float32)
+        v = rng.choice([-20.0, -0.5, 0.0, 0.5, 15.0, np.float32(cfg.unalias_min_speed_mps)], n).astype(np.float32)
+        az = rng.uniform(-1.2, 1.2, n).astype(np.float32)
+        # half of them aliases of a vehicle in a lane of its direction (sin az off by one grating-lobe period)
+        for i in range(0, n, 2):
+            own = [ln for ln in lanes if ln.direction == np.sign(v[i])]
+            if own:
+                ln = own[int(rng.integers(0, len(own)))]
+                u = ln.center_m + rng.uniform(-0.5, 0.5) * ln.width_m
+                s = np.clip(u / max(float(r[i]), 1.0), -1.0, 1.0) + rng.choice([1.0, -1.0]) * stage.period
+                if abs(s) <= 1.0:
+                    az[i] = np.float32(np.arcsin(s))
+        if n > 3:
+            az[rng.integers(0, n)] = np.nan
+            r[rng.integers(0, n)] = np.float32(cfg.mounting_height_m)  # no ground solution: y = 0
+        ref = stage.reference(r, v, az, fb)
+        out = stage.unalias(r, v, az, fb)
+        _assert_same(out, ref)
+        moved += int((out.view(np.int32) != az.view(np.int32)).sum())
+    assert moved > 0
+
+
+@pytest.mark.parametrize("scenario", ["highway4-traffic", "wrong-way-traffic"])
+def test_kernel_equals_reference_on_a_pipeline_run(monkeypatch, scenario):
+    require_kernel("_unalias")
+    from edge.pipeline import StageTimer
+    from tests.edge import lane_golden as g
+
+    pipe, frames = g.build(scenario, 1, 5.0)
+    un = [f for f in pipe.detections.direction_filters if isinstance(f, UnaliasByLane)][0]
+    assert un.kernel is not None
+    seen = {"calls": 0, "dets": 0, "moved": 0}
+    real = un.unalias
+
+    def both(range_m, v_mps, az, fb):
+        out = real(range_m, v_mps, az, fb)
+        ref = un.reference(range_m, v_mps, az, fb)
+        _assert_same(out, ref)
+        seen["calls"] += 1
+        seen["dets"] += range_m.size
+        seen["moved"] += int((out.view(np.int32) != az.view(np.int32)).sum())
+        return out
+
+    monkeypatch.setattr(un, "unalias", both)
+    t = StageTimer(16)
+    for f in frames(160):
+        pipe.process(f, t)
+    assert seen["calls"] > 50 and seen["dets"] > 300, seen
+
+
+def _glint_stage(cfg):
+    from hw_sim.scenario import load_scenario_for_eval
+
+    fe = load_scenario_for_eval("highway4-traffic").sim_board().frontend
+    return AgainstLaneGlint(fe, cfg, RoadFrame())
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_glint_kernel_equals_reference_on_random_detections(seed):
+    """Vehicles with glint beside them: detections a lane or two across at the same range and speed, some against
+    their lane's direction; values on the gates' edges; NaN angles."""
+    require_kernel("_unalias")
+    rng = np.random.default_rng(100 + seed)
+    cfg = LaneConfig()
+    stage = _glint_stage(cfg)
+    assert stage.kernel is not None
+    n_glint = 0
+    for n in (2, 5, 20, 60, 60):
+        n_l = int(rng.integers(2, 7))
+        width = 3.5
+        c0 = float(rng.uniform(-3.0, 3.0))
+        centres = [c0 + (k - (n_l - 1) / 2) * width for k in range(n_l)]
+        lanes = tuple(Lane(c, width, 1 if c > c0 else -1) for c in centres)
+        fb = dataclasses.replace(Feedback.none(), lanes=lanes, yaw_rad=float(rng.normal(0.0, 0.03)),
+                                 direction_sigma_rad=float(rng.choice([0.0, 0.01, 0.03])),
+                                 lane_sigmas=float(rng.choice([1.0, 2.0, 3.0])))
+        n_veh = max(1, n // 4)
+        veh = rng.integers(0, n_veh, n)
+        r = (rng.uniform(5.0, 150.0, n_veh)[veh]
+             + rng.choice([0.0, 1.0, np.float32(cfg.cluster_length_m), 20.0], n)).astype(np.float32)
+        v = (rng.choice([-25.0, 20.0], n_veh)[veh]
+             + rng.choice([0.0, 0.3, cfg.cluster_against_lane_speed_mps], n)).astype(np.float32)
+        u = (rng.choice(centres, n_veh)[veh] + rng.choice([0.0, 1.0, 3.5, -3.5, 7.0], n)).astype(np.float64)
+        az = np.arcsin(np.clip(u / r, -1.0, 1.0)).astype(np.float32)
+        if n > 3:
+            az[rng.integers(0, n)] = np.nan
+        from edge.dsp.geometry import polar_to_ground
+
+        x, y = polar_to_ground(r, az, cfg.mounting_height_m, cfg.target_height_m)
+        keep = rng.random(n) < 0.9
+        ref = stage.reference(r, v, az, x, y, keep, fb)
+        out = stage.glint(r, v, az, x, y, keep, fb)
+        assert out.dtype == ref.dtype == bool
+        np.testing.assert_array_equal(out, ref)
+        n_glint += int(ref.sum())
+    assert n_glint > 0
+
+
+@pytest.mark.parametrize("scenario", ["highway4-traffic", "wrong-way-traffic"])
+def test_glint_kernel_equals_reference_on_a_pipeline_run(monkeypatch, scenario):
+    require_kernel("_unalias")
+    from edge.pipeline import StageTimer
+    from tests.edge import lane_golden as g
+
+    pipe, frames = g.build(scenario, 1, 5.0)
+    gl = [f for f in pipe.detections.filters if isinstance(f, AgainstLaneGlint)][0]
+    assert gl.kernel is not None
+    seen = {"calls": 0, "dets": 0}
+    real = gl.glint
+
+    def both(*a):
+        out = real(*a)
+        np.testing.assert_array_equal(out, gl.reference(*a))
+        seen["calls"] += 1
+        seen["dets"] += a[0].size
+        return out
+
+    monkeypatch.setattr(gl, "glint", both)
+    t = StageTimer(16)
+    for f in frames(160):
+        pipe.process(f, t)
+    assert seen["calls"] > 50 and seen["dets"] > 300, seen
