@@ -10,7 +10,7 @@
 #   4. deploy/install.sh --wheels inside the chroot (offline pip compiles the kernels with the root's gcc;
 #      service user, config, udev, unit)
 #   5. the arm64 kernels: built and loaded (edge.native), and equal to the numpy reference end to end
-#      (python -m edge.native.check: detections and confirmed tracks with and without the kernels)
+#      (python -m edge.native.check, lane and surveillance profiles: outputs with and without the kernels)
 #   6. radar-edge doctor (reported; no board, no HAT in a chroot), then N-frame replays of a simulated
 #      SIMO recording (lane profile) and a simulated Distance2Go recording (surveillance profile), and
 #      a run as the service does it (installed configuration, outputs, recorder, service user)
@@ -152,6 +152,12 @@ if in_root $PYV -m edge.native.check --scenario highway4-traffic --frames "$CHEC
   log "OK: arm64 kernels equal the numpy reference"
 else
   log "FAILED: arm64 kernels (exit $?: 1 = different outputs, 2 = not built)"; status=1
+fi
+log "kernels against the numpy reference, surveillance profile, $CHECK_FRAMES frames of tavanti-test1"
+if in_root $PYV -m edge.native.check --profile surveillance --frames "$CHECK_FRAMES"; then
+  log "OK: arm64 surveillance kernels equal the numpy reference"
+else
+  log "FAILED: arm64 surveillance kernels (exit $?: 1 = different outputs, 2 = not built)"; status=1
 fi
 
 # --- 6. doctor and replays -------------------------------------------------------------------------
