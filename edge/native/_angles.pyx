@@ -45,7 +45,10 @@ def consensus(const float[:, :, ::1] q, const float[::1] grid, const float[::1] 
     cdef float *each = <float *>malloc((ns + 1) * sizeof(float))
     cdef float *srt = <float *>malloc((ns + 1) * sizeof(float))
     cdef unsigned char *among = <unsigned char *>malloc(n + 1)
-    cdef float re, im, mx, x, med, pm, p0, pp, den, d, step, first
+    cdef float re, im, mx, x, med, pm, p0, pp, den, d, step, first, u
+    cdef const float* qp
+    cdef float* pp_
+    cdef float* sq
     cdef int cnt, n_clean
     cdef bint shared_any, sh, started
     if each == NULL or srt == NULL or among == NULL:
@@ -56,21 +59,23 @@ def consensus(const float[:, :, ::1] q, const float[::1] grid, const float[::1] 
         for i in range(n):
             for s in range(ns):
                 # the look's power, normalised to its maximum (floor 1e-30), and the normalised maximum's angle
-                mx = 0.0
-                for t in range(g):
-                    re = q[i, s, 2 * t]
-                    im = q[i, s, 2 * t + 1]
-                    x = re * re + im * im
-                    p[i, s, t] = x
-                    if t == 0 or x > mx:
-                        mx = x
+                qp = &q[i, s, 0]
+                pp_ = &p[i, s, 0]
+                for t in range(g):  # (bins innermost, contiguous: vectorised)
+                    re = qp[2 * t]
+                    im = qp[2 * t + 1]
+                    pp_[t] = re * re + im * im
+                mx = pp_[0]
+                for t in range(1, g):
+                    if pp_[t] > mx:
+                        mx = pp_[t]
                 if not (mx > <float>1e-30):
                     mx = <float>1e-30
+                for t in range(g):
+                    pp_[t] = pp_[t] / mx
                 k = 0
                 for t in range(g):
-                    x = p[i, s, t] / mx
-                    p[i, s, t] = x
-                    if x > p[i, s, k]:
+                    if pp_[t] > pp_[k]:
                         k = t
                 each[s] = grid[k]
             # median of the looks' angles (the middle one, or the mean of the middle two)
@@ -116,11 +121,16 @@ def consensus(const float[:, :, ::1] q, const float[::1] grid, const float[::1] 
         step = grid[1] - grid[0]
         for i in range(n):
             # the used looks' normalised spectra summed in look order (a look not used adds p * 0)
+            sq = &spec[i, 0]
+            pp_ = &p[i, 0, 0]
+            u = <float>used[i, 0]
             for t in range(g):
-                x = p[i, 0, t] * <float>used[i, 0]
-                for s in range(1, ns):
-                    x = x + p[i, s, t] * <float>used[i, s]
-                spec[i, t] = x
+                sq[t] = pp_[t] * u
+            for s in range(1, ns):  # look by look, bins innermost: the same sum per bin
+                pp_ = &p[i, s, 0]
+                u = <float>used[i, s]
+                for t in range(g):
+                    sq[t] = sq[t] + pp_[t] * u
             k = 0
             mx = spec[i, 0]
             for t in range(1, g):
