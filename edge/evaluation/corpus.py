@@ -41,7 +41,9 @@ Every (run, seed, variant) is one *run*, evaluated by the profile's evaluation (
   percentile confidence interval from a cluster bootstrap (Davison & Hinkley, *Bootstrap Methods and their
   Application*, 1997, §3.8): the independent units are the (scenario, seed) pairs, not the frames of a run, nor the
   variants of one seed, which share its traffic. With one run (or one seed) the interval is ``None`` and
-  ``ci_note`` says why.
+  ``ci_note`` says why;
+* ``confusion_by_variant`` (surveillance): per variant the per-class confusion matrices of its runs summed per
+  scenario and over all of them (:func:`pooled_confusion`).
 
 Results do not depend on the number of workers: each run is seeded and the resampling is seeded and ordered by
 the corpus, not by completion.
@@ -373,9 +375,12 @@ def run_job(job: dict, cache: dict | None = None) -> dict:
     for k in ("count_error_per_lane", "volume_true_per_lane", "volume_measured_per_lane"):
         if isinstance(s.get(k), list):
             figures[k] = s[k]
-    return {"run": job["run"], "scenario": job["scenario"], "seed": job["seed"], "variant": job["variant"],
-            "frames": report["frames"], "cold_start": job["cold_start"], "profile": profile,
-            "figures": figures, "tallies": s["tallies"]}
+    rec = {"run": job["run"], "scenario": job["scenario"], "seed": job["seed"], "variant": job["variant"],
+           "frames": report["frames"], "cold_start": job["cold_start"], "profile": profile,
+           "figures": figures, "tallies": s["tallies"]}
+    if isinstance(s.get("confusion_matrix"), dict):
+        rec["confusion_matrix"] = s["confusion_matrix"]
+    return rec
 
 
 def _worker_init() -> None:  # pragma: no cover - runs in the workers
@@ -512,6 +517,30 @@ def pooled_part(corpus: Corpus, results: list[dict], stream0: int = 0) -> dict:
     return {"by_variant": by_variant, "all": _with_seeds(pool([r["tallies"] for r in results], metrics, w), results)}
 
 
+def pooled_confusion(results: list[dict]) -> dict:
+    """Per variant, the runs' per-class confusion matrices (true class x predicted class or missed) summed per
+    scenario and over all of them; runs without a matrix (the lane profile) are left out, and so is a variant
+    without any."""
+    out: dict[str, dict] = {}
+    for r in results:
+        cm = r.get("confusion_matrix")
+        if not cm:
+            continue
+        v = out.setdefault(r["variant"], {"labels": list(cm["labels"]), "columns": list(cm["columns"]),
+                                          "rows": cm.get("rows", "true class"), "by_scenario": {}, "all": None})
+        if list(cm["labels"]) != v["labels"] or list(cm["columns"]) != v["columns"]:
+            raise ValueError(f"run {r['scenario']} seed {r['seed']}: confusion-matrix classes differ within variant "
+                             f"{r['variant']}")
+        m = np.asarray(cm["matrix"], dtype=np.int64)
+        prev = v["by_scenario"].get(r["scenario"])
+        v["by_scenario"][r["scenario"]] = (m if prev is None else prev + m)
+        v["all"] = m if v["all"] is None else v["all"] + m
+    for v in out.values():
+        v["by_scenario"] = {k: m.tolist() for k, m in v["by_scenario"].items()}
+        v["all"] = v["all"].tolist()
+    return out
+
+
 def _with_seeds(pooled: dict, results: list[dict]) -> dict:
     n = len({_cluster(r) for r in results})
     for rec in pooled.values():
@@ -537,6 +566,9 @@ def corpus_document(corpus: Corpus, parts: dict[str, list[dict]], config_set: li
         runs = [dict(r, metrics=run_metrics(r["tallies"], metrics)) for r in results]
         doc["parts"][part] = {"runs": runs,
                               "pooled": pooled_part(corpus, results, stream0=1000 * (PARTS.index(part) + 1))}
+        confusion = pooled_confusion(results)
+        if confusion:
+            doc["parts"][part]["confusion_by_variant"] = confusion
     return doc
 
 

@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 
 from edge.cli import main
-from edge.evaluation.corpus import (METRICS, CorpusError, Metric, parse_corpus, pool, resample_weights, run_job,
-                                    run_job_group,
-                                   run_metrics)
+from edge.evaluation.corpus import (METRICS, CorpusError, Metric, parse_corpus, pool, pooled_confusion,
+                                    resample_weights, run_job, run_job_group, run_metrics)
 
 SMOKE = Path(__file__).resolve().parents[2] / "corpus" / "smoke.toml"
 REPO = SMOKE.parent.parent
@@ -166,6 +165,44 @@ def test_surveillance_run_job_tallies_match_its_summary():
     assert got["classification_accuracy_multi"] == pytest.approx(f["classification_accuracy"])
     assert got["detection_probability"] == pytest.approx(f["detection_probability"])
     assert got["classification_accuracy_single"] is None
+    # the run keeps its per-class confusion matrix: one row per target, the diagonal is the correct ones
+    cm = r["confusion_matrix"]
+    m = np.asarray(cm["matrix"])
+    assert cm["columns"] == cm["labels"] + ["missed"] and m.shape == (len(cm["labels"]), len(cm["labels"]) + 1)
+    assert m.sum() == t["targets"] and np.trace(m[:, :-1]) == t["correct"]
+
+
+def test_confusion_matrices_sum_per_variant_and_scenario():
+    def run(variant, scenario, seed, matrix):
+        return {"variant": variant, "scenario": scenario, "seed": seed,
+                "confusion_matrix": {"labels": ["a", "b"], "columns": ["a", "b", "missed"], "matrix": matrix}}
+
+    rs = [run("defaults", "single-random", 1, [[2, 0, 0], [1, 1, 0]]),
+          run("defaults", "single-random", 2, [[1, 1, 0], [0, 2, 1]]),
+          run("defaults", "multi-random", 1, [[0, 0, 1], [0, 3, 0]]),
+          run("gain-6", "single-random", 1, [[0, 2, 0], [0, 1, 1]]),
+          {"variant": "v1", "scenario": "highway4", "seed": 1}]  # no matrix (lane): left out
+    got = pooled_confusion(rs)
+    assert set(got) == {"defaults", "gain-6"}
+    d = got["defaults"]
+    assert d["labels"] == ["a", "b"] and d["columns"] == ["a", "b", "missed"]
+    assert d["by_scenario"] == {"single-random": [[3, 1, 0], [1, 3, 1]], "multi-random": [[0, 0, 1], [0, 3, 0]]}
+    assert d["all"] == [[3, 1, 1], [1, 6, 1]]
+    assert got["gain-6"]["all"] == [[0, 2, 0], [0, 1, 1]]
+    bad = run("defaults", "single-random", 3, [[1, 0, 0], [0, 1, 0]])
+    bad["confusion_matrix"]["labels"] = ["b", "a"]
+    with pytest.raises(ValueError, match="classes differ"):
+        pooled_confusion(rs + [bad])
+
+
+def test_surveillance_corpus_has_the_gain_offsets_of_issue_31():
+    from edge.evaluation.corpus import load_corpus
+
+    c = load_corpus(REPO / "corpus" / "surveillance.toml")
+    offsets = sorted(v.patch.get("physics", {}).get("gain_offset_db", 0.0) for v in c.variants
+                     if "preset" not in v.patch.get("physics", {}))
+    assert offsets == [-6.0, -3.0, 0.0, 3.0, 6.0]
+    assert {"defaults", "v1", "gain-6"} <= {v.name for v in c.variants}
 
 
 def test_ablation_of_a_rule_that_changes_nothing_and_of_one_that_does(tmp_path, capsys):
