@@ -53,6 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from edge import native
+from edge.classify.calibration import DATASHEET_C_DB, DATASHEET_C_SD_DB, rcs_gain_factor
 from edge.track.cylinder import Cylinder
 from edge.types import FrontendInfo
 from hal.waveform import SPEED_OF_LIGHT_MPS, characteristics
@@ -94,6 +95,24 @@ class FeatureConfig:
         default=1.8,
         metadata={"doc": "exponent of r in eq. 17 (2 in free space; 1.8 empirically, Tavanti after [39])",
                   "min": 0.0, "max": 4.0},
+    )
+    rcs_calibration_db: float = field(
+        default=DATASHEET_C_DB,
+        metadata={"unit": "dB", "doc": "the board's RCS calibration constant C (edge.classify.calibration: a 1 m^2 "
+                  "target on boresight at 1 m reads 10^(C/20) counts); eq. 17 is referred to the board the reference "
+                  "set was built on by 10^((C_datasheet - C) / 10), so a board C dB off reads the reference's RCS; "
+                  "default the datasheet value, `radar-edge calibrate --rcs` measures it",
+                  "min": 0.0, "max": 200.0},
+    )
+    rcs_calibration_sd_db: float = field(
+        default=DATASHEET_C_SD_DB,
+        metadata={"unit": "dB", "doc": "uncertainty (1 sd) of rcs_calibration_db: the datasheet's unit spread, or "
+                  "what `radar-edge calibrate --rcs` measured", "min": 0.0, "max": 60.0},
+    )
+    rcs_calibration_source: str = field(
+        default="datasheet",
+        metadata={"doc": "where rcs_calibration_db comes from: datasheet (the default value) or measured (a corner "
+                  "reflector, `radar-edge calibrate --rcs`)", "choices": ("datasheet", "measured")},
     )
     extent_level_db: float = field(
         default=20.0,
@@ -297,6 +316,8 @@ class SignatureExtractor(native.KernelUser):
         self.slope_hz_per_s = abs(seg.slope_hz_per_s)
         self.fb_floor_hz = seg.sample_rate_hz / (2.0 * self.n_samples)
         self.extent_ratio = float(10.0 ** (-config.extent_level_db / 20.0))  # amplitude ratio
+        #: power factor referring eq. 17 to the reference set's board (rcs_calibration_db; 1 at the datasheet C)
+        self.rcs_factor = rcs_gain_factor(config.rcs_calibration_db)
         # TrackFeatureAccumulator(vmax_kmh=...): E(|v_r|) from the unaliased Doppler (speed_feature = "doppler")
         self.speed_vmax_kmh = self.cylinder.vmax_kmh if config.speed_feature == "doppler" else None
         #: the compiled cluster sums (edge/native/_survsig.pyx), None: the numpy reference (:meth:`_sums`) runs
@@ -339,6 +360,8 @@ class SignatureExtractor(native.KernelUser):
             [self.cylinder.radius_kmh * np.cos(ang), self.cylinder.radius_kmh * np.sin(ang), mean_r], axis=1
         )
         rcs = self._rcs(lab, rng, amp, rb, db, L)
+        if self.rcs_factor != 1.0:
+            rcs *= self.rcs_factor
         rcs[n == 0] = np.nan
         dop_mean = np.where(n > 0, self.cylinder.speed_of_angle(np.arctan2(sa, ca)), np.nan)
         return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop_mean, c, s, lo, hi)

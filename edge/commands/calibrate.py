@@ -1,4 +1,5 @@
-"""``radar-edge calibrate``: derive the surveillance threshold th_RD from frames of an empty scene."""
+"""``radar-edge calibrate``: derive the surveillance threshold th_RD from frames of an empty scene, or (``--rcs``) the
+board's RCS calibration constant C from frames of a corner reflector."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from pathlib import Path
 from edge.commands.common import add_config_arguments, config_from_args
 
 NAME = "calibrate"
-HELP = "derive the surveillance detection threshold th_RD from frames of an empty scene"
+HELP = "derive the surveillance threshold th_RD (empty scene) or the RCS constant C (--rcs: a corner reflector)"
 DESCRIPTION = """\
 Tavanti et al. set th_RD from radar frames taken with no moving target in view: every frame goes
 through the IIR clutter/leakage canceller and the range-Doppler map, the largest map amplitude of
@@ -23,23 +24,58 @@ With K = 3 only a fraction of a percent of empty frames reach the threshold anyw
 a single bin over threshold never makes a DBSCAN cluster (M points are needed). The maps use the
 canceller and window settings of the configuration (pipeline.surveillance.k_c, k_sf, n_range_fft,
 n_doppler_fft). Point the source at the installed board with nothing moving in its beam (people,
-vehicles, swaying branches) for at least a few dozen frames; the default is the simulated site."""
+vehicles, swaying branches) for at least a few dozen frames; the default is the simulated site.
+
+With --rcs, the board's RCS calibration constant C instead (edge.classify.calibration): the
+classifier's RCS feature (eq. 17) is referred through C to the board the reference set was built
+on, so a board whose TX power, gain, radome or mounting differ by a few dB still reads a car's RCS
+as a car's. Procedure:
+  1. a triangular trihedral corner reflector of inner edge a (sigma = 4 pi a^4 / 3 lambda^2: 2.69 m^2
+     for a = 0.10 m at 24 GHz; --reflector-edge-m, or --reflector-rcs-m2 for another reflector) on a
+     non-metallic stand, its aperture facing the radar, on boresight (azimuth and elevation) at a
+     tape-measured range of 3-10 m (--range-m; its uncertainty --range-sd-m), nothing else that
+     reflects within 1 m of that range, nothing moving in the beam;
+  2. radar-edge calibrate --rcs --source d2g:///dev/ttyACM0 --range-m 5 --reflector-edge-m 0.1
+     measures the reflector's echo (the chirps averaged, the strongest static tone within
+     --window-m of the range) over --frames frames and computes
+         C = 10 log10(A^2 R^4 / sigma)   (A: tone amplitude in counts, IF high-pass compensated)
+     with its uncertainty (the frames' spread and the range's 40 log10 term, in quadrature);
+     a measurement on which the ADC clips is refused;
+  3. store the printed settings in the installation's configuration ([classify.features]
+     rcs_calibration_db, rcs_calibration_sd_db, rcs_calibration_source = "measured");
+     `radar-edge doctor` shows them. Without a measurement the datasheet value stands
+     (rcs_calibration_source = "datasheet", several dB of unit spread)."""
 EPILOG = """\
 examples:
   radar-edge calibrate                                   # simulated empty site (sim://d2g, empty-d2g)
   radar-edge calibrate --source d2g:///dev/ttyACM0 --frames 300 --json th.json
   radar-edge calibrate --frames 100 --margin-std 2 --set pipeline.surveillance.k_c=0.3
 
+  radar-edge calibrate --rcs                             # simulated reflector (sim://d2g, reflector-d2g)
+  radar-edge calibrate --rcs --source d2g:///dev/ttyACM0 --range-m 6 --reflector-edge-m 0.15 --json c.json
+
 then use the result:  radar-edge run --set pipeline.surveillance.th_rd=VALUE   (or [pipeline.surveillance]
 th_rd = VALUE in the configuration file)
 """
 
 DEFAULT_SOURCE = "sim://d2g?scenario=empty-d2g&realtime=0"
+DEFAULT_RCS_SOURCE = "sim://d2g?scenario=reflector-d2g&realtime=0"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--source", default=DEFAULT_SOURCE, help=f"radar source URL with an empty scene (default: {DEFAULT_SOURCE})")
+    p.add_argument("--source", default=None, help=f"radar source URL with an empty scene (default: {DEFAULT_SOURCE}; "
+                   f"with --rcs the reflector in view, default {DEFAULT_RCS_SOURCE})")
     p.add_argument("--frames", type=int, default=50, help="frames to use (default: 50 = 10 s)")
+    p.add_argument("--rcs", action="store_true", help="measure the RCS calibration constant C from a corner reflector "
+                   "(procedure above) instead of th_RD")
+    p.add_argument("--range-m", type=float, default=5.0, help="--rcs: the reflector's range, tape-measured (m; default 5)")
+    p.add_argument("--range-sd-m", type=float, default=0.05, help="--rcs: uncertainty (1 sd) of --range-m (m; default 0.05)")
+    p.add_argument("--reflector-edge-m", type=float, default=0.10,
+                   help="--rcs: inner edge a of the triangular trihedral (m; default 0.10: 2.69 m^2 at 24 GHz)")
+    p.add_argument("--reflector-rcs-m2", type=float, default=None,
+                   help="--rcs: the reflector's RCS (m^2) instead of the trihedral's from --reflector-edge-m")
+    p.add_argument("--window-m", type=float, default=0.75,
+                   help="--rcs: the reflector's echo is the strongest within this of --range-m (m; default 0.75)")
     p.add_argument("--skip", type=int, default=0, help="frames to discard first (warm-up)")
     p.add_argument("--margin-std", type=float, default=3.0, help="K in th_RD = mean + K * std of the per-frame maxima (default: 3)")
     p.add_argument("--json", metavar="OUT", help="also write the statistics and the result here")
@@ -89,6 +125,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.frames < 2:
         raise ValueError("--frames must be at least 2")
+    if args.rcs:
+        return run_rcs(args)
+    args.source = args.source or DEFAULT_SOURCE
     cfg = config_from_args(args)
     sc = cfg.section("pipeline.surveillance")
     with open_radar(args.source) as src:
@@ -105,6 +144,43 @@ def run(args: argparse.Namespace) -> int:
     print(f"th_RD = {res['mean_of_maxima']:.3f} + {args.margin_std:g} x {res['std_of_maxima']:.3f} = {res['th_rd']:.3f}"
           f"   (current: {sc.th_rd:g})")
     print(f"use: --set pipeline.surveillance.th_rd={res['th_rd']:.3f}")
+    if args.json:
+        out = Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(res, indent=2) + "\n", encoding="utf-8")
+    sys.stdout.flush()
+    return 0
+
+
+def run_rcs(args: argparse.Namespace) -> int:
+    """``--rcs``: C from frames of a corner reflector (edge.classify.calibration.measure_reflector), printed with
+    the settings that store it."""
+    import itertools
+
+    from edge.classify.calibration import DATASHEET_C_DB, measure_reflector, trihedral_rcs_m2
+    from hal import open_radar
+
+    source = args.source or DEFAULT_RCS_SOURCE
+    cfg = config_from_args(args)
+    fc = cfg.section("classify.features")
+    sc = cfg.section("pipeline.surveillance")
+    with open_radar(source) as src:
+        fe = src.frontend
+        sigma = args.reflector_rcs_m2 or trihedral_rcs_m2(args.reflector_edge_m, fe.waveform.wavelength_m)
+        frames = itertools.islice(iter(src), args.skip, args.skip + args.frames)
+        res = measure_reflector(frames, fe, rcs_m2=sigma, range_m=args.range_m, range_sd_m=args.range_sd_m,
+                                if_corner_hz=fc.if_corner_hz, window_m=args.window_m, k_sf=sc.k_sf)
+    res["source"] = source
+    res["datasheet_c_db"] = DATASHEET_C_DB
+    res["set"] = [f"classify.features.rcs_calibration_db={res['c_db']:.2f}",
+                  f"classify.features.rcs_calibration_sd_db={res['c_sd_db']:.2f}",
+                  "classify.features.rcs_calibration_source=measured"]
+    print(f"{res['frames']} frames: reflector {sigma:.3g} m^2 at {args.range_m:g} m (echo peak at "
+          f"{res['measured_peak_range_m']:.2f} m), amplitude {res['amplitude_counts']:.1f} counts rms")
+    print(f"C = {res['c_db']:.2f} +- {res['c_sd_db']:.2f} dB (frames {res['c_sd_frames_db']:.2f}, range "
+          f"{res['c_sd_range_db']:.2f}); datasheet {DATASHEET_C_DB:.2f} dB: this board reads "
+          f"{res['c_db'] - DATASHEET_C_DB:+.2f} dB   (current: {fc.rcs_calibration_db:.2f}, {fc.rcs_calibration_source})")
+    print("store in the configuration's [classify.features]:  " + "  ".join(f"--set {x}" for x in res["set"]))
     if args.json:
         out = Path(args.json)
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -584,6 +584,33 @@ def check_traffic_calibration(sys_: System, cfg: Any) -> list[Check]:
                   data={"yaw_deg": math.degrees(cal.yaw_rad), "lanes": len(cal.lanes), "age_h": age_h})]
 
 
+def check_rcs_calibration(cfg: Any) -> list[Check]:
+    """The surveillance RCS calibration constant C (``classify.features.rcs_calibration_*``): its value, uncertainty
+    and whether it was measured (`radar-edge calibrate --rcs`) or is the datasheet default (warn: a unit's gain
+    spread of several dB moves the classes of vehicles)."""
+    from edge.classify.calibration import DATASHEET_C_DB
+
+    try:
+        fc = cfg["classify.features"]
+    except (KeyError, ValueError) as exc:
+        return [Check("rcs calibration", "skipped", f"no classify.features section: {exc}")]
+    c, sd, source = fc.rcs_calibration_db, fc.rcs_calibration_sd_db, fc.rcs_calibration_source
+    data = {"c_db": c, "sd_db": sd, "source": source, "datasheet_c_db": DATASHEET_C_DB}
+    detail = f"C = {c:.2f} +- {sd:.2f} dB, {source} ({c - DATASHEET_C_DB:+.2f} dB from the datasheet's {DATASHEET_C_DB:.2f})"
+    profile = cfg["loop"].profile
+    if profile == "auto":
+        url = cfg["source"].url
+        profile = "surveillance" if url.startswith("d2g:") or url.startswith("sim://d2g") else "other"
+    if source == "measured" or profile != "surveillance":
+        if profile != "surveillance":
+            detail += " (not used: the profile is not surveillance)"
+        return [Check("rcs calibration", "ok", detail, data=data)]
+    return [Check("rcs calibration", "warn", detail + ": not measured on this board (surveillance profile)",
+                  "with a corner reflector on boresight: radar-edge calibrate --rcs --source d2g:///dev/ttyACM0 "
+                  "--range-m R --reflector-edge-m A, then store the printed [classify.features] settings",
+                  data=data)]
+
+
 def check_user(sys_: System) -> list[Check]:
     """The service user exists and is in ``dialout`` (the group of the serial ports and the udev rule)."""
     if str(sys_.root) != "/":
@@ -654,7 +681,8 @@ def run_checks(sys_: System, config_path: str | None = None, overrides: dict[str
     if cfg is not None:
         for fn in (lambda: check_source(sys_, cfg, open_board), lambda: check_modbus(sys_, cfg),
                    lambda: check_can(sys_, cfg), lambda: check_classifier(sys_, cfg), lambda: check_models(sys_, cfg),
-                   lambda: check_recorder(sys_, cfg), lambda: check_traffic_calibration(sys_, cfg)):
+                   lambda: check_recorder(sys_, cfg), lambda: check_traffic_calibration(sys_, cfg),
+                   lambda: check_rcs_calibration(cfg)):
             checks.extend(_guard(fn))
     else:
         checks.append(Check("outputs", "skipped", "the configuration does not load"))

@@ -69,3 +69,87 @@ def test_calibrate_needs_two_frames():
     frames, fe = _frames(1)
     with pytest.raises(ValueError):
         calibrate.calibrate_threshold(frames, RangeDopplerProcessor(fe))
+
+
+# --- --rcs: the RCS calibration constant C from a corner reflector (issue 31) -------------------------------------
+
+
+def _reflector_frames(gain_offset_db: float, tmp_path, n: int = 12):
+    """Frames of the simulated reflector site (hw_sim reflector-d2g) on a board ``gain_offset_db`` off."""
+    from importlib import resources
+
+    text = resources.files("hw_sim").joinpath("scenarios", "reflector-d2g.toml").read_text(encoding="utf-8")
+    path = tmp_path / f"reflector-{'m' if gain_offset_db < 0 else 'p'}{abs(gain_offset_db):g}.toml"
+    path.write_text(text + f"\n[physics]\ngain_offset_db = {gain_offset_db}\n", encoding="utf-8")
+    return _frames(n, scenario=str(path))
+
+
+def test_trihedral_rcs_is_4_pi_a4_over_3_lambda2():
+    from edge.classify.calibration import trihedral_rcs_m2
+
+    lam = 299_792_458.0 / 24.0e9
+    assert trihedral_rcs_m2(0.1, lam) == pytest.approx(4 * np.pi * 1e-4 / (3 * lam**2))
+    assert trihedral_rcs_m2(0.2, lam) == pytest.approx(16 * trihedral_rcs_m2(0.1, lam))  # a^4
+    with pytest.raises(ValueError):
+        trihedral_rcs_m2(0.0, lam)
+
+
+def test_measured_c_follows_the_board_gain_and_a_clipping_board_is_refused(tmp_path):
+    from edge.classify.calibration import DATASHEET_C_DB, measure_reflector, trihedral_rcs_m2
+
+    got = {}
+    for off in (-6.0, -3.0, 0.0, 3.0):
+        frames, fe = _reflector_frames(off, tmp_path)
+        sigma = trihedral_rcs_m2(0.10, fe.waveform.wavelength_m)
+        res = measure_reflector(frames, fe, rcs_m2=sigma, range_m=5.0)
+        got[off] = res["c_db"]
+        assert res["clipped_fraction"] == 0.0
+        assert abs(res["measured_peak_range_m"] - 5.0) < 0.3
+        # the uncertainty: the frames' spread is tiny on a static reflector; the 5 cm of range dominates
+        assert res["c_sd_range_db"] == pytest.approx(40 / np.log(10) * 0.05 / 5.0)
+        assert res["c_sd_db"] >= res["c_sd_range_db"]
+    # the nominal (datasheet) board reads the datasheet constant; the others follow their offsets
+    assert got[0.0] == pytest.approx(DATASHEET_C_DB, abs=0.1)
+    for off, c in got.items():
+        assert c - got[0.0] == pytest.approx(off, abs=0.5)
+    # +6 dB: the TX->RX leakage alone drives the simulated ADC to full scale; a clipped measurement is refused
+    frames, fe = _reflector_frames(6.0, tmp_path)
+    with pytest.raises(ValueError, match="clips"):
+        measure_reflector(frames, fe, rcs_m2=2.69, range_m=5.0)
+
+
+def test_calibrate_rcs_command_prints_and_writes_the_settings(tmp_path, capsys):
+    from edge.classify.calibration import DATASHEET_C_DB
+    from edge.config import load_config, parse_set_option
+
+    p = argparse.ArgumentParser()
+    calibrate.add_arguments(p)
+    out = tmp_path / "c.json"
+    assert calibrate.run(p.parse_args(["--rcs", "--frames", "6", "--json", str(out)])) == 0
+    res = json.loads(out.read_text())
+    assert res["frames"] == 6 and res["rcs_m2"] == pytest.approx(2.69, abs=0.01)
+    assert res["c_db"] == pytest.approx(DATASHEET_C_DB, abs=0.1)
+    assert "classify.features.rcs_calibration_db=" in capsys.readouterr().out
+    # the printed settings load as the configuration's calibration
+    fc = load_config(overrides=dict(parse_set_option(s) for s in res["set"]), env={}).section("classify.features")
+    assert fc.rcs_calibration_source == "measured"
+    assert fc.rcs_calibration_db == pytest.approx(res["c_db"], abs=0.01)
+
+
+def test_calibration_constant_refers_eq17_to_the_reference_board():
+    from edge.classify.calibration import DATASHEET_C_DB
+    from edge.classify.features import FeatureConfig, MapPoints, SignatureExtractor
+
+    frames, fe = _frames(1)
+    pts = MapPoints(label=np.array([0, 0, 0, 1]), range_m=np.array([5.0, 5.2, 5.4, 9.0]),
+                    amplitude=np.array([3.0, 6.0, 4.0, 2.5]), range_bin=np.array([106, 110, 115, 192]),
+                    doppler_bin=np.array([40, 40, 40, 80]), doppler_kmh=np.array([-3.0, -3.0, -3.0, 1.0]))
+    nominal = SignatureExtractor(FeatureConfig(), fe)
+    weak = SignatureExtractor(FeatureConfig(rcs_calibration_db=DATASHEET_C_DB - 6.0), fe)
+    assert nominal.rcs_factor == 1.0
+    a, b = nominal(pts), weak(pts)
+    # a board measured 6 dB weak has its eq. 17 power raised by 6 dB; nothing else changes
+    np.testing.assert_allclose(b.rcs, a.rcs * 10**0.6, rtol=1e-12)
+    assert np.all(np.isfinite(a.rcs)) and np.all(a.rcs > 0)
+    np.testing.assert_array_equal(b.extent_m, a.extent_m)
+    np.testing.assert_array_equal(b.circular_variance, a.circular_variance)

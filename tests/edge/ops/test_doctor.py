@@ -459,3 +459,18 @@ def test_example_config_on_a_complete_install_passes_and_a_missing_board_fails(t
     failed = [c for c in checks if c.status == "fail"]
     assert [c.name for c in failed] == ["serial port"] and "/dev/radar-d2g does not exist" in failed[0].detail
     assert "lsusb" in failed[0].fix
+
+
+def test_rcs_calibration_shows_c_and_whether_it_was_measured():
+    from edge.classify.calibration import DATASHEET_C_DB
+
+    c = dr.check_rcs_calibration(_cfg())[0]  # a Distance2Go on the datasheet constant
+    assert c.status == "warn" and "datasheet" in c.detail and "calibrate --rcs" in c.fix
+    assert c.data["c_db"] == DATASHEET_C_DB and c.data["source"] == "datasheet"
+    c = dr.check_rcs_calibration(_cfg(**{"classify.features.rcs_calibration_db": 57.3,
+                                         "classify.features.rcs_calibration_sd_db": 0.2,
+                                         "classify.features.rcs_calibration_source": "measured"}))[0]
+    assert c.status == "ok" and "57.30 +- 0.20 dB, measured" in c.detail
+    assert c.data["c_db"] == 57.3
+    c = dr.check_rcs_calibration(_cfg(**{"source.url": "simo:///dev/ttyACM0"}))[0]  # lane board: not used
+    assert c.status == "ok" and "not surveillance" in c.detail
