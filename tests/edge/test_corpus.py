@@ -248,7 +248,7 @@ def test_ablate_refuses_an_unknown_setting(tmp_path, capsys):
     assert "no_such_rule" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("name", ["lane.toml", "surveillance.toml", "smoke.toml"])
+@pytest.mark.parametrize("name", ["lane.toml", "surveillance.toml", "surveillance-calibrated.toml", "smoke.toml"])
 def test_shipped_corpora_parse(name):
     from edge.evaluation.corpus import check_scenarios, load_corpus
 
@@ -283,3 +283,23 @@ def test_shipped_lane_rules_parse_and_each_switch_changes_a_default():
             section, _, field = key.rpartition(".")
             off = load_config(None, env={}, overrides={key: val})
             assert getattr(off.section(section), field) != getattr(base.section(section), field), r.name
+
+
+def test_calibrated_surveillance_corpus_carries_each_boards_measured_c():
+    # the calibrated corpus runs the surveillance corpus's seeds and gain offsets, each board with the C that
+    # `radar-edge calibrate --rcs` measures at its offset (the datasheet C where the measurement clips)
+    from edge.classify.calibration import DATASHEET_C_DB
+    from edge.evaluation.corpus import load_corpus
+
+    plain = load_corpus(REPO / "corpus" / "surveillance.toml")
+    cal = load_corpus(REPO / "corpus" / "surveillance-calibrated.toml")
+    key = lambda j: (j["part"], j["scenario"], j["seed"], j["events"])  # noqa: E731
+    for part in ("dev", "holdout"):
+        assert {key(j) for j in cal.jobs(part)} == {key(j) for j in plain.jobs(part)}
+    for v in cal.variants:
+        off = v.patch.get("physics", {}).get("gain_offset_db", 0.0)
+        c = [float(s.split("=")[1]) for s in v.set if s.startswith("classify.features.rcs_calibration_db=")]
+        if off < 6.0:
+            assert c and c[0] - DATASHEET_C_DB == pytest.approx(off, abs=0.05)
+        else:
+            assert not c
