@@ -597,4 +597,19 @@ def console_table(doc: dict) -> str:
                 rows.append([m if k == 0 else "", g, str(rec[m]["runs"]), _fmt(rec[m]["value"]), _ci(rec[m])])
         w = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
         lines += ["  " + "  ".join(c.ljust(w[i]) for i, c in enumerate(r)).rstrip() for r in rows]
+        lines += _confusion_lines(p.get("confusion_by_variant") or {})
     return "\n".join(lines)
+
+
+def _confusion_lines(confusion: dict) -> list[str]:
+    """Per variant, its summed confusion matrix as text: one row per true class, columns predicted and missed."""
+    lines = []
+    for v, cm in confusion.items():
+        cols = cm["columns"]
+        rows = [["true \\ predicted"] + list(cols)] + [[lab] + [str(x) for x in row]
+                                                        for lab, row in zip(cm["labels"], cm["all"])]
+        w = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+        lines.append(f"  confusion matrix, {v} (all runs):")
+        lines += ["    " + "  ".join(c.rjust(w[i]) if i else c.ljust(w[i]) for i, c in enumerate(r)).rstrip()
+                  for r in rows]
+    return lines

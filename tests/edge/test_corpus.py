@@ -189,6 +189,12 @@ def test_confusion_matrices_sum_per_variant_and_scenario():
     assert d["by_scenario"] == {"single-random": [[3, 1, 0], [1, 3, 1]], "multi-random": [[0, 0, 1], [0, 3, 0]]}
     assert d["all"] == [[3, 1, 1], [1, 6, 1]]
     assert got["gain-6"]["all"] == [[0, 2, 0], [0, 1, 1]]
+    # the console table prints each variant's summed matrix
+    from edge.evaluation.corpus import _confusion_lines
+
+    text = "\n".join(_confusion_lines(got))
+    assert "confusion matrix, defaults" in text and "confusion matrix, gain-6" in text
+    assert [ln.split() for ln in text.splitlines() if ln.split()[:1] == ["b"]][0] == ["b", "1", "6", "1"]
     bad = run("defaults", "single-random", 3, [[1, 0, 0], [0, 1, 0]])
     bad["confusion_matrix"]["labels"] = ["b", "a"]
     with pytest.raises(ValueError, match="classes differ"):
