@@ -93,7 +93,9 @@ class AngleStage(native.KernelUser):
             p0 = power[0, pk[:, 0]]
             n0 = noise[0, pk[:, 0]]
             n0 = np.where(np.isfinite(n0), n0, floor[0])  # a track-aided pair may read a non-peak bin
-            snr_db = (10.0 * np.log10(p0 / np.maximum(n0, np.float32(1e-30)))).astype(np.float32)
+            # the logarithm in float64, rounded to float32 once: the same value as the kernel's libm log10 on any
+            # machine (numpy's float32 log10 is its own SIMD code on AVX-512 and differs in the last bits)
+            snr_db = (10.0 * np.log10((p0 / np.maximum(n0, np.float32(1e-30))).astype(np.float64))).astype(np.float32)
         else:
             az = snr_db = np.zeros(0, np.float32)
             aspec = np.zeros((0, self.grid.size), np.float32)

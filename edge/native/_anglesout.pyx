@@ -3,11 +3,11 @@
 """Angle stage output kernel (edge.lane.angles.AngleStage.__call__ after the consensus; its numpy form is
 AngleStage.reference_output): each pairing's SNR in the first segment against the CFAR noise (the segment's floor
 where a track-aided pairing reads a bin that is no local maximum), the pairings whose looks agreed and, for the
-resolver, their looks with those not summed into the angle zeroed. float32 as the reference (log10f, as numpy's
-float32 log10)."""
+resolver, their looks with those not summed into the angle zeroed. The SNR's logarithm in float64, rounded to float32
+once, as the reference."""
 
 cimport cython
-from libc.math cimport log10f, isfinite
+from libc.math cimport log10, isfinite
 
 import numpy as np
 
@@ -57,7 +57,7 @@ def finish(const float[:, ::1] power_padded, Py_ssize_t pad, const float[:, ::1]
         if not (n0 >= <float>1e-30 or n0 != n0):  # np.maximum (NaN kept)
             n0 = <float>1e-30
         x = p0 / n0
-        a_snr[k] = <float>10.0 * log10f(x)
+        a_snr[k] = <float>(10.0 * log10(<double>x))  # float64, rounded once (as the reference)
         if want_looks:
             for s in range(ns):
                 for t in range(w // 2):
