@@ -12,6 +12,8 @@ import numpy as np
 from edge import native
 from edge.lane.records import Feedback
 
+_SEG4 = np.arange(4)  # the four segments, as an index
+
 
 def _median_of_frames(frames: np.ndarray) -> np.ndarray:
     """``np.median(z.real, axis=0) + 1j * np.median(z.imag, axis=0)`` of the complex64 spectra ``z`` (frames on the
@@ -155,3 +157,12 @@ class ClutterMap(native.KernelUser):
             for k, a in enumerate(self._bins_per_m):
                 lo, hi = sorted((a * r0, a * r1))
                 d[:, k, np.arange(math.floor(lo) - 1, math.ceil(hi) + 2) % n] = 0
+
+    def static_residue(self, bins: np.ndarray, power: np.ndarray, floor: np.ndarray, ratio: float) -> np.ndarray:
+        """(n,) bool: pairings whose peaks (``bins`` (n, 4 seg)) are, in every segment, no stronger in ``power``
+        (seg, bin) than ``ratio`` times the map's echo in the same bin, where the map holds an echo above the
+        segment's noise ``floor`` (seg,): what is left of static echoes, not a moving body."""
+        b = self._background[:, _SEG4, bins]  # (rx, n, 4)
+        bg = np.add.reduce(b.real * b.real + b.imag * b.imag, axis=0)
+        return ((power[_SEG4, bins] <= np.float32(ratio) * bg) & (bg > floor)).all(axis=1)
+

@@ -12,7 +12,7 @@ import numpy as np
 
 from edge import native
 from edge.dsp.pairing import PairingModel, Pairs, pair_beats, refine_pairs
-from edge.lane.records import Feedback, PairList, Peaks
+from edge.lane.records import Feedback, PairList, Peaks, Spectra
 from edge.types import FrontendInfo
 
 _SEG4 = np.arange(4)  # the four segments, as an index
@@ -49,6 +49,9 @@ class PairStage(native.KernelUser):
         self._coef = np.array(self.model.coefficients, np.float64)
         #: the compiled track-aided predictions (edge/native/_aided.pyx), None: :meth:`reference_predictions`
         self._k_aided_pred = native.load("_aided")
+        #: the static-clutter map (edge.lane.clutter.ClutterMap) for ``pair_static_residue_db``; None: not tested
+        self.clutter = None
+        self._static_ratio = 10.0 ** (cfg.pair_static_residue_db / 10.0) if cfg.pair_static_residue_db > 0 else 0.0
 
     def pair(self, freqs: tuple) -> Pairs:
         """The four-segment pairing of ``freqs`` (Hz, per segment): the compiled kernel when built, else
@@ -72,16 +75,19 @@ class PairStage(native.KernelUser):
                           max_shared=cfg.pair_max_shared_peaks, near_tolerance_hz=self._near_tol,
                           near_range_m=cfg.pair_near_range_m, ghost_speed_mps=_GHOST_SPEED_MPS)
 
-    def __call__(self, peaks: Peaks, t_ns: int, feedback: Feedback) -> PairList:
-        """Pairings of ``peaks`` at frame time ``t_ns`` (ns), the tracks of ``feedback`` helping."""
+    def __call__(self, peaks: Peaks, t_ns: int, feedback: Feedback, spectra: Spectra | None = None) -> PairList:
+        """Pairings of ``peaks`` at frame time ``t_ns`` (ns), the tracks of ``feedback`` helping; with ``spectra``
+        and ``pair_static_residue_db``, the residue of static echoes dropped (:meth:`drop_static`)."""
         cfg = self.config
         freqs, bins = peaks.freqs_hz, peaks.bins
         pairs = self.pair(freqs)
-        p_rng, p_vel, p_res = pairs.range_m, pairs.radial_speed_mps, pairs.residual_hz
         # (n, 4 seg) bins: the peaks of the four segments are consecutive in ``all_bins``
         all_bins = np.concatenate(bins)
         seg_start = np.array(list(itertools.accumulate((b.size for b in bins[:-1]), initial=0)))
-        pk = all_bins[pairs.peak_index + seg_start] if p_rng.size else self._no_bins
+        pk = all_bins[pairs.peak_index + seg_start] if pairs.range_m.size else self._no_bins
+        if self._static_ratio > 0 and spectra is not None and self.clutter is not None and pk.shape[0]:
+            pairs, pk = self.drop_static(pairs, pk, spectra, peaks.floor)
+        p_rng, p_vel, p_res = pairs.range_m, pairs.radial_speed_mps, pairs.residual_hz
         n_aided = 0
         if self._aided and feedback.n_tracks:
             weak = (peaks.weak_freqs_hz, peaks.weak_bins) if peaks.weak_freqs_hz is not None else None
@@ -92,6 +98,18 @@ class PairStage(native.KernelUser):
                 p_rng, p_vel, p_res = (np.concatenate([u, w]) for u, w in ((p_rng, a_rng), (p_vel, a_vel),
                                                                           (p_res, a_res)))
         return PairList(pk, p_rng, p_vel, p_res, pairs.n_candidates, pairs.n_ghosts, n_aided)
+
+    def drop_static(self, pairs: Pairs, pk: np.ndarray, spectra: Spectra, floor: np.ndarray) -> tuple[Pairs, np.ndarray]:
+        """``pairs`` and their bins ``pk`` (n, 4) without the pairings of static residue: every peak no stronger
+        than ``pair_static_residue_db`` over the clutter map's echo in its bin (a vehicle shadowing guard-rail
+        posts leaves their negative images, and an up-chirp image of one post pairs with the down-chirp image of
+        another at a speed proportional to their spacing)."""
+        static = self.clutter.static_residue(pk, spectra.power, floor, self._static_ratio)
+        if not static.any():
+            return pairs, pk
+        keep = ~static
+        return Pairs(pairs.peak_index[keep], pairs.range_m[keep], pairs.radial_speed_mps[keep],
+                     pairs.residual_hz[keep], pairs.n_candidates, pairs.n_ghosts), pk[keep]
 
     def track_aided(self, freqs, bins, pairs, t_ns: int, feedback: Feedback, weak=None):
         """Pairings of confirmed tracks that the four-segment pairing missed (a near vehicle's echo is smeared

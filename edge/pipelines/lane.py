@@ -108,6 +108,10 @@ class LaneConfig:
     pair_max_shared_peaks: int = field(default=1, metadata={
         "doc": "a pairing may share this many of its four peaks with better pairings (vehicles whose beats "
                "coincide in one segment)", "min": 0, "max": 3})
+    pair_static_residue_db: float = field(default=3.0, metadata={
+        "unit": "dB", "doc": "a four-segment pairing whose peak in every segment is no stronger than this over the "
+               "static-clutter map's echo in its bin is the residue of static echoes (posts a vehicle shadows) and is "
+               "dropped; 0 = off", "min": 0.0, "max": 20.0})
     angle_step_deg: float = field(default=0.25, metadata={
         "unit": "deg", "doc": "Bartlett grid step (refined by a parabola)", "min": 0.01, "max": 2.0})
     angle_max_deg: float = field(default=19.0, metadata={
@@ -262,6 +266,7 @@ class LanePipeline(Pipeline):
         # a static echo's FFT bins per metre of range in each segment (negative on a down-chirp)
         self.clutter = ClutterMap(cfg, tuple(frontend.frame_shape), wf.frame_period_s,
                                   (self.pairs.model.a / self.peaks.bin_hz).tolist())
+        self.pairs.clutter = self.clutter
         self.spectra = SpectraStage(frontend, cfg, self.clutter, self.peaks.pad)
         self.angles = AngleStage(frontend, cfg, want_looks=cfg.resolve_pairs)
         self.resolve = (ResolveStage(frontend, cfg, self.angles.steer, self.angles.grid, road)
@@ -317,7 +322,7 @@ class LanePipeline(Pipeline):
         with timer.stage("cfar"):  # weak peaks only when a confirmed track may use them
             peaks = self.peaks(spectra, self.peaks.aided_scale32 is not None and bool(fb.confirmed.any()))
         with timer.stage("pairing"):
-            pairs = self.pairs(peaks, frame.t_ns, fb)
+            pairs = self.pairs(peaks, frame.t_ns, fb, spectra)
         with timer.stage("angle"):
             angles = self.angles(spectra, peaks.noise, peaks.floor, pairs)
         if self.resolve is not None:
