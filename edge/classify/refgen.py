@@ -78,7 +78,8 @@ from hal.waveform import characteristics
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DEFAULT_EVENTS_PER_CLASS", "DEFAULT_SEED", "PASSAGE_HALF_SECTOR_DEG", "build_reference_set", "event_signatures", "write_default"]
+__all__ = ["DEFAULT_EVENTS_PER_CLASS", "DEFAULT_SEED", "PASSAGE_HALF_SECTOR_DEG", "build_reference_set",
+           "event_gain_offsets", "event_signatures", "write_default"]
 
 DEFAULT_SEED = 90210
 DEFAULT_EVENTS_PER_CLASS = 250
@@ -105,6 +106,13 @@ def event_signatures(
     return acc
 
 
+def event_gain_offsets(seed: int, n_events: int, gain_offsets_db: tuple[float, float]) -> np.ndarray:
+    """The board gain offsets (dB) of a build's ``n_events`` events, uniform in ``gain_offsets_db``, from ``seed``
+    (a stream of its own: the events themselves are those of the build without offsets)."""
+    lo, hi = (float(g) for g in gain_offsets_db)
+    return np.random.default_rng([int(seed), 0x6A17]).uniform(lo, hi, int(n_events))
+
+
 def build_reference_set(
     *,
     events_per_class: int = DEFAULT_EVENTS_PER_CLASS,
@@ -118,6 +126,8 @@ def build_reference_set(
     vehicle_lanes: str = "any",
     progress: Callable[[int, int], None] | None = None,
     physics: Any = None,
+    gain_offsets_db: tuple[float, float] | None = None,
+    population: str = "site",
 ) -> ReferenceSet:
     """Build a reference set from ``4 * events_per_class`` simulated single-target events.
 
@@ -129,6 +139,9 @@ def build_reference_set(
     evaluation generators' two-way road (approaching in the near lane, receding in the far one).
     ``physics`` (a :class:`hw_sim.physics.Physics`) is the simulator's instrument; default: the scenario's
     (the physical defaults); ``parse_physics({"preset": "v1"})`` is the instrument the shipped set was built on.
+    ``gain_offsets_db`` ``(lo, hi)``: each event is simulated on a board whose ``physics.gain_offset_db`` is the
+    instrument's plus an offset drawn uniformly in ``[lo, hi]`` (:func:`event_gain_offsets`); None: one board.
+    ``population``: the vehicles' bodies (:data:`hw_sim.events.VEHICLE_POPULATIONS`; "wide" for wider lengths and vans).
     """
     from edge.config import load_config
     from edge.dsp.range_doppler import RangeDopplerProcessor
@@ -143,17 +156,23 @@ def build_reference_set(
         raise ValueError(f"vehicle_lanes must be 'any' or 'keep_right', got {vehicle_lanes!r}")
     if signatures not in ("thresholded", "tracked"):
         raise ValueError(f"signatures must be 'thresholded' or 'tracked', got {signatures!r}")
+    if gain_offsets_db is not None and not gain_offsets_db[0] <= gain_offsets_db[1]:
+        raise ValueError(f"gain_offsets_db must be (lo, hi) with lo <= hi, got {gain_offsets_db!r}")
     cfg = config if config is not None else load_config(env={})
     sc_cfg = cfg.section("pipeline.surveillance")
     feat_cfg: FeatureConfig = cfg.section("classify.features")
     n_events = 4 * events_per_class
-    scenario = single_random(events=n_events, keep_right=vehicle_lanes == "keep_right")
+    if population == "site":  # the scenario exactly as before the option (its raw table has no population key)
+        scenario = single_random(events=n_events, keep_right=vehicle_lanes == "keep_right")
+    else:
+        scenario = single_random(events=n_events, keep_right=vehicle_lanes == "keep_right", population=population)
     if physics is not None:
         scenario = dataclasses.replace(scenario, physics=physics)
     board = scenario.sim_board()
     fe = board.frontend
     scene = scenario.build_scene(seed)
     sim = FrameSimulator(board, scene, seed)
+    gains = None if gain_offsets_db is None else event_gain_offsets(seed, n_events, gain_offsets_db)
     rd = RangeDopplerProcessor(fe, k_c=sc_cfg.k_c, k_sf=sc_cfg.k_sf, n_range_fft=sc_cfg.n_range_fft,
                                n_doppler_fft=sc_cfg.n_doppler_fft)
     extractor = SignatureExtractor(feat_cfg, fe)
@@ -218,6 +237,10 @@ def build_reference_set(
         return tgs[0].cls, x, int(best.features.get("frames", 0))
 
     for e in range(n_events):
+        if gains is not None:
+            phys_e = dataclasses.replace(scenario.physics,
+                                         gain_offset_db=scenario.physics.gain_offset_db + float(gains[e]))
+            sim = FrameSimulator(dataclasses.replace(scenario, physics=phys_e).sim_board(), scene, seed)
         if signatures == "thresholded":
             seen_cls: list[str] = []
             acc = event_signatures(frames_of(e, seen_cls), extractor, min_range_m)
@@ -242,6 +265,8 @@ def build_reference_set(
         "frames": frames,
         "passage_half_sector_deg": float(passage_half_sector_deg),
         "vehicle_lanes": vehicle_lanes,
+        "population": population,
+        "gain_offsets_db": None if gain_offsets_db is None else [float(g) for g in gain_offsets_db],
         "seed": int(seed),
         "events_per_class": int(events_per_class),
         "min_frames": int(min_frames),
