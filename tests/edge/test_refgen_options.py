@@ -86,3 +86,12 @@ def test_site_population_is_the_evaluation_corpus_unchanged():
         np.testing.assert_array_equal(ta.offsets_m, tb.offsets_m)
     with pytest.raises(ValueError):
         single_random(events=4, population="huge")
+
+
+def test_tracked_signatures_are_the_targets_tracks_not_the_site_clutter():
+    """On the urban site the swaying bush holds a track through every event: a tracked reference event is the
+    track that follows the target (it moves), never the bush's (about 1 km/h)."""
+    ref = build_reference_set(events_per_class=2, seed=SEED, signatures="tracked", population="wide")
+    speed = list(ref.feature_names).index("abs_radial_speed_mean_kmh")
+    assert len(ref) >= 6
+    assert np.all(ref.features[:, speed] > 2.0), ref.features[:, speed]
