@@ -45,6 +45,11 @@ matches them, the one with the most frames gives its feature vector, so the refe
 exactly as in operation (with the clustering and tracking parameters baked in). The longest event of the
 passage alone would be the urban site's swaying bush, tracked throughout.
 
+``gain_offsets_db=(lo, hi)`` simulates each event on a board whose ``physics.gain_offset_db`` is drawn uniformly
+in ``[lo, hi]`` (the corpus's gain-offset variants' knob), so one set covers boards of different gain;
+``population="wide"`` draws the vehicles from :mod:`hw_sim.events`' widened population (cars 3.5-5.2 m, vans,
+trucks and buses 6-18 m). Decision 0014 has the figures of a set built with both on tracked signatures.
+
 The packaged default ``edge/data/reference_set.npz`` (the one the surveillance pipeline loads when
 ``classify.knn.reference_set`` is empty) is regenerated, from the repository root, with exactly::
 
