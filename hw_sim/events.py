@@ -19,6 +19,10 @@ Bodies (body frame ``x`` right, ``y`` forward, ``z`` up; reference point = footp
 * truck/bus: 30-50 scatterers on the front face, both sides at two heights, axles and rear doors;
   7-12 m long; about 18 dBsm.
 
+The event generators' ``population`` (:data:`VEHICLE_POPULATIONS`) chooses these lengths: ``"site"`` (default,
+the evaluation corpus) as above; ``"wide"`` (for reference sets) draws cars 3.5-5.2 m, one car in
+:data:`VAN_PROBABILITY` a van (:func:`van_body`, labelled car) and trucks/buses 6-18 m.
+
 Under the default ``[physics]`` (:mod:`hw_sim.physics`) the pedestrian is the Boulic et al. 1990 walker
 (:class:`hw_sim.pedestrian.BoulicPedestrian`, ``gait``), vehicle panels (bumpers, doors, tailgate) have a flat
 plate's aspect lobe over a diffuse floor (``vehicle_lobes``), wheels turn (``wheels``: rim and tread points, 0
@@ -99,10 +103,24 @@ def _shares(rng: np.random.Generator, n: int, total: float, weight: np.ndarray |
     return total * s / s.sum()
 
 
-def car_body(rng: np.random.Generator, total_rcs_m2: float) -> tuple[np.ndarray, np.ndarray]:
-    length = rng.uniform(3.8, 5.0)
-    width = rng.uniform(1.7, 1.9)
-    height = rng.uniform(1.4, 1.6)
+#: vehicle populations of the event generators (module doc): "site" (the evaluation corpus) and "wide"
+VEHICLE_POPULATIONS: tuple[str, ...] = ("site", "wide")
+#: body lengths (m) of the populations
+CAR_LENGTH_M = {"site": (3.8, 5.0), "wide": (3.5, 5.2)}
+TRUCK_LENGTH_M = {"site": (7.0, 12.0), "wide": (6.0, 18.0)}
+#: "wide": share of the cars that are vans (light commercial vehicles) and their body (length, width, height, m)
+VAN_PROBABILITY = 0.25
+VAN_LENGTH_M = (4.7, 6.0)
+VAN_WIDTH_M = (1.9, 2.1)
+VAN_HEIGHT_M = (1.9, 2.6)
+
+
+def car_body(rng: np.random.Generator, total_rcs_m2: float, length_m: tuple[float, float] = (3.8, 5.0),
+             width_m: tuple[float, float] = (1.7, 1.9), height_m: tuple[float, float] = (1.4, 1.6)
+             ) -> tuple[np.ndarray, np.ndarray]:
+    length = rng.uniform(*length_m)
+    width = rng.uniform(*width_m)
+    height = rng.uniform(*height_m)
     l2, w2 = length / 2, width / 2
     pts = [
         (0.0, l2, 0.5), (-0.8 * w2, l2 - 0.1, 0.5), (0.8 * w2, l2 - 0.1, 0.5), (0.0, l2 - 0.3, 0.8),
@@ -130,8 +148,14 @@ def motorcycle_body(rng: np.random.Generator, total_rcs_m2: float) -> tuple[np.n
     return np.array(pts), _shares(rng, len(pts), total_rcs_m2)
 
 
-def truck_body(rng: np.random.Generator, total_rcs_m2: float) -> tuple[np.ndarray, np.ndarray]:
-    length = rng.uniform(7.0, 12.0)
+def van_body(rng: np.random.Generator, total_rcs_m2: float) -> tuple[np.ndarray, np.ndarray]:
+    """A van: the car's scatterer layout on a longer, wider and taller body (:data:`VAN_LENGTH_M`)."""
+    return car_body(rng, total_rcs_m2, VAN_LENGTH_M, VAN_WIDTH_M, VAN_HEIGHT_M)
+
+
+def truck_body(rng: np.random.Generator, total_rcs_m2: float, length_m: tuple[float, float] = (7.0, 12.0)
+               ) -> tuple[np.ndarray, np.ndarray]:
+    length = rng.uniform(*length_m)
     width = rng.uniform(2.3, 2.55)
     height = rng.uniform(3.0, 3.8)
     l2, w2 = length / 2, width / 2
@@ -327,13 +351,17 @@ def make_target(
     physics: Physics | None = None,
     radar_m=(0.0, 0.0, SITE_HEIGHT_M),
     seed: int = 0,
+    population: str = "site",
 ) -> Target:
     """A randomised body of class ``cls`` on ``trajectory`` (speed taken from the trajectory).
 
     ``physics`` (default: the defaults) chooses the pedestrian model and the vehicles' lobes and wheels;
     their extra random choices come from a generator of (``seed``, ``target_id``), so ``rng`` is drawn
     exactly as under the v1 instrument and the events stay the same. ``radar_m``: the radar's world position.
+    ``population`` (:data:`VEHICLE_POPULATIONS`) sets the vehicles' body lengths.
     """
+    if population not in VEHICLE_POPULATIONS:
+        raise ValueError(f"population must be one of {VEHICLE_POPULATIONS}, got {population!r}")
     physics = Physics() if physics is None else physics
     aux = np.random.default_rng([seed, target_id & 0x7FFFFFFF, 0xA5EC])
     rcs = random_rcs(cls, rng) if total_rcs_m2 is None else total_rcs_m2
@@ -356,11 +384,17 @@ def make_target(
             target_id, trajectory, total_rcs_m2=rcs, speed_mps=max(speed, 0.1), stride_hz=stride_hz,
             gait_phase_rad=float(rng.uniform(0, 2 * math.pi)), swerling=1, t_start_s=t_start_s, t_end_s=t_end_s,
         )
-    try:
-        body = BODIES[cls]
-    except KeyError:
-        raise ValueError(f"no surveillance body for class {cls!r}; expected one of {SURVEILLANCE_CLASSES}") from None
-    off, rcs_k = body(rng, rcs)
+    if cls not in BODIES:
+        raise ValueError(f"no surveillance body for class {cls!r}; expected one of {SURVEILLANCE_CLASSES}")
+    if population == "site":
+        off, rcs_k = BODIES[cls](rng, rcs)
+    elif cls == "car":
+        van = rng.random() < VAN_PROBABILITY
+        off, rcs_k = van_body(rng, rcs) if van else car_body(rng, rcs, CAR_LENGTH_M[population])
+    elif cls == "truck":
+        off, rcs_k = truck_body(rng, rcs, TRUCK_LENGTH_M[population])
+    else:
+        off, rcs_k = BODIES[cls](rng, rcs)
     swerling = 3 if rng.random() < 0.7 else 1
     if physics.vehicle_lobes or physics.wheels:
         kw = site_vehicle(cls, off, rcs_k, aux, physics, radar_m)
@@ -429,8 +463,10 @@ def _crossing_path(speed: float, rng: np.random.Generator) -> _Path:
 def add_event(
     scene: Scene, event: int, classes: list[str], t0_s: float, slot_s: float, rng: np.random.Generator,
     *, crossing_probability: float = 0.0, stagger_s: float = 0.0, keep_right: bool = True,
+    population: str = "site",
 ) -> None:
-    """Add the targets of one event (ids ``100 * (event + 1) + k``) inside ``[t0, t0 + slot)``."""
+    """Add the targets of one event (ids ``100 * (event + 1) + k``) inside ``[t0, t0 + slot)``; ``population``:
+    the vehicles' bodies (:func:`make_target`)."""
     usable = slot_s - QUIET_S - 0.5
     lane_starts: dict[int, list[float]] = {0: [], 1: []}
     for k, cls in enumerate(classes):
@@ -457,14 +493,15 @@ def add_event(
         traj = LinearTrajectory(path.p0, path.v, t0_s=start)
         scene.add_target(
             make_target(cls, 100 * (event + 1) + k, traj, rng, t_start_s=start, t_end_s=start + path.duration_s,
-                        physics=scene.physics, radar_m=scene.pose.position, seed=scene.seed)
+                        physics=scene.physics, radar_m=scene.pose.position, seed=scene.seed, population=population)
         )
 
 
 def _d2g_events_table(scene: Scene, scenario: Any, spec: dict, rng: np.random.Generator) -> None:
     """``[[d2g_events]]``: ``mode`` (single|multi), ``events``, ``slot_s``, ``first_event``, ``keep_right``
     (default true: approaching vehicles in the near lane, receding ones in the far lane; false draws the
-    direction independently of the lane, for reference sets that cover both geometries)."""
+    direction independently of the lane, for reference sets that cover both geometries), ``population``
+    (:data:`VEHICLE_POPULATIONS`, default "site")."""
     from hw_sim.scenario import ScenarioError
 
     mode = spec.get("mode", "single")
@@ -472,23 +509,24 @@ def _d2g_events_table(scene: Scene, scenario: Any, spec: dict, rng: np.random.Ge
     slot = float(spec.get("slot_s", SLOT_S))
     first = int(spec.get("first_event", 0))
     keep_right = spec.get("keep_right", True)
+    population = spec.get("population", "site")
     if (mode not in ("single", "multi") or not isinstance(n, int) or n < 1 or slot < 8.0
-            or not isinstance(keep_right, bool)):
-        raise ScenarioError(f"d2g_events: need mode single|multi, events >= 1, slot_s >= 8, keep_right a boolean; "
-                            f"got {spec!r}")
+            or not isinstance(keep_right, bool) or population not in VEHICLE_POPULATIONS):
+        raise ScenarioError(f"d2g_events: need mode single|multi, events >= 1, slot_s >= 8, keep_right a boolean, "
+                            f"population one of {VEHICLE_POPULATIONS}; got {spec!r}")
     order: list[str] = []
     for e in range(n):
         if mode == "single":
             if e % len(SURVEILLANCE_CLASSES) == 0:
                 order = list(rng.permutation(SURVEILLANCE_CLASSES))
             classes = [order[e % len(SURVEILLANCE_CLASSES)]]
-            add_event(scene, first + e, classes, e * slot, slot, rng, keep_right=keep_right)
+            add_event(scene, first + e, classes, e * slot, slot, rng, keep_right=keep_right, population=population)
         else:
             m = int(rng.integers(2, 5))
             # pedestrians and motorcycles dominate Tavanti's multi-target events (45/26/20/3)
             classes = list(rng.choice(SURVEILLANCE_CLASSES, size=m, p=[0.25, 0.4, 0.07, 0.28]))
             add_event(scene, first + e, classes, e * slot, slot, rng, crossing_probability=0.3, stagger_s=6.0,
-                      keep_right=keep_right)
+                      keep_right=keep_right, population=population)
 
 
 def _d2g_target_table(scene: Scene, scenario: Any, spec: dict, rng: np.random.Generator) -> None:
@@ -634,7 +672,7 @@ def site_raw(name: str, description: str, duration_s: float) -> dict[str, Any]:
     }
 
 
-def _event_scenario(mode: str, events: int | None, keep_right: bool = True):
+def _event_scenario(mode: str, events: int | None, keep_right: bool = True, population: str = "site"):
     from hw_sim.scenario import parse_scenario
 
     n = 10 if events is None else int(events)
@@ -644,11 +682,13 @@ def _event_scenario(mode: str, events: int | None, keep_right: bool = True):
     what = "one target per event, classes balanced" if mode == "single" else "two to four targets per event"
     raw = site_raw(name, f"{n} random Distance2Go events ({what}), {SLOT_S:.0f} s each", n * SLOT_S)
     raw["d2g_events"] = [{"mode": mode, "events": n, "slot_s": SLOT_S, "keep_right": keep_right}]
+    if population != "site":
+        raw["d2g_events"][0]["population"] = population
     return parse_scenario(raw, f"generator:{name}")
 
 
-def single_random(events: int | None = None, keep_right: bool = True):
-    return _event_scenario("single", events, keep_right)
+def single_random(events: int | None = None, keep_right: bool = True, population: str = "site"):
+    return _event_scenario("single", events, keep_right, population)
 
 
 def multi_random(events: int | None = None):
