@@ -14,6 +14,9 @@ from edge.lane.records import Feedback
 
 _SEG4 = np.arange(4)  # the four segments, as an index
 _MEDIAN_MIN_FRAMES = 3  # frames from which their median stands for the static echo in static_residue
+#: noise power at a residue's peak that static_residue allows, in segment floors (median powers): exponential noise
+#: of mean floor / ln 2 exceeds it with probability 2^-4
+_NOISE_FLOORS = 4.0
 
 
 def _median_of_frames(frames: np.ndarray) -> np.ndarray:
@@ -161,14 +164,16 @@ class ClutterMap(native.KernelUser):
 
     def static_residue(self, bins: np.ndarray, power: np.ndarray, floor: np.ndarray, ratio: float) -> np.ndarray:
         """(n,) bool: pairings whose peaks (``bins`` (n, 4 seg)) are, in every segment, no stronger in ``power``
-        (seg, bin) than ``ratio`` times the map's echo in the same bin, where the map holds an echo above the
-        segment's noise ``floor`` (seg,): what is left of static echoes, not a moving body. While the map still
-        learns its first frames (``clutter_map_init_frames``) the echo is their median so far, from the third on (of
-        one or two frames a median is a moving body's echo as well)."""
+        (seg, bin) than ``ratio`` times the map's echo in the same bin plus the noise (amplitudes add), where the
+        map holds an echo above the segment's noise ``floor`` (seg,): what is left of static echoes, not a moving
+        body. While the map still learns its first frames (``clutter_map_init_frames``) the echo is their median so
+        far, from the third on (of one or two frames a median is a moving body's echo as well)."""
         ref = self._background
         if self._map_init is not None and self._map_frames >= _MEDIAN_MIN_FRAMES:  # still learning: the frames' median
             ref = _median_of_frames(self._map_init[:self._map_frames])
         b = ref[:, _SEG4, bins]  # (rx, n, 4)
         bg = np.add.reduce(b.real * b.real + b.imag * b.imag, axis=0)
-        return ((power[_SEG4, bins] <= np.float32(ratio) * bg) & (bg > floor)).all(axis=1)
+        # amplitudes: the image plus the noise at the peak, whose power exceeds NOISE_FLOORS floors 1 time in 16
+        bound = np.sqrt(np.float32(ratio) * bg) + np.sqrt(np.float32(_NOISE_FLOORS) * floor)
+        return ((np.sqrt(power[_SEG4, bins]) <= bound) & (bg > floor)).all(axis=1)
 

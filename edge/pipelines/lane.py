@@ -110,8 +110,8 @@ class LaneConfig:
                "coincide in one segment)", "min": 0, "max": 3})
     pair_static_residue_db: float = field(default=3.0, metadata={
         "unit": "dB", "doc": "a four-segment pairing whose peak in every segment is no stronger than this over the "
-               "static-clutter map's echo in its bin is the residue of static echoes (posts a vehicle shadows) and is "
-               "dropped; 0 = off", "min": 0.0, "max": 20.0})
+               "static-clutter map's echo in its bin, noise allowed for, is the residue of static echoes (posts a "
+               "vehicle shadows) and is dropped; 0 = off", "min": 0.0, "max": 20.0})
     angle_step_deg: float = field(default=0.25, metadata={
         "unit": "deg", "doc": "Bartlett grid step (refined by a parabola)", "min": 0.01, "max": 2.0})
     angle_max_deg: float = field(default=19.0, metadata={
