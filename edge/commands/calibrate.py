@@ -4,11 +4,9 @@ board's RCS calibration constant C from frames of a corner reflector."""
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from pathlib import Path
 
-from edge.commands.common import add_config_arguments, config_from_args
+from edge.commands.common import add_config_arguments, config_from_args, emit_json
 
 NAME = "calibrate"
 HELP = "derive the surveillance threshold th_RD (empty scene) or the RCS constant C (--rcs: a corner reflector)"
@@ -145,9 +143,7 @@ def run(args: argparse.Namespace) -> int:
           f"   (current: {sc.th_rd:g})")
     print(f"use: --set pipeline.surveillance.th_rd={res['th_rd']:.3f}")
     if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(res, indent=2) + "\n", encoding="utf-8")
+        emit_json(res, args.json)
     sys.stdout.flush()
     return 0
 
@@ -182,8 +178,6 @@ def run_rcs(args: argparse.Namespace) -> int:
           f"{res['c_db'] - DATASHEET_C_DB:+.2f} dB   (current: {fc.rcs_calibration_db:.2f}, {fc.rcs_calibration_source})")
     print("store in the configuration's [classify.features]:  " + "  ".join(f"--set {x}" for x in res["set"]))
     if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(res, indent=2) + "\n", encoding="utf-8")
+        emit_json(res, args.json)
     sys.stdout.flush()
     return 0
