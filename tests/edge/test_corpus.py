@@ -205,9 +205,10 @@ def test_surveillance_corpus_has_the_gain_offsets_of_issue_31():
     from edge.evaluation.corpus import load_corpus
 
     c = load_corpus(REPO / "corpus" / "surveillance.toml")
-    offsets = sorted(v.patch.get("physics", {}).get("gain_offset_db", 0.0) for v in c.variants
-                     if "preset" not in v.patch.get("physics", {}))
-    assert offsets == [-6.0, -3.0, 0.0, 3.0, 6.0]
+    gains = {v.name: v.patch.get("physics", {}).get("gain_offset_db") for v in c.variants}
+    assert [gains[n] for n in ("gain-6", "gain-3", "gain+3", "gain+6")] == [-6.0, -3.0, 3.0, 6.0]
+    assert c.variants[0].name == "defaults" and not c.variants[0].patch
+    assert [n for n, g in gains.items() if g is not None] == ["gain-6", "gain-3", "gain+3", "gain+6"]
     assert {"defaults", "v1", "gain-6"} <= {v.name for v in c.variants}
 
 
@@ -309,3 +310,37 @@ def test_calibrated_surveillance_corpus_carries_each_boards_measured_c():
             assert c and c[0] - DATASHEET_C_DB == pytest.approx(off, abs=0.05)
         else:
             assert not c
+
+
+def test_surveillance_corpus_varies_mounting_gait_population_and_clutter():
+    """Issue 31 item 5: each variant beyond the gain offsets changes the scene it names, and only that."""
+    import numpy as np
+
+    from edge.evaluation.corpus import load_corpus
+    from hw_sim.scenario import load_scenario_for_eval
+
+    variants = {v.name: v for v in load_corpus(REPO / "corpus" / "surveillance.toml").variants}
+
+    def scene(name):
+        return load_scenario_for_eval("single-random", 4, variants[name].patch).build_scene(3)
+
+    base = scene("defaults")
+    assert (base.pose.yaw_deg, base.pose.height_m, base.physics.gait, base.physics.site_clutter) == \
+        (10.0, 1.0, "boulic", "urban")
+    assert scene("yaw5").pose.yaw_deg == 5.0 and scene("yaw25").pose.yaw_deg == 25.0
+    assert scene("height2").pose.height_m == 2.0
+    assert scene("gait-sinusoid").physics.gait == "sinusoid"
+    sparse = scene("sparse-clutter")
+    assert sparse.physics.site_clutter == "v1" and len(sparse.clutter.rcs_m2) < len(base.clutter.rcs_m2)
+    wide = load_scenario_for_eval("single-random", 4, variants["wide-vehicles"].patch)
+    assert wide.raw["d2g_events"][0]["population"] == "wide"
+
+    def lengths(sc, cls):
+        return [float(np.ptp(t.offsets_m[:, 1])) for t in sc.targets if t.cls == cls]
+
+    # 40 events: the wide population's trucks reach lengths the site's 7-12 m never does
+    many = {n: load_scenario_for_eval("single-random", 40, variants[n].patch).build_scene(3)
+            for n in ("defaults", "wide-vehicles")}
+    site_trucks, wide_trucks = lengths(many["defaults"], "truck"), lengths(many["wide-vehicles"], "truck")
+    assert site_trucks and wide_trucks
+    assert max(wide_trucks) > max(site_trucks) + 1.0 or min(wide_trucks) < min(site_trucks) - 0.5
