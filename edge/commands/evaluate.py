@@ -23,7 +23,8 @@ tables are printed (the file keeps full precision).
 With --corpus FILE instead of --scenario, runs every (run, seed, variant) of one part of a declared evaluation corpus
 (edge.evaluation.corpus: scenarios x variants x seeds, dev and holdout) in --jobs worker processes, and writes one
 JSON with each run's figures and tallies and the metrics pooled per variant and over all runs as ratios of sums,
-each with a 95 % cluster-bootstrap confidence interval over runs; --plot draws them as an SVG."""
+each with a 95 % cluster-bootstrap confidence interval over runs; --plot draws them as an SVG (surveillance:
+with each variant's confusion matrix)."""
 EPILOG = """\
 examples:
   radar-edge evaluate --scenario highway4 --json out/highway4.json
@@ -43,7 +44,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--part", choices=("dev", "holdout", "both"), default="dev",
                    help="--corpus: which part to run (default dev)")
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="--corpus: worker processes (default 1)")
-    p.add_argument("--plot", metavar="OUT.svg", help="--corpus: also draw the pooled metrics with their intervals"),
+    p.add_argument("--plot", metavar="OUT.svg", help="--corpus: also draw the pooled metrics with their intervals "
+                   "(surveillance: and each variant's confusion matrix)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
     p.add_argument("--frames", type=int, default=None, help="limit the number of frames")
     p.add_argument("--events", type=int, default=None, help="number of events for event generators")

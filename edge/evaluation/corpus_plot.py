@@ -1,7 +1,8 @@
 """An SVG of a corpus document (:func:`edge.evaluation.corpus.corpus_document`), written by hand (no plotting
 library): one panel per metric, per variant (and "all") the pooled value as a point with its 95 % interval as a
 bar; the ``dev`` part in blue circles, ``holdout`` in orange squares beside it. A value without an interval (one
-run) is drawn as a hollow point."""
+run) is drawn as a hollow point. A surveillance document adds, per part and variant, its summed confusion matrix
+(``confusion_by_variant``): counts in cells shaded by their share of the true class's row."""
 
 from __future__ import annotations
 
@@ -12,6 +13,8 @@ from xml.sax.saxutils import escape
 COLOURS = {"dev": "#1f77b4", "holdout": "#d95f02"}
 PANEL_W_MIN, SLOT_W, PANEL_H, MARGIN_L, MARGIN_T, MARGIN_B = 260, 56, 170, 62, 28, 58
 COLUMNS = 2
+#: confusion-matrix panels: row-label width, cell width and height, header height (rotated column labels), gap
+CM_LABEL_W, CM_CELL_W, CM_CELL_H, CM_HEAD_H, CM_GAP = 78, 34, 18, 62, 24
 
 
 def _nice_ticks(lo: float, hi: float, n: int = 4) -> list[float]:
@@ -45,7 +48,10 @@ def corpus_svg(doc: dict) -> str:
     pw = max(PANEL_W_MIN, MARGIN_L + 20 + SLOT_W * len(groups))
     ph = MARGIN_T + PANEL_H + MARGIN_B
     rows = math.ceil(len(metrics) / COLUMNS)
-    width, height = COLUMNS * pw + 20, rows * ph + 50
+    width = COLUMNS * pw + 20
+    cms = [(p, v, cm) for p in parts for v, cm in (doc["parts"][p].get("confusion_by_variant") or {}).items()]
+    cm_rows = _confusion_layout(cms, width)
+    height = rows * ph + 50 + sum(h for _, h in cm_rows)
     out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
            f'viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="11">',
            f'<rect width="{width}" height="{height}" fill="white"/>',
@@ -111,8 +117,65 @@ def corpus_svg(doc: dict) -> str:
             xx = x0 + (gi + 0.5) * (w / len(groups))
             out.append(f'<text x="{xx:.1f}" y="{y0 + h + 12}" text-anchor="end" '
                        f'transform="rotate(-35 {xx:.1f} {y0 + h + 12})">{escape(g)}</text>')
+    y = rows * ph + 50
+    for row, h in cm_rows:
+        x = 10
+        for p, v, cm in row:
+            out += _confusion_svg(p, v, cm, x, y)
+            x += _confusion_width(cm) + CM_GAP
+        y += h
     out.append("</svg>")
     return "\n".join(out) + "\n"
+
+
+def _confusion_width(cm: dict) -> int:
+    return CM_LABEL_W + CM_CELL_W * len(cm["columns"])
+
+
+def _confusion_layout(cms: list, width: int) -> list[tuple[list, int]]:
+    """The confusion panels in rows that fit ``width``: ``[(panels, row height), ...]``."""
+    rows: list[tuple[list, int]] = []
+    cur: list = []
+    used = 10
+    for item in cms:
+        w = _confusion_width(item[2]) + CM_GAP
+        if cur and used + w > width:
+            rows.append((cur, _row_height(cur)))
+            cur, used = [], 10
+        cur.append(item)
+        used += w
+    if cur:
+        rows.append((cur, _row_height(cur)))
+    return rows
+
+
+def _row_height(row: list) -> int:
+    return 20 + CM_HEAD_H + CM_CELL_H * max(len(cm["labels"]) for _, _, cm in row) + CM_GAP
+
+
+def _confusion_svg(part: str, variant: str, cm: dict, x: float, y: float) -> list[str]:
+    """One variant's summed confusion matrix at (x, y): rows true class, columns predicted class and missed."""
+    out = [f'<text x="{x}" y="{y + 14}" font-weight="bold">confusion, {escape(variant)} '
+           f'<tspan fill="{COLOURS.get(part, "#000")}">({escape(part)})</tspan></text>']
+    gx, gy = x + CM_LABEL_W, y + 20 + CM_HEAD_H
+    for j, c in enumerate(cm["columns"]):
+        cx = gx + (j + 0.5) * CM_CELL_W
+        out.append(f'<text x="{cx:.1f}" y="{gy - 4}" transform="rotate(-50 {cx:.1f} {gy - 4})">{escape(str(c))}</text>')
+    for i, (lab, row) in enumerate(zip(cm["labels"], cm["all"])):
+        yy = gy + i * CM_CELL_H
+        out.append(f'<text x="{gx - 4}" y="{yy + 13}" text-anchor="end">{escape(str(lab))}</text>')
+        total = sum(row)
+        for j, n in enumerate(row):
+            share = n / total if total else 0.0
+            hit = j < len(cm["labels"]) and cm["columns"][j] == lab
+            rgb = (31, 119, 180) if hit else (214, 39, 40)  # right: blue; wrong or missed: red
+            fill = "#%02x%02x%02x" % tuple(round(255 - share * (255 - c)) for c in rgb)
+            out.append(f'<rect x="{gx + j * CM_CELL_W}" y="{yy}" width="{CM_CELL_W}" height="{CM_CELL_H}" '
+                       f'fill="{fill}" stroke="#ccc"><title>{escape(str(lab))} -> {escape(str(cm["columns"][j]))}: '
+                       f'{n} of {total}</title></rect>')
+            ink = ' fill="white"' if share > 0.6 else ""
+            out.append(f'<text x="{gx + (j + 0.5) * CM_CELL_W:.1f}" y="{yy + 13}" text-anchor="middle"{ink}>{n}</text>')
+    return out
 
 
 def write_corpus_svg(doc: dict, path: str | Path) -> Path:

@@ -344,3 +344,33 @@ def test_surveillance_corpus_varies_mounting_gait_population_and_clutter():
     site_trucks, wide_trucks = lengths(many["defaults"], "truck"), lengths(many["wide-vehicles"], "truck")
     assert site_trucks and wide_trucks
     assert max(wide_trucks) > max(site_trucks) + 1.0 or min(wide_trucks) < min(site_trucks) - 0.5
+
+
+def test_corpus_svg_draws_each_variants_confusion_matrix():
+    """Issue 31: the per-class confusion matrices per gain offset are in the plot as well as the JSON."""
+    import xml.etree.ElementTree as ET
+
+    from edge.evaluation.corpus_plot import corpus_svg
+
+    def rec(v):
+        return {"value": v, "ci95": [v - 0.1, v + 0.1], "runs": 2}
+
+    pooled = {"by_variant": {"defaults": {"acc": rec(0.5)}, "gain-6": {"acc": rec(0.4)}}, "all": {"acc": rec(0.45)}}
+    cms = {"defaults": {"labels": ["car", "truck"], "columns": ["car", "truck", "missed"],
+                        "all": [[7, 2, 1], [0, 3, 0]]},
+           "gain-6": {"labels": ["car", "truck"], "columns": ["car", "truck", "missed"], "all": [[1, 4, 5], [2, 0, 1]]}}
+    doc = {"corpus": "s", "profile": "surveillance", "metrics": {"acc": {"unit": ""}},
+           "parts": {"dev": {"runs": [{}, {}], "pooled": pooled, "confusion_by_variant": cms}}}
+    root = ET.fromstring(corpus_svg(doc))
+    texts = ["".join(e.itertext()) for e in root.iter() if e.tag.endswith("text")]
+    assert "confusion, defaults (dev)" in texts and "confusion, gain-6 (dev)" in texts
+    titles = [e.text for e in root.iter() if e.tag.endswith("title")]
+    assert "car -> missed: 1 of 10" in titles and "truck -> car: 2 of 3" in titles and "car -> missed: 5 of 10" in titles
+    # counts printed in their cells; the panels lie inside the drawing
+    for n in ("7", "3", "4", "5"):
+        assert n in texts
+    height = float(root.attrib["height"])
+    assert all(float(e.attrib["y"]) + float(e.attrib["height"]) <= height for e in root.iter()
+               if e.tag.endswith("rect") and "y" in e.attrib)
+    doc["parts"]["dev"].pop("confusion_by_variant")
+    assert float(ET.fromstring(corpus_svg(doc)).attrib["height"]) < height  # a lane document: no panels
