@@ -55,18 +55,12 @@ The packaged default ``edge/data/reference_set.npz`` (the one the surveillance p
 
     PYTHONPATH=. python -c "from edge.classify.refgen import write_default; write_default()"
 
-which is ``build_reference_set(events_per_class=250, seed=DEFAULT_SEED)`` (3-fold CV accuracy of the
-k = 13 Euclidean k-NN with eq. 19's five features rose from 0.79 with 40 events per class to 0.88 with
-120 and 0.90 with 250 (45° passages; 0.87 all round); with the range extent as sixth feature and the
-Doppler-based E(|v_r|) (``classify.features``) it is 0.986 (all round, 250 per class: the confusions
-left are 7 motorcycles read as cars, 4 cars as motorcycles, 3 trucks as cars), 0.985 with
-``vehicle_lanes="any"`` (the packaged set since then; Tavanti Test 1's car read as a car on 4 of 5 dev
-seeds instead of 2; multi-random dev seeds 101-104 0.802/0.858/0.840/0.808 against
-0.802/0.858/0.840/0.800, single-random 11/12 0.99/0.96 against 0.97/0.96); the exported ONNX
-model stores the references in float32, so 250 per class stay under its 64 KiB budget (37.5 KiB with
-six features); the build takes three to eight minutes on the development machine) with the default
-configuration, saved with its generator settings in ``meta``. The seeds used by evaluations and
-tests must differ from :data:`DEFAULT_SEED`.
+which is ``build_reference_set(**PACKAGED_BUILD)``: 150 tracked events per class on the physical defaults, each on
+a board between -6 and +6 dB of gain, vehicles from the wide population (568 references; about 20 minutes on the
+development machine, 45 under load). It replaced a set of 250 thresholded passages per class built on the
+simulator's ``v1`` instrument; docs/decisions/0016 has the dev figures that chose it. Afterwards rebuild the packaged
+ONNX model: ``radar-edge export-onnx --out edge/data/knn_default.onnx``. The seeds used by evaluations and tests
+must differ from :data:`DEFAULT_SEED`.
 """
 
 from __future__ import annotations
@@ -84,7 +78,7 @@ from hal.waveform import characteristics
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DEFAULT_EVENTS_PER_CLASS", "DEFAULT_SEED", "PASSAGE_HALF_SECTOR_DEG", "build_reference_set",
+__all__ = ["DEFAULT_EVENTS_PER_CLASS", "DEFAULT_SEED", "PACKAGED_BUILD", "PASSAGE_HALF_SECTOR_DEG", "build_reference_set",
            "event_gain_offsets", "event_signatures", "write_default"]
 
 DEFAULT_SEED = 90210
@@ -94,6 +88,9 @@ PASSAGE_HALF_SECTOR_DEG = 180.0
 #: ``signatures="tracked"``: least fraction of the target's range rate a track of it has
 MIN_RATE_FRACTION = 0.5
 REGENERATE_COMMAND = 'PYTHONPATH=. python -c "from edge.classify.refgen import write_default; write_default()"'
+#: how the packaged reference set is built (:func:`write_default`)
+PACKAGED_BUILD: dict[str, Any] = {"events_per_class": 150, "seed": DEFAULT_SEED, "signatures": "tracked",
+                                  "gain_offsets_db": (-6.0, 6.0), "population": "wide"}
 
 
 def event_signatures(
@@ -338,9 +335,10 @@ def build_reference_set(
 
 
 def write_default(path: str | None = None, **kwargs: Any) -> ReferenceSet:
-    """Build with the defaults and save to the packaged location (or ``path``)."""
+    """Build the packaged set (:data:`PACKAGED_BUILD`, ``kwargs`` override) and save it to the packaged location (or
+    ``path``)."""
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    ref = build_reference_set(**kwargs)
+    ref = build_reference_set(**{**PACKAGED_BUILD, **kwargs})
     out = save_reference_set(ref, path or default_reference_path())
     log.info("wrote %s", out)
     return ref

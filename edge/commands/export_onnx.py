@@ -24,8 +24,8 @@ is an error. Building needs the `onnx` package (extra `train`); running it only 
 
 The packaged default model edge/data/knn_default.onnx is built by exactly:
   radar-edge export-onnx --out edge/data/knn_default.onnx
-from the packaged synthetic reference set edge/data/reference_set.npz (1000 simulated single-target
-events, 250 per class, seed 90210, rebuilt by
+from the packaged synthetic reference set edge/data/reference_set.npz (tracked single-target events on
+simulated boards of -6..+6 dB gain, 150 per class, seed 90210, rebuilt by
 `PYTHONPATH=. python -c "from edge.classify.refgen import write_default; write_default()"`) with
 the paper's k = 13, Euclidean, so the ONNX and numpy backends agree by default."""
 EPILOG = """\

@@ -37,7 +37,6 @@ of the reference set but not the test set, so they show up as the nearest remain
 EPILOG = """\
 examples:
   radar-edge train --synthetic 200 --seed 1 --out out/train
-  radar-edge train --synthetic 160 --seed 90210 --out out/packaged   # rebuilds edge/data/reference_set.npz exactly
   radar-edge train --recordings site/ --out site-model            # site/car/*.npz, site/pedestrian/*.npz ...
   radar-edge train --reference edge/data/reference_set.npz --drop-class truck \\
                    --test-synthetic 20 --test-seed 7 --out out/no-trucks      # Tavanti Table V

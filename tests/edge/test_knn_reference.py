@@ -14,7 +14,7 @@ from edge.classify.reference import (
     load_reference_set,
     save_reference_set,
 )
-from edge.classify.refgen import DEFAULT_EVENTS_PER_CLASS, DEFAULT_SEED, REGENERATE_COMMAND, build_reference_set
+from edge.classify.refgen import DEFAULT_SEED, PACKAGED_BUILD, REGENERATE_COMMAND, build_reference_set
 
 
 def test_packaged_default_reference_set():
@@ -23,29 +23,24 @@ def test_packaged_default_reference_set():
     counts = ref.class_counts()
     assert all(counts[c] >= 25 for c in DEFAULT_CLASSES), counts
     assert np.all(np.isfinite(ref.features))
-    assert ref.meta["seed"] == DEFAULT_SEED and ref.meta["events_per_class"] == DEFAULT_EVENTS_PER_CLASS
+    assert ref.meta["seed"] == DEFAULT_SEED and ref.meta["events_per_class"] == PACKAGED_BUILD["events_per_class"]
+    assert ref.meta["signatures"] == "tracked" and ref.meta["population"] == "wide"
+    assert tuple(ref.meta["gain_offsets_db"]) == PACKAGED_BUILD["gain_offsets_db"]
     assert ref.meta["command"] == REGENERATE_COMMAND
     knn = WeightedKNN.from_reference_set(ref)
     p = knn.predict_proba(ref.features[:5])
     np.testing.assert_allclose(p.sum(axis=1), 1.0)
 
 
-def test_generator_reproduces_the_packaged_set(monkeypatch):
+def test_generator_reproduces_the_packaged_set():
     """The documented command's first events give exactly the first rows of the shipped file."""
-    import hw_sim.events as events
-    from hw_sim.scenario import patched
-
-    # figure measured on the v1 instrument; the corpus reports the physical defaults
-    # (the shipped reference set was generated on it: build_reference_set's scenario is patched to v1)
-    single_random = events.single_random
-    monkeypatch.setattr(events, "single_random", lambda **kw: patched(single_random(**kw), {"physics": {"preset": "v1"}}))
-    small = build_reference_set(events_per_class=1, seed=DEFAULT_SEED)
+    small = build_reference_set(**{**PACKAGED_BUILD, "events_per_class": 1})
     ref = load_reference_set()
     assert len(small) >= 3
     np.testing.assert_array_equal(small.labels, ref.labels[: len(small)])
     np.testing.assert_allclose(small.features, ref.features[: len(small)], rtol=1e-12)
     # a different seed gives different events
-    other = build_reference_set(events_per_class=1, seed=DEFAULT_SEED + 1)
+    other = build_reference_set(**{**PACKAGED_BUILD, "events_per_class": 1, "seed": DEFAULT_SEED + 1})
     assert not np.allclose(other.features[:3], small.features[:3])
 
 
@@ -77,7 +72,9 @@ def test_tracked_signatures_go_through_the_whole_chain():
 def test_packaged_set_range_extent_orders_the_classes_and_lifts_cross_validation():
     """The range extent (beyond the paper) follows body length: pedestrian < motorcycle < car < truck,
     and with it the paper's k = 13 Euclidean k-NN separates the packaged set far better than with the
-    five features of eq. 19 alone (3-fold CV, the grid search's folds): measured 0.986 vs 0.872."""
+    five features of eq. 19 alone (3-fold CV, the grid search's folds): measured 0.746 vs 0.590 on the tracked,
+    gain-augmented set (0.986 vs 0.872 on the thresholded v1 set it replaced: tracked features over -6..+6 dB of board
+    gain overlap more, docs/decisions/0016)."""
     from edge.classify.train import grid_search
 
     ref = load_reference_set()
@@ -87,4 +84,4 @@ def test_packaged_set_range_extent_orders_the_classes_and_lifts_cross_validation
     six = grid_search(ref.features, ref.labels, ref.classes, ks=[13], metrics=("euclidean",), score="accuracy")
     five = grid_search(np.delete(ref.features, j, axis=1), ref.labels, ref.classes, ks=[13],
                        metrics=("euclidean",), score="accuracy")
-    assert six.score >= 0.95 and six.score > five.score + 0.05, (six.score, five.score)
+    assert six.score >= 0.72 and six.score > five.score + 0.10, (six.score, five.score)
