@@ -55,15 +55,21 @@ cdef inline int _wrap(int c, int nd) noexcept nogil:
     return c
 
 
-cdef inline void _union_runs(int *parent, const int *idx, const int *nxt, int k, int s, int t) noexcept nogil:
-    """Join point ``k`` with every run of core bins of a row (``idx``, ``nxt``) in columns ``s..t`` (one union per
-    run)."""
+cdef inline int _union_runs(int *parent, const int *idx, const int *nxt, const int *rend, int rk, int s,
+                            int t) noexcept nogil:
+    """Join the component of root ``rk`` with every run of core bins of a row (``idx``, ``nxt``, ``rend``) that meets
+    columns ``s..t`` (one union per run); returns the joined component's root."""
     cdef int c = nxt[s]
+    cdef int b
     while c <= t:
-        _union(parent, k, idx[c])
-        while c <= t and idx[c] >= 0:
-            c += 1
-        c = nxt[c]
+        b = _find(parent, idx[c])
+        if b < rk:
+            parent[rk] = b
+            rk = b
+        elif rk < b:
+            parent[b] = rk
+        c = nxt[rend[c] + 1]
+    return rk
 
 
 def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo, const int[::1] hi,
@@ -78,10 +84,10 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
     cdef int h = (lo.shape[0] - 1) // 2
     cdef Py_ssize_t i, j, k, n = 0
     cdef int di, r2, c, a, b, e, p, q, m_i
+    cdef const cnp.uint8_t *mp = &mask[0, 0] if nr > 0 and nd > 0 else NULL
     with nogil:
-        for i in range(nr):
-            for j in range(nd):
-                n += mask[i, j] != 0
+        for k in range(nr * nd):
+            n += mp[k] != 0
     ri_a = np.empty(n, dtype=np.intp)
     dj_a = np.empty(n, dtype=np.intp)
     lab_a = np.full(n, -1, dtype=np.int32)
@@ -119,6 +125,9 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
     cdef int best_lab, tot
     cdef int *er
     cdef const int *rp
+    cdef const Py_ssize_t *o0
+    cdef const Py_ssize_t *o1
+    cdef const Py_ssize_t *rw
     with nogil:
         for di in range(2 * h + 1):
             a = lo[di]
@@ -153,13 +162,16 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
             if h <= i < nr + h and row_n[i - h] > 0:
                 rows[i] = <Py_ssize_t>&ext[i - h, 0]
         # 1. neighbour counts and core points
+        o0 = &off[0, 0]
+        o1 = &off[1, 0]
         for k in range(n):
             i = ri[k]
             j = dj[k]
             c = 0
+            rw = &rows[i]
             for di in range(2 * h + 1):  # padded row i + di is map row i + di - h
-                rp = <const int *>rows[i + di]
-                c += rp[j + off[0, di]] - rp[j + off[1, di]]
+                rp = <const int *>rw[di] + j
+                c += rp[o0[di]] - rp[o1[di]]
             cnt[k] = c
             if c >= m_row[i]:
                 core[k] = True
@@ -167,9 +179,12 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                 n_core += 1
     if n_core == 0:
         return ri_a, dj_a, lab_a, core_a, 0, cnt_a
-    # runs of core bins per row: end of the run at each core bin, next core bin at or after each column
+    # runs of core bins per row: next core bin at or after each column, end of the run at each core bin
     nxt_a = np.empty((nr, nd + 1), dtype=np.int32)
     cdef int[:, ::1] nxt = nxt_a
+    rend_a = np.empty((nr, nd), dtype=np.int32)  # last column of the run of core bins through each core bin
+    cdef int[:, ::1] rend = rend_a
+    cdef int rk
     grp_a = np.empty(n, dtype=np.int32)
     cdef int[::1] grp = grp_a
     cdef int big = -1
@@ -203,7 +218,11 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                     continue
                 nxt[i, nd] = <int>nd
                 for j in range(nd - 1, -1, -1):
-                    nxt[i, j] = <int>j if idx[i, j] >= 0 else nxt[i, j + 1]
+                    if idx[i, j] >= 0:
+                        nxt[i, j] = <int>j
+                        rend[i, j] = rend[i, j + 1] if j + 1 < nd and idx[i, j + 1] >= 0 else <int>j
+                    else:
+                        nxt[i, j] = nxt[i, j + 1]
             # the largest lattice group's points need not search: every pair of groups within eps has one group
             # that is not the largest, and the window relation is symmetric
             for k in range(n):
@@ -231,6 +250,7 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                             is_bnd = True
                 if not is_bnd:
                     continue
+                rk = _find(pp, <int>k)
                 for di in range(-h, h + 1):
                     r2 = <int>i + di
                     if r2 < 0 or r2 >= nr or row_n[r2] == 0:
@@ -245,13 +265,13 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                         b = <int>j + b
                     # columns a..b, circular: at most two linear segments; one union per run of core bins
                     if a < 0:
-                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, a + <int>nd, <int>nd - 1)
-                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, 0, b)
+                        rk = _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], &rend[r2, 0], rk, a + <int>nd, <int>nd - 1)
+                        rk = _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], &rend[r2, 0], rk, 0, b)
                     elif b >= nd:
-                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, a, <int>nd - 1)
-                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, 0, b - <int>nd)
+                        rk = _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], &rend[r2, 0], rk, a, <int>nd - 1)
+                        rk = _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], &rend[r2, 0], rk, 0, b - <int>nd)
                     else:
-                        _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], <int>k, a, b)
+                        rk = _union_runs(pp, &idx[r2, 0], &nxt[r2, 0], &rend[r2, 0], rk, a, b)
         # 3. dense ids in order of first core point
         for k in range(n):
             lab[k] = -1
@@ -274,12 +294,6 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                 any_border = True
                 break
         if any_border:
-            for i in range(nr):
-                if row_n[i] == 0:
-                    continue
-                nxt[i, nd] = <int>nd
-                for j in range(nd - 1, -1, -1):
-                    nxt[i, j] = <int>j if idx[i, j] >= 0 else nxt[i, j + 1]
             for k in range(n):
                 if not core[k]:
                     continue
