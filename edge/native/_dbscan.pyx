@@ -21,6 +21,8 @@ On the (range bin, Doppler bin) lattice whose Doppler axis is a circle, the eps-
 cimport cython
 import numpy as np
 cimport numpy as cnp
+from libc.stdint cimport uint64_t
+from libc.string cimport memcpy
 
 cnp.import_array()
 
@@ -44,6 +46,31 @@ cdef inline void _union(int *parent, int a, int b) noexcept nogil:
         parent[b] = a
     elif b < a:
         parent[a] = b
+
+
+cdef inline int _link(int *parent, int a, int b) noexcept nogil:
+    """Join the components of roots ``a != b`` (the smaller root stays); returns it."""
+    if a < b:
+        parent[b] = a
+        return a
+    parent[a] = b
+    return b
+
+
+cdef inline bint _row_empty(const cnp.uint8_t *r, Py_ssize_t nd) noexcept nogil:
+    """No nonzero byte in ``r[0:nd]`` (eight bytes at a time)."""
+    cdef Py_ssize_t j = 0
+    cdef uint64_t w
+    while j + 8 <= nd:
+        memcpy(&w, r + j, 8)
+        if w:
+            return False
+        j += 8
+    while j < nd:
+        if r[j]:
+            return False
+        j += 1
+    return True
 
 
 cdef inline int _wrap(int c, int nd) noexcept nogil:
@@ -72,9 +99,9 @@ cdef inline int _union_runs(int *parent, const int *idx, const int *nxt, const i
     return rk
 
 
-def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo, const int[::1] hi,
+def fit(const cnp.uint8_t[:, ::1] mask, Py_ssize_t n, const int[::1] m_row, const int[::1] lo, const int[::1] hi,
         const double[::1] cosv, const double[::1] sinv, double range_bin_m):
-    """Cluster the nonzero bins of ``mask`` ``(n_range, n_doppler)``.
+    """Cluster the nonzero bins of ``mask`` ``(n_range, n_doppler)``, ``n`` of them.
 
     ``m_row`` (n_range,) core threshold per range row; ``lo``/``hi`` (2h+1,) the window of row offset ``di - h``;
     ``cosv``/``sinv`` (n_doppler,) the cylinder coordinates of each Doppler bin (km/h), ``range_bin_m`` metres per
@@ -82,12 +109,9 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
     """
     cdef Py_ssize_t nr = mask.shape[0], nd = mask.shape[1]
     cdef int h = (lo.shape[0] - 1) // 2
-    cdef Py_ssize_t i, j, k, n = 0
-    cdef int di, r2, c, a, b, e, p, q, m_i
-    cdef const cnp.uint8_t *mp = &mask[0, 0] if nr > 0 and nd > 0 else NULL
-    with nogil:
-        for k in range(nr * nd):
-            n += mp[k] != 0
+    cdef Py_ssize_t i, j, k
+    cdef int di, r2, c, a, b, e, p, q, m_i, jl, jr, rk
+    cdef const cnp.uint8_t *mrow
     ri_a = np.empty(n, dtype=np.intp)
     dj_a = np.empty(n, dtype=np.intp)
     lab_a = np.full(n, -1, dtype=np.int32)
@@ -120,7 +144,6 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
     cdef int[::1] parent = parent_a
     cdef int *pp = &parent[0]
     cdef int n_core = 0, n_groups, n_clu = 0
-    cdef bint is_bnd
     cdef double d2, best_d2, x0, x1, x2, t0, t1, t2
     cdef int best_lab, tot
     cdef int *er
@@ -142,10 +165,13 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
         for i in range(nr):
             if k == n:
                 break
+            mrow = &mask[i, 0]
+            if _row_empty(mrow, nd):  # its prefix row is never read
+                continue
             er = &ext[i, 0]
             tot = 0
             for j in range(nd):
-                if mask[i, j] != 0:
+                if mrow[j] != 0:
                     ri[k] = i
                     dj[k] = j
                     k += 1
@@ -184,34 +210,56 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
     cdef int[:, ::1] nxt = nxt_a
     rend_a = np.empty((nr, nd), dtype=np.int32)  # last column of the run of core bins through each core bin
     cdef int[:, ::1] rend = rend_a
-    cdef int rk
     grp_a = np.empty(n, dtype=np.int32)
     cdef int[::1] grp = grp_a
     cdef int big = -1
+    bnd_a = np.zeros(n, dtype=np.uint8)  # per point: a core bin with an 8-neighbour that is not core
+    cdef cnp.uint8_t[::1] bnd = bnd_a
     with nogil:
-        # 2. 8-connectivity (left, and the three bins of the row above; Doppler wraps)
+        # 2. 8-connectivity (left, and the three bins of the row above; Doppler wraps). The row above is joined along
+        # its own adjacent core bins already, so when the bin straight above is core its two neighbours add nothing.
         n_groups = n_core
         for k in range(n):
             if not core[k]:
                 continue
             i = ri[k]
             j = dj[k]
-            for e in range(-1, 2):
-                q = idx[i, _wrap(<int>j + e, <int>nd)] if e != 0 else -1
-                if q >= 0 and q < k:
-                    a = _find(pp, <int>k)
+            jl = <int>j - 1 if j > 0 else <int>nd - 1
+            jr = <int>j + 1 if j < nd - 1 else 0
+            rk = _find(pp, <int>k)
+            q = idx[i, jl]
+            if 0 <= q < k:
+                b = _find(pp, q)
+                if b != rk:
+                    rk = _link(pp, rk, b)
+                    n_groups -= 1
+            q = idx[i, jr]
+            if 0 <= q < k:
+                b = _find(pp, q)
+                if b != rk:
+                    rk = _link(pp, rk, b)
+                    n_groups -= 1
+            if i > 0:
+                q = idx[i - 1, j]
+                if q >= 0:
                     b = _find(pp, q)
-                    if a != b:
-                        _union(pp, a, b)
+                    if b != rk:
+                        rk = _link(pp, rk, b)
                         n_groups -= 1
-                if i > 0:
-                    q = idx[i - 1, _wrap(<int>j + e, <int>nd)]
-                    if q >= 0:
-                        a = _find(pp, <int>k)
-                        b = _find(pp, q)
-                        if a != b:
-                            _union(pp, a, b)
-                            n_groups -= 1
+                else:
+                    for e in range(2):
+                        q = idx[i - 1, jl if e == 0 else jr]
+                        if q >= 0:
+                            b = _find(pp, q)
+                            if b != rk:
+                                rk = _link(pp, rk, b)
+                                n_groups -= 1
+            # boundary: some 8-neighbour is not core (rows outside the map count as core)
+            for di in range(-1, 2):
+                r2 = <int>i + di
+                if 0 <= r2 < nr and (idx[r2, jl] < 0 or idx[r2, j] < 0 or idx[r2, jr] < 0):
+                    bnd[k] = 1
+                    break
         if n_groups > 1:
             for i in range(nr):
                 if row_n[i] == 0:
@@ -236,20 +284,10 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                         big = a
             # boundary core bins: some 8-neighbour is not core (rows outside the map count as core)
             for k in range(n):
-                if not core[k] or grp[k] == big:
+                if not bnd[k] or grp[k] == big:
                     continue
                 i = ri[k]
                 j = dj[k]
-                is_bnd = False
-                for di in range(-1, 2):
-                    r2 = <int>i + di
-                    if r2 < 0 or r2 >= nr:
-                        continue
-                    for e in range(-1, 2):
-                        if idx[r2, _wrap(<int>j + e, <int>nd)] < 0:
-                            is_bnd = True
-                if not is_bnd:
-                    continue
                 rk = _find(pp, <int>k)
                 for di in range(-h, h + 1):
                     r2 = <int>i + di
@@ -284,9 +322,7 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
         for k in range(n):
             if core[k]:
                 lab[k] = lab[_find(pp, <int>k)]
-    # 4. border points (needs boundary flags of all core bins)
-    bnd_a = np.zeros(n, dtype=np.uint8)  # per point: a boundary core bin
-    cdef cnp.uint8_t[::1] bnd = bnd_a
+    # 4. border points (their nearest core bin is a boundary one, or one of the reference's seam columns)
     cdef bint any_border = False
     with nogil:
         for k in range(n):
@@ -295,19 +331,8 @@ def fit(const cnp.uint8_t[:, ::1] mask, const int[::1] m_row, const int[::1] lo,
                 break
         if any_border:
             for k in range(n):
-                if not core[k]:
-                    continue
-                i = ri[k]
-                j = dj[k]
-                is_bnd = j == 0 or j == nd - 1  # the reference's seam columns
-                for di in range(-1, 2):
-                    r2 = <int>i + di
-                    if r2 < 0 or r2 >= nr:
-                        continue
-                    for e in range(-1, 2):
-                        if idx[r2, _wrap(<int>j + e, <int>nd)] < 0:
-                            is_bnd = True
-                bnd[k] = is_bnd
+                if core[k] and (dj[k] == 0 or dj[k] == nd - 1):
+                    bnd[k] = 1
             for k in range(n):
                 if core[k]:
                     continue
