@@ -131,7 +131,7 @@ def fit(const cnp.uint8_t[:, ::1] mask, Py_ssize_t n, const int[::1] m_row, cons
     ext_a = np.empty((nr, w3), dtype=np.int32)
     zero_a = np.zeros(w3, dtype=np.int32)
     rows_a = np.empty(nr + 2 * h, dtype=np.intp)  # padded row -> address of its prefix row
-    idx_a = np.full((nr, nd), -1, dtype=np.int32)  # point index of each core bin, -1 elsewhere
+    idx_a = np.empty((nr, nd), dtype=np.int32)  # point index of each core bin, -1 elsewhere (rows read only)
     row_n_a = np.zeros(nr, dtype=np.int32)
     off_a = np.empty((2, 2 * h + 1), dtype=np.intp)
     cdef int[:, ::1] ext = ext_a
@@ -183,6 +183,11 @@ def fit(const cnp.uint8_t[:, ::1] mask, Py_ssize_t n, const int[::1] m_row, cons
                 for j in range(nd + 1):
                     er[j] = er[nd + j] - tot
                     er[2 * nd + j] = er[nd + j] + tot
+        # idx is read on the rows with points and their two neighbours only
+        for i in range(nr):
+            if row_n[i] or (i > 0 and row_n[i - 1]) or (i + 1 < nr and row_n[i + 1]):
+                for j in range(nd):
+                    idx[i, j] = -1
         for i in range(nr + 2 * h):
             rows[i] = <Py_ssize_t>&zero[0]
             if h <= i < nr + h and row_n[i - h] > 0:
