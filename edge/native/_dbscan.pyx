@@ -7,8 +7,8 @@ On the (range bin, Doppler bin) lattice whose Doppler axis is a circle, the eps-
 (range offset ``di``), a circular interval of Doppler offsets ``[-lo[di], hi[di]]`` (the reference's kernel
 ``d <= eps``, handed in by the caller). So:
 
-1. neighbour counts: per point, one circular window sum per row offset on per-row prefix sums of the mask (exact
-   integers, as the reference's rounded FFT convolution);
+1. neighbour counts: per point, one circular window sum per row offset that holds points, on per-row prefix sums of
+   the mask (exact integers, as the reference's rounded FFT convolution);
 2. core connectivity: union-find over core points, first with their 8-neighbours on the lattice (Doppler wrapping),
    then, when more than one group is left, from every boundary core point to every run of core bins inside its
    window (a run is one group already);
@@ -124,19 +124,18 @@ def fit(const cnp.uint8_t[:, ::1] mask, Py_ssize_t n, const int[::1] m_row, cons
     cdef int[::1] lab = lab_a
     cdef cnp.npy_bool[::1] core = core_a
     cdef int[::1] cnt = cnt_a
-    # per-row prefix sums over three laps of the Doppler circle (columns -nd .. 2 nd - 1), with h rows of zeros above
-    # and below the map: every window sum is one subtraction, without branches
+    # per-row prefix sums over three laps of the Doppler circle (columns -nd .. 2 nd - 1): every window sum is one
+    # subtraction, without branches (written for the rows with points only)
     cdef Py_ssize_t w3 = 3 * nd + 1
-    # (rows without points, and the h rows beyond each edge, point at one row of zeros: no large zero fill)
     ext_a = np.empty((nr, w3), dtype=np.int32)
-    zero_a = np.zeros(w3, dtype=np.int32)
-    rows_a = np.empty(nr + 2 * h, dtype=np.intp)  # padded row -> address of its prefix row
+    win_a = np.empty((2, 2 * h + 1), dtype=np.intp)  # the prefix-sum addresses of the current row's window
     idx_a = np.empty((nr, nd), dtype=np.int32)  # point index of each core bin, -1 elsewhere (rows read only)
     row_n_a = np.zeros(nr, dtype=np.int32)
     off_a = np.empty((2, 2 * h + 1), dtype=np.intp)
     cdef int[:, ::1] ext = ext_a
-    cdef int[::1] zero = zero_a
-    cdef Py_ssize_t[::1] rows = rows_a
+    cdef Py_ssize_t *wa = <Py_ssize_t *>cnp.PyArray_DATA(win_a)
+    cdef Py_ssize_t *wb = wa + 2 * h + 1
+    cdef int cur, nw = 0, t
     cdef int[:, ::1] idx = idx_a
     cdef int[::1] row_n = row_n_a
     cdef Py_ssize_t[:, ::1] off = off_a
@@ -147,10 +146,6 @@ def fit(const cnp.uint8_t[:, ::1] mask, Py_ssize_t n, const int[::1] m_row, cons
     cdef double d2, best_d2, x0, x1, x2, t0, t1, t2
     cdef int best_lab, tot
     cdef int *er
-    cdef const int *rp
-    cdef const Py_ssize_t *o0
-    cdef const Py_ssize_t *o1
-    cdef const Py_ssize_t *rw
     with nogil:
         for di in range(2 * h + 1):
             a = lo[di]
@@ -188,21 +183,24 @@ def fit(const cnp.uint8_t[:, ::1] mask, Py_ssize_t n, const int[::1] m_row, cons
             if row_n[i] or (i > 0 and row_n[i - 1]) or (i + 1 < nr and row_n[i + 1]):
                 for j in range(nd):
                     idx[i, j] = -1
-        for i in range(nr + 2 * h):
-            rows[i] = <Py_ssize_t>&zero[0]
-            if h <= i < nr + h and row_n[i - h] > 0:
-                rows[i] = <Py_ssize_t>&ext[i - h, 0]
-        # 1. neighbour counts and core points
-        o0 = &off[0, 0]
-        o1 = &off[1, 0]
+        # 1. neighbour counts and core points: per map row, the window rows that hold points (the others add 0)
+        # as the two prefix-sum addresses of each; points come row by row
+        cur = -1
         for k in range(n):
             i = ri[k]
             j = dj[k]
+            if i != cur:
+                cur = <int>i
+                nw = 0
+                for di in range(2 * h + 1):  # window row di is map row i + di - h
+                    r2 = cur + di - h
+                    if 0 <= r2 < nr and row_n[r2] > 0:
+                        wa[nw] = <Py_ssize_t>(&ext[r2, 0] + off[0, di])
+                        wb[nw] = <Py_ssize_t>(&ext[r2, 0] + off[1, di])
+                        nw += 1
             c = 0
-            rw = &rows[i]
-            for di in range(2 * h + 1):  # padded row i + di is map row i + di - h
-                rp = <const int *>rw[di] + j
-                c += rp[o0[di]] - rp[o1[di]]
+            for t in range(nw):
+                c += (<const int *>wa[t])[j] - (<const int *>wb[t])[j]
             cnt[k] = c
             if c >= m_row[i]:
                 core[k] = True
