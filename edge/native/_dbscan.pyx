@@ -131,6 +131,7 @@ def fit(const cnp.uint8_t[:, ::1] mask, Py_ssize_t n, const int[::1] m_row, cons
     win_a = np.empty((2, 2 * h + 1), dtype=np.intp)  # the prefix-sum addresses of the current row's window
     idx_a = np.empty((nr, nd), dtype=np.int32)  # point index of each core bin, -1 elsewhere (rows read only)
     row_n_a = np.zeros(nr, dtype=np.int32)
+    row_c_a = np.zeros(nr, dtype=np.int32)  # core bins per row
     off_a = np.empty((2, 2 * h + 1), dtype=np.intp)
     cdef int[:, ::1] ext = ext_a
     cdef Py_ssize_t *wa = <Py_ssize_t *>cnp.PyArray_DATA(win_a)
@@ -138,6 +139,7 @@ def fit(const cnp.uint8_t[:, ::1] mask, Py_ssize_t n, const int[::1] m_row, cons
     cdef int cur, nw = 0, t
     cdef int[:, ::1] idx = idx_a
     cdef int[::1] row_n = row_n_a
+    cdef int[::1] row_c = row_c_a
     cdef Py_ssize_t[:, ::1] off = off_a
     parent_a = np.arange(n, dtype=np.int32)
     cdef int[::1] parent = parent_a
@@ -206,6 +208,7 @@ def fit(const cnp.uint8_t[:, ::1] mask, Py_ssize_t n, const int[::1] m_row, cons
                 core[k] = True
                 idx[i, j] = <int>k
                 n_core += 1
+                row_c[i] += 1
     if n_core == 0:
         return ri_a, dj_a, lab_a, core_a, 0, cnt_a
     # runs of core bins per row: next core bin at or after each column, end of the run at each core bin
@@ -286,16 +289,26 @@ def fit(const cnp.uint8_t[:, ::1] mask, Py_ssize_t n, const int[::1] m_row, cons
                     if big < 0 or lab[a] > lab[big]:
                         big = a
             # boundary core bins: some 8-neighbour is not core (rows outside the map count as core)
+            # (per map row, the window rows that hold core bins: row in wa, row offset + h in wb)
+            cur = -1
             for k in range(n):
                 if not bnd[k] or grp[k] == big:
                     continue
                 i = ri[k]
                 j = dj[k]
+                if i != cur:
+                    cur = <int>i
+                    nw = 0
+                    for di in range(-h, h + 1):
+                        r2 = cur + di
+                        if 0 <= r2 < nr and row_c[r2] > 0:
+                            wa[nw] = r2
+                            wb[nw] = di
+                            nw += 1
                 rk = _find(pp, <int>k)
-                for di in range(-h, h + 1):
-                    r2 = <int>i + di
-                    if r2 < 0 or r2 >= nr or row_n[r2] == 0:
-                        continue
+                for t in range(nw):
+                    r2 = <int>wa[t]
+                    di = <int>wb[t]
                     a = lo[di + h]
                     b = hi[di + h]
                     if a + b + 1 >= nd:
