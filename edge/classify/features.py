@@ -322,6 +322,7 @@ class SignatureExtractor(native.KernelUser):
         self.speed_vmax_kmh = self.cylinder.vmax_kmh if config.speed_feature == "doppler" else None
         #: the compiled cluster sums (edge/native/_survsig.pyx), None: the numpy reference (:meth:`_sums`) runs
         self.kernel = native.load("_survsig")
+        self._scratch = np.empty(0, dtype=np.int32)  # the kernel's cell grid, grown to the largest bin box seen
 
     def beat_hz(self, range_m: np.ndarray) -> np.ndarray:
         """Beat frequency of a range (``f_b = 2 mu r / c``), floored at half an FFT bin."""
@@ -330,6 +331,10 @@ class SignatureExtractor(native.KernelUser):
 
     def __call__(self, points: MapPoints, n_clusters: int | None = None) -> ClusterSignatures:
         L = points.n_clusters if n_clusters is None else int(n_clusters)
+        if self.kernel is not None and L > 0:
+            sig = self._signatures_kernel(points, L)
+            if sig is not None:
+                return sig
         lab = np.asarray(points.label)
         rng = np.asarray(points.range_m, dtype=np.float32)
         amp = np.asarray(points.amplitude, dtype=np.float32)
@@ -351,6 +356,11 @@ class SignatureExtractor(native.KernelUser):
             n = n_f.astype(np.intp)
         else:
             n, c, s, r_sum, ca, sa, lo, hi = self._sums(lab, rng, amp, cos, sin, L)
+        rcs = self._rcs(lab, rng, amp, rb, db, L)
+        return self._finish(n, c, s, r_sum, ca, sa, lo, hi, rcs)
+
+    def _finish(self, n, c, s, r_sum, ca, sa, lo, hi, rcs) -> ClusterSignatures:
+        """The signatures from the per-cluster sums and eq. 17's sums ``rcs`` (modified in place)."""
         nz = np.maximum(n, 1)
         rbar = np.hypot(c, s) / nz
         circ = np.where(n > 0, 1.0 - rbar, np.nan)
@@ -359,12 +369,37 @@ class SignatureExtractor(native.KernelUser):
         centroid = np.stack(
             [self.cylinder.radius_kmh * np.cos(ang), self.cylinder.radius_kmh * np.sin(ang), mean_r], axis=1
         )
-        rcs = self._rcs(lab, rng, amp, rb, db, L)
         if self.rcs_factor != 1.0:
             rcs *= self.rcs_factor
         rcs[n == 0] = np.nan
         dop_mean = np.where(n > 0, self.cylinder.speed_of_angle(np.arctan2(sa, ca)), np.nan)
         return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop_mean, c, s, lo, hi)
+
+    def _signatures_kernel(self, points: MapPoints, L: int) -> ClusterSignatures | None:
+        """:meth:`__call__` with the kernel's one pass over all points (sums and eq. 17's cells, the points outside
+        ``0..L-1`` skipped there); None when no point has such a label or a bin is negative (the reference runs)."""
+        rng = np.ascontiguousarray(points.range_m, dtype=np.float32)
+        amp = np.ascontiguousarray(points.amplitude, dtype=np.float32)
+        th = self.cylinder.angle_of_speed(np.asarray(points.doppler_kmh, dtype=np.float32)).astype(np.float32,
+                                                                                                  copy=False)
+        cos, sin = np.cos(th), np.sin(th)
+        lab = np.ascontiguousarray(points.label, dtype=np.int32)
+        rb = np.ascontiguousarray(points.range_bin, dtype=np.int32)
+        db = np.ascontiguousarray(points.doppler_bin, dtype=np.int32)
+        sums = np.empty((8, L))
+        sel = np.empty(lab.size, dtype=np.uint8)
+        args = (lab, rng, amp, cos, sin, rb, db, np.float32(self.extent_ratio), sums, np.empty(L, dtype=np.float32),
+                sel)
+        kept = self.kernel.signature_pass(*args, self._scratch)
+        if kept < -1:  # a larger bin box than any before
+            self._scratch = np.empty(-2 - kept, dtype=np.int32)
+            kept = self.kernel.signature_pass(*args, self._scratch)
+        if kept <= 0:
+            return None
+        n_f, c, s, r_sum, ca, sa, lo, hi = sums
+        peak = sel.view(bool)
+        rcs = self._rcs_sums(lab[peak].astype(np.intp), rng[peak], amp[peak], L)
+        return self._finish(n_f.astype(np.intp), c, s, r_sum, ca, sa, lo, hi, rcs)
 
     def _sums(self, lab, rng, amp, cos, sin, L) -> tuple[np.ndarray, ...]:
         """The numpy reference of the kernel's per-cluster sums: cells (int), sums of cos, sin, range (m),
@@ -420,12 +455,16 @@ class SignatureExtractor(native.KernelUser):
         has_hi = lab_g[hi_k] == lab
         # a peak is above its lower neighbour and not below its upper one (one peak per plateau)
         peak = (~has_lo | (amp > amp_g[lo_k])) & (~has_hi | (amp >= amp_g[hi_k]))
-        r = rng[peak].astype(np.float64)
+        return self._rcs_sums(lab[peak], rng[peak], amp[peak], L)
+
+    def _rcs_sums(self, lab, rng, amp, L) -> np.ndarray:
+        """Eq. 17's per-cluster sums over the selected cells (labels, ranges and amplitudes of those cells)."""
+        r = rng.astype(np.float64)
         fb = self.beat_hz(r)
         fc = self.config.if_corner_hz
         comp = np.sqrt(fc * fc + fb * fb) / fb
-        val = np.power(np.maximum(r, 0.0), self.config.range_exponent) / self.n_samples * (amp[peak] * comp) ** 2
-        return np.bincount(lab[peak], val, minlength=L)
+        val = np.power(np.maximum(r, 0.0), self.config.range_exponent) / self.n_samples * (amp * comp) ** 2
+        return np.bincount(lab, val, minlength=L)
 
 
 class SignatureLog:

@@ -152,8 +152,8 @@ class CylinderDbscan(native.KernelUser):
         if mask.shape != (self.n_range, self.n_doppler):
             raise ValueError(f"mask shape {mask.shape} != {(self.n_range, self.n_doppler)}")
         ri, dj, labels, core, n_clu, counts = self.kernel.fit(
-            np.ascontiguousarray(mask).view(np.uint8), self._m_row, self._lo, self._hi, self._cos, self._sin,
-            self.range_bin_m)
+            np.ascontiguousarray(mask).view(np.uint8), np.count_nonzero(mask), self._m_row, self._lo, self._hi,
+            self._cos, self._sin, self.range_bin_m)
         return Clusters(ri, dj, labels, core, int(n_clu), counts)
 
     def reference(self, mask: np.ndarray) -> Clusters:

@@ -88,6 +88,9 @@ class RangeDopplerProcessor:
         self.doppler_bin_kmh = float(2.0 * self.v_max_kmh / self.n_doppler_fft)
         self.theta_rad = (2.0 * np.pi * np.arange(self.n_doppler_fft) / self.n_doppler_fft).astype(np.float32)
         self.cylinder_radius_kmh = self.v_max_kmh / math.pi
+        # the FFTs' zero-padded inputs, kept between frames (only their leading parts are written)
+        self._pad_r = np.zeros((n_c - 1, self.n_range_fft), dtype=np.complex64)
+        self._pad_d = np.zeros((self.n_range, self.n_doppler_fft), dtype=np.complex64)  # range rows: no transposes
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -96,16 +99,16 @@ class RangeDopplerProcessor:
     def process(self, iq: np.ndarray) -> RangeDopplerMap:
         """``iq`` complex64 ``(n_rx, N_c, N_s)`` (first channel used) -> :class:`RangeDopplerMap`."""
         u = iir_canceller(iq[0], self._h)  # (N_c - 1, N_s)
-        x = u * self._win
-        rng = scipy.fft.fft(x, n=self.n_range_fft, axis=1, workers=1)[:, : self.n_range]  # (N_c-1, n_range)
-        rd = scipy.fft.fft(rng, n=self.n_doppler_fft, axis=0, workers=1)  # (N_D, n_range)
-        amp = np.abs(rd)
-        amp *= self._scale
-        # fftshift along Doppler and transpose to (n_range, N_D) in one copy: out[:, k] = amp[(k - N_D // 2) % N_D]
+        pad_r, pad_d = self._pad_r, self._pad_d
+        np.multiply(u, self._win, out=pad_r[:, : u.shape[1]])  # windowed chirps, zero-padded to N_R
+        pad_d[:, : u.shape[0]] = scipy.fft.fft(pad_r, axis=1, workers=1)[:, : self.n_range].T  # (n_range, N_c-1)
+        rd = scipy.fft.fft(pad_d, axis=1, workers=1)  # (n_range, N_D)
+        # magnitude with the fftshift along Doppler: out[:, k] = |rd[:, (k - N_D // 2) % N_D]|
         nd, s = self.n_doppler_fft, self.n_doppler_fft // 2
         out = np.empty((self.n_range, nd), dtype=np.float32)
-        out[:, s:] = amp[: nd - s].T
-        out[:, :s] = amp[nd - s :].T
+        np.abs(rd[:, : nd - s], out=out[:, s:])
+        np.abs(rd[:, nd - s :], out=out[:, :s])
+        out *= self._scale
         return RangeDopplerMap(out, u)
 
     # --- cylinder ---------------------------------------------------------------------------------

@@ -57,6 +57,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from edge import native
 from edge.track.cylinder import Cylinder
 
 log = logging.getLogger(__name__)
@@ -371,7 +372,7 @@ def benedict_bordner_beta(alpha: float) -> float:
     return alpha * alpha / (2.0 - alpha)
 
 
-class BenedictBordnerFilter:
+class BenedictBordnerFilter(native.KernelUser):
     """Predictor and updater of eqs. 12-14 on stacked states ``(n, 6)`` (float64)."""
 
     def __init__(self, alpha: float, cylinder: Cylinder) -> None:
@@ -380,6 +381,8 @@ class BenedictBordnerFilter:
         self.alpha = float(alpha)
         self.beta = benedict_bordner_beta(self.alpha)
         self.cylinder = cylinder
+        #: the compiled predict and update (edge/native/_alphabeta.pyx) for the plain cylinder, None: numpy
+        self.kernel = native.load("_alphabeta") if type(cylinder) is Cylinder else None
 
     def initiate(self, measurements: np.ndarray) -> np.ndarray:
         """Centroids ``(n, 3)`` -> states ``(n, 6)`` = ``(v', 0, v'', 0, r, 0)`` on the cylinder (step 8)."""
@@ -391,6 +394,9 @@ class BenedictBordnerFilter:
     def predict(self, states: np.ndarray) -> np.ndarray:
         """``N[A s]`` with ``A = diag([[1, 1], [0, 1]])`` per coordinate (T = 1 frame), eq. 12."""
         s = np.array(states, dtype=np.float64, copy=True).reshape(-1, 6)
+        if self.kernel is not None and s.flags.c_contiguous:
+            self.kernel.predict(s, self.cylinder.radius_kmh)
+            return s
         s[:, POS] += s[:, VEL]
         return self.cylinder.project_states(s)
 
@@ -416,6 +422,11 @@ class BenedictBordnerFilter:
     def update(self, predicted: np.ndarray, measurements: np.ndarray) -> np.ndarray:
         """``N{s + G (m - C s)}``: alpha on positions, beta on rates (eq. 13)."""
         s = np.array(predicted, dtype=np.float64, copy=True).reshape(-1, 6)
+        if self.kernel is not None and s.flags.c_contiguous:
+            m = np.ascontiguousarray(measurements, dtype=np.float64).reshape(-1, 3)
+            if m.shape == (s.shape[0], 3):
+                self.kernel.update(s, m, self.alpha, self.beta, self.cylinder.radius_kmh)
+                return s
         resid = np.asarray(measurements, dtype=np.float64).reshape(-1, 3) - s[:, POS]
         s[:, POS] += self.alpha * resid
         s[:, VEL] += self.beta * resid
@@ -448,7 +459,7 @@ def greedy_assign(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)
 
 
-class GreedyAssociator:
+class GreedyAssociator(native.KernelUser):
     """Cost matrix with the ``R_gate`` gate (step 5) and :func:`greedy_assign`."""
 
     def __init__(self, gate_radius: float, gate_reference: str = "last_measurement") -> None:
@@ -456,6 +467,8 @@ class GreedyAssociator:
             raise ValueError(f"gate_reference must be 'last_measurement' or 'prediction', got {gate_reference!r}")
         self.gate_radius = float(gate_radius)
         self.gate_reference = gate_reference
+        #: the compiled cost matrix and greedy assignment (edge/native/_alphabeta.pyx), None: numpy
+        self.kernel = native.load("_alphabeta")
 
     def cost_matrix(self, predicted_pos: np.ndarray, last_pos: np.ndarray, centroids: np.ndarray,
                     range_gate: np.ndarray | None = None) -> np.ndarray:
@@ -480,9 +493,33 @@ class GreedyAssociator:
         range_gate: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """-> ``(track_rows, centroid_cols, cost)``."""
+        if self.kernel is not None:
+            out = self._associate_kernel(predicted_pos, last_pos, centroids, range_gate)
+            if out is not None:
+                return out
         cost = self.cost_matrix(predicted_pos, last_pos, centroids, range_gate)
         rows, cols = greedy_assign(cost)
         return rows, cols, cost
+
+    def _associate_kernel(self, predicted_pos, last_pos, centroids, range_gate):
+        """:meth:`associate` in one kernel call; None when the shapes are not the plain ``(n, 3)``, ``(m, 3)``,
+        ``(n,)`` ones (the numpy code broadcasts or raises)."""
+        pred = np.ascontiguousarray(predicted_pos, dtype=np.float64)
+        cen = np.ascontiguousarray(centroids, dtype=np.float64)
+        last = np.ascontiguousarray(last_pos, dtype=np.float64)
+        rg = _NO_GATE if range_gate is None else np.ascontiguousarray(range_gate, dtype=np.float64)
+        if (pred.ndim != 2 or pred.shape[1] != 3 or cen.ndim != 2 or cen.shape[1] != 3 or last.shape != pred.shape
+                or (range_gate is not None and rg.shape != (pred.shape[0],))):
+            return None
+        n, m = pred.shape[0], cen.shape[0]
+        cost = np.empty((n, m))
+        pairs = np.empty((2, min(n, m)), dtype=np.intp)
+        k = self.kernel.associate(pred, 1, last, cen, self.gate_radius, self.gate_reference == "last_measurement", rg,
+                                  cost, np.empty((n, m)), pairs[0], pairs[1])
+        return pairs[0, :k], pairs[1, :k], cost
+
+
+_NO_GATE = np.zeros(0)  # the kernel's "no range gate"
 
 
 class IdPool:
@@ -572,8 +609,10 @@ class AlphaBetaTracker:
         #: the track coasts on its prediction without counting towards N_u (at most merge_max_frames in a row)
         self.occlusion_test = None
 
-    def step(self, t_ns: int, centroids: np.ndarray) -> TrackerStep:
-        """Process the centroids ``(n, 3)`` of one frame (already on the cylinder, or projected here)."""
+    def step(self, t_ns: int, centroids: np.ndarray, predicted: np.ndarray | None = None) -> TrackerStep:
+        """Process the centroids ``(n, 3)`` of one frame (already on the cylinder, or projected here).
+        ``predicted``: the tracks' predicted states when the caller has them (``filter.predict`` of the stacked
+        states, unchanged since), else computed here."""
         cfg = self.config
         cen = np.asarray(centroids, dtype=np.float64).reshape(-1, 3)
         if cen.shape[0]:
@@ -587,8 +626,10 @@ class AlphaBetaTracker:
         absorbed: dict[int, int] = {}
         used_cols = np.zeros(cen.shape[0], dtype=bool)
         if self.tracks:
-            states = np.stack([t.state for t in self.tracks])
-            pred = self.filter.predict(states)
+            if predicted is None:
+                pred = self.filter.predict(np.stack([t.state for t in self.tracks]))
+            else:  # (updated in place below: the caller's array stays the prediction)
+                pred = np.array(predicted, dtype=np.float64, copy=True).reshape(-1, 6)
             last = np.stack([t.last_measurement for t in self.tracks])
             rows, cols, cost = self.associator.associate(self.filter.measurement_of(pred), last, cen,
                                                          self._range_gate(pred))

@@ -22,10 +22,12 @@ import math
 
 import numpy as np
 
+from edge import native
+
 __all__ = ["Cylinder"]
 
 
-class Cylinder:
+class Cylinder(native.KernelUser):
     """Geometry of the wrapped map for a given maximum unambiguous radial speed ``vmax_kmh``."""
 
     def __init__(self, vmax_kmh: float) -> None:
@@ -33,6 +35,8 @@ class Cylinder:
             raise ValueError(f"vmax_kmh must be a positive number, got {vmax_kmh!r}")
         self.vmax_kmh = float(vmax_kmh)
         self.radius_kmh = self.vmax_kmh / math.pi
+        #: the compiled projections of (n, 3) points and (n, 6) states (edge/native/_alphabeta.pyx), None: numpy
+        self.kernel = native.load("_alphabeta")
 
     # --- eq. 6 and its inverse (eq. 7) ---------------------------------------------------------
     def angle_of_speed(self, v_kmh: np.ndarray) -> np.ndarray:
@@ -66,6 +70,9 @@ class Cylinder:
         A point on the axis (``v' = v'' = 0``) has no polar angle; it is put at angle 0.
         """
         p = np.array(points, dtype=np.float64, copy=True)
+        if self.kernel is not None and p.ndim == 2 and p.shape[1] == 3 and p.flags.c_contiguous:
+            self.kernel.project_points(p, self.radius_kmh)
+            return p
         th = np.arctan2(p[..., 1], p[..., 0])
         p[..., 0] = self.radius_kmh * np.cos(th)
         p[..., 1] = self.radius_kmh * np.sin(th)
@@ -79,6 +86,9 @@ class Cylinder:
         to the surface. ``r`` and ``u_r`` are unchanged. Returns a new float64 array.
         """
         s = np.array(states, dtype=np.float64, copy=True)
+        if self.kernel is not None and s.ndim == 2 and s.shape[1] == 6 and s.flags.c_contiguous:
+            self.kernel.project_states(s, self.radius_kmh)
+            return s
         th = np.arctan2(s[..., 2], s[..., 0])
         c, sn = np.cos(th), np.sin(th)
         normal = s[..., 1] * c + s[..., 3] * sn

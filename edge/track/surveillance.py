@@ -244,6 +244,7 @@ class SurveillanceTracker:
         valid = sig.n_points > 0
         labels = np.flatnonzero(valid)
         pred: dict[int, np.ndarray] = {}
+        p = None
         if self.tracker.config.merge_ratio > 0 and self.tracker.tracks:
             p = self.tracker.filter.predict(np.stack([tr.state for tr in self.tracker.tracks]))
             pred = {tr.track_id: p[k] for k, tr in enumerate(self.tracker.tracks)}
@@ -251,7 +252,7 @@ class SurveillanceTracker:
         self._frame_lo = np.asarray(sig.range_lo_m)[valid]
         self._frame_hi = np.asarray(sig.range_hi_m)[valid]
         self._shared: dict[int, list[int]] = {}  # centroid index -> ids of the tracks hidden in it by its span
-        tstep = self.tracker.step(t_ns, sig.centroid[valid])
+        tstep = self.tracker.step(t_ns, sig.centroid[valid], predicted=p)
         out: list[ClassifiedEvent] = []
         alive = {tr.track_id for tr in self.tracker.tracks} - set(tstep.created)
         out.extend(self._end_tracks(tstep.ended, tstep.dropped, alive))

@@ -91,3 +91,31 @@ def test_extractor_with_kernel_copies_and_pickles():
     fast, _ = _pair()
     for other in (copy.deepcopy(fast), pickle.loads(pickle.dumps(fast))):
         assert other.kernel is fast.kernel
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 400), st.integers(1, 6), st.booleans())
+def test_kernel_equals_reference_on_dense_boxes(seed, n, n_clusters, offset):
+    """Cells packed in a small (range, Doppler) box, some given twice, amplitude ties, labels beyond ``n_clusters``
+    and noise: the selection of eq. 17's cells (range neighbours of the same cluster) is exercised everywhere."""
+    require_kernel("_survsig")
+    fast, slow = _pair()
+    rng = np.random.default_rng(seed)
+    rb = (rng.integers(0, 12, n) + (40 if offset else 0)).astype(np.int32)
+    db = rng.integers(0, 9, n).astype(np.int32)
+    lab = rng.integers(-1, n_clusters + 2, n).astype(np.int32)
+    amp = rng.choice(np.array([1.0, 2.0, 4.0], dtype=np.float32), n)
+    dop = ((db - 128) * (2 * 5.35 / 256)).astype(np.float32)
+    pts = MapPoints((rb * 0.0938).astype(np.float32), dop, amp, rb, db, lab)
+    assert_same(fast, slow, pts)
+    assert_same(fast, slow, pts, n_clusters)  # labels n_clusters and above are not clusters here
+
+
+def test_kernel_negative_bins_and_all_noise_fall_back():
+    require_kernel("_survsig")
+    fast, slow = _pair()
+    f = np.array([1.0, 1.1, 1.2], dtype=np.float32)
+    for rb, lab in (([-1, 0, 1], [0, 0, 1]), ([3, 4, 5], [-1, -1, -1])):
+        pts = MapPoints(f, f, f, np.array(rb, dtype=np.int32), np.array([0, 0, 0], dtype=np.int32),
+                        np.array(lab, dtype=np.int32))
+        assert_same(fast, slow, pts, 2)
