@@ -347,15 +347,7 @@ class SignatureExtractor(native.KernelUser):
         lab = lab.astype(np.intp, copy=False)
         th = self.cylinder.angle_of_speed(dop).astype(np.float32, copy=False)
         cos, sin = np.cos(th), np.sin(th)
-        if self.kernel is not None and lab.size:  # (no points: the reference, whose empty bincounts are integer)
-            sums = np.empty((8, L))
-            self.kernel.cluster_sums(np.ascontiguousarray(lab), np.ascontiguousarray(rng), np.ascontiguousarray(amp),
-                                     cos, sin, np.float32(self.extent_ratio), sums,
-                                     np.empty(L, dtype=np.float32))
-            n_f, c, s, r_sum, ca, sa, lo, hi = sums
-            n = n_f.astype(np.intp)
-        else:
-            n, c, s, r_sum, ca, sa, lo, hi = self._sums(lab, rng, amp, cos, sin, L)
+        n, c, s, r_sum, ca, sa, lo, hi = self._sums(lab, rng, amp, cos, sin, L)
         rcs = self._rcs(lab, rng, amp, rb, db, L)
         return self._finish(n, c, s, r_sum, ca, sa, lo, hi, rcs)
 
