@@ -192,12 +192,10 @@ class ConfirmerConfig:
                                             "lies within this along the boresight (a long vehicle seeded twice); "
                                             "0 = off", "m", 0.0, 100.0)
     confirm_block_lateral_m: float = _f(3.5, "... nor while one lies within this across, behind its near face, at "
-                                             "its speed (a truck body's glint in the next lane)", "m", 0.0, 20.0)
+                                             "its speed (a vehicle body's glint in the next lane)", "m", 0.0, 20.0)
     confirm_block_speed_mps: float = _f(1.0, "speed difference along of that glint test", "m/s", 0.0, 10.0)
     confirm_block_behind_m: float = _f(2.0, "the glint test counts tentative tracks at least this farther than the "
                                             "confirmed one", "m", 0.0, 50.0)
-    confirm_block_max_range_m: float = _f(100.0, "the glint test counts confirmed tracks nearer than this", "m",
-                                          0.0, 1000.0)
     tentative_keep_from_m: float = _f(200.0, "beyond this ground range a tentative track that cannot make M of N "
                                              "is kept while it has tentative_keep_min_hits in its last N frames",
                                       "m", 0.0, 2000.0)

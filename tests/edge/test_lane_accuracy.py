@@ -174,21 +174,23 @@ def test_grating_lobe_images_of_near_outer_lane_vehicles_are_put_back_in_their_l
 def test_body_glint_beside_a_truck_does_not_confirm():
     """The two sides of a truck at one range glint its body's echo up to a lane width beside it, a few metres
     behind its near face and at exactly its speed (seen on highway4-traffic seed 2: a second, false track in the
-    next lane). A detection stream glued to a confirmed vehicle like that stays tentative; a car side by side at
-    the same range, or behind at another speed, still confirms."""
+    next lane). A detection stream glued to a confirmed vehicle like that stays tentative, near the radar and far
+    out (at 150 m as well); a car side by side at the same range, or behind at another speed, still confirms."""
     from edge.track import PdafTracker
     from tests.edge.trackscene import Vehicle, frames, scene_config
 
-    def ids_for(second: Vehicle, seed: int) -> int:
+    def ids_for(second: Vehicle, seed: int, y0: float = 95.0) -> int:
         tr = PdafTracker(scene_config())
         ids = set()
-        for t_ns, det, _ in frames([Vehicle(-5.25, 95.0, 0.0, -25.0), second], 80, seed=seed, p_detect=0.9,
+        for t_ns, det, _ in frames([Vehicle(-5.25, y0, 0.0, -25.0), second], 80, seed=seed, p_detect=0.9,
                                    az_sigma_deg=0.3):
             ids |= {o.track_id for o in tr.step(det, t_ns) if o.confirmed}
         return len(ids)
 
     for seed in (1, 2, 3):  # the glint appears once the truck is near (its track exists)
         assert ids_for(Vehicle(-2.25, 99.5, 0.0, -25.0, t_start_s=1.0), seed) == 1, seed  # 3 m across, 4.5 m behind
+        # farther out (the truck from 150 to 84 m): 2.5 m across, 4.5 m behind
+        assert ids_for(Vehicle(-2.75, 154.5, 0.0, -25.0, t_start_s=1.0), seed, 150.0) == 1, seed
         assert ids_for(Vehicle(-1.75, 95.0, 0.0, -25.0, t_start_s=1.0), seed) == 2, seed  # side by side
         assert ids_for(Vehicle(-1.75, 105.0, 0.0, -23.0, t_start_s=1.0), seed) == 2, seed  # next lane, 2 m/s slower
 

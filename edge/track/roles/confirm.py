@@ -80,9 +80,7 @@ class Confirmer(native.KernelUser):
             along = np.abs(d[..., 1]) < c.confirm_block_along_m
             blocked = (along & (((np.abs(d[..., 0]) < merge_lateral_m) & (np.abs(dv) < merge_speed_mps))
                                 | ((np.abs(d[..., 0]) < c.confirm_block_lateral_m) & (d[..., 1] > c.confirm_block_behind_m)
-                                   & (np.abs(dv) < c.confirm_block_speed_mps)
-                                   & (np.hypot(xk[:, 0], xk[:, 1]) < c.confirm_block_max_range_m)[None, :])
-                                )).any(axis=1)
+                                   & (np.abs(dv) < c.confirm_block_speed_mps)))).any(axis=1)
             ready[r[blocked]] = False
         for i in ready.nonzero()[0]:
             tid = ids.acquire()
