@@ -77,3 +77,44 @@ def test_dealias_rounds_half_to_even_and_keeps_signed_zero():
             e._v.append(t_v[1])
         e._current = None
         assert _bits(e._current_radial_speed_kmh()) == _bits(e._current_radial_speed_kmh_numpy())
+
+
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(st.lists(st.integers(0, 2**40), min_size=1, max_size=12))
+def test_median_of_counts_equals_numpy(values):
+    from collections import deque
+
+    from edge.track.surveillance import _median
+
+    assert _bits(_median(deque(values))) == _bits(float(np.median(deque(values))))
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(st.integers(0, 2**31 - 1), st.floats(0.1, 20.0))
+def test_within_decides_as_numpys_norm_or_defers(seed, radius):
+    from edge.track.surveillance import _within
+
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=3) * radius
+    if seed % 4 == 0:  # on the sphere, up to rounding: too close to tell
+        d *= radius / float(np.linalg.norm(d))
+    if seed % 7 == 0:
+        d[int(seed % 3)] = np.nan
+    got = _within(float(d[0]), float(d[1]), float(d[2]), radius)
+    ref = float(np.linalg.norm(d)) <= radius
+    assert got is None or got == ref
+    if seed % 4 == 0 or seed % 7 == 0:
+        assert got is None
+
+
+def test_published_state_is_the_constructors():
+    from edge.track.surveillance import _published_state
+    from edge.types import TrackState
+
+    for r, v in ((3.5, -1.25), (0.0, math.nan)):
+        fast = _published_state(7, r, v, 12, 9)
+        plain = TrackState(track_id=7, x_m=0.0, y_m=r, vx_mps=0.0, vy_mps=v, range_m=r, radial_speed_mps=v,
+                           az_rad=math.nan, age_frames=12, hits=9, confirmed=True)
+        assert list(vars(fast).items()).__repr__() == list(vars(plain).items()).__repr__()
+        if not math.isnan(v):
+            assert fast == plain and hash(fast) == hash(plain)
