@@ -118,3 +118,90 @@ def test_published_state_is_the_constructors():
         assert list(vars(fast).items()).__repr__() == list(vars(plain).items()).__repr__()
         if not math.isnan(v):
             assert fast == plain and hash(fast) == hash(plain)
+
+
+# --- the alpha-beta tracker's per-track steps in plain Python against their former numpy forms ------------------
+
+def _corange_numpy(tracker, rows, cols, cen):
+    tol = tracker.config.corange_fragment_m
+    r = cen[:, 2]
+    seen = np.array([tracker.tracks[i].seen_frames for i in rows.tolist()], dtype=np.int64)
+    near = np.abs(r[cols][:, None] - r[cols][None, :]) <= tol
+    score = np.where(near, seen[None, :], -1)
+    owner = np.where(score.max(axis=1) > seen, np.argmax(score, axis=1), np.arange(rows.size))
+    keep = owner == np.arange(rows.size)
+    absorbed = {int(cols[a]): tracker.tracks[int(rows[owner[a]])].track_id for a in np.flatnonzero(~keep).tolist()}
+    rows, cols = rows[keep], cols[keep]
+    free = np.ones(cen.shape[0], dtype=bool)
+    free[cols] = False
+    for j in absorbed:
+        free[j] = False
+    fj = np.flatnonzero(free)
+    if fj.size and cols.size:
+        d = np.abs(r[fj][:, None] - r[cols][None, :])
+        b = np.argmin(d, axis=1)
+        for j, k, ok in zip(fj.tolist(), b.tolist(), (d[np.arange(fj.size), b] <= tol).tolist()):
+            if ok:
+                absorbed[j] = tracker.tracks[int(rows[k])].track_id
+    return rows, cols, absorbed
+
+
+def _range_gate_numpy(tracker, pred):
+    cfg = tracker.config
+    missed = np.array([t.missed for t in tracker.tracks], dtype=np.float64)
+    rated = np.array([t.vis > 0 for t in tracker.tracks], dtype=bool)
+    g = cfg.range_gate_m + cfg.range_gate_rate_factor * np.abs(pred[:, 5]) * (missed + 1.0)
+    return np.where(rated, g, np.inf)
+
+
+def _occluded_numpy(tracker, tr, pred, cen, cols):
+    from edge.track.alphabeta import POS
+
+    if tracker.occlusion_test is None or cols.size == 0 or tr.occluded >= tracker.config.merge_max_frames:
+        return False
+    d = np.linalg.norm(cen[cols] - pred[POS], axis=1)
+    j = int(np.argmin(d))
+    return bool(d[j] <= tracker.config.gate_radius) and bool(tracker.occlusion_test(tr, int(cols[j])))
+
+
+def _random_tracker(rng, n_tracks):
+    from edge.track.alphabeta import AlphaBetaConfig, AlphaBetaTrack, AlphaBetaTracker
+    from edge.track.cylinder import Cylinder
+
+    tracker = AlphaBetaTracker(AlphaBetaConfig(), Cylinder(5.35))
+    for k in range(n_tracks):
+        tr = AlphaBetaTrack(k + 1, rng.normal(size=6), rng.normal(size=3), 0, 0, age=int(rng.integers(0, 9)),
+                            vis=int(rng.integers(0, 9)), missed=int(rng.integers(0, 4)))
+        tracker.tracks.append(tr)
+    return tracker
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 6), st.integers(0, 7))
+def test_alphabeta_corange_gate_and_occlusion_equal_numpy(seed, n_tracks, n_cen):
+    rng = np.random.default_rng(seed)
+    tracker = _random_tracker(rng, n_tracks)
+    cen = rng.normal(size=(n_cen, 3))
+    cen[:, 2] = np.round(rng.uniform(0.0, 3.0, n_cen), 1)  # ranges on a 0.1 m grid: ties and |dr| = tol
+    if n_cen and seed % 5 == 0:
+        cen[int(rng.integers(n_cen)), int(rng.integers(3))] = np.nan
+    pred = rng.normal(size=(n_tracks, 6))
+    pred[:, 5] *= 10.0 ** rng.integers(-3, 3, n_tracks)
+    np.testing.assert_array_equal(tracker._range_gate(pred), _range_gate_numpy(tracker, pred), strict=True)
+    a = min(n_tracks, n_cen)
+    rows = rng.permutation(n_tracks)[:a].astype(np.intp)
+    cols = rng.permutation(n_cen)[:a].astype(np.intp)
+    if a:
+        got, ref = tracker._corange_fragments(rows, cols, cen), _corange_numpy(tracker, rows, cols, cen)
+        np.testing.assert_array_equal(got[0], ref[0], strict=True)
+        np.testing.assert_array_equal(got[1], ref[1], strict=True)
+        assert list(got[2].items()) == list(ref[2].items())
+    asked: list[tuple[int, int]] = []
+    tracker.occlusion_test = lambda tr, j: asked.append((tr.track_id, j)) or (j % 2 == 0)
+    for k, tr in enumerate(tracker.tracks):
+        tr.occluded = int(rng.integers(0, 12))
+        got = tracker._occluded(tr, pred[k], cen, cols)
+        mine, asked[:] = list(asked), []
+        assert got == _occluded_numpy(tracker, tr, pred[k], cen, cols)
+        assert asked == mine  # the same centroid asked about
+        asked.clear()
