@@ -205,3 +205,49 @@ def test_alphabeta_corange_gate_and_occlusion_equal_numpy(seed, n_tracks, n_cen)
         assert got == _occluded_numpy(tracker, tr, pred[k], cen, cols)
         assert asked == mine  # the same centroid asked about
         asked.clear()
+
+
+def test_with_class_is_dataclasses_replace():
+    import dataclasses
+
+    from edge.pipelines.surveillance import _with_class
+    from edge.types import TrackState
+
+    ts = TrackState(track_id=3, x_m=0.0, y_m=4.0, vx_mps=0.0, vy_mps=-1.0, range_m=4.0, radial_speed_mps=-1.0,
+                    az_rad=math.nan, age_frames=5, hits=4, confirmed=True, lane=2, rcs_dbsm=1.5)
+    fast, plain = _with_class(ts, "car", 0.75), dataclasses.replace(ts, cls="car", class_probability=0.75)
+    assert repr(list(vars(fast).items())) == repr(list(vars(plain).items()))
+    assert type(fast) is TrackState and ts.cls is None
+
+
+def test_detections_equal_from_polar():
+    from types import SimpleNamespace
+
+    from edge.classify.features import ClusterSignatures
+    from edge.pipelines.surveillance import SurveillancePipeline
+    from edge.dsp.range_doppler import RangeDopplerProcessor
+    from edge.types import Detections
+    from hal.waveform import d2g_frontend
+
+    pipe = SurveillancePipeline.__new__(SurveillancePipeline)
+    pipe.rd = RangeDopplerProcessor(d2g_frontend())
+    rng = np.random.default_rng(3)
+    for n_pts in ([12, 0, 40], [5, 7], [0, 0], []):
+        n_pts = np.array(n_pts, dtype=np.intp)
+        L = n_pts.size
+        cen = rng.normal(size=(L, 3))
+        sig = ClusterSignatures(cen, rng.uniform(0.0, 24.0, L), rng.random(L), rng.random(L), n_pts, rng.random(L))
+        got = pipe._detections(SimpleNamespace(signatures=sig), L)
+        ok = n_pts > 0
+        if not ok.any():
+            ref = Detections.empty()
+        else:
+            _, vw = pipe.rd.unwrap(cen[ok])
+            nan = np.full(int(ok.sum()), np.nan, dtype=np.float32)
+            ref = Detections.from_polar(sig.range_m[ok], nan, nan, nan,
+                                        extra={"doppler_wrapped_kmh": vw, "n_points": n_pts[ok].astype(np.int32)})
+        for f in ("range_m", "radial_speed_mps", "az_rad", "snr_db", "x_m", "y_m"):
+            np.testing.assert_array_equal(getattr(got, f), getattr(ref, f), strict=True)
+        assert list(got.extra) == list(ref.extra)
+        for k in ref.extra:
+            np.testing.assert_array_equal(got.extra[k], ref.extra[k], strict=True)
