@@ -955,9 +955,8 @@ class RadialSpeedEstimator:
         return self._current
 
     def _current_radial_speed_kmh(self) -> float:
-        """:meth:`current_radial_speed_kmh` in plain Python over the window's frames only (the numpy form:
-        :meth:`_current_radial_speed_kmh_numpy`, same bits). The frames' times increase (``add`` keeps later
-        frames only, ``prepend`` and ``merge`` keep the order), so the window's frames are the last ones."""
+        """:meth:`current_radial_speed_kmh` in plain Python over the window's frames, the last ones (the times
+        increase); the same bits as :meth:`_current_radial_speed_kmh_numpy`."""
         n = len(self._t)
         if n < 2:
             return math.nan

@@ -101,11 +101,11 @@ dropped (``vis / age < th_v``); its id may be reused.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections import deque
 from collections.abc import Callable
-import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -184,7 +184,8 @@ _STATE_PLAIN = (tuple(f.name for f in dataclasses.fields(TrackState))[:len(_STAT
                 and not hasattr(TrackState, "__post_init__")
                 and all(f.default is not dataclasses.MISSING and f.default_factory is dataclasses.MISSING
                         for f in dataclasses.fields(TrackState)[len(_STATE_FIELDS):]))
-_STATE_DEFAULTS = {f.name: f.default for f in dataclasses.fields(TrackState)[len(_STATE_FIELDS):]} if _STATE_PLAIN else {}
+_STATE_DEFAULTS = ({f.name: f.default for f in dataclasses.fields(TrackState)[len(_STATE_FIELDS):]}
+                   if _STATE_PLAIN else {})
 
 
 def _published_state(track_id: int, r: float, v: float, age: int, hits: int) -> TrackState:
