@@ -81,6 +81,62 @@ FEATURE_NAMES: tuple[str, ...] = (
 )
 
 
+def _np_sum(x) -> float:
+    """``float(np.add.reduce(np.array(x, dtype=np.float64)))`` of a short sequence of floats in plain Python, with
+    the same bits: numpy adds to its identity 0.0 the pairwise sum of the values (one accumulator below 8 values,
+    eight in blocks of up to 128, halves above)."""
+    return 0.0 + _pairwise(x, 0, len(x))
+
+
+def _pairwise(x, i: int, n: int) -> float:
+    """numpy's float64 ``pairwise_sum`` of ``x[i:i + n]``."""
+    if n < 8:
+        s = 0.0
+        for k in range(i, i + n):
+            s += x[k]
+        return s
+    if n <= 128:
+        r0, r1, r2, r3, r4, r5, r6, r7 = x[i:i + 8]
+        k, end = i + 8, i + n - n % 8
+        while k < end:
+            r0 += x[k]
+            r1 += x[k + 1]
+            r2 += x[k + 2]
+            r3 += x[k + 3]
+            r4 += x[k + 4]
+            r5 += x[k + 5]
+            r6 += x[k + 6]
+            r7 += x[k + 7]
+            k += 8
+        s = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+        while k < i + n:
+            s += x[k]
+            k += 1
+        return s
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise(x, i, n2) + _pairwise(x, i + n2, n - n2)
+
+
+def _rint(x: float) -> float:
+    """``float(np.rint(x))`` of a finite float: half to even, a zero keeps the sign of ``x``."""
+    q = float(round(x))
+    return q if q else math.copysign(0.0, x)
+
+
+def _slope_of(t: list, r: list) -> float:
+    """:meth:`RadialSpeedEstimator._slope_kmh` of two lists of floats, with the same bits: the means as numpy
+    sums them, the centred values element by element, numpy's (BLAS) dot products of the same arrays."""
+    n = len(t)
+    tm = _np_sum(t) / n
+    rm = _np_sum(r) / n
+    tc = np.array([v - tm for v in t])
+    den = float(tc @ tc)
+    if not den > 0:
+        return math.nan
+    return float(tc @ np.array([v - rm for v in r])) / den * 3.6
+
+
 @dataclass(frozen=True)
 class FeatureConfig:
     """Signature extraction (eqs. 17-19)."""
@@ -597,7 +653,7 @@ class TrackFeatureAccumulator:
         var_g = self._g_m2 / (n - 1) if n > 1 else math.nan
         v = self._abs_v_sum / self._n_v if self._n_v else math.nan
         if self._doppler is not None and len(self._doppler) >= 2:
-            v = float(np.mean(np.abs(self._doppler.speeds_kmh())))
+            v = self._doppler.mean_abs_speed_kmh()
         return np.array([self._s_mean if n else math.nan, var_s, self._g_mean if n else math.nan, var_g, v,
                          self.extent_m()])
 
@@ -874,6 +930,22 @@ class RadialSpeedEstimator:
         keep = np.abs(v - np.median(v)) <= self.vmax_kmh
         return float(np.mean(v[keep])), certain
 
+    def mean_abs_speed_kmh(self) -> float:
+        """``float(np.mean(np.abs(self.speeds_kmh())))`` (the tracks' ``E(|v_r|)`` feature) with fewer numpy
+        calls and the same bits (the reference rate by :func:`_slope_of`); NaN below two frames."""
+        n = len(self._t)
+        t, r = list(self._t), list(self._r)
+        if n >= 8:
+            lo, hi = n // 4, n - n // 4
+            t, r = t[lo:hi], r[lo:hi]
+        rho = _slope_of(t, r) if n >= 2 else math.nan
+        if not math.isfinite(rho):
+            return math.nan
+        period = 2.0 * self.vmax_kmh
+        vw = np.array(list(self._v))
+        v = vw + period * np.rint((rho - vw) / period)  # dealias (np.round with no decimals is rint)
+        return float(np.add.reduce(np.abs(v, out=v))) / n
+
     def current_radial_speed_kmh(self) -> float:
         """The latest frame's unaliased radial speed (km/h): its wrapped Doppler with the alias nearest the least-squares
         range rate of the last ``window_s`` seconds (at least three frames); NaN below two frames. Kept until the
@@ -883,6 +955,28 @@ class RadialSpeedEstimator:
         return self._current
 
     def _current_radial_speed_kmh(self) -> float:
+        """:meth:`current_radial_speed_kmh` in plain Python over the window's frames, the last ones (the times
+        increase); the same bits as :meth:`_current_radial_speed_kmh_numpy`."""
+        n = len(self._t)
+        if n < 2:
+            return math.nan
+        ts = self._t
+        lim = ts[-1] - self.window_s
+        c = 0
+        for x in reversed(ts):
+            if not x >= lim:
+                break
+            c += 1
+        k = min(max(3, c), n)
+        rho = _slope_of([ts[i] for i in range(n - k, n)], [self._r[i] for i in range(n - k, n)])
+        if not math.isfinite(rho):
+            return math.nan
+        v = self._v[-1]
+        period = 2.0 * self.vmax_kmh
+        return v + period * _rint((rho - v) / period)
+
+    def _current_radial_speed_kmh_numpy(self) -> float:
+        """The numpy form of :meth:`_current_radial_speed_kmh` (the tests compare the two)."""
         n = len(self._t)
         if n < 2:
             return math.nan

@@ -22,7 +22,8 @@ axis is aliased beyond ±5.4 km/h) with the wrapped Doppler in ``extra["doppler_
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field, replace
+import math
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -32,9 +33,27 @@ from edge.dsp.dbscan import CylinderDbscan
 from edge.dsp.range_doppler import RangeDopplerProcessor, detection_mask
 from edge.dsp.range_fft import to_complex64
 from edge.pipeline import Pipeline, PipelineError, StageTimer
-from edge.types import ClassifiedEvent, Detections, FrameResult, FrontendInfo, RawFrame
+from edge.types import ClassifiedEvent, Detections, FrameResult, FrontendInfo, RawFrame, TrackState
 
 log = logging.getLogger(__name__)
+
+# a provisional class is set on a TrackState by copying its __dict__ (what dataclasses.replace's constructor call
+# gives, without the frozen dataclass's per-field __setattr__) while TrackState has no __post_init__ and every
+# field is an __init__ argument
+_CLASS_PLAIN = (not hasattr(TrackState, "__post_init__") and all(f.init for f in fields(TrackState))
+                and {"cls", "class_probability"} <= {f.name for f in fields(TrackState)})
+
+
+def _with_class(ts: TrackState, cls: str, probability: float) -> TrackState:
+    """``dataclasses.replace(ts, cls=cls, class_probability=probability)``, the same object built cheaper."""
+    if not _CLASS_PLAIN:
+        return replace(ts, cls=cls, class_probability=probability)
+    d = dict(ts.__dict__)
+    d["cls"] = cls
+    d["class_probability"] = probability
+    out = object.__new__(TrackState)
+    object.__setattr__(out, "__dict__", d)
+    return out
 
 
 @dataclass(frozen=True)
@@ -178,18 +197,24 @@ class SurveillancePipeline(Pipeline):
         )
 
     def _detections(self, step: Any, n_clusters: int) -> Detections:
+        """One detection per cluster with cells: what ``Detections.from_polar(range, nan, nan, nan, extra)`` gives
+        (azimuth unknown: on boresight, ``x = range * sin(0)``, ``y = range * cos(0)``), built directly."""
         sig = step.signatures
-        ok = np.asarray(sig.n_points) > 0
-        if not ok.any():
-            return Detections.empty()
-        c = np.asarray(sig.centroid)[ok]
+        n_pts = np.asarray(sig.n_points)
+        ok = n_pts > 0
+        if ok.all():  # DBSCAN's clusters always have cells: no selection
+            if not ok.size:
+                return Detections.empty()
+            c, rng = np.asarray(sig.centroid), np.asarray(sig.range_m)
+        else:
+            if not ok.any():
+                return Detections.empty()
+            c, rng, n_pts = np.asarray(sig.centroid)[ok], np.asarray(sig.range_m)[ok], n_pts[ok]
         _, v_wrapped = self.rd.unwrap(c)
-        n = int(ok.sum())
-        nan = np.full(n, np.nan, dtype=np.float32)
-        return Detections.from_polar(
-            np.asarray(sig.range_m)[ok], nan, nan, nan,
-            extra={"doppler_wrapped_kmh": v_wrapped, "n_points": np.asarray(sig.n_points)[ok].astype(np.int32)},
-        )
+        r = np.array(rng, dtype=np.float32)
+        nan = np.full(r.size, np.nan, dtype=np.float32)
+        return Detections(r, nan, nan, nan, r * np.float32(0.0), r * np.float32(1.0),
+                          {"doppler_wrapped_kmh": v_wrapped, "n_points": n_pts.astype(np.int32)})
 
     def _provisional_classes(self, tracks: tuple) -> tuple:
         """Class and probability of each live track from its features so far (eq. 21), so outputs can
@@ -205,16 +230,17 @@ class SurveillancePipeline(Pipeline):
         if not tracks or acc is None or clf is None:
             return tuple(tracks)
         rows, feats = [], []
+        isfinite = math.isfinite
         for k, ts in enumerate(tracks):
             a = acc.get(ts.track_id)
             if a is not None and a.n >= 2:
                 x = a.features()
-                if np.all(np.isfinite(x)):
+                if all(isfinite(v) for v in x.tolist()):
                     rows.append(k)
                     feats.append(x)
         if not rows:
             return tuple(tracks)
-        x = np.asarray(feats)
+        x = np.array(feats)
         key = x.tobytes()
         last = self._last_query
         if last is not None and last[0] is clf and last[1] == key:  # same rows, same order: the same answer
@@ -222,10 +248,9 @@ class SurveillancePipeline(Pipeline):
         else:
             p = clf.predict_proba(x)
             self._last_query = (clf, key, p)
-        best = np.argmax(p, axis=1)
         out = list(tracks)
-        for k, b, pk in zip(rows, best, p):
-            out[k] = replace(out[k], cls=clf.classes[int(b)], class_probability=float(pk[b]))
+        for k, b, pk in zip(rows, p.argmax(axis=1).tolist(), p):
+            out[k] = _with_class(out[k], clf.classes[b], float(pk[b]))
         return tuple(out)
 
     def _host_times(self, events: tuple) -> tuple:

@@ -53,6 +53,7 @@ at most ``min(tracks, centroids)`` iterations of an ``argmin`` over the cost mat
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -624,7 +625,7 @@ class AlphaBetaTracker:
         dropped: list[AlphaBetaTrack] = []
         cost = np.zeros((len(self.tracks), cen.shape[0]))
         absorbed: dict[int, int] = {}
-        used_cols = np.zeros(cen.shape[0], dtype=bool)
+        used_cols: set[int] = set()
         if self.tracks:
             if predicted is None:
                 pred = self.filter.predict(np.stack([t.state for t in self.tracks]))
@@ -638,7 +639,7 @@ class AlphaBetaTracker:
             new_states = pred
             if rows.size:
                 new_states[rows] = self.filter.update(pred[rows], cen[cols])
-                used_cols[cols] = True
+                used_cols.update(cols.tolist())
                 if cfg.init_velocity == "two_point":
                     first = np.array([self.tracks[i].vis == 0 for i in rows.tolist()], dtype=bool)
                     if first.any():
@@ -648,14 +649,13 @@ class AlphaBetaTracker:
                             cen[cols[first]],
                             np.array([self.tracks[i].age + 1 for i in r1.tolist()], dtype=np.float64),
                         )
-            hit = np.zeros(len(self.tracks), dtype=bool)
-            hit[rows] = True
             col_of = dict(zip(rows.tolist(), cols.tolist()))
             keep: list[AlphaBetaTrack] = []
             for k, tr in enumerate(self.tracks):
                 tr.state = new_states[k]
                 tr.age += 1
-                if hit[k]:
+                hit = k in col_of
+                if hit:
                     tr.vis += 1
                     tr.missed = 0
                     tr.last_measurement = cen[col_of[k]]
@@ -668,7 +668,7 @@ class AlphaBetaTracker:
                 else:
                     tr.missed += 1
                     tr.occluded = 0
-                if hit[k]:
+                if hit:
                     tr.occluded = 0
                 if tr.missed >= cfg.max_missed_frames:  # step 7: departed (checked before th_v)
                     (ended if tr.seen_frames >= cfg.min_seen_frames else dropped).append(tr)
@@ -680,12 +680,10 @@ class AlphaBetaTracker:
             for tr in ended + dropped:
                 self.ids.release(tr.track_id)
         created: list[int] = []
-        free = np.flatnonzero(~used_cols)
-        if absorbed:
-            free = np.array([j for j in free.tolist() if j not in absorbed], dtype=np.intp)
-        if free.size:
+        free = [j for j in range(cen.shape[0]) if j not in used_cols and j not in absorbed]
+        if free:
             states = self.filter.initiate(cen[free])
-            for j, s in zip(free.tolist(), states):
+            for j, s in zip(free, states):
                 tid = self.ids.acquire()
                 if tid is None:
                     self.ids_exhausted += 1
@@ -703,10 +701,10 @@ class AlphaBetaTracker:
         cfg = self.config
         if cfg.range_gate_m <= 0:
             return None
-        missed = np.array([t.missed for t in self.tracks], dtype=np.float64)
-        rated = np.array([t.vis > 0 for t in self.tracks], dtype=bool)
-        g = cfg.range_gate_m + cfg.range_gate_rate_factor * np.abs(pred[:, 5]) * (missed + 1.0)
-        return np.where(rated, g, np.inf)
+        # per track, the float64 operations of r0 + k |u_r| (missed + 1) in numpy's order
+        g0, k = cfg.range_gate_m, cfg.range_gate_rate_factor
+        return np.array([g0 + k * abs(u) * (t.missed + 1.0) if t.vis > 0 else math.inf
+                         for t, u in zip(self.tracks, pred[:, 5].tolist())], dtype=np.float64)
 
     def _corange_fragments(self, rows: np.ndarray, cols: np.ndarray, cen: np.ndarray
                            ) -> tuple[np.ndarray, np.ndarray, dict[int, int]]:
@@ -716,26 +714,38 @@ class AlphaBetaTracker:
         track got start no track. Returns the kept ``(rows, cols)`` and ``{centroid index: owner id}``
         of the centroids absorbed (the tracks' own centroids excluded)."""
         tol = self.config.corange_fragment_m
-        r = cen[:, 2]
-        seen = np.array([self.tracks[i].seen_frames for i in rows.tolist()], dtype=np.int64)
-        near = np.abs(r[cols][:, None] - r[cols][None, :]) <= tol  # (a, a) assigned vs assigned
-        # the owner of each assigned centroid: the most-seen track among the co-range ones (itself on ties)
-        score = np.where(near, seen[None, :], -1)
-        owner = np.where(score.max(axis=1) > seen, np.argmax(score, axis=1), np.arange(rows.size))
-        keep = owner == np.arange(rows.size)
-        absorbed = {int(cols[a]): self.tracks[int(rows[owner[a]])].track_id for a in np.flatnonzero(~keep).tolist()}
-        rows, cols = rows[keep], cols[keep]
-        free = np.ones(cen.shape[0], dtype=bool)
-        free[cols] = False
-        for j in absorbed:
-            free[j] = False
-        fj = np.flatnonzero(free)
-        if fj.size and cols.size:
-            d = np.abs(r[fj][:, None] - r[cols][None, :])
-            b = np.argmin(d, axis=1)
-            for j, k, ok in zip(fj.tolist(), b.tolist(), (d[np.arange(fj.size), b] <= tol).tolist()):
-                if ok:
-                    absorbed[j] = self.tracks[int(rows[k])].track_id
+        r = cen[:, 2].tolist()
+        rl, cl = rows.tolist(), cols.tolist()
+        rc = [r[c] for c in cl]
+        seen = [self.tracks[i].seen_frames for i in rl]
+        # the owner of each assigned centroid: the most-seen track among the co-range ones (itself on ties); the
+        # first of the largest scores, as np.argmax takes it (score: seen frames when within tol, else -1)
+        owner = []
+        for a, ra in enumerate(rc):
+            best, arg = -2, 0
+            for b, rb in enumerate(rc):
+                sc = seen[b] if abs(ra - rb) <= tol else -1
+                if sc > best:
+                    best, arg = sc, b
+            owner.append(arg if best > seen[a] else a)
+        absorbed = {cl[a]: self.tracks[rl[o]].track_id for a, o in enumerate(owner) if o != a}
+        if absorbed:
+            rl = [i for a, i in enumerate(rl) if owner[a] == a]
+            cl = [c for a, c in enumerate(cl) if owner[a] == a]
+            rows, cols = np.array(rl, dtype=np.intp), np.array(cl, dtype=np.intp)
+            rc = [r[c] for c in cl]
+        taken = set(cl)
+        if cl:
+            for j in range(len(r)):
+                if j in taken or j in absorbed:
+                    continue
+                # the nearest kept centroid in range (np.argmin: the first minimum, or the first NaN)
+                d = [abs(r[j] - x) for x in rc]
+                if any(x != x for x in d):
+                    continue  # NaN: not within tol
+                k = d.index(min(d))
+                if d[k] <= tol:
+                    absorbed[j] = self.tracks[rl[k]].track_id
         return rows, cols, absorbed
 
     def _low_visibility(self, tr: AlphaBetaTrack) -> bool:
@@ -748,8 +758,16 @@ class AlphaBetaTracker:
     def _occluded(self, tr: AlphaBetaTrack, pred: np.ndarray, cen: np.ndarray, cols: np.ndarray) -> bool:
         if self.occlusion_test is None or cols.size == 0 or tr.occluded >= self.config.merge_max_frames:
             return False
-        d = np.linalg.norm(cen[cols] - pred[POS], axis=1)
-        j = int(np.argmin(d))
+        # np.linalg.norm(cen[cols] - pred[POS], axis=1) row by row: sqrt((dx^2 + dy^2) + dz^2), numpy's sum order;
+        # the nearest as np.argmin takes it (the first minimum, or the first NaN)
+        p0, p2, p4 = float(pred[0]), float(pred[2]), float(pred[4])
+        d = []
+        for c in cols.tolist():
+            c0, c1, c2 = cen[c].tolist()
+            dx, dy, dz = c0 - p0, c1 - p2, c2 - p4
+            d.append(math.sqrt((dx * dx + dy * dy) + dz * dz))
+        nan = [k for k, x in enumerate(d) if x != x]
+        j = nan[0] if nan else d.index(min(d))
         return bool(d[j] <= self.config.gate_radius) and bool(self.occlusion_test(tr, int(cols[j])))
 
     def close_all(self) -> tuple[tuple[AlphaBetaTrack, ...], tuple[AlphaBetaTrack, ...]]:

@@ -101,6 +101,7 @@ dropped (``vis / age < th_v``); its id may be reused.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections import deque
@@ -150,6 +151,55 @@ class SurveillanceStep:
 
 def _finite_or_zero(x: float) -> float:
     return x if math.isfinite(x) else 0.0
+
+
+def _median(values) -> float:
+    """``float(np.median(values))`` of a non-empty sequence of integers (point counts) in plain Python, with the
+    same bits: the middle value, or the middle two summed from 0.0 (as numpy's mean does) and halved."""
+    s = sorted(values)
+    m = len(s) // 2
+    if len(s) % 2:
+        return float(s[m])
+    return (0.0 + s[m - 1] + s[m]) / 2
+
+
+def _within(d0: float, d1: float, d2: float, radius: float) -> bool | None:
+    """Is ``float(np.linalg.norm([d0, d1, d2])) <= radius``? Decided in plain Python when the squared norm lies
+    clearly on one side of ``radius**2`` (numpy's dot product may sum it in another order, a few units in the last
+    place apart); None when it is too close to tell (or NaN): then numpy decides."""
+    s = (d0 * d0 + d1 * d1) + d2 * d2
+    r2 = radius * radius
+    if s < r2 * (1.0 - 1e-9):
+        return True
+    if s > r2 * (1.0 + 1e-9):
+        return False
+    return None
+
+
+# TrackState without the frozen dataclass's per-field object.__setattr__ (the same __dict__ as the constructor
+# gives), while its fields are the ones written out here and it has no __post_init__
+_STATE_FIELDS = ("track_id", "x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps", "az_rad", "age_frames",
+                 "hits", "confirmed")
+_STATE_PLAIN = (tuple(f.name for f in dataclasses.fields(TrackState))[:len(_STATE_FIELDS)] == _STATE_FIELDS
+                and not hasattr(TrackState, "__post_init__")
+                and all(f.default is not dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+                        for f in dataclasses.fields(TrackState)[len(_STATE_FIELDS):]))
+_STATE_DEFAULTS = ({f.name: f.default for f in dataclasses.fields(TrackState)[len(_STATE_FIELDS):]}
+                   if _STATE_PLAIN else {})
+
+
+def _published_state(track_id: int, r: float, v: float, age: int, hits: int) -> TrackState:
+    """``TrackState(track_id, 0.0, r, 0.0, v, r, v, nan, age, hits, True)``, the surveillance profile's published
+    track, built without the frozen dataclass's ``__setattr__`` calls (the same object)."""
+    if not _STATE_PLAIN:
+        return TrackState(track_id=track_id, x_m=0.0, y_m=r, vx_mps=0.0, vy_mps=v, range_m=r, radial_speed_mps=v,
+                          az_rad=math.nan, age_frames=age, hits=hits, confirmed=True)
+    out = object.__new__(TrackState)
+    d = {"track_id": track_id, "x_m": 0.0, "y_m": r, "vx_mps": 0.0, "vy_mps": v, "range_m": r, "radial_speed_mps": v,
+         "az_rad": math.nan, "age_frames": age, "hits": hits, "confirmed": True}
+    d.update(_STATE_DEFAULTS)
+    object.__setattr__(out, "__dict__", d)
+    return out
 
 
 class SurveillanceTracker:
@@ -242,17 +292,23 @@ class SurveillanceTracker:
         self._forgotten = []
         sig = self.extractor(points)
         valid = sig.n_points > 0
-        labels = np.flatnonzero(valid)
         pred: dict[int, np.ndarray] = {}
         p = None
         if self.tracker.config.merge_ratio > 0 and self.tracker.tracks:
             p = self.tracker.filter.predict(np.stack([tr.state for tr in self.tracker.tracks]))
             pred = {tr.track_id: p[k] for k, tr in enumerate(self.tracker.tracks)}
-        self._frame_sizes = np.asarray(sig.n_points)[valid]
-        self._frame_lo = np.asarray(sig.range_lo_m)[valid]
-        self._frame_hi = np.asarray(sig.range_hi_m)[valid]
+        if valid.all():  # every cluster has cells (DBSCAN's always): the arrays as they are
+            labels = np.arange(valid.size, dtype=np.intp)
+            self._frame_sizes, self._frame_lo, self._frame_hi = sig.n_points, sig.range_lo_m, sig.range_hi_m
+            centroids = sig.centroid
+        else:
+            labels = np.flatnonzero(valid)
+            self._frame_sizes = np.asarray(sig.n_points)[valid]
+            self._frame_lo = np.asarray(sig.range_lo_m)[valid]
+            self._frame_hi = np.asarray(sig.range_hi_m)[valid]
+            centroids = sig.centroid[valid]
         self._shared: dict[int, list[int]] = {}  # centroid index -> ids of the tracks hidden in it by its span
-        tstep = self.tracker.step(t_ns, sig.centroid[valid], predicted=p)
+        tstep = self.tracker.step(t_ns, centroids, predicted=p)
         out: list[ClassifiedEvent] = []
         alive = {tr.track_id for tr in self.tracker.tracks} - set(tstep.created)
         out.extend(self._end_tracks(tstep.ended, tstep.dropped, alive))
@@ -289,20 +345,24 @@ class SurveillanceTracker:
                 merged.append(tid)
                 continue
             own = [int(lab)] + parts.get(tid, [])
-            lo, hi = float(np.min(sig.range_lo_m[own])), float(np.max(sig.range_hi_m[own]))
-            n_lab = float(np.sum(sig.n_points[own]))
-            if len(own) == 1:
+            if len(own) == 1:  # the numpy reductions below of one value: the value (a sum adds it to 0.0)
+                lo, hi = float(sig.range_lo_m[lab]), float(sig.range_hi_m[lab])
+                n_lab = float(sig.n_points[lab])
                 circ, rcs, r_mean = sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab]
+                cos_sum, sin_sum = 0.0 + float(sig.cos_sum[lab]), 0.0 + float(sig.sin_sum[lab])
             else:  # the union of the track's cluster and its co-range fragments (eqs. 17, 18 on all cells)
-                res = math.hypot(float(np.sum(sig.cos_sum[own])), float(np.sum(sig.sin_sum[own])))
+                lo, hi = float(np.min(sig.range_lo_m[own])), float(np.max(sig.range_hi_m[own]))
+                n_lab = float(np.sum(sig.n_points[own]))
+                cos_sum, sin_sum = float(np.sum(sig.cos_sum[own])), float(np.sum(sig.sin_sum[own]))
+                res = math.hypot(cos_sum, sin_sum)
                 circ = 1.0 - res / n_lab
                 rcs = float(np.sum(sig.rcs[own]))
                 r_mean = float(np.sum(sig.n_points[own] * sig.range_m[own])) / n_lab
             self._acc[tid].add(t_s, circ, rcs, r_mean, hi - lo, sig.doppler_kmh[lab])
             log_ = self._log.get(tid)
             if log_ is not None:
-                log_.add(frame_key, t_s, n_lab, float(np.sum(sig.cos_sum[own])), float(np.sum(sig.sin_sum[own])),
-                         rcs, n_lab * float(r_mean), lo, hi, float(sig.doppler_kmh[lab]))
+                log_.add(frame_key, t_s, n_lab, cos_sum, sin_sum, rcs, n_lab * float(r_mean), lo, hi,
+                         float(sig.doppler_kmh[lab]))
             recorded.append((tid, int(lab)))
             spd = self._speed[tid]
             spd.add(t_s, sig.range_m[lab], sig.doppler_kmh[lab], lo, hi)
@@ -320,7 +380,7 @@ class SurveillanceTracker:
             out.extend(self._close_tracks())
         tracks = tuple(self._track_state(tr, t_s) for tr in self.tracker.confirmed())
         done_ids = {ev.track_id for ev in out}
-        inter = {"centroids": sig.centroid[valid], "cluster_labels": labels, "level": level, "merged_tracks": merged,
+        inter = {"centroids": centroids, "cluster_labels": labels, "level": level, "merged_tracks": merged,
                  "ended_without_event": [i for i in self._forgotten if i not in done_ids]}
         return SurveillanceStep(tracks, tuple(out), seg, sig, tstep, inter)
 
@@ -640,8 +700,8 @@ class SurveillanceTracker:
         hist = self._size.get(track_id)
         if not others or not hist:
             return False
-        own = float(np.median(hist))
-        return any(float(np.median(self._size[o])) >= 0.4 * own for o in others if self._size.get(o))
+        own = _median(hist)
+        return any(_median(self._size[o]) >= 0.4 * own for o in others if self._size.get(o))
 
     def _hidden_in(self, tr: AlphaBetaTrack, j: int) -> bool:
         """Occlusion test of the alpha-beta tracker: is cluster ``j`` (an assigned one) large enough,
@@ -658,17 +718,22 @@ class SurveillanceTracker:
         # that cluster, lived (and was published) through the whole passage beside the real track
         if not hist or len(hist) < self.tracker.config.merge_history_frames:
             return False
-        return float(self._frame_sizes[j]) > self.tracker.config.merge_ratio * float(np.median(hist))
+        return float(self._frame_sizes[j]) > self.tracker.config.merge_ratio * _median(hist)
 
     def _other_track_near(self, track_id: int, centroid: np.ndarray, pred: dict[int, np.ndarray]) -> bool:
         """Is another track (with at least ``merge_other_min_frames`` own clusters) predicted within
         ``gate_radius`` of this centroid (on the cylinder)?"""
         gate = self.tracker.config.gate_radius
         need = self.tracker.config.merge_other_min_frames
-        return any(
-            float(np.linalg.norm(p[[0, 2, 4]] - centroid)) <= gate for tid, p in pred.items()
-            if tid != track_id and (need <= 0 or len(self._size.get(tid, ())) >= need)
-        )
+        c0, c1, c2 = centroid.tolist()
+        for tid, p in pred.items():
+            if tid != track_id and (need <= 0 or len(self._size.get(tid, ())) >= need):
+                near = _within(float(p[0]) - c0, float(p[2]) - c1, float(p[4]) - c2, gate)
+                if near is None:
+                    near = float(np.linalg.norm(p[[0, 2, 4]] - centroid)) <= gate
+                if near:
+                    return True
+        return False
 
     def _any_track_near(self, track_id: int, centroid: np.ndarray, pred: dict[int, np.ndarray], lo_m: float,
                         hi_m: float) -> bool:
@@ -679,10 +744,17 @@ class SurveillanceTracker:
         if cfg.merge_other_required == "young":
             return True
         m = cfg.shared_span_m
-        return any(
-            float(np.linalg.norm(p[[0, 2, 4]] - centroid)) <= cfg.gate_radius or lo_m - m <= float(p[4]) <= hi_m + m
-            for tid, p in pred.items() if tid != track_id
-        )
+        c0, c1, c2 = centroid.tolist()
+        lo, hi = float(lo_m) - m, float(hi_m) + m
+        for tid, p in pred.items():
+            if tid == track_id:
+                continue
+            near = _within(float(p[0]) - c0, float(p[2]) - c1, float(p[4]) - c2, cfg.gate_radius)
+            if near is None:
+                near = float(np.linalg.norm(p[[0, 2, 4]] - centroid)) <= cfg.gate_radius
+            if near or lo <= float(p[4]) <= hi:
+                return True
+        return False
 
     def _is_merged(self, track_id: int, n_points: int, other_near: bool = True,
                    any_near: Callable[[], bool] = lambda: True) -> bool:
@@ -706,7 +778,7 @@ class SurveillanceTracker:
             # against the median *and* the last own cluster: a merge is a sudden jump, while a long
             # vehicle coming closer grows a few tens of percent a frame (221 -> 1530 -> 1941 -> 3052
             # points) and was held for merge_max_frames, losing its closest, most telling frames
-            if n_points > cfg.merge_ratio * max(float(np.median(hist)), float(hist[-1])):
+            if n_points > cfg.merge_ratio * max(_median(hist), float(hist[-1])):
                 self._merged_run[track_id] += 1
                 self.merged_frames += 1
                 return True
@@ -787,16 +859,4 @@ class SurveillanceTracker:
                               if spd is not None else (np.zeros(0), math.nan, False))
             if not (certain and hv.size and math.isfinite(v_kmh) and abs(hv[-1] - v_kmh) <= self.cylinder.vmax_kmh):
                 v = math.nan
-        return TrackState(
-            track_id=tr.track_id,
-            x_m=0.0,
-            y_m=r,
-            vx_mps=0.0,
-            vy_mps=v,
-            range_m=r,
-            radial_speed_mps=v,
-            az_rad=math.nan,
-            age_frames=tr.age,
-            hits=tr.seen_frames,
-            confirmed=True,
-        )
+        return _published_state(tr.track_id, r, v, tr.age, tr.seen_frames)
