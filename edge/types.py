@@ -7,6 +7,7 @@ otherwise. A missed detection is an empty :class:`Detections`, never ``None``.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -119,6 +120,30 @@ class LaneStats:
     gap_s: float
     class_counts: dict[str, int] = field(default_factory=dict)
     mean_length_m: float = float("nan")
+
+
+TRACK_STATE_FIELDS = ("track_id", "x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps", "az_rad",
+                      "age_frames", "hits", "confirmed", "lane", "cls", "class_probability", "rcs_dbsm", "length_m",
+                      "x_sd_m", "y_sd_m", "vx_sd_mps", "vy_sd_mps", "existence_probability")
+# the fast constructors (track_state, PdafTracker.published) know TrackState's fields; if they change (or it gains a
+# __post_init__ or a factory default), the plain constructor is used
+TRACK_STATE_PLAIN = (tuple(f.name for f in dataclasses.fields(TrackState)) == TRACK_STATE_FIELDS
+                     and not hasattr(TrackState, "__post_init__")
+                     and all(f.default is None for f in dataclasses.fields(TrackState)[11:]))
+
+
+def track_state(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m) -> TrackState:
+    """``TrackState(tid, x, ..., conf, length_m=length_m)`` without the frozen dataclass's per-field
+    ``object.__setattr__``; the same ``__dict__``."""
+    if not TRACK_STATE_PLAIN:
+        return TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=length_m)
+    out = object.__new__(TrackState)
+    object.__setattr__(out, "__dict__", {
+        "track_id": tid, "x_m": x, "y_m": y, "vx_mps": vx, "vy_mps": vy, "range_m": r, "radial_speed_mps": v,
+        "az_rad": a, "age_frames": age, "hits": hits, "confirmed": conf, "lane": None, "cls": None,
+        "class_probability": None, "rcs_dbsm": None, "length_m": length_m, "x_sd_m": None, "y_sd_m": None,
+        "vx_sd_mps": None, "vy_sd_mps": None, "existence_probability": None})
+    return out
 
 
 @dataclass(frozen=True)

@@ -101,7 +101,6 @@ dropped (``vis / age < th_v``); its id may be reused.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from collections import deque
@@ -126,7 +125,7 @@ from edge.classify.knn import KnnConfig, WeightedKNN
 from edge.classify.reference import load_reference_set
 from edge.track.alphabeta import AlphaBetaConfig, AlphaBetaTrack, AlphaBetaTracker, TrackerStep
 from edge.track.events import EventConfig, EventSegmenter, SegmentStep
-from edge.types import ClassifiedEvent, FrontendInfo, TrackState
+from edge.types import ClassifiedEvent, FrontendInfo, TrackState, track_state
 from hal.waveform import characteristics
 
 log = logging.getLogger(__name__)
@@ -174,32 +173,6 @@ def _within(d0: float, d1: float, d2: float, radius: float) -> bool | None:
     if s > r2 * (1.0 + 1e-9):
         return False
     return None
-
-
-# TrackState without the frozen dataclass's per-field object.__setattr__ (the same __dict__ as the constructor
-# gives), while its fields are the ones written out here and it has no __post_init__
-_STATE_FIELDS = ("track_id", "x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps", "az_rad", "age_frames",
-                 "hits", "confirmed")
-_STATE_PLAIN = (tuple(f.name for f in dataclasses.fields(TrackState))[:len(_STATE_FIELDS)] == _STATE_FIELDS
-                and not hasattr(TrackState, "__post_init__")
-                and all(f.default is not dataclasses.MISSING and f.default_factory is dataclasses.MISSING
-                        for f in dataclasses.fields(TrackState)[len(_STATE_FIELDS):]))
-_STATE_DEFAULTS = ({f.name: f.default for f in dataclasses.fields(TrackState)[len(_STATE_FIELDS):]}
-                   if _STATE_PLAIN else {})
-
-
-def _published_state(track_id: int, r: float, v: float, age: int, hits: int) -> TrackState:
-    """``TrackState(track_id, 0.0, r, 0.0, v, r, v, nan, age, hits, True)``, the surveillance profile's published
-    track, built without the frozen dataclass's ``__setattr__`` calls (the same object)."""
-    if not _STATE_PLAIN:
-        return TrackState(track_id=track_id, x_m=0.0, y_m=r, vx_mps=0.0, vy_mps=v, range_m=r, radial_speed_mps=v,
-                          az_rad=math.nan, age_frames=age, hits=hits, confirmed=True)
-    out = object.__new__(TrackState)
-    d = {"track_id": track_id, "x_m": 0.0, "y_m": r, "vx_mps": 0.0, "vy_mps": v, "range_m": r, "radial_speed_mps": v,
-         "az_rad": math.nan, "age_frames": age, "hits": hits, "confirmed": True}
-    d.update(_STATE_DEFAULTS)
-    object.__setattr__(out, "__dict__", d)
-    return out
 
 
 class SurveillanceTracker:
@@ -859,4 +832,4 @@ class SurveillanceTracker:
                               if spd is not None else (np.zeros(0), math.nan, False))
             if not (certain and hv.size and math.isfinite(v_kmh) and abs(hv[-1] - v_kmh) <= self.cylinder.vmax_kmh):
                 v = math.nan
-        return _published_state(tr.track_id, r, v, tr.age, tr.seen_frames)
+        return track_state(tr.track_id, 0.0, r, 0.0, v, r, v, math.nan, tr.age, tr.seen_frames, True, None)

@@ -19,7 +19,6 @@ detection on the hot path. Published tracks carry a recycled ``track_id`` in ``1
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 
 import numpy as np
@@ -33,6 +32,7 @@ from edge.track.roles.initiate import SeedInitiator
 from edge.track.roles.measure import MeasurementModel, extent_cov, heading
 from edge.track.roles.predict import CvPredictor, ImmPredictor
 from edge.track.table import IdPool, Measurements, TrackTable
+from edge.types import TRACK_STATE_PLAIN as _TRACK_STATE_PLAIN
 from edge.types import Detections, TrackState
 
 log = logging.getLogger(__name__)
@@ -224,27 +224,5 @@ class PdafTracker(native.KernelUser):
         return zip(*sd.T.tolist(), p_exist.tolist())
 
 
-_TRACK_STATE_FIELDS = ("track_id", "x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps", "az_rad",
-                       "age_frames", "hits", "confirmed", "lane", "cls", "class_probability", "rcs_dbsm", "length_m",
-                       "x_sd_m", "y_sd_m", "vx_sd_mps", "vy_sd_mps", "existence_probability")
-# the fast path of PdafTracker.published knows TrackState's fields; if they change (or it gains a __post_init__
-# or a factory default), the plain constructor is used
-_TRACK_STATE_PLAIN = (tuple(f.name for f in dataclasses.fields(TrackState)) == _TRACK_STATE_FIELDS
-                      and not hasattr(TrackState, "__post_init__")
-                      and all(f.default is None for f in dataclasses.fields(TrackState)[11:]))
 _new_object = object.__new__
 _set_dict = object.__setattr__
-
-
-def _track_state(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m) -> TrackState:
-    """``TrackState(tid, x, ..., conf, length_m=length_m)`` without the frozen dataclass's per-field
-    ``object.__setattr__``; the same ``__dict__`` (PdafTracker.published builds it inline)."""
-    if not _TRACK_STATE_PLAIN:
-        return TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=length_m)
-    out = _new_object(TrackState)
-    _set_dict(out, "__dict__", {
-        "track_id": tid, "x_m": x, "y_m": y, "vx_mps": vx, "vy_mps": vy, "range_m": r, "radial_speed_mps": v,
-        "az_rad": a, "age_frames": age, "hits": hits, "confirmed": conf, "lane": None, "cls": None,
-        "class_probability": None, "rcs_dbsm": None, "length_m": length_m, "x_sd_m": None, "y_sd_m": None,
-        "vx_sd_mps": None, "vy_sd_mps": None, "existence_probability": None})
-    return out

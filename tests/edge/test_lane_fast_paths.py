@@ -373,9 +373,9 @@ def test_cell_split_equals_the_plain_implementation():
 
 
 def test_published_track_states_equal_the_dataclass_constructor():
-    from edge.track.tracker import _track_state
     from edge.traffic.monitor import _with
     from edge.types import TrackState
+    from edge.types import track_state as _track_state
 
     for ln in (None, 4.5):
         fast = _track_state(7, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 0.1, 3, 2, True, ln)

@@ -108,11 +108,10 @@ def test_within_decides_as_numpys_norm_or_defers(seed, radius):
 
 
 def test_published_state_is_the_constructors():
-    from edge.track.surveillance import _published_state
-    from edge.types import TrackState
+    from edge.types import TrackState, track_state
 
     for r, v in ((3.5, -1.25), (0.0, math.nan)):
-        fast = _published_state(7, r, v, 12, 9)
+        fast = track_state(7, 0.0, r, 0.0, v, r, v, math.nan, 12, 9, True, None)  # as the surveillance tracker
         plain = TrackState(track_id=7, x_m=0.0, y_m=r, vx_mps=0.0, vy_mps=v, range_m=r, radial_speed_mps=v,
                            az_rad=math.nan, age_frames=12, hits=9, confirmed=True)
         assert list(vars(fast).items()).__repr__() == list(vars(plain).items()).__repr__()
