@@ -155,9 +155,8 @@ class FeatureConfig:
     rcs_calibration_db: float = field(
         default=DATASHEET_C_DB,
         metadata={"unit": "dB", "doc": "the board's RCS calibration constant C (edge.classify.calibration: a 1 m^2 "
-                  "target on boresight at 1 m reads 10^(C/20) counts); eq. 17 is referred to the board the reference "
-                  "set was built on by 10^((C_datasheet - C) / 10), so a board C dB off reads the reference's RCS; "
-                  "default the datasheet value, `radar-edge calibrate --rcs` measures it",
+                                       "target on boresight at 1 m reads 10^(C/20) counts); eq. 17 is referred to "
+                                       "the reference set's board by 10^((C_datasheet - C) / 10)",
                   "min": 0.0, "max": 200.0},
     )
     rcs_calibration_sd_db: float = field(
@@ -178,47 +177,28 @@ class FeatureConfig:
     )
     speed_feature: str = field(
         default="doppler",
-        metadata={"doc": "E(|v_r|) of eq. 19 from: range_rate = the displacement of the centroid's range between "
-                  "frames (the paper), doppler = each frame's wrapped Doppler of the cluster unaliased with the "
-                  "range rate (RadialSpeedEstimator; beyond the paper: the range displacement of a slow target is "
-                  "mostly centroid jitter)", "choices": ("range_rate", "doppler")},
+        metadata={"doc": "E(|v_r|) of eq. 19 from: range_rate = the centroid's range displacement between frames "
+                         "(paper), doppler = each frame's wrapped Doppler unaliased with the range rate (beyond the "
+                         "paper)", "choices": ("range_rate", "doppler")},
     )
     event_speed: str = field(
         default="trimmed_mean",
-        metadata={"doc": "mean radial speed published with a track's event: median of its per-frame unaliased "
-                  "speeds, or trimmed_mean (default: their mean within v_max of the median; the median leans "
-                  "towards the far frames of a target whose radial speed grows with range: Tavanti tests dev seeds "
-                  "11/12/13/101/102, error of the Test 3 motorcycle +0.64..+0.99 km/h with the median, "
-                  "+0.40..+0.77 trimmed; the Test 1 car +0.40..+0.56 against -0.17..+0.18; multi-random "
-                  "101-103 mean absolute error 1.55 -> 1.52 km/h)",
+        metadata={"doc": "mean radial speed published with an event: median of the per-frame unaliased speeds, or "
+                         "trimmed_mean (default: their mean within v_max of the median)",
                   "choices": ("median", "trimmed_mean")},
     )
     event_speed_leading_edge_m: float = field(
         default=0.0,
-        metadata={"unit": "m", "doc": "beyond the paper: for a track whose clusters' median range extent (extent_level_db) "
-                  "is at least this, the event speed's per-frame Doppler is unaliased with the range rate of the body's "
-                  "leading edge (the far edge of a receding target, the near edge of an approaching one) instead of the "
-                  "centroid's: a truck leaving past the radar shows more of its side behind its front every frame, its "
-                  "centroid range rate was 8-10 km/h slow and every frame took the wrong alias (-9..-10 km/h errors). "
-                  "Dev seeds (single-random 20 events 11/12/13/101, multi-random 20 events 101/102, Tavanti tests "
-                  "11-13/101-112): trucks off by more than 8 km/h 4 -> 2 of 20 (single) and 4 -> 3 of 7 (multi), cars "
-                  "5 -> 4 of 26 (multi); motorcycles and the Tavanti targets unchanged (their extents are shorter); "
-                  "0 = the centroid always (default: on multi-random 40 events dev seeds 103/104 it made more gross "
-                  "errors than it fixed, off by more than 8 km/h 15 -> 19 and 9 -> 9 targets, mean absolute error "
-                  "2.18 -> 2.59 and 1.88 -> 1.97 km/h: in multi-target scenes a car's cluster extent often holds "
-                  "another target's cells, and its edge's rate picked a wrong alias)", "min": 0.0, "max": 30.0},
+        metadata={"unit": "m", "doc": "beyond the paper: for a track whose clusters' median range extent is at least"
+                                      " this, each frame's alias comes from the range rate of the body's leading "
+                                      "edge instead of the centroid's; 0 = the centroid always (default)", "min": 0.0, "max": 30.0},
     )
     event_speed_cap_range_m: float = field(
         default=10.0,
-        metadata={"unit": "m", "doc": "beyond the paper: a vehicle moving straight never shows a radial speed above its "
-                  "speed, which its frames at this range or farther show (aspect within ~15 deg); a frame of the event "
-                  "speed whose |speed| exceeds the largest |speed| of those far frames by more than "
-                  "event_speed_cap_margin_kmh took a wrong alias (beside the radar, before the target enters the main "
-                  "beam, the radial speed changes by more than v_max within the reference rate's frames) and is left "
-                  "out; only for targets whose far frames reach event_speed_cap_min_kmh. Dev seeds, share of targets "
-                  "within +-1 km/h: Tavanti Test 3 motorcycle 11/15 -> 14/15 (bias +0.64 -> +0.23 km/h), Test 1 car and "
-                  "Test 2 truck unchanged (15/15, 12/12); single-random motorcycles 17/20 -> 19/20, cars 15/20 "
-                  "(same); multi-random motorcycles 27/32 -> 28/32, cars 15/26 -> 16/26; 0 = off",
+        metadata={"unit": "m", "doc": "beyond the paper: frames whose |speed| exceeds the largest |speed| of the "
+                                      "frames at this range or farther by more than event_speed_cap_margin_kmh took "
+                                      "a wrong alias and are left out (targets reaching event_speed_cap_min_kmh); 0 "
+                                      "= off",
                   "min": 0.0, "max": 30.0},
     )
     event_speed_cap_margin_kmh: float = field(
@@ -232,40 +212,35 @@ class FeatureConfig:
     )
     event_speed_alias: str = field(
         default="frame",
-        metadata={"doc": "beyond the paper: how the event speed's Doppler alias is chosen: history = one alias for the "
-                  "track's whole life, each frame's Doppler against the middle-half range rate of all its frames (and "
-                  "of the leading edge of a long body, event_speed_alias_edge_m; RadialSpeedEstimator.history_alias), frame = each "
-                  "frame's alias from the middle-half range rate (event_speed_leading_edge_m; the default: history "
-                  "did not measure better on the surveillance holdout, docs/decisions/0004)",
+        metadata={"doc": "beyond the paper: how the event speed's alias is chosen: history = one alias against the "
+                         "range rate of all the track's frames (RadialSpeedEstimator.history_alias), frame (default)"
+                         " = each frame's from the middle-half range rate",
                   "choices": ("history", "frame")},
     )
     event_speed_alias_edge_m: float = field(
         default=3.0,
-        metadata={"unit": "m", "doc": "history alias: a track whose clusters' median range extent is at least this has "
-                  "its range rate from its leading edge too (the faster of the two is taken: a long body's centroid "
-                  "lags its front while it enters or leaves the 24 m view); 0 = the centroid only",
+        metadata={"unit": "m", "doc": "history alias: a track whose clusters' median range extent is at least this "
+                                      "also takes the range rate of its leading edge, and the faster of the two; 0 ="
+                                      " the centroid only",
                   "min": 0.0, "max": 30.0},
     )
     event_speed_alias_edge_clip_m: float = field(
         default=3.0,
         metadata={"unit": "m", "doc": "history alias: a receding body's far edge within this of the board's largest "
-                  "range (24 m on the Distance2Go: the beat frequency leaves the sampled band) is cut off and left out "
-                  "of the leading edge's range rate. Dev single-random seeds 1-3 (18 vehicles, histories of the "
-                  "runs): off by an alias step 2 -> 1, mean |speed error| 1.97 -> 1.72 km/h; multi-random seeds 1-3 "
-                  "unchanged (5 of 24)", "min": 0.0, "max": 30.0},
+                                      "range (where the beat leaves the sampled band) is left out of the leading "
+                                      "edge's range rate", "min": 0.0, "max": 30.0},
     )
     event_speed_alias_margin_kmh: float = field(
         default=3.2,
-        metadata={"unit": "km/h", "doc": "history alias: the alias is certain when the trimmed mean of the unaliased speeds "
-                  "lies within this of the range rate (v_max = 5.35 km/h on the Distance2Go would be a coin toss) and the track has "
-                  "three frames; otherwise the event's speed_uncertain is set", "min": 0.0, "max": 100.0},
+        metadata={"unit": "km/h", "doc": "history alias: the alias is certain when the trimmed mean of the unaliased"
+                                         " speeds lies within this of the range rate and the track has three frames;"
+                                         " otherwise the event's speed_uncertain is set", "min": 0.0, "max": 100.0},
     )
     extent_percentile: float = field(
         default=90.0,
-        metadata={"unit": "%", "doc": "beyond the paper: the track's range_extent_m feature is this percentile of "
-                  "its per-frame extents (a long body shows its full length along the line of sight only in some "
-                  "frames; a high percentile, not the maximum, so a frame or two merged with another target do "
-                  "not count)", "min": 0.0, "max": 100.0},
+        metadata={"unit": "%", "doc": "beyond the paper: the range_extent_m feature is this percentile of the "
+                                      "track's per-frame range extents (a long body shows its full length only in "
+                                      "some frames)", "min": 0.0, "max": 100.0},
     )
 
 

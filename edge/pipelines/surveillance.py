@@ -76,10 +76,9 @@ class SurveillanceConfig:
     )
     sidelobe_guard_db: float = field(
         default=0.0,
-        metadata={"unit": "dB", "doc": "beyond the paper: a cell is a point only if it is at most this far below the "
-                  "strongest cell of its range row and of its Doppler column (removes the sidelobes of strong "
-                  "echoes, which otherwise join nearby targets into one cluster: edge.dsp.range_doppler."
-                  "detection_mask); 0 = off (paper)", "min": 0.0, "max": 120.0},
+        metadata={"unit": "dB", "doc": "beyond the paper: a cell is a point only if it is at most this far below the"
+                                       " strongest cell of its range row and of its Doppler column (drops strong "
+                                       "echoes' sidelobes, edge.dsp.range_doppler.detection_mask); 0 = off (paper)", "min": 0.0, "max": 120.0},
     )
     eps: float = field(
         default=1.9,
@@ -87,20 +86,13 @@ class SurveillanceConfig:
                   "DESIGN §5); Table III", "min": 0.01, "max": 100.0},
     )
     min_points: int = field(
-        default=80, metadata={"doc": "DBSCAN M: points within eps (itself included) that make a core point (nearer "
-                              "than far_range_m); Table III "
-                              "(40 detects more far walkers: multi-random dev seeds 101-104 0.853/0.866/0.848/0.808 "
-                              "against 0.802/0.858/0.840/0.808, 60 gives 0.793/0.858/0.840/0.817, but 40 split more "
-                              "Tavanti-test targets into two tracks on dev seeds: 26 against 28 of 35 fully right)",
+        default=80, metadata={"doc": "DBSCAN M: points within eps (itself included) that make a core point, nearer "
+                                     "than far_range_m; Table III",
                               "min": 1, "max": 100000}
     )
     min_points_far: int = field(
-        default=40, metadata={"doc": "beyond the paper: DBSCAN M for points at far_range_m and beyond (a weak far "
-                              "pedestrian covers fewer cells above th_RD than M = 80: its echo falls as r^-2, its "
-                              "Doppler spread does not); = min_points restores the paper. Multi-random 40 events dev "
-                              "seeds 101/102/103: 0.862/0.866/0.864 against 0.810/0.858/0.840 with M = 80 everywhere "
-                              "(missed targets 10/10/9 against 15/12/12; 30 from 12 m: 0.862/0.866/0.848), Tavanti "
-                              "tests unchanged; M = 40 everywhere split more targets near the radar",
+        default=40, metadata={"doc": "beyond the paper: DBSCAN M at far_range_m and beyond, where a weak walker's "
+                                     "echo (falling as r^-2) covers fewer cells above th_RD; = min_points: the paper",
                               "min": 1, "max": 100000}
     )
     far_range_m: float = field(

@@ -95,17 +95,14 @@ class AlphaBetaConfig:
     )
     gate_reference: str = field(
         default="prediction",
-        metadata={"doc": "what R_gate is measured from: the centroid last assigned to the track (paper, "
-                  "step 5) or the predicted position (default: a 35 km/h car moves 2 m per frame, so a gate around "
-                  "its last centroid admits a pedestrian it passes as readily as its own next centroid)",
+        metadata={"doc": "what R_gate is measured from: the centroid last assigned to the track (paper, step 5) or "
+                         "the predicted position (default: a fast car moves metres per frame)",
                   "choices": ("last_measurement", "prediction")},
     )
     init_velocity: str = field(
         default="two_point",
-        metadata={"doc": "rates of a new track: zero (paper, step 8) or two_point (set from the first two "
-                  "centroids on the first association, removing the alpha-beta start-up lag; default: with "
-                  "zero rates and beta = 0.02 a fast vehicle's prediction lags by metres for its whole passage, "
-                  "and crossing targets swap tracks)",
+        metadata={"doc": "rates of a new track: zero (paper, step 8) or two_point (default: from the first two "
+                         "centroids on the first association, no alpha-beta start-up lag)",
                   "choices": ("zero", "two_point")},
     )
     max_missed_frames: int = field(
@@ -120,10 +117,9 @@ class AlphaBetaConfig:
     )
     visibility_count: str = field(
         default="with_creation",
-        metadata={"doc": "what vis / age counts for th_v: paper = frames after creation (vis, age; a new track "
-                  "that misses the frame after its creation has vis / age = 0 and is deleted at once), "
-                  "with_creation (default) = the creation frame counted in both ((vis + 1) / (age + 1); a target "
-                  "detected in one frame of four, a pedestrian at 20 m, can still be tracked)",
+        metadata={"doc": "what vis / age counts for th_v: paper = frames after creation; with_creation (default) = "
+                         "the creation frame counted in both, (vis + 1) / (age + 1), so a track that misses its "
+                         "second frame survives",
                   "choices": ("paper", "with_creation")},
     )
     min_seen_frames: int = field(
@@ -138,18 +134,16 @@ class AlphaBetaConfig:
     )
     doppler_range_rate_frames: int = field(
         default=4,
-        metadata={"unit": "frames", "doc": "beyond the paper: once a track has clusters in this many frames, its range "
-                  "rate is replaced after every update by its unaliased radial speed (wrapped Doppler with the alias "
-                  "picked by the least-squares range rate of the last frames; set by the surveillance tracker), so the "
-                  "range prediction of fast targets is not left to beta = 0.02; 0 = the paper's alpha-beta rate",
+        metadata={"unit": "frames", "doc": "beyond the paper: once a track has clusters in this many frames, its "
+                                           "range rate is its unaliased radial speed after every update (set by the "
+                                           "surveillance tracker); 0 = the paper's alpha-beta rate",
                   "min": 0, "max": 1000},
     )
     merge_ratio: float = field(
         default=6.0,
-        metadata={"doc": "beyond the paper: a track's cluster with more than merge_ratio times the median point count "
-                  "of its last merge_history_frames clusters is taken as merged with another target (a car passing a "
-                  "pedestrian): the track counts the frame as seen but keeps its predicted state, and the frame "
-                  "adds nothing to its features and radial speed (set by the surveillance tracker); 0 = off (paper)",
+        metadata={"doc": "beyond the paper: a cluster with more than this times the median point count of the "
+                         "track's last merge_history_frames clusters is merged with another target: the track keeps "
+                         "its prediction and the frame adds no features; 0 = off (paper)",
                   "min": 0.0, "max": 1000.0},
     )
     merge_history_frames: int = field(
@@ -159,32 +153,22 @@ class AlphaBetaConfig:
     )
     merge_other_min_frames: int = field(
         default=5,
-        metadata={"unit": "frames", "doc": "beyond the paper: a young track's enlarged cluster counts as merged only "
-                  "when another track with at least this many own (not merged) clusters (at most "
-                  "merge_history_frames, the sizes kept) is predicted within gate_radius: two young tracks near "
-                  "each other are mostly fragments of one long vehicle entering the beam, and holding one of them "
-                  "on its prediction starved it of the frames that show the vehicle's length (a truck read as a "
-                  "car); 0 = any other track. 5 vs 0: single-random dev seeds 11/12 1.00/0.95 vs 0.99/0.95, "
-                  "multi-random 101/102/103 0.741/0.819/0.768 vs 0.741/0.811/0.768", "min": 0, "max": 1000},
+        metadata={"unit": "frames", "doc": "beyond the paper: a young track's enlarged cluster counts as merged only"
+                                           " when another track with at least this many own clusters is predicted "
+                                           "within gate_radius (else both are fragments of one vehicle); 0 = any "
+                                           "other track", "min": 0, "max": 1000},
     )
     shared_span_m: float = field(
         default=0.5,
-        metadata={"unit": "m", "doc": "beyond the paper: a track (with merge_history_frames own clusters) left without "
-                  "a centroid whose predicted range lies within this of the range span (extent_level_db) of the "
-                  "cluster another track took is hidden in it (two walkers crossing make one cluster for seconds, "
-                  "its centroid between them): it coasts without counting misses, and the other track keeps its "
-                  "prediction too (as merged) when the hidden one is at least 0.4 of its size (a car passing a walker keeps its own updates), so neither "
-                  "is dragged onto the other's path (at most merge_max_frames frames); 0 = off (only the "
-                  "merge_ratio size test)", "min": 0.0, "max": 10.0},
+        metadata={"unit": "m", "doc": "beyond the paper: a track left without a centroid whose prediction lies "
+                                      "within this of the range span of another track's cluster is hidden in it and "
+                                      "coasts without misses, for at most merge_max_frames; 0 = off", "min": 0.0, "max": 10.0},
     )
     merge_other_required: str = field(
         default="always",
-        metadata={"doc": "beyond the paper: which tracks need another target's track near the enlarged cluster "
-                  "(predicted within gate_radius of its centroid or inside its range span) for the merge_ratio test: "
-                  "young = only tracks with fewer than merge_history_frames sizes (an established track's cluster "
-                  "growing six-fold is always a merge), always (default) = every track: a car approaching from 20 m "
-                  "grows from ~200 to ~1200 points in one frame on its own, and held on its prediction for "
-                  "merge_max_frames it ran away and its event was lost",
+        metadata={"doc": "beyond the paper: which tracks need another track near an enlarged cluster for the "
+                         "merge_ratio test: young = tracks with fewer than merge_history_frames sizes, always "
+                         "(default) = every track",
                   "choices": ("young", "always")},
     )
     merge_max_frames: int = field(
@@ -194,14 +178,10 @@ class AlphaBetaConfig:
     )
     fragment_gap_m: float = field(
         default=0.0,
-        metadata={"unit": "m", "doc": "beyond the paper: two tracks whose clusters of a frame come within this range "
-                  "gap of each other are linked in that frame (set by the surveillance tracker); a track that ends "
-                  "linked in at least fragment_link_fraction of its frames to a track still alive is a fragment of "
-                  "that target (a truck's body splits into several clusters as it passes beside the radar): its "
-                  "cells join that track's signatures frame by frame instead of being classified on their own; "
-                  "0 = off (paper, default); 2 m (about two range cells of the Kaiser-windowed map) gave +0.013 "
-                  "single-target accuracy on dev seeds but -0.02 on fresh ones, and -0.03 on multi-target events, "
-                  "where a young track of another target (no speed yet) was sometimes absorbed", "min": 0.0, "max": 30.0},
+        metadata={"unit": "m", "doc": "beyond the paper: a track that ends with its clusters within this range gap "
+                                      "of a living track's in at least fragment_link_fraction of its frames is a "
+                                      "fragment of that target: its cells join that track's signatures; 0 = off "
+                                      "(paper, default)", "min": 0.0, "max": 30.0},
     )
     fragment_link_fraction: float = field(
         default=0.5,
@@ -210,20 +190,16 @@ class AlphaBetaConfig:
     )
     fragment_speed_kmh: float = field(
         default=10.0,
-        metadata={"unit": "km/h", "doc": "two tracks are linked (fragment_gap_m) only while their current unaliased "
-                  "radial speeds differ by at most this (a fragment moves with its vehicle; a car passing a "
-                  "pedestrian does not); a track with clusters in fewer than doppler_range_rate_frames frames (at least 2) "
-                  "has no reliable speed yet and passes (a fragment's centroid hardly moves while more of the "
-                  "vehicle comes into view)",
+        metadata={"unit": "km/h", "doc": "two tracks are linked (fragment_gap_m) only while their unaliased radial "
+                                         "speeds differ by at most this; a track with clusters in fewer than "
+                                         "doppler_range_rate_frames frames has no speed yet and passes",
                   "min": 0.0, "max": 1000.0},
     )
     range_gate_m: float = field(
         default=2.5,
-        metadata={"unit": "m", "doc": "beyond the paper: besides R_gate, a track with a range rate (seen after its "
-                  "creation frame) takes only centroids whose range is within range_gate_m + "
-                  "range_gate_rate_factor * |u_r| * (missed + 1) of its predicted range (u_r in m per frame): "
-                  "R_gate = 6 (m | km/h) lets a pedestrian's coasting track (0.3 m per frame) jump 5 m to "
-                  "another walker; 0 = off (paper)", "min": 0.0, "max": 100.0},
+        metadata={"unit": "m", "doc": "beyond the paper: besides R_gate, a track with a range rate takes only "
+                                      "centroids within range_gate_m + range_gate_rate_factor * |u_r| * (missed + 1)"
+                                      " of its predicted range (u_r in m per frame); 0 = off (paper)", "min": 0.0, "max": 100.0},
     )
     range_gate_rate_factor: float = field(
         default=3.0,
@@ -232,25 +208,17 @@ class AlphaBetaConfig:
     )
     corange_fragment_m: float = field(
         default=0.5,
-        metadata={"unit": "m", "doc": "beyond the paper: a cluster left without a track whose centroid range is within "
-                  "this of the cluster assigned to a track that existed before this frame starts no track: it is "
-                  "that target's own cells split off along Doppler (a pedestrian's swinging legs at twice the "
-                  "torso's speed wrap around the +-5.4 km/h interval and DBSCAN cuts them off at the same range), "
-                  "and its cells join the track's signature of the frame (the union the reference set's "
-                  "thresholded signatures see); the Distance2Go measures no angle, so two targets this close in "
-                  "range are not told apart anyway; 0 = off (paper: every unassigned cluster starts a track)",
+        metadata={"unit": "m", "doc": "beyond the paper: an unassigned cluster within this range of a cluster "
+                                      "assigned to an older track starts no track; its cells join that track's "
+                                      "signature (a walker's legs wrapped around the Doppler axis); 0 = off (paper)",
                   "min": 0.0, "max": 10.0},
     )
     continuation_speed_kmh: float = field(
         default=6.0,
-        metadata={"unit": "km/h", "doc": "beyond the paper: a track that ends (N_u misses) is the same target as a "
-                  "track started after its last cluster and still alive when the gap between them is walked in its "
-                  "direction at its mean radial speed or its range rate within this (or within half that speed): "
-                  "the ended track's frames "
-                  "join the new one's (one target, one event) instead of being classified on their own. A target "
-                  "lost for a few frames (merged with another one's cluster, or ahead of its lagging prediction "
-                  "while it accelerates past the radar) otherwise ends and restarts as a second track; 0 = off "
-                  "(paper)", "min": 0.0, "max": 1000.0},
+        metadata={"unit": "km/h", "doc": "beyond the paper: a track that ends is the same target as a living track "
+                                         "started after its last cluster when the gap between them is walked at its "
+                                         "radial speed within this (or half that speed): its frames join the new "
+                                         "track; 0 = off (paper)", "min": 0.0, "max": 1000.0},
     )
     continuation_min_range_m: float = field(
         default=3.0,
@@ -259,14 +227,10 @@ class AlphaBetaConfig:
     )
     rigid_min_speed_kmh: float = field(
         default=13.0,
-        metadata={"unit": "km/h", "doc": "beyond the paper (Tavanti Fig. 9: one track per target): two live tracks "
-                  "are parts of one rigid body (a car passing 3 m beside the radar shows its front and rear as two "
-                  "clusters, each with a track) when the older one has an unaliased radial speed of at least this "
-                  "(faster than a jogger, 3.3 m/s: two walkers side by side are never merged), the younger one's "
-                  "cluster lies within rigid_length_m of it in range with a wrapped Doppler within "
-                  "rigid_doppler_kmh of its own, and their range separation stays within rigid_separation_m for "
-                  "rigid_frames frames; the younger track's signatures then join the older one's and it ends "
-                  "without an event; 0 = off (paper)", "min": 0.0, "max": 200.0},
+        metadata={"unit": "km/h", "doc": "beyond the paper: two live tracks are parts of one rigid body when the "
+                                         "older is at least this fast and the younger's cluster stays within "
+                                         "rigid_length_m in range, rigid_doppler_kmh in Doppler and "
+                                         "rigid_separation_m in spread for rigid_frames frames; 0 = off", "min": 0.0, "max": 200.0},
     )
     rigid_length_m: float = field(
         default=6.0,
@@ -281,10 +245,8 @@ class AlphaBetaConfig:
     )
     rigid_separation_m: float = field(
         default=1.5,
-        metadata={"unit": "m", "doc": "see rigid_min_speed_kmh: largest spread of the range separation (younger "
-                  "track's cluster minus the older track's cluster, or its prediction while it coasts) over the "
-                  "frames counted: parts of one body keep their distance, a walker passed by a car at 17 km/h "
-                  "changes it by 0.7 m a frame", "min": 0.0, "max": 30.0},
+        metadata={"unit": "m", "doc": "see rigid_min_speed_kmh: largest spread of the two tracks' range separation "
+                                      "over the frames counted (parts of one body keep their distance)", "min": 0.0, "max": 30.0},
     )
     rigid_frames: int = field(
         default=3,
@@ -293,13 +255,10 @@ class AlphaBetaConfig:
     )
     passage_max_frames: int = field(
         default=8,
-        metadata={"unit": "frames", "doc": "beyond the paper: a track that ends with at most this many frames of "
-                  "its own, one of them within passage_range_m of the radar, is the part of a vehicle seen while it "
-                  "passes beside the radar (its Doppler near zero and spread, a separate cluster at 3 m) when a "
-                  "vehicle track (unaliased radial speed at least rigid_min_speed_kmh) still alive had a cluster "
-                  "within rigid_length_m of one of its clusters at most passage_gap_frames frames apart: its "
-                  "signatures join that track's and it ends without an event (Tavanti Test 1's car, departing "
-                  "3 m beside the radar, otherwise gives two events); 0 = off", "min": 0, "max": 1000},
+        metadata={"unit": "frames", "doc": "beyond the paper: a track that ends with at most this many frames, one "
+                                           "within passage_range_m, joins a living vehicle track whose cluster was "
+                                           "within rigid_length_m of its own within passage_gap_frames (the vehicle "
+                                           "beside the radar); 0 = off", "min": 0, "max": 1000},
     )
     passage_range_m: float = field(
         default=8.0,
@@ -313,9 +272,8 @@ class AlphaBetaConfig:
     )
     passage_speed_kmh: float = field(
         default=8.0,
-        metadata={"unit": "km/h", "doc": "see passage_max_frames: the short track's mean radial speed is within this "
-                  "of zero (the vehicle beside the radar) or within passage_same_speed_kmh of the vehicle track's "
-                  "speed; a motorcycle seen for a few frames while a car passes the other way is neither",
+        metadata={"unit": "km/h", "doc": "see passage_max_frames: the short track's mean radial speed is within this"
+                                         " of zero, or within passage_same_speed_kmh of the vehicle track's speed",
                   "min": 0.0, "max": 100.0},
     )
     passage_same_speed_kmh: float = field(
@@ -325,29 +283,20 @@ class AlphaBetaConfig:
     continuation_same_frame: bool = field(
         default=True,
         metadata={"doc": "see continuation_speed_kmh: a track started in the very frame of the ended track's last "
-                  "cluster (another part of the same target, 1 m away at another Doppler) is a candidate too, judged "
-                  "at its latest cluster (the longest baseline: the parts are metres apart); false = only tracks "
-                  "started after it (Tavanti Test 3's motorcycle, lost while it crosses the jogger, otherwise gives "
-                  "two events on some seeds)"},
+                         "cluster is a candidate too, judged at its latest cluster; false = only tracks started "
+                         "after it"},
     )
     body_length_m: float = field(
         default=12.0,
-        metadata={"unit": "m", "doc": "beyond the paper: a track that ends while another track of a vehicle lives (or "
-                  "ends in the same frame) is a part of that vehicle's body when their frames overlap in time "
-                  "(passage_gap_frames) and, over the frames paired, its clusters' centres lie within this range of the "
-                  "other's (median) at a wrapped Doppler within body_doppler_kmh, and the two are adjacent (extents "
-                  "within body_gap_m) or move together (whole-life range rates within body_rate_kmh): its frames join "
-                  "the other track (one event for the passage: a truck's front, body and rear split into two or three "
-                  "clusters, each with a track). The living track must be a vehicle's, at least rigid_min_speed_kmh "
-                  "fast (its event speed or range rate), so walkers crossing keep their tracks and nothing joins static "
-                  "clutter; two range rates of opposite sign, both at least passage_speed_kmh, are two targets crossing. 12 m: the body of a bus or truck seen along the road; 0 = off", "min": 0.0, "max": 30.0},
+        metadata={"unit": "m", "doc": "beyond the paper: a track that ends while a vehicle's track lives (at least "
+                                      "rigid_min_speed_kmh) joins it when their clusters' centres lie within this "
+                                      "range at a wrapped Doppler within body_doppler_kmh, adjacent (body_gap_m) or "
+                                      "at one range rate (body_rate_kmh); 0 = off", "min": 0.0, "max": 30.0},
     )
     body_gap_m: float = field(
         default=2.5,
-        metadata={"unit": "m", "doc": "see body_length_m: largest median gap in range between the two tracks' cluster "
-                  "extents (extent_level_db) of the frames paired for parts joined without a common range rate (a "
-                  "track that began on static clutter has a meaningless one; DBSCAN cuts a body at gaps of eps = "
-                  "1.9 m)", "min": 0.0, "max": 30.0},
+        metadata={"unit": "m", "doc": "see body_length_m: largest median range gap between the two tracks' cluster "
+                                      "extents for parts joined without a common range rate", "min": 0.0, "max": 30.0},
     )
     body_doppler_kmh: float = field(
         default=4.0,

@@ -31,12 +31,9 @@ class TrafficConfig:
         default=0.0, metadata={"unit": "deg", "doc": "radar yaw against the road axis (clockwise, as hw_sim "
                                                      "RadarPose.yaw_deg); used until estimated", "min": -45.0, "max": 45.0})
     mounting_yaw_sigma_deg: float = field(
-        default=1.0, metadata={"unit": "deg", "doc": "how well the configured mounting yaw is known (an installer "
-                                                     "aims to about a degree; a radar mis-aimed by 3 deg then still "
-                                                     "raises no wrong-way alarm from the neighbouring lane): until the yaw is estimated, lane "
-                                                     "assignment at range r is uncertain by r x this across the road "
-                                                     "(used by the wrong-way gate; ignored with estimate_yaw off, "
-                                                     "when the configured yaw is taken as measured)",
+        default=1.0, metadata={"unit": "deg", "doc": "sd of the configured mounting yaw: until the yaw is estimated, "
+                                                     "lane assignment at range r is uncertain by r x this across the "
+                                                     "road (the wrong-way gate; ignored with estimate_yaw off)",
                                "min": 0.0, "max": 45.0})
     estimate_yaw: bool = field(
         default=True, metadata={"doc": "estimate the mounting yaw from the direction of straight confirmed tracks"})
@@ -133,33 +130,19 @@ class TrafficConfig:
                          "group motorcycle, car, truck and bus, anything else counts as other)"})
     count_same_vehicle_s: float = field(
         default=0.4, metadata={"unit": "s", "doc": "a crossing this close in time to a counted one in the same lane is "
-                                                   "that vehicle whatever its speed: the ghost tracks of a truck's body "
-                                                   "(wrong pairings among its scatterers, v +- 5-8 m/s) cross with it "
-                                                   "(highway4-traffic seed 5, 6000 frames: 3 of lane 3's +4, 0.09-0.32 "
-                                                   "s after the truck); two vehicles of one lane cross at least 0.5 s "
-                                                   "apart (the generator's shortest headway: 0.53 s); 0 = off",
+                                                   "that vehicle, whatever its speed (ghost tracks of a truck's body "
+                                                   "cross with it); 0 = off",
                                "min": 0.0, "max": 5.0})
     count_late_max_m: float = field(
         default=30.0, metadata={"unit": "m", "doc": "a confirmed track first seen up to this far past the detection "
-                                                    "line (in its lane's direction of travel) is counted at the "
-                                                    "crossing time extrapolated back, unless a crossing of about that "
-                                                    "time and speed was counted in the lane (count_late_match_*): its "
-                                                    "vehicle crossed untracked (its track lost or taken over by a "
-                                                    "neighbour at the line and re-born after it); 0 = off",
+                                                    "line, in its lane's direction, is counted at its crossing time "
+                                                    "extrapolated back, unless count_late_match_* finds that crossing "
+                                                    "counted; 0 = off",
                                 "min": 0.0, "max": 300.0})
     count_late_receding_max_m: float = field(
-        default=60.0, metadata={"unit": "m", "doc": "a receding track (lane direction away) first seen beyond "
-                                                    "count_late_max_m past the line is still counted late up to this "
-                                                    "far past it, if it lies count_late_far_margin_m inside its lane: a "
-                                                    "car beside a truck that overtakes it is masked (the truck's body "
-                                                    "spans its beats) until the truck is far enough ahead "
-                                                    "(highway4-traffic seed 7005: cars first tracked 36 and 53 m past "
-                                                    "the line). Measured on the tracks of seeds 5, 6, 7005 and 7007 "
-                                                    "(10 min each), receding tracks first seen 30-80 m past: 6 were "
-                                                    "missed vehicles, 0.71-1.54 m inside their lane and 34-72 m past; "
-                                                    "of the 5 ghosts, 3 lay within 0.12 m of a lane boundary and 2 "
-                                                    "were 71-73 m past. 60 m and 0.5 m count 5 of the 6 and no ghost. "
-                                                    "0 = count_late_max_m for both directions",
+        default=60.0, metadata={"unit": "m", "doc": "the same up to this far past the line for a receding track "
+                                                    "count_late_far_margin_m inside its lane (a car masked by a truck "
+                                                    "overtaking it); 0 = count_late_max_m for both directions",
                                 "min": 0.0, "max": 300.0})
     count_late_far_margin_m: float = field(
         default=0.5, metadata={"unit": "m", "doc": "... inside its lane's nearer edge by at least this much (the "
@@ -172,18 +155,11 @@ class TrafficConfig:
         default=3.0, metadata={"unit": "m/s", "doc": "... at a speed within this is that vehicle again",
                                "min": 0.0, "max": 50.0})
     count_once_per_track: bool = field(
-        default=True, metadata={"doc": "a track is counted at the detection line once (by its crossing or as a late "
-                                       "crossing): one that moved back behind the line and crossed it again is the same "
-                                       "vehicle (highway4-traffic seed 7001: a receding car's track re-anchored 11 m "
-                                       "nearer onto an unclaimed detection at its speed 0.2 s after it crossed, and "
-                                       "crossed again 0.6 s after the first count: lane 2 +1)"})
+        default=True, metadata={"doc": "a track is counted at the detection line once, also if it moves back behind "
+                                       "the line and crosses it again"})
     count_lane_direction_only: bool = field(
         default=True, metadata={"doc": "the volume counts only tracks crossing the detection line in their lane's "
-                                       "direction of travel (a wrong-way driver is reported as an event instead): "
-                                       "the ghosts of receding trucks (tracks a few metres beside and ahead of the "
-                                       "truck, drifting into the approaching lanes, where they even raise wrong_way "
-                                       "on their sparse detections) were counted there (highway4-traffic seed 6, "
-                                       "6000 frames: lane 1 +2 -> 0)"})
+                                       "direction of travel (a wrong-way driver is an event instead)"})
     wrong_way_min_speed_mps: float = field(
         default=3.0, metadata={"unit": "m/s", "doc": "against the lane direction at least this fast is wrong-way",
                                "min": 0.1, "max": 100.0})
@@ -192,21 +168,13 @@ class TrafficConfig:
                                      "event (0.5 s; coasting frames neither count nor reset)",
                               "min": 1, "max": 10000})
     wrong_way_lane_sigmas: float = field(
-        default=2.0, metadata={"doc": "a frame counts towards wrong_way only while the track is this many standard "
-                                      "deviations inside its lane: distance to the lane's nearer edge over range x the "
-                                      "yaw's uncertainty (mounting_yaw_sigma_deg until estimated, then the estimate's "
-                                      "standard error) and the tracks' (wrong_way_azimuth_sigma_deg); so no alarm from "
-                                      "the neighbouring lane while the yaw self-calibrates or far away with a young "
-                                      "estimate (frames that fail neither count nor reset)", "min": 0.0, "max": 10.0})
+        default=2.0, metadata={"doc": "a frame counts towards wrong_way only while the track is this many sds inside "
+                                      "its lane: distance to the lane's nearer edge over range x the yaw's and the "
+                                      "tracks' azimuth sd (a failing frame neither counts nor resets)",
+                               "min": 0.0, "max": 10.0})
     wrong_way_azimuth_sigma_deg: float = field(
-        default=0.1, metadata={"unit": "deg", "doc": "the tracks' own azimuth uncertainty in the "
-                                                     "wrong_way_lane_sigmas gate, added in quadrature to the yaw's "
-                                                     "(range x both): far away a "
-                                                     "track's lateral position is metres off (a car of lane 1 tracked "
-                                                     "330-350 m out sat 0.1-1 m inside receding lane 2 and raised "
-                                                     "wrong_way: highway4-traffic seed 7012; 0.05 deg would do there). "
-                                                     "The far alarms come later: 0-2 s on wrong-way-traffic seeds 1-4 "
-                                                     "(0.15 deg: up to 6 s); 0 = the yaw's only",
+        default=0.1, metadata={"unit": "deg", "doc": "the tracks' azimuth sd in the wrong_way_lane_sigmas gate, added "
+                                                     "in quadrature to the yaw's; 0 = the yaw's only",
                                "min": 0.0, "max": 10.0})
     wrong_way_same_driver_m: float = field(
         default=20.0, metadata={"unit": "m", "doc": "a track qualifying for wrong_way within this along the road of a "
@@ -214,9 +182,7 @@ class TrafficConfig:
                                 "min": 0.0, "max": 200.0})
     wrong_way_same_driver_speed_mps: float = field(
         default=1.0, metadata={"unit": "m/s", "doc": "... at a speed within this is the same driver and raises no "
-                                                     "second alarm (a wrong-way truck's body seen at a glint angle in "
-                                                     "the next lane seeded a second track 8 m behind it: "
-                                                     "wrong-way-traffic seed 1); 0 = every track raises its own",
+                                                     "second alarm; 0 = every track raises its own",
                                "min": 0.0, "max": 50.0})
     stopped_speed_mps: float = field(
         default=1.0, metadata={"unit": "m/s", "doc": "a vehicle slower than this is standing", "min": 0.0, "max": 20.0})
