@@ -31,10 +31,7 @@ missed frame does not double a speed). By default (``"doppler"``, beyond the pap
 frame's wrapped Doppler of the cluster unaliased with the track's range rate
 (:class:`RadialSpeedEstimator`, fed through ``TrackFeatureAccumulator(vmax_kmh=...)``): the range
 displacement of a slow target is mostly centroid jitter (a pedestrian crossing the beam at 1.7 km/h
-read 10 km/h, like a slow motorcycle). Measured with the reference set rebuilt each way: multi-random
-dev seeds 101/102/103 (40 events each) 0.741/0.819/0.768 with the range rate, 0.793/0.827/0.784 with
-the Doppler; single-random seeds 11/12 (100 events) 1.00/0.95 and 0.97/0.95 (a car whose short track
-got the wrong alias read as a pedestrian, two fast motorcycles as cars).
+read 10 km/h, like a slow motorcycle; docs/decisions/0021).
 :meth:`TrackFeatureAccumulator.mean_radial_speed_kmh` is the least-squares slope of centroid range
 against time (km/h, positive receding). Weighted standardisation (eq. 20) lives in
 :func:`weighted_standardization`.
