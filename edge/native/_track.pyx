@@ -886,15 +886,13 @@ cdef inline double _np_min(double a, double b) noexcept nogil:
     return a if (a <= b or a != a) else b
 
 
-def measure_predict(const double[:, :] xp, Py_ssize_t t, bint with_rs, const double[:] ext_var, double rs_var,
-                    bint near_on, double h2_spread):
+def measure_predict(const double[:, :] xp, Py_ssize_t t, bint with_rs, const double[:] ext_var, double rs_var):
     """:meth:`edge.track.roles.measure.MeasurementModel.predict`'s numbers without the sensor noise (the SNR noise
     model), in one call: ``z_hat`` (N, n) and ``H`` (N, n, 4) of every row of ``xp`` (N, 4) (``kalman.
     measurement_prediction``), and for its first ``t`` rows the heading ``u`` (t, 2) and weight ``w`` (t,)
     (``measure.heading``) and the track's part of ``R`` (t, n, n): the extent ``ext_var`` along the heading
-    (``measure.extent_cov``), the radial-speed variance ``rs_var`` plus, with ``near_on``, the near-radar term
-    (``near_speed_sd`` with ``h2_spread`` = height^2 x near_speed_spread_m). The same elementwise operations as the
-    numpy reference: bit-identical."""
+    (``measure.extent_cov``) and the radial-speed variance ``rs_var``. The same elementwise operations as the numpy
+    reference: bit-identical."""
     cdef Py_ssize_t nrow = xp.shape[0], i
     cdef int n = 3 if with_rs else 2
     zh_arr = np.empty((nrow, n))
@@ -907,7 +905,7 @@ def measure_predict(const double[:, :] xp, Py_ssize_t t, bint with_rs, const dou
     cdef double[:, :, ::1] r = r_arr
     cdef double[:, ::1] u = u_arr
     cdef double[::1] w = w_arr
-    cdef double x, y, vx, vy, rho, vr, sp, d, u0, u1, wi, e, g, av, sd
+    cdef double x, y, vx, vy, rho, vr, sp, d, u0, u1, wi, e
     for i in range(nrow):
         x, y, vx, vy = xp[i, 0], xp[i, 1], xp[i, 2], xp[i, 3]
         h[i, 0, 0] = 1.0
@@ -941,12 +939,6 @@ def measure_predict(const double[:, :] xp, Py_ssize_t t, bint with_rs, const dou
         r[i, 1, 1] = 0.0 + e * (wi * (u1 * u1) + 1.0 * (1.0 - wi))
         if with_rs:
             r[i, 2, 2] = rs_var
-            if near_on:
-                g = hypot(x, y)
-                g = g if (g >= 1.0 or g != g) else 1.0
-                av = fabs(zh[i, 2])
-                sd = _np_min(av * h2_spread / (g * g * g), av + 1.0)
-                r[i, 2, 2] = rs_var + sd * sd
     return zh_arr, h_arr, r_arr, u_arr, w_arr
 
 

@@ -278,8 +278,6 @@ class LanePipeline(Pipeline):
             from edge.traffic import TrafficConfig, TrafficMonitor
 
             self.tracker = PdafTracker(track_config or PdafConfig())
-            # the radial-speed noise near the radar (track.pdaf.near_speed_spread_m) needs the radar's height
-            self.tracker.sensor_height_m = cfg.mounting_height_m - cfg.target_height_m
             self.traffic = TrafficMonitor(traffic_config or TrafficConfig())
         #: called with (tracks, t_ns, motion model's x per track or None) before the traffic layer's update
         self.traffic_tap: Callable[[tuple, int, np.ndarray | None], None] | None = None

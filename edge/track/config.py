@@ -62,10 +62,6 @@ class MeasurementConfig:
     azimuth_sigma_deg: float = _f(0.5, "azimuth sd of the constant noise model (also sizes the same-vehicle box)",
                                   "deg", 0.001, 20.0)
     radial_speed_sigma_mps: float = _f(0.3, "radial speed sd", "m/s", 0.001, 20.0)
-    near_speed_spread_m: float = _f(0.6, "spread along the line of sight of a vehicle's scatterers: near the radar it "
-                                         "blurs the ground radial speed by |v| h^2 / g^3 times this (ground range g, "
-                                         "radar h above the targets, PdafTracker.sensor_height_m); 0 = off",
-                                    "m", 0.0, 20.0)
     extent_sigma_m: float = _f(0.3, "isotropic position sd of an extended vehicle (which scatterer gives the peak), "
                                     "constant noise model", "m", 0.0, 10.0)
     extent_along_sigma_m: float = _f(1.3, "initial spread of a vehicle's detections along its heading (a 4.5 m car: "

@@ -44,8 +44,8 @@ __all__ = ["PdafTracker", "TrackTable", "IdPool", "Measurements", "CvPredictor",
 class PdafTracker(native.KernelUser):
     """Multi-target PDAF (or cheap JPDA) tracker of the lane profile; see the module docstring for the algorithm.
 
-    ``road_yaw_rad`` (the road direction off the boresight, set by the lane pipeline from the traffic layer) and
-    ``sensor_height_m`` (radar above the targets) are the inputs besides the detections."""
+    ``road_yaw_rad`` (the road direction off the boresight, set by the lane pipeline from the traffic layer) is the
+    input besides the detections."""
 
     def __init__(self, config: PdafConfig | None = None) -> None:
         self.config = config or PdafConfig()
@@ -65,16 +65,6 @@ class PdafTracker(native.KernelUser):
         # lateral_smoother: the motion model's x_m of the last published tracks (the published x_m is the line's)
         self.published_motion_x_m: np.ndarray | None = None
         self.reset()
-
-    @property
-    def sensor_height_m(self) -> float:
-        """Height of the radar above the targets' scatterers (m): the geometry of ``near_speed_spread_m`` (0 =
-        unknown, the term off)."""
-        return self.measurement_model.height_m
-
-    @sensor_height_m.setter
-    def sensor_height_m(self, value: float) -> None:
-        self.measurement_model.height_m = max(float(value), 0.0)
 
     def reset(self) -> None:
         self.tracks = TrackTable()

@@ -58,11 +58,11 @@ V1_PATCH = {"physics": {"preset": "v1"}}
 
 #: the fixtures: file stem -> recording arguments (``fe_frames``: frames with the raw I/Q and clutter map kept for
 #: the spectra stage; ``spec_frames``: frames whose spectra feed the detect stage, chosen with track-aided pairs
-#: (misaimed 40, side-by-side 86, wrong-way 107) and a resolved side-by-side pair (104); all after the clutter
+#: (misaimed 50, side-by-side 86, wrong-way 107) and a resolved side-by-side pair (104); all after the clutter
 #: map's median start-up, 16 frames)
 FIXTURES = {
     "lane_stages_misaimed_s31": {"scenario": "highway4-misaimed", "seed": 31, "frames": 200,
-                                 "fe_frames": [150], "spec_frames": [40, 150]},
+                                 "fe_frames": [150], "spec_frames": [50, 150]},
     "lane_stages_side_by_side_s31": {"scenario": "side-by-side", "seed": 31, "frames": 300,
                                      "fe_frames": [120], "spec_frames": [86, 104]},
     "lane_stages_wrong_way_s6": {"scenario": "wrong-way", "seed": 6, "frames": 240,

@@ -206,13 +206,6 @@ def test_far_approaching_tentative_tracks_search_for_their_peaks():
     assert _aided_for_tentative(either, vy=30.0, hits=1)[0].size == 1
 
 
-def test_the_tracker_gets_the_radar_height_above_the_targets():
-    """track.pdaf.near_speed_spread_m needs the radar's height above the vehicles' scatterers: the lane pipeline gives
-    its tracker the mounting height less the target height (the geometry polar_to_ground uses)."""
-    p = LanePipeline(FE, LaneConfig(mounting_height_m=9.0, target_height_m=0.5))
-    assert p.tracker.sensor_height_m == pytest.approx(8.5)
-
-
 #: the radar on an overpass above four lanes, two each way (highway4's road)
 _FOUR_LANES = """
 [radar]

@@ -101,9 +101,6 @@ class SeedInitiator(native.KernelUser):
             else:
                 v_s = np.where(ok, seeds[:, 2] * rho_s / np.where(ok, proj, 1.0), 0.0)
                 var_s = np.where(ok, c.init_along_speed_sigma_mps**2, c.init_speed_sigma_mps**2)
-            if self.meas_model.near_speed_on:
-                # near the radar the seed's speed is blurred by its body's spread (MeasurementModel.near_speed_sd)
-                var_s = var_s + self.meas_model.near_speed_sd(seeds[:, :2], v_s) ** 2
             x0[:, 2], x0[:, 3] = -sy * v_s, cy * v_s
             var_u = c.init_lateral_speed_sigma_mps**2
             p0[:, 2, 2] = cy * cy * var_u + sy * sy * var_s

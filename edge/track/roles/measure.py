@@ -73,14 +73,13 @@ def extent_cov(xp: np.ndarray, ext_var: np.ndarray, head: tuple[np.ndarray, np.n
 class MeasurementModel(native.KernelUser):
     """What both noise models share: ``z_hat``, ``H`` and the track's part of ``R`` at its prediction (the extent of
     an extended vehicle: ``extent_sigma_m`` across, the learned ``ext_var`` along its heading, isotropic below 1 m/s;
-    the radial-speed noise, blurred near the radar by the mast geometry), and the learning of ``ext_var``."""
+    the radial-speed noise), and the learning of ``ext_var``."""
 
     per_detection = False
 
     def __init__(self, cfg: MeasurementConfig) -> None:
         self.cfg = cfg
         self._az_sigma_rad = math.radians(cfg.azimuth_sigma_deg)
-        self.height_m = 0.0  # radar above the targets (PdafTracker.sensor_height_m): near_speed_spread_m's geometry
         self._head: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None  # (xp, heading(xp))
         #: the compiled association/update core (``edge.native._track``), or None: the numpy reference runs
         self.kernel = native.load("_track")
@@ -138,22 +137,7 @@ class MeasurementModel(native.KernelUser):
         r[:, :2, :2] = rp
         if n == 3:
             r[:, 2, 2] = c.radial_speed_sigma_mps**2
-            if self.near_speed_on:
-                r[:, 2, 2] += self.near_speed_sd(xp[:, :2], zh[:, 2]) ** 2
         return zh, h, r
-
-    @property
-    def near_speed_on(self) -> bool:
-        """The near-radar radial-speed term applies: a height is known and ``near_speed_spread_m`` is not 0."""
-        return self.height_m > 0.0 and self.cfg.near_speed_spread_m > 0.0
-
-    def near_speed_sd(self, xy: np.ndarray, v_mps: np.ndarray) -> np.ndarray:
-        """(T,) sd (m/s) of a ground radial speed ``v_mps`` measured at ground positions ``xy`` from the spread of
-        the vehicle's scatterers along the line of sight: ``|v| h^2 / g^3 d``, capped at ``|v| + 1``."""
-        h2 = self.height_m * self.height_m
-        g = np.maximum(np.hypot(xy[:, 0], xy[:, 1]), 1.0)
-        av = np.abs(v_mps)
-        return np.minimum(av * (h2 * self.cfg.near_speed_spread_m) / (g * g * g), av + 1.0)
 
     def with_sensor(self, xp: np.ndarray, r: np.ndarray) -> np.ndarray:
         """``r`` of :meth:`at` with ``sensor=False`` plus the constant converted polar noise."""
@@ -189,9 +173,7 @@ class MeasurementModel(native.KernelUser):
         the ``measure_predict`` kernel: ``z_hat``, ``H`` of every state row, the heading and ``R`` of the tracks."""
         c, t = self.cfg, pred.x.shape[0]
         xp = pred.x if pred.xm is None else np.concatenate([pred.x, pred.xm.reshape(2 * t, 4)])
-        zh, h, r, u, w = self.kernel.measure_predict(xp, t, meas.with_radial_speed, ext_var, c.radial_speed_sigma_mps**2,
-                                                     self.near_speed_on, self.height_m * self.height_m
-                                                     * c.near_speed_spread_m)
+        zh, h, r, u, w = self.kernel.measure_predict(xp, t, meas.with_radial_speed, ext_var, c.radial_speed_sigma_mps**2)
         self._head = (pred.x, (u, w))  # update_extent reuses it for the same prediction
         if pred.xm is None:
             return MeasurementPrediction(zh, h, r, rm, None, None, None)
