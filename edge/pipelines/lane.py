@@ -320,7 +320,7 @@ class LanePipeline(Pipeline):
         with timer.stage("range_fft"):
             spectra = self.spectra(iq, fb)
         with timer.stage("cfar"):  # weak peaks only when a confirmed track may use them
-            peaks = self.peaks(spectra, self.peaks.aided_scale32 is not None and bool(fb.confirmed.any()))
+            peaks = self.peaks(spectra, self.peaks.aided_scale32 is not None and bool(np.count_nonzero(fb.confirmed)))
         with timer.stage("pairing"):
             pairs = self.pairs(peaks, frame.t_ns, fb, spectra)
         with timer.stage("angle"):
@@ -351,7 +351,7 @@ class LanePipeline(Pipeline):
         dr = np.abs(det.range_m[None, :].astype(np.float64) - tr[:, :1])
         near = (dr <= _TRACK_DET_RANGE_M) & (np.abs(det.radial_speed_mps[None, :] - tr[:, 1:]) <= _TRACK_DET_SPEED_MPS)
         hit = near.any(axis=1)
-        if hit.any():
+        if np.count_nonzero(hit):
             j = np.where(near, dr, np.inf).argmin(axis=1)
             out[hit] = body[j[hit]]
         return out

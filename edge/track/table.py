@@ -150,7 +150,7 @@ class Measurements:
         if use:
             rho = np.hypot(x, y)
             near = rho <= 1e-6
-            if near.any():
+            if np.count_nonzero(near):
                 ratio = np.divide(rng, rho, out=np.ones_like(rho), where=~near)
             else:
                 ratio = rng / rho
@@ -164,14 +164,14 @@ class Measurements:
         if pair is not None and len(pair) == ok.size:
             pair = np.asarray(pair, dtype=np.int64)
             pair = pair if all_ok else pair[ok]
-            if not (pair >= 0).any():
+            if not np.count_nonzero(pair >= 0):
                 pair = None
         else:
             pair = None
         if not every and not fin[2].all():
             snr = np.nan_to_num(snr, nan=0.0)
         unr = _extra_column(det, "unresolved_pair", bool, ok, all_ok)
-        if unr is not None and not unr.any():
+        if unr is not None and not np.count_nonzero(unr):
             unr = None
         return cls(z, snr, use, pair, unr)
 

@@ -110,7 +110,7 @@ class PdafTracker(native.KernelUser):
             dead = self.deleter.delete(tr, resolved_pairs(meas.pair, hyp.beta)) | expired
             for tid in tr.track_id[dead & tr.confirmed]:
                 self.ids.release(int(tid))
-            if dead.any():
+            if np.count_nonzero(dead):
                 tr.keep(~dead)
             self.confirmer.confirm(tr, self.ids)  # after duplicates are gone: no id is spent on one
             self.intermediates = {"gated": hyp.gated, "beta0": hyp.beta0, "d2": mp.inn.d2}

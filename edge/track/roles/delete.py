@@ -107,7 +107,7 @@ class TrackDeleter(native.KernelUser):
         # same place, same speed along, but moving apart or together across: two vehicles crossing each
         # other's path pass through the box within a second; a duplicate stays in it
         keep = dv_across < c.merge_lateral_speed_mps
-        if boxed.any():
+        if np.count_nonzero(boxed):
             run = np.zeros(t, bool)
             run[ia[boxed]] = run[ib[boxed]] = True
             tracks.close_run = np.where(run, tracks.close_run + 1, 0).astype(np.int32, copy=False)

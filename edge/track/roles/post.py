@@ -58,7 +58,7 @@ class LateralSmoother(native.KernelUser):
         meas, beta, r, rm = frame.meas, frame.hyp.beta, frame.mp.r, frame.mp.rm
         xp, pp = frame.pred.x, frame.pred.p
         new = tr.age == 2  # seeded last frame: its lateral speed is the road direction's, give or take a little
-        if new.any():
+        if np.count_nonzero(new):
             tr.lat_p[new, 1, 1] = np.minimum(tr.lat_p[new, 1, 1], cfg.lateral_smoother_init_speed_sigma_mps**2)
             tr.lat_p[new, 0, 1] = tr.lat_p[new, 1, 0] = 0.0
         ref, ref_p = tr.x[:, 0::2], tr.p[:, 0::2, 0::2]
@@ -69,7 +69,7 @@ class LateralSmoother(native.KernelUser):
                 c(r[:, 0, 0]), c(rm[:, 0, 0]) if rm is not None else _NO_VAR, rm is not None, c(xp[:, 0]),
                 c(pp[:, 0, 0]), c(tr.lat_cusum), c(ref), c(ref_p), self._gamma,
                 cfg.lateral_smoother_min_var_fraction, cfg.lateral_smoother_cusum_nats)
-            any_pair = beta.size > 0 and bool((beta > 0).any())
+            any_pair = beta.size > 0 and bool(np.count_nonzero(beta > 0))
         else:
             lat, lat_p, cusum, off, any_pair = self._line(tr, frame, ref, ref_p)
         hold = keep = None
@@ -83,10 +83,10 @@ class LateralSmoother(native.KernelUser):
             # no straight line through it, the motion model's position until the pair splits
             best, strong = carrying_detection(beta)
             off |= meas.unresolved[best] & strong  # (with the motion model's own lateral speed: it may be crossing)
-        if off.any():
+        if np.count_nonzero(off):
             lat[off], lat_p[off] = ref[off], ref_p[off]
             cusum = np.where(off, 0.0, cusum)
-            if hold is not None and hold.any():
+            if hold is not None and np.count_nonzero(hold):
                 # held during a manoeuvre: the lateral speed of the lane-keeping mode (decaying to the road's), so a
                 # line that starts again as the manoeuvre ends does not keep the manoeuvre's speed across
                 _, xk, pk = keep
