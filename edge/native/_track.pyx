@@ -714,6 +714,83 @@ def imm_mode_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const d
 from libc.math cimport log
 
 
+cdef void _lateral_rows(const double[:, :] lat0, const double[:, :, :] lat_p0, const cnp.int32_t[:] age,
+                        int seed_age, double seed_var, double dt, double q, const double[:, :] beta,
+                        const double[:] z0, const double[:] var_track, const double[:] var_meas, bint per_detection,
+                        const double[:] x_ref, const double[:] var_ref, const double[:] cusum0, const double[:, :] ref,
+                        const double[:, :, :] ref_p, double gamma, double min_fraction, double cusum_nats,
+                        double[:, ::1] x, double[:, :, ::1] p, double[::1] cusum, cnp.npy_bool[::1] off) noexcept nogil:
+    """The row loop of :func:`lateral_step` (strided inputs); rows whose ``age`` is ``seed_age`` (>= 0) first get
+    the seeded line's lateral speed variance ``min(p11, seed_var)`` and no covariance."""
+    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], t, m
+    cdef double q3 = q * dt ** 3 / 3.0, q2 = q * dt ** 2 / 2.0, q1 = q * dt
+    cdef double p00, p01, p11, xs, vs, w, r, s_s, s_r, v_s, v_r, llr, k0, k1, dx0, dx1, d, vr0, vr1, c
+    cdef double sx0, sx1, sk0, sk1, s00, s01, s10, s11
+    cdef bint any_pair
+    for t in range(nt):
+        p00 = lat_p0[t, 0, 0]
+        p01 = lat_p0[t, 0, 1]
+        p11 = lat_p0[t, 1, 1]
+        if seed_age >= 0 and age[t] == seed_age:  # seeded last frame (LateralSmoother.run's first step)
+            p11 = _np_min(p11, seed_var)
+            p01 = 0.0
+        xs = lat0[t, 0] + dt * lat0[t, 1]
+        vs = lat0[t, 1]
+        p00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q3
+        p01 = p01 + dt * p11 + q2
+        p11 = p11 + q1
+        llr = 0.0
+        any_pair = False
+        sx0 = sx1 = sk0 = sk1 = s00 = s01 = s10 = s11 = 0.0
+        for m in range(nm):
+            w = beta[t, m]
+            if not (w > 0.0):
+                continue
+            any_pair = True
+            r = var_track[t] + var_meas[m] if per_detection else var_track[t]
+            s_s = p00 + r
+            s_r = var_ref[t] + r
+            v_s = z0[m] - xs
+            v_r = z0[m] - x_ref[t]
+            llr += w * (0.5 * (log(s_s / s_r) + v_s * v_s / s_s - v_r * v_r / s_r))
+            k0 = p00 / s_s
+            k1 = p01 / s_s
+            dx0 = k0 * v_s
+            dx1 = k1 * v_s
+            sx0 += w * dx0
+            sx1 += w * dx1
+            sk0 += w * k0
+            sk1 += w * k1
+            s00 += w * dx0 * dx0
+            s01 += w * dx0 * dx1
+            s10 += w * dx1 * dx0
+            s11 += w * dx1 * dx1
+        if any_pair:
+            c = cusum0[t] + llr
+            cusum[t] = c if c > 0.0 else 0.0
+        else:
+            cusum[t] = cusum0[t]
+        x[t, 0] = xs + sx0
+        x[t, 1] = vs + sx1
+        # P - k_bar P[0, :] + S - dx_bar dx_bar', symmetrised
+        p[t, 0, 0] = p00 - sk0 * p00 + s00 - sx0 * sx0
+        p[t, 1, 1] = p11 - sk1 * p01 + s11 - sx1 * sx1
+        d = 0.5 * ((p01 - sk0 * p01 + s01 - sx0 * sx1) + (p01 - sk1 * p00 + s10 - sx1 * sx0))
+        p[t, 0, 1] = d
+        p[t, 1, 0] = d
+        # the Hausman test against the motion model, and the CUSUM
+        vr0 = ref_p[t, 0, 0]
+        vr1 = ref_p[t, 1, 1]
+        d = _max_nan(vr0 - p[t, 0, 0], min_fraction * vr0)
+        off[t] = (x[t, 0] - ref[t, 0]) ** 2 > gamma * _max_nan(d, 1e-12)
+        d = _max_nan(vr1 - p[t, 1, 1], min_fraction * vr1)
+        off[t] = off[t] or (x[t, 1] - ref[t, 1]) ** 2 > gamma * _max_nan(d, 1e-12)
+        off[t] = off[t] or cusum[t] > cusum_nats
+
+
+_NO_AGE = np.zeros(0, np.int32)
+
+
 def lateral_step(const double[:, ::1] lat0, const double[:, :, ::1] lat_p0, double dt, double q,
                  const double[:, ::1] beta, const double[::1] z0, const double[::1] var_track,
                  const double[::1] var_meas, bint per_detection, const double[::1] x_ref, const double[::1] var_ref,
@@ -727,7 +804,7 @@ def lateral_step(const double[:, ::1] lat0, const double[:, :, ::1] lat_p0, doub
     ``ref`` (T, 2), ``ref_p`` (T, 2, 2) = ``[x, vx]``. Returns the updated ``lat`` (T, 2), ``lat_p`` (T, 2, 2),
     ``cusum`` (T,) and ``off`` (T,) bool (the line disagrees with the motion model: restart). Equal to numpy to
     rounding."""
-    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], t, m, i, j
+    cdef Py_ssize_t nt = beta.shape[0]
     lat_a = np.empty((nt, 2))
     lat_p_a = np.empty((nt, 2, 2))
     cusum_a = np.empty(nt)
@@ -736,68 +813,77 @@ def lateral_step(const double[:, ::1] lat0, const double[:, :, ::1] lat_p0, doub
     cdef double[:, :, ::1] p = lat_p_a
     cdef double[::1] cusum = cusum_a
     cdef cnp.npy_bool[::1] off = off_a
-    cdef double q3 = q * dt ** 3 / 3.0, q2 = q * dt ** 2 / 2.0, q1 = q * dt
-    cdef double p00, p01, p11, xs, vs, w, r, s_s, s_r, v_s, v_r, llr, k0, k1, dx0, dx1, d, vr0, vr1, c
-    cdef double sx0, sx1, sk0, sk1, s00, s01, s10, s11
-    cdef bint any_pair
+    cdef const cnp.int32_t[:] no_age = _NO_AGE
     with nogil:
-        for t in range(nt):
-            p00 = lat_p0[t, 0, 0]
-            p01 = lat_p0[t, 0, 1]
-            p11 = lat_p0[t, 1, 1]
-            xs = lat0[t, 0] + dt * lat0[t, 1]
-            vs = lat0[t, 1]
-            p00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q3
-            p01 = p01 + dt * p11 + q2
-            p11 = p11 + q1
-            llr = 0.0
-            any_pair = False
-            sx0 = sx1 = sk0 = sk1 = s00 = s01 = s10 = s11 = 0.0
-            for m in range(nm):
-                w = beta[t, m]
-                if not (w > 0.0):
-                    continue
-                any_pair = True
-                r = var_track[t] + var_meas[m] if per_detection else var_track[t]
-                s_s = p00 + r
-                s_r = var_ref[t] + r
-                v_s = z0[m] - xs
-                v_r = z0[m] - x_ref[t]
-                llr += w * (0.5 * (log(s_s / s_r) + v_s * v_s / s_s - v_r * v_r / s_r))
-                k0 = p00 / s_s
-                k1 = p01 / s_s
-                dx0 = k0 * v_s
-                dx1 = k1 * v_s
-                sx0 += w * dx0
-                sx1 += w * dx1
-                sk0 += w * k0
-                sk1 += w * k1
-                s00 += w * dx0 * dx0
-                s01 += w * dx0 * dx1
-                s10 += w * dx1 * dx0
-                s11 += w * dx1 * dx1
-            if any_pair:
-                c = cusum0[t] + llr
-                cusum[t] = c if c > 0.0 else 0.0
-            else:
-                cusum[t] = cusum0[t]
-            x[t, 0] = xs + sx0
-            x[t, 1] = vs + sx1
-            # P - k_bar P[0, :] + S - dx_bar dx_bar', symmetrised
-            p[t, 0, 0] = p00 - sk0 * p00 + s00 - sx0 * sx0
-            p[t, 1, 1] = p11 - sk1 * p01 + s11 - sx1 * sx1
-            d = 0.5 * ((p01 - sk0 * p01 + s01 - sx0 * sx1) + (p01 - sk1 * p00 + s10 - sx1 * sx0))
-            p[t, 0, 1] = d
-            p[t, 1, 0] = d
-            # the Hausman test against the motion model, and the CUSUM
-            vr0 = ref_p[t, 0, 0]
-            vr1 = ref_p[t, 1, 1]
-            d = _max_nan(vr0 - p[t, 0, 0], min_fraction * vr0)
-            off[t] = (x[t, 0] - ref[t, 0]) ** 2 > gamma * _max_nan(d, 1e-12)
-            d = _max_nan(vr1 - p[t, 1, 1], min_fraction * vr1)
-            off[t] = off[t] or (x[t, 1] - ref[t, 1]) ** 2 > gamma * _max_nan(d, 1e-12)
-            off[t] = off[t] or cusum[t] > cusum_nats
+        _lateral_rows(lat0, lat_p0, no_age, -1, 0.0, dt, q, beta, z0, var_track, var_meas, per_detection, x_ref,
+                      var_ref, cusum0, ref, ref_p, gamma, min_fraction, cusum_nats, x, p, cusum, off)
     return lat_a, lat_p_a, cusum_a, off_a
+
+
+def lateral_frame(const cnp.int32_t[:] age, double seed_var, const double[:, :] lat0, const double[:, :, :] lat_p0,
+                  double dt, double q, const double[:, :] beta, const double[:, :] z, const double[:, :, :] r,
+                  const double[:, :, :] rm, bint per_detection, const double[:, :] xp, const double[:, :, :] pp,
+                  const double[:] cusum0, const double[:, :] xs, const double[:, :, :] ps, double gamma,
+                  double min_fraction, double cusum_nats, bint has_hold, const double[:] manoeuvre_prob,
+                  const double[:, :] xk, const double[:, :, :] pk, double hold_prob, bint has_unresolved,
+                  const cnp.npy_bool[:] unresolved):
+    """The whole frame of :class:`edge.track.roles.post.LateralSmoother` (``run``) for every track: the seeded
+    lines' (``age`` 2) lateral speed variance capped at ``seed_var``, :func:`lateral_step` on the column views the
+    role passes (``z[:, 0]``, ``r[:, 0, 0]``, ``rm[:, 0, 0]``, ``xp[:, 0]``, ``pp[:, 0, 0]``; the motion model's
+    ``[x, vx]`` from ``xs``, ``ps``), then the restarts: a track is held on the motion model when the line
+    disagrees, when its manoeuvring mode's probability exceeds ``hold_prob`` (``has_hold``; then with the
+    lane-keeping mode's ``xk``, ``pk`` lateral speed) or when its carrying detection (largest weight, > 0.5) is
+    ``unresolved`` (``has_unresolved``). Returns ``lat`` (T, 2), ``lat_p`` (T, 2, 2), ``cusum`` (T,); the same
+    operations as the role's numpy glue around :func:`lateral_step`."""
+    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], t, m, best
+    lat_a = np.empty((nt, 2))
+    lat_p_a = np.empty((nt, 2, 2))
+    cusum_a = np.empty(nt)
+    off_a = np.empty(nt, dtype=bool)
+    cdef double[:, ::1] x = lat_a
+    cdef double[:, :, ::1] p = lat_p_a
+    cdef double[::1] cusum = cusum_a
+    cdef cnp.npy_bool[::1] off = off_a
+    cdef double bv, v
+    cdef bint o, h
+    has_unresolved = has_unresolved and nm > 0
+    with nogil:
+        _lateral_rows(lat0, lat_p0, age, 2, seed_var, dt, q, beta, z[:, 0], r[:, 0, 0],
+                      rm[:, 0, 0], per_detection, xp[:, 0], pp[:, 0, 0], cusum0,
+                      xs[:, ::2], ps[:, ::2, ::2], gamma, min_fraction, cusum_nats, x, p, cusum, off)
+        for t in range(nt):
+            o = off[t]
+            h = has_hold and manoeuvre_prob[t] > hold_prob
+            o = o or h
+            if has_unresolved and not o:
+                # np.argmax: the first largest weight (the first NaN if any)
+                best = 0
+                bv = beta[t, 0]
+                if bv == bv:
+                    for m in range(1, nm):
+                        v = beta[t, m]
+                        if v != v:
+                            best = m
+                            break
+                        if v > bv:
+                            bv = v
+                            best = m
+                o = unresolved[best] and beta[t, best] > 0.5
+            if not o:
+                continue
+            x[t, 0] = xs[t, 0]
+            x[t, 1] = xs[t, 2]
+            p[t, 0, 0] = ps[t, 0, 0]
+            p[t, 0, 1] = ps[t, 0, 2]
+            p[t, 1, 0] = ps[t, 2, 0]
+            p[t, 1, 1] = ps[t, 2, 2]
+            cusum[t] = 0.0
+            if h:
+                x[t, 1] = xk[t, 2]
+                p[t, 1, 1] = pk[t, 2, 2]
+                p[t, 0, 1] = pk[t, 0, 2]
+                p[t, 1, 0] = pk[t, 0, 2]
+    return lat_a, lat_p_a, cusum_a
 
 
 from libc.math cimport atan2, NAN
