@@ -1220,3 +1220,36 @@ def reanchor_match(const double[:, ::1] x, const cnp.uint8_t[::1] confirmed, con
                 jo[k] = arg
                 k += 1
     return i_a[:k].copy(), j_a[:k].copy()
+
+
+def delete_tests(const double[:, :] x, const double[:, :, :] p, const cnp.int32_t[:] misses, const double[:] ext_var,
+                 int delete_after_misses, double max_sigma_m, double min_range_m, double max_range_m,
+                 double max_azimuth_rad, double merge_along_m, double merge_headway_s, double merge_extent_factor):
+    """Per track the deletion tests of :meth:`edge.track.roles.delete.TrackDeleter.delete` (misses in a row, position
+    sd, range and azimuth out of the field) and the inputs of the duplicate test: the position spreads of
+    ``TrackDeleter._position_spread`` and the box half-lengths of ``SameVehicleBox.along_m``. Returns ``dead`` (T,)
+    bool, ``pdx``, ``pdy``, ``along`` (T,); the same float64 operations as the numpy forms (identical)."""
+    cdef Py_ssize_t nt = x.shape[0], t
+    dead_a = np.empty(nt, dtype=bool)
+    pdx_a = np.empty(nt)
+    pdy_a = np.empty(nt)
+    along_a = np.empty(nt)
+    cdef cnp.npy_bool[::1] dead = dead_a
+    cdef double[::1] pdx = pdx_a, pdy = pdy_a, along = along_a
+    cdef double rho, sig, sp, nrm, ux, uy, w, iso
+    with nogil:
+        for t in range(nt):
+            rho = hypot(x[t, 0], x[t, 1])
+            sig = sqrt(_np_max(p[t, 0, 0], p[t, 1, 1]))
+            dead[t] = ((misses[t] >= delete_after_misses) or (sig > max_sigma_m) or (rho < min_range_m)
+                       or (rho > max_range_m) or fabs(atan2(x[t, 0], x[t, 1])) > max_azimuth_rad)
+            sp = hypot(x[t, 2], x[t, 3])
+            nrm = _np_max(sp, 1e-9)
+            ux = x[t, 2] / nrm
+            uy = x[t, 3] / nrm
+            w = _np_min(_np_max(sp, 0.0), 1.0)
+            iso = 1.0 - w
+            pdx[t] = p[t, 0, 0] + ext_var[t] * (w * (ux * ux) + iso)
+            pdy[t] = p[t, 1, 1] + ext_var[t] * (w * (uy * uy) + iso)
+            along[t] = _np_max(_np_max(merge_along_m, merge_headway_s * sp), merge_extent_factor * sqrt(ext_var[t]))
+    return dead_a, pdx_a, pdy_a, along_a

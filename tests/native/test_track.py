@@ -360,6 +360,76 @@ def test_lateral_frame_is_identical_to_the_step_and_its_restarts(seed, t, m, hol
     assert np.array_equal(lat_p, args[3])  # the inputs are not written
 
 
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("t", [0, 1, 7, 64])
+def test_delete_tests_are_identical(seed, t):
+    """``delete_tests`` against the deleter's numpy tests, ``TrackDeleter._position_spread`` and
+    ``SameVehicleBox.along_m`` on random tables (standing, slow and fast tracks, some out of the field, a few NaN
+    covariances): identical."""
+    from edge.track.roles.delete import TrackDeleter
+    from edge.track.table import TrackTable
+
+    rng = np.random.default_rng(seed)
+    tr = PdafTracker(PdafConfig())
+    deleter = tr.deleter
+    tb = TrackTable()
+    tb.x = np.column_stack([rng.normal(0.0, 40.0, t), rng.uniform(-5.0, 320.0, t),
+                            rng.choice([0.0, 0.4, 3.0, -25.0], t) * rng.random(t),
+                            rng.choice([0.0, 0.7, 30.0, -30.0], t) * rng.random(t)])
+    tb.p = _spd(rng, t, 4, 1.5)
+    tb.p[rng.random(t) < 0.1, 1, 1] = np.nan
+    tb.misses = rng.integers(0, 12, t).astype(np.int32)
+    tb.ext_var = rng.random(t) * 4.0
+    tb.close_run = np.zeros(t, np.int32)
+    tb.confirmed = rng.random(t) < 0.5
+    tb.hits, tb.age = rng.integers(1, 20, t).astype(np.int32), rng.integers(20, 40, t).astype(np.int32)
+    c, fov, box = deleter.cfg, deleter.fov, deleter.box
+    dead, pdx, pdy, along = K.delete_tests(tb.x, tb.p, tb.misses, tb.ext_var, c.delete_after_misses,
+                                           c.max_position_sigma_m, fov.min_range_m, fov.max_range_m,
+                                           math.radians(fov.max_azimuth_deg), box.cfg.merge_along_m,
+                                           box.cfg.merge_headway_s, box.cfg.merge_extent_factor)
+    deleter.kernel = None
+    try:
+        want = deleter.delete(tb)  # the numpy tests (no duplicate on one track or none)
+    finally:
+        deleter.kernel = K
+    if t >= 2:  # the numpy deleter's answer includes the duplicates (close runs restarted as it left them)
+        tb.close_run = np.zeros(t, np.int32)
+        dead = dead | deleter.duplicates(tb)
+    assert np.array_equal(dead, want)
+    want_dx, want_dy = TrackDeleter._position_spread(tb)
+    assert np.array_equal(pdx, want_dx, equal_nan=True) and np.array_equal(pdy, want_dy, equal_nan=True)
+    assert np.array_equal(along, box.along_m(tb))
+    assert t < 64 or 0 < dead.sum() < t  # some tracks die, some live
+
+
+def test_delete_with_the_kernel_is_identical():
+    """The deleter's whole step (tests, duplicates, close runs) with and without the kernel on the tracker's own
+    tables (30 vehicles with clutter, 40 frames)."""
+    import copy
+
+    tr = PdafTracker(PdafConfig())
+    deleter, checked = tr.deleter, []
+    run = deleter.delete
+
+    def both(tracks, resolved=None):
+        ref = copy.deepcopy(tracks)
+        deleter.kernel = None
+        try:
+            want = run(ref, resolved)
+        finally:
+            deleter.kernel = K
+        got = run(tracks, resolved)
+        assert np.array_equal(got, want) and np.array_equal(tracks.close_run, ref.close_run)
+        checked.append(len(tracks))
+        return got
+
+    deleter.delete = both
+    for t_ns, det in road_frames(30, 40, clutter_per_frame=10.0, seed=3):
+        tr.step(det, t_ns)
+    assert sum(checked) > 500
+
+
 #: absolute tolerance on published positions (m), speeds (m/s), their sds and the existence probability between
 #: the kernel and numpy paths (measured: 6e-13 over 7000 published tracks, IMM and CV)
 PUBLISHED_ATOL = 1e-9
