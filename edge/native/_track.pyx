@@ -1253,3 +1253,42 @@ def delete_tests(const double[:, :] x, const double[:, :, :] p, const cnp.int32_
             pdy[t] = p[t, 1, 1] + ext_var[t] * (w * (uy * uy) + iso)
             along[t] = _np_max(_np_max(merge_along_m, merge_headway_s * sp), merge_extent_factor * sqrt(ext_var[t]))
     return dead_a, pdx_a, pdy_a, along_a
+
+
+from libc.math cimport isfinite
+
+
+def measurements(const float[:] x, const float[:] y, const float[:] snr, const float[:] vr, const float[:] rng,
+                 bint use_radial_speed):
+    """The float64 measurements of :meth:`edge.track.table.Measurements.from_detections` from float32 columns of
+    one size: ``z`` (M, 3) ground x, y and the ground radial speed (``vr`` times range over ground range, times 1
+    within 1e-6 m of the radar) with ``use_radial_speed``, else (M, 2), and the SNR (M,) in float64. None when a
+    value is not finite (the numpy form handles those rows)."""
+    cdef Py_ssize_t n = x.shape[0], i
+    cdef double xi, yi, rho, ratio
+    if y.shape[0] != n or snr.shape[0] != n or vr.shape[0] != n or rng.shape[0] != n:
+        return None
+    with nogil:
+        for i in range(n):
+            if not (isfinite(x[i]) and isfinite(y[i]) and isfinite(snr[i]) and isfinite(vr[i]) and isfinite(rng[i])):
+                break
+        else:
+            i = n
+    if i < n:
+        return None
+    z_a = np.empty((n, 3 if use_radial_speed else 2))
+    snr_a = np.empty(n)
+    cdef double[:, ::1] z = z_a
+    cdef double[::1] s = snr_a
+    with nogil:
+        for i in range(n):
+            xi = x[i]
+            yi = y[i]
+            z[i, 0] = xi
+            z[i, 1] = yi
+            s[i] = snr[i]
+            if use_radial_speed:
+                rho = hypot(xi, yi)
+                ratio = 1.0 if rho <= 1e-6 else <double>rng[i] / rho
+                z[i, 2] = <double>vr[i] * ratio
+    return z_a, snr_a

@@ -85,7 +85,7 @@ class PdafTracker(native.KernelUser):
 
     def step(self, detections: Detections, t_ns: int) -> tuple[TrackState, ...]:
         """Advance all tracks to ``t_ns`` with this frame's detections; return the published tracks."""
-        meas = Measurements.from_detections(detections, self.measurement_model.use_radial_speed)
+        meas = Measurements.from_detections(detections, self.measurement_model.use_radial_speed, self.kernel)
         dt_s = 0.0 if self.last_t_ns is None else max((t_ns - self.last_t_ns) * 1e-9, 0.0)
         self.last_t_ns = t_ns
         tr, n = self.tracks, meas.z.shape[1]
