@@ -32,6 +32,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from edge import native
 from edge.lane.angles import AngleStage, ResolveStage
 from edge.lane.clutter import ClutterMap
 from edge.lane.detections import DetectionStage
@@ -242,7 +243,7 @@ _TRACK_DET_RANGE_M = 1.5
 _TRACK_DET_SPEED_MPS = 1.0
 
 
-class LanePipeline(Pipeline):
+class LanePipeline(native.KernelUser, Pipeline):
     profile = "lane"
     stages = ("to_complex", "range_fft", "cfar", "pairing", "angle", "resolve", "geometry", "track", "traffic")
 
@@ -281,6 +282,8 @@ class LanePipeline(Pipeline):
             # the radial-speed noise near the radar (track.pdaf.near_speed_spread_m) needs the radar's height
             self.tracker.sensor_height_m = cfg.mounting_height_m - cfg.target_height_m
             self.traffic = TrafficMonitor(traffic_config or TrafficConfig())
+        #: the compiled ``edge.native._faces`` for :meth:`track_extents` (None: its numpy form)
+        self._k_faces = native.load("_faces")
         #: called with (tracks, t_ns, motion model's x per track or None) before the traffic layer's update
         self.traffic_tap: Callable[[tuple, int, np.ndarray | None], None] | None = None
 
@@ -344,6 +347,12 @@ class LanePipeline(Pipeline):
         body = det.extra.get("body_extent_m")
         if body is None:
             return None
+        if self._k_faces is not None:
+            try:
+                return self._k_faces.track_extents(tracks, det.range_m, det.radial_speed_mps, body,
+                                                   _TRACK_DET_RANGE_M, _TRACK_DET_SPEED_MPS)
+            except (TypeError, ValueError):  # not float32 arrays: the numpy form below
+                pass
         out = np.full(len(tracks), np.nan)
         if not len(det) or not len(tracks):
             return out
