@@ -171,6 +171,10 @@ class ClutterMap(native.KernelUser):
         ref = self._background
         if self._map_init is not None and self._map_frames >= _MEDIAN_MIN_FRAMES:  # still learning: the frames' median
             ref = _median_of_frames(self._map_init[:self._map_frames])
+        if self.kernel is not None and bins.dtype == np.int64:
+            out = self.kernel.static_residue(ref, bins, power, floor, ratio, _NOISE_FLOORS)
+            if out is not None:
+                return out
         b = ref[:, _SEG4, bins]  # (rx, n, 4)
         bg = np.add.reduce(b.real * b.real + b.imag * b.imag, axis=0)
         # amplitudes: the image plus the noise at the peak, whose power exceeds NOISE_FLOORS floors 1 time in 16
