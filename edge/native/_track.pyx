@@ -1292,3 +1292,54 @@ def measurements(const float[:] x, const float[:] y, const float[:] snr, const f
                 ratio = 1.0 if rho <= 1e-6 else <double>rng[i] / rho
                 z[i, 2] = <double>vr[i] * ratio
     return z_a, snr_a
+
+
+def seed_candidates(const double[:, :] z, const cnp.npy_bool[:] used, const cnp.int64_t[:] pair, bint has_pair,
+                    const double[:, :] xt, const double[:] ext_var, double min_range_m, double max_range_m,
+                    bint radial, double seed_min_speed_mps, double lateral_sigmas, double az_sigma_rad,
+                    double merge_lateral_m, double lateral_cap_m, double merge_along_m, double headway_s,
+                    double extent_factor, double merge_speed_mps):
+    """The candidate seeds of :meth:`edge.track.roles.initiate.SeedInitiator.initiate`: detections not claimed by a
+    track (or split from a merged one: ``pair >= 0`` with ``has_pair``), in the field's range, with ``radial`` at
+    least ``seed_min_speed_mps`` of radial speed, and in no track's same-vehicle box at its speed (:func:`near_tracks`
+    with the boxes of ``SameVehicleBox.lateral_m`` (``lateral_sigmas``, ``az_sigma_rad``, clipped to
+    ``[merge_lateral_m, lateral_cap_m]``) and ``SameVehicleBox.along_m``). Returns ``(idx (k,) int64, resolved (M,)
+    bool)``; the same float64 operations as the numpy form."""
+    cdef Py_ssize_t nm = z.shape[0], nt = xt.shape[0], m, t, k = 0
+    resolved_a = np.zeros(nm, dtype=bool)
+    idx_a = np.empty(nm, dtype=np.int64)
+    box_a = np.empty((nt, 3))
+    cdef cnp.npy_bool[::1] resolved = resolved_a
+    cdef cnp.int64_t[::1] idx = idx_a
+    cdef double[:, ::1] box = box_a
+    cdef double r, lat, sp, rho_t
+    cdef bint c, res
+    with nogil:
+        for t in range(nt):  # lateral_m, along_m, radial speed of each track
+            r = hypot(xt[t, 0], xt[t, 1])
+            lat = lateral_sigmas * r * az_sigma_rad
+            box[t, 0] = _np_min(_np_max(lat, merge_lateral_m), lateral_cap_m)
+            sp = hypot(xt[t, 2], xt[t, 3])
+            box[t, 1] = _np_max(_np_max(merge_along_m, headway_s * sp), extent_factor * sqrt(ext_var[t]))
+            if radial:
+                rho_t = _np_max(hypot(xt[t, 0], xt[t, 1]), 1e-3)
+                box[t, 2] = (xt[t, 0] * xt[t, 2] + xt[t, 1] * xt[t, 3]) / rho_t
+        for m in range(nm):
+            res = has_pair and pair[m] >= 0
+            resolved[m] = res
+            r = hypot(z[m, 0], z[m, 1])
+            c = (not used[m] or res) and r >= min_range_m and r <= max_range_m
+            if radial:
+                c = c and fabs(z[m, 2]) >= seed_min_speed_mps
+            if not c:
+                continue
+            for t in range(nt):
+                lat = merge_lateral_m if res else box[t, 0]
+                if (fabs(xt[t, 0] - z[m, 0]) < lat and fabs(xt[t, 1] - z[m, 1]) < box[t, 1]
+                        and (not radial or fabs(box[t, 2] - z[m, 2]) < merge_speed_mps)):
+                    c = False
+                    break
+            if c:
+                idx[k] = m
+                k += 1
+    return idx_a[:k], resolved_a

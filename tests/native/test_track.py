@@ -524,6 +524,40 @@ def test_seed_block_is_identical(seed, t, m):
     assert t < 20 or fast.any()
 
 
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("t,m", [(20, 30), (64, 140), (3, 12), (0, 6), (5, 0)])
+@pytest.mark.parametrize("radial", [True, False])
+def test_seed_candidates_are_identical(seed, t, m, radial):
+    """The initiator's candidate seeds (claimed, resolved, in range, moving, outside the tracks' boxes) with the
+    ``seed_candidates`` kernel against the numpy form: the same rows and resolved flags."""
+    from edge.track.table import Measurements
+
+    rng = np.random.default_rng(seed)
+    deleter, tb = _tables(rng, max(t, 1))
+    if t == 0:
+        tb.keep(np.zeros(1, bool))
+    rows = rng.integers(0, max(t, 1), m)
+    z = np.column_stack([tb.x[rows, :2] if t else rng.normal(0, 30.0, (m, 2)), rng.normal(0, 25, m)])
+    z[:, :2] += rng.normal(0, 3.0, (m, 2))
+    z[rng.random(m) < 0.1, 1] = rng.choice([0.5, 400.0])  # out of the field's range
+    z[rng.random(m) < 0.1, 2] = 0.1  # standing
+    z = z if radial else np.ascontiguousarray(z[:, :2])
+    init = PdafTracker(PdafConfig()).initiator
+    assert init.kernel is K
+    used = rng.random(m) < 0.4
+    for pair in (None, rng.integers(-3, 2, m)):
+        meas = Measurements(z, rng.uniform(5, 30, m), radial, pair)
+        idx, resolved = init.candidates(tb, meas, used)
+        init.kernel = None
+        try:
+            want_idx, want_resolved = init.candidates(tb, meas, used)
+        finally:
+            init.kernel = K
+        assert idx.dtype == want_idx.dtype and np.array_equal(idx, want_idx)
+        assert resolved.dtype == want_resolved.dtype and np.array_equal(resolved, want_resolved)
+    assert m < 30 or 0 < idx.size < m  # some detections seed, some do not
+
+
 def _copy_table(tb):
     import copy
     return copy.deepcopy(tb)
