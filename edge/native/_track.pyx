@@ -820,6 +820,22 @@ def lateral_step(const double[:, ::1] lat0, const double[:, :, ::1] lat_p0, doub
     return lat_a, lat_p_a, cusum_a, off_a
 
 
+cdef inline Py_ssize_t _argmax_row(const double[:, :] a, Py_ssize_t t) noexcept nogil:
+    """``np.argmax(a[t])`` of a non-empty row: the first largest value, or the first NaN."""
+    cdef Py_ssize_t best = 0, m
+    cdef double bv = a[t, 0], v
+    if bv != bv:
+        return 0
+    for m in range(1, a.shape[1]):
+        v = a[t, m]
+        if v != v:
+            return m
+        if v > bv:
+            bv = v
+            best = m
+    return best
+
+
 def lateral_frame(const cnp.int32_t[:] age, double seed_var, const double[:, :] lat0, const double[:, :, :] lat_p0,
                   double dt, double q, const double[:, :] beta, const double[:, :] z, const double[:, :, :] r,
                   const double[:, :, :] rm, bint per_detection, const double[:, :] xp, const double[:, :, :] pp,
@@ -835,7 +851,7 @@ def lateral_frame(const cnp.int32_t[:] age, double seed_var, const double[:, :] 
     lane-keeping mode's ``xk``, ``pk`` lateral speed) or when its carrying detection (largest weight, > 0.5) is
     ``unresolved`` (``has_unresolved``). Returns ``lat`` (T, 2), ``lat_p`` (T, 2, 2), ``cusum`` (T,); the same
     operations as the role's numpy glue around :func:`lateral_step`."""
-    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], t, m, best
+    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], t, best
     lat_a = np.empty((nt, 2))
     lat_p_a = np.empty((nt, 2, 2))
     cusum_a = np.empty(nt)
@@ -844,7 +860,6 @@ def lateral_frame(const cnp.int32_t[:] age, double seed_var, const double[:, :] 
     cdef double[:, :, ::1] p = lat_p_a
     cdef double[::1] cusum = cusum_a
     cdef cnp.npy_bool[::1] off = off_a
-    cdef double bv, v
     cdef bint o, h
     has_unresolved = has_unresolved and nm > 0
     with nogil:
@@ -856,18 +871,7 @@ def lateral_frame(const cnp.int32_t[:] age, double seed_var, const double[:, :] 
             h = has_hold and manoeuvre_prob[t] > hold_prob
             o = o or h
             if has_unresolved and not o:
-                # np.argmax: the first largest weight (the first NaN if any)
-                best = 0
-                bv = beta[t, 0]
-                if bv == bv:
-                    for m in range(1, nm):
-                        v = beta[t, m]
-                        if v != v:
-                            best = m
-                            break
-                        if v > bv:
-                            bv = v
-                            best = m
+                best = _argmax_row(beta, t)
                 o = unresolved[best] and beta[t, best] > 0.5
             if not o:
                 continue
@@ -1343,3 +1347,51 @@ def seed_candidates(const double[:, :] z, const cnp.npy_bool[:] used, const cnp.
                 idx[k] = m
                 k += 1
     return idx_a[:k], resolved_a
+
+
+def carrying_pairs(const double[:, :] beta, const cnp.int64_t[:] pair):
+    """The numbers of :func:`edge.track.roles.delete.resolved_pairs` for weights ``beta`` (T, M >= 1): per track the
+    detection of largest weight (``np.argmax``) and, when that weight exceeds 0.5, its resolved ``pair`` (M,), else
+    -1. Returns ``(pair_of (T,) int64, best (T,) int64)``."""
+    cdef Py_ssize_t nt = beta.shape[0], t, b
+    if beta.shape[1] == 0 or pair.shape[0] != beta.shape[1]:
+        raise ValueError("carrying_pairs needs one pair value per detection and at least one detection")
+    pair_a = np.empty(nt, dtype=np.int64)
+    best_a = np.empty(nt, dtype=np.int64)
+    cdef cnp.int64_t[::1] pair_of = pair_a, best = best_a
+    with nogil:
+        for t in range(nt):
+            b = _argmax_row(beta, t)
+            best[t] = b
+            pair_of[t] = pair[b] if beta[t, b] > 0.5 else -1
+    return pair_a, best_a
+
+
+def count_hits(const cnp.npy_bool[:, :] gated, cnp.int32_t[:] age, cnp.int32_t[:] hits,
+               const cnp.int32_t[:] misses, const cnp.uint32_t[:] history):
+    """One frame of :meth:`edge.track.table.TrackTable.count` with ``hit = gated.any(axis=1)`` (``gated`` (T, M)):
+    ``age`` and ``hits`` in place. Returns ``(hit (T,) bool, misses (T,) int32, history (T,) uint32)``, new arrays:
+    misses 0 on a hit, else one more; the history shifted by one with bit 0 the hit."""
+    cdef Py_ssize_t nt = gated.shape[0], nm = gated.shape[1], t, m
+    if age.shape[0] != nt or hits.shape[0] != nt or misses.shape[0] != nt or history.shape[0] != nt:
+        raise ValueError("count_hits needs one row per track in every column")
+    hit_a = np.empty(nt, dtype=bool)
+    misses_a = np.empty(nt, dtype=np.int32)
+    history_a = np.empty(nt, dtype=np.uint32)
+    cdef cnp.npy_bool[::1] hit = hit_a
+    cdef cnp.int32_t[::1] mo = misses_a
+    cdef cnp.uint32_t[::1] ho = history_a
+    cdef bint h
+    with nogil:
+        for t in range(nt):
+            h = False
+            for m in range(nm):
+                if gated[t, m]:
+                    h = True
+                    break
+            hit[t] = h
+            age[t] += 1
+            hits[t] += h
+            mo[t] = 0 if h else misses[t] + 1
+            ho[t] = (history[t] << 1) | (<cnp.uint32_t>h)
+    return hit_a, misses_a, history_a

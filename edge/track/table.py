@@ -186,7 +186,6 @@ class Measurements:
         return cls(z, snr, use, pair, unr)
 
 
-
 def _pair_column(det: Detections, n: int) -> np.ndarray | None:
     """``det.extra["resolved_pair"]`` as int64 for the ``n`` detections, all kept; None if absent, mis-sized or
     without a pair."""

@@ -98,8 +98,11 @@ class PdafTracker(native.KernelUser):
             self.measurement_model.learn(tr, pred.x, mp, hyp.beta, meas.z.shape[0])
             self.confirmer.score(tr, mp.inn, hyp.gated, n)
             used = self.associator.claimed(mp, pred.x, self.measurement_model)  # inside an exclusion gate: no seed
-            hit = hyp.gated.any(axis=1)
-            tr.count(hit)
+            if self.kernel is not None:  # hit = gated.any(axis=1) and tr.count(hit) in one pass (identical)
+                hit, tr.misses, tr.history = self.kernel.count_hits(hyp.gated, tr.age, tr.hits, tr.misses, tr.history)
+            else:
+                hit = hyp.gated.any(axis=1)
+                tr.count(hit)
             frame = Frame(meas, dt_s, pred, mp, hyp, hit, used)
             for post in self.post_steps:
                 moved = post.run(tr, frame)
@@ -107,7 +110,7 @@ class PdafTracker(native.KernelUser):
                     for role in self._stateful:
                         role.restart(tr, moved)
             expired = self.confirmer.moving_and_expired(tr)  # (the deleter reads neither moved nor these columns)
-            dead = self.deleter.delete(tr, resolved_pairs(meas.pair, hyp.beta)) | expired
+            dead = self.deleter.delete(tr, resolved_pairs(meas.pair, hyp.beta, self.kernel)) | expired
             for tid in tr.track_id[dead & tr.confirmed]:
                 self.ids.release(int(tid))
             if np.count_nonzero(dead):

@@ -558,6 +558,53 @@ def test_seed_candidates_are_identical(seed, t, m, radial):
     assert m < 30 or 0 < idx.size < m  # some detections seed, some do not
 
 
+@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("t,m", [(30, 40), (5, 1), (1, 6), (0, 4)])
+def test_carrying_pairs_are_identical(seed, t, m):
+    """``resolved_pairs`` with the ``carrying_pairs`` kernel against its numpy form (``np.argmax`` and the 0.5 test)
+    on random weights with ties, rows of zeros, weights of exactly 0.5 and NaN: the same pairs and detections."""
+    from edge.track.roles.delete import resolved_pairs
+
+    rng = np.random.default_rng(seed)
+    beta = np.where(rng.random((t, m)) < 0.4, rng.choice([0.2, 0.5, 0.7, 0.9], (t, m)), 0.0)
+    if t and seed % 2:
+        beta[rng.integers(0, t), rng.integers(0, m)] = np.nan
+    pair = rng.integers(-1, 3, m).astype(np.int64)
+    want = resolved_pairs(pair, beta)
+    got = resolved_pairs(pair, beta, K)
+    assert len(got) == len(want) == 2
+    for g, w in zip(got, want):
+        assert g.dtype == w.dtype and np.array_equal(g, w)
+    assert resolved_pairs(None, beta, K) is None and resolved_pairs(pair[:0], beta[:, :0], K) is None
+    assert t < 30 or (got[0] >= 0).any()  # some tracks are carried by a resolved detection
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("t,m", [(30, 40), (4, 0), (0, 3), (7, 2)])
+def test_count_hits_is_identical(seed, t, m):
+    """The tracker's hit count (``hit = gated.any(axis=1)``, ``TrackTable.count``) with the ``count_hits`` kernel
+    against numpy on random tables (long miss runs, full histories): the same hits and columns."""
+    from edge.track.table import TrackTable
+
+    rng = np.random.default_rng(seed)
+    gated = rng.random((t, m)) < 0.05
+    cols = dict(age=rng.integers(1, 500, t).astype(np.int32), hits=rng.integers(1, 400, t).astype(np.int32),
+                misses=rng.integers(0, 30, t).astype(np.int32),
+                history=rng.integers(0, 2**32, t, dtype=np.uint64).astype(np.uint32))
+    ref, fast = TrackTable(), TrackTable()
+    for k, v in cols.items():
+        setattr(ref, k, v.copy())
+        setattr(fast, k, v.copy())
+    hit = gated.any(axis=1)
+    ref.count(hit)
+    got, fast.misses, fast.history = K.count_hits(gated, fast.age, fast.hits, fast.misses, fast.history)
+    assert got.dtype == hit.dtype and np.array_equal(got, hit)
+    for k in cols:
+        a, b = getattr(fast, k), getattr(ref, k)
+        assert a.dtype == b.dtype and np.array_equal(a, b), k
+    assert t < 30 or 0 < hit.sum() < t
+
+
 def _copy_table(tb):
     import copy
     return copy.deepcopy(tb)

@@ -18,11 +18,14 @@ __all__ = ["TrackDeleter", "resolved_pairs"]
 _NO_ROWS = np.zeros(0, dtype=np.int64)
 
 
-def resolved_pairs(pair: np.ndarray | None, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+def resolved_pairs(pair: np.ndarray | None, beta: np.ndarray, kernel=None) -> tuple[np.ndarray, np.ndarray] | None:
     """Per track the resolved pair (``Measurements.pair``, or -1) of the detection that carries it (largest weight,
-    above 0.5) and that detection: tracks on the two members of one pair are two vehicles, not duplicates."""
+    above 0.5) and that detection: tracks on the two members of one pair are two vehicles, not duplicates.
+    ``kernel``: the compiled ``edge.native._track`` (``carrying_pairs``, the same values) for an int64 ``pair``."""
     if pair is None or beta.shape[1] == 0:
         return None
+    if kernel is not None and pair.dtype == np.int64:
+        return kernel.carrying_pairs(beta, pair)
     best, strong = carrying_detection(beta)
     return np.where(strong, pair[best], -1), best
 
