@@ -196,10 +196,10 @@ class ResolveStage:
         split, ang = self.resolver.step(rng, vel, a.looks, az)
         unresolved = self.resolver.two_sources
         for f in self.split_filters:
-            if not split.any():  # (rare: asked once when nothing is split)
+            if not np.count_nonzero(split):  # (rare: asked once when nothing is split)
                 break
             split = f(split, rng, vel, az, ang, feedback)
-        if split.any():  # each split detection becomes two, one per angle, half the power each
+        if np.count_nonzero(split):  # each split detection becomes two, one per angle, half the power each
             s_idx = split.nonzero()[0]
             az, snr_db, pair_of = az.copy(), snr_db.copy(), pair_of.copy()  # (the input record stays as it was)
             az[s_idx] = ang[s_idx, 0]

@@ -37,7 +37,7 @@ def _median_of_frames(frames: np.ndarray) -> np.ndarray:
         m = v[:, h - 1] + v[:, h]
         m /= 2
     last = np.isnan(v[:, -1])  # NaN sorts last
-    if last.any():
+    if np.count_nonzero(last):
         m[last] = np.nan
     m = m.reshape(frames.shape[1:] + (2,))
     return m[..., 0] + 1j * m[..., 1]
@@ -147,11 +147,11 @@ class ClutterMap(native.KernelUser):
         (``clutter_map_hold_speed_mps``): a static echo at zero Doppler, beat a_k R in segment k."""
         cfg = self.config
         tr = feedback
-        if not tr.confirmed.any():
+        if not np.count_nonzero(tr.confirmed):
             return
         x = tr.track_state
         stop = tr.confirmed & tr.moved & (np.hypot(x[:, 2], x[:, 3]) < cfg.clutter_map_hold_speed_mps)
-        if not stop.any():
+        if not np.count_nonzero(stop):
             return
         h = cfg.mounting_height_m - cfg.target_height_m
         n = self.n_bins
@@ -171,6 +171,10 @@ class ClutterMap(native.KernelUser):
         ref = self._background
         if self._map_init is not None and self._map_frames >= _MEDIAN_MIN_FRAMES:  # still learning: the frames' median
             ref = _median_of_frames(self._map_init[:self._map_frames])
+        if self.kernel is not None and bins.dtype == np.int64:
+            out = self.kernel.static_residue(ref, bins, power, floor, ratio, _NOISE_FLOORS)
+            if out is not None:
+                return out
         b = ref[:, _SEG4, bins]  # (rx, n, 4)
         bg = np.add.reduce(b.real * b.real + b.imag * b.imag, axis=0)
         # amplitudes: the image plus the noise at the peak, whose power exceeds NOISE_FLOORS floors 1 time in 16

@@ -97,7 +97,7 @@ class UnaliasByLane(native.KernelUser):
         d = dirs[assign_lanes(u.reshape(-1), lanes)].reshape(3, -1)  # direction, 0 outside every lane (-1 -> 0)
         sign = np.sign(v_mps[idx])  # +1 receding: lanes "away"
         bad = d[0] == -sign
-        if not bad.any():
+        if not np.count_nonzero(bad):
             return az
         az = az.copy()
         for j in (1, 2):
@@ -215,7 +215,7 @@ class AgainstLaneGlint(native.KernelUser):
         u = self.road.across_road(x, y, feedback.yaw_rad)
         against = keep & (dirs[assign_lanes(u, lanes)] * v_mps < -np.float32(cfg.unalias_min_speed_mps))
         out = np.zeros(range_m.shape, bool)
-        if not against.any():
+        if not np.count_nonzero(against):
             return out
         sigma = feedback.direction_sigma_rad
         idx = against.nonzero()[0]
@@ -224,7 +224,7 @@ class AgainstLaneGlint(native.KernelUser):
         ui = u[idx]
         sides = dirs[assign_lanes(np.concatenate([ui - half, ui + half]), lanes)].reshape(2, -1) * v_mps[idx]
         against[idx] &= (sides < -np.float32(cfg.unalias_min_speed_mps)).all(axis=0)
-        if not against.any():
+        if not np.count_nonzero(against):
             return out
         idx = against.nonzero()[0]
         own = keep & ~against

@@ -105,7 +105,7 @@ class PairStage(native.KernelUser):
         posts leaves their negative images, and an up-chirp image of one post pairs with the down-chirp image of
         another at a speed proportional to their spacing)."""
         static = self.clutter.static_residue(pk, spectra.power, floor, self._static_ratio)
-        if not static.any():
+        if not np.count_nonzero(static):
             return pairs, pk
         keep = ~static
         return Pairs(pairs.peak_index[keep], pairs.range_m[keep], pairs.radial_speed_mps[keep],
@@ -132,7 +132,7 @@ class PairStage(native.KernelUser):
         sel = tr.confirmed
         if cfg.aided_tentative_min_range_m > 0:  # far tentative tracks with a few hits search as well
             far = ~sel & tr.moved & (tr.hits >= cfg.aided_tentative_min_hits)  # moved: not static clutter
-            if far.any():
+            if np.count_nonzero(far):
                 x = tr.track_state
                 far &= np.hypot(x[:, 0], x[:, 1]) >= cfg.aided_tentative_min_range_m
                 if cfg.aided_tentative_approaching:
@@ -155,7 +155,7 @@ class PairStage(native.KernelUser):
                 np.ascontiguousarray(pairs.peak_index, np.int64).reshape(-1, 4), np.ascontiguousarray(f_hat),
                 self._aided_window_hz, cfg.aided_min_segments)
             found, good = found.view(bool), good.view(bool)
-            if not good.any():
+            if not np.count_nonzero(good):
                 return empty
             return self._aided_fit(found, fsel, good, r_hat, v_hat, f_hat, bsel)
         # all four segments at once: peaks in a (segment, peak) table padded with +inf, used peaks at +inf
@@ -187,7 +187,7 @@ class PairStage(native.KernelUser):
         found = np.minimum.reduce(d, axis=2) <= self._aided_window_hz  # the minimum is d at j
         fsel = np.where(found, table[seg, j], 0.0)
         good = np.add.reduce(found, axis=1) >= cfg.aided_min_segments
-        if not good.any():
+        if not np.count_nonzero(good):
             return empty
         return self._aided_fit(found, fsel, good, r_hat, v_hat, f_hat, np.where(found, btab[seg, j], -1))
 

@@ -45,3 +45,33 @@ def near_faces(const float[::1] rng, const float[::1] v, const float[::1] x, con
         far = sqrtf(t if (t >= 0 or t != t) else <float>0)
         ext[i] = far - near
     return keep_arr, ext_arr
+
+
+from libc.math cimport fabs
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def track_extents(object tracks, const float[::1] d_range, const float[::1] d_speed, const float[::1] body,
+                  double range_gate, double speed_gate):
+    """Per published track (``range_m``, ``radial_speed_mps`` of each of ``tracks``) the ``body`` extent of the
+    detection it follows: the nearest in range (the first of equals) within ``range_gate`` of its range and
+    ``speed_gate`` of its radial speed, the differences in float64; NaN without one. The numpy form is
+    ``edge.pipelines.lane.LanePipeline.track_extents`` (the same values)."""
+    cdef Py_ssize_t nt = len(tracks), nd = d_range.shape[0], i = 0, j, best
+    cdef double tr, tv, dr, bd
+    out_arr = np.empty(nt)
+    cdef double[::1] out = out_arr
+    for t in tracks:
+        tr = t.range_m
+        tv = t.radial_speed_mps
+        best = -1
+        bd = 0.0
+        for j in range(nd):
+            dr = fabs(<double>d_range[j] - tr)
+            if dr <= range_gate and fabs(<double>d_speed[j] - tv) <= speed_gate and (best < 0 or dr < bd):
+                best = j
+                bd = dr
+        out[i] = body[best] if best >= 0 else NAN
+        i += 1
+    return out_arr

@@ -190,3 +190,44 @@ def apply_map_power(float complex[:, :, ::1] spec, float complex[:, :, ::1] back
         for k in range(h):
             ppad[s, k] = ppad[s, n + k]
             ppad[s, n + h + k] = ppad[s, h + k]
+
+
+from libc.math cimport sqrtf
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def static_residue(const float complex[:, :, :] ref, const long long[:, :] bins, const float[:, :] power,
+                   const float[:] floor, float ratio, float noise_floors):
+    """:meth:`edge.lane.clutter.ClutterMap.static_residue` with the map's echo ``ref`` (rx, seg, bin): per pairing
+    (``bins`` (n, seg)), whether in every segment the peak's amplitude ``sqrt(power)`` is at most
+    ``sqrt(ratio * echo) + sqrt(noise_floors * floor)`` and the echo (its power summed over the channels in numpy's
+    order) exceeds ``floor``. float32, one rounding per operation as numpy's. Returns (n,) bool; None when a bin
+    lies outside the map (the numpy form handles it)."""
+    cdef Py_ssize_t n = bins.shape[0], nseg = bins.shape[1], nrx = ref.shape[0], nb = ref.shape[2], i, k, c
+    cdef long long b
+    cdef float bg, re, im, bound
+    cdef bint ok
+    if nseg > ref.shape[1] or nseg > power.shape[0] or nseg > floor.shape[0]:
+        return None
+    for i in range(n):
+        for k in range(nseg):
+            if bins[i, k] < 0 or bins[i, k] >= nb or bins[i, k] >= power.shape[1]:
+                return None
+    out_arr = np.empty(n, dtype=bool)
+    cdef unsigned char[::1] out = out_arr.view(np.uint8)
+    with nogil:
+        for i in range(n):
+            ok = True
+            for k in range(nseg):
+                b = bins[i, k]
+                bg = 0.0
+                for c in range(nrx):
+                    re = ref[c, k, b].real
+                    im = ref[c, k, b].imag
+                    bg = bg + (re * re + im * im)
+                bound = sqrtf(ratio * bg) + sqrtf(noise_floors * floor[k])
+                if not (sqrtf(power[k, b]) <= bound and bg > floor[k]):
+                    ok = False
+            out[i] = ok
+    return out_arr

@@ -714,6 +714,83 @@ def imm_mode_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const d
 from libc.math cimport log
 
 
+cdef void _lateral_rows(const double[:, :] lat0, const double[:, :, :] lat_p0, const cnp.int32_t[:] age,
+                        int seed_age, double seed_var, double dt, double q, const double[:, :] beta,
+                        const double[:] z0, const double[:] var_track, const double[:] var_meas, bint per_detection,
+                        const double[:] x_ref, const double[:] var_ref, const double[:] cusum0, const double[:, :] ref,
+                        const double[:, :, :] ref_p, double gamma, double min_fraction, double cusum_nats,
+                        double[:, ::1] x, double[:, :, ::1] p, double[::1] cusum, cnp.npy_bool[::1] off) noexcept nogil:
+    """The row loop of :func:`lateral_step` (strided inputs); rows whose ``age`` is ``seed_age`` (>= 0) first get
+    the seeded line's lateral speed variance ``min(p11, seed_var)`` and no covariance."""
+    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], t, m
+    cdef double q3 = q * dt ** 3 / 3.0, q2 = q * dt ** 2 / 2.0, q1 = q * dt
+    cdef double p00, p01, p11, xs, vs, w, r, s_s, s_r, v_s, v_r, llr, k0, k1, dx0, dx1, d, vr0, vr1, c
+    cdef double sx0, sx1, sk0, sk1, s00, s01, s10, s11
+    cdef bint any_pair
+    for t in range(nt):
+        p00 = lat_p0[t, 0, 0]
+        p01 = lat_p0[t, 0, 1]
+        p11 = lat_p0[t, 1, 1]
+        if seed_age >= 0 and age[t] == seed_age:  # seeded last frame (LateralSmoother.run's first step)
+            p11 = _np_min(p11, seed_var)
+            p01 = 0.0
+        xs = lat0[t, 0] + dt * lat0[t, 1]
+        vs = lat0[t, 1]
+        p00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q3
+        p01 = p01 + dt * p11 + q2
+        p11 = p11 + q1
+        llr = 0.0
+        any_pair = False
+        sx0 = sx1 = sk0 = sk1 = s00 = s01 = s10 = s11 = 0.0
+        for m in range(nm):
+            w = beta[t, m]
+            if not (w > 0.0):
+                continue
+            any_pair = True
+            r = var_track[t] + var_meas[m] if per_detection else var_track[t]
+            s_s = p00 + r
+            s_r = var_ref[t] + r
+            v_s = z0[m] - xs
+            v_r = z0[m] - x_ref[t]
+            llr += w * (0.5 * (log(s_s / s_r) + v_s * v_s / s_s - v_r * v_r / s_r))
+            k0 = p00 / s_s
+            k1 = p01 / s_s
+            dx0 = k0 * v_s
+            dx1 = k1 * v_s
+            sx0 += w * dx0
+            sx1 += w * dx1
+            sk0 += w * k0
+            sk1 += w * k1
+            s00 += w * dx0 * dx0
+            s01 += w * dx0 * dx1
+            s10 += w * dx1 * dx0
+            s11 += w * dx1 * dx1
+        if any_pair:
+            c = cusum0[t] + llr
+            cusum[t] = c if c > 0.0 else 0.0
+        else:
+            cusum[t] = cusum0[t]
+        x[t, 0] = xs + sx0
+        x[t, 1] = vs + sx1
+        # P - k_bar P[0, :] + S - dx_bar dx_bar', symmetrised
+        p[t, 0, 0] = p00 - sk0 * p00 + s00 - sx0 * sx0
+        p[t, 1, 1] = p11 - sk1 * p01 + s11 - sx1 * sx1
+        d = 0.5 * ((p01 - sk0 * p01 + s01 - sx0 * sx1) + (p01 - sk1 * p00 + s10 - sx1 * sx0))
+        p[t, 0, 1] = d
+        p[t, 1, 0] = d
+        # the Hausman test against the motion model, and the CUSUM
+        vr0 = ref_p[t, 0, 0]
+        vr1 = ref_p[t, 1, 1]
+        d = _max_nan(vr0 - p[t, 0, 0], min_fraction * vr0)
+        off[t] = (x[t, 0] - ref[t, 0]) ** 2 > gamma * _max_nan(d, 1e-12)
+        d = _max_nan(vr1 - p[t, 1, 1], min_fraction * vr1)
+        off[t] = off[t] or (x[t, 1] - ref[t, 1]) ** 2 > gamma * _max_nan(d, 1e-12)
+        off[t] = off[t] or cusum[t] > cusum_nats
+
+
+_NO_AGE = np.zeros(0, np.int32)
+
+
 def lateral_step(const double[:, ::1] lat0, const double[:, :, ::1] lat_p0, double dt, double q,
                  const double[:, ::1] beta, const double[::1] z0, const double[::1] var_track,
                  const double[::1] var_meas, bint per_detection, const double[::1] x_ref, const double[::1] var_ref,
@@ -727,7 +804,7 @@ def lateral_step(const double[:, ::1] lat0, const double[:, :, ::1] lat_p0, doub
     ``ref`` (T, 2), ``ref_p`` (T, 2, 2) = ``[x, vx]``. Returns the updated ``lat`` (T, 2), ``lat_p`` (T, 2, 2),
     ``cusum`` (T,) and ``off`` (T,) bool (the line disagrees with the motion model: restart). Equal to numpy to
     rounding."""
-    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], t, m, i, j
+    cdef Py_ssize_t nt = beta.shape[0]
     lat_a = np.empty((nt, 2))
     lat_p_a = np.empty((nt, 2, 2))
     cusum_a = np.empty(nt)
@@ -736,68 +813,81 @@ def lateral_step(const double[:, ::1] lat0, const double[:, :, ::1] lat_p0, doub
     cdef double[:, :, ::1] p = lat_p_a
     cdef double[::1] cusum = cusum_a
     cdef cnp.npy_bool[::1] off = off_a
-    cdef double q3 = q * dt ** 3 / 3.0, q2 = q * dt ** 2 / 2.0, q1 = q * dt
-    cdef double p00, p01, p11, xs, vs, w, r, s_s, s_r, v_s, v_r, llr, k0, k1, dx0, dx1, d, vr0, vr1, c
-    cdef double sx0, sx1, sk0, sk1, s00, s01, s10, s11
-    cdef bint any_pair
+    cdef const cnp.int32_t[:] no_age = _NO_AGE
     with nogil:
-        for t in range(nt):
-            p00 = lat_p0[t, 0, 0]
-            p01 = lat_p0[t, 0, 1]
-            p11 = lat_p0[t, 1, 1]
-            xs = lat0[t, 0] + dt * lat0[t, 1]
-            vs = lat0[t, 1]
-            p00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q3
-            p01 = p01 + dt * p11 + q2
-            p11 = p11 + q1
-            llr = 0.0
-            any_pair = False
-            sx0 = sx1 = sk0 = sk1 = s00 = s01 = s10 = s11 = 0.0
-            for m in range(nm):
-                w = beta[t, m]
-                if not (w > 0.0):
-                    continue
-                any_pair = True
-                r = var_track[t] + var_meas[m] if per_detection else var_track[t]
-                s_s = p00 + r
-                s_r = var_ref[t] + r
-                v_s = z0[m] - xs
-                v_r = z0[m] - x_ref[t]
-                llr += w * (0.5 * (log(s_s / s_r) + v_s * v_s / s_s - v_r * v_r / s_r))
-                k0 = p00 / s_s
-                k1 = p01 / s_s
-                dx0 = k0 * v_s
-                dx1 = k1 * v_s
-                sx0 += w * dx0
-                sx1 += w * dx1
-                sk0 += w * k0
-                sk1 += w * k1
-                s00 += w * dx0 * dx0
-                s01 += w * dx0 * dx1
-                s10 += w * dx1 * dx0
-                s11 += w * dx1 * dx1
-            if any_pair:
-                c = cusum0[t] + llr
-                cusum[t] = c if c > 0.0 else 0.0
-            else:
-                cusum[t] = cusum0[t]
-            x[t, 0] = xs + sx0
-            x[t, 1] = vs + sx1
-            # P - k_bar P[0, :] + S - dx_bar dx_bar', symmetrised
-            p[t, 0, 0] = p00 - sk0 * p00 + s00 - sx0 * sx0
-            p[t, 1, 1] = p11 - sk1 * p01 + s11 - sx1 * sx1
-            d = 0.5 * ((p01 - sk0 * p01 + s01 - sx0 * sx1) + (p01 - sk1 * p00 + s10 - sx1 * sx0))
-            p[t, 0, 1] = d
-            p[t, 1, 0] = d
-            # the Hausman test against the motion model, and the CUSUM
-            vr0 = ref_p[t, 0, 0]
-            vr1 = ref_p[t, 1, 1]
-            d = _max_nan(vr0 - p[t, 0, 0], min_fraction * vr0)
-            off[t] = (x[t, 0] - ref[t, 0]) ** 2 > gamma * _max_nan(d, 1e-12)
-            d = _max_nan(vr1 - p[t, 1, 1], min_fraction * vr1)
-            off[t] = off[t] or (x[t, 1] - ref[t, 1]) ** 2 > gamma * _max_nan(d, 1e-12)
-            off[t] = off[t] or cusum[t] > cusum_nats
+        _lateral_rows(lat0, lat_p0, no_age, -1, 0.0, dt, q, beta, z0, var_track, var_meas, per_detection, x_ref,
+                      var_ref, cusum0, ref, ref_p, gamma, min_fraction, cusum_nats, x, p, cusum, off)
     return lat_a, lat_p_a, cusum_a, off_a
+
+
+cdef inline Py_ssize_t _argmax_row(const double[:, :] a, Py_ssize_t t) noexcept nogil:
+    """``np.argmax(a[t])`` of a non-empty row: the first largest value, or the first NaN."""
+    cdef Py_ssize_t best = 0, m
+    cdef double bv = a[t, 0], v
+    if bv != bv:
+        return 0
+    for m in range(1, a.shape[1]):
+        v = a[t, m]
+        if v != v:
+            return m
+        if v > bv:
+            bv = v
+            best = m
+    return best
+
+
+def lateral_frame(const cnp.int32_t[:] age, double seed_var, const double[:, :] lat0, const double[:, :, :] lat_p0,
+                  double dt, double q, const double[:, :] beta, const double[:, :] z, const double[:, :, :] r,
+                  const double[:, :, :] rm, bint per_detection, const double[:, :] xp, const double[:, :, :] pp,
+                  const double[:] cusum0, const double[:, :] xs, const double[:, :, :] ps, double gamma,
+                  double min_fraction, double cusum_nats, bint has_hold, const double[:] manoeuvre_prob,
+                  const double[:, :] xk, const double[:, :, :] pk, double hold_prob, bint has_unresolved,
+                  const cnp.npy_bool[:] unresolved):
+    """The whole frame of :class:`edge.track.roles.post.LateralSmoother` (``run``) for every track: the seeded
+    lines' (``age`` 2) lateral speed variance capped at ``seed_var``, :func:`lateral_step` on the column views the
+    role passes (``z[:, 0]``, ``r[:, 0, 0]``, ``rm[:, 0, 0]``, ``xp[:, 0]``, ``pp[:, 0, 0]``; the motion model's
+    ``[x, vx]`` from ``xs``, ``ps``), then the restarts: a track is held on the motion model when the line
+    disagrees, when its manoeuvring mode's probability exceeds ``hold_prob`` (``has_hold``; then with the
+    lane-keeping mode's ``xk``, ``pk`` lateral speed) or when its carrying detection (largest weight, > 0.5) is
+    ``unresolved`` (``has_unresolved``). Returns ``lat`` (T, 2), ``lat_p`` (T, 2, 2), ``cusum`` (T,); the same
+    operations as the role's numpy glue around :func:`lateral_step`."""
+    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], t, best
+    lat_a = np.empty((nt, 2))
+    lat_p_a = np.empty((nt, 2, 2))
+    cusum_a = np.empty(nt)
+    off_a = np.empty(nt, dtype=bool)
+    cdef double[:, ::1] x = lat_a
+    cdef double[:, :, ::1] p = lat_p_a
+    cdef double[::1] cusum = cusum_a
+    cdef cnp.npy_bool[::1] off = off_a
+    cdef bint o, h
+    has_unresolved = has_unresolved and nm > 0
+    with nogil:
+        _lateral_rows(lat0, lat_p0, age, 2, seed_var, dt, q, beta, z[:, 0], r[:, 0, 0],
+                      rm[:, 0, 0], per_detection, xp[:, 0], pp[:, 0, 0], cusum0,
+                      xs[:, ::2], ps[:, ::2, ::2], gamma, min_fraction, cusum_nats, x, p, cusum, off)
+        for t in range(nt):
+            o = off[t]
+            h = has_hold and manoeuvre_prob[t] > hold_prob
+            o = o or h
+            if has_unresolved and not o:
+                best = _argmax_row(beta, t)
+                o = unresolved[best] and beta[t, best] > 0.5
+            if not o:
+                continue
+            x[t, 0] = xs[t, 0]
+            x[t, 1] = xs[t, 2]
+            p[t, 0, 0] = ps[t, 0, 0]
+            p[t, 0, 1] = ps[t, 0, 2]
+            p[t, 1, 0] = ps[t, 2, 0]
+            p[t, 1, 1] = ps[t, 2, 2]
+            cusum[t] = 0.0
+            if h:
+                x[t, 1] = xk[t, 2]
+                p[t, 1, 1] = pk[t, 2, 2]
+                p[t, 0, 1] = pk[t, 0, 2]
+                p[t, 1, 0] = pk[t, 0, 2]
+    return lat_a, lat_p_a, cusum_a
 
 
 from libc.math cimport atan2, NAN
@@ -1126,3 +1216,174 @@ def reanchor_match(const double[:, ::1] x, const cnp.uint8_t[::1] confirmed, con
                 jo[k] = arg
                 k += 1
     return i_a[:k].copy(), j_a[:k].copy()
+
+
+def delete_tests(const double[:, :] x, const double[:, :, :] p, const cnp.int32_t[:] misses, const double[:] ext_var,
+                 int delete_after_misses, double max_sigma_m, double min_range_m, double max_range_m,
+                 double max_azimuth_rad, double merge_along_m, double merge_headway_s, double merge_extent_factor):
+    """Per track the deletion tests of :meth:`edge.track.roles.delete.TrackDeleter.delete` (misses in a row, position
+    sd, range and azimuth out of the field) and the inputs of the duplicate test: the position spreads of
+    ``TrackDeleter._position_spread`` and the box half-lengths of ``SameVehicleBox.along_m``. Returns ``dead`` (T,)
+    bool, ``pdx``, ``pdy``, ``along`` (T,); the same float64 operations as the numpy forms (identical)."""
+    cdef Py_ssize_t nt = x.shape[0], t
+    dead_a = np.empty(nt, dtype=bool)
+    pdx_a = np.empty(nt)
+    pdy_a = np.empty(nt)
+    along_a = np.empty(nt)
+    cdef cnp.npy_bool[::1] dead = dead_a
+    cdef double[::1] pdx = pdx_a, pdy = pdy_a, along = along_a
+    cdef double rho, sig, sp, nrm, ux, uy, w, iso
+    with nogil:
+        for t in range(nt):
+            rho = hypot(x[t, 0], x[t, 1])
+            sig = sqrt(_np_max(p[t, 0, 0], p[t, 1, 1]))
+            dead[t] = ((misses[t] >= delete_after_misses) or (sig > max_sigma_m) or (rho < min_range_m)
+                       or (rho > max_range_m) or fabs(atan2(x[t, 0], x[t, 1])) > max_azimuth_rad)
+            sp = hypot(x[t, 2], x[t, 3])
+            nrm = _np_max(sp, 1e-9)
+            ux = x[t, 2] / nrm
+            uy = x[t, 3] / nrm
+            w = _np_min(_np_max(sp, 0.0), 1.0)
+            iso = 1.0 - w
+            pdx[t] = p[t, 0, 0] + ext_var[t] * (w * (ux * ux) + iso)
+            pdy[t] = p[t, 1, 1] + ext_var[t] * (w * (uy * uy) + iso)
+            along[t] = _np_max(_np_max(merge_along_m, merge_headway_s * sp), merge_extent_factor * sqrt(ext_var[t]))
+    return dead_a, pdx_a, pdy_a, along_a
+
+
+from libc.math cimport isfinite
+
+
+def measurements(const float[:] x, const float[:] y, const float[:] snr, const float[:] vr, const float[:] rng,
+                 bint use_radial_speed):
+    """The float64 measurements of :meth:`edge.track.table.Measurements.from_detections` from float32 columns of
+    one size: ``z`` (M, 3) ground x, y and the ground radial speed (``vr`` times range over ground range, times 1
+    within 1e-6 m of the radar) with ``use_radial_speed``, else (M, 2), and the SNR (M,) in float64. None when a
+    value is not finite (the numpy form handles those rows)."""
+    cdef Py_ssize_t n = x.shape[0], i
+    cdef double xi, yi, rho, ratio
+    if y.shape[0] != n or snr.shape[0] != n or vr.shape[0] != n or rng.shape[0] != n:
+        return None
+    with nogil:
+        for i in range(n):
+            if not (isfinite(x[i]) and isfinite(y[i]) and isfinite(snr[i]) and isfinite(vr[i]) and isfinite(rng[i])):
+                break
+        else:
+            i = n
+    if i < n:
+        return None
+    z_a = np.empty((n, 3 if use_radial_speed else 2))
+    snr_a = np.empty(n)
+    cdef double[:, ::1] z = z_a
+    cdef double[::1] s = snr_a
+    with nogil:
+        for i in range(n):
+            xi = x[i]
+            yi = y[i]
+            z[i, 0] = xi
+            z[i, 1] = yi
+            s[i] = snr[i]
+            if use_radial_speed:
+                rho = hypot(xi, yi)
+                ratio = 1.0 if rho <= 1e-6 else <double>rng[i] / rho
+                z[i, 2] = <double>vr[i] * ratio
+    return z_a, snr_a
+
+
+def seed_candidates(const double[:, :] z, const cnp.npy_bool[:] used, const cnp.int64_t[:] pair, bint has_pair,
+                    const double[:, :] xt, const double[:] ext_var, double min_range_m, double max_range_m,
+                    bint radial, double seed_min_speed_mps, double lateral_sigmas, double az_sigma_rad,
+                    double merge_lateral_m, double lateral_cap_m, double merge_along_m, double headway_s,
+                    double extent_factor, double merge_speed_mps):
+    """The candidate seeds of :meth:`edge.track.roles.initiate.SeedInitiator.initiate`: detections not claimed by a
+    track (or split from a merged one: ``pair >= 0`` with ``has_pair``), in the field's range, with ``radial`` at
+    least ``seed_min_speed_mps`` of radial speed, and in no track's same-vehicle box at its speed (:func:`near_tracks`
+    with the boxes of ``SameVehicleBox.lateral_m`` (``lateral_sigmas``, ``az_sigma_rad``, clipped to
+    ``[merge_lateral_m, lateral_cap_m]``) and ``SameVehicleBox.along_m``). Returns ``(idx (k,) int64, resolved (M,)
+    bool)``; the same float64 operations as the numpy form."""
+    cdef Py_ssize_t nm = z.shape[0], nt = xt.shape[0], m, t, k = 0
+    resolved_a = np.zeros(nm, dtype=bool)
+    idx_a = np.empty(nm, dtype=np.int64)
+    box_a = np.empty((nt, 3))
+    cdef cnp.npy_bool[::1] resolved = resolved_a
+    cdef cnp.int64_t[::1] idx = idx_a
+    cdef double[:, ::1] box = box_a
+    cdef double r, lat, sp, rho_t
+    cdef bint c, res
+    with nogil:
+        for t in range(nt):  # lateral_m, along_m, radial speed of each track
+            r = hypot(xt[t, 0], xt[t, 1])
+            lat = lateral_sigmas * r * az_sigma_rad
+            box[t, 0] = _np_min(_np_max(lat, merge_lateral_m), lateral_cap_m)
+            sp = hypot(xt[t, 2], xt[t, 3])
+            box[t, 1] = _np_max(_np_max(merge_along_m, headway_s * sp), extent_factor * sqrt(ext_var[t]))
+            if radial:
+                rho_t = _np_max(hypot(xt[t, 0], xt[t, 1]), 1e-3)
+                box[t, 2] = (xt[t, 0] * xt[t, 2] + xt[t, 1] * xt[t, 3]) / rho_t
+        for m in range(nm):
+            res = has_pair and pair[m] >= 0
+            resolved[m] = res
+            r = hypot(z[m, 0], z[m, 1])
+            c = (not used[m] or res) and r >= min_range_m and r <= max_range_m
+            if radial:
+                c = c and fabs(z[m, 2]) >= seed_min_speed_mps
+            if not c:
+                continue
+            for t in range(nt):
+                lat = merge_lateral_m if res else box[t, 0]
+                if (fabs(xt[t, 0] - z[m, 0]) < lat and fabs(xt[t, 1] - z[m, 1]) < box[t, 1]
+                        and (not radial or fabs(box[t, 2] - z[m, 2]) < merge_speed_mps)):
+                    c = False
+                    break
+            if c:
+                idx[k] = m
+                k += 1
+    return idx_a[:k], resolved_a
+
+
+def carrying_pairs(const double[:, :] beta, const cnp.int64_t[:] pair):
+    """The numbers of :func:`edge.track.roles.delete.resolved_pairs` for weights ``beta`` (T, M >= 1): per track the
+    detection of largest weight (``np.argmax``) and, when that weight exceeds 0.5, its resolved ``pair`` (M,), else
+    -1. Returns ``(pair_of (T,) int64, best (T,) int64)``."""
+    cdef Py_ssize_t nt = beta.shape[0], t, b
+    if beta.shape[1] == 0 or pair.shape[0] != beta.shape[1]:
+        raise ValueError("carrying_pairs needs one pair value per detection and at least one detection")
+    pair_a = np.empty(nt, dtype=np.int64)
+    best_a = np.empty(nt, dtype=np.int64)
+    cdef cnp.int64_t[::1] pair_of = pair_a, best = best_a
+    with nogil:
+        for t in range(nt):
+            b = _argmax_row(beta, t)
+            best[t] = b
+            pair_of[t] = pair[b] if beta[t, b] > 0.5 else -1
+    return pair_a, best_a
+
+
+def count_hits(const cnp.npy_bool[:, :] gated, cnp.int32_t[:] age, cnp.int32_t[:] hits,
+               const cnp.int32_t[:] misses, const cnp.uint32_t[:] history):
+    """One frame of :meth:`edge.track.table.TrackTable.count` with ``hit = gated.any(axis=1)`` (``gated`` (T, M)):
+    ``age`` and ``hits`` in place. Returns ``(hit (T,) bool, misses (T,) int32, history (T,) uint32)``, new arrays:
+    misses 0 on a hit, else one more; the history shifted by one with bit 0 the hit."""
+    cdef Py_ssize_t nt = gated.shape[0], nm = gated.shape[1], t, m
+    if age.shape[0] != nt or hits.shape[0] != nt or misses.shape[0] != nt or history.shape[0] != nt:
+        raise ValueError("count_hits needs one row per track in every column")
+    hit_a = np.empty(nt, dtype=bool)
+    misses_a = np.empty(nt, dtype=np.int32)
+    history_a = np.empty(nt, dtype=np.uint32)
+    cdef cnp.npy_bool[::1] hit = hit_a
+    cdef cnp.int32_t[::1] mo = misses_a
+    cdef cnp.uint32_t[::1] ho = history_a
+    cdef bint h
+    with nogil:
+        for t in range(nt):
+            h = False
+            for m in range(nm):
+                if gated[t, m]:
+                    h = True
+                    break
+            hit[t] = h
+            age[t] += 1
+            hits[t] += h
+            mo[t] = 0 if h else misses[t] + 1
+            ho[t] = (history[t] << 1) | (<cnp.uint32_t>h)
+    return hit_a, misses_a, history_a

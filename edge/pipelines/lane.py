@@ -32,6 +32,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from edge import native
 from edge.lane.angles import AngleStage, ResolveStage
 from edge.lane.clutter import ClutterMap
 from edge.lane.detections import DetectionStage
@@ -242,7 +243,7 @@ _TRACK_DET_RANGE_M = 1.5
 _TRACK_DET_SPEED_MPS = 1.0
 
 
-class LanePipeline(Pipeline):
+class LanePipeline(native.KernelUser, Pipeline):
     profile = "lane"
     stages = ("to_complex", "range_fft", "cfar", "pairing", "angle", "resolve", "geometry", "track", "traffic")
 
@@ -279,6 +280,8 @@ class LanePipeline(Pipeline):
 
             self.tracker = PdafTracker(track_config or PdafConfig())
             self.traffic = TrafficMonitor(traffic_config or TrafficConfig())
+        #: the compiled ``edge.native._faces`` for :meth:`track_extents` (None: its numpy form)
+        self._k_faces = native.load("_faces")
         #: called with (tracks, t_ns, motion model's x per track or None) before the traffic layer's update
         self.traffic_tap: Callable[[tuple, int, np.ndarray | None], None] | None = None
 
@@ -318,7 +321,7 @@ class LanePipeline(Pipeline):
         with timer.stage("range_fft"):
             spectra = self.spectra(iq, fb)
         with timer.stage("cfar"):  # weak peaks only when a confirmed track may use them
-            peaks = self.peaks(spectra, self.peaks.aided_scale32 is not None and bool(fb.confirmed.any()))
+            peaks = self.peaks(spectra, self.peaks.aided_scale32 is not None and bool(np.count_nonzero(fb.confirmed)))
         with timer.stage("pairing"):
             pairs = self.pairs(peaks, frame.t_ns, fb, spectra)
         with timer.stage("angle"):
@@ -342,6 +345,12 @@ class LanePipeline(Pipeline):
         body = det.extra.get("body_extent_m")
         if body is None:
             return None
+        if self._k_faces is not None:
+            try:
+                return self._k_faces.track_extents(tracks, det.range_m, det.radial_speed_mps, body,
+                                                   _TRACK_DET_RANGE_M, _TRACK_DET_SPEED_MPS)
+            except (TypeError, ValueError):  # not float32 arrays: the numpy form below
+                pass
         out = np.full(len(tracks), np.nan)
         if not len(det) or not len(tracks):
             return out
@@ -349,7 +358,7 @@ class LanePipeline(Pipeline):
         dr = np.abs(det.range_m[None, :].astype(np.float64) - tr[:, :1])
         near = (dr <= _TRACK_DET_RANGE_M) & (np.abs(det.radial_speed_mps[None, :] - tr[:, 1:]) <= _TRACK_DET_SPEED_MPS)
         hit = near.any(axis=1)
-        if hit.any():
+        if np.count_nonzero(hit):
             j = np.where(near, dr, np.inf).argmin(axis=1)
             out[hit] = body[j[hit]]
         return out

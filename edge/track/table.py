@@ -136,7 +136,19 @@ class Measurements:
     unresolved: np.ndarray | None = None  # (M,) bool: two sources in the cell, not split (edge.dsp.resolve's hint)
 
     @classmethod
-    def from_detections(cls, det: Detections, use_radial_speed: bool) -> "Measurements":
+    def from_detections(cls, det: Detections, use_radial_speed: bool, kernel=None) -> "Measurements":
+        """The frame's measurements; ``kernel``: the compiled ``edge.native._track``, used when the columns are
+        float32 arrays of finite values (the same float64 values)."""
+        if kernel is not None:
+            try:
+                res = kernel.measurements(det.x_m, det.y_m, det.snr_db, det.radial_speed_mps, det.range_m,
+                                          use_radial_speed)
+            except (TypeError, ValueError):  # not float32 arrays: the numpy form
+                res = None
+            if res is not None:
+                z, snr = res
+                return cls(z, snr, use_radial_speed, _pair_column(det, z.shape[0]),
+                           _extra_column(det, "unresolved_pair", bool, None, True, z.shape[0]))
         # one float64 array of the five columns (a handful of detections: few calls, not few flops)
         cols = np.array([det.x_m, det.y_m, det.snr_db, det.radial_speed_mps, det.range_m], dtype=np.float64)
         fin = np.isfinite(cols)
@@ -150,7 +162,7 @@ class Measurements:
         if use:
             rho = np.hypot(x, y)
             near = rho <= 1e-6
-            if near.any():
+            if np.count_nonzero(near):
                 ratio = np.divide(rng, rho, out=np.ones_like(rho), where=~near)
             else:
                 ratio = rng / rho
@@ -164,22 +176,33 @@ class Measurements:
         if pair is not None and len(pair) == ok.size:
             pair = np.asarray(pair, dtype=np.int64)
             pair = pair if all_ok else pair[ok]
-            if not (pair >= 0).any():
+            if not np.count_nonzero(pair >= 0):
                 pair = None
         else:
             pair = None
         if not every and not fin[2].all():
             snr = np.nan_to_num(snr, nan=0.0)
-        unr = _extra_column(det, "unresolved_pair", bool, ok, all_ok)
-        if unr is not None and not unr.any():
-            unr = None
+        unr = _extra_column(det, "unresolved_pair", bool, ok, all_ok, ok.size)
         return cls(z, snr, use, pair, unr)
 
 
-def _extra_column(det: Detections, key: str, dtype, ok: np.ndarray, all_ok: bool) -> np.ndarray | None:
-    """The per-detection column ``det.extra[key]`` as ``dtype``, rows ``ok`` kept (None if absent or mis-sized)."""
+def _pair_column(det: Detections, n: int) -> np.ndarray | None:
+    """``det.extra["resolved_pair"]`` as int64 for the ``n`` detections, all kept; None if absent, mis-sized or
+    without a pair."""
+    pair = det.extra.get("resolved_pair")
+    if pair is None or len(pair) != n:
+        return None
+    pair = np.asarray(pair, dtype=np.int64)
+    return pair if np.count_nonzero(pair >= 0) else None
+
+
+def _extra_column(det: Detections, key: str, dtype, ok: np.ndarray | None, all_ok: bool,
+                  n: int) -> np.ndarray | None:
+    """The per-detection column ``det.extra[key]`` of the ``n`` detections as ``dtype``, rows ``ok`` kept; None if
+    absent, mis-sized or all false."""
     col = det.extra.get(key)
-    if col is None or len(col) != ok.size:
+    if col is None or len(col) != n:
         return None
     col = np.asarray(col, dtype=dtype)
-    return col if all_ok else col[ok]
+    col = col if all_ok else col[ok]
+    return col if np.count_nonzero(col) else None

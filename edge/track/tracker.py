@@ -75,7 +75,7 @@ class PdafTracker(native.KernelUser):
 
     def step(self, detections: Detections, t_ns: int) -> tuple[TrackState, ...]:
         """Advance all tracks to ``t_ns`` with this frame's detections; return the published tracks."""
-        meas = Measurements.from_detections(detections, self.measurement_model.use_radial_speed)
+        meas = Measurements.from_detections(detections, self.measurement_model.use_radial_speed, self.kernel)
         dt_s = 0.0 if self.last_t_ns is None else max((t_ns - self.last_t_ns) * 1e-9, 0.0)
         self.last_t_ns = t_ns
         tr, n = self.tracks, meas.z.shape[1]
@@ -88,8 +88,11 @@ class PdafTracker(native.KernelUser):
             self.measurement_model.learn(tr, pred.x, mp, hyp.beta, meas.z.shape[0])
             self.confirmer.score(tr, mp.inn, hyp.gated, n)
             used = self.associator.claimed(mp, pred.x, self.measurement_model)  # inside an exclusion gate: no seed
-            hit = hyp.gated.any(axis=1)
-            tr.count(hit)
+            if self.kernel is not None:  # hit = gated.any(axis=1) and tr.count(hit) in one pass (identical)
+                hit, tr.misses, tr.history = self.kernel.count_hits(hyp.gated, tr.age, tr.hits, tr.misses, tr.history)
+            else:
+                hit = hyp.gated.any(axis=1)
+                tr.count(hit)
             frame = Frame(meas, dt_s, pred, mp, hyp, hit, used)
             for post in self.post_steps:
                 moved = post.run(tr, frame)
@@ -97,10 +100,10 @@ class PdafTracker(native.KernelUser):
                     for role in self._stateful:
                         role.restart(tr, moved)
             expired = self.confirmer.moving_and_expired(tr)  # (the deleter reads neither moved nor these columns)
-            dead = self.deleter.delete(tr, resolved_pairs(meas.pair, hyp.beta)) | expired
+            dead = self.deleter.delete(tr, resolved_pairs(meas.pair, hyp.beta, self.kernel)) | expired
             for tid in tr.track_id[dead & tr.confirmed]:
                 self.ids.release(int(tid))
-            if dead.any():
+            if np.count_nonzero(dead):
                 tr.keep(~dead)
             self.confirmer.confirm(tr, self.ids)  # after duplicates are gone: no id is spent on one
             self.intermediates = {"gated": hyp.gated, "beta0": hyp.beta0, "d2": mp.inn.d2}

@@ -80,3 +80,40 @@ def test_kernel_equals_reference_on_a_pipeline_run(monkeypatch):
     for f in frames(120):
         pipe.process(f, t)
     assert seen["frames"] == 120 and seen["dets"] > 1000 and seen["dropped"] > 20, seen
+
+
+@pytest.mark.parametrize("seed", range(10))
+@pytest.mark.parametrize("n_tracks,n_det", [(0, 5), (4, 0), (1, 1), (12, 14), (30, 60)])
+def test_track_extents_are_identical(seed, n_tracks, n_det):
+    """The lane pipeline's per-track body extent (``LanePipeline.track_extents``) with the ``track_extents`` kernel
+    against its numpy form: tracks on a detection's gates' edges, ties in range, NaN extents; bit for bit."""
+    from types import SimpleNamespace
+
+    from edge.pipelines.lane import LanePipeline, _TRACK_DET_RANGE_M, _TRACK_DET_SPEED_MPS
+    from edge.types import Detections
+
+    k = require_kernel("_faces")
+    rng = np.random.default_rng(seed)
+    d_rng = rng.choice([20.0, 20.5, 35.0, 80.25], n_det).astype(np.float32) + rng.choice([0.0, 0.5], n_det).astype(
+        np.float32)
+    d_v = rng.choice([-20.0, -10.0, 15.0], n_det).astype(np.float32)
+    body = rng.uniform(0.0, 12.0, n_det).astype(np.float32)
+    body[rng.random(n_det) < 0.2] = np.nan
+    det = Detections(d_rng, d_v, np.zeros(n_det, np.float32), np.zeros(n_det, np.float32),
+                     np.zeros(n_det, np.float32), d_rng.copy(), {"body_extent_m": body})
+    tracks = tuple(SimpleNamespace(range_m=float(rng.choice([20.0, 21.5, 21.75, 36.0, 80.0, 150.0])
+                                                 + rng.choice([0.0, _TRACK_DET_RANGE_M, 0.3])),
+                                   radial_speed_mps=float(rng.choice([-20.0, -9.0, 15.0])
+                                                          + rng.choice([0.0, _TRACK_DET_SPEED_MPS, -0.6])))
+                   for _ in range(n_tracks))
+    if n_tracks and n_det:  # the first track right on the first detection, which has an extent
+        body[0] = 4.5
+        tracks = (SimpleNamespace(range_m=float(d_rng[0]), radial_speed_mps=float(d_v[0])),) + tracks[1:]
+    pipe = SimpleNamespace(_k_faces=None)
+    want = LanePipeline.track_extents(pipe, tracks, det)
+    pipe._k_faces = k
+    got = LanePipeline.track_extents(pipe, tracks, det)
+    assert got.dtype == want.dtype == np.float64 and got.shape == want.shape == (n_tracks,)
+    np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))  # bits (NaN)
+    if n_tracks and n_det:
+        assert np.isfinite(got[0])  # (a detection no farther than the first in range: a finite extent)

@@ -145,3 +145,37 @@ def test_lane_pipeline_end_to_end_equal():
     rep = compare(outputs("lane", fr, cfg, use_kernels=True), outputs("lane", fr, cfg, use_kernels=False))
     assert rep["detections"] > 500 and rep["confirmed_track_frames"] > 300
     assert agree(rep, atol=0.0), rep
+
+
+@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("n", [0, 1, 9, 40])
+@pytest.mark.parametrize("learning", [False, True])
+def test_static_residue_equals_numpy(seed, n, learning):
+    """``ClutterMap.static_residue`` with the kernel against its numpy form on random maps and pairings (peaks a
+    little above, at and below the bound, echoes at and below the floor; the map's first frames' median while it
+    learns): bit for bit."""
+    from edge.lane.clutter import ClutterMap
+    from edge.pipelines.lane import LaneConfig
+
+    rng = np.random.default_rng(seed)
+    n_rx, n_seg, n_bin = 4, 4, 64
+    cmap = ClutterMap(LaneConfig(), (n_rx, n_seg, n_bin), 0.03, [1.0, -1.0, 1.0, -1.0])
+    cmap._background[...] = _cspec(rng, (n_rx, n_seg, n_bin), 3.0)
+    cmap._background[:, :, ::5] = 0  # no echo
+    if learning and cmap._map_init is not None:
+        cmap._map_init[:5] = _cspec(rng, (5, n_rx, n_seg, n_bin), 3.0)
+        cmap._map_frames = 5
+    bins = rng.integers(0, n_bin, (n, n_seg)).astype(np.int64)
+    floor = rng.uniform(1.0, 20.0, n_seg).astype(np.float32)
+    power = rng.uniform(0.0, 400.0, (n_seg, n_bin + 8)).astype(np.float32)[:, 4:-4]  # a view, as Spectra.power
+    power[:, ::3] = 0.0
+    k = cmap.kernel
+    assert k is not None
+    got = cmap.static_residue(bins, power, floor, 2.5)
+    cmap.kernel = None
+    want = cmap.static_residue(bins, power, floor, 2.5)
+    cmap.kernel = k
+    assert got.dtype == want.dtype == bool and got.shape == want.shape == (n,)
+    np.testing.assert_array_equal(got, want)
+    assert n < 40 or 0 < got.sum() < n  # both answers occur
+    assert k.static_residue(cmap._background, bins - n_bin - 1, power, floor, 2.5, 4.0) is None or n == 0

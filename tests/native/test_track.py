@@ -289,6 +289,192 @@ def test_lateral_line_on_recorded_frames_equals_numpy_to_rounding():
     assert sum(checked) > 1000
 
 
+def _spd(rng, k: int, n: int, scale: float) -> np.ndarray:
+    """(k, n, n) random symmetric positive definite matrices."""
+    a = rng.normal(size=(k, n, n)) * scale
+    return a @ a.transpose(0, 2, 1) + scale * scale * np.eye(n)
+
+
+def _lateral_glue(age, seed_var, lat, lat_p, dt, q, beta, z, r, rm, xp, pp, cusum, xs, ps, gamma, min_fraction,
+                  cusum_nats, keep, hold_prob, unresolved):
+    """LateralSmoother.run's former kernel path: the numpy seeding, ``lateral_step`` and the numpy restarts."""
+    lat_p = lat_p.copy()
+    new = age == 2
+    lat_p[new, 1, 1] = np.minimum(lat_p[new, 1, 1], seed_var)
+    lat_p[new, 0, 1] = lat_p[new, 1, 0] = 0.0
+    ref, ref_p = xs[:, 0::2], ps[:, 0::2, 0::2]
+    c = np.ascontiguousarray
+    lat, lat_p, cusum, off = K.lateral_step(c(lat), c(lat_p), dt, q, c(beta), c(z[:, 0]), c(r[:, 0, 0]),
+                                            c(rm[:, 0, 0]) if rm is not None else np.zeros(0), rm is not None,
+                                            c(xp[:, 0]), c(pp[:, 0, 0]), c(cusum), c(ref), c(ref_p), gamma,
+                                            min_fraction, cusum_nats)
+    hold = None
+    if keep is not None:
+        hold = keep[0] > hold_prob
+        off |= hold
+    if unresolved is not None and beta.size and (beta > 0).any():
+        best = np.argmax(beta, axis=1)
+        off |= unresolved[best] & (beta[np.arange(beta.shape[0]), best] > 0.5)
+    if off.any():
+        lat[off], lat_p[off] = ref[off], ref_p[off]
+        cusum = np.where(off, 0.0, cusum)
+        if hold is not None and hold.any():
+            _, xk, pk = keep
+            lat[hold, 1] = xk[hold, 2]
+            lat_p[hold, 1, 1] = pk[hold, 2, 2]
+            lat_p[hold, 0, 1] = lat_p[hold, 1, 0] = pk[hold, 0, 2]
+    return lat, lat_p, cusum
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("t,m", [(40, 30), (5, 8), (1, 1), (3, 0), (12, 2)])
+@pytest.mark.parametrize("hold,unresolved,per_detection", [(True, True, True), (False, False, False),
+                                                           (True, False, True), (False, True, False)])
+def test_lateral_frame_is_identical_to_the_step_and_its_restarts(seed, t, m, hold, unresolved, per_detection):
+    """``lateral_frame`` (the lateral smoother's whole frame) against ``lateral_step`` with the numpy seeding and
+    restarts around it, on random frames with seeded lines, manoeuvre holds and unresolved carrying detections:
+    bit-identical."""
+    rng = np.random.default_rng(seed)
+    age = rng.integers(1, 5, t).astype(np.int32)
+    lat = rng.normal(size=(t, 2)) * [3.0, 1.0]
+    lat_p = _spd(rng, t, 2, 0.5)
+    beta = np.where(rng.random((t, m)) < 0.3, rng.random((t, m)), 0.0)
+    beta[rng.random((t, m)) < 0.1] = 0.9  # carrying detections (> 0.5), some tied
+    n = 3 if per_detection else 2
+    z = rng.normal(size=(m, n)) * 3.0
+    r = _spd(rng, t, n, 0.4)
+    rm = _spd(rng, m, n, 0.3) if per_detection else None
+    xp, xs = rng.normal(size=(t, 4)) * 3.0, rng.normal(size=(t, 4)) * 3.0
+    pp, ps = _spd(rng, t, 4, 0.6), _spd(rng, t, 4, 0.6)
+    cusum = np.where(rng.random(t) < 0.5, rng.random(t) * 8.0, 0.0)
+    keep = (rng.random(t), rng.normal(size=(t, 4)), _spd(rng, t, 4, 0.5)) if hold else None
+    unr = rng.random(m) < 0.4 if unresolved else None
+    args = (age, 0.09, lat, lat_p, 1 / 30, 0.2, beta, z, r, rm, xp, pp, cusum, xs, ps, 6.6, 0.1, 5.0)
+    want = _lateral_glue(*args, keep, 0.6, unr)
+    no_keep = (np.zeros(0), np.zeros((0, 4)), np.zeros((0, 4, 4)))
+    got = K.lateral_frame(*args[:9], np.zeros((0, 1, 1)) if rm is None else rm, rm is not None, *args[10:],
+                          keep is not None, *(no_keep if keep is None else keep), 0.6, unr is not None,
+                          np.zeros(0, bool) if unr is None else unr)
+    for g, w in zip(got, want):
+        assert np.array_equal(g, w)
+    assert np.array_equal(lat_p, args[3])  # the inputs are not written
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("t", [0, 1, 7, 64])
+def test_delete_tests_are_identical(seed, t):
+    """``delete_tests`` against the deleter's numpy tests, ``TrackDeleter._position_spread`` and
+    ``SameVehicleBox.along_m`` on random tables (standing, slow and fast tracks, some out of the field, a few NaN
+    covariances): identical."""
+    from edge.track.roles.delete import TrackDeleter
+    from edge.track.table import TrackTable
+
+    rng = np.random.default_rng(seed)
+    tr = PdafTracker(PdafConfig())
+    deleter = tr.deleter
+    tb = TrackTable()
+    tb.x = np.column_stack([rng.normal(0.0, 40.0, t), rng.uniform(-5.0, 320.0, t),
+                            rng.choice([0.0, 0.4, 3.0, -25.0], t) * rng.random(t),
+                            rng.choice([0.0, 0.7, 30.0, -30.0], t) * rng.random(t)])
+    tb.p = _spd(rng, t, 4, 1.5)
+    tb.p[rng.random(t) < 0.1, 1, 1] = np.nan
+    tb.misses = rng.integers(0, 12, t).astype(np.int32)
+    tb.ext_var = rng.random(t) * 4.0
+    tb.close_run = np.zeros(t, np.int32)
+    tb.confirmed = rng.random(t) < 0.5
+    tb.hits, tb.age = rng.integers(1, 20, t).astype(np.int32), rng.integers(20, 40, t).astype(np.int32)
+    c, fov, box = deleter.cfg, deleter.fov, deleter.box
+    dead, pdx, pdy, along = K.delete_tests(tb.x, tb.p, tb.misses, tb.ext_var, c.delete_after_misses,
+                                           c.max_position_sigma_m, fov.min_range_m, fov.max_range_m,
+                                           math.radians(fov.max_azimuth_deg), box.cfg.merge_along_m,
+                                           box.cfg.merge_headway_s, box.cfg.merge_extent_factor)
+    deleter.kernel = None
+    try:
+        want = deleter.delete(tb)  # the numpy tests (no duplicate on one track or none)
+    finally:
+        deleter.kernel = K
+    if t >= 2:  # the numpy deleter's answer includes the duplicates (close runs restarted as it left them)
+        tb.close_run = np.zeros(t, np.int32)
+        dead = dead | deleter.duplicates(tb)
+    assert np.array_equal(dead, want)
+    want_dx, want_dy = TrackDeleter._position_spread(tb)
+    assert np.array_equal(pdx, want_dx, equal_nan=True) and np.array_equal(pdy, want_dy, equal_nan=True)
+    assert np.array_equal(along, box.along_m(tb))
+    assert t < 64 or 0 < dead.sum() < t  # some tracks die, some live
+
+
+def test_delete_with_the_kernel_is_identical():
+    """The deleter's whole step (tests, duplicates, close runs) with and without the kernel on the tracker's own
+    tables (30 vehicles with clutter, 40 frames)."""
+    import copy
+
+    tr = PdafTracker(PdafConfig())
+    deleter, checked = tr.deleter, []
+    run = deleter.delete
+
+    def both(tracks, resolved=None):
+        ref = copy.deepcopy(tracks)
+        deleter.kernel = None
+        try:
+            want = run(ref, resolved)
+        finally:
+            deleter.kernel = K
+        got = run(tracks, resolved)
+        assert np.array_equal(got, want) and np.array_equal(tracks.close_run, ref.close_run)
+        checked.append(len(tracks))
+        return got
+
+    deleter.delete = both
+    for t_ns, det in road_frames(30, 40, clutter_per_frame=10.0, seed=3):
+        tr.step(det, t_ns)
+    assert sum(checked) > 500
+
+
+def _same_measurements(a, b) -> bool:
+    return (np.array_equal(a.z, b.z) and a.z.dtype == b.z.dtype and np.array_equal(a.snr_db, b.snr_db)
+            and a.with_radial_speed == b.with_radial_speed
+            and all((u is None and v is None) or (u is not None and v is not None and np.array_equal(u, v)
+                                                  and u.dtype == v.dtype)
+                    for u, v in ((a.pair, b.pair), (a.unresolved, b.unresolved))))
+
+
+@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("m", [0, 1, 6, 40])
+@pytest.mark.parametrize("use_radial_speed", [True, False])
+def test_measurements_are_identical(seed, m, use_radial_speed):
+    """``Measurements.from_detections`` with the ``measurements`` kernel against its numpy form on random float32
+    detections: some at the radar (ground range below 1e-6 m), resolved and unresolved pairs or none, a NaN or an
+    infinity in some frames (the numpy form then runs), float64 columns (likewise): identical."""
+    from edge.track.table import Measurements
+    from edge.types import Detections
+
+    rng = np.random.default_rng(seed)
+    f32 = np.float32
+    x = (rng.normal(0.0, 20.0, m) * (rng.random(m) > 0.15)).astype(f32)
+    y = (rng.uniform(0.0, 250.0, m) * (rng.random(m) > 0.15)).astype(f32)
+    det = Detections(np.hypot(x, y).astype(f32) + f32(0.5), rng.normal(0.0, 20.0, m).astype(f32),
+                     np.arctan2(x, y).astype(f32), rng.uniform(5.0, 40.0, m).astype(f32), x, y)
+    if seed % 4 == 1:
+        det.extra["resolved_pair"] = np.where(rng.random(m) < 0.3, rng.integers(0, 3, m), -1).astype(np.int32)
+        det.extra["unresolved_pair"] = rng.random(m) < 0.3
+    elif seed % 4 == 2:
+        det.extra["resolved_pair"] = np.full(m, -1, np.int32)
+        det.extra["unresolved_pair"] = np.zeros(m, bool)
+    if seed % 4 == 3 and m:
+        bad = rng.integers(0, m)
+        det.snr_db[bad] = np.inf
+        det.radial_speed_mps[rng.integers(0, m)] = np.nan
+    want = Measurements.from_detections(det, use_radial_speed)
+    got = Measurements.from_detections(det, use_radial_speed, K)
+    assert _same_measurements(got, want)
+    if seed % 4 != 3 or not m:
+        assert K.measurements(det.x_m, det.y_m, det.snr_db, det.radial_speed_mps, det.range_m,
+                              use_radial_speed) is not None  # the kernel answered
+    wide = Detections(*(c.astype(np.float64) for c in (det.range_m, det.radial_speed_mps, det.az_rad, det.snr_db,
+                                                       det.x_m, det.y_m)), det.extra)
+    assert _same_measurements(Measurements.from_detections(wide, use_radial_speed, K), want)
+
+
 #: absolute tolerance on published positions (m), speeds (m/s), their sds and the existence probability between
 #: the kernel and numpy paths (measured: 6e-13 over 7000 published tracks, IMM and CV)
 PUBLISHED_ATOL = 1e-9
@@ -336,6 +522,87 @@ def test_seed_block_is_identical(seed, t, m):
         assert np.array_equal(fast, tr.initiator._near(tb, meas, resolved))
         assert not fast.all()
     assert t < 20 or fast.any()
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("t,m", [(20, 30), (64, 140), (3, 12), (0, 6), (5, 0)])
+@pytest.mark.parametrize("radial", [True, False])
+def test_seed_candidates_are_identical(seed, t, m, radial):
+    """The initiator's candidate seeds (claimed, resolved, in range, moving, outside the tracks' boxes) with the
+    ``seed_candidates`` kernel against the numpy form: the same rows and resolved flags."""
+    from edge.track.table import Measurements
+
+    rng = np.random.default_rng(seed)
+    deleter, tb = _tables(rng, max(t, 1))
+    if t == 0:
+        tb.keep(np.zeros(1, bool))
+    rows = rng.integers(0, max(t, 1), m)
+    z = np.column_stack([tb.x[rows, :2] if t else rng.normal(0, 30.0, (m, 2)), rng.normal(0, 25, m)])
+    z[:, :2] += rng.normal(0, 3.0, (m, 2))
+    z[rng.random(m) < 0.1, 1] = rng.choice([0.5, 400.0])  # out of the field's range
+    z[rng.random(m) < 0.1, 2] = 0.1  # standing
+    z = z if radial else np.ascontiguousarray(z[:, :2])
+    init = PdafTracker(PdafConfig()).initiator
+    assert init.kernel is K
+    used = rng.random(m) < 0.4
+    for pair in (None, rng.integers(-3, 2, m)):
+        meas = Measurements(z, rng.uniform(5, 30, m), radial, pair)
+        idx, resolved = init.candidates(tb, meas, used)
+        init.kernel = None
+        try:
+            want_idx, want_resolved = init.candidates(tb, meas, used)
+        finally:
+            init.kernel = K
+        assert idx.dtype == want_idx.dtype and np.array_equal(idx, want_idx)
+        assert resolved.dtype == want_resolved.dtype and np.array_equal(resolved, want_resolved)
+    assert m < 30 or 0 < idx.size < m  # some detections seed, some do not
+
+
+@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("t,m", [(30, 40), (5, 1), (1, 6), (0, 4)])
+def test_carrying_pairs_are_identical(seed, t, m):
+    """``resolved_pairs`` with the ``carrying_pairs`` kernel against its numpy form (``np.argmax`` and the 0.5 test)
+    on random weights with ties, rows of zeros, weights of exactly 0.5 and NaN: the same pairs and detections."""
+    from edge.track.roles.delete import resolved_pairs
+
+    rng = np.random.default_rng(seed)
+    beta = np.where(rng.random((t, m)) < 0.4, rng.choice([0.2, 0.5, 0.7, 0.9], (t, m)), 0.0)
+    if t and seed % 2:
+        beta[rng.integers(0, t), rng.integers(0, m)] = np.nan
+    pair = rng.integers(-1, 3, m).astype(np.int64)
+    want = resolved_pairs(pair, beta)
+    got = resolved_pairs(pair, beta, K)
+    assert len(got) == len(want) == 2
+    for g, w in zip(got, want):
+        assert g.dtype == w.dtype and np.array_equal(g, w)
+    assert resolved_pairs(None, beta, K) is None and resolved_pairs(pair[:0], beta[:, :0], K) is None
+    assert t < 30 or (got[0] >= 0).any()  # some tracks are carried by a resolved detection
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("t,m", [(30, 40), (4, 0), (0, 3), (7, 2)])
+def test_count_hits_is_identical(seed, t, m):
+    """The tracker's hit count (``hit = gated.any(axis=1)``, ``TrackTable.count``) with the ``count_hits`` kernel
+    against numpy on random tables (long miss runs, full histories): the same hits and columns."""
+    from edge.track.table import TrackTable
+
+    rng = np.random.default_rng(seed)
+    gated = rng.random((t, m)) < 0.05
+    cols = dict(age=rng.integers(1, 500, t).astype(np.int32), hits=rng.integers(1, 400, t).astype(np.int32),
+                misses=rng.integers(0, 30, t).astype(np.int32),
+                history=rng.integers(0, 2**32, t, dtype=np.uint64).astype(np.uint32))
+    ref, fast = TrackTable(), TrackTable()
+    for k, v in cols.items():
+        setattr(ref, k, v.copy())
+        setattr(fast, k, v.copy())
+    hit = gated.any(axis=1)
+    ref.count(hit)
+    got, fast.misses, fast.history = K.count_hits(gated, fast.age, fast.hits, fast.misses, fast.history)
+    assert got.dtype == hit.dtype and np.array_equal(got, hit)
+    for k in cols:
+        a, b = getattr(fast, k), getattr(ref, k)
+        assert a.dtype == b.dtype and np.array_equal(a, b), k
+    assert t < 30 or 0 < hit.sum() < t
 
 
 def _copy_table(tb):

@@ -70,7 +70,7 @@ class Confirmer(native.KernelUser):
         c = self.cfg
         merge_lateral_m, merge_speed_mps = self.box.cfg.merge_lateral_m, self.box.cfg.merge_speed_mps
         ready = self._ready(tracks) & tracks.moved
-        if c.confirm_block_along_m > 0 and ready.any() and tracks.confirmed.any():
+        if c.confirm_block_along_m > 0 and np.count_nonzero(ready) and np.count_nonzero(tracks.confirmed):
             # a second track on a long vehicle (its front and its rear half) waits for the duplicate check
             r, k = np.flatnonzero(ready), np.flatnonzero(tracks.confirmed)
             xk = tracks.x.take(k, axis=0)
@@ -115,7 +115,7 @@ class Confirmer(native.KernelUser):
         recent = tracks.history & self._mask_n
         counts = np.bitwise_count(recent)
         out = ~tracks.confirmed & (tracks.age >= c.confirm_n) & (counts < c.confirm_m) & (tracks.misses > 0)
-        if c.tentative_keep_from_m > 0 and out.any():  # far tracks: only once hardly anything hits any more
+        if c.tentative_keep_from_m > 0 and np.count_nonzero(out):  # far tracks: only once hardly anything hits any more
             far = np.hypot(tracks.x[:, 0], tracks.x[:, 1]) > c.tentative_keep_from_m
             out &= ~far | (counts < c.tentative_keep_min_hits)
         return out

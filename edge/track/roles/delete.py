@@ -18,11 +18,14 @@ __all__ = ["TrackDeleter", "resolved_pairs"]
 _NO_ROWS = np.zeros(0, dtype=np.int64)
 
 
-def resolved_pairs(pair: np.ndarray | None, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+def resolved_pairs(pair: np.ndarray | None, beta: np.ndarray, kernel=None) -> tuple[np.ndarray, np.ndarray] | None:
     """Per track the resolved pair (``Measurements.pair``, or -1) of the detection that carries it (largest weight,
-    above 0.5) and that detection: tracks on the two members of one pair are two vehicles, not duplicates."""
+    above 0.5) and that detection: tracks on the two members of one pair are two vehicles, not duplicates.
+    ``kernel``: the compiled ``edge.native._track`` (``carrying_pairs``, the same values) for an int64 ``pair``."""
     if pair is None or beta.shape[1] == 0:
         return None
+    if kernel is not None and pair.dtype == np.int64:
+        return kernel.carrying_pairs(beta, pair)
     best, strong = carrying_detection(beta)
     return np.where(strong, pair[best], -1), best
 
@@ -60,6 +63,12 @@ class TrackDeleter(native.KernelUser):
     def delete(self, tracks: TrackTable, resolved: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """``resolved``: per track the resolved pair (or -1) and the detection it followed this frame."""
         c = self.cfg
+        if self.kernel is not None:  # the tests of every track and the duplicate test's inputs in one pass
+            dead, pdx, pdy, along = self.kernel.delete_tests(
+                tracks.x, tracks.p, tracks.misses, tracks.ext_var, c.delete_after_misses, c.max_position_sigma_m,
+                self.fov.min_range_m, self.fov.max_range_m, math.radians(self.fov.max_azimuth_deg),
+                self.box.cfg.merge_along_m, self.box.cfg.merge_headway_s, self.box.cfg.merge_extent_factor)
+            return dead | self._duplicates_kernel(tracks, resolved, (pdx, pdy, along)) if len(tracks) >= 2 else dead
         rho = np.hypot(tracks.x[:, 0], tracks.x[:, 1])
         sig = np.sqrt(np.maximum(tracks.p[:, 0, 0], tracks.p[:, 1, 1]))
         dead = (tracks.misses >= c.delete_after_misses) | (sig > c.max_position_sigma_m)
@@ -107,7 +116,7 @@ class TrackDeleter(native.KernelUser):
         # same place, same speed along, but moving apart or together across: two vehicles crossing each
         # other's path pass through the box within a second; a duplicate stays in it
         keep = dv_across < c.merge_lateral_speed_mps
-        if boxed.any():
+        if np.count_nonzero(boxed):
             run = np.zeros(t, bool)
             run[ia[boxed]] = run[ib[boxed]] = True
             tracks.close_run = np.where(run, tracks.close_run + 1, 0).astype(np.int32, copy=False)
@@ -161,18 +170,23 @@ class TrackDeleter(native.KernelUser):
         out[np.where(b_senior, ia, ib)] = True
         return out
 
-    def _duplicates_kernel(self, tracks: TrackTable, resolved) -> np.ndarray:
+    def _duplicates_kernel(self, tracks: TrackTable, resolved, spread: tuple | None = None) -> np.ndarray:
         """:meth:`duplicates` with the pair tests in the compiled kernel (one pass over the pairs, the same
-        arithmetic); the 4x4 state test and the choice of the junior stay here."""
+        arithmetic); the 4x4 state test and the choice of the junior stay here. ``spread``: the position spreads and
+        box half-lengths ``(pdx, pdy, along)`` if already computed (``delete_tests``)."""
         c, box = self.cfg, self.box.cfg
         t = len(tracks)
-        pdx, pdy = self._position_spread(tracks)
+        if spread is None:
+            pdx, pdy = self._position_spread(tracks)
+            along = self.box.along_m(tracks)
+        else:
+            pdx, pdy, along = spread
         if resolved is None:
             pair = det = _NO_ROWS
         else:
             pair, det = (np.ascontiguousarray(a, dtype=np.int64) for a in resolved)
         run, ba, bb, bkeep, ra, rb, rdx = self.kernel.duplicate_pairs(
-            np.ascontiguousarray(tracks.x), box.merge_speed_mps, box.merge_lateral_m, self.box.along_m(tracks),
+            np.ascontiguousarray(tracks.x), box.merge_speed_mps, box.merge_lateral_m, along,
             c.merge_lateral_speed_mps, pdx, pdy, self._state_gamma, pair, det, resolved is not None)
         if ba.size:
             tracks.close_run = np.where(run, tracks.close_run + 1, 0).astype(np.int32, copy=False)

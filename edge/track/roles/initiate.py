@@ -18,6 +18,7 @@ log = logging.getLogger(__name__)
 __all__ = ["SeedInitiator"]
 
 _SEED_MERGE_PLAIN_MAX = 8  # seed candidates up to which SeedInitiator merges them in plain Python
+_NO_PAIR = np.zeros(0, dtype=np.int64)  # no resolved pairs (seed_candidates' placeholder)
 
 
 class SeedInitiator(native.KernelUser):
@@ -40,17 +41,7 @@ class SeedInitiator(native.KernelUser):
         """Seed tentative tracks; ``used`` (M,) the detections tracks claimed. Returns the number of seeds."""
         c, box = self.cfg, self.box
         z = meas.z
-        rho = np.hypot(z[:, 0], z[:, 1])
-        # a detection split from a merged one (two vehicles side by side) lies inside the gate of the track
-        # that followed the merged detection: it may seed unless a track sits right on it
-        resolved = meas.pair >= 0 if meas.pair is not None else np.zeros(z.shape[0], bool)
-        cand = (~used | resolved) & (rho >= self.fov.min_range_m) & (rho <= self.fov.max_range_m)
-        if meas.with_radial_speed:
-            cand &= np.abs(z[:, 2]) >= c.seed_min_radial_speed_mps
-        if len(tracks) and cand.any():
-            cand &= ~(self._near_kernel(tracks, meas, resolved) if self.kernel is not None
-                      else self._near(tracks, meas, resolved))
-        idx = cand.nonzero()[0]
+        idx, resolved = self.candidates(tracks, meas, used)
         if idx.size == 0:
             return 0
         # one seed per vehicle: drop a candidate when a stronger one lies in its merge box
@@ -112,6 +103,30 @@ class SeedInitiator(native.KernelUser):
         if self.predictor is not None:
             self.predictor.seeded(tracks, k, road_yaw_rad, var_s)
         return k
+
+    def candidates(self, tracks: TrackTable, meas: Measurements, used: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The detections that may seed (rows, ascending) and the resolved ones (M,) bool: not claimed by a track
+        (``used``) unless split from a merged detection, in the field's range, moving, and in no track's
+        same-vehicle box at its speed. The compiled ``seed_candidates`` when built (identical)."""
+        c, box, z = self.cfg, self.box, meas.z
+        if self.kernel is not None:
+            bc = box.cfg
+            return self.kernel.seed_candidates(
+                z, used, _NO_PAIR if meas.pair is None else meas.pair, meas.pair is not None, tracks.x,
+                tracks.ext_var, self.fov.min_range_m, self.fov.max_range_m, meas.with_radial_speed,
+                c.seed_min_radial_speed_mps, bc.merge_lateral_sigmas, math.radians(box.azimuth_sigma_deg),
+                bc.merge_lateral_m, max(bc.merge_lateral_m, bc.merge_lateral_max_m), bc.merge_along_m,
+                bc.merge_headway_s, bc.merge_extent_factor, c.seed_merge_speed_mps)
+        rho = np.hypot(z[:, 0], z[:, 1])
+        # a detection split from a merged one (two vehicles side by side) lies inside the gate of the track
+        # that followed the merged detection: it may seed unless a track sits right on it
+        resolved = meas.pair >= 0 if meas.pair is not None else np.zeros(z.shape[0], bool)
+        cand = (~used | resolved) & (rho >= self.fov.min_range_m) & (rho <= self.fov.max_range_m)
+        if meas.with_radial_speed:
+            cand &= np.abs(z[:, 2]) >= c.seed_min_radial_speed_mps
+        if len(tracks) and np.count_nonzero(cand):
+            cand &= ~self._near(tracks, meas, resolved)
+        return cand.nonzero()[0], resolved
 
     def _near(self, tracks: TrackTable, meas: Measurements, resolved: np.ndarray) -> np.ndarray:
         """(M,) detections in some track's same-vehicle box (a resolved one: ``merge_lateral_m`` across) and, with

@@ -21,7 +21,9 @@ from edge.track.table import Measurements, TrackTable
 
 __all__ = ["Frame", "LateralSmoother", "Reanchor"]
 
-_NO_VAR = np.zeros(0)
+_NO_R = np.zeros((0, 1, 1))  # no per-detection noise (lateral_frame's placeholder)
+_NO_KEEP = (np.zeros(0), np.zeros((0, 4)), np.zeros((0, 4, 4)))  # no manoeuvre hold (placeholders)
+_NO_FLAGS = np.zeros(0, dtype=bool)
 
 
 @dataclass
@@ -55,23 +57,16 @@ class LateralSmoother(native.KernelUser):
     def run(self, tracks: TrackTable, frame: Frame) -> np.ndarray | None:
         cfg = self.cfg
         tr = tracks
-        meas, beta, r, rm = frame.meas, frame.hyp.beta, frame.mp.r, frame.mp.rm
-        xp, pp = frame.pred.x, frame.pred.p
+        if self.kernel is not None:  # the whole frame below in one pass (equal to rounding)
+            self._run_kernel(tr, frame)
+            return None
+        meas, beta = frame.meas, frame.hyp.beta
         new = tr.age == 2  # seeded last frame: its lateral speed is the road direction's, give or take a little
-        if new.any():
+        if np.count_nonzero(new):
             tr.lat_p[new, 1, 1] = np.minimum(tr.lat_p[new, 1, 1], cfg.lateral_smoother_init_speed_sigma_mps**2)
             tr.lat_p[new, 0, 1] = tr.lat_p[new, 1, 0] = 0.0
         ref, ref_p = tr.x[:, 0::2], tr.p[:, 0::2, 0::2]
-        if self.kernel is not None:  # predict, likelihood ratio, update and tests in one pass (equal to rounding)
-            c = np.ascontiguousarray
-            lat, lat_p, cusum, off = self.kernel.lateral_step(
-                c(tr.lat), c(tr.lat_p), frame.dt_s, cfg.lateral_smoother_q_m2ps3, c(beta), c(meas.z[:, 0]),
-                c(r[:, 0, 0]), c(rm[:, 0, 0]) if rm is not None else _NO_VAR, rm is not None, c(xp[:, 0]),
-                c(pp[:, 0, 0]), c(tr.lat_cusum), c(ref), c(ref_p), self._gamma,
-                cfg.lateral_smoother_min_var_fraction, cfg.lateral_smoother_cusum_nats)
-            any_pair = beta.size > 0 and bool((beta > 0).any())
-        else:
-            lat, lat_p, cusum, off, any_pair = self._line(tr, frame, ref, ref_p)
+        lat, lat_p, cusum, off, any_pair = self._line(tr, frame, ref, ref_p)
         hold = keep = None
         if cfg.lateral_smoother_hold_manoeuvre_prob < 1.0:
             keep = self.predictor.manoeuvring(tr)
@@ -83,10 +78,10 @@ class LateralSmoother(native.KernelUser):
             # no straight line through it, the motion model's position until the pair splits
             best, strong = carrying_detection(beta)
             off |= meas.unresolved[best] & strong  # (with the motion model's own lateral speed: it may be crossing)
-        if off.any():
+        if np.count_nonzero(off):
             lat[off], lat_p[off] = ref[off], ref_p[off]
             cusum = np.where(off, 0.0, cusum)
-            if hold is not None and hold.any():
+            if hold is not None and np.count_nonzero(hold):
                 # held during a manoeuvre: the lateral speed of the lane-keeping mode (decaying to the road's), so a
                 # line that starts again as the manoeuvre ends does not keep the manoeuvre's speed across
                 _, xk, pk = keep
@@ -95,6 +90,19 @@ class LateralSmoother(native.KernelUser):
                 lat_p[hold, 0, 1] = lat_p[hold, 1, 0] = pk[hold, 0, 2]
         tr.lat, tr.lat_p, tr.lat_cusum = lat, lat_p, cusum
         return None
+
+    def _run_kernel(self, tr: TrackTable, frame: Frame) -> None:
+        """:meth:`run` in one ``lateral_frame`` call: the seeded lines, the line step and the restarts."""
+        cfg, mp, pred = self.cfg, frame.mp, frame.pred
+        keep = self.predictor.manoeuvring(tr) if cfg.lateral_smoother_hold_manoeuvre_prob < 1.0 else None
+        unresolved = frame.meas.unresolved if cfg.lateral_smoother_hold_unresolved else None
+        tr.lat, tr.lat_p, tr.lat_cusum = self.kernel.lateral_frame(
+            tr.age, cfg.lateral_smoother_init_speed_sigma_mps**2, tr.lat, tr.lat_p, frame.dt_s,
+            cfg.lateral_smoother_q_m2ps3, frame.hyp.beta, frame.meas.z, mp.r, _NO_R if mp.rm is None else mp.rm,
+            mp.rm is not None, pred.x, pred.p, tr.lat_cusum, tr.x, tr.p, self._gamma,
+            cfg.lateral_smoother_min_var_fraction, cfg.lateral_smoother_cusum_nats, keep is not None,
+            *(_NO_KEEP if keep is None else keep), cfg.lateral_smoother_hold_manoeuvre_prob, unresolved is not None,
+            _NO_FLAGS if unresolved is None else unresolved)
 
     def _line(self, tr: TrackTable, frame: Frame, ref: np.ndarray, ref_p: np.ndarray):
         """The numpy reference of one frame of the lines: predicted, tested against the detections (CUSUM of the
