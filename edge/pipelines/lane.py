@@ -345,12 +345,10 @@ class LanePipeline(native.KernelUser, Pipeline):
         body = det.extra.get("body_extent_m")
         if body is None:
             return None
-        if self._k_faces is not None:
-            try:
-                return self._k_faces.track_extents(tracks, det.range_m, det.radial_speed_mps, body,
-                                                   _TRACK_DET_RANGE_M, _TRACK_DET_SPEED_MPS)
-            except (TypeError, ValueError):  # not float32 arrays: the numpy form below
-                pass
+        cols = (det.range_m, det.radial_speed_mps, body)
+        if self._k_faces is not None and all(isinstance(c, np.ndarray) and c.dtype == np.float32 and c.ndim == 1
+                                             and c.flags.c_contiguous for c in cols):
+            return self._k_faces.track_extents(tracks, *cols, _TRACK_DET_RANGE_M, _TRACK_DET_SPEED_MPS)
         out = np.full(len(tracks), np.nan)
         if not len(det) or not len(tracks):
             return out

@@ -125,6 +125,11 @@ def _new_rows(k: int, ext_var: float, keep_prob: float) -> tuple[np.ndarray, ...
     return rows
 
 
+def _f32_vector(a) -> bool:
+    """A one-dimensional float32 array: what the compiled column kernels take (other columns take the numpy form)."""
+    return isinstance(a, np.ndarray) and a.dtype == np.float32 and a.ndim == 1
+
+
 @dataclass
 class Measurements:
     """One frame's detections as the filter sees them (float64, ground plane)."""
@@ -139,12 +144,9 @@ class Measurements:
     def from_detections(cls, det: Detections, use_radial_speed: bool, kernel=None) -> "Measurements":
         """The frame's measurements; ``kernel``: the compiled ``edge.native._track``, used when the columns are
         float32 arrays of finite values (the same float64 values)."""
-        if kernel is not None:
-            try:
-                res = kernel.measurements(det.x_m, det.y_m, det.snr_db, det.radial_speed_mps, det.range_m,
-                                          use_radial_speed)
-            except (TypeError, ValueError):  # not float32 arrays: the numpy form
-                res = None
+        cols = (det.x_m, det.y_m, det.snr_db, det.radial_speed_mps, det.range_m)
+        if kernel is not None and all(_f32_vector(c) for c in cols):
+            res = kernel.measurements(*cols, use_radial_speed)
             if res is not None:
                 z, snr = res
                 return cls(z, snr, use_radial_speed, _pair_column(det, z.shape[0]),

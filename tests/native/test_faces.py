@@ -117,3 +117,23 @@ def test_track_extents_are_identical(seed, n_tracks, n_det):
     np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))  # bits (NaN)
     if n_tracks and n_det:
         assert np.isfinite(got[0])  # (a detection no farther than the first in range: a finite extent)
+
+
+def test_a_failing_track_extents_kernel_is_not_hidden():
+    """``LanePipeline.track_extents`` picks the kernel by the columns' dtype and layout, not by catching its errors."""
+    from types import SimpleNamespace
+
+    from edge.pipelines.lane import LanePipeline
+    from edge.types import Detections
+
+    def boom(*_):
+        raise TypeError("kernel failure")
+
+    col = np.array([20.0, 40.0], np.float32)
+    det = Detections(col, col, col, col, col, col, {"body_extent_m": np.array([4.0, 5.0], np.float32)})
+    tracks = (SimpleNamespace(range_m=20.0, radial_speed_mps=20.0),)
+    pipe = SimpleNamespace(_k_faces=SimpleNamespace(track_extents=boom))
+    with pytest.raises(TypeError, match="kernel failure"):
+        LanePipeline.track_extents(pipe, tracks, det)
+    det.extra["body_extent_m"] = np.array([4.0, 5.0])  # float64: the numpy form, no call
+    assert LanePipeline.track_extents(pipe, tracks, det).tolist() == [4.0]

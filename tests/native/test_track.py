@@ -964,3 +964,23 @@ def test_reanchor_match_is_identical(seed, receding_only):
                             role.box.cfg.merge_lateral_m)
     assert ref is not None and ref[0].size >= 2  # the frame exercises the matching
     assert np.array_equal(i, ref[0]) and np.array_equal(j, ref[1])
+
+
+def test_a_failing_measurements_kernel_is_not_hidden():
+    """``Measurements.from_detections`` picks the kernel by the columns' dtype, not by catching its errors: an error
+    inside the kernel reaches the caller, and float64 columns never reach the kernel."""
+    from types import SimpleNamespace
+
+    from edge.track.table import Measurements
+    from edge.types import Detections
+
+    def boom(*_):
+        raise ValueError("kernel failure")
+
+    f32 = np.float32
+    det = Detections(*(np.array([30.0, 60.0], f32) for _ in range(6)))
+    with pytest.raises(ValueError, match="kernel failure"):
+        Measurements.from_detections(det, True, SimpleNamespace(measurements=boom))
+    wide = Detections(*(np.array([30.0, 60.0]) for _ in range(6)))
+    m = Measurements.from_detections(wide, True, SimpleNamespace(measurements=boom))  # numpy form, no call
+    assert m.z.shape == (2, 3)
