@@ -152,7 +152,7 @@ class Measurements:
                 return cls(z, snr, use_radial_speed, _pair_column(det, z.shape[0]),
                            _extra_column(det, "unresolved_pair", bool, None, True, z.shape[0]))
         # one float64 array of the five columns (a handful of detections: few calls, not few flops)
-        cols = np.array([det.x_m, det.y_m, det.snr_db, det.radial_speed_mps, det.range_m], dtype=np.float64)
+        cols = np.array(cols, dtype=np.float64)
         fin = np.isfinite(cols)
         every = bool(fin.all())  # the usual frame: no checks column by column
         ok = fin[0] & fin[1]
