@@ -720,8 +720,14 @@ cdef void _lateral_rows(const double[:, :] lat0, const double[:, :, :] lat_p0, c
                         const double[:] x_ref, const double[:] var_ref, const double[:] cusum0, const double[:, :] ref,
                         const double[:, :, :] ref_p, double gamma, double min_fraction, double cusum_nats,
                         double[:, ::1] x, double[:, :, ::1] p, double[::1] cusum, cnp.npy_bool[::1] off) noexcept nogil:
-    """The row loop of :func:`lateral_step` (strided inputs); rows whose ``age`` is ``seed_age`` (>= 0) first get
-    the seeded line's lateral speed variance ``min(p11, seed_var)`` and no covariance."""
+    """One frame of the straight-line lateral filter of every track, row by row (strided inputs): the numpy
+    reference's :func:`edge.track.kalman.lateral_predict`, :func:`edge.track.kalman.lateral_log_likelihood_ratio`,
+    the CUSUM, :func:`edge.track.kalman.lateral_pda_update` and :func:`edge.track.kalman.lateral_inconsistent`, with
+    the association weights ``beta`` (T, M), the detections' lateral positions ``z0`` (M,) and variances
+    ``var_track[t] (+ var_meas[m])``, the motion model's prediction ``x_ref``, ``var_ref`` (T,) and posterior ``ref``
+    (T, 2), ``ref_p`` (T, 2, 2) = ``[x, vx]``; writes ``x``, ``p``, ``cusum`` and ``off`` (the line disagrees with
+    the motion model: restart). Rows whose ``age`` is ``seed_age`` first get the seeded line's lateral speed
+    variance ``min(p11, seed_var)`` and no covariance."""
     cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], t, m
     cdef double q3 = q * dt ** 3 / 3.0, q2 = q * dt ** 2 / 2.0, q1 = q * dt
     cdef double p00, p01, p11, xs, vs, w, r, s_s, s_r, v_s, v_r, llr, k0, k1, dx0, dx1, d, vr0, vr1, c
@@ -731,7 +737,7 @@ cdef void _lateral_rows(const double[:, :] lat0, const double[:, :, :] lat_p0, c
         p00 = lat_p0[t, 0, 0]
         p01 = lat_p0[t, 0, 1]
         p11 = lat_p0[t, 1, 1]
-        if seed_age >= 0 and age[t] == seed_age:  # seeded last frame (LateralSmoother.run's first step)
+        if age[t] == seed_age:  # seeded last frame (LateralSmoother.run's first step)
             p11 = _np_min(p11, seed_var)
             p01 = 0.0
         xs = lat0[t, 0] + dt * lat0[t, 1]
@@ -788,38 +794,6 @@ cdef void _lateral_rows(const double[:, :] lat0, const double[:, :, :] lat_p0, c
         off[t] = off[t] or cusum[t] > cusum_nats
 
 
-_NO_AGE = np.zeros(0, np.int32)
-
-
-def lateral_step(const double[:, ::1] lat0, const double[:, :, ::1] lat_p0, double dt, double q,
-                 const double[:, ::1] beta, const double[::1] z0, const double[::1] var_track,
-                 const double[::1] var_meas, bint per_detection, const double[::1] x_ref, const double[::1] var_ref,
-                 const double[::1] cusum0, const double[:, ::1] ref, const double[:, :, ::1] ref_p, double gamma,
-                 double min_fraction, double cusum_nats):
-    """One frame of the straight-line lateral filter of every track (:class:`edge.track.roles.post.LateralSmoother`:
-    :func:`edge.track.kalman.lateral_predict`, :func:`edge.track.kalman.lateral_log_likelihood_ratio`, the CUSUM,
-    :func:`edge.track.kalman.lateral_pda_update` and :func:`edge.track.kalman.lateral_inconsistent`) with the
-    association weights ``beta`` (T, M), the detections' lateral positions ``z0`` (M,) and variances
-    ``var_track[t] (+ var_meas[m])``; the motion model's prediction ``x_ref``, ``var_ref`` (T,) and posterior
-    ``ref`` (T, 2), ``ref_p`` (T, 2, 2) = ``[x, vx]``. Returns the updated ``lat`` (T, 2), ``lat_p`` (T, 2, 2),
-    ``cusum`` (T,) and ``off`` (T,) bool (the line disagrees with the motion model: restart). Equal to numpy to
-    rounding."""
-    cdef Py_ssize_t nt = beta.shape[0]
-    lat_a = np.empty((nt, 2))
-    lat_p_a = np.empty((nt, 2, 2))
-    cusum_a = np.empty(nt)
-    off_a = np.empty(nt, dtype=bool)
-    cdef double[:, ::1] x = lat_a
-    cdef double[:, :, ::1] p = lat_p_a
-    cdef double[::1] cusum = cusum_a
-    cdef cnp.npy_bool[::1] off = off_a
-    cdef const cnp.int32_t[:] no_age = _NO_AGE
-    with nogil:
-        _lateral_rows(lat0, lat_p0, no_age, -1, 0.0, dt, q, beta, z0, var_track, var_meas, per_detection, x_ref,
-                      var_ref, cusum0, ref, ref_p, gamma, min_fraction, cusum_nats, x, p, cusum, off)
-    return lat_a, lat_p_a, cusum_a, off_a
-
-
 cdef inline Py_ssize_t _argmax_row(const double[:, :] a, Py_ssize_t t) noexcept nogil:
     """``np.argmax(a[t])`` of a non-empty row: the first largest value, or the first NaN."""
     cdef Py_ssize_t best = 0, m
@@ -844,13 +818,13 @@ def lateral_frame(const cnp.int32_t[:] age, double seed_var, const double[:, :] 
                   const double[:, :] xk, const double[:, :, :] pk, double hold_prob, bint has_unresolved,
                   const cnp.npy_bool[:] unresolved):
     """The whole frame of :class:`edge.track.roles.post.LateralSmoother` (``run``) for every track: the seeded
-    lines' (``age`` 2) lateral speed variance capped at ``seed_var``, :func:`lateral_step` on the column views the
-    role passes (``z[:, 0]``, ``r[:, 0, 0]``, ``rm[:, 0, 0]``, ``xp[:, 0]``, ``pp[:, 0, 0]``; the motion model's
+    lines' (``age`` 2) lateral speed variance capped at ``seed_var``, the line step (``_lateral_rows``) on the column
+    views the role passes (``z[:, 0]``, ``r[:, 0, 0]``, ``rm[:, 0, 0]``, ``xp[:, 0]``, ``pp[:, 0, 0]``; the motion model's
     ``[x, vx]`` from ``xs``, ``ps``), then the restarts: a track is held on the motion model when the line
     disagrees, when its manoeuvring mode's probability exceeds ``hold_prob`` (``has_hold``; then with the
     lane-keeping mode's ``xk``, ``pk`` lateral speed) or when its carrying detection (largest weight, > 0.5) is
-    ``unresolved`` (``has_unresolved``). Returns ``lat`` (T, 2), ``lat_p`` (T, 2, 2), ``cusum`` (T,); the same
-    operations as the role's numpy glue around :func:`lateral_step`."""
+    ``unresolved`` (``has_unresolved``). Returns ``lat`` (T, 2), ``lat_p`` (T, 2, 2), ``cusum`` (T,); equal to the
+    role's numpy path to rounding."""
     cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], t, best
     lat_a = np.empty((nt, 2))
     lat_p_a = np.empty((nt, 2, 2))
