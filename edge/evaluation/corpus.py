@@ -105,6 +105,8 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "sum over lanes of |measured - true| volume / true volume"),
         Metric("position_rmse_m", "position_sq_error_sum_m2", "position_n", "m",
                "position error of assigned frames within 200 m (eq. 20 pooled over frames)", sqrt=True),
+        Metric("position_rmse_vehicle_m", "position_vehicle_rmse_sum_m", "position_vehicles", "m",
+               "each vehicle's own position RMSE within 200 m, mean over vehicles (10+ assigned frames)"),
         Metric("speed_mae_kmh", "speed_abs_error_sum_kmh", "speed_n", "km/h", "|track speed - speed|"),
         Metric("lane_accuracy", "lane_correct", "lane_assigned", "", "assigned frames in the true lane"),
         Metric("id_switches_per_min", "id_switches", "minutes", "1/min", "track id changes along a vehicle"),

@@ -68,7 +68,9 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   ``length_class_true``/``length_class_est``;
 * ``tallies``: the sums and counts behind the headline figures (frames in view and tracked, all and ``separate``;
   false tracks, in all and in the first 30 s, and the minutes; true volume and the sum of |measured - true| over
-  lanes; squared position error and its frame count within ``TALLY_RANGE_M`` (200 m); |speed error| sum and count;
+  lanes; squared position error and its frame count within ``TALLY_RANGE_M`` (200 m), and the sum of the vehicles'
+  own position RMSEs there with their number (vehicles with ``VEHICLE_RMSE_MIN_FRAMES`` assigned frames or more:
+  each vehicle weighs the same, a far motorcycle as much as a near truck); |speed error| sum and count;
   lane-correct and lane-assigned frames), so that the evaluation corpus (:mod:`edge.evaluation.corpus`) pools runs
   as ratios of sums;
 * ``count_mismatches``: the true crossings left unmatched (``missed``) and the counted ones left unmatched
@@ -105,6 +107,7 @@ RANGE_BIN_M = 50.0
 OVERLAP_BINS = 1.5  # a beat this many FFT bins from another vehicle's span shares its peak (Hann main lobe: 2)
 OVERLAP_SEGMENTS = 2  # ... in this many of the four segments (the pairing tolerates one shared peak)
 TALLY_RANGE_M = 200.0  # the pooled position error (summary ``tallies``) counts assigned frames within this ground range
+VEHICLE_RMSE_MIN_FRAMES = 10  # a vehicle's own position RMSE (tallies) needs this many assigned frames within it
 START_S = 30.0  # ``false_tracks_first_30s``: false tracks confirmed this soon after the (cold) start
 
 
@@ -253,6 +256,18 @@ def _stopped_score(acc: dict[int, "_TargetAcc"], alarms: list[tuple[int | None, 
     return _event_score({i: a.stopped_t for i, a in acc.items() if a.stopped_t is not None}, alarms, "vehicles")
 
 
+def _vehicle_rmse_tallies(acc: dict[int, "_TargetAcc"]) -> dict:
+    """The sum of the vehicles' own position RMSEs within ``TALLY_RANGE_M`` and their number (vehicles with at least
+    ``VEHICLE_RMSE_MIN_FRAMES`` assigned frames there)."""
+    total, n = 0.0, 0
+    for a in acc.values():
+        e = [e2 for e2, r in zip(a.sq_err, a.err_rng) if r <= TALLY_RANGE_M]
+        if len(e) >= VEHICLE_RMSE_MIN_FRAMES:
+            total += math.sqrt(sum(e) / len(e))
+            n += 1
+    return {"position_vehicle_rmse_sum_m": total, "position_vehicles": n}
+
+
 def _tallies(acc: dict[int, "_TargetAcc"], pd_overlap: dict, false_eps: list, n_start: int, n_frames: int,
              period: float, counts: dict, sq_200: list, lane_ok: int, lane_n: int) -> dict:
     """The run's sums and counts behind its figures (module doc), so that runs pool as ratios of sums: every
@@ -276,6 +291,7 @@ def _tallies(acc: dict[int, "_TargetAcc"], pd_overlap: dict, false_eps: list, n_
         # position error of assigned frames within TALLY_RANGE_M ground range
         "position_sq_error_sum_m2": float(sq_200[0]),
         "position_n": int(sq_200[1]),
+        **_vehicle_rmse_tallies(acc),
         "speed_abs_error_sum_kmh": float(sum(sum(a.spd_err) for a in acc.values())),
         "speed_n": int(sum(len(a.spd_err) for a in acc.values())),
         "lane_correct": int(lane_ok),

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from edge.cli import main
 from edge.config import load_config
-from edge.evaluation.lane import _rmse_within, evaluate
+from edge.evaluation.lane import _TargetAcc, _rmse_within, _vehicle_rmse_tallies, evaluate
 from hw_sim.scenario import load_scenario
 
 V1 = {"physics": {"preset": "v1"}}  # the v1 instrument (hw_sim.physics.PRESETS)
@@ -68,6 +68,17 @@ def test_highway4_short_run_meets_accuracy_floor():
         for k, v in w.items():
             worst[k] = max(worst.get(k, 0.0), v)
     assert s["position_rmse_m_max_within"] == pytest.approx(worst)
+
+
+def test_vehicle_rmse_tallies_weigh_each_vehicle_once():
+    """Each vehicle's own RMSE within 200 m, summed with their number: 12 frames of error 1 m (and 3 beyond 200 m,
+    left out) and 10 frames of 2 m count; a vehicle with 5 frames within 200 m does not."""
+    a, b, c = _TargetAcc("car"), _TargetAcc("motorcycle"), _TargetAcc("truck")
+    a.sq_err, a.err_rng = [1.0] * 12 + [100.0] * 3, [150.0] * 12 + [250.0] * 3
+    b.sq_err, b.err_rng = [4.0] * 10, [190.0] * 10
+    c.sq_err, c.err_rng = [9.0] * 5, [50.0] * 5
+    t = _vehicle_rmse_tallies({1: a, 2: b, 3: c})
+    assert t == {"position_vehicle_rmse_sum_m": pytest.approx(3.0), "position_vehicles": 2}
 
 
 def test_rmse_within_range_steps_is_cumulative():
