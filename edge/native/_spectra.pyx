@@ -96,10 +96,12 @@ cdef extern from *:
         }
     }
 
-    /* dp = (sp - bp) * alpha over n interleaved complex bins, +0.0 where keep[k] (all bits or none) is 0. */
-    static void ksp_masked_update(const float *sp, const float *bp, float *dp, const unsigned int *keep, int n,
+    /* dp = (sp - bp) * alpha over n interleaved complex bins, +0.0 where the mask keep[k] (all bits set, or
+       none; written and read by memcpy: the scratch is a float array) is 0: no branch per bin. */
+    static void ksp_masked_update(const float *sp, const float *bp, float *dp, const float *keep, int n,
                                   float alpha) {
         int k = 0;
+        unsigned int mk;
         ksp_v4 a = {alpha, alpha, alpha, alpha};
         for (; k + 4 <= n; k += 4) {
             ksp_u4 m;
@@ -111,15 +113,16 @@ cdef extern from *:
         }
         for (; k < n; k++) {
             float v0 = (sp[2 * k] - bp[2 * k]) * alpha, v1 = (sp[2 * k + 1] - bp[2 * k + 1]) * alpha;
-            dp[2 * k] = keep[k] ? v0 : 0.0f;
-            dp[2 * k + 1] = keep[k] ? v1 : 0.0f;
+            memcpy(&mk, keep + k, sizeof mk);
+            dp[2 * k] = mk ? v0 : 0.0f;
+            dp[2 * k + 1] = mk ? v1 : 0.0f;
         }
     }
     """
     int KSP_MAX_RX
     void ksp_change_own(const float* const* sp, const float* const* pp, int n_rx, int n, float* cp,
                         float* op) noexcept nogil
-    void ksp_masked_update(const float* sp, const float* bp, float* dp, const unsigned int* keep, int n,
+    void ksp_masked_update(const float* sp, const float* bp, float* dp, const float* keep, int n,
                            float alpha) noexcept nogil
 
 
@@ -171,11 +174,11 @@ def update_hold_moving(const float complex[:, :, ::1] spec, const float complex[
     then ``prev = spec``. ``change``, ``own`` (seg, bin) and ``work`` (bin) are scratch. Shapes (rx, seg, bin)."""
     cdef Py_ssize_t n_rx = spec.shape[0], n_seg = spec.shape[1], n = spec.shape[2], r, s, k
     cdef float dr, di, sr, si, med, thr
+    cdef unsigned int keep
     cdef const float* sp
     cdef const float* pp
     cdef float* cp
     cdef float* op
-    cdef unsigned int* keep = <unsigned int*>&work[0]  # the moving test's result per bin: all bits kept, or none
     cdef const float* sps[16]
     cdef const float* pps[16]
     for s in range(n_seg):  # channel by channel (from the first, real before imaginary): the same sums per cell
@@ -215,11 +218,12 @@ def update_hold_moving(const float complex[:, :, ::1] spec, const float complex[
         memcpy(&work[0], cp, n * sizeof(float))
         med = _select(&work[0], n, n // 2)
         thr = med * factor
-        for k in range(n):  # all bits where the cell stood still (its map learns), none where it moved
-            keep[k] = 0 if cp[k] > thr + op[k] * rel2 else 0xFFFFFFFF
+        for k in range(n):  # the mask: all bits where the cell stood still (its map learns), none where it moved
+            keep = 0 if cp[k] > thr + op[k] * rel2 else 0xFFFFFFFF
+            memcpy(&work[k], &keep, sizeof(unsigned int))
         for r in range(n_rx):
             ksp_masked_update(<const float*>&spec[r, s, 0], <const float*>&background[r, s, 0],
-                              <float*>&d[r, s, 0], keep, n, alpha)
+                              <float*>&d[r, s, 0], &work[0], n, alpha)
 
 
 def apply_map(float complex[:, :, ::1] spec, float complex[:, :, ::1] background,
