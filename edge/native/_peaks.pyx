@@ -19,6 +19,7 @@ cdef extern from *:
        (Batcher's odd-even merge sort, pruned to the comparators the rank's output depends on), in GCC/Clang
        vector types (SSE on x86-64, NEON on arm64). A lane's comparator is min/max (no NaN, no -0 in a power: the
        values of a sort). */
+    #include <string.h>
     typedef float kdet_v4 __attribute__((vector_size(16)));
     typedef int kdet_i4 __attribute__((vector_size(16)));
     #if defined(__SSE__)
@@ -64,11 +65,82 @@ cdef extern from *:
         for (l = 0; l < nb; l++)
             out[l] = f[(rank - 1) * KDET_LANES + l];
     }
+
+    /* The same for the default window (16 reference cells a side, the 24th smallest of 32), the comparators
+       fixed at compile time (kdet_net32_24 is rank_network(32, 24), which tests/native/test_peaks.py checks):
+       the network unrolled on constant rows instead of read from ``comp``, and the windows moved into the
+       lanes by 4 x 4 transposes of 4-cell loads instead of cell by cell. Lanes past ``nb`` repeat lane 0.
+       The same comparators in the same order on the same values: the same noise bit for bit. */
+    #define KDET_NET32_24_N 147
+    static const unsigned char kdet_net32_24[KDET_NET32_24_N][2] = {
+        {0, 1}, {2, 3}, {4, 5}, {6, 7}, {8, 9}, {10, 11}, {12, 13}, {14, 15}, {16, 17}, {18, 19}, {20, 21}, {22,
+        23}, {24, 25}, {26, 27}, {28, 29}, {30, 31}, {0, 2}, {1, 3}, {4, 6}, {5, 7}, {8, 10}, {9, 11}, {12, 14},
+        {13, 15}, {16, 18}, {17, 19}, {20, 22}, {21, 23}, {24, 26}, {25, 27}, {28, 30}, {29, 31}, {1, 2}, {5,
+        6}, {9, 10}, {13, 14}, {17, 18}, {21, 22}, {25, 26}, {29, 30}, {0, 4}, {1, 5}, {2, 6}, {3, 7}, {8, 12},
+        {9, 13}, {10, 14}, {11, 15}, {16, 20}, {17, 21}, {18, 22}, {19, 23}, {24, 28}, {25, 29}, {26, 30}, {27,
+        31}, {2, 4}, {3, 5}, {10, 12}, {11, 13}, {18, 20}, {19, 21}, {26, 28}, {27, 29}, {1, 2}, {3, 4}, {5, 6},
+        {9, 10}, {11, 12}, {13, 14}, {17, 18}, {19, 20}, {21, 22}, {25, 26}, {27, 28}, {29, 30}, {0, 8}, {1, 9},
+        {2, 10}, {3, 11}, {4, 12}, {5, 13}, {6, 14}, {7, 15}, {16, 24}, {17, 25}, {18, 26}, {19, 27}, {20, 28},
+        {21, 29}, {22, 30}, {23, 31}, {4, 8}, {5, 9}, {6, 10}, {7, 11}, {20, 24}, {21, 25}, {22, 26}, {23, 27},
+        {2, 4}, {3, 5}, {6, 8}, {7, 9}, {10, 12}, {11, 13}, {18, 20}, {19, 21}, {22, 24}, {23, 25}, {26, 28},
+        {27, 29}, {3, 4}, {5, 6}, {7, 8}, {9, 10}, {11, 12}, {13, 14}, {19, 20}, {21, 22}, {23, 24}, {25, 26},
+        {27, 28}, {29, 30}, {4, 20}, {5, 21}, {6, 22}, {7, 23}, {8, 24}, {9, 25}, {10, 26}, {11, 27}, {12, 28},
+        {13, 29}, {14, 30}, {15, 31}, {12, 20}, {13, 21}, {14, 22}, {15, 23}, {20, 24}, {21, 25}, {22, 26}, {23,
+        27}, {22, 24}, {23, 25}, {23, 24}
+    };
+    #if defined(__clang__)
+    #define KDET_SHUF(a, b, i0, i1, i2, i3) __builtin_shufflevector((a), (b), i0, i1, i2, i3)
+    #else
+    #define KDET_SHUF(a, b, i0, i1, i2, i3) __builtin_shuffle((a), (b), (kdet_i4){i0, i1, i2, i3})
+    #endif
+    static inline kdet_v4 kdet_load4(const float *p) {
+        kdet_v4 v;
+        memcpy(&v, p, sizeof v);
+        return v;
+    }
+    static void kdet_os_noise_32_24(const float *const *win, int nb, int off, float *out) {
+        kdet_v4 w[64];  /* reference cell i of lanes 0-3 in w[2 i], of lanes 4-7 in w[2 i + 1] */
+        const float *x[KDET_LANES];
+        int g, l, part, i, t;
+        for (l = 0; l < KDET_LANES; l++)
+            x[l] = win[l < nb ? l : 0];
+        for (g = 0; g < 2; g++)
+            for (part = 0; part < 2; part++)
+                for (i = 0; i < 16; i += 4) {
+                    int o = part * (off + 1) + i, row = part * 16 + i;
+                    kdet_v4 r0 = kdet_load4(x[4 * g] + o), r1 = kdet_load4(x[4 * g + 1] + o);
+                    kdet_v4 r2 = kdet_load4(x[4 * g + 2] + o), r3 = kdet_load4(x[4 * g + 3] + o);
+                    kdet_v4 t0 = KDET_SHUF(r0, r1, 0, 4, 1, 5), t1 = KDET_SHUF(r2, r3, 0, 4, 1, 5);
+                    kdet_v4 t2 = KDET_SHUF(r0, r1, 2, 6, 3, 7), t3 = KDET_SHUF(r2, r3, 2, 6, 3, 7);
+                    w[2 * row + g] = KDET_SHUF(t0, t1, 0, 1, 4, 5);
+                    w[2 * (row + 1) + g] = KDET_SHUF(t0, t1, 2, 3, 6, 7);
+                    w[2 * (row + 2) + g] = KDET_SHUF(t2, t3, 0, 1, 4, 5);
+                    w[2 * (row + 3) + g] = KDET_SHUF(t2, t3, 2, 3, 6, 7);
+                }
+    #if defined(__clang__)
+        #pragma unroll
+    #elif defined(__GNUC__)
+        #pragma GCC unroll 160
+    #endif
+        for (t = 0; t < KDET_NET32_24_N; t++) {
+            int a = kdet_net32_24[t][0], b = kdet_net32_24[t][1];
+            kdet_v4 x0 = w[2 * a], y0 = w[2 * b], x1 = w[2 * a + 1], y1 = w[2 * b + 1];
+            w[2 * a] = KDET_MIN(x0, y0);
+            w[2 * b] = KDET_MAX(x0, y0);
+            w[2 * a + 1] = KDET_MIN(x1, y1);
+            w[2 * b + 1] = KDET_MAX(x1, y1);
+        }
+        for (l = 0; l < nb; l++)
+            out[l] = ((const float *)&w[2 * 23 + l / 4])[l % 4];
+    }
     """
     int KDET_LANES
     int KDET_MAX_PAD
     void kdet_os_noise(const float* const* win, int nb, int n_train, int off, int npad, int rank, const int* comp,
                        int ncomp, float* out) noexcept nogil
+    int KDET_NET32_24_N
+    const unsigned char kdet_net32_24[][2]
+    void kdet_os_noise_32_24(const float* const* win, int nb, int off, float* out) noexcept nogil
 
 
 def rank_network(int n_ref, int rank):
@@ -98,6 +170,14 @@ def rank_network(int n_ref, int rank):
     return np.array(kept[::-1], np.int32).reshape(-1, 2), n
 
 
+def fixed_network():
+    """The comparators ``(147, 2)`` int32 of the unrolled default network (16 reference cells a side, rank 24):
+    :func:`select` takes it when ``comp`` equals it, which is :func:`rank_network` ``(32, 24)``."""
+    import numpy as np
+
+    return np.array([[kdet_net32_24[t][0], kdet_net32_24[t][1]] for t in range(KDET_NET32_24_N)], np.int32)
+
+
 @cython.boundscheck(False)
 @cython.wraparound(False)
 def select(const float[:, ::1] ppad, const unsigned char[:, ::1] valid, int n_train, int n_guard, int rank,
@@ -113,12 +193,17 @@ def select(const float[:, ::1] ppad, const unsigned char[:, ::1] valid, int n_tr
     detected, 0 weak); ``rows``, ``cols`` and ``scratch`` must hold every local maximum (seg * (n / 2 + 1)).
     Returns m."""
     cdef int n_seg = valid.shape[0], n = valid.shape[1]
-    cdef int half = n_train + n_guard, r, c, m = 0, k, n_max = 0, nb
+    cdef int half = n_train + n_guard, r, c, m = 0, k, n_max = 0, nb, t
     cdef float p, nz, ub, tiny = 1e-30
     cdef const float* row
     cdef const float* win[8]
+    cdef bint fixed = n_train == 16 and rank == 24 and npad == 32 and comp.shape[0] == KDET_NET32_24_N
     if npad > KDET_MAX_PAD or npad < 2 * n_train or rank < 1 or rank > 2 * n_train or KDET_LANES != 8:
         raise ValueError("reference window too large or rank out of range")
+    t = 0
+    while fixed and t < comp.shape[0]:  # the default network: its unrolled form (kdet_os_noise_32_24)
+        fixed = comp[t, 0] == kdet_net32_24[t][0] and comp[t, 1] == kdet_net32_24[t][1]
+        t += 1
     with nogil:
         for r in range(n_seg):  # the local maxima (strictly above the left neighbour, at least the right one)
             row = &ppad[r, half]
@@ -134,7 +219,10 @@ def select(const float[:, ::1] ppad, const unsigned char[:, ::1] valid, int n_tr
                 nb = 8
             for c in range(nb):
                 win[c] = &ppad[rows[k + c], cols[k + c]]
-            kdet_os_noise(win, nb, n_train, half + n_guard, npad, rank, &comp[0, 0], comp.shape[0], &scratch[k])
+            if fixed:
+                kdet_os_noise_32_24(win, nb, half + n_guard, &scratch[k])
+            else:
+                kdet_os_noise(win, nb, n_train, half + n_guard, npad, rank, &comp[0, 0], comp.shape[0], &scratch[k])
             k += nb
         for k in range(n_max):  # the decisions (rows, cols compacted in place: m <= k)
             r = rows[k]

@@ -16,6 +16,116 @@ from libc.string cimport memcpy
 import numpy as np
 
 
+cdef extern from *:
+    """
+    #include <string.h>
+    /* The clutter map's hot loops four bins at a time in GCC/Clang vector types (SSE on x86-64, NEON on arm64,
+       plain C elsewhere): element-wise float32 operations, each rounded as the scalar one (no contraction:
+       -ffp-contract=off), in the scalar loop's order; the remaining bins by the same scalar expressions. */
+    typedef float ksp_v4 __attribute__((vector_size(16)));
+    typedef unsigned int ksp_u4 __attribute__((vector_size(16)));
+    #if defined(__clang__)
+    #define KSP_SHUF(a, b, i0, i1, i2, i3) __builtin_shufflevector((a), (b), i0, i1, i2, i3)
+    #else
+    #define KSP_SHUF(a, b, i0, i1, i2, i3) __builtin_shuffle((a), (b), (ksp_u4){i0, i1, i2, i3})
+    #endif
+    #define KSP_MAX_RX 16
+    static inline ksp_v4 ksp_load(const float *p) { ksp_v4 v; memcpy(&v, p, sizeof v); return v; }
+    static inline void ksp_store(float *p, ksp_v4 v) { memcpy(p, &v, sizeof v); }
+
+    /* One segment's static test inputs: cp[k] = sum over the channels of |sp - pp|^2, op[k] = of |sp|^2, channel
+       by channel from the first, real before imaginary (sp[r], pp[r]: channel r's interleaved complex bins). */
+    static void ksp_change_own(const float *const *sp, const float *const *pp, int n_rx, int n, float *cp,
+                               float *op) {
+        int k = 0, r;
+        ksp_v4 c, o, sr, si, dr, di;
+    #define KSP_CHANNEL(r) do {                                                                          \
+            ksp_v4 s0 = ksp_load(sp[r] + 2 * k), s1 = ksp_load(sp[r] + 2 * k + 4);                       \
+            ksp_v4 p0 = ksp_load(pp[r] + 2 * k), p1 = ksp_load(pp[r] + 2 * k + 4);                       \
+            sr = KSP_SHUF(s0, s1, 0, 2, 4, 6);                                                           \
+            si = KSP_SHUF(s0, s1, 1, 3, 5, 7);                                                           \
+            dr = sr - KSP_SHUF(p0, p1, 0, 2, 4, 6);                                                      \
+            di = si - KSP_SHUF(p0, p1, 1, 3, 5, 7);                                                      \
+        } while (0)
+        if (n_rx == 4) {  /* the SIMO board's four channels, unrolled */
+            for (; k + 4 <= n; k += 4) {
+                KSP_CHANNEL(0);
+                c = dr * dr + di * di;
+                o = sr * sr + si * si;
+                KSP_CHANNEL(1);
+                c = (c + dr * dr) + di * di;
+                o = (o + sr * sr) + si * si;
+                KSP_CHANNEL(2);
+                c = (c + dr * dr) + di * di;
+                o = (o + sr * sr) + si * si;
+                KSP_CHANNEL(3);
+                c = (c + dr * dr) + di * di;
+                o = (o + sr * sr) + si * si;
+                ksp_store(cp + k, c);
+                ksp_store(op + k, o);
+            }
+        }
+        for (; k + 4 <= n; k += 4) {
+            KSP_CHANNEL(0);
+            c = dr * dr + di * di;
+            o = sr * sr + si * si;
+            for (r = 1; r < n_rx; r++) {
+                KSP_CHANNEL(r);
+                c = (c + dr * dr) + di * di;
+                o = (o + sr * sr) + si * si;
+            }
+            ksp_store(cp + k, c);
+            ksp_store(op + k, o);
+        }
+    #undef KSP_CHANNEL
+        for (; k < n; k++) {
+            float c = 0, o = 0;
+            for (r = 0; r < n_rx; r++) {
+                float sr = sp[r][2 * k], si = sp[r][2 * k + 1];
+                float dr = sr - pp[r][2 * k], di = si - pp[r][2 * k + 1];
+                if (r == 0) {
+                    c = dr * dr + di * di;
+                    o = sr * sr + si * si;
+                } else {
+                    c = (c + dr * dr) + di * di;
+                    o = (o + sr * sr) + si * si;
+                }
+            }
+            cp[k] = c;
+            op[k] = o;
+        }
+    }
+
+    /* dp = (sp - bp) * alpha over n interleaved complex bins, +0.0 where the mask keep[k] (all bits set, or
+       none; written and read by memcpy: the scratch is a float array) is 0: no branch per bin. */
+    static void ksp_masked_update(const float *sp, const float *bp, float *dp, const float *keep, int n,
+                                  float alpha) {
+        int k = 0;
+        unsigned int mk;
+        ksp_v4 a = {alpha, alpha, alpha, alpha};
+        for (; k + 4 <= n; k += 4) {
+            ksp_u4 m;
+            memcpy(&m, keep + k, sizeof m);
+            ksp_v4 v0 = (ksp_load(sp + 2 * k) - ksp_load(bp + 2 * k)) * a;
+            ksp_v4 v1 = (ksp_load(sp + 2 * k + 4) - ksp_load(bp + 2 * k + 4)) * a;
+            ksp_store(dp + 2 * k, (ksp_v4)((ksp_u4)v0 & KSP_SHUF(m, m, 0, 0, 1, 1)));
+            ksp_store(dp + 2 * k + 4, (ksp_v4)((ksp_u4)v1 & KSP_SHUF(m, m, 2, 2, 3, 3)));
+        }
+        for (; k < n; k++) {
+            float v0 = (sp[2 * k] - bp[2 * k]) * alpha, v1 = (sp[2 * k + 1] - bp[2 * k + 1]) * alpha;
+            memcpy(&mk, keep + k, sizeof mk);
+            dp[2 * k] = mk ? v0 : 0.0f;
+            dp[2 * k + 1] = mk ? v1 : 0.0f;
+        }
+    }
+    """
+    int KSP_MAX_RX
+    void ksp_change_own(const float* const* sp, const float* const* pp, int n_rx, int n, float* cp,
+                        float* op) noexcept nogil
+    void ksp_masked_update(const float* sp, const float* bp, float* dp, const float* keep, int n,
+                           float alpha) noexcept nogil
+
+
 def to_complex(const short[:, :, ::1] i, const short[:, :, ::1] q, const float[::1] w,
                float complex[:, :, ::1] out):
     """``out = (i + 1j q) * w``: int16 I/Q (rx, seg, bin) to complex64, windowed (``w`` float32, per bin)."""
@@ -63,16 +173,23 @@ def update_hold_moving(const float complex[:, :, ::1] spec, const float complex[
     the channels, |.|^2) exceeds ``factor`` x its segment's median plus ``rel2`` x the cell's own energy;
     then ``prev = spec``. ``change``, ``own`` (seg, bin) and ``work`` (bin) are scratch. Shapes (rx, seg, bin)."""
     cdef Py_ssize_t n_rx = spec.shape[0], n_seg = spec.shape[1], n = spec.shape[2], r, s, k
-    cdef float dr, di, sr, si, med, thr, v0, v1
+    cdef float dr, di, sr, si, med, thr
+    cdef unsigned int keep
     cdef const float* sp
     cdef const float* pp
-    cdef const float* bp
-    cdef float* dp
     cdef float* cp
     cdef float* op
-    for s in range(n_seg):  # channel by channel, bins innermost (contiguous): the same sums per cell
+    cdef const float* sps[16]
+    cdef const float* pps[16]
+    for s in range(n_seg):  # channel by channel (from the first, real before imaginary): the same sums per cell
         cp = &change[s, 0]
         op = &own[s, 0]
+        if n_rx <= KSP_MAX_RX:  # all channels at once, four bins at a time
+            for r in range(n_rx):
+                sps[r] = <const float*>&spec[r, s, 0]
+                pps[r] = <const float*>&prev[r, s, 0]
+            ksp_change_own(sps, pps, n_rx, n, cp, op)
+            continue
         for r in range(n_rx):
             sp = <const float*>&spec[r, s, 0]
             pp = <const float*>&prev[r, s, 0]
@@ -101,20 +218,12 @@ def update_hold_moving(const float complex[:, :, ::1] spec, const float complex[
         memcpy(&work[0], cp, n * sizeof(float))
         med = _select(&work[0], n, n // 2)
         thr = med * factor
-        for k in range(n):  # 1 where the cell moved (its map holds), else 0
-            work[k] = 1.0 if cp[k] > thr + op[k] * rel2 else 0.0
+        for k in range(n):  # the mask: all bits where the cell stood still (its map learns), none where it moved
+            keep = 0 if cp[k] > thr + op[k] * rel2 else 0xFFFFFFFF
+            memcpy(&work[k], &keep, sizeof(unsigned int))
         for r in range(n_rx):
-            sp = <const float*>&spec[r, s, 0]
-            bp = <const float*>&background[r, s, 0]
-            dp = <float*>&d[r, s, 0]
-            for k in range(n):
-                v0 = (sp[2 * k] - bp[2 * k]) * alpha
-                v1 = (sp[2 * k + 1] - bp[2 * k + 1]) * alpha
-                if work[k] != 0.0:
-                    v0 = 0.0
-                    v1 = 0.0
-                dp[2 * k] = v0
-                dp[2 * k + 1] = v1
+            ksp_masked_update(<const float*>&spec[r, s, 0], <const float*>&background[r, s, 0],
+                              <float*>&d[r, s, 0], &work[0], n, alpha)
 
 
 def apply_map(float complex[:, :, ::1] spec, float complex[:, :, ::1] background,

@@ -80,6 +80,52 @@ def test_kernel_equals_reference_on_random_spectra(seed):
             assert sum(f.size for f in ref.weak_freqs_hz) > 0
 
 
+def test_unrolled_default_network_is_the_rank_network():
+    """The kernel's unrolled network for the default window (16 reference cells a side, rank 24) has the
+    comparators of rank_network(32, 24), in order; the default configuration uses it."""
+    k = _kernel_or_skip()
+    comp, npad = k.rank_network(32, 24)
+    assert npad == 32
+    np.testing.assert_array_equal(k.fixed_network(), comp)
+    st = _stage()
+    assert (2 * st.config.cfar_train_cells, st._rank) == (32, 24)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_unrolled_network_equals_the_generic_one(seed):
+    """select's noise with the unrolled default network equals the comparator loop's on the same network (the
+    comparators given with one repeated at the end, which changes no output: the generic path runs), for every
+    batch size from 1 to 8 local maxima and with ties and zeros in the windows."""
+    k = _kernel_or_skip()
+    st = _stage()
+    rng = np.random.default_rng(100 + seed)
+    n, h = st.n_bins, st.pad
+    comp, npad = k.rank_network(32, 24)
+    comp_generic = np.ascontiguousarray(np.vstack([comp, comp[-1:]]))
+    for n_peaks in list(range(1, 10)) + [40]:
+        power = rng.gamma(4.0, 1.0, (4, n)).astype(np.float32)
+        if seed % 2:
+            power = np.round(power * 2) / 2
+            power[:, ::5] = 0.0
+        cells = 2 * rng.choice(n // 2, n_peaks, replace=False)  # even bins: never neighbours
+        power[0, cells] = np.float32(100.0) + rng.integers(0, 3, n_peaks)  # local maxima, some of them tied
+        ppad = circular_pad(power, h)
+        valid = np.zeros((4, n), np.uint8)
+        valid[0, cells] = 1  # the only local maxima searched: n_peaks of them, in one row
+        out = []
+        for c in (comp, comp_generic):
+            m = 4 * (n // 2 + 1)
+            noise = np.full((4, n), np.nan, np.float32)
+            rows, cols = np.empty(m, np.int64), np.empty(m, np.int64)
+            got = k.select(ppad, valid, 16, 2, 24, c, npad, np.full(4, np.inf, np.float32), st.scale32,
+                           np.float32(0.0), False, noise, rows, cols, np.empty((m, 3), np.float32),
+                           np.empty(m, np.uint8), np.empty(m, np.float32))
+            out.append((got, noise))
+        assert out[0][0] == out[1][0]
+        np.testing.assert_array_equal(out[0][1].view(np.int32), out[1][1].view(np.int32))
+        assert np.count_nonzero(~np.isnan(out[0][1])) == n_peaks
+
+
 def test_kernel_equals_reference_on_hw_sim_frames():
     """Every frame of a short seeded highway4-traffic run: the stage's recorded input (spectra after the clutter
     map, the weak-peak switch as the pipeline set it) through kernel and reference."""

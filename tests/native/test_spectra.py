@@ -86,6 +86,46 @@ def test_update_hold_moving_equals_numpy(n_rx, n_seg, n, seed, moving_share):
     assert np.array_equal(prev_k, ref_map._prev) and np.array_equal(prev_k, spec)
 
 
+@pytest.mark.parametrize("n", [1, 7, 16, 17, 64, 257, 1024])
+@pytest.mark.parametrize("seed", range(4))
+def test_update_hold_moving_median_with_ties_and_zeros(n, seed):
+    """The static test against the segment's median alone (factor 1, no own-energy term): a cell moves when its
+    change exceeds the median, so the held cells show the median the kernel selected. Quantised spectra (ties in
+    the change), cells unchanged since the last frame (change 0), some segments with half or all of them, and
+    changes spread over many binades (every 8-bit digit of the float patterns in use)."""
+    from edge.lane.clutter import ClutterMap
+
+    k = require_kernel("_spectra")
+    rng = np.random.default_rng(1000 + seed)
+    n_rx, n_seg = 2, 4
+    shape = (n_rx, n_seg, n)
+    prev = np.round(_cspec(rng, shape) * 4) / 4
+    step = np.round(_cspec(rng, shape) * 2) / 2 * (np.float32(10.0) ** rng.integers(-3, 4, shape)).astype(np.float32)
+    spec = (prev + step).astype(np.complex64)
+    still = rng.random((n_seg, n)) < [0.1, 0.5, 1.0, 0.0][seed % 4]
+    spec[:, still] = prev[:, still]
+    spec[:, 1, : n // 2] = prev[:, 1, : n // 2]  # segment 1: at least half of its cells unchanged
+    bg = _cspec(rng, shape)
+    alpha = np.float32(0.02)
+
+    class Cfg:
+        clutter_map_static_factor = 1.0
+        clutter_map_static_rel = 0.0
+
+    ref_map = ClutterMap.__new__(ClutterMap)
+    ref_map.config, ref_map._prev = Cfg, prev.copy()
+    d_ref = np.subtract(spec, bg) * alpha
+    ref_map._hold_moving(spec, d_ref)
+    prev_k, d_k = prev.copy(), np.empty(shape, np.complex64)
+    change = np.empty((n_seg, n), np.float32)
+    k.update_hold_moving(spec, bg, prev_k, d_k, alpha, np.float32(1.0), np.float32(0.0), change,
+                         np.empty((n_seg, n), np.float32), np.empty(n, np.float32))
+    assert np.array_equal(d_k.view(np.uint32), d_ref.view(np.uint32))
+    med = np.partition(change, n // 2, axis=1)[:, n // 2]
+    held = (d_k == 0).all(axis=0) & (spec != bg).any(axis=0)
+    assert np.array_equal(held, (change > med[:, None]) & (spec != bg).any(axis=0))
+
+
 def _channel_power(spec: np.ndarray) -> np.ndarray:
     """numpy reference of the channel sum: |spec|^2 summed over the receive channels, (seg, bin) float32."""
     sq = spec.view(np.float32).reshape(spec.shape + (2,)) ** 2
@@ -108,15 +148,17 @@ def test_apply_map_and_channel_power_equal_numpy():
     assert np.array_equal(ppad[:, :h], ref[:, -h:]) and np.array_equal(ppad[:, -h:], ref[:, :h])
 
 
-def test_apply_map_power_equals_numpy():
+@pytest.mark.parametrize("shape", [(4, 4, 256), (1, 2, 7), (3, 1, 257), (2, 3, 66)])
+def test_apply_map_power_equals_numpy(shape):
+    """Four bins at a time and the remaining bins, one to four channels."""
     k = require_kernel("_spectra")
     rng = np.random.default_rng(4)
-    shape, h = (4, 4, 256), 12
+    h = min(12, shape[2] // 2)  # the circular padding needs h <= n
     spec, bg, d = _cspec(rng, shape), _cspec(rng, shape), _cspec(rng, shape, 0.1)
     bg_ref = bg + d
     spec_ref = spec - bg_ref
     ref = _channel_power(spec_ref)
-    ppad = np.empty((4, 256 + 2 * h), np.float32)
+    ppad = np.empty((shape[1], shape[2] + 2 * h), np.float32)
     k.apply_map_power(spec, bg, d, ppad, h)
     assert np.array_equal(bg, bg_ref) and np.array_equal(spec, spec_ref)
     assert np.array_equal(ppad, np.concatenate([ref[:, -h:], ref, ref[:, :h]], axis=1))
