@@ -209,23 +209,28 @@ class FeatureConfig:
     )
     event_speed_alias: str = field(
         default="frame",
-        metadata={"doc": "beyond the paper: how the event speed's alias is chosen: history = one alias against the "
-                         "range rate of all the track's frames (RadialSpeedEstimator.history_alias), frame (default)"
-                         " = each frame's from the middle-half range rate",
-                  "choices": ("history", "frame")},
+        metadata={"doc": "beyond the paper: how the event speed's alias is chosen: fit = one reference fitted to the "
+                         "range history with the Doppler as slope (RadialSpeedEstimator.fit_alias), history = against"
+                         " the whole history's range rate, frame (default) = each frame's from the middle-half rate",
+                  "choices": ("fit", "history", "frame")},
     )
     event_speed_alias_edge_m: float = field(
         default=3.0,
-        metadata={"unit": "m", "doc": "history alias: a track whose clusters' median range extent is at least this "
-                                      "also takes the range rate of its leading edge, and the faster of the two; 0 ="
-                                      " the centroid only",
+        metadata={"unit": "m", "doc": "fit and history alias: a track whose clusters' median range extent is at "
+                                      "least this is also judged by its edges (history: the leading edge's range "
+                                      "rate, and the faster of it and the centroid's); 0 = the centroid only",
                   "min": 0.0, "max": 30.0},
     )
     event_speed_alias_edge_clip_m: float = field(
         default=3.0,
-        metadata={"unit": "m", "doc": "history alias: a receding body's far edge within this of the board's largest "
-                                      "range (where the beat leaves the sampled band) is left out of the leading "
-                                      "edge's range rate", "min": 0.0, "max": 30.0},
+        metadata={"unit": "m", "doc": "fit and history alias: a far edge within this of the board's largest range "
+                                      "(where the beat leaves the sampled band) is left out", "min": 0.0, "max": 30.0},
+    )
+    event_speed_alias_tol_m: float = field(
+        default=0.75,
+        metadata={"unit": "m", "doc": "fit alias: a frame whose range lies farther than this (the range resolution) "
+                                      "from the path its Doppler predicts is an outlier; the alias is certain when "
+                                      "others miss the range history by one such frame more", "min": 0.05, "max": 10.0},
     )
     event_speed_alias_margin_kmh: float = field(
         default=3.2,
@@ -880,18 +885,111 @@ class RadialSpeedEstimator:
         certain = n >= 3 and abs(float(np.mean(v[keep])) - rho) <= margin_kmh
         return v, rho, certain
 
+    def fit_alias(self, edge_m: float = 3.0, tol_m: float = 0.75, edge_limit_m: float = math.inf,
+                  static_kmh: float = 1.5, margin_frames: float = 1.0, window_steps: float = 1.0,
+                  last_frames: int = 0) -> tuple[np.ndarray, float, bool]:
+        """Per-frame unaliased speeds from one reference fitted jointly to the range history, with the wrapped
+        Doppler as the slope: ``(speeds_kmh, reference_kmh, certain)``.
+
+        Each candidate reference ``V`` (a grid of a quarter alias step through the circular mean of the wrapped
+        Doppler, within ``window_steps`` alias steps of the Theil-Sen range rate of one of the observables below)
+        unaliases each frame (``u_i``, the alias nearest ``V``) and predicts the range path by integrating ``u``
+        over the frames' times (trapezoids). The path is laid on each observable of the body at the offset that
+        fits it best, and each frame costs ``min(e^2, tol_m^2)``: a frame off the path by more than the range
+        resolution is an outlier (a merge with clutter, a fragment), whatever its size. The observables are the
+        centroid and, for a body whose median range extent is at least ``edge_m``, also its near and far edges:
+        while a long body enters or leaves the view one of its ends moves at its speed and its centroid lags
+        (more of it comes into view every frame). A far edge beyond ``edge_limit_m`` (cut off at the board's
+        largest range) is left out. A frame whose ``|u|`` is below ``static_kmh`` does not support that candidate:
+        static clutter a track passed through has zero Doppler and no range rate, and says nothing of a mover's
+        alias. The candidate of least total cost wins; it is *certain* when at least three frames lie on its path
+        and every candidate that gives most of those frames another alias costs at least ``margin_frames`` outlier
+        frames more. ``last_frames`` > 0: the latest frames only. Empty speeds and NaN below two frames."""
+        n = len(self._t)
+        if n < 2:
+            return np.zeros(0), math.nan, False
+        k0 = max(0, n - last_frames) if last_frames > 0 else 0
+        t, vw, r = np.array(self._t)[k0:], np.array(self._v)[k0:], np.array(self._r)[k0:]
+        lo, hi = np.array(self._lo)[k0:], np.array(self._hi)[k0:]
+        n = t.size
+        period = 2.0 * self.vmax_kmh
+        ang = vw * (2.0 * math.pi / period)
+        m = math.atan2(float(np.mean(np.sin(ang))), float(np.mean(np.cos(ang)))) * (period / (2.0 * math.pi))
+        known = np.isfinite(hi - lo)
+        obs = [r]
+        if edge_m > 0 and np.count_nonzero(known) >= 3 and float(np.median((hi - lo)[known])) >= edge_m:
+            obs += [np.where(known, lo, np.nan), np.where(known & (hi <= edge_limit_m), hi, np.nan)]
+        rates = []
+        for x in obs:
+            ok = np.isfinite(x)
+            rates.append(self._theil_sen_kmh(t[ok], x[ok]))
+        rates = [q for q in rates if math.isfinite(q)]
+        if not rates:
+            return np.zeros(0), math.nan, False
+        grid = period / 4.0
+        span = min(window_steps * period, 200.0)  # km/h; a wider window is all road speeds
+        j_lo = math.floor((min(rates) - span - m) / grid)
+        j_hi = math.ceil((max(rates) + span - m) / grid)
+        refs = m + grid * np.arange(j_lo, j_hi + 1)
+        near = np.zeros(refs.size, dtype=bool)
+        for q in rates:
+            near |= np.abs(refs - q) <= span
+        refs = refs[near]
+        tol2 = tol_m * tol_m
+        dt = np.diff(t)
+        costs = np.empty(refs.size)
+        support = np.zeros(refs.size, dtype=int)
+        speeds = np.empty((refs.size, n))  # each candidate's unaliased speeds
+        on_path = np.zeros((refs.size, n), dtype=bool)  # and its frames on the path
+        for q, ref in enumerate(refs):
+            u = vw + period * np.round((ref - vw) / period)
+            path = np.concatenate(([0.0], np.cumsum(0.5 * (u[1:] + u[:-1]) * dt))) / 3.6
+            speeds[q] = u
+            moving = np.abs(u) >= static_kmh
+            frame_e2 = np.full(n, tol2)  # per frame: the best fit of the observables (on the path when below tol2)
+            total = 0.0
+            for x in obs:
+                ok = np.isfinite(x) & moving
+                res = (x - path)[ok]
+                if res.size == 0:
+                    total += tol2 * n
+                    continue
+                # the offset: one of the usable frames' residuals (at most 48 of them, spread over their range)
+                off = res if res.size <= 48 else np.quantile(res, np.linspace(0.0, 1.0, 48))
+                e2 = np.minimum((res[None, :] - off[:, None]) ** 2, tol2)
+                c = e2.sum(axis=1)
+                b = int(np.argmin(c))
+                total += float(c[b]) + tol2 * (n - res.size)  # frames not usable cost an outlier's
+                frame_e2[ok] = np.minimum(frame_e2[ok], e2[b])
+            on_path[q] = frame_e2 < tol2
+            costs[q], support[q] = total, int(np.count_nonzero(on_path[q]))
+        best = int(np.argmin(costs))
+        rho = float(refs[best])
+        # rivals: the candidates that give the best one's frames on its path another alias (most of them)
+        mine = on_path[best] if on_path[best].any() else np.ones(n, dtype=bool)
+        rivals = np.abs(np.median(speeds[:, mine] - speeds[best, mine], axis=1)) >= self.vmax_kmh
+        gap = float(np.min(costs[rivals]) - costs[best]) if rivals.any() else math.inf
+        certain = n >= 3 and support[best] >= 3 and gap >= margin_frames * tol2
+        return self.dealias(vw, rho), rho, certain
+
     def event_speed_kmh(self, alias: str = "history", statistic: str = "trimmed_mean", leading_edge_m: float = 0.0,
                         alias_edge_m: float = 3.0, alias_margin_kmh: float = 3.2, edge_limit_m: float = math.inf,
-                        **cap) -> tuple[float, bool]:
+                        alias_tol_m: float = 0.75, **cap) -> tuple[float, bool]:
         """The mean radial speed of the passage (km/h) and whether its alias is certain.
 
         ``alias = "history"``: one alias for the whole history (:meth:`history_alias` with ``alias_edge_m`` and
-        ``alias_margin_kmh``, ``edge_limit_m``); ``"frame"``: each frame's alias from the middle-half range rate
-        (:meth:`speeds_kmh` with ``leading_edge_m``; certain from three frames on). ``statistic``: ``median`` or
+        ``alias_margin_kmh``, ``edge_limit_m``); ``"fit"``: one reference fitted to the range history with the
+        Doppler as its slope (:meth:`fit_alias` with ``alias_edge_m``, ``alias_tol_m`` and ``edge_limit_m``; when it
+        is not certain, the speeds are the per-frame choice's, flagged); ``"frame"``: each frame's alias from the
+        middle-half range rate (:meth:`speeds_kmh` with ``leading_edge_m``; certain from three frames on). ``statistic``: ``median`` or
         ``trimmed_mean`` (within ``v_max`` of the median) of the per-frame speeds left by the cap (``cap``: the
         keywords of :meth:`capped_speeds_kmh`)."""
         if alias == "history":
             v, _, certain = self.history_alias(alias_edge_m, alias_margin_kmh, edge_limit_m)
+        elif alias == "fit":
+            v, _, certain = self.fit_alias(alias_edge_m, alias_tol_m, edge_limit_m)
+            if not certain:  # flagged; the value is the per-frame choice's, the fit having found no clear alias
+                v = self.speeds_kmh(leading_edge_m)
         else:
             v, certain = self.speeds_kmh(leading_edge_m), len(self) >= 3
         v = self._capped(v, cap.get("cap_range_m", 0.0), cap.get("cap_margin_kmh", 0.5), cap.get("cap_min_kmh", 13.0))
