@@ -67,6 +67,10 @@ __all__ = [
     "weighted_standardization",
 ]
 
+#: event_speed_alias = "fit" judges an event's alias on its latest frames (51 s at 200 ms: longer than any passage
+#: through the 24 m view; bounds the work of a track that held static clutter for minutes)
+FIT_MAX_FRAMES = 256
+
 #: the five features of eq. 19, in order, and the range extent (beyond the paper, see the module doc)
 FEATURE_NAMES: tuple[str, ...] = (
     "circ_var_mean",
@@ -807,10 +811,11 @@ class RadialSpeedEstimator:
         alias) are left out (all kept if none would remain)."""
         return self._capped(self.speeds_kmh(leading_edge_m), cap_range_m, cap_margin_kmh, cap_min_kmh)
 
-    def _capped(self, v: np.ndarray, cap_range_m: float, cap_margin_kmh: float, cap_min_kmh: float) -> np.ndarray:
+    def _capped(self, v: np.ndarray, cap_range_m: float, cap_margin_kmh: float, cap_min_kmh: float,
+                ranges: np.ndarray | None = None) -> np.ndarray:
         if cap_range_m <= 0 or v.size == 0:
             return v
-        far = np.array(self._r) >= cap_range_m
+        far = (np.array(self._r) if ranges is None else ranges) >= cap_range_m  # the centroid ranges of v's frames
         if np.count_nonzero(far) < 2:
             return v
         cap = float(np.max(np.abs(v[far])))
@@ -887,12 +892,13 @@ class RadialSpeedEstimator:
 
     def fit_alias(self, edge_m: float = 3.0, tol_m: float = 0.75, edge_limit_m: float = math.inf,
                   static_kmh: float = 1.5, margin_frames: float = 1.0, window_steps: float = 1.0,
-                  last_frames: int = 0) -> tuple[np.ndarray, float, bool]:
+                  last_frames: int = 0) -> tuple[np.ndarray, float, bool, np.ndarray]:
         """Per-frame unaliased speeds from one reference fitted jointly to the range history, with the wrapped
-        Doppler as the slope: ``(speeds_kmh, reference_kmh, certain)``.
+        Doppler as the slope: ``(speeds_kmh, reference_kmh, certain, on_path)``.
 
         Each candidate reference ``V`` (a grid of a quarter alias step through the circular mean of the wrapped
-        Doppler, within ``window_steps`` alias steps of the Theil-Sen range rate of one of the observables below)
+        Doppler, within ``window_steps`` alias steps of the Theil-Sen range rate of one of the observables below over
+        all frames or over those whose wrapped Doppler is not below ``static_kmh``)
         unaliases each frame (``u_i``, the alias nearest ``V``) and predicts the range path by integrating ``u``
         over the frames' times (trapezoids). The path is laid on each observable of the body at the offset that
         fits it best, and each frame costs ``min(e^2, tol_m^2)``: a frame off the path by more than the range
@@ -900,14 +906,16 @@ class RadialSpeedEstimator:
         centroid and, for a body whose median range extent is at least ``edge_m``, also its near and far edges:
         while a long body enters or leaves the view one of its ends moves at its speed and its centroid lags
         (more of it comes into view every frame). A far edge beyond ``edge_limit_m`` (cut off at the board's
-        largest range) is left out. A frame whose ``|u|`` is below ``static_kmh`` does not support that candidate:
-        static clutter a track passed through has zero Doppler and no range rate, and says nothing of a mover's
-        alias. The candidate of least total cost wins; it is *certain* when at least three frames lie on its path
+        largest range) is left out. A frame whose ``|u|`` is below ``static_kmh`` does not vote for that candidate
+        when at least three others move under it: static clutter a track held has zero Doppler and no range rate,
+        and says nothing of a mover's alias (a target crossing the beam at zero radial speed keeps its frames). The
+        candidate of least total cost wins; it is *certain* when at least three frames lie on its path
         and every candidate that gives most of those frames another alias costs at least ``margin_frames`` outlier
-        frames more. ``last_frames`` > 0: the latest frames only. Empty speeds and NaN below two frames."""
+        frames more. ``on_path`` marks the frames on the winner's path (the target's; the others are outliers).
+        ``last_frames`` > 0: the latest frames only. Empty speeds and NaN below two frames."""
         n = len(self._t)
         if n < 2:
-            return np.zeros(0), math.nan, False
+            return np.zeros(0), math.nan, False, np.zeros(0, dtype=bool)
         k0 = max(0, n - last_frames) if last_frames > 0 else 0
         t, vw, r = np.array(self._t)[k0:], np.array(self._v)[k0:], np.array(self._r)[k0:]
         lo, hi = np.array(self._lo)[k0:], np.array(self._hi)[k0:]
@@ -920,12 +928,13 @@ class RadialSpeedEstimator:
         if edge_m > 0 and np.count_nonzero(known) >= 3 and float(np.median((hi - lo)[known])) >= edge_m:
             obs += [np.where(known, lo, np.nan), np.where(known & (hi <= edge_limit_m), hi, np.nan)]
         rates = []
+        doppler = np.abs(vw) >= static_kmh  # frames not at zero Doppler (of a track that held clutter a while)
         for x in obs:
-            ok = np.isfinite(x)
-            rates.append(self._theil_sen_kmh(t[ok], x[ok]))
+            for part in (np.isfinite(x), np.isfinite(x) & doppler):
+                rates.append(self._theil_sen_kmh(t[part], x[part]))
         rates = [q for q in rates if math.isfinite(q)]
         if not rates:
-            return np.zeros(0), math.nan, False
+            return np.zeros(0), math.nan, False, np.zeros(0, dtype=bool)
         grid = period / 4.0
         span = min(window_steps * period, 200.0)  # km/h; a wider window is all road speeds
         j_lo = math.floor((min(rates) - span - m) / grid)
@@ -936,33 +945,35 @@ class RadialSpeedEstimator:
             near |= np.abs(refs - q) <= span
         refs = refs[near]
         tol2 = tol_m * tol_m
-        dt = np.diff(t)
-        costs = np.empty(refs.size)
-        support = np.zeros(refs.size, dtype=int)
-        speeds = np.empty((refs.size, n))  # each candidate's unaliased speeds
-        on_path = np.zeros((refs.size, n), dtype=bool)  # and its frames on the path
-        for q, ref in enumerate(refs):
-            u = vw + period * np.round((ref - vw) / period)
-            path = np.concatenate(([0.0], np.cumsum(0.5 * (u[1:] + u[:-1]) * dt))) / 3.6
-            speeds[q] = u
-            moving = np.abs(u) >= static_kmh
-            frame_e2 = np.full(n, tol2)  # per frame: the best fit of the observables (on the path when below tol2)
-            total = 0.0
-            for x in obs:
-                ok = np.isfinite(x) & moving
-                res = (x - path)[ok]
-                if res.size == 0:
-                    total += tol2 * n
-                    continue
-                # the offset: one of the usable frames' residuals (at most 48 of them, spread over their range)
-                off = res if res.size <= 48 else np.quantile(res, np.linspace(0.0, 1.0, 48))
-                e2 = np.minimum((res[None, :] - off[:, None]) ** 2, tol2)
-                c = e2.sum(axis=1)
-                b = int(np.argmin(c))
-                total += float(c[b]) + tol2 * (n - res.size)  # frames not usable cost an outlier's
-                frame_e2[ok] = np.minimum(frame_e2[ok], e2[b])
-            on_path[q] = frame_e2 < tol2
-            costs[q], support[q] = total, int(np.count_nonzero(on_path[q]))
+        # every candidate at once: (candidates, frames)
+        speeds = vw[None, :] + period * np.round((refs[:, None] - vw[None, :]) / period)
+        path = np.zeros_like(speeds)
+        np.cumsum(0.5 * (speeds[:, 1:] + speeds[:, :-1]) * np.diff(t)[None, :], axis=1, out=path[:, 1:])
+        path /= 3.6
+        # a candidate's frames at zero Doppler do not vote (static clutter a track held says nothing of a mover's
+        # alias), unless fewer than three of its frames move (a target crossing the beam at zero radial speed)
+        moving = np.abs(speeds) >= static_kmh
+        moving |= (moving.sum(axis=1) < 3)[:, None]
+        costs = np.zeros(refs.size)
+        frame_e2 = np.full(speeds.shape, tol2)  # per frame: the best fit of the observables (on the path below tol2)
+        for x in obs:
+            ok = np.isfinite(x)[None, :] & moving
+            res = np.where(ok, x[None, :] - path, np.nan)
+            m_ok = ok.sum(axis=1)
+            # the offset: one of the usable frames' residuals (at most 48 of them, spread over their range)
+            if n <= 48:
+                off = res
+            else:
+                off = np.nanquantile(np.where(m_ok[:, None] > 0, res, 0.0), np.linspace(0.0, 1.0, 48), axis=1).T
+            e2 = np.minimum((res[:, None, :] - off[:, :, None]) ** 2, tol2)  # (candidates, offsets, frames)
+            e2 = np.where(ok[:, None, :], e2, tol2)
+            c = np.where(np.isfinite(off), e2.sum(axis=2), np.inf)  # frames not usable cost an outlier's
+            b = np.argmin(c, axis=1)
+            e2b = e2[np.arange(refs.size), b]
+            costs += np.where(m_ok > 0, e2b.sum(axis=1), tol2 * n)
+            frame_e2 = np.minimum(frame_e2, e2b)
+        on_path = frame_e2 < tol2
+        support = on_path.sum(axis=1)
         best = int(np.argmin(costs))
         rho = float(refs[best])
         # rivals: the candidates that give the best one's frames on its path another alias (most of them)
@@ -970,7 +981,7 @@ class RadialSpeedEstimator:
         rivals = np.abs(np.median(speeds[:, mine] - speeds[best, mine], axis=1)) >= self.vmax_kmh
         gap = float(np.min(costs[rivals]) - costs[best]) if rivals.any() else math.inf
         certain = n >= 3 and support[best] >= 3 and gap >= margin_frames * tol2
-        return self.dealias(vw, rho), rho, certain
+        return self.dealias(vw, rho), rho, certain, on_path[best]
 
     def event_speed_kmh(self, alias: str = "history", statistic: str = "trimmed_mean", leading_edge_m: float = 0.0,
                         alias_edge_m: float = 3.0, alias_margin_kmh: float = 3.2, edge_limit_m: float = math.inf,
@@ -979,20 +990,23 @@ class RadialSpeedEstimator:
 
         ``alias = "history"``: one alias for the whole history (:meth:`history_alias` with ``alias_edge_m`` and
         ``alias_margin_kmh``, ``edge_limit_m``); ``"fit"``: one reference fitted to the range history with the
-        Doppler as its slope (:meth:`fit_alias` with ``alias_edge_m``, ``alias_tol_m`` and ``edge_limit_m``; when it
-        is not certain, the speeds are the per-frame choice's, flagged); ``"frame"``: each frame's alias from the
+        Doppler as its slope (:meth:`fit_alias` with ``alias_edge_m``, ``alias_tol_m`` and ``edge_limit_m`` over the
+        latest :data:`FIT_MAX_FRAMES` frames; the speeds of the frames on its path, from three on); ``"frame"``: each frame's alias from the
         middle-half range rate (:meth:`speeds_kmh` with ``leading_edge_m``; certain from three frames on). ``statistic``: ``median`` or
         ``trimmed_mean`` (within ``v_max`` of the median) of the per-frame speeds left by the cap (``cap``: the
         keywords of :meth:`capped_speeds_kmh`)."""
         if alias == "history":
             v, _, certain = self.history_alias(alias_edge_m, alias_margin_kmh, edge_limit_m)
         elif alias == "fit":
-            v, _, certain = self.fit_alias(alias_edge_m, alias_tol_m, edge_limit_m)
-            if not certain:  # flagged; the value is the per-frame choice's, the fit having found no clear alias
-                v = self.speeds_kmh(leading_edge_m)
+            v, _, certain, on_path = self.fit_alias(alias_edge_m, alias_tol_m, edge_limit_m,
+                                                    last_frames=FIT_MAX_FRAMES)
+            ranges = np.array(self._r)[len(self._r) - v.size:]
+            if np.count_nonzero(on_path) >= 3:  # the target's frames (off the path: clutter, fragments)
+                v, ranges = v[on_path], ranges[on_path]
         else:
             v, certain = self.speeds_kmh(leading_edge_m), len(self) >= 3
-        v = self._capped(v, cap.get("cap_range_m", 0.0), cap.get("cap_margin_kmh", 0.5), cap.get("cap_min_kmh", 13.0))
+        v = self._capped(v, cap.get("cap_range_m", 0.0), cap.get("cap_margin_kmh", 0.5), cap.get("cap_min_kmh", 13.0),
+                         ranges if alias == "fit" else None)
         if not v.size:
             return math.nan, False
         if statistic == "median":

@@ -25,7 +25,8 @@ the range rate of the track's whole history (of a long body's leading edge too),
 ``speed_uncertain`` is set when that choice is not sure (:meth:`~edge.classify.features.RadialSpeedEstimator.history_alias`);
 with ``"fit"`` one reference is fitted to the range history of the centroid (and of a long body's edges) with the
 Doppler as its slope, and ``speed_uncertain`` is set when no alias fits clearly better than the others
-(:meth:`~edge.classify.features.RadialSpeedEstimator.fit_alias`; the event then carries the per-frame choice's speed).
+(:meth:`~edge.classify.features.RadialSpeedEstimator.fit_alias`; the event's speed is that of the frames on the
+fitted path).
 
 Beyond the paper (``track.alphabeta`` options; 0 restores the paper): once a track has clusters in
 ``doppler_range_rate_frames`` frames, its alpha-beta range rate is replaced after every update by its
@@ -838,8 +839,8 @@ class SurveillanceTracker:
                 hv, _, certain = spd.history_alias(fc.event_speed_alias_edge_m, fc.event_speed_alias_margin_kmh,
                                                    self._edge_limit_m)
             else:
-                hv, _, certain = spd.fit_alias(fc.event_speed_alias_edge_m, fc.event_speed_alias_tol_m,
-                                               self._edge_limit_m, last_frames=LIVE_FIT_FRAMES)
+                hv, _, certain, _ = spd.fit_alias(fc.event_speed_alias_edge_m, fc.event_speed_alias_tol_m,
+                                                  self._edge_limit_m, last_frames=LIVE_FIT_FRAMES)
             if not (certain and hv.size and math.isfinite(v_kmh) and abs(hv[-1] - v_kmh) <= self.cylinder.vmax_kmh):
                 v = math.nan
         return track_state(tr.track_id, 0.0, r, 0.0, v, r, v, math.nan, tr.age, tr.seen_frames, True, None)
