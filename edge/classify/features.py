@@ -212,10 +212,10 @@ class FeatureConfig:
                   "least this fast (vehicles; faster than a jogger)", "min": 0.0, "max": 200.0},
     )
     event_speed_alias: str = field(
-        default="frame",
-        metadata={"doc": "beyond the paper: how the event speed's alias is chosen: fit = one reference fitted to the "
-                         "range history with the Doppler as slope (RadialSpeedEstimator.fit_alias), history = against"
-                         " the whole history's range rate, frame (default) = each frame's from the middle-half rate",
+        default="fit",
+        metadata={"doc": "beyond the paper: how the event speed's alias is chosen: fit (default) = one reference fitted"
+                         " to the range history with the Doppler as slope (RadialSpeedEstimator.fit_alias), history = "
+                         "against the whole history's range rate, frame = each frame's from the middle-half rate",
                   "choices": ("fit", "history", "frame")},
     )
     event_speed_alias_edge_m: float = field(
