@@ -892,7 +892,7 @@ class RadialSpeedEstimator:
 
     def fit_alias(self, edge_m: float = 3.0, tol_m: float = 0.75, edge_limit_m: float = math.inf,
                   static_kmh: float = 1.5, margin_frames: float = 1.0, window_steps: float = 1.0,
-                  last_frames: int = 0) -> tuple[np.ndarray, float, bool, np.ndarray]:
+                  last_frames: int = 0, around_kmh: float = math.nan) -> tuple[np.ndarray, float, bool, np.ndarray]:
         """Per-frame unaliased speeds from one reference fitted jointly to the range history, with the wrapped
         Doppler as the slope: ``(speeds_kmh, reference_kmh, certain, on_path)``.
 
@@ -912,13 +912,17 @@ class RadialSpeedEstimator:
         candidate of least total cost wins; it is *certain* when at least three frames lie on its path
         and every candidate that gives most of those frames another alias costs at least ``margin_frames`` outlier
         frames more. ``on_path`` marks the frames on the winner's path (the target's; the others are outliers).
-        ``last_frames`` > 0: the latest frames only. Empty speeds and NaN below two frames."""
+        ``last_frames`` > 0: the latest frames only; ``around_kmh``: the window around this speed instead of the
+        range rates (a live track's current speed). Empty speeds and NaN below two frames."""
         n = len(self._t)
         if n < 2:
             return np.zeros(0), math.nan, False, np.zeros(0, dtype=bool)
         k0 = max(0, n - last_frames) if last_frames > 0 else 0
-        t, vw, r = np.array(self._t)[k0:], np.array(self._v)[k0:], np.array(self._r)[k0:]
-        lo, hi = np.array(self._lo)[k0:], np.array(self._hi)[k0:]
+        cols = (self._t, self._v, self._r, self._lo, self._hi)
+        if k0 == 0:
+            t, vw, r, lo, hi = (np.array(c, dtype=np.float64) for c in cols)
+        else:  # the latest frames only, without copying a long history
+            t, vw, r, lo, hi = (np.array([c[i] for i in range(k0, n)], dtype=np.float64) for c in cols)
         n = t.size
         period = 2.0 * self.vmax_kmh
         ang = vw * (2.0 * math.pi / period)
@@ -927,9 +931,9 @@ class RadialSpeedEstimator:
         obs = [r]
         if edge_m > 0 and np.count_nonzero(known) >= 3 and float(np.median((hi - lo)[known])) >= edge_m:
             obs += [np.where(known, lo, np.nan), np.where(known & (hi <= edge_limit_m), hi, np.nan)]
-        rates = []
+        rates = [float(around_kmh)] if math.isfinite(around_kmh) else []
         doppler = np.abs(vw) >= static_kmh  # frames not at zero Doppler (of a track that held clutter a while)
-        for x in obs:
+        for x in obs if not rates else ():
             for part in (np.isfinite(x), np.isfinite(x) & doppler):
                 rates.append(self._theil_sen_kmh(t[part], x[part]))
         rates = [q for q in rates if math.isfinite(q)]

@@ -95,8 +95,9 @@ car by metres), so the published kinematics come from the measured clusters: ``r
 is the unaliased radial speed of the latest frame (wrapped Doppler + alias from the range rate; the
 filtered rate ``u_r`` until two frames exist) and ``range_m`` the last centroid's range moved on by
 that speed over the time since it was seen (never below 0). With ``classify.features.event_speed_alias =
-"history"`` (or ``"fit"``, judged on the latest :data:`LIVE_FIT_FRAMES` frames) the published speed is NaN (n/a on
-Modbus and CAN) while the alias of the track's history is not certain or the latest frame's speed is not on it. The Distance2Go has one
+"history"`` (or ``"fit"``, fitted to the latest :data:`LIVE_FIT_FRAMES` frames every :data:`LIVE_REFIT_FRAMES`) the
+published speed is NaN (n/a on Modbus and CAN) while the alias of the track's history is not certain or the latest
+frame's speed is not on it. The Distance2Go has one
 receive channel, so the azimuth is unknown (NaN) and, as in
 :meth:`edge.types.Detections.from_polar`, the target is placed on boresight (``x = 0``, ``y = range``).
 A published id that disappears from ``tracks`` without a :class:`~edge.types.ClassifiedEvent` was
@@ -138,8 +139,10 @@ __all__ = ["SurveillanceStep", "SurveillanceTracker", "UNKNOWN_CLASS"]
 
 #: class reported when a track's features cannot be computed, or when classification is off
 UNKNOWN_CLASS = "unknown"
-#: event_speed_alias = "fit": the live speed's alias is judged on the latest frames (5 s; bounds the work per frame)
+#: event_speed_alias = "fit": the live speed's alias is judged on the latest frames (5 s; bounds the work per frame),
+#: fitted again every LIVE_REFIT_FRAMES frames (2 s); in between the latest frame is checked against that fit's alias
 LIVE_FIT_FRAMES = 25
+LIVE_REFIT_FRAMES = 10
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,6 +224,7 @@ class SurveillanceTracker:
             self.classifier = WeightedKNN.from_reference_set(ref, k=kc.k, metric=kc.metric, weighting=kc.weighting)
         self._acc: dict[int, TrackFeatureAccumulator] = {}
         self._speed: dict[int, RadialSpeedEstimator] = {}
+        self._live_fit: dict[int, tuple[float, float, bool]] = {}  # track id -> last frame's time, reference, certain
         self.classified = 0
         self.dropped = 0
         self._seen_t: dict[int, float] = {}  # track id -> sensor time (s) of its last cluster
@@ -772,6 +776,7 @@ class SurveillanceTracker:
             self._links.get(other, {}).pop(track_id, None)
         self._acc.pop(track_id, None)
         self._speed.pop(track_id, None)
+        self._live_fit.pop(track_id, None)
         self._seen_t.pop(track_id, None)
         self._size.pop(track_id, None)
         self._merged_run.pop(track_id, None)
@@ -832,15 +837,21 @@ class SurveillanceTracker:
         fc = self.extractor.config
         if fc.event_speed_alias in ("history", "fit"):
             # published only when its alias is sure: the history's alias is certain and the latest frame's speed is
-            # on it (else n/a: an alias step is 10.7 km/h); the fit over the latest LIVE_FIT_FRAMES frames
-            if spd is None:
-                hv, certain = np.zeros(0), False
-            elif fc.event_speed_alias == "history":
+            # on it (else n/a: an alias step is 10.7 km/h); fit: LIVE_FIT_FRAMES, LIVE_REFIT_FRAMES
+            latest, certain = math.nan, False
+            if spd is not None and fc.event_speed_alias == "history":
                 hv, _, certain = spd.history_alias(fc.event_speed_alias_edge_m, fc.event_speed_alias_margin_kmh,
                                                    self._edge_limit_m)
-            else:
-                hv, _, certain, _ = spd.fit_alias(fc.event_speed_alias_edge_m, fc.event_speed_alias_tol_m,
-                                                  self._edge_limit_m, last_frames=LIVE_FIT_FRAMES)
-            if not (certain and hv.size and math.isfinite(v_kmh) and abs(hv[-1] - v_kmh) <= self.cylinder.vmax_kmh):
+                latest = float(hv[-1]) if hv.size else math.nan
+            elif spd is not None and len(spd) >= 3 and math.isfinite(v_kmh):
+                fit = self._live_fit.get(tr.track_id)
+                t_last = spd.last()[0]
+                if fit is None or not 0 <= t_last - fit[0] < (LIVE_REFIT_FRAMES - 0.5) * self.frame_period_s:
+                    _, ref, sure, _ = spd.fit_alias(fc.event_speed_alias_edge_m, fc.event_speed_alias_tol_m,
+                                                    self._edge_limit_m, last_frames=LIVE_FIT_FRAMES, around_kmh=v_kmh)
+                    fit = self._live_fit[tr.track_id] = (t_last, ref, sure)
+                _, ref, certain = fit
+                latest = float(spd.dealias(spd.last()[2], ref)) if certain else math.nan
+            if not (certain and abs(latest - v_kmh) <= self.cylinder.vmax_kmh):
                 v = math.nan
         return track_state(tr.track_id, 0.0, r, 0.0, v, r, v, math.nan, tr.age, tr.seen_frames, True, None)
