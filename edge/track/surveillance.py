@@ -95,9 +95,9 @@ car by metres), so the published kinematics come from the measured clusters: ``r
 is the unaliased radial speed of the latest frame (wrapped Doppler + alias from the range rate; the
 filtered rate ``u_r`` until two frames exist) and ``range_m`` the last centroid's range moved on by
 that speed over the time since it was seen (never below 0). With ``classify.features.event_speed_alias =
-"history"`` (or ``"fit"``, fitted to the latest :data:`LIVE_FIT_FRAMES` frames every :data:`LIVE_REFIT_FRAMES`) the
-published speed is NaN (n/a on Modbus and CAN) while the alias of the track's history is not certain or the latest
-frame's speed is not on it. The Distance2Go has one
+"history"`` (or ``"fit"``, fitted to the latest :data:`LIVE_FIT_FRAMES` frames and kept while certain for at most
+:data:`LIVE_REFIT_FRAMES`) the published speed is NaN (n/a on Modbus and CAN) while the alias of the track's history
+is not certain or the latest frame's speed is not on it. The Distance2Go has one
 receive channel, so the azimuth is unknown (NaN) and, as in
 :meth:`edge.types.Detections.from_polar`, the target is placed on boresight (``x = 0``, ``y = range``).
 A published id that disappears from ``tracks`` without a :class:`~edge.types.ClassifiedEvent` was
@@ -139,8 +139,8 @@ __all__ = ["SurveillanceStep", "SurveillanceTracker", "UNKNOWN_CLASS"]
 
 #: class reported when a track's features cannot be computed, or when classification is off
 UNKNOWN_CLASS = "unknown"
-#: event_speed_alias = "fit": the live speed's alias is judged on the latest frames (5 s; bounds the work per frame),
-#: fitted again every LIVE_REFIT_FRAMES frames (2 s); in between the latest frame is checked against that fit's alias
+#: event_speed_alias = "fit": the live speed's alias is judged on the latest frames (5 s; bounds the work per frame);
+#: a certain fit is kept for LIVE_REFIT_FRAMES frames (2 s) while the latest frame's speed on it is the current speed
 LIVE_FIT_FRAMES = 25
 LIVE_REFIT_FRAMES = 10
 
@@ -844,14 +844,18 @@ class SurveillanceTracker:
                                                    self._edge_limit_m)
                 latest = float(hv[-1]) if hv.size else math.nan
             elif spd is not None and len(spd) >= 3 and math.isfinite(v_kmh):
+                # fitted again while not certain, every LIVE_REFIT_FRAMES frames, and when the latest frame's speed
+                # on its alias is not the current speed's
                 fit = self._live_fit.get(tr.track_id)
-                t_last = spd.last()[0]
-                if fit is None or not 0 <= t_last - fit[0] < (LIVE_REFIT_FRAMES - 0.5) * self.frame_period_s:
+                t_last, _, vw_last = spd.last()
+                fresh = (fit is not None and fit[2]
+                         and 0 <= t_last - fit[0] < (LIVE_REFIT_FRAMES - 0.5) * self.frame_period_s)
+                if not (fresh and abs(spd.dealias(vw_last, fit[1]) - v_kmh) <= self.cylinder.vmax_kmh):
                     _, ref, sure, _ = spd.fit_alias(fc.event_speed_alias_edge_m, fc.event_speed_alias_tol_m,
                                                     self._edge_limit_m, last_frames=LIVE_FIT_FRAMES, around_kmh=v_kmh)
                     fit = self._live_fit[tr.track_id] = (t_last, ref, sure)
                 _, ref, certain = fit
-                latest = float(spd.dealias(spd.last()[2], ref)) if certain else math.nan
+                latest = float(spd.dealias(vw_last, ref)) if certain else math.nan
             if not (certain and abs(latest - v_kmh) <= self.cylinder.vmax_kmh):
                 v = math.nan
         return track_state(tr.track_id, 0.0, r, 0.0, v, r, v, math.nan, tr.age, tr.seen_frames, True, None)
