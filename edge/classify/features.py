@@ -67,6 +67,10 @@ __all__ = [
     "weighted_standardization",
 ]
 
+#: event_speed_alias = "fit" judges an event's alias on its latest frames (51 s at 200 ms: longer than any passage
+#: through the 24 m view; bounds the work of a track that held static clutter for minutes)
+FIT_MAX_FRAMES = 256
+
 #: the five features of eq. 19, in order, and the range extent (beyond the paper, see the module doc)
 FEATURE_NAMES: tuple[str, ...] = (
     "circ_var_mean",
@@ -208,24 +212,29 @@ class FeatureConfig:
                   "least this fast (vehicles; faster than a jogger)", "min": 0.0, "max": 200.0},
     )
     event_speed_alias: str = field(
-        default="frame",
-        metadata={"doc": "beyond the paper: how the event speed's alias is chosen: history = one alias against the "
-                         "range rate of all the track's frames (RadialSpeedEstimator.history_alias), frame (default)"
-                         " = each frame's from the middle-half range rate",
-                  "choices": ("history", "frame")},
+        default="fit",
+        metadata={"doc": "beyond the paper: how the event speed's alias is chosen: fit (default) = one reference fitted"
+                         " to the range history with the Doppler as slope (RadialSpeedEstimator.fit_alias), history = "
+                         "against the whole history's range rate, frame = each frame's from the middle-half rate",
+                  "choices": ("fit", "history", "frame")},
     )
     event_speed_alias_edge_m: float = field(
         default=3.0,
-        metadata={"unit": "m", "doc": "history alias: a track whose clusters' median range extent is at least this "
-                                      "also takes the range rate of its leading edge, and the faster of the two; 0 ="
-                                      " the centroid only",
+        metadata={"unit": "m", "doc": "fit and history alias: a track whose clusters' median range extent is at "
+                                      "least this is also judged by its edges (history: the leading edge's range "
+                                      "rate, and the faster of it and the centroid's); 0 = the centroid only",
                   "min": 0.0, "max": 30.0},
     )
     event_speed_alias_edge_clip_m: float = field(
         default=3.0,
-        metadata={"unit": "m", "doc": "history alias: a receding body's far edge within this of the board's largest "
-                                      "range (where the beat leaves the sampled band) is left out of the leading "
-                                      "edge's range rate", "min": 0.0, "max": 30.0},
+        metadata={"unit": "m", "doc": "fit and history alias: a far edge within this of the board's largest range "
+                                      "(where the beat leaves the sampled band) is left out", "min": 0.0, "max": 30.0},
+    )
+    event_speed_alias_tol_m: float = field(
+        default=0.75,
+        metadata={"unit": "m", "doc": "fit alias: a frame whose range lies farther than this (the range resolution) "
+                                      "from the path its Doppler predicts is an outlier; the alias is certain when "
+                                      "others miss the range history by one such frame more", "min": 0.05, "max": 10.0},
     )
     event_speed_alias_margin_kmh: float = field(
         default=3.2,
@@ -802,10 +811,11 @@ class RadialSpeedEstimator:
         alias) are left out (all kept if none would remain)."""
         return self._capped(self.speeds_kmh(leading_edge_m), cap_range_m, cap_margin_kmh, cap_min_kmh)
 
-    def _capped(self, v: np.ndarray, cap_range_m: float, cap_margin_kmh: float, cap_min_kmh: float) -> np.ndarray:
+    def _capped(self, v: np.ndarray, cap_range_m: float, cap_margin_kmh: float, cap_min_kmh: float,
+                ranges: np.ndarray | None = None) -> np.ndarray:
         if cap_range_m <= 0 or v.size == 0:
             return v
-        far = np.array(self._r) >= cap_range_m
+        far = (np.array(self._r) if ranges is None else ranges) >= cap_range_m  # the centroid ranges of v's frames
         if np.count_nonzero(far) < 2:
             return v
         cap = float(np.max(np.abs(v[far])))
@@ -880,21 +890,127 @@ class RadialSpeedEstimator:
         certain = n >= 3 and abs(float(np.mean(v[keep])) - rho) <= margin_kmh
         return v, rho, certain
 
+    def fit_alias(self, edge_m: float = 3.0, tol_m: float = 0.75, edge_limit_m: float = math.inf,
+                  static_kmh: float = 1.5, margin_frames: float = 1.0, window_steps: float = 1.0,
+                  last_frames: int = 0, around_kmh: float = math.nan) -> tuple[np.ndarray, float, bool, np.ndarray]:
+        """Per-frame unaliased speeds from one reference fitted jointly to the range history, with the wrapped
+        Doppler as the slope: ``(speeds_kmh, reference_kmh, certain, on_path)``.
+
+        Each candidate reference ``V`` (a grid of a quarter alias step through the circular mean of the wrapped
+        Doppler, within ``window_steps`` alias steps of the Theil-Sen range rate of one of the observables below over
+        all frames or over those whose wrapped Doppler is not below ``static_kmh``)
+        unaliases each frame (``u_i``, the alias nearest ``V``) and predicts the range path by integrating ``u``
+        over the frames' times (trapezoids). The path is laid on each observable of the body at the offset that
+        fits it best, and each frame costs ``min(e^2, tol_m^2)``: a frame off the path by more than the range
+        resolution is an outlier (a merge with clutter, a fragment), whatever its size. The observables are the
+        centroid and, for a body whose median range extent is at least ``edge_m``, also its near and far edges:
+        while a long body enters or leaves the view one of its ends moves at its speed and its centroid lags
+        (more of it comes into view every frame). A far edge beyond ``edge_limit_m`` (cut off at the board's
+        largest range) is left out. A frame whose ``|u|`` is below ``static_kmh`` does not vote for that candidate
+        when at least three others move under it: static clutter a track held has zero Doppler and no range rate,
+        and says nothing of a mover's alias (a target crossing the beam at zero radial speed keeps its frames). The
+        candidate of least total cost wins; it is *certain* when at least three frames lie on its path
+        and every candidate that gives most of those frames another alias costs at least ``margin_frames`` outlier
+        frames more. ``on_path`` marks the frames on the winner's path (the target's; the others are outliers).
+        ``last_frames`` > 0: the latest frames only; ``around_kmh``: the window around this speed instead of the
+        range rates (a live track's current speed). Empty speeds and NaN below two frames."""
+        n = len(self._t)
+        if n < 2:
+            return np.zeros(0), math.nan, False, np.zeros(0, dtype=bool)
+        k0 = max(0, n - last_frames) if last_frames > 0 else 0
+        cols = (self._t, self._v, self._r, self._lo, self._hi)
+        if k0 == 0:
+            t, vw, r, lo, hi = (np.array(c, dtype=np.float64) for c in cols)
+        else:  # the latest frames only, without copying a long history
+            t, vw, r, lo, hi = (np.array([c[i] for i in range(k0, n)], dtype=np.float64) for c in cols)
+        n = t.size
+        period = 2.0 * self.vmax_kmh
+        ang = vw * (2.0 * math.pi / period)
+        m = math.atan2(float(np.mean(np.sin(ang))), float(np.mean(np.cos(ang)))) * (period / (2.0 * math.pi))
+        known = np.isfinite(hi - lo)
+        obs = [r]
+        if edge_m > 0 and np.count_nonzero(known) >= 3 and float(np.median((hi - lo)[known])) >= edge_m:
+            obs += [np.where(known, lo, np.nan), np.where(known & (hi <= edge_limit_m), hi, np.nan)]
+        rates = [float(around_kmh)] if math.isfinite(around_kmh) else []
+        doppler = np.abs(vw) >= static_kmh  # frames not at zero Doppler (of a track that held clutter a while)
+        for x in obs if not rates else ():
+            for part in (np.isfinite(x), np.isfinite(x) & doppler):
+                rates.append(self._theil_sen_kmh(t[part], x[part]))
+        rates = [q for q in rates if math.isfinite(q)]
+        if not rates:
+            return np.zeros(0), math.nan, False, np.zeros(0, dtype=bool)
+        grid = period / 4.0
+        span = min(window_steps * period, 200.0)  # km/h; a wider window is all road speeds
+        j_lo = math.floor((min(rates) - span - m) / grid)
+        j_hi = math.ceil((max(rates) + span - m) / grid)
+        refs = m + grid * np.arange(j_lo, j_hi + 1)
+        near = np.zeros(refs.size, dtype=bool)
+        for q in rates:
+            near |= np.abs(refs - q) <= span
+        refs = refs[near]
+        tol2 = tol_m * tol_m
+        # every candidate at once: (candidates, frames)
+        speeds = vw[None, :] + period * np.round((refs[:, None] - vw[None, :]) / period)
+        path = np.zeros_like(speeds)
+        np.cumsum(0.5 * (speeds[:, 1:] + speeds[:, :-1]) * np.diff(t)[None, :], axis=1, out=path[:, 1:])
+        path /= 3.6
+        # a candidate's frames at zero Doppler do not vote (static clutter a track held says nothing of a mover's
+        # alias), unless fewer than three of its frames move (a target crossing the beam at zero radial speed)
+        moving = np.abs(speeds) >= static_kmh
+        moving |= (moving.sum(axis=1) < 3)[:, None]
+        costs = np.zeros(refs.size)
+        frame_e2 = np.full(speeds.shape, tol2)  # per frame: the best fit of the observables (on the path below tol2)
+        for x in obs:
+            ok = np.isfinite(x)[None, :] & moving
+            res = np.where(ok, x[None, :] - path, np.nan)
+            m_ok = ok.sum(axis=1)
+            # the offset: one of the usable frames' residuals (at most 48 of them, spread over their range)
+            if n <= 48:
+                off = res
+            else:
+                off = np.nanquantile(np.where(m_ok[:, None] > 0, res, 0.0), np.linspace(0.0, 1.0, 48), axis=1).T
+            e2 = np.minimum((res[:, None, :] - off[:, :, None]) ** 2, tol2)  # (candidates, offsets, frames)
+            e2 = np.where(ok[:, None, :], e2, tol2)
+            c = np.where(np.isfinite(off), e2.sum(axis=2), np.inf)  # frames not usable cost an outlier's
+            b = np.argmin(c, axis=1)
+            e2b = e2[np.arange(refs.size), b]
+            costs += np.where(m_ok > 0, e2b.sum(axis=1), tol2 * n)
+            frame_e2 = np.minimum(frame_e2, e2b)
+        on_path = frame_e2 < tol2
+        support = on_path.sum(axis=1)
+        best = int(np.argmin(costs))
+        rho = float(refs[best])
+        # rivals: the candidates that give the best one's frames on its path another alias (most of them)
+        mine = on_path[best] if on_path[best].any() else np.ones(n, dtype=bool)
+        rivals = np.abs(np.median(speeds[:, mine] - speeds[best, mine], axis=1)) >= self.vmax_kmh
+        gap = float(np.min(costs[rivals]) - costs[best]) if rivals.any() else math.inf
+        certain = n >= 3 and support[best] >= 3 and gap >= margin_frames * tol2
+        return self.dealias(vw, rho), rho, certain, on_path[best]
+
     def event_speed_kmh(self, alias: str = "history", statistic: str = "trimmed_mean", leading_edge_m: float = 0.0,
                         alias_edge_m: float = 3.0, alias_margin_kmh: float = 3.2, edge_limit_m: float = math.inf,
-                        **cap) -> tuple[float, bool]:
+                        alias_tol_m: float = 0.75, **cap) -> tuple[float, bool]:
         """The mean radial speed of the passage (km/h) and whether its alias is certain.
 
         ``alias = "history"``: one alias for the whole history (:meth:`history_alias` with ``alias_edge_m`` and
-        ``alias_margin_kmh``, ``edge_limit_m``); ``"frame"``: each frame's alias from the middle-half range rate
-        (:meth:`speeds_kmh` with ``leading_edge_m``; certain from three frames on). ``statistic``: ``median`` or
+        ``alias_margin_kmh``, ``edge_limit_m``); ``"fit"``: one reference fitted to the range history with the
+        Doppler as its slope (:meth:`fit_alias` with ``alias_edge_m``, ``alias_tol_m`` and ``edge_limit_m`` over the
+        latest :data:`FIT_MAX_FRAMES` frames; the speeds of the frames on its path, from three on); ``"frame"``: each frame's alias from the
+        middle-half range rate (:meth:`speeds_kmh` with ``leading_edge_m``; certain from three frames on). ``statistic``: ``median`` or
         ``trimmed_mean`` (within ``v_max`` of the median) of the per-frame speeds left by the cap (``cap``: the
         keywords of :meth:`capped_speeds_kmh`)."""
         if alias == "history":
             v, _, certain = self.history_alias(alias_edge_m, alias_margin_kmh, edge_limit_m)
+        elif alias == "fit":
+            v, _, certain, on_path = self.fit_alias(alias_edge_m, alias_tol_m, edge_limit_m,
+                                                    last_frames=FIT_MAX_FRAMES)
+            ranges = np.array(self._r)[len(self._r) - v.size:]
+            if np.count_nonzero(on_path) >= 3:  # the target's frames (off the path: clutter, fragments)
+                v, ranges = v[on_path], ranges[on_path]
         else:
             v, certain = self.speeds_kmh(leading_edge_m), len(self) >= 3
-        v = self._capped(v, cap.get("cap_range_m", 0.0), cap.get("cap_margin_kmh", 0.5), cap.get("cap_min_kmh", 13.0))
+        v = self._capped(v, cap.get("cap_range_m", 0.0), cap.get("cap_margin_kmh", 0.5), cap.get("cap_min_kmh", 13.0),
+                         ranges if alias == "fit" else None)
         if not v.size:
             return math.nan, False
         if statistic == "median":

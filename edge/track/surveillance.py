@@ -20,9 +20,13 @@ speeds, each the cluster's wrapped Doppler with its alias chosen by the range ra
 (of the body's leading edge for a long one, ``event_speed_leading_edge_m``), without the frames
 faster than the target's far frames (``event_speed_cap_range_m``: wrong aliases beside the radar)
 (:class:`~edge.classify.features.RadialSpeedEstimator`, km/h, positive receding); the least-squares
-range rate when that is not available. With ``event_speed_alias = "history"`` (not the default: see its config doc) the alias is chosen against
+range rate when that is not available. With ``event_speed_alias = "history"`` the alias is chosen against
 the range rate of the track's whole history (of a long body's leading edge too), and the event's
-``speed_uncertain`` is set when that choice is not sure (:meth:`~edge.classify.features.RadialSpeedEstimator.history_alias`).
+``speed_uncertain`` is set when that choice is not sure (:meth:`~edge.classify.features.RadialSpeedEstimator.history_alias`);
+with ``"fit"`` one reference is fitted to the range history of the centroid (and of a long body's edges) with the
+Doppler as its slope, and ``speed_uncertain`` is set when no alias fits clearly better than the others
+(:meth:`~edge.classify.features.RadialSpeedEstimator.fit_alias`; the event's speed is that of the frames on the
+fitted path).
 
 Beyond the paper (``track.alphabeta`` options; 0 restores the paper): once a track has clusters in
 ``doppler_range_rate_frames`` frames, its alpha-beta range rate is replaced after every update by its
@@ -91,8 +95,9 @@ car by metres), so the published kinematics come from the measured clusters: ``r
 is the unaliased radial speed of the latest frame (wrapped Doppler + alias from the range rate; the
 filtered rate ``u_r`` until two frames exist) and ``range_m`` the last centroid's range moved on by
 that speed over the time since it was seen (never below 0). With ``classify.features.event_speed_alias =
-"history"`` the published speed is NaN (n/a on Modbus and CAN) while the alias of the track's whole history is
-not certain or the latest frame's speed is not on it. The Distance2Go has one
+"history"`` (or ``"fit"``, fitted to the latest :data:`LIVE_FIT_FRAMES` frames and kept while certain for at most
+:data:`LIVE_REFIT_FRAMES`) the published speed is NaN (n/a on Modbus and CAN) while the alias of the track's history
+is not certain or the latest frame's speed is not on it. The Distance2Go has one
 receive channel, so the azimuth is unknown (NaN) and, as in
 :meth:`edge.types.Detections.from_polar`, the target is placed on boresight (``x = 0``, ``y = range``).
 A published id that disappears from ``tracks`` without a :class:`~edge.types.ClassifiedEvent` was
@@ -134,6 +139,10 @@ __all__ = ["SurveillanceStep", "SurveillanceTracker", "UNKNOWN_CLASS"]
 
 #: class reported when a track's features cannot be computed, or when classification is off
 UNKNOWN_CLASS = "unknown"
+#: event_speed_alias = "fit": the live speed's alias is judged on the latest frames (5 s; bounds the work per frame);
+#: a certain fit is kept for LIVE_REFIT_FRAMES frames (2 s) while the latest frame's speed on it is the current speed
+LIVE_FIT_FRAMES = 25
+LIVE_REFIT_FRAMES = 10
 
 
 @dataclass(frozen=True, eq=False)
@@ -215,6 +224,7 @@ class SurveillanceTracker:
             self.classifier = WeightedKNN.from_reference_set(ref, k=kc.k, metric=kc.metric, weighting=kc.weighting)
         self._acc: dict[int, TrackFeatureAccumulator] = {}
         self._speed: dict[int, RadialSpeedEstimator] = {}
+        self._live_fit: dict[int, tuple[float, float, bool]] = {}  # track id -> last frame's time, reference, certain
         self.classified = 0
         self.dropped = 0
         self._seen_t: dict[int, float] = {}  # track id -> sensor time (s) of its last cluster
@@ -766,6 +776,7 @@ class SurveillanceTracker:
             self._links.get(other, {}).pop(track_id, None)
         self._acc.pop(track_id, None)
         self._speed.pop(track_id, None)
+        self._live_fit.pop(track_id, None)
         self._seen_t.pop(track_id, None)
         self._size.pop(track_id, None)
         self._merged_run.pop(track_id, None)
@@ -791,7 +802,7 @@ class SurveillanceTracker:
                    "cap_min_kmh": fc.event_speed_cap_min_kmh}
             v, certain = spd.event_speed_kmh(fc.event_speed_alias, fc.event_speed, fc.event_speed_leading_edge_m,
                                              fc.event_speed_alias_edge_m, fc.event_speed_alias_margin_kmh,
-                                             self._edge_limit_m, **cap)
+                                             self._edge_limit_m, fc.event_speed_alias_tol_m, **cap)
         if not math.isfinite(v):
             v, certain = acc.mean_radial_speed_kmh(), False
         if self.classifier is not None and np.all(np.isfinite(x)):
@@ -824,12 +835,27 @@ class SurveillanceTracker:
         v = v_kmh / 3.6 if math.isfinite(v_kmh) else float(tr.state[5]) / self.frame_period_s
         r = max(0.0, float(tr.last_measurement[2]) + v * (t_s - self._seen_t.get(tr.track_id, t_s)))
         fc = self.extractor.config
-        if fc.event_speed_alias == "history":
-            # published only when its alias is sure: the whole history's alias is certain and the latest frame's
-            # speed is on it (else n/a: an alias step is 10.7 km/h)
-            hv, _, certain = (spd.history_alias(fc.event_speed_alias_edge_m, fc.event_speed_alias_margin_kmh,
-                                                self._edge_limit_m)
-                              if spd is not None else (np.zeros(0), math.nan, False))
-            if not (certain and hv.size and math.isfinite(v_kmh) and abs(hv[-1] - v_kmh) <= self.cylinder.vmax_kmh):
+        if fc.event_speed_alias in ("history", "fit"):
+            # published only when its alias is sure: the history's alias is certain and the latest frame's speed is
+            # on it (else n/a: an alias step is 10.7 km/h); fit: LIVE_FIT_FRAMES, LIVE_REFIT_FRAMES
+            latest, certain = math.nan, False
+            if spd is not None and fc.event_speed_alias == "history":
+                hv, _, certain = spd.history_alias(fc.event_speed_alias_edge_m, fc.event_speed_alias_margin_kmh,
+                                                   self._edge_limit_m)
+                latest = float(hv[-1]) if hv.size else math.nan
+            elif spd is not None and len(spd) >= 3 and math.isfinite(v_kmh):
+                # fitted again while not certain, every LIVE_REFIT_FRAMES frames, and when the latest frame's speed
+                # on its alias is not the current speed's
+                fit = self._live_fit.get(tr.track_id)
+                t_last, _, vw_last = spd.last()
+                fresh = (fit is not None and fit[2]
+                         and 0 <= t_last - fit[0] < (LIVE_REFIT_FRAMES - 0.5) * self.frame_period_s)
+                if not (fresh and abs(spd.dealias(vw_last, fit[1]) - v_kmh) <= self.cylinder.vmax_kmh):
+                    _, ref, sure, _ = spd.fit_alias(fc.event_speed_alias_edge_m, fc.event_speed_alias_tol_m,
+                                                    self._edge_limit_m, last_frames=LIVE_FIT_FRAMES, around_kmh=v_kmh)
+                    fit = self._live_fit[tr.track_id] = (t_last, ref, sure)
+                _, ref, certain = fit
+                latest = float(spd.dealias(vw_last, ref)) if certain else math.nan
+            if not (certain and abs(latest - v_kmh) <= self.cylinder.vmax_kmh):
                 v = math.nan
         return track_state(tr.track_id, 0.0, r, 0.0, v, r, v, math.nan, tr.age, tr.seen_frames, True, None)

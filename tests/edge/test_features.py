@@ -383,3 +383,110 @@ def test_history_alias_leaves_out_a_far_edge_cut_off_at_the_largest_range():
     assert est.event_speed_kmh("history")[0] == pytest.approx(v_true - 2 * VMAX, abs=0.2)
     v, certain = est.event_speed_kmh("history", edge_limit_m=21.0)
     assert v == pytest.approx(v_true, abs=0.2) and certain
+
+
+# --- fit_alias: one reference fitted to the range history with the wrapped Doppler as its slope (issue 31 part 3) ---
+
+
+def _feed(est, t, r, v, lo=None, hi=None):
+    lo = np.full(t.size, np.nan) if lo is None else lo
+    hi = np.full(t.size, np.nan) if hi is None else hi
+    for tk, rk, vk, lk, hk in zip(t, r, wrapped(v), lo, hi):
+        est.add(tk, rk, vk, lk, hk)
+    return est
+
+
+def _long_body_passing(v_true=25.0, length=12.0, n=24, clip=23.9):
+    """A 12 m truck receding at ``v_true`` from beside the radar: while its front moves out to the 24 m view its
+    rear is still beside the radar (the near edge stays at ~6 m, the centroid moves at about half the speed); once
+    the front reaches the largest range the far edge stays there and the near edge moves at the speed."""
+    t = np.arange(n) * 0.2
+    front = 7.0 + v_true / 3.6 * t
+    rear = np.maximum(front - length, 6.0)
+    hi = np.minimum(front, clip)
+    lo = np.minimum(rear, hi - 0.5)
+    return t, v_true, 0.5 * (lo + hi), lo, hi
+
+
+def test_fit_alias_decides_a_long_body_entering_and_leaving_the_view_by_its_edges():
+    t, v_true, centroid, lo, hi = _long_body_passing()
+    est = _feed(RadialSpeedEstimator(VMAX), t, centroid, np.full(t.size, v_true), lo, hi)
+    # the per-frame choice follows the centroid's middle-half rate, about half the speed: one step slow
+    assert est.event_speed_kmh("frame")[0] == pytest.approx(v_true - 2 * VMAX, abs=0.2)
+    v, certain = est.event_speed_kmh("fit", edge_limit_m=21.0)
+    assert v == pytest.approx(v_true, abs=0.2) and certain
+    speeds, ref, _, _ = est.fit_alias(3.0, 0.75, 21.0)
+    np.testing.assert_allclose(speeds, v_true, atol=1e-6)
+    assert abs(ref - v_true) <= VMAX
+    # the edges decide it: the centroid alone, moving at about half the speed, fits the alias one step slow
+    assert est.event_speed_kmh("fit", alias_edge_m=0.0, edge_limit_m=21.0)[0] == pytest.approx(v_true - 2 * VMAX,
+                                                                                              abs=0.2)
+
+
+def test_fit_alias_of_a_short_fast_track():
+    """A motorcycle receding at 36 km/h seen in five frames (2 m a frame) with a noisy centroid: right and certain;
+    the same track approaching: right too."""
+    rng = np.random.default_rng(3)
+    t = np.arange(5) * 0.2
+    for v_true in (36.0, -36.0):
+        r = 12.0 + v_true / 3.6 * t + rng.normal(0.0, 0.25, t.size)
+        vw = v_true + rng.normal(0.0, 0.3, t.size)
+        v, certain = _feed(RadialSpeedEstimator(VMAX), t, r, vw).event_speed_kmh("fit")
+        assert v == pytest.approx(v_true, abs=0.5) and certain
+
+
+def test_fit_alias_ignores_static_clutter_a_track_began_on():
+    """A track holds a bush at 8 m (zero Doppler) for eight frames, then a car receding at 26 km/h takes it over
+    for seven: the clutter's frames say nothing of the car's alias; the per-frame choice's rate is pulled to the
+    clutter's and misses the car by a step. A car at 20 km/h shows a wrapped Doppler of -1.4 km/h, as near zero as
+    the bush's: static and moving are not told apart, and the event says so."""
+    t = np.arange(15) * 0.2
+    r = np.where(np.arange(15) < 8, 8.0, 8.5 + 26.0 / 3.6 * (t - t[8]))
+    v = np.where(np.arange(15) < 8, 0.0, 26.0)
+    est = _feed(RadialSpeedEstimator(VMAX), t, r, v)
+    assert abs(est.event_speed_kmh("frame")[0] - 26.0) > VMAX
+    speeds, ref, certain, on_path = est.fit_alias()
+    assert abs(ref - 26.0) <= VMAX and certain
+    np.testing.assert_allclose(speeds[8:], 26.0, atol=1e-6)
+    assert on_path[8:].all() and not on_path[:7].any()  # the clutter's frames are not the car's
+    assert est.event_speed_kmh("fit") == (pytest.approx(26.0, abs=1e-6), True)
+    r = np.where(np.arange(15) < 8, 8.0, 8.5 + 20.0 / 3.6 * (t - t[8]))
+    v = np.where(np.arange(15) < 8, 0.0, 20.0)
+    assert not _feed(RadialSpeedEstimator(VMAX), t, r, v).event_speed_kmh("fit")[1]
+
+
+def test_fit_alias_flags_what_it_cannot_decide():
+    """Two frames decide nothing; a range moving half an alias step off the Doppler's speed fits two aliases
+    alike. Either way the event is flagged (its value is one of the two aliases)."""
+    t = np.arange(2) * 0.2
+    short = _feed(RadialSpeedEstimator(VMAX), t, 10.0 + 30.0 / 3.6 * t, np.full(2, 30.0))
+    assert not short.event_speed_kmh("fit")[1]
+    t = np.arange(10) * 0.2
+    coin = _feed(RadialSpeedEstimator(VMAX), t, 5.0 + (20.0 + VMAX) / 3.6 * t, np.full(10, 20.0))
+    v, certain = coin.event_speed_kmh("fit")
+    assert not certain and min(abs(v - 20.0), abs(v - 20.0 - 2 * VMAX)) < 0.01
+    speeds, ref, certain, on_path = RadialSpeedEstimator(VMAX).fit_alias()
+    assert speeds.size == 0 and math.isnan(ref) and not certain and on_path.size == 0
+
+
+def test_fit_alias_on_the_latest_frames_only():
+    t = np.arange(40) * 0.2
+    r = np.where(np.arange(40) < 20, 8.0, 8.5 + 30.0 / 3.6 * (t - t[20]))
+    v = np.where(np.arange(40) < 20, 0.0, 30.0)
+    est = _feed(RadialSpeedEstimator(VMAX), t, r, v)
+    speeds, ref, certain, _ = est.fit_alias(last_frames=10)
+    assert speeds.size == 10 and abs(ref - 30.0) <= VMAX and certain
+
+
+def test_fit_alias_of_an_event_judges_its_latest_frames_only():
+    """A track that held static clutter for more than FIT_MAX_FRAMES frames before a car took it over: the event's
+    speed is the car's, from the latest frames (the cap's far frames are those frames' own)."""
+    from edge.classify.features import FIT_MAX_FRAMES
+
+    n = FIT_MAX_FRAMES + 40
+    t = np.arange(n) * 0.2
+    r = np.where(np.arange(n) < n - 12, 8.0, 11.0 + 30.0 / 3.6 * (t - t[n - 12]))
+    v = np.where(np.arange(n) < n - 12, 0.0, 30.0)
+    est = _feed(RadialSpeedEstimator(VMAX), t, r, v)
+    speed, certain = est.event_speed_kmh("fit", cap_range_m=10.0)
+    assert speed == pytest.approx(30.0, abs=0.01) and certain

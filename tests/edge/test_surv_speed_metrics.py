@@ -70,3 +70,31 @@ def test_a_speed_whose_alias_is_not_sure_is_published_as_not_available():
     assert unsure and all(math.isnan(t.radial_speed_mps) for t in unsure)
     assert dyn_prop(unsure[-1]) == 4
     assert decode(TRACK.regs[5], encode(TRACK.regs[5], unsure[-1].vy_mps)) is None
+
+
+def test_a_speed_whose_fitted_alias_is_not_sure_is_published_as_not_available():
+    """With event_speed_alias = "fit" (the alias fitted to the range history with the Doppler as slope): a target
+    whose range moves half an alias step off its Doppler's speed is published as n/a; one whose range agrees is
+    published at its speed, and its event is not flagged."""
+    import math
+
+    from edge.classify.features import FeatureConfig
+    from edge.track.surveillance import SurveillanceTracker
+    from hal.waveform import d2g_frontend
+    from tests.edge.survscene import blob, points
+
+    def published(v_range):
+        st = SurveillanceTracker(d2g_frontend(), 2.0, classify=False, features=FeatureConfig(event_speed_alias="fit"))
+        out = []
+        for n in range(10):
+            step = st.update(int(n * 0.2e9), points(blob(5.0 + v_range / 3.6 * 0.2 * n, 20.0, 300, 0)), seq=n)
+            out += [t for t in step.tracks]
+        return out, st.close()
+
+    sure, events = published(20.0)
+    assert len(sure) >= 5 and all(t.radial_speed_mps * 3.6 == pytest.approx(20.0, abs=1.0) for t in sure[2:])
+    assert len(events) == 1 and not events[0].speed_uncertain
+    assert events[0].mean_radial_speed_kmh == pytest.approx(20.0, abs=1.0)
+    unsure, events = published(20.0 + 5.35)
+    assert unsure and all(math.isnan(t.radial_speed_mps) for t in unsure)
+    assert len(events) == 1 and events[0].speed_uncertain
