@@ -43,6 +43,7 @@ training signatures (thresholded, neither clustered nor tracked).
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -647,6 +648,56 @@ class TrackFeatureAccumulator:
         return (n * self._str - self._st * self._sr) / den * 3.6
 
 
+def _median(values: list[float]) -> float:
+    """``np.median`` of a short list of finite floats, without its array machinery."""
+    v = sorted(values)
+    k = len(v)
+    return v[k // 2] if k % 2 else (v[k // 2 - 1] + v[k // 2]) / 2.0
+
+
+def fit_candidates_reference(t: np.ndarray, vw: np.ndarray, refs: np.ndarray, obs: list[np.ndarray], period: float,
+                             static_kmh: float, tol2: float, vmax_kmh: float,
+                             margin2: float) -> tuple[int, bool, np.ndarray]:
+    """The candidate search of :meth:`RadialSpeedEstimator.fit_alias` (numpy reference of the ``_aliasfit`` kernel):
+    ``(best, rivals_clear, on_path)``, the index of the least-cost candidate of ``refs``, whether every rival costs
+    at least ``margin2`` more, and the best candidate's frames on its path."""
+    n = t.size
+    # every candidate at once: (candidates, frames)
+    speeds = vw[None, :] + period * np.round((refs[:, None] - vw[None, :]) / period)
+    path = np.zeros_like(speeds)
+    np.cumsum(0.5 * (speeds[:, 1:] + speeds[:, :-1]) * np.diff(t)[None, :], axis=1, out=path[:, 1:])
+    path /= 3.6
+    # a candidate's frames at zero Doppler do not vote (static clutter a track held says nothing of a mover's
+    # alias), unless fewer than three of its frames move (a target crossing the beam at zero radial speed)
+    moving = np.abs(speeds) >= static_kmh
+    moving |= (moving.sum(axis=1) < 3)[:, None]
+    costs = np.zeros(refs.size)
+    frame_e2 = np.full(speeds.shape, tol2)  # per frame: the best fit of the observables (on the path below tol2)
+    for x in obs:
+        ok = np.isfinite(x)[None, :] & moving
+        res = np.where(ok, x[None, :] - path, np.nan)
+        m_ok = ok.sum(axis=1)
+        # the offset: one of the usable frames' residuals (at most 48 of them, spread over their range)
+        if n <= 48:
+            off = res
+        else:
+            off = np.nanquantile(np.where(m_ok[:, None] > 0, res, 0.0), np.linspace(0.0, 1.0, 48), axis=1).T
+        e2 = np.minimum((res[:, None, :] - off[:, :, None]) ** 2, tol2)  # (candidates, offsets, frames)
+        e2 = np.where(ok[:, None, :], e2, tol2)
+        c = np.where(np.isfinite(off), e2.sum(axis=2), np.inf)  # frames not usable cost an outlier's
+        b = np.argmin(c, axis=1)
+        e2b = e2[np.arange(refs.size), b]
+        costs += np.where(m_ok > 0, e2b.sum(axis=1), tol2 * n)
+        frame_e2 = np.minimum(frame_e2, e2b)
+    on_path = frame_e2 < tol2
+    best = int(np.argmin(costs))
+    # rivals: the candidates that give the best one's frames on its path another alias (most of them)
+    mine = on_path[best] if on_path[best].any() else np.ones(n, dtype=bool)
+    rivals = np.abs(np.median(speeds[:, mine] - speeds[best, mine], axis=1)) >= vmax_kmh
+    gap = float(np.min(costs[rivals]) - costs[best]) if rivals.any() else math.inf
+    return best, gap >= margin2, on_path[best]
+
+
 class RadialSpeedEstimator:
     """Unaliased radial speed of a track from its wrapped Doppler and its range history.
 
@@ -794,6 +845,13 @@ class RadialSpeedEstimator:
         vw = np.asarray(doppler_wrapped_kmh, dtype=np.float64)
         return vw + period * np.round((reference_kmh - vw) / period)
 
+    def dealias_one(self, doppler_wrapped_kmh: float, reference_kmh: float) -> float:
+        """:meth:`dealias` of one frame in plain Python (the same rounding, half to even, and the same value)."""
+        period = 2.0 * self.vmax_kmh
+        vw = float(doppler_wrapped_kmh)
+        q = (reference_kmh - vw) / period
+        return vw + period * (round(q) if math.isfinite(q) else q)
+
     def speeds_kmh(self, leading_edge_m: float = 0.0) -> np.ndarray:
         """Per-frame unaliased radial speeds (km/h, positive receding); empty below two frames
         (``leading_edge_m``: see :meth:`reference_rate_kmh`)."""
@@ -922,14 +980,17 @@ class RadialSpeedEstimator:
         if k0 == 0:
             t, vw, r, lo, hi = (np.array(c, dtype=np.float64) for c in cols)
         else:  # the latest frames only, without copying a long history
-            t, vw, r, lo, hi = (np.array([c[i] for i in range(k0, n)], dtype=np.float64) for c in cols)
+            t, vw, r, lo, hi = (np.fromiter(itertools.islice(c, k0, n), dtype=np.float64, count=n - k0) for c in cols)
         n = t.size
         period = 2.0 * self.vmax_kmh
         ang = vw * (2.0 * math.pi / period)
-        m = math.atan2(float(np.mean(np.sin(ang))), float(np.mean(np.cos(ang)))) * (period / (2.0 * math.pi))
-        known = np.isfinite(hi - lo)
+        # np.mean's sum and division, without its wrapper
+        m = math.atan2(float(np.add.reduce(np.sin(ang))) / n,
+                       float(np.add.reduce(np.cos(ang))) / n) * (period / (2.0 * math.pi))
+        extent = hi - lo
+        known = np.isfinite(extent)
         obs = [r]
-        if edge_m > 0 and np.count_nonzero(known) >= 3 and float(np.median((hi - lo)[known])) >= edge_m:
+        if edge_m > 0 and np.count_nonzero(known) >= 3 and _median(extent[known].tolist()) >= edge_m:
             obs += [np.where(known, lo, np.nan), np.where(known & (hi <= edge_limit_m), hi, np.nan)]
         rates = [float(around_kmh)] if math.isfinite(around_kmh) else []
         doppler = np.abs(vw) >= static_kmh  # frames not at zero Doppler (of a track that held clutter a while)
@@ -949,43 +1010,18 @@ class RadialSpeedEstimator:
             near |= np.abs(refs - q) <= span
         refs = refs[near]
         tol2 = tol_m * tol_m
-        # every candidate at once: (candidates, frames)
-        speeds = vw[None, :] + period * np.round((refs[:, None] - vw[None, :]) / period)
-        path = np.zeros_like(speeds)
-        np.cumsum(0.5 * (speeds[:, 1:] + speeds[:, :-1]) * np.diff(t)[None, :], axis=1, out=path[:, 1:])
-        path /= 3.6
-        # a candidate's frames at zero Doppler do not vote (static clutter a track held says nothing of a mover's
-        # alias), unless fewer than three of its frames move (a target crossing the beam at zero radial speed)
-        moving = np.abs(speeds) >= static_kmh
-        moving |= (moving.sum(axis=1) < 3)[:, None]
-        costs = np.zeros(refs.size)
-        frame_e2 = np.full(speeds.shape, tol2)  # per frame: the best fit of the observables (on the path below tol2)
-        for x in obs:
-            ok = np.isfinite(x)[None, :] & moving
-            res = np.where(ok, x[None, :] - path, np.nan)
-            m_ok = ok.sum(axis=1)
-            # the offset: one of the usable frames' residuals (at most 48 of them, spread over their range)
-            if n <= 48:
-                off = res
-            else:
-                off = np.nanquantile(np.where(m_ok[:, None] > 0, res, 0.0), np.linspace(0.0, 1.0, 48), axis=1).T
-            e2 = np.minimum((res[:, None, :] - off[:, :, None]) ** 2, tol2)  # (candidates, offsets, frames)
-            e2 = np.where(ok[:, None, :], e2, tol2)
-            c = np.where(np.isfinite(off), e2.sum(axis=2), np.inf)  # frames not usable cost an outlier's
-            b = np.argmin(c, axis=1)
-            e2b = e2[np.arange(refs.size), b]
-            costs += np.where(m_ok > 0, e2b.sum(axis=1), tol2 * n)
-            frame_e2 = np.minimum(frame_e2, e2b)
-        on_path = frame_e2 < tol2
-        support = on_path.sum(axis=1)
-        best = int(np.argmin(costs))
+        kernel = native.load("_aliasfit") if n <= 48 else None
+        if kernel is not None:
+            on = np.empty(n, dtype=np.uint8)
+            best, clear = kernel.fit_candidates(t, vw, refs, np.array(obs), period, static_kmh, tol2, self.vmax_kmh,
+                                                margin_frames * tol2, on)
+            on_path = on.view(np.bool_)
+        else:
+            best, clear, on_path = fit_candidates_reference(t, vw, refs, obs, period, static_kmh, tol2, self.vmax_kmh,
+                                                            margin_frames * tol2)
         rho = float(refs[best])
-        # rivals: the candidates that give the best one's frames on its path another alias (most of them)
-        mine = on_path[best] if on_path[best].any() else np.ones(n, dtype=bool)
-        rivals = np.abs(np.median(speeds[:, mine] - speeds[best, mine], axis=1)) >= self.vmax_kmh
-        gap = float(np.min(costs[rivals]) - costs[best]) if rivals.any() else math.inf
-        certain = n >= 3 and support[best] >= 3 and gap >= margin_frames * tol2
-        return self.dealias(vw, rho), rho, certain, on_path[best]
+        certain = n >= 3 and int(np.count_nonzero(on_path)) >= 3 and clear
+        return self.dealias(vw, rho), rho, certain, on_path
 
     def event_speed_kmh(self, alias: str = "history", statistic: str = "trimmed_mean", leading_edge_m: float = 0.0,
                         alias_edge_m: float = 3.0, alias_margin_kmh: float = 3.2, edge_limit_m: float = math.inf,
@@ -1071,7 +1107,7 @@ class RadialSpeedEstimator:
         t, r = np.array(self._t), np.array(self._r)
         k = max(3, int(np.count_nonzero(t >= t[-1] - self.window_s)))
         rho = self._slope_kmh(t[-k:], r[-k:])
-        return float(self.dealias(self._v[-1], rho)) if math.isfinite(rho) else math.nan
+        return self.dealias_one(self._v[-1], rho) if math.isfinite(rho) else math.nan
 
 
 def weighted_standardization(x: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

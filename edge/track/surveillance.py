@@ -850,12 +850,12 @@ class SurveillanceTracker:
                 t_last, _, vw_last = spd.last()
                 fresh = (fit is not None and fit[2]
                          and 0 <= t_last - fit[0] < (LIVE_REFIT_FRAMES - 0.5) * self.frame_period_s)
-                if not (fresh and abs(spd.dealias(vw_last, fit[1]) - v_kmh) <= self.cylinder.vmax_kmh):
+                if not (fresh and abs(spd.dealias_one(vw_last, fit[1]) - v_kmh) <= self.cylinder.vmax_kmh):
                     _, ref, sure, _ = spd.fit_alias(fc.event_speed_alias_edge_m, fc.event_speed_alias_tol_m,
                                                     self._edge_limit_m, last_frames=LIVE_FIT_FRAMES, around_kmh=v_kmh)
                     fit = self._live_fit[tr.track_id] = (t_last, ref, sure)
                 _, ref, certain = fit
-                latest = float(spd.dealias(vw_last, ref)) if certain else math.nan
+                latest = spd.dealias_one(vw_last, ref) if certain else math.nan
             if not (certain and abs(latest - v_kmh) <= self.cylinder.vmax_kmh):
                 v = math.nan
         return track_state(tr.track_id, 0.0, r, 0.0, v, r, v, math.nan, tr.age, tr.seen_frames, True, None)

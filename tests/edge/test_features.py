@@ -490,3 +490,15 @@ def test_fit_alias_of_an_event_judges_its_latest_frames_only():
     est = _feed(RadialSpeedEstimator(VMAX), t, r, v)
     speed, certain = est.event_speed_kmh("fit", cap_range_m=10.0)
     assert speed == pytest.approx(30.0, abs=0.01) and certain
+
+
+def test_dealias_one_equals_the_array_dealias():
+    est = RadialSpeedEstimator(5.35)
+    rng = np.random.default_rng(3)
+    period = 2 * 5.35
+    vw = np.concatenate([rng.uniform(-5.35, 5.35, 2000), [0.0, 5.35, -5.35, 1.0, 1.0, np.nan, 2.0]])
+    ref = np.concatenate([rng.uniform(-150, 150, 2000), [0.5 * period, 5.35 + 1.5 * period, -5.35 - 2.5 * period,
+                                                        1.0 + 0.5 * period, 1.0 - 0.5 * period, 3.0, np.nan]])
+    want = np.array([est.dealias(v, r)[()] for v, r in zip(vw, ref)])
+    got = np.array([est.dealias_one(v, r) for v, r in zip(vw, ref)])
+    np.testing.assert_array_equal(got, want)  # half-way points round to even on both paths; NaN stays NaN

@@ -8,7 +8,7 @@ from edge.native.check import agree, compare, outputs
 from tests.native.conftest import require_kernel
 
 #: the kernels the surveillance profile uses
-SURV_KERNELS = ("_dbscan", "_survsig", "_alphabeta")
+SURV_KERNELS = ("_dbscan", "_survsig", "_alphabeta", "_aliasfit")
 
 
 def test_surveillance_kernels_and_reference_give_identical_events():
