@@ -164,8 +164,8 @@ def test_single_reads_never_tear_and_the_tear_byte_detects_split_reads(tcp_sink,
             seen_frames.add(fc)
             for k in range(14):
                 rec = regs[8 + k * 8: 16 + k * 8]
-                assert rec[7] >> 8 == fc & 0xFF
-                assert rec[2] == fc % 200  # x in 0.1 m
+                assert rec[7] >> 8 == fc & 0xFF, (regs[:8], k, rec)
+                assert rec[2] == fc % 200, (regs[:8], k, rec)  # x in 0.1 m
             # two requests: header then records; when the frame changed in between, the tear byte shows it
             hdr = client.read_input_registers(R.TRACK_HEADER, count=1, device_id=1).registers[0]
             rec = client.read_input_registers(R.TRACK_BASE, count=8, device_id=1).registers
