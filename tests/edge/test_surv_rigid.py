@@ -216,3 +216,46 @@ def test_a_walker_beside_a_car_keeps_its_own_event():
     st, _, events = run(AlphaBetaConfig(body_length_m=12.0), car_passing_a_walker, 16)
     assert st.body_parts == 0 and len(events) == 2
     assert sorted(round(e.mean_radial_speed_kmh) for e in events) == [4, 20]
+
+
+def truck_front_cut_at_the_range_limit(n, v=24.0):
+    """A truck receding at ``v`` km/h: its body cluster from 8 m until frame 8, its front cut off near the board's
+    largest range from frame 7 to 12 (a cluster that hardly moves, at the body's wrapped Doppler: a slow track)."""
+    out = []
+    if n <= 8:
+        out.append((8.0 + v / 3.6 * T * n, v, 600))
+    if 7 <= n <= 12:
+        out.append((21.5 + 0.03 * (n - 7), v, 60))
+    return out
+
+
+@pytest.mark.parametrize("outlived, events_expected", [(True, 1), (False, 2)])
+def test_a_vehicle_track_that_ends_before_its_part_joins_it(outlived, events_expected):
+    # the body rule alone (rigid_frames: no rigid merge): the vehicle's track ends first, the slow part lives on
+    cfg = AlphaBetaConfig(rigid_frames=1000, body_outlived=outlived)
+    st, _, events = run(cfg, truck_front_cut_at_the_range_limit, 24)
+    assert len(events) == events_expected
+    assert st.body_parts == (1 if outlived else 0)
+    if outlived:
+        (ev,) = events
+        assert ev.start_ns == 0  # the vehicle's frames are in the part's event
+        assert ev.mean_radial_speed_kmh == pytest.approx(24.0, abs=1.0)
+        assert ev.features["frames"] > 9  # and the part's frames beyond the vehicle's last one
+
+
+def walker_appearing_beside_a_departing_car(n):
+    """A car receding at 30 km/h from 5 m, seen until it leaves the view; a walker appearing at 12 m on frame 3,
+    walking away at 5 km/h (its wrapped Doppler within body_doppler_kmh of the car's)."""
+    out = []
+    v_car = 30.0
+    if n <= 10:
+        out.append((5.0 + v_car / 3.6 * T * n, v_car, 400))
+    if n >= 3:
+        out.append((12.0 + 5.0 / 3.6 * T * n, 5.0, 150))
+    return out
+
+
+def test_a_younger_walker_does_not_take_the_departed_cars_event():
+    st, _, events = run(AlphaBetaConfig(rigid_frames=1000), walker_appearing_beside_a_departing_car, 30)
+    assert st.body_parts == 0 and len(events) == 2
+    assert sorted(round(e.mean_radial_speed_kmh) for e in events) == [5, 30]
