@@ -71,7 +71,9 @@ measured on multi-random dev seeds (field docs):
 * *body parts* (``body_length_m``, ``body_gap_m``, ``body_doppler_kmh``, ``body_rate_kmh``): a track that ends while
   a vehicle's track lives, whose clusters were near that track's (centres within ``body_length_m``) at its wrapped
   Doppler, adjacent (extents within ``body_gap_m``) or moving at its range rate, is a part of that body (a truck's
-  front, body and rear split by DBSCAN): its frames join the living track, one event for the passage;
+  front, body and rear split by DBSCAN): its frames join the living track, one event for the passage; with
+  ``body_outlived`` a vehicle's track that ends first joins a younger living track of a part of its body the same way
+  (the part's frames judged against the vehicle's);
 * *merge guard needs another target* (``merge_other_required``): an enlarged cluster holds a track on
   its prediction only when another track is near it; an approaching car growing six-fold alone is
   itself, not a merge.
