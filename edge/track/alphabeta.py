@@ -310,12 +310,6 @@ class AlphaBetaConfig:
                   "rates over their whole lives (parts of one body move together; a walker a car passes at the "
                   "walker's wrapped Doppler does not)", "min": 0.0, "max": 100.0},
     )
-    body_outlived: bool = field(
-        default=True,
-        metadata={"doc": "see body_length_m: a vehicle's track that ends while a younger track of a part of its body "
-                         "lives joins that part (the body's rear outlives its front's track); false = only a part that "
-                         "ends first joins the vehicle"},
-    )
     max_track_id: int = field(
         default=255,
         metadata={"doc": "track ids are 1..max_track_id, smallest free first and recycled (fits CAN/Modbus)",

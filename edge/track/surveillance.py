@@ -71,9 +71,7 @@ measured on multi-random dev seeds (field docs):
 * *body parts* (``body_length_m``, ``body_gap_m``, ``body_doppler_kmh``, ``body_rate_kmh``): a track that ends while
   a vehicle's track lives, whose clusters were near that track's (centres within ``body_length_m``) at its wrapped
   Doppler, adjacent (extents within ``body_gap_m``) or moving at its range rate, is a part of that body (a truck's
-  front, body and rear split by DBSCAN): its frames join the living track, one event for the passage; with
-  ``body_outlived`` a vehicle's track that ends first joins a younger living track of a part of its body the same way
-  (the part's frames judged against the vehicle's);
+  front, body and rear split by DBSCAN): its frames join the living track, one event for the passage;
 * *merge guard needs another target* (``merge_other_required``): an enlarged cluster holds a track on
   its prediction only when another track is near it; an approaching car growing six-fold alone is
   itself, not a merge.
@@ -591,63 +589,45 @@ class SurveillanceTracker:
         self._start_ns[keep] = min(own, self._start_ns.get(gone, gone_created_ns))
 
     def _body_partner(self, tr: AlphaBetaTrack, candidates: set[int]) -> int | None:
-        """The track that the ending track ``tr`` joins as one vehicle body (``body_length_m``, ``body_doppler_kmh``,
-        ``passage_gap_frames``, ``rigid_min_speed_kmh``), or None; the nearest in range wins. Either ``tr`` is a part
-        of a living vehicle's body, or (``body_outlived``) ``tr`` is the vehicle and the candidate a younger part."""
+        """The track of the vehicle whose body the ending track ``tr`` is a part of (``body_length_m``,
+        ``body_doppler_kmh``, ``passage_gap_frames``, ``rigid_min_speed_kmh``), or None; the nearest in range wins."""
         cfg = self.tracker.config
         if cfg.body_length_m <= 0 or not candidates:
             return None
         spd = self._speed.get(tr.track_id)
         if spd is None or len(spd) < 2 or tr.track_id not in self._log:
             return None
-        fast_x = max(abs(_finite_or_zero(spd.range_rate_kmh())),
-                     abs(_finite_or_zero(spd.mean_radial_speed_kmh()))) >= cfg.rigid_min_speed_kmh
-        first_x = spd.first()[0]
+        period = 2.0 * self.cylinder.vmax_kmh
+        dt_max = (cfg.passage_gap_frames + 0.5) * self.frame_period_s
+        t_x, r_x = spd.history()
+        w_x = spd.wrapped()
+        lo_x, hi_x = spd.extents()
+        rate_x = _finite_or_zero(spd.range_rate_kmh())
         best, best_d = None, math.inf
         for tid in candidates:
             other = self._speed.get(tid)
             if tid == tr.track_id or other is None or len(other) < 2 or tid not in self._log:
                 continue
             rate_y = _finite_or_zero(other.range_rate_kmh())
-            if max(abs(rate_y), abs(_finite_or_zero(other.mean_radial_speed_kmh()))) >= cfg.rigid_min_speed_kmh:
-                d = self._body_distance(spd, other)  # tr is a part of the living vehicle's body
-            elif cfg.body_outlived and fast_x and other.first()[0] > first_x:
-                d = self._body_distance(other, spd)  # tr is the vehicle, the younger living track a part of it
-            else:
+            if not max(abs(rate_y), abs(_finite_or_zero(other.mean_radial_speed_kmh()))) >= cfg.rigid_min_speed_kmh:
                 continue
-            if d is not None and d < best_d:
+            if rate_x * rate_y < 0 and min(abs(rate_x), abs(rate_y)) >= cfg.passage_speed_kmh:
+                continue  # moving apart: two targets crossing each other
+            t_y, r_y = other.history()
+            dt = np.abs(t_x[:, None] - t_y[None, :])
+            k = np.argmin(dt, axis=1)
+            near = dt[np.arange(t_x.size), k] <= dt_max
+            if np.count_nonzero(near) < max(1, near.size // 2):
+                continue
+            d = float(np.median(np.abs(r_x[near] - r_y[k[near]])))
+            lo_y, hi_y = other.extents()
+            gap = np.maximum(0.0, np.maximum(lo_x[near] - hi_y[k[near]], lo_y[k[near]] - hi_x[near]))
+            gap = float(np.median(np.where(np.isfinite(gap), gap, np.abs(r_x[near] - r_y[k[near]]))))
+            dw = (w_x[near] - other.wrapped()[k[near]] + 0.5 * period) % period - 0.5 * period
+            together = gap <= cfg.body_gap_m or abs(rate_x - rate_y) <= cfg.body_rate_kmh
+            if d <= cfg.body_length_m and abs(float(np.median(dw))) <= cfg.body_doppler_kmh and together and d < best_d:
                 best, best_d = tid, d
         return best
-
-    def _body_distance(self, part: RadialSpeedEstimator, vehicle: RadialSpeedEstimator) -> float | None:
-        """Median range distance of ``part``'s clusters to ``vehicle``'s when ``part`` moved as a part of the
-        vehicle's body, else None: at least half of ``part``'s frames within ``passage_gap_frames`` of a vehicle
-        frame, centres within ``body_length_m``, wrapped Dopplers within ``body_doppler_kmh``, adjacent
-        (``body_gap_m``) or at one range rate (``body_rate_kmh``), and not moving apart (opposite range rates)."""
-        cfg = self.tracker.config
-        rate_x = _finite_or_zero(part.range_rate_kmh())
-        rate_y = _finite_or_zero(vehicle.range_rate_kmh())
-        if rate_x * rate_y < 0 and min(abs(rate_x), abs(rate_y)) >= cfg.passage_speed_kmh:
-            return None  # moving apart: two targets crossing each other
-        period = 2.0 * self.cylinder.vmax_kmh
-        dt_max = (cfg.passage_gap_frames + 0.5) * self.frame_period_s
-        t_x, r_x = part.history()
-        t_y, r_y = vehicle.history()
-        dt = np.abs(t_x[:, None] - t_y[None, :])
-        k = np.argmin(dt, axis=1)
-        near = dt[np.arange(t_x.size), k] <= dt_max
-        if np.count_nonzero(near) < max(1, near.size // 2):
-            return None
-        d = float(np.median(np.abs(r_x[near] - r_y[k[near]])))
-        lo_x, hi_x = part.extents()
-        lo_y, hi_y = vehicle.extents()
-        gap = np.maximum(0.0, np.maximum(lo_x[near] - hi_y[k[near]], lo_y[k[near]] - hi_x[near]))
-        gap = float(np.median(np.where(np.isfinite(gap), gap, np.abs(r_x[near] - r_y[k[near]]))))
-        dw = (part.wrapped()[near] - vehicle.wrapped()[k[near]] + 0.5 * period) % period - 0.5 * period
-        together = gap <= cfg.body_gap_m or abs(rate_x - rate_y) <= cfg.body_rate_kmh
-        if d <= cfg.body_length_m and abs(float(np.median(dw))) <= cfg.body_doppler_kmh and together:
-            return d
-        return None
 
     def _own_frames(self, track_id: int) -> int:
         """Frames with signatures of the track (its own clusters, and those of tracks it absorbed)."""
