@@ -1361,3 +1361,130 @@ def count_hits(const cnp.npy_bool[:, :] gated, cnp.int32_t[:] age, cnp.int32_t[:
             mo[t] = 0 if h else misses[t] + 1
             ho[t] = (history[t] << 1) | (<cnp.uint32_t>h)
     return hit_a, misses_a, history_a
+
+
+def confirm_ready(const double[:, :] x, const cnp.uint32_t[:] history, const cnp.uint8_t[:] confirmed,
+                  const cnp.uint8_t[:] moved, const double[:] score, int mode, double score_confirm,
+                  cnp.uint32_t mask_n, int confirm_m, double block_along_m, double merge_lateral_m,
+                  double merge_speed_mps, double block_lateral_m, double block_behind_m, double block_speed_mps):
+    """The rows that :meth:`edge.track.roles.confirm.Confirmer.confirm` confirms this frame, in row order (a list of
+    int): tentative, moved and passing the test (``mode`` 0: M of N, 1: score, 2: either), and not blocked by a
+    confirmed track (``block_along_m`` > 0). The numpy reference's comparisons and arithmetic (``heading``'s libm
+    ``hypot``, ``np.maximum``): the same rows."""
+    cdef Py_ssize_t nt = x.shape[0], r, k
+    if (history.shape[0] != nt or confirmed.shape[0] != nt or moved.shape[0] != nt or score.shape[0] != nt
+            or x.shape[1] < 4):
+        raise ValueError("confirm_ready needs one row per track in every column and x of width 4")
+    cdef list out = []
+    cdef bint ok, any_confirmed = False, blocked
+    cdef double d0, d1, dv, sp, den
+    for r in range(nt):
+        if confirmed[r]:
+            any_confirmed = True
+    for r in range(nt):
+        if confirmed[r] or not moved[r]:
+            continue
+        if mode == 1:
+            ok = score[r] >= score_confirm
+        else:
+            ok = _popcount32(history[r] & mask_n) >= confirm_m
+            if mode == 2 and score[r] >= score_confirm:
+                ok = True
+        if not ok:
+            continue
+        if block_along_m > 0.0 and any_confirmed:
+            blocked = False
+            for k in range(nt):
+                if not confirmed[k]:
+                    continue
+                d1 = x[r, 1] - x[k, 1]
+                if not fabs(d1) < block_along_m:
+                    continue
+                d0 = x[r, 0] - x[k, 0]
+                sp = hypot(x[k, 2], x[k, 3])
+                den = _np_max(sp, 1e-9)
+                dv = (x[r, 2] - x[k, 2]) * (x[k, 2] / den) + (x[r, 3] - x[k, 3]) * (x[k, 3] / den)
+                if ((fabs(d0) < merge_lateral_m and fabs(dv) < merge_speed_mps)
+                        or (fabs(d0) < block_lateral_m and d1 > block_behind_m and fabs(dv) < block_speed_mps)):
+                    blocked = True
+                    break
+            if blocked:
+                continue
+        out.append(r)
+    return out
+
+
+from libc.string cimport memcpy
+
+
+cdef inline bint _plain(cnp.ndarray a):
+    """A bool or number array, C-contiguous, aligned, in native byte order, of 1 to 8 dimensions: its rows are one
+    block of bytes, and its type number alone gives its dtype."""
+    return (cnp.PyArray_ISCARRAY_RO(a) and 1 <= cnp.PyArray_NDIM(a) <= 8
+            and cnp.PyArray_TYPE(a) <= cnp.NPY_CLONGDOUBLE)
+
+
+def concat_rows(list olds, list news):
+    """``[np.concatenate([a, b]) for a, b in zip(olds, news)]``: for two arrays of one dtype and row shape, a new
+    array with ``a``'s rows then ``b``'s, copied; any other pair goes to ``np.concatenate``."""
+    cdef Py_ssize_t i, j, nd
+    cdef cnp.ndarray a, b, c
+    cdef cnp.npy_intp dims[8]
+    cdef bint same
+    cdef list out = []
+    if len(olds) != len(news):
+        raise ValueError("concat_rows needs as many new parts as columns")
+    for i in range(len(olds)):
+        a, b = olds[i], news[i]
+        if not cnp.PyArray_ISCARRAY_RO(b):
+            b = np.ascontiguousarray(b)
+        nd = cnp.PyArray_NDIM(a)
+        same = (_plain(a) and _plain(b) and nd == cnp.PyArray_NDIM(b)
+                and cnp.PyArray_TYPE(a) == cnp.PyArray_TYPE(b) and cnp.PyArray_EquivTypes(a.dtype, b.dtype))
+        if same:
+            for j in range(1, nd):
+                if cnp.PyArray_DIMS(a)[j] != cnp.PyArray_DIMS(b)[j]:
+                    same = False
+        if not same:
+            out.append(np.concatenate([a, b]))
+            continue
+        for j in range(nd):
+            dims[j] = cnp.PyArray_DIMS(a)[j]
+        dims[0] += cnp.PyArray_DIMS(b)[0]
+        c = cnp.PyArray_EMPTY(<int>nd, dims, cnp.PyArray_TYPE(a), 0)
+        memcpy(cnp.PyArray_BYTES(c), cnp.PyArray_BYTES(a), cnp.PyArray_NBYTES(a))
+        memcpy(cnp.PyArray_BYTES(c) + cnp.PyArray_NBYTES(a), cnp.PyArray_BYTES(b), cnp.PyArray_NBYTES(b))
+        out.append(c)
+    return out
+
+
+def take_rows(list cols, const cnp.intp_t[::1] rows):
+    """``[a.take(rows, axis=0) for a in cols]`` for row indices ``rows`` in ``0..len(a) - 1``: the rows copied into new
+    arrays; an array that is not one block of rows goes to ``take``."""
+    cdef Py_ssize_t i, j, k, nd, nr = rows.shape[0], row_bytes, n0
+    cdef cnp.ndarray a, c
+    cdef cnp.npy_intp dims[8]
+    cdef char* src
+    cdef char* dst
+    cdef list out = []
+    for i in range(len(cols)):
+        a = cols[i]
+        if not _plain(a):
+            out.append(a.take(np.asarray(rows), axis=0))
+            continue
+        nd = cnp.PyArray_NDIM(a)
+        n0 = cnp.PyArray_DIMS(a)[0]
+        for k in range(nr):
+            if rows[k] < 0 or rows[k] >= n0:
+                raise IndexError("take_rows: row index out of range")
+        for j in range(nd):
+            dims[j] = cnp.PyArray_DIMS(a)[j]
+        dims[0] = nr
+        c = cnp.PyArray_EMPTY(<int>nd, dims, cnp.PyArray_TYPE(a), 0)
+        row_bytes = cnp.PyArray_NBYTES(a) // n0 if n0 else 0
+        src, dst = cnp.PyArray_BYTES(a), cnp.PyArray_BYTES(c)
+        for k in range(nr):
+            memcpy(dst + k * row_bytes, src + rows[k] * row_bytes, row_bytes)
+        out.append(c)
+    return out
+

@@ -104,7 +104,7 @@ class PdafTracker(native.KernelUser):
             for tid in tr.track_id[dead & tr.confirmed]:
                 self.ids.release(int(tid))
             if np.count_nonzero(dead):
-                tr.keep(~dead)
+                tr.keep(~dead, self.kernel)
             self.confirmer.confirm(tr, self.ids)  # after duplicates are gone: no id is spent on one
             self.intermediates = {"gated": hyp.gated, "beta0": hyp.beta0, "d2": mp.inn.d2}
         self.initiator.initiate(tr, meas, used, self.road_yaw_rad, mp)

@@ -991,3 +991,135 @@ def test_a_failing_measurements_kernel_is_not_hidden():
     wide = Detections(*(np.array([30.0, 60.0]) for _ in range(6)))
     m = Measurements.from_detections(wide, True, SimpleNamespace(measurements=boom))  # numpy form, no call
     assert m.z.shape == (2, 3)
+
+
+@pytest.mark.parametrize("confirmation", ["m_of_n", "score", "either"])
+def test_confirming_is_identical(confirmation):
+    """The rows the confirmer confirms: the ``confirm_ready`` kernel against :meth:`Confirmer.confirming_numpy`, on
+    the tracker's own tables each frame (30 vehicles with clutter) and on random tables with ties at every
+    threshold of the block test, NaN states and standing confirmed tracks."""
+    from types import SimpleNamespace
+
+    tr = PdafTracker(PdafConfig(confirmation=confirmation))
+    conf = tr.confirmer
+    assert conf.kernel is K
+    seen = {"rows": 0, "frames": 0}
+    confirm = conf.confirm
+
+    def both(tracks, ids):
+        got = conf.confirming(tracks)
+        want = conf.confirming_numpy(tracks)
+        assert isinstance(got, list) and got == want.tolist()
+        seen["rows"] += len(got)
+        seen["frames"] += 1
+        return confirm(tracks, ids)
+
+    conf.confirm = both
+    for t_ns, det in road_frames(30, 70, clutter_per_frame=12.0, seed=9):
+        tr.step(det, t_ns)
+    assert seen["rows"] > 20 and seen["frames"] > 60
+
+    c, box = conf.cfg, conf.box.cfg
+    rng = np.random.default_rng(5)
+    blocked = 0
+    for trial in range(300):
+        t = int(rng.integers(0, 12))
+        x = rng.normal(0.0, 1.0, (t, 4)) * np.array([3.0, 20.0, 2.0, 10.0])
+        if trial % 2:  # one platoon: most pairs within the block test's box
+            x = rng.normal(0.0, 1.0, (t, 4)) * np.array([1.5, 8.0, 0.5, 1.5]) + np.array([0.0, 0.0, 0.0, 25.0])
+        if t > 1:  # ties: a row's offsets to another exactly at the block test's limits
+            j, k = rng.choice(t, 2, replace=False)
+            x[j] = x[k]
+            for col, lim in ((1, c.confirm_block_along_m), (0, box.merge_lateral_m), (0, c.confirm_block_lateral_m),
+                             (1, c.confirm_block_behind_m)):
+                if rng.uniform() < 0.3:
+                    x[j, col] = x[k, col] + lim
+            if rng.uniform() < 0.3:
+                x[k, 2:4] = 0.0  # a standing confirmed track: heading (0, 0)
+            if rng.uniform() < 0.2:
+                x[int(rng.integers(t)), int(rng.integers(4))] = np.nan
+        tracks = SimpleNamespace(
+            x=x, history=rng.integers(0, 2**32, t, dtype=np.uint32),
+            confirmed=rng.uniform(size=t) < 0.5, moved=rng.uniform(size=t) < 0.8,
+            score=rng.normal(conf.confirmed_log_odds, 2.0, t))
+        if t:
+            tracks.score[int(rng.integers(t))] = conf.confirmed_log_odds
+            tracks.score[int(rng.integers(t))] = np.nan
+        got = conf.confirming(tracks)
+        assert got == conf.confirming_numpy(tracks).tolist()
+        blocked += int(np.count_nonzero(conf._ready(tracks) & tracks.moved)) - len(got)
+    assert blocked > 30
+
+
+def _columns(rng, t):
+    """Arrays shaped and typed like the track table's columns, ``t`` rows."""
+    return [rng.normal(size=(t, 4)), rng.normal(size=(t, 4, 4)), rng.integers(-5, 5, t, dtype=np.int32),
+            rng.integers(0, 2**32, t, dtype=np.uint32), rng.uniform(size=t) < 0.5, rng.normal(size=(t, 2, 4)),
+            rng.normal(size=(t, 2, 4, 4)), np.full(t, np.nan), rng.normal(size=(t, 0))]
+
+
+def _identical(a, b) -> bool:
+    return (a.dtype == b.dtype and a.shape == b.shape and a.flags.c_contiguous == b.flags.c_contiguous
+            and a.tobytes() == b.tobytes())
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("t,k", [(0, 0), (0, 3), (5, 0), (7, 2), (40, 9)])
+def test_concat_rows_is_identical(seed, t, k):
+    """``concat_rows`` against ``np.concatenate`` pair by pair: the same dtype, shape and bytes, also for strided and
+    Fortran-ordered parts, a part of another dtype (numpy's promotion) or of another row shape (numpy's error)."""
+    rng = np.random.default_rng(seed)
+    olds, news = _columns(rng, t), _columns(rng, k)
+    news[0] = rng.normal(size=(k, 8))[:, 0::2]  # strided, like the straight-line filter's x[:, 0::2]
+    news[1] = np.asfortranarray(news[1])
+    olds[3] = olds[3][::-1]  # a negative stride in a column
+    news[7] = news[7].astype(np.float32)  # promoted by np.concatenate
+    got = K.concat_rows(olds, news)
+    assert len(got) == len(olds)
+    for a, b, g in zip(olds, news, got):
+        want = np.concatenate([a, b])
+        assert _identical(g, want) and g.flags.writeable and not np.shares_memory(g, a)
+    with pytest.raises(ValueError):
+        K.concat_rows([np.zeros((t, 4))], [np.zeros((k, 3))])
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("t", [0, 1, 6, 40])
+def test_take_rows_is_identical(seed, t):
+    """``take_rows`` against ``take(rows, axis=0)``: the same dtype, shape and bytes for every column, rows from a
+    mask, repeated or unordered, a strided column; an index out of range raises IndexError."""
+    rng = np.random.default_rng(seed)
+    cols = _columns(rng, t)
+    cols.append(rng.normal(size=(t, 6))[:, ::2])
+    masks = [rng.uniform(size=t) < 0.7, np.zeros(t, bool), np.ones(t, bool)]
+    row_sets = [m.nonzero()[0] for m in masks] + ([rng.integers(0, t, 2 * t)] if t else [])
+    for rows in row_sets:
+        for a, g in zip(cols, K.take_rows(cols, rows)):
+            assert _identical(g, a.take(rows, axis=0)) and g.flags.writeable
+    for bad in ([t], [-1]):
+        with pytest.raises(IndexError):
+            K.take_rows(cols[:1], np.array(bad, dtype=np.intp))
+
+
+def test_track_table_append_and_keep_with_the_kernel_are_identical():
+    """The track table's ``append`` and ``keep`` with the kernel give the same columns (dtype, shape, bytes) as without,
+    over a run of seeding and deleting."""
+    from edge.track.table import TrackTable
+
+    rng = np.random.default_rng(3)
+    fast, ref = TrackTable(), TrackTable()
+    for step in range(40):
+        k = int(rng.integers(0, 5))
+        x, p = rng.normal(size=(k, 4)), rng.normal(size=(k, 4, 4))
+        ext, keep_prob = float(rng.choice([1.0, 2.5])), float(rng.choice([0.5, 0.8]))
+        fast.append(x, p, ext, keep_prob, kernel=K)
+        ref.append(x, p, ext, keep_prob)
+        for tb in (fast, ref):  # the columns change between frames as the tracker changes them
+            tb.score = tb.score + 0.25 * step
+        mask = rng.uniform(size=len(ref)) < 0.8
+        fast.keep(mask, K)
+        ref.keep(mask)
+        for c in TrackTable._COLUMNS:
+            assert _identical(getattr(fast, c), getattr(ref, c)), c
+    assert len(ref) > 3
+

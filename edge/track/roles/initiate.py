@@ -99,7 +99,7 @@ class SeedInitiator(native.KernelUser):
             p0[:, 2, 3] = p0[:, 3, 2] = cy * sy * (var_u - var_s)
         else:
             p0[:, 2, 2] = p0[:, 3, 3] = c.init_speed_sigma_mps**2
-        tracks.append(x0, p0, self.meas_model.initial_extent_var)
+        tracks.append(x0, p0, self.meas_model.initial_extent_var, kernel=self.kernel)
         if self.predictor is not None:
             self.predictor.seeded(tracks, k, road_yaw_rad, var_s)
         return k
