@@ -884,10 +884,20 @@ def publish_rows(const double[:, :] x, const double[:, :, :] p, const cnp.int64_
     call: ``(n, 15)`` float64 with the columns :data:`PUBLISH_COLUMNS` (``length_m`` is read where ``has_length`` is
     1). The same elementwise operations as the numpy reference (``lateral_blend``, ``hypot``, ``arctan2``, ``sqrt``,
     ``exp``; libm's): bit-identical."""
+    out_arr = np.empty((idx.shape[0], 15))
+    _publish_rows(x, p, idx, lat, lat_p, lat_cusum, ext_var, score, confirmed, smoother, cusum_threshold,
+                  publish_length, confirmed_log_odds, out_arr)
+    return out_arr
+
+
+cdef void _publish_rows(const double[:, :] x, const double[:, :, :] p, const cnp.int64_t[::1] idx,
+                        const double[:, :] lat, const double[:, :, :] lat_p, const double[:] lat_cusum,
+                        const double[:] ext_var, const double[:] score, const cnp.uint8_t[:] confirmed, bint smoother,
+                        double cusum_threshold, bint publish_length, double confirmed_log_odds,
+                        double[:, ::1] out) noexcept:
+    """:func:`publish_rows` into ``out`` (n, 15)."""
     cdef Py_ssize_t n = idx.shape[0], k, i
     cdef int c_i
-    out_arr = np.empty((n, 15))
-    cdef double[:, ::1] out = out_arr
     cdef bint blend = False
     cdef double p0 = 0.0, c, t, pr, w, xs, xr, rho, num, d, lat_sd, lo
     if smoother:
@@ -942,7 +952,6 @@ def publish_rows(const double[:, :] x, const double[:, :, :] p, const cnp.int64_
         elif lo > 700.0:
             lo = 700.0
         out[k, 13] = 1.0 / (1.0 + exp(-lo))
-    return out_arr
 
 
 cdef inline double _np_min(double a, double b) noexcept nogil:
@@ -1488,3 +1497,47 @@ def take_rows(list cols, const cnp.intp_t[::1] rows):
         out.append(c)
     return out
 
+
+cdef extern from *:
+    """
+    /* object.__new__(cls) for a class whose instances object.__new__ makes (what tp_new_wrapper ends in) */
+    static PyObject *ktr_new_instance(PyObject *cls) {
+        static PyObject *no_args = NULL;
+        if (no_args == NULL && (no_args = PyTuple_New(0)) == NULL)
+            return NULL;
+        return PyBaseObject_Type.tp_new((PyTypeObject *)cls, no_args, NULL);
+    }
+    """
+    object ktr_new_instance(object cls)
+    int PyObject_GenericSetAttr(object o, object name, object value) except -1
+
+
+def publish_states(type cls, const double[:, :] x, const double[:, :, :] p, const cnp.int64_t[::1] idx,
+                   const double[:, :] lat, const double[:, :, :] lat_p, const double[:] lat_cusum,
+                   const double[:] ext_var, const double[:] score, const cnp.uint8_t[:] confirmed, bint smoother,
+                   double cusum_threshold, bint publish_length, double confirmed_log_odds,
+                   const cnp.int32_t[:] track_id, const cnp.int32_t[:] age, const cnp.int32_t[:] hits):
+    """The published tracks of the rows ``idx``: a tuple of ``cls`` instances (``TrackState``, made by
+    ``object.__new__(cls)`` with the ``__dict__`` that ``PdafTracker.published`` writes, keys in field order), and the
+    ``(n, 15)`` numbers of :func:`publish_rows` they were made from."""
+    if cls.__new__ is not object.__new__:
+        raise TypeError("publish_states: cls must be made by object.__new__")
+    cdef Py_ssize_t n = idx.shape[0], k, i
+    num_arr = np.empty((n, 15))
+    cdef double[:, ::1] num = num_arr
+    _publish_rows(x, p, idx, lat, lat_p, lat_cusum, ext_var, score, confirmed, smoother, cusum_threshold,
+                  publish_length, confirmed_log_odds, num)
+    cdef list out = []
+    cdef dict d
+    for k in range(n):
+        i = idx[k]
+        o = ktr_new_instance(cls)
+        d = {"track_id": track_id[i], "x_m": num[k, 0], "y_m": num[k, 1], "vx_mps": num[k, 2], "vy_mps": num[k, 3],
+             "range_m": num[k, 4], "radial_speed_mps": num[k, 5], "az_rad": num[k, 6], "age_frames": age[i],
+             "hits": hits[i], "confirmed": True if confirmed[i] else False, "lane": None, "cls": None,
+             "class_probability": None, "rcs_dbsm": None, "length_m": num[k, 7] if num[k, 8] != 0.0 else None,
+             "x_sd_m": num[k, 9], "y_sd_m": num[k, 10], "vx_sd_mps": num[k, 11], "vy_sd_mps": num[k, 12],
+             "existence_probability": num[k, 13]}
+        PyObject_GenericSetAttr(o, "__dict__", d)
+        out.append(o)
+    return tuple(out), num_arr

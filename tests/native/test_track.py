@@ -1123,3 +1123,32 @@ def test_track_table_append_and_keep_with_the_kernel_are_identical():
             assert _identical(getattr(fast, c), getattr(ref, c)), c
     assert len(ref) > 3
 
+
+def _state_bits(s) -> list:
+    """A TrackState's ``__dict__`` as (key, type, value) in key order, floats by their bit pattern."""
+    return [(k, type(v), np.float64(v).view(np.uint64).item() if isinstance(v, float) else v)
+            for k, v in vars(s).items()]
+
+
+@pytest.mark.parametrize("plain", [True, False])
+@pytest.mark.parametrize("smoother,length,tentative", [(True, True, False), (False, False, True)])
+def test_published_states_are_bit_identical(monkeypatch, plain, smoother, length, tentative):
+    """The TrackStates the ``publish_states`` kernel makes (and, for a TrackState that is not the plain dataclass,
+    those made from ``publish_rows``) against numpy's: the same type, the same ``__dict__`` keys in the same order,
+    the same value types, floats bit for bit."""
+    import edge.track.tracker as tracker_mod
+    from edge.types import TrackState
+
+    monkeypatch.setattr(tracker_mod, "_TRACK_STATE_PLAIN", plain)
+    tr = PdafTracker(PdafConfig(lateral_smoother=smoother, publish_length=length, publish_tentative=tentative))
+    n = 0
+    for t_ns, det in road_frames(30, 50, clutter_per_frame=10.0, seed=12):
+        tr.step(det, t_ns)
+        fast, ref, fx, rx = _published_both(tr)
+        assert type(fast) is tuple and len(fast) == len(ref)
+        for a, b in zip(fast, ref):
+            assert type(a) is TrackState and _state_bits(a) == _state_bits(b)
+        assert (fx is None and rx is None) or np.array_equal(fx, rx)
+        n += len(ref)
+    assert n > 20 * 30
+
