@@ -1093,34 +1093,96 @@ def claimed_any(const double[:, :, ::1] v, const double[:, :, ::1] s, double gam
     """(M,) uint8: detections with ``v' S_t^-1 v <= gamma`` for some track ``t`` -- ``(mahalanobis_d2(v, s) <=
     gamma).any(axis=0)`` of :mod:`edge.track.pdaf` (the inverse of :func:`edge.track.smallmat.inv_det` and the terms
     of ``_quad``, bit-identical) in one pass: innovations ``v`` (T, M, n), one ``S`` (T, n, n) per track. n = 2, 3."""
-    cdef Py_ssize_t nt = v.shape[0], nm = v.shape[1], n = v.shape[2], t, m, i
+    cdef Py_ssize_t nt = v.shape[0], nm = v.shape[1], n = v.shape[2]
     out_a = np.zeros(nm, dtype=np.uint8)
     cdef cnp.uint8_t[::1] out = out_a
-    cdef double a[9]
-    cdef double si[9]
-    cdef double d2
     if n != 2 and n != 3:
         raise ValueError("claimed_any: n must be 2 or 3")
     if s.shape[0] != nt or s.shape[1] != n or s.shape[2] != n:
         raise ValueError("claimed_any: s must be (T, n, n) with v's T and n")
+    if nt:
+        _claimed(v, &s[0, 0, 0], gamma, &out[0] if nm else NULL)
+    return out_a
+
+
+def claimed_any_polar(const double[:, :, ::1] v, const double[:, :, ::1] s_track, const double[:, :, ::1] rr,
+                      double floor_var, double gamma):
+    """:func:`claimed_any` with ``S = s_track`` plus the converted polar noise ``rr`` (T, 2, 2) on its position block
+    and ``floor_var`` on that block's diagonal: the ``S`` of ``MeasurementModel.with_sensor`` (``s_track.copy()``,
+    then ``+= rr`` after ``rr``'s diagonal ``+= floor_var``), the same sums."""
+    cdef Py_ssize_t nt = v.shape[0], nm = v.shape[1], n = v.shape[2], t, i, k
+    out_a = np.zeros(nm, dtype=np.uint8)
+    cdef cnp.uint8_t[::1] out = out_a
+    if n != 2 and n != 3:
+        raise ValueError("claimed_any_polar: n must be 2 or 3")
+    if s_track.shape[0] != nt or s_track.shape[1] != n or s_track.shape[2] != n:
+        raise ValueError("claimed_any_polar: s_track must be (T, n, n) with v's T and n")
+    if rr.shape[0] != nt or rr.shape[1] != 2 or rr.shape[2] != 2:
+        raise ValueError("claimed_any_polar: rr must be (T, 2, 2)")
+    s_a = np.empty((nt, n, n))
+    cdef double[:, :, ::1] s = s_a
+    for t in range(nt):
+        for i in range(n):
+            for k in range(n):
+                if i < 2 and k < 2:
+                    s[t, i, k] = s_track[t, i, k] + ((rr[t, i, k] + floor_var) if i == k else rr[t, i, k])
+                else:
+                    s[t, i, k] = s_track[t, i, k]
+    if nt:
+        _claimed(v, &s[0, 0, 0], gamma, &out[0] if nm else NULL)
+    return out_a
+
+
+cdef void _claimed(const double[:, :, ::1] v, const double* s, double gamma, cnp.uint8_t* out) noexcept nogil:
+    """:func:`claimed_any`'s pass over the tracks, ``s`` the (T, n, n) ``S`` contiguous, ``out`` (M,) zeroed."""
+    cdef Py_ssize_t nt = v.shape[0], nm = v.shape[1], n = v.shape[2], t, m, i
+    cdef double a[9]
+    cdef double si[9]
+    cdef double d2
+    for t in range(nt):
+        for i in range(n * n):
+            a[i] = s[t * n * n + i]
+        if n == 3:
+            _inv3(a, si)
+        else:
+            _inv2(a, si)
+        for m in range(nm):
+            if out[m]:
+                continue
+            if n == 3:
+                d2 = _quad3(si, &v[t, m, 0])
+            else:
+                d2 = _quad2(si, &v[t, m, 0])
+            if d2 <= gamma:
+                out[m] = 1
+
+
+def polar_jacobian(const double[:, :] xy, double var_r, double var_az):
+    """``kalman.polar_position_noise``'s factors at the ground points ``xy`` (T, >= 2; columns x, y): the Jacobian
+    ``j`` (T, 2, 2) and ``jd = j * [var_r, var_az]`` (each column scaled), the same operations (``jd @ j'`` is the
+    noise before its floor; that product stays numpy's). Returns ``(jd, j)``."""
+    cdef Py_ssize_t nt = xy.shape[0], t
+    if xy.shape[1] < 2:
+        raise ValueError("polar_jacobian: xy needs the columns x, y")
+    j_a = np.empty((nt, 2, 2))
+    jd_a = np.empty((nt, 2, 2))
+    cdef double[:, :, ::1] j = j_a, jd = jd_a
+    cdef double r, rs, sn, cs
     with nogil:
         for t in range(nt):
-            for i in range(n * n):
-                a[i] = (&s[t, 0, 0])[i]
-            if n == 3:
-                _inv3(a, si)
-            else:
-                _inv2(a, si)
-            for m in range(nm):
-                if out[m]:
-                    continue
-                if n == 3:
-                    d2 = _quad3(si, &v[t, m, 0])
-                else:
-                    d2 = _quad2(si, &v[t, m, 0])
-                if d2 <= gamma:
-                    out[m] = 1
-    return out_a
+            r = hypot(xy[t, 0], xy[t, 1])
+            rs = _np_max(r, 1e-6)
+            sn = xy[t, 0] / rs
+            cs = xy[t, 1] / rs
+            j[t, 0, 0] = sn
+            j[t, 0, 1] = r * cs
+            j[t, 1, 0] = cs
+            j[t, 1, 1] = (-r) * sn
+            jd[t, 0, 0] = j[t, 0, 0] * var_r
+            jd[t, 0, 1] = j[t, 0, 1] * var_az
+            jd[t, 1, 0] = j[t, 1, 0] * var_r
+            jd[t, 1, 1] = j[t, 1, 1] * var_az
+    return jd_a, j_a
 
 
 def mode_probabilities_match(const double[:, ::1] c, const double[:, ::1] lik, double floor,

@@ -1152,3 +1152,86 @@ def test_published_states_are_bit_identical(monkeypatch, plain, smoother, length
         n += len(ref)
     assert n > 20 * 30
 
+
+def _polar_points(rng, t):
+    """Ground states (T, 4) for the converted polar noise: spread, at the radar, NaN, signed zeros."""
+    xp = np.column_stack([rng.normal(0, 20, t), rng.uniform(-5, 300, t), rng.normal(0, 3, (t, 2))])
+    if t > 3:
+        xp[0, :2] = 0.0
+        xp[1, :2] = (-0.0, 0.0)
+        xp[2, :2] = (3e-7, -2e-7)  # inside the 1e-6 floor of the range
+        xp[3, 0] = np.nan
+    return xp
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("t", [0, 1, 7, 60])
+def test_polar_jacobian_is_identical(seed, t):
+    """``polar_jacobian``'s factors, multiplied by numpy and floored as ``kalman.polar_position_noise`` does, give that
+    function's noise bit for bit (NaN included), from strided states."""
+    from edge.track import kalman
+
+    rng = np.random.default_rng(seed)
+    xp = _polar_points(rng, t)
+    var_r, var_az, f = 0.3**2, math.radians(1.5)**2, 0.4
+    jd, j = K.polar_jacobian(xp, var_r, var_az)
+    rr = jd @ j.transpose(0, 2, 1)
+    rr[:, 0, 0] += f**2
+    rr[:, 1, 1] += f**2
+    want = kalman.polar_position_noise(xp[:, :2], 0.3, math.radians(1.5), f)
+    assert rr.shape == want.shape and rr.tobytes() == want.tobytes()
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("t,m", [(30, 40), (5, 8), (1, 1), (3, 0), (0, 4)])
+@pytest.mark.parametrize("n", [2, 3])
+def test_claimed_any_polar_is_identical(seed, t, m, n):
+    """``claimed_any_polar`` against ``claimed_any`` with the ``S`` of ``MeasurementModel.with_sensor`` and against
+    numpy's ``(mahalanobis_d2(v, S) <= gamma).any(axis=0)``, also at thresholds right at a pair's distance."""
+    from edge.track.config import MeasurementConfig, section
+    from edge.track.roles.measure import SnrNoiseModel
+
+    rng = np.random.default_rng(seed)
+    mm = SnrNoiseModel(section(PdafConfig(), MeasurementConfig))
+    c = mm.cfg
+    xp = _polar_points(rng, t)
+    if t > 3:
+        xp[3, 0] = 1.0  # no NaN here: a NaN S claims nothing either way, but the sweep below wants finite distances
+    a = rng.normal(0, 1, (t, n, n))
+    s_track = a @ a.swapaxes(-1, -2) + np.eye(n)
+    v = rng.normal(0, 3.0, (t, m, n))
+    s = mm.with_sensor(xp, s_track)
+    d2 = mahalanobis_d2(v, s)
+    jd, j = K.polar_jacobian(xp, c.range_sigma_m**2, math.radians(c.azimuth_sigma_deg)**2)
+    rr = jd @ j.transpose(0, 2, 1)
+    for gamma in [gate_threshold(0.999, n), 1e-3, np.inf] + ([float(np.median(d2))] if d2.size else []):
+        got = K.claimed_any_polar(v, s_track, rr, c.extent_sigma_m**2, gamma)
+        assert got.dtype == np.uint8
+        assert np.array_equal(got, K.claimed_any(v, s, gamma))
+        assert np.array_equal(got.view(bool), (d2 <= gamma).any(axis=0))
+
+
+def test_seed_exclusion_claimed_on_tracker_frames_is_identical():
+    """The tracker's claimed detections (constant-noise exclusion gate) with the kernels against the numpy form on
+    its own frames (30 vehicles with clutter)."""
+    tr = PdafTracker(PdafConfig())
+    mm = tr.measurement_model
+    assert mm.kernel is K and tr.associator.cfg.seed_exclusion_noise == "constant"
+    claimed, seen = tr.associator.claimed, [0, 0]
+
+    def both(mp, xp, model):
+        got = claimed(mp, xp, model)
+        mm.kernel = None
+        try:
+            want = claimed(mp, xp, model)
+        finally:
+            mm.kernel = K
+        assert got.dtype == want.dtype == bool and np.array_equal(got, want)
+        seen[0] += int(got.sum())
+        seen[1] += got.size
+        return got
+
+    tr.associator.claimed = both
+    for t_ns, det in road_frames(30, 60, clutter_per_frame=12.0, seed=4):
+        tr.step(det, t_ns)
+    assert seen[0] > 300 and seen[1] > seen[0]
