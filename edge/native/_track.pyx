@@ -1603,3 +1603,53 @@ def publish_states(type cls, const double[:, :] x, const double[:, :, :] p, cons
         PyObject_GenericSetAttr(o, "__dict__", d)
         out.append(o)
     return tuple(out), num_arr
+
+
+def seed_states(const double[:, :] seeds, const double[:, :, :] r, bint with_rs, double cy, double sy, double var_u,
+                double var_along, double var_speed):
+    """New tracks' states ``x0`` (k, 4) and covariances ``p0`` (k, 4, 4) at the seeds (k, n; x, y[, radial speed]) with
+    position noise ``r`` (k, 2, 2), as :meth:`edge.track.roles.initiate.SeedInitiator.seed_states_numpy`: with a radial
+    speed (``with_rs``) the speed along the road (``cy``, ``sy``: the road yaw's cosine and sine) from it, variances
+    ``var_along`` along and ``var_u`` across, else (and for a seed with ``|e_s . p| <= 1``) speed 0 and ``var_speed``.
+    The same operations in numpy's order. Returns ``(x0, p0, var_s, all_along)``: the seeds' speed variance along the
+    road (k,) and whether every seed took ``var_along``."""
+    cdef Py_ssize_t k = seeds.shape[0], i
+    if r.shape[0] != k or r.shape[1] < 2 or r.shape[2] < 2 or seeds.shape[1] < (3 if with_rs else 2):
+        raise ValueError("seed_states: one r (2, 2) per seed, seeds with x, y[, radial speed]")
+    x_a = np.zeros((k, 4))
+    p_a = np.zeros((k, 4, 4))
+    vs_a = np.empty(k)
+    cdef double[:, ::1] x0 = x_a
+    cdef double[:, :, ::1] p0 = p_a
+    cdef double[::1] var_s = vs_a
+    cdef double proj, rho, v_s, vs
+    cdef bint all_along = True
+    for i in range(k):
+        x0[i, 0] = seeds[i, 0]
+        x0[i, 1] = seeds[i, 1]
+        p0[i, 0, 0] = r[i, 0, 0]
+        p0[i, 0, 1] = r[i, 0, 1]
+        p0[i, 1, 0] = r[i, 1, 0]
+        p0[i, 1, 1] = r[i, 1, 1]
+        if not with_rs:
+            p0[i, 2, 2] = var_speed
+            p0[i, 3, 3] = var_speed
+            var_s[i] = var_speed
+            continue
+        proj = cy * seeds[i, 1] - sy * seeds[i, 0]
+        rho = hypot(seeds[i, 0], seeds[i, 1])
+        if fabs(proj) > 1.0:
+            v_s = seeds[i, 2] * rho / proj
+            vs = var_along
+        else:
+            v_s = 0.0
+            vs = var_speed
+            all_along = False
+        var_s[i] = vs
+        x0[i, 2] = (-sy) * v_s
+        x0[i, 3] = cy * v_s
+        p0[i, 2, 2] = cy * cy * var_u + sy * sy * vs
+        p0[i, 3, 3] = sy * sy * var_u + cy * cy * vs
+        p0[i, 2, 3] = cy * sy * (var_u - vs)
+        p0[i, 3, 2] = p0[i, 2, 3]
+    return x_a, p_a, vs_a, all_along

@@ -1235,3 +1235,67 @@ def test_seed_exclusion_claimed_on_tracker_frames_is_identical():
     for t_ns, det in road_frames(30, 60, clutter_per_frame=12.0, seed=4):
         tr.step(det, t_ns)
     assert seen[0] > 300 and seen[1] > seen[0]
+
+
+def _same_var_s(a, b) -> bool:
+    if a is None or b is None or isinstance(a, float) or isinstance(b, float):
+        return type(a) is type(b) and (a is None or a == b)
+    return a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("k", [1, 3, 12])
+@pytest.mark.parametrize("radial", [True, False])
+def test_seed_states_are_identical(seed, k, radial):
+    """New tracks' states, covariances and speed variances from the ``seed_states`` kernel against
+    :meth:`SeedInitiator.seed_states_numpy`, bit for bit: seeds beside the radar across the road (``|e_s . p|`` at
+    and below 1), NaN, negative zeros, strided noise, road yaws of either sign."""
+    tr = PdafTracker(PdafConfig())
+    ini = tr.initiator
+    assert ini.kernel is K
+    rng = np.random.default_rng(seed)
+    for yaw in (0.0, 0.2, -0.35, math.pi / 2):
+        seeds = np.column_stack([rng.normal(0, 5, k), rng.uniform(-3, 250, k), rng.normal(0, 20, k)])
+        if k > 2:
+            cy, sy = math.cos(yaw), math.sin(yaw)
+            seeds[0, :2] = (0.0, 1.0 / cy) if abs(cy) > 0.5 else (-1.0 / sy, 0.0)  # |e_s . p| = 1 (to rounding)
+            seeds[1, :2] = (-0.0, 0.3)  # beside the radar
+            seeds[2, int(rng.integers(3))] = np.nan
+        if not radial:
+            seeds = seeds[:, :2]
+        r = np.ascontiguousarray(rng.normal(0, 1, (k, 3, 3)))[:, :2, :2]  # strided, like rm[rows, :2, :2]
+        got = ini.seed_states(seeds, r, yaw, radial)
+        ini.kernel = None
+        try:
+            want = ini.seed_states(seeds, r, yaw, radial)
+        finally:
+            ini.kernel = K
+        for a, b in zip(got[:2], want[:2]):
+            assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+        assert _same_var_s(got[2], want[2])
+
+
+def test_seed_states_on_tracker_frames_are_identical():
+    """The initiator's new tracks with and without the kernel on the tracker's own frames (30 vehicles with clutter)."""
+    tr = PdafTracker(PdafConfig())
+    ini = tr.initiator
+    seed_states, seen = ini.seed_states, [0]
+
+    def both(seeds, r, yaw, radial):
+        got = seed_states(seeds, r, yaw, radial)
+        ini.kernel = None
+        try:
+            want = seed_states(seeds, r, yaw, radial)
+        finally:
+            ini.kernel = K
+        for a, b in zip(got[:2], want[:2]):
+            assert a.tobytes() == b.tobytes()
+        assert _same_var_s(got[2], want[2])
+        seen[0] += seeds.shape[0]
+        return got
+
+    ini.seed_states = both
+    for t_ns, det in road_frames(30, 60, clutter_per_frame=12.0, seed=6):
+        tr.road_yaw_rad = 0.05 * math.sin(t_ns * 1e-9)
+        tr.step(det, t_ns)
+    assert seen[0] > 100
