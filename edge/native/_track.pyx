@@ -884,10 +884,20 @@ def publish_rows(const double[:, :] x, const double[:, :, :] p, const cnp.int64_
     call: ``(n, 15)`` float64 with the columns :data:`PUBLISH_COLUMNS` (``length_m`` is read where ``has_length`` is
     1). The same elementwise operations as the numpy reference (``lateral_blend``, ``hypot``, ``arctan2``, ``sqrt``,
     ``exp``; libm's): bit-identical."""
+    out_arr = np.empty((idx.shape[0], 15))
+    _publish_rows(x, p, idx, lat, lat_p, lat_cusum, ext_var, score, confirmed, smoother, cusum_threshold,
+                  publish_length, confirmed_log_odds, out_arr)
+    return out_arr
+
+
+cdef void _publish_rows(const double[:, :] x, const double[:, :, :] p, const cnp.int64_t[::1] idx,
+                        const double[:, :] lat, const double[:, :, :] lat_p, const double[:] lat_cusum,
+                        const double[:] ext_var, const double[:] score, const cnp.uint8_t[:] confirmed, bint smoother,
+                        double cusum_threshold, bint publish_length, double confirmed_log_odds,
+                        double[:, ::1] out) noexcept:
+    """:func:`publish_rows` into ``out`` (n, 15)."""
     cdef Py_ssize_t n = idx.shape[0], k, i
     cdef int c_i
-    out_arr = np.empty((n, 15))
-    cdef double[:, ::1] out = out_arr
     cdef bint blend = False
     cdef double p0 = 0.0, c, t, pr, w, xs, xr, rho, num, d, lat_sd, lo
     if smoother:
@@ -942,7 +952,6 @@ def publish_rows(const double[:, :] x, const double[:, :, :] p, const cnp.int64_
         elif lo > 700.0:
             lo = 700.0
         out[k, 13] = 1.0 / (1.0 + exp(-lo))
-    return out_arr
 
 
 cdef inline double _np_min(double a, double b) noexcept nogil:
@@ -1084,34 +1093,96 @@ def claimed_any(const double[:, :, ::1] v, const double[:, :, ::1] s, double gam
     """(M,) uint8: detections with ``v' S_t^-1 v <= gamma`` for some track ``t`` -- ``(mahalanobis_d2(v, s) <=
     gamma).any(axis=0)`` of :mod:`edge.track.pdaf` (the inverse of :func:`edge.track.smallmat.inv_det` and the terms
     of ``_quad``, bit-identical) in one pass: innovations ``v`` (T, M, n), one ``S`` (T, n, n) per track. n = 2, 3."""
-    cdef Py_ssize_t nt = v.shape[0], nm = v.shape[1], n = v.shape[2], t, m, i
+    cdef Py_ssize_t nt = v.shape[0], nm = v.shape[1], n = v.shape[2]
     out_a = np.zeros(nm, dtype=np.uint8)
     cdef cnp.uint8_t[::1] out = out_a
-    cdef double a[9]
-    cdef double si[9]
-    cdef double d2
     if n != 2 and n != 3:
         raise ValueError("claimed_any: n must be 2 or 3")
     if s.shape[0] != nt or s.shape[1] != n or s.shape[2] != n:
         raise ValueError("claimed_any: s must be (T, n, n) with v's T and n")
+    if nt:
+        _claimed(v, &s[0, 0, 0], gamma, &out[0] if nm else NULL)
+    return out_a
+
+
+def claimed_any_polar(const double[:, :, ::1] v, const double[:, :, ::1] s_track, const double[:, :, ::1] rr,
+                      double floor_var, double gamma):
+    """:func:`claimed_any` with ``S = s_track`` plus the converted polar noise ``rr`` (T, 2, 2) on its position block
+    and ``floor_var`` on that block's diagonal: the ``S`` of ``MeasurementModel.with_sensor`` (``s_track.copy()``,
+    then ``+= rr`` after ``rr``'s diagonal ``+= floor_var``), the same sums."""
+    cdef Py_ssize_t nt = v.shape[0], nm = v.shape[1], n = v.shape[2], t, i, k
+    out_a = np.zeros(nm, dtype=np.uint8)
+    cdef cnp.uint8_t[::1] out = out_a
+    if n != 2 and n != 3:
+        raise ValueError("claimed_any_polar: n must be 2 or 3")
+    if s_track.shape[0] != nt or s_track.shape[1] != n or s_track.shape[2] != n:
+        raise ValueError("claimed_any_polar: s_track must be (T, n, n) with v's T and n")
+    if rr.shape[0] != nt or rr.shape[1] != 2 or rr.shape[2] != 2:
+        raise ValueError("claimed_any_polar: rr must be (T, 2, 2)")
+    s_a = np.empty((nt, n, n))
+    cdef double[:, :, ::1] s = s_a
+    for t in range(nt):
+        for i in range(n):
+            for k in range(n):
+                if i < 2 and k < 2:
+                    s[t, i, k] = s_track[t, i, k] + ((rr[t, i, k] + floor_var) if i == k else rr[t, i, k])
+                else:
+                    s[t, i, k] = s_track[t, i, k]
+    if nt:
+        _claimed(v, &s[0, 0, 0], gamma, &out[0] if nm else NULL)
+    return out_a
+
+
+cdef void _claimed(const double[:, :, ::1] v, const double* s, double gamma, cnp.uint8_t* out) noexcept nogil:
+    """:func:`claimed_any`'s pass over the tracks, ``s`` the (T, n, n) ``S`` contiguous, ``out`` (M,) zeroed."""
+    cdef Py_ssize_t nt = v.shape[0], nm = v.shape[1], n = v.shape[2], t, m, i
+    cdef double a[9]
+    cdef double si[9]
+    cdef double d2
+    for t in range(nt):
+        for i in range(n * n):
+            a[i] = s[t * n * n + i]
+        if n == 3:
+            _inv3(a, si)
+        else:
+            _inv2(a, si)
+        for m in range(nm):
+            if out[m]:
+                continue
+            if n == 3:
+                d2 = _quad3(si, &v[t, m, 0])
+            else:
+                d2 = _quad2(si, &v[t, m, 0])
+            if d2 <= gamma:
+                out[m] = 1
+
+
+def polar_jacobian(const double[:, :] xy, double var_r, double var_az):
+    """``kalman.polar_position_noise``'s factors at the ground points ``xy`` (T, >= 2; columns x, y): the Jacobian
+    ``j`` (T, 2, 2) and ``jd = j * [var_r, var_az]`` (each column scaled), the same operations (``jd @ j'`` is the
+    noise before its floor; that product stays numpy's). Returns ``(jd, j)``."""
+    cdef Py_ssize_t nt = xy.shape[0], t
+    if xy.shape[1] < 2:
+        raise ValueError("polar_jacobian: xy needs the columns x, y")
+    j_a = np.empty((nt, 2, 2))
+    jd_a = np.empty((nt, 2, 2))
+    cdef double[:, :, ::1] j = j_a, jd = jd_a
+    cdef double r, rs, sn, cs
     with nogil:
         for t in range(nt):
-            for i in range(n * n):
-                a[i] = (&s[t, 0, 0])[i]
-            if n == 3:
-                _inv3(a, si)
-            else:
-                _inv2(a, si)
-            for m in range(nm):
-                if out[m]:
-                    continue
-                if n == 3:
-                    d2 = _quad3(si, &v[t, m, 0])
-                else:
-                    d2 = _quad2(si, &v[t, m, 0])
-                if d2 <= gamma:
-                    out[m] = 1
-    return out_a
+            r = hypot(xy[t, 0], xy[t, 1])
+            rs = _np_max(r, 1e-6)
+            sn = xy[t, 0] / rs
+            cs = xy[t, 1] / rs
+            j[t, 0, 0] = sn
+            j[t, 0, 1] = r * cs
+            j[t, 1, 0] = cs
+            j[t, 1, 1] = (-r) * sn
+            jd[t, 0, 0] = j[t, 0, 0] * var_r
+            jd[t, 0, 1] = j[t, 0, 1] * var_az
+            jd[t, 1, 0] = j[t, 1, 0] * var_r
+            jd[t, 1, 1] = j[t, 1, 1] * var_az
+    return jd_a, j_a
 
 
 def mode_probabilities_match(const double[:, ::1] c, const double[:, ::1] lik, double floor,
@@ -1361,3 +1432,224 @@ def count_hits(const cnp.npy_bool[:, :] gated, cnp.int32_t[:] age, cnp.int32_t[:
             mo[t] = 0 if h else misses[t] + 1
             ho[t] = (history[t] << 1) | (<cnp.uint32_t>h)
     return hit_a, misses_a, history_a
+
+
+def confirm_ready(const double[:, :] x, const cnp.uint32_t[:] history, const cnp.uint8_t[:] confirmed,
+                  const cnp.uint8_t[:] moved, const double[:] score, int mode, double score_confirm,
+                  cnp.uint32_t mask_n, int confirm_m, double block_along_m, double merge_lateral_m,
+                  double merge_speed_mps, double block_lateral_m, double block_behind_m, double block_speed_mps):
+    """The rows that :meth:`edge.track.roles.confirm.Confirmer.confirm` confirms this frame, in row order (a list of
+    int): tentative, moved and passing the test (``mode`` 0: M of N, 1: score, 2: either), and not blocked by a
+    confirmed track (``block_along_m`` > 0). The numpy reference's comparisons and arithmetic (``heading``'s libm
+    ``hypot``, ``np.maximum``): the same rows."""
+    cdef Py_ssize_t nt = x.shape[0], r, k
+    if (history.shape[0] != nt or confirmed.shape[0] != nt or moved.shape[0] != nt or score.shape[0] != nt
+            or x.shape[1] < 4):
+        raise ValueError("confirm_ready needs one row per track in every column and x of width 4")
+    cdef list out = []
+    cdef bint ok, any_confirmed = False, blocked
+    cdef double d0, d1, dv, sp, den
+    for r in range(nt):
+        if confirmed[r]:
+            any_confirmed = True
+    for r in range(nt):
+        if confirmed[r] or not moved[r]:
+            continue
+        if mode == 1:
+            ok = score[r] >= score_confirm
+        else:
+            ok = _popcount32(history[r] & mask_n) >= confirm_m
+            if mode == 2 and score[r] >= score_confirm:
+                ok = True
+        if not ok:
+            continue
+        if block_along_m > 0.0 and any_confirmed:
+            blocked = False
+            for k in range(nt):
+                if not confirmed[k]:
+                    continue
+                d1 = x[r, 1] - x[k, 1]
+                if not fabs(d1) < block_along_m:
+                    continue
+                d0 = x[r, 0] - x[k, 0]
+                sp = hypot(x[k, 2], x[k, 3])
+                den = _np_max(sp, 1e-9)
+                dv = (x[r, 2] - x[k, 2]) * (x[k, 2] / den) + (x[r, 3] - x[k, 3]) * (x[k, 3] / den)
+                if ((fabs(d0) < merge_lateral_m and fabs(dv) < merge_speed_mps)
+                        or (fabs(d0) < block_lateral_m and d1 > block_behind_m and fabs(dv) < block_speed_mps)):
+                    blocked = True
+                    break
+            if blocked:
+                continue
+        out.append(r)
+    return out
+
+
+from libc.string cimport memcpy
+
+
+cdef inline bint _plain(cnp.ndarray a):
+    """A bool or number array, C-contiguous, aligned, in native byte order, of 1 to 8 dimensions: its rows are one
+    block of bytes, and its type number alone gives its dtype."""
+    return (cnp.PyArray_ISCARRAY_RO(a) and 1 <= cnp.PyArray_NDIM(a) <= 8
+            and cnp.PyArray_TYPE(a) <= cnp.NPY_CLONGDOUBLE)
+
+
+def concat_rows(list olds, list news):
+    """``[np.concatenate([a, b]) for a, b in zip(olds, news)]``: for two arrays of one dtype and row shape, a new
+    array with ``a``'s rows then ``b``'s, copied; any other pair goes to ``np.concatenate``."""
+    cdef Py_ssize_t i, j, nd
+    cdef cnp.ndarray a, b, c
+    cdef cnp.npy_intp dims[8]
+    cdef bint same
+    cdef list out = []
+    if len(olds) != len(news):
+        raise ValueError("concat_rows needs as many new parts as columns")
+    for i in range(len(olds)):
+        a, b = olds[i], news[i]
+        if not cnp.PyArray_ISCARRAY_RO(b):
+            b = np.ascontiguousarray(b)
+        nd = cnp.PyArray_NDIM(a)
+        same = (_plain(a) and _plain(b) and nd == cnp.PyArray_NDIM(b)
+                and cnp.PyArray_TYPE(a) == cnp.PyArray_TYPE(b) and cnp.PyArray_EquivTypes(a.dtype, b.dtype))
+        if same:
+            for j in range(1, nd):
+                if cnp.PyArray_DIMS(a)[j] != cnp.PyArray_DIMS(b)[j]:
+                    same = False
+        if not same:
+            out.append(np.concatenate([a, b]))
+            continue
+        for j in range(nd):
+            dims[j] = cnp.PyArray_DIMS(a)[j]
+        dims[0] += cnp.PyArray_DIMS(b)[0]
+        c = cnp.PyArray_EMPTY(<int>nd, dims, cnp.PyArray_TYPE(a), 0)
+        memcpy(cnp.PyArray_BYTES(c), cnp.PyArray_BYTES(a), cnp.PyArray_NBYTES(a))
+        memcpy(cnp.PyArray_BYTES(c) + cnp.PyArray_NBYTES(a), cnp.PyArray_BYTES(b), cnp.PyArray_NBYTES(b))
+        out.append(c)
+    return out
+
+
+def take_rows(list cols, const cnp.intp_t[::1] rows):
+    """``[a.take(rows, axis=0) for a in cols]`` for row indices ``rows`` in ``0..len(a) - 1``: the rows copied into new
+    arrays; an array that is not one block of rows goes to ``take``."""
+    cdef Py_ssize_t i, j, k, nd, nr = rows.shape[0], row_bytes, n0
+    cdef cnp.ndarray a, c
+    cdef cnp.npy_intp dims[8]
+    cdef char* src
+    cdef char* dst
+    cdef list out = []
+    for i in range(len(cols)):
+        a = cols[i]
+        if not _plain(a):
+            out.append(a.take(np.asarray(rows), axis=0))
+            continue
+        nd = cnp.PyArray_NDIM(a)
+        n0 = cnp.PyArray_DIMS(a)[0]
+        for k in range(nr):
+            if rows[k] < 0 or rows[k] >= n0:
+                raise IndexError("take_rows: row index out of range")
+        for j in range(nd):
+            dims[j] = cnp.PyArray_DIMS(a)[j]
+        dims[0] = nr
+        c = cnp.PyArray_EMPTY(<int>nd, dims, cnp.PyArray_TYPE(a), 0)
+        row_bytes = cnp.PyArray_NBYTES(a) // n0 if n0 else 0
+        src, dst = cnp.PyArray_BYTES(a), cnp.PyArray_BYTES(c)
+        for k in range(nr):
+            memcpy(dst + k * row_bytes, src + rows[k] * row_bytes, row_bytes)
+        out.append(c)
+    return out
+
+
+cdef extern from *:
+    """
+    /* object.__new__(cls) for a class whose instances object.__new__ makes (what tp_new_wrapper ends in) */
+    static PyObject *ktr_new_instance(PyObject *cls) {
+        static PyObject *no_args = NULL;
+        if (no_args == NULL && (no_args = PyTuple_New(0)) == NULL)
+            return NULL;
+        return PyBaseObject_Type.tp_new((PyTypeObject *)cls, no_args, NULL);
+    }
+    """
+    object ktr_new_instance(object cls)
+    int PyObject_GenericSetAttr(object o, object name, object value) except -1
+
+
+def publish_states(type cls, const double[:, :] x, const double[:, :, :] p, const cnp.int64_t[::1] idx,
+                   const double[:, :] lat, const double[:, :, :] lat_p, const double[:] lat_cusum,
+                   const double[:] ext_var, const double[:] score, const cnp.uint8_t[:] confirmed, bint smoother,
+                   double cusum_threshold, bint publish_length, double confirmed_log_odds,
+                   const cnp.int32_t[:] track_id, const cnp.int32_t[:] age, const cnp.int32_t[:] hits):
+    """The published tracks of the rows ``idx``: a tuple of ``cls`` instances (``TrackState``, made by
+    ``object.__new__(cls)`` with the ``__dict__`` that ``PdafTracker.published`` writes, keys in field order), and the
+    ``(n, 15)`` numbers of :func:`publish_rows` they were made from."""
+    if cls.__new__ is not object.__new__:
+        raise TypeError("publish_states: cls must be made by object.__new__")
+    cdef Py_ssize_t n = idx.shape[0], k, i
+    num_arr = np.empty((n, 15))
+    cdef double[:, ::1] num = num_arr
+    _publish_rows(x, p, idx, lat, lat_p, lat_cusum, ext_var, score, confirmed, smoother, cusum_threshold,
+                  publish_length, confirmed_log_odds, num)
+    cdef list out = []
+    cdef dict d
+    for k in range(n):
+        i = idx[k]
+        o = ktr_new_instance(cls)
+        d = {"track_id": track_id[i], "x_m": num[k, 0], "y_m": num[k, 1], "vx_mps": num[k, 2], "vy_mps": num[k, 3],
+             "range_m": num[k, 4], "radial_speed_mps": num[k, 5], "az_rad": num[k, 6], "age_frames": age[i],
+             "hits": hits[i], "confirmed": True if confirmed[i] else False, "lane": None, "cls": None,
+             "class_probability": None, "rcs_dbsm": None, "length_m": num[k, 7] if num[k, 8] != 0.0 else None,
+             "x_sd_m": num[k, 9], "y_sd_m": num[k, 10], "vx_sd_mps": num[k, 11], "vy_sd_mps": num[k, 12],
+             "existence_probability": num[k, 13]}
+        PyObject_GenericSetAttr(o, "__dict__", d)
+        out.append(o)
+    return tuple(out), num_arr
+
+
+def seed_states(const double[:, :] seeds, const double[:, :, :] r, bint with_rs, double cy, double sy, double var_u,
+                double var_along, double var_speed):
+    """New tracks' states ``x0`` (k, 4) and covariances ``p0`` (k, 4, 4) at the seeds (k, n; x, y[, radial speed]) with
+    position noise ``r`` (k, 2, 2), as :meth:`edge.track.roles.initiate.SeedInitiator.seed_states_numpy`: with a radial
+    speed (``with_rs``) the speed along the road (``cy``, ``sy``: the road yaw's cosine and sine) from it, variances
+    ``var_along`` along and ``var_u`` across, else (and for a seed with ``|e_s . p| <= 1``) speed 0 and ``var_speed``.
+    The same operations in numpy's order. Returns ``(x0, p0, var_s, all_along)``: the seeds' speed variance along the
+    road (k,) and whether every seed took ``var_along``."""
+    cdef Py_ssize_t k = seeds.shape[0], i
+    if r.shape[0] != k or r.shape[1] < 2 or r.shape[2] < 2 or seeds.shape[1] < (3 if with_rs else 2):
+        raise ValueError("seed_states: one r (2, 2) per seed, seeds with x, y[, radial speed]")
+    x_a = np.zeros((k, 4))
+    p_a = np.zeros((k, 4, 4))
+    vs_a = np.empty(k)
+    cdef double[:, ::1] x0 = x_a
+    cdef double[:, :, ::1] p0 = p_a
+    cdef double[::1] var_s = vs_a
+    cdef double proj, rho, v_s, vs
+    cdef bint all_along = True
+    for i in range(k):
+        x0[i, 0] = seeds[i, 0]
+        x0[i, 1] = seeds[i, 1]
+        p0[i, 0, 0] = r[i, 0, 0]
+        p0[i, 0, 1] = r[i, 0, 1]
+        p0[i, 1, 0] = r[i, 1, 0]
+        p0[i, 1, 1] = r[i, 1, 1]
+        if not with_rs:
+            p0[i, 2, 2] = var_speed
+            p0[i, 3, 3] = var_speed
+            var_s[i] = var_speed
+            continue
+        proj = cy * seeds[i, 1] - sy * seeds[i, 0]
+        rho = hypot(seeds[i, 0], seeds[i, 1])
+        if fabs(proj) > 1.0:
+            v_s = seeds[i, 2] * rho / proj
+            vs = var_along
+        else:
+            v_s = 0.0
+            vs = var_speed
+            all_along = False
+        var_s[i] = vs
+        x0[i, 2] = (-sy) * v_s
+        x0[i, 3] = cy * v_s
+        p0[i, 2, 2] = cy * cy * var_u + sy * sy * vs
+        p0[i, 3, 3] = sy * sy * var_u + cy * cy * vs
+        p0[i, 2, 3] = cy * sy * (var_u - vs)
+        p0[i, 3, 2] = p0[i, 2, 3]
+    return x_a, p_a, vs_a, all_along

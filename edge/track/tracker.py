@@ -104,7 +104,7 @@ class PdafTracker(native.KernelUser):
             for tid in tr.track_id[dead & tr.confirmed]:
                 self.ids.release(int(tid))
             if np.count_nonzero(dead):
-                tr.keep(~dead)
+                tr.keep(~dead, self.kernel)
             self.confirmer.confirm(tr, self.ids)  # after duplicates are gone: no id is spent on one
             self.intermediates = {"gated": hyp.gated, "beta0": hyp.beta0, "d2": mp.inn.d2}
         self.initiator.initiate(tr, meas, used, self.road_yaw_rad, mp)
@@ -167,32 +167,25 @@ class PdafTracker(native.KernelUser):
         return tuple(out)
 
     def _published_kernel(self, idx: np.ndarray) -> tuple[TrackState, ...]:
-        """:meth:`published` for the rows ``idx`` with the numbers from one ``publish_rows`` call (bit-identical)."""
+        """:meth:`published` for the rows ``idx`` from one kernel call: ``publish_states`` makes the TrackStates as well,
+        ``publish_rows`` only their numbers (bit-identical)."""
         tr, cfg = self.tracks, self.config
-        num = self.kernel.publish_rows(tr.x, tr.p, idx.astype(np.int64, copy=False), tr.lat, tr.lat_p, tr.lat_cusum,
-                                       tr.ext_var, tr.score, tr.confirmed.view(np.uint8), cfg.lateral_smoother,
-                                       cfg.lateral_smoother_cusum_nats, cfg.publish_length,
-                                       self.confirmer.confirmed_log_odds)
+        args = (tr.x, tr.p, idx.astype(np.int64, copy=False), tr.lat, tr.lat_p, tr.lat_cusum, tr.ext_var, tr.score,
+                tr.confirmed.view(np.uint8), cfg.lateral_smoother, cfg.lateral_smoother_cusum_nats, cfg.publish_length,
+                self.confirmer.confirmed_log_odds)
+        if _TRACK_STATE_PLAIN:  # the TrackStates made in the kernel too (the same __dict__)
+            states, num = self.kernel.publish_states(TrackState, *args, tr.track_id, tr.age, tr.hits)
+            if cfg.lateral_smoother:
+                self.published_motion_x_m = num[:, 14].copy()
+            return states
+        num = self.kernel.publish_rows(*args)  # TrackState is not the plain dataclass: its own constructor
         if cfg.lateral_smoother:
             self.published_motion_x_m = num[:, 14].copy()
         rows = zip(tr.track_id[idx].tolist(), num.tolist(), tr.age[idx].tolist(), tr.hits[idx].tolist(),
                    tr.confirmed[idx].tolist())
-        if not _TRACK_STATE_PLAIN:
-            return tuple(TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=ln if has_ln else None,
-                                    x_sd_m=xs, y_sd_m=ys, vx_sd_mps=vxs, vy_sd_mps=vys, existence_probability=pe)
-                         for tid, (x, y, vx, vy, r, v, a, ln, has_ln, xs, ys, vxs, vys, pe, _), age, hits, conf
-                         in rows)
-        new, set_dict, cls = _new_object, _set_dict, TrackState
-        out = []
-        for tid, (x, y, vx, vy, r, v, a, ln, has_ln, xs, ys, vxs, vys, pe, _), age, hits, conf in rows:
-            o = new(cls)
-            set_dict(o, "__dict__", {
-                "track_id": tid, "x_m": x, "y_m": y, "vx_mps": vx, "vy_mps": vy, "range_m": r,
-                "radial_speed_mps": v, "az_rad": a, "age_frames": age, "hits": hits, "confirmed": conf, "lane": None,
-                "cls": None, "class_probability": None, "rcs_dbsm": None, "length_m": ln if has_ln else None,
-                "x_sd_m": xs, "y_sd_m": ys, "vx_sd_mps": vxs, "vy_sd_mps": vys, "existence_probability": pe})
-            out.append(o)
-        return tuple(out)
+        return tuple(TrackState(tid, x, y, vx, vy, r, v, a, age, hits, conf, length_m=ln if has_ln else None,
+                                x_sd_m=xs, y_sd_m=ys, vx_sd_mps=vxs, vy_sd_mps=vys, existence_probability=pe)
+                     for tid, (x, y, vx, vy, r, v, a, ln, has_ln, xs, ys, vxs, vys, pe, _), age, hits, conf in rows)
 
     def _published_quality(self, idx: np.ndarray) -> zip:
         """Per published track (rows ``idx``): the standard deviations of the published x, y, vx, vy and the

@@ -991,3 +991,311 @@ def test_a_failing_measurements_kernel_is_not_hidden():
     wide = Detections(*(np.array([30.0, 60.0]) for _ in range(6)))
     m = Measurements.from_detections(wide, True, SimpleNamespace(measurements=boom))  # numpy form, no call
     assert m.z.shape == (2, 3)
+
+
+@pytest.mark.parametrize("confirmation", ["m_of_n", "score", "either"])
+def test_confirming_is_identical(confirmation):
+    """The rows the confirmer confirms: the ``confirm_ready`` kernel against :meth:`Confirmer.confirming_numpy`, on
+    the tracker's own tables each frame (30 vehicles with clutter) and on random tables with ties at every
+    threshold of the block test, NaN states and standing confirmed tracks."""
+    from types import SimpleNamespace
+
+    tr = PdafTracker(PdafConfig(confirmation=confirmation))
+    conf = tr.confirmer
+    assert conf.kernel is K
+    seen = {"rows": 0, "frames": 0}
+    confirm = conf.confirm
+
+    def both(tracks, ids):
+        got = conf.confirming(tracks)
+        want = conf.confirming_numpy(tracks)
+        assert isinstance(got, list) and got == want.tolist()
+        seen["rows"] += len(got)
+        seen["frames"] += 1
+        return confirm(tracks, ids)
+
+    conf.confirm = both
+    for t_ns, det in road_frames(30, 70, clutter_per_frame=12.0, seed=9):
+        tr.step(det, t_ns)
+    assert seen["rows"] > 20 and seen["frames"] > 60
+
+    c, box = conf.cfg, conf.box.cfg
+    rng = np.random.default_rng(5)
+    blocked = 0
+    for trial in range(300):
+        t = int(rng.integers(0, 12))
+        x = rng.normal(0.0, 1.0, (t, 4)) * np.array([3.0, 20.0, 2.0, 10.0])
+        if trial % 2:  # one platoon: most pairs within the block test's box
+            x = rng.normal(0.0, 1.0, (t, 4)) * np.array([1.5, 8.0, 0.5, 1.5]) + np.array([0.0, 0.0, 0.0, 25.0])
+        if t > 1:  # ties: a row's offsets to another exactly at the block test's limits
+            j, k = rng.choice(t, 2, replace=False)
+            x[j] = x[k]
+            for col, lim in ((1, c.confirm_block_along_m), (0, box.merge_lateral_m), (0, c.confirm_block_lateral_m),
+                             (1, c.confirm_block_behind_m)):
+                if rng.uniform() < 0.3:
+                    x[j, col] = x[k, col] + lim
+            if rng.uniform() < 0.3:
+                x[k, 2:4] = 0.0  # a standing confirmed track: heading (0, 0)
+            if rng.uniform() < 0.2:
+                x[int(rng.integers(t)), int(rng.integers(4))] = np.nan
+        tracks = SimpleNamespace(
+            x=x, history=rng.integers(0, 2**32, t, dtype=np.uint32),
+            confirmed=rng.uniform(size=t) < 0.5, moved=rng.uniform(size=t) < 0.8,
+            score=rng.normal(conf.confirmed_log_odds, 2.0, t))
+        if t:
+            tracks.score[int(rng.integers(t))] = conf.confirmed_log_odds
+            tracks.score[int(rng.integers(t))] = np.nan
+        got = conf.confirming(tracks)
+        assert got == conf.confirming_numpy(tracks).tolist()
+        blocked += int(np.count_nonzero(conf._ready(tracks) & tracks.moved)) - len(got)
+    assert blocked > 30
+
+
+def _columns(rng, t):
+    """Arrays shaped and typed like the track table's columns, ``t`` rows."""
+    return [rng.normal(size=(t, 4)), rng.normal(size=(t, 4, 4)), rng.integers(-5, 5, t, dtype=np.int32),
+            rng.integers(0, 2**32, t, dtype=np.uint32), rng.uniform(size=t) < 0.5, rng.normal(size=(t, 2, 4)),
+            rng.normal(size=(t, 2, 4, 4)), np.full(t, np.nan), rng.normal(size=(t, 0))]
+
+
+def _identical(a, b) -> bool:
+    return (a.dtype == b.dtype and a.shape == b.shape and a.flags.c_contiguous == b.flags.c_contiguous
+            and a.tobytes() == b.tobytes())
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("t,k", [(0, 0), (0, 3), (5, 0), (7, 2), (40, 9)])
+def test_concat_rows_is_identical(seed, t, k):
+    """``concat_rows`` against ``np.concatenate`` pair by pair: the same dtype, shape and bytes, also for strided and
+    Fortran-ordered parts, a part of another dtype (numpy's promotion) or of another row shape (numpy's error)."""
+    rng = np.random.default_rng(seed)
+    olds, news = _columns(rng, t), _columns(rng, k)
+    news[0] = rng.normal(size=(k, 8))[:, 0::2]  # strided, like the straight-line filter's x[:, 0::2]
+    news[1] = np.asfortranarray(news[1])
+    olds[3] = olds[3][::-1]  # a negative stride in a column
+    news[7] = news[7].astype(np.float32)  # promoted by np.concatenate
+    got = K.concat_rows(olds, news)
+    assert len(got) == len(olds)
+    for a, b, g in zip(olds, news, got):
+        want = np.concatenate([a, b])
+        assert _identical(g, want) and g.flags.writeable and not np.shares_memory(g, a)
+    with pytest.raises(ValueError):
+        K.concat_rows([np.zeros((t, 4))], [np.zeros((k, 3))])
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("t", [0, 1, 6, 40])
+def test_take_rows_is_identical(seed, t):
+    """``take_rows`` against ``take(rows, axis=0)``: the same dtype, shape and bytes for every column, rows from a
+    mask, repeated or unordered, a strided column; an index out of range raises IndexError."""
+    rng = np.random.default_rng(seed)
+    cols = _columns(rng, t)
+    cols.append(rng.normal(size=(t, 6))[:, ::2])
+    masks = [rng.uniform(size=t) < 0.7, np.zeros(t, bool), np.ones(t, bool)]
+    row_sets = [m.nonzero()[0] for m in masks] + ([rng.integers(0, t, 2 * t)] if t else [])
+    for rows in row_sets:
+        for a, g in zip(cols, K.take_rows(cols, rows)):
+            assert _identical(g, a.take(rows, axis=0)) and g.flags.writeable
+    for bad in ([t], [-1]):
+        with pytest.raises(IndexError):
+            K.take_rows(cols[:1], np.array(bad, dtype=np.intp))
+
+
+def test_track_table_append_and_keep_with_the_kernel_are_identical():
+    """The track table's ``append`` and ``keep`` with the kernel give the same columns (dtype, shape, bytes) as without,
+    over a run of seeding and deleting."""
+    from edge.track.table import TrackTable
+
+    rng = np.random.default_rng(3)
+    fast, ref = TrackTable(), TrackTable()
+    for step in range(40):
+        k = int(rng.integers(0, 5))
+        x, p = rng.normal(size=(k, 4)), rng.normal(size=(k, 4, 4))
+        ext, keep_prob = float(rng.choice([1.0, 2.5])), float(rng.choice([0.5, 0.8]))
+        fast.append(x, p, ext, keep_prob, kernel=K)
+        ref.append(x, p, ext, keep_prob)
+        for tb in (fast, ref):  # the columns change between frames as the tracker changes them
+            tb.score = tb.score + 0.25 * step
+        mask = rng.uniform(size=len(ref)) < 0.8
+        fast.keep(mask, K)
+        ref.keep(mask)
+        for c in TrackTable._COLUMNS:
+            assert _identical(getattr(fast, c), getattr(ref, c)), c
+    assert len(ref) > 3
+
+
+def _state_bits(s) -> list:
+    """A TrackState's ``__dict__`` as (key, type, value) in key order, floats by their bit pattern."""
+    return [(k, type(v), np.float64(v).view(np.uint64).item() if isinstance(v, float) else v)
+            for k, v in vars(s).items()]
+
+
+@pytest.mark.parametrize("plain", [True, False])
+@pytest.mark.parametrize("smoother,length,tentative", [(True, True, False), (False, False, True)])
+def test_published_states_are_bit_identical(monkeypatch, plain, smoother, length, tentative):
+    """The TrackStates the ``publish_states`` kernel makes (and, for a TrackState that is not the plain dataclass,
+    those made from ``publish_rows``) against numpy's: the same type, the same ``__dict__`` keys in the same order,
+    the same value types, floats bit for bit."""
+    import edge.track.tracker as tracker_mod
+    from edge.types import TrackState
+
+    monkeypatch.setattr(tracker_mod, "_TRACK_STATE_PLAIN", plain)
+    tr = PdafTracker(PdafConfig(lateral_smoother=smoother, publish_length=length, publish_tentative=tentative))
+    n = 0
+    for t_ns, det in road_frames(30, 50, clutter_per_frame=10.0, seed=12):
+        tr.step(det, t_ns)
+        fast, ref, fx, rx = _published_both(tr)
+        assert type(fast) is tuple and len(fast) == len(ref)
+        for a, b in zip(fast, ref):
+            assert type(a) is TrackState and _state_bits(a) == _state_bits(b)
+        assert (fx is None and rx is None) or np.array_equal(fx, rx)
+        n += len(ref)
+    assert n > 20 * 30
+
+
+def _polar_points(rng, t):
+    """Ground states (T, 4) for the converted polar noise: spread, at the radar, NaN, signed zeros."""
+    xp = np.column_stack([rng.normal(0, 20, t), rng.uniform(-5, 300, t), rng.normal(0, 3, (t, 2))])
+    if t > 3:
+        xp[0, :2] = 0.0
+        xp[1, :2] = (-0.0, 0.0)
+        xp[2, :2] = (3e-7, -2e-7)  # inside the 1e-6 floor of the range
+        xp[3, 0] = np.nan
+    return xp
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("t", [0, 1, 7, 60])
+def test_polar_jacobian_is_identical(seed, t):
+    """``polar_jacobian``'s factors, multiplied by numpy and floored as ``kalman.polar_position_noise`` does, give that
+    function's noise bit for bit (NaN included), from strided states."""
+    from edge.track import kalman
+
+    rng = np.random.default_rng(seed)
+    xp = _polar_points(rng, t)
+    var_r, var_az, f = 0.3**2, math.radians(1.5)**2, 0.4
+    jd, j = K.polar_jacobian(xp, var_r, var_az)
+    rr = jd @ j.transpose(0, 2, 1)
+    rr[:, 0, 0] += f**2
+    rr[:, 1, 1] += f**2
+    want = kalman.polar_position_noise(xp[:, :2], 0.3, math.radians(1.5), f)
+    assert rr.shape == want.shape and rr.tobytes() == want.tobytes()
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("t,m", [(30, 40), (5, 8), (1, 1), (3, 0), (0, 4)])
+@pytest.mark.parametrize("n", [2, 3])
+def test_claimed_any_polar_is_identical(seed, t, m, n):
+    """``claimed_any_polar`` against ``claimed_any`` with the ``S`` of ``MeasurementModel.with_sensor`` and against
+    numpy's ``(mahalanobis_d2(v, S) <= gamma).any(axis=0)``, also at thresholds right at a pair's distance."""
+    from edge.track.config import MeasurementConfig, section
+    from edge.track.roles.measure import SnrNoiseModel
+
+    rng = np.random.default_rng(seed)
+    mm = SnrNoiseModel(section(PdafConfig(), MeasurementConfig))
+    c = mm.cfg
+    xp = _polar_points(rng, t)
+    if t > 3:
+        xp[3, 0] = 1.0  # no NaN here: a NaN S claims nothing either way, but the sweep below wants finite distances
+    a = rng.normal(0, 1, (t, n, n))
+    s_track = a @ a.swapaxes(-1, -2) + np.eye(n)
+    v = rng.normal(0, 3.0, (t, m, n))
+    s = mm.with_sensor(xp, s_track)
+    d2 = mahalanobis_d2(v, s)
+    jd, j = K.polar_jacobian(xp, c.range_sigma_m**2, math.radians(c.azimuth_sigma_deg)**2)
+    rr = jd @ j.transpose(0, 2, 1)
+    for gamma in [gate_threshold(0.999, n), 1e-3, np.inf] + ([float(np.median(d2))] if d2.size else []):
+        got = K.claimed_any_polar(v, s_track, rr, c.extent_sigma_m**2, gamma)
+        assert got.dtype == np.uint8
+        assert np.array_equal(got, K.claimed_any(v, s, gamma))
+        assert np.array_equal(got.view(bool), (d2 <= gamma).any(axis=0))
+
+
+def test_seed_exclusion_claimed_on_tracker_frames_is_identical():
+    """The tracker's claimed detections (constant-noise exclusion gate) with the kernels against the numpy form on
+    its own frames (30 vehicles with clutter)."""
+    tr = PdafTracker(PdafConfig())
+    mm = tr.measurement_model
+    assert mm.kernel is K and tr.associator.cfg.seed_exclusion_noise == "constant"
+    claimed, seen = tr.associator.claimed, [0, 0]
+
+    def both(mp, xp, model):
+        got = claimed(mp, xp, model)
+        mm.kernel = None
+        try:
+            want = claimed(mp, xp, model)
+        finally:
+            mm.kernel = K
+        assert got.dtype == want.dtype == bool and np.array_equal(got, want)
+        seen[0] += int(got.sum())
+        seen[1] += got.size
+        return got
+
+    tr.associator.claimed = both
+    for t_ns, det in road_frames(30, 60, clutter_per_frame=12.0, seed=4):
+        tr.step(det, t_ns)
+    assert seen[0] > 300 and seen[1] > seen[0]
+
+
+def _same_var_s(a, b) -> bool:
+    if a is None or b is None or isinstance(a, float) or isinstance(b, float):
+        return type(a) is type(b) and (a is None or a == b)
+    return a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("k", [1, 3, 12])
+@pytest.mark.parametrize("radial", [True, False])
+def test_seed_states_are_identical(seed, k, radial):
+    """New tracks' states, covariances and speed variances from the ``seed_states`` kernel against
+    :meth:`SeedInitiator.seed_states_numpy`, bit for bit: seeds beside the radar across the road (``|e_s . p|`` at
+    and below 1), NaN, negative zeros, strided noise, road yaws of either sign."""
+    tr = PdafTracker(PdafConfig())
+    ini = tr.initiator
+    assert ini.kernel is K
+    rng = np.random.default_rng(seed)
+    for yaw in (0.0, 0.2, -0.35, math.pi / 2):
+        seeds = np.column_stack([rng.normal(0, 5, k), rng.uniform(-3, 250, k), rng.normal(0, 20, k)])
+        if k > 2:
+            cy, sy = math.cos(yaw), math.sin(yaw)
+            seeds[0, :2] = (0.0, 1.0 / cy) if abs(cy) > 0.5 else (-1.0 / sy, 0.0)  # |e_s . p| = 1 (to rounding)
+            seeds[1, :2] = (-0.0, 0.3)  # beside the radar
+            seeds[2, int(rng.integers(3))] = np.nan
+        if not radial:
+            seeds = seeds[:, :2]
+        r = np.ascontiguousarray(rng.normal(0, 1, (k, 3, 3)))[:, :2, :2]  # strided, like rm[rows, :2, :2]
+        got = ini.seed_states(seeds, r, yaw, radial)
+        ini.kernel = None
+        try:
+            want = ini.seed_states(seeds, r, yaw, radial)
+        finally:
+            ini.kernel = K
+        for a, b in zip(got[:2], want[:2]):
+            assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+        assert _same_var_s(got[2], want[2])
+
+
+def test_seed_states_on_tracker_frames_are_identical():
+    """The initiator's new tracks with and without the kernel on the tracker's own frames (30 vehicles with clutter)."""
+    tr = PdafTracker(PdafConfig())
+    ini = tr.initiator
+    seed_states, seen = ini.seed_states, [0]
+
+    def both(seeds, r, yaw, radial):
+        got = seed_states(seeds, r, yaw, radial)
+        ini.kernel = None
+        try:
+            want = seed_states(seeds, r, yaw, radial)
+        finally:
+            ini.kernel = K
+        for a, b in zip(got[:2], want[:2]):
+            assert a.tobytes() == b.tobytes()
+        assert _same_var_s(got[2], want[2])
+        seen[0] += seeds.shape[0]
+        return got
+
+    ini.seed_states = both
+    for t_ns, det in road_frames(30, 60, clutter_per_frame=12.0, seed=6):
+        tr.road_yaw_rad = 0.05 * math.sin(t_ns * 1e-9)
+        tr.step(det, t_ns)
+    assert seen[0] > 100

@@ -67,6 +67,29 @@ class Confirmer(native.KernelUser):
         return out & mofn
 
     def confirm(self, tracks: TrackTable, ids: IdPool) -> None:
+        for i in self.confirming(tracks):
+            tid = ids.acquire()
+            if tid is None:
+                log.warning("no free track id (max %d): track stays tentative", self.cfg.max_track_id)
+                break
+            tracks.track_id[i] = tid
+            tracks.confirmed[i] = True
+
+    def confirming(self, tracks: TrackTable):
+        """The rows that confirm this frame, in row order: ready (:meth:`_ready`), moved, and not blocked by a confirmed
+        track. One ``confirm_ready`` kernel call when it is built (the same rows as :meth:`confirming_numpy`)."""
+        if self.kernel is None:
+            return self.confirming_numpy(tracks)
+        c, box = self.cfg, self.box.cfg
+        mode = 1 if c.confirmation == "score" else 2 if c.confirmation == "either" else 0
+        return self.kernel.confirm_ready(tracks.x, tracks.history, tracks.confirmed.view(np.uint8),
+                                         tracks.moved.view(np.uint8), tracks.score, mode, self._score_confirm,
+                                         self._mask_n, c.confirm_m, c.confirm_block_along_m, box.merge_lateral_m,
+                                         box.merge_speed_mps, c.confirm_block_lateral_m, c.confirm_block_behind_m,
+                                         c.confirm_block_speed_mps)
+
+    def confirming_numpy(self, tracks: TrackTable) -> np.ndarray:
+        """:meth:`confirming` in numpy (the reference)."""
         c = self.cfg
         merge_lateral_m, merge_speed_mps = self.box.cfg.merge_lateral_m, self.box.cfg.merge_speed_mps
         ready = self._ready(tracks) & tracks.moved
@@ -82,13 +105,7 @@ class Confirmer(native.KernelUser):
                                 | ((np.abs(d[..., 0]) < c.confirm_block_lateral_m) & (d[..., 1] > c.confirm_block_behind_m)
                                    & (np.abs(dv) < c.confirm_block_speed_mps)))).any(axis=1)
             ready[r[blocked]] = False
-        for i in ready.nonzero()[0]:
-            tid = ids.acquire()
-            if tid is None:
-                log.warning("no free track id (max %d): track stays tentative", c.max_track_id)
-                break
-            tracks.track_id[i] = tid
-            tracks.confirmed[i] = True
+        return ready.nonzero()[0]
 
     def moving_and_expired(self, tracks: TrackTable) -> np.ndarray:
         """:meth:`update_moving`, then :meth:`tentative_expired`'s mask: one kernel call when it is built."""

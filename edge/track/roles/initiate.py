@@ -68,18 +68,44 @@ class SeedInitiator(native.KernelUser):
             return 0
         seeds, seed_idx = seeds[:room], seed_idx[:room]
         k = seeds.shape[0]
-        x0 = np.zeros((k, 4))
-        x0[:, :2] = seeds[:, :2]
-        p0 = np.zeros((k, 4, 4))
         if self.meas_model.per_detection:  # the seed's own noise (its SNR)
             # computed for the seeds only, or taken from this frame's (the same values)
             r = (self.meas_model.of_detections(meas, 2, rows=seed_idx) if mp is None or mp.rm is None
                  else mp.rm.take(seed_idx, axis=0)[:, :2, :2])
         else:
+            x0 = np.zeros((k, 4))
+            x0[:, :2] = seeds[:, :2]
             _, _, r = self.meas_model.at(x0, False)
+        x0, p0, var_s = self.seed_states(seeds, r, road_yaw_rad, meas.with_radial_speed)
+        tracks.append(x0, p0, self.meas_model.initial_extent_var, kernel=self.kernel)
+        if self.predictor is not None:
+            self.predictor.seeded(tracks, k, road_yaw_rad, var_s)
+        return k
+
+    def seed_states(self, seeds: np.ndarray, r: np.ndarray, road_yaw_rad: float, with_radial_speed: bool):
+        """New tracks at the seeds (k, n) with position noise ``r`` (k, 2, 2): ``(x0, p0, var_s)``, ``var_s`` the seeds'
+        speed variance along the road for the predictor (None without a radial speed). The ``seed_states`` kernel when
+        built (the same values as :meth:`seed_states_numpy`)."""
+        if self.kernel is None:
+            return self.seed_states_numpy(seeds, r, road_yaw_rad, with_radial_speed)
+        c = self.cfg
+        x0, p0, var_s, all_along = self.kernel.seed_states(
+            seeds, r, with_radial_speed, math.cos(road_yaw_rad), math.sin(road_yaw_rad),
+            c.init_lateral_speed_sigma_mps**2, c.init_along_speed_sigma_mps**2, c.init_speed_sigma_mps**2)
+        if not with_radial_speed:
+            return x0, p0, None
+        return x0, p0, (c.init_along_speed_sigma_mps**2 if all_along else var_s)
+
+    def seed_states_numpy(self, seeds: np.ndarray, r: np.ndarray, road_yaw_rad: float, with_radial_speed: bool):
+        """:meth:`seed_states` in numpy (the reference)."""
+        c = self.cfg
+        k = seeds.shape[0]
+        x0 = np.zeros((k, 4))
+        x0[:, :2] = seeds[:, :2]
+        p0 = np.zeros((k, 4, 4))
         p0[:, :2, :2] = r
         var_s = None
-        if meas.with_radial_speed:
+        if with_radial_speed:
             # road direction e_s = (-sin yaw, cos yaw), across it e_u = (cos yaw, sin yaw): v = v_s e_s with
             # v_r = v_s (e_s . p) / |p|
             cy, sy = math.cos(road_yaw_rad), math.sin(road_yaw_rad)
@@ -99,10 +125,7 @@ class SeedInitiator(native.KernelUser):
             p0[:, 2, 3] = p0[:, 3, 2] = cy * sy * (var_u - var_s)
         else:
             p0[:, 2, 2] = p0[:, 3, 3] = c.init_speed_sigma_mps**2
-        tracks.append(x0, p0, self.meas_model.initial_extent_var)
-        if self.predictor is not None:
-            self.predictor.seeded(tracks, k, road_yaw_rad, var_s)
-        return k
+        return x0, p0, var_s
 
     def candidates(self, tracks: TrackTable, meas: Measurements, used: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The detections that may seed (rows, ascending) and the resolved ones (M,) bool: not claimed by a track
