@@ -25,8 +25,7 @@ class SeedInitiator(native.KernelUser):
     """Seeds from the detections outside every track's exclusion gate and same-vehicle box, moving, in the field of
     view; of one frame's candidates within one merge box the strongest seeds. With a radial speed the seed moves
     along the road (``road_yaw_rad`` off the boresight): its speed along the road from the radial speed (sd
-    ``init_along_speed_sigma_mps``, widened near the radar by the measurement model's mast-geometry term),
-    ``init_lateral_speed_sigma_mps`` across it."""
+    ``init_along_speed_sigma_mps``), ``init_lateral_speed_sigma_mps`` across it."""
 
     def __init__(self, cfg: InitiatorConfig, fov: FieldOfViewConfig, box: SameVehicleBox,
                  measurement_model: MeasurementModel, predictor=None) -> None:
