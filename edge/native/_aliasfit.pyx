@@ -60,6 +60,21 @@ cdef double _median(double *d, Py_ssize_t k) noexcept nogil:
     return ((0.0 + d[k // 2 - 1]) + d[k // 2]) / 2.0
 
 
+cdef double _offset_cost(const double *res, const unsigned char *ok, double off, double tol2, double *e2,
+                         Py_ssize_t n) noexcept nogil:
+    """Each frame's cost ``min((res - off)^2, tol2)`` (``tol2`` where not usable) into ``e2``; their pairwise sum."""
+    cdef Py_ssize_t i
+    cdef double d
+    for i in range(n):
+        if ok[i]:
+            d = res[i] - off
+            d = d * d
+            e2[i] = d if d < tol2 else tol2
+        else:
+            e2[i] = tol2
+    return _pairwise(e2, n)
+
+
 @cython.cdivision(True)
 def fit_candidates(const double[::1] t, const double[::1] vw, const double[::1] refs, const double[:, ::1] obs,
                    double period, double static_kmh, double tol2, double vmax, double margin2,
@@ -74,7 +89,7 @@ def fit_candidates(const double[::1] t, const double[::1] vw, const double[::1] 
     48 frames (the reference spreads its offsets over the residuals' range beyond that)."""
     cdef Py_ssize_t n = t.shape[0], C = refs.shape[0], K = obs.shape[0]
     cdef Py_ssize_t c, i, j, k, bj, best, m_ok, n_mov, mine_n
-    cdef double ref, cost, cj, bc, d, e, gap, med
+    cdef double ref, cost, cj, bc, gap, med
     if n < 1 or n > 48 or C < 1 or vw.shape[0] != n or obs.shape[1] != n or on_path.shape[0] != n:
         raise ValueError("fit_candidates: 1 to 48 frames, one value of each per frame, and candidates")
     cdef double *speeds = <double *> malloc(C * n * sizeof(double))
@@ -125,27 +140,12 @@ def fit_candidates(const double[::1] t, const double[::1] vw, const double[::1] 
                 bj = 0
                 bc = INFINITY
                 for j in range(n):  # argmin: the first least cost
-                    if not ok[j]:
-                        continue
-                    for i in range(n):
-                        if ok[i]:
-                            d = res[i] - res[j]
-                            d = d * d
-                            e2[i] = d if d < tol2 else tol2
-                        else:
-                            e2[i] = tol2
-                    cj = _pairwise(e2, n)
-                    if cj < bc:
-                        bc = cj
-                        bj = j
-                for i in range(n):
-                    if ok[i]:
-                        d = res[i] - res[bj]
-                        d = d * d
-                        e2[i] = d if d < tol2 else tol2
-                    else:
-                        e2[i] = tol2
-                cost += _pairwise(e2, n)
+                    if ok[j]:
+                        cj = _offset_cost(res, ok, res[j], tol2, e2, n)
+                        if cj < bc:
+                            bc = cj
+                            bj = j
+                cost += _offset_cost(res, ok, res[bj], tol2, e2, n)  # e2: the best offset's frames
                 for i in range(n):
                     if e2[i] < fe2[i]:
                         fe2[i] = e2[i]
