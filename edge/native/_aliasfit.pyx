@@ -5,7 +5,7 @@ every candidate reference's unaliased speeds, integrated range path, robust fit 
 test, in one call in place of the reference's (candidates, offsets, frames) arrays.
 
 Each value is computed with the reference's operations in its order: ``np.round`` is ``rint``, a cumulative sum
-adds in frame order, and a sum over frames is numpy's pairwise sum (:func:`_pairwise`), so the results are
+adds in frame order, and a sum over frames is numpy's pairwise sum (`_pairwise.pxi`), so the results are
 bit-identical.
 """
 
@@ -14,31 +14,7 @@ from libc.math cimport rint, fabs, isfinite, isnan, INFINITY, NAN
 from libc.stdlib cimport malloc, free
 
 
-cdef double _pairwise(const double *a, Py_ssize_t n) noexcept nogil:
-    """numpy's pairwise summation of ``n`` contiguous doubles (what ``ndarray.sum`` over a contiguous axis does)."""
-    cdef double r0, r1, r2, r3, r4, r5, r6, r7, res
-    cdef Py_ssize_t i, n2
-    if n < 8:
-        res = 0.0
-        for i in range(n):
-            res += a[i]
-        return res
-    if n <= 128:
-        r0 = a[0]; r1 = a[1]; r2 = a[2]; r3 = a[3]
-        r4 = a[4]; r5 = a[5]; r6 = a[6]; r7 = a[7]
-        i = 8
-        while i < n - (n % 8):
-            r0 += a[i]; r1 += a[i + 1]; r2 += a[i + 2]; r3 += a[i + 3]
-            r4 += a[i + 4]; r5 += a[i + 5]; r6 += a[i + 6]; r7 += a[i + 7]
-            i += 8
-        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-        while i < n:
-            res += a[i]
-            i += 1
-        return res
-    n2 = n // 2
-    n2 -= n2 % 8
-    return _pairwise(a, n2) + _pairwise(a + n2, n - n2)
+include "_pairwise.pxi"
 
 
 cdef double _median(double *d, Py_ssize_t k) noexcept nogil:
@@ -72,7 +48,7 @@ cdef double _offset_cost(const double *res, const unsigned char *ok, double off,
             e2[i] = d if d < tol2 else tol2
         else:
             e2[i] = tol2
-    return _pairwise(e2, n)
+    return _pairwise_sum(e2, n)
 
 
 @cython.cdivision(True)

@@ -341,33 +341,7 @@ def pair_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const doubl
     return x_a, p_a, v_a, d2_a, det_a
 
 
-cdef double _pairwise_sum(const double* a, Py_ssize_t n) noexcept nogil:
-    """numpy's pairwise summation of a contiguous row (``np.add.reduce`` over the last axis): sequential below 8
-    terms, eight interleaved partial sums up to 128, halves (at a multiple of 8) beyond."""
-    cdef Py_ssize_t i, j, n2
-    cdef double res
-    cdef double r[8]
-    if n < 8:
-        res = 0.0
-        for i in range(n):
-            res = res + a[i]
-        return res
-    if n <= 128:
-        for j in range(8):
-            r[j] = a[j]
-        i = 8
-        while i < n - (n % 8):
-            for j in range(8):
-                r[j] = r[j] + a[i + j]
-            i += 8
-        res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
-        while i < n:
-            res = res + a[i]
-            i += 1
-        return res
-    n2 = n // 2
-    n2 -= n2 % 8
-    return _pairwise_sum(a, n2) + _pairwise_sum(a + n2, n - n2)
+include "_pairwise.pxi"
 
 
 cdef inline double _min_nan(double a, double b) noexcept nogil:

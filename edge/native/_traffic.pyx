@@ -426,33 +426,7 @@ cdef bint _same_wrong_way_driver(list conf, const long long[::1] ids, long long[
     return False
 
 
-cdef double _pairwise_sum(const double *a, Py_ssize_t n) noexcept nogil:
-    """``numpy.add.reduce`` of a contiguous float64 array of ``n`` values, numpy's pairwise summation (8 partial
-    sums per block of up to 128), so the sum is bit-identical to numpy's."""
-    cdef Py_ssize_t i, k, n2
-    cdef double r[8]
-    cdef double res
-    if n < 8:
-        res = 0.0
-        for i in range(n):
-            res += a[i]
-        return res
-    if n <= 128:
-        for k in range(8):
-            r[k] = a[k]
-        i = 8
-        while i < n - (n % 8):
-            for k in range(8):
-                r[k] += a[i + k]
-            i += 8
-        res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
-        while i < n:
-            res += a[i]
-            i += 1
-        return res
-    n2 = n // 2
-    n2 -= n2 % 8
-    return _pairwise_sum(a, n2) + _pairwise_sum(a + n2, n - n2)
+include "_pairwise.pxi"
 
 
 @cython.cdivision(True)
