@@ -648,11 +648,14 @@ class TrackFeatureAccumulator:
         return (n * self._str - self._st * self._sr) / den * 3.6
 
 
-def _median(values: list[float]) -> float:
-    """``np.median`` of a short list of finite floats, without its array machinery."""
-    v = sorted(values)
-    k = len(v)
-    return v[k // 2] if k % 2 else (v[k // 2 - 1] + v[k // 2]) / 2.0
+def plain_median(values) -> float:
+    """``float(np.median(values))`` of a short non-empty sequence of finite numbers in plain Python, with the same
+    bits: the middle value, or the middle two summed from 0.0 (as numpy's mean does) and halved."""
+    s = sorted(values)
+    m = len(s) // 2
+    if len(s) % 2:
+        return float(s[m])
+    return (0.0 + s[m - 1] + s[m]) / 2
 
 
 def fit_candidates_reference(t: np.ndarray, vw: np.ndarray, refs: np.ndarray, obs: list[np.ndarray], period: float,
@@ -990,7 +993,7 @@ class RadialSpeedEstimator:
         extent = hi - lo
         known = np.isfinite(extent)
         obs = [r]
-        if edge_m > 0 and np.count_nonzero(known) >= 3 and _median(extent[known].tolist()) >= edge_m:
+        if edge_m > 0 and np.count_nonzero(known) >= 3 and plain_median(extent[known].tolist()) >= edge_m:
             obs += [np.where(known, lo, np.nan), np.where(known & (hi <= edge_limit_m), hi, np.nan)]
         rates = [float(around_kmh)] if math.isfinite(around_kmh) else []
         doppler = np.abs(vw) >= static_kmh  # frames not at zero Doppler (of a track that held clutter a while)

@@ -124,6 +124,7 @@ from edge.classify.features import (
     SignatureExtractor,
     SignatureLog,
     TrackFeatureAccumulator,
+    plain_median,
 )
 from edge.classify.classifier import build_classifier
 from edge.classify.knn import KnnConfig, WeightedKNN
@@ -159,16 +160,6 @@ class SurveillanceStep:
 
 def _finite_or_zero(x: float) -> float:
     return x if math.isfinite(x) else 0.0
-
-
-def _median(values) -> float:
-    """``float(np.median(values))`` of a non-empty sequence of integers (point counts) in plain Python, with the
-    same bits: the middle value, or the middle two summed from 0.0 (as numpy's mean does) and halved."""
-    s = sorted(values)
-    m = len(s) // 2
-    if len(s) % 2:
-        return float(s[m])
-    return (0.0 + s[m - 1] + s[m]) / 2
 
 
 def _within(d0: float, d1: float, d2: float, radius: float) -> bool | None:
@@ -683,8 +674,8 @@ class SurveillanceTracker:
         hist = self._size.get(track_id)
         if not others or not hist:
             return False
-        own = _median(hist)
-        return any(_median(self._size[o]) >= 0.4 * own for o in others if self._size.get(o))
+        own = plain_median(hist)
+        return any(plain_median(self._size[o]) >= 0.4 * own for o in others if self._size.get(o))
 
     def _hidden_in(self, tr: AlphaBetaTrack, j: int) -> bool:
         """Occlusion test of the alpha-beta tracker: is cluster ``j`` (an assigned one) large enough,
@@ -701,7 +692,7 @@ class SurveillanceTracker:
         # that cluster, lived (and was published) through the whole passage beside the real track
         if not hist or len(hist) < self.tracker.config.merge_history_frames:
             return False
-        return float(self._frame_sizes[j]) > self.tracker.config.merge_ratio * _median(hist)
+        return float(self._frame_sizes[j]) > self.tracker.config.merge_ratio * plain_median(hist)
 
     def _other_track_near(self, track_id: int, centroid: np.ndarray, pred: dict[int, np.ndarray]) -> bool:
         """Is another track (with at least ``merge_other_min_frames`` own clusters) predicted within
@@ -761,7 +752,7 @@ class SurveillanceTracker:
             # against the median *and* the last own cluster: a merge is a sudden jump, while a long
             # vehicle coming closer grows a few tens of percent a frame (221 -> 1530 -> 1941 -> 3052
             # points) and was held for merge_max_frames, losing its closest, most telling frames
-            if n_points > cfg.merge_ratio * max(_median(hist), float(hist[-1])):
+            if n_points > cfg.merge_ratio * max(plain_median(hist), float(hist[-1])):
                 self._merged_run[track_id] += 1
                 self.merged_frames += 1
                 return True

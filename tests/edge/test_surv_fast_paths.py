@@ -84,7 +84,7 @@ def test_dealias_rounds_half_to_even_and_keeps_signed_zero():
 def test_median_of_counts_equals_numpy(values):
     from collections import deque
 
-    from edge.track.surveillance import _median
+    from edge.classify.features import plain_median as _median
 
     assert _bits(_median(deque(values))) == _bits(float(np.median(deque(values))))
 
