@@ -131,6 +131,10 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "vehicles whose mean radial speed is off by more than half the Doppler alias step (2 v_max)"),
         Metric("speed_uncertain_fraction", "vehicles_speed_uncertain", "vehicles_with_speed", "",
                "vehicles whose event flags the speed as uncertain (alias not determined)"),
+        Metric("alias_step_unflagged_fraction", "vehicles_alias_off_unflagged", "vehicles_with_speed", "",
+               "vehicles off by an alias step whose event does not flag the speed as uncertain"),
+        Metric("speed_mae_certain_kmh", "speed_abs_error_sum_certain_kmh", "speed_n_certain", "km/h",
+               "|estimated - true| mean radial speed of the targets whose speed is not flagged uncertain"),
     ),
 }
 

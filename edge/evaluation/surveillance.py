@@ -30,7 +30,9 @@ Scoring:
 * **Speed aliasing and passages** (issue 31, :func:`_speed_and_passage_tallies`): a vehicle (car, motorcycle,
   truck) whose |estimated - true| mean radial speed exceeds half the Doppler alias step (``2 v_max``, 10.7 km/h on
   the Distance2Go) is *off by an alias step*; ``alias_step_fraction`` counts them among the vehicles with a speed,
-  ``speed_uncertain_fraction`` the vehicles whose event flags its speed as uncertain (alias not determined).
+  ``speed_uncertain_fraction`` the vehicles whose event flags its speed as uncertain (alias not determined), and
+  ``alias_step_unflagged_fraction`` those off by an alias step without that flag (an error a reader of the event
+  cannot see); ``speed_mae_certain_kmh`` is ``speed_mae_kmh`` over the targets whose speed is not flagged.
   ``one_event_fraction`` is the share of tracked single-target passages that ended as exactly one event: one
   event matched to the target and no unmatched event overlapping its time in view (a fragment of the vehicle that
   matched nothing is still a second event of the passage).
@@ -132,12 +134,14 @@ def _speed_and_passage_tallies(targets: list[dict], truths: dict, done: list[_In
     matched to it plus unmatched events of the same body (an unmatched instance whose published ranges lie within
     :data:`PASSAGE_BODY_M` of the target's scatterers in view in at least half of its frames: a fragment of the
     vehicle; static site clutter elsewhere does not count). Returns the tallies behind ``alias_step_fraction``,
-    ``speed_uncertain_fraction`` and ``one_event_fraction`` (module doc)."""
+    ``alias_step_unflagged_fraction``, ``speed_uncertain_fraction``, ``speed_mae_certain_kmh`` and
+    ``one_event_fraction`` (module doc)."""
     size: dict[int, int] = {}
     for t in truths.values():
         size[t.event] = size.get(t.event, 0) + 1
     loose = [i for i in done if i.target is None and i.event is not None and i.frames]
-    vehicles = off = uncertain = single = one = 0
+    vehicles = off = uncertain = off_unflagged = single = one = certain_n = 0
+    certain_err = 0.0
     for row in targets:
         t = truths[row["id"]]
         err = row["speed_mae_kmh"]
@@ -149,6 +153,10 @@ def _speed_and_passage_tallies(targets: list[dict], truths: dict, done: list[_In
             vehicles += 1
             off += int(abs(err) > 0.5 * alias_step_kmh)
             uncertain += int(bool(row.get("speed_uncertain")))
+            off_unflagged += int(abs(err) > 0.5 * alias_step_kmh and not row.get("speed_uncertain"))
+        if err is not None and not row.get("speed_uncertain"):
+            certain_err += err
+            certain_n += 1
         if size.get(t.event, 0) == 1 and row["n_tracks"] > 0:
             extra = 0
             for inst in loose:
@@ -164,7 +172,8 @@ def _speed_and_passage_tallies(targets: list[dict], truths: dict, done: list[_In
             single += 1
             one += int(row["passage_events"] == 1)
     return {"vehicles_with_speed": vehicles, "vehicles_alias_off": off, "vehicles_speed_uncertain": uncertain,
-            "single_passages_tracked": single, "single_passages_one_event": one}
+            "vehicles_alias_off_unflagged": off_unflagged, "speed_abs_error_sum_certain_kmh": certain_err,
+            "speed_n_certain": certain_n, "single_passages_tracked": single, "single_passages_one_event": one}
 
 
 def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int | None, config: Any,
@@ -352,6 +361,9 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
             # sums and counts behind the figures, for pooling runs as ratios of sums (edge.evaluation.corpus)
             "alias_step_fraction": _ratio(tallies["vehicles_alias_off"], tallies["vehicles_with_speed"]),
             "speed_uncertain_fraction": _ratio(tallies["vehicles_speed_uncertain"], tallies["vehicles_with_speed"]),
+            "alias_step_unflagged_fraction": _ratio(tallies["vehicles_alias_off_unflagged"],
+                                                    tallies["vehicles_with_speed"]),
+            "speed_mae_certain_kmh": _ratio(tallies["speed_abs_error_sum_certain_kmh"], tallies["speed_n_certain"]),
             "one_event_fraction": _ratio(tallies["single_passages_one_event"], tallies["single_passages_tracked"]),
             "tallies": tallies,
         },

@@ -38,8 +38,14 @@ def test_alias_steps_uncertain_flags_and_passages_of_one_event():
     clutter = _Instance(8, frames=[41, 42], ranges=[60.0, 60.0], event=ev)  # far from the walker: not its passage
     t = _speed_and_passage_tallies(rows, truths, [frag, clutter], views, STEP)
     assert t == {"vehicles_with_speed": 2, "vehicles_alias_off": 1, "vehicles_speed_uncertain": 1,
-                 "single_passages_tracked": 3, "single_passages_one_event": 2}
+                 "vehicles_alias_off_unflagged": 1, "speed_abs_error_sum_certain_kmh": pytest.approx(10.7 + 0.2),
+                 "speed_n_certain": 2, "single_passages_tracked": 3, "single_passages_one_event": 2}
     assert [r["speed_alias_steps"] for r in rows] == [-1, 0, 0]
+    # the same truck flagged: still off by a step, but no longer an unseen error, and out of the certain speeds
+    rows[0]["speed_uncertain"] = True
+    t = _speed_and_passage_tallies(rows, truths, [frag, clutter], views, STEP)
+    assert (t["vehicles_alias_off"], t["vehicles_alias_off_unflagged"], t["speed_n_certain"]) == (1, 0, 1)
+    assert t["speed_abs_error_sum_certain_kmh"] == pytest.approx(0.2)
     assert [r["passage_events"] for r in rows] == [2, 1, 1]
 
 
