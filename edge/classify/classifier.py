@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from edge.classify.knn import KnnConfig, WeightedKNN
+from edge.classify.knn import ColumnSelect, KnnConfig, WeightedKNN, knn_for
 from edge.classify.onnx_runtime import OnnxKnnClassifier
 from edge.classify.reference import DEFAULT_CLASSES, load_reference_set
 
@@ -30,16 +30,17 @@ def build_classifier(config: Any, expected_classes: tuple[str, ...] | None = DEF
     kc: KnnConfig = config.section("classify.knn")
     if oc.backend == "numpy":
         ref = load_reference_set(kc.reference_set or None)
-        log.info("classifier: numpy weighted k-NN, k=%d %s, %d reference vectors", kc.k, kc.metric, len(ref))
-        return WeightedKNN.from_reference_set(ref, k=kc.k, metric=kc.metric, weighting=kc.weighting)
+        log.info("classifier: numpy weighted k-NN, k=%d %s, %d reference vectors, features %s", kc.k, kc.metric,
+                 len(ref), ",".join(kc.features))
+        return knn_for(ref, kc)
     model = OnnxKnnClassifier(oc.model or None, threads=oc.threads, expected_classes=expected_classes)
     origin = getattr(config, "origin", {})
-    for key, mine in (("k", model.k), ("metric", model.metric)):
+    for key, mine in (("k", model.k), ("metric", model.metric), ("features", tuple(model.feature_names))):
         if f"classify.knn.{key}" in origin and getattr(kc, key) != mine:
             log.warning("classify.knn.%s = %r is ignored: the ONNX model %s has %s = %r (set classify.onnx.backend="
                         "numpy to use classify.knn, or re-export the model)", key, getattr(kc, key), model.path, key,
                         mine)
-    return model
+    return ColumnSelect(model, model.feature_names)
 
 
 def classifier_latency(config: Any, *, queries: int = 2000, batch: int = 1, seed: int = 0) -> dict[str, Any]:
@@ -52,7 +53,7 @@ def classifier_latency(config: Any, *, queries: int = 2000, batch: int = 1, seed
     oc = config.section("classify.onnx")
     kc: KnnConfig = config.section("classify.knn")
     model = OnnxKnnClassifier(oc.model or None, threads=oc.threads, expected_classes=None)
-    ref = load_reference_set(kc.reference_set or None)
+    ref = load_reference_set(kc.reference_set or None).select(model.feature_names)
     knn = None
     from edge.classify.onnx_export import reference_set_hash  # numpy + hashlib only, no onnx import
 

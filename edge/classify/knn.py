@@ -25,12 +25,17 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from edge.classify.features import weighted_standardization
+from edge.classify.features import FEATURE_NAMES, weighted_standardization
 
 if TYPE_CHECKING:  # pragma: no cover
     from edge.classify.reference import ReferenceSet
 
-__all__ = ["KnnConfig", "METRICS", "PROBABILITY_TIE_TOL", "WeightedKNN", "class_balanced_weights", "pairwise_distances"]
+__all__ = ["ColumnSelect", "DEFAULT_FEATURES", "KnnConfig", "METRICS", "PROBABILITY_TIE_TOL", "WeightedKNN",
+           "class_balanced_weights", "knn_for", "pairwise_distances"]
+
+#: the features the k-NN compares by default: eq. 18's circular variance left out (on the Distance2Go it follows the
+#: echo's strength, docs/decisions/0026)
+DEFAULT_FEATURES: tuple[str, ...] = ("rcs_mean", "rcs_var", "abs_radial_speed_mean_kmh", "range_extent_m")
 
 METRICS: tuple[str, ...] = ("euclidean", "manhattan", "chebyshev")
 
@@ -57,6 +62,17 @@ class KnnConfig:
         metadata={"doc": "reference set .npz (edge.classify.reference format); empty = the packaged default "
                   "edge/data/reference_set.npz"},
     )
+    features: tuple[str, ...] = field(
+        default=DEFAULT_FEATURES,
+        metadata={"doc": "the features of the track's vector that the k-NN compares (names of edge.classify.features."
+                         "FEATURE_NAMES); the default leaves out eq. 18's circular variance, which on the Distance2Go "
+                         "follows the echo's strength (docs/decisions/0026)"},
+    )
+
+    def __post_init__(self) -> None:
+        feats = tuple(self.features)
+        if not feats or len(set(feats)) != len(feats) or any(f not in FEATURE_NAMES for f in feats):
+            raise ValueError(f"features must be distinct names of {list(FEATURE_NAMES)}, got {list(feats)}")
 
 
 def class_balanced_weights(labels: np.ndarray, n_classes: int | None = None) -> np.ndarray:
@@ -165,3 +181,42 @@ class WeightedKNN:
         two mathematically equal sums of weights differ in the last bit)."""
         p = self.predict_proba(x)
         return np.argmax(p >= p.max(axis=1, keepdims=True) - PROBABILITY_TIE_TOL, axis=1)
+
+
+class ColumnSelect:
+    """A classifier of a subset of the features, fed the whole feature vector (:data:`FEATURE_NAMES` order): it
+    takes the columns ``names`` and forwards the call (``predict``, ``predict_proba``, ``predict_with_proba``,
+    ``kneighbors``); other attributes are the classifier's."""
+
+    def __init__(self, classifier, names) -> None:
+        self.classifier = classifier
+        self.feature_names = tuple(names)
+        self.columns = np.array([FEATURE_NAMES.index(n) for n in self.feature_names], dtype=np.intp)
+
+    def __getattr__(self, name):
+        return getattr(self.classifier, name)
+
+    def _x(self, x: np.ndarray) -> np.ndarray:
+        q = np.atleast_2d(np.asarray(x))
+        if q.shape[-1] != len(FEATURE_NAMES):
+            raise ValueError(f"features must be (Q, {len(FEATURE_NAMES)}) in FEATURE_NAMES order; got {q.shape}")
+        return q[:, self.columns]
+
+    def predict(self, x: np.ndarray) -> np.ndarray:
+        return self.classifier.predict(self._x(x))
+
+    def predict_proba(self, x: np.ndarray) -> np.ndarray:
+        return self.classifier.predict_proba(self._x(x))
+
+    def predict_with_proba(self, x: np.ndarray):
+        return self.classifier.predict_with_proba(self._x(x))
+
+    def kneighbors(self, x: np.ndarray):
+        return self.classifier.kneighbors(self._x(x))
+
+
+def knn_for(ref: "ReferenceSet", config: KnnConfig) -> ColumnSelect:
+    """The numpy k-NN of ``config`` (k, metric, weighting, features) on ``ref``, fed whole feature vectors."""
+    sub = ref.select(config.features)
+    knn = WeightedKNN.from_reference_set(sub, k=config.k, metric=config.metric, weighting=config.weighting)
+    return ColumnSelect(knn, sub.feature_names)

@@ -52,15 +52,19 @@ def build_and_export(
     metric: str,
     weighting: str = "balanced",
     drop: Sequence[str] = (),
+    features: Sequence[str] | None = None,
     build: dict[str, Any] | None = None,
 ) -> ExportResult:
-    """Load ``reference`` (path, set, or ``None``/``""`` = the packaged default), drop classes, fit
-    the weighted k-NN with ``k``/``metric``/``weighting`` and export it to ``out``."""
+    """Load ``reference`` (path, set, or ``None``/``""`` = the packaged default), drop classes, keep the
+    ``features`` (names; None = all of the set's), fit the weighted k-NN with ``k``/``metric``/``weighting`` and
+    export it to ``out`` (its input: those features)."""
     from edge.classify.training import drop_classes
 
     ref = reference if isinstance(reference, ReferenceSet) else load_reference_set(reference or None)
     if drop:
         ref = drop_classes(ref, drop)
+    if features is not None:
+        ref = ref.select(features)
     knn = WeightedKNN(ref.classes, k=k, metric=metric).fit(ref.features, ref.labels, weighting)
     return export_knn(knn, ref, out, weighting=weighting, build=build)
 

@@ -78,6 +78,8 @@ INPUT_NAME = "features"
 #: units of the eq. 19 features, in :data:`FEATURE_NAMES` order ("1" = dimensionless; the RCS-related
 #: quantity of eq. 17 is in ADC-count^2 m^1.8, "a.u.", as the paper uses it only relatively)
 FEATURE_UNITS: tuple[str, ...] = ("1", "1", "a.u.", "a.u.^2", "km/h", "m")
+#: the unit of each feature by name
+FEATURE_UNIT_OF: dict[str, str] = dict(zip(FEATURE_NAMES, FEATURE_UNITS))
 
 
 def project_version() -> str:
@@ -164,7 +166,7 @@ class KnnDefinition:
 
     @classmethod
     def from_knn(cls, knn: WeightedKNN, *, reference_sha256: str = "", weighting: str = "balanced",
-                 feature_names: Sequence[str] = FEATURE_NAMES, feature_units: Sequence[str] = FEATURE_UNITS,
+                 feature_names: Sequence[str] = FEATURE_NAMES, feature_units: Sequence[str] | None = None,
                  build: dict[str, Any] | None = None) -> "KnnDefinition":
         """The definition of a fitted :class:`WeightedKNN` (the oracle's own arrays, not copies of
         a re-computation, so both standardise identically)."""
@@ -173,7 +175,8 @@ class KnnDefinition:
         return cls(
             reference_z=knn.z_, labels=knn.y_, weights=knn.w_, mean=knn.mean_, scale=knn.scale_,
             classes=tuple(knn.classes), k=knn.k, metric=knn.metric, feature_names=tuple(feature_names),
-            feature_units=tuple(feature_units), weighting=weighting, reference_sha256=reference_sha256,
+            feature_units=tuple(feature_units if feature_units is not None
+                                else (FEATURE_UNIT_OF.get(n, "") for n in feature_names)), weighting=weighting, reference_sha256=reference_sha256,
             build=dict(build or {}),
         )
 

@@ -79,8 +79,9 @@ def _ort_errors() -> tuple[type[BaseException], ...]:
 class OnnxKnnClassifier:
     """The exported weighted k-NN under onnxruntime, a drop-in for :class:`WeightedKNN`.
 
-    ``expected_features``/``expected_classes``: what the caller will feed and read; ``None`` accepts
-    what the model declares (class list) -- the feature schema is always checked.
+    ``expected_features``/``expected_classes``: the features the caller extracts (the model's must be among them;
+    it is fed its own, :class:`edge.classify.knn.ColumnSelect`) and the classes it reads; ``None`` accepts what the
+    model declares -- the metadata and graph schema are always checked.
     """
 
     def __init__(
@@ -121,10 +122,12 @@ class OnnxKnnClassifier:
         self.k: int = int(self.metadata["k"])
         self.metric: str = str(self.metadata["metric"])
         self.reference_sha256: str = str(self.metadata["reference_sha256"])
-        if expected_features is not None and tuple(expected_features) != self.feature_names:
+        if expected_features is not None and (
+                not self.feature_names or len(set(self.feature_names)) != len(self.feature_names)
+                or any(n not in tuple(expected_features) for n in self.feature_names)):
             raise ModelError(
-                f"classifier model {str(p)!r} expects features {list(self.feature_names)}, the pipeline extracts "
-                f"{list(expected_features)}: retrain or re-export it with this version")
+                f"classifier model {str(p)!r} expects features {list(self.feature_names)}, not distinct features of "
+                f"those the pipeline extracts {list(expected_features)}: retrain or re-export it with this version")
         if expected_classes is not None and tuple(expected_classes) != self.classes:
             raise ModelError(
                 f"classifier model {str(p)!r} has classes {list(self.classes)}, the pipeline expects "

@@ -65,6 +65,18 @@ class ReferenceSet:
         c = np.bincount(self.labels, minlength=len(self.classes))
         return {name: int(n) for name, n in zip(self.classes, c)}
 
+    def select(self, names) -> "ReferenceSet":
+        """The set with only the features ``names`` (in that order); the same set when they are all of its own."""
+        names = tuple(names)
+        if names == self.feature_names:
+            return self
+        missing = [n for n in names if n not in self.feature_names]
+        if missing or not names or len(set(names)) != len(names):
+            raise ReferenceSetError(f"features {list(names)} must be distinct features of the set "
+                                    f"{list(self.feature_names)}")
+        cols = [self.feature_names.index(n) for n in names]
+        return ReferenceSet(np.asarray(self.features)[:, cols], self.labels, self.classes, names, dict(self.meta))
+
 
 def default_reference_path() -> Path:
     return Path(str(resources.files("edge").joinpath("data", "reference_set.npz")))

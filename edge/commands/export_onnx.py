@@ -65,15 +65,16 @@ def run(args: argparse.Namespace) -> int:
     reference = args.reference if args.reference is not None else kc.reference_set
     res = build_and_export(
         reference, args.out, k=args.k or kc.k, metric=args.metric or kc.metric,
-        weighting=args.weighting or kc.weighting, drop=args.drop_class,
+        weighting=args.weighting or kc.weighting, drop=args.drop_class, features=kc.features,
         build={"command": "radar-edge export-onnx", "reference": reference or "packaged default",
-               "dropped_classes": list(args.drop_class)},
+               "dropped_classes": list(args.drop_class), "features": list(kc.features)},
     )
     model = OnnxKnnClassifier(args.out, threads=cfg.section("classify.onnx").threads)
     chk = parity_check(res.knn, model, res.reference.features, n_random=args.check, seed=0)
     size = res.path.stat().st_size
     print(f"wrote {res.path} ({size / 1024:.1f} KiB): k={res.knn.k} {res.knn.metric}, {res.knn.z_.shape[0]} reference "
-          f"vectors ({', '.join(f'{c} {n}' for c, n in res.reference.class_counts().items())})")
+          f"vectors ({', '.join(f'{c} {n}' for c, n in res.reference.class_counts().items())}), features "
+          f"{', '.join(res.reference.feature_names)}")
     print(f"reference sha256 {res.reference_sha256}")
     print(f"parity with numpy: {chk['queries']} queries, labels equal, max |dp| {chk['max_abs_dp']:.1e}")
     if args.latency:

@@ -134,6 +134,10 @@ def run(args: argparse.Namespace) -> int:
 
     from edge.classify.onnx_export import reference_set_hash
 
+    feats = cfg.section("classify.knn").features  # the features the k-NN compares
+    ref = ref.select(feats)
+    if test is not None:
+        test = test.select(feats)
     h = reference_set_hash(ref.features, ref.labels, ref.classes, ref.feature_names)
     knn, rep = train(ref, ks=args.ks, metrics=tuple(args.metrics), n_folds=args.folds, cv_seed=args.cv_seed,
                      weighting=args.weighting, score=args.score, test=test, reference_sha256=h)
@@ -142,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
                                                        "recordings" if args.recordings else "reference"),
              "seed": args.seed if args.synthetic is not None else None, "n_events": len(full_ref),
              "dropped_classes": list(args.drop_class), "cv_score": round(rep.cv_score, 6),
-             "score": rep.score_name, "folds": args.folds, "cv_seed": args.cv_seed}
+             "score": rep.score_name, "folds": args.folds, "cv_seed": args.cv_seed, "features": list(feats)}
     res = export_knn(knn, ref, model_path, weighting=args.weighting, build=build)
     model = OnnxKnnClassifier(model_path, threads=cfg.section("classify.onnx").threads)
     chk = parity_check(knn, model, ref.features, n_random=2000, seed=0)

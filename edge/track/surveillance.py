@@ -127,7 +127,7 @@ from edge.classify.features import (
     plain_median,
 )
 from edge.classify.classifier import build_classifier
-from edge.classify.knn import KnnConfig, WeightedKNN
+from edge.classify.knn import KnnConfig, knn_for
 from edge.classify.reference import load_reference_set
 from edge.track.alphabeta import AlphaBetaConfig, AlphaBetaTrack, AlphaBetaTracker, TrackerStep
 from edge.track.events import EventConfig, EventSegmenter, SegmentStep
@@ -212,7 +212,7 @@ class SurveillanceTracker:
         else:
             kc = knn or KnnConfig()
             ref = load_reference_set(kc.reference_set or None)
-            self.classifier = WeightedKNN.from_reference_set(ref, k=kc.k, metric=kc.metric, weighting=kc.weighting)
+            self.classifier = knn_for(ref, kc)
         self._acc: dict[int, TrackFeatureAccumulator] = {}
         self._speed: dict[int, RadialSpeedEstimator] = {}
         self._live_fit: dict[int, tuple[float, float, bool]] = {}  # track id -> last frame's time, reference, certain

@@ -131,10 +131,12 @@ def test_from_config_loads_the_packaged_reference_set():
     cfg = load_config(env={}, overrides={"classify.onnx.backend": "numpy", "classify.knn.k": "5",
                                          "track.alphabeta.alpha": "0.3"})
     st = SurveillanceTracker.from_config(FE, cfg, threshold=2.0)
-    assert isinstance(st.classifier, WeightedKNN)
+    assert isinstance(st.classifier.classifier, WeightedKNN)  # fed the configured features of the whole vector
+    assert st.classifier.feature_names == KnnConfig().features
     assert st.classifier.k == 5 and st.classifier.classes == DEFAULT_CLASSES
     default = SurveillanceTracker.from_config(FE, load_config(env={}), threshold=2.0)
-    assert type(default.classifier).__name__ == "OnnxKnnClassifier" and default.classifier.k == KnnConfig().k
+    assert type(default.classifier.classifier).__name__ == "OnnxKnnClassifier"
+    assert default.classifier.k == KnnConfig().k and default.classifier.feature_names == KnnConfig().features
     assert st.tracker.filter.alpha == 0.3
     assert st.cylinder.vmax_kmh == pytest.approx(5.348, abs=2e-3)
     step = st.update(0, MapPoints.empty())

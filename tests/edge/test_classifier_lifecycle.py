@@ -103,11 +103,12 @@ def test_shipped_default_model_is_the_documented_command_output(tmp_path, capsys
     assert a.metadata["build"] == b.metadata["build"]
     kc = KnnConfig()
     assert (a.k, a.metric, a.metadata["weighting"]) == (kc.k, kc.metric, kc.weighting)
+    assert a.feature_names == kc.features
     if a.metadata["version"] == b.metadata["version"]:
         assert shipped.read_bytes() == rebuilt.read_bytes()
     assert shipped.stat().st_size < 64 * 1024
     # and it is the packaged reference set's classifier
-    ref = load_reference_set(default_reference_path())
+    ref = load_reference_set(default_reference_path()).select(kc.features)
     knn = WeightedKNN.from_reference_set(ref, k=kc.k, metric=kc.metric, weighting=kc.weighting)
     q = ref.features.astype(np.float32)
     np.testing.assert_array_equal(a.predict(q), knn.predict(q))
@@ -118,7 +119,8 @@ def test_default_configuration_loads_the_shipped_model():
     from edge.classify.classifier import build_classifier
 
     clf = build_classifier(load_config(env={}))
-    assert isinstance(clf, OnnxKnnClassifier) and clf.path == default_model_path()
+    assert isinstance(clf.classifier, OnnxKnnClassifier) and clf.path == default_model_path()
+    assert clf.feature_names == KnnConfig().features
 
 
 def _classifications(backend: str, frames: list, fe) -> list:

@@ -139,9 +139,9 @@ def test_classifier_factory_picks_the_backend(tmp_path, caplog):
     assert main(["export-onnx", "--reference", str(ref), "--out", str(p), "--check", "0"]) == 0
     cfg = load_config(env={}, overrides={"classify.onnx.model": str(p), "classify.knn.k": "7"})
     clf = build_classifier(cfg)
-    assert isinstance(clf, OnnxKnnClassifier) and clf.k == 13
+    assert isinstance(clf.classifier, OnnxKnnClassifier) and clf.k == 13
     assert "classify.knn.k = 7 is ignored" in caplog.text
     cfg = load_config(env={}, overrides={"classify.onnx.backend": "numpy", "classify.knn.reference_set": str(ref)})
-    assert isinstance(build_classifier(cfg), WeightedKNN)
+    assert isinstance(build_classifier(cfg).classifier, WeightedKNN)
     with pytest.raises(ModelError, match="not found"):
         build_classifier(load_config(env={}, overrides={"classify.onnx.model": str(tmp_path / "none.onnx")}))
