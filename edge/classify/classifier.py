@@ -1,13 +1,14 @@
 """The classifier of the surveillance pipeline, chosen by configuration.
 
 ``classify.onnx.backend = "onnx"`` (default): the ONNX model ``classify.onnx.model`` (empty = the
-packaged ``edge/data/knn_default.onnx``) under onnxruntime -- k, metric and reference set are the
-model's own; ``classify.knn`` is then not used (a differing explicit ``classify.knn.k``/``metric``
+packaged ``edge/data/knn_default.onnx``) under onnxruntime -- k, metric, features and reference set are the
+model's own; ``classify.knn`` is then not used (a differing explicit ``classify.knn.k``/``metric``/``features``
 is logged as ignored). ``"numpy"``: the reference k-NN built from ``classify.knn`` (the oracle).
 
-Both have ``classes``, ``predict_proba(x) -> (Q, C)`` and ``predict(x) -> (Q,)``. The default model
-is the default numpy classifier exported (same reference set, k = 13, Euclidean, balanced), so the
-two backends give the same results out of the box.
+Both are fed the whole feature vector (``FEATURE_NAMES`` order) and take their features' columns
+(:class:`edge.classify.knn.ColumnSelect`); both have ``classes``, ``predict_proba(x) -> (Q, C)`` and
+``predict(x) -> (Q,)``. The default model is the default numpy classifier exported (same reference set, features,
+k = 13, Euclidean, balanced), so the two backends give the same results out of the box.
 """
 
 from __future__ import annotations
