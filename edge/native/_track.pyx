@@ -15,6 +15,8 @@ The numpy references are in :mod:`edge.track.pdaf` (``innovations_each``, ``maha
 
 import numpy as np
 cimport numpy as cnp
+from cpython.mem cimport PyMem_Malloc, PyMem_Free
+from libc.math cimport M_PI, pow
 
 cnp.import_array()
 
@@ -69,16 +71,27 @@ cdef object _checked_out(object a, tuple shape):
     return a
 
 
-def innovations_each(const double[:, ::1] z, const double[:, ::1] zh, const double[:, :, ::1] st,
-                     const double[:, :, ::1] rm, double lim, bint prune, v_out=None, s_out=None, si_out=None):
-    """``v`` (T, M, n), ``d2`` (T, M), ``s``, ``s_inv`` (T, M, n, n), ``det_s`` (T, M) of
-    :func:`edge.track.pdaf.innovations_each` from ``z`` (M, n), ``z_hat`` (T, n), the track part ``st`` (T, n, n)
-    (``H P H' + R_t``, symmetrised) and ``rm`` (M, n, n). ``prune``: the exact pre-gate with threshold ``lim``
+def innovations_each(const double[:, :] z, const double[:, :] zh, const double[:, :, :] hph,
+                     const double[:, :, :] r_track, const double[:, :, ::1] rm, double lim, bint prune, v_out=None, s_out=None, si_out=None):
+    """``v`` (T, M, n), ``d2`` (T, M), ``s``, ``s_inv`` (T, M, n, n), ``det_s`` (T, M) and the track part ``st``
+    (T, n, n) of :func:`edge.track.pdaf.innovations_each` from ``z`` (M, n), ``z_hat`` (T, n), ``H P H'`` ``hph``
+    (T, n, n), the track's part of ``R`` ``r_track`` (T, n, n) and ``rm`` (M, n, n): ``st = 0.5 (a + a')`` with
+    ``a = hph + r_track``, as numpy. ``prune``: the exact pre-gate with threshold ``lim``
     (``gamma (1 + margin)``): a pair with ``v_i^2 > lim (st_ii + rm_ii)`` in a component gets ``d2 = inf``,
     ``S = S^-1 = 0``, ``|S| = 1``. n = 2 or 3. ``v_out``, ``s_out``, ``si_out``: C-contiguous float64 arrays of the
     shapes of ``v``, ``s``, ``s_inv`` to write them into (every entry is written) and return, or None: new arrays."""
     cdef Py_ssize_t nt = zh.shape[0], nm = z.shape[0], n = z.shape[1]
-    cdef Py_ssize_t t, m, i, nn = n * n
+    cdef Py_ssize_t t, m, i, j, nn = n * n
+    if not 2 <= n <= 3 or zh.shape[1] != n or hph.shape[0] != nt or r_track.shape[0] != nt or rm.shape[0] != nm \
+            or hph.shape[1] != n or hph.shape[2] != n or r_track.shape[1] != n or r_track.shape[2] != n \
+            or rm.shape[1] != n or rm.shape[2] != n:
+        raise ValueError("innovations_each: inconsistent shapes")
+    st_a = np.empty((nt, n, n))
+    cdef double[:, :, ::1] st = st_a
+    for t in range(nt):
+        for i in range(n):
+            for j in range(n):
+                st[t, i, j] = 0.5 * ((hph[t, i, j] + r_track[t, i, j]) + (hph[t, j, i] + r_track[t, j, i]))
     v_a = np.empty((nt, nm, n)) if v_out is None else _checked_out(v_out, (nt, nm, n))
     d2_a = np.empty((nt, nm))
     # every entry is written below (np.zeros would clear them all first)
@@ -128,7 +141,7 @@ def innovations_each(const double[:, ::1] z, const double[:, ::1] zh, const doub
                 else:
                     det[t, m] = _inv2(sp, &si[t, m, 0, 0])
                     d2[t, m] = _quad2(&si[t, m, 0, 0], vp)
-    return v_a, d2_a, s_a, si_a, det_a
+    return v_a, d2_a, s_a, si_a, det_a, st_a
 
 
 def quad_d2(const double[:, :, ::1] v, const double[:, :, ::1] s_inv):
@@ -208,12 +221,13 @@ def duplicate_pairs(const double[:, ::1] x, double merge_speed_mps, double merge
     return run_a, ba, bb, bkeep, ra, rb, rdx
 
 
-cdef void _update_rows(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] h,
-                       const long long[::1] rows, const double[:, ::1] v, const double[:, :, ::1] s_inv,
-                       const double[::1] w, double[:, ::1] x, double[:, :, ::1] p) noexcept nogil:
+cdef void _update_rows(const double* xs, const double* ps, const double* h, Py_ssize_t nr, Py_ssize_t n,
+                       const long long* rows, Py_ssize_t npair, const double* v, const double* s_inv, const double* w,
+                       double* x, double* p) noexcept nogil:
     """The per-hypothesis PDAF update of :func:`edge.track.pdaf.combined_update_pairs` (pairs with ``w > 0``):
-    ``x = x^- + sum w dx``, ``P = P^- - (sum w K) H P^- + sum w dx dx' - dx_bar dx_bar'``, symmetrised."""
-    cdef Py_ssize_t nr = xs.shape[0], npair = rows.shape[0], n = h.shape[1]
+    ``x = x^- + sum w dx``, ``P = P^- - (sum w K) H P^- + sum w dx dx' - dx_bar dx_bar'``, symmetrised. C-contiguous
+    arrays: ``xs``, ``x`` (nr, 4), ``ps``, ``p`` (nr, 4, 4), ``h`` (nr, n, 4), ``rows``, ``w`` (npair,), ``v``
+    (npair, n), ``s_inv`` (npair, n, n)."""
     cdef Py_ssize_t r, q, i, j, l
     cdef double ph[4][3]
     cdef double kk[4][3]
@@ -222,9 +236,9 @@ cdef void _update_rows(const double[:, ::1] xs, const double[:, :, ::1] ps, cons
     # accumulators per row: dx_bar (4), k_bar (4 x n), spread (4 x 4), in x and p (x starts at 0, p at 0)
     for r in range(nr):
         for i in range(4):
-            x[r, i] = 0.0
+            x[4 * r + i] = 0.0
             for j in range(4):
-                p[r, i, j] = 0.0
+                p[16 * r + 4 * i + j] = 0.0
     # p holds sum w dx dx' and the k_bar terms are applied per pair as -w K (H P^-): the same sums, per pair
     for q in range(npair):
         wq = w[q]
@@ -235,38 +249,43 @@ cdef void _update_rows(const double[:, ::1] xs, const double[:, :, ::1] ps, cons
             for j in range(n):
                 acc = 0.0
                 for l in range(4):
-                    acc = acc + ps[r, i, l] * h[r, j, l]
+                    acc = acc + ps[16 * r + 4 * i + l] * h[(r * n + j) * 4 + l]
                 ph[i][j] = acc
         for i in range(4):
             for j in range(n):
                 acc = 0.0
                 for l in range(n):
-                    acc = acc + ph[i][l] * s_inv[q, l, j]
+                    acc = acc + ph[i][l] * s_inv[(q * n + l) * n + j]
                 kk[i][j] = acc
         for i in range(4):
             acc = 0.0
             for j in range(n):
-                acc = acc + kk[i][j] * v[q, j]
+                acc = acc + kk[i][j] * v[q * n + j]
             dx[i] = acc
         for i in range(4):
-            x[r, i] += wq * dx[i]
+            x[4 * r + i] += wq * dx[i]
             for j in range(4):
                 # K_q H P^- = K_q (P^- H')' = K_q ph'
                 acc = 0.0
                 for l in range(n):
                     acc = acc + kk[i][l] * ph[j][l]
-                p[r, i, j] += wq * dx[i] * dx[j] - wq * acc
+                p[16 * r + 4 * i + j] += wq * dx[i] * dx[j] - wq * acc
     for r in range(nr):
         for i in range(4):
             for j in range(4):
-                p[r, i, j] = ps[r, i, j] + p[r, i, j] - x[r, i] * x[r, j]
+                p[16 * r + 4 * i + j] = ps[16 * r + 4 * i + j] + p[16 * r + 4 * i + j] - x[4 * r + i] * x[4 * r + j]
         for i in range(4):
             for j in range(i + 1, 4):
-                acc = 0.5 * (p[r, i, j] + p[r, j, i])
-                p[r, i, j] = acc
-                p[r, j, i] = acc
+                acc = 0.5 * (p[16 * r + 4 * i + j] + p[16 * r + 4 * j + i])
+                p[16 * r + 4 * i + j] = acc
+                p[16 * r + 4 * j + i] = acc
         for i in range(4):
-            x[r, i] = xs[r, i] + x[r, i]
+            x[4 * r + i] = xs[4 * r + i] + x[4 * r + i]
+
+
+cdef inline double* _f64(cnp.ndarray a) noexcept nogil:
+    """The data of a C-contiguous float64 array this module made (np.empty / np.zeros)."""
+    return <double*> cnp.PyArray_DATA(a)
 
 
 def update_pairs(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] h,
@@ -274,13 +293,66 @@ def update_pairs(const double[:, ::1] xs, const double[:, :, ::1] ps, const doub
                  const double[::1] w):
     """:func:`edge.track.pdaf.combined_update_pairs` for pairs ``rows`` (P,) with innovations ``v`` (P, n), inverse
     covariances ``s_inv`` (P, n, n) and weights ``w`` (P,) -> (x (R, 4), P (R, 4, 4)); equal to rounding."""
-    x_a = np.empty((xs.shape[0], 4))
-    p_a = np.empty((xs.shape[0], 4, 4))
-    cdef double[:, ::1] x = x_a
-    cdef double[:, :, ::1] p = p_a
-    with nogil:
-        _update_rows(xs, ps, h, rows, v, s_inv, w, x, p)
+    cdef Py_ssize_t nr = xs.shape[0], npair = rows.shape[0], n = h.shape[1]
+    if ps.shape[0] != nr or h.shape[0] != nr or v.shape[0] != npair or s_inv.shape[0] != npair \
+            or w.shape[0] != npair or v.shape[1] != n or not 1 <= n <= 3:
+        raise ValueError("update_pairs: inconsistent shapes")
+    cdef cnp.ndarray x_a = np.empty((nr, 4))
+    cdef cnp.ndarray p_a = np.empty((nr, 4, 4))
+    if nr:
+        with nogil:
+            _update_rows(&xs[0, 0], &ps[0, 0, 0], &h[0, 0, 0], nr, n, &rows[0] if npair else NULL, npair,
+                         &v[0, 0] if npair else NULL, &s_inv[0, 0, 0] if npair else NULL, &w[0] if npair else NULL,
+                         _f64(x_a), _f64(p_a))
     return x_a, p_a
+
+
+cdef void _pair_rows(const double* ps, const double* h, const double* zh, const double* r_track, int r_shift,
+                     const double* z, const double* r_meas, Py_ssize_t n, const long long* rows,
+                     const long long* cols, Py_ssize_t npair, const double* scale, bint scaled, double* v,
+                     double* d2, double* det, double* si) noexcept nogil:
+    """The pairs of :func:`edge.track.pdaf.pair_innovations`: ``S = H P H' + R_t (position block scaled) + R_m`` per
+    pair (state row ``rows[q]``, detection ``cols[q]``), its inverse ``si``, determinant ``det``, the innovation ``v``
+    and ``d2``. The track part of row ``r`` is ``r_track[r >> r_shift]`` (1: rows (track, mode) share their track's).
+    C-contiguous arrays: ``ps`` (R, 4, 4), ``h`` (R, n, 4), ``zh`` (R, n), ``z`` (M, n), ``r_meas`` (M, n, n)."""
+    cdef Py_ssize_t q, i, j, l, r, m, rt
+    cdef double hp[3][4]
+    cdef double s[9]
+    cdef double acc, f
+    for q in range(npair):
+        r = rows[q]
+        m = cols[q]
+        rt = r >> r_shift
+        for i in range(n):
+            for j in range(4):
+                acc = 0.0
+                for l in range(4):
+                    acc = acc + h[(r * n + i) * 4 + l] * ps[16 * r + 4 * l + j]
+                hp[i][j] = acc
+        for i in range(n):
+            for j in range(n):
+                acc = 0.0
+                for l in range(4):
+                    acc = acc + hp[i][l] * h[(r * n + j) * 4 + l]
+                f = r_track[(rt * n + i) * n + j]
+                if scaled and i < 2 and j < 2:
+                    f = f * scale[q]
+                s[i * n + j] = acc + f
+        for i in range(n):
+            for j in range(i + 1, n):
+                acc = 0.5 * (s[i * n + j] + s[j * n + i])
+                s[i * n + j] = acc
+                s[j * n + i] = acc
+        for i in range(n * n):
+            s[i] = s[i] + r_meas[m * n * n + i]
+        for i in range(n):
+            v[q * n + i] = z[m * n + i] - zh[r * n + i]
+        if n == 3:
+            det[q] = _inv3(s, &si[q * 9])
+            d2[q] = _quad3(&si[q * 9], &v[q * 3])
+        else:
+            det[q] = _inv2(s, &si[q * 4])
+            d2[q] = _quad2(&si[q * 4], &v[q * 2])
 
 
 def pair_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] h,
@@ -291,53 +363,25 @@ def pair_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const doubl
     ``rows`` into the state rows, ``cols`` into the detections) followed by :func:`update_pairs`: returns ``x``,
     ``P`` and the pairs' ``v`` (P, n), ``d2`` (P,), ``det_s`` (P,) for the mode likelihoods. Equal to rounding
     (``H P H'`` is summed here, numpy hands it to BLAS)."""
-    cdef Py_ssize_t npair = rows.shape[0], n = z.shape[1], q, i, j, l, r, m
-    v_a = np.empty((npair, n))
-    d2_a = np.empty(npair)
-    det_a = np.empty(npair)
-    si_a = np.empty((npair, n, n))
-    cdef double[:, ::1] v = v_a
-    cdef double[::1] d2 = d2_a
-    cdef double[::1] det = det_a
-    cdef double[:, :, ::1] si = si_a
-    cdef double hp[3][4]
-    cdef double s[9]
-    cdef double acc, f
-    with nogil:
-        for q in range(npair):
-            r = rows[q]
-            m = cols[q]
-            for i in range(n):
-                for j in range(4):
-                    acc = 0.0
-                    for l in range(4):
-                        acc = acc + h[r, i, l] * ps[r, l, j]
-                    hp[i][j] = acc
-            for i in range(n):
-                for j in range(n):
-                    acc = 0.0
-                    for l in range(4):
-                        acc = acc + hp[i][l] * h[r, j, l]
-                    f = r_track[r, i, j]
-                    if scaled and i < 2 and j < 2:
-                        f = f * scale[q]
-                    s[i * n + j] = acc + f
-            for i in range(n):
-                for j in range(i + 1, n):
-                    acc = 0.5 * (s[i * n + j] + s[j * n + i])
-                    s[i * n + j] = acc
-                    s[j * n + i] = acc
-            for i in range(n * n):
-                s[i] = s[i] + r_meas[m, i // n, i % n]
-            for i in range(n):
-                v[q, i] = z[m, i] - zh[r, i]
-            if n == 3:
-                det[q] = _inv3(s, &si[q, 0, 0])
-                d2[q] = _quad3(&si[q, 0, 0], &v[q, 0])
-            else:
-                det[q] = _inv2(s, &si[q, 0, 0])
-                d2[q] = _quad2(&si[q, 0, 0], &v[q, 0])
-    x_a, p_a = update_pairs(xs, ps, h, rows, v_a, si_a, w)
+    cdef Py_ssize_t nr = xs.shape[0], npair = rows.shape[0], n = z.shape[1]
+    if not 2 <= n <= 3 or h.shape[1] != n or zh.shape[1] != n or cols.shape[0] != npair or w.shape[0] != npair \
+            or (scaled and scale.shape[0] != npair) or ps.shape[0] != nr or h.shape[0] != nr or zh.shape[0] != nr \
+            or r_track.shape[0] != nr:
+        raise ValueError("pair_update: inconsistent shapes")
+    cdef cnp.ndarray v_a = np.empty((npair, n))
+    cdef cnp.ndarray d2_a = np.empty(npair)
+    cdef cnp.ndarray det_a = np.empty(npair)
+    cdef cnp.ndarray si_a = np.empty((npair, n, n))
+    cdef cnp.ndarray x_a = np.empty((nr, 4))
+    cdef cnp.ndarray p_a = np.empty((nr, 4, 4))
+    if nr:
+        with nogil:
+            if npair:
+                _pair_rows(&ps[0, 0, 0], &h[0, 0, 0], &zh[0, 0], &r_track[0, 0, 0], 0, &z[0, 0], &r_meas[0, 0, 0], n,
+                           &rows[0], &cols[0], npair, &scale[0] if scaled else NULL, scaled, _f64(v_a), _f64(d2_a),
+                           _f64(det_a), _f64(si_a))
+            _update_rows(&xs[0, 0], &ps[0, 0, 0], &h[0, 0, 0], nr, n, &rows[0] if npair else NULL, npair,
+                         _f64(v_a), _f64(si_a), &w[0] if npair else NULL, _f64(x_a), _f64(p_a))
     return x_a, p_a, v_a, d2_a, det_a
 
 
@@ -630,19 +674,20 @@ def imm_mode_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const d
     cdef Py_ssize_t nt = gated.shape[0], nm = gated.shape[1], n = z.shape[1], t, m, k = 0, npair = 0, half, q
     cdef Py_ssize_t mode, row
     cdef long long ng
+    if not 2 <= n <= 3 or xs.shape[0] != 2 * nt or ps.shape[0] != 2 * nt or hm.shape[0] != 2 * nt \
+            or zhm.shape[0] != 2 * nt or r_track.shape[0] != nt or beta.shape[0] != nt or beta.shape[1] != nm \
+            or z.shape[0] != nm or r_meas.shape[0] != nm or vol.shape[0] != nt or hm.shape[1] != n:
+        raise ValueError("imm_mode_update: inconsistent shapes")
     for t in range(nt):
         for m in range(nm):
             npair += gated[t, m]
-    rows_a = np.empty(2 * npair, dtype=np.int64)
-    cols_a = np.empty(2 * npair, dtype=np.int64)
-    w_a = np.empty(2 * npair)
-    sc_a = np.ones(2 * npair)
-    r_rep_a = np.empty((2 * nt, n, n))
-    cdef long long[::1] rows = rows_a
-    cdef long long[::1] cols = cols_a
-    cdef double[::1] w = w_a
-    cdef double[::1] sc = sc_a
-    cdef double[:, :, ::1] r_rep = r_rep_a
+    # the pairs' rows, detections, weights and scales in one int64 and one float64 scratch array
+    cdef cnp.ndarray idx_a = np.empty(4 * npair, dtype=np.int64)
+    cdef cnp.ndarray ws_a = np.empty(4 * npair)
+    cdef long long* rows = <long long*> cnp.PyArray_DATA(idx_a)
+    cdef long long* cols = rows + 2 * npair
+    cdef double* w = _f64(ws_a)
+    cdef double* sc = w + 2 * npair
     cdef double a0, a1
     half = npair
     for t in range(nt):
@@ -653,35 +698,51 @@ def imm_mode_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const d
                     rows[q] = 2 * t + mode
                     cols[q] = m
                     w[q] = beta[t, m]
+                    sc[q] = 1.0
                     if scaled:
                         row = 2 * t + mode
                         a0 = (z[m, 0] - zhm[row, 0]) * zhm[row, 0]
                         a1 = (z[m, 1] - zhm[row, 1]) * zhm[row, 1]
                         sc[q] = near_factor if a0 + a1 < 0.0 else 1.0
                 k += 1
-        for mode in range(2):
-            r_rep[2 * t + mode, :, :] = r_track[t, :, :]
-    x_a, p_a, v_a, d2_a, det_a = pair_update(xs, ps, hm, zhm, r_rep_a, z, r_meas, rows_a, cols_a, sc_a, scaled,
-                                             w_a)
-    cdef double[::1] d2 = d2_a
-    cdef double[::1] det = det_a
-    dens_a = np.zeros(2 * nt)
-    cdef double[::1] dens = dens_a
-    cdef double c_norm = (2.0 * np.pi) ** (n / 2.0)
+    # the pairs' v, S^-1 (scratch), d2 and det, then the updates (pair_update's steps, without its arrays)
+    cdef cnp.ndarray pv_a = np.empty(2 * npair * (n + n * n + 2))
+    cdef double* pv = _f64(pv_a)
+    cdef double* psi = pv + 2 * npair * n
+    cdef double* d2 = psi + 2 * npair * n * n
+    cdef double* det = d2 + 2 * npair
+    cdef cnp.ndarray x_a = np.empty((2 * nt, 4))
+    cdef cnp.ndarray p_a = np.empty((2 * nt, 4, 4))
+    cdef cnp.ndarray lik_a = np.empty((nt, 2))
+    cdef double* lik = _f64(lik_a)
+    cdef double* dens
+    cdef double c_norm = pow(2.0 * M_PI, n / 2.0)
     cdef double dq
-    for q in range(2 * npair):
-        dq = d2[q]
-        dq = dq if dq <= 700.0 or dq != dq else 700.0
-        dens[rows[q]] += exp(-0.5 * dq) / (c_norm * sqrt(det[q]))
-    lik_a = np.empty((nt, 2))
-    cdef double[:, ::1] lik = lik_a
-    for t in range(nt):
-        ng = 0
-        for m in range(nm):
-            ng += gated[t, m]
-        for mode in range(2):
-            lik[t, mode] = (1.0 - prob_gate * prob_detect) + prob_detect * vol[t] / <double> (ng if ng > 1 else 1) \
-                * dens[2 * t + mode]
+    if nt == 0:
+        return x_a, p_a, lik_a
+    dens = <double*> PyMem_Malloc(2 * nt * sizeof(double))
+    if dens == NULL:
+        raise MemoryError()
+    with nogil:
+        if npair:
+            _pair_rows(&ps[0, 0, 0], &hm[0, 0, 0], &zhm[0, 0], &r_track[0, 0, 0], 1, &z[0, 0], &r_meas[0, 0, 0], n,
+                       rows, cols, 2 * npair, sc, scaled, pv, d2, det, psi)
+        _update_rows(&xs[0, 0], &ps[0, 0, 0], &hm[0, 0, 0], 2 * nt, n, rows, 2 * npair, pv, psi, w, _f64(x_a),
+                     _f64(p_a))
+        for q in range(2 * nt):
+            dens[q] = 0.0
+        for q in range(2 * npair):
+            dq = d2[q]
+            dq = dq if dq <= 700.0 or dq != dq else 700.0
+            dens[rows[q]] += exp(-0.5 * dq) / (c_norm * sqrt(det[q]))
+        for t in range(nt):
+            ng = 0
+            for m in range(nm):
+                ng += gated[t, m]
+            for mode in range(2):
+                lik[2 * t + mode] = (1.0 - prob_gate * prob_detect) \
+                    + prob_detect * vol[t] / <double> (ng if ng > 1 else 1) * dens[2 * t + mode]
+    PyMem_Free(dens)
     return x_a, p_a, lik_a
 
 
@@ -1273,40 +1334,115 @@ def delete_tests(const double[:, :] x, const double[:, :, :] p, const cnp.int32_
 from libc.math cimport isfinite
 
 
-def measurements(const float[:] x, const float[:] y, const float[:] snr, const float[:] vr, const float[:] rng,
-                 bint use_radial_speed):
-    """The float64 measurements of :meth:`edge.track.table.Measurements.from_detections` from float32 columns of
-    one size: ``z`` (M, 3) ground x, y and the ground radial speed (``vr`` times range over ground range, times 1
-    within 1e-6 m of the radar) with ``use_radial_speed``, else (M, 2), and the SNR (M,) in float64. None when a
-    value is not finite (the numpy form handles those rows)."""
-    cdef Py_ssize_t n = x.shape[0], i
+cdef inline bint _column(object a, int type_num, Py_ssize_t n):
+    """``a`` is a one-dimensional aligned array of ``type_num`` in native byte order (of length ``n`` if ``n >= 0``)."""
+    cdef cnp.ndarray arr
+    if not cnp.PyArray_Check(a):
+        return False
+    arr = <cnp.ndarray> a
+    return (cnp.PyArray_NDIM(arr) == 1 and cnp.PyArray_TYPE(arr) == type_num and cnp.PyArray_ISNOTSWAPPED(arr)
+            and cnp.PyArray_ISALIGNED(arr) and (n < 0 or cnp.PyArray_DIMS(arr)[0] == n))
+
+
+cdef inline float _f32_at(cnp.ndarray a, Py_ssize_t i) noexcept nogil:
+    return (<const float*> (cnp.PyArray_BYTES(a) + i * cnp.PyArray_STRIDES(a)[0]))[0]
+
+
+def measurements(x, y, snr, vr, rng, bint use_radial_speed, pair=None, unresolved=None):
+    """The float64 measurements of :meth:`edge.track.table.Measurements.from_detections` from the float32 columns
+    ``x``, ``y``, ``snr``, ``vr``, ``rng`` of one size M: ``z`` (M, 3) ground x, y and the ground radial speed (``vr``
+    times range over ground range, times 1 within 1e-6 m of the radar) with ``use_radial_speed``, else (M, 2), the
+    SNR (M,) in float64, and the detections' extra columns ``pair`` (``resolved_pair``, int32 or int64: as int64, None
+    when absent or without a pair) and ``unresolved`` (``unresolved_pair``, bool: None when absent or all false), as
+    ``from_detections`` makes them. None (the numpy form handles the frame) when a column is not a float32 vector,
+    a value is not finite, or an extra column is present in another form."""
+    cdef Py_ssize_t n, i
     cdef double xi, yi, rho, ratio
-    if y.shape[0] != n or snr.shape[0] != n or vr.shape[0] != n or rng.shape[0] != n:
+    cdef cnp.ndarray ax, ay, asnr, avr, arng, pair_a
+    cdef int pair_type = 0
+    if not _column(x, cnp.NPY_FLOAT32, -1):
         return None
+    n = cnp.PyArray_DIMS(<cnp.ndarray> x)[0]
+    if not (_column(y, cnp.NPY_FLOAT32, n) and _column(snr, cnp.NPY_FLOAT32, n) and _column(vr, cnp.NPY_FLOAT32, n)
+            and _column(rng, cnp.NPY_FLOAT32, n)):
+        return None
+    if pair is not None:
+        if _column(pair, cnp.NPY_INT32, n):
+            pair_type = cnp.NPY_INT32
+        elif _column(pair, cnp.NPY_INT64, n):
+            pair_type = cnp.NPY_INT64
+        else:
+            return None
+    if unresolved is not None and not _column(unresolved, cnp.NPY_BOOL, n):
+        return None
+    ax, ay, asnr, avr, arng = x, y, snr, vr, rng
     with nogil:
         for i in range(n):
-            if not (isfinite(x[i]) and isfinite(y[i]) and isfinite(snr[i]) and isfinite(vr[i]) and isfinite(rng[i])):
+            if not (isfinite(_f32_at(ax, i)) and isfinite(_f32_at(ay, i)) and isfinite(_f32_at(asnr, i))
+                    and isfinite(_f32_at(avr, i)) and isfinite(_f32_at(arng, i))):
                 break
         else:
             i = n
     if i < n:
         return None
-    z_a = np.empty((n, 3 if use_radial_speed else 2))
-    snr_a = np.empty(n)
-    cdef double[:, ::1] z = z_a
-    cdef double[::1] s = snr_a
+    cdef cnp.ndarray z_a = np.empty((n, 3 if use_radial_speed else 2))
+    cdef cnp.ndarray snr_a = np.empty(n)
+    cdef double* z = _f64(z_a)
+    cdef double* s = _f64(snr_a)
+    cdef Py_ssize_t nc = 3 if use_radial_speed else 2
     with nogil:
         for i in range(n):
-            xi = x[i]
-            yi = y[i]
-            z[i, 0] = xi
-            z[i, 1] = yi
-            s[i] = snr[i]
+            xi = _f32_at(ax, i)
+            yi = _f32_at(ay, i)
+            z[nc * i] = xi
+            z[nc * i + 1] = yi
+            s[i] = _f32_at(asnr, i)
             if use_radial_speed:
                 rho = hypot(xi, yi)
-                ratio = 1.0 if rho <= 1e-6 else <double>rng[i] / rho
-                z[i, 2] = <double>vr[i] * ratio
-    return z_a, snr_a
+                ratio = 1.0 if rho <= 1e-6 else <double> _f32_at(arng, i) / rho
+                z[nc * i + 2] = <double> _f32_at(avr, i) * ratio
+    return z_a, snr_a, _pair_column(pair, pair_type, n), _any_column(unresolved, n)
+
+
+cdef object _pair_column(object pair, int pair_type, Py_ssize_t n):
+    """``pair`` (int32 or int64, n) as int64 (the same array if int64), or None when no value is >= 0."""
+    cdef cnp.ndarray a, out
+    cdef Py_ssize_t i, k = 0
+    cdef char* src
+    cdef Py_ssize_t stride
+    cdef cnp.int64_t* dst
+    if pair is None:
+        return None
+    a = <cnp.ndarray> pair
+    src, stride = cnp.PyArray_BYTES(a), cnp.PyArray_STRIDES(a)[0]
+    if pair_type == cnp.NPY_INT64:
+        for i in range(n):
+            if (<cnp.int64_t*> (src + i * stride))[0] >= 0:
+                return pair
+        return None
+    for i in range(n):
+        if (<cnp.int32_t*> (src + i * stride))[0] >= 0:
+            k += 1
+    if k == 0:
+        return None
+    out = np.empty(n, dtype=np.int64)
+    dst = <cnp.int64_t*> cnp.PyArray_DATA(out)
+    for i in range(n):
+        dst[i] = (<cnp.int32_t*> (src + i * stride))[0]
+    return out
+
+
+cdef object _any_column(object col, Py_ssize_t n):
+    """The bool column ``col`` (n), or None when it is None or all false."""
+    cdef cnp.ndarray a
+    cdef Py_ssize_t i
+    if col is None:
+        return None
+    a = <cnp.ndarray> col
+    for i in range(n):
+        if (<cnp.npy_bool*> (cnp.PyArray_BYTES(a) + i * cnp.PyArray_STRIDES(a)[0]))[0]:
+            return col
+    return None
 
 
 def seed_candidates(const double[:, :] z, const cnp.npy_bool[:] used, const cnp.int64_t[:] pair, bint has_pair,
@@ -1548,6 +1684,13 @@ cdef extern from *:
     int PyObject_GenericSetAttr(object o, object name, object value) except -1
 
 
+#: a published TrackState's ``__dict__`` with every value None, keys in field order (``publish_states`` copies it)
+cdef dict _STATE_DICT = dict.fromkeys((
+    "track_id", "x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps", "az_rad", "age_frames", "hits",
+    "confirmed", "lane", "cls", "class_probability", "rcs_dbsm", "length_m", "x_sd_m", "y_sd_m", "vx_sd_mps",
+    "vy_sd_mps", "existence_probability"))
+
+
 def publish_states(type cls, const double[:, :] x, const double[:, :, :] p, const cnp.int64_t[::1] idx,
                    const double[:, :] lat, const double[:, :, :] lat_p, const double[:] lat_cusum,
                    const double[:] ext_var, const double[:] score, const cnp.uint8_t[:] confirmed, bint smoother,
@@ -1568,12 +1711,25 @@ def publish_states(type cls, const double[:, :] x, const double[:, :, :] p, cons
     for k in range(n):
         i = idx[k]
         o = ktr_new_instance(cls)
-        d = {"track_id": track_id[i], "x_m": num[k, 0], "y_m": num[k, 1], "vx_mps": num[k, 2], "vy_mps": num[k, 3],
-             "range_m": num[k, 4], "radial_speed_mps": num[k, 5], "az_rad": num[k, 6], "age_frames": age[i],
-             "hits": hits[i], "confirmed": True if confirmed[i] else False, "lane": None, "cls": None,
-             "class_probability": None, "rcs_dbsm": None, "length_m": num[k, 7] if num[k, 8] != 0.0 else None,
-             "x_sd_m": num[k, 9], "y_sd_m": num[k, 10], "vx_sd_mps": num[k, 11], "vy_sd_mps": num[k, 12],
-             "existence_probability": num[k, 13]}
+        d = _STATE_DICT.copy()  # every key in field order; lane, cls, class_probability and rcs_dbsm stay None
+        d["track_id"] = track_id[i]
+        d["x_m"] = num[k, 0]
+        d["y_m"] = num[k, 1]
+        d["vx_mps"] = num[k, 2]
+        d["vy_mps"] = num[k, 3]
+        d["range_m"] = num[k, 4]
+        d["radial_speed_mps"] = num[k, 5]
+        d["az_rad"] = num[k, 6]
+        d["age_frames"] = age[i]
+        d["hits"] = hits[i]
+        d["confirmed"] = True if confirmed[i] else False
+        if num[k, 8] != 0.0:
+            d["length_m"] = num[k, 7]
+        d["x_sd_m"] = num[k, 9]
+        d["y_sd_m"] = num[k, 10]
+        d["vx_sd_mps"] = num[k, 11]
+        d["vy_sd_mps"] = num[k, 12]
+        d["existence_probability"] = num[k, 13]
         PyObject_GenericSetAttr(o, "__dict__", d)
         out.append(o)
     return tuple(out), num_arr

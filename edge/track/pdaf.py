@@ -270,15 +270,16 @@ def innovations_each(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndar
     determinant, ``d2``) in one pass with the same arithmetic (bit-identical); None: numpy. ``buffers``: the kernel
     writes ``v``, ``S`` and ``S^-1`` into these (:class:`PairBuffers`; the result's arrays are then views, valid until
     their next use)."""
-    st = h @ p @ h.transpose(0, 2, 1) + r_track
-    st = 0.5 * (st + st.transpose(0, 2, 1))
+    hph = h @ p @ h.transpose(0, 2, 1)
     if kernel is not None and z.shape[1] in (2, 3):
         prune = prune_gamma is not None and z_hat.shape[0] * z.shape[0] >= _PREGATE_MIN_PAIRS
         lim = prune_gamma * (1.0 + _PREGATE_MARGIN) if prune else 0.0
         out = (None, None, None) if buffers is None else buffers.views(z_hat.shape[0], z.shape[0], z.shape[1])
-        v, d2, s, s_inv, det_s = kernel.innovations_each(np.ascontiguousarray(z), np.ascontiguousarray(z_hat),
-                                                         st, np.ascontiguousarray(r_meas), lim, prune, *out)
+        v, d2, s, s_inv, det_s, st = kernel.innovations_each(z, z_hat, hph, r_track, np.ascontiguousarray(r_meas),
+                                                             lim, prune, *out)
         return InnovationsEach(v, d2, s, s_inv, det_s, st)
+    st = hph + r_track
+    st = 0.5 * (st + st.transpose(0, 2, 1))
     v = z[None, :, :] - z_hat[:, None, :]  # (T, M, n)
     if prune_gamma is not None and v.shape[0] * v.shape[1] >= _PREGATE_MIN_PAIRS:
         n = v.shape[2]

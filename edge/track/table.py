@@ -126,11 +126,6 @@ def _new_rows(k: int, ext_var: float, keep_prob: float) -> tuple[np.ndarray, ...
     return rows
 
 
-def _f32_vector(a) -> bool:
-    """A one-dimensional float32 array: what the compiled column kernels take (other columns take the numpy form)."""
-    return isinstance(a, np.ndarray) and a.dtype == np.float32 and a.ndim == 1
-
-
 @dataclass
 class Measurements:
     """One frame's detections as the filter sees them (float64, ground plane)."""
@@ -144,14 +139,13 @@ class Measurements:
     @classmethod
     def from_detections(cls, det: Detections, use_radial_speed: bool, kernel=None) -> "Measurements":
         """The frame's measurements; ``kernel``: the compiled ``edge.native._track``, used when the columns are
-        float32 arrays of finite values (the same float64 values)."""
+        float32 arrays of finite values and the extra columns plain arrays (the same values)."""
         cols = (det.x_m, det.y_m, det.snr_db, det.radial_speed_mps, det.range_m)
-        if kernel is not None and all(_f32_vector(c) for c in cols):
-            res = kernel.measurements(*cols, use_radial_speed)
+        if kernel is not None:
+            extra = det.extra
+            res = kernel.measurements(*cols, use_radial_speed, extra.get("resolved_pair"), extra.get("unresolved_pair"))
             if res is not None:
-                z, snr = res
-                return cls(z, snr, use_radial_speed, _pair_column(det, z.shape[0]),
-                           _extra_column(det, "unresolved_pair", bool, None, True, z.shape[0]))
+                return cls(res[0], res[1], use_radial_speed, res[2], res[3])
         # one float64 array of the five columns (a handful of detections: few calls, not few flops)
         cols = np.array(cols, dtype=np.float64)
         fin = np.isfinite(cols)

@@ -76,8 +76,11 @@ def test_innovations_each_into_reused_buffers_is_bit_identical():
     assert all(shared) and len(shared) >= 8
     assert copy.deepcopy(buf)._flat is None and pickle.loads(pickle.dumps(buf))._flat is None
     with pytest.raises(ValueError, match="output buffer"):
-        K.innovations_each(np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((4, 2, 2)), np.zeros((3, 2, 2)), 1.0, False,
-                           np.zeros((5, 3, 2)), None, None)
+        K.innovations_each(np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((4, 2, 2)), np.zeros((4, 2, 2)),
+                           np.zeros((3, 2, 2)), 1.0, False, np.zeros((5, 3, 2)), None, None)
+    with pytest.raises(ValueError, match="inconsistent shapes"):
+        K.innovations_each(np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((4, 2, 2)), np.zeros((3, 2, 2)),
+                           np.zeros((3, 2, 2)), 1.0, False)
 
 
 @settings(max_examples=60, deadline=None, derandomize=True)
@@ -480,6 +483,22 @@ def test_measurements_are_identical(seed, m, use_radial_speed):
     wide = Detections(*(c.astype(np.float64) for c in (det.range_m, det.radial_speed_mps, det.az_rad, det.snr_db,
                                                        det.x_m, det.y_m)), det.extra)
     assert _same_measurements(Measurements.from_detections(wide, use_radial_speed, K), want)
+    cols = (det.range_m, det.radial_speed_mps, det.az_rad, det.snr_db, det.x_m, det.y_m)
+    if seed % 4 == 1 and m:  # the extra columns in other forms: int64 (kept as it is), a list, mis-sized
+        pair = det.extra["resolved_pair"]
+        for other in (pair.astype(np.int64), pair.tolist(), np.zeros(m + 1, np.int32), pair.astype(np.int16)):
+            alt = Detections(*cols, dict(det.extra, resolved_pair=other))
+            got = Measurements.from_detections(alt, use_radial_speed, K)
+            assert _same_measurements(got, Measurements.from_detections(alt, use_radial_speed))
+            if isinstance(other, np.ndarray) and other.dtype == np.int64 and got.pair is not None:
+                assert got.pair is other
+        alt = Detections(*cols, dict(det.extra, unresolved_pair=det.extra["unresolved_pair"].astype(np.uint8)))
+        assert _same_measurements(Measurements.from_detections(alt, use_radial_speed, K),
+                                  Measurements.from_detections(alt, use_radial_speed))
+    if m:  # strided and byte-swapped float32 columns
+        for form in (lambda c: np.repeat(c, 2)[::2], lambda c: c.astype(">f4")):
+            alt = Detections(*(form(c) for c in cols), det.extra)
+            assert _same_measurements(Measurements.from_detections(alt, use_radial_speed, K), want)
 
 
 #: absolute tolerance on published positions (m), speeds (m/s), their sds and the existence probability between
@@ -974,8 +993,8 @@ def test_reanchor_match_is_identical(seed, receding_only):
 
 
 def test_a_failing_measurements_kernel_is_not_hidden():
-    """``Measurements.from_detections`` picks the kernel by the columns' dtype, not by catching its errors: an error
-    inside the kernel reaches the caller, and float64 columns never reach the kernel."""
+    """The ``measurements`` kernel declines columns by their dtype (it returns None) and raises no error for them: an
+    error inside the kernel reaches the caller, and float64 columns go to the numpy form."""
     from types import SimpleNamespace
 
     from edge.track.table import Measurements
@@ -989,8 +1008,8 @@ def test_a_failing_measurements_kernel_is_not_hidden():
     with pytest.raises(ValueError, match="kernel failure"):
         Measurements.from_detections(det, True, SimpleNamespace(measurements=boom))
     wide = Detections(*(np.array([30.0, 60.0]) for _ in range(6)))
-    m = Measurements.from_detections(wide, True, SimpleNamespace(measurements=boom))  # numpy form, no call
-    assert m.z.shape == (2, 3)
+    assert K.measurements(wide.x_m, wide.y_m, wide.snr_db, wide.radial_speed_mps, wide.range_m, True) is None
+    assert Measurements.from_detections(wide, True, K).z.shape == (2, 3)  # the numpy form
 
 
 @pytest.mark.parametrize("confirmation", ["m_of_n", "score", "either"])
