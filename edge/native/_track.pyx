@@ -16,7 +16,8 @@ The numpy references are in :mod:`edge.track.pdaf` (``innovations_each``, ``maha
 import numpy as np
 cimport numpy as cnp
 from cpython.mem cimport PyMem_Malloc, PyMem_Free
-from libc.math cimport M_PI, pow
+from libc.string cimport memcpy
+from libc.math cimport M_PI, pow, cos, sin
 
 cnp.import_array()
 
@@ -63,46 +64,55 @@ cdef inline double _quad2(const double* si, const double* v) noexcept nogil:
     return acc
 
 
-cdef object _checked_out(object a, tuple shape):
-    """``a`` if it is a C-contiguous float64 array of ``shape`` (the kernels index without bounds checks)."""
-    if not isinstance(a, np.ndarray) or a.dtype != np.float64 or tuple(a.shape) != shape \
-            or not a.flags.c_contiguous or not a.flags.writeable:
-        raise ValueError(f"output buffer must be a writeable C-contiguous float64 array of shape {shape}")
-    return a
+cdef cnp.ndarray _view(object flat, Py_ssize_t t, Py_ssize_t m, Py_ssize_t n, int nd):
+    """A C-contiguous float64 view (t, m, n) (``nd`` 3) or (t, m, n, n) (``nd`` 4) of the start of ``flat``, a
+    writeable C-contiguous float64 vector at least that long; or a new array when ``flat`` is None."""
+    cdef cnp.npy_intp dims[4]
+    cdef cnp.ndarray base, out
+    dims[0], dims[1], dims[2], dims[3] = t, m, n, n
+    if flat is None:
+        return cnp.PyArray_EMPTY(nd, dims, cnp.NPY_FLOAT64, 0)
+    if not (_column(flat, cnp.NPY_FLOAT64, -1) and cnp.PyArray_ISCARRAY(<cnp.ndarray> flat)
+            and cnp.PyArray_DIMS(<cnp.ndarray> flat)[0] >= t * m * n * (n if nd == 4 else 1)):
+        raise ValueError(f"output buffer must be a writeable C-contiguous float64 vector of at least "
+                         f"{t * m * n * (n if nd == 4 else 1)} values")
+    base = <cnp.ndarray> flat
+    out = cnp.PyArray_SimpleNewFromData(nd, dims, cnp.NPY_FLOAT64, cnp.PyArray_DATA(base))
+    cnp.set_array_base(out, base)
+    return out
 
 
 def innovations_each(const double[:, :] z, const double[:, :] zh, const double[:, :, :] hph,
-                     const double[:, :, :] r_track, const double[:, :, ::1] rm, double lim, bint prune, v_out=None, s_out=None, si_out=None):
+                     const double[:, :, :] r_track, const double[:, :, ::1] rm, double lim, bint prune,
+                     buffers=None):
     """``v`` (T, M, n), ``d2`` (T, M), ``s``, ``s_inv`` (T, M, n, n), ``det_s`` (T, M) and the track part ``st``
     (T, n, n) of :func:`edge.track.pdaf.innovations_each` from ``z`` (M, n), ``z_hat`` (T, n), ``H P H'`` ``hph``
     (T, n, n), the track's part of ``R`` ``r_track`` (T, n, n) and ``rm`` (M, n, n): ``st = 0.5 (a + a')`` with
     ``a = hph + r_track``, as numpy. ``prune``: the exact pre-gate with threshold ``lim``
     (``gamma (1 + margin)``): a pair with ``v_i^2 > lim (st_ii + rm_ii)`` in a component gets ``d2 = inf``,
-    ``S = S^-1 = 0``, ``|S| = 1``. n = 2 or 3. ``v_out``, ``s_out``, ``si_out``: C-contiguous float64 arrays of the
-    shapes of ``v``, ``s``, ``s_inv`` to write them into (every entry is written) and return, or None: new arrays."""
+    ``S = S^-1 = 0``, ``|S| = 1``. n = 2 or 3. ``buffers``: three writeable C-contiguous float64 vectors whose
+    starts become ``v``, ``s`` and ``s_inv`` (every entry is written; :class:`edge.track.pdaf.PairBuffers`), or
+    None: new arrays."""
     cdef Py_ssize_t nt = zh.shape[0], nm = z.shape[0], n = z.shape[1]
-    cdef Py_ssize_t t, m, i, j, nn = n * n
+    cdef Py_ssize_t t, m, i, j, nn = n * n, tm
     if not 2 <= n <= 3 or zh.shape[1] != n or hph.shape[0] != nt or r_track.shape[0] != nt or rm.shape[0] != nm \
             or hph.shape[1] != n or hph.shape[2] != n or r_track.shape[1] != n or r_track.shape[2] != n \
             or rm.shape[1] != n or rm.shape[2] != n:
         raise ValueError("innovations_each: inconsistent shapes")
-    st_a = np.empty((nt, n, n))
-    cdef double[:, :, ::1] st = st_a
-    for t in range(nt):
-        for i in range(n):
-            for j in range(n):
-                st[t, i, j] = 0.5 * ((hph[t, i, j] + r_track[t, i, j]) + (hph[t, j, i] + r_track[t, j, i]))
-    v_a = np.empty((nt, nm, n)) if v_out is None else _checked_out(v_out, (nt, nm, n))
-    d2_a = np.empty((nt, nm))
-    # every entry is written below (np.zeros would clear them all first)
-    s_a = np.empty((nt, nm, n, n)) if s_out is None else _checked_out(s_out, (nt, nm, n, n))
-    si_a = np.empty((nt, nm, n, n)) if si_out is None else _checked_out(si_out, (nt, nm, n, n))
-    det_a = np.empty((nt, nm))
-    cdef double[:, :, ::1] v = v_a
-    cdef double[:, ::1] d2 = d2_a
-    cdef double[:, :, :, ::1] s = s_a
-    cdef double[:, :, :, ::1] si = si_a
-    cdef double[:, ::1] det = det_a
+    if buffers is not None and len(buffers) != 3:
+        raise ValueError("output buffer: three vectors (v, s, s_inv)")
+    cdef cnp.ndarray v_a = _view(None if buffers is None else buffers[0], nt, nm, n, 3)
+    cdef cnp.ndarray s_a = _view(None if buffers is None else buffers[1], nt, nm, n, 4)
+    cdef cnp.ndarray si_a = _view(None if buffers is None else buffers[2], nt, nm, n, 4)
+    cdef cnp.ndarray st_a = np.empty((nt, n, n))
+    cdef cnp.ndarray d2_a = np.empty((nt, nm))
+    cdef cnp.ndarray det_a = np.empty((nt, nm))
+    cdef double* st = _f64(st_a)
+    cdef double* v = _f64(v_a)
+    cdef double* d2 = _f64(d2_a)
+    cdef double* s_ = _f64(s_a)
+    cdef double* si = _f64(si_a)
+    cdef double* det = _f64(det_a)
     cdef double* sp
     cdef double* sip
     cdef const double* stp
@@ -112,35 +122,40 @@ def innovations_each(const double[:, :] z, const double[:, :] zh, const double[:
     cdef double inf = float("inf")
     with nogil:
         for t in range(nt):
+            for i in range(n):
+                for j in range(n):
+                    st[(t * n + i) * n + j] = 0.5 * ((hph[t, i, j] + r_track[t, i, j])
+                                                     + (hph[t, j, i] + r_track[t, j, i]))
+        for t in range(nt):
+            stp = &st[t * nn]
             for m in range(nm):
-                vp = &v[t, m, 0]
+                tm = t * nm + m
+                vp = &v[tm * n]
+                sp = &s_[tm * nn]
+                sip = &si[tm * nn]
                 for i in range(n):
                     vp[i] = z[m, i] - zh[t, i]
                 if prune:
                     far = False
                     for i in range(n):
-                        if vp[i] * vp[i] > lim * (st[t, i, i] + rm[m, i, i]):
+                        if vp[i] * vp[i] > lim * (stp[i * n + i] + rm[m, i, i]):
                             far = True
                     if far:
-                        d2[t, m] = inf
-                        det[t, m] = 1.0
-                        sp = &s[t, m, 0, 0]
-                        sip = &si[t, m, 0, 0]
+                        d2[tm] = inf
+                        det[tm] = 1.0
                         for i in range(nn):
                             sp[i] = 0.0
                             sip[i] = 0.0
                         continue
-                sp = &s[t, m, 0, 0]
-                stp = &st[t, 0, 0]
                 rmp = &rm[m, 0, 0]
                 for i in range(nn):
                     sp[i] = stp[i] + rmp[i]
                 if n == 3:
-                    det[t, m] = _inv3(sp, &si[t, m, 0, 0])
-                    d2[t, m] = _quad3(&si[t, m, 0, 0], vp)
+                    det[tm] = _inv3(sp, sip)
+                    d2[tm] = _quad3(sip, vp)
                 else:
-                    det[t, m] = _inv2(sp, &si[t, m, 0, 0])
-                    d2[t, m] = _quad2(&si[t, m, 0, 0], vp)
+                    det[tm] = _inv2(sp, sip)
+                    d2[tm] = _quad2(sip, vp)
     return v_a, d2_a, s_a, si_a, det_a, st_a
 
 
@@ -445,40 +460,78 @@ def update_extent(const double[:, :, ::1] v, const double[:, ::1] s2_track, cons
 from libc.math cimport exp, sqrt, INFINITY
 
 
-def associate_each(const double[:, ::1] d2, const double[:, ::1] det_s, double gamma, double vol_factor,
-                   double norm_factor, double prob_detect, double b, bint jpda, const cnp.npy_bool[::1] confirmed,
-                   const double[::1] rank, bint seniority, const cnp.npy_bool[::1] pair_ok, bint with_pairs):
+def associate_each(const double[:, :] d2, const double[:, :] det_s, double gamma, double vol_factor,
+                   double norm_factor, double prob_detect, double b, bint jpda, confirmed, seniority, pair=None):
     """The association of :class:`edge.track.roles.associate.PdaAssociator` with one ``S`` per (track, detection)
     (:func:`edge.track.pdaf.association_weights` on :class:`edge.track.pdaf.InnovationsEach`), with its arithmetic
-    and summation order: seniority (``rank`` (T,): inf for confirmed tracks, else their hits; a tentative track
-    only sees detections no more senior track validated, unless ``pair_ok``), the gate ``d2 <= gamma``, the gate
-    volume ``vol_factor * mean sqrt|S|`` over the validated detections, the likelihoods
-    ``P_D N(v; 0, S) V / M_t`` and the PDAF (or, ``jpda``, cheap JPDA) weights with ``b = 1 - P_G P_D``.
-    ``norm_factor`` is ``(2 pi)^(n/2)``. Returns ``beta`` (T, M), ``beta0`` (T,), ``gated`` (T, M) bool and the gate
-    volumes (T,)."""
+    and summation order: seniority when some track is not ``confirmed`` (T,) (a tentative track only sees detections
+    no more senior track validated: confirmed first, then more ``seniority`` (T,), its hits; unless the detection's
+    resolved ``pair`` (M,) int64 is >= 0), the gate ``d2 <= gamma``, the gate volume ``vol_factor * mean sqrt|S|``
+    over the validated detections, the likelihoods ``P_D N(v; 0, S) V / M_t`` and the PDAF (or, ``jpda``, cheap
+    JPDA) weights with ``b = 1 - P_G P_D``. ``norm_factor`` is ``(2 pi)^(n/2)``. Returns ``beta`` (T, M), ``beta0``
+    (T,), ``gated`` (T, M) bool and the gate volumes (T,)."""
     cdef Py_ssize_t nt = d2.shape[0], nm = d2.shape[1], t, m
-    beta_a = np.empty((nt, nm))
-    beta0_a = np.empty(nt)
-    gated_a = np.empty((nt, nm), dtype=bool)
-    vol_a = np.empty(nt)
-    root_a = np.empty((nt, nm))
-    owner_a = np.empty(nm)
-    sm_a = np.zeros(nm)
-    buf_a = np.empty(max(nm, 1))
-    st_a = np.empty(nt)
-    cdef double[:, ::1] beta = beta_a
-    cdef double[::1] beta0 = beta0_a
-    cdef cnp.npy_bool[:, ::1] gated = gated_a
-    cdef double[::1] vol = vol_a
-    cdef double[:, ::1] root = root_a
-    cdef double[::1] owner = owner_a
-    cdef double[::1] sm = sm_a
-    cdef double[::1] buf = buf_a
-    cdef double[::1] st = st_a
+    cdef cnp.ndarray conf_a, sen_a, pair_a
+    cdef bint with_pairs = pair is not None
+    if det_s.shape[0] != nt or det_s.shape[1] != nm:
+        raise ValueError("associate_each: d2 and det_s differ in shape")
+    conf_a = confirmed if _column(confirmed, cnp.NPY_BOOL, nt) else np.ascontiguousarray(confirmed, dtype=bool)
+    if cnp.PyArray_NDIM(conf_a) != 1 or cnp.PyArray_DIMS(conf_a)[0] != nt:
+        raise ValueError("associate_each: one confirmed flag per track")
+    if _column(seniority, cnp.NPY_INT32, nt) or _column(seniority, cnp.NPY_INT64, nt) \
+            or _column(seniority, cnp.NPY_FLOAT64, nt):
+        sen_a = seniority
+    else:
+        sen_a = np.ascontiguousarray(seniority, dtype=np.float64)
+        if cnp.PyArray_NDIM(sen_a) != 1 or cnp.PyArray_DIMS(sen_a)[0] != nt:
+            raise ValueError("associate_each: one seniority per track")
+    if with_pairs:
+        pair_a = pair if _column(pair, cnp.NPY_INT64, nm) else np.ascontiguousarray(pair, dtype=np.int64)
+        if cnp.PyArray_NDIM(pair_a) != 1 or cnp.PyArray_DIMS(pair_a)[0] != nm:
+            raise ValueError("associate_each: one pair value per detection")
+    cdef int sen_type = cnp.PyArray_TYPE(sen_a)
+    cdef cnp.ndarray beta_a = np.empty((nt, nm))
+    cdef cnp.ndarray beta0_a = np.empty(nt)
+    cdef cnp.ndarray gated_a = np.empty((nt, nm), dtype=bool)
+    cdef cnp.ndarray vol_a = np.empty(nt)
+    cdef double* beta = _f64(beta_a)
+    cdef double* beta0 = _f64(beta0_a)
+    cdef cnp.npy_bool* gated = <cnp.npy_bool*> cnp.PyArray_DATA(gated_a)
+    cdef double* vol = _f64(vol_a)
+    # scratch: sqrt|S| (T, M), each detection's most senior rank and column sum (M), one row's validated roots (M),
+    # the row sums and the ranks (T)
+    cdef double* root = <double*> PyMem_Malloc((nt * nm + 3 * nm + 2 * nt + 1) * sizeof(double))
+    if root == NULL:
+        raise MemoryError()
+    cdef double* owner = root + nt * nm
+    cdef double* sm = owner + nm
+    cdef double* buf = sm + nm
+    cdef double* st = buf + nm + 1
+    cdef double* rank = st + nt
+    cdef const cnp.npy_bool* conf = <const cnp.npy_bool*> cnp.PyArray_BYTES(conf_a)
+    cdef Py_ssize_t conf_s = cnp.PyArray_STRIDES(conf_a)[0]
+    cdef const char* sen = cnp.PyArray_BYTES(sen_a)
+    cdef Py_ssize_t sen_s = cnp.PyArray_STRIDES(sen_a)[0]
+    cdef const char* pr = cnp.PyArray_BYTES(pair_a) if with_pairs else NULL
+    cdef Py_ssize_t pr_s = cnp.PyArray_STRIDES(pair_a)[0] if with_pairs else 0
+    cdef bint seniority_on = False
     cdef long long k
     cdef double scale, mean_root, lik, q
     with nogil:
-        if seniority:  # the most senior rank among the tracks that validated each detection
+        for t in range(nt):
+            if conf[t * conf_s]:
+                rank[t] = INFINITY
+            else:
+                seniority_on = True
+                if sen_type == cnp.NPY_INT32:
+                    rank[t] = <double> (<const cnp.int32_t*> (sen + t * sen_s))[0]
+                elif sen_type == cnp.NPY_INT64:
+                    rank[t] = <double> (<const cnp.int64_t*> (sen + t * sen_s))[0]
+                else:
+                    rank[t] = (<const double*> (sen + t * sen_s))[0]
+        for m in range(nm):
+            sm[m] = 0.0
+        if seniority_on:  # the most senior rank among the tracks that validated each detection
             for m in range(nm):
                 owner[m] = -INFINITY
             for t in range(nt):
@@ -488,38 +541,40 @@ def associate_each(const double[:, ::1] d2, const double[:, ::1] det_s, double g
         for t in range(nt):
             k = 0
             for m in range(nm):
-                gated[t, m] = d2[t, m] <= gamma and (not seniority or confirmed[t] or rank[t] >= owner[m]
-                                                     or (with_pairs and pair_ok[m]))
-                k += gated[t, m]
-                root[t, m] = sqrt(det_s[t, m])
-                buf[m] = root[t, m] * (1.0 if gated[t, m] else 0.0)
+                gated[t * nm + m] = d2[t, m] <= gamma and (
+                    not seniority_on or conf[t * conf_s] or rank[t] >= owner[m]
+                    or (with_pairs and (<const cnp.int64_t*> (pr + m * pr_s))[0] >= 0))
+                k += gated[t * nm + m]
+                root[t * nm + m] = sqrt(det_s[t, m])
+                buf[m] = root[t * nm + m] * (1.0 if gated[t * nm + m] else 0.0)
             if k > 0:
-                mean_root = _pairwise_sum(&buf[0], nm) / <double> k
+                mean_root = _pairwise_sum(buf, nm) / <double> k
             else:
-                mean_root = _pairwise_sum(&root[t, 0], nm) / <double> nm
+                mean_root = _pairwise_sum(&root[t * nm], nm) / <double> nm
             vol[t] = vol_factor * mean_root
             scale = prob_detect * vol[t] / <double> (k if k > 1 else 1)
             for m in range(nm):
-                if gated[t, m]:
+                if gated[t * nm + m]:
                     q = d2[t, m]
                     q = q if q <= gamma or q != q else gamma  # np.minimum(d2, gamma)
-                    beta[t, m] = exp(-0.5 * q) * scale / (norm_factor * root[t, m])
+                    beta[t * nm + m] = exp(-0.5 * q) * scale / (norm_factor * root[t * nm + m])
                 else:
-                    beta[t, m] = 0.0
-                sm[m] = sm[m] + beta[t, m]
-            st[t] = _pairwise_sum(&beta[t, 0], nm)
+                    beta[t * nm + m] = 0.0
+                sm[m] = sm[m] + beta[t * nm + m]
+            st[t] = _pairwise_sum(&beta[t * nm], nm)
         if nm == 1:  # numpy reduces a single column pairwise (its only axis left), not row after row
-            sm[0] = _pairwise_sum(&beta[0, 0], nt)
+            sm[0] = _pairwise_sum(beta, nt)
         for t in range(nt):
             if jpda:
                 for m in range(nm):
-                    lik = beta[t, m]
-                    beta[t, m] = lik / (st[t] + sm[m] - lik + b)
-                beta0[t] = 1.0 - _pairwise_sum(&beta[t, 0], nm)
+                    lik = beta[t * nm + m]
+                    beta[t * nm + m] = lik / (st[t] + sm[m] - lik + b)
+                beta0[t] = 1.0 - _pairwise_sum(&beta[t * nm], nm)
             else:
                 for m in range(nm):
-                    beta[t, m] = beta[t, m] / (b + st[t])
+                    beta[t * nm + m] = beta[t * nm + m] / (b + st[t])
                 beta0[t] = b / (b + st[t])
+    PyMem_Free(root)
     return beta_a, beta0_a, gated_a, vol_a
 
 
@@ -560,9 +615,9 @@ cdef inline void _moment_match_row(const double* xm, const double* pm, double w0
             p[4 * i + j] = w0 * pm[4 * i + j] + w1 * pm[16 + 4 * i + j] + d[i] * d[j]
 
 
-def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const double[:, ::1] mu,
+def imm_predict(const double[:, :, :] xm, const double[:, :, :, :] pm, const double[:, :] mu,
                 const double[:, :, ::1] pi, const double[:, :, ::1] f, const double[:, :, ::1] q,
-                const double[:, ::1] x_far=None, double far_from_m=0.0, double far_span_m=1.0,
+                const double[:, :] x_far=None, double far_from_m=0.0, double far_span_m=1.0,
                 double log_p_near=0.0, double log_p_far=0.0):
     """IMM mixing, mode-matched prediction and moment matching of all tracks (:func:`edge.track.imm.mix`,
     :func:`edge.track.imm.predict_modes`, :func:`edge.track.imm.moment_match`): ``xm`` (T, 2, 4), ``pm``
@@ -579,16 +634,21 @@ def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const
     cdef double u, pk
     if far and (x_far.shape[0] != nt or x_far.shape[1] < 2):
         raise ValueError("imm_predict: x_far must be (T, 4)")
-    x_a = np.empty((nt, 4))
-    p_a = np.empty((nt, 4, 4))
-    xpm_a = np.empty((nt, 2, 4))
-    ppm_a = np.empty((nt, 2, 4, 4))
-    c_a = np.empty((nt, 2))
-    cdef double[:, ::1] x = x_a
-    cdef double[:, :, ::1] p = p_a
-    cdef double[:, :, ::1] xpm = xpm_a
-    cdef double[:, :, :, ::1] ppm = ppm_a
-    cdef double[:, ::1] c = c_a
+    if xm.shape[1] != 2 or xm.shape[2] != 4 or pm.shape[0] != nt or pm.shape[1] != 2 or pm.shape[2] != 4 \
+            or pm.shape[3] != 4 or mu.shape[0] != nt or mu.shape[1] != 2 or pi.shape[1] != 2 or pi.shape[2] != 2 \
+            or (pi.shape[0] != 1 and pi.shape[0] != nt) or f.shape[0] != 2 or q.shape[0] != 2 or f.shape[1] != 4 \
+            or f.shape[2] != 4 or q.shape[1] != 4 or q.shape[2] != 4:
+        raise ValueError("imm_predict: inconsistent shapes")
+    cdef cnp.ndarray x_a = np.empty((nt, 4))
+    cdef cnp.ndarray p_a = np.empty((nt, 4, 4))
+    cdef cnp.ndarray xpm_a = np.empty((nt, 2, 4))
+    cdef cnp.ndarray ppm_a = np.empty((nt, 2, 4, 4))
+    cdef cnp.ndarray c_a = np.empty((nt, 2))
+    cdef double* x = _f64(x_a)
+    cdef double* p = _f64(p_a)
+    cdef double* xpm = _f64(xpm_a)
+    cdef double* ppm = _f64(ppm_a)
+    cdef double* c = _f64(c_a)
     cdef double w[2][2]
     cdef double joint[2][2]
     cdef double x0[4]
@@ -614,8 +674,8 @@ def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const
                 for j in range(2):
                     joint[i][j] = mu[t, i] * pi_t[i][j]
             for j in range(2):
-                c[t, j] = joint[0][j] + joint[1][j]
-                den = _max_nan(c[t, j], 1e-300)
+                c[2 * t + j] = joint[0][j] + joint[1][j]
+                den = _max_nan(c[2 * t + j], 1e-300)
                 for i in range(2):
                     w[i][j] = joint[i][j] / den
             for k in range(4):
@@ -631,7 +691,7 @@ def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const
                     acc = 0.0
                     for l in range(4):
                         acc = acc + f[mode, k, l] * x0[l]
-                    xpm[t, mode, k] = acc
+                    xpm[8 * t + 4 * mode + k] = acc
                 for k in range(4):
                     for l in range(4):
                         acc = 0.0
@@ -643,9 +703,53 @@ def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const
                         acc = 0.0
                         for i in range(4):
                             acc = acc + fp[k][i] * f[mode, l, i]
-                        ppm[t, mode, k, l] = acc + q[mode, k, l]
-            _moment_match_row(&xpm[t, 0, 0], &ppm[t, 0, 0, 0], c[t, 0], c[t, 1], &x[t, 0], &p[t, 0, 0])
+                        ppm[32 * t + 16 * mode + 4 * k + l] = acc + q[mode, k, l]
+            _moment_match_row(&xpm[8 * t], &ppm[32 * t], c[2 * t], c[2 * t + 1], &x[4 * t], &p[16 * t])
     return x_a, p_a, xpm_a, ppm_a, c_a
+
+
+def keep_model_into(double[:, :, ::1] f, double[:, :, ::1] q, double dt, double yaw, double tau, double q_across,
+                    double q_along, double d3, double d2):
+    """Write :func:`edge.track.imm.keep_model` ``(dt, yaw, tau, q_across, q_along)`` into ``f[0]`` and ``q[0]`` (each
+    (4, 4)) with its operations; ``d3``, ``d2``: ``dt**3 / 3`` and ``dt**2 / 2`` as Python computes them."""
+    if f.shape[0] < 1 or q.shape[0] < 1 or f.shape[1] != 4 or f.shape[2] != 4 or q.shape[1] != 4 or q.shape[2] != 4:
+        raise ValueError("keep_model_into: f and q must be (k, 4, 4)")
+    cdef double c = cos(yaw), s = sin(yaw)
+    cdef double decay = exp(-dt / tau) if tau > 0 else 1.0
+    cdef double cc = c * c, ss = s * s, cs = c * s
+    cdef double p00 = cc * decay + ss, p01 = cs * (decay - 1.0), p11 = ss * decay + cc
+    cdef double a00 = cc * q_across + ss * q_along
+    cdef double a01 = cs * (q_across - q_along)
+    cdef double a11 = ss * q_across + cc * q_along
+    cdef double d1 = dt
+    cdef int i, j
+    for i in range(4):
+        for j in range(4):
+            f[0, i, j] = 0.0
+    f[0, 0, 0] = 1.0
+    f[0, 0, 2] = dt
+    f[0, 1, 1] = 1.0
+    f[0, 1, 3] = dt
+    f[0, 2, 2] = p00
+    f[0, 2, 3] = p01
+    f[0, 3, 2] = p01
+    f[0, 3, 3] = p11
+    q[0, 0, 0] = d3 * a00
+    q[0, 0, 1] = d3 * a01
+    q[0, 0, 2] = d2 * a00
+    q[0, 0, 3] = d2 * a01
+    q[0, 1, 0] = d3 * a01
+    q[0, 1, 1] = d3 * a11
+    q[0, 1, 2] = d2 * a01
+    q[0, 1, 3] = d2 * a11
+    q[0, 2, 0] = d2 * a00
+    q[0, 2, 1] = d2 * a01
+    q[0, 2, 2] = d1 * a00
+    q[0, 2, 3] = d1 * a01
+    q[0, 3, 0] = d2 * a01
+    q[0, 3, 1] = d2 * a11
+    q[0, 3, 2] = d1 * a01
+    q[0, 3, 3] = d1 * a11
 
 
 def moment_match(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const double[:, ::1] w):
@@ -932,61 +1036,80 @@ cdef void _publish_rows(const double[:, :] x, const double[:, :, :] p, const cnp
                         double[:, ::1] out) noexcept:
     """:func:`publish_rows` into ``out`` (n, 15)."""
     cdef Py_ssize_t n = idx.shape[0], k, i
-    cdef int c_i
     cdef bint blend = False
-    cdef double p0 = 0.0, c, t, pr, w, xs, xr, rho, num, d, lat_sd, lo
+    cdef double p0 = 0.0
     if smoother:
         for k in range(n):
             if lat_cusum[idx[k]] != 0.0:
                 blend = True
                 break
-        t = cusum_threshold if cusum_threshold < 700.0 else 700.0
-        p0 = 1.0 / (1.0 + exp(t))
+        p0 = _blend_p0(cusum_threshold)
     for k in range(n):
         i = idx[k]
-        xr = x[i, 0]
-        out[k, 14] = xr
-        if smoother:
-            xs = lat[i, 0]
-            if blend:
-                t = cusum_threshold - lat_cusum[i]
-                if t > 700.0:
-                    t = 700.0
-                pr = 1.0 / (1.0 + exp(t))
-                w = (pr - p0) / (1.0 - p0)
-                xs = xs + w * (xr - xs)
-            out[k, 0] = xs
-        else:
-            out[k, 0] = xr
-        out[k, 1] = x[i, 1]
-        out[k, 2] = x[i, 2]
-        out[k, 3] = x[i, 3]
-        rho = hypot(out[k, 0], out[k, 1])
-        num = out[k, 0] * out[k, 2] + out[k, 1] * out[k, 3]
-        out[k, 4] = rho
-        out[k, 5] = num / rho if rho > 0.0 else 0.0
-        out[k, 6] = atan2(out[k, 0], out[k, 1])
-        if publish_length and hypot(out[k, 2], out[k, 3]) >= 1.0:
-            out[k, 7] = sqrt(12.0 * ext_var[i])
-            out[k, 8] = 1.0
-        else:
-            out[k, 7] = NAN
-            out[k, 8] = 0.0
-        for c_i in range(4):
-            d = p[i, c_i, c_i]
-            out[k, 9 + c_i] = sqrt(d if (d >= 0.0 or d != d) else 0.0)
-        if smoother:
-            d = lat_p[i, 0, 0]
-            lat_sd = sqrt(d if (d >= 0.0 or d != d) else 0.0)
-            out[k, 9] = _np_max(lat_sd, out[k, 9]) if lat_cusum[i] > 0.0 else lat_sd
-        lo = score[i]
-        if confirmed[i]:
-            lo = _np_max(lo, confirmed_log_odds)
-        if lo < -700.0:
-            lo = -700.0
-        elif lo > 700.0:
-            lo = 700.0
-        out[k, 13] = 1.0 / (1.0 + exp(-lo))
+        _publish_row(x[i, 0], x[i, 1], x[i, 2], x[i, 3], p[i, 0, 0], p[i, 1, 1], p[i, 2, 2], p[i, 3, 3],
+                     smoother, blend, p0, cusum_threshold, lat[i, 0] if smoother else 0.0,
+                     lat_p[i, 0, 0] if smoother else 0.0, lat_cusum[i] if smoother else 0.0, publish_length,
+                     ext_var[i], score[i], confirmed[i] != 0, confirmed_log_odds, &out[k, 0])
+
+
+cdef inline double _blend_p0(double cusum_threshold) noexcept nogil:
+    """The lateral blend's probability at a CUSUM of 0 (``kalman.lateral_blend``)."""
+    cdef double t = cusum_threshold if cusum_threshold < 700.0 else 700.0
+    return 1.0 / (1.0 + exp(t))
+
+
+cdef inline void _publish_row(double xr, double x1, double x2, double x3, double p00, double p11, double p22,
+                              double p33, bint smoother, bint blend, double p0, double cusum_threshold, double lat0,
+                              double lat_p00, double cusum, bint publish_length, double ext_var, double score,
+                              bint confirmed, double confirmed_log_odds, double* out) noexcept nogil:
+    """One published track's 15 numbers (:data:`PUBLISH_COLUMNS`) from its table row, as ``PdafTracker.published``
+    computes them."""
+    cdef int c_i
+    cdef double t, pr, w, xs, rho, num, d, lat_sd, lo
+    cdef double pd[4]
+    out[14] = xr
+    if smoother:
+        xs = lat0
+        if blend:
+            t = cusum_threshold - cusum
+            if t > 700.0:
+                t = 700.0
+            pr = 1.0 / (1.0 + exp(t))
+            w = (pr - p0) / (1.0 - p0)
+            xs = xs + w * (xr - xs)
+        out[0] = xs
+    else:
+        out[0] = xr
+    out[1] = x1
+    out[2] = x2
+    out[3] = x3
+    rho = hypot(out[0], out[1])
+    num = out[0] * out[2] + out[1] * out[3]
+    out[4] = rho
+    out[5] = num / rho if rho > 0.0 else 0.0
+    out[6] = atan2(out[0], out[1])
+    if publish_length and hypot(out[2], out[3]) >= 1.0:
+        out[7] = sqrt(12.0 * ext_var)
+        out[8] = 1.0
+    else:
+        out[7] = NAN
+        out[8] = 0.0
+    pd[0], pd[1], pd[2], pd[3] = p00, p11, p22, p33
+    for c_i in range(4):
+        d = pd[c_i]
+        out[9 + c_i] = sqrt(d if (d >= 0.0 or d != d) else 0.0)
+    if smoother:
+        d = lat_p00
+        lat_sd = sqrt(d if (d >= 0.0 or d != d) else 0.0)
+        out[9] = _np_max(lat_sd, out[9]) if cusum > 0.0 else lat_sd
+    lo = score
+    if confirmed:
+        lo = _np_max(lo, confirmed_log_odds)
+    if lo < -700.0:
+        lo = -700.0
+    elif lo > 700.0:
+        lo = 700.0
+    out[13] = 1.0 / (1.0 + exp(-lo))
 
 
 cdef inline double _np_min(double a, double b) noexcept nogil:
@@ -1250,8 +1373,8 @@ def mode_probabilities_match(const double[:, ::1] c, const double[:, ::1] lik, d
     return mu_a, x_a, p_a
 
 
-def reanchor_match(const double[:, ::1] x, const cnp.uint8_t[::1] confirmed, const cnp.uint8_t[::1] hit,
-                   const cnp.uint8_t[:, ::1] gated, const double[:, ::1] z, double speed_mps, bint receding_only,
+def reanchor_match(const double[:, :] x, const cnp.npy_bool[:] confirmed, const cnp.npy_bool[:] hit,
+                   const cnp.npy_bool[:, :] gated, const double[:, :] z, double speed_mps, bint receding_only,
                    double min_m, double max_m, double lateral_m):
     """The matches of ``edge.track.roles.post.Reanchor.run`` (the same operations): each confirmed track that
     missed (``confirmed``, ``hit`` (T,)) and the nearest detection no track validated (``gated`` (T, M)) that lies
@@ -1262,15 +1385,21 @@ def reanchor_match(const double[:, ::1] x, const cnp.uint8_t[::1] confirmed, con
     if confirmed.shape[0] != nt or hit.shape[0] != nt or gated.shape[0] != nt or gated.shape[1] != nm \
             or z.shape[1] < 3 or x.shape[1] < 4:
         raise ValueError("reanchor_match: x (T, 4), confirmed, hit (T,), gated (T, M), z (M, 3)")
-    i_a = np.empty(nt, dtype=np.int64)
-    j_a = np.empty(nt, dtype=np.int64)
-    free_a = np.ones(nm, dtype=np.uint8)
-    cdef cnp.int64_t[::1] io = i_a
-    cdef cnp.int64_t[::1] jo = j_a
-    cdef cnp.uint8_t[::1] free = free_a
+    for t in range(nt):  # the usual frame: no confirmed track missed
+        if confirmed[t] and not hit[t]:
+            break
+    else:
+        return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
+    cdef cnp.int64_t* io = <cnp.int64_t*> PyMem_Malloc((2 * nt + nm + 1) * sizeof(cnp.int64_t))
+    if io == NULL:
+        raise MemoryError()
+    cdef cnp.int64_t* jo = io + nt
+    cdef cnp.int64_t* free = jo + nt
     cdef double rho_t, vr_t, nearer, best
     cdef Py_ssize_t arg
     with nogil:
+        for m in range(nm):
+            free[m] = 1
         for t in range(nt):
             for m in range(nm):
                 if gated[t, m]:
@@ -1295,7 +1424,12 @@ def reanchor_match(const double[:, ::1] x, const cnp.uint8_t[::1] confirmed, con
                 io[k] = t
                 jo[k] = arg
                 k += 1
-    return i_a[:k].copy(), j_a[:k].copy()
+    cdef cnp.ndarray i_a = np.empty(k, dtype=np.int64)
+    cdef cnp.ndarray j_a = np.empty(k, dtype=np.int64)
+    memcpy(cnp.PyArray_DATA(i_a), io, k * sizeof(cnp.int64_t))
+    memcpy(cnp.PyArray_DATA(j_a), jo, k * sizeof(cnp.int64_t))
+    PyMem_Free(io)
+    return i_a, j_a
 
 
 def delete_tests(const double[:, :] x, const double[:, :, :] p, const cnp.int32_t[:] misses, const double[:] ext_var,
@@ -1595,7 +1729,6 @@ def confirm_ready(const double[:, :] x, const cnp.uint32_t[:] history, const cnp
     return out
 
 
-from libc.string cimport memcpy
 
 
 cdef inline bint _plain(cnp.ndarray a):
@@ -1733,6 +1866,127 @@ def publish_states(type cls, const double[:, :] x, const double[:, :, :] p, cons
         PyObject_GenericSetAttr(o, "__dict__", d)
         out.append(o)
     return tuple(out), num_arr
+
+
+cdef struct _Col:
+    # a column of the track table: element (i, j, k) at data + i * s0 + j * s1 + k * s2
+    const char* data
+    Py_ssize_t s0, s1, s2
+
+
+cdef bint _table_col(object tr, str name, int type_num, Py_ssize_t n, Py_ssize_t d1, Py_ssize_t d2,
+                     _Col* out) except -1:
+    """``tr.<name>`` as a column of ``n`` rows of ``type_num`` in native byte order, aligned, of row shape ``()``
+    (``d1`` 0), ``(d1,)`` (``d2`` 0) or ``(d1, d2)``; False when it is not one."""
+    cdef object a = getattr(tr, name)
+    cdef cnp.ndarray arr
+    cdef int nd = 1 + (d1 > 0) + (d2 > 0)
+    if not _column_nd(a, type_num, nd):
+        return False
+    arr = <cnp.ndarray> a
+    if cnp.PyArray_DIMS(arr)[0] != n or (d1 and cnp.PyArray_DIMS(arr)[1] != d1) \
+            or (d2 and cnp.PyArray_DIMS(arr)[2] != d2):
+        return False
+    out.data = cnp.PyArray_BYTES(arr)
+    out.s0 = cnp.PyArray_STRIDES(arr)[0]
+    out.s1 = cnp.PyArray_STRIDES(arr)[1] if nd > 1 else 0
+    out.s2 = cnp.PyArray_STRIDES(arr)[2] if nd > 2 else 0
+    return True
+
+
+cdef inline bint _column_nd(object a, int type_num, int nd):
+    """``a`` is an ``nd``-dimensional aligned array of ``type_num`` in native byte order."""
+    cdef cnp.ndarray arr
+    if not cnp.PyArray_Check(a):
+        return False
+    arr = <cnp.ndarray> a
+    return (cnp.PyArray_NDIM(arr) == nd and cnp.PyArray_TYPE(arr) == type_num and cnp.PyArray_ISNOTSWAPPED(arr)
+            and cnp.PyArray_ISALIGNED(arr))
+
+
+cdef inline double _f64_at(_Col c, Py_ssize_t i, Py_ssize_t j, Py_ssize_t k) noexcept nogil:
+    return (<const double*> (c.data + i * c.s0 + j * c.s1 + k * c.s2))[0]
+
+
+cdef inline cnp.int32_t _i32_at(_Col c, Py_ssize_t i) noexcept nogil:
+    return (<const cnp.int32_t*> (c.data + i * c.s0))[0]
+
+
+def publish_table(type cls, tr, bint tentative, long max_misses, bint smoother, double cusum_threshold,
+                  bint publish_length, double confirmed_log_odds):
+    """:meth:`edge.track.tracker.PdafTracker.published` read straight from the track table ``tr``: the rows with at
+    most ``max_misses`` misses (confirmed ones only unless ``tentative``), in row order, as ``cls`` instances
+    (``TrackState``; the ``__dict__`` of :func:`publish_states`), and their motion-model x (n,) (None when no row is
+    published). None when a column of ``tr`` is not of the table's dtypes and shapes (``publish_states`` then)."""
+    if cls.__new__ is not object.__new__:
+        raise TypeError("publish_table: cls must be made by object.__new__")
+    cdef Py_ssize_t nt = len(tr), n = 0, k, i
+    cdef _Col x, p, lat, lat_p, lat_cusum, ext_var, score, confirmed, misses, track_id, age, hits
+    if not (_table_col(tr, "x", cnp.NPY_FLOAT64, nt, 4, 0, &x) and _table_col(tr, "p", cnp.NPY_FLOAT64, nt, 4, 4, &p)
+            and _table_col(tr, "lat", cnp.NPY_FLOAT64, nt, 2, 0, &lat)
+            and _table_col(tr, "lat_p", cnp.NPY_FLOAT64, nt, 2, 2, &lat_p)
+            and _table_col(tr, "lat_cusum", cnp.NPY_FLOAT64, nt, 0, 0, &lat_cusum)
+            and _table_col(tr, "ext_var", cnp.NPY_FLOAT64, nt, 0, 0, &ext_var)
+            and _table_col(tr, "score", cnp.NPY_FLOAT64, nt, 0, 0, &score)
+            and _table_col(tr, "confirmed", cnp.NPY_BOOL, nt, 0, 0, &confirmed)
+            and _table_col(tr, "misses", cnp.NPY_INT32, nt, 0, 0, &misses)
+            and _table_col(tr, "track_id", cnp.NPY_INT32, nt, 0, 0, &track_id)
+            and _table_col(tr, "age", cnp.NPY_INT32, nt, 0, 0, &age)
+            and _table_col(tr, "hits", cnp.NPY_INT32, nt, 0, 0, &hits)):
+        return None
+    cdef Py_ssize_t* rows = <Py_ssize_t*> PyMem_Malloc((nt + 1) * sizeof(Py_ssize_t))
+    if rows == NULL:
+        raise MemoryError()
+    cdef bint blend = False, conf
+    for i in range(nt):
+        if (tentative or confirmed.data[i * confirmed.s0]) and _i32_at(misses, i) <= max_misses:
+            rows[n] = i
+            n += 1
+            if smoother and _f64_at(lat_cusum, i, 0, 0) != 0.0:
+                blend = True
+    if n == 0:
+        PyMem_Free(rows)
+        return (), None
+    cdef double p0 = _blend_p0(cusum_threshold) if smoother else 0.0
+    cdef double num[15]
+    cdef cnp.ndarray mx_a = np.empty(n)
+    cdef double* mx = _f64(mx_a)
+    cdef list out = []
+    cdef dict d
+    for k in range(n):
+        i = rows[k]
+        conf = confirmed.data[i * confirmed.s0] != 0
+        _publish_row(_f64_at(x, i, 0, 0), _f64_at(x, i, 1, 0), _f64_at(x, i, 2, 0), _f64_at(x, i, 3, 0),
+                     _f64_at(p, i, 0, 0), _f64_at(p, i, 1, 1), _f64_at(p, i, 2, 2), _f64_at(p, i, 3, 3), smoother,
+                     blend, p0, cusum_threshold, _f64_at(lat, i, 0, 0) if smoother else 0.0,
+                     _f64_at(lat_p, i, 0, 0) if smoother else 0.0, _f64_at(lat_cusum, i, 0, 0) if smoother else 0.0,
+                     publish_length, _f64_at(ext_var, i, 0, 0), _f64_at(score, i, 0, 0), conf, confirmed_log_odds,
+                     num)
+        mx[k] = num[14]
+        o = ktr_new_instance(cls)
+        d = _STATE_DICT.copy()  # every key in field order; lane, cls, class_probability and rcs_dbsm stay None
+        d["track_id"] = _i32_at(track_id, i)
+        d["x_m"] = num[0]
+        d["y_m"] = num[1]
+        d["vx_mps"] = num[2]
+        d["vy_mps"] = num[3]
+        d["range_m"] = num[4]
+        d["radial_speed_mps"] = num[5]
+        d["az_rad"] = num[6]
+        d["age_frames"] = _i32_at(age, i)
+        d["hits"] = _i32_at(hits, i)
+        d["confirmed"] = True if conf else False
+        if num[8] != 0.0:
+            d["length_m"] = num[7]
+        d["x_sd_m"] = num[9]
+        d["y_sd_m"] = num[10]
+        d["vx_sd_mps"] = num[11]
+        d["vy_sd_mps"] = num[12]
+        d["existence_probability"] = num[13]
+        PyObject_GenericSetAttr(o, "__dict__", d)
+        out.append(o)
+    PyMem_Free(rows)
+    return tuple(out), mx_a
 
 
 def seed_states(const double[:, :] seeds, const double[:, :, :] r, bint with_rs, double cy, double sy, double var_u,

@@ -75,9 +75,17 @@ def test_innovations_each_into_reused_buffers_is_bit_identical():
                 shared.append(np.shares_memory(got.s, buf.views(1, 1, 1)[1]))
     assert all(shared) and len(shared) >= 8
     assert copy.deepcopy(buf)._flat is None and pickle.loads(pickle.dumps(buf))._flat is None
+    args = (np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((4, 2, 2)), np.zeros((4, 2, 2)), np.zeros((3, 2, 2)), 1.0,
+            False)
+    for bad in ((np.zeros(23), np.zeros(48), np.zeros(48)), (np.zeros(24), np.zeros(47), np.zeros(48)),
+                (np.zeros(24), np.zeros(48), np.zeros(48, np.float32)), (np.zeros(24), np.zeros(96)[::2], np.zeros(48)),
+                (np.zeros(24), np.zeros(48))):
+        with pytest.raises(ValueError, match="output buffer"):
+            K.innovations_each(*args, bad)
+    ro = np.zeros(48)
+    ro.flags.writeable = False
     with pytest.raises(ValueError, match="output buffer"):
-        K.innovations_each(np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((4, 2, 2)), np.zeros((4, 2, 2)),
-                           np.zeros((3, 2, 2)), 1.0, False, np.zeros((5, 3, 2)), None, None)
+        K.innovations_each(*args, (np.zeros(24), ro, np.zeros(48)))
     with pytest.raises(ValueError, match="inconsistent shapes"):
         K.innovations_each(np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((4, 2, 2)), np.zeros((3, 2, 2)),
                            np.zeros((3, 2, 2)), 1.0, False)
@@ -954,6 +962,50 @@ def test_imm_predict_with_far_switch_equals_numpy(seed):
     assert np.array_equal(got[4], c_ref)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_keep_model_into_is_identical(seed):
+    """``keep_model_into`` writes ``imm.keep_model``'s F and Q into the first mode bit for bit (yaw either side of the
+    boresight, no decay with tau 0) and leaves the other mode alone."""
+    from edge.track import imm
+
+    rng = np.random.default_rng(seed)
+    for _ in range(50):
+        dt, yaw = rng.uniform(0.001, 0.2), rng.uniform(-1.5, 1.5)
+        tau = 0.0 if rng.uniform() < 0.2 else rng.uniform(0.1, 10.0)
+        q_across, q_along = rng.uniform(0.0, 0.1), rng.uniform(0.0, 5.0)
+        f = rng.normal(0, 1, (2, 4, 4))
+        q = rng.normal(0, 1, (2, 4, 4))
+        other = f[1].copy(), q[1].copy()
+        K.keep_model_into(f, q, dt, yaw, tau, q_across, q_along, dt**3 / 3.0, dt**2 / 2.0)
+        f_ref, q_ref = imm.keep_model(dt, yaw, tau, q_across, q_along)
+        assert f[0].tobytes() == f_ref.tobytes() and q[0].tobytes() == q_ref.tobytes()
+        assert np.array_equal(f[1], other[0]) and np.array_equal(q[1], other[1])
+
+
+def test_imm_predict_takes_strided_tracks():
+    """The tracks' columns as views with strides (a table's rows, every other one): the same bits as contiguous."""
+    from edge.track import imm
+
+    rng = np.random.default_rng(3)
+    t = 30
+    xm = rng.normal(0, 5, (2 * t, 2, 4))
+    a = rng.normal(0, 1, (2 * t, 2, 4, 4))
+    pm = a @ a.swapaxes(-1, -2) + 0.01 * np.eye(4)
+    mu = rng.uniform(0.001, 1.0, (2 * t, 1))
+    mu = np.hstack([mu, 1.0 - mu])
+    x = rng.normal(0, 100, (2 * t, 4))
+    f = np.stack([imm.keep_model(0.033, 0.1, 3.0, 0.01, 2.0)[0], np.eye(4) + np.diag([0.033, 0.033], 2)])
+    q = np.stack([imm.keep_model(0.033, 0.1, 3.0, 0.01, 2.0)[1], 0.01 * np.eye(4)])
+    pi = np.ascontiguousarray(imm.switch_matrix(0.02, 0.1)[None])
+    far = (100.0, 120.0, math.log(0.02), math.log(0.002))
+    got = K.imm_predict(xm[::2], pm[::2], mu[::2], pi, f, q, x[::2], *far)
+    want = K.imm_predict(*(np.ascontiguousarray(c[::2]) for c in (xm, pm, mu)), pi, f, q,
+                         np.ascontiguousarray(x[::2]), *far)
+    assert all(g.tobytes() == w.tobytes() for g, w in zip(got, want))
+    with pytest.raises(ValueError, match="inconsistent shapes"):
+        K.imm_predict(xm[::2], pm[1::2][:-1], mu[::2], pi, f, q)
+
+
 @pytest.mark.parametrize("seed", range(6))
 @pytest.mark.parametrize("receding_only", [True, False])
 def test_reanchor_match_is_identical(seed, receding_only):
@@ -985,11 +1037,18 @@ def test_reanchor_match_is_identical(seed, receding_only):
     frame = SimpleNamespace(meas=SimpleNamespace(z=z), hyp=SimpleNamespace(gated=gated),
                             hit=gated.any(axis=1) | (rng.uniform(size=t) < 0.2))
     ref = role.matches(tracks, frame)
-    i, j = K.reanchor_match(x, tracks.confirmed.view(np.uint8), frame.hit.view(np.uint8), gated.view(np.uint8), z,
-                            cfg.reanchor_speed_mps, receding_only, cfg.reanchor_min_m, cfg.reanchor_m,
-                            role.box.cfg.merge_lateral_m)
+    i, j = K.reanchor_match(x, tracks.confirmed, frame.hit, gated, z, cfg.reanchor_speed_mps, receding_only,
+                            cfg.reanchor_min_m, cfg.reanchor_m, role.box.cfg.merge_lateral_m)
     assert ref is not None and ref[0].size >= 2  # the frame exercises the matching
-    assert np.array_equal(i, ref[0]) and np.array_equal(j, ref[1])
+    assert np.array_equal(i, ref[0]) and np.array_equal(j, ref[1]) and i.dtype == j.dtype == np.int64
+    # strided columns give the same rows; no missed confirmed track: empty int64 rows
+    i2, j2 = K.reanchor_match(np.repeat(x, 2, axis=1)[:, ::2], tracks.confirmed, frame.hit, gated,
+                              np.repeat(z, 2, axis=0)[::2], cfg.reanchor_speed_mps, receding_only, cfg.reanchor_min_m,
+                              cfg.reanchor_m, role.box.cfg.merge_lateral_m)
+    assert np.array_equal(i2, i) and np.array_equal(j2, j)
+    i0, j0 = K.reanchor_match(x, tracks.confirmed, np.ones(t, bool), gated, z, cfg.reanchor_speed_mps,
+                              receding_only, cfg.reanchor_min_m, cfg.reanchor_m, role.box.cfg.merge_lateral_m)
+    assert i0.shape == j0.shape == (0,) and i0.dtype == j0.dtype == np.int64
 
 
 def test_a_failing_measurements_kernel_is_not_hidden():
@@ -1170,6 +1229,24 @@ def test_published_states_are_bit_identical(monkeypatch, plain, smoother, length
         assert (fx is None and rx is None) or np.array_equal(fx, rx)
         n += len(ref)
     assert n > 20 * 30
+
+
+def test_published_from_strided_columns_is_bit_identical():
+    """``publish_table`` reads the track table's columns through their strides: every column a strided view (every
+    other row of a doubled array) gives numpy's TrackStates bit for bit."""
+    from edge.track.table import TrackTable
+
+    tr = PdafTracker(PdafConfig())
+    frames = list(road_frames(20, 45, clutter_per_frame=10.0, seed=13))
+    for t_ns, det in frames:
+        tr.step(det, t_ns)
+    for c in TrackTable._COLUMNS:
+        a = getattr(tr.tracks, c)
+        setattr(tr.tracks, c, np.repeat(a, 2, axis=0)[::2])
+    assert not tr.tracks.x.flags.c_contiguous
+    fast, ref, fx, rx = _published_both(tr)
+    assert len(ref) > 10 and [_state_bits(a) for a in fast] == [_state_bits(b) for b in ref]
+    assert np.array_equal(fx, rx)
 
 
 def _polar_points(rng, t):

@@ -80,20 +80,23 @@ class ImmPredictor(native.KernelUser):
             self._cached = (dt_s, None, np.stack([fm, fm]), np.stack([qm, qm]))
         _, cached_yaw, f, q = self._cached
         if cached_yaw != yaw_rad:  # the yaw estimate moves nearly every frame: only the keep mode is rebuilt
-            f[0], q[0] = imm.keep_model(dt_s, yaw_rad, c.imm_keep_tau_s, c.imm_keep_q_across_m2ps3, c.q_along_m2ps3)
+            if self.kernel is not None:  # keep_model's numbers written into f[0], q[0] (the same operations)
+                self.kernel.keep_model_into(f, q, dt_s, yaw_rad, c.imm_keep_tau_s, c.imm_keep_q_across_m2ps3,
+                                            c.q_along_m2ps3, dt_s**3 / 3.0, dt_s**2 / 2.0)
+            else:
+                f[0], q[0] = imm.keep_model(dt_s, yaw_rad, c.imm_keep_tau_s, c.imm_keep_q_across_m2ps3,
+                                            c.q_along_m2ps3)
             self._cached = (dt_s, yaw_rad, f, q)
         pi = self.pi
         far = c.imm_far_p_keep_to_manoeuvre < c.imm_p_keep_to_manoeuvre and len(tracks)
         if self.kernel is not None:  # switching, mixing, prediction and moment matching in one pass (to rounding)
-            a = np.ascontiguousarray
             if far:  # the switching matrices of _far_switch, built in the kernel
                 xp, pp, xpm, ppm, cj = self.kernel.imm_predict(
-                    a(tracks.xm), a(tracks.pm), a(tracks.mu), self._pi1, f, q, a(tracks.x), c.imm_far_from_m,
+                    tracks.xm, tracks.pm, tracks.mu, self._pi1, f, q, tracks.x, c.imm_far_from_m,
                     max(c.imm_far_to_m - c.imm_far_from_m, 1e-9), math.log(c.imm_p_keep_to_manoeuvre),
                     math.log(c.imm_far_p_keep_to_manoeuvre))
             else:
-                xp, pp, xpm, ppm, cj = self.kernel.imm_predict(a(tracks.xm), a(tracks.pm), a(tracks.mu),
-                                                                self._pi1, f, q)
+                xp, pp, xpm, ppm, cj = self.kernel.imm_predict(tracks.xm, tracks.pm, tracks.mu, self._pi1, f, q)
             return Prediction(xp, pp, xpm, ppm, cj)
         if far:
             pi = self._far_switch(np.hypot(tracks.x[:, 0], tracks.x[:, 1]))
