@@ -1343,6 +1343,39 @@ def polar_jacobian(const double[:, :] xy, double var_r, double var_az):
     return jd_a, j_a
 
 
+def imm_seeded(double[:, :] mu, double[:, :, :, :] pm, double[:, :, :] p, Py_ssize_t k, double w,
+               bint with_speed, double cy, double sy, double var_k, double speed_var,
+               const double[:] speed_vars=None):
+    """:meth:`edge.track.roles.predict.ImmPredictor.seeded` in place on the table's last ``k`` rows: the mode
+    probabilities ``(w, 1 - w)``; ``with_speed``: the lane-keeping mode's covariance with the road's speed variances
+    (``cy``, ``sy`` the road yaw's cosine and sine, ``var_k`` across, the seeds' ``speed_var`` along, or per seed
+    ``speed_vars`` (k,)) and the combined ``P = w P_keep + (1 - w) P``. The same operations as numpy."""
+    cdef Py_ssize_t nt = mu.shape[0], r, i, j
+    cdef double sv, pk[16]
+    if k < 0 or k > nt or pm.shape[0] != nt or p.shape[0] != nt or mu.shape[1] != 2 or pm.shape[1] != 2 \
+            or pm.shape[2] != 4 or pm.shape[3] != 4 or p.shape[1] != 4 or p.shape[2] != 4 \
+            or (speed_vars is not None and speed_vars.shape[0] != k):
+        raise ValueError("imm_seeded: inconsistent shapes")
+    for r in range(nt - k, nt):
+        mu[r, 0] = w
+        mu[r, 1] = 1.0 - w
+    if not with_speed:
+        return
+    for r in range(nt - k, nt):
+        sv = speed_vars[r - (nt - k)] if speed_vars is not None else speed_var
+        for i in range(4):
+            for j in range(4):
+                pk[4 * i + j] = p[r, i, j]
+        pk[10] = cy * cy * var_k + sy * sy * sv
+        pk[15] = sy * sy * var_k + cy * cy * sv
+        pk[11] = cy * sy * (var_k - sv)
+        pk[14] = pk[11]
+        for i in range(4):
+            for j in range(4):
+                pm[r, 0, i, j] = pk[4 * i + j]
+                p[r, i, j] = w * pk[4 * i + j] + (1.0 - w) * p[r, i, j]
+
+
 def mode_probabilities_match(const double[:, ::1] c, const double[:, ::1] lik, double floor,
                              const double[:, :, ::1] xm, const double[:, :, :, ::1] pm):
     """The IMM's step 4 and moment matching in one pass: ``mu`` (T, 2) of

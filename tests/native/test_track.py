@@ -982,6 +982,39 @@ def test_keep_model_into_is_identical(seed):
         assert np.array_equal(f[1], other[0]) and np.array_equal(q[1], other[1])
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_imm_seeded_is_identical(seed):
+    """``ImmPredictor.seeded`` with the ``imm_seeded`` kernel against its numpy lines on a table whose last rows are
+    new seeds: the mode probabilities, the lane-keeping mode's covariance and the combined one bit for bit, with one
+    speed variance for all seeds, one per seed, none (no radial speed) and the lateral speed sd off."""
+    import copy
+    from edge.track.config import MotionConfig
+    from edge.track.roles.predict import ImmPredictor
+    from edge.track.table import TrackTable
+
+    rng = np.random.default_rng(seed)
+    t, k = 12, 5
+    base = TrackTable()
+    a = rng.normal(0, 1, (t, 4, 4))
+    base.append(rng.normal(0, 30, (t, 4)), a @ a.swapaxes(-1, -2) + np.eye(4), 1.0)
+    for sigma in (0.5, 0.0):
+        pred = ImmPredictor(MotionConfig(imm_keep_init_lateral_speed_sigma_mps=sigma, imm_init_keep_prob=0.8))
+        assert pred.kernel is K
+        for speed_var in (2.25, rng.uniform(0.5, 9.0, k), None):
+            yaw = rng.uniform(-0.5, 0.5)
+            fast, ref = copy.deepcopy(base), copy.deepcopy(base)
+            pred.seeded(fast, k, yaw, speed_var)
+            pred.kernel = None
+            try:
+                pred.seeded(ref, k, yaw, speed_var)
+            finally:
+                pred.kernel = K
+            for c in ("mu", "pm", "p", "x", "xm"):
+                assert getattr(fast, c).tobytes() == getattr(ref, c).tobytes(), (c, sigma, speed_var)
+            assert not np.array_equal(fast.mu, base.mu)
+            assert (sigma == 0 or speed_var is None) == np.array_equal(fast.pm, base.pm)
+
+
 def test_imm_predict_takes_strided_tracks():
     """The tracks' columns as views with strides (a table's rows, every other one): the same bits as contiguous."""
     from edge.track import imm

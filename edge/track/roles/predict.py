@@ -111,8 +111,15 @@ class ImmPredictor(native.KernelUser):
         road), little speed across the road (``imm_keep_init_lateral_speed_sigma_mps``)."""
         c = self.cfg
         w = c.imm_init_keep_prob
+        with_speed = speed_var is not None and c.imm_keep_init_lateral_speed_sigma_mps > 0
+        if self.kernel is not None:  # the same operations in place, in one call
+            per_seed = isinstance(speed_var, np.ndarray)
+            self.kernel.imm_seeded(tracks.mu, tracks.pm, tracks.p, k, w, with_speed, math.cos(road_yaw_rad),
+                                   math.sin(road_yaw_rad), c.imm_keep_init_lateral_speed_sigma_mps**2,
+                                   0.0 if per_seed or not with_speed else speed_var, speed_var if per_seed else None)
+            return
         tracks.mu[-k:, 0], tracks.mu[-k:, 1] = w, 1.0 - w
-        if speed_var is None or c.imm_keep_init_lateral_speed_sigma_mps <= 0:
+        if not with_speed:
             return
         cy, sy = math.cos(road_yaw_rad), math.sin(road_yaw_rad)
         p0 = tracks.p[-k:]
