@@ -185,25 +185,38 @@ cdef inline double _max_nan(double a, double b) noexcept nogil:
     return a if a >= b else b
 
 
-def duplicate_pairs(const double[:, ::1] x, double merge_speed_mps, double merge_lateral_m,
+def duplicate_pairs(const double[:, :] x, double merge_speed_mps, double merge_lateral_m,
                     const double[::1] reach_m, double merge_lateral_speed_mps, const double[::1] pdx,
                     const double[::1] pdy, double state_gamma, const long long[::1] pair,
-                    const long long[::1] det, bint resolved):
+                    const long long[::1] det, bint resolved, const cnp.int32_t[:] close_run, long persist_frames):
     """The pair tests of :meth:`edge.track.roles.delete.TrackDeleter.duplicates` over all track pairs ``a < b``
     (row-major), with its arithmetic: velocities alike along the common heading (and not the two members of a
     resolved pair: ``pair``, ``det`` per track when ``resolved``); then a pair is *boxed* (within
     ``merge_lateral_m`` across and ``max(reach_a, reach_b)`` along) or, with lateral speeds alike, a candidate for the
     state test when its marginal distances pass (``dx^2 < gamma (pdx_a + pdx_b)``, the same in y).
 
-    Returns ``run`` (T,) bool (the track is in some boxed pair), the boxed pairs ``ba``, ``bb`` (B,) int64 with
-    ``bkeep`` (B,) bool (lateral speeds alike), and the state-test candidates ``ra``, ``rb`` (R,) with their state
-    differences ``rdx`` (R, 4)."""
-    cdef Py_ssize_t nt = x.shape[0], a, b, i
-    run_a = np.zeros(nt, dtype=bool)
-    cdef cnp.npy_bool[::1] run = run_a
-    cdef list boxed = [], rest = []
+    Returns the tracks' new ``close_run`` (T,) int32 (one more for a track in a boxed pair, else 0), the boxed pairs
+    that are duplicates ``ka``, ``kb`` (K,) int64 (lateral speeds alike, or both tracks boxed for
+    ``persist_frames``), and the state-test candidates ``ra``, ``rb`` (R,) with their state differences ``rdx``
+    (R, 4)."""
+    cdef Py_ssize_t nt = x.shape[0], a, b, i, nb = 0, nr = 0, nk = 0
+    cdef Py_ssize_t npairs = nt * (nt - 1) // 2 if nt > 1 else 0
+    if reach_m.shape[0] != nt or pdx.shape[0] != nt or pdy.shape[0] != nt or close_run.shape[0] != nt \
+            or x.shape[1] < 4 or (resolved and (pair.shape[0] != nt or det.shape[0] != nt)):
+        raise ValueError("duplicate_pairs: inconsistent shapes")
+    # per pair candidate: the boxed ones (a, b, keep) and the state-test ones (a, b); their differences (4)
+    cdef long long* bx = <long long*> PyMem_Malloc((5 * npairs + nt + 1) * sizeof(long long))
+    cdef double* rd = <double*> PyMem_Malloc((4 * npairs + 1) * sizeof(double))
+    if bx == NULL or rd == NULL:
+        PyMem_Free(bx)
+        PyMem_Free(rd)
+        raise MemoryError()
+    cdef long long* rx = bx + 3 * npairs
+    cdef long long* run = rx + 2 * npairs
     cdef double s0, s1, h, nrm, ux, uy, d0, d1, d2_, d3
     cdef bint is_boxed, keep
+    for a in range(nt):
+        run[a] = 0
     for a in range(nt):
         for b in range(a + 1, nt):
             s0 = x[a, 2] + x[b, 2]
@@ -223,17 +236,45 @@ def duplicate_pairs(const double[:, ::1] x, double merge_speed_mps, double merge
             keep = fabs(d2_ * uy - d3 * ux) < merge_lateral_speed_mps
             is_boxed = (fabs(d0) < merge_lateral_m) and (fabs(d1) < _max_nan(reach_m[a], reach_m[b]))
             if is_boxed:
-                run[a] = run[b] = True
-                boxed.append((a, b, keep))
+                run[a] = run[b] = 1
+                bx[3 * nb] = a
+                bx[3 * nb + 1] = b
+                bx[3 * nb + 2] = keep
+                nb += 1
             elif keep and d0 * d0 < state_gamma * (pdx[a] + pdx[b]) and d1 * d1 < state_gamma * (pdy[a] + pdy[b]):
-                rest.append((a, b, d0, d1, d2_, d3))
-    ba = np.array([q[0] for q in boxed], dtype=np.int64)
-    bb = np.array([q[1] for q in boxed], dtype=np.int64)
-    bkeep = np.array([q[2] for q in boxed], dtype=bool)
-    ra = np.array([q[0] for q in rest], dtype=np.int64)
-    rb = np.array([q[1] for q in rest], dtype=np.int64)
-    rdx = np.array([q[2:] for q in rest], dtype=np.float64).reshape(len(rest), 4)
-    return run_a, ba, bb, bkeep, ra, rb, rdx
+                rx[2 * nr] = a
+                rx[2 * nr + 1] = b
+                rd[4 * nr] = d0
+                rd[4 * nr + 1] = d1
+                rd[4 * nr + 2] = d2_
+                rd[4 * nr + 3] = d3
+                nr += 1
+    # the runs: one more frame in the box, else 0 (all 0 without a boxed pair); a boxed pair that lasted is kept
+    cdef cnp.ndarray run_a = np.empty(nt, dtype=np.int32)
+    cdef cnp.int32_t* cr = <cnp.int32_t*> cnp.PyArray_DATA(run_a)
+    for a in range(nt):
+        cr[a] = <cnp.int32_t> (<cnp.uint32_t> close_run[a] + 1u) if (nb and run[a]) else 0
+    for i in range(nb):
+        a, b = bx[3 * i], bx[3 * i + 1]
+        if bx[3 * i + 2] or (cr[a] if cr[a] < cr[b] else cr[b]) >= persist_frames:
+            bx[2 * nk] = a
+            bx[2 * nk + 1] = b
+            nk += 1
+    cdef cnp.ndarray ka = np.empty(nk, dtype=np.int64)
+    cdef cnp.ndarray kb = np.empty(nk, dtype=np.int64)
+    cdef cnp.ndarray ra = np.empty(nr, dtype=np.int64)
+    cdef cnp.ndarray rb = np.empty(nr, dtype=np.int64)
+    cdef cnp.ndarray rdx = np.empty((nr, 4))
+    for i in range(nk):
+        (<cnp.int64_t*> cnp.PyArray_DATA(ka))[i] = bx[2 * i]
+        (<cnp.int64_t*> cnp.PyArray_DATA(kb))[i] = bx[2 * i + 1]
+    for i in range(nr):
+        (<cnp.int64_t*> cnp.PyArray_DATA(ra))[i] = rx[2 * i]
+        (<cnp.int64_t*> cnp.PyArray_DATA(rb))[i] = rx[2 * i + 1]
+    memcpy(cnp.PyArray_DATA(rdx), rd, 4 * nr * sizeof(double))
+    PyMem_Free(bx)
+    PyMem_Free(rd)
+    return run_a, ka, kb, ra, rb, rdx
 
 
 cdef void _update_rows(const double* xs, const double* ps, const double* h, Py_ssize_t nr, Py_ssize_t n,

@@ -127,9 +127,16 @@ def _tables(rng, t):
 
 @pytest.mark.parametrize("seed", range(6))
 @pytest.mark.parametrize("t", [2, 3, 20, 64, 100])
-def test_duplicates_pair_test_is_identical(seed, t):
+@pytest.mark.parametrize("persist", [30, 2])
+def test_duplicates_pair_test_is_identical(seed, t, persist):
+    """The duplicate test with the kernel's pair tests and same-vehicle runs against numpy; with ``persist`` 2 the
+    runs (0 to 3 frames before this one) decide for boxed pairs whose lateral speeds differ."""
+    import dataclasses
+
     rng = np.random.default_rng(seed)
     deleter, tb = _tables(rng, t)
+    deleter.cfg = dataclasses.replace(deleter.cfg, merge_persist_frames=persist)
+    tb.x[rng.uniform(size=t) < 0.3, 2] += 3.0  # lateral speeds apart: boxed, yet two vehicles unless they persist
     assert deleter.kernel is K
     runs = tb.close_run.copy()
     pair = rng.integers(-1, 3, t)
