@@ -1846,6 +1846,125 @@ def concat_rows(list olds, list news):
     return out
 
 
+#: the track table's columns (``TrackTable._COLUMNS``' order): name, type number and row shape
+_TABLE_COLUMNS = (
+    ("x", cnp.NPY_FLOAT64, (4,)), ("p", cnp.NPY_FLOAT64, (4, 4)), ("track_id", cnp.NPY_INT32, ()),
+    ("age", cnp.NPY_INT32, ()), ("hits", cnp.NPY_INT32, ()), ("misses", cnp.NPY_INT32, ()),
+    ("history", cnp.NPY_UINT32, ()), ("confirmed", cnp.NPY_BOOL, ()), ("moved", cnp.NPY_BOOL, ()),
+    ("ext_var", cnp.NPY_FLOAT64, ()), ("close_run", cnp.NPY_INT32, ()), ("score", cnp.NPY_FLOAT64, ()),
+    ("xm", cnp.NPY_FLOAT64, (2, 4)), ("pm", cnp.NPY_FLOAT64, (2, 4, 4)), ("mu", cnp.NPY_FLOAT64, (2,)),
+    ("lat", cnp.NPY_FLOAT64, (2,)), ("lat_p", cnp.NPY_FLOAT64, (2, 2)), ("lat_cusum", cnp.NPY_FLOAT64, ()))
+
+
+def append_rows(tr, x, p, double ext_var, double keep_prob):
+    """:meth:`edge.track.table.TrackTable.append` of ``k`` tentative tracks at ``x`` (k, 4), ``p`` (k, 4, 4) float64
+    (any strides) to the table ``tr``: every column a new array, the old rows then the new ones (both IMM modes at the
+    state with the probabilities ``(keep_prob, 1 - keep_prob)``, the straight-line filter at its lateral part). True
+    when done; False (nothing changed) when a column or the states are not of the table's dtypes and shapes."""
+    cdef Py_ssize_t n, k, r, i, j, m, c, nd
+    cdef cnp.ndarray xa, pa, old, new
+    cdef cnp.npy_intp dims[5]
+    cdef const char* xb
+    cdef const char* pb
+    cdef Py_ssize_t xs0, xs1, ps0, ps1, ps2
+    cdef char* dst
+    cdef double* d
+    cdef cnp.int32_t* di
+    cdef int type_num
+    cdef tuple shape
+    if not (_column_nd(x, cnp.NPY_FLOAT64, 2) and _column_nd(p, cnp.NPY_FLOAT64, 3)):
+        return False
+    xa, pa = <cnp.ndarray> x, <cnp.ndarray> p
+    k = cnp.PyArray_DIMS(xa)[0]
+    if cnp.PyArray_DIMS(xa)[1] != 4 or cnp.PyArray_DIMS(pa)[0] != k or cnp.PyArray_DIMS(pa)[1] != 4 \
+            or cnp.PyArray_DIMS(pa)[2] != 4:
+        return False
+    cdef list olds = [getattr(tr, spec[0]) for spec in _TABLE_COLUMNS]
+    n = -1
+    for c in range(len(_TABLE_COLUMNS)):
+        type_num, shape = _TABLE_COLUMNS[c][1], _TABLE_COLUMNS[c][2]
+        if not (cnp.PyArray_Check(olds[c]) and _plain(<cnp.ndarray> olds[c])
+                and cnp.PyArray_ISNOTSWAPPED(<cnp.ndarray> olds[c])):
+            return False
+        old = <cnp.ndarray> olds[c]
+        if cnp.PyArray_TYPE(old) != type_num or cnp.PyArray_NDIM(old) != 1 + len(shape):
+            return False
+        for i in range(len(shape)):
+            if cnp.PyArray_DIMS(old)[1 + i] != shape[i]:
+                return False
+        if n < 0:
+            n = cnp.PyArray_DIMS(old)[0]
+        elif cnp.PyArray_DIMS(old)[0] != n:
+            return False
+    xb, xs0, xs1 = cnp.PyArray_BYTES(xa), cnp.PyArray_STRIDES(xa)[0], cnp.PyArray_STRIDES(xa)[1]
+    pb, ps0 = cnp.PyArray_BYTES(pa), cnp.PyArray_STRIDES(pa)[0]
+    ps1, ps2 = cnp.PyArray_STRIDES(pa)[1], cnp.PyArray_STRIDES(pa)[2]
+    for c in range(len(_TABLE_COLUMNS)):
+        old = <cnp.ndarray> olds[c]
+        nd = cnp.PyArray_NDIM(old)
+        for i in range(nd):
+            dims[i] = cnp.PyArray_DIMS(old)[i]
+        dims[0] = n + k
+        new = cnp.PyArray_EMPTY(<int> nd, dims, cnp.PyArray_TYPE(old), 0)
+        memcpy(cnp.PyArray_BYTES(new), cnp.PyArray_BYTES(old), cnp.PyArray_NBYTES(old))
+        dst = cnp.PyArray_BYTES(new) + cnp.PyArray_NBYTES(old)
+        d = <double*> dst
+        di = <cnp.int32_t*> dst
+        if c == 0:  # x
+            for r in range(k):
+                for j in range(4):
+                    d[4 * r + j] = (<const double*> (xb + r * xs0 + j * xs1))[0]
+        elif c == 1:  # p
+            for r in range(k):
+                for i in range(4):
+                    for j in range(4):
+                        d[16 * r + 4 * i + j] = (<const double*> (pb + r * ps0 + i * ps1 + j * ps2))[0]
+        elif c == 2 or c == 5 or c == 10:  # track_id, misses, close_run: 0
+            for r in range(k):
+                di[r] = 0
+        elif c == 3 or c == 4:  # age, hits: 1
+            for r in range(k):
+                di[r] = 1
+        elif c == 6:  # history: this frame hit
+            for r in range(k):
+                (<cnp.uint32_t*> dst)[r] = 1
+        elif c == 7 or c == 8:  # confirmed, moved
+            for r in range(k):
+                (<cnp.npy_bool*> dst)[r] = 0
+        elif c == 9:  # ext_var
+            for r in range(k):
+                d[r] = ext_var
+        elif c == 11 or c == 17:  # score, lat_cusum
+            for r in range(k):
+                d[r] = 0.0
+        elif c == 12:  # xm: both modes at the state
+            for r in range(k):
+                for m in range(2):
+                    for j in range(4):
+                        d[8 * r + 4 * m + j] = (<const double*> (xb + r * xs0 + j * xs1))[0]
+        elif c == 13:  # pm
+            for r in range(k):
+                for m in range(2):
+                    for i in range(4):
+                        for j in range(4):
+                            d[32 * r + 16 * m + 4 * i + j] = (<const double*> (pb + r * ps0 + i * ps1 + j * ps2))[0]
+        elif c == 14:  # mu
+            for r in range(k):
+                d[2 * r] = keep_prob
+                d[2 * r + 1] = 1.0 - keep_prob
+        elif c == 15:  # lat: x[:, 0::2]
+            for r in range(k):
+                d[2 * r] = (<const double*> (xb + r * xs0))[0]
+                d[2 * r + 1] = (<const double*> (xb + r * xs0 + 2 * xs1))[0]
+        elif c == 16:  # lat_p: p[:, 0::2, 0::2]
+            for r in range(k):
+                for i in range(2):
+                    for j in range(2):
+                        d[4 * r + 2 * i + j] = (<const double*> (pb + r * ps0 + 2 * i * ps1 + 2 * j * ps2))[0]
+        setattr(tr, _TABLE_COLUMNS[c][0], new)
+    return True
+
+
 def take_rows(list cols, const cnp.intp_t[::1] rows):
     """``[a.take(rows, axis=0) for a in cols]`` for row indices ``rows`` in ``0..len(a) - 1``: the rows copied into new
     arrays; an array that is not one block of rows goes to ``take``."""

@@ -91,7 +91,10 @@ class TrackTable:
     def append(self, x: np.ndarray, p: np.ndarray, ext_var: float, keep_prob: float = 0.5, kernel=None) -> None:
         """Add ``k`` tentative tracks at states ``x`` (k, 4), ``p`` (k, 4, 4): both IMM modes at the state with the
         probabilities ``(keep_prob, 1 - keep_prob)``, the straight-line filter at its lateral part. ``kernel``: the
-        compiled ``edge.native._track``, which joins every column in one call (the same arrays)."""
+        compiled ``edge.native._track``, which makes every column in one call (``append_rows``, the same arrays), or
+        joins them (``concat_rows``) when a column is not of the table's dtypes and shapes."""
+        if kernel is not None and kernel.append_rows(self, x, p, ext_var, keep_prob):  # every column in one call
+            return
         k = x.shape[0]
         zeros, ones, no, ones_u32, zeros_f, ext, mu = _new_rows(k, ext_var, keep_prob)
         new = (x, p, zeros, ones, ones, zeros, ones_u32, no, no, ext, zeros, zeros_f, x[:, None].repeat(2, axis=1),

@@ -1224,11 +1224,16 @@ def test_track_table_append_and_keep_with_the_kernel_are_identical():
     over a run of seeding and deleting."""
     from edge.track.table import TrackTable
 
+    assert tuple(c[0] for c in K._TABLE_COLUMNS) == TrackTable._COLUMNS
     rng = np.random.default_rng(3)
     fast, ref = TrackTable(), TrackTable()
     for step in range(40):
         k = int(rng.integers(0, 5))
         x, p = rng.normal(size=(k, 4)), rng.normal(size=(k, 4, 4))
+        if step % 3 == 1:  # strided and Fortran-ordered states, signed zeros and NaN
+            x, p = rng.normal(size=(k, 8))[:, ::2], np.asfortranarray(p)
+            if k:
+                x[0, 0], p[0, 2, 2] = -0.0, np.nan
         ext, keep_prob = float(rng.choice([1.0, 2.5])), float(rng.choice([0.5, 0.8]))
         fast.append(x, p, ext, keep_prob, kernel=K)
         ref.append(x, p, ext, keep_prob)
@@ -1240,6 +1245,14 @@ def test_track_table_append_and_keep_with_the_kernel_are_identical():
         for c in TrackTable._COLUMNS:
             assert _identical(getattr(fast, c), getattr(ref, c)), c
     assert len(ref) > 3
+    # a column of another dtype or byte order: append_rows declines, the columns are joined as numpy joins them
+    for other in (fast.score.astype(np.float32), fast.score.astype(">f8")):
+        fast.score, ref.score = other, other.copy()
+        assert not K.append_rows(fast, x, p, 1.0, 0.5)
+        fast.append(x, p, 1.0, kernel=K)
+        ref.append(x, p, 1.0)
+        for c in TrackTable._COLUMNS:
+            assert _identical(getattr(fast, c), getattr(ref, c)), c
 
 
 def _state_bits(s) -> list:
