@@ -205,12 +205,10 @@ def duplicate_pairs(const double[:, :] x, double merge_speed_mps, double merge_l
             or x.shape[1] < 4 or (resolved and (pair.shape[0] != nt or det.shape[0] != nt)):
         raise ValueError("duplicate_pairs: inconsistent shapes")
     # per pair candidate: the boxed ones (a, b, keep) and the state-test ones (a, b); their differences (4)
-    cdef long long* bx = <long long*> PyMem_Malloc((5 * npairs + nt + 1) * sizeof(long long))
-    cdef double* rd = <double*> PyMem_Malloc((4 * npairs + 1) * sizeof(double))
-    if bx == NULL or rd == NULL:
-        PyMem_Free(bx)
-        PyMem_Free(rd)
-        raise MemoryError()
+    cdef cnp.ndarray bx_a = np.empty(5 * npairs + nt + 1, dtype=np.int64)  # scratch (freed however the call ends)
+    cdef cnp.ndarray rd_a = np.empty(4 * npairs + 1)
+    cdef long long* bx = <long long*> cnp.PyArray_DATA(bx_a)
+    cdef double* rd = _f64(rd_a)
     cdef long long* rx = bx + 3 * npairs
     cdef long long* run = rx + 2 * npairs
     cdef double s0, s1, h, nrm, ux, uy, d0, d1, d2_, d3
@@ -272,8 +270,6 @@ def duplicate_pairs(const double[:, :] x, double merge_speed_mps, double merge_l
         (<cnp.int64_t*> cnp.PyArray_DATA(ra))[i] = rx[2 * i]
         (<cnp.int64_t*> cnp.PyArray_DATA(rb))[i] = rx[2 * i + 1]
     memcpy(cnp.PyArray_DATA(rdx), rd, 4 * nr * sizeof(double))
-    PyMem_Free(bx)
-    PyMem_Free(rd)
     return run_a, ka, kb, ra, rb, rdx
 
 
@@ -1464,9 +1460,8 @@ def reanchor_match(const double[:, :] x, const cnp.npy_bool[:] confirmed, const 
             break
     else:
         return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
-    cdef cnp.int64_t* io = <cnp.int64_t*> PyMem_Malloc((2 * nt + nm + 1) * sizeof(cnp.int64_t))
-    if io == NULL:
-        raise MemoryError()
+    cdef cnp.ndarray scratch = np.empty(2 * nt + nm + 1, dtype=np.int64)  # freed however the call ends
+    cdef cnp.int64_t* io = <cnp.int64_t*> cnp.PyArray_DATA(scratch)
     cdef cnp.int64_t* jo = io + nt
     cdef cnp.int64_t* free = jo + nt
     cdef double rho_t, vr_t, nearer, best
@@ -1502,7 +1497,6 @@ def reanchor_match(const double[:, :] x, const cnp.npy_bool[:] confirmed, const 
     cdef cnp.ndarray j_a = np.empty(k, dtype=np.int64)
     memcpy(cnp.PyArray_DATA(i_a), io, k * sizeof(cnp.int64_t))
     memcpy(cnp.PyArray_DATA(j_a), jo, k * sizeof(cnp.int64_t))
-    PyMem_Free(io)
     return i_a, j_a
 
 
@@ -2127,9 +2121,8 @@ def publish_table(type cls, tr, bint tentative, long max_misses, bint smoother, 
             and _table_col(tr, "age", cnp.NPY_INT32, nt, 0, 0, &age)
             and _table_col(tr, "hits", cnp.NPY_INT32, nt, 0, 0, &hits)):
         return None
-    cdef Py_ssize_t* rows = <Py_ssize_t*> PyMem_Malloc((nt + 1) * sizeof(Py_ssize_t))
-    if rows == NULL:
-        raise MemoryError()
+    cdef cnp.ndarray rows_a = np.empty(nt, dtype=np.intp)  # scratch (freed however the call ends)
+    cdef Py_ssize_t* rows = <Py_ssize_t*> cnp.PyArray_DATA(rows_a)
     cdef bint blend = False, conf
     for i in range(nt):
         if (tentative or confirmed.data[i * confirmed.s0]) and _i32_at(misses, i) <= max_misses:
@@ -2138,7 +2131,6 @@ def publish_table(type cls, tr, bint tentative, long max_misses, bint smoother, 
             if smoother and _f64_at(lat_cusum, i, 0, 0) != 0.0:
                 blend = True
     if n == 0:
-        PyMem_Free(rows)
         return (), None
     cdef double p0 = _blend_p0(cusum_threshold) if smoother else 0.0
     cdef double num[15]
@@ -2178,7 +2170,6 @@ def publish_table(type cls, tr, bint tentative, long max_misses, bint smoother, 
         d["existence_probability"] = num[13]
         PyObject_GenericSetAttr(o, "__dict__", d)
         out.append(o)
-    PyMem_Free(rows)
     return tuple(out), mx_a
 
 
