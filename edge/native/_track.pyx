@@ -15,6 +15,9 @@ The numpy references are in :mod:`edge.track.pdaf` (``innovations_each``, ``maha
 
 import numpy as np
 cimport numpy as cnp
+from cpython.mem cimport PyMem_Malloc, PyMem_Free
+from libc.string cimport memcpy
+from libc.math cimport M_PI, pow, cos, sin
 
 cnp.import_array()
 
@@ -61,35 +64,55 @@ cdef inline double _quad2(const double* si, const double* v) noexcept nogil:
     return acc
 
 
-cdef object _checked_out(object a, tuple shape):
-    """``a`` if it is a C-contiguous float64 array of ``shape`` (the kernels index without bounds checks)."""
-    if not isinstance(a, np.ndarray) or a.dtype != np.float64 or tuple(a.shape) != shape \
-            or not a.flags.c_contiguous or not a.flags.writeable:
-        raise ValueError(f"output buffer must be a writeable C-contiguous float64 array of shape {shape}")
-    return a
+cdef cnp.ndarray _view(object flat, Py_ssize_t t, Py_ssize_t m, Py_ssize_t n, int nd):
+    """A C-contiguous float64 view (t, m, n) (``nd`` 3) or (t, m, n, n) (``nd`` 4) of the start of ``flat``, a
+    writeable C-contiguous float64 vector at least that long; or a new array when ``flat`` is None."""
+    cdef cnp.npy_intp dims[4]
+    cdef cnp.ndarray base, out
+    dims[0], dims[1], dims[2], dims[3] = t, m, n, n
+    if flat is None:
+        return cnp.PyArray_EMPTY(nd, dims, cnp.NPY_FLOAT64, 0)
+    if not (_column(flat, cnp.NPY_FLOAT64, -1) and cnp.PyArray_ISCARRAY(<cnp.ndarray> flat)
+            and cnp.PyArray_DIMS(<cnp.ndarray> flat)[0] >= t * m * n * (n if nd == 4 else 1)):
+        raise ValueError(f"output buffer must be a writeable C-contiguous float64 vector of at least "
+                         f"{t * m * n * (n if nd == 4 else 1)} values")
+    base = <cnp.ndarray> flat
+    out = cnp.PyArray_SimpleNewFromData(nd, dims, cnp.NPY_FLOAT64, cnp.PyArray_DATA(base))
+    cnp.set_array_base(out, base)
+    return out
 
 
-def innovations_each(const double[:, ::1] z, const double[:, ::1] zh, const double[:, :, ::1] st,
-                     const double[:, :, ::1] rm, double lim, bint prune, v_out=None, s_out=None, si_out=None):
-    """``v`` (T, M, n), ``d2`` (T, M), ``s``, ``s_inv`` (T, M, n, n), ``det_s`` (T, M) of
-    :func:`edge.track.pdaf.innovations_each` from ``z`` (M, n), ``z_hat`` (T, n), the track part ``st`` (T, n, n)
-    (``H P H' + R_t``, symmetrised) and ``rm`` (M, n, n). ``prune``: the exact pre-gate with threshold ``lim``
+def innovations_each(const double[:, :] z, const double[:, :] zh, const double[:, :, :] hph,
+                     const double[:, :, :] r_track, const double[:, :, ::1] rm, double lim, bint prune,
+                     buffers=None):
+    """``v`` (T, M, n), ``d2`` (T, M), ``s``, ``s_inv`` (T, M, n, n), ``det_s`` (T, M) and the track part ``st``
+    (T, n, n) of :func:`edge.track.pdaf.innovations_each` from ``z`` (M, n), ``z_hat`` (T, n), ``H P H'`` ``hph``
+    (T, n, n), the track's part of ``R`` ``r_track`` (T, n, n) and ``rm`` (M, n, n): ``st = 0.5 (a + a')`` with
+    ``a = hph + r_track``, as numpy. ``prune``: the exact pre-gate with threshold ``lim``
     (``gamma (1 + margin)``): a pair with ``v_i^2 > lim (st_ii + rm_ii)`` in a component gets ``d2 = inf``,
-    ``S = S^-1 = 0``, ``|S| = 1``. n = 2 or 3. ``v_out``, ``s_out``, ``si_out``: C-contiguous float64 arrays of the
-    shapes of ``v``, ``s``, ``s_inv`` to write them into (every entry is written) and return, or None: new arrays."""
+    ``S = S^-1 = 0``, ``|S| = 1``. n = 2 or 3. ``buffers``: three writeable C-contiguous float64 vectors whose
+    starts become ``v``, ``s`` and ``s_inv`` (every entry is written; :class:`edge.track.pdaf.PairBuffers`), or
+    None: new arrays."""
     cdef Py_ssize_t nt = zh.shape[0], nm = z.shape[0], n = z.shape[1]
-    cdef Py_ssize_t t, m, i, nn = n * n
-    v_a = np.empty((nt, nm, n)) if v_out is None else _checked_out(v_out, (nt, nm, n))
-    d2_a = np.empty((nt, nm))
-    # every entry is written below (np.zeros would clear them all first)
-    s_a = np.empty((nt, nm, n, n)) if s_out is None else _checked_out(s_out, (nt, nm, n, n))
-    si_a = np.empty((nt, nm, n, n)) if si_out is None else _checked_out(si_out, (nt, nm, n, n))
-    det_a = np.empty((nt, nm))
-    cdef double[:, :, ::1] v = v_a
-    cdef double[:, ::1] d2 = d2_a
-    cdef double[:, :, :, ::1] s = s_a
-    cdef double[:, :, :, ::1] si = si_a
-    cdef double[:, ::1] det = det_a
+    cdef Py_ssize_t t, m, i, j, nn = n * n, tm
+    if not 2 <= n <= 3 or zh.shape[1] != n or hph.shape[0] != nt or r_track.shape[0] != nt or rm.shape[0] != nm \
+            or hph.shape[1] != n or hph.shape[2] != n or r_track.shape[1] != n or r_track.shape[2] != n \
+            or rm.shape[1] != n or rm.shape[2] != n:
+        raise ValueError("innovations_each: inconsistent shapes")
+    if buffers is not None and len(buffers) != 3:
+        raise ValueError("output buffer: three vectors (v, s, s_inv)")
+    cdef cnp.ndarray v_a = _view(None if buffers is None else buffers[0], nt, nm, n, 3)
+    cdef cnp.ndarray s_a = _view(None if buffers is None else buffers[1], nt, nm, n, 4)
+    cdef cnp.ndarray si_a = _view(None if buffers is None else buffers[2], nt, nm, n, 4)
+    cdef cnp.ndarray st_a = np.empty((nt, n, n))
+    cdef cnp.ndarray d2_a = np.empty((nt, nm))
+    cdef cnp.ndarray det_a = np.empty((nt, nm))
+    cdef double* st = _f64(st_a)
+    cdef double* v = _f64(v_a)
+    cdef double* d2 = _f64(d2_a)
+    cdef double* s_ = _f64(s_a)
+    cdef double* si = _f64(si_a)
+    cdef double* det = _f64(det_a)
     cdef double* sp
     cdef double* sip
     cdef const double* stp
@@ -99,36 +122,41 @@ def innovations_each(const double[:, ::1] z, const double[:, ::1] zh, const doub
     cdef double inf = float("inf")
     with nogil:
         for t in range(nt):
+            for i in range(n):
+                for j in range(n):
+                    st[(t * n + i) * n + j] = 0.5 * ((hph[t, i, j] + r_track[t, i, j])
+                                                     + (hph[t, j, i] + r_track[t, j, i]))
+        for t in range(nt):
+            stp = &st[t * nn]
             for m in range(nm):
-                vp = &v[t, m, 0]
+                tm = t * nm + m
+                vp = &v[tm * n]
+                sp = &s_[tm * nn]
+                sip = &si[tm * nn]
                 for i in range(n):
                     vp[i] = z[m, i] - zh[t, i]
                 if prune:
                     far = False
                     for i in range(n):
-                        if vp[i] * vp[i] > lim * (st[t, i, i] + rm[m, i, i]):
+                        if vp[i] * vp[i] > lim * (stp[i * n + i] + rm[m, i, i]):
                             far = True
                     if far:
-                        d2[t, m] = inf
-                        det[t, m] = 1.0
-                        sp = &s[t, m, 0, 0]
-                        sip = &si[t, m, 0, 0]
+                        d2[tm] = inf
+                        det[tm] = 1.0
                         for i in range(nn):
                             sp[i] = 0.0
                             sip[i] = 0.0
                         continue
-                sp = &s[t, m, 0, 0]
-                stp = &st[t, 0, 0]
                 rmp = &rm[m, 0, 0]
                 for i in range(nn):
                     sp[i] = stp[i] + rmp[i]
                 if n == 3:
-                    det[t, m] = _inv3(sp, &si[t, m, 0, 0])
-                    d2[t, m] = _quad3(&si[t, m, 0, 0], vp)
+                    det[tm] = _inv3(sp, sip)
+                    d2[tm] = _quad3(sip, vp)
                 else:
-                    det[t, m] = _inv2(sp, &si[t, m, 0, 0])
-                    d2[t, m] = _quad2(&si[t, m, 0, 0], vp)
-    return v_a, d2_a, s_a, si_a, det_a
+                    det[tm] = _inv2(sp, sip)
+                    d2[tm] = _quad2(sip, vp)
+    return v_a, d2_a, s_a, si_a, det_a, st_a
 
 
 def quad_d2(const double[:, :, ::1] v, const double[:, :, ::1] s_inv):
@@ -157,25 +185,36 @@ cdef inline double _max_nan(double a, double b) noexcept nogil:
     return a if a >= b else b
 
 
-def duplicate_pairs(const double[:, ::1] x, double merge_speed_mps, double merge_lateral_m,
+def duplicate_pairs(const double[:, :] x, double merge_speed_mps, double merge_lateral_m,
                     const double[::1] reach_m, double merge_lateral_speed_mps, const double[::1] pdx,
                     const double[::1] pdy, double state_gamma, const long long[::1] pair,
-                    const long long[::1] det, bint resolved):
+                    const long long[::1] det, bint resolved, const cnp.int32_t[:] close_run, long persist_frames):
     """The pair tests of :meth:`edge.track.roles.delete.TrackDeleter.duplicates` over all track pairs ``a < b``
     (row-major), with its arithmetic: velocities alike along the common heading (and not the two members of a
     resolved pair: ``pair``, ``det`` per track when ``resolved``); then a pair is *boxed* (within
     ``merge_lateral_m`` across and ``max(reach_a, reach_b)`` along) or, with lateral speeds alike, a candidate for the
     state test when its marginal distances pass (``dx^2 < gamma (pdx_a + pdx_b)``, the same in y).
 
-    Returns ``run`` (T,) bool (the track is in some boxed pair), the boxed pairs ``ba``, ``bb`` (B,) int64 with
-    ``bkeep`` (B,) bool (lateral speeds alike), and the state-test candidates ``ra``, ``rb`` (R,) with their state
-    differences ``rdx`` (R, 4)."""
-    cdef Py_ssize_t nt = x.shape[0], a, b, i
-    run_a = np.zeros(nt, dtype=bool)
-    cdef cnp.npy_bool[::1] run = run_a
-    cdef list boxed = [], rest = []
+    Returns the tracks' new ``close_run`` (T,) int32 (one more for a track in a boxed pair, else 0), the boxed pairs
+    that are duplicates ``ka``, ``kb`` (K,) int64 (lateral speeds alike, or both tracks boxed for
+    ``persist_frames``), and the state-test candidates ``ra``, ``rb`` (R,) with their state differences ``rdx``
+    (R, 4)."""
+    cdef Py_ssize_t nt = x.shape[0], a, b, i, nb = 0, nr = 0, nk = 0
+    cdef Py_ssize_t npairs = nt * (nt - 1) // 2 if nt > 1 else 0
+    if reach_m.shape[0] != nt or pdx.shape[0] != nt or pdy.shape[0] != nt or close_run.shape[0] != nt \
+            or x.shape[1] < 4 or (resolved and (pair.shape[0] != nt or det.shape[0] != nt)):
+        raise ValueError("duplicate_pairs: inconsistent shapes")
+    # per pair candidate: the boxed ones (a, b, keep) and the state-test ones (a, b); their differences (4)
+    cdef cnp.ndarray bx_a = np.empty(5 * npairs + nt + 1, dtype=np.int64)  # scratch (freed however the call ends)
+    cdef cnp.ndarray rd_a = np.empty(4 * npairs + 1)
+    cdef long long* bx = <long long*> cnp.PyArray_DATA(bx_a)
+    cdef double* rd = _f64(rd_a)
+    cdef long long* rx = bx + 3 * npairs
+    cdef long long* run = rx + 2 * npairs
     cdef double s0, s1, h, nrm, ux, uy, d0, d1, d2_, d3
     cdef bint is_boxed, keep
+    for a in range(nt):
+        run[a] = 0
     for a in range(nt):
         for b in range(a + 1, nt):
             s0 = x[a, 2] + x[b, 2]
@@ -195,25 +234,52 @@ def duplicate_pairs(const double[:, ::1] x, double merge_speed_mps, double merge
             keep = fabs(d2_ * uy - d3 * ux) < merge_lateral_speed_mps
             is_boxed = (fabs(d0) < merge_lateral_m) and (fabs(d1) < _max_nan(reach_m[a], reach_m[b]))
             if is_boxed:
-                run[a] = run[b] = True
-                boxed.append((a, b, keep))
+                run[a] = run[b] = 1
+                bx[3 * nb] = a
+                bx[3 * nb + 1] = b
+                bx[3 * nb + 2] = keep
+                nb += 1
             elif keep and d0 * d0 < state_gamma * (pdx[a] + pdx[b]) and d1 * d1 < state_gamma * (pdy[a] + pdy[b]):
-                rest.append((a, b, d0, d1, d2_, d3))
-    ba = np.array([q[0] for q in boxed], dtype=np.int64)
-    bb = np.array([q[1] for q in boxed], dtype=np.int64)
-    bkeep = np.array([q[2] for q in boxed], dtype=bool)
-    ra = np.array([q[0] for q in rest], dtype=np.int64)
-    rb = np.array([q[1] for q in rest], dtype=np.int64)
-    rdx = np.array([q[2:] for q in rest], dtype=np.float64).reshape(len(rest), 4)
-    return run_a, ba, bb, bkeep, ra, rb, rdx
+                rx[2 * nr] = a
+                rx[2 * nr + 1] = b
+                rd[4 * nr] = d0
+                rd[4 * nr + 1] = d1
+                rd[4 * nr + 2] = d2_
+                rd[4 * nr + 3] = d3
+                nr += 1
+    # the runs: one more frame in the box, else 0 (all 0 without a boxed pair); a boxed pair that lasted is kept
+    cdef cnp.ndarray run_a = np.empty(nt, dtype=np.int32)
+    cdef cnp.int32_t* cr = <cnp.int32_t*> cnp.PyArray_DATA(run_a)
+    for a in range(nt):
+        cr[a] = <cnp.int32_t> (<cnp.uint32_t> close_run[a] + 1u) if (nb and run[a]) else 0
+    for i in range(nb):
+        a, b = bx[3 * i], bx[3 * i + 1]
+        if bx[3 * i + 2] or (cr[a] if cr[a] < cr[b] else cr[b]) >= persist_frames:
+            bx[2 * nk] = a
+            bx[2 * nk + 1] = b
+            nk += 1
+    cdef cnp.ndarray ka = np.empty(nk, dtype=np.int64)
+    cdef cnp.ndarray kb = np.empty(nk, dtype=np.int64)
+    cdef cnp.ndarray ra = np.empty(nr, dtype=np.int64)
+    cdef cnp.ndarray rb = np.empty(nr, dtype=np.int64)
+    cdef cnp.ndarray rdx = np.empty((nr, 4))
+    for i in range(nk):
+        (<cnp.int64_t*> cnp.PyArray_DATA(ka))[i] = bx[2 * i]
+        (<cnp.int64_t*> cnp.PyArray_DATA(kb))[i] = bx[2 * i + 1]
+    for i in range(nr):
+        (<cnp.int64_t*> cnp.PyArray_DATA(ra))[i] = rx[2 * i]
+        (<cnp.int64_t*> cnp.PyArray_DATA(rb))[i] = rx[2 * i + 1]
+    memcpy(cnp.PyArray_DATA(rdx), rd, 4 * nr * sizeof(double))
+    return run_a, ka, kb, ra, rb, rdx
 
 
-cdef void _update_rows(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] h,
-                       const long long[::1] rows, const double[:, ::1] v, const double[:, :, ::1] s_inv,
-                       const double[::1] w, double[:, ::1] x, double[:, :, ::1] p) noexcept nogil:
+cdef void _update_rows(const double* xs, const double* ps, const double* h, Py_ssize_t nr, Py_ssize_t n,
+                       const long long* rows, Py_ssize_t npair, const double* v, const double* s_inv, const double* w,
+                       double* x, double* p) noexcept nogil:
     """The per-hypothesis PDAF update of :func:`edge.track.pdaf.combined_update_pairs` (pairs with ``w > 0``):
-    ``x = x^- + sum w dx``, ``P = P^- - (sum w K) H P^- + sum w dx dx' - dx_bar dx_bar'``, symmetrised."""
-    cdef Py_ssize_t nr = xs.shape[0], npair = rows.shape[0], n = h.shape[1]
+    ``x = x^- + sum w dx``, ``P = P^- - (sum w K) H P^- + sum w dx dx' - dx_bar dx_bar'``, symmetrised. C-contiguous
+    arrays: ``xs``, ``x`` (nr, 4), ``ps``, ``p`` (nr, 4, 4), ``h`` (nr, n, 4), ``rows``, ``w`` (npair,), ``v``
+    (npair, n), ``s_inv`` (npair, n, n)."""
     cdef Py_ssize_t r, q, i, j, l
     cdef double ph[4][3]
     cdef double kk[4][3]
@@ -222,9 +288,9 @@ cdef void _update_rows(const double[:, ::1] xs, const double[:, :, ::1] ps, cons
     # accumulators per row: dx_bar (4), k_bar (4 x n), spread (4 x 4), in x and p (x starts at 0, p at 0)
     for r in range(nr):
         for i in range(4):
-            x[r, i] = 0.0
+            x[4 * r + i] = 0.0
             for j in range(4):
-                p[r, i, j] = 0.0
+                p[16 * r + 4 * i + j] = 0.0
     # p holds sum w dx dx' and the k_bar terms are applied per pair as -w K (H P^-): the same sums, per pair
     for q in range(npair):
         wq = w[q]
@@ -235,38 +301,43 @@ cdef void _update_rows(const double[:, ::1] xs, const double[:, :, ::1] ps, cons
             for j in range(n):
                 acc = 0.0
                 for l in range(4):
-                    acc = acc + ps[r, i, l] * h[r, j, l]
+                    acc = acc + ps[16 * r + 4 * i + l] * h[(r * n + j) * 4 + l]
                 ph[i][j] = acc
         for i in range(4):
             for j in range(n):
                 acc = 0.0
                 for l in range(n):
-                    acc = acc + ph[i][l] * s_inv[q, l, j]
+                    acc = acc + ph[i][l] * s_inv[(q * n + l) * n + j]
                 kk[i][j] = acc
         for i in range(4):
             acc = 0.0
             for j in range(n):
-                acc = acc + kk[i][j] * v[q, j]
+                acc = acc + kk[i][j] * v[q * n + j]
             dx[i] = acc
         for i in range(4):
-            x[r, i] += wq * dx[i]
+            x[4 * r + i] += wq * dx[i]
             for j in range(4):
                 # K_q H P^- = K_q (P^- H')' = K_q ph'
                 acc = 0.0
                 for l in range(n):
                     acc = acc + kk[i][l] * ph[j][l]
-                p[r, i, j] += wq * dx[i] * dx[j] - wq * acc
+                p[16 * r + 4 * i + j] += wq * dx[i] * dx[j] - wq * acc
     for r in range(nr):
         for i in range(4):
             for j in range(4):
-                p[r, i, j] = ps[r, i, j] + p[r, i, j] - x[r, i] * x[r, j]
+                p[16 * r + 4 * i + j] = ps[16 * r + 4 * i + j] + p[16 * r + 4 * i + j] - x[4 * r + i] * x[4 * r + j]
         for i in range(4):
             for j in range(i + 1, 4):
-                acc = 0.5 * (p[r, i, j] + p[r, j, i])
-                p[r, i, j] = acc
-                p[r, j, i] = acc
+                acc = 0.5 * (p[16 * r + 4 * i + j] + p[16 * r + 4 * j + i])
+                p[16 * r + 4 * i + j] = acc
+                p[16 * r + 4 * j + i] = acc
         for i in range(4):
-            x[r, i] = xs[r, i] + x[r, i]
+            x[4 * r + i] = xs[4 * r + i] + x[4 * r + i]
+
+
+cdef inline double* _f64(cnp.ndarray a) noexcept nogil:
+    """The data of a C-contiguous float64 array this module made (np.empty / np.zeros)."""
+    return <double*> cnp.PyArray_DATA(a)
 
 
 def update_pairs(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] h,
@@ -274,13 +345,66 @@ def update_pairs(const double[:, ::1] xs, const double[:, :, ::1] ps, const doub
                  const double[::1] w):
     """:func:`edge.track.pdaf.combined_update_pairs` for pairs ``rows`` (P,) with innovations ``v`` (P, n), inverse
     covariances ``s_inv`` (P, n, n) and weights ``w`` (P,) -> (x (R, 4), P (R, 4, 4)); equal to rounding."""
-    x_a = np.empty((xs.shape[0], 4))
-    p_a = np.empty((xs.shape[0], 4, 4))
-    cdef double[:, ::1] x = x_a
-    cdef double[:, :, ::1] p = p_a
-    with nogil:
-        _update_rows(xs, ps, h, rows, v, s_inv, w, x, p)
+    cdef Py_ssize_t nr = xs.shape[0], npair = rows.shape[0], n = h.shape[1]
+    if ps.shape[0] != nr or h.shape[0] != nr or v.shape[0] != npair or s_inv.shape[0] != npair \
+            or w.shape[0] != npair or v.shape[1] != n or not 1 <= n <= 3:
+        raise ValueError("update_pairs: inconsistent shapes")
+    cdef cnp.ndarray x_a = np.empty((nr, 4))
+    cdef cnp.ndarray p_a = np.empty((nr, 4, 4))
+    if nr:
+        with nogil:
+            _update_rows(&xs[0, 0], &ps[0, 0, 0], &h[0, 0, 0], nr, n, &rows[0] if npair else NULL, npair,
+                         &v[0, 0] if npair else NULL, &s_inv[0, 0, 0] if npair else NULL, &w[0] if npair else NULL,
+                         _f64(x_a), _f64(p_a))
     return x_a, p_a
+
+
+cdef void _pair_rows(const double* ps, const double* h, const double* zh, const double* r_track, int r_shift,
+                     const double* z, const double* r_meas, Py_ssize_t n, const long long* rows,
+                     const long long* cols, Py_ssize_t npair, const double* scale, bint scaled, double* v,
+                     double* d2, double* det, double* si) noexcept nogil:
+    """The pairs of :func:`edge.track.pdaf.pair_innovations`: ``S = H P H' + R_t (position block scaled) + R_m`` per
+    pair (state row ``rows[q]``, detection ``cols[q]``), its inverse ``si``, determinant ``det``, the innovation ``v``
+    and ``d2``. The track part of row ``r`` is ``r_track[r >> r_shift]`` (1: rows (track, mode) share their track's).
+    C-contiguous arrays: ``ps`` (R, 4, 4), ``h`` (R, n, 4), ``zh`` (R, n), ``z`` (M, n), ``r_meas`` (M, n, n)."""
+    cdef Py_ssize_t q, i, j, l, r, m, rt
+    cdef double hp[3][4]
+    cdef double s[9]
+    cdef double acc, f
+    for q in range(npair):
+        r = rows[q]
+        m = cols[q]
+        rt = r >> r_shift
+        for i in range(n):
+            for j in range(4):
+                acc = 0.0
+                for l in range(4):
+                    acc = acc + h[(r * n + i) * 4 + l] * ps[16 * r + 4 * l + j]
+                hp[i][j] = acc
+        for i in range(n):
+            for j in range(n):
+                acc = 0.0
+                for l in range(4):
+                    acc = acc + hp[i][l] * h[(r * n + j) * 4 + l]
+                f = r_track[(rt * n + i) * n + j]
+                if scaled and i < 2 and j < 2:
+                    f = f * scale[q]
+                s[i * n + j] = acc + f
+        for i in range(n):
+            for j in range(i + 1, n):
+                acc = 0.5 * (s[i * n + j] + s[j * n + i])
+                s[i * n + j] = acc
+                s[j * n + i] = acc
+        for i in range(n * n):
+            s[i] = s[i] + r_meas[m * n * n + i]
+        for i in range(n):
+            v[q * n + i] = z[m * n + i] - zh[r * n + i]
+        if n == 3:
+            det[q] = _inv3(s, &si[q * 9])
+            d2[q] = _quad3(&si[q * 9], &v[q * 3])
+        else:
+            det[q] = _inv2(s, &si[q * 4])
+            d2[q] = _quad2(&si[q * 4], &v[q * 2])
 
 
 def pair_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] h,
@@ -291,53 +415,25 @@ def pair_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const doubl
     ``rows`` into the state rows, ``cols`` into the detections) followed by :func:`update_pairs`: returns ``x``,
     ``P`` and the pairs' ``v`` (P, n), ``d2`` (P,), ``det_s`` (P,) for the mode likelihoods. Equal to rounding
     (``H P H'`` is summed here, numpy hands it to BLAS)."""
-    cdef Py_ssize_t npair = rows.shape[0], n = z.shape[1], q, i, j, l, r, m
-    v_a = np.empty((npair, n))
-    d2_a = np.empty(npair)
-    det_a = np.empty(npair)
-    si_a = np.empty((npair, n, n))
-    cdef double[:, ::1] v = v_a
-    cdef double[::1] d2 = d2_a
-    cdef double[::1] det = det_a
-    cdef double[:, :, ::1] si = si_a
-    cdef double hp[3][4]
-    cdef double s[9]
-    cdef double acc, f
-    with nogil:
-        for q in range(npair):
-            r = rows[q]
-            m = cols[q]
-            for i in range(n):
-                for j in range(4):
-                    acc = 0.0
-                    for l in range(4):
-                        acc = acc + h[r, i, l] * ps[r, l, j]
-                    hp[i][j] = acc
-            for i in range(n):
-                for j in range(n):
-                    acc = 0.0
-                    for l in range(4):
-                        acc = acc + hp[i][l] * h[r, j, l]
-                    f = r_track[r, i, j]
-                    if scaled and i < 2 and j < 2:
-                        f = f * scale[q]
-                    s[i * n + j] = acc + f
-            for i in range(n):
-                for j in range(i + 1, n):
-                    acc = 0.5 * (s[i * n + j] + s[j * n + i])
-                    s[i * n + j] = acc
-                    s[j * n + i] = acc
-            for i in range(n * n):
-                s[i] = s[i] + r_meas[m, i // n, i % n]
-            for i in range(n):
-                v[q, i] = z[m, i] - zh[r, i]
-            if n == 3:
-                det[q] = _inv3(s, &si[q, 0, 0])
-                d2[q] = _quad3(&si[q, 0, 0], &v[q, 0])
-            else:
-                det[q] = _inv2(s, &si[q, 0, 0])
-                d2[q] = _quad2(&si[q, 0, 0], &v[q, 0])
-    x_a, p_a = update_pairs(xs, ps, h, rows, v_a, si_a, w)
+    cdef Py_ssize_t nr = xs.shape[0], npair = rows.shape[0], n = z.shape[1]
+    if not 2 <= n <= 3 or h.shape[1] != n or zh.shape[1] != n or cols.shape[0] != npair or w.shape[0] != npair \
+            or (scaled and scale.shape[0] != npair) or ps.shape[0] != nr or h.shape[0] != nr or zh.shape[0] != nr \
+            or r_track.shape[0] != nr:
+        raise ValueError("pair_update: inconsistent shapes")
+    cdef cnp.ndarray v_a = np.empty((npair, n))
+    cdef cnp.ndarray d2_a = np.empty(npair)
+    cdef cnp.ndarray det_a = np.empty(npair)
+    cdef cnp.ndarray si_a = np.empty((npair, n, n))
+    cdef cnp.ndarray x_a = np.empty((nr, 4))
+    cdef cnp.ndarray p_a = np.empty((nr, 4, 4))
+    if nr:
+        with nogil:
+            if npair:
+                _pair_rows(&ps[0, 0, 0], &h[0, 0, 0], &zh[0, 0], &r_track[0, 0, 0], 0, &z[0, 0], &r_meas[0, 0, 0], n,
+                           &rows[0], &cols[0], npair, &scale[0] if scaled else NULL, scaled, _f64(v_a), _f64(d2_a),
+                           _f64(det_a), _f64(si_a))
+            _update_rows(&xs[0, 0], &ps[0, 0, 0], &h[0, 0, 0], nr, n, &rows[0] if npair else NULL, npair,
+                         _f64(v_a), _f64(si_a), &w[0] if npair else NULL, _f64(x_a), _f64(p_a))
     return x_a, p_a, v_a, d2_a, det_a
 
 
@@ -401,40 +497,78 @@ def update_extent(const double[:, :, ::1] v, const double[:, ::1] s2_track, cons
 from libc.math cimport exp, sqrt, INFINITY
 
 
-def associate_each(const double[:, ::1] d2, const double[:, ::1] det_s, double gamma, double vol_factor,
-                   double norm_factor, double prob_detect, double b, bint jpda, const cnp.npy_bool[::1] confirmed,
-                   const double[::1] rank, bint seniority, const cnp.npy_bool[::1] pair_ok, bint with_pairs):
+def associate_each(const double[:, :] d2, const double[:, :] det_s, double gamma, double vol_factor,
+                   double norm_factor, double prob_detect, double b, bint jpda, confirmed, seniority, pair=None):
     """The association of :class:`edge.track.roles.associate.PdaAssociator` with one ``S`` per (track, detection)
     (:func:`edge.track.pdaf.association_weights` on :class:`edge.track.pdaf.InnovationsEach`), with its arithmetic
-    and summation order: seniority (``rank`` (T,): inf for confirmed tracks, else their hits; a tentative track
-    only sees detections no more senior track validated, unless ``pair_ok``), the gate ``d2 <= gamma``, the gate
-    volume ``vol_factor * mean sqrt|S|`` over the validated detections, the likelihoods
-    ``P_D N(v; 0, S) V / M_t`` and the PDAF (or, ``jpda``, cheap JPDA) weights with ``b = 1 - P_G P_D``.
-    ``norm_factor`` is ``(2 pi)^(n/2)``. Returns ``beta`` (T, M), ``beta0`` (T,), ``gated`` (T, M) bool and the gate
-    volumes (T,)."""
+    and summation order: seniority when some track is not ``confirmed`` (T,) (a tentative track only sees detections
+    no more senior track validated: confirmed first, then more ``seniority`` (T,), its hits; unless the detection's
+    resolved ``pair`` (M,) int64 is >= 0), the gate ``d2 <= gamma``, the gate volume ``vol_factor * mean sqrt|S|``
+    over the validated detections, the likelihoods ``P_D N(v; 0, S) V / M_t`` and the PDAF (or, ``jpda``, cheap
+    JPDA) weights with ``b = 1 - P_G P_D``. ``norm_factor`` is ``(2 pi)^(n/2)``. Returns ``beta`` (T, M), ``beta0``
+    (T,), ``gated`` (T, M) bool and the gate volumes (T,)."""
     cdef Py_ssize_t nt = d2.shape[0], nm = d2.shape[1], t, m
-    beta_a = np.empty((nt, nm))
-    beta0_a = np.empty(nt)
-    gated_a = np.empty((nt, nm), dtype=bool)
-    vol_a = np.empty(nt)
-    root_a = np.empty((nt, nm))
-    owner_a = np.empty(nm)
-    sm_a = np.zeros(nm)
-    buf_a = np.empty(max(nm, 1))
-    st_a = np.empty(nt)
-    cdef double[:, ::1] beta = beta_a
-    cdef double[::1] beta0 = beta0_a
-    cdef cnp.npy_bool[:, ::1] gated = gated_a
-    cdef double[::1] vol = vol_a
-    cdef double[:, ::1] root = root_a
-    cdef double[::1] owner = owner_a
-    cdef double[::1] sm = sm_a
-    cdef double[::1] buf = buf_a
-    cdef double[::1] st = st_a
+    cdef cnp.ndarray conf_a, sen_a, pair_a
+    cdef bint with_pairs = pair is not None
+    if det_s.shape[0] != nt or det_s.shape[1] != nm:
+        raise ValueError("associate_each: d2 and det_s differ in shape")
+    conf_a = confirmed if _column(confirmed, cnp.NPY_BOOL, nt) else np.ascontiguousarray(confirmed, dtype=bool)
+    if cnp.PyArray_NDIM(conf_a) != 1 or cnp.PyArray_DIMS(conf_a)[0] != nt:
+        raise ValueError("associate_each: one confirmed flag per track")
+    if _column(seniority, cnp.NPY_INT32, nt) or _column(seniority, cnp.NPY_INT64, nt) \
+            or _column(seniority, cnp.NPY_FLOAT64, nt):
+        sen_a = seniority
+    else:
+        sen_a = np.ascontiguousarray(seniority, dtype=np.float64)
+        if cnp.PyArray_NDIM(sen_a) != 1 or cnp.PyArray_DIMS(sen_a)[0] != nt:
+            raise ValueError("associate_each: one seniority per track")
+    if with_pairs:
+        pair_a = pair if _column(pair, cnp.NPY_INT64, nm) else np.ascontiguousarray(pair, dtype=np.int64)
+        if cnp.PyArray_NDIM(pair_a) != 1 or cnp.PyArray_DIMS(pair_a)[0] != nm:
+            raise ValueError("associate_each: one pair value per detection")
+    cdef int sen_type = cnp.PyArray_TYPE(sen_a)
+    cdef cnp.ndarray beta_a = np.empty((nt, nm))
+    cdef cnp.ndarray beta0_a = np.empty(nt)
+    cdef cnp.ndarray gated_a = np.empty((nt, nm), dtype=bool)
+    cdef cnp.ndarray vol_a = np.empty(nt)
+    cdef double* beta = _f64(beta_a)
+    cdef double* beta0 = _f64(beta0_a)
+    cdef cnp.npy_bool* gated = <cnp.npy_bool*> cnp.PyArray_DATA(gated_a)
+    cdef double* vol = _f64(vol_a)
+    # scratch: sqrt|S| (T, M), each detection's most senior rank and column sum (M), one row's validated roots (M),
+    # the row sums and the ranks (T)
+    cdef double* root = <double*> PyMem_Malloc((nt * nm + 3 * nm + 2 * nt + 1) * sizeof(double))
+    if root == NULL:
+        raise MemoryError()
+    cdef double* owner = root + nt * nm
+    cdef double* sm = owner + nm
+    cdef double* buf = sm + nm
+    cdef double* st = buf + nm + 1
+    cdef double* rank = st + nt
+    cdef const cnp.npy_bool* conf = <const cnp.npy_bool*> cnp.PyArray_BYTES(conf_a)
+    cdef Py_ssize_t conf_s = cnp.PyArray_STRIDES(conf_a)[0]
+    cdef const char* sen = cnp.PyArray_BYTES(sen_a)
+    cdef Py_ssize_t sen_s = cnp.PyArray_STRIDES(sen_a)[0]
+    cdef const char* pr = cnp.PyArray_BYTES(pair_a) if with_pairs else NULL
+    cdef Py_ssize_t pr_s = cnp.PyArray_STRIDES(pair_a)[0] if with_pairs else 0
+    cdef bint seniority_on = False
     cdef long long k
     cdef double scale, mean_root, lik, q
     with nogil:
-        if seniority:  # the most senior rank among the tracks that validated each detection
+        for t in range(nt):
+            if conf[t * conf_s]:
+                rank[t] = INFINITY
+            else:
+                seniority_on = True
+                if sen_type == cnp.NPY_INT32:
+                    rank[t] = <double> (<const cnp.int32_t*> (sen + t * sen_s))[0]
+                elif sen_type == cnp.NPY_INT64:
+                    rank[t] = <double> (<const cnp.int64_t*> (sen + t * sen_s))[0]
+                else:
+                    rank[t] = (<const double*> (sen + t * sen_s))[0]
+        for m in range(nm):
+            sm[m] = 0.0
+        if seniority_on:  # the most senior rank among the tracks that validated each detection
             for m in range(nm):
                 owner[m] = -INFINITY
             for t in range(nt):
@@ -444,38 +578,40 @@ def associate_each(const double[:, ::1] d2, const double[:, ::1] det_s, double g
         for t in range(nt):
             k = 0
             for m in range(nm):
-                gated[t, m] = d2[t, m] <= gamma and (not seniority or confirmed[t] or rank[t] >= owner[m]
-                                                     or (with_pairs and pair_ok[m]))
-                k += gated[t, m]
-                root[t, m] = sqrt(det_s[t, m])
-                buf[m] = root[t, m] * (1.0 if gated[t, m] else 0.0)
+                gated[t * nm + m] = d2[t, m] <= gamma and (
+                    not seniority_on or conf[t * conf_s] or rank[t] >= owner[m]
+                    or (with_pairs and (<const cnp.int64_t*> (pr + m * pr_s))[0] >= 0))
+                k += gated[t * nm + m]
+                root[t * nm + m] = sqrt(det_s[t, m])
+                buf[m] = root[t * nm + m] * (1.0 if gated[t * nm + m] else 0.0)
             if k > 0:
-                mean_root = _pairwise_sum(&buf[0], nm) / <double> k
+                mean_root = _pairwise_sum(buf, nm) / <double> k
             else:
-                mean_root = _pairwise_sum(&root[t, 0], nm) / <double> nm
+                mean_root = _pairwise_sum(&root[t * nm], nm) / <double> nm
             vol[t] = vol_factor * mean_root
             scale = prob_detect * vol[t] / <double> (k if k > 1 else 1)
             for m in range(nm):
-                if gated[t, m]:
+                if gated[t * nm + m]:
                     q = d2[t, m]
                     q = q if q <= gamma or q != q else gamma  # np.minimum(d2, gamma)
-                    beta[t, m] = exp(-0.5 * q) * scale / (norm_factor * root[t, m])
+                    beta[t * nm + m] = exp(-0.5 * q) * scale / (norm_factor * root[t * nm + m])
                 else:
-                    beta[t, m] = 0.0
-                sm[m] = sm[m] + beta[t, m]
-            st[t] = _pairwise_sum(&beta[t, 0], nm)
+                    beta[t * nm + m] = 0.0
+                sm[m] = sm[m] + beta[t * nm + m]
+            st[t] = _pairwise_sum(&beta[t * nm], nm)
         if nm == 1:  # numpy reduces a single column pairwise (its only axis left), not row after row
-            sm[0] = _pairwise_sum(&beta[0, 0], nt)
+            sm[0] = _pairwise_sum(beta, nt)
         for t in range(nt):
             if jpda:
                 for m in range(nm):
-                    lik = beta[t, m]
-                    beta[t, m] = lik / (st[t] + sm[m] - lik + b)
-                beta0[t] = 1.0 - _pairwise_sum(&beta[t, 0], nm)
+                    lik = beta[t * nm + m]
+                    beta[t * nm + m] = lik / (st[t] + sm[m] - lik + b)
+                beta0[t] = 1.0 - _pairwise_sum(&beta[t * nm], nm)
             else:
                 for m in range(nm):
-                    beta[t, m] = beta[t, m] / (b + st[t])
+                    beta[t * nm + m] = beta[t * nm + m] / (b + st[t])
                 beta0[t] = b / (b + st[t])
+    PyMem_Free(root)
     return beta_a, beta0_a, gated_a, vol_a
 
 
@@ -516,9 +652,9 @@ cdef inline void _moment_match_row(const double* xm, const double* pm, double w0
             p[4 * i + j] = w0 * pm[4 * i + j] + w1 * pm[16 + 4 * i + j] + d[i] * d[j]
 
 
-def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const double[:, ::1] mu,
+def imm_predict(const double[:, :, :] xm, const double[:, :, :, :] pm, const double[:, :] mu,
                 const double[:, :, ::1] pi, const double[:, :, ::1] f, const double[:, :, ::1] q,
-                const double[:, ::1] x_far=None, double far_from_m=0.0, double far_span_m=1.0,
+                const double[:, :] x_far=None, double far_from_m=0.0, double far_span_m=1.0,
                 double log_p_near=0.0, double log_p_far=0.0):
     """IMM mixing, mode-matched prediction and moment matching of all tracks (:func:`edge.track.imm.mix`,
     :func:`edge.track.imm.predict_modes`, :func:`edge.track.imm.moment_match`): ``xm`` (T, 2, 4), ``pm``
@@ -535,16 +671,21 @@ def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const
     cdef double u, pk
     if far and (x_far.shape[0] != nt or x_far.shape[1] < 2):
         raise ValueError("imm_predict: x_far must be (T, 4)")
-    x_a = np.empty((nt, 4))
-    p_a = np.empty((nt, 4, 4))
-    xpm_a = np.empty((nt, 2, 4))
-    ppm_a = np.empty((nt, 2, 4, 4))
-    c_a = np.empty((nt, 2))
-    cdef double[:, ::1] x = x_a
-    cdef double[:, :, ::1] p = p_a
-    cdef double[:, :, ::1] xpm = xpm_a
-    cdef double[:, :, :, ::1] ppm = ppm_a
-    cdef double[:, ::1] c = c_a
+    if xm.shape[1] != 2 or xm.shape[2] != 4 or pm.shape[0] != nt or pm.shape[1] != 2 or pm.shape[2] != 4 \
+            or pm.shape[3] != 4 or mu.shape[0] != nt or mu.shape[1] != 2 or pi.shape[1] != 2 or pi.shape[2] != 2 \
+            or (pi.shape[0] != 1 and pi.shape[0] != nt) or f.shape[0] != 2 or q.shape[0] != 2 or f.shape[1] != 4 \
+            or f.shape[2] != 4 or q.shape[1] != 4 or q.shape[2] != 4:
+        raise ValueError("imm_predict: inconsistent shapes")
+    cdef cnp.ndarray x_a = np.empty((nt, 4))
+    cdef cnp.ndarray p_a = np.empty((nt, 4, 4))
+    cdef cnp.ndarray xpm_a = np.empty((nt, 2, 4))
+    cdef cnp.ndarray ppm_a = np.empty((nt, 2, 4, 4))
+    cdef cnp.ndarray c_a = np.empty((nt, 2))
+    cdef double* x = _f64(x_a)
+    cdef double* p = _f64(p_a)
+    cdef double* xpm = _f64(xpm_a)
+    cdef double* ppm = _f64(ppm_a)
+    cdef double* c = _f64(c_a)
     cdef double w[2][2]
     cdef double joint[2][2]
     cdef double x0[4]
@@ -570,8 +711,8 @@ def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const
                 for j in range(2):
                     joint[i][j] = mu[t, i] * pi_t[i][j]
             for j in range(2):
-                c[t, j] = joint[0][j] + joint[1][j]
-                den = _max_nan(c[t, j], 1e-300)
+                c[2 * t + j] = joint[0][j] + joint[1][j]
+                den = _max_nan(c[2 * t + j], 1e-300)
                 for i in range(2):
                     w[i][j] = joint[i][j] / den
             for k in range(4):
@@ -587,7 +728,7 @@ def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const
                     acc = 0.0
                     for l in range(4):
                         acc = acc + f[mode, k, l] * x0[l]
-                    xpm[t, mode, k] = acc
+                    xpm[8 * t + 4 * mode + k] = acc
                 for k in range(4):
                     for l in range(4):
                         acc = 0.0
@@ -599,9 +740,53 @@ def imm_predict(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const
                         acc = 0.0
                         for i in range(4):
                             acc = acc + fp[k][i] * f[mode, l, i]
-                        ppm[t, mode, k, l] = acc + q[mode, k, l]
-            _moment_match_row(&xpm[t, 0, 0], &ppm[t, 0, 0, 0], c[t, 0], c[t, 1], &x[t, 0], &p[t, 0, 0])
+                        ppm[32 * t + 16 * mode + 4 * k + l] = acc + q[mode, k, l]
+            _moment_match_row(&xpm[8 * t], &ppm[32 * t], c[2 * t], c[2 * t + 1], &x[4 * t], &p[16 * t])
     return x_a, p_a, xpm_a, ppm_a, c_a
+
+
+def keep_model_into(double[:, :, ::1] f, double[:, :, ::1] q, double dt, double yaw, double tau, double q_across,
+                    double q_along, double d3, double d2):
+    """Write :func:`edge.track.imm.keep_model` ``(dt, yaw, tau, q_across, q_along)`` into ``f[0]`` and ``q[0]`` (each
+    (4, 4)) with its operations; ``d3``, ``d2``: ``dt**3 / 3`` and ``dt**2 / 2`` as Python computes them."""
+    if f.shape[0] < 1 or q.shape[0] < 1 or f.shape[1] != 4 or f.shape[2] != 4 or q.shape[1] != 4 or q.shape[2] != 4:
+        raise ValueError("keep_model_into: f and q must be (k, 4, 4)")
+    cdef double c = cos(yaw), s = sin(yaw)
+    cdef double decay = exp(-dt / tau) if tau > 0 else 1.0
+    cdef double cc = c * c, ss = s * s, cs = c * s
+    cdef double p00 = cc * decay + ss, p01 = cs * (decay - 1.0), p11 = ss * decay + cc
+    cdef double a00 = cc * q_across + ss * q_along
+    cdef double a01 = cs * (q_across - q_along)
+    cdef double a11 = ss * q_across + cc * q_along
+    cdef double d1 = dt
+    cdef int i, j
+    for i in range(4):
+        for j in range(4):
+            f[0, i, j] = 0.0
+    f[0, 0, 0] = 1.0
+    f[0, 0, 2] = dt
+    f[0, 1, 1] = 1.0
+    f[0, 1, 3] = dt
+    f[0, 2, 2] = p00
+    f[0, 2, 3] = p01
+    f[0, 3, 2] = p01
+    f[0, 3, 3] = p11
+    q[0, 0, 0] = d3 * a00
+    q[0, 0, 1] = d3 * a01
+    q[0, 0, 2] = d2 * a00
+    q[0, 0, 3] = d2 * a01
+    q[0, 1, 0] = d3 * a01
+    q[0, 1, 1] = d3 * a11
+    q[0, 1, 2] = d2 * a01
+    q[0, 1, 3] = d2 * a11
+    q[0, 2, 0] = d2 * a00
+    q[0, 2, 1] = d2 * a01
+    q[0, 2, 2] = d1 * a00
+    q[0, 2, 3] = d1 * a01
+    q[0, 3, 0] = d2 * a01
+    q[0, 3, 1] = d2 * a11
+    q[0, 3, 2] = d1 * a01
+    q[0, 3, 3] = d1 * a11
 
 
 def moment_match(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const double[:, ::1] w):
@@ -630,19 +815,20 @@ def imm_mode_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const d
     cdef Py_ssize_t nt = gated.shape[0], nm = gated.shape[1], n = z.shape[1], t, m, k = 0, npair = 0, half, q
     cdef Py_ssize_t mode, row
     cdef long long ng
+    if not 2 <= n <= 3 or xs.shape[0] != 2 * nt or ps.shape[0] != 2 * nt or hm.shape[0] != 2 * nt \
+            or zhm.shape[0] != 2 * nt or r_track.shape[0] != nt or beta.shape[0] != nt or beta.shape[1] != nm \
+            or z.shape[0] != nm or r_meas.shape[0] != nm or vol.shape[0] != nt or hm.shape[1] != n:
+        raise ValueError("imm_mode_update: inconsistent shapes")
     for t in range(nt):
         for m in range(nm):
             npair += gated[t, m]
-    rows_a = np.empty(2 * npair, dtype=np.int64)
-    cols_a = np.empty(2 * npair, dtype=np.int64)
-    w_a = np.empty(2 * npair)
-    sc_a = np.ones(2 * npair)
-    r_rep_a = np.empty((2 * nt, n, n))
-    cdef long long[::1] rows = rows_a
-    cdef long long[::1] cols = cols_a
-    cdef double[::1] w = w_a
-    cdef double[::1] sc = sc_a
-    cdef double[:, :, ::1] r_rep = r_rep_a
+    # the pairs' rows, detections, weights and scales in one int64 and one float64 scratch array
+    cdef cnp.ndarray idx_a = np.empty(4 * npair, dtype=np.int64)
+    cdef cnp.ndarray ws_a = np.empty(4 * npair)
+    cdef long long* rows = <long long*> cnp.PyArray_DATA(idx_a)
+    cdef long long* cols = rows + 2 * npair
+    cdef double* w = _f64(ws_a)
+    cdef double* sc = w + 2 * npair
     cdef double a0, a1
     half = npair
     for t in range(nt):
@@ -653,35 +839,51 @@ def imm_mode_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const d
                     rows[q] = 2 * t + mode
                     cols[q] = m
                     w[q] = beta[t, m]
+                    sc[q] = 1.0
                     if scaled:
                         row = 2 * t + mode
                         a0 = (z[m, 0] - zhm[row, 0]) * zhm[row, 0]
                         a1 = (z[m, 1] - zhm[row, 1]) * zhm[row, 1]
                         sc[q] = near_factor if a0 + a1 < 0.0 else 1.0
                 k += 1
-        for mode in range(2):
-            r_rep[2 * t + mode, :, :] = r_track[t, :, :]
-    x_a, p_a, v_a, d2_a, det_a = pair_update(xs, ps, hm, zhm, r_rep_a, z, r_meas, rows_a, cols_a, sc_a, scaled,
-                                             w_a)
-    cdef double[::1] d2 = d2_a
-    cdef double[::1] det = det_a
-    dens_a = np.zeros(2 * nt)
-    cdef double[::1] dens = dens_a
-    cdef double c_norm = (2.0 * np.pi) ** (n / 2.0)
+    # the pairs' v, S^-1 (scratch), d2 and det, then the updates (pair_update's steps, without its arrays)
+    cdef cnp.ndarray pv_a = np.empty(2 * npair * (n + n * n + 2))
+    cdef double* pv = _f64(pv_a)
+    cdef double* psi = pv + 2 * npair * n
+    cdef double* d2 = psi + 2 * npair * n * n
+    cdef double* det = d2 + 2 * npair
+    cdef cnp.ndarray x_a = np.empty((2 * nt, 4))
+    cdef cnp.ndarray p_a = np.empty((2 * nt, 4, 4))
+    cdef cnp.ndarray lik_a = np.empty((nt, 2))
+    cdef double* lik = _f64(lik_a)
+    cdef double* dens
+    cdef double c_norm = pow(2.0 * M_PI, n / 2.0)
     cdef double dq
-    for q in range(2 * npair):
-        dq = d2[q]
-        dq = dq if dq <= 700.0 or dq != dq else 700.0
-        dens[rows[q]] += exp(-0.5 * dq) / (c_norm * sqrt(det[q]))
-    lik_a = np.empty((nt, 2))
-    cdef double[:, ::1] lik = lik_a
-    for t in range(nt):
-        ng = 0
-        for m in range(nm):
-            ng += gated[t, m]
-        for mode in range(2):
-            lik[t, mode] = (1.0 - prob_gate * prob_detect) + prob_detect * vol[t] / <double> (ng if ng > 1 else 1) \
-                * dens[2 * t + mode]
+    if nt == 0:
+        return x_a, p_a, lik_a
+    dens = <double*> PyMem_Malloc(2 * nt * sizeof(double))
+    if dens == NULL:
+        raise MemoryError()
+    with nogil:
+        if npair:
+            _pair_rows(&ps[0, 0, 0], &hm[0, 0, 0], &zhm[0, 0], &r_track[0, 0, 0], 1, &z[0, 0], &r_meas[0, 0, 0], n,
+                       rows, cols, 2 * npair, sc, scaled, pv, d2, det, psi)
+        _update_rows(&xs[0, 0], &ps[0, 0, 0], &hm[0, 0, 0], 2 * nt, n, rows, 2 * npair, pv, psi, w, _f64(x_a),
+                     _f64(p_a))
+        for q in range(2 * nt):
+            dens[q] = 0.0
+        for q in range(2 * npair):
+            dq = d2[q]
+            dq = dq if dq <= 700.0 or dq != dq else 700.0
+            dens[rows[q]] += exp(-0.5 * dq) / (c_norm * sqrt(det[q]))
+        for t in range(nt):
+            ng = 0
+            for m in range(nm):
+                ng += gated[t, m]
+            for mode in range(2):
+                lik[2 * t + mode] = (1.0 - prob_gate * prob_detect) \
+                    + prob_detect * vol[t] / <double> (ng if ng > 1 else 1) * dens[2 * t + mode]
+    PyMem_Free(dens)
     return x_a, p_a, lik_a
 
 
@@ -871,61 +1073,80 @@ cdef void _publish_rows(const double[:, :] x, const double[:, :, :] p, const cnp
                         double[:, ::1] out) noexcept:
     """:func:`publish_rows` into ``out`` (n, 15)."""
     cdef Py_ssize_t n = idx.shape[0], k, i
-    cdef int c_i
     cdef bint blend = False
-    cdef double p0 = 0.0, c, t, pr, w, xs, xr, rho, num, d, lat_sd, lo
+    cdef double p0 = 0.0
     if smoother:
         for k in range(n):
             if lat_cusum[idx[k]] != 0.0:
                 blend = True
                 break
-        t = cusum_threshold if cusum_threshold < 700.0 else 700.0
-        p0 = 1.0 / (1.0 + exp(t))
+        p0 = _blend_p0(cusum_threshold)
     for k in range(n):
         i = idx[k]
-        xr = x[i, 0]
-        out[k, 14] = xr
-        if smoother:
-            xs = lat[i, 0]
-            if blend:
-                t = cusum_threshold - lat_cusum[i]
-                if t > 700.0:
-                    t = 700.0
-                pr = 1.0 / (1.0 + exp(t))
-                w = (pr - p0) / (1.0 - p0)
-                xs = xs + w * (xr - xs)
-            out[k, 0] = xs
-        else:
-            out[k, 0] = xr
-        out[k, 1] = x[i, 1]
-        out[k, 2] = x[i, 2]
-        out[k, 3] = x[i, 3]
-        rho = hypot(out[k, 0], out[k, 1])
-        num = out[k, 0] * out[k, 2] + out[k, 1] * out[k, 3]
-        out[k, 4] = rho
-        out[k, 5] = num / rho if rho > 0.0 else 0.0
-        out[k, 6] = atan2(out[k, 0], out[k, 1])
-        if publish_length and hypot(out[k, 2], out[k, 3]) >= 1.0:
-            out[k, 7] = sqrt(12.0 * ext_var[i])
-            out[k, 8] = 1.0
-        else:
-            out[k, 7] = NAN
-            out[k, 8] = 0.0
-        for c_i in range(4):
-            d = p[i, c_i, c_i]
-            out[k, 9 + c_i] = sqrt(d if (d >= 0.0 or d != d) else 0.0)
-        if smoother:
-            d = lat_p[i, 0, 0]
-            lat_sd = sqrt(d if (d >= 0.0 or d != d) else 0.0)
-            out[k, 9] = _np_max(lat_sd, out[k, 9]) if lat_cusum[i] > 0.0 else lat_sd
-        lo = score[i]
-        if confirmed[i]:
-            lo = _np_max(lo, confirmed_log_odds)
-        if lo < -700.0:
-            lo = -700.0
-        elif lo > 700.0:
-            lo = 700.0
-        out[k, 13] = 1.0 / (1.0 + exp(-lo))
+        _publish_row(x[i, 0], x[i, 1], x[i, 2], x[i, 3], p[i, 0, 0], p[i, 1, 1], p[i, 2, 2], p[i, 3, 3],
+                     smoother, blend, p0, cusum_threshold, lat[i, 0] if smoother else 0.0,
+                     lat_p[i, 0, 0] if smoother else 0.0, lat_cusum[i] if smoother else 0.0, publish_length,
+                     ext_var[i], score[i], confirmed[i] != 0, confirmed_log_odds, &out[k, 0])
+
+
+cdef inline double _blend_p0(double cusum_threshold) noexcept nogil:
+    """The lateral blend's probability at a CUSUM of 0 (``kalman.lateral_blend``)."""
+    cdef double t = cusum_threshold if cusum_threshold < 700.0 else 700.0
+    return 1.0 / (1.0 + exp(t))
+
+
+cdef inline void _publish_row(double xr, double x1, double x2, double x3, double p00, double p11, double p22,
+                              double p33, bint smoother, bint blend, double p0, double cusum_threshold, double lat0,
+                              double lat_p00, double cusum, bint publish_length, double ext_var, double score,
+                              bint confirmed, double confirmed_log_odds, double* out) noexcept nogil:
+    """One published track's 15 numbers (:data:`PUBLISH_COLUMNS`) from its table row, as ``PdafTracker.published``
+    computes them."""
+    cdef int c_i
+    cdef double t, pr, w, xs, rho, num, d, lat_sd, lo
+    cdef double pd[4]
+    out[14] = xr
+    if smoother:
+        xs = lat0
+        if blend:
+            t = cusum_threshold - cusum
+            if t > 700.0:
+                t = 700.0
+            pr = 1.0 / (1.0 + exp(t))
+            w = (pr - p0) / (1.0 - p0)
+            xs = xs + w * (xr - xs)
+        out[0] = xs
+    else:
+        out[0] = xr
+    out[1] = x1
+    out[2] = x2
+    out[3] = x3
+    rho = hypot(out[0], out[1])
+    num = out[0] * out[2] + out[1] * out[3]
+    out[4] = rho
+    out[5] = num / rho if rho > 0.0 else 0.0
+    out[6] = atan2(out[0], out[1])
+    if publish_length and hypot(out[2], out[3]) >= 1.0:
+        out[7] = sqrt(12.0 * ext_var)
+        out[8] = 1.0
+    else:
+        out[7] = NAN
+        out[8] = 0.0
+    pd[0], pd[1], pd[2], pd[3] = p00, p11, p22, p33
+    for c_i in range(4):
+        d = pd[c_i]
+        out[9 + c_i] = sqrt(d if (d >= 0.0 or d != d) else 0.0)
+    if smoother:
+        d = lat_p00
+        lat_sd = sqrt(d if (d >= 0.0 or d != d) else 0.0)
+        out[9] = _np_max(lat_sd, out[9]) if cusum > 0.0 else lat_sd
+    lo = score
+    if confirmed:
+        lo = _np_max(lo, confirmed_log_odds)
+    if lo < -700.0:
+        lo = -700.0
+    elif lo > 700.0:
+        lo = 700.0
+    out[13] = 1.0 / (1.0 + exp(-lo))
 
 
 cdef inline double _np_min(double a, double b) noexcept nogil:
@@ -1159,6 +1380,39 @@ def polar_jacobian(const double[:, :] xy, double var_r, double var_az):
     return jd_a, j_a
 
 
+def imm_seeded(double[:, :] mu, double[:, :, :, :] pm, double[:, :, :] p, Py_ssize_t k, double w,
+               bint with_speed, double cy, double sy, double var_k, double speed_var,
+               const double[:] speed_vars=None):
+    """:meth:`edge.track.roles.predict.ImmPredictor.seeded` in place on the table's last ``k`` rows: the mode
+    probabilities ``(w, 1 - w)``; ``with_speed``: the lane-keeping mode's covariance with the road's speed variances
+    (``cy``, ``sy`` the road yaw's cosine and sine, ``var_k`` across, the seeds' ``speed_var`` along, or per seed
+    ``speed_vars`` (k,)) and the combined ``P = w P_keep + (1 - w) P``. The same operations as numpy."""
+    cdef Py_ssize_t nt = mu.shape[0], r, i, j
+    cdef double sv, pk[16]
+    if k < 0 or k > nt or pm.shape[0] != nt or p.shape[0] != nt or mu.shape[1] != 2 or pm.shape[1] != 2 \
+            or pm.shape[2] != 4 or pm.shape[3] != 4 or p.shape[1] != 4 or p.shape[2] != 4 \
+            or (speed_vars is not None and speed_vars.shape[0] != k):
+        raise ValueError("imm_seeded: inconsistent shapes")
+    for r in range(nt - k, nt):
+        mu[r, 0] = w
+        mu[r, 1] = 1.0 - w
+    if not with_speed:
+        return
+    for r in range(nt - k, nt):
+        sv = speed_vars[r - (nt - k)] if speed_vars is not None else speed_var
+        for i in range(4):
+            for j in range(4):
+                pk[4 * i + j] = p[r, i, j]
+        pk[10] = cy * cy * var_k + sy * sy * sv
+        pk[15] = sy * sy * var_k + cy * cy * sv
+        pk[11] = cy * sy * (var_k - sv)
+        pk[14] = pk[11]
+        for i in range(4):
+            for j in range(4):
+                pm[r, 0, i, j] = pk[4 * i + j]
+                p[r, i, j] = w * pk[4 * i + j] + (1.0 - w) * p[r, i, j]
+
+
 def mode_probabilities_match(const double[:, ::1] c, const double[:, ::1] lik, double floor,
                              const double[:, :, ::1] xm, const double[:, :, :, ::1] pm):
     """The IMM's step 4 and moment matching in one pass: ``mu`` (T, 2) of
@@ -1189,8 +1443,8 @@ def mode_probabilities_match(const double[:, ::1] c, const double[:, ::1] lik, d
     return mu_a, x_a, p_a
 
 
-def reanchor_match(const double[:, ::1] x, const cnp.uint8_t[::1] confirmed, const cnp.uint8_t[::1] hit,
-                   const cnp.uint8_t[:, ::1] gated, const double[:, ::1] z, double speed_mps, bint receding_only,
+def reanchor_match(const double[:, :] x, const cnp.npy_bool[:] confirmed, const cnp.npy_bool[:] hit,
+                   const cnp.npy_bool[:, :] gated, const double[:, :] z, double speed_mps, bint receding_only,
                    double min_m, double max_m, double lateral_m):
     """The matches of ``edge.track.roles.post.Reanchor.run`` (the same operations): each confirmed track that
     missed (``confirmed``, ``hit`` (T,)) and the nearest detection no track validated (``gated`` (T, M)) that lies
@@ -1201,15 +1455,20 @@ def reanchor_match(const double[:, ::1] x, const cnp.uint8_t[::1] confirmed, con
     if confirmed.shape[0] != nt or hit.shape[0] != nt or gated.shape[0] != nt or gated.shape[1] != nm \
             or z.shape[1] < 3 or x.shape[1] < 4:
         raise ValueError("reanchor_match: x (T, 4), confirmed, hit (T,), gated (T, M), z (M, 3)")
-    i_a = np.empty(nt, dtype=np.int64)
-    j_a = np.empty(nt, dtype=np.int64)
-    free_a = np.ones(nm, dtype=np.uint8)
-    cdef cnp.int64_t[::1] io = i_a
-    cdef cnp.int64_t[::1] jo = j_a
-    cdef cnp.uint8_t[::1] free = free_a
+    for t in range(nt):  # the usual frame: no confirmed track missed
+        if confirmed[t] and not hit[t]:
+            break
+    else:
+        return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
+    cdef cnp.ndarray scratch = np.empty(2 * nt + nm + 1, dtype=np.int64)  # freed however the call ends
+    cdef cnp.int64_t* io = <cnp.int64_t*> cnp.PyArray_DATA(scratch)
+    cdef cnp.int64_t* jo = io + nt
+    cdef cnp.int64_t* free = jo + nt
     cdef double rho_t, vr_t, nearer, best
     cdef Py_ssize_t arg
     with nogil:
+        for m in range(nm):
+            free[m] = 1
         for t in range(nt):
             for m in range(nm):
                 if gated[t, m]:
@@ -1234,7 +1493,11 @@ def reanchor_match(const double[:, ::1] x, const cnp.uint8_t[::1] confirmed, con
                 io[k] = t
                 jo[k] = arg
                 k += 1
-    return i_a[:k].copy(), j_a[:k].copy()
+    cdef cnp.ndarray i_a = np.empty(k, dtype=np.int64)
+    cdef cnp.ndarray j_a = np.empty(k, dtype=np.int64)
+    memcpy(cnp.PyArray_DATA(i_a), io, k * sizeof(cnp.int64_t))
+    memcpy(cnp.PyArray_DATA(j_a), jo, k * sizeof(cnp.int64_t))
+    return i_a, j_a
 
 
 def delete_tests(const double[:, :] x, const double[:, :, :] p, const cnp.int32_t[:] misses, const double[:] ext_var,
@@ -1273,40 +1536,115 @@ def delete_tests(const double[:, :] x, const double[:, :, :] p, const cnp.int32_
 from libc.math cimport isfinite
 
 
-def measurements(const float[:] x, const float[:] y, const float[:] snr, const float[:] vr, const float[:] rng,
-                 bint use_radial_speed):
-    """The float64 measurements of :meth:`edge.track.table.Measurements.from_detections` from float32 columns of
-    one size: ``z`` (M, 3) ground x, y and the ground radial speed (``vr`` times range over ground range, times 1
-    within 1e-6 m of the radar) with ``use_radial_speed``, else (M, 2), and the SNR (M,) in float64. None when a
-    value is not finite (the numpy form handles those rows)."""
-    cdef Py_ssize_t n = x.shape[0], i
+cdef inline bint _column(object a, int type_num, Py_ssize_t n):
+    """``a`` is a one-dimensional aligned array of ``type_num`` in native byte order (of length ``n`` if ``n >= 0``)."""
+    cdef cnp.ndarray arr
+    if not cnp.PyArray_Check(a):
+        return False
+    arr = <cnp.ndarray> a
+    return (cnp.PyArray_NDIM(arr) == 1 and cnp.PyArray_TYPE(arr) == type_num and cnp.PyArray_ISNOTSWAPPED(arr)
+            and cnp.PyArray_ISALIGNED(arr) and (n < 0 or cnp.PyArray_DIMS(arr)[0] == n))
+
+
+cdef inline float _f32_at(cnp.ndarray a, Py_ssize_t i) noexcept nogil:
+    return (<const float*> (cnp.PyArray_BYTES(a) + i * cnp.PyArray_STRIDES(a)[0]))[0]
+
+
+def measurements(x, y, snr, vr, rng, bint use_radial_speed, pair=None, unresolved=None):
+    """The float64 measurements of :meth:`edge.track.table.Measurements.from_detections` from the float32 columns
+    ``x``, ``y``, ``snr``, ``vr``, ``rng`` of one size M: ``z`` (M, 3) ground x, y and the ground radial speed (``vr``
+    times range over ground range, times 1 within 1e-6 m of the radar) with ``use_radial_speed``, else (M, 2), the
+    SNR (M,) in float64, and the detections' extra columns ``pair`` (``resolved_pair``, int32 or int64: as int64, None
+    when absent or without a pair) and ``unresolved`` (``unresolved_pair``, bool: None when absent or all false), as
+    ``from_detections`` makes them. None (the numpy form handles the frame) when a column is not a float32 vector,
+    a value is not finite, or an extra column is present in another form."""
+    cdef Py_ssize_t n, i
     cdef double xi, yi, rho, ratio
-    if y.shape[0] != n or snr.shape[0] != n or vr.shape[0] != n or rng.shape[0] != n:
+    cdef cnp.ndarray ax, ay, asnr, avr, arng, pair_a
+    cdef int pair_type = 0
+    if not _column(x, cnp.NPY_FLOAT32, -1):
         return None
+    n = cnp.PyArray_DIMS(<cnp.ndarray> x)[0]
+    if not (_column(y, cnp.NPY_FLOAT32, n) and _column(snr, cnp.NPY_FLOAT32, n) and _column(vr, cnp.NPY_FLOAT32, n)
+            and _column(rng, cnp.NPY_FLOAT32, n)):
+        return None
+    if pair is not None:
+        if _column(pair, cnp.NPY_INT32, n):
+            pair_type = cnp.NPY_INT32
+        elif _column(pair, cnp.NPY_INT64, n):
+            pair_type = cnp.NPY_INT64
+        else:
+            return None
+    if unresolved is not None and not _column(unresolved, cnp.NPY_BOOL, n):
+        return None
+    ax, ay, asnr, avr, arng = x, y, snr, vr, rng
     with nogil:
         for i in range(n):
-            if not (isfinite(x[i]) and isfinite(y[i]) and isfinite(snr[i]) and isfinite(vr[i]) and isfinite(rng[i])):
+            if not (isfinite(_f32_at(ax, i)) and isfinite(_f32_at(ay, i)) and isfinite(_f32_at(asnr, i))
+                    and isfinite(_f32_at(avr, i)) and isfinite(_f32_at(arng, i))):
                 break
         else:
             i = n
     if i < n:
         return None
-    z_a = np.empty((n, 3 if use_radial_speed else 2))
-    snr_a = np.empty(n)
-    cdef double[:, ::1] z = z_a
-    cdef double[::1] s = snr_a
+    cdef cnp.ndarray z_a = np.empty((n, 3 if use_radial_speed else 2))
+    cdef cnp.ndarray snr_a = np.empty(n)
+    cdef double* z = _f64(z_a)
+    cdef double* s = _f64(snr_a)
+    cdef Py_ssize_t nc = 3 if use_radial_speed else 2
     with nogil:
         for i in range(n):
-            xi = x[i]
-            yi = y[i]
-            z[i, 0] = xi
-            z[i, 1] = yi
-            s[i] = snr[i]
+            xi = _f32_at(ax, i)
+            yi = _f32_at(ay, i)
+            z[nc * i] = xi
+            z[nc * i + 1] = yi
+            s[i] = _f32_at(asnr, i)
             if use_radial_speed:
                 rho = hypot(xi, yi)
-                ratio = 1.0 if rho <= 1e-6 else <double>rng[i] / rho
-                z[i, 2] = <double>vr[i] * ratio
-    return z_a, snr_a
+                ratio = 1.0 if rho <= 1e-6 else <double> _f32_at(arng, i) / rho
+                z[nc * i + 2] = <double> _f32_at(avr, i) * ratio
+    return z_a, snr_a, _pair_column(pair, pair_type, n), _any_column(unresolved, n)
+
+
+cdef object _pair_column(object pair, int pair_type, Py_ssize_t n):
+    """``pair`` (int32 or int64, n) as int64 (the same array if int64), or None when no value is >= 0."""
+    cdef cnp.ndarray a, out
+    cdef Py_ssize_t i, k = 0
+    cdef char* src
+    cdef Py_ssize_t stride
+    cdef cnp.int64_t* dst
+    if pair is None:
+        return None
+    a = <cnp.ndarray> pair
+    src, stride = cnp.PyArray_BYTES(a), cnp.PyArray_STRIDES(a)[0]
+    if pair_type == cnp.NPY_INT64:
+        for i in range(n):
+            if (<cnp.int64_t*> (src + i * stride))[0] >= 0:
+                return pair
+        return None
+    for i in range(n):
+        if (<cnp.int32_t*> (src + i * stride))[0] >= 0:
+            k += 1
+    if k == 0:
+        return None
+    out = np.empty(n, dtype=np.int64)
+    dst = <cnp.int64_t*> cnp.PyArray_DATA(out)
+    for i in range(n):
+        dst[i] = (<cnp.int32_t*> (src + i * stride))[0]
+    return out
+
+
+cdef object _any_column(object col, Py_ssize_t n):
+    """The bool column ``col`` (n), or None when it is None or all false."""
+    cdef cnp.ndarray a
+    cdef Py_ssize_t i
+    if col is None:
+        return None
+    a = <cnp.ndarray> col
+    for i in range(n):
+        if (<cnp.npy_bool*> (cnp.PyArray_BYTES(a) + i * cnp.PyArray_STRIDES(a)[0]))[0]:
+            return col
+    return None
 
 
 def seed_candidates(const double[:, :] z, const cnp.npy_bool[:] used, const cnp.int64_t[:] pair, bint has_pair,
@@ -1459,7 +1797,6 @@ def confirm_ready(const double[:, :] x, const cnp.uint32_t[:] history, const cnp
     return out
 
 
-from libc.string cimport memcpy
 
 
 cdef inline bint _plain(cnp.ndarray a):
@@ -1501,6 +1838,125 @@ def concat_rows(list olds, list news):
         memcpy(cnp.PyArray_BYTES(c) + cnp.PyArray_NBYTES(a), cnp.PyArray_BYTES(b), cnp.PyArray_NBYTES(b))
         out.append(c)
     return out
+
+
+#: the track table's columns (``TrackTable._COLUMNS``' order): name, type number and row shape
+_TABLE_COLUMNS = (
+    ("x", cnp.NPY_FLOAT64, (4,)), ("p", cnp.NPY_FLOAT64, (4, 4)), ("track_id", cnp.NPY_INT32, ()),
+    ("age", cnp.NPY_INT32, ()), ("hits", cnp.NPY_INT32, ()), ("misses", cnp.NPY_INT32, ()),
+    ("history", cnp.NPY_UINT32, ()), ("confirmed", cnp.NPY_BOOL, ()), ("moved", cnp.NPY_BOOL, ()),
+    ("ext_var", cnp.NPY_FLOAT64, ()), ("close_run", cnp.NPY_INT32, ()), ("score", cnp.NPY_FLOAT64, ()),
+    ("xm", cnp.NPY_FLOAT64, (2, 4)), ("pm", cnp.NPY_FLOAT64, (2, 4, 4)), ("mu", cnp.NPY_FLOAT64, (2,)),
+    ("lat", cnp.NPY_FLOAT64, (2,)), ("lat_p", cnp.NPY_FLOAT64, (2, 2)), ("lat_cusum", cnp.NPY_FLOAT64, ()))
+
+
+def append_rows(tr, x, p, double ext_var, double keep_prob):
+    """:meth:`edge.track.table.TrackTable.append` of ``k`` tentative tracks at ``x`` (k, 4), ``p`` (k, 4, 4) float64
+    (any strides) to the table ``tr``: every column a new array, the old rows then the new ones (both IMM modes at the
+    state with the probabilities ``(keep_prob, 1 - keep_prob)``, the straight-line filter at its lateral part). True
+    when done; False (nothing changed) when a column or the states are not of the table's dtypes and shapes."""
+    cdef Py_ssize_t n, k, r, i, j, m, c, nd
+    cdef cnp.ndarray xa, pa, old, new
+    cdef cnp.npy_intp dims[5]
+    cdef const char* xb
+    cdef const char* pb
+    cdef Py_ssize_t xs0, xs1, ps0, ps1, ps2
+    cdef char* dst
+    cdef double* d
+    cdef cnp.int32_t* di
+    cdef int type_num
+    cdef tuple shape
+    if not (_column_nd(x, cnp.NPY_FLOAT64, 2) and _column_nd(p, cnp.NPY_FLOAT64, 3)):
+        return False
+    xa, pa = <cnp.ndarray> x, <cnp.ndarray> p
+    k = cnp.PyArray_DIMS(xa)[0]
+    if cnp.PyArray_DIMS(xa)[1] != 4 or cnp.PyArray_DIMS(pa)[0] != k or cnp.PyArray_DIMS(pa)[1] != 4 \
+            or cnp.PyArray_DIMS(pa)[2] != 4:
+        return False
+    cdef list olds = [getattr(tr, spec[0]) for spec in _TABLE_COLUMNS]
+    n = -1
+    for c in range(len(_TABLE_COLUMNS)):
+        type_num, shape = _TABLE_COLUMNS[c][1], _TABLE_COLUMNS[c][2]
+        if not (cnp.PyArray_Check(olds[c]) and _plain(<cnp.ndarray> olds[c])
+                and cnp.PyArray_ISNOTSWAPPED(<cnp.ndarray> olds[c])):
+            return False
+        old = <cnp.ndarray> olds[c]
+        if cnp.PyArray_TYPE(old) != type_num or cnp.PyArray_NDIM(old) != 1 + len(shape):
+            return False
+        for i in range(len(shape)):
+            if cnp.PyArray_DIMS(old)[1 + i] != shape[i]:
+                return False
+        if n < 0:
+            n = cnp.PyArray_DIMS(old)[0]
+        elif cnp.PyArray_DIMS(old)[0] != n:
+            return False
+    xb, xs0, xs1 = cnp.PyArray_BYTES(xa), cnp.PyArray_STRIDES(xa)[0], cnp.PyArray_STRIDES(xa)[1]
+    pb, ps0 = cnp.PyArray_BYTES(pa), cnp.PyArray_STRIDES(pa)[0]
+    ps1, ps2 = cnp.PyArray_STRIDES(pa)[1], cnp.PyArray_STRIDES(pa)[2]
+    for c in range(len(_TABLE_COLUMNS)):
+        old = <cnp.ndarray> olds[c]
+        nd = cnp.PyArray_NDIM(old)
+        for i in range(nd):
+            dims[i] = cnp.PyArray_DIMS(old)[i]
+        dims[0] = n + k
+        new = cnp.PyArray_EMPTY(<int> nd, dims, cnp.PyArray_TYPE(old), 0)
+        memcpy(cnp.PyArray_BYTES(new), cnp.PyArray_BYTES(old), cnp.PyArray_NBYTES(old))
+        dst = cnp.PyArray_BYTES(new) + cnp.PyArray_NBYTES(old)
+        d = <double*> dst
+        di = <cnp.int32_t*> dst
+        if c == 0:  # x
+            for r in range(k):
+                for j in range(4):
+                    d[4 * r + j] = (<const double*> (xb + r * xs0 + j * xs1))[0]
+        elif c == 1:  # p
+            for r in range(k):
+                for i in range(4):
+                    for j in range(4):
+                        d[16 * r + 4 * i + j] = (<const double*> (pb + r * ps0 + i * ps1 + j * ps2))[0]
+        elif c == 2 or c == 5 or c == 10:  # track_id, misses, close_run: 0
+            for r in range(k):
+                di[r] = 0
+        elif c == 3 or c == 4:  # age, hits: 1
+            for r in range(k):
+                di[r] = 1
+        elif c == 6:  # history: this frame hit
+            for r in range(k):
+                (<cnp.uint32_t*> dst)[r] = 1
+        elif c == 7 or c == 8:  # confirmed, moved
+            for r in range(k):
+                (<cnp.npy_bool*> dst)[r] = 0
+        elif c == 9:  # ext_var
+            for r in range(k):
+                d[r] = ext_var
+        elif c == 11 or c == 17:  # score, lat_cusum
+            for r in range(k):
+                d[r] = 0.0
+        elif c == 12:  # xm: both modes at the state
+            for r in range(k):
+                for m in range(2):
+                    for j in range(4):
+                        d[8 * r + 4 * m + j] = (<const double*> (xb + r * xs0 + j * xs1))[0]
+        elif c == 13:  # pm
+            for r in range(k):
+                for m in range(2):
+                    for i in range(4):
+                        for j in range(4):
+                            d[32 * r + 16 * m + 4 * i + j] = (<const double*> (pb + r * ps0 + i * ps1 + j * ps2))[0]
+        elif c == 14:  # mu
+            for r in range(k):
+                d[2 * r] = keep_prob
+                d[2 * r + 1] = 1.0 - keep_prob
+        elif c == 15:  # lat: x[:, 0::2]
+            for r in range(k):
+                d[2 * r] = (<const double*> (xb + r * xs0))[0]
+                d[2 * r + 1] = (<const double*> (xb + r * xs0 + 2 * xs1))[0]
+        elif c == 16:  # lat_p: p[:, 0::2, 0::2]
+            for r in range(k):
+                for i in range(2):
+                    for j in range(2):
+                        d[4 * r + 2 * i + j] = (<const double*> (pb + r * ps0 + 2 * i * ps1 + 2 * j * ps2))[0]
+        setattr(tr, _TABLE_COLUMNS[c][0], new)
+    return True
 
 
 def take_rows(list cols, const cnp.intp_t[::1] rows):
@@ -1548,6 +2004,13 @@ cdef extern from *:
     int PyObject_GenericSetAttr(object o, object name, object value) except -1
 
 
+#: a published TrackState's ``__dict__`` with every value None, keys in field order (``publish_states`` copies it)
+cdef dict _STATE_DICT = dict.fromkeys((
+    "track_id", "x_m", "y_m", "vx_mps", "vy_mps", "range_m", "radial_speed_mps", "az_rad", "age_frames", "hits",
+    "confirmed", "lane", "cls", "class_probability", "rcs_dbsm", "length_m", "x_sd_m", "y_sd_m", "vx_sd_mps",
+    "vy_sd_mps", "existence_probability"))
+
+
 def publish_states(type cls, const double[:, :] x, const double[:, :, :] p, const cnp.int64_t[::1] idx,
                    const double[:, :] lat, const double[:, :, :] lat_p, const double[:] lat_cusum,
                    const double[:] ext_var, const double[:] score, const cnp.uint8_t[:] confirmed, bint smoother,
@@ -1568,15 +2031,146 @@ def publish_states(type cls, const double[:, :] x, const double[:, :, :] p, cons
     for k in range(n):
         i = idx[k]
         o = ktr_new_instance(cls)
-        d = {"track_id": track_id[i], "x_m": num[k, 0], "y_m": num[k, 1], "vx_mps": num[k, 2], "vy_mps": num[k, 3],
-             "range_m": num[k, 4], "radial_speed_mps": num[k, 5], "az_rad": num[k, 6], "age_frames": age[i],
-             "hits": hits[i], "confirmed": True if confirmed[i] else False, "lane": None, "cls": None,
-             "class_probability": None, "rcs_dbsm": None, "length_m": num[k, 7] if num[k, 8] != 0.0 else None,
-             "x_sd_m": num[k, 9], "y_sd_m": num[k, 10], "vx_sd_mps": num[k, 11], "vy_sd_mps": num[k, 12],
-             "existence_probability": num[k, 13]}
+        d = _STATE_DICT.copy()  # every key in field order; lane, cls, class_probability and rcs_dbsm stay None
+        d["track_id"] = track_id[i]
+        d["x_m"] = num[k, 0]
+        d["y_m"] = num[k, 1]
+        d["vx_mps"] = num[k, 2]
+        d["vy_mps"] = num[k, 3]
+        d["range_m"] = num[k, 4]
+        d["radial_speed_mps"] = num[k, 5]
+        d["az_rad"] = num[k, 6]
+        d["age_frames"] = age[i]
+        d["hits"] = hits[i]
+        d["confirmed"] = True if confirmed[i] else False
+        if num[k, 8] != 0.0:
+            d["length_m"] = num[k, 7]
+        d["x_sd_m"] = num[k, 9]
+        d["y_sd_m"] = num[k, 10]
+        d["vx_sd_mps"] = num[k, 11]
+        d["vy_sd_mps"] = num[k, 12]
+        d["existence_probability"] = num[k, 13]
         PyObject_GenericSetAttr(o, "__dict__", d)
         out.append(o)
     return tuple(out), num_arr
+
+
+cdef struct _Col:
+    # a column of the track table: element (i, j, k) at data + i * s0 + j * s1 + k * s2
+    const char* data
+    Py_ssize_t s0, s1, s2
+
+
+cdef bint _table_col(object tr, str name, int type_num, Py_ssize_t n, Py_ssize_t d1, Py_ssize_t d2,
+                     _Col* out) except -1:
+    """``tr.<name>`` as a column of ``n`` rows of ``type_num`` in native byte order, aligned, of row shape ``()``
+    (``d1`` 0), ``(d1,)`` (``d2`` 0) or ``(d1, d2)``; False when it is not one."""
+    cdef object a = getattr(tr, name)
+    cdef cnp.ndarray arr
+    cdef int nd = 1 + (d1 > 0) + (d2 > 0)
+    if not _column_nd(a, type_num, nd):
+        return False
+    arr = <cnp.ndarray> a
+    if cnp.PyArray_DIMS(arr)[0] != n or (d1 and cnp.PyArray_DIMS(arr)[1] != d1) \
+            or (d2 and cnp.PyArray_DIMS(arr)[2] != d2):
+        return False
+    out.data = cnp.PyArray_BYTES(arr)
+    out.s0 = cnp.PyArray_STRIDES(arr)[0]
+    out.s1 = cnp.PyArray_STRIDES(arr)[1] if nd > 1 else 0
+    out.s2 = cnp.PyArray_STRIDES(arr)[2] if nd > 2 else 0
+    return True
+
+
+cdef inline bint _column_nd(object a, int type_num, int nd):
+    """``a`` is an ``nd``-dimensional aligned array of ``type_num`` in native byte order."""
+    cdef cnp.ndarray arr
+    if not cnp.PyArray_Check(a):
+        return False
+    arr = <cnp.ndarray> a
+    return (cnp.PyArray_NDIM(arr) == nd and cnp.PyArray_TYPE(arr) == type_num and cnp.PyArray_ISNOTSWAPPED(arr)
+            and cnp.PyArray_ISALIGNED(arr))
+
+
+cdef inline double _f64_at(_Col c, Py_ssize_t i, Py_ssize_t j, Py_ssize_t k) noexcept nogil:
+    return (<const double*> (c.data + i * c.s0 + j * c.s1 + k * c.s2))[0]
+
+
+cdef inline cnp.int32_t _i32_at(_Col c, Py_ssize_t i) noexcept nogil:
+    return (<const cnp.int32_t*> (c.data + i * c.s0))[0]
+
+
+def publish_table(type cls, tr, bint tentative, long max_misses, bint smoother, double cusum_threshold,
+                  bint publish_length, double confirmed_log_odds):
+    """:meth:`edge.track.tracker.PdafTracker.published` read straight from the track table ``tr``: the rows with at
+    most ``max_misses`` misses (confirmed ones only unless ``tentative``), in row order, as ``cls`` instances
+    (``TrackState``; the ``__dict__`` of :func:`publish_states`), and their motion-model x (n,) (None when no row is
+    published). None when a column of ``tr`` is not of the table's dtypes and shapes (``publish_states`` then)."""
+    if cls.__new__ is not object.__new__:
+        raise TypeError("publish_table: cls must be made by object.__new__")
+    cdef Py_ssize_t nt = len(tr), n = 0, k, i
+    cdef _Col x, p, lat, lat_p, lat_cusum, ext_var, score, confirmed, misses, track_id, age, hits
+    if not (_table_col(tr, "x", cnp.NPY_FLOAT64, nt, 4, 0, &x) and _table_col(tr, "p", cnp.NPY_FLOAT64, nt, 4, 4, &p)
+            and _table_col(tr, "lat", cnp.NPY_FLOAT64, nt, 2, 0, &lat)
+            and _table_col(tr, "lat_p", cnp.NPY_FLOAT64, nt, 2, 2, &lat_p)
+            and _table_col(tr, "lat_cusum", cnp.NPY_FLOAT64, nt, 0, 0, &lat_cusum)
+            and _table_col(tr, "ext_var", cnp.NPY_FLOAT64, nt, 0, 0, &ext_var)
+            and _table_col(tr, "score", cnp.NPY_FLOAT64, nt, 0, 0, &score)
+            and _table_col(tr, "confirmed", cnp.NPY_BOOL, nt, 0, 0, &confirmed)
+            and _table_col(tr, "misses", cnp.NPY_INT32, nt, 0, 0, &misses)
+            and _table_col(tr, "track_id", cnp.NPY_INT32, nt, 0, 0, &track_id)
+            and _table_col(tr, "age", cnp.NPY_INT32, nt, 0, 0, &age)
+            and _table_col(tr, "hits", cnp.NPY_INT32, nt, 0, 0, &hits)):
+        return None
+    cdef cnp.ndarray rows_a = np.empty(nt, dtype=np.intp)  # scratch (freed however the call ends)
+    cdef Py_ssize_t* rows = <Py_ssize_t*> cnp.PyArray_DATA(rows_a)
+    cdef bint blend = False, conf
+    for i in range(nt):
+        if (tentative or confirmed.data[i * confirmed.s0]) and _i32_at(misses, i) <= max_misses:
+            rows[n] = i
+            n += 1
+            if smoother and _f64_at(lat_cusum, i, 0, 0) != 0.0:
+                blend = True
+    if n == 0:
+        return (), None
+    cdef double p0 = _blend_p0(cusum_threshold) if smoother else 0.0
+    cdef double num[15]
+    cdef cnp.ndarray mx_a = np.empty(n)
+    cdef double* mx = _f64(mx_a)
+    cdef list out = []
+    cdef dict d
+    for k in range(n):
+        i = rows[k]
+        conf = confirmed.data[i * confirmed.s0] != 0
+        _publish_row(_f64_at(x, i, 0, 0), _f64_at(x, i, 1, 0), _f64_at(x, i, 2, 0), _f64_at(x, i, 3, 0),
+                     _f64_at(p, i, 0, 0), _f64_at(p, i, 1, 1), _f64_at(p, i, 2, 2), _f64_at(p, i, 3, 3), smoother,
+                     blend, p0, cusum_threshold, _f64_at(lat, i, 0, 0) if smoother else 0.0,
+                     _f64_at(lat_p, i, 0, 0) if smoother else 0.0, _f64_at(lat_cusum, i, 0, 0) if smoother else 0.0,
+                     publish_length, _f64_at(ext_var, i, 0, 0), _f64_at(score, i, 0, 0), conf, confirmed_log_odds,
+                     num)
+        mx[k] = num[14]
+        o = ktr_new_instance(cls)
+        d = _STATE_DICT.copy()  # every key in field order; lane, cls, class_probability and rcs_dbsm stay None
+        d["track_id"] = _i32_at(track_id, i)
+        d["x_m"] = num[0]
+        d["y_m"] = num[1]
+        d["vx_mps"] = num[2]
+        d["vy_mps"] = num[3]
+        d["range_m"] = num[4]
+        d["radial_speed_mps"] = num[5]
+        d["az_rad"] = num[6]
+        d["age_frames"] = _i32_at(age, i)
+        d["hits"] = _i32_at(hits, i)
+        d["confirmed"] = True if conf else False
+        if num[8] != 0.0:
+            d["length_m"] = num[7]
+        d["x_sd_m"] = num[9]
+        d["y_sd_m"] = num[10]
+        d["vx_sd_mps"] = num[11]
+        d["vy_sd_mps"] = num[12]
+        d["existence_probability"] = num[13]
+        PyObject_GenericSetAttr(o, "__dict__", d)
+        out.append(o)
+    return tuple(out), mx_a
 
 
 def seed_states(const double[:, :] seeds, const double[:, :, :] r, bint with_rs, double cy, double sy, double var_u,

@@ -234,14 +234,20 @@ class PairBuffers:
     def __init__(self) -> None:
         self._flat: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
-    def views(self, t: int, m: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """C-contiguous float64 views ``v`` (t, m, n), ``s`` and ``s_inv`` (t, m, n, n) of the buffers (grown, by
-        at least half, when too small); their contents are undefined."""
+    def flat(self, t: int, m: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The three float64 buffers, each at least ``t * m * n * n`` long (grown, by at least half, when too small):
+        the kernel makes ``v``, ``s`` and ``s_inv`` of their starts. Their contents are undefined."""
         need = t * m * n * n
         if self._flat is None or self._flat[1].size < need:
             size = max(need, 0 if self._flat is None else self._flat[1].size * 3 // 2, 1024)
             self._flat = (np.empty(size), np.empty(size), np.empty(size))
-        fv, fs, fsi = self._flat
+        return self._flat
+
+    def views(self, t: int, m: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """C-contiguous float64 views ``v`` (t, m, n), ``s`` and ``s_inv`` (t, m, n, n) of the buffers (:meth:`flat`);
+        their contents are undefined."""
+        fv, fs, fsi = self.flat(t, m, n)
+        need = t * m * n * n
         return (fv[:t * m * n].reshape(t, m, n), fs[:need].reshape(t, m, n, n), fsi[:need].reshape(t, m, n, n))
 
     def __getstate__(self) -> dict:
@@ -270,15 +276,16 @@ def innovations_each(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndar
     determinant, ``d2``) in one pass with the same arithmetic (bit-identical); None: numpy. ``buffers``: the kernel
     writes ``v``, ``S`` and ``S^-1`` into these (:class:`PairBuffers`; the result's arrays are then views, valid until
     their next use)."""
-    st = h @ p @ h.transpose(0, 2, 1) + r_track
-    st = 0.5 * (st + st.transpose(0, 2, 1))
+    hph = h @ p @ h.transpose(0, 2, 1)
     if kernel is not None and z.shape[1] in (2, 3):
         prune = prune_gamma is not None and z_hat.shape[0] * z.shape[0] >= _PREGATE_MIN_PAIRS
         lim = prune_gamma * (1.0 + _PREGATE_MARGIN) if prune else 0.0
-        out = (None, None, None) if buffers is None else buffers.views(z_hat.shape[0], z.shape[0], z.shape[1])
-        v, d2, s, s_inv, det_s = kernel.innovations_each(np.ascontiguousarray(z), np.ascontiguousarray(z_hat),
-                                                         st, np.ascontiguousarray(r_meas), lim, prune, *out)
+        flat = None if buffers is None else buffers.flat(z_hat.shape[0], z.shape[0], z.shape[1])
+        v, d2, s, s_inv, det_s, st = kernel.innovations_each(z, z_hat, hph, r_track, np.ascontiguousarray(r_meas),
+                                                             lim, prune, flat)
         return InnovationsEach(v, d2, s, s_inv, det_s, st)
+    st = hph + r_track
+    st = 0.5 * (st + st.transpose(0, 2, 1))
     v = z[None, :, :] - z_hat[:, None, :]  # (T, M, n)
     if prune_gamma is not None and v.shape[0] * v.shape[1] >= _PREGATE_MIN_PAIRS:
         n = v.shape[2]

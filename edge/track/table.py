@@ -91,7 +91,10 @@ class TrackTable:
     def append(self, x: np.ndarray, p: np.ndarray, ext_var: float, keep_prob: float = 0.5, kernel=None) -> None:
         """Add ``k`` tentative tracks at states ``x`` (k, 4), ``p`` (k, 4, 4): both IMM modes at the state with the
         probabilities ``(keep_prob, 1 - keep_prob)``, the straight-line filter at its lateral part. ``kernel``: the
-        compiled ``edge.native._track``, which joins every column in one call (the same arrays)."""
+        compiled ``edge.native._track``, which makes every column in one call (``append_rows``, the same arrays), or
+        joins them (``concat_rows``) when a column is not of the table's dtypes and shapes."""
+        if kernel is not None and kernel.append_rows(self, x, p, ext_var, keep_prob):  # every column in one call
+            return
         k = x.shape[0]
         zeros, ones, no, ones_u32, zeros_f, ext, mu = _new_rows(k, ext_var, keep_prob)
         new = (x, p, zeros, ones, ones, zeros, ones_u32, no, no, ext, zeros, zeros_f, x[:, None].repeat(2, axis=1),
@@ -126,11 +129,6 @@ def _new_rows(k: int, ext_var: float, keep_prob: float) -> tuple[np.ndarray, ...
     return rows
 
 
-def _f32_vector(a) -> bool:
-    """A one-dimensional float32 array: what the compiled column kernels take (other columns take the numpy form)."""
-    return isinstance(a, np.ndarray) and a.dtype == np.float32 and a.ndim == 1
-
-
 @dataclass
 class Measurements:
     """One frame's detections as the filter sees them (float64, ground plane)."""
@@ -144,14 +142,13 @@ class Measurements:
     @classmethod
     def from_detections(cls, det: Detections, use_radial_speed: bool, kernel=None) -> "Measurements":
         """The frame's measurements; ``kernel``: the compiled ``edge.native._track``, used when the columns are
-        float32 arrays of finite values (the same float64 values)."""
+        float32 arrays of finite values and the extra columns plain arrays (the same values)."""
         cols = (det.x_m, det.y_m, det.snr_db, det.radial_speed_mps, det.range_m)
-        if kernel is not None and all(_f32_vector(c) for c in cols):
-            res = kernel.measurements(*cols, use_radial_speed)
+        if kernel is not None:
+            extra = det.extra
+            res = kernel.measurements(*cols, use_radial_speed, extra.get("resolved_pair"), extra.get("unresolved_pair"))
             if res is not None:
-                z, snr = res
-                return cls(z, snr, use_radial_speed, _pair_column(det, z.shape[0]),
-                           _extra_column(det, "unresolved_pair", bool, None, True, z.shape[0]))
+                return cls(res[0], res[1], use_radial_speed, res[2], res[3])
         # one float64 array of the five columns (a handful of detections: few calls, not few flops)
         cols = np.array(cols, dtype=np.float64)
         fin = np.isfinite(cols)

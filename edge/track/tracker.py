@@ -113,6 +113,15 @@ class PdafTracker(native.KernelUser):
 
     def published(self) -> tuple[TrackState, ...]:
         tr = self.tracks
+        if self.kernel is not None and _TRACK_STATE_PLAIN:  # the rows, their numbers and TrackStates in one call
+            cfg = self.config
+            res = self.kernel.publish_table(TrackState, tr, cfg.publish_tentative, cfg.publish_max_misses,
+                                            cfg.lateral_smoother, cfg.lateral_smoother_cusum_nats, cfg.publish_length,
+                                            self.confirmer.confirmed_log_odds)
+            if res is not None:
+                if cfg.lateral_smoother:
+                    self.published_motion_x_m = res[1]
+                return res[0]
         if self.config.publish_tentative:
             sel = tr.misses <= self.config.publish_max_misses
         else:

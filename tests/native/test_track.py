@@ -75,9 +75,20 @@ def test_innovations_each_into_reused_buffers_is_bit_identical():
                 shared.append(np.shares_memory(got.s, buf.views(1, 1, 1)[1]))
     assert all(shared) and len(shared) >= 8
     assert copy.deepcopy(buf)._flat is None and pickle.loads(pickle.dumps(buf))._flat is None
+    args = (np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((4, 2, 2)), np.zeros((4, 2, 2)), np.zeros((3, 2, 2)), 1.0,
+            False)
+    for bad in ((np.zeros(23), np.zeros(48), np.zeros(48)), (np.zeros(24), np.zeros(47), np.zeros(48)),
+                (np.zeros(24), np.zeros(48), np.zeros(48, np.float32)), (np.zeros(24), np.zeros(96)[::2], np.zeros(48)),
+                (np.zeros(24), np.zeros(48))):
+        with pytest.raises(ValueError, match="output buffer"):
+            K.innovations_each(*args, bad)
+    ro = np.zeros(48)
+    ro.flags.writeable = False
     with pytest.raises(ValueError, match="output buffer"):
-        K.innovations_each(np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((4, 2, 2)), np.zeros((3, 2, 2)), 1.0, False,
-                           np.zeros((5, 3, 2)), None, None)
+        K.innovations_each(*args, (np.zeros(24), ro, np.zeros(48)))
+    with pytest.raises(ValueError, match="inconsistent shapes"):
+        K.innovations_each(np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((4, 2, 2)), np.zeros((3, 2, 2)),
+                           np.zeros((3, 2, 2)), 1.0, False)
 
 
 @settings(max_examples=60, deadline=None, derandomize=True)
@@ -116,9 +127,16 @@ def _tables(rng, t):
 
 @pytest.mark.parametrize("seed", range(6))
 @pytest.mark.parametrize("t", [2, 3, 20, 64, 100])
-def test_duplicates_pair_test_is_identical(seed, t):
+@pytest.mark.parametrize("persist", [30, 2])
+def test_duplicates_pair_test_is_identical(seed, t, persist):
+    """The duplicate test with the kernel's pair tests and same-vehicle runs against numpy; with ``persist`` 2 the
+    runs (0 to 3 frames before this one) decide for boxed pairs whose lateral speeds differ."""
+    import dataclasses
+
     rng = np.random.default_rng(seed)
     deleter, tb = _tables(rng, t)
+    deleter.cfg = dataclasses.replace(deleter.cfg, merge_persist_frames=persist)
+    tb.x[rng.uniform(size=t) < 0.3, 2] += 3.0  # lateral speeds apart: boxed, yet two vehicles unless they persist
     assert deleter.kernel is K
     runs = tb.close_run.copy()
     pair = rng.integers(-1, 3, t)
@@ -480,6 +498,22 @@ def test_measurements_are_identical(seed, m, use_radial_speed):
     wide = Detections(*(c.astype(np.float64) for c in (det.range_m, det.radial_speed_mps, det.az_rad, det.snr_db,
                                                        det.x_m, det.y_m)), det.extra)
     assert _same_measurements(Measurements.from_detections(wide, use_radial_speed, K), want)
+    cols = (det.range_m, det.radial_speed_mps, det.az_rad, det.snr_db, det.x_m, det.y_m)
+    if seed % 4 == 1 and m:  # the extra columns in other forms: int64 (kept as it is), a list, mis-sized
+        pair = det.extra["resolved_pair"]
+        for other in (pair.astype(np.int64), pair.tolist(), np.zeros(m + 1, np.int32), pair.astype(np.int16)):
+            alt = Detections(*cols, dict(det.extra, resolved_pair=other))
+            got = Measurements.from_detections(alt, use_radial_speed, K)
+            assert _same_measurements(got, Measurements.from_detections(alt, use_radial_speed))
+            if isinstance(other, np.ndarray) and other.dtype == np.int64 and got.pair is not None:
+                assert got.pair is other
+        alt = Detections(*cols, dict(det.extra, unresolved_pair=det.extra["unresolved_pair"].astype(np.uint8)))
+        assert _same_measurements(Measurements.from_detections(alt, use_radial_speed, K),
+                                  Measurements.from_detections(alt, use_radial_speed))
+    if m:  # strided and byte-swapped float32 columns
+        for form in (lambda c: np.repeat(c, 2)[::2], lambda c: c.astype(">f4")):
+            alt = Detections(*(form(c) for c in cols), det.extra)
+            assert _same_measurements(Measurements.from_detections(alt, use_radial_speed, K), want)
 
 
 #: absolute tolerance on published positions (m), speeds (m/s), their sds and the existence probability between
@@ -935,6 +969,83 @@ def test_imm_predict_with_far_switch_equals_numpy(seed):
     assert np.array_equal(got[4], c_ref)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_keep_model_into_is_identical(seed):
+    """``keep_model_into`` writes ``imm.keep_model``'s F and Q into the first mode bit for bit (yaw either side of the
+    boresight, no decay with tau 0) and leaves the other mode alone."""
+    from edge.track import imm
+
+    rng = np.random.default_rng(seed)
+    for _ in range(50):
+        dt, yaw = rng.uniform(0.001, 0.2), rng.uniform(-1.5, 1.5)
+        tau = 0.0 if rng.uniform() < 0.2 else rng.uniform(0.1, 10.0)
+        q_across, q_along = rng.uniform(0.0, 0.1), rng.uniform(0.0, 5.0)
+        f = rng.normal(0, 1, (2, 4, 4))
+        q = rng.normal(0, 1, (2, 4, 4))
+        other = f[1].copy(), q[1].copy()
+        K.keep_model_into(f, q, dt, yaw, tau, q_across, q_along, dt**3 / 3.0, dt**2 / 2.0)
+        f_ref, q_ref = imm.keep_model(dt, yaw, tau, q_across, q_along)
+        assert f[0].tobytes() == f_ref.tobytes() and q[0].tobytes() == q_ref.tobytes()
+        assert np.array_equal(f[1], other[0]) and np.array_equal(q[1], other[1])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_imm_seeded_is_identical(seed):
+    """``ImmPredictor.seeded`` with the ``imm_seeded`` kernel against its numpy lines on a table whose last rows are
+    new seeds: the mode probabilities, the lane-keeping mode's covariance and the combined one bit for bit, with one
+    speed variance for all seeds, one per seed, none (no radial speed) and the lateral speed sd off."""
+    import copy
+    from edge.track.config import MotionConfig
+    from edge.track.roles.predict import ImmPredictor
+    from edge.track.table import TrackTable
+
+    rng = np.random.default_rng(seed)
+    t, k = 12, 5
+    base = TrackTable()
+    a = rng.normal(0, 1, (t, 4, 4))
+    base.append(rng.normal(0, 30, (t, 4)), a @ a.swapaxes(-1, -2) + np.eye(4), 1.0)
+    for sigma in (0.5, 0.0):
+        pred = ImmPredictor(MotionConfig(imm_keep_init_lateral_speed_sigma_mps=sigma, imm_init_keep_prob=0.8))
+        assert pred.kernel is K
+        for speed_var in (2.25, rng.uniform(0.5, 9.0, k), None):
+            yaw = rng.uniform(-0.5, 0.5)
+            fast, ref = copy.deepcopy(base), copy.deepcopy(base)
+            pred.seeded(fast, k, yaw, speed_var)
+            pred.kernel = None
+            try:
+                pred.seeded(ref, k, yaw, speed_var)
+            finally:
+                pred.kernel = K
+            for c in ("mu", "pm", "p", "x", "xm"):
+                assert getattr(fast, c).tobytes() == getattr(ref, c).tobytes(), (c, sigma, speed_var)
+            assert not np.array_equal(fast.mu, base.mu)
+            assert (sigma == 0 or speed_var is None) == np.array_equal(fast.pm, base.pm)
+
+
+def test_imm_predict_takes_strided_tracks():
+    """The tracks' columns as views with strides (a table's rows, every other one): the same bits as contiguous."""
+    from edge.track import imm
+
+    rng = np.random.default_rng(3)
+    t = 30
+    xm = rng.normal(0, 5, (2 * t, 2, 4))
+    a = rng.normal(0, 1, (2 * t, 2, 4, 4))
+    pm = a @ a.swapaxes(-1, -2) + 0.01 * np.eye(4)
+    mu = rng.uniform(0.001, 1.0, (2 * t, 1))
+    mu = np.hstack([mu, 1.0 - mu])
+    x = rng.normal(0, 100, (2 * t, 4))
+    f = np.stack([imm.keep_model(0.033, 0.1, 3.0, 0.01, 2.0)[0], np.eye(4) + np.diag([0.033, 0.033], 2)])
+    q = np.stack([imm.keep_model(0.033, 0.1, 3.0, 0.01, 2.0)[1], 0.01 * np.eye(4)])
+    pi = np.ascontiguousarray(imm.switch_matrix(0.02, 0.1)[None])
+    far = (100.0, 120.0, math.log(0.02), math.log(0.002))
+    got = K.imm_predict(xm[::2], pm[::2], mu[::2], pi, f, q, x[::2], *far)
+    want = K.imm_predict(*(np.ascontiguousarray(c[::2]) for c in (xm, pm, mu)), pi, f, q,
+                         np.ascontiguousarray(x[::2]), *far)
+    assert all(g.tobytes() == w.tobytes() for g, w in zip(got, want))
+    with pytest.raises(ValueError, match="inconsistent shapes"):
+        K.imm_predict(xm[::2], pm[1::2][:-1], mu[::2], pi, f, q)
+
+
 @pytest.mark.parametrize("seed", range(6))
 @pytest.mark.parametrize("receding_only", [True, False])
 def test_reanchor_match_is_identical(seed, receding_only):
@@ -966,16 +1077,23 @@ def test_reanchor_match_is_identical(seed, receding_only):
     frame = SimpleNamespace(meas=SimpleNamespace(z=z), hyp=SimpleNamespace(gated=gated),
                             hit=gated.any(axis=1) | (rng.uniform(size=t) < 0.2))
     ref = role.matches(tracks, frame)
-    i, j = K.reanchor_match(x, tracks.confirmed.view(np.uint8), frame.hit.view(np.uint8), gated.view(np.uint8), z,
-                            cfg.reanchor_speed_mps, receding_only, cfg.reanchor_min_m, cfg.reanchor_m,
-                            role.box.cfg.merge_lateral_m)
+    i, j = K.reanchor_match(x, tracks.confirmed, frame.hit, gated, z, cfg.reanchor_speed_mps, receding_only,
+                            cfg.reanchor_min_m, cfg.reanchor_m, role.box.cfg.merge_lateral_m)
     assert ref is not None and ref[0].size >= 2  # the frame exercises the matching
-    assert np.array_equal(i, ref[0]) and np.array_equal(j, ref[1])
+    assert np.array_equal(i, ref[0]) and np.array_equal(j, ref[1]) and i.dtype == j.dtype == np.int64
+    # strided columns give the same rows; no missed confirmed track: empty int64 rows
+    i2, j2 = K.reanchor_match(np.repeat(x, 2, axis=1)[:, ::2], tracks.confirmed, frame.hit, gated,
+                              np.repeat(z, 2, axis=0)[::2], cfg.reanchor_speed_mps, receding_only, cfg.reanchor_min_m,
+                              cfg.reanchor_m, role.box.cfg.merge_lateral_m)
+    assert np.array_equal(i2, i) and np.array_equal(j2, j)
+    i0, j0 = K.reanchor_match(x, tracks.confirmed, np.ones(t, bool), gated, z, cfg.reanchor_speed_mps,
+                              receding_only, cfg.reanchor_min_m, cfg.reanchor_m, role.box.cfg.merge_lateral_m)
+    assert i0.shape == j0.shape == (0,) and i0.dtype == j0.dtype == np.int64
 
 
 def test_a_failing_measurements_kernel_is_not_hidden():
-    """``Measurements.from_detections`` picks the kernel by the columns' dtype, not by catching its errors: an error
-    inside the kernel reaches the caller, and float64 columns never reach the kernel."""
+    """The ``measurements`` kernel declines columns by their dtype (it returns None) and raises no error for them: an
+    error inside the kernel reaches the caller, and float64 columns go to the numpy form."""
     from types import SimpleNamespace
 
     from edge.track.table import Measurements
@@ -989,8 +1107,8 @@ def test_a_failing_measurements_kernel_is_not_hidden():
     with pytest.raises(ValueError, match="kernel failure"):
         Measurements.from_detections(det, True, SimpleNamespace(measurements=boom))
     wide = Detections(*(np.array([30.0, 60.0]) for _ in range(6)))
-    m = Measurements.from_detections(wide, True, SimpleNamespace(measurements=boom))  # numpy form, no call
-    assert m.z.shape == (2, 3)
+    assert K.measurements(wide.x_m, wide.y_m, wide.snr_db, wide.radial_speed_mps, wide.range_m, True) is None
+    assert Measurements.from_detections(wide, True, K).z.shape == (2, 3)  # the numpy form
 
 
 @pytest.mark.parametrize("confirmation", ["m_of_n", "score", "either"])
@@ -1106,11 +1224,16 @@ def test_track_table_append_and_keep_with_the_kernel_are_identical():
     over a run of seeding and deleting."""
     from edge.track.table import TrackTable
 
+    assert tuple(c[0] for c in K._TABLE_COLUMNS) == TrackTable._COLUMNS
     rng = np.random.default_rng(3)
     fast, ref = TrackTable(), TrackTable()
     for step in range(40):
         k = int(rng.integers(0, 5))
         x, p = rng.normal(size=(k, 4)), rng.normal(size=(k, 4, 4))
+        if step % 3 == 1:  # strided and Fortran-ordered states, signed zeros and NaN
+            x, p = rng.normal(size=(k, 8))[:, ::2], np.asfortranarray(p)
+            if k:
+                x[0, 0], p[0, 2, 2] = -0.0, np.nan
         ext, keep_prob = float(rng.choice([1.0, 2.5])), float(rng.choice([0.5, 0.8]))
         fast.append(x, p, ext, keep_prob, kernel=K)
         ref.append(x, p, ext, keep_prob)
@@ -1122,6 +1245,14 @@ def test_track_table_append_and_keep_with_the_kernel_are_identical():
         for c in TrackTable._COLUMNS:
             assert _identical(getattr(fast, c), getattr(ref, c)), c
     assert len(ref) > 3
+    # a column of another dtype or byte order: append_rows declines, the columns are joined as numpy joins them
+    for other in (fast.score.astype(np.float32), fast.score.astype(">f8")):
+        fast.score, ref.score = other, other.copy()
+        assert not K.append_rows(fast, x, p, 1.0, 0.5)
+        fast.append(x, p, 1.0, kernel=K)
+        ref.append(x, p, 1.0)
+        for c in TrackTable._COLUMNS:
+            assert _identical(getattr(fast, c), getattr(ref, c)), c
 
 
 def _state_bits(s) -> list:
@@ -1151,6 +1282,24 @@ def test_published_states_are_bit_identical(monkeypatch, plain, smoother, length
         assert (fx is None and rx is None) or np.array_equal(fx, rx)
         n += len(ref)
     assert n > 20 * 30
+
+
+def test_published_from_strided_columns_is_bit_identical():
+    """``publish_table`` reads the track table's columns through their strides: every column a strided view (every
+    other row of a doubled array) gives numpy's TrackStates bit for bit."""
+    from edge.track.table import TrackTable
+
+    tr = PdafTracker(PdafConfig())
+    frames = list(road_frames(20, 45, clutter_per_frame=10.0, seed=13))
+    for t_ns, det in frames:
+        tr.step(det, t_ns)
+    for c in TrackTable._COLUMNS:
+        a = getattr(tr.tracks, c)
+        setattr(tr.tracks, c, np.repeat(a, 2, axis=0)[::2])
+    assert not tr.tracks.x.flags.c_contiguous
+    fast, ref, fx, rx = _published_both(tr)
+    assert len(ref) > 10 and [_state_bits(a) for a in fast] == [_state_bits(b) for b in ref]
+    assert np.array_equal(fx, rx)
 
 
 def _polar_points(rng, t):

@@ -17,9 +17,6 @@ from edge.track.table import Measurements
 
 __all__ = ["Hypotheses", "PdaAssociator"]
 
-_NO_RANK = np.zeros(0)
-_NO_PAIR = np.zeros(0, dtype=bool)
-
 
 @dataclass
 class Hypotheses:
@@ -76,14 +73,9 @@ class PdaAssociator(native.KernelUser):
         n = meas.z.shape[1]
         if c.association not in ("pdaf", "jpda"):
             raise ValueError(f"unknown association method {c.association!r}: choose pdaf or jpda")
-        senior = not confirmed.all()
-        rank = np.where(confirmed, np.inf, seniority.astype(float)) if senior else _NO_RANK
-        pair_ok = (meas.pair >= 0) if meas.pair is not None else _NO_PAIR
         beta, beta0, gated, vol = self.kernel.associate_each(
-            np.ascontiguousarray(inn.d2), np.ascontiguousarray(inn.det_s), gamma,
-            unit_ball_volume(n) * gamma ** (n / 2.0), (2.0 * math.pi) ** (n / 2.0), c.prob_detect,
-            1.0 - c.prob_gate * c.prob_detect, c.association == "jpda", np.ascontiguousarray(confirmed, dtype=bool),
-            rank, senior, pair_ok, meas.pair is not None)
+            inn.d2, inn.det_s, gamma, unit_ball_volume(n) * gamma ** (n / 2.0), (2.0 * math.pi) ** (n / 2.0),
+            c.prob_detect, 1.0 - c.prob_gate * c.prob_detect, c.association == "jpda", confirmed, seniority, meas.pair)
         inn.gate_volume = vol
         return Hypotheses(beta, beta0, gated)
 

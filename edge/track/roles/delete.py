@@ -171,9 +171,9 @@ class TrackDeleter(native.KernelUser):
         return out
 
     def _duplicates_kernel(self, tracks: TrackTable, resolved, spread: tuple | None = None) -> np.ndarray:
-        """:meth:`duplicates` with the pair tests in the compiled kernel (one pass over the pairs, the same
-        arithmetic); the 4x4 state test and the choice of the junior stay here. ``spread``: the position spreads and
-        box half-lengths ``(pdx, pdy, along)`` if already computed (``delete_tests``)."""
+        """:meth:`duplicates` with the pair tests and the same-vehicle runs in the compiled kernel (one pass over the
+        pairs, the same arithmetic); the 4x4 state test and the choice of the junior stay here. ``spread``: the
+        position spreads and box half-lengths ``(pdx, pdy, along)`` if already computed (``delete_tests``)."""
         c, box = self.cfg, self.box.cfg
         t = len(tracks)
         if spread is None:
@@ -184,17 +184,13 @@ class TrackDeleter(native.KernelUser):
         if resolved is None:
             pair = det = _NO_ROWS
         else:
-            pair, det = (np.ascontiguousarray(a, dtype=np.int64) for a in resolved)
-        run, ba, bb, bkeep, ra, rb, rdx = self.kernel.duplicate_pairs(
-            np.ascontiguousarray(tracks.x), box.merge_speed_mps, box.merge_lateral_m, along,
-            c.merge_lateral_speed_mps, pdx, pdy, self._state_gamma, pair, det, resolved is not None)
-        if ba.size:
-            tracks.close_run = np.where(run, tracks.close_run + 1, 0).astype(np.int32, copy=False)
-            bkeep |= np.minimum(tracks.close_run[ba], tracks.close_run[bb]) >= c.merge_persist_frames
-        else:
-            tracks.close_run = np.zeros(t, np.int32)
+            pair = np.ascontiguousarray(resolved[0], dtype=np.int64)
+            det = np.ascontiguousarray(resolved[1], dtype=np.int64)
+        tracks.close_run, ka, kb, ra, rb, rdx = self.kernel.duplicate_pairs(
+            tracks.x, box.merge_speed_mps, box.merge_lateral_m, along, c.merge_lateral_speed_mps, pdx, pdy,
+            self._state_gamma, pair, det, resolved is not None, tracks.close_run, c.merge_persist_frames)
         out = np.zeros(t, dtype=bool)
-        out = self._juniors(tracks, ba[bkeep], bb[bkeep], out)
+        out = self._juniors(tracks, ka, kb, out)
         if ra.size:
             close = self._state_close(tracks, ra, rb, rdx)
             out = self._juniors(tracks, ra[close], rb[close], out)

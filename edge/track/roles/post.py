@@ -149,12 +149,9 @@ class Reanchor(native.KernelUser):
         tr = tracks
         if self.kernel is not None:  # the same tests in one pass (identical)
             c = self.cfg
-            i, j = self.kernel.reanchor_match(np.ascontiguousarray(tr.x), tr.confirmed.view(np.uint8),
-                                              np.ascontiguousarray(frame.hit).view(np.uint8),
-                                              np.ascontiguousarray(frame.hyp.gated).view(np.uint8),
-                                              np.ascontiguousarray(meas.z), c.reanchor_speed_mps,
-                                              c.reanchor_receding_only, c.reanchor_min_m, c.reanchor_m,
-                                              self.box.cfg.merge_lateral_m)
+            i, j = self.kernel.reanchor_match(tr.x, tr.confirmed, frame.hit, frame.hyp.gated, meas.z,
+                                              c.reanchor_speed_mps, c.reanchor_receding_only, c.reanchor_min_m,
+                                              c.reanchor_m, self.box.cfg.merge_lateral_m)
             if i.size == 0:
                 return None
         else:

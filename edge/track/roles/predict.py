@@ -80,20 +80,23 @@ class ImmPredictor(native.KernelUser):
             self._cached = (dt_s, None, np.stack([fm, fm]), np.stack([qm, qm]))
         _, cached_yaw, f, q = self._cached
         if cached_yaw != yaw_rad:  # the yaw estimate moves nearly every frame: only the keep mode is rebuilt
-            f[0], q[0] = imm.keep_model(dt_s, yaw_rad, c.imm_keep_tau_s, c.imm_keep_q_across_m2ps3, c.q_along_m2ps3)
+            if self.kernel is not None:  # keep_model's numbers written into f[0], q[0] (the same operations)
+                self.kernel.keep_model_into(f, q, dt_s, yaw_rad, c.imm_keep_tau_s, c.imm_keep_q_across_m2ps3,
+                                            c.q_along_m2ps3, dt_s**3 / 3.0, dt_s**2 / 2.0)
+            else:
+                f[0], q[0] = imm.keep_model(dt_s, yaw_rad, c.imm_keep_tau_s, c.imm_keep_q_across_m2ps3,
+                                            c.q_along_m2ps3)
             self._cached = (dt_s, yaw_rad, f, q)
         pi = self.pi
         far = c.imm_far_p_keep_to_manoeuvre < c.imm_p_keep_to_manoeuvre and len(tracks)
         if self.kernel is not None:  # switching, mixing, prediction and moment matching in one pass (to rounding)
-            a = np.ascontiguousarray
             if far:  # the switching matrices of _far_switch, built in the kernel
                 xp, pp, xpm, ppm, cj = self.kernel.imm_predict(
-                    a(tracks.xm), a(tracks.pm), a(tracks.mu), self._pi1, f, q, a(tracks.x), c.imm_far_from_m,
+                    tracks.xm, tracks.pm, tracks.mu, self._pi1, f, q, tracks.x, c.imm_far_from_m,
                     max(c.imm_far_to_m - c.imm_far_from_m, 1e-9), math.log(c.imm_p_keep_to_manoeuvre),
                     math.log(c.imm_far_p_keep_to_manoeuvre))
             else:
-                xp, pp, xpm, ppm, cj = self.kernel.imm_predict(a(tracks.xm), a(tracks.pm), a(tracks.mu),
-                                                                self._pi1, f, q)
+                xp, pp, xpm, ppm, cj = self.kernel.imm_predict(tracks.xm, tracks.pm, tracks.mu, self._pi1, f, q)
             return Prediction(xp, pp, xpm, ppm, cj)
         if far:
             pi = self._far_switch(np.hypot(tracks.x[:, 0], tracks.x[:, 1]))
@@ -108,8 +111,15 @@ class ImmPredictor(native.KernelUser):
         road), little speed across the road (``imm_keep_init_lateral_speed_sigma_mps``)."""
         c = self.cfg
         w = c.imm_init_keep_prob
+        with_speed = speed_var is not None and c.imm_keep_init_lateral_speed_sigma_mps > 0
+        if self.kernel is not None:  # the same operations in place, in one call
+            per_seed = isinstance(speed_var, np.ndarray)
+            self.kernel.imm_seeded(tracks.mu, tracks.pm, tracks.p, k, w, with_speed, math.cos(road_yaw_rad),
+                                   math.sin(road_yaw_rad), c.imm_keep_init_lateral_speed_sigma_mps**2,
+                                   0.0 if per_seed or not with_speed else speed_var, speed_var if per_seed else None)
+            return
         tracks.mu[-k:, 0], tracks.mu[-k:, 1] = w, 1.0 - w
-        if speed_var is None or c.imm_keep_init_lateral_speed_sigma_mps <= 0:
+        if not with_speed:
             return
         cy, sy = math.cos(road_yaw_rad), math.sin(road_yaw_rad)
         p0 = tracks.p[-k:]
