@@ -59,6 +59,7 @@ from hal.waveform import SPEED_OF_LIGHT_MPS, characteristics
 __all__ = [
     "FEATURE_NAMES",
     "ClusterSignatures",
+    "distinct_among",
     "FeatureConfig",
     "MapPoints",
     "RadialSpeedEstimator",
@@ -81,6 +82,12 @@ FEATURE_NAMES: tuple[str, ...] = (
     "abs_radial_speed_mean_kmh",
     "range_extent_m",
 )
+
+
+def distinct_among(names, among=FEATURE_NAMES) -> bool:
+    """Whether ``names`` are one or more distinct names of ``among`` (a classifier's features of the extracted ones)."""
+    names = tuple(names)
+    return bool(names) and len(set(names)) == len(names) and all(n in tuple(among) for n in names)
 
 
 def _np_sum(x) -> float:

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from edge.classify.features import FEATURE_NAMES, weighted_standardization
+from edge.classify.features import FEATURE_NAMES, distinct_among, weighted_standardization
 
 if TYPE_CHECKING:  # pragma: no cover
     from edge.classify.reference import ReferenceSet
@@ -70,9 +70,8 @@ class KnnConfig:
     )
 
     def __post_init__(self) -> None:
-        feats = tuple(self.features)
-        if not feats or len(set(feats)) != len(feats) or any(f not in FEATURE_NAMES for f in feats):
-            raise ValueError(f"features must be distinct names of {list(FEATURE_NAMES)}, got {list(feats)}")
+        if not distinct_among(self.features):
+            raise ValueError(f"features must be distinct names of {list(FEATURE_NAMES)}, got {list(self.features)}")
 
 
 def class_balanced_weights(labels: np.ndarray, n_classes: int | None = None) -> np.ndarray:

@@ -176,7 +176,8 @@ class KnnDefinition:
             reference_z=knn.z_, labels=knn.y_, weights=knn.w_, mean=knn.mean_, scale=knn.scale_,
             classes=tuple(knn.classes), k=knn.k, metric=knn.metric, feature_names=tuple(feature_names),
             feature_units=tuple(feature_units if feature_units is not None
-                                else (FEATURE_UNIT_OF.get(n, "") for n in feature_names)), weighting=weighting, reference_sha256=reference_sha256,
+                                else (FEATURE_UNIT_OF.get(n, "") for n in feature_names)),
+            weighting=weighting, reference_sha256=reference_sha256,
             build=dict(build or {}),
         )
 

@@ -27,7 +27,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from edge.classify.features import FEATURE_NAMES
+from edge.classify.features import FEATURE_NAMES, distinct_among
 
 log = logging.getLogger(__name__)
 
@@ -122,9 +122,7 @@ class OnnxKnnClassifier:
         self.k: int = int(self.metadata["k"])
         self.metric: str = str(self.metadata["metric"])
         self.reference_sha256: str = str(self.metadata["reference_sha256"])
-        if expected_features is not None and (
-                not self.feature_names or len(set(self.feature_names)) != len(self.feature_names)
-                or any(n not in tuple(expected_features) for n in self.feature_names)):
+        if expected_features is not None and not distinct_among(self.feature_names, expected_features):
             raise ModelError(
                 f"classifier model {str(p)!r} expects features {list(self.feature_names)}, not distinct features of "
                 f"those the pipeline extracts {list(expected_features)}: retrain or re-export it with this version")

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from edge.classify.features import FEATURE_NAMES
+from edge.classify.features import FEATURE_NAMES, distinct_among
 
 log = logging.getLogger(__name__)
 
@@ -70,8 +70,7 @@ class ReferenceSet:
         names = tuple(names)
         if names == self.feature_names:
             return self
-        missing = [n for n in names if n not in self.feature_names]
-        if missing or not names or len(set(names)) != len(names):
+        if not distinct_among(names, self.feature_names):
             raise ReferenceSetError(f"features {list(names)} must be distinct features of the set "
                                     f"{list(self.feature_names)}")
         cols = [self.feature_names.index(n) for n in names]
