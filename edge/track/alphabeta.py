@@ -213,6 +213,23 @@ class AlphaBetaConfig:
                                       "signature (a walker's legs wrapped around the Doppler axis); 0 = off (paper)",
                   "min": 0.0, "max": 10.0},
     )
+    static_zone_time_s: float = field(
+        default=60.0,
+        metadata={"unit": "s", "doc": "beyond the paper: time constant of the share of frames with a slow cluster "
+                                      "per range cell (edge.track.static_zones); a slow cluster in a cell whose "
+                                      "share reaches static_zone_occupancy is site clutter and feeds no track; 0 = off",
+                  "min": 0.0, "max": 3600.0},
+    )
+    static_zone_speed_kmh: float = field(
+        default=2.0,
+        metadata={"unit": "km/h", "doc": "a cluster is slow when its wrapped Doppler is at most this (swaying "
+                                         "foliage: Billingsley's spectrum of wind-blown trees)", "min": 0.0, "max": 5.0},
+    )
+    static_zone_occupancy: float = field(
+        default=0.1,
+        metadata={"doc": "share of frames with a slow cluster that makes a range cell a static zone",
+                  "min": 0.0, "max": 1.0},
+    )
     continuation_speed_kmh: float = field(
         default=6.0,
         metadata={"unit": "km/h", "doc": "beyond the paper: a track that ends is the same target as a living track "

@@ -131,6 +131,7 @@ from edge.classify.knn import KnnConfig, knn_for
 from edge.classify.reference import load_reference_set
 from edge.track.alphabeta import AlphaBetaConfig, AlphaBetaTrack, AlphaBetaTracker, TrackerStep
 from edge.track.events import EventConfig, EventSegmenter, SegmentStep
+from edge.track.static_zones import StaticZones
 from edge.types import ClassifiedEvent, FrontendInfo, TrackState, track_state
 from hal.waveform import characteristics
 
@@ -197,6 +198,12 @@ class SurveillanceTracker:
         self._edge_limit_m = (characteristics(frontend).max_unambiguous_range_m
                               - self.extractor.config.event_speed_alias_edge_clip_m)
         self.tracker = AlphaBetaTracker(tracking or AlphaBetaConfig(), self.cylinder)
+        tc = self.tracker.config
+        ch = characteristics(frontend)
+        self.static_zones = (StaticZones(ch.range_resolution_m, ch.max_unambiguous_range_m, self.frame_period_s,
+                                         tc.static_zone_time_s, tc.static_zone_speed_kmh, tc.static_zone_occupancy)
+                             if tc.static_zone_time_s > 0 else None)
+        self.standing = 0  # slow clusters in a static zone, kept from the tracker
         if self.tracker.config.merge_ratio > 0:
             self.tracker.occlusion_test = self._hidden_in
         self._frame_sizes = np.zeros(0, dtype=np.int64)
@@ -266,6 +273,13 @@ class SurveillanceTracker:
         self._forgotten = []
         sig = self.extractor(points)
         valid = sig.n_points > 0
+        if self.static_zones is not None:  # slow clusters where something stands: site clutter, no track
+            k = np.flatnonzero(valid)
+            standing = k[self.static_zones.update(np.asarray(sig.range_m)[k], np.asarray(sig.doppler_kmh)[k])]
+            if standing.size:
+                valid = valid.copy()
+                valid[standing] = False
+                self.standing += int(standing.size)
         pred: dict[int, np.ndarray] = {}
         p = None
         if self.tracker.config.merge_ratio > 0 and self.tracker.tracks:
