@@ -28,19 +28,29 @@ class StaticZones:
         self.speed_kmh = float(speed_kmh)
         self.occupancy = float(occupancy)
         self.share = np.zeros(int(math.ceil(max_range_m / cell_m)) + 2)
+        self._decay = np.empty_like(self.share)
 
-    def _cells(self, range_m: np.ndarray) -> np.ndarray:
-        return np.clip((np.asarray(range_m, dtype=float) / self.cell_m).astype(np.intp), 0, self.share.size - 1)
-
-    def update(self, range_m: np.ndarray, doppler_kmh: np.ndarray) -> np.ndarray:
-        """One frame's clusters (centroid range m, wrapped Doppler km/h): which are slow clusters in a static zone
-        (bool, judged on the frames before this one); then this frame's slow clusters join the shares."""
-        slow = np.abs(np.asarray(doppler_kmh, dtype=float)) <= self.speed_kmh
-        cells = self._cells(range_m)
-        standing = slow & (self.share[cells] >= self.occupancy)
-        seen = np.zeros(self.share.size)
-        seen[cells[slow]] = 1.0
-        self.share += self.weight * (seen - self.share)
+    def update(self, range_m, doppler_kmh) -> list[int]:
+        """One frame's clusters (centroid ranges m, wrapped Dopplers km/h; sequences): the indices of the slow
+        clusters in a static zone (judged on the frames before this one); then this frame's slow clusters join the
+        shares. A loop over the frame's few clusters: numpy's per-call cost would exceed the work."""
+        share, cell, last = self.share, self.cell_m, self.share.size - 1
+        standing: list[int] = []
+        seen: dict[int, float] = {}
+        for k, (r, v) in enumerate(zip(range_m, doppler_kmh)):
+            if not abs(v) <= self.speed_kmh:
+                continue
+            c = min(max(int(r / cell), 0), last)
+            if c not in seen:
+                seen[c] = float(share[c])
+            if seen[c] >= self.occupancy:
+                standing.append(k)
+        # share += w (seen - share): share - w share where nothing was seen, share + w (1 - share) where it was
+        np.multiply(share, self.weight, out=self._decay)
+        share -= self._decay
+        w = self.weight
+        for c, s in seen.items():
+            share[c] = s + w * (1.0 - s)
         return standing
 
     def zones_m(self) -> list[tuple[float, float]]:

@@ -274,12 +274,13 @@ class SurveillanceTracker:
         sig = self.extractor(points)
         valid = sig.n_points > 0
         if self.static_zones is not None:  # slow clusters where something stands: site clutter, no track
-            k = np.flatnonzero(valid)
-            standing = k[self.static_zones.update(np.asarray(sig.range_m)[k], np.asarray(sig.doppler_kmh)[k])]
-            if standing.size:
+            k = np.flatnonzero(valid).tolist()
+            standing = self.static_zones.update(np.asarray(sig.range_m)[k].tolist(),
+                                                np.asarray(sig.doppler_kmh)[k].tolist())
+            if standing:
                 valid = valid.copy()
-                valid[standing] = False
-                self.standing += int(standing.size)
+                valid[[k[i] for i in standing]] = False
+                self.standing += len(standing)
         pred: dict[int, np.ndarray] = {}
         p = None
         if self.tracker.config.merge_ratio > 0 and self.tracker.tracks:

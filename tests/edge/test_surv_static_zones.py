@@ -29,8 +29,8 @@ def test_a_slow_cluster_that_stays_becomes_a_zone_after_its_share_reaches_the_oc
     first = None
     for n in range(600):
         seen = n % 2 == 0  # a bush found in every other frame at 8.1 m
-        out = z.update(np.array([8.1]) if seen else np.zeros(0), np.array([0.4]) if seen else np.zeros(0))
-        if seen and out.size and out[0] and first is None:
+        out = z.update([8.1] if seen else [], [0.4] if seen else [])
+        if out == [0] and first is None:
             first = n
     # share after n frames: 0.5 (1 - (1 - w)^n); it reaches 0.1 at n = ln(0.8) / ln(1 - w)
     w = 1.0 - math.exp(-PERIOD / 60.0)
@@ -38,27 +38,44 @@ def test_a_slow_cluster_that_stays_becomes_a_zone_after_its_share_reaches_the_oc
     assert first is not None and abs(first - expected) <= 2
     assert z.zones_m() == [(pytest.approx(7.5), pytest.approx(8.25))]
     # fast clusters in the zone are not site clutter; slow ones elsewhere neither
-    assert not z.update(np.array([8.1, 8.1, 15.0]), np.array([3.0, -4.9, 0.0]))[[0, 1, 2]].any()
-    assert z.update(np.array([8.1]), np.array([-1.9]))[0]
+    assert z.update([8.1, 8.1, 15.0], [3.0, -4.9, 0.0]) == []
+    assert z.update([15.0, 8.1], [0.0, -1.9]) == [1]
 
 
 def test_a_walker_crossing_the_beam_makes_no_zone():
     z = _zones()
     # a walker crossing at 6 m: slow (radial speed near zero) at one range for 6 s, a new cell when its range moves
     for n in range(30):
-        assert not z.update(np.array([6.0 + 0.01 * n]), np.array([0.3]))[0]
+        assert z.update([6.0 + 0.01 * n], [0.3]) == []
     assert z.zones_m() == []
     # a vehicle crossing a range cell with its wrapped Doppler near zero (an alias) for a frame or two neither
     for n in range(300):
         r = 20.0 - 2.2 * PERIOD * (n % 40)
-        z.update(np.array([r]), np.array([-0.5]))
+        z.update([r], [-0.5])
     assert z.zones_m() == []
+
+
+def test_shares_follow_the_exponential_average():
+    z = _zones(time_s=5.0)
+    rng = np.random.default_rng(3)
+    ref = np.zeros_like(z.share)
+    for _ in range(200):
+        n = int(rng.integers(0, 4))
+        r, v = rng.uniform(0.0, 30.0, n), rng.uniform(-5.3, 5.3, n)
+        cells = np.clip((r / 0.75).astype(int), 0, ref.size - 1)
+        slow = np.abs(v) <= 2.0
+        expect = [int(k) for k in np.flatnonzero(slow & (ref[cells] >= 0.1))]
+        assert z.update(r.tolist(), v.tolist()) == expect
+        seen = np.zeros_like(ref)
+        seen[cells[slow]] = 1.0
+        ref += z.weight * (seen - ref)
+        assert np.array_equal(z.share, ref)  # bit for bit: share += w (seen - share)
 
 
 def test_zones_merge_adjacent_cells():
     z = _zones(time_s=1.0)
     for _ in range(20):
-        z.update(np.array([7.6, 8.3, 12.0]), np.array([0.0, 0.1, -0.2]))
+        z.update([7.6, 8.3, 12.0], [0.0, 0.1, -0.2])
     assert z.zones_m() == [(pytest.approx(7.5), pytest.approx(9.0)), (pytest.approx(12.0), pytest.approx(12.75))]
 
 
