@@ -59,3 +59,28 @@ cdef inline void *_strided(object a, int typenum, Py_ssize_t n, Py_ssize_t *step
                          f"{a.dtype} {a.shape}")
     step[0] = st // itemsize
     return cnp.PyArray_DATA(arr)
+
+
+cdef inline void *_data3(object a, int typenum, Py_ssize_t n0, Py_ssize_t n1, Py_ssize_t n2, bint writable,
+                         str name) except NULL:
+    """:func:`_data` of a 3-D ``(n0, n1, n2)`` array."""
+    cdef cnp.ndarray arr
+    if not cnp.PyArray_Check(a):
+        raise TypeError(f"{name}: a numpy array is needed, not {type(a).__name__}")
+    arr = <cnp.ndarray>a
+    if not (cnp.PyArray_NDIM(arr) == 3 and cnp.PyArray_DIM(arr, 0) == n0 and cnp.PyArray_DIM(arr, 1) == n1
+            and cnp.PyArray_DIM(arr, 2) == n2 and cnp.PyArray_EquivTypenums(cnp.PyArray_TYPE(arr), typenum)
+            and cnp.PyArray_ISCARRAY_RO(arr) and (not writable or cnp.PyArray_ISWRITEABLE(arr))):
+        raise ValueError(f"{name}: ({n0}, {n1}, {n2}) {cnp.PyArray_DescrFromType(typenum)} C-contiguous, aligned, "
+                         f"native array needed, got {a.dtype} {a.shape}")
+    return cnp.PyArray_DATA(arr)
+
+
+cdef inline object _as_c(object a, int typenum):
+    """``a`` itself when it is a C-contiguous aligned native numpy array of ``typenum``, else
+    ``np.ascontiguousarray(a, dtype)`` (hold the result while its data is read)."""
+    if (cnp.PyArray_Check(a) and cnp.PyArray_TYPE(<cnp.ndarray>a) == typenum
+            and cnp.PyArray_ISCARRAY_RO(<cnp.ndarray>a)):
+        return a
+    import numpy
+    return numpy.ascontiguousarray(a, dtype=cnp.PyArray_DescrFromType(typenum))
