@@ -255,9 +255,7 @@ class DetectionStage(native.KernelUser):
                 self.filters += (AgainstLaneGlint(frontend, cfg, road),)
         #: the compiled stage after the direction filters (edge/native/_detect.pyx), None: :meth:`reference`
         self.kernel = native.load("_detect")
-        dz = cfg.mounting_height_m - cfg.target_height_m
-        self._k_args = (np.float32(dz), np.float32(cfg.cluster_length_m), np.float32(cfg.cluster_speed_mps),
-                        np.float32(cfg.cluster_lateral_m), np.float32(dz * dz))
+        self._k_dz = np.float32(cfg.mounting_height_m - cfg.target_height_m)  # (polar_to_ground's)
 
     def __call__(self, a: Angles, feedback: Feedback) -> Detections:
         """The detections of ``a``: the direction filters, the ground projection and the filters of the projected
@@ -297,11 +295,11 @@ class DetectionStage(native.KernelUser):
         az = c.az_rad
         if type(az) is not np.ndarray or az.dtype != np.float32:
             return self._filtered(a, c, feedback)
-        dz, length, speed, lateral, dz2 = self._k_args
+        f_args = faces._k_args if faces is not None else (0.0, 0.0, 0.0, 0.0)  # (NearFaces' float32 arguments)
         rng, vel, az, snr, x, y, res, pair, body, unresolved = k.finish(
             c.range_m, c.radial_speed_mps, az, np.sin(az), np.cos(az), a.snr_db, a.residual_hz, a.resolved_pair,
-            a.unresolved_pair, dz, faces is not None, length, speed, lateral, dz2,
-            glint is not None and bool(feedback.lanes), *g_args)
+            a.unresolved_pair, self._k_dz, faces is not None, *f_args, glint is not None and bool(feedback.lanes),
+            *g_args)
         extra = {"pair_residual_hz": res, "resolved_pair": pair}
         if body is not None:
             extra["body_extent_m"] = body

@@ -19,7 +19,8 @@ from edge.types import Detections
 from tests.native.conftest import require_kernel
 
 CONFIGS = [{}, {"cluster_against_lane_speed_mps": 0.0}, {"cluster_length_m": 0.0}, {"unalias_by_lane": False},
-           {"mounting_height_m": 0.0, "cluster_lateral_m": 3.0}]
+           {"mounting_height_m": 0.0, "cluster_lateral_m": 3.0},
+           {"mounting_height_m": 7.3, "target_height_m": 0.45, "cluster_speed_mps": 0.7}]
 
 
 def _frontend():
@@ -82,7 +83,7 @@ def _random(rng, n: int, cfg, lanes) -> tuple[Angles, Feedback]:
     return a, fb
 
 
-@pytest.mark.parametrize("seed", range(25))
+@pytest.mark.parametrize("seed", range(30))
 def test_kernel_equals_reference_on_random_detections(seed):
     require_kernel("_detect")
     rng = np.random.default_rng(seed)
