@@ -354,6 +354,14 @@ def refine_pairs(idx: np.ndarray, f: tuple, model: PairingModel, n_cand: int, n_
     return _refine(idx, fm, model, n_cand, n_ghost)
 
 
+def refine_rows(idx: np.ndarray, fm: np.ndarray, model: PairingModel, n_cand: int, n_ghost: int) -> Pairs:
+    """:func:`refine_pairs` given the accepted pairs' frequencies ``fm`` (n, 4) float64 (segment k's peak
+    ``idx[:, k]``), as the compiled pairing kernel returns them."""
+    if idx.shape[0] == 0:
+        return _no_pairs(n_cand, n_ghost)
+    return _refine(idx, fm, model, n_cand, n_ghost)
+
+
 def _refine(idx: np.ndarray, fm: np.ndarray, model: PairingModel, n_cand: int, n_ghost: int) -> Pairs:
     sol = fm @ model.pinv_t  # (n, 2): the least-squares (R0, v) over the four frequencies
     res = np.sqrt(np.add.reduce((sol @ model.matrix_t - fm) ** 2, axis=1) / 4.0)  # RMS (np.mean)

@@ -40,23 +40,41 @@ class AngleStage(native.KernelUser):
         #: the compiled output (SNR, kept pairings, looks: edge/native/_anglesout.pyx), None: numpy (below)
         self._k_out = native.load("_anglesout")
 
-    def consensus(self, snaps: np.ndarray, outlier, pk: np.ndarray, p_vel: np.ndarray) -> tuple:
+    def consensus(self, snaps: np.ndarray, outlier, pk: np.ndarray, p_vel: np.ndarray,
+                  p_rng: np.ndarray | None = None) -> tuple:
         """Bartlett consensus of ``snaps`` (n, seg, rx): the compiled kernel after numpy's beamforming product
-        when built, else :meth:`reference`. Returns ``(az, spectrum, kept, used)`` as bartlett_consensus."""
+        when built, else :meth:`reference`. ``outlier``: the outlier window (rad, a scalar or (n,)); with ``p_rng``
+        (the pairings' ranges) a scalar window is widened near the radar (:meth:`outlier_window`, in the kernel
+        for float32 ranges). Returns ``(az, spectrum, kept, used)`` as bartlett_consensus."""
+        cfg = self.config
+        if p_rng is not None and not (self.kernel is not None and cfg.angle_outlier_lateral_m > 0
+                                      and np.ndim(outlier) == 0 and p_rng.dtype == np.float32):
+            outlier, p_rng = self.outlier_window(outlier, p_rng), None
         if self.kernel is None:
             return self.reference(snaps, outlier, pk, p_vel)
-        cfg = self.config
         n = snaps.shape[0]
         y = beamform(snaps, self.steer)
         q = y.view(y.real.dtype)
-        outl = (np.ascontiguousarray(outlier, np.float32) if np.ndim(outlier)
-                else np.full(n, outlier, np.float32))
-        bins = np.ascontiguousarray(pk, np.int64) if cfg.angle_skip_shared_looks else None
-        az, spec, kept, used = self.kernel.consensus(q, self.grid, outl, bins, cfg.angle_shared_bins,
-                                                     cfg.angle_min_agreeing, 2,
-                                                     np.ascontiguousarray(p_vel, np.float32),
-                                                     np.float32(cfg.angle_shared_speed_mps))
+        bins = pk if cfg.angle_skip_shared_looks else None
+        if p_rng is None:  # (the kernel takes the window's array as np.ascontiguousarray(outlier, np.float32))
+            outl = outlier if np.ndim(outlier) else np.full(n, outlier, np.float32)
+            az, spec, kept, used = self.kernel.consensus(q, self.grid, outl, bins, cfg.angle_shared_bins,
+                                                         cfg.angle_min_agreeing, 2, p_vel,
+                                                         np.float32(cfg.angle_shared_speed_mps))
+        else:
+            az, spec, kept, used = self.kernel.consensus(q, self.grid, np.float32(outlier), bins,
+                                                         cfg.angle_shared_bins, cfg.angle_min_agreeing, 2, p_vel,
+                                                         np.float32(cfg.angle_shared_speed_mps), p_rng,
+                                                         np.float32(cfg.angle_outlier_lateral_m))
         return az, spec, kept.view(bool), used.view(bool)
+
+    def outlier_window(self, outlier, p_rng: np.ndarray):
+        """The outlier window per pairing: ``outlier`` (rad), wider near the radar, where a vehicle spans degrees:
+        at least ``angle_outlier_lateral_m`` across at the pairing's range ``p_rng`` (float32, as numpy rounds)."""
+        cfg = self.config
+        if cfg.angle_outlier_lateral_m > 0:
+            return np.maximum(outlier, np.float32(cfg.angle_outlier_lateral_m) / np.maximum(p_rng, np.float32(1.0)))
+        return outlier
 
     def reference(self, snaps: np.ndarray, outlier, pk: np.ndarray, p_vel: np.ndarray) -> tuple:
         """The numpy consensus (edge.dsp.angle.bartlett_consensus: the kernel's reference and fallback)."""
@@ -75,21 +93,14 @@ class AngleStage(native.KernelUser):
         if n_det:
             snaps = spec.reshape(spec.shape[0], -1).take(pk + self._seg_bin0, axis=1)  # (rx, n, seg)
             snaps = snaps.transpose(1, 2, 0) * self._inv_cal  # (n, seg, rx)
-            outlier = self._outlier_rad
-            if cfg.angle_outlier_lateral_m > 0:  # wider near the radar, where a vehicle spans degrees
-                outlier = np.maximum(outlier, np.float32(cfg.angle_outlier_lateral_m)
-                                     / np.maximum(p_rng, np.float32(1.0)))
-            az, aspec, kept, used = self.consensus(snaps, outlier, pk, p_vel)
+            az, aspec, kept, used = self.consensus(snaps, self._outlier_rad, pk, p_vel, p_rng)
             if self._k_out is not None and pk.dtype == np.int64 and all(
                     a.dtype == np.float32 for a in (p_rng, p_vel, pairs.residual_hz, az, noise, floor)):
-                out = self._k_out.finish(
-                    spectra.power_padded, spectra.pad, np.ascontiguousarray(noise), floor[0], np.ascontiguousarray(pk),
-                    np.ascontiguousarray(p_rng), np.ascontiguousarray(p_vel), np.ascontiguousarray(pairs.residual_hz),
-                    np.ascontiguousarray(az), np.ascontiguousarray(kept).view(np.uint8),
-                    np.ascontiguousarray(used).view(np.uint8),
-                    np.ascontiguousarray(snaps, np.complex64).view(np.float32), cfg.angle_min_agreeing,
-                    self._want_looks)
-                return Angles(*out[:5], np.full(out[0].size, -1, np.int32), None, aspec, out[5])
+                # (the kernel reads the arrays as np.ascontiguousarray gives them)
+                rng_k, vel_k, res_k, az_k, snr_k, looks_k, pair_k = self._k_out.finish(
+                    spectra.power_padded, spectra.pad, noise, floor[0], pk, p_rng, p_vel, pairs.residual_hz, az, kept,
+                    used, snaps, cfg.angle_min_agreeing, self._want_looks)
+                return Angles(rng_k, vel_k, res_k, az_k, snr_k, pair_k, None, aspec, looks_k)
             p0 = power[0, pk[:, 0]]
             n0 = noise[0, pk[:, 0]]
             n0 = np.where(np.isfinite(n0), n0, floor[0])  # a track-aided pair may read a non-peak bin

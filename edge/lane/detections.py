@@ -194,17 +194,21 @@ class AgainstLaneGlint(native.KernelUser):
                 or type(cfg.cluster_against_lane_speed_mps) not in (int, float)):
             return self.reference(range_m, v_mps, az, x, y, keep, feedback)  # (the reference's float32 rounding
             # of Python scalars, NEP 50, is what the kernel reproduces)
-        lanes = feedback.lanes
-        if self._k_lanes[0] is not lanes:  # the lanes change rarely (see RoadFrame)
-            self._k_lanes = (lanes, _lane_table(lanes))
         out = self.kernel.glint(np.ascontiguousarray(range_m), np.ascontiguousarray(v_mps), np.ascontiguousarray(az),
                                 np.ascontiguousarray(x), np.ascontiguousarray(y),
-                                np.ascontiguousarray(keep).view(np.uint8), *self._k_lanes[1],
+                                np.ascontiguousarray(keep).view(np.uint8), *self.lane_table(feedback.lanes),
                                 math.cos(feedback.yaw_rad), math.sin(feedback.yaw_rad),
                                 np.float32(cfg.unalias_min_speed_mps), np.float32(margin), np.float32(k_sigma),
                                 np.float32(cfg.cluster_length_m), np.float32(cfg.cluster_against_lane_speed_mps),
                                 self.beamwidth_sin)
         return out.view(bool)
+
+    def lane_table(self, lanes) -> tuple:
+        """The kernels' arrays of ``lanes`` (:func:`_lane_table`), kept while the lanes are the same object (they
+        change rarely, see RoadFrame)."""
+        if self._k_lanes[0] is not lanes:
+            self._k_lanes = (lanes, _lane_table(lanes))
+        return self._k_lanes[1]
 
     def reference(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, x: np.ndarray, y: np.ndarray,
                   keep: np.ndarray, feedback: Feedback) -> np.ndarray:
@@ -236,7 +240,7 @@ class AgainstLaneGlint(native.KernelUser):
         return out
 
 
-class DetectionStage:
+class DetectionStage(native.KernelUser):
     """Ground-plane geometry and the road-geometry filters, as configured."""
 
     def __init__(self, frontend: FrontendInfo, config, road: RoadFrame) -> None:
@@ -249,12 +253,71 @@ class DetectionStage:
             self.filters += (NearFaces(cfg),)
             if cfg.cluster_against_lane_speed_mps > 0:
                 self.filters += (AgainstLaneGlint(frontend, cfg, road),)
+        #: the compiled stage after the direction filters (edge/native/_detect.pyx), None: :meth:`reference`
+        self.kernel = native.load("_detect")
+        self._k_dz = np.float32(cfg.mounting_height_m - cfg.target_height_m)  # (polar_to_ground's)
 
     def __call__(self, a: Angles, feedback: Feedback) -> Detections:
+        """The detections of ``a``: the direction filters, the ground projection and the filters of the projected
+        detections. The compiled kernel after the direction filters when built and the columns are float32 (int32
+        pairs), else :meth:`reference` (the same detections bit for bit)."""
+        k = self.kernel
+        if (k is None or not all(type(v) is np.ndarray and v.dtype == np.float32
+                                 for v in (a.range_m, a.radial_speed_mps, a.az_rad, a.snr_db, a.residual_hz))
+                or type(a.resolved_pair) is not np.ndarray or a.resolved_pair.dtype != np.int32
+                or not (a.unresolved_pair is None or (type(a.unresolved_pair) is np.ndarray
+                                                      and a.unresolved_pair.dtype == bool))):
+            return self.reference(a, feedback)
+        glint = faces = None
+        for f in self.filters:
+            if type(f) is NearFaces and faces is None and glint is None and f.kernel is not None:
+                faces = f
+            elif type(f) is AgainstLaneGlint and faces is not None and glint is None and f.kernel is not None:
+                glint = f
+            else:
+                return self.reference(a, feedback)
         cfg = self.config
+        g_args = (None, None, None, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        if glint is not None and feedback.lanes:
+            k_sigma = feedback.lane_sigmas * feedback.direction_sigma_rad
+            margin = cfg.cluster_against_lane_margin_m
+            if (type(k_sigma) not in (int, float) or type(margin) not in (int, float)
+                    or type(cfg.cluster_length_m) not in (int, float)
+                    or type(cfg.cluster_against_lane_speed_mps) not in (int, float)):
+                return self.reference(a, feedback)  # (AgainstLaneGlint.glint's condition for its kernel)
+            g_args = (*glint.lane_table(feedback.lanes), math.cos(feedback.yaw_rad), math.sin(feedback.yaw_rad),
+                      np.float32(cfg.unalias_min_speed_mps), np.float32(margin), np.float32(k_sigma),
+                      np.float32(cfg.cluster_length_m), np.float32(cfg.cluster_against_lane_speed_mps),
+                      glint.beamwidth_sin)
         c = Candidates(a.range_m, a.radial_speed_mps, a.az_rad, None, None, None)
         for f in self.direction_filters:
             c = f(c, feedback)
+        az = c.az_rad
+        if type(az) is not np.ndarray or az.dtype != np.float32:
+            return self._filtered(a, c, feedback)
+        f_args = faces._k_args if faces is not None else (0.0, 0.0, 0.0, 0.0)  # (NearFaces' float32 arguments)
+        rng, vel, az, snr, x, y, res, pair, body, unresolved = k.finish(
+            c.range_m, c.radial_speed_mps, az, np.sin(az), np.cos(az), a.snr_db, a.residual_hz, a.resolved_pair,
+            a.unresolved_pair, self._k_dz, faces is not None, *f_args, glint is not None and bool(feedback.lanes),
+            *g_args)
+        extra = {"pair_residual_hz": res, "resolved_pair": pair}
+        if body is not None:
+            extra["body_extent_m"] = body
+        if unresolved is not None:
+            extra["unresolved_pair"] = unresolved
+        return Detections(rng, vel, az, snr, x, y, extra)
+
+    def reference(self, a: Angles, feedback: Feedback) -> Detections:
+        """The numpy form of :meth:`__call__` (each filter's own kernel when built): the kernel's reference and
+        fallback."""
+        c = Candidates(a.range_m, a.radial_speed_mps, a.az_rad, None, None, None)
+        for f in self.direction_filters:
+            c = f(c, feedback)
+        return self._filtered(a, c, feedback)
+
+    def _filtered(self, a: Angles, c: Candidates, feedback: Feedback) -> Detections:
+        """:meth:`reference` after the direction filters."""
+        cfg = self.config
         rng, vel, az = c.range_m, c.radial_speed_mps, c.az_rad
         x, y = polar_to_ground(rng, az, cfg.mounting_height_m, cfg.target_height_m)
         c = Candidates(rng, vel, az, x, y, np.ones(rng.size, bool))

@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from edge import native
-from edge.dsp.pairing import PairingModel, Pairs, pair_beats, refine_pairs
+from edge.dsp.pairing import PairingModel, Pairs, pair_beats, refine_rows
 from edge.lane.records import Feedback, PairList, Peaks, Spectra
 from edge.types import FrontendInfo
 
@@ -58,14 +58,19 @@ class PairStage(native.KernelUser):
         :func:`edge.dsp.pairing.pair_beats` (:meth:`reference`)."""
         if self.kernel is None:
             return self.reference(freqs)
+        return self._pair_kernel(freqs)[0]
+
+    def _pair_kernel(self, freqs: tuple, bins: tuple | None = None) -> tuple[Pairs, np.ndarray | None]:
+        """:meth:`pair` by the kernel, and the pairs' FFT bins (n, 4) from ``bins`` (None without them or when
+        they are not int64 arrays)."""
         cfg = self.config
-        f = tuple(np.ascontiguousarray(fk, dtype=np.float64) for fk in freqs)
         near = cfg.pair_near_range_m if cfg.pair_near_range_m > 0 else 0.0
-        rows, n_cand, n_ghost = self.kernel.pair(*f, self._coef, cfg.min_range_m, cfg.max_range_m,
-                                                 cfg.max_speed_kmh / 3.6, self.tol[0], self.tol[1],
-                                                 self._near_tol[0], self._near_tol[1], near,
-                                                 cfg.pair_max_shared_peaks, _GHOST_SPEED_MPS)
-        return refine_pairs(rows, f, self.model, n_cand, n_ghost)
+        rows, n_cand, n_ghost, fm, pk = self.kernel.pair_frame(
+            tuple(freqs), self._coef, cfg.min_range_m, cfg.max_range_m, cfg.max_speed_kmh / 3.6, self.tol[0],
+            self.tol[1], self._near_tol[0], self._near_tol[1], near, cfg.pair_max_shared_peaks, _GHOST_SPEED_MPS,
+            None if bins is None else tuple(bins))
+        # (refine_pairs with the pairs' frequencies)
+        return refine_rows(rows, fm, self.model, n_cand, n_ghost), pk
 
     def reference(self, freqs: tuple) -> Pairs:
         """The numpy pairing (the kernel's reference and fallback)."""
@@ -80,11 +85,18 @@ class PairStage(native.KernelUser):
         and ``pair_static_residue_db``, the residue of static echoes dropped (:meth:`drop_static`)."""
         cfg = self.config
         freqs, bins = peaks.freqs_hz, peaks.bins
-        pairs = self.pair(freqs)
-        # (n, 4 seg) bins: the peaks of the four segments are consecutive in ``all_bins``
-        all_bins = np.concatenate(bins)
-        seg_start = np.array(list(itertools.accumulate((b.size for b in bins[:-1]), initial=0)))
-        pk = all_bins[pairs.peak_index + seg_start] if pairs.range_m.size else self._no_bins
+        pk = None
+        if self.kernel is not None:  # the pairs' bins from the kernel as well
+            pairs, pk = self._pair_kernel(freqs, bins)
+        else:
+            pairs = self.pair(freqs)
+        if pk is None:
+            # (n, 4 seg) bins: the peaks of the four segments are consecutive in ``all_bins``
+            all_bins = np.concatenate(bins)
+            seg_start = np.array(list(itertools.accumulate((b.size for b in bins[:-1]), initial=0)))
+            pk = all_bins[pairs.peak_index + seg_start] if pairs.range_m.size else self._no_bins
+        elif not pairs.range_m.size:
+            pk = self._no_bins
         if self._static_ratio > 0 and spectra is not None and self.clutter is not None and pk.shape[0]:
             pairs, pk = self.drop_static(pairs, pk, spectra, peaks.floor)
         p_rng, p_vel, p_res = pairs.range_m, pairs.radial_speed_mps, pairs.residual_hz
@@ -148,12 +160,9 @@ class PairStage(native.KernelUser):
         r_hat, v_hat, f_hat = pred
         if self.kernel is not None:  # the nearest unused peaks in the kernel (the same picks as below)
             found, fsel, bsel, good = self.kernel.aided_search(
-                tuple(np.ascontiguousarray(f, np.float64) for f in freqs),
-                tuple(np.ascontiguousarray(b, np.int64) for b in bins),
-                None if weak is None else tuple(np.ascontiguousarray(f, np.float64) for f in weak[0]),
-                None if weak is None else tuple(np.ascontiguousarray(b, np.int64) for b in weak[1]),
-                np.ascontiguousarray(pairs.peak_index, np.int64).reshape(-1, 4), np.ascontiguousarray(f_hat),
-                self._aided_window_hz, cfg.aided_min_segments)
+                tuple(freqs), tuple(bins), None if weak is None else tuple(weak[0]),
+                None if weak is None else tuple(weak[1]), pairs.peak_index, f_hat, self._aided_window_hz,
+                cfg.aided_min_segments)  # (the kernel takes float64 and int64 C-contiguous arrays, converting others)
             found, good = found.view(bool), good.view(bool)
             if not np.count_nonzero(good):
                 return empty

@@ -56,8 +56,9 @@ class PeakStage(native.KernelUser):
             m = n_seg * (n // 2 + 1)  # at most this many local maxima (strict on the left)
             self._valid_u8 = np.ascontiguousarray(self.valid, dtype=np.uint8)
             self._k_rows, self._k_cols = np.empty(m, np.int64), np.empty(m, np.int64)
-            self._k_cells, self._k_hit = np.empty((m, 3), np.float32), np.empty(m, np.uint8)
-            self._k_freq, self._k_scratch = np.empty(m, np.float64), np.empty(m, np.float32)
+            self._k_cells = np.empty((m, 3), np.float32)
+            self._k_scratch = np.empty(m, np.float32)
+            self._k_counts = np.zeros(2 * n_seg, np.int64)  # detected, then weak peaks per segment
             self._k_comp, self._k_npad = self.kernel.rank_network(self._n_ref, self._rank)
             self._k_bin_hz = np.ascontiguousarray(self.bin_hz, dtype=np.float64)
             self._k_aided = np.float32(0.0 if self.aided_scale32 is None else self.aided_scale32)
@@ -71,39 +72,27 @@ class PeakStage(native.KernelUser):
         return self._compiled(spectra, want_weak)
 
     def _compiled(self, spectra: Spectra, want_weak: bool) -> Peaks:
-        """:meth:`reference` by the kernel: selection, OS-CFAR and interpolation in one pass over the cells."""
-        cfg, n = self.config, self.n_bins
+        """:meth:`reference` by the kernel: selection, OS-CFAR, threshold and the split into detected and weak peaks
+        in one pass over the cells, then numpy's float32 log and the interpolation per segment."""
+        cfg, n, k = self.config, self.n_bins, self.kernel
         power = spectra.power
         floor = np.partition(power.view(np.int32), n // 2, axis=-1)[:, n // 2].view(np.float32)
-        cap = floor * self._cap  # (4,)
-        noise = self._nan_rows.copy()
         ppad = spectra.power_padded
         if ppad.dtype != np.float32 or not ppad.flags.c_contiguous:
             ppad = np.ascontiguousarray(ppad, dtype=np.float32)
         want_weak = bool(want_weak and self.aided_scale32 is not None)
-        m = self.kernel.select(ppad, self._valid_u8, cfg.cfar_train_cells, cfg.cfar_guard_cells, self._rank,
-                               self._k_comp, self._k_npad, cap, self.scale32, self._k_aided, want_weak, noise,
-                               self._k_rows, self._k_cols, self._k_cells, self._k_hit, self._k_scratch)
-        thr = noise * self.scale32
-        rows, cols, cells = self._k_rows[:m].copy(), self._k_cols[:m].copy(), self._k_cells[:m]
-        lg = np.log(cells)  # numpy's float32 log, as the reference's (the cells are floored at 1e-30)
-        f = self._k_freq[:m]
-        self.kernel.interpolate(lg, rows, cols, self._freq_flat, self._k_bin_hz, n, f)
-        f = f.copy()
-        hit = self._k_hit[:m].view(bool)
-        weak_f = weak_b = None
-        if want_weak:
-            wk = ~hit
-            wr, wc, wf = rows[wk], cols[wk], f[wk]
-            rows, cols, f = rows[hit], cols[hit], f[hit]
-            bounds = self._segment_bounds(wr)
-            weak_f, weak_b = tuple(wf[b:e] for b, e in bounds), tuple(wc[b:e] for b, e in bounds)
-        bounds = self._segment_bounds(rows)
-        if max(e - b for b, e in bounds) > cfg.max_peaks_per_segment:
-            freqs, bins = self._strongest_peaks(power, rows, cols)
-        else:
-            freqs, bins = [f[b:e] for b, e in bounds], [cols[b:e] for b, e in bounds]
-        return Peaks(tuple(freqs), tuple(bins), noise, thr, floor, weak_f, weak_b)
+        noise, thr = np.empty(power.shape, np.float32), np.empty(power.shape, np.float32)
+        m_hit, m = k.select_frame(ppad, self._valid_u8, cfg.cfar_train_cells, cfg.cfar_guard_cells, self._rank,
+                                  self._k_comp, self._k_npad, floor, self._cap, self.scale32, self._k_aided, want_weak,
+                                  noise, thr, self._k_rows, self._k_cols, self._k_cells, self._k_counts,
+                                  self._k_scratch)
+        lg = np.log(self._k_cells[:m])  # numpy's float32 log, as the reference's (the cells are floored at 1e-30)
+        freqs, bins, weak_f, weak_b = k.frame_peaks(lg, self._k_rows, self._k_cols, self._freq_flat, self._k_bin_hz,
+                                                    n, self._k_counts, m_hit, m, want_weak, cfg.max_peaks_per_segment)
+        if freqs is None:  # a segment with more than max_peaks_per_segment (rare)
+            freqs, bins = self._strongest_peaks(power, self._k_rows[:m_hit].copy(), self._k_cols[:m_hit].copy())
+            freqs, bins = tuple(freqs), tuple(bins)
+        return Peaks(freqs, bins, noise, thr, floor, weak_f, weak_b)
 
     def reference(self, spectra: Spectra, want_weak: bool) -> Peaks:
         """The numpy implementation of :meth:`__call__` (the kernel's reference and fallback)."""

@@ -186,16 +186,13 @@ class CellResolver(native.KernelUser):
         c = self.cells
         follow = cfg.follow_direction and az_rad is not None
         n = range_m.shape[0]
-        out = self.kernel.step(
-            c.range_m, c.v_mps, c.cov.view(np.float32), c.n, c.misses, c.streak,
-            np.ascontiguousarray(range_m, np.float32), np.ascontiguousarray(v_mps, np.float32),
-            np.ascontiguousarray(snapshots, np.complex64).view(np.float32),
-            np.ascontiguousarray(az_rad, np.float32) if follow else _NO_AZ,
+        out = self.kernel.step(  # (float32 and complex64 C-contiguous arrays; the kernel converts others)
+            c.range_m, c.v_mps, c.cov, c.n, c.misses, c.streak, range_m, v_mps, snapshots, az_rad if follow else _NO_AZ,
             follow, self.period_s, cfg.range_gate_m, cfg.speed_gate_mps, cfg.memory_frames, cfg.min_frames,
             cfg.min_split_frames, cfg.max_misses, cfg.min_eig_ratio, cfg.min_noise_ratio, cfg.pair_hint_eig_ratio,
             cfg.min_lateral_m, cfg.min_power_ratio, self._min_speed32, cfg.max_cells, self._k_phase,
             self._k_coarse_t, self._k_fine_rows, self._pair_feat, self._k_pair_th, self._k_pair_dsin, self._k_pinv)
-        self.cells = _Cells(out[3], out[4], out[5].view(np.complex64), out[6], out[7], out[8])
+        self.cells = _Cells(out[3], out[4], out[5], out[6], out[7], out[8])
         self.two_sources = out[2].view(bool)
         return out[0].view(bool), out[1]
 

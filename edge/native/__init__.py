@@ -16,7 +16,7 @@ log = logging.getLogger(__name__)
 
 #: kernel module names (``edge/native/<name>.pyx``) the product uses
 KERNELS: tuple[str, ...] = ("_probe", "_spectra", "_peaks", "_track", "_pairs", "_angles", "_resolve", "_faces", "_aided",
-                             "_anglesout", "_traffic", "_dbscan", "_survsig", "_unalias", "_alphabeta", "_aliasfit")
+                             "_anglesout", "_traffic", "_dbscan", "_survsig", "_unalias", "_alphabeta", "_aliasfit", "_detect")
 
 _cache: dict[str, ModuleType | None] = {}
 _errors: dict[str, str] = {}  # why a kernel did not load (the ImportError's message)

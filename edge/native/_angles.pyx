@@ -12,36 +12,66 @@ order; the first maximum on a tie).
 """
 
 cimport cython
+cimport numpy as cnp
 from libc.stdlib cimport malloc, free
 from libc.math cimport fabsf
 
 import numpy as np
 
+cnp.import_array()
+
+include "_arrays.pxi"
+
 
 @cython.boundscheck(False)
 @cython.wraparound(False)
 @cython.cdivision(True)
-def consensus(const float[:, :, ::1] q, const float[::1] grid, const float[::1] outlier, peak_bins_obj,
-              int shared_bins, int min_agreeing, int min_clean, const float[::1] speeds, float min_speed_diff):
-    """``q``: ``y`` viewed as float32 ``(n, looks, 2 n_grid)`` (re, im interleaved); ``outlier`` (n,) rad;
-    ``peak_bins_obj``: (n, looks) int64 or None (no shared-look test). Returns ``(az (n,) float32, spectrum (n,
-    n_grid) float32, kept (n, looks) uint8, used (n, looks) uint8)``."""
-    cdef Py_ssize_t n = q.shape[0], ns = q.shape[1], g = q.shape[2] // 2
+def consensus(q_a, grid_a, outlier_a, peak_bins_obj, int shared_bins, int min_agreeing, int min_clean, speeds_a,
+              float min_speed_diff, lateral_obj=None, float lateral_m=0.0):
+    """``q_a``: ``y`` viewed as float32 ``(n, looks, 2 n_grid)`` (re, im interleaved), C-contiguous; ``grid_a``
+    (n_grid,) float32; ``outlier_a`` (n,) rad float32, or a float32 scalar with ``lateral_obj`` the (n,) float32 ranges
+    and ``lateral_m`` > 0: the window is then max(outlier, lateral_m / max(range, 1)) per detection, in float32 as
+    numpy's (AngleStage.__call__'s); ``peak_bins_obj``: (n, looks) int64 or None (no shared-look test); ``speeds_a``
+    (n,) float32. The 1-D arrays and the bins are converted to C-contiguous ones of their type when they are not
+    (numpy's ascontiguousarray). Returns ``(az (n,) float32, spectrum (n, n_grid) float32, kept (n, looks) uint8,
+    used (n, looks) uint8)``."""
+    if not (cnp.PyArray_Check(q_a) and cnp.PyArray_NDIM(<cnp.ndarray>q_a) == 3):
+        raise ValueError("q: a (n, looks, 2 n_grid) float32 array needed")
+    cdef Py_ssize_t n = cnp.PyArray_DIM(<cnp.ndarray>q_a, 0), ns = cnp.PyArray_DIM(<cnp.ndarray>q_a, 1)
+    cdef Py_ssize_t g = cnp.PyArray_DIM(<cnp.ndarray>q_a, 2) // 2
     cdef Py_ssize_t i, j, s, t, k, h, kk
-    cdef const long long[:, ::1] pb
+    cdef const float *q = <const float *>_data3(q_a, cnp.NPY_FLOAT32, n, ns, 2 * g, False, "q")
+    grid_a = _as_c(grid_a, cnp.NPY_FLOAT32)
+    cdef const float *grid = <const float *>_data(grid_a, cnp.NPY_FLOAT32, g, False, "grid")
+    speeds_a = _as_c(speeds_a, cnp.NPY_FLOAT32)
+    cdef const float *speeds = <const float *>_data(speeds_a, cnp.NPY_FLOAT32, n, False, "speeds")
+    cdef const float *lat_r = NULL
+    cdef float out0 = 0, lat = lateral_m, one = 1.0, rr, o
+    cdef const float *outlier = NULL
+    if lateral_obj is not None:
+        out0 = outlier_a
+        lateral_obj = _as_c(lateral_obj, cnp.NPY_FLOAT32)
+        lat_r = <const float *>_data(lateral_obj, cnp.NPY_FLOAT32, n, False, "range")
+    else:
+        outlier_a = _as_c(outlier_a, cnp.NPY_FLOAT32)
+        outlier = <const float *>_data(outlier_a, cnp.NPY_FLOAT32, n, False, "outlier")
+    cdef const long long *pb = NULL
     cdef bint with_bins = peak_bins_obj is not None and n > 1
     if with_bins:
-        pb = peak_bins_obj
-    p_arr = np.empty((n, ns, g), np.float32)
-    cdef float[:, :, ::1] p = p_arr
+        peak_bins_obj = _as_c(peak_bins_obj, cnp.NPY_INT64)
+        pb = <const long long *>_data2(peak_bins_obj, cnp.NPY_INT64, n, ns, False, "peak_bins")
+    if g < 2:
+        raise ValueError("the grid needs two angles or more")
     spec_arr = np.zeros((n, g), np.float32)
-    cdef float[:, ::1] spec = spec_arr
-    az_arr = np.empty(n, np.float32)
-    cdef float[::1] az = az_arr
+    cdef float *spec = <float *>cnp.PyArray_DATA(<cnp.ndarray>spec_arr)
+    az_arr = _new(cnp.NPY_FLOAT32, n)
+    cdef float *az = <float *>cnp.PyArray_DATA(<cnp.ndarray>az_arr)
     kept_arr = np.zeros((n, ns), np.uint8)
-    cdef unsigned char[:, ::1] kept = kept_arr
+    cdef unsigned char *kept = <unsigned char *>cnp.PyArray_DATA(<cnp.ndarray>kept_arr)
     used_arr = np.zeros((n, ns), np.uint8)
-    cdef unsigned char[:, ::1] used = used_arr
+    cdef unsigned char *used = <unsigned char *>cnp.PyArray_DATA(<cnp.ndarray>used_arr)
+    cdef float *p = <float *>malloc((n * ns * g + 1) * sizeof(float))
+    cdef float *outl = <float *>malloc((n + 1) * sizeof(float))
     cdef float *each = <float *>malloc((ns + 1) * sizeof(float))
     cdef float *srt = <float *>malloc((ns + 1) * sizeof(float))
     cdef unsigned char *among = <unsigned char *>malloc(n + 1)
@@ -51,16 +81,24 @@ def consensus(const float[:, :, ::1] q, const float[::1] grid, const float[::1] 
     cdef float* sq
     cdef int cnt, n_clean
     cdef bint shared_any, sh, started
-    if each == NULL or srt == NULL or among == NULL:
-        free(each); free(srt); free(among)
+    if each == NULL or srt == NULL or among == NULL or p == NULL or outl == NULL:
+        free(each); free(srt); free(among); free(p); free(outl)
         raise MemoryError()
     try:
+        for i in range(n):  # the outlier window (np.maximum: NaN kept)
+            if outlier != NULL:
+                outl[i] = outlier[i]
+            else:
+                rr = lat_r[i]
+                rr = rr if (rr >= one or rr != rr) else one
+                o = lat / rr
+                outl[i] = out0 if (out0 >= o or out0 != out0) else o
         # looks and kept first (the shared-look test needs every detection's agreement)
         for i in range(n):
             for s in range(ns):
                 # the look's power, normalised to its maximum (floor 1e-30), and the normalised maximum's angle
-                qp = &q[i, s, 0]
-                pp_ = &p[i, s, 0]
+                qp = q + (i * ns + s) * 2 * g
+                pp_ = p + (i * ns + s) * g
                 for t in range(g):  # (bins innermost, contiguous: vectorised)
                     re = qp[2 * t]
                     im = qp[2 * t + 1]
@@ -93,9 +131,9 @@ def consensus(const float[:, :, ::1] q, const float[::1] grid, const float[::1] 
                 med = (srt[h - 1] + srt[h]) / <float>2
             cnt = 0
             for s in range(ns):
-                kept[i, s] = fabsf(each[s] - med) <= outlier[i]
-                used[i, s] = kept[i, s]
-                cnt += kept[i, s]
+                kept[i * ns + s] = fabsf(each[s] - med) <= outl[i]
+                used[i * ns + s] = kept[i * ns + s]
+                cnt += kept[i * ns + s]
             among[i] = cnt >= min_agreeing
         if with_bins:
             for i in range(n):
@@ -106,41 +144,41 @@ def consensus(const float[:, :, ::1] q, const float[::1] grid, const float[::1] 
                     for j in range(n):
                         if j == i or not among[j]:
                             continue
-                        if (abs(pb[i, s] - pb[j, s]) <= shared_bins
+                        if (abs(pb[i * ns + s] - pb[j * ns + s]) <= shared_bins
                                 and fabsf(speeds[i] - speeds[j]) > min_speed_diff):
                             sh = True
                             break
                     if sh:
                         shared_any = True
-                    elif kept[i, s]:
+                    elif kept[i * ns + s]:
                         n_clean += 1
-                    used[i, s] = kept[i, s] and not sh
+                    used[i * ns + s] = kept[i * ns + s] and not sh
                 if shared_any and n_clean < min_clean:  # too few clean looks: all the agreeing ones
                     for s in range(ns):
-                        used[i, s] = kept[i, s]
+                        used[i * ns + s] = kept[i * ns + s]
         step = grid[1] - grid[0]
         for i in range(n):
             # the used looks' normalised spectra summed in look order (a look not used adds p * 0)
-            sq = &spec[i, 0]
-            pp_ = &p[i, 0, 0]
-            u = <float>used[i, 0]
+            sq = spec + i * g
+            pp_ = p + i * ns * g
+            u = <float>used[i * ns]
             for t in range(g):
                 sq[t] = pp_[t] * u
             for s in range(1, ns):  # look by look, bins innermost: the same sum per bin
-                pp_ = &p[i, s, 0]
-                u = <float>used[i, s]
+                pp_ = p + (i * ns + s) * g
+                u = <float>used[i * ns + s]
                 for t in range(g):
                     sq[t] = sq[t] + pp_[t] * u
             k = 0
-            mx = spec[i, 0]
+            mx = sq[0]
             for t in range(1, g):
-                if spec[i, t] > mx:
-                    mx = spec[i, t]
+                if sq[t] > mx:
+                    mx = sq[t]
                     k = t
             if 1 <= k <= g - 2:
-                pm = spec[i, k - 1]
-                p0 = spec[i, k]
-                pp = spec[i, k + 1]
+                pm = sq[k - 1]
+                p0 = sq[k]
+                pp = sq[k + 1]
                 den = pm - <float>2.0 * p0 + pp
                 d = <float>0.5 * (pm - pp) / den if den < 0 else <float>0.0
                 if d < <float>-0.5:
@@ -152,4 +190,4 @@ def consensus(const float[:, :, ::1] q, const float[::1] grid, const float[::1] 
                 az[i] = grid[k]
         return az_arr, spec_arr, kept_arr, used_arr
     finally:
-        free(each); free(srt); free(among)
+        free(each); free(srt); free(among); free(p); free(outl)

@@ -6,9 +6,10 @@ nearer one (up to ``length`` nearer in range, within ``speed`` in radial speed a
 kept detection's body length along the road. float32 as the reference, one rounding per operation."""
 
 cimport cython
-from libc.math cimport sqrtf, fabsf, NAN
 
 import numpy as np
+
+include "_roadfilters.pxi"
 
 
 @cython.boundscheck(False)
@@ -19,35 +20,15 @@ def near_faces(const float[::1] rng, const float[::1] v, const float[::1] x, con
     (n,) uint8: still kept. Returns ``(keep (n,) uint8, body_extent (n,) float32)``: a detection is dropped when
     another lies 0 < dr <= ``length`` nearer with |dv| <= ``speed`` and |dx| <= ``lateral``; the extent of a kept
     one is the along-road ground length to the farthest detection dropped behind it (NaN for dropped ones)."""
-    cdef Py_ssize_t n = rng.shape[0], i, j
-    cdef float r, e, x2, t, near, far, fr
+    cdef Py_ssize_t n = rng.shape[0]
     keep_arr = np.empty(n, np.uint8)
     cdef unsigned char[::1] keep = keep_arr
     ext_arr = np.zeros(n, np.float32)
     cdef float[::1] ext = ext_arr
-    for i in range(n):
-        keep[i] = 1
-    for i in range(n):  # i behind j: i is j's body
-        for j in range(n):
-            r = rng[i] - rng[j]
-            if (r > 0 and r <= length and fabsf(x[i] - x[j]) <= lateral and fabsf(v[i] - v[j]) <= speed):
-                keep[i] = 0
-                if r > ext[j]:
-                    ext[j] = r
-    for i in range(n):
-        keep[i] = keep[i] and keep_in[i]
-        e = ext[i] if keep[i] else <float>NAN
-        x2 = x[i] * x[i]
-        t = rng[i] * rng[i] - dz2 - x2
-        near = sqrtf(t if (t >= 0 or t != t) else <float>0)  # (np.maximum: -0 and NaN kept)
-        fr = rng[i] + e
-        t = fr * fr - dz2 - x2
-        far = sqrtf(t if (t >= 0 or t != t) else <float>0)
-        ext[i] = far - near
+    if n:
+        _near_faces_core(&rng[0], &v[0], &x[0], &keep_in[0], n, length, speed, lateral, dz2, &keep[0], &ext[0])
     return keep_arr, ext_arr
 
-
-from libc.math cimport fabs
 
 
 @cython.boundscheck(False)

@@ -18,10 +18,15 @@ products go through BLAS, whose summation order the kernel could not match bit f
 """
 
 cimport cython
+cimport numpy as cnp
 from libc.math cimport fabs
 from libc.stdlib cimport malloc, free
 
 import numpy as np
+
+cnp.import_array()
+
+include "_arrays.pxi"
 
 
 cdef inline int _nearest(const double *g, const int *k, int n, double p, double *dist) noexcept nogil:
@@ -49,9 +54,9 @@ cdef inline int _nearest(const double *g, const int *k, int n, double p, double 
     return k[lo - 1]
 
 
-cdef void _sort_by_freq(const double[::1] f, double *g, int *k) noexcept nogil:
-    """``g`` = ``f`` sorted ascending, ``k`` the original indices (ties by index: insertion sort, stable)."""
-    cdef int n = f.shape[0], i, j
+cdef void _sort_by_freq(const double *f, int n, double *g, int *k) noexcept nogil:
+    """``g`` = ``f`` (n) sorted ascending, ``k`` the original indices (ties by index: insertion sort, stable)."""
+    cdef int i, j
     cdef double x
     for i in range(n):
         x = f[i]
@@ -72,7 +77,65 @@ def pair(const double[::1] f0, const double[::1] f1, const double[::1] f2, const
     """Steps 1-4 of ``pair_beats``. ``coef``: (a0, a1, a2, a3, b0, b1, b2, b3); ``near_range_m`` <= 0: no near
     tolerance. Returns ``(rows (n, 4) int64, n_candidates, n_ghosts)``: the accepted pairs' peak indices in
     acceptance order."""
-    cdef int n0 = f0.shape[0], n1 = f1.shape[0], n2 = f2.shape[0], n3 = f3.shape[0]
+    if coef.shape[0] != 8:
+        raise ValueError("coef needs 8 values")
+    return _pair_core(&f0[0], &f1[0], &f2[0], &f3[0], f0.shape[0], f1.shape[0], f2.shape[0], f3.shape[0], &coef[0],
+                      min_range_m, max_range_m, max_speed_mps, tol2, tol3, near_tol2, near_tol3, near_range_m,
+                      max_shared, ghost_speed_mps, False)
+
+
+def pair_frame(tuple freqs, coef_a, double min_range_m, double max_range_m, double max_speed_mps,
+               double tol2, double tol3, double near_tol2, double near_tol3, double near_range_m,
+               int max_shared, double ghost_speed_mps, tuple bins=None):
+    """:func:`pair` of the four segments' frequencies ``freqs`` (any 1-D arrays: as float64 C-contiguous arrays,
+    read through the numpy C API). Returns ``(rows, n_candidates, n_ghosts, fm, pk)``: :func:`pair`'s outputs, the
+    accepted pairs' frequencies ``fm`` (n, 4) float64 (each segment's peak ``rows[:, k]``) and their FFT bins ``pk``
+    (n, 4) int64 from ``bins`` (the segments' int64 arrays); ``pk`` None without ``bins`` or when one is not a 1-D
+    int64 array of its segment's length."""
+    if len(freqs) != 4 or (bins is not None and len(bins) != 4):
+        raise ValueError("four segments needed")
+    f = (_as_c(freqs[0], cnp.NPY_FLOAT64), _as_c(freqs[1], cnp.NPY_FLOAT64), _as_c(freqs[2], cnp.NPY_FLOAT64),
+         _as_c(freqs[3], cnp.NPY_FLOAT64))
+    cdef Py_ssize_t n0 = len(f[0]), n1 = len(f[1]), n2 = len(f[2]), n3 = len(f[3])
+    cdef const double *coef = <const double *>_data(coef_a, cnp.NPY_FLOAT64, 8, False, "coef")
+    out = _pair_core(<const double *>_data(f[0], cnp.NPY_FLOAT64, n0, False, "f0"),
+                     <const double *>_data(f[1], cnp.NPY_FLOAT64, n1, False, "f1"),
+                     <const double *>_data(f[2], cnp.NPY_FLOAT64, n2, False, "f2"),
+                     <const double *>_data(f[3], cnp.NPY_FLOAT64, n3, False, "f3"), <int>n0, <int>n1, <int>n2,
+                     <int>n3, coef, min_range_m, max_range_m, max_speed_mps, tol2, tol3, near_tol2, near_tol3,
+                     near_range_m, max_shared, ghost_speed_mps, True)
+    cdef Py_ssize_t i, k, n = len(out[0])
+    cdef const long long *rows
+    cdef const long long *bk
+    cdef long long *o
+    cdef Py_ssize_t nk[4]
+    nk[0], nk[1], nk[2], nk[3] = n0, n1, n2, n3
+    pk = None
+    cdef bint ok = bins is not None
+    if ok:
+        for k in range(4):
+            b = bins[k]
+            if not (cnp.PyArray_Check(b) and cnp.PyArray_NDIM(<cnp.ndarray>b) == 1
+                    and cnp.PyArray_TYPE(<cnp.ndarray>b) == cnp.NPY_INT64 and cnp.PyArray_DIM(<cnp.ndarray>b, 0) == nk[k]):
+                ok = False
+    if ok:
+        pk = np.empty((n, 4), np.int64)
+        o = <long long *>cnp.PyArray_DATA(<cnp.ndarray>pk)
+        rows = <const long long *>cnp.PyArray_DATA(<cnp.ndarray>out[0])
+        for k in range(4):
+            b = _as_c(bins[k], cnp.NPY_INT64)
+            bk = <const long long *>cnp.PyArray_DATA(<cnp.ndarray>b)
+            for i in range(n):
+                o[4 * i + k] = bk[rows[4 * i + k]]
+    return out + (pk,)
+
+
+@cython.cdivision(True)
+cdef tuple _pair_core(const double *f0, const double *f1, const double *f2, const double *f3, int n0, int n1,
+                      int n2, int n3, const double *coef, double min_range_m, double max_range_m, double max_speed_mps,
+                      double tol2, double tol3, double near_tol2, double near_tol3, double near_range_m,
+                      int max_shared, double ghost_speed_mps, bint want_fm):
+    """:func:`pair` on raw pointers; with ``want_fm`` also the accepted pairs' frequencies (n, 4) float64."""
     cdef double a0 = coef[0], a1 = coef[1], a2 = coef[2], a3 = coef[3]
     cdef double b0 = coef[4], b1 = coef[5], b2 = coef[6], b3 = coef[7]
     cdef double det = a0 * b1 - a1 * b0
@@ -101,6 +164,7 @@ def pair(const double[::1] f0, const double[::1] f1, const double[::1] f2, const
     cdef int n_out, max_sh, sh, found
     cdef bint m_ij, hit
     cdef long long[:, ::1] o
+    cdef double *fm = NULL
     if (g2 == NULL or g3 == NULL or k2 == NULL or k3 == NULL or rows == NULL or vel == NULL or cost == NULL
             or order == NULL or used == NULL or keep == NULL or shared == NULL or ghost == NULL):
         free(g2); free(g3); free(k2); free(k3); free(rows); free(vel); free(cost); free(order); free(used)
@@ -108,8 +172,8 @@ def pair(const double[::1] f0, const double[::1] f1, const double[::1] f2, const
         raise MemoryError()
     try:
         with nogil:
-            _sort_by_freq(f2, g2, k2)
-            _sort_by_freq(f3, g3, k3)
+            _sort_by_freq(f2, n2, g2, k2)
+            _sort_by_freq(f3, n3, g3, k3)
             # steps 1-3, candidates in (up peak, down peak) order
             for i0 in range(n0):
                 x0b1 = f0[i0] * b1
@@ -208,6 +272,9 @@ def pair(const double[::1] f0, const double[::1] f1, const double[::1] f2, const
             n_out += not ghost[i]
         out = np.empty((n_out, 4), np.int64)
         o = out
+        fm_arr = np.empty((n_out, 4), np.float64) if want_fm else None
+        if want_fm:
+            fm = <double *>cnp.PyArray_DATA(<cnp.ndarray>fm_arr)
         n = 0
         for i in range(n_keep):
             if ghost[i]:
@@ -215,59 +282,90 @@ def pair(const double[::1] f0, const double[::1] f1, const double[::1] f2, const
             pa = rows + 4 * keep[i]
             for kk in range(4):
                 o[n, kk] = pa[kk]
+            if want_fm:
+                fm[4 * n] = f0[pa[0]]
+                fm[4 * n + 1] = f1[pa[1]]
+                fm[4 * n + 2] = f2[pa[2]]
+                fm[4 * n + 3] = f3[pa[3]]
             n += 1
+        if want_fm:
+            return out, n_cand, n_cand - n_conf, fm_arr
         return out, n_cand, n_cand - n_conf
     finally:
         free(g2); free(g3); free(k2); free(k3); free(rows); free(vel); free(cost); free(order); free(used)
         free(keep); free(shared); free(ghost)
 
 
+cdef object _as_c2(object a, int typenum, Py_ssize_t n1):
+    """:func:`_as_c` of a 2-D ``(n, n1)`` array (``np.ascontiguousarray(a, dtype).reshape(-1, n1)``)."""
+    if (cnp.PyArray_Check(a) and cnp.PyArray_NDIM(<cnp.ndarray>a) == 2 and cnp.PyArray_DIM(<cnp.ndarray>a, 1) == n1
+            and cnp.PyArray_TYPE(<cnp.ndarray>a) == typenum and cnp.PyArray_ISCARRAY_RO(<cnp.ndarray>a)):
+        return a
+    return np.ascontiguousarray(a, dtype=cnp.PyArray_DescrFromType(typenum)).reshape(-1, n1)
+
+
 @cython.boundscheck(False)
 @cython.wraparound(False)
-def aided_search(tuple freqs, tuple bins, tuple weak_freqs, tuple weak_bins, const long long[:, ::1] used,
-                 const double[:, ::1] f_hat, const double[::1] window_hz, int min_segments):
+def aided_search(tuple freqs, tuple bins, tuple weak_freqs, tuple weak_bins, used_a, f_hat_a, window_hz_a,
+                 int min_segments):
     """The peak search of track-aided pairing (edge.lane.pairs.PairStage.track_aided's reference): for each
     predicted track (row of ``f_hat`` (m, 4), Hz) and segment, the nearest peak (detected ones, then weak ones, in
     their list order; the first of equal distances) not used by a pairing (``used`` (n, 4): peak index per segment
-    of the accepted pairs), found if within ``window_hz[k]``. Returns ``(found (m, 4) uint8, f (m, 4) float64: the
-    found peak's frequency, 0 where none, bins (m, 4) int64: its FFT bin, -1 where none, good (m,) uint8: at least
-    ``min_segments`` found)``."""
-    cdef int m = f_hat.shape[0], n_used = used.shape[0], i, k, j, nd, nw, best, cnt
+    of the accepted pairs), found if within ``window_hz[k]``. The arrays are taken as float64 (frequencies) and
+    int64 (bins, ``used``) C-contiguous ones, converted when they are not, and read through the numpy C API.
+    Returns ``(found (m, 4) uint8, f (m, 4) float64: the found peak's frequency, 0 where none, bins (m, 4) int64:
+    its FFT bin, -1 where none, good (m,) uint8: at least ``min_segments`` found)``."""
+    used_a = _as_c2(used_a, cnp.NPY_INT64, 4)
+    f_hat_a = _as_c2(f_hat_a, cnp.NPY_FLOAT64, 4)
+    cdef Py_ssize_t m = len(f_hat_a), n_used = len(used_a), i, j, nd, nw, best
+    cdef int k, cnt
     cdef double d, dmin, p
-    cdef const double[::1] fd
-    cdef const double[::1] fw
-    cdef const long long[::1] bd
-    cdef const long long[::1] bw
+    cdef const long long *used = <const long long *>_data2(used_a, cnp.NPY_INT64, n_used, 4, False, "used")
+    cdef const double *f_hat = <const double *>_data2(f_hat_a, cnp.NPY_FLOAT64, m, 4, False, "f_hat")
+    window_hz_a = _as_c(window_hz_a, cnp.NPY_FLOAT64)  # (the converted arrays are held while their data is read)
+    cdef const double *window_hz = <const double *>_data(window_hz_a, cnp.NPY_FLOAT64, 4, False, "window_hz")
+    cdef const double *fd
+    cdef const double *fw
+    cdef const long long *bd
+    cdef const long long *bw
+    if len(freqs) != 4 or len(bins) != 4 or (weak_freqs is not None and (len(weak_freqs) != 4 or len(weak_bins) != 4)):
+        raise ValueError("four segments needed")
     found = np.zeros((m, 4), np.uint8)
     fsel = np.zeros((m, 4), np.float64)
     bsel = np.full((m, 4), -1, np.int64)
     good = np.zeros(m, np.uint8)
-    cdef unsigned char[:, ::1] fo = found
-    cdef double[:, ::1] fs = fsel
-    cdef long long[:, ::1] bs = bsel
-    cdef unsigned char[::1] go = good
+    cdef unsigned char *fo = <unsigned char *>cnp.PyArray_DATA(<cnp.ndarray>found)
+    cdef double *fs = <double *>cnp.PyArray_DATA(<cnp.ndarray>fsel)
+    cdef long long *bs = <long long *>cnp.PyArray_DATA(<cnp.ndarray>bsel)
+    cdef unsigned char *go = <unsigned char *>cnp.PyArray_DATA(<cnp.ndarray>good)
     cdef unsigned char *taken
     for k in range(4):
-        fd = freqs[k]
-        bd = bins[k]
-        nd = fd.shape[0]
+        a_f = _as_c(freqs[k], cnp.NPY_FLOAT64)
+        a_b = _as_c(bins[k], cnp.NPY_INT64)
+        nd = len(a_f)
+        fd = <const double *>_data(a_f, cnp.NPY_FLOAT64, nd, False, "freqs")
+        bd = <const long long *>_data(a_b, cnp.NPY_INT64, nd, False, "bins")
+        nw = 0
+        fw = NULL
+        bw = NULL
         if weak_freqs is not None:
-            fw = weak_freqs[k]
-            bw = weak_bins[k]
-            nw = fw.shape[0]
-        else:
-            fw = fd[:0]
-            bw = bd[:0]
-            nw = 0
+            a_wf = _as_c(weak_freqs[k], cnp.NPY_FLOAT64)
+            a_wb = _as_c(weak_bins[k], cnp.NPY_INT64)
+            nw = len(a_wf)
+            fw = <const double *>_data(a_wf, cnp.NPY_FLOAT64, nw, False, "weak_freqs")
+            bw = <const long long *>_data(a_wb, cnp.NPY_INT64, nw, False, "weak_bins")
+        for i in range(n_used):
+            if not 0 <= used[4 * i + k] < nd:
+                raise IndexError("used: a peak index out of range")
         taken = <unsigned char *>malloc(nd + 1)
         if taken == NULL:
             raise MemoryError()
         for j in range(nd):
             taken[j] = 0
         for i in range(n_used):
-            taken[used[i, k]] = 1
+            taken[used[4 * i + k]] = 1
         for i in range(m):
-            p = f_hat[i, k]
+            p = f_hat[4 * i + k]
             best = -1
             dmin = 0.0
             for j in range(nd):
@@ -281,15 +379,15 @@ def aided_search(tuple freqs, tuple bins, tuple weak_freqs, tuple weak_bins, con
                 if best < 0 or d < dmin:
                     best, dmin = nd + j, d
             if best >= 0 and dmin <= window_hz[k]:
-                fo[i, k] = 1
+                fo[4 * i + k] = 1
                 if best < nd:
-                    fs[i, k] = fd[best]
-                    bs[i, k] = bd[best]
+                    fs[4 * i + k] = fd[best]
+                    bs[4 * i + k] = bd[best]
                 else:
-                    fs[i, k] = fw[best - nd]
-                    bs[i, k] = bw[best - nd]
+                    fs[4 * i + k] = fw[best - nd]
+                    bs[4 * i + k] = bw[best - nd]
         free(taken)
     for i in range(m):
-        cnt = fo[i, 0] + fo[i, 1] + fo[i, 2] + fo[i, 3]
+        cnt = fo[4 * i] + fo[4 * i + 1] + fo[4 * i + 2] + fo[4 * i + 3]
         go[i] = cnt >= min_segments
     return found, fsel, bsel, good

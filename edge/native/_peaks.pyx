@@ -11,6 +11,13 @@ float32 ``log``, so the frequencies equal the reference's bit for bit).
 """
 
 cimport cython
+cimport numpy as cnp
+from libc.math cimport NAN
+from libc.stdlib cimport malloc, free
+
+cnp.import_array()
+
+include "_arrays.pxi"
 
 
 cdef extern from *:
@@ -178,6 +185,74 @@ def fixed_network():
     return np.array([[kdet_net32_24[t][0], kdet_net32_24[t][1]] for t in range(KDET_NET32_24_N)], np.int32)
 
 
+cdef bint _is_fixed(const int *comp, Py_ssize_t ncomp, int n_train, int rank, int npad) noexcept nogil:
+    """Whether the network ``comp`` is the default one (kdet_os_noise_32_24 runs it unrolled)."""
+    cdef Py_ssize_t t
+    if not (n_train == 16 and rank == 24 and npad == 32 and ncomp == KDET_NET32_24_N):
+        return False
+    for t in range(ncomp):
+        if comp[2 * t] != kdet_net32_24[t][0] or comp[2 * t + 1] != kdet_net32_24[t][1]:
+            return False
+    return True
+
+
+cdef Py_ssize_t _select_core(const float *ppad, const unsigned char *valid, int n_seg, int n, int n_train,
+                             int n_guard, int rank, const int *comp, int ncomp, int npad, const float *cap,
+                             float scale, float aided_scale, bint want_weak, float *noise, long *rows, long *cols,
+                             float *cells, unsigned char *is_hit, float *scratch) noexcept nogil:
+    """:func:`select` on raw pointers (C-contiguous rows: ``ppad`` (n_seg, n + 2 half), ``valid`` and ``noise``
+    (n_seg, n), ``cells`` (m, 3), ``comp`` (ncomp, 2)); returns m."""
+    cdef int half = n_train + n_guard, r, c, nb
+    cdef Py_ssize_t m = 0, k, n_max = 0, w = n + 2 * half
+    cdef float p, nz, ub, tiny = 1e-30
+    cdef const float* row
+    cdef const float* win[8]
+    cdef bint fixed = _is_fixed(comp, ncomp, n_train, rank, npad)
+    for r in range(n_seg):  # the local maxima (strictly above the left neighbour, at least the right one)
+        row = ppad + r * w + half
+        for c in range(n):
+            if valid[r * n + c] and row[c] > row[c - 1] and row[c] >= row[c + 1]:
+                rows[n_max] = r
+                cols[n_max] = c
+                n_max += 1
+    k = 0
+    while k < n_max:  # their noise, eight at a time
+        nb = n_max - k
+        if nb > 8:
+            nb = 8
+        for c in range(nb):
+            win[c] = ppad + rows[k + c] * w + cols[k + c]
+        if fixed:
+            kdet_os_noise_32_24(win, nb, half + n_guard, &scratch[k])
+        else:
+            kdet_os_noise(win, nb, n_train, half + n_guard, npad, rank, comp, ncomp, &scratch[k])
+        k += nb
+    for k in range(n_max):  # the decisions (rows, cols compacted in place: m <= k)
+        r = rows[k]
+        c = cols[k]
+        row = ppad + r * w + half
+        nz = scratch[k]
+        if cap[r] < nz:
+            nz = cap[r]
+        noise[r * n + c] = nz
+        p = row[c]
+        if p > nz * scale:
+            is_hit[m] = 1
+        elif want_weak and p > nz * aided_scale:
+            is_hit[m] = 0
+        else:
+            continue
+        rows[m] = r
+        cols[m] = c
+        ub = row[c - 1]
+        cells[3 * m] = ub if ub > tiny else tiny
+        cells[3 * m + 1] = p if p > tiny else tiny
+        ub = row[c + 1]
+        cells[3 * m + 2] = ub if ub > tiny else tiny
+        m += 1
+    return m
+
+
 @cython.boundscheck(False)
 @cython.wraparound(False)
 def select(const float[:, ::1] ppad, const unsigned char[:, ::1] valid, int n_train, int n_guard, int rank,
@@ -193,60 +268,15 @@ def select(const float[:, ::1] ppad, const unsigned char[:, ::1] valid, int n_tr
     detected, 0 weak); ``rows``, ``cols`` and ``scratch`` must hold every local maximum (seg * (n / 2 + 1)).
     Returns m."""
     cdef int n_seg = valid.shape[0], n = valid.shape[1]
-    cdef int half = n_train + n_guard, r, c, m = 0, k, n_max = 0, nb, t
-    cdef float p, nz, ub, tiny = 1e-30
-    cdef const float* row
-    cdef const float* win[8]
-    cdef bint fixed = n_train == 16 and rank == 24 and npad == 32 and comp.shape[0] == KDET_NET32_24_N
     if npad > KDET_MAX_PAD or npad < 2 * n_train or rank < 1 or rank > 2 * n_train or KDET_LANES != 8:
         raise ValueError("reference window too large or rank out of range")
-    t = 0
-    while fixed and t < comp.shape[0]:  # the default network: its unrolled form (kdet_os_noise_32_24)
-        fixed = comp[t, 0] == kdet_net32_24[t][0] and comp[t, 1] == kdet_net32_24[t][1]
-        t += 1
+    cdef Py_ssize_t m = 0
+    if n_seg == 0 or n == 0:
+        return 0
     with nogil:
-        for r in range(n_seg):  # the local maxima (strictly above the left neighbour, at least the right one)
-            row = &ppad[r, half]
-            for c in range(n):
-                if valid[r, c] and row[c] > row[c - 1] and row[c] >= row[c + 1]:
-                    rows[n_max] = r
-                    cols[n_max] = c
-                    n_max += 1
-        k = 0
-        while k < n_max:  # their noise, eight at a time
-            nb = n_max - k
-            if nb > 8:
-                nb = 8
-            for c in range(nb):
-                win[c] = &ppad[rows[k + c], cols[k + c]]
-            if fixed:
-                kdet_os_noise_32_24(win, nb, half + n_guard, &scratch[k])
-            else:
-                kdet_os_noise(win, nb, n_train, half + n_guard, npad, rank, &comp[0, 0], comp.shape[0], &scratch[k])
-            k += nb
-        for k in range(n_max):  # the decisions (rows, cols compacted in place: m <= k)
-            r = rows[k]
-            c = cols[k]
-            row = &ppad[r, half]
-            nz = scratch[k]
-            if cap[r] < nz:
-                nz = cap[r]
-            noise[r, c] = nz
-            p = row[c]
-            if p > nz * scale:
-                is_hit[m] = 1
-            elif want_weak and p > nz * aided_scale:
-                is_hit[m] = 0
-            else:
-                continue
-            rows[m] = r
-            cols[m] = c
-            ub = row[c - 1]
-            cells[m, 0] = ub if ub > tiny else tiny
-            cells[m, 1] = p if p > tiny else tiny
-            ub = row[c + 1]
-            cells[m, 2] = ub if ub > tiny else tiny
-            m += 1
+        m = _select_core(&ppad[0, 0], &valid[0, 0], n_seg, n, n_train, n_guard, rank, &comp[0, 0], comp.shape[0],
+                         npad, &cap[0], scale, aided_scale, want_weak, &noise[0, 0], &rows[0], &cols[0],
+                         &cells[0, 0], &is_hit[0], &scratch[0])
     return m
 
 
@@ -273,3 +303,147 @@ def interpolate(const float[:, ::1] lg, const long[::1] rows, const long[::1] co
             if d > hlf:
                 d = hlf
             out[i] = freq_flat[rows[i] * n_bins + cols[i]] + <double>d * bin_hz[rows[i]]
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def select_frame(ppad_a, valid_a, int n_train, int n_guard, int rank, comp_a, int npad, floor_a, float cap_factor,
+                 float scale, float aided_scale, bint want_weak, noise_a, thr_a, rows_a, cols_a, cells_a, counts_a,
+                 scratch_a):
+    """:func:`select` for the stage (edge.lane.peaks.PeakStage), the arrays read through the numpy C API. The cap is
+    ``floor_a`` (seg,) float32 (any stride) times ``cap_factor``; ``noise_a`` (seg, n) is filled with NaN first and
+    ``thr_a`` (seg, n) gets noise * scale everywhere. The kept maxima come with the detected ones first, then the
+    weak ones, each in (segment, bin) order; ``counts_a`` (2 seg,) int64 gets their numbers per segment (detected,
+    then weak). Returns ``(m_hit, m)``."""
+    cdef Py_ssize_t n_seg = len(valid_a), n, ncomp = len(comp_a), cap_m = len(rows_a), i, j, w, m, fstep
+    if n_seg == 0:
+        return 0, 0
+    n = len(valid_a[0])
+    if npad > KDET_MAX_PAD or npad < 2 * n_train or rank < 1 or rank > 2 * n_train or KDET_LANES != 8:
+        raise ValueError("reference window too large or rank out of range")
+    if n_seg > 64 or cap_m < n_seg * (n // 2 + 1):
+        raise ValueError("too many segments, or rows_a cannot hold every local maximum")
+    cdef const float *ppad = <const float *>_data2(ppad_a, cnp.NPY_FLOAT32, n_seg, n + 2 * (n_train + n_guard),
+                                                   False, "ppad")
+    cdef const unsigned char *valid = <const unsigned char *>_data2(valid_a, cnp.NPY_UINT8, n_seg, n, False, "valid")
+    cdef const int *comp = <const int *>_data2(comp_a, cnp.NPY_INT32, ncomp, 2, False, "comp")
+    cdef const float *floor = <const float *>_strided(floor_a, cnp.NPY_FLOAT32, n_seg, &fstep, "floor")
+    cdef float *noise = <float *>_data2(noise_a, cnp.NPY_FLOAT32, n_seg, n, True, "noise")
+    cdef float *thr = <float *>_data2(thr_a, cnp.NPY_FLOAT32, n_seg, n, True, "thr")
+    cdef long *rows = <long *>_data(rows_a, cnp.NPY_INT64, cap_m, True, "rows")
+    cdef long *cols = <long *>_data(cols_a, cnp.NPY_INT64, cap_m, True, "cols")
+    cdef float *cells = <float *>_data2(cells_a, cnp.NPY_FLOAT32, cap_m, 3, True, "cells")
+    cdef long long *counts = <long long *>_data(counts_a, cnp.NPY_INT64, 2 * n_seg, True, "counts")
+    cdef float *scratch = <float *>_data(scratch_a, cnp.NPY_FLOAT32, cap_m, True, "scratch")
+    cdef float cap[64]
+    cdef unsigned char *hit = <unsigned char *>malloc(cap_m + 1)
+    cdef long *wr = <long *>malloc((2 * cap_m + 1) * sizeof(long))
+    cdef float *wc = <float *>malloc((3 * cap_m + 1) * sizeof(float))
+    if hit == NULL or wr == NULL or wc == NULL:
+        free(hit); free(wr); free(wc)
+        raise MemoryError()
+    with nogil:
+        for i in range(n_seg):
+            cap[i] = floor[i * fstep] * cap_factor
+        for i in range(n_seg * n):
+            noise[i] = NAN
+        m = _select_core(ppad, valid, <int>n_seg, <int>n, n_train, n_guard, rank, comp, <int>ncomp, npad, cap, scale,
+                         aided_scale, want_weak, noise, rows, cols, cells, hit, scratch)
+        for i in range(n_seg * n):
+            thr[i] = noise[i] * scale
+        for i in range(2 * n_seg):
+            counts[i] = 0
+        j = 0  # the detected ones moved to the front (in place: j <= i), the weak ones set aside, then appended
+        w = 0
+        for i in range(m):
+            if hit[i]:
+                rows[j] = rows[i]
+                cols[j] = cols[i]
+                cells[3 * j] = cells[3 * i]
+                cells[3 * j + 1] = cells[3 * i + 1]
+                cells[3 * j + 2] = cells[3 * i + 2]
+                counts[rows[i]] += 1
+                j += 1
+            else:
+                wr[2 * w] = rows[i]
+                wr[2 * w + 1] = cols[i]
+                wc[3 * w] = cells[3 * i]
+                wc[3 * w + 1] = cells[3 * i + 1]
+                wc[3 * w + 2] = cells[3 * i + 2]
+                counts[n_seg + rows[i]] += 1
+                w += 1
+        for i in range(w):
+            rows[j + i] = wr[2 * i]
+            cols[j + i] = wr[2 * i + 1]
+            cells[3 * (j + i)] = wc[3 * i]
+            cells[3 * (j + i) + 1] = wc[3 * i + 1]
+            cells[3 * (j + i) + 2] = wc[3 * i + 2]
+    free(hit); free(wr); free(wc)
+    return j, m
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def frame_peaks(lg_a, rows_a, cols_a, freq_flat_a, bin_hz_a, int n_bins, counts_a, Py_ssize_t m_hit, Py_ssize_t m,
+                bint want_weak, Py_ssize_t max_peaks):
+    """The stage's peaks after :func:`select_frame` and numpy's float32 log of its first ``m`` cells (``lg_a``
+    (m, 3)): each peak's frequency as :func:`interpolate`, grouped per segment by ``counts_a``. Returns
+    ``(freqs, bins, weak_freqs, weak_bins)``, tuples of new float64 and int64 arrays per segment; ``freqs`` and
+    ``bins`` None when a segment holds more than ``max_peaks`` detected peaks; the weak ones None without
+    ``want_weak``."""
+    cdef Py_ssize_t n_seg = len(counts_a) // 2, cap_m = len(rows_a), i, k, start, cnt
+    if not (0 <= m_hit <= m <= cap_m) or len(counts_a) != 2 * n_seg:
+        raise ValueError("m_hit <= m <= len(rows_a) and counts for each segment needed")
+    cdef const float *lg = <const float *>_data2(lg_a, cnp.NPY_FLOAT32, m, 3, False, "lg")
+    cdef const long *rows = <const long *>_data(rows_a, cnp.NPY_INT64, cap_m, False, "rows")
+    cdef const long *cols = <const long *>_data(cols_a, cnp.NPY_INT64, cap_m, False, "cols")
+    cdef const double *freq_flat = <const double *>_data(freq_flat_a, cnp.NPY_FLOAT64, n_seg * n_bins, False,
+                                                         "freq_flat")
+    cdef const double *bin_hz = <const double *>_data(bin_hz_a, cnp.NPY_FLOAT64, n_seg, False, "bin_hz")
+    cdef const long long *counts = <const long long *>_data(counts_a, cnp.NPY_INT64, 2 * n_seg, False, "counts")
+    cdef float lm, l0, lp, den, d
+    cdef float two = 2.0, hlf = 0.5, zero = 0.0  # float32 constants: each operation rounds to float32, as numpy's
+    cdef cnp.ndarray fa, ba
+    cdef double *fp
+    cdef long *bp
+    cdef Py_ssize_t total = 0
+    for k in range(2 * n_seg):
+        if counts[k] < 0:
+            raise ValueError("negative count")
+        total += counts[k]
+    if total != m:
+        raise ValueError("counts do not add up to m")
+    out = []
+    start = 0
+    for k in range(2 * n_seg if want_weak else n_seg):
+        cnt = counts[k]
+        fa = _new(cnp.NPY_FLOAT64, cnt)
+        ba = _new(cnp.NPY_INT64, cnt)
+        fp = <double *>cnp.PyArray_DATA(fa)
+        bp = <long *>cnp.PyArray_DATA(ba)
+        for i in range(cnt):
+            lm = lg[3 * (start + i)]
+            l0 = lg[3 * (start + i) + 1]
+            lp = lg[3 * (start + i) + 2]
+            den = (lm - two * l0) + lp
+            d = zero
+            if den < zero:
+                d = (hlf * (lm - lp)) / den
+            if d < -hlf:
+                d = -hlf
+            if d > hlf:
+                d = hlf
+            fp[i] = freq_flat[rows[start + i] * n_bins + cols[start + i]] + <double>d * bin_hz[rows[start + i]]
+            bp[i] = cols[start + i]
+        out.append((fa, ba))
+        start += cnt
+    capped = False
+    for k in range(n_seg):
+        if counts[k] > max_peaks:
+            capped = True
+    freqs = None if capped else tuple(out[k][0] for k in range(n_seg))
+    bins = None if capped else tuple(out[k][1] for k in range(n_seg))
+    if not want_weak:
+        return freqs, bins, None, None
+    return (freqs, bins, tuple(out[k][0] for k in range(n_seg, 2 * n_seg)),
+            tuple(out[k][1] for k in range(n_seg, 2 * n_seg)))

@@ -14,10 +14,16 @@ a ratio lies within that of its threshold or two pair fits tie to that precision
 """
 
 cimport cython
+cimport numpy as cnp
 from libc.stdlib cimport malloc, free, qsort
+from libc.string cimport memcpy, memset
 from libc.math cimport sqrt, sqrtf, fabs, cos, sin, NAN, isnan
 
 import numpy as np
+
+cnp.import_array()
+
+include "_arrays.pxi"
 
 
 cdef struct Cand:
@@ -140,7 +146,7 @@ cdef void _eigvals_hermitian(const float *cf, int n_rx, double *w, double *a) no
 
 @cython.boundscheck(False)
 @cython.wraparound(False)
-cdef Py_ssize_t _argmax_rows(const double *fr, const float[:, ::1] feat, const long long *rows, Py_ssize_t start,
+cdef Py_ssize_t _argmax_rows(const double *fr, const float *feat, const long long *rows, Py_ssize_t start,
                              Py_ssize_t count, int F) noexcept nogil:
     """np.argmax over ``count`` rows (``rows[i]`` of ``feat``, or row i when ``rows`` is NULL) of the float64 dot
     products with ``fr``: the first maximum, or the first NaN."""
@@ -152,7 +158,7 @@ cdef Py_ssize_t _argmax_rows(const double *fr, const float[:, ::1] feat, const l
         r = rows[i] if rows != NULL else i
         score = 0.0
         for j in range(F):
-            score = score + fr[j] * <double>feat[r, j]
+            score = score + fr[j] * <double>feat[r * F + j]
         if score != score:
             if not best_nan:
                 best_nan = True
@@ -195,29 +201,67 @@ def eigvals(const float[:, :, ::1] cov):
 @cython.boundscheck(False)
 @cython.wraparound(False)
 @cython.cdivision(True)
-def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
-         const float[::1] rng, const float[::1] vel, const float[:, :, ::1] looks, const float[::1] az,
+def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in, rng_a, vel_a, looks_a, az_a,
          bint follow, double period_s, double range_gate, double speed_gate, double memory_frames,
          long long min_frames, long long min_split_frames, long long max_misses, double min_eig_ratio,
          double min_noise_ratio, double pair_hint_eig_ratio, float min_lateral, double min_power_ratio,
-         double min_speed32, Py_ssize_t max_cells, float phase_per_lag,
-         const double[:, ::1] coarse_t, const long long[:, ::1] fine_rows, const float[:, ::1] pair_feat,
-         const float[:, ::1] pair_th, const float[::1] pair_dsin, const float[:, :, ::1] pinv):
+         double min_speed32, Py_ssize_t max_cells, float phase_per_lag, coarse_t_a, fine_rows_a, pair_feat_a,
+         pair_th_a, pair_dsin_a, pinv_a):
     """One frame of :meth:`edge.lane.resolve.CellResolver.step`.
 
-    Cells (m): ``c_range``, ``c_v`` float64, ``c_cov`` the complex64 covariances' float32 view (m, rx, 2 rx), frame
-    counts ``c_n``, ``c_misses``, ``c_streak`` int64. Detections (n): ``rng``, ``vel``, ``az`` float32 (``az``
-    used with ``follow``), ``looks`` the complex64 snapshots' float32 view (n, looks, 2 rx). ``phase_per_lag``: the
-    steering phase per unit shift and element lag, float32 (-2 pi d / lambda). Tables of the resolver: the coarse
-    pairs' features transposed, float64 (rx^2, nc), their 3 x 3 fine neighbours' rows (nc, 9), every pair's features (P, rx^2), angles
-    (P, 2), direction-cosine spread (P,) and source estimator ``pinv`` (P, 2, 2 rx) float32 view.
+    Cells (m): ``c_range``, ``c_v`` float64, ``c_cov`` the complex64 covariances (m, rx, rx), frame counts ``c_n``,
+    ``c_misses``, ``c_streak`` int64. Detections (n): ``rng``, ``vel``, ``az`` float32 (``az`` used with
+    ``follow``), ``looks`` the complex64 snapshots (n, looks, rx). ``phase_per_lag``: the steering phase per unit
+    shift and element lag, float32 (-2 pi d / lambda). Tables of the resolver: the coarse pairs' features transposed,
+    float64 (rx^2, nc), their 3 x 3 fine neighbours' rows (nc, 9), every pair's features (P, rx^2), angles (P, 2),
+    direction-cosine spread (P,) and source estimator ``pinv`` (P, 2, 2 rx) float32 view.
 
-    Returns ``(split (n,) uint8, angles (n, 2) float32, two_sources (n,) uint8, range, v, cov (m', rx, 2 rx)
-    float32, n, misses, streak)``: the new cell table."""
-    cdef Py_ssize_t m = len(c_range_in), n = rng.shape[0], n_looks_all = looks.shape[1]
-    cdef int n_rx = looks.shape[2] // 2 if n else c_cov_in.shape[1]
+    Returns ``(split (n,) uint8, angles (n, 2) float32, two_sources (n,) uint8, range, v, cov (m', rx, rx)
+    complex64, n, misses, streak)``: the new cell table. The arrays are read through the numpy C API; the cells and
+    detections are converted to C-contiguous arrays of those types when they are not (np.ascontiguousarray), the
+    tables must be; ``fine_rows``' entries must be rows of ``pair_feat``, which the resolver's tables are (not
+    checked)."""
+    if not (cnp.PyArray_Check(looks_a) and cnp.PyArray_NDIM(<cnp.ndarray>looks_a) == 3
+            and cnp.PyArray_Check(coarse_t_a) and cnp.PyArray_NDIM(<cnp.ndarray>coarse_t_a) == 2
+            and cnp.PyArray_Check(fine_rows_a) and cnp.PyArray_NDIM(<cnp.ndarray>fine_rows_a) == 2
+            and cnp.PyArray_Check(pair_feat_a) and cnp.PyArray_NDIM(<cnp.ndarray>pair_feat_a) == 2):
+        raise ValueError("looks (n, looks, rx), coarse_t (rx^2, nc), fine_rows (nc, 9), pair_feat (P, rx^2) needed")
+    c_range_in = _as_c(c_range_in, cnp.NPY_FLOAT64)
+    c_v_in = _as_c(c_v_in, cnp.NPY_FLOAT64)
+    c_cov_in = _as_c(c_cov_in, cnp.NPY_COMPLEX64)
+    looks_a = _as_c(looks_a, cnp.NPY_COMPLEX64)
+    rng_a = _as_c(rng_a, cnp.NPY_FLOAT32)
+    vel_a = _as_c(vel_a, cnp.NPY_FLOAT32)
+    az_a = _as_c(az_a, cnp.NPY_FLOAT32)
+    c_n_in = _as_c(c_n_in, cnp.NPY_INT64)
+    c_misses_in = _as_c(c_misses_in, cnp.NPY_INT64)
+    c_streak_in = _as_c(c_streak_in, cnp.NPY_INT64)
+    cdef Py_ssize_t m = len(c_range_in), n = len(rng_a)
+    cdef Py_ssize_t n_looks_all = cnp.PyArray_DIM(<cnp.ndarray>looks_a, 1)
+    cdef int n_rx = cnp.PyArray_DIM(<cnp.ndarray>looks_a, 2) if n else cnp.PyArray_DIM(<cnp.ndarray>c_cov_in, 1)
     cdef int F = n_rx * n_rx
-    cdef Py_ssize_t nc = coarse_t.shape[1], n_fine = fine_rows.shape[1]
+    cdef Py_ssize_t W = 2 * n_rx
+    cdef Py_ssize_t nc = cnp.PyArray_DIM(<cnp.ndarray>coarse_t_a, 1), n_fine = cnp.PyArray_DIM(<cnp.ndarray>fine_rows_a, 1)
+    cdef Py_ssize_t n_pairs = cnp.PyArray_DIM(<cnp.ndarray>pair_feat_a, 0)
+    cdef const float *rng = <const float *>_data(rng_a, cnp.NPY_FLOAT32, n, False, "rng")
+    cdef const float *vel = <const float *>_data(vel_a, cnp.NPY_FLOAT32, n, False, "vel")
+    cdef const float *looks = <const float *>_data3(looks_a, cnp.NPY_COMPLEX64, n, n_looks_all, n_rx, False, "looks")
+    cdef const float *az = <const float *>_data(az_a, cnp.NPY_FLOAT32, len(az_a), False, "az")
+    if follow and len(az_a) < n:
+        raise ValueError("az: one angle per detection needed")
+    cdef const double *coarse_t = <const double *>_data2(coarse_t_a, cnp.NPY_FLOAT64, F, nc, False, "coarse_t")
+    cdef const long long *fine_rows = <const long long *>_data2(fine_rows_a, cnp.NPY_INT64, nc, n_fine, False,
+                                                                "fine_rows")
+    cdef const float *pair_feat = <const float *>_data2(pair_feat_a, cnp.NPY_FLOAT32, n_pairs, F, False, "pair_feat")
+    cdef const float *pair_th = <const float *>_data2(pair_th_a, cnp.NPY_FLOAT32, n_pairs, 2, False, "pair_th")
+    cdef const float *pair_dsin = <const float *>_data(pair_dsin_a, cnp.NPY_FLOAT32, n_pairs, False, "pair_dsin")
+    cdef const float *pinv = <const float *>_data3(pinv_a, cnp.NPY_FLOAT32, n_pairs, 2, W, False, "pinv")
+    cdef const double *c_range = <const double *>_data(c_range_in, cnp.NPY_FLOAT64, m, False, "c_range")
+    cdef const double *c_v = <const double *>_data(c_v_in, cnp.NPY_FLOAT64, m, False, "c_v")
+    cdef const float *c_cov = <const float *>_data3(c_cov_in, cnp.NPY_COMPLEX64, m, n_rx, n_rx, False, "c_cov")
+    cdef const long long *c_n = <const long long *>_data(c_n_in, cnp.NPY_INT64, m, False, "c_n")
+    cdef const long long *c_miss = <const long long *>_data(c_misses_in, cnp.NPY_INT64, m, False, "c_misses")
+    cdef const long long *c_streak = <const long long *>_data(c_streak_in, cnp.NPY_INT64, m, False, "c_streak")
     cdef Py_ssize_t i, j, d, k, s, a, b, l, cnt, n_cand, n_keep, n_new, n_out, best, bc, p
     cdef int r_, s_, lag
     cdef float sr, si, acc, nrm, inv, xr_a, xi_a, xr_b, xi_b, scale, wgt, cr, ci, fr_, fi_, shift32, ph
@@ -227,26 +271,29 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
     cdef bint any_now, above, hint, two
 
     split_arr = np.zeros(n, np.uint8)
-    cdef unsigned char[::1] split = split_arr
+    cdef unsigned char *split = <unsigned char *>cnp.PyArray_DATA(<cnp.ndarray>split_arr)
     two_arr = np.zeros(n, np.uint8)
-    cdef unsigned char[::1] two_src = two_arr
+    cdef unsigned char *two_src = <unsigned char *>cnp.PyArray_DATA(<cnp.ndarray>two_arr)
     ang_arr = np.full((n, 2), np.nan, np.float32)
-    cdef float[:, ::1] ang = ang_arr
-    rnew_arr = np.zeros((n, n_rx, 2 * n_rx), np.float32)
-    cdef float[:, :, ::1] rnew = rnew_arr
-    # the followed cells' state, updated here (copies: the inputs stay as they were)
-    cov_arr = np.array(c_cov_in, np.float32)
-    cdef float[:, :, ::1] cov = cov_arr
-    n_arr = np.array(c_n_in, np.int64)
-    cdef long long[::1] cn = n_arr
-    misses_arr = np.array(c_misses_in, np.int64)
-    cdef long long[::1] cmiss = misses_arr
-    streak_arr = np.array(c_streak_in, np.int64)
-    cdef long long[::1] cstreak = streak_arr
-    range_arr = np.array(c_range_in, np.float64)
-    cdef double[::1] crange = range_arr
-    v_arr = np.array(c_v_in, np.float64)
-    cdef double[::1] cv = v_arr
+    cdef float *ang = <float *>cnp.PyArray_DATA(<cnp.ndarray>ang_arr)
+    # the followed cells' state, updated here (copies: the inputs stay as they were), and the new looks' products
+    cdef double *crange = <double *>malloc((2 * m + 1) * sizeof(double))
+    cdef double *cv = crange + m
+    cdef long long *cn = <long long *>malloc((3 * m + 1) * sizeof(long long))
+    cdef long long *cmiss = cn + m
+    cdef long long *cstreak = cn + 2 * m
+    cdef float *cov = <float *>malloc((m * n_rx * W + n * n_rx * W + 1) * sizeof(float))
+    if crange == NULL or cn == NULL or cov == NULL:
+        free(crange); free(cn); free(cov)
+        raise MemoryError()
+    cdef float *rnew = cov + m * n_rx * W
+    memcpy(crange, c_range, m * sizeof(double))
+    memcpy(cv, c_v, m * sizeof(double))
+    memcpy(cn, c_n, m * sizeof(long long))
+    memcpy(cmiss, c_miss, m * sizeof(long long))
+    memcpy(cstreak, c_streak, m * sizeof(long long))
+    memcpy(cov, c_cov, m * n_rx * W * sizeof(float))
+    memset(rnew, 0, n * n_rx * W * sizeof(float))
 
     cdef Py_ssize_t *match = <Py_ssize_t *>malloc((n + 1) * sizeof(Py_ssize_t))
     cdef unsigned char *taken = <unsigned char *>malloc(m + 1)
@@ -298,8 +345,8 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
             cnt = 0
             for s in range(n_looks_all):
                 for a in range(n_rx):
-                    sr = looks[d, s, 2 * a]
-                    si = looks[d, s, 2 * a + 1]
+                    sr = looks[(d * n_looks_all + s) * W + 2 * a]
+                    si = looks[(d * n_looks_all + s) * W + 2 * a + 1]
                     p_el[a] = sr * sr + si * si
                 acc = p_el[0]
                 for a in range(1, n_rx):
@@ -309,8 +356,8 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
                     cnt += 1
                 inv = <float>1.0 / (nrm if (nrm > <float>1e-30 or nrm != nrm) else <float>1e-30)
                 for a in range(n_rx):
-                    xr[s * n_rx + a] = looks[d, s, 2 * a] * inv
-                    xi[s * n_rx + a] = looks[d, s, 2 * a + 1] * inv
+                    xr[s * n_rx + a] = looks[(d * n_looks_all + s) * W + 2 * a] * inv
+                    xi[s * n_rx + a] = looks[(d * n_looks_all + s) * W + 2 * a + 1] * inv
             scale = <float>1.0 / <float>(cnt if cnt > 1 else 1)
             for a in range(n_rx):
                 for b in range(n_rx):
@@ -327,8 +374,8 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
                         else:
                             sr = sr + (xr_a * xr_b + xi_a * xi_b)
                             si = si + (xi_a * xr_b - xr_a * xi_b)
-                    rnew[d, a, 2 * b] = sr * scale
-                    rnew[d, a, 2 * b + 1] = si * scale
+                    rnew[(d * n_rx + a) * W + 2 * b] = sr * scale
+                    rnew[(d * n_rx + a) * W + 2 * b + 1] = si * scale
         # --- the followed cells: steering, memory update, the two-source test of those followed long enough
         for d in range(n):
             k = match[d]
@@ -349,20 +396,20 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
                         lag = a - b + n_rx - 1
                         fr_ = lagf[2 * lag]
                         fi_ = lagf[2 * lag + 1]
-                        cr = cov[k, a, 2 * b]
-                        ci = cov[k, a, 2 * b + 1]
-                        cov[k, a, 2 * b] = cr * fr_ - ci * fi_
-                        cov[k, a, 2 * b + 1] = cr * fi_ + ci * fr_
+                        cr = cov[(k * n_rx + a) * W + 2 * b]
+                        ci = cov[(k * n_rx + a) * W + 2 * b + 1]
+                        cov[(k * n_rx + a) * W + 2 * b] = cr * fr_ - ci * fi_
+                        cov[(k * n_rx + a) * W + 2 * b + 1] = cr * fi_ + ci * fr_
             cn[k] += 1
             wgt = <float>(1.0 / <double>cn[k] if 1.0 / <double>cn[k] >= 1.0 / memory_frames else 1.0 / memory_frames)
             for a in range(n_rx):
                 for b in range(2 * n_rx):
-                    cov[k, a, b] = cov[k, a, b] + wgt * (rnew[d, a, b] - cov[k, a, b])
+                    cov[(k * n_rx + a) * W + b] = cov[(k * n_rx + a) * W + b] + wgt * (rnew[(d * n_rx + a) * W + b] - cov[(k * n_rx + a) * W + b])
             crange[k] = <double>rng[d]
             cv[k] = <double>vel[d]
             cmiss[k] = 0
             if cn[k] >= min_frames and fabs(<double>vel[d]) >= min_speed32:
-                _eigvals_hermitian(&cov[k, 0, 0], n_rx, w, scratch)
+                _eigvals_hermitian(&cov[(k * n_rx + 0) * W + 0], n_rx, w, scratch)
                 w_lo = 0.0
                 for a in range(n_rx - 2):
                     w_lo = w_lo + w[a] if a else w[a]
@@ -376,37 +423,37 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
                 if two:
                     # features: Re of the diagonal, 2 Re and 2 Im of the upper triangle (row by row)
                     for a in range(n_rx):
-                        fr[a] = cov[k, a, 2 * a]
+                        fr[a] = cov[(k * n_rx + a) * W + 2 * a]
                     p = n_rx
                     for a in range(n_rx):
                         for b in range(a + 1, n_rx):
-                            fr[p] = <double>(<float>2.0 * cov[k, a, 2 * b])
+                            fr[p] = <double>(<float>2.0 * cov[(k * n_rx + a) * W + 2 * b])
                             p += 1
                     for a in range(n_rx):
                         for b in range(a + 1, n_rx):
-                            fr[p] = <double>(<float>2.0 * cov[k, a, 2 * b + 1])
+                            fr[p] = <double>(<float>2.0 * cov[(k * n_rx + a) * W + 2 * b + 1])
                             p += 1
                     # the coarse pairs' fits, feature by feature over all pairs (a loop the compiler vectorises)
                     for i in range(nc):
-                        scores[i] = fr[0] * coarse_t[0, i]
+                        scores[i] = fr[0] * coarse_t[0 * nc + i]
                     for j in range(1, F):
                         for i in range(nc):
-                            scores[i] = scores[i] + fr[j] * coarse_t[j, i]
+                            scores[i] = scores[i] + fr[j] * coarse_t[j * nc + i]
                     bc = _argmax(scores, nc)
-                    best = fine_rows[bc, _argmax_rows(fr, pair_feat, &fine_rows[bc, 0], 0, n_fine, F)]
+                    best = fine_rows[bc * n_fine + _argmax_rows(fr, pair_feat, &fine_rows[bc * n_fine], 0, n_fine, F)]
                     lateral = rng[d] * pair_dsin[best]
                     # powers of the two fitted sources, diag(B+ R B+^H)
                     for a in range(2):
                         accr = 0.0
                         for r_ in range(n_rx):
-                            br = pinv[best, a, 2 * r_]
-                            bi = pinv[best, a, 2 * r_ + 1]
+                            br = pinv[(best * 2 + a) * W + 2 * r_]
+                            bi = pinv[(best * 2 + a) * W + 2 * r_ + 1]
                             for s_ in range(n_rx):
-                                qr = cov[k, r_, 2 * s_]
-                                qi = cov[k, r_, 2 * s_ + 1]
+                                qr = cov[(k * n_rx + r_) * W + 2 * s_]
+                                qi = cov[(k * n_rx + r_) * W + 2 * s_ + 1]
                                 tr = br * qr - bi * qi
                                 ti = br * qi + bi * qr
-                                accr = accr + (tr * <double>pinv[best, a, 2 * s_] + ti * <double>pinv[best, a, 2 * s_ + 1])
+                                accr = accr + (tr * <double>pinv[(best * 2 + a) * W + 2 * s_] + ti * <double>pinv[(best * 2 + a) * W + 2 * s_ + 1])
                         if a == 0:
                             pa0 = accr
                         else:
@@ -419,8 +466,8 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
                         ratio = lo / (hi if hi >= 1e-30 else 1e-30)
                     if lateral >= min_lateral and ratio >= min_power_ratio:
                         now[d] = 1
-                        ang[d, 0] = pair_th[best, 0]
-                        ang[d, 1] = pair_th[best, 1]
+                        ang[2 * d + 0] = pair_th[2 * best + 0]
+                        ang[2 * d + 1] = pair_th[2 * best + 1]
         # a cell split in a few frames in a row only
         for d in range(n):
             k = match[d]
@@ -430,8 +477,8 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
             split[d] = now[d] and cstreak[k] >= min_split_frames
         for d in range(n):
             if not split[d]:
-                ang[d, 0] = NAN
-                ang[d, 1] = NAN
+                ang[2 * d + 0] = NAN
+                ang[2 * d + 1] = NAN
         # --- age, drop, create, cap
         for d in range(n):
             if match[d] >= 0:
@@ -469,27 +516,29 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in,
                     j -= 1
                 order[j] = p
             n_out = max_cells
-        o_range = np.empty(n_out, np.float64)
-        o_v = np.empty(n_out, np.float64)
-        o_cov = np.empty((n_out, n_rx, 2 * n_rx), np.float32)
-        o_n = np.empty(n_out, np.int64)
-        o_miss = np.empty(n_out, np.int64)
-        o_streak = np.empty(n_out, np.int64)
-        _fill(o_range, o_v, o_cov, o_n, o_miss, o_streak, order, n_out, crange, cv, cov, cn, cmiss, cstreak, rng,
-              vel, rnew)
+        o_range = _new(cnp.NPY_FLOAT64, n_out)
+        o_v = _new(cnp.NPY_FLOAT64, n_out)
+        o_cov = np.empty((n_out, n_rx, n_rx), np.complex64)
+        o_n = _new(cnp.NPY_INT64, n_out)
+        o_miss = _new(cnp.NPY_INT64, n_out)
+        o_streak = _new(cnp.NPY_INT64, n_out)
+        _fill(<double *>cnp.PyArray_DATA(<cnp.ndarray>o_range), <double *>cnp.PyArray_DATA(<cnp.ndarray>o_v),
+              <float *>cnp.PyArray_DATA(<cnp.ndarray>o_cov), <long long *>cnp.PyArray_DATA(<cnp.ndarray>o_n),
+              <long long *>cnp.PyArray_DATA(<cnp.ndarray>o_miss), <long long *>cnp.PyArray_DATA(<cnp.ndarray>o_streak),
+              order, n_out, n_rx * W, crange, cv, cov, cn, cmiss, cstreak, rng, vel, rnew)
         return split_arr, ang_arr, two_arr, o_range, o_v, o_cov, o_n, o_miss, o_streak
     finally:
         free(match); free(taken); free(now); free(cand); free(p_el); free(lagf); free(w); free(scratch)
-        free(fr); free(xr); free(xi); free(order); free(scores)
+        free(fr); free(xr); free(xi); free(order); free(scores); free(crange); free(cn); free(cov)
 
 
-@cython.boundscheck(False)
-@cython.wraparound(False)
-cdef void _fill(double[::1] o_range, double[::1] o_v, float[:, :, ::1] o_cov, long long[::1] o_n,
-                long long[::1] o_miss, long long[::1] o_streak, Py_ssize_t *order, Py_ssize_t n_out,
-                double[::1] crange, double[::1] cv, float[:, :, ::1] cov, long long[::1] cn, long long[::1] cmiss,
-                long long[::1] cstreak, const float[::1] rng, const float[::1] vel, float[:, :, ::1] rnew):
-    cdef Py_ssize_t i, p, d, a, b
+cdef void _fill(double *o_range, double *o_v, float *o_cov, long long *o_n, long long *o_miss, long long *o_streak,
+                Py_ssize_t *order, Py_ssize_t n_out, Py_ssize_t csize, const double *crange, const double *cv,
+                const float *cov, const long long *cn, const long long *cmiss, const long long *cstreak,
+                const float *rng, const float *vel, const float *rnew) noexcept nogil:
+    """The new cell table's rows in ``order`` (>= 0: a cell, < 0: -1 - a new detection); ``csize`` floats a
+    covariance."""
+    cdef Py_ssize_t i, p, d
     for i in range(n_out):
         p = order[i]
         if p >= 0:
@@ -498,9 +547,7 @@ cdef void _fill(double[::1] o_range, double[::1] o_v, float[:, :, ::1] o_cov, lo
             o_n[i] = cn[p]
             o_miss[i] = cmiss[p]
             o_streak[i] = cstreak[p]
-            for a in range(o_cov.shape[1]):
-                for b in range(o_cov.shape[2]):
-                    o_cov[i, a, b] = cov[p, a, b]
+            memcpy(o_cov + i * csize, cov + p * csize, csize * sizeof(float))
         else:
             d = -1 - p
             o_range[i] = <double>rng[d]
@@ -508,6 +555,4 @@ cdef void _fill(double[::1] o_range, double[::1] o_v, float[:, :, ::1] o_cov, lo
             o_n[i] = 1
             o_miss[i] = 0
             o_streak[i] = 0
-            for a in range(o_cov.shape[1]):
-                for b in range(o_cov.shape[2]):
-                    o_cov[i, a, b] = rnew[d, a, b]
+            memcpy(o_cov + i * csize, rnew + d * csize, csize * sizeof(float))

@@ -7,25 +7,11 @@ to an alias that lies in a lane of its own. float64 as the reference, one roundi
 the C library's (numpy's float64 sin and arcsin on x86-64 without AVX-512 and on arm64)."""
 
 cimport cython
-from libc.math cimport sin, asin, sqrt, fabs, fabsf
+from libc.math cimport asin
 
 import numpy as np
 
-
-cdef inline double _lane_dir(double u, const double[::1] centre, const double[::1] half_w,
-                             const double[::1] dirs) noexcept nogil:
-    """Direction (+1, -1) of the lane holding lateral offset ``u`` (m), 0 outside every lane (assign_lanes: the
-    nearest centre, the first on a tie, must hold ``u`` within its half width)."""
-    cdef Py_ssize_t l, k = 0, n = centre.shape[0]
-    cdef double d, best = fabs(u - centre[0])
-    for l in range(1, n):
-        d = fabs(u - centre[l])
-        if d < best:
-            best = d
-            k = l
-    if not (half_w[k] - best >= 0.0):
-        return 0.0
-    return dirs[k]
+include "_roadfilters.pxi"
 
 
 @cython.boundscheck(False)
@@ -65,7 +51,7 @@ def unalias(const float[::1] rng, const float[::1] v, const float[::1] az, const
             if y2 < 0.0:
                 y2 = 0.0
             u = x * cos_yaw + sqrt(y2) * sin_yaw
-            dj_[j] = _lane_dir(u, centre, half_w, dirs)
+            dj_[j] = _lane_dir_p(u, &centre[0], &half_w[0], &dirs[0], centre.shape[0])
         if not (dj_[0] == -sign):
             continue
         for j in range(1, 3):
@@ -90,29 +76,18 @@ def glint(const float[::1] rng, const float[::1] v, const float[::1] az, const f
     (m, m/s, rad, m, m); ``keep`` (n,) uint8; lanes as :func:`unalias`; ``min_speed`` (m/s); the direction margin
     ``margin + k_sigma * range`` (m, float32 as the reference's); ``length`` (m), ``speed`` (m/s), ``beamwidth_sin``
     the gates to a nearer vehicle. Returns (n,) uint8: the kept detections that are glint of a nearer body."""
-    cdef Py_ssize_t n = rng.shape[0], i, j
-    cdef double u, sv
-    cdef float half, dr
+    cdef Py_ssize_t n = rng.shape[0]
     out_arr = np.zeros(n, np.uint8)
     cdef unsigned char[::1] out = out_arr
     against_arr = np.zeros(n, np.uint8)
     cdef unsigned char[::1] against = against_arr
-    cdef bint any_against = False
-    cdef double neg = -<double>min_speed
-    for i in range(n):
-        if not keep[i]:
-            continue
-        sv = <double>v[i]
-        u = <double>x[i] * cos_yaw + <double>y[i] * sin_yaw
-        if not (_lane_dir(u, centre, half_w, dirs) * sv < neg):
-            continue
-        half = margin + k_sigma * rng[i]
-        if (_lane_dir(u - <double>half, centre, half_w, dirs) * sv < neg
-                and _lane_dir(u + <double>half, centre, half_w, dirs) * sv < neg):
-            against[i] = 1
-            any_against = True
-    if not any_against:
-        return out_arr
+    sin_arr = np.empty(n, np.float64)
+    cdef double[::1] s = sin_arr
+    if n and centre.shape[0]:
+        _glint_core(&rng[0], &v[0], &az[0], &x[0], &y[0], &keep[0], n, &centre[0], &half_w[0], &dirs[0],
+                    centre.shape[0], cos_yaw, sin_yaw, min_speed, margin, k_sigma, length, speed, beamwidth_sin,
+                    &against[0], &s[0], &out[0])
+    return out_arr
     sin_arr = np.empty(n, np.float64)
     cdef double[::1] s = sin_arr
     for j in range(n):

@@ -29,6 +29,7 @@ def _assert_same(out, ref) -> None:
     for name, x, y in zip(("az", "spectrum", "kept", "used"), out, ref):
         assert x.dtype == y.dtype and x.shape == y.shape, name
         np.testing.assert_array_equal(x, y, err_msg=name)
+        np.testing.assert_array_equal(x.view(np.uint8), y.view(np.uint8), err_msg=name)  # bits (NaN, -0)
 
 
 def _random_snaps(rng, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -71,6 +72,29 @@ def test_kernel_equals_reference_on_random_snapshots(seed):
         n_used_diff += int((ref[2] != ref[3]).sum())
     if stage.config.angle_skip_shared_looks:
         assert n_used_diff > 0  # the shared-look rule left looks out
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_kernel_window_near_the_radar_equals_numpy(seed):
+    """consensus with the pairings' ranges (the stage's call): the window widened near the radar in the kernel
+    (max(outlier, lateral / max(range, 1)) in float32) against outlier_window's numpy and the reference, with ranges
+    below 1 m, exactly 1 m, NaN and far; and for float64 ranges (the numpy window then)."""
+    require_kernel("_angles")
+    rng = np.random.default_rng(50 + seed)
+    stage = _stage(**[{}, {"angle_outlier_lateral_m": 4.0, "angle_outlier_deg": 0.5}][seed % 2])
+    for n in (1, 2, 7, 20):
+        snaps, bins, speeds = _random_snaps(rng, n)
+        p_rng = rng.choice([0.25, 1.0, 3.0, 7.5, 40.0, 250.0], n).astype(np.float32)
+        if n > 3:
+            p_rng[rng.integers(0, n)] = np.nan
+        window = stage.outlier_window(stage._outlier_rad, p_rng)
+        assert window.dtype == np.float32
+        ref = stage.reference(snaps, window, bins, speeds)
+        _assert_same(stage.consensus(snaps, stage._outlier_rad, bins, speeds, p_rng), ref)
+        _assert_same(stage.consensus(snaps, window, bins, speeds), ref)
+        ref64 = stage.reference(snaps, stage.outlier_window(stage._outlier_rad, p_rng.astype(np.float64)), bins,
+                                speeds)
+        _assert_same(stage.consensus(snaps, stage._outlier_rad, bins, speeds, p_rng.astype(np.float64)), ref64)
 
 
 @pytest.mark.parametrize("stem", ["lane_stages_misaimed_s31", "lane_stages_side_by_side_s31",

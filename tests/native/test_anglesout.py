@@ -90,3 +90,28 @@ def test_kernel_equals_numpy_on_a_pipeline_run(scenario, frames):
     for f in it(frames):
         pipe.process(f, t)
     assert seen["frames"] == frames and seen["kept"] > 100 and seen["looks"] > 100, seen
+
+
+def test_finish_converts_other_layouts():
+    """finish on Fortran-ordered, strided and uint8 inputs gives what it gives on their C-contiguous forms."""
+    kern = require_kernel("_anglesout")
+    rng = np.random.default_rng(7)
+    n, n_seg, n_bin, pad = 9, 4, 64, 3
+    power = rng.gamma(2.0, 1.0, (n_seg, n_bin)).astype(np.float32)
+    ppad = np.concatenate([power[:, -pad:], power, power[:, :pad]], axis=1)
+    noise = np.where(rng.random((n_seg, n_bin)) < 0.5, power * np.float32(0.1), np.float32(np.nan))
+    pk = rng.integers(0, n_bin, (n, 4)).astype(np.int64)
+    cols = [rng.uniform(1, 100, n).astype(np.float32) for _ in range(4)]
+    kept = rng.random((n, 4)) < 0.8
+    used = kept & (rng.random((n, 4)) < 0.8)
+    snaps = (rng.normal(size=(n, 4, 4)) + 1j * rng.normal(size=(n, 4, 4))).astype(np.complex64)
+    base = kern.finish(ppad, pad, noise, np.float32(0.5), pk, *cols, kept, used, snaps, 3, True)
+    other = kern.finish(np.asfortranarray(ppad), pad, np.asfortranarray(noise), np.float32(0.5), np.asfortranarray(pk),
+                        *(np.repeat(c, 2)[::2] for c in cols), kept.view(np.uint8), np.asfortranarray(used),
+                        snaps.transpose(2, 0, 1).copy().transpose(1, 2, 0), 3, True)
+    assert len(base) == 7 and base[6].dtype == np.int32 and (base[6] == -1).all() and base[0].size > 0
+    for a, b in zip(base, other):
+        assert a.dtype == b.dtype and a.shape == b.shape
+        np.testing.assert_array_equal(a.view(np.uint8), b.view(np.uint8))
+    with pytest.raises(IndexError):
+        kern.finish(ppad, pad, noise, np.float32(0.5), pk + n_bin, *cols, kept, used, snaps, 3, True)

@@ -209,3 +209,97 @@ def test_aided_search_equals_reference_in_the_pipeline(monkeypatch):
     for f in frames(120):
         pipe.process(f, t)
     assert n["calls"] > 50 and n["pairs"] > 5
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_pair_frame_equals_pair_and_the_frequency_rows(seed):
+    """pair_frame (the stage's call) against pair on float64 arrays and refine_pairs' frequency rows
+    (``np.concatenate(f)[rows + offsets]``), for peak lists given as float64, float32, strided or list forms."""
+    k = require_kernel("_pairs")
+    rng = np.random.default_rng(300 + seed)
+    stage = _stage()
+    cfg = stage.config
+    args = (stage._coef, cfg.min_range_m, cfg.max_range_m, cfg.max_speed_kmh / 3.6, stage.tol[0], stage.tol[1],
+            stage._near_tol[0], stage._near_tol[1], cfg.pair_near_range_m, cfg.pair_max_shared_peaks,
+            _GHOST_SPEED_MPS)
+    n_rows = 0
+    for trial in range(6):
+        freqs = _random_freqs(rng, stage.model, int(rng.integers(0, 12)), 0.2)
+        f64 = tuple(np.ascontiguousarray(f, np.float64) for f in freqs)
+        rows, n_cand, n_ghost = k.pair(*f64, *args)
+        forms = [freqs, tuple(np.repeat(f, 2)[::2] for f in freqs), tuple(list(f) for f in freqs)]
+        if trial % 2:
+            forms.append(tuple(f.astype(np.float32) for f in freqs))
+            rows, n_cand, n_ghost = k.pair(*(np.ascontiguousarray(f, np.float32).astype(np.float64)
+                                             for f in freqs), *args)
+            forms = forms[3:]
+        bins = tuple(rng.integers(0, 1024, len(f)).astype(np.int64) for f in freqs)
+        for form in forms:
+            r2, c2, g2, fm, pk = k.pair_frame(tuple(form), *args)
+            assert pk is None
+            r3, c3, g3, fm3, pk = k.pair_frame(tuple(form), *args, bins)
+            assert (c3, g3) == (c2, g2)
+            np.testing.assert_array_equal(r3, r2)
+            np.testing.assert_array_equal(fm3.view(np.int64), fm.view(np.int64))
+            want_pk = np.concatenate(bins)[rows + PairingModel.offsets(tuple(b.size for b in bins[:3]))]
+            assert pk.dtype == np.int64 and pk.shape == rows.shape
+            np.testing.assert_array_equal(pk, want_pk)
+            for bad in (tuple(b.astype(np.int32) for b in bins), bins[:3] + (np.zeros(bins[3].size + 1, np.int64),)):
+                assert k.pair_frame(tuple(form), *args, bad)[4] is None
+            assert (c2, g2) == (n_cand, n_ghost) and r2.dtype == rows.dtype == np.int64
+            np.testing.assert_array_equal(r2, rows)
+            f_ref = tuple(np.ascontiguousarray(f, np.float64) for f in form)
+            want = np.concatenate(f_ref)[rows + PairingModel.offsets(tuple(f.size for f in f_ref[:3]))]
+            assert fm.dtype == np.float64 and fm.shape == (rows.shape[0], 4)
+            np.testing.assert_array_equal(fm.view(np.int64), want.view(np.int64))
+        n_rows += rows.shape[0]
+    assert n_rows > 0
+    with pytest.raises(ValueError):
+        k.pair_frame(freqs[:3], *args)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_aided_search_converts_other_arrays(seed):
+    """aided_search on strided, float32 and int32 peak lists and a (4 n,) used array gives what it gives on their
+    float64 / int64 C-contiguous conversions (the stage's former arguments); a used index out of range raises."""
+    k = require_kernel("_pairs")
+    rng = np.random.default_rng(400 + seed)
+    stage = _stage()
+    targets: list = []
+    freqs = _random_freqs(rng, stage.model, 8, 0.2, targets)
+    bins = tuple(np.rint(f / BIN_HZ[s]).astype(np.int64) % FE.waveform.n_samples for s, f in enumerate(freqs))
+    wf32 = tuple(f.astype(np.float32) for f in _random_freqs(rng, stage.model, 3, 0.3))
+    wf = tuple(f.astype(np.float64) for f in wf32)
+    wb = tuple(np.rint(f / BIN_HZ[s]).astype(np.int64) % FE.waveform.n_samples for s, f in enumerate(wf))
+    used = stage.reference(freqs).peak_index
+    t = np.array(targets + [(rng.uniform(10.0, 300.0), rng.uniform(-30.0, 30.0)) for _ in range(3)])
+    f_hat = stage.model.predict(t[:, 0] + rng.normal(0.0, 0.3, len(t)), t[:, 1])
+    base = k.aided_search(tuple(np.ascontiguousarray(f, np.float64) for f in freqs), bins, wf, wb,
+                          np.ascontiguousarray(used, np.int64).reshape(-1, 4), np.ascontiguousarray(f_hat),
+                          stage._aided_window_hz, 2)
+    other = k.aided_search(tuple(np.repeat(f, 2)[::2] for f in freqs), tuple(b.astype(np.int32) for b in bins),
+                           wf32, tuple(list(b) for b in wb),
+                           used.reshape(-1), np.asfortranarray(f_hat), list(stage._aided_window_hz), 2)
+    for a, b in zip(base, other):
+        assert a.dtype == b.dtype and a.shape == b.shape
+        np.testing.assert_array_equal(a, b)
+    assert base[0].sum() > 0
+    bad = np.ascontiguousarray(used, np.int64).reshape(-1, 4).copy()
+    if bad.size:
+        bad[0, 1] = freqs[1].size
+        with pytest.raises(IndexError):
+            k.aided_search(freqs, bins, wf, wb, bad, f_hat, stage._aided_window_hz, 2)
+
+
+def test_aided_search_window_edge():
+    """A peak exactly one window from the prediction is found (the reference's ``<=``), one just beyond is not."""
+    k = require_kernel("_pairs")
+    freqs = tuple(np.array([1024.0, 4096.0]) for _ in range(4))
+    bins = tuple(np.array([3, 9], np.int64) for _ in range(4))
+    window = np.array([8.0, 8.0, 8.0, 8.0])
+    f_hat = np.array([[1032.0, 4088.0, np.nextafter(1032.0, 2e3), 4087.0]])
+    found, fsel, bsel, good = k.aided_search(freqs, bins, None, None, np.zeros((0, 4), np.int64), f_hat, window, 2)
+    np.testing.assert_array_equal(found, [[1, 1, 0, 0]])
+    np.testing.assert_array_equal(fsel, [[1024.0, 4096.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(bsel, [[3, 9, -1, -1]])
+    assert good.tolist() == [1]

@@ -39,7 +39,7 @@ def assert_same_peaks(a: Peaks, b: Peaks) -> None:
     for name in ("noise", "threshold", "floor"):
         x, y = getattr(a, name), getattr(b, name)
         assert x.dtype == y.dtype and x.shape == y.shape, name
-        np.testing.assert_array_equal(x, y, err_msg=name)
+        np.testing.assert_array_equal(x.view(np.int32), y.view(np.int32), err_msg=name)  # bits (NaN's included)
 
 
 def _stage(**overrides) -> PeakStage:
@@ -163,3 +163,90 @@ def test_stage_copies_and_pickles_with_its_kernel():
     st = _stage()
     for other in (copy.deepcopy(st), pickle.loads(pickle.dumps(st))):
         assert other.kernel is st.kernel is not None
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_select_frame_and_frame_peaks_equal_select_and_interpolate(seed):
+    """The stage's two calls against the former ones (select with a NaN-filled noise, interpolate, the numpy split
+    into detected and weak peaks by segment): the same noise, threshold, peaks and weak peaks bit for bit, with a
+    strided floor, ties, zeros and segments over the peak cap."""
+    k = _kernel_or_skip()
+    rng = np.random.default_rng(200 + seed)
+    st = _stage(**[{}, {"cfar_train_cells": 8, "cfar_guard_cells": 1, "cfar_rank_fraction": 0.5}][seed % 2])
+    n, h = st.n_bins, st.pad
+    power = rng.gamma(4.0, 1.0, (4, n)).astype(np.float32)
+    for _ in range(rng.integers(5, 80)):
+        power[rng.integers(0, 4), rng.integers(0, n)] *= np.float32(10 ** rng.uniform(0.2, 3))
+    if seed % 3 == 0:
+        power = np.round(power * 2) / 2
+        power[:, ::9] = 0.0
+    ppad = circular_pad(power, h)
+    part = np.partition(power.view(np.int32), n // 2, axis=-1)
+    floor = part[:, n // 2].view(np.float32)  # (a strided column, as the stage's)
+    assert not floor.flags.c_contiguous
+    comp, npad = st._k_comp, st._k_npad
+    cfg = st.config
+    m_cap = 4 * (n // 2 + 1)
+    for want_weak, max_peaks in ((False, 128), (True, 128), (True, 3), (False, 3)):
+        noise_a = np.full((4, n), np.nan, np.float32)
+        rows_a, cols_a = np.empty(m_cap, np.int64), np.empty(m_cap, np.int64)
+        cells_a, hit_a = np.empty((m_cap, 3), np.float32), np.empty(m_cap, np.uint8)
+        m = k.select(ppad, st._valid_u8, cfg.cfar_train_cells, cfg.cfar_guard_cells, st._rank, comp, npad,
+                     floor * st._cap, st.scale32, st._k_aided, want_weak, noise_a, rows_a, cols_a, cells_a, hit_a,
+                     np.empty(m_cap, np.float32))
+        f_a = np.empty(m, np.float64)
+        k.interpolate(np.log(cells_a[:m]), rows_a[:m].copy(), cols_a[:m].copy(), st._freq_flat, st._k_bin_hz, n, f_a)
+        hit = hit_a[:m].view(bool)
+
+        noise, thr = np.full((4, n), 7.0, np.float32), np.full((4, n), 7.0, np.float32)
+        rows, cols = np.full(m_cap, -5, np.int64), np.full(m_cap, -5, np.int64)
+        cells, counts = np.full((m_cap, 3), -1.0, np.float32), np.full(8, 99, np.int64)
+        m_hit, m2 = k.select_frame(ppad, st._valid_u8, cfg.cfar_train_cells, cfg.cfar_guard_cells, st._rank, comp,
+                                   npad, floor, st._cap, st.scale32, st._k_aided, want_weak, noise, thr, rows, cols,
+                                   cells, counts, np.empty(m_cap, np.float32))
+        assert (m_hit, m2) == (int(hit.sum()), m)
+        np.testing.assert_array_equal(noise.view(np.int32), noise_a.view(np.int32))
+        np.testing.assert_array_equal(thr.view(np.int32), (noise_a * st.scale32).view(np.int32))
+        order = np.concatenate([hit.nonzero()[0], (~hit).nonzero()[0]])
+        np.testing.assert_array_equal(rows[:m], rows_a[order])
+        np.testing.assert_array_equal(cols[:m], cols_a[order])
+        np.testing.assert_array_equal(cells[:m].view(np.int32), cells_a[order].view(np.int32))
+        per_seg = [np.bincount(rows_a[:m][sel], minlength=4) for sel in (hit, ~hit)]
+        np.testing.assert_array_equal(counts, np.concatenate(per_seg))
+        freqs, bins, wf, wb = k.frame_peaks(np.log(cells[:m]), rows, cols, st._freq_flat, st._k_bin_hz, n, counts,
+                                            m_hit, m, want_weak, max_peaks)
+        for got, f_sel, c_sel in ((freqs, f_a[hit], cols_a[:m][hit]), (wf, f_a[~hit], cols_a[:m][~hit])):
+            if got is wf and not want_weak:
+                assert wf is None and wb is None
+                continue
+            if got is freqs and per_seg[0].max() > max_peaks:
+                assert freqs is None and bins is None
+                continue
+            b_got = bins if got is freqs else wb
+            ends = np.cumsum(per_seg[0] if got is freqs else per_seg[1])
+            for s_, (fk, bk) in enumerate(zip(got, b_got)):
+                lo = ends[s_ - 1] if s_ else 0
+                assert fk.dtype == np.float64 and bk.dtype == np.int64
+                np.testing.assert_array_equal(fk.view(np.int64), f_sel[lo:ends[s_]].view(np.int64))
+                np.testing.assert_array_equal(bk, c_sel[lo:ends[s_]])
+
+
+def test_select_frame_refuses_other_arrays():
+    k = _kernel_or_skip()
+    st = _stage()
+    n, h = st.n_bins, st.pad
+    ppad = np.zeros((4, n + 2 * h), np.float32)
+    m_cap = 4 * (n // 2 + 1)
+    cfg = st.config
+    args = [ppad, st._valid_u8, cfg.cfar_train_cells, cfg.cfar_guard_cells, st._rank, st._k_comp, st._k_npad,
+            np.ones(4, np.float32), st._cap, st.scale32, st._k_aided, True, np.empty((4, n), np.float32),
+            np.empty((4, n), np.float32), np.empty(m_cap, np.int64), np.empty(m_cap, np.int64),
+            np.empty((m_cap, 3), np.float32), np.empty(8, np.int64), np.empty(m_cap, np.float32)]
+    assert k.select_frame(*args) == (0, 0)
+    ro = np.empty((4, n), np.float32)
+    ro.flags.writeable = False
+    for i, bad in [(0, ppad.astype(np.float64)), (0, ppad[:, 1:]), (7, np.ones(4, np.float64)), (12, ro),
+                   (14, np.empty(m_cap - 1, np.int64)), (14, np.empty(m_cap, np.int32)), (17, np.empty(4, np.int64)),
+                   (16, np.empty((m_cap, 3), np.float32).byteswap().view(np.dtype(">f4")))]:
+        with pytest.raises((ValueError, TypeError)):
+            k.select_frame(*args[:i], bad, *args[i + 1:])

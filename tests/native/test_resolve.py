@@ -87,6 +87,30 @@ def test_kernel_equals_reference_on_random_frames(seed, cfg):
         assert len(res.cells.range_m) <= cfg["max_cells"]
 
 
+def test_kernel_converts_other_arrays():
+    """The kernel on float64, strided and complex128 detections gives what it gives on their float32 / complex64
+    C-contiguous forms (the stage's former conversions); the cell table stays complex64 and C-contiguous."""
+    kern = require_kernel("_resolve")
+    res = CellResolver(ResolverConfig(min_frames=3, min_split_frames=2), STEER, GRID, 0.033, D / LAM, kernel=kern)
+    other = copy.deepcopy(res)
+    rng = np.random.default_rng(12)
+    n_split = 0
+    for t in range(60):
+        rng_m, v, snaps, az = _frame(rng, t)
+        a = res.step(rng_m, v, snaps, az)
+        b = other.step(rng_m.astype(np.float64), np.repeat(v, 2)[::2], snaps.astype(np.complex128),
+                       list(az.astype(np.float64)) if az.size else az)
+        for x, y in zip(a, b):
+            np.testing.assert_array_equal(x.view(np.uint8), y.view(np.uint8))
+        for name in ("range_m", "v_mps", "cov", "n", "misses", "streak"):
+            x, y = getattr(res.cells, name), getattr(other.cells, name)
+            assert x.dtype == y.dtype and x.shape == y.shape, name
+            np.testing.assert_array_equal(x.view(np.uint8), y.view(np.uint8), err_msg=name)
+        assert res.cells.cov.dtype == np.complex64 and res.cells.cov.flags.c_contiguous
+        n_split += int(a[0].sum())
+    assert n_split > 0
+
+
 def test_kernel_follows_a_copy_and_starts_empty():
     """A deep copy carries the kernel and the cell table; reset empties it."""
     kern = require_kernel("_resolve")
