@@ -280,6 +280,21 @@ def select(const float[:, ::1] ppad, const unsigned char[:, ::1] valid, int n_tr
     return m
 
 
+cdef inline float _vertex_offset(float lm, float l0, float lp) noexcept nogil:
+    """A parabola's vertex through (-1, lm), (0, l0), (1, lp), in bins, clipped to half a bin (0 where it opens
+    upwards); float32 operations, as numpy's on float32."""
+    cdef float two = 2.0, hlf = 0.5, zero = 0.0
+    cdef float den = (lm - two * l0) + lp
+    cdef float d = zero
+    if den < zero:
+        d = (hlf * (lm - lp)) / den
+    if d < -hlf:
+        d = -hlf
+    if d > hlf:
+        d = hlf
+    return d
+
+
 @cython.boundscheck(False)
 @cython.wraparound(False)
 def interpolate(const float[:, ::1] lg, const long[::1] rows, const long[::1] cols, const double[::1] freq_flat,
@@ -287,21 +302,10 @@ def interpolate(const float[:, ::1] lg, const long[::1] rows, const long[::1] co
     """Signed beat frequencies (Hz) ``out[:m]`` of the peaks ``rows``, ``cols`` from the log-power ``lg`` (m, 3) of
     each peak and its neighbours: a parabola's vertex, clipped to half a bin (edge.dsp.peaks.interpolate_peak)."""
     cdef Py_ssize_t i, m = lg.shape[0]
-    cdef float lm, l0, lp, den, d
-    cdef float two = 2.0, hlf = 0.5, zero = 0.0  # float32 constants: each operation rounds to float32, as numpy's
+    cdef float d
     with nogil:
         for i in range(m):
-            lm = lg[i, 0]
-            l0 = lg[i, 1]
-            lp = lg[i, 2]
-            den = (lm - two * l0) + lp
-            d = zero
-            if den < zero:
-                d = (hlf * (lm - lp)) / den
-            if d < -hlf:
-                d = -hlf
-            if d > hlf:
-                d = hlf
+            d = _vertex_offset(lg[i, 0], lg[i, 1], lg[i, 2])
             out[i] = freq_flat[rows[i] * n_bins + cols[i]] + <double>d * bin_hz[rows[i]]
 
 
@@ -401,8 +405,7 @@ def frame_peaks(lg_a, rows_a, cols_a, freq_flat_a, bin_hz_a, int n_bins, counts_
                                                          "freq_flat")
     cdef const double *bin_hz = <const double *>_data(bin_hz_a, cnp.NPY_FLOAT64, n_seg, False, "bin_hz")
     cdef const long long *counts = <const long long *>_data(counts_a, cnp.NPY_INT64, 2 * n_seg, False, "counts")
-    cdef float lm, l0, lp, den, d
-    cdef float two = 2.0, hlf = 0.5, zero = 0.0  # float32 constants: each operation rounds to float32, as numpy's
+    cdef float d
     cdef cnp.ndarray fa, ba
     cdef double *fp
     cdef long *bp
@@ -422,17 +425,7 @@ def frame_peaks(lg_a, rows_a, cols_a, freq_flat_a, bin_hz_a, int n_bins, counts_
         fp = <double *>cnp.PyArray_DATA(fa)
         bp = <long *>cnp.PyArray_DATA(ba)
         for i in range(cnt):
-            lm = lg[3 * (start + i)]
-            l0 = lg[3 * (start + i) + 1]
-            lp = lg[3 * (start + i) + 2]
-            den = (lm - two * l0) + lp
-            d = zero
-            if den < zero:
-                d = (hlf * (lm - lp)) / den
-            if d < -hlf:
-                d = -hlf
-            if d > hlf:
-                d = hlf
+            d = _vertex_offset(lg[3 * (start + i)], lg[3 * (start + i) + 1], lg[3 * (start + i) + 2])
             fp[i] = freq_flat[rows[start + i] * n_bins + cols[start + i]] + <double>d * bin_hz[rows[start + i]]
             bp[i] = cols[start + i]
         out.append((fa, ba))
