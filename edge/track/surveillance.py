@@ -197,11 +197,10 @@ class SurveillanceTracker:
         self.extractor = SignatureExtractor(features or FeatureConfig(), frontend)
         self.cylinder = self.extractor.cylinder
         # a receding body's far edge nearer the board's largest range than this is cut off (history alias)
-        self._edge_limit_m = (characteristics(frontend).max_unambiguous_range_m
-                              - self.extractor.config.event_speed_alias_edge_clip_m)
+        ch = characteristics(frontend)
+        self._edge_limit_m = ch.max_unambiguous_range_m - self.extractor.config.event_speed_alias_edge_clip_m
         self.tracker = AlphaBetaTracker(tracking or AlphaBetaConfig(), self.cylinder)
         tc = self.tracker.config
-        ch = characteristics(frontend)
         self.static_zones = (StaticZones(ch.range_resolution_m, ch.max_unambiguous_range_m, self.frame_period_s,
                                          tc.static_zone_time_s, tc.static_zone_speed_kmh, tc.static_zone_occupancy)
                              if tc.static_zone_time_s > 0 else None)
