@@ -204,7 +204,6 @@ class SurveillanceTracker:
         self.static_zones = (StaticZones(ch.range_resolution_m, ch.max_unambiguous_range_m, self.frame_period_s,
                                          tc.static_zone_time_s, tc.static_zone_speed_kmh, tc.static_zone_occupancy)
                              if tc.static_zone_time_s > 0 else None)
-        self.standing = 0  # slow clusters in a static zone, kept from the tracker
         if self.tracker.config.merge_ratio > 0:
             self.tracker.occlusion_test = self._hidden_in
         self._frame_sizes = np.zeros(0, dtype=np.int64)
@@ -281,7 +280,6 @@ class SurveillanceTracker:
             if standing:
                 valid = valid.copy()
                 valid[[k[i] for i in standing]] = False
-                self.standing += len(standing)
         pred: dict[int, np.ndarray] = {}
         p = None
         if self.tracker.config.merge_ratio > 0 and self.tracker.tracks:
