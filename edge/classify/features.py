@@ -13,7 +13,10 @@ Per frame and cluster (:class:`SignatureExtractor`, vectorised over every point 
 * the centroid of the cluster: the mean of its points on the cylinder, projected back onto the
   surface (the tracker's measurement), and its mean range (for the radial speed);
 * beyond the paper, the cluster's *range extent*: the span in range of its cells within
-  ``extent_level_db`` (20 dB) of its strongest cell. Seen along the road, a body's scatterers spread
+  ``extent_level_db`` (20 dB) of its strongest cell and within ``extent_doppler_kmh`` of that cell's wrapped
+  Doppler, the body's (a rotating wheel's micro-Doppler moves its cells in range through the range-Doppler
+  coupling, by 0.54 m per 10.7 km/h on the Distance2Go, so the span of all its cells grows with speed; that span
+  serves the tracker and the speed). Seen along the road, a body's scatterers spread
   over its length in range (motorcycle ~2 m, car ~4.5 m, truck/bus 7-12 m; the range resolution is
   0.75 m), which eq. 17's RCS quantity and eq. 18's Doppler spread do not tell apart: with the five
   features of eq. 19 alone, 3-fold CV of the k = 13 k-NN on the simulated reference set was 0.84
@@ -184,6 +187,12 @@ class FeatureConfig:
                   "below its strongest cell (power; relative, so it measures the body's length along the line of "
                   "sight, not its RCS)", "min": 0.0, "max": 60.0},
     )
+    extent_doppler_kmh: float = field(
+        default=1.0,
+        metadata={"unit": "km/h", "doc": "beyond the paper: the range extent counts only the cells within this wrapped "
+                  "Doppler of the cluster's strongest cell, the body's (a wheel's micro-Doppler moves its cells in "
+                  "range through the range-Doppler coupling); 0 = every cell", "min": 0.0, "max": 100.0},
+    )
     speed_feature: str = field(
         default="doppler",
         metadata={"doc": "E(|v_r|) of eq. 19 from: range_rate = the centroid's range displacement between frames "
@@ -337,10 +346,16 @@ class ClusterSignatures:
     # range span of the cells within ``extent_level_db`` of the cluster's strongest cell (m)
     range_lo_m: np.ndarray | None = None  # (L,)
     range_hi_m: np.ndarray | None = None  # (L,)
+    # the same span of the cells also within ``extent_doppler_kmh`` of the strongest cell's Doppler: the body's (m)
+    body_lo_m: np.ndarray | None = None  # (L,)
+    body_hi_m: np.ndarray | None = None  # (L,)
 
     @property
     def extent_m(self) -> np.ndarray:
-        """(L,) range extent of each cluster (``range_hi_m - range_lo_m``; NaN if unknown)."""
+        """(L,) range extent of each cluster, the feature's (``body_hi_m - body_lo_m``, else ``range_hi_m -
+        range_lo_m``; NaN if unknown)."""
+        if self.body_lo_m is not None and self.body_hi_m is not None:
+            return self.body_hi_m - self.body_lo_m
         if self.range_lo_m is None or self.range_hi_m is None:
             return np.full(len(self), np.nan)
         return self.range_hi_m - self.range_lo_m
@@ -361,6 +376,10 @@ class SignatureExtractor(native.KernelUser):
         self.slope_hz_per_s = abs(seg.slope_hz_per_s)
         self.fb_floor_hz = seg.sample_rate_hz / (2.0 * self.n_samples)
         self.extent_ratio = float(10.0 ** (-config.extent_level_db / 20.0))  # amplitude ratio
+        # cos of the largest angle on the cylinder between a cell counted in the extent and the strongest cell
+        # (every cell when the Doppler gate is off or covers the whole circle)
+        gate = math.pi * config.extent_doppler_kmh / self.cylinder.vmax_kmh
+        self.extent_cos = np.float32(math.cos(gate) if 0.0 < gate < math.pi else -2.0)
         #: power factor referring eq. 17 to the reference set's board (rcs_calibration_db; 1 at the datasheet C)
         self.rcs_factor = rcs_gain_factor(config.rcs_calibration_db)
         # TrackFeatureAccumulator(vmax_kmh=...): E(|v_r|) from the unaliased Doppler (speed_feature = "doppler")
@@ -392,11 +411,11 @@ class SignatureExtractor(native.KernelUser):
         lab = lab.astype(np.intp, copy=False)
         th = self.cylinder.angle_of_speed(dop).astype(np.float32, copy=False)
         cos, sin = np.cos(th), np.sin(th)
-        n, c, s, r_sum, ca, sa, lo, hi = self._sums(lab, rng, amp, cos, sin, L)
+        n, c, s, r_sum, ca, sa, lo, hi, blo, bhi = self._sums(lab, rng, amp, cos, sin, L)
         rcs = self._rcs(lab, rng, amp, rb, db, L)
-        return self._finish(n, c, s, r_sum, ca, sa, lo, hi, rcs)
+        return self._finish(n, c, s, r_sum, ca, sa, lo, hi, rcs, blo, bhi)
 
-    def _finish(self, n, c, s, r_sum, ca, sa, lo, hi, rcs) -> ClusterSignatures:
+    def _finish(self, n, c, s, r_sum, ca, sa, lo, hi, rcs, blo, bhi) -> ClusterSignatures:
         """The signatures from the per-cluster sums and eq. 17's sums ``rcs`` (modified in place)."""
         nz = np.maximum(n, 1)
         rbar = np.hypot(c, s) / nz
@@ -410,7 +429,7 @@ class SignatureExtractor(native.KernelUser):
             rcs *= self.rcs_factor
         rcs[n == 0] = np.nan
         dop_mean = np.where(n > 0, self.cylinder.speed_of_angle(np.arctan2(sa, ca)), np.nan)
-        return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop_mean, c, s, lo, hi)
+        return ClusterSignatures(centroid, mean_r, circ, rcs, n, dop_mean, c, s, lo, hi, blo, bhi)
 
     def _signatures_kernel(self, points: MapPoints, L: int) -> ClusterSignatures | None:
         """:meth:`__call__` with the kernel's one pass over all points (sums and eq. 17's cells, the points outside
@@ -423,24 +442,24 @@ class SignatureExtractor(native.KernelUser):
         lab = np.ascontiguousarray(points.label, dtype=np.int32)
         rb = np.ascontiguousarray(points.range_bin, dtype=np.int32)
         db = np.ascontiguousarray(points.doppler_bin, dtype=np.int32)
-        sums = np.empty((8, L))
+        sums = np.empty((10, L))
         sel = np.empty(lab.size, dtype=np.uint8)
-        args = (lab, rng, amp, cos, sin, rb, db, np.float32(self.extent_ratio), sums, np.empty(L, dtype=np.float32),
-                sel)
+        args = (lab, rng, amp, cos, sin, rb, db, np.float32(self.extent_ratio), self.extent_cos, sums,
+                np.empty(3 * L, dtype=np.float32), sel)
         kept = self.kernel.signature_pass(*args, self._scratch)
         if kept < -1:  # a larger bin box than any before
             self._scratch = np.empty(-2 - kept, dtype=np.int32)
             kept = self.kernel.signature_pass(*args, self._scratch)
         if kept <= 0:
             return None
-        n_f, c, s, r_sum, ca, sa, lo, hi = sums
+        n_f, c, s, r_sum, ca, sa, lo, hi, blo, bhi = sums
         peak = sel.view(bool)
         rcs = self._rcs_sums(lab[peak].astype(np.intp), rng[peak], amp[peak], L)
-        return self._finish(n_f.astype(np.intp), c, s, r_sum, ca, sa, lo, hi, rcs)
+        return self._finish(n_f.astype(np.intp), c, s, r_sum, ca, sa, lo, hi, rcs, blo, bhi)
 
     def _sums(self, lab, rng, amp, cos, sin, L) -> tuple[np.ndarray, ...]:
         """The numpy reference of the kernel's per-cluster sums: cells (int), sums of cos, sin, range (m),
-        amplitude times cos and sin, and the range extent's ends (:meth:`_extent`)."""
+        amplitude times cos and sin, and the ends of the range span and of the body's (:meth:`_extent`)."""
         n = np.bincount(lab, minlength=L)
         c = np.bincount(lab, cos, minlength=L)
         s = np.bincount(lab, sin, minlength=L)
@@ -448,10 +467,26 @@ class SignatureExtractor(native.KernelUser):
         ca = np.bincount(lab, amp * cos, minlength=L)
         sa = np.bincount(lab, amp * sin, minlength=L)
         lo, hi = self._extent(lab, rng, amp, L)
-        return n, c, s, r_sum, ca, sa, lo, hi
+        if self.extent_cos > -1.0:
+            blo, bhi = self._extent(lab, rng, amp, L, self._near_peak_doppler(lab, amp, cos, sin, L))
+        else:
+            blo, bhi = lo.copy(), hi.copy()
+        return n, c, s, r_sum, ca, sa, lo, hi, blo, bhi
 
-    def _extent(self, lab, rng, amp, L) -> tuple[np.ndarray, np.ndarray]:
-        """Range span of each cluster's cells within ``extent_level_db`` of its strongest cell."""
+    def _near_peak_doppler(self, lab, amp, cos, sin, L) -> np.ndarray:
+        """Cells within ``extent_doppler_kmh`` of their cluster's strongest cell (the first of equals) on the
+        cylinder (float32 cos and sin of the cells' angles); every cell of a cluster without a positive amplitude."""
+        peak = np.zeros(L, dtype=np.float32)
+        np.maximum.at(peak, lab, amp)
+        at_peak = np.flatnonzero((amp == peak[lab]) & (amp > 0))
+        ks, first = np.unique(lab[at_peak], return_index=True)
+        pk = np.zeros(L, dtype=np.intp)
+        pk[ks] = at_peak[first]
+        return ((cos * cos[pk[lab]] + sin * sin[pk[lab]]) >= self.extent_cos) | (peak[lab] <= 0)
+
+    def _extent(self, lab, rng, amp, L, cells=None) -> tuple[np.ndarray, np.ndarray]:
+        """Range span of each cluster's cells within ``extent_level_db`` of its strongest cell (of those where
+        ``cells`` is true, when given)."""
         lo = np.full(L, np.nan)
         hi = np.full(L, np.nan)
         if lab.size == 0:
@@ -459,6 +494,8 @@ class SignatureExtractor(native.KernelUser):
         peak = np.zeros(L, dtype=np.float32)
         np.maximum.at(peak, lab, amp)
         strong = amp >= peak[lab] * np.float32(self.extent_ratio)
+        if cells is not None:
+            strong &= cells
         ls, rs = lab[strong], rng[strong].astype(np.float64)
         lo[:] = np.inf
         hi[:] = -np.inf
@@ -508,7 +545,8 @@ class SignatureLog:
     """Per-frame cluster sums of a track (bounded), so that the signatures of several tracks of one
     target can be united frame by frame: the eqs. 17-19 features of the union of their cells.
 
-    ``add(frame, t_s, n, cos_sum, sin_sum, rcs, range_sum, range_lo_m, range_hi_m, doppler_kmh)`` once
+    ``add(frame, t_s, n, cos_sum, sin_sum, rcs, range_sum, range_lo_m, range_hi_m, doppler_kmh)`` (the span the extent
+    feature measures, the body's: :attr:`ClusterSignatures.body_lo_m`) once
     per frame where the track has a cluster; :meth:`extend` appends another track's rows (a fragment of
     the same target); :meth:`accumulator` sums the rows of each frame (cells, eq. 18's resultant, eq.
     17's quantity, ranges: the union of the clusters; the range extent spans the lowest ``range_lo_m``

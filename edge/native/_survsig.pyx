@@ -13,12 +13,14 @@ cimport cython
 
 @cython.cdivision(True)
 def signature_pass(const int[::1] lab, const float[::1] rng, const float[::1] amp, const float[::1] cos,
-                   const float[::1] sin, const int[::1] rb, const int[::1] db, float ratio, double[:, ::1] out,
-                   float[::1] peak, unsigned char[::1] rcs_peak, int[::1] scratch):
+                   const float[::1] sin, const int[::1] rb, const int[::1] db, float ratio, float gate_cos,
+                   double[:, ::1] out, float[::1] peak, unsigned char[::1] rcs_peak, int[::1] scratch):
     """Per cluster ``k`` (labels ``0..L-1``, ``L = out.shape[1]``; points with other labels are skipped), rows of
     ``out``: 0 cells, 1 sum cos, 2 sum sin, 3 sum range (m), 4 sum amp*cos, 5 sum amp*sin, 6 lowest and 7 highest range
-    (m) of the cells at or above ``ratio`` times the cluster's strongest amplitude (NaN for a cluster without cells);
-    ``peak`` (L,) float32 scratch: the strongest amplitude of each cluster on return. And the cells that
+    (m) of the cells at or above ``ratio`` times the cluster's strongest amplitude, 8 and 9 the same of those cells
+    whose angle's cos and sin give a dot product with the strongest cell's (the first of equals) of at least
+    ``gate_cos`` (NaN for a cluster without cells); ``peak`` (3 L,) float32 scratch: the strongest amplitude of each
+    cluster on return, then that cell's cos and sin. And the cells that
     eq. 17 sums (the reference's ``SignatureExtractor._rcs`` selection): ``rcs_peak[i] = 1`` when point ``i`` is
     above the cell one range bin below it and not below the one above, each counted only when it is a point of
     the same cluster (the last point given for a cell stands for it). ``scratch`` (int32) holds at least
@@ -36,6 +38,8 @@ def signature_pass(const int[::1] lab, const float[::1] rng, const float[::1] am
             out[i, k] = 0.0
         out[6, k] = float("inf")
         out[7, k] = float("-inf")
+        out[8, k] = float("inf")
+        out[9, k] = float("-inf")
     for i in range(P):
         k = lab[i]
         if k < 0 or k >= L:
@@ -58,6 +62,8 @@ def signature_pass(const int[::1] lab, const float[::1] rng, const float[::1] am
         out[5, k] += <double>(<float>(a * sin[i]))
         if a > peak[k]:
             peak[k] = a
+            peak[L + k] = cos[i]
+            peak[2 * L + k] = sin[i]
     for i in range(P):
         k = lab[i]
         if k < 0 or k >= L:
@@ -68,10 +74,18 @@ def signature_pass(const int[::1] lab, const float[::1] rng, const float[::1] am
                 out[6, k] = r
             if r > out[7, k]:
                 out[7, k] = r
+            if peak[k] <= 0.0 or <float>(<float>(cos[i] * peak[L + k]) + <float>(sin[i] * peak[2 * L + k])) >= gate_cos:
+                if r < out[8, k]:
+                    out[8, k] = r
+                if r > out[9, k]:
+                    out[9, k] = r
     for k in range(L):
         if out[6, k] == float("inf"):
             out[6, k] = float("nan")
             out[7, k] = float("nan")
+        if out[8, k] == float("inf"):
+            out[8, k] = float("nan")
+            out[9, k] = float("nan")
     if n == 0:
         return 0
     w = d1 + 1

@@ -335,21 +335,23 @@ class SurveillanceTracker:
             own = [int(lab)] + parts.get(tid, [])
             if len(own) == 1:  # the numpy reductions below of one value: the value (a sum adds it to 0.0)
                 lo, hi = float(sig.range_lo_m[lab]), float(sig.range_hi_m[lab])
+                blo, bhi = float(sig.body_lo_m[lab]), float(sig.body_hi_m[lab])
                 n_lab = float(sig.n_points[lab])
                 circ, rcs, r_mean = sig.circular_variance[lab], sig.rcs[lab], sig.range_m[lab]
                 cos_sum, sin_sum = 0.0 + float(sig.cos_sum[lab]), 0.0 + float(sig.sin_sum[lab])
             else:  # the union of the track's cluster and its co-range fragments (eqs. 17, 18 on all cells)
                 lo, hi = float(np.min(sig.range_lo_m[own])), float(np.max(sig.range_hi_m[own]))
+                blo, bhi = float(np.min(sig.body_lo_m[own])), float(np.max(sig.body_hi_m[own]))
                 n_lab = float(np.sum(sig.n_points[own]))
                 cos_sum, sin_sum = float(np.sum(sig.cos_sum[own])), float(np.sum(sig.sin_sum[own]))
                 res = math.hypot(cos_sum, sin_sum)
                 circ = 1.0 - res / n_lab
                 rcs = float(np.sum(sig.rcs[own]))
                 r_mean = float(np.sum(sig.n_points[own] * sig.range_m[own])) / n_lab
-            self._acc[tid].add(t_s, circ, rcs, r_mean, hi - lo, sig.doppler_kmh[lab])
+            self._acc[tid].add(t_s, circ, rcs, r_mean, bhi - blo, sig.doppler_kmh[lab])  # the body's extent
             log_ = self._log.get(tid)
             if log_ is not None:
-                log_.add(frame_key, t_s, n_lab, cos_sum, sin_sum, rcs, n_lab * float(r_mean), lo, hi,
+                log_.add(frame_key, t_s, n_lab, cos_sum, sin_sum, rcs, n_lab * float(r_mean), blo, bhi,
                          float(sig.doppler_kmh[lab]))
             recorded.append((tid, int(lab)))
             spd = self._speed[tid]

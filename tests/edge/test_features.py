@@ -172,6 +172,34 @@ def test_cluster_extent_spans_cells_within_level_of_the_peak():
     np.testing.assert_allclose(wide.extent_m, [4.0, 0.0])
 
 
+@pytest.mark.parametrize("kernel", [True, False])
+def test_cluster_extent_keeps_the_cells_at_the_body_doppler(kernel):
+    """A car's body (strongest cell at 10 m, body cells at 8-12 m, wrapped Doppler near 3 km/h) and wheel cells whose
+    micro-Doppler moved them to 6 and 14 m through the range-Doppler coupling: the extent spans the cells within
+    extent_doppler_kmh of the strongest cell's wrapped Doppler (0: every cell); the cluster's span stays that of
+    every cell."""
+    r = np.array([10.0, 8.0, 12.0, 6.0, 14.0, 11.0])
+    dop = np.array([3.0, 3.5, 2.4, 0.8, -4.0, 4.6])  # on the +-5.35 km/h cylinder, -4.0 is 3.7 from 3.0
+    amp = np.array([100.0, 40.0, 30.0, 50.0, 60.0, 20.0])
+    lab = np.zeros(6, dtype=int)
+    cells = pts(r, dop, amp, np.arange(6), np.arange(6), lab)
+    for gate, lo_hi in ((1.0, (8.0, 12.0)), (2.0, (8.0, 12.0)), (4.0, (6.0, 14.0)), (0.0, (6.0, 14.0))):
+        ex = SignatureExtractor(FeatureConfig(extent_doppler_kmh=gate), FE)
+        if not kernel:
+            ex.kernel = None
+        sig = ex(cells)
+        assert (sig.body_lo_m[0], sig.body_hi_m[0]) == pytest.approx(lo_hi), gate
+        assert sig.extent_m[0] == pytest.approx(lo_hi[1] - lo_hi[0]), gate
+        assert (sig.range_lo_m[0], sig.range_hi_m[0]) == pytest.approx((6.0, 14.0)), gate  # the span of every cell
+    # across the wrap: a cell at -5.2 km/h is 0.3 km/h from one at +5.2 on the cylinder (alias step 10.7 km/h)
+    wrap = pts(np.array([10.0, 13.0]), np.array([5.2, -5.2]), np.array([100.0, 50.0]), np.arange(2), np.arange(2),
+               np.zeros(2, dtype=int))
+    ex = SignatureExtractor(FeatureConfig(extent_doppler_kmh=1.0), FE)
+    if not kernel:
+        ex.kernel = None
+    assert ex(wrap).extent_m[0] == pytest.approx(3.0)
+
+
 def test_doppler_speed_feature_is_the_unaliased_doppler_not_the_centroid_jitter():
     """speed_feature = "doppler": E(|v_r|) from each frame's wrapped Doppler unaliased with the range
     rate. A pedestrian crossing the beam (radial 1.5 km/h) whose centroid jitters by 0.3 m reads

@@ -16,11 +16,11 @@ from hal.waveform import d2g_frontend
 from tests.native.conftest import require_kernel
 
 FIELDS = ("centroid", "range_m", "circular_variance", "rcs", "n_points", "doppler_kmh", "cos_sum", "sin_sum",
-          "range_lo_m", "range_hi_m")
+          "range_lo_m", "range_hi_m", "body_lo_m", "body_hi_m")
 
 
-def _pair():
-    fast = SignatureExtractor(FeatureConfig(), d2g_frontend())
+def _pair(gate_kmh: float = 1.0):
+    fast = SignatureExtractor(FeatureConfig(extent_doppler_kmh=gate_kmh), d2g_frontend())
     slow = copy.copy(fast)
     slow.kernel = None
     return fast, slow
@@ -52,10 +52,10 @@ def _random_points(rng: np.random.Generator, n: int, n_clusters: int) -> MapPoin
 
 
 @settings(max_examples=60, deadline=None, derandomize=True)
-@given(st.integers(0, 2**31 - 1), st.integers(0, 3000), st.integers(0, 12))
-def test_kernel_equals_reference_on_random_points(seed, n, n_clusters):
+@given(st.integers(0, 2**31 - 1), st.integers(0, 3000), st.integers(0, 12), st.sampled_from([0.0, 0.3, 1.0, 3.0]))
+def test_kernel_equals_reference_on_random_points(seed, n, n_clusters, gate_kmh):
     require_kernel("_survsig")
-    fast, slow = _pair()
+    fast, slow = _pair(gate_kmh)
     pts = _random_points(np.random.default_rng(seed), n, n_clusters)
     assert_same(fast, slow, pts)
     assert_same(fast, slow, pts, n_clusters + 2)  # clusters without cells: NaN rows, as the reference
