@@ -11,9 +11,14 @@ static test, and the channel power, could differ in the last bit (relative 1e-7)
 """
 
 cimport cython
-from libc.string cimport memcpy
+cimport numpy as cnp
+from libc.string cimport memcpy, memset
 
 import numpy as np
+
+cnp.import_array()
+
+include "_arrays.pxi"
 
 
 cdef extern from *:
@@ -118,12 +123,95 @@ cdef extern from *:
             dp[2 * k + 1] = mk ? v1 : 0.0f;
         }
     }
+
+    /* One segment of the map's update and subtraction, channel by channel per four bins: pv = sp (the raw
+       spectra, for the next frame's static test); d = (sp - bp) * alpha, +0.0 where the mask keep[k] is 0;
+       bp = bp + d; sp = sp - bp; pp = the channel sum of the new |sp|^2 (the first channel's re^2 + im^2, then
+       pp + (re^2 + im^2)). The same element-wise expressions as ksp_masked_update, apply_map and
+       channel_power, so the same bits. */
+    static void ksp_update_apply(float *const *sp, float *const *bp, float *const *pv, int n_rx, int n,
+                                 const float *keep, float alpha, float *pp) {
+        int k = 0, r;
+        unsigned int mk;
+        ksp_v4 a = {alpha, alpha, alpha, alpha};
+    #define KSP_UPDATE_CHANNEL(r) do {                                                                   \
+            float *s = sp[r] + 2 * k, *b = bp[r] + 2 * k;                                                \
+            ksp_v4 s0 = ksp_load(s), s1 = ksp_load(s + 4), b0 = ksp_load(b), b1 = ksp_load(b + 4);       \
+            ksp_store(pv[r] + 2 * k, s0);                                                                \
+            ksp_store(pv[r] + 2 * k + 4, s1);                                                            \
+            b0 = b0 + (ksp_v4)((ksp_u4)((s0 - b0) * a) & m0);                                            \
+            b1 = b1 + (ksp_v4)((ksp_u4)((s1 - b1) * a) & m1);                                            \
+            s0 = s0 - b0;                                                                                \
+            s1 = s1 - b1;                                                                                \
+            ksp_store(b, b0);                                                                            \
+            ksp_store(b + 4, b1);                                                                        \
+            ksp_store(s, s0);                                                                            \
+            ksp_store(s + 4, s1);                                                                        \
+            re = KSP_SHUF(s0, s1, 0, 2, 4, 6);                                                           \
+            im = KSP_SHUF(s0, s1, 1, 3, 5, 7);                                                           \
+        } while (0)
+        ksp_v4 re, im, p;
+        ksp_u4 m, m0, m1;
+        if (n_rx == 4) {  /* the SIMO board's four channels, unrolled */
+            for (; k + 4 <= n; k += 4) {
+                memcpy(&m, keep + k, sizeof m);
+                m0 = KSP_SHUF(m, m, 0, 0, 1, 1);
+                m1 = KSP_SHUF(m, m, 2, 2, 3, 3);
+                KSP_UPDATE_CHANNEL(0);
+                p = re * re + im * im;
+                KSP_UPDATE_CHANNEL(1);
+                p = p + (re * re + im * im);
+                KSP_UPDATE_CHANNEL(2);
+                p = p + (re * re + im * im);
+                KSP_UPDATE_CHANNEL(3);
+                p = p + (re * re + im * im);
+                ksp_store(pp + k, p);
+            }
+        }
+        for (; k + 4 <= n; k += 4) {
+            memcpy(&m, keep + k, sizeof m);
+            m0 = KSP_SHUF(m, m, 0, 0, 1, 1);
+            m1 = KSP_SHUF(m, m, 2, 2, 3, 3);
+            KSP_UPDATE_CHANNEL(0);
+            p = re * re + im * im;
+            for (r = 1; r < n_rx; r++) {
+                KSP_UPDATE_CHANNEL(r);
+                p = p + (re * re + im * im);
+            }
+            ksp_store(pp + k, p);
+        }
+    #undef KSP_UPDATE_CHANNEL
+        for (; k < n; k++) {
+            float p = 0;
+            memcpy(&mk, keep + k, sizeof mk);
+            for (r = 0; r < n_rx; r++) {
+                float *s = sp[r] + 2 * k, *b = bp[r] + 2 * k;
+                float sr = s[0], si = s[1];
+                float v0 = (sr - b[0]) * alpha, v1 = (si - b[1]) * alpha;
+                pv[r][2 * k] = sr;
+                pv[r][2 * k + 1] = si;
+                b[0] = b[0] + (mk ? v0 : 0.0f);
+                b[1] = b[1] + (mk ? v1 : 0.0f);
+                sr = sr - b[0];
+                si = si - b[1];
+                s[0] = sr;
+                s[1] = si;
+                if (r == 0)
+                    p = sr * sr + si * si;
+                else
+                    p = p + (sr * sr + si * si);
+            }
+            pp[k] = p;
+        }
+    }
     """
     int KSP_MAX_RX
     void ksp_change_own(const float* const* sp, const float* const* pp, int n_rx, int n, float* cp,
                         float* op) noexcept nogil
     void ksp_masked_update(const float* sp, const float* bp, float* dp, const float* keep, int n,
                            float alpha) noexcept nogil
+    void ksp_update_apply(float* const* sp, float* const* bp, float* const* pv, int n_rx, int n,
+                          const float* keep, float alpha, float* pp) noexcept nogil
 
 
 def to_complex(const short[:, :, ::1] i, const short[:, :, ::1] q, const float[::1] w,
@@ -299,6 +387,62 @@ def apply_map_power(float complex[:, :, ::1] spec, float complex[:, :, ::1] back
         for k in range(h):
             ppad[s, k] = ppad[s, n + k]
             ppad[s, n + h + k] = ppad[s, h + k]
+
+
+def update_apply_power(spec, background, prev, float alpha, float factor, float rel2, hold, ppad, Py_ssize_t h,
+                       change, own, work):
+    """:func:`update_hold_moving`, the update held where ``hold`` (seg, bin) uint8 is non-zero (None: nowhere), then
+    :func:`apply_map_power`, in one pass over the cells: ``prev = spec``; ``d`` as there; ``background += d``;
+    ``spec -= background``; the channel power of the result into ``ppad`` (seg, bin + 2 ``h``) float32, circularly
+    padded. ``spec``, ``background``, ``prev`` (rx, seg, bin) complex64, C-contiguous (read through the numpy C
+    API); ``change``, ``own`` (seg, bin) and ``work`` (bin) float32 scratch."""
+    cdef cnp.ndarray a = spec
+    if not cnp.PyArray_Check(spec) or cnp.PyArray_NDIM(a) != 3:
+        raise ValueError("update_apply_power: spec must be a (rx, seg, bin) complex64 array")
+    cdef Py_ssize_t n_rx = cnp.PyArray_DIM(a, 0), n_seg = cnp.PyArray_DIM(a, 1), n = cnp.PyArray_DIM(a, 2), r, s, k
+    if n_rx > KSP_MAX_RX or h > n:
+        raise ValueError("update_apply_power: at most 16 channels and h <= bins")
+    cdef float* sp0 = <float*>_data3(spec, cnp.NPY_COMPLEX64, n_rx, n_seg, n, True, "spec")
+    cdef float* bp0 = <float*>_data3(background, cnp.NPY_COMPLEX64, n_rx, n_seg, n, True, "background")
+    cdef float* pv0 = <float*>_data3(prev, cnp.NPY_COMPLEX64, n_rx, n_seg, n, True, "prev")
+    cdef float* pp0 = <float*>_data2(ppad, cnp.NPY_FLOAT32, n_seg, n + 2 * h, True, "ppad")
+    cdef float* ch0 = <float*>_data2(change, cnp.NPY_FLOAT32, n_seg, n, True, "change")
+    cdef float* ow0 = <float*>_data2(own, cnp.NPY_FLOAT32, n_seg, n, True, "own")
+    cdef float* wk = <float*>_data(work, cnp.NPY_FLOAT32, n, True, "work")
+    cdef const unsigned char* hd = NULL
+    if hold is not None:
+        hd = <const unsigned char*>_data2(hold, cnp.NPY_UINT8, n_seg, n, False, "hold")
+    cdef float* sps[16]
+    cdef float* bps[16]
+    cdef float* pvs[16]
+    cdef float* cp
+    cdef float* op
+    cdef float* pp
+    cdef float thr
+    cdef unsigned int keep
+    with nogil:
+        for s in range(n_seg):
+            cp = ch0 + s * n
+            op = ow0 + s * n
+            for r in range(n_rx):
+                sps[r] = sp0 + 2 * (r * n_seg + s) * n
+                bps[r] = bp0 + 2 * (r * n_seg + s) * n
+                pvs[r] = pv0 + 2 * (r * n_seg + s) * n
+            ksp_change_own(<const float* const*>sps, <const float* const*>pvs, <int>n_rx, <int>n, cp, op)
+            memcpy(wk, cp, n * sizeof(float))
+            thr = _select(wk, n, n // 2) * factor
+            for k in range(n):  # all bits where the cell stood still (its map learns), none where it moved
+                keep = 0 if cp[k] > thr + op[k] * rel2 else 0xFFFFFFFF
+                memcpy(&wk[k], &keep, sizeof(unsigned int))
+            if hd != NULL:  # none where it is held
+                for k in range(n):
+                    if hd[s * n + k]:
+                        memset(&wk[k], 0, sizeof(float))
+            pp = pp0 + s * (n + 2 * h)
+            ksp_update_apply(sps, bps, pvs, <int>n_rx, <int>n, wk, alpha, pp + h)
+            for k in range(h):
+                pp[k] = pp[n + k]
+                pp[n + h + k] = pp[h + k]
 
 
 from libc.math cimport sqrtf
