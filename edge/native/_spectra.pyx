@@ -38,6 +38,18 @@ cdef extern from *:
     static inline ksp_v4 ksp_load(const float *p) { ksp_v4 v; memcpy(&v, p, sizeof v); return v; }
     static inline void ksp_store(float *p, ksp_v4 v) { memcpy(p, &v, sizeof v); }
 
+    /* rows of int16 I/Q to interleaved complex64, each times the window: o = (float)i * w, (float)q * w. */
+    static void ksp_to_complex(const short *restrict ip, const short *restrict qp, const float *restrict w,
+                               float *restrict o, Py_ssize_t rows, Py_ssize_t n) {
+        for (Py_ssize_t r = 0; r < rows; r++, ip += n, qp += n, o += 2 * n) {
+            Py_ssize_t k = 0;
+            for (; k < n; k++) {
+                o[2 * k] = (float)ip[k] * w[k];
+                o[2 * k + 1] = (float)qp[k] * w[k];
+            }
+        }
+    }
+
     /* One segment's static test inputs: cp[k] = sum over the channels of |sp - pp|^2, op[k] = of |sp|^2, channel
        by channel from the first, real before imaginary (sp[r], pp[r]: channel r's interleaved complex bins). */
     static void ksp_change_own(const float *const *sp, const float *const *pp, int n_rx, int n, float *cp,
@@ -210,21 +222,25 @@ cdef extern from *:
                         float* op) noexcept nogil
     void ksp_masked_update(const float* sp, const float* bp, float* dp, const float* keep, int n,
                            float alpha) noexcept nogil
+    void ksp_to_complex(const short* ip, const short* qp, const float* w, float* o, Py_ssize_t rows,
+                        Py_ssize_t n) noexcept nogil
     void ksp_update_apply(float* const* sp, float* const* bp, float* const* pv, int n_rx, int n,
                           const float* keep, float alpha, float* pp) noexcept nogil
 
 
-def to_complex(const short[:, :, ::1] i, const short[:, :, ::1] q, const float[::1] w,
-               float complex[:, :, ::1] out):
-    """``out = (i + 1j q) * w``: int16 I/Q (rx, seg, bin) to complex64, windowed (``w`` float32, per bin)."""
-    cdef Py_ssize_t a, b, k, n0 = i.shape[0], n1 = i.shape[1], n2 = i.shape[2]
-    cdef float* o
-    for a in range(n0):
-        for b in range(n1):
-            o = <float*>&out[a, b, 0]  # interleaved re, im
-            for k in range(n2):
-                o[2 * k] = <float>i[a, b, k] * w[k]
-                o[2 * k + 1] = <float>q[a, b, k] * w[k]
+def to_complex(i, q, w, out):
+    """``out = (i + 1j q) * w``: int16 I/Q (rx, seg, bin) to complex64, windowed (``w`` float32, per bin). The
+    arrays C-contiguous, aligned, native (read through the numpy C API)."""
+    cdef cnp.ndarray a = i
+    if not cnp.PyArray_Check(i) or cnp.PyArray_NDIM(a) != 3:
+        raise ValueError("to_complex: i must be a (rx, seg, bin) int16 array")
+    cdef Py_ssize_t n0 = cnp.PyArray_DIM(a, 0), n1 = cnp.PyArray_DIM(a, 1), n2 = cnp.PyArray_DIM(a, 2)
+    cdef const short* ip = <const short*>_data3(i, cnp.NPY_INT16, n0, n1, n2, False, "i")
+    cdef const short* qp = <const short*>_data3(q, cnp.NPY_INT16, n0, n1, n2, False, "q")
+    cdef const float* wp = <const float*>_data(w, cnp.NPY_FLOAT32, n2, False, "w")
+    cdef float* op = <float*>_data3(out, cnp.NPY_COMPLEX64, n0, n1, n2, True, "out")
+    with nogil:
+        ksp_to_complex(ip, qp, wp, op, n0 * n1, n2)
 
 
 cdef float _select(float* v, Py_ssize_t n, Py_ssize_t kth) noexcept nogil:

@@ -40,7 +40,8 @@ def _cspec(rng, shape, scale=1.0):
 
 
 @settings(max_examples=25, deadline=None, derandomize=True)
-@given(n_rx=st.integers(1, 4), n_seg=st.integers(1, 4), n=st.sampled_from([8, 64, 256]), seed=st.integers(0, 2**16))
+@given(n_rx=st.integers(1, 4), n_seg=st.integers(1, 4), n=st.sampled_from([8, 64, 256, 7, 13]),
+       seed=st.integers(0, 2**16))
 def test_to_complex_equals_numpy(n_rx, n_seg, n, seed):
     k = require_kernel("_spectra")
     rng = np.random.default_rng(seed)
@@ -54,6 +55,22 @@ def test_to_complex_equals_numpy(n_rx, n_seg, n, seed):
     k.to_complex(i, q, w, out)
     assert np.array_equal(out, ref)
 
+
+
+def test_to_complex_refuses_other_arrays():
+    """The arrays are read through the numpy C API: other dtypes, shapes and layouts are refused."""
+    k = require_kernel("_spectra")
+    shape = (2, 3, 16)
+    i16 = lambda: np.zeros(shape, np.int16)  # noqa: E731
+    args = [i16(), i16(), np.ones(16, np.float32), np.empty(shape, np.complex64)]
+    k.to_complex(*args)
+    for j, bad in [(0, np.zeros(shape, np.int32)), (1, i16()[:, :, ::-1]), (2, np.ones(16, np.float64)),
+                   (2, np.ones(15, np.float32)), (3, np.empty(shape, np.complex128)), (3, np.empty((2, 3, 15), np.complex64)),
+                   (0, i16().tolist())]:
+        a = list(args)
+        a[j] = bad
+        with pytest.raises((ValueError, TypeError)):
+            k.to_complex(*a)
 
 @settings(max_examples=25, deadline=None, derandomize=True)
 @given(n_rx=st.integers(1, 4), n_seg=st.integers(1, 4), n=st.sampled_from([7, 64, 257]), seed=st.integers(0, 2**16),
