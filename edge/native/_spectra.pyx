@@ -50,6 +50,58 @@ cdef extern from *:
         }
     }
 
+    /* The kth smallest of v[:n] (NaN-free, left as it is; work: n floats), Hoare's selection in place. */
+    static float ksp_hoare(float *v, Py_ssize_t n, Py_ssize_t kth) {
+        Py_ssize_t lo = 0, hi = n - 1, a, b;
+        float pivot, t;
+        while (lo < hi) {
+            pivot = v[(lo + hi) / 2];
+            a = lo;
+            b = hi;
+            while (a <= b) {
+                while (v[a] < pivot) a++;
+                while (v[b] > pivot) b--;
+                if (a <= b) {
+                    t = v[a]; v[a] = v[b]; v[b] = t;
+                    a++;
+                    b--;
+                }
+            }
+            if (kth <= b) hi = b;
+            else if (kth >= a) lo = a;
+            else break;
+        }
+        return v[kth];
+    }
+
+    /* The kth smallest of v[:n] (NaN-free; v is left as it is, work holds n floats): the value is the same whatever
+       the method. From 256 values on, two values of a sample of 64 bracket it: one pass counts the values below the
+       bracket and copies those in it, and Hoare's selection runs on these alone; when the bracket misses (about one
+       time in twenty), on a copy of all. */
+    static float ksp_select(const float *v, Py_ssize_t n, Py_ssize_t kth, float *work) {
+        Py_ssize_t k, c, nlt = 0, r, step;
+        float lo, hi, x;
+        if (n >= 256) {
+            step = n / 64;
+            for (k = 0; k < 64; k++)
+                work[k] = v[k * step + step / 2];
+            r = kth * 64 / n;
+            lo = ksp_hoare(work, 64, r >= 8 ? r - 8 : 0);
+            hi = ksp_hoare(work, 64, r + 8 <= 63 ? r + 8 : 63);
+            for (k = 0, c = 0; k < n; k++) {  /* (a branch per value: most lie outside the bracket) */
+                x = v[k];
+                if (x < lo)
+                    nlt++;
+                else if (x <= hi)
+                    work[c++] = x;
+            }
+            if (nlt <= kth && kth < nlt + c)
+                return ksp_hoare(work, c, kth - nlt);
+        }
+        memcpy(work, v, n * sizeof(float));
+        return ksp_hoare(work, n, kth);
+    }
+
     /* One segment's static test inputs: cp[k] = sum over the channels of |sp - pp|^2, op[k] = of |sp|^2, channel
        by channel from the first, real before imaginary (sp[r], pp[r]: channel r's interleaved complex bins). */
     static void ksp_change_own(const float *const *sp, const float *const *pp, int n_rx, int n, float *cp,
@@ -222,6 +274,7 @@ cdef extern from *:
                         float* op) noexcept nogil
     void ksp_masked_update(const float* sp, const float* bp, float* dp, const float* keep, int n,
                            float alpha) noexcept nogil
+    float ksp_select(const float* v, Py_ssize_t n, Py_ssize_t kth, float* work) noexcept nogil
     void ksp_to_complex(const short* ip, const short* qp, const float* w, float* o, Py_ssize_t rows,
                         Py_ssize_t n) noexcept nogil
     void ksp_update_apply(float* const* sp, float* const* bp, float* const* pv, int n_rx, int n,
@@ -445,8 +498,7 @@ def update_apply_power(spec, background, prev, float alpha, float factor, float 
                 bps[r] = bp0 + 2 * (r * n_seg + s) * n
                 pvs[r] = pv0 + 2 * (r * n_seg + s) * n
             ksp_change_own(<const float* const*>sps, <const float* const*>pvs, <int>n_rx, <int>n, cp, op)
-            memcpy(wk, cp, n * sizeof(float))
-            thr = _select(wk, n, n // 2) * factor
+            thr = ksp_select(cp, n, n // 2, wk) * factor
             for k in range(n):  # all bits where the cell stood still (its map learns), none where it moved
                 keep = 0 if cp[k] > thr + op[k] * rel2 else 0xFFFFFFFF
                 memcpy(&wk[k], &keep, sizeof(unsigned int))

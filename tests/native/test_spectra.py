@@ -304,3 +304,46 @@ def test_update_apply_power_refuses_other_arrays():
         a[i] = bad
         with pytest.raises((ValueError, TypeError)):
             k.update_apply_power(*a)
+
+
+@pytest.mark.parametrize("n", [255, 256, 257, 1024, 4099])
+@pytest.mark.parametrize("pattern", ["random", "ties", "sample_large", "sample_small", "all_still"])
+def test_update_apply_power_median_equals_numpy(n, pattern):
+    """The fused kernel's segment median (a bracket from a sample of 64, Hoare's selection inside it, or on all the
+    values when the bracket misses) against numpy's: the static test alone (factor 1, no own-energy term) on exact
+    changes with ties and zeros, and with the sampled cells far above or below the others, so that the bracket
+    misses."""
+    from edge.lane.records import Feedback
+
+    rng = np.random.default_rng(n)
+    shape = (2, 3, n)
+    fast, ref = _maps(shape, rng, 16)
+    for m in (fast, ref):
+        m.config = type(m.config)(**{**m.config.__dict__, "clutter_map_static_factor": 1.0,
+                                     "clutter_map_static_rel": 0.0, "clutter_map_hold_speed_mps": 0.0})
+    # quantised spectra: every sum of squares exact, whatever the order of summation
+    prev = (np.round(_cspec(rng, shape) * 4) / 4).astype(np.complex64)
+    fast._prev, ref._prev = prev.copy(), prev.copy()
+    step = np.round(_cspec(rng, shape) * 2) / 2 if pattern == "ties" else np.round(_cspec(rng, shape) * 64) / 64
+    if pattern == "all_still":
+        step[:] = 0
+    sampled = np.zeros(n, bool)
+    if n >= 256:
+        sampled[np.arange(64) * (n // 64) + n // 128] = True
+    if pattern == "sample_large":  # the sampled cells change, the others stand still: the median is 0
+        step[:, :, ~sampled] = 0
+        step[:, :, sampled] *= 100
+    elif pattern == "sample_small":  # the sampled cells stand still, the others change
+        step[:, :, sampled] = 0
+    spec = (prev + step).astype(np.complex64)
+    h = 4
+    ppad = np.empty((shape[1], n + 2 * h), np.float32)
+    spec_k, spec_r = spec.copy(), spec.copy()
+    prev_bg = fast.background.copy()
+    assert fast.subtract(spec_k, Feedback.none(), ppad, h)
+    ref.subtract(spec_r, Feedback.none(), None, h)
+    assert np.array_equal(fast.background.view(np.uint32), ref.background.view(np.uint32))
+    assert np.array_equal(spec_k.view(np.uint32), spec_r.view(np.uint32))
+    # the held cells: those whose change exceeds the median (none when all stand still)
+    held = np.all(fast.background == prev_bg, axis=0) & np.any(spec != prev_bg, axis=0)
+    assert 0 < np.count_nonzero(held) < held.size or pattern == "all_still" or (pattern.startswith("sample") and n < 256)
