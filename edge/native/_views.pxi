@@ -53,6 +53,26 @@ cdef inline double* _pd4(_V v, Py_ssize_t i, Py_ssize_t j, Py_ssize_t k, Py_ssiz
     return <double*>(v.data + i * v.s[0] + j * v.s[1] + k * v.s[2] + l * v.s[3])
 
 
+cdef inline float* _pf1(_V v, Py_ssize_t i) noexcept nogil:
+    return <float*>(v.data + i * v.s[0])
+
+
+cdef inline float* _pf2(_V v, Py_ssize_t i, Py_ssize_t j) noexcept nogil:
+    return <float*>(v.data + i * v.s[0] + j * v.s[1])
+
+
+cdef inline cnp.int64_t* _pi64_2(_V v, Py_ssize_t i, Py_ssize_t j) noexcept nogil:
+    return <cnp.int64_t*>(v.data + i * v.s[0] + j * v.s[1])
+
+
+cdef inline long long* _pll(_V v, Py_ssize_t i) noexcept nogil:
+    return <long long*>(v.data + i * v.s[0])
+
+
+cdef inline long long* _pll_2(_V v, Py_ssize_t i, Py_ssize_t j) noexcept nogil:
+    return <long long*>(v.data + i * v.s[0] + j * v.s[1])
+
+
 cdef inline cnp.int32_t* _pi32(_V v, Py_ssize_t i) noexcept nogil:
     return <cnp.int32_t*>(v.data + i * v.s[0])
 
