@@ -19,6 +19,7 @@ import numpy as np
 cnp.import_array()
 
 include "_arrays.pxi"
+include "_views.pxi"
 
 
 cdef extern from *:
@@ -518,22 +519,28 @@ from libc.math cimport sqrtf
 
 @cython.boundscheck(False)
 @cython.wraparound(False)
-def static_residue(const float complex[:, :, :] ref, const long long[:, :] bins, const float[:, :] power,
-                   const float[:] floor, float ratio, float noise_floors):
+def static_residue(const float complex[:, :, :] ref, bins, power,
+                   floor, float ratio, float noise_floors):
     """:meth:`edge.lane.clutter.ClutterMap.static_residue` with the map's echo ``ref`` (rx, seg, bin): per pairing
     (``bins`` (n, seg)), whether in every segment the peak's amplitude ``sqrt(power)`` is at most
     ``sqrt(ratio * echo) + sqrt(noise_floors * floor)`` and the echo (its power summed over the channels in numpy's
     order) exceeds ``floor``. float32, one rounding per operation as numpy's. Returns (n,) bool; None when a bin
     lies outside the map (the numpy form handles it)."""
-    cdef Py_ssize_t n = bins.shape[0], nseg = bins.shape[1], nrx = ref.shape[0], nb = ref.shape[2], i, k, c
+    cdef _V V_bins
+    _aview(bins, cnp.NPY_LONGLONG, 2, False, False, &V_bins, "bins")
+    cdef _V V_power
+    _aview(power, cnp.NPY_FLOAT32, 2, False, False, &V_power, "power")
+    cdef _V V_floor
+    _aview(floor, cnp.NPY_FLOAT32, 1, False, False, &V_floor, "floor")
+    cdef Py_ssize_t n = V_bins.n[0], nseg = V_bins.n[1], nrx = ref.shape[0], nb = ref.shape[2], i, k, c
     cdef long long b
     cdef float bg, re, im, bound
     cdef bint ok
-    if nseg > ref.shape[1] or nseg > power.shape[0] or nseg > floor.shape[0]:
+    if nseg > ref.shape[1] or nseg > V_power.n[0] or nseg > V_floor.n[0]:
         return None
     for i in range(n):
         for k in range(nseg):
-            if bins[i, k] < 0 or bins[i, k] >= nb or bins[i, k] >= power.shape[1]:
+            if _pll_2(V_bins, i, k)[0] < 0 or _pll_2(V_bins, i, k)[0] >= nb or _pll_2(V_bins, i, k)[0] >= V_power.n[1]:
                 return None
     out_arr = np.empty(n, dtype=bool)
     cdef unsigned char[::1] out = out_arr.view(np.uint8)
@@ -541,14 +548,14 @@ def static_residue(const float complex[:, :, :] ref, const long long[:, :] bins,
         for i in range(n):
             ok = True
             for k in range(nseg):
-                b = bins[i, k]
+                b = _pll_2(V_bins, i, k)[0]
                 bg = 0.0
                 for c in range(nrx):
                     re = ref[c, k, b].real
                     im = ref[c, k, b].imag
                     bg = bg + (re * re + im * im)
-                bound = sqrtf(ratio * bg) + sqrtf(noise_floors * floor[k])
-                if not (sqrtf(power[k, b]) <= bound and bg > floor[k]):
+                bound = sqrtf(ratio * bg) + sqrtf(noise_floors * _pf1(V_floor, k)[0])
+                if not (sqrtf(_pf2(V_power, k, b)[0]) <= bound and bg > _pf1(V_floor, k)[0]):
                     ok = False
             out[i] = ok
     return out_arr
