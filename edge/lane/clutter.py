@@ -95,7 +95,8 @@ class ClutterMap(native.KernelUser):
         alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
         k = self.kernel
         if (k is not None and power_out is not None and cfg.clutter_map_static_factor > 0 and self._prev is not None
-                and self._map_init is None and spec.flags.c_contiguous):
+                and self._map_init is None and spec.flags.c_contiguous and spec.shape[0] <= 16
+                and pad <= spec.shape[-1]):
             # the update, _hold_moving, _hold_standing, the subtraction and the channel power in one pass
             hold = None
             if cfg.clutter_map_hold_speed_mps > 0:
