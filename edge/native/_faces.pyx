@@ -42,7 +42,8 @@ def near_faces(rng, v, x, keep_in,
     cdef _V V_ext
     _aview(ext_arr, cnp.NPY_FLOAT32, 1, True, True, &V_ext, "ext")
     if n:
-        _near_faces_core(&_pf1(V_rng, 0)[0], &_pf1(V_v, 0)[0], &_pf1(V_x, 0)[0], &_pu8(V_keep_in, 0)[0], n, length, speed, lateral, dz2, &_pu8(V_keep, 0)[0], &_pf1(V_ext, 0)[0])
+        _near_faces_core(<float*>V_rng.data, <float*>V_v.data, <float*>V_x.data, <cnp.uint8_t*>V_keep_in.data, n,
+                         length, speed, lateral, dz2, <cnp.uint8_t*>V_keep.data, <float*>V_ext.data)
     return keep_arr, ext_arr
 
 

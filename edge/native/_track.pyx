@@ -253,19 +253,22 @@ def duplicate_pairs(x, double merge_speed_mps, double merge_lateral_m,
             d3 = _pd2(V_x, a, 3)[0] - _pd2(V_x, b, 3)[0]
             if not (fabs(d2_ * ux + d3 * uy) < merge_speed_mps):
                 continue
-            if resolved and _pi64(V_pair, a)[0] >= 0 and _pi64(V_pair, a)[0] == _pi64(V_pair, b)[0] and _pi64(V_det, a)[0] != _pi64(V_det, b)[0]:
+            if (resolved and _pi64(V_pair, a)[0] >= 0 and _pi64(V_pair, a)[0] == _pi64(V_pair, b)[0]
+                    and _pi64(V_det, a)[0] != _pi64(V_det, b)[0]):
                 continue
             d0 = _pd2(V_x, a, 0)[0] - _pd2(V_x, b, 0)[0]
             d1 = _pd2(V_x, a, 1)[0] - _pd2(V_x, b, 1)[0]
             keep = fabs(d2_ * uy - d3 * ux) < merge_lateral_speed_mps
-            is_boxed = (fabs(d0) < merge_lateral_m) and (fabs(d1) < _max_nan(_pd1(V_reach_m, a)[0], _pd1(V_reach_m, b)[0]))
+            is_boxed = (fabs(d0) < merge_lateral_m) and (
+                fabs(d1) < _max_nan(_pd1(V_reach_m, a)[0], _pd1(V_reach_m, b)[0]))
             if is_boxed:
                 run[a] = run[b] = 1
                 bx[3 * nb] = a
                 bx[3 * nb + 1] = b
                 bx[3 * nb + 2] = keep
                 nb += 1
-            elif keep and d0 * d0 < state_gamma * (_pd1(V_pdx, a)[0] + _pd1(V_pdx, b)[0]) and d1 * d1 < state_gamma * (_pd1(V_pdy, a)[0] + _pd1(V_pdy, b)[0]):
+            elif (keep and d0 * d0 < state_gamma * (_pd1(V_pdx, a)[0] + _pd1(V_pdx, b)[0])
+                    and d1 * d1 < state_gamma * (_pd1(V_pdy, a)[0] + _pd1(V_pdy, b)[0])):
                 rx[2 * nr] = a
                 rx[2 * nr + 1] = b
                 rd[4 * nr] = d0
@@ -515,7 +518,7 @@ def update_extent(v, s2_track, s_pair,
                 a = _pd3(V_v, t, m, 0)[0] * u0 + _pd3(V_v, t, m, 1)[0] * u1
                 _pd1(V_buf, m)[0] = _pd2(V_beta, t, m)[0] * a * a
             den = _max_nan(wsum, 1e-12)
-            m2 = _pairwise_sum(&_pd1(V_buf, 0)[0], nm) / den
+            m2 = _pairwise_sum(<double*>V_buf.data, nm) / den
             if per_pair:
                 for k in range(4):
                     s2[k] = 0.0
@@ -758,7 +761,8 @@ def imm_predict(xm, pm, mu,
         for t in range(nt):
             src = t if V_pi.n[0] > 1 else 0
             if far:
-                u = _np_min(_np_max((hypot(_pd2(V_x_far, t, 0)[0], _pd2(V_x_far, t, 1)[0]) - far_from_m) / far_span_m, 0.0), 1.0)
+                u = _np_min(_np_max((hypot(_pd2(V_x_far, t, 0)[0], _pd2(V_x_far, t, 1)[0]) - far_from_m) / far_span_m,
+                                    0.0), 1.0)
                 pk = exp((1.0 - u) * log_p_near + u * log_p_far)
                 pi_t[0][0] = 1.0 - pk
                 pi_t[0][1] = pk
@@ -951,10 +955,11 @@ def imm_mode_update(xs, ps, hm,
         raise MemoryError()
     with nogil:
         if npair:
-            _pair_rows(&_pd3(V_ps, 0, 0, 0)[0], &_pd3(V_hm, 0, 0, 0)[0], &_pd2(V_zhm, 0, 0)[0], &_pd3(V_r_track, 0, 0, 0)[0], 1, &_pd2(V_z, 0, 0)[0], &_pd3(V_r_meas, 0, 0, 0)[0], n,
-                       rows, cols, 2 * npair, sc, scaled, pv, d2, det, psi)
-        _update_rows(&_pd2(V_xs, 0, 0)[0], &_pd3(V_ps, 0, 0, 0)[0], &_pd3(V_hm, 0, 0, 0)[0], 2 * nt, n, rows, 2 * npair, pv, psi, w, _f64(x_a),
-                     _f64(p_a))
+            _pair_rows(<double*>V_ps.data, <double*>V_hm.data, <double*>V_zhm.data, <double*>V_r_track.data, 1,
+                       <double*>V_z.data, <double*>V_r_meas.data, n, rows, cols, 2 * npair, sc, scaled, pv, d2, det,
+                       psi)
+        _update_rows(<double*>V_xs.data, <double*>V_ps.data, <double*>V_hm.data, 2 * nt, n, rows, 2 * npair, pv, psi, w,
+                     _f64(x_a), _f64(p_a))
         for q in range(2 * nt):
             dens[q] = 0.0
         for q in range(2 * npair):
@@ -1051,7 +1056,8 @@ cdef void _lateral_rows(_V V_lat0, _V V_lat_p0, _V V_age,
         d = _max_nan(vr0 - _pd3(V_p, t, 0, 0)[0], min_fraction * vr0)
         _pu8(V_off, t)[0] = (_pd2(V_x, t, 0)[0] - _pd2(V_ref, t, 0)[0]) ** 2 > gamma * _max_nan(d, 1e-12)
         d = _max_nan(vr1 - _pd3(V_p, t, 1, 1)[0], min_fraction * vr1)
-        _pu8(V_off, t)[0] = _pu8(V_off, t)[0] or (_pd2(V_x, t, 1)[0] - _pd2(V_ref, t, 1)[0]) ** 2 > gamma * _max_nan(d, 1e-12)
+        _pu8(V_off, t)[0] = (_pu8(V_off, t)[0]
+                             or (_pd2(V_x, t, 1)[0] - _pd2(V_ref, t, 1)[0]) ** 2 > gamma * _max_nan(d, 1e-12))
         _pu8(V_off, t)[0] = _pu8(V_off, t)[0] or _pd1(V_cusum, t)[0] > cusum_nats
 
 
@@ -1413,7 +1419,8 @@ def moving_expired(x, p, history,
     cdef bint e
     for i in range(t):
         v0, v1 = _pd2(V_x, i, 2)[0], _pd2(V_x, i, 3)[0]
-        num = (_pd3(V_p, i, 3, 3)[0] * v0 * v0 - (_pd3(V_p, i, 2, 3)[0] + _pd3(V_p, i, 3, 2)[0]) * v0 * v1) + _pd3(V_p, i, 2, 2)[0] * v1 * v1
+        num = ((_pd3(V_p, i, 3, 3)[0] * v0 * v0 - (_pd3(V_p, i, 2, 3)[0] + _pd3(V_p, i, 3, 2)[0]) * v0 * v1)
+               + _pd3(V_p, i, 2, 2)[0] * v1 * v1)
         d2v = num / (_pd3(V_p, i, 2, 2)[0] * _pd3(V_p, i, 3, 3)[0] - _pd3(V_p, i, 2, 3)[0] * _pd3(V_p, i, 3, 2)[0])
         if d2v > moving_gamma and hypot(v0, v1) >= min_speed_mps:
             _pu8(V_moved, i)[0] = 1
@@ -1424,7 +1431,8 @@ def moving_expired(x, p, history,
         else:
             counts = _popcount32(_pu32(V_history, i)[0] & mask_n)
             e = _pi32(V_age, i)[0] >= confirm_n and counts < confirm_m and _pi32(V_misses, i)[0] > 0
-            if e and keep_from_m > 0.0 and hypot(_pd2(V_x, i, 0)[0], _pd2(V_x, i, 1)[0]) > keep_from_m and not counts < keep_min_hits:
+            if (e and keep_from_m > 0.0 and hypot(_pd2(V_x, i, 0)[0], _pd2(V_x, i, 1)[0]) > keep_from_m
+                    and not counts < keep_min_hits):
                 e = False
         _pu8(V_out, i)[0] = e
     return out_arr
@@ -1482,11 +1490,12 @@ def claimed_any_polar(v, s_track, rr,
         for i in range(n):
             for k in range(n):
                 if i < 2 and k < 2:
-                    _pd3(V_s, t, i, k)[0] = _pd3(V_s_track, t, i, k)[0] + ((_pd3(V_rr, t, i, k)[0] + floor_var) if i == k else _pd3(V_rr, t, i, k)[0])
+                    _pd3(V_s, t, i, k)[0] = _pd3(V_s_track, t, i, k)[0] + (
+                        (_pd3(V_rr, t, i, k)[0] + floor_var) if i == k else _pd3(V_rr, t, i, k)[0])
                 else:
                     _pd3(V_s, t, i, k)[0] = _pd3(V_s_track, t, i, k)[0]
     if nt:
-        _claimed(v, &_pd3(V_s, 0, 0, 0)[0], gamma, &_pu8(V_out, 0)[0] if nm else NULL)
+        _claimed(v, <double*>V_s.data, gamma, <cnp.uint8_t*>V_out.data if nm else NULL)
     return out_a
 
 
@@ -1626,7 +1635,8 @@ def mode_probabilities_match(c, lik, double floor,
             den = m0 + m1
             _pd2(V_mu, t, 0)[0] = m0 / den
             _pd2(V_mu, t, 1)[0] = m1 / den
-            _moment_match_row(&_pd3(V_xm, t, 0, 0)[0], &_pd4(V_pm, t, 0, 0, 0)[0], _pd2(V_mu, t, 0)[0], _pd2(V_mu, t, 1)[0], &_pd2(V_x, t, 0)[0], &_pd3(V_p, t, 0, 0)[0])
+            _moment_match_row(&_pd3(V_xm, t, 0, 0)[0], &_pd4(V_pm, t, 0, 0, 0)[0], _pd2(V_mu, t, 0)[0],
+                              _pd2(V_mu, t, 1)[0], &_pd2(V_x, t, 0)[0], &_pd3(V_p, t, 0, 0)[0])
     return mu_a, x_a, p_a
 
 
@@ -1683,7 +1693,8 @@ def reanchor_match(x, confirmed, hit,
                 if not free[m] or not (fabs(vr_t - _pd2(V_z, m, 2)[0]) < speed_mps):
                     continue
                 nearer = rho_t - hypot(_pd2(V_z, m, 0)[0], _pd2(V_z, m, 1)[0])
-                if nearer > min_m and nearer <= max_m and fabs(_pd2(V_x, t, 0)[0] - _pd2(V_z, m, 0)[0]) < lateral_m and nearer > best:
+                if (nearer > min_m and nearer <= max_m and fabs(_pd2(V_x, t, 0)[0] - _pd2(V_z, m, 0)[0]) < lateral_m
+                        and nearer > best):
                     best = nearer
                     arg = m
             if arg >= 0:
@@ -1730,8 +1741,9 @@ def delete_tests(x, p, misses, ext_var,
         for t in range(nt):
             rho = hypot(_pd2(V_x, t, 0)[0], _pd2(V_x, t, 1)[0])
             sig = sqrt(_np_max(_pd3(V_p, t, 0, 0)[0], _pd3(V_p, t, 1, 1)[0]))
-            _pu8(V_dead, t)[0] = ((_pi32(V_misses, t)[0] >= delete_after_misses) or (sig > max_sigma_m) or (rho < min_range_m)
-                       or (rho > max_range_m) or fabs(atan2(_pd2(V_x, t, 0)[0], _pd2(V_x, t, 1)[0])) > max_azimuth_rad)
+            _pu8(V_dead, t)[0] = ((_pi32(V_misses, t)[0] >= delete_after_misses) or (sig > max_sigma_m)
+                                  or (rho < min_range_m) or (rho > max_range_m)
+                                  or fabs(atan2(_pd2(V_x, t, 0)[0], _pd2(V_x, t, 1)[0])) > max_azimuth_rad)
             sp = hypot(_pd2(V_x, t, 2)[0], _pd2(V_x, t, 3)[0])
             nrm = _np_max(sp, 1e-9)
             ux = _pd2(V_x, t, 2)[0] / nrm
@@ -1740,7 +1752,8 @@ def delete_tests(x, p, misses, ext_var,
             iso = 1.0 - w
             _pd1(V_pdx, t)[0] = _pd3(V_p, t, 0, 0)[0] + _pd1(V_ext_var, t)[0] * (w * (ux * ux) + iso)
             _pd1(V_pdy, t)[0] = _pd3(V_p, t, 1, 1)[0] + _pd1(V_ext_var, t)[0] * (w * (uy * uy) + iso)
-            _pd1(V_along, t)[0] = _np_max(_np_max(merge_along_m, merge_headway_s * sp), merge_extent_factor * sqrt(_pd1(V_ext_var, t)[0]))
+            _pd1(V_along, t)[0] = _np_max(_np_max(merge_along_m, merge_headway_s * sp),
+                                          merge_extent_factor * sqrt(_pd1(V_ext_var, t)[0]))
     return dead_a, pdx_a, pdy_a, along_a
 
 
@@ -1897,10 +1910,12 @@ def seed_candidates(z, used, pair, bint has_pair,
             lat = lateral_sigmas * r * az_sigma_rad
             _pd2(V_box, t, 0)[0] = _np_min(_np_max(lat, merge_lateral_m), lateral_cap_m)
             sp = hypot(_pd2(V_xt, t, 2)[0], _pd2(V_xt, t, 3)[0])
-            _pd2(V_box, t, 1)[0] = _np_max(_np_max(merge_along_m, headway_s * sp), extent_factor * sqrt(_pd1(V_ext_var, t)[0]))
+            _pd2(V_box, t, 1)[0] = _np_max(_np_max(merge_along_m, headway_s * sp),
+                                           extent_factor * sqrt(_pd1(V_ext_var, t)[0]))
             if radial:
                 rho_t = _np_max(hypot(_pd2(V_xt, t, 0)[0], _pd2(V_xt, t, 1)[0]), 1e-3)
-                _pd2(V_box, t, 2)[0] = (_pd2(V_xt, t, 0)[0] * _pd2(V_xt, t, 2)[0] + _pd2(V_xt, t, 1)[0] * _pd2(V_xt, t, 3)[0]) / rho_t
+                _pd2(V_box, t, 2)[0] = (_pd2(V_xt, t, 0)[0] * _pd2(V_xt, t, 2)[0]
+                                        + _pd2(V_xt, t, 1)[0] * _pd2(V_xt, t, 3)[0]) / rho_t
         for m in range(nm):
             res = has_pair and _pi64(V_pair, m)[0] >= 0
             _pu8(V_resolved, m)[0] = res
@@ -1912,7 +1927,8 @@ def seed_candidates(z, used, pair, bint has_pair,
                 continue
             for t in range(nt):
                 lat = merge_lateral_m if res else _pd2(V_box, t, 0)[0]
-                if (fabs(_pd2(V_xt, t, 0)[0] - _pd2(V_z, m, 0)[0]) < lat and fabs(_pd2(V_xt, t, 1)[0] - _pd2(V_z, m, 1)[0]) < _pd2(V_box, t, 1)[0]
+                if (fabs(_pd2(V_xt, t, 0)[0] - _pd2(V_z, m, 0)[0]) < lat
+                        and fabs(_pd2(V_xt, t, 1)[0] - _pd2(V_z, m, 1)[0]) < _pd2(V_box, t, 1)[0]
                         and (not radial or fabs(_pd2(V_box, t, 2)[0] - _pd2(V_z, m, 2)[0]) < merge_speed_mps)):
                     c = False
                     break
@@ -2040,7 +2056,8 @@ def confirm_ready(x, history, confirmed,
                 d0 = _pd2(V_x, r, 0)[0] - _pd2(V_x, k, 0)[0]
                 sp = hypot(_pd2(V_x, k, 2)[0], _pd2(V_x, k, 3)[0])
                 den = _np_max(sp, 1e-9)
-                dv = (_pd2(V_x, r, 2)[0] - _pd2(V_x, k, 2)[0]) * (_pd2(V_x, k, 2)[0] / den) + (_pd2(V_x, r, 3)[0] - _pd2(V_x, k, 3)[0]) * (_pd2(V_x, k, 3)[0] / den)
+                dv = ((_pd2(V_x, r, 2)[0] - _pd2(V_x, k, 2)[0]) * (_pd2(V_x, k, 2)[0] / den)
+                      + (_pd2(V_x, r, 3)[0] - _pd2(V_x, k, 3)[0]) * (_pd2(V_x, k, 3)[0] / den))
                 if ((fabs(d0) < merge_lateral_m and fabs(dv) < merge_speed_mps)
                         or (fabs(d0) < block_lateral_m and d1 > block_behind_m and fabs(dv) < block_speed_mps)):
                     blocked = True

@@ -102,7 +102,7 @@ def yaw_add(acc, live, seq, long long next_seq,
             _pll(V_gone, n_gone)[0] = j
             n_gone += 1
     if n_gone > 1:
-        _sort_by_seq(&_pll(V_gone, 0)[0], n_gone, V_seq)
+        _sort_by_seq(<long long*>V_gone.data, n_gone, V_seq)
     for i in range(n_gone):
         tid = _pll(V_gone, i)[0]
         for k in range(7):
@@ -135,7 +135,7 @@ def yaw_live_terms(acc, live, seq,
             _pll(V_ids, n_live)[0] = j
             n_live += 1
     if n_live > 1:
-        _sort_by_seq(&_pll(V_ids, 0)[0], n_live, V_seq)
+        _sort_by_seq(<long long*>V_ids.data, n_live, V_seq)
     num_a = np.empty(n_live)
     den_a = np.empty(n_live)
     w_a = np.empty(n_live)
@@ -477,7 +477,8 @@ cdef bint _same_wrong_way_driver(list conf, _V V_ids, _V V_mi, list s, list vs,
         return False
     for i in range(len(conf)):
         tid = _pll(V_ids, i)[0]
-        if (i != j and _pll_2(V_mi, tid, M_LIVE)[0] and _pll_2(V_mi, tid, M_WRONG_EMIT)[0] and conf[i].age_frames >= _pll_2(V_mi, tid, M_AGE)[0]
+        if (i != j and _pll_2(V_mi, tid, M_LIVE)[0] and _pll_2(V_mi, tid, M_WRONG_EMIT)[0]
+                and conf[i].age_frames >= _pll_2(V_mi, tid, M_AGE)[0]
                 and fabs(<double>s[i] - sj) <= same_m and fabs(<double>vs[i] - vsj) <= same_v):
             return True
     return False

@@ -55,7 +55,8 @@ def unalias(rng, v, az, centre,
     for i in range(n):
         if not (fabsf(_pf1(V_v, i)[0]) >= min_speed and _pf1(V_rng, i)[0] <= max_range):
             continue
-        sign = 1.0 if _pf1(V_v, i)[0] > 0 else (-1.0 if _pf1(V_v, i)[0] < 0 else (0.0 if _pf1(V_v, i)[0] == 0 else _pf1(V_v, i)[0]))
+        sign = 1.0 if _pf1(V_v, i)[0] > 0 else (
+            -1.0 if _pf1(V_v, i)[0] < 0 else (0.0 if _pf1(V_v, i)[0] == 0 else _pf1(V_v, i)[0]))
         s0 = sin(<double>_pf1(V_az, i)[0])
         r = <double>_pf1(V_rng, i)[0]
         for j in range(3):
@@ -69,7 +70,7 @@ def unalias(rng, v, az, centre,
             if y2 < 0.0:
                 y2 = 0.0
             u = x * cos_yaw + sqrt(y2) * sin_yaw
-            dj_[j] = _lane_dir_p(u, &_pd1(V_centre, 0)[0], &_pd1(V_half_w, 0)[0], &_pd1(V_dirs, 0)[0], V_centre.n[0])
+            dj_[j] = _lane_dir_p(u, <double*>V_centre.data, <double*>V_half_w.data, <double*>V_dirs.data, V_centre.n[0])
         if not (dj_[0] == -sign):
             continue
         for j in range(1, 3):
@@ -122,9 +123,10 @@ def glint(rng, v, az, x, y,
     sin_arr = np.empty(n, np.float64)
     cdef double[::1] s = sin_arr
     if n and V_centre.n[0]:
-        _glint_core(&_pf1(V_rng, 0)[0], &_pf1(V_v, 0)[0], &_pf1(V_az, 0)[0], &_pf1(V_x, 0)[0], &_pf1(V_y, 0)[0], &_pu8(V_keep, 0)[0], n, &_pd1(V_centre, 0)[0], &_pd1(V_half_w, 0)[0], &_pd1(V_dirs, 0)[0],
+        _glint_core(<float*>V_rng.data, <float*>V_v.data, <float*>V_az.data, <float*>V_x.data, <float*>V_y.data,
+                    <cnp.uint8_t*>V_keep.data, n, <double*>V_centre.data, <double*>V_half_w.data, <double*>V_dirs.data,
                     V_centre.n[0], cos_yaw, sin_yaw, min_speed, margin, k_sigma, length, speed, beamwidth_sin,
-                    &_pu8(V_against, 0)[0], &s[0], &_pu8(V_out, 0)[0])
+                    <cnp.uint8_t*>V_against.data, &s[0], <cnp.uint8_t*>V_out.data)
     return out_arr
     sin_arr = np.empty(n, np.float64)
     cdef double[::1] s = sin_arr
@@ -137,7 +139,8 @@ def glint(rng, v, az, x, y,
             if not _pu8(V_keep, j)[0] or _pu8(V_against, j)[0]:
                 continue
             dr = _pf1(V_rng, i)[0] - _pf1(V_rng, j)[0]
-            if dr > 0 and dr <= length and fabsf(_pf1(V_v, i)[0] - _pf1(V_v, j)[0]) <= speed and fabs(s[i] - s[j]) <= beamwidth_sin:
+            if (dr > 0 and dr <= length and fabsf(_pf1(V_v, i)[0] - _pf1(V_v, j)[0]) <= speed
+                    and fabs(s[i] - s[j]) <= beamwidth_sin):
                 _pu8(V_out, i)[0] = 1
                 break
     return out_arr
