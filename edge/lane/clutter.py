@@ -94,6 +94,22 @@ class ClutterMap(native.KernelUser):
         # initialising it with the first frame alone would leave that frame's vehicles' images
         alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
         k = self.kernel
+        if (k is not None and power_out is not None and cfg.clutter_map_static_factor > 0 and self._prev is not None
+                and self._map_init is None and spec.flags.c_contiguous and spec.shape[0] <= 16
+                and pad <= spec.shape[-1]):
+            # the update, _hold_moving, _hold_standing, the subtraction and the channel power in one pass
+            hold = None
+            if cfg.clutter_map_hold_speed_mps > 0:
+                cells = self._standing_cells(feedback)
+                if cells:
+                    hold = np.zeros(spec.shape[1:], np.uint8)
+                    for seg, idx in cells:
+                        hold[seg, idx] = 1
+            k.update_apply_power(spec, self._background, self._prev, alpha,
+                                 np.float32(cfg.clutter_map_static_factor), np.float32(cfg.clutter_map_static_rel ** 2),
+                                 hold, power_out, pad, self._change, self._own, self._work)
+            self._map_frames += 1
+            return True
         if k is not None and cfg.clutter_map_static_factor > 0 and self._prev is not None and spec.flags.c_contiguous:
             d = self._diff  # the update and _hold_moving in one kernel (edge/native/_spectra.pyx)
             k.update_hold_moving(spec, self._background, self._prev, d, alpha,
@@ -145,22 +161,30 @@ class ClutterMap(native.KernelUser):
     def _hold_standing(self, d: np.ndarray, feedback: Feedback) -> None:
         """Zero the clutter-map update ``d`` (rx, seg, bin) in the range bins of stopped confirmed tracks
         (``clutter_map_hold_speed_mps``): a static echo at zero Doppler, beat a_k R in segment k."""
+        for k, idx in self._standing_cells(feedback):
+            d[:, k, idx] = 0
+
+    def _standing_cells(self, feedback: Feedback) -> list[tuple[int, np.ndarray]]:
+        """The (segment, bins) where :meth:`_hold_standing` holds the map: per stopped confirmed track of
+        ``feedback`` and segment k, the bins of its body's range (beat a_k R) and one more each side."""
         cfg = self.config
         tr = feedback
         if not np.count_nonzero(tr.confirmed):
-            return
+            return []
         x = tr.track_state
         stop = tr.confirmed & tr.moved & (np.hypot(x[:, 2], x[:, 3]) < cfg.clutter_map_hold_speed_mps)
         if not np.count_nonzero(stop):
-            return
+            return []
         h = cfg.mounting_height_m - cfg.target_height_m
         n = self.n_bins
+        cells = []
         for g in np.hypot(x[stop, 0], x[stop, 1]).tolist():
             r0 = math.sqrt(max(g - 3.0, 0.0) ** 2 + h * h)
             r1 = math.sqrt((g + cfg.clutter_map_hold_length_m) ** 2 + h * h)
             for k, a in enumerate(self._bins_per_m):
                 lo, hi = sorted((a * r0, a * r1))
-                d[:, k, np.arange(math.floor(lo) - 1, math.ceil(hi) + 2) % n] = 0
+                cells.append((k, np.arange(math.floor(lo) - 1, math.ceil(hi) + 2) % n))
+        return cells
 
     def static_residue(self, bins: np.ndarray, power: np.ndarray, floor: np.ndarray, ratio: float) -> np.ndarray:
         """(n,) bool: pairings whose peaks (``bins`` (n, 4 seg)) are, in every segment, no stronger in ``power``

@@ -75,7 +75,7 @@ def consensus(q_a, grid_a, outlier_a, peak_bins_obj, int shared_bins, int min_ag
     cdef float *each = <float *>malloc((ns + 1) * sizeof(float))
     cdef float *srt = <float *>malloc((ns + 1) * sizeof(float))
     cdef unsigned char *among = <unsigned char *>malloc(n + 1)
-    cdef float re, im, mx, x, med, pm, p0, pp, den, d, step, first, u
+    cdef float re, im, mx, x, med, pm, p0, pp, den, d, step, first, u, m0, m1, m2, m3, top
     cdef const float* qp
     cdef float* pp_
     cdef float* sq
@@ -103,18 +103,43 @@ def consensus(q_a, grid_a, outlier_a, peak_bins_obj, int shared_bins, int min_ag
                     re = qp[2 * t]
                     im = qp[2 * t + 1]
                     pp_[t] = re * re + im * im
-                mx = pp_[0]
-                for t in range(1, g):
-                    if pp_[t] > mx:
-                        mx = pp_[t]
+                # the largest (NaN skipped, as pp_[t] > mx does; NaN throughout when the first is), four running
+                # maxima over every fourth value: the same value
+                m0 = m1 = m2 = m3 = pp_[0]
+                t = 0
+                while t + 4 <= g:
+                    x = pp_[t]
+                    m0 = x if x > m0 else m0
+                    x = pp_[t + 1]
+                    m1 = x if x > m1 else m1
+                    x = pp_[t + 2]
+                    m2 = x if x > m2 else m2
+                    x = pp_[t + 3]
+                    m3 = x if x > m3 else m3
+                    t += 4
+                while t < g:
+                    x = pp_[t]
+                    m0 = x if x > m0 else m0
+                    t += 1
+                mx = m0
+                if m1 > mx:
+                    mx = m1
+                if m2 > mx:
+                    mx = m2
+                if m3 > mx:
+                    mx = m3
+                top = mx  # the largest power (NaN: the first is NaN)
                 if not (mx > <float>1e-30):
                     mx = <float>1e-30
                 for t in range(g):
                     pp_[t] = pp_[t] / mx
+                # the first largest normalised power (np.argmax): the division keeps the order, so the largest is
+                # top / mx, rounded as the value it came from; index 0 when the first is NaN
                 k = 0
-                for t in range(g):
-                    if pp_[t] > pp_[k]:
-                        k = t
+                if top == top:
+                    top = top / mx
+                    while k < g - 1 and pp_[k] != top:
+                        k += 1
                 each[s] = grid[k]
             # median of the looks' angles (the middle one, or the mean of the middle two)
             for s in range(ns):

@@ -9,50 +9,74 @@ cimport cython
 
 import numpy as np
 
+cimport numpy as cnp
+
+cnp.import_array()
+
+include "_views.pxi"
+
 include "_roadfilters.pxi"
 
 
 @cython.boundscheck(False)
 @cython.wraparound(False)
-def near_faces(const float[::1] rng, const float[::1] v, const float[::1] x, const unsigned char[::1] keep_in,
+def near_faces(rng, v, x, keep_in,
                float length, float speed, float lateral, float dz2):
     """``rng``, ``v``, ``x`` (n,) float32: slant range (m), radial speed (m/s), lateral position (m); ``keep_in``
     (n,) uint8: still kept. Returns ``(keep (n,) uint8, body_extent (n,) float32)``: a detection is dropped when
     another lies 0 < dr <= ``length`` nearer with |dv| <= ``speed`` and |dx| <= ``lateral``; the extent of a kept
     one is the along-road ground length to the farthest detection dropped behind it (NaN for dropped ones)."""
-    cdef Py_ssize_t n = rng.shape[0]
+    cdef _V V_rng
+    _aview(rng, cnp.NPY_FLOAT32, 1, False, True, &V_rng, "rng")
+    cdef _V V_v
+    _aview(v, cnp.NPY_FLOAT32, 1, False, True, &V_v, "v")
+    cdef _V V_x
+    _aview(x, cnp.NPY_FLOAT32, 1, False, True, &V_x, "x")
+    cdef _V V_keep_in
+    _aview(keep_in, cnp.NPY_UINT8, 1, False, True, &V_keep_in, "keep_in")
+    cdef Py_ssize_t n = V_rng.n[0]
     keep_arr = np.empty(n, np.uint8)
-    cdef unsigned char[::1] keep = keep_arr
+    cdef _V V_keep
+    _aview(keep_arr, cnp.NPY_UINT8, 1, True, True, &V_keep, "keep")
     ext_arr = np.zeros(n, np.float32)
-    cdef float[::1] ext = ext_arr
+    cdef _V V_ext
+    _aview(ext_arr, cnp.NPY_FLOAT32, 1, True, True, &V_ext, "ext")
     if n:
-        _near_faces_core(&rng[0], &v[0], &x[0], &keep_in[0], n, length, speed, lateral, dz2, &keep[0], &ext[0])
+        _near_faces_core(<float*>V_rng.data, <float*>V_v.data, <float*>V_x.data, <cnp.uint8_t*>V_keep_in.data, n,
+                         length, speed, lateral, dz2, <cnp.uint8_t*>V_keep.data, <float*>V_ext.data)
     return keep_arr, ext_arr
 
 
 
 @cython.boundscheck(False)
 @cython.wraparound(False)
-def track_extents(object tracks, const float[::1] d_range, const float[::1] d_speed, const float[::1] body,
+def track_extents(object tracks, d_range, d_speed, body,
                   double range_gate, double speed_gate):
     """Per published track (``range_m``, ``radial_speed_mps`` of each of ``tracks``) the ``body`` extent of the
     detection it follows: the nearest in range (the first of equals) within ``range_gate`` of its range and
     ``speed_gate`` of its radial speed, the differences in float64; NaN without one. The numpy form is
     ``edge.pipelines.lane.LanePipeline.track_extents`` (the same values)."""
-    cdef Py_ssize_t nt = len(tracks), nd = d_range.shape[0], i = 0, j, best
+    cdef _V V_d_range
+    _aview(d_range, cnp.NPY_FLOAT32, 1, False, True, &V_d_range, "d_range")
+    cdef _V V_d_speed
+    _aview(d_speed, cnp.NPY_FLOAT32, 1, False, True, &V_d_speed, "d_speed")
+    cdef _V V_body
+    _aview(body, cnp.NPY_FLOAT32, 1, False, True, &V_body, "body")
+    cdef Py_ssize_t nt = len(tracks), nd = V_d_range.n[0], i = 0, j, best
     cdef double tr, tv, dr, bd
     out_arr = np.empty(nt)
-    cdef double[::1] out = out_arr
+    cdef _V V_out
+    _aview(out_arr, cnp.NPY_FLOAT64, 1, True, True, &V_out, "out")
     for t in tracks:
         tr = t.range_m
         tv = t.radial_speed_mps
         best = -1
         bd = 0.0
         for j in range(nd):
-            dr = fabs(<double>d_range[j] - tr)
-            if dr <= range_gate and fabs(<double>d_speed[j] - tv) <= speed_gate and (best < 0 or dr < bd):
+            dr = fabs(<double>_pf1(V_d_range, j)[0] - tr)
+            if dr <= range_gate and fabs(<double>_pf1(V_d_speed, j)[0] - tv) <= speed_gate and (best < 0 or dr < bd):
                 best = j
                 bd = dr
-        out[i] = body[best] if best >= 0 else NAN
+        _pd1(V_out, i)[0] = _pf1(V_body, best)[0] if best >= 0 else NAN
         i += 1
     return out_arr

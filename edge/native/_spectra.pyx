@@ -11,9 +11,15 @@ static test, and the channel power, could differ in the last bit (relative 1e-7)
 """
 
 cimport cython
-from libc.string cimport memcpy
+cimport numpy as cnp
+from libc.string cimport memcpy, memset
 
 import numpy as np
+
+cnp.import_array()
+
+include "_arrays.pxi"
+include "_views.pxi"
 
 
 cdef extern from *:
@@ -32,6 +38,70 @@ cdef extern from *:
     #define KSP_MAX_RX 16
     static inline ksp_v4 ksp_load(const float *p) { ksp_v4 v; memcpy(&v, p, sizeof v); return v; }
     static inline void ksp_store(float *p, ksp_v4 v) { memcpy(p, &v, sizeof v); }
+
+    /* rows of int16 I/Q to interleaved complex64, each times the window: o = (float)i * w, (float)q * w. */
+    static void ksp_to_complex(const short *restrict ip, const short *restrict qp, const float *restrict w,
+                               float *restrict o, Py_ssize_t rows, Py_ssize_t n) {
+        for (Py_ssize_t r = 0; r < rows; r++, ip += n, qp += n, o += 2 * n) {
+            Py_ssize_t k = 0;
+            for (; k < n; k++) {
+                o[2 * k] = (float)ip[k] * w[k];
+                o[2 * k + 1] = (float)qp[k] * w[k];
+            }
+        }
+    }
+
+    /* The kth smallest of v[:n] (NaN-free, left as it is; work: n floats), Hoare's selection in place. */
+    static float ksp_hoare(float *v, Py_ssize_t n, Py_ssize_t kth) {
+        Py_ssize_t lo = 0, hi = n - 1, a, b;
+        float pivot, t;
+        while (lo < hi) {
+            pivot = v[(lo + hi) / 2];
+            a = lo;
+            b = hi;
+            while (a <= b) {
+                while (v[a] < pivot) a++;
+                while (v[b] > pivot) b--;
+                if (a <= b) {
+                    t = v[a]; v[a] = v[b]; v[b] = t;
+                    a++;
+                    b--;
+                }
+            }
+            if (kth <= b) hi = b;
+            else if (kth >= a) lo = a;
+            else break;
+        }
+        return v[kth];
+    }
+
+    /* The kth smallest of v[:n] (NaN-free; v is left as it is, work holds n floats): the value is the same whatever
+       the method. From 256 values on, two values of a sample of 64 bracket it: one pass counts the values below the
+       bracket and copies those in it, and Hoare's selection runs on these alone; when the bracket misses (about one
+       time in twenty), on a copy of all. */
+    static float ksp_select(const float *v, Py_ssize_t n, Py_ssize_t kth, float *work) {
+        Py_ssize_t k, c, nlt = 0, r, step;
+        float lo, hi, x;
+        if (n >= 256) {
+            step = n / 64;
+            for (k = 0; k < 64; k++)
+                work[k] = v[k * step + step / 2];
+            r = kth * 64 / n;
+            lo = ksp_hoare(work, 64, r >= 8 ? r - 8 : 0);
+            hi = ksp_hoare(work, 64, r + 8 <= 63 ? r + 8 : 63);
+            for (k = 0, c = 0; k < n; k++) {  /* (a branch per value: most lie outside the bracket) */
+                x = v[k];
+                if (x < lo)
+                    nlt++;
+                else if (x <= hi)
+                    work[c++] = x;
+            }
+            if (nlt <= kth && kth < nlt + c)
+                return ksp_hoare(work, c, kth - nlt);
+        }
+        memcpy(work, v, n * sizeof(float));
+        return ksp_hoare(work, n, kth);
+    }
 
     /* One segment's static test inputs: cp[k] = sum over the channels of |sp - pp|^2, op[k] = of |sp|^2, channel
        by channel from the first, real before imaginary (sp[r], pp[r]: channel r's interleaved complex bins). */
@@ -118,25 +188,113 @@ cdef extern from *:
             dp[2 * k + 1] = mk ? v1 : 0.0f;
         }
     }
+
+    /* One segment of the map's update and subtraction, channel by channel per four bins: pv = sp (the raw
+       spectra, for the next frame's static test); d = (sp - bp) * alpha, +0.0 where the mask keep[k] is 0;
+       bp = bp + d; sp = sp - bp; pp = the channel sum of the new |sp|^2 (the first channel's re^2 + im^2, then
+       pp + (re^2 + im^2)). The same element-wise expressions as ksp_masked_update, apply_map and
+       channel_power, so the same bits. */
+    static void ksp_update_apply(float *const *sp, float *const *bp, float *const *pv, int n_rx, int n,
+                                 const float *keep, float alpha, float *pp) {
+        int k = 0, r;
+        unsigned int mk;
+        ksp_v4 a = {alpha, alpha, alpha, alpha};
+    #define KSP_UPDATE_CHANNEL(r) do {                                                                   \
+            float *s = sp[r] + 2 * k, *b = bp[r] + 2 * k;                                                \
+            ksp_v4 s0 = ksp_load(s), s1 = ksp_load(s + 4), b0 = ksp_load(b), b1 = ksp_load(b + 4);       \
+            ksp_store(pv[r] + 2 * k, s0);                                                                \
+            ksp_store(pv[r] + 2 * k + 4, s1);                                                            \
+            b0 = b0 + (ksp_v4)((ksp_u4)((s0 - b0) * a) & m0);                                            \
+            b1 = b1 + (ksp_v4)((ksp_u4)((s1 - b1) * a) & m1);                                            \
+            s0 = s0 - b0;                                                                                \
+            s1 = s1 - b1;                                                                                \
+            ksp_store(b, b0);                                                                            \
+            ksp_store(b + 4, b1);                                                                        \
+            ksp_store(s, s0);                                                                            \
+            ksp_store(s + 4, s1);                                                                        \
+            re = KSP_SHUF(s0, s1, 0, 2, 4, 6);                                                           \
+            im = KSP_SHUF(s0, s1, 1, 3, 5, 7);                                                           \
+        } while (0)
+        ksp_v4 re, im, p;
+        ksp_u4 m, m0, m1;
+        if (n_rx == 4) {  /* the SIMO board's four channels, unrolled */
+            for (; k + 4 <= n; k += 4) {
+                memcpy(&m, keep + k, sizeof m);
+                m0 = KSP_SHUF(m, m, 0, 0, 1, 1);
+                m1 = KSP_SHUF(m, m, 2, 2, 3, 3);
+                KSP_UPDATE_CHANNEL(0);
+                p = re * re + im * im;
+                KSP_UPDATE_CHANNEL(1);
+                p = p + (re * re + im * im);
+                KSP_UPDATE_CHANNEL(2);
+                p = p + (re * re + im * im);
+                KSP_UPDATE_CHANNEL(3);
+                p = p + (re * re + im * im);
+                ksp_store(pp + k, p);
+            }
+        }
+        for (; k + 4 <= n; k += 4) {
+            memcpy(&m, keep + k, sizeof m);
+            m0 = KSP_SHUF(m, m, 0, 0, 1, 1);
+            m1 = KSP_SHUF(m, m, 2, 2, 3, 3);
+            KSP_UPDATE_CHANNEL(0);
+            p = re * re + im * im;
+            for (r = 1; r < n_rx; r++) {
+                KSP_UPDATE_CHANNEL(r);
+                p = p + (re * re + im * im);
+            }
+            ksp_store(pp + k, p);
+        }
+    #undef KSP_UPDATE_CHANNEL
+        for (; k < n; k++) {
+            float p = 0;
+            memcpy(&mk, keep + k, sizeof mk);
+            for (r = 0; r < n_rx; r++) {
+                float *s = sp[r] + 2 * k, *b = bp[r] + 2 * k;
+                float sr = s[0], si = s[1];
+                float v0 = (sr - b[0]) * alpha, v1 = (si - b[1]) * alpha;
+                pv[r][2 * k] = sr;
+                pv[r][2 * k + 1] = si;
+                b[0] = b[0] + (mk ? v0 : 0.0f);
+                b[1] = b[1] + (mk ? v1 : 0.0f);
+                sr = sr - b[0];
+                si = si - b[1];
+                s[0] = sr;
+                s[1] = si;
+                if (r == 0)
+                    p = sr * sr + si * si;
+                else
+                    p = p + (sr * sr + si * si);
+            }
+            pp[k] = p;
+        }
+    }
     """
     int KSP_MAX_RX
     void ksp_change_own(const float* const* sp, const float* const* pp, int n_rx, int n, float* cp,
                         float* op) noexcept nogil
     void ksp_masked_update(const float* sp, const float* bp, float* dp, const float* keep, int n,
                            float alpha) noexcept nogil
+    float ksp_select(const float* v, Py_ssize_t n, Py_ssize_t kth, float* work) noexcept nogil
+    void ksp_to_complex(const short* ip, const short* qp, const float* w, float* o, Py_ssize_t rows,
+                        Py_ssize_t n) noexcept nogil
+    void ksp_update_apply(float* const* sp, float* const* bp, float* const* pv, int n_rx, int n,
+                          const float* keep, float alpha, float* pp) noexcept nogil
 
 
-def to_complex(const short[:, :, ::1] i, const short[:, :, ::1] q, const float[::1] w,
-               float complex[:, :, ::1] out):
-    """``out = (i + 1j q) * w``: int16 I/Q (rx, seg, bin) to complex64, windowed (``w`` float32, per bin)."""
-    cdef Py_ssize_t a, b, k, n0 = i.shape[0], n1 = i.shape[1], n2 = i.shape[2]
-    cdef float* o
-    for a in range(n0):
-        for b in range(n1):
-            o = <float*>&out[a, b, 0]  # interleaved re, im
-            for k in range(n2):
-                o[2 * k] = <float>i[a, b, k] * w[k]
-                o[2 * k + 1] = <float>q[a, b, k] * w[k]
+def to_complex(i, q, w, out):
+    """``out = (i + 1j q) * w``: int16 I/Q (rx, seg, bin) to complex64, windowed (``w`` float32, per bin). The
+    arrays C-contiguous, aligned, native (read through the numpy C API)."""
+    cdef cnp.ndarray a = i
+    if not cnp.PyArray_Check(i) or cnp.PyArray_NDIM(a) != 3:
+        raise ValueError("to_complex: i must be a (rx, seg, bin) int16 array")
+    cdef Py_ssize_t n0 = cnp.PyArray_DIM(a, 0), n1 = cnp.PyArray_DIM(a, 1), n2 = cnp.PyArray_DIM(a, 2)
+    cdef const short* ip = <const short*>_data3(i, cnp.NPY_INT16, n0, n1, n2, False, "i")
+    cdef const short* qp = <const short*>_data3(q, cnp.NPY_INT16, n0, n1, n2, False, "q")
+    cdef const float* wp = <const float*>_data(w, cnp.NPY_FLOAT32, n2, False, "w")
+    cdef float* op = <float*>_data3(out, cnp.NPY_COMPLEX64, n0, n1, n2, True, "out")
+    with nogil:
+        ksp_to_complex(ip, qp, wp, op, n0 * n1, n2)
 
 
 cdef float _select(float* v, Py_ssize_t n, Py_ssize_t kth) noexcept nogil:
@@ -301,27 +459,88 @@ def apply_map_power(float complex[:, :, ::1] spec, float complex[:, :, ::1] back
             ppad[s, n + h + k] = ppad[s, h + k]
 
 
+def update_apply_power(spec, background, prev, float alpha, float factor, float rel2, hold, ppad, Py_ssize_t h,
+                       change, own, work):
+    """:func:`update_hold_moving`, the update held where ``hold`` (seg, bin) uint8 is non-zero (None: nowhere), then
+    :func:`apply_map_power`, in one pass over the cells: ``prev = spec``; ``d`` as there; ``background += d``;
+    ``spec -= background``; the channel power of the result into ``ppad`` (seg, bin + 2 ``h``) float32, circularly
+    padded. ``spec``, ``background``, ``prev`` (rx, seg, bin) complex64, C-contiguous (read through the numpy C
+    API); ``change``, ``own`` (seg, bin) and ``work`` (bin) float32 scratch."""
+    cdef cnp.ndarray a = spec
+    if not cnp.PyArray_Check(spec) or cnp.PyArray_NDIM(a) != 3:
+        raise ValueError("update_apply_power: spec must be a (rx, seg, bin) complex64 array")
+    cdef Py_ssize_t n_rx = cnp.PyArray_DIM(a, 0), n_seg = cnp.PyArray_DIM(a, 1), n = cnp.PyArray_DIM(a, 2), r, s, k
+    if n_rx > KSP_MAX_RX or h > n:
+        raise ValueError("update_apply_power: at most 16 channels and h <= bins")
+    cdef float* sp0 = <float*>_data3(spec, cnp.NPY_COMPLEX64, n_rx, n_seg, n, True, "spec")
+    cdef float* bp0 = <float*>_data3(background, cnp.NPY_COMPLEX64, n_rx, n_seg, n, True, "background")
+    cdef float* pv0 = <float*>_data3(prev, cnp.NPY_COMPLEX64, n_rx, n_seg, n, True, "prev")
+    cdef float* pp0 = <float*>_data2(ppad, cnp.NPY_FLOAT32, n_seg, n + 2 * h, True, "ppad")
+    cdef float* ch0 = <float*>_data2(change, cnp.NPY_FLOAT32, n_seg, n, True, "change")
+    cdef float* ow0 = <float*>_data2(own, cnp.NPY_FLOAT32, n_seg, n, True, "own")
+    cdef float* wk = <float*>_data(work, cnp.NPY_FLOAT32, n, True, "work")
+    cdef const unsigned char* hd = NULL
+    if hold is not None:
+        hd = <const unsigned char*>_data2(hold, cnp.NPY_UINT8, n_seg, n, False, "hold")
+    cdef float* sps[16]
+    cdef float* bps[16]
+    cdef float* pvs[16]
+    cdef float* cp
+    cdef float* op
+    cdef float* pp
+    cdef float thr
+    cdef unsigned int keep
+    with nogil:
+        for s in range(n_seg):
+            cp = ch0 + s * n
+            op = ow0 + s * n
+            for r in range(n_rx):
+                sps[r] = sp0 + 2 * (r * n_seg + s) * n
+                bps[r] = bp0 + 2 * (r * n_seg + s) * n
+                pvs[r] = pv0 + 2 * (r * n_seg + s) * n
+            ksp_change_own(<const float* const*>sps, <const float* const*>pvs, <int>n_rx, <int>n, cp, op)
+            thr = ksp_select(cp, n, n // 2, wk) * factor
+            for k in range(n):  # all bits where the cell stood still (its map learns), none where it moved
+                keep = 0 if cp[k] > thr + op[k] * rel2 else 0xFFFFFFFF
+                memcpy(&wk[k], &keep, sizeof(unsigned int))
+            if hd != NULL:  # none where it is held
+                for k in range(n):
+                    if hd[s * n + k]:
+                        memset(&wk[k], 0, sizeof(float))
+            pp = pp0 + s * (n + 2 * h)
+            ksp_update_apply(sps, bps, pvs, <int>n_rx, <int>n, wk, alpha, pp + h)
+            for k in range(h):
+                pp[k] = pp[n + k]
+                pp[n + h + k] = pp[h + k]
+
+
 from libc.math cimport sqrtf
 
 
 @cython.boundscheck(False)
 @cython.wraparound(False)
-def static_residue(const float complex[:, :, :] ref, const long long[:, :] bins, const float[:, :] power,
-                   const float[:] floor, float ratio, float noise_floors):
+def static_residue(const float complex[:, :, :] ref, bins, power,
+                   floor, float ratio, float noise_floors):
     """:meth:`edge.lane.clutter.ClutterMap.static_residue` with the map's echo ``ref`` (rx, seg, bin): per pairing
     (``bins`` (n, seg)), whether in every segment the peak's amplitude ``sqrt(power)`` is at most
     ``sqrt(ratio * echo) + sqrt(noise_floors * floor)`` and the echo (its power summed over the channels in numpy's
     order) exceeds ``floor``. float32, one rounding per operation as numpy's. Returns (n,) bool; None when a bin
     lies outside the map (the numpy form handles it)."""
-    cdef Py_ssize_t n = bins.shape[0], nseg = bins.shape[1], nrx = ref.shape[0], nb = ref.shape[2], i, k, c
+    cdef _V V_bins
+    _aview(bins, cnp.NPY_LONGLONG, 2, False, False, &V_bins, "bins")
+    cdef _V V_power
+    _aview(power, cnp.NPY_FLOAT32, 2, False, False, &V_power, "power")
+    cdef _V V_floor
+    _aview(floor, cnp.NPY_FLOAT32, 1, False, False, &V_floor, "floor")
+    cdef Py_ssize_t n = V_bins.n[0], nseg = V_bins.n[1], nrx = ref.shape[0], nb = ref.shape[2], i, k, c
     cdef long long b
     cdef float bg, re, im, bound
     cdef bint ok
-    if nseg > ref.shape[1] or nseg > power.shape[0] or nseg > floor.shape[0]:
+    if nseg > ref.shape[1] or nseg > V_power.n[0] or nseg > V_floor.n[0]:
         return None
     for i in range(n):
         for k in range(nseg):
-            if bins[i, k] < 0 or bins[i, k] >= nb or bins[i, k] >= power.shape[1]:
+            if _pll_2(V_bins, i, k)[0] < 0 or _pll_2(V_bins, i, k)[0] >= nb or _pll_2(V_bins, i, k)[0] >= V_power.n[1]:
                 return None
     out_arr = np.empty(n, dtype=bool)
     cdef unsigned char[::1] out = out_arr.view(np.uint8)
@@ -329,14 +548,14 @@ def static_residue(const float complex[:, :, :] ref, const long long[:, :] bins,
         for i in range(n):
             ok = True
             for k in range(nseg):
-                b = bins[i, k]
+                b = _pll_2(V_bins, i, k)[0]
                 bg = 0.0
                 for c in range(nrx):
                     re = ref[c, k, b].real
                     im = ref[c, k, b].imag
                     bg = bg + (re * re + im * im)
-                bound = sqrtf(ratio * bg) + sqrtf(noise_floors * floor[k])
-                if not (sqrtf(power[k, b]) <= bound and bg > floor[k]):
+                bound = sqrtf(ratio * bg) + sqrtf(noise_floors * _pf1(V_floor, k)[0])
+                if not (sqrtf(_pf2(V_power, k, b)[0]) <= bound and bg > _pf1(V_floor, k)[0]):
                     ok = False
             out[i] = ok
     return out_arr

@@ -21,6 +21,8 @@ from libc.math cimport M_PI, pow, cos, sin
 
 cnp.import_array()
 
+include "_views.pxi"
+
 
 cdef inline double _inv3(const double* a, double* out) noexcept nogil:
     """out = inv(a) (3x3 row-major) by cofactors in the order of smallmat.inv_det; returns det(a)."""
@@ -82,8 +84,8 @@ cdef cnp.ndarray _view(object flat, Py_ssize_t t, Py_ssize_t m, Py_ssize_t n, in
     return out
 
 
-def innovations_each(const double[:, :] z, const double[:, :] zh, const double[:, :, :] hph,
-                     const double[:, :, :] r_track, const double[:, :, ::1] rm, double lim, bint prune,
+def innovations_each(z, zh, hph,
+                     r_track, rm, double lim, bint prune,
                      buffers=None):
     """``v`` (T, M, n), ``d2`` (T, M), ``s``, ``s_inv`` (T, M, n, n), ``det_s`` (T, M) and the track part ``st``
     (T, n, n) of :func:`edge.track.pdaf.innovations_each` from ``z`` (M, n), ``z_hat`` (T, n), ``H P H'`` ``hph``
@@ -93,11 +95,21 @@ def innovations_each(const double[:, :] z, const double[:, :] zh, const double[:
     ``S = S^-1 = 0``, ``|S| = 1``. n = 2 or 3. ``buffers``: three writeable C-contiguous float64 vectors whose
     starts become ``v``, ``s`` and ``s_inv`` (every entry is written; :class:`edge.track.pdaf.PairBuffers`), or
     None: new arrays."""
-    cdef Py_ssize_t nt = zh.shape[0], nm = z.shape[0], n = z.shape[1]
+    cdef _V V_z
+    _aview(z, cnp.NPY_FLOAT64, 2, False, False, &V_z, "z")
+    cdef _V V_zh
+    _aview(zh, cnp.NPY_FLOAT64, 2, False, False, &V_zh, "zh")
+    cdef _V V_hph
+    _aview(hph, cnp.NPY_FLOAT64, 3, False, False, &V_hph, "hph")
+    cdef _V V_r_track
+    _aview(r_track, cnp.NPY_FLOAT64, 3, False, False, &V_r_track, "r_track")
+    cdef _V V_rm
+    _aview(rm, cnp.NPY_FLOAT64, 3, False, True, &V_rm, "rm")
+    cdef Py_ssize_t nt = V_zh.n[0], nm = V_z.n[0], n = V_z.n[1]
     cdef Py_ssize_t t, m, i, j, nn = n * n, tm
-    if not 2 <= n <= 3 or zh.shape[1] != n or hph.shape[0] != nt or r_track.shape[0] != nt or rm.shape[0] != nm \
-            or hph.shape[1] != n or hph.shape[2] != n or r_track.shape[1] != n or r_track.shape[2] != n \
-            or rm.shape[1] != n or rm.shape[2] != n:
+    if not 2 <= n <= 3 or V_zh.n[1] != n or V_hph.n[0] != nt or V_r_track.n[0] != nt or V_rm.n[0] != nm \
+            or V_hph.n[1] != n or V_hph.n[2] != n or V_r_track.n[1] != n or V_r_track.n[2] != n \
+            or V_rm.n[1] != n or V_rm.n[2] != n:
         raise ValueError("innovations_each: inconsistent shapes")
     if buffers is not None and len(buffers) != 3:
         raise ValueError("output buffer: three vectors (v, s, s_inv)")
@@ -124,8 +136,8 @@ def innovations_each(const double[:, :] z, const double[:, :] zh, const double[:
         for t in range(nt):
             for i in range(n):
                 for j in range(n):
-                    st[(t * n + i) * n + j] = 0.5 * ((hph[t, i, j] + r_track[t, i, j])
-                                                     + (hph[t, j, i] + r_track[t, j, i]))
+                    st[(t * n + i) * n + j] = 0.5 * ((_pd3(V_hph, t, i, j)[0] + _pd3(V_r_track, t, i, j)[0])
+                                                     + (_pd3(V_hph, t, j, i)[0] + _pd3(V_r_track, t, j, i)[0]))
         for t in range(nt):
             stp = &st[t * nn]
             for m in range(nm):
@@ -134,11 +146,11 @@ def innovations_each(const double[:, :] z, const double[:, :] zh, const double[:
                 sp = &s_[tm * nn]
                 sip = &si[tm * nn]
                 for i in range(n):
-                    vp[i] = z[m, i] - zh[t, i]
+                    vp[i] = _pd2(V_z, m, i)[0] - _pd2(V_zh, t, i)[0]
                 if prune:
                     far = False
                     for i in range(n):
-                        if vp[i] * vp[i] > lim * (stp[i * n + i] + rm[m, i, i]):
+                        if vp[i] * vp[i] > lim * (stp[i * n + i] + _pd3(V_rm, m, i, i)[0]):
                             far = True
                     if far:
                         d2[tm] = inf
@@ -147,7 +159,7 @@ def innovations_each(const double[:, :] z, const double[:, :] zh, const double[:
                             sp[i] = 0.0
                             sip[i] = 0.0
                         continue
-                rmp = &rm[m, 0, 0]
+                rmp = &_pd3(V_rm, m, 0, 0)[0]
                 for i in range(nn):
                     sp[i] = stp[i] + rmp[i]
                 if n == 3:
@@ -185,10 +197,10 @@ cdef inline double _max_nan(double a, double b) noexcept nogil:
     return a if a >= b else b
 
 
-def duplicate_pairs(const double[:, :] x, double merge_speed_mps, double merge_lateral_m,
-                    const double[::1] reach_m, double merge_lateral_speed_mps, const double[::1] pdx,
-                    const double[::1] pdy, double state_gamma, const long long[::1] pair,
-                    const long long[::1] det, bint resolved, const cnp.int32_t[:] close_run, long persist_frames):
+def duplicate_pairs(x, double merge_speed_mps, double merge_lateral_m,
+                    reach_m, double merge_lateral_speed_mps, pdx,
+                    pdy, double state_gamma, pair,
+                    det, bint resolved, close_run, long persist_frames):
     """The pair tests of :meth:`edge.track.roles.delete.TrackDeleter.duplicates` over all track pairs ``a < b``
     (row-major), with its arithmetic: velocities alike along the common heading (and not the two members of a
     resolved pair: ``pair``, ``det`` per track when ``resolved``); then a pair is *boxed* (within
@@ -199,10 +211,24 @@ def duplicate_pairs(const double[:, :] x, double merge_speed_mps, double merge_l
     that are duplicates ``ka``, ``kb`` (K,) int64 (lateral speeds alike, or both tracks boxed for
     ``persist_frames``), and the state-test candidates ``ra``, ``rb`` (R,) with their state differences ``rdx``
     (R, 4)."""
-    cdef Py_ssize_t nt = x.shape[0], a, b, i, nb = 0, nr = 0, nk = 0
+    cdef _V V_x
+    _aview(x, cnp.NPY_FLOAT64, 2, False, False, &V_x, "x")
+    cdef _V V_reach_m
+    _aview(reach_m, cnp.NPY_FLOAT64, 1, False, True, &V_reach_m, "reach_m")
+    cdef _V V_pdx
+    _aview(pdx, cnp.NPY_FLOAT64, 1, False, True, &V_pdx, "pdx")
+    cdef _V V_pdy
+    _aview(pdy, cnp.NPY_FLOAT64, 1, False, True, &V_pdy, "pdy")
+    cdef _V V_pair
+    _aview(pair, cnp.NPY_INT64, 1, False, True, &V_pair, "pair")
+    cdef _V V_det
+    _aview(det, cnp.NPY_INT64, 1, False, True, &V_det, "det")
+    cdef _V V_close_run
+    _aview(close_run, cnp.NPY_INT32, 1, False, False, &V_close_run, "close_run")
+    cdef Py_ssize_t nt = V_x.n[0], a, b, i, nb = 0, nr = 0, nk = 0
     cdef Py_ssize_t npairs = nt * (nt - 1) // 2 if nt > 1 else 0
-    if reach_m.shape[0] != nt or pdx.shape[0] != nt or pdy.shape[0] != nt or close_run.shape[0] != nt \
-            or x.shape[1] < 4 or (resolved and (pair.shape[0] != nt or det.shape[0] != nt)):
+    if V_reach_m.n[0] != nt or V_pdx.n[0] != nt or V_pdy.n[0] != nt or V_close_run.n[0] != nt \
+            or V_x.n[1] < 4 or (resolved and (V_pair.n[0] != nt or V_det.n[0] != nt)):
         raise ValueError("duplicate_pairs: inconsistent shapes")
     # per pair candidate: the boxed ones (a, b, keep) and the state-test ones (a, b); their differences (4)
     cdef cnp.ndarray bx_a = np.empty(5 * npairs + nt + 1, dtype=np.int64)  # scratch (freed however the call ends)
@@ -217,29 +243,32 @@ def duplicate_pairs(const double[:, :] x, double merge_speed_mps, double merge_l
         run[a] = 0
     for a in range(nt):
         for b in range(a + 1, nt):
-            s0 = x[a, 2] + x[b, 2]
-            s1 = x[a, 3] + x[b, 3]
+            s0 = _pd2(V_x, a, 2)[0] + _pd2(V_x, b, 2)[0]
+            s1 = _pd2(V_x, a, 3)[0] + _pd2(V_x, b, 3)[0]
             h = hypot(s0, s1)
             nrm = _max_nan(h, 1e-9)
             ux = s0 / nrm
             uy = s1 / nrm
-            d2_ = x[a, 2] - x[b, 2]
-            d3 = x[a, 3] - x[b, 3]
+            d2_ = _pd2(V_x, a, 2)[0] - _pd2(V_x, b, 2)[0]
+            d3 = _pd2(V_x, a, 3)[0] - _pd2(V_x, b, 3)[0]
             if not (fabs(d2_ * ux + d3 * uy) < merge_speed_mps):
                 continue
-            if resolved and pair[a] >= 0 and pair[a] == pair[b] and det[a] != det[b]:
+            if (resolved and _pi64(V_pair, a)[0] >= 0 and _pi64(V_pair, a)[0] == _pi64(V_pair, b)[0]
+                    and _pi64(V_det, a)[0] != _pi64(V_det, b)[0]):
                 continue
-            d0 = x[a, 0] - x[b, 0]
-            d1 = x[a, 1] - x[b, 1]
+            d0 = _pd2(V_x, a, 0)[0] - _pd2(V_x, b, 0)[0]
+            d1 = _pd2(V_x, a, 1)[0] - _pd2(V_x, b, 1)[0]
             keep = fabs(d2_ * uy - d3 * ux) < merge_lateral_speed_mps
-            is_boxed = (fabs(d0) < merge_lateral_m) and (fabs(d1) < _max_nan(reach_m[a], reach_m[b]))
+            is_boxed = (fabs(d0) < merge_lateral_m) and (
+                fabs(d1) < _max_nan(_pd1(V_reach_m, a)[0], _pd1(V_reach_m, b)[0]))
             if is_boxed:
                 run[a] = run[b] = 1
                 bx[3 * nb] = a
                 bx[3 * nb + 1] = b
                 bx[3 * nb + 2] = keep
                 nb += 1
-            elif keep and d0 * d0 < state_gamma * (pdx[a] + pdx[b]) and d1 * d1 < state_gamma * (pdy[a] + pdy[b]):
+            elif (keep and d0 * d0 < state_gamma * (_pd1(V_pdx, a)[0] + _pd1(V_pdx, b)[0])
+                    and d1 * d1 < state_gamma * (_pd1(V_pdy, a)[0] + _pd1(V_pdy, b)[0])):
                 rx[2 * nr] = a
                 rx[2 * nr + 1] = b
                 rd[4 * nr] = d0
@@ -251,7 +280,7 @@ def duplicate_pairs(const double[:, :] x, double merge_speed_mps, double merge_l
     cdef cnp.ndarray run_a = np.empty(nt, dtype=np.int32)
     cdef cnp.int32_t* cr = <cnp.int32_t*> cnp.PyArray_DATA(run_a)
     for a in range(nt):
-        cr[a] = <cnp.int32_t> (<cnp.uint32_t> close_run[a] + 1u) if (nb and run[a]) else 0
+        cr[a] = <cnp.int32_t> (<cnp.uint32_t> _pi32(V_close_run, a)[0] + 1u) if (nb and run[a]) else 0
     for i in range(nb):
         a, b = bx[3 * i], bx[3 * i + 1]
         if bx[3 * i + 2] or (cr[a] if cr[a] < cr[b] else cr[b]) >= persist_frames:
@@ -447,57 +476,73 @@ cdef inline double _min_nan(double a, double b) noexcept nogil:
     return a if a <= b else b
 
 
-def update_extent(const double[:, :, ::1] v, const double[:, ::1] s2_track, const double[:, :, :, ::1] s_pair,
-                  bint per_pair, const double[:, ::1] beta, const double[:, ::1] u, const double[::1] w,
-                  const double[::1] ext_var, double alpha, double max_var):
+def update_extent(v, s2_track, s_pair,
+                  bint per_pair, beta, u, w,
+                  ext_var, double alpha, double max_var):
     """:meth:`edge.track.roles.measure.MeasurementModel.update_extent` with the same arithmetic, summation order
     included (numpy's pairwise sums over the detections, sequential sums of ``S``): the new (T,) along-heading
     spread. ``s2_track`` (T, 4): the position block of the track's ``S`` (when not ``per_pair``); ``s_pair``
     (T, M, n, n): ``S`` per pair (when ``per_pair``)."""
-    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], n = v.shape[2], t, m, k
+    cdef _V V_v
+    _aview(v, cnp.NPY_FLOAT64, 3, False, True, &V_v, "v")
+    cdef _V V_s2_track
+    _aview(s2_track, cnp.NPY_FLOAT64, 2, False, True, &V_s2_track, "s2_track")
+    cdef _V V_s_pair
+    _aview(s_pair, cnp.NPY_FLOAT64, 4, False, True, &V_s_pair, "s_pair")
+    cdef _V V_beta
+    _aview(beta, cnp.NPY_FLOAT64, 2, False, True, &V_beta, "beta")
+    cdef _V V_u
+    _aview(u, cnp.NPY_FLOAT64, 2, False, True, &V_u, "u")
+    cdef _V V_w
+    _aview(w, cnp.NPY_FLOAT64, 1, False, True, &V_w, "w")
+    cdef _V V_ext_var
+    _aview(ext_var, cnp.NPY_FLOAT64, 1, False, True, &V_ext_var, "ext_var")
+    cdef Py_ssize_t nt = V_beta.n[0], nm = V_beta.n[1], n = V_v.n[2], t, m, k
     out_a = np.empty(nt)
-    cdef double[::1] out = out_a
+    cdef _V V_out
+    _aview(out_a, cnp.NPY_FLOAT64, 1, True, True, &V_out, "out")
     buf_a = np.empty(max(nm, 1))
-    cdef double[::1] buf = buf_a
+    cdef _V V_buf
+    _aview(buf_a, cnp.NPY_FLOAT64, 1, True, True, &V_buf, "buf")
     cdef double wsum, m2, den, a, b, along, sample, u0, u1
     cdef double s2[4]
     with nogil:
         for t in range(nt):
-            wsum = _pairwise_sum(&beta[t, 0], nm) if nm else 0.0
-            if not (wsum > 0.5 and w[t] >= 1.0):
-                out[t] = ext_var[t]
+            wsum = _pairwise_sum(&_pd2(V_beta, t, 0)[0], nm) if nm else 0.0
+            if not (wsum > 0.5 and _pd1(V_w, t)[0] >= 1.0):
+                _pd1(V_out, t)[0] = _pd1(V_ext_var, t)[0]
                 continue
-            u0 = u[t, 0]
-            u1 = u[t, 1]
+            u0 = _pd2(V_u, t, 0)[0]
+            u1 = _pd2(V_u, t, 1)[0]
             for m in range(nm):
-                a = v[t, m, 0] * u0 + v[t, m, 1] * u1
-                buf[m] = beta[t, m] * a * a
+                a = _pd3(V_v, t, m, 0)[0] * u0 + _pd3(V_v, t, m, 1)[0] * u1
+                _pd1(V_buf, m)[0] = _pd2(V_beta, t, m)[0] * a * a
             den = _max_nan(wsum, 1e-12)
-            m2 = _pairwise_sum(&buf[0], nm) / den
+            m2 = _pairwise_sum(<double*>V_buf.data, nm) / den
             if per_pair:
                 for k in range(4):
                     s2[k] = 0.0
                 for m in range(nm):
-                    b = beta[t, m]
-                    s2[0] = s2[0] + s_pair[t, m, 0, 0] * b
-                    s2[1] = s2[1] + s_pair[t, m, 0, 1] * b
-                    s2[2] = s2[2] + s_pair[t, m, 1, 0] * b
-                    s2[3] = s2[3] + s_pair[t, m, 1, 1] * b
+                    b = _pd2(V_beta, t, m)[0]
+                    s2[0] = s2[0] + _pd4(V_s_pair, t, m, 0, 0)[0] * b
+                    s2[1] = s2[1] + _pd4(V_s_pair, t, m, 0, 1)[0] * b
+                    s2[2] = s2[2] + _pd4(V_s_pair, t, m, 1, 0)[0] * b
+                    s2[3] = s2[3] + _pd4(V_s_pair, t, m, 1, 1)[0] * b
                 for k in range(4):
                     s2[k] = s2[k] / den
             else:
                 for k in range(4):
-                    s2[k] = s2_track[t, k]
+                    s2[k] = _pd2(V_s2_track, t, k)[0]
             along = u0 * (s2[0] * u0 + s2[1] * u1) + u1 * (s2[2] * u0 + s2[3] * u1)
-            sample = _min_nan(_max_nan(m2 - (along - ext_var[t]), 0.0), max_var)
-            out[t] = (1.0 - alpha) * ext_var[t] + alpha * sample
+            sample = _min_nan(_max_nan(m2 - (along - _pd1(V_ext_var, t)[0]), 0.0), max_var)
+            _pd1(V_out, t)[0] = (1.0 - alpha) * _pd1(V_ext_var, t)[0] + alpha * sample
     return out_a
 
 
 from libc.math cimport exp, sqrt, INFINITY
 
 
-def associate_each(const double[:, :] d2, const double[:, :] det_s, double gamma, double vol_factor,
+def associate_each(d2, det_s, double gamma, double vol_factor,
                    double norm_factor, double prob_detect, double b, bint jpda, confirmed, seniority, pair=None):
     """The association of :class:`edge.track.roles.associate.PdaAssociator` with one ``S`` per (track, detection)
     (:func:`edge.track.pdaf.association_weights` on :class:`edge.track.pdaf.InnovationsEach`), with its arithmetic
@@ -507,10 +552,14 @@ def associate_each(const double[:, :] d2, const double[:, :] det_s, double gamma
     over the validated detections, the likelihoods ``P_D N(v; 0, S) V / M_t`` and the PDAF (or, ``jpda``, cheap
     JPDA) weights with ``b = 1 - P_G P_D``. ``norm_factor`` is ``(2 pi)^(n/2)``. Returns ``beta`` (T, M), ``beta0``
     (T,), ``gated`` (T, M) bool and the gate volumes (T,)."""
-    cdef Py_ssize_t nt = d2.shape[0], nm = d2.shape[1], t, m
+    cdef _V V_d2
+    _aview(d2, cnp.NPY_FLOAT64, 2, False, False, &V_d2, "d2")
+    cdef _V V_det_s
+    _aview(det_s, cnp.NPY_FLOAT64, 2, False, False, &V_det_s, "det_s")
+    cdef Py_ssize_t nt = V_d2.n[0], nm = V_d2.n[1], t, m
     cdef cnp.ndarray conf_a, sen_a, pair_a
     cdef bint with_pairs = pair is not None
-    if det_s.shape[0] != nt or det_s.shape[1] != nm:
+    if V_det_s.n[0] != nt or V_det_s.n[1] != nm:
         raise ValueError("associate_each: d2 and det_s differ in shape")
     conf_a = confirmed if _column(confirmed, cnp.NPY_BOOL, nt) else np.ascontiguousarray(confirmed, dtype=bool)
     if cnp.PyArray_NDIM(conf_a) != 1 or cnp.PyArray_DIMS(conf_a)[0] != nt:
@@ -573,16 +622,16 @@ def associate_each(const double[:, :] d2, const double[:, :] det_s, double gamma
                 owner[m] = -INFINITY
             for t in range(nt):
                 for m in range(nm):
-                    if d2[t, m] <= gamma and rank[t] > owner[m]:
+                    if _pd2(V_d2, t, m)[0] <= gamma and rank[t] > owner[m]:
                         owner[m] = rank[t]
         for t in range(nt):
             k = 0
             for m in range(nm):
-                gated[t * nm + m] = d2[t, m] <= gamma and (
+                gated[t * nm + m] = _pd2(V_d2, t, m)[0] <= gamma and (
                     not seniority_on or conf[t * conf_s] or rank[t] >= owner[m]
                     or (with_pairs and (<const cnp.int64_t*> (pr + m * pr_s))[0] >= 0))
                 k += gated[t * nm + m]
-                root[t * nm + m] = sqrt(det_s[t, m])
+                root[t * nm + m] = sqrt(_pd2(V_det_s, t, m)[0])
                 buf[m] = root[t * nm + m] * (1.0 if gated[t * nm + m] else 0.0)
             if k > 0:
                 mean_root = _pairwise_sum(buf, nm) / <double> k
@@ -592,7 +641,7 @@ def associate_each(const double[:, :] d2, const double[:, :] det_s, double gamma
             scale = prob_detect * vol[t] / <double> (k if k > 1 else 1)
             for m in range(nm):
                 if gated[t * nm + m]:
-                    q = d2[t, m]
+                    q = _pd2(V_d2, t, m)[0]
                     q = q if q <= gamma or q != q else gamma  # np.minimum(d2, gamma)
                     beta[t * nm + m] = exp(-0.5 * q) * scale / (norm_factor * root[t * nm + m])
                 else:
@@ -652,9 +701,9 @@ cdef inline void _moment_match_row(const double* xm, const double* pm, double w0
             p[4 * i + j] = w0 * pm[4 * i + j] + w1 * pm[16 + 4 * i + j] + d[i] * d[j]
 
 
-def imm_predict(const double[:, :, :] xm, const double[:, :, :, :] pm, const double[:, :] mu,
-                const double[:, :, ::1] pi, const double[:, :, ::1] f, const double[:, :, ::1] q,
-                const double[:, :] x_far=None, double far_from_m=0.0, double far_span_m=1.0,
+def imm_predict(xm, pm, mu,
+                pi, f, q,
+                x_far=None, double far_from_m=0.0, double far_span_m=1.0,
                 double log_p_near=0.0, double log_p_far=0.0):
     """IMM mixing, mode-matched prediction and moment matching of all tracks (:func:`edge.track.imm.mix`,
     :func:`edge.track.imm.predict_modes`, :func:`edge.track.imm.moment_match`): ``xm`` (T, 2, 4), ``pm``
@@ -665,16 +714,31 @@ def imm_predict(const double[:, :, :] xm, const double[:, :, :, :] pm, const dou
     ``x_far`` (T, 4), the tracks' states: the first row of each track's switching matrix from its ground range
     instead (``ImmPredictor._far_switch``, the same operations: ``u = min(max((rho - far_from_m) / far_span_m, 0),
     1)``, ``p = exp((1 - u) log_p_near + u log_p_far)``, row ``(1 - p, p)``); the second row is ``pi[0, 1]``."""
-    cdef Py_ssize_t nt = xm.shape[0], t, i, j, k, l, mode, src
+    cdef _V V_xm
+    _aview(xm, cnp.NPY_FLOAT64, 3, False, False, &V_xm, "xm")
+    cdef _V V_pm
+    _aview(pm, cnp.NPY_FLOAT64, 4, False, False, &V_pm, "pm")
+    cdef _V V_mu
+    _aview(mu, cnp.NPY_FLOAT64, 2, False, False, &V_mu, "mu")
+    cdef _V V_pi
+    _aview(pi, cnp.NPY_FLOAT64, 3, False, True, &V_pi, "pi")
+    cdef _V V_f
+    _aview(f, cnp.NPY_FLOAT64, 3, False, True, &V_f, "f")
+    cdef _V V_q
+    _aview(q, cnp.NPY_FLOAT64, 3, False, True, &V_q, "q")
+    cdef _V V_x_far
+    if x_far is not None:
+        _aview(x_far, cnp.NPY_FLOAT64, 2, False, False, &V_x_far, "x_far")
+    cdef Py_ssize_t nt = V_xm.n[0], t, i, j, k, l, mode, src
     cdef bint far = x_far is not None
     cdef double pi_t[2][2]
     cdef double u, pk
-    if far and (x_far.shape[0] != nt or x_far.shape[1] < 2):
+    if far and (V_x_far.n[0] != nt or V_x_far.n[1] < 2):
         raise ValueError("imm_predict: x_far must be (T, 4)")
-    if xm.shape[1] != 2 or xm.shape[2] != 4 or pm.shape[0] != nt or pm.shape[1] != 2 or pm.shape[2] != 4 \
-            or pm.shape[3] != 4 or mu.shape[0] != nt or mu.shape[1] != 2 or pi.shape[1] != 2 or pi.shape[2] != 2 \
-            or (pi.shape[0] != 1 and pi.shape[0] != nt) or f.shape[0] != 2 or q.shape[0] != 2 or f.shape[1] != 4 \
-            or f.shape[2] != 4 or q.shape[1] != 4 or q.shape[2] != 4:
+    if V_xm.n[1] != 2 or V_xm.n[2] != 4 or V_pm.n[0] != nt or V_pm.n[1] != 2 or V_pm.n[2] != 4 \
+            or V_pm.n[3] != 4 or V_mu.n[0] != nt or V_mu.n[1] != 2 or V_pi.n[1] != 2 or V_pi.n[2] != 2 \
+            or (V_pi.n[0] != 1 and V_pi.n[0] != nt) or V_f.n[0] != 2 or V_q.n[0] != 2 or V_f.n[1] != 4 \
+            or V_f.n[2] != 4 or V_q.n[1] != 4 or V_q.n[2] != 4:
         raise ValueError("imm_predict: inconsistent shapes")
     cdef cnp.ndarray x_a = np.empty((nt, 4))
     cdef cnp.ndarray p_a = np.empty((nt, 4, 4))
@@ -695,61 +759,66 @@ def imm_predict(const double[:, :, :] xm, const double[:, :, :, :] pm, const dou
     cdef double acc, den
     with nogil:
         for t in range(nt):
-            src = t if pi.shape[0] > 1 else 0
+            src = t if V_pi.n[0] > 1 else 0
             if far:
-                u = _np_min(_np_max((hypot(x_far[t, 0], x_far[t, 1]) - far_from_m) / far_span_m, 0.0), 1.0)
+                u = _np_min(_np_max((hypot(_pd2(V_x_far, t, 0)[0], _pd2(V_x_far, t, 1)[0]) - far_from_m) / far_span_m,
+                                    0.0), 1.0)
                 pk = exp((1.0 - u) * log_p_near + u * log_p_far)
                 pi_t[0][0] = 1.0 - pk
                 pi_t[0][1] = pk
-                pi_t[1][0] = pi[0, 1, 0]
-                pi_t[1][1] = pi[0, 1, 1]
+                pi_t[1][0] = _pd3(V_pi, 0, 1, 0)[0]
+                pi_t[1][1] = _pd3(V_pi, 0, 1, 1)[0]
             else:
                 for i in range(2):
                     for j in range(2):
-                        pi_t[i][j] = pi[src, i, j]
+                        pi_t[i][j] = _pd3(V_pi, src, i, j)[0]
             for i in range(2):
                 for j in range(2):
-                    joint[i][j] = mu[t, i] * pi_t[i][j]
+                    joint[i][j] = _pd2(V_mu, t, i)[0] * pi_t[i][j]
             for j in range(2):
                 c[2 * t + j] = joint[0][j] + joint[1][j]
                 den = _max_nan(c[2 * t + j], 1e-300)
                 for i in range(2):
                     w[i][j] = joint[i][j] / den
             for k in range(4):
-                dvec[k] = xm[t, 0, k] - xm[t, 1, k]
+                dvec[k] = _pd3(V_xm, t, 0, k)[0] - _pd3(V_xm, t, 1, k)[0]
             for mode in range(2):
                 for k in range(4):
-                    x0[k] = w[0][mode] * xm[t, 0, k] + w[1][mode] * xm[t, 1, k]
+                    x0[k] = w[0][mode] * _pd3(V_xm, t, 0, k)[0] + w[1][mode] * _pd3(V_xm, t, 1, k)[0]
                 for k in range(4):
                     for l in range(4):
-                        p0[k][l] = (w[0][mode] * pm[t, 0, k, l] + w[1][mode] * pm[t, 1, k, l]
+                        p0[k][l] = (w[0][mode] * _pd4(V_pm, t, 0, k, l)[0] + w[1][mode] * _pd4(V_pm, t, 1, k, l)[0]
                                     + (w[0][mode] * w[1][mode]) * (dvec[k] * dvec[l]))
                 for k in range(4):
                     acc = 0.0
                     for l in range(4):
-                        acc = acc + f[mode, k, l] * x0[l]
+                        acc = acc + _pd3(V_f, mode, k, l)[0] * x0[l]
                     xpm[8 * t + 4 * mode + k] = acc
                 for k in range(4):
                     for l in range(4):
                         acc = 0.0
                         for i in range(4):
-                            acc = acc + f[mode, k, i] * p0[i][l]
+                            acc = acc + _pd3(V_f, mode, k, i)[0] * p0[i][l]
                         fp[k][l] = acc
                 for k in range(4):
                     for l in range(4):
                         acc = 0.0
                         for i in range(4):
-                            acc = acc + fp[k][i] * f[mode, l, i]
-                        ppm[32 * t + 16 * mode + 4 * k + l] = acc + q[mode, k, l]
+                            acc = acc + fp[k][i] * _pd3(V_f, mode, l, i)[0]
+                        ppm[32 * t + 16 * mode + 4 * k + l] = acc + _pd3(V_q, mode, k, l)[0]
             _moment_match_row(&xpm[8 * t], &ppm[32 * t], c[2 * t], c[2 * t + 1], &x[4 * t], &p[16 * t])
     return x_a, p_a, xpm_a, ppm_a, c_a
 
 
-def keep_model_into(double[:, :, ::1] f, double[:, :, ::1] q, double dt, double yaw, double tau, double q_across,
+def keep_model_into(f, q, double dt, double yaw, double tau, double q_across,
                     double q_along, double d3, double d2):
     """Write :func:`edge.track.imm.keep_model` ``(dt, yaw, tau, q_across, q_along)`` into ``f[0]`` and ``q[0]`` (each
     (4, 4)) with its operations; ``d3``, ``d2``: ``dt**3 / 3`` and ``dt**2 / 2`` as Python computes them."""
-    if f.shape[0] < 1 or q.shape[0] < 1 or f.shape[1] != 4 or f.shape[2] != 4 or q.shape[1] != 4 or q.shape[2] != 4:
+    cdef _V V_f
+    _aview(f, cnp.NPY_FLOAT64, 3, True, True, &V_f, "f")
+    cdef _V V_q
+    _aview(q, cnp.NPY_FLOAT64, 3, True, True, &V_q, "q")
+    if V_f.n[0] < 1 or V_q.n[0] < 1 or V_f.n[1] != 4 or V_f.n[2] != 4 or V_q.n[1] != 4 or V_q.n[2] != 4:
         raise ValueError("keep_model_into: f and q must be (k, 4, 4)")
     cdef double c = cos(yaw), s = sin(yaw)
     cdef double decay = exp(-dt / tau) if tau > 0 else 1.0
@@ -762,31 +831,31 @@ def keep_model_into(double[:, :, ::1] f, double[:, :, ::1] q, double dt, double 
     cdef int i, j
     for i in range(4):
         for j in range(4):
-            f[0, i, j] = 0.0
-    f[0, 0, 0] = 1.0
-    f[0, 0, 2] = dt
-    f[0, 1, 1] = 1.0
-    f[0, 1, 3] = dt
-    f[0, 2, 2] = p00
-    f[0, 2, 3] = p01
-    f[0, 3, 2] = p01
-    f[0, 3, 3] = p11
-    q[0, 0, 0] = d3 * a00
-    q[0, 0, 1] = d3 * a01
-    q[0, 0, 2] = d2 * a00
-    q[0, 0, 3] = d2 * a01
-    q[0, 1, 0] = d3 * a01
-    q[0, 1, 1] = d3 * a11
-    q[0, 1, 2] = d2 * a01
-    q[0, 1, 3] = d2 * a11
-    q[0, 2, 0] = d2 * a00
-    q[0, 2, 1] = d2 * a01
-    q[0, 2, 2] = d1 * a00
-    q[0, 2, 3] = d1 * a01
-    q[0, 3, 0] = d2 * a01
-    q[0, 3, 1] = d2 * a11
-    q[0, 3, 2] = d1 * a01
-    q[0, 3, 3] = d1 * a11
+            _pd3(V_f, 0, i, j)[0] = 0.0
+    _pd3(V_f, 0, 0, 0)[0] = 1.0
+    _pd3(V_f, 0, 0, 2)[0] = dt
+    _pd3(V_f, 0, 1, 1)[0] = 1.0
+    _pd3(V_f, 0, 1, 3)[0] = dt
+    _pd3(V_f, 0, 2, 2)[0] = p00
+    _pd3(V_f, 0, 2, 3)[0] = p01
+    _pd3(V_f, 0, 3, 2)[0] = p01
+    _pd3(V_f, 0, 3, 3)[0] = p11
+    _pd3(V_q, 0, 0, 0)[0] = d3 * a00
+    _pd3(V_q, 0, 0, 1)[0] = d3 * a01
+    _pd3(V_q, 0, 0, 2)[0] = d2 * a00
+    _pd3(V_q, 0, 0, 3)[0] = d2 * a01
+    _pd3(V_q, 0, 1, 0)[0] = d3 * a01
+    _pd3(V_q, 0, 1, 1)[0] = d3 * a11
+    _pd3(V_q, 0, 1, 2)[0] = d2 * a01
+    _pd3(V_q, 0, 1, 3)[0] = d2 * a11
+    _pd3(V_q, 0, 2, 0)[0] = d2 * a00
+    _pd3(V_q, 0, 2, 1)[0] = d2 * a01
+    _pd3(V_q, 0, 2, 2)[0] = d1 * a00
+    _pd3(V_q, 0, 2, 3)[0] = d1 * a01
+    _pd3(V_q, 0, 3, 0)[0] = d2 * a01
+    _pd3(V_q, 0, 3, 1)[0] = d2 * a11
+    _pd3(V_q, 0, 3, 2)[0] = d1 * a01
+    _pd3(V_q, 0, 3, 3)[0] = d1 * a11
 
 
 def moment_match(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const double[:, ::1] w):
@@ -802,26 +871,46 @@ def moment_match(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, cons
     return x_a, p_a
 
 
-def imm_mode_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const double[:, :, ::1] hm,
-                    const double[:, ::1] zhm, const double[:, :, ::1] r_track, const double[:, ::1] z,
-                    const double[:, :, ::1] r_meas, const cnp.npy_bool[:, ::1] gated, const double[:, ::1] beta,
-                    double near_factor, bint scaled, const double[::1] vol, double prob_detect, double prob_gate):
+def imm_mode_update(xs, ps, hm,
+                    zhm, r_track, z,
+                    r_meas, gated, beta,
+                    double near_factor, bint scaled, vol, double prob_detect, double prob_gate):
     """Both IMM modes' PDAF posteriors over the validated pairs and the modes' likelihoods
     (:meth:`edge.track.roles.measure.SnrNoiseModel.mode_update`, :func:`edge.track.imm.mode_likelihood_pairs`):
     rows ``(track, mode)`` of ``xs`` (2T, 4), ``ps``, ``hm``, ``zhm``; ``r_track`` (T, n, n) the track's part of
     ``R``; ``gated``, ``beta`` (T, M); with ``scaled`` a detection nearer than the mode's prediction counts
     ``near_factor`` of the position block of ``r_track``; ``vol`` (T,) the gate volumes. Returns ``xm`` (2T, 4),
     ``pm`` (2T, 4, 4) and the likelihoods (T, 2). Equal to numpy to rounding."""
-    cdef Py_ssize_t nt = gated.shape[0], nm = gated.shape[1], n = z.shape[1], t, m, k = 0, npair = 0, half, q
+    cdef _V V_xs
+    _aview(xs, cnp.NPY_FLOAT64, 2, False, True, &V_xs, "xs")
+    cdef _V V_ps
+    _aview(ps, cnp.NPY_FLOAT64, 3, False, True, &V_ps, "ps")
+    cdef _V V_hm
+    _aview(hm, cnp.NPY_FLOAT64, 3, False, True, &V_hm, "hm")
+    cdef _V V_zhm
+    _aview(zhm, cnp.NPY_FLOAT64, 2, False, True, &V_zhm, "zhm")
+    cdef _V V_r_track
+    _aview(r_track, cnp.NPY_FLOAT64, 3, False, True, &V_r_track, "r_track")
+    cdef _V V_z
+    _aview(z, cnp.NPY_FLOAT64, 2, False, True, &V_z, "z")
+    cdef _V V_r_meas
+    _aview(r_meas, cnp.NPY_FLOAT64, 3, False, True, &V_r_meas, "r_meas")
+    cdef _V V_gated
+    _aview(gated, cnp.NPY_BOOL, 2, False, True, &V_gated, "gated")
+    cdef _V V_beta
+    _aview(beta, cnp.NPY_FLOAT64, 2, False, True, &V_beta, "beta")
+    cdef _V V_vol
+    _aview(vol, cnp.NPY_FLOAT64, 1, False, True, &V_vol, "vol")
+    cdef Py_ssize_t nt = V_gated.n[0], nm = V_gated.n[1], n = V_z.n[1], t, m, k = 0, npair = 0, half, q
     cdef Py_ssize_t mode, row
     cdef long long ng
-    if not 2 <= n <= 3 or xs.shape[0] != 2 * nt or ps.shape[0] != 2 * nt or hm.shape[0] != 2 * nt \
-            or zhm.shape[0] != 2 * nt or r_track.shape[0] != nt or beta.shape[0] != nt or beta.shape[1] != nm \
-            or z.shape[0] != nm or r_meas.shape[0] != nm or vol.shape[0] != nt or hm.shape[1] != n:
+    if not 2 <= n <= 3 or V_xs.n[0] != 2 * nt or V_ps.n[0] != 2 * nt or V_hm.n[0] != 2 * nt \
+            or V_zhm.n[0] != 2 * nt or V_r_track.n[0] != nt or V_beta.n[0] != nt or V_beta.n[1] != nm \
+            or V_z.n[0] != nm or V_r_meas.n[0] != nm or V_vol.n[0] != nt or V_hm.n[1] != n:
         raise ValueError("imm_mode_update: inconsistent shapes")
     for t in range(nt):
         for m in range(nm):
-            npair += gated[t, m]
+            npair += _pu8_2(V_gated, t, m)[0]
     # the pairs' rows, detections, weights and scales in one int64 and one float64 scratch array
     cdef cnp.ndarray idx_a = np.empty(4 * npair, dtype=np.int64)
     cdef cnp.ndarray ws_a = np.empty(4 * npair)
@@ -833,17 +922,17 @@ def imm_mode_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const d
     half = npair
     for t in range(nt):
         for m in range(nm):
-            if gated[t, m]:
+            if _pu8_2(V_gated, t, m)[0]:
                 for mode in range(2):
                     q = k + mode * half
                     rows[q] = 2 * t + mode
                     cols[q] = m
-                    w[q] = beta[t, m]
+                    w[q] = _pd2(V_beta, t, m)[0]
                     sc[q] = 1.0
                     if scaled:
                         row = 2 * t + mode
-                        a0 = (z[m, 0] - zhm[row, 0]) * zhm[row, 0]
-                        a1 = (z[m, 1] - zhm[row, 1]) * zhm[row, 1]
+                        a0 = (_pd2(V_z, m, 0)[0] - _pd2(V_zhm, row, 0)[0]) * _pd2(V_zhm, row, 0)[0]
+                        a1 = (_pd2(V_z, m, 1)[0] - _pd2(V_zhm, row, 1)[0]) * _pd2(V_zhm, row, 1)[0]
                         sc[q] = near_factor if a0 + a1 < 0.0 else 1.0
                 k += 1
     # the pairs' v, S^-1 (scratch), d2 and det, then the updates (pair_update's steps, without its arrays)
@@ -866,10 +955,11 @@ def imm_mode_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const d
         raise MemoryError()
     with nogil:
         if npair:
-            _pair_rows(&ps[0, 0, 0], &hm[0, 0, 0], &zhm[0, 0], &r_track[0, 0, 0], 1, &z[0, 0], &r_meas[0, 0, 0], n,
-                       rows, cols, 2 * npair, sc, scaled, pv, d2, det, psi)
-        _update_rows(&xs[0, 0], &ps[0, 0, 0], &hm[0, 0, 0], 2 * nt, n, rows, 2 * npair, pv, psi, w, _f64(x_a),
-                     _f64(p_a))
+            _pair_rows(<double*>V_ps.data, <double*>V_hm.data, <double*>V_zhm.data, <double*>V_r_track.data, 1,
+                       <double*>V_z.data, <double*>V_r_meas.data, n, rows, cols, 2 * npair, sc, scaled, pv, d2, det,
+                       psi)
+        _update_rows(<double*>V_xs.data, <double*>V_ps.data, <double*>V_hm.data, 2 * nt, n, rows, 2 * npair, pv, psi, w,
+                     _f64(x_a), _f64(p_a))
         for q in range(2 * nt):
             dens[q] = 0.0
         for q in range(2 * npair):
@@ -879,10 +969,10 @@ def imm_mode_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const d
         for t in range(nt):
             ng = 0
             for m in range(nm):
-                ng += gated[t, m]
+                ng += _pu8_2(V_gated, t, m)[0]
             for mode in range(2):
                 lik[2 * t + mode] = (1.0 - prob_gate * prob_detect) \
-                    + prob_detect * vol[t] / <double> (ng if ng > 1 else 1) * dens[2 * t + mode]
+                    + prob_detect * _pd1(V_vol, t)[0] / <double> (ng if ng > 1 else 1) * dens[2 * t + mode]
     PyMem_Free(dens)
     return x_a, p_a, lik_a
 
@@ -890,12 +980,12 @@ def imm_mode_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const d
 from libc.math cimport log
 
 
-cdef void _lateral_rows(const double[:, :] lat0, const double[:, :, :] lat_p0, const cnp.int32_t[:] age,
-                        int seed_age, double seed_var, double dt, double q, const double[:, :] beta,
-                        const double[:] z0, const double[:] var_track, const double[:] var_meas, bint per_detection,
-                        const double[:] x_ref, const double[:] var_ref, const double[:] cusum0, const double[:, :] ref,
-                        const double[:, :, :] ref_p, double gamma, double min_fraction, double cusum_nats,
-                        double[:, ::1] x, double[:, :, ::1] p, double[::1] cusum, cnp.npy_bool[::1] off) noexcept nogil:
+cdef void _lateral_rows(_V V_lat0, _V V_lat_p0, _V V_age,
+                        int seed_age, double seed_var, double dt, double q, _V V_beta,
+                        _V V_z0, _V V_var_track, _V V_var_meas, bint per_detection,
+                        _V V_x_ref, _V V_var_ref, _V V_cusum0, _V V_ref,
+                        _V V_ref_p, double gamma, double min_fraction, double cusum_nats,
+                        _V V_x, _V V_p, _V V_cusum, _V V_off) noexcept nogil:
     """One frame of the straight-line lateral filter of every track, row by row (strided inputs): the numpy
     reference's :func:`edge.track.kalman.lateral_predict`, :func:`edge.track.kalman.lateral_log_likelihood_ratio`,
     the CUSUM, :func:`edge.track.kalman.lateral_pda_update` and :func:`edge.track.kalman.lateral_inconsistent`, with
@@ -904,20 +994,20 @@ cdef void _lateral_rows(const double[:, :] lat0, const double[:, :, :] lat_p0, c
     (T, 2), ``ref_p`` (T, 2, 2) = ``[x, vx]``; writes ``x``, ``p``, ``cusum`` and ``off`` (the line disagrees with
     the motion model: restart). Rows whose ``age`` is ``seed_age`` first get the seeded line's lateral speed
     variance ``min(p11, seed_var)`` and no covariance."""
-    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], t, m
+    cdef Py_ssize_t nt = V_beta.n[0], nm = V_beta.n[1], t, m
     cdef double q3 = q * dt ** 3 / 3.0, q2 = q * dt ** 2 / 2.0, q1 = q * dt
     cdef double p00, p01, p11, xs, vs, w, r, s_s, s_r, v_s, v_r, llr, k0, k1, dx0, dx1, d, vr0, vr1, c
     cdef double sx0, sx1, sk0, sk1, s00, s01, s10, s11
     cdef bint any_pair
     for t in range(nt):
-        p00 = lat_p0[t, 0, 0]
-        p01 = lat_p0[t, 0, 1]
-        p11 = lat_p0[t, 1, 1]
-        if age[t] == seed_age:  # seeded last frame (LateralSmoother.run's first step)
+        p00 = _pd3(V_lat_p0, t, 0, 0)[0]
+        p01 = _pd3(V_lat_p0, t, 0, 1)[0]
+        p11 = _pd3(V_lat_p0, t, 1, 1)[0]
+        if _pi32(V_age, t)[0] == seed_age:  # seeded last frame (LateralSmoother.run's first step)
             p11 = _np_min(p11, seed_var)
             p01 = 0.0
-        xs = lat0[t, 0] + dt * lat0[t, 1]
-        vs = lat0[t, 1]
+        xs = _pd2(V_lat0, t, 0)[0] + dt * _pd2(V_lat0, t, 1)[0]
+        vs = _pd2(V_lat0, t, 1)[0]
         p00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q3
         p01 = p01 + dt * p11 + q2
         p11 = p11 + q1
@@ -925,15 +1015,15 @@ cdef void _lateral_rows(const double[:, :] lat0, const double[:, :, :] lat_p0, c
         any_pair = False
         sx0 = sx1 = sk0 = sk1 = s00 = s01 = s10 = s11 = 0.0
         for m in range(nm):
-            w = beta[t, m]
+            w = _pd2(V_beta, t, m)[0]
             if not (w > 0.0):
                 continue
             any_pair = True
-            r = var_track[t] + var_meas[m] if per_detection else var_track[t]
+            r = _pd1(V_var_track, t)[0] + _pd1(V_var_meas, m)[0] if per_detection else _pd1(V_var_track, t)[0]
             s_s = p00 + r
-            s_r = var_ref[t] + r
-            v_s = z0[m] - xs
-            v_r = z0[m] - x_ref[t]
+            s_r = _pd1(V_var_ref, t)[0] + r
+            v_s = _pd1(V_z0, m)[0] - xs
+            v_r = _pd1(V_z0, m)[0] - _pd1(V_x_ref, t)[0]
             llr += w * (0.5 * (log(s_s / s_r) + v_s * v_s / s_s - v_r * v_r / s_r))
             k0 = p00 / s_s
             k1 = p01 / s_s
@@ -948,36 +1038,37 @@ cdef void _lateral_rows(const double[:, :] lat0, const double[:, :, :] lat_p0, c
             s10 += w * dx1 * dx0
             s11 += w * dx1 * dx1
         if any_pair:
-            c = cusum0[t] + llr
-            cusum[t] = c if c > 0.0 else 0.0
+            c = _pd1(V_cusum0, t)[0] + llr
+            _pd1(V_cusum, t)[0] = c if c > 0.0 else 0.0
         else:
-            cusum[t] = cusum0[t]
-        x[t, 0] = xs + sx0
-        x[t, 1] = vs + sx1
+            _pd1(V_cusum, t)[0] = _pd1(V_cusum0, t)[0]
+        _pd2(V_x, t, 0)[0] = xs + sx0
+        _pd2(V_x, t, 1)[0] = vs + sx1
         # P - k_bar P[0, :] + S - dx_bar dx_bar', symmetrised
-        p[t, 0, 0] = p00 - sk0 * p00 + s00 - sx0 * sx0
-        p[t, 1, 1] = p11 - sk1 * p01 + s11 - sx1 * sx1
+        _pd3(V_p, t, 0, 0)[0] = p00 - sk0 * p00 + s00 - sx0 * sx0
+        _pd3(V_p, t, 1, 1)[0] = p11 - sk1 * p01 + s11 - sx1 * sx1
         d = 0.5 * ((p01 - sk0 * p01 + s01 - sx0 * sx1) + (p01 - sk1 * p00 + s10 - sx1 * sx0))
-        p[t, 0, 1] = d
-        p[t, 1, 0] = d
+        _pd3(V_p, t, 0, 1)[0] = d
+        _pd3(V_p, t, 1, 0)[0] = d
         # the Hausman test against the motion model, and the CUSUM
-        vr0 = ref_p[t, 0, 0]
-        vr1 = ref_p[t, 1, 1]
-        d = _max_nan(vr0 - p[t, 0, 0], min_fraction * vr0)
-        off[t] = (x[t, 0] - ref[t, 0]) ** 2 > gamma * _max_nan(d, 1e-12)
-        d = _max_nan(vr1 - p[t, 1, 1], min_fraction * vr1)
-        off[t] = off[t] or (x[t, 1] - ref[t, 1]) ** 2 > gamma * _max_nan(d, 1e-12)
-        off[t] = off[t] or cusum[t] > cusum_nats
+        vr0 = _pd3(V_ref_p, t, 0, 0)[0]
+        vr1 = _pd3(V_ref_p, t, 1, 1)[0]
+        d = _max_nan(vr0 - _pd3(V_p, t, 0, 0)[0], min_fraction * vr0)
+        _pu8(V_off, t)[0] = (_pd2(V_x, t, 0)[0] - _pd2(V_ref, t, 0)[0]) ** 2 > gamma * _max_nan(d, 1e-12)
+        d = _max_nan(vr1 - _pd3(V_p, t, 1, 1)[0], min_fraction * vr1)
+        _pu8(V_off, t)[0] = (_pu8(V_off, t)[0]
+                             or (_pd2(V_x, t, 1)[0] - _pd2(V_ref, t, 1)[0]) ** 2 > gamma * _max_nan(d, 1e-12))
+        _pu8(V_off, t)[0] = _pu8(V_off, t)[0] or _pd1(V_cusum, t)[0] > cusum_nats
 
 
-cdef inline Py_ssize_t _argmax_row(const double[:, :] a, Py_ssize_t t) noexcept nogil:
+cdef inline Py_ssize_t _argmax_row(_V V_a, Py_ssize_t t) noexcept nogil:
     """``np.argmax(a[t])`` of a non-empty row: the first largest value, or the first NaN."""
     cdef Py_ssize_t best = 0, m
-    cdef double bv = a[t, 0], v
+    cdef double bv = _pd2(V_a, t, 0)[0], v
     if bv != bv:
         return 0
-    for m in range(1, a.shape[1]):
-        v = a[t, m]
+    for m in range(1, V_a.n[1]):
+        v = _pd2(V_a, t, m)[0]
         if v != v:
             return m
         if v > bv:
@@ -986,13 +1077,13 @@ cdef inline Py_ssize_t _argmax_row(const double[:, :] a, Py_ssize_t t) noexcept 
     return best
 
 
-def lateral_frame(const cnp.int32_t[:] age, double seed_var, const double[:, :] lat0, const double[:, :, :] lat_p0,
-                  double dt, double q, const double[:, :] beta, const double[:, :] z, const double[:, :, :] r,
-                  const double[:, :, :] rm, bint per_detection, const double[:, :] xp, const double[:, :, :] pp,
-                  const double[:] cusum0, const double[:, :] xs, const double[:, :, :] ps, double gamma,
-                  double min_fraction, double cusum_nats, bint has_hold, const double[:] manoeuvre_prob,
-                  const double[:, :] xk, const double[:, :, :] pk, double hold_prob, bint has_unresolved,
-                  const cnp.npy_bool[:] unresolved):
+def lateral_frame(age, double seed_var, lat0, lat_p0,
+                  double dt, double q, beta, z, r,
+                  rm, bint per_detection, xp, pp,
+                  cusum0, xs, ps, double gamma,
+                  double min_fraction, double cusum_nats, bint has_hold, manoeuvre_prob,
+                  xk, pk, double hold_prob, bint has_unresolved,
+                  unresolved):
     """The whole frame of :class:`edge.track.roles.post.LateralSmoother` (``run``) for every track: the seeded
     lines' (``age`` 2) lateral speed variance capped at ``seed_var``, the line step (``_lateral_rows``) on the column
     views the role passes (``z[:, 0]``, ``r[:, 0, 0]``, ``rm[:, 0, 0]``, ``xp[:, 0]``, ``pp[:, 0, 0]``; the motion model's
@@ -1001,42 +1092,80 @@ def lateral_frame(const cnp.int32_t[:] age, double seed_var, const double[:, :] 
     lane-keeping mode's ``xk``, ``pk`` lateral speed) or when its carrying detection (largest weight, > 0.5) is
     ``unresolved`` (``has_unresolved``). Returns ``lat`` (T, 2), ``lat_p`` (T, 2, 2), ``cusum`` (T,); equal to the
     role's numpy path to rounding."""
-    cdef Py_ssize_t nt = beta.shape[0], nm = beta.shape[1], t, best
+    cdef _V V_age
+    _aview(age, cnp.NPY_INT32, 1, False, False, &V_age, "age")
+    cdef _V V_lat0
+    _aview(lat0, cnp.NPY_FLOAT64, 2, False, False, &V_lat0, "lat0")
+    cdef _V V_lat_p0
+    _aview(lat_p0, cnp.NPY_FLOAT64, 3, False, False, &V_lat_p0, "lat_p0")
+    cdef _V V_beta
+    _aview(beta, cnp.NPY_FLOAT64, 2, False, False, &V_beta, "beta")
+    cdef _V V_z
+    _aview(z, cnp.NPY_FLOAT64, 2, False, False, &V_z, "z")
+    cdef _V V_r
+    _aview(r, cnp.NPY_FLOAT64, 3, False, False, &V_r, "r")
+    cdef _V V_rm
+    _aview(rm, cnp.NPY_FLOAT64, 3, False, False, &V_rm, "rm")
+    cdef _V V_xp
+    _aview(xp, cnp.NPY_FLOAT64, 2, False, False, &V_xp, "xp")
+    cdef _V V_pp
+    _aview(pp, cnp.NPY_FLOAT64, 3, False, False, &V_pp, "pp")
+    cdef _V V_cusum0
+    _aview(cusum0, cnp.NPY_FLOAT64, 1, False, False, &V_cusum0, "cusum0")
+    cdef _V V_xs
+    _aview(xs, cnp.NPY_FLOAT64, 2, False, False, &V_xs, "xs")
+    cdef _V V_ps
+    _aview(ps, cnp.NPY_FLOAT64, 3, False, False, &V_ps, "ps")
+    cdef _V V_manoeuvre_prob
+    _aview(manoeuvre_prob, cnp.NPY_FLOAT64, 1, False, False, &V_manoeuvre_prob, "manoeuvre_prob")
+    cdef _V V_xk
+    _aview(xk, cnp.NPY_FLOAT64, 2, False, False, &V_xk, "xk")
+    cdef _V V_pk
+    _aview(pk, cnp.NPY_FLOAT64, 3, False, False, &V_pk, "pk")
+    cdef _V V_unresolved
+    _aview(unresolved, cnp.NPY_BOOL, 1, False, False, &V_unresolved, "unresolved")
+    cdef Py_ssize_t nt = V_beta.n[0], nm = V_beta.n[1], t, best
     lat_a = np.empty((nt, 2))
     lat_p_a = np.empty((nt, 2, 2))
     cusum_a = np.empty(nt)
     off_a = np.empty(nt, dtype=bool)
-    cdef double[:, ::1] x = lat_a
-    cdef double[:, :, ::1] p = lat_p_a
-    cdef double[::1] cusum = cusum_a
-    cdef cnp.npy_bool[::1] off = off_a
+    cdef _V V_x
+    _aview(lat_a, cnp.NPY_FLOAT64, 2, True, True, &V_x, "x")
+    cdef _V V_p
+    _aview(lat_p_a, cnp.NPY_FLOAT64, 3, True, True, &V_p, "p")
+    cdef _V V_cusum
+    _aview(cusum_a, cnp.NPY_FLOAT64, 1, True, True, &V_cusum, "cusum")
+    cdef _V V_off
+    _aview(off_a, cnp.NPY_BOOL, 1, True, True, &V_off, "off")
     cdef bint o, h
     has_unresolved = has_unresolved and nm > 0
+    # the column views z[:, 0], r[:, 0, 0], rm[:, 0, 0], xp[:, 0], pp[:, 0, 0], xs[:, ::2], ps[:, ::2, ::2]
+    cdef _V zc = _sub(V_z, 1, 1), rc = _sub(V_r, 1, 1), rmc = _sub(V_rm, 1, 1), xpc = _sub(V_xp, 1, 1)
+    cdef _V ppc = _sub(V_pp, 1, 1), xs2 = _sub(V_xs, 0, 2), ps2 = _sub(V_ps, 0, 2)
     with nogil:
-        _lateral_rows(lat0, lat_p0, age, 2, seed_var, dt, q, beta, z[:, 0], r[:, 0, 0],
-                      rm[:, 0, 0], per_detection, xp[:, 0], pp[:, 0, 0], cusum0,
-                      xs[:, ::2], ps[:, ::2, ::2], gamma, min_fraction, cusum_nats, x, p, cusum, off)
+        _lateral_rows(V_lat0, V_lat_p0, V_age, 2, seed_var, dt, q, V_beta, zc, rc, rmc, per_detection, xpc, ppc,
+                      V_cusum0, xs2, ps2, gamma, min_fraction, cusum_nats, V_x, V_p, V_cusum, V_off)
         for t in range(nt):
-            o = off[t]
-            h = has_hold and manoeuvre_prob[t] > hold_prob
+            o = _pu8(V_off, t)[0]
+            h = has_hold and _pd1(V_manoeuvre_prob, t)[0] > hold_prob
             o = o or h
             if has_unresolved and not o:
-                best = _argmax_row(beta, t)
-                o = unresolved[best] and beta[t, best] > 0.5
+                best = _argmax_row(V_beta, t)
+                o = _pu8(V_unresolved, best)[0] and _pd2(V_beta, t, best)[0] > 0.5
             if not o:
                 continue
-            x[t, 0] = xs[t, 0]
-            x[t, 1] = xs[t, 2]
-            p[t, 0, 0] = ps[t, 0, 0]
-            p[t, 0, 1] = ps[t, 0, 2]
-            p[t, 1, 0] = ps[t, 2, 0]
-            p[t, 1, 1] = ps[t, 2, 2]
-            cusum[t] = 0.0
+            _pd2(V_x, t, 0)[0] = _pd2(V_xs, t, 0)[0]
+            _pd2(V_x, t, 1)[0] = _pd2(V_xs, t, 2)[0]
+            _pd3(V_p, t, 0, 0)[0] = _pd3(V_ps, t, 0, 0)[0]
+            _pd3(V_p, t, 0, 1)[0] = _pd3(V_ps, t, 0, 2)[0]
+            _pd3(V_p, t, 1, 0)[0] = _pd3(V_ps, t, 2, 0)[0]
+            _pd3(V_p, t, 1, 1)[0] = _pd3(V_ps, t, 2, 2)[0]
+            _pd1(V_cusum, t)[0] = 0.0
             if h:
-                x[t, 1] = xk[t, 2]
-                p[t, 1, 1] = pk[t, 2, 2]
-                p[t, 0, 1] = pk[t, 0, 2]
-                p[t, 1, 0] = pk[t, 0, 2]
+                _pd2(V_x, t, 1)[0] = _pd2(V_xk, t, 2)[0]
+                _pd3(V_p, t, 1, 1)[0] = _pd3(V_pk, t, 2, 2)[0]
+                _pd3(V_p, t, 0, 1)[0] = _pd3(V_pk, t, 0, 2)[0]
+                _pd3(V_p, t, 1, 0)[0] = _pd3(V_pk, t, 0, 2)[0]
     return lat_a, lat_p_a, cusum_a
 
 
@@ -1154,96 +1283,110 @@ cdef inline double _np_min(double a, double b) noexcept nogil:
     return a if (a <= b or a != a) else b
 
 
-def measure_predict(const double[:, :] xp, Py_ssize_t t, bint with_rs, const double[:] ext_var, double rs_var):
+def measure_predict(xp, Py_ssize_t t, bint with_rs, ext_var, double rs_var):
     """:meth:`edge.track.roles.measure.MeasurementModel.predict`'s numbers without the sensor noise (the SNR noise
     model), in one call: ``z_hat`` (N, n) and ``H`` (N, n, 4) of every row of ``xp`` (N, 4) (``kalman.
     measurement_prediction``), and for its first ``t`` rows the heading ``u`` (t, 2) and weight ``w`` (t,)
     (``measure.heading``) and the track's part of ``R`` (t, n, n): the extent ``ext_var`` along the heading
     (``measure.extent_cov``) and the radial-speed variance ``rs_var``. The same elementwise operations as the numpy
     reference: bit-identical."""
-    cdef Py_ssize_t nrow = xp.shape[0], i
+    cdef _V V_xp
+    _aview(xp, cnp.NPY_FLOAT64, 2, False, False, &V_xp, "xp")
+    cdef _V V_ext_var
+    _aview(ext_var, cnp.NPY_FLOAT64, 1, False, False, &V_ext_var, "ext_var")
+    cdef Py_ssize_t nrow = V_xp.n[0], i
     cdef int n = 3 if with_rs else 2
     zh_arr = np.empty((nrow, n))
     h_arr = np.zeros((nrow, n, 4))
     r_arr = np.zeros((t, n, n))
     u_arr = np.empty((t, 2))
     w_arr = np.empty(t)
-    cdef double[:, ::1] zh = zh_arr
-    cdef double[:, :, ::1] h = h_arr
-    cdef double[:, :, ::1] r = r_arr
-    cdef double[:, ::1] u = u_arr
-    cdef double[::1] w = w_arr
+    cdef _V V_zh
+    _aview(zh_arr, cnp.NPY_FLOAT64, 2, True, True, &V_zh, "zh")
+    cdef _V V_h
+    _aview(h_arr, cnp.NPY_FLOAT64, 3, True, True, &V_h, "h")
+    cdef _V V_r
+    _aview(r_arr, cnp.NPY_FLOAT64, 3, True, True, &V_r, "r")
+    cdef _V V_u
+    _aview(u_arr, cnp.NPY_FLOAT64, 2, True, True, &V_u, "u")
+    cdef _V V_w
+    _aview(w_arr, cnp.NPY_FLOAT64, 1, True, True, &V_w, "w")
     cdef double x, y, vx, vy, rho, vr, sp, d, u0, u1, wi, e
     for i in range(nrow):
-        x, y, vx, vy = xp[i, 0], xp[i, 1], xp[i, 2], xp[i, 3]
-        h[i, 0, 0] = 1.0
-        h[i, 1, 1] = 1.0
-        zh[i, 0] = x
-        zh[i, 1] = y
+        x, y, vx, vy = _pd2(V_xp, i, 0)[0], _pd2(V_xp, i, 1)[0], _pd2(V_xp, i, 2)[0], _pd2(V_xp, i, 3)[0]
+        _pd3(V_h, i, 0, 0)[0] = 1.0
+        _pd3(V_h, i, 1, 1)[0] = 1.0
+        _pd2(V_zh, i, 0)[0] = x
+        _pd2(V_zh, i, 1)[0] = y
         if with_rs:
             rho = hypot(x, y)
             rho = rho if (rho >= 1e-3 or rho != rho) else 1e-3
             vr = (x * vx + y * vy) / rho
-            zh[i, 2] = vr
-            h[i, 2, 0] = (vx - vr * x / rho) / rho
-            h[i, 2, 1] = (vy - vr * y / rho) / rho
-            h[i, 2, 2] = x / rho
-            h[i, 2, 3] = y / rho
+            _pd2(V_zh, i, 2)[0] = vr
+            _pd3(V_h, i, 2, 0)[0] = (vx - vr * x / rho) / rho
+            _pd3(V_h, i, 2, 1)[0] = (vy - vr * y / rho) / rho
+            _pd3(V_h, i, 2, 2)[0] = x / rho
+            _pd3(V_h, i, 2, 3)[0] = y / rho
     for i in range(t):
-        x, y, vx, vy = xp[i, 0], xp[i, 1], xp[i, 2], xp[i, 3]
+        x, y, vx, vy = _pd2(V_xp, i, 0)[0], _pd2(V_xp, i, 1)[0], _pd2(V_xp, i, 2)[0], _pd2(V_xp, i, 3)[0]
         sp = hypot(vx, vy)
         d = sp if (sp >= 1e-9 or sp != sp) else 1e-9
         u0 = vx / d
         u1 = vy / d
         wi = sp if (sp >= 0.0 or sp != sp) else 0.0
         wi = wi if (wi <= 1.0 or wi != wi) else 1.0
-        u[i, 0] = u0
-        u[i, 1] = u1
-        w[i] = wi
-        e = ext_var[i]
-        r[i, 0, 0] = 0.0 + e * (wi * (u0 * u0) + 1.0 * (1.0 - wi))
-        r[i, 0, 1] = 0.0 + e * (wi * (u0 * u1) + 0.0 * (1.0 - wi))
-        r[i, 1, 0] = 0.0 + e * (wi * (u1 * u0) + 0.0 * (1.0 - wi))
-        r[i, 1, 1] = 0.0 + e * (wi * (u1 * u1) + 1.0 * (1.0 - wi))
+        _pd2(V_u, i, 0)[0] = u0
+        _pd2(V_u, i, 1)[0] = u1
+        _pd1(V_w, i)[0] = wi
+        e = _pd1(V_ext_var, i)[0]
+        _pd3(V_r, i, 0, 0)[0] = 0.0 + e * (wi * (u0 * u0) + 1.0 * (1.0 - wi))
+        _pd3(V_r, i, 0, 1)[0] = 0.0 + e * (wi * (u0 * u1) + 0.0 * (1.0 - wi))
+        _pd3(V_r, i, 1, 0)[0] = 0.0 + e * (wi * (u1 * u0) + 0.0 * (1.0 - wi))
+        _pd3(V_r, i, 1, 1)[0] = 0.0 + e * (wi * (u1 * u1) + 1.0 * (1.0 - wi))
         if with_rs:
-            r[i, 2, 2] = rs_var
+            _pd3(V_r, i, 2, 2)[0] = rs_var
     return zh_arr, h_arr, r_arr, u_arr, w_arr
 
 
 from libc.math cimport pow
 
 
-def snr_noise(const double[:, :] z, const double[:] snr_db, double lo_db, double hi_db, double range_var0,
+def snr_noise(z, snr_db, double lo_db, double hi_db, double range_var0,
               double range_floor_var, double az_var0, double az_floor_var, double floor_var, int n):
     """``(M, n, n)`` sensor noise of each detection from its SNR (:func:`edge.track.kalman.snr_polar_noise` in the
     first two rows and columns, zeros elsewhere; the arguments are its sigmas squared): the same elementwise
     operations as numpy, bit-identical."""
-    cdef Py_ssize_t m = z.shape[0], i
+    cdef _V V_z
+    _aview(z, cnp.NPY_FLOAT64, 2, False, False, &V_z, "z")
+    cdef _V V_snr_db
+    _aview(snr_db, cnp.NPY_FLOAT64, 1, False, False, &V_snr_db, "snr_db")
+    cdef Py_ssize_t m = V_z.n[0], i
     out_arr = np.zeros((m, n, n))
-    cdef double[:, :, ::1] out = out_arr
+    cdef _V V_out
+    _aview(out_arr, cnp.NPY_FLOAT64, 3, True, True, &V_out, "out")
     cdef double v, snr, var_r, var_az, r, rs, s, c, rr2
     for i in range(m):
-        v = snr_db[i]
+        v = _pd1(V_snr_db, i)[0]
         v = v if (v >= lo_db or v != v) else lo_db
         v = v if (v <= hi_db or v != v) else hi_db
         snr = pow(10.0, v / 10.0)
         var_r = range_var0 / snr + range_floor_var
         var_az = az_var0 / snr + az_floor_var
-        r = hypot(z[i, 0], z[i, 1])
+        r = hypot(_pd2(V_z, i, 0)[0], _pd2(V_z, i, 1)[0])
         rs = r if (r >= 1e-6 or r != r) else 1e-6
-        s = z[i, 0] / rs
-        c = z[i, 1] / rs
+        s = _pd2(V_z, i, 0)[0] / rs
+        c = _pd2(V_z, i, 1)[0] / rs
         rr2 = r * r * var_az
-        out[i, 0, 0] = s * s * var_r + c * c * rr2 + floor_var
-        out[i, 1, 1] = c * c * var_r + s * s * rr2 + floor_var
-        out[i, 0, 1] = s * c * (var_r - rr2)
-        out[i, 1, 0] = out[i, 0, 1]
+        _pd3(V_out, i, 0, 0)[0] = s * s * var_r + c * c * rr2 + floor_var
+        _pd3(V_out, i, 1, 1)[0] = c * c * var_r + s * s * rr2 + floor_var
+        _pd3(V_out, i, 0, 1)[0] = s * c * (var_r - rr2)
+        _pd3(V_out, i, 1, 0)[0] = _pd3(V_out, i, 0, 1)[0]
     return out_arr
 
 
-def moving_expired(const double[:, :] x, const double[:, :, :] p, const cnp.uint32_t[:] history,
-                   const cnp.int32_t[:] age, const cnp.int32_t[:] misses, const cnp.uint8_t[:] confirmed,
-                   cnp.uint8_t[:] moved, const double[:] score, double moving_gamma, double min_speed_mps,
+def moving_expired(x, p, history,
+                   age, misses, confirmed,
+                   moved, score, double moving_gamma, double min_speed_mps,
                    bint by_score, cnp.uint32_t mask_n, int confirm_m, int confirm_n, double score_drop,
                    double keep_from_m, int keep_min_hits):
     """The confirmer's per-frame flags in one pass (:class:`edge.track.roles.confirm.Confirmer`): ``moved`` |= the
@@ -1251,28 +1394,47 @@ def moving_expired(const double[:, :] x, const double[:, :, :] p, const cnp.uint
     can no longer confirm (``tentative_expired``; ``by_score``: Wald's lower threshold, else M of N with the far
     tracks' ``keep_*`` rule), returned as uint8 ``(T,)``. The same operations as numpy (``smallmat.inv_quad2``):
     bit-identical."""
-    cdef Py_ssize_t t = x.shape[0], i
+    cdef _V V_x
+    _aview(x, cnp.NPY_FLOAT64, 2, False, False, &V_x, "x")
+    cdef _V V_p
+    _aview(p, cnp.NPY_FLOAT64, 3, False, False, &V_p, "p")
+    cdef _V V_history
+    _aview(history, cnp.NPY_UINT32, 1, False, False, &V_history, "history")
+    cdef _V V_age
+    _aview(age, cnp.NPY_INT32, 1, False, False, &V_age, "age")
+    cdef _V V_misses
+    _aview(misses, cnp.NPY_INT32, 1, False, False, &V_misses, "misses")
+    cdef _V V_confirmed
+    _aview(confirmed, cnp.NPY_UINT8, 1, False, False, &V_confirmed, "confirmed")
+    cdef _V V_moved
+    _aview(moved, cnp.NPY_UINT8, 1, True, False, &V_moved, "moved")
+    cdef _V V_score
+    _aview(score, cnp.NPY_FLOAT64, 1, False, False, &V_score, "score")
+    cdef Py_ssize_t t = V_x.n[0], i
     out_arr = np.zeros(t, np.uint8)
-    cdef cnp.uint8_t[::1] out = out_arr
+    cdef _V V_out
+    _aview(out_arr, cnp.NPY_UINT8, 1, True, True, &V_out, "out")
     cdef double v0, v1, num, d2v
     cdef int counts
     cdef bint e
     for i in range(t):
-        v0, v1 = x[i, 2], x[i, 3]
-        num = (p[i, 3, 3] * v0 * v0 - (p[i, 2, 3] + p[i, 3, 2]) * v0 * v1) + p[i, 2, 2] * v1 * v1
-        d2v = num / (p[i, 2, 2] * p[i, 3, 3] - p[i, 2, 3] * p[i, 3, 2])
+        v0, v1 = _pd2(V_x, i, 2)[0], _pd2(V_x, i, 3)[0]
+        num = ((_pd3(V_p, i, 3, 3)[0] * v0 * v0 - (_pd3(V_p, i, 2, 3)[0] + _pd3(V_p, i, 3, 2)[0]) * v0 * v1)
+               + _pd3(V_p, i, 2, 2)[0] * v1 * v1)
+        d2v = num / (_pd3(V_p, i, 2, 2)[0] * _pd3(V_p, i, 3, 3)[0] - _pd3(V_p, i, 2, 3)[0] * _pd3(V_p, i, 3, 2)[0])
         if d2v > moving_gamma and hypot(v0, v1) >= min_speed_mps:
-            moved[i] = 1
-        if confirmed[i]:
+            _pu8(V_moved, i)[0] = 1
+        if _pu8(V_confirmed, i)[0]:
             continue
         if by_score:
-            e = score[i] <= score_drop
+            e = _pd1(V_score, i)[0] <= score_drop
         else:
-            counts = _popcount32(history[i] & mask_n)
-            e = age[i] >= confirm_n and counts < confirm_m and misses[i] > 0
-            if e and keep_from_m > 0.0 and hypot(x[i, 0], x[i, 1]) > keep_from_m and not counts < keep_min_hits:
+            counts = _popcount32(_pu32(V_history, i)[0] & mask_n)
+            e = _pi32(V_age, i)[0] >= confirm_n and counts < confirm_m and _pi32(V_misses, i)[0] > 0
+            if (e and keep_from_m > 0.0 and hypot(_pd2(V_x, i, 0)[0], _pd2(V_x, i, 1)[0]) > keep_from_m
+                    and not counts < keep_min_hits):
                 e = False
-        out[i] = e
+        _pu8(V_out, i)[0] = e
     return out_arr
 
 
@@ -1300,31 +1462,40 @@ def claimed_any(const double[:, :, ::1] v, const double[:, :, ::1] s, double gam
     return out_a
 
 
-def claimed_any_polar(const double[:, :, ::1] v, const double[:, :, ::1] s_track, const double[:, :, ::1] rr,
+def claimed_any_polar(v, s_track, rr,
                       double floor_var, double gamma):
     """:func:`claimed_any` with ``S = s_track`` plus the converted polar noise ``rr`` (T, 2, 2) on its position block
     and ``floor_var`` on that block's diagonal: the ``S`` of ``MeasurementModel.with_sensor`` (``s_track.copy()``,
     then ``+= rr`` after ``rr``'s diagonal ``+= floor_var``), the same sums."""
-    cdef Py_ssize_t nt = v.shape[0], nm = v.shape[1], n = v.shape[2], t, i, k
+    cdef _V V_v
+    _aview(v, cnp.NPY_FLOAT64, 3, False, True, &V_v, "v")
+    cdef _V V_s_track
+    _aview(s_track, cnp.NPY_FLOAT64, 3, False, True, &V_s_track, "s_track")
+    cdef _V V_rr
+    _aview(rr, cnp.NPY_FLOAT64, 3, False, True, &V_rr, "rr")
+    cdef Py_ssize_t nt = V_v.n[0], nm = V_v.n[1], n = V_v.n[2], t, i, k
     out_a = np.zeros(nm, dtype=np.uint8)
-    cdef cnp.uint8_t[::1] out = out_a
+    cdef _V V_out
+    _aview(out_a, cnp.NPY_UINT8, 1, True, True, &V_out, "out")
     if n != 2 and n != 3:
         raise ValueError("claimed_any_polar: n must be 2 or 3")
-    if s_track.shape[0] != nt or s_track.shape[1] != n or s_track.shape[2] != n:
+    if V_s_track.n[0] != nt or V_s_track.n[1] != n or V_s_track.n[2] != n:
         raise ValueError("claimed_any_polar: s_track must be (T, n, n) with v's T and n")
-    if rr.shape[0] != nt or rr.shape[1] != 2 or rr.shape[2] != 2:
+    if V_rr.n[0] != nt or V_rr.n[1] != 2 or V_rr.n[2] != 2:
         raise ValueError("claimed_any_polar: rr must be (T, 2, 2)")
     s_a = np.empty((nt, n, n))
-    cdef double[:, :, ::1] s = s_a
+    cdef _V V_s
+    _aview(s_a, cnp.NPY_FLOAT64, 3, True, True, &V_s, "s")
     for t in range(nt):
         for i in range(n):
             for k in range(n):
                 if i < 2 and k < 2:
-                    s[t, i, k] = s_track[t, i, k] + ((rr[t, i, k] + floor_var) if i == k else rr[t, i, k])
+                    _pd3(V_s, t, i, k)[0] = _pd3(V_s_track, t, i, k)[0] + (
+                        (_pd3(V_rr, t, i, k)[0] + floor_var) if i == k else _pd3(V_rr, t, i, k)[0])
                 else:
-                    s[t, i, k] = s_track[t, i, k]
+                    _pd3(V_s, t, i, k)[0] = _pd3(V_s_track, t, i, k)[0]
     if nt:
-        _claimed(v, &s[0, 0, 0], gamma, &out[0] if nm else NULL)
+        _claimed(v, <double*>V_s.data, gamma, <cnp.uint8_t*>V_out.data if nm else NULL)
     return out_a
 
 
@@ -1352,111 +1523,147 @@ cdef void _claimed(const double[:, :, ::1] v, const double* s, double gamma, cnp
                 out[m] = 1
 
 
-def polar_jacobian(const double[:, :] xy, double var_r, double var_az):
+def polar_jacobian(xy, double var_r, double var_az):
     """``kalman.polar_position_noise``'s factors at the ground points ``xy`` (T, >= 2; columns x, y): the Jacobian
     ``j`` (T, 2, 2) and ``jd = j * [var_r, var_az]`` (each column scaled), the same operations (``jd @ j'`` is the
     noise before its floor; that product stays numpy's). Returns ``(jd, j)``."""
-    cdef Py_ssize_t nt = xy.shape[0], t
-    if xy.shape[1] < 2:
+    cdef _V V_xy
+    _aview(xy, cnp.NPY_FLOAT64, 2, False, False, &V_xy, "xy")
+    cdef Py_ssize_t nt = V_xy.n[0], t
+    if V_xy.n[1] < 2:
         raise ValueError("polar_jacobian: xy needs the columns x, y")
     j_a = np.empty((nt, 2, 2))
     jd_a = np.empty((nt, 2, 2))
-    cdef double[:, :, ::1] j = j_a, jd = jd_a
+    cdef _V V_j
+    _aview(j_a, cnp.NPY_FLOAT64, 3, True, True, &V_j, "j")
+    cdef _V V_jd
+    _aview(jd_a, cnp.NPY_FLOAT64, 3, True, True, &V_jd, "jd")
     cdef double r, rs, sn, cs
     with nogil:
         for t in range(nt):
-            r = hypot(xy[t, 0], xy[t, 1])
+            r = hypot(_pd2(V_xy, t, 0)[0], _pd2(V_xy, t, 1)[0])
             rs = _np_max(r, 1e-6)
-            sn = xy[t, 0] / rs
-            cs = xy[t, 1] / rs
-            j[t, 0, 0] = sn
-            j[t, 0, 1] = r * cs
-            j[t, 1, 0] = cs
-            j[t, 1, 1] = (-r) * sn
-            jd[t, 0, 0] = j[t, 0, 0] * var_r
-            jd[t, 0, 1] = j[t, 0, 1] * var_az
-            jd[t, 1, 0] = j[t, 1, 0] * var_r
-            jd[t, 1, 1] = j[t, 1, 1] * var_az
+            sn = _pd2(V_xy, t, 0)[0] / rs
+            cs = _pd2(V_xy, t, 1)[0] / rs
+            _pd3(V_j, t, 0, 0)[0] = sn
+            _pd3(V_j, t, 0, 1)[0] = r * cs
+            _pd3(V_j, t, 1, 0)[0] = cs
+            _pd3(V_j, t, 1, 1)[0] = (-r) * sn
+            _pd3(V_jd, t, 0, 0)[0] = _pd3(V_j, t, 0, 0)[0] * var_r
+            _pd3(V_jd, t, 0, 1)[0] = _pd3(V_j, t, 0, 1)[0] * var_az
+            _pd3(V_jd, t, 1, 0)[0] = _pd3(V_j, t, 1, 0)[0] * var_r
+            _pd3(V_jd, t, 1, 1)[0] = _pd3(V_j, t, 1, 1)[0] * var_az
     return jd_a, j_a
 
 
-def imm_seeded(double[:, :] mu, double[:, :, :, :] pm, double[:, :, :] p, Py_ssize_t k, double w,
+def imm_seeded(mu, pm, p, Py_ssize_t k, double w,
                bint with_speed, double cy, double sy, double var_k, double speed_var,
-               const double[:] speed_vars=None):
+               speed_vars=None):
     """:meth:`edge.track.roles.predict.ImmPredictor.seeded` in place on the table's last ``k`` rows: the mode
     probabilities ``(w, 1 - w)``; ``with_speed``: the lane-keeping mode's covariance with the road's speed variances
     (``cy``, ``sy`` the road yaw's cosine and sine, ``var_k`` across, the seeds' ``speed_var`` along, or per seed
     ``speed_vars`` (k,)) and the combined ``P = w P_keep + (1 - w) P``. The same operations as numpy."""
-    cdef Py_ssize_t nt = mu.shape[0], r, i, j
+    cdef _V V_mu
+    _aview(mu, cnp.NPY_FLOAT64, 2, True, False, &V_mu, "mu")
+    cdef _V V_pm
+    _aview(pm, cnp.NPY_FLOAT64, 4, True, False, &V_pm, "pm")
+    cdef _V V_p
+    _aview(p, cnp.NPY_FLOAT64, 3, True, False, &V_p, "p")
+    cdef _V V_speed_vars
+    if speed_vars is not None:
+        _aview(speed_vars, cnp.NPY_FLOAT64, 1, False, False, &V_speed_vars, "speed_vars")
+    cdef Py_ssize_t nt = V_mu.n[0], r, i, j
     cdef double sv, pk[16]
-    if k < 0 or k > nt or pm.shape[0] != nt or p.shape[0] != nt or mu.shape[1] != 2 or pm.shape[1] != 2 \
-            or pm.shape[2] != 4 or pm.shape[3] != 4 or p.shape[1] != 4 or p.shape[2] != 4 \
-            or (speed_vars is not None and speed_vars.shape[0] != k):
+    if k < 0 or k > nt or V_pm.n[0] != nt or V_p.n[0] != nt or V_mu.n[1] != 2 or V_pm.n[1] != 2 \
+            or V_pm.n[2] != 4 or V_pm.n[3] != 4 or V_p.n[1] != 4 or V_p.n[2] != 4 \
+            or (speed_vars is not None and V_speed_vars.n[0] != k):
         raise ValueError("imm_seeded: inconsistent shapes")
     for r in range(nt - k, nt):
-        mu[r, 0] = w
-        mu[r, 1] = 1.0 - w
+        _pd2(V_mu, r, 0)[0] = w
+        _pd2(V_mu, r, 1)[0] = 1.0 - w
     if not with_speed:
         return
     for r in range(nt - k, nt):
-        sv = speed_vars[r - (nt - k)] if speed_vars is not None else speed_var
+        sv = _pd1(V_speed_vars, r - (nt - k))[0] if speed_vars is not None else speed_var
         for i in range(4):
             for j in range(4):
-                pk[4 * i + j] = p[r, i, j]
+                pk[4 * i + j] = _pd3(V_p, r, i, j)[0]
         pk[10] = cy * cy * var_k + sy * sy * sv
         pk[15] = sy * sy * var_k + cy * cy * sv
         pk[11] = cy * sy * (var_k - sv)
         pk[14] = pk[11]
         for i in range(4):
             for j in range(4):
-                pm[r, 0, i, j] = pk[4 * i + j]
-                p[r, i, j] = w * pk[4 * i + j] + (1.0 - w) * p[r, i, j]
+                _pd4(V_pm, r, 0, i, j)[0] = pk[4 * i + j]
+                _pd3(V_p, r, i, j)[0] = w * pk[4 * i + j] + (1.0 - w) * _pd3(V_p, r, i, j)[0]
 
 
-def mode_probabilities_match(const double[:, ::1] c, const double[:, ::1] lik, double floor,
-                             const double[:, :, ::1] xm, const double[:, :, :, ::1] pm):
+def mode_probabilities_match(c, lik, double floor,
+                             xm, pm):
     """The IMM's step 4 and moment matching in one pass: ``mu`` (T, 2) of
     :func:`edge.track.imm.update_mode_probabilities` (``c``, ``lik`` (T, 2), ``floor``; the same operations, NaN
     handling of ``np.maximum`` included: bit-identical), then ``x`` (T, 4), ``p`` (T, 4, 4) of :func:`moment_match`
     with ``mu`` (equal to rounding) -> (mu, x, p)."""
-    cdef Py_ssize_t nt = c.shape[0], t
-    if lik.shape[0] != nt or xm.shape[0] != nt or pm.shape[0] != nt or c.shape[1] != 2 or lik.shape[1] != 2:
+    cdef _V V_c
+    _aview(c, cnp.NPY_FLOAT64, 2, False, True, &V_c, "c")
+    cdef _V V_lik
+    _aview(lik, cnp.NPY_FLOAT64, 2, False, True, &V_lik, "lik")
+    cdef _V V_xm
+    _aview(xm, cnp.NPY_FLOAT64, 3, False, True, &V_xm, "xm")
+    cdef _V V_pm
+    _aview(pm, cnp.NPY_FLOAT64, 4, False, True, &V_pm, "pm")
+    cdef Py_ssize_t nt = V_c.n[0], t
+    if V_lik.n[0] != nt or V_xm.n[0] != nt or V_pm.n[0] != nt or V_c.n[1] != 2 or V_lik.n[1] != 2:
         raise ValueError("mode_probabilities_match: c, lik (T, 2), xm (T, 2, 4), pm (T, 2, 4, 4)")
     mu_a = np.empty((nt, 2))
     x_a = np.empty((nt, 4))
     p_a = np.empty((nt, 4, 4))
-    cdef double[:, ::1] mu = mu_a
-    cdef double[:, ::1] x = x_a
-    cdef double[:, :, ::1] p = p_a
+    cdef _V V_mu
+    _aview(mu_a, cnp.NPY_FLOAT64, 2, True, True, &V_mu, "mu")
+    cdef _V V_x
+    _aview(x_a, cnp.NPY_FLOAT64, 2, True, True, &V_x, "x")
+    cdef _V V_p
+    _aview(p_a, cnp.NPY_FLOAT64, 3, True, True, &V_p, "p")
     cdef double m0, m1, den
     with nogil:
         for t in range(nt):
-            m0 = c[t, 0] * lik[t, 0]
-            m1 = c[t, 1] * lik[t, 1]
+            m0 = _pd2(V_c, t, 0)[0] * _pd2(V_lik, t, 0)[0]
+            m1 = _pd2(V_c, t, 1)[0] * _pd2(V_lik, t, 1)[0]
             den = _max_nan(m0 + m1, 1e-300)
             m0 = _max_nan(m0 / den, floor)
             m1 = _max_nan(m1 / den, floor)
             den = m0 + m1
-            mu[t, 0] = m0 / den
-            mu[t, 1] = m1 / den
-            _moment_match_row(&xm[t, 0, 0], &pm[t, 0, 0, 0], mu[t, 0], mu[t, 1], &x[t, 0], &p[t, 0, 0])
+            _pd2(V_mu, t, 0)[0] = m0 / den
+            _pd2(V_mu, t, 1)[0] = m1 / den
+            _moment_match_row(&_pd3(V_xm, t, 0, 0)[0], &_pd4(V_pm, t, 0, 0, 0)[0], _pd2(V_mu, t, 0)[0],
+                              _pd2(V_mu, t, 1)[0], &_pd2(V_x, t, 0)[0], &_pd3(V_p, t, 0, 0)[0])
     return mu_a, x_a, p_a
 
 
-def reanchor_match(const double[:, :] x, const cnp.npy_bool[:] confirmed, const cnp.npy_bool[:] hit,
-                   const cnp.npy_bool[:, :] gated, const double[:, :] z, double speed_mps, bint receding_only,
+def reanchor_match(x, confirmed, hit,
+                   gated, z, double speed_mps, bint receding_only,
                    double min_m, double max_m, double lateral_m):
     """The matches of ``edge.track.roles.post.Reanchor.run`` (the same operations): each confirmed track that
     missed (``confirmed``, ``hit`` (T,)) and the nearest detection no track validated (``gated`` (T, M)) that lies
     between ``min_m`` (exclusive) and ``max_m`` nearer than the track in ground range, within ``lateral_m`` across
     and ``speed_mps`` in radial speed (``receding_only``: receding tracks only); ``x`` (T, 4), ``z`` (M, 3) ->
     track rows ``i`` and detection rows ``j`` (int64, tracks in row order; the first of equally near)."""
-    cdef Py_ssize_t nt = x.shape[0], nm = z.shape[0], t, m, k = 0
-    if confirmed.shape[0] != nt or hit.shape[0] != nt or gated.shape[0] != nt or gated.shape[1] != nm \
-            or z.shape[1] < 3 or x.shape[1] < 4:
+    cdef _V V_x
+    _aview(x, cnp.NPY_FLOAT64, 2, False, False, &V_x, "x")
+    cdef _V V_confirmed
+    _aview(confirmed, cnp.NPY_BOOL, 1, False, False, &V_confirmed, "confirmed")
+    cdef _V V_hit
+    _aview(hit, cnp.NPY_BOOL, 1, False, False, &V_hit, "hit")
+    cdef _V V_gated
+    _aview(gated, cnp.NPY_BOOL, 2, False, False, &V_gated, "gated")
+    cdef _V V_z
+    _aview(z, cnp.NPY_FLOAT64, 2, False, False, &V_z, "z")
+    cdef Py_ssize_t nt = V_x.n[0], nm = V_z.n[0], t, m, k = 0
+    if V_confirmed.n[0] != nt or V_hit.n[0] != nt or V_gated.n[0] != nt or V_gated.n[1] != nm \
+            or V_z.n[1] < 3 or V_x.n[1] < 4:
         raise ValueError("reanchor_match: x (T, 4), confirmed, hit (T,), gated (T, M), z (M, 3)")
     for t in range(nt):  # the usual frame: no confirmed track missed
-        if confirmed[t] and not hit[t]:
+        if _pu8(V_confirmed, t)[0] and not _pu8(V_hit, t)[0]:
             break
     else:
         return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
@@ -1471,22 +1678,23 @@ def reanchor_match(const double[:, :] x, const cnp.npy_bool[:] confirmed, const 
             free[m] = 1
         for t in range(nt):
             for m in range(nm):
-                if gated[t, m]:
+                if _pu8_2(V_gated, t, m)[0]:
                     free[m] = 0
         for t in range(nt):
-            if not confirmed[t] or hit[t]:
+            if not _pu8(V_confirmed, t)[0] or _pu8(V_hit, t)[0]:
                 continue
-            rho_t = _np_max(hypot(x[t, 0], x[t, 1]), 1e-3)
-            vr_t = (x[t, 0] * x[t, 2] + x[t, 1] * x[t, 3]) / rho_t
+            rho_t = _np_max(hypot(_pd2(V_x, t, 0)[0], _pd2(V_x, t, 1)[0]), 1e-3)
+            vr_t = (_pd2(V_x, t, 0)[0] * _pd2(V_x, t, 2)[0] + _pd2(V_x, t, 1)[0] * _pd2(V_x, t, 3)[0]) / rho_t
             if receding_only and not (vr_t > 0.0):
                 continue
             arg = -1
             best = -INFINITY
             for m in range(nm):
-                if not free[m] or not (fabs(vr_t - z[m, 2]) < speed_mps):
+                if not free[m] or not (fabs(vr_t - _pd2(V_z, m, 2)[0]) < speed_mps):
                     continue
-                nearer = rho_t - hypot(z[m, 0], z[m, 1])
-                if nearer > min_m and nearer <= max_m and fabs(x[t, 0] - z[m, 0]) < lateral_m and nearer > best:
+                nearer = rho_t - hypot(_pd2(V_z, m, 0)[0], _pd2(V_z, m, 1)[0])
+                if (nearer > min_m and nearer <= max_m and fabs(_pd2(V_x, t, 0)[0] - _pd2(V_z, m, 0)[0]) < lateral_m
+                        and nearer > best):
                     best = nearer
                     arg = m
             if arg >= 0:
@@ -1500,36 +1708,52 @@ def reanchor_match(const double[:, :] x, const cnp.npy_bool[:] confirmed, const 
     return i_a, j_a
 
 
-def delete_tests(const double[:, :] x, const double[:, :, :] p, const cnp.int32_t[:] misses, const double[:] ext_var,
+def delete_tests(x, p, misses, ext_var,
                  int delete_after_misses, double max_sigma_m, double min_range_m, double max_range_m,
                  double max_azimuth_rad, double merge_along_m, double merge_headway_s, double merge_extent_factor):
     """Per track the deletion tests of :meth:`edge.track.roles.delete.TrackDeleter.delete` (misses in a row, position
     sd, range and azimuth out of the field) and the inputs of the duplicate test: the position spreads of
     ``TrackDeleter._position_spread`` and the box half-lengths of ``SameVehicleBox.along_m``. Returns ``dead`` (T,)
     bool, ``pdx``, ``pdy``, ``along`` (T,); the same float64 operations as the numpy forms (identical)."""
-    cdef Py_ssize_t nt = x.shape[0], t
+    cdef _V V_x
+    _aview(x, cnp.NPY_FLOAT64, 2, False, False, &V_x, "x")
+    cdef _V V_p
+    _aview(p, cnp.NPY_FLOAT64, 3, False, False, &V_p, "p")
+    cdef _V V_misses
+    _aview(misses, cnp.NPY_INT32, 1, False, False, &V_misses, "misses")
+    cdef _V V_ext_var
+    _aview(ext_var, cnp.NPY_FLOAT64, 1, False, False, &V_ext_var, "ext_var")
+    cdef Py_ssize_t nt = V_x.n[0], t
     dead_a = np.empty(nt, dtype=bool)
     pdx_a = np.empty(nt)
     pdy_a = np.empty(nt)
     along_a = np.empty(nt)
-    cdef cnp.npy_bool[::1] dead = dead_a
-    cdef double[::1] pdx = pdx_a, pdy = pdy_a, along = along_a
+    cdef _V V_dead
+    _aview(dead_a, cnp.NPY_BOOL, 1, True, True, &V_dead, "dead")
+    cdef _V V_pdx
+    _aview(pdx_a, cnp.NPY_FLOAT64, 1, True, True, &V_pdx, "pdx")
+    cdef _V V_pdy
+    _aview(pdy_a, cnp.NPY_FLOAT64, 1, True, True, &V_pdy, "pdy")
+    cdef _V V_along
+    _aview(along_a, cnp.NPY_FLOAT64, 1, True, True, &V_along, "along")
     cdef double rho, sig, sp, nrm, ux, uy, w, iso
     with nogil:
         for t in range(nt):
-            rho = hypot(x[t, 0], x[t, 1])
-            sig = sqrt(_np_max(p[t, 0, 0], p[t, 1, 1]))
-            dead[t] = ((misses[t] >= delete_after_misses) or (sig > max_sigma_m) or (rho < min_range_m)
-                       or (rho > max_range_m) or fabs(atan2(x[t, 0], x[t, 1])) > max_azimuth_rad)
-            sp = hypot(x[t, 2], x[t, 3])
+            rho = hypot(_pd2(V_x, t, 0)[0], _pd2(V_x, t, 1)[0])
+            sig = sqrt(_np_max(_pd3(V_p, t, 0, 0)[0], _pd3(V_p, t, 1, 1)[0]))
+            _pu8(V_dead, t)[0] = ((_pi32(V_misses, t)[0] >= delete_after_misses) or (sig > max_sigma_m)
+                                  or (rho < min_range_m) or (rho > max_range_m)
+                                  or fabs(atan2(_pd2(V_x, t, 0)[0], _pd2(V_x, t, 1)[0])) > max_azimuth_rad)
+            sp = hypot(_pd2(V_x, t, 2)[0], _pd2(V_x, t, 3)[0])
             nrm = _np_max(sp, 1e-9)
-            ux = x[t, 2] / nrm
-            uy = x[t, 3] / nrm
+            ux = _pd2(V_x, t, 2)[0] / nrm
+            uy = _pd2(V_x, t, 3)[0] / nrm
             w = _np_min(_np_max(sp, 0.0), 1.0)
             iso = 1.0 - w
-            pdx[t] = p[t, 0, 0] + ext_var[t] * (w * (ux * ux) + iso)
-            pdy[t] = p[t, 1, 1] + ext_var[t] * (w * (uy * uy) + iso)
-            along[t] = _np_max(_np_max(merge_along_m, merge_headway_s * sp), merge_extent_factor * sqrt(ext_var[t]))
+            _pd1(V_pdx, t)[0] = _pd3(V_p, t, 0, 0)[0] + _pd1(V_ext_var, t)[0] * (w * (ux * ux) + iso)
+            _pd1(V_pdy, t)[0] = _pd3(V_p, t, 1, 1)[0] + _pd1(V_ext_var, t)[0] * (w * (uy * uy) + iso)
+            _pd1(V_along, t)[0] = _np_max(_np_max(merge_along_m, merge_headway_s * sp),
+                                          merge_extent_factor * sqrt(_pd1(V_ext_var, t)[0]))
     return dead_a, pdx_a, pdy_a, along_a
 
 
@@ -1647,8 +1871,8 @@ cdef object _any_column(object col, Py_ssize_t n):
     return None
 
 
-def seed_candidates(const double[:, :] z, const cnp.npy_bool[:] used, const cnp.int64_t[:] pair, bint has_pair,
-                    const double[:, :] xt, const double[:] ext_var, double min_range_m, double max_range_m,
+def seed_candidates(z, used, pair, bint has_pair,
+                    xt, ext_var, double min_range_m, double max_range_m,
                     bint radial, double seed_min_speed_mps, double lateral_sigmas, double az_sigma_rad,
                     double merge_lateral_m, double lateral_cap_m, double merge_along_m, double headway_s,
                     double extent_factor, double merge_speed_mps):
@@ -1658,135 +1882,182 @@ def seed_candidates(const double[:, :] z, const cnp.npy_bool[:] used, const cnp.
     with the boxes of ``SameVehicleBox.lateral_m`` (``lateral_sigmas``, ``az_sigma_rad``, clipped to
     ``[merge_lateral_m, lateral_cap_m]``) and ``SameVehicleBox.along_m``). Returns ``(idx (k,) int64, resolved (M,)
     bool)``; the same float64 operations as the numpy form."""
-    cdef Py_ssize_t nm = z.shape[0], nt = xt.shape[0], m, t, k = 0
+    cdef _V V_z
+    _aview(z, cnp.NPY_FLOAT64, 2, False, False, &V_z, "z")
+    cdef _V V_used
+    _aview(used, cnp.NPY_BOOL, 1, False, False, &V_used, "used")
+    cdef _V V_pair
+    _aview(pair, cnp.NPY_INT64, 1, False, False, &V_pair, "pair")
+    cdef _V V_xt
+    _aview(xt, cnp.NPY_FLOAT64, 2, False, False, &V_xt, "xt")
+    cdef _V V_ext_var
+    _aview(ext_var, cnp.NPY_FLOAT64, 1, False, False, &V_ext_var, "ext_var")
+    cdef Py_ssize_t nm = V_z.n[0], nt = V_xt.n[0], m, t, k = 0
     resolved_a = np.zeros(nm, dtype=bool)
     idx_a = np.empty(nm, dtype=np.int64)
     box_a = np.empty((nt, 3))
-    cdef cnp.npy_bool[::1] resolved = resolved_a
-    cdef cnp.int64_t[::1] idx = idx_a
-    cdef double[:, ::1] box = box_a
+    cdef _V V_resolved
+    _aview(resolved_a, cnp.NPY_BOOL, 1, True, True, &V_resolved, "resolved")
+    cdef _V V_idx
+    _aview(idx_a, cnp.NPY_INT64, 1, True, True, &V_idx, "idx")
+    cdef _V V_box
+    _aview(box_a, cnp.NPY_FLOAT64, 2, True, True, &V_box, "box")
     cdef double r, lat, sp, rho_t
     cdef bint c, res
     with nogil:
         for t in range(nt):  # lateral_m, along_m, radial speed of each track
-            r = hypot(xt[t, 0], xt[t, 1])
+            r = hypot(_pd2(V_xt, t, 0)[0], _pd2(V_xt, t, 1)[0])
             lat = lateral_sigmas * r * az_sigma_rad
-            box[t, 0] = _np_min(_np_max(lat, merge_lateral_m), lateral_cap_m)
-            sp = hypot(xt[t, 2], xt[t, 3])
-            box[t, 1] = _np_max(_np_max(merge_along_m, headway_s * sp), extent_factor * sqrt(ext_var[t]))
+            _pd2(V_box, t, 0)[0] = _np_min(_np_max(lat, merge_lateral_m), lateral_cap_m)
+            sp = hypot(_pd2(V_xt, t, 2)[0], _pd2(V_xt, t, 3)[0])
+            _pd2(V_box, t, 1)[0] = _np_max(_np_max(merge_along_m, headway_s * sp),
+                                           extent_factor * sqrt(_pd1(V_ext_var, t)[0]))
             if radial:
-                rho_t = _np_max(hypot(xt[t, 0], xt[t, 1]), 1e-3)
-                box[t, 2] = (xt[t, 0] * xt[t, 2] + xt[t, 1] * xt[t, 3]) / rho_t
+                rho_t = _np_max(hypot(_pd2(V_xt, t, 0)[0], _pd2(V_xt, t, 1)[0]), 1e-3)
+                _pd2(V_box, t, 2)[0] = (_pd2(V_xt, t, 0)[0] * _pd2(V_xt, t, 2)[0]
+                                        + _pd2(V_xt, t, 1)[0] * _pd2(V_xt, t, 3)[0]) / rho_t
         for m in range(nm):
-            res = has_pair and pair[m] >= 0
-            resolved[m] = res
-            r = hypot(z[m, 0], z[m, 1])
-            c = (not used[m] or res) and r >= min_range_m and r <= max_range_m
+            res = has_pair and _pi64(V_pair, m)[0] >= 0
+            _pu8(V_resolved, m)[0] = res
+            r = hypot(_pd2(V_z, m, 0)[0], _pd2(V_z, m, 1)[0])
+            c = (not _pu8(V_used, m)[0] or res) and r >= min_range_m and r <= max_range_m
             if radial:
-                c = c and fabs(z[m, 2]) >= seed_min_speed_mps
+                c = c and fabs(_pd2(V_z, m, 2)[0]) >= seed_min_speed_mps
             if not c:
                 continue
             for t in range(nt):
-                lat = merge_lateral_m if res else box[t, 0]
-                if (fabs(xt[t, 0] - z[m, 0]) < lat and fabs(xt[t, 1] - z[m, 1]) < box[t, 1]
-                        and (not radial or fabs(box[t, 2] - z[m, 2]) < merge_speed_mps)):
+                lat = merge_lateral_m if res else _pd2(V_box, t, 0)[0]
+                if (fabs(_pd2(V_xt, t, 0)[0] - _pd2(V_z, m, 0)[0]) < lat
+                        and fabs(_pd2(V_xt, t, 1)[0] - _pd2(V_z, m, 1)[0]) < _pd2(V_box, t, 1)[0]
+                        and (not radial or fabs(_pd2(V_box, t, 2)[0] - _pd2(V_z, m, 2)[0]) < merge_speed_mps)):
                     c = False
                     break
             if c:
-                idx[k] = m
+                _pi64(V_idx, k)[0] = m
                 k += 1
     return idx_a[:k], resolved_a
 
 
-def carrying_pairs(const double[:, :] beta, const cnp.int64_t[:] pair):
+def carrying_pairs(beta, pair):
     """The numbers of :func:`edge.track.roles.delete.resolved_pairs` for weights ``beta`` (T, M >= 1): per track the
     detection of largest weight (``np.argmax``) and, when that weight exceeds 0.5, its resolved ``pair`` (M,), else
     -1. Returns ``(pair_of (T,) int64, best (T,) int64)``."""
-    cdef Py_ssize_t nt = beta.shape[0], t, b
-    if beta.shape[1] == 0 or pair.shape[0] != beta.shape[1]:
+    cdef _V V_beta
+    _aview(beta, cnp.NPY_FLOAT64, 2, False, False, &V_beta, "beta")
+    cdef _V V_pair
+    _aview(pair, cnp.NPY_INT64, 1, False, False, &V_pair, "pair")
+    cdef Py_ssize_t nt = V_beta.n[0], t, b
+    if V_beta.n[1] == 0 or V_pair.n[0] != V_beta.n[1]:
         raise ValueError("carrying_pairs needs one pair value per detection and at least one detection")
     pair_a = np.empty(nt, dtype=np.int64)
     best_a = np.empty(nt, dtype=np.int64)
-    cdef cnp.int64_t[::1] pair_of = pair_a, best = best_a
+    cdef _V V_pair_of
+    _aview(pair_a, cnp.NPY_INT64, 1, True, True, &V_pair_of, "pair_of")
+    cdef _V V_best
+    _aview(best_a, cnp.NPY_INT64, 1, True, True, &V_best, "best")
     with nogil:
         for t in range(nt):
-            b = _argmax_row(beta, t)
-            best[t] = b
-            pair_of[t] = pair[b] if beta[t, b] > 0.5 else -1
+            b = _argmax_row(V_beta, t)
+            _pi64(V_best, t)[0] = b
+            _pi64(V_pair_of, t)[0] = _pi64(V_pair, b)[0] if _pd2(V_beta, t, b)[0] > 0.5 else -1
     return pair_a, best_a
 
 
-def count_hits(const cnp.npy_bool[:, :] gated, cnp.int32_t[:] age, cnp.int32_t[:] hits,
-               const cnp.int32_t[:] misses, const cnp.uint32_t[:] history):
+def count_hits(gated, age, hits,
+               misses, history):
     """One frame of :meth:`edge.track.table.TrackTable.count` with ``hit = gated.any(axis=1)`` (``gated`` (T, M)):
     ``age`` and ``hits`` in place. Returns ``(hit (T,) bool, misses (T,) int32, history (T,) uint32)``, new arrays:
     misses 0 on a hit, else one more; the history shifted by one with bit 0 the hit."""
-    cdef Py_ssize_t nt = gated.shape[0], nm = gated.shape[1], t, m
-    if age.shape[0] != nt or hits.shape[0] != nt or misses.shape[0] != nt or history.shape[0] != nt:
+    cdef _V V_gated
+    _aview(gated, cnp.NPY_BOOL, 2, False, False, &V_gated, "gated")
+    cdef _V V_age
+    _aview(age, cnp.NPY_INT32, 1, True, False, &V_age, "age")
+    cdef _V V_hits
+    _aview(hits, cnp.NPY_INT32, 1, True, False, &V_hits, "hits")
+    cdef _V V_misses
+    _aview(misses, cnp.NPY_INT32, 1, False, False, &V_misses, "misses")
+    cdef _V V_history
+    _aview(history, cnp.NPY_UINT32, 1, False, False, &V_history, "history")
+    cdef Py_ssize_t nt = V_gated.n[0], nm = V_gated.n[1], t, m
+    if V_age.n[0] != nt or V_hits.n[0] != nt or V_misses.n[0] != nt or V_history.n[0] != nt:
         raise ValueError("count_hits needs one row per track in every column")
     hit_a = np.empty(nt, dtype=bool)
     misses_a = np.empty(nt, dtype=np.int32)
     history_a = np.empty(nt, dtype=np.uint32)
-    cdef cnp.npy_bool[::1] hit = hit_a
-    cdef cnp.int32_t[::1] mo = misses_a
-    cdef cnp.uint32_t[::1] ho = history_a
+    cdef _V V_hit
+    _aview(hit_a, cnp.NPY_BOOL, 1, True, True, &V_hit, "hit")
+    cdef _V V_mo
+    _aview(misses_a, cnp.NPY_INT32, 1, True, True, &V_mo, "mo")
+    cdef _V V_ho
+    _aview(history_a, cnp.NPY_UINT32, 1, True, True, &V_ho, "ho")
     cdef bint h
     with nogil:
         for t in range(nt):
             h = False
             for m in range(nm):
-                if gated[t, m]:
+                if _pu8_2(V_gated, t, m)[0]:
                     h = True
                     break
-            hit[t] = h
-            age[t] += 1
-            hits[t] += h
-            mo[t] = 0 if h else misses[t] + 1
-            ho[t] = (history[t] << 1) | (<cnp.uint32_t>h)
+            _pu8(V_hit, t)[0] = h
+            _pi32(V_age, t)[0] += 1
+            _pi32(V_hits, t)[0] += h
+            _pi32(V_mo, t)[0] = 0 if h else _pi32(V_misses, t)[0] + 1
+            _pu32(V_ho, t)[0] = (_pu32(V_history, t)[0] << 1) | (<cnp.uint32_t>h)
     return hit_a, misses_a, history_a
 
 
-def confirm_ready(const double[:, :] x, const cnp.uint32_t[:] history, const cnp.uint8_t[:] confirmed,
-                  const cnp.uint8_t[:] moved, const double[:] score, int mode, double score_confirm,
+def confirm_ready(x, history, confirmed,
+                  moved, score, int mode, double score_confirm,
                   cnp.uint32_t mask_n, int confirm_m, double block_along_m, double merge_lateral_m,
                   double merge_speed_mps, double block_lateral_m, double block_behind_m, double block_speed_mps):
     """The rows that :meth:`edge.track.roles.confirm.Confirmer.confirm` confirms this frame, in row order (a list of
     int): tentative, moved and passing the test (``mode`` 0: M of N, 1: score, 2: either), and not blocked by a
     confirmed track (``block_along_m`` > 0). The numpy reference's comparisons and arithmetic (``heading``'s libm
     ``hypot``, ``np.maximum``): the same rows."""
-    cdef Py_ssize_t nt = x.shape[0], r, k
-    if (history.shape[0] != nt or confirmed.shape[0] != nt or moved.shape[0] != nt or score.shape[0] != nt
-            or x.shape[1] < 4):
+    cdef _V V_x
+    _aview(x, cnp.NPY_FLOAT64, 2, False, False, &V_x, "x")
+    cdef _V V_history
+    _aview(history, cnp.NPY_UINT32, 1, False, False, &V_history, "history")
+    cdef _V V_confirmed
+    _aview(confirmed, cnp.NPY_UINT8, 1, False, False, &V_confirmed, "confirmed")
+    cdef _V V_moved
+    _aview(moved, cnp.NPY_UINT8, 1, False, False, &V_moved, "moved")
+    cdef _V V_score
+    _aview(score, cnp.NPY_FLOAT64, 1, False, False, &V_score, "score")
+    cdef Py_ssize_t nt = V_x.n[0], r, k
+    if (V_history.n[0] != nt or V_confirmed.n[0] != nt or V_moved.n[0] != nt or V_score.n[0] != nt
+            or V_x.n[1] < 4):
         raise ValueError("confirm_ready needs one row per track in every column and x of width 4")
     cdef list out = []
     cdef bint ok, any_confirmed = False, blocked
     cdef double d0, d1, dv, sp, den
     for r in range(nt):
-        if confirmed[r]:
+        if _pu8(V_confirmed, r)[0]:
             any_confirmed = True
     for r in range(nt):
-        if confirmed[r] or not moved[r]:
+        if _pu8(V_confirmed, r)[0] or not _pu8(V_moved, r)[0]:
             continue
         if mode == 1:
-            ok = score[r] >= score_confirm
+            ok = _pd1(V_score, r)[0] >= score_confirm
         else:
-            ok = _popcount32(history[r] & mask_n) >= confirm_m
-            if mode == 2 and score[r] >= score_confirm:
+            ok = _popcount32(_pu32(V_history, r)[0] & mask_n) >= confirm_m
+            if mode == 2 and _pd1(V_score, r)[0] >= score_confirm:
                 ok = True
         if not ok:
             continue
         if block_along_m > 0.0 and any_confirmed:
             blocked = False
             for k in range(nt):
-                if not confirmed[k]:
+                if not _pu8(V_confirmed, k)[0]:
                     continue
-                d1 = x[r, 1] - x[k, 1]
+                d1 = _pd2(V_x, r, 1)[0] - _pd2(V_x, k, 1)[0]
                 if not fabs(d1) < block_along_m:
                     continue
-                d0 = x[r, 0] - x[k, 0]
-                sp = hypot(x[k, 2], x[k, 3])
+                d0 = _pd2(V_x, r, 0)[0] - _pd2(V_x, k, 0)[0]
+                sp = hypot(_pd2(V_x, k, 2)[0], _pd2(V_x, k, 3)[0])
                 den = _np_max(sp, 1e-9)
-                dv = (x[r, 2] - x[k, 2]) * (x[k, 2] / den) + (x[r, 3] - x[k, 3]) * (x[k, 3] / den)
+                dv = ((_pd2(V_x, r, 2)[0] - _pd2(V_x, k, 2)[0]) * (_pd2(V_x, k, 2)[0] / den)
+                      + (_pd2(V_x, r, 3)[0] - _pd2(V_x, k, 3)[0]) * (_pd2(V_x, k, 3)[0] / den))
                 if ((fabs(d0) < merge_lateral_m and fabs(dv) < merge_speed_mps)
                         or (fabs(d0) < block_lateral_m and d1 > block_behind_m and fabs(dv) < block_speed_mps)):
                     blocked = True
@@ -2173,7 +2444,7 @@ def publish_table(type cls, tr, bint tentative, long max_misses, bint smoother, 
     return tuple(out), mx_a
 
 
-def seed_states(const double[:, :] seeds, const double[:, :, :] r, bint with_rs, double cy, double sy, double var_u,
+def seed_states(seeds, r, bint with_rs, double cy, double sy, double var_u,
                 double var_along, double var_speed):
     """New tracks' states ``x0`` (k, 4) and covariances ``p0`` (k, 4, 4) at the seeds (k, n; x, y[, radial speed]) with
     position noise ``r`` (k, 2, 2), as :meth:`edge.track.roles.initiate.SeedInitiator.seed_states_numpy`: with a radial
@@ -2181,43 +2452,50 @@ def seed_states(const double[:, :] seeds, const double[:, :, :] r, bint with_rs,
     ``var_along`` along and ``var_u`` across, else (and for a seed with ``|e_s . p| <= 1``) speed 0 and ``var_speed``.
     The same operations in numpy's order. Returns ``(x0, p0, var_s, all_along)``: the seeds' speed variance along the
     road (k,) and whether every seed took ``var_along``."""
-    cdef Py_ssize_t k = seeds.shape[0], i
-    if r.shape[0] != k or r.shape[1] < 2 or r.shape[2] < 2 or seeds.shape[1] < (3 if with_rs else 2):
+    cdef _V V_seeds
+    _aview(seeds, cnp.NPY_FLOAT64, 2, False, False, &V_seeds, "seeds")
+    cdef _V V_r
+    _aview(r, cnp.NPY_FLOAT64, 3, False, False, &V_r, "r")
+    cdef Py_ssize_t k = V_seeds.n[0], i
+    if V_r.n[0] != k or V_r.n[1] < 2 or V_r.n[2] < 2 or V_seeds.n[1] < (3 if with_rs else 2):
         raise ValueError("seed_states: one r (2, 2) per seed, seeds with x, y[, radial speed]")
     x_a = np.zeros((k, 4))
     p_a = np.zeros((k, 4, 4))
     vs_a = np.empty(k)
-    cdef double[:, ::1] x0 = x_a
-    cdef double[:, :, ::1] p0 = p_a
-    cdef double[::1] var_s = vs_a
+    cdef _V V_x0
+    _aview(x_a, cnp.NPY_FLOAT64, 2, True, True, &V_x0, "x0")
+    cdef _V V_p0
+    _aview(p_a, cnp.NPY_FLOAT64, 3, True, True, &V_p0, "p0")
+    cdef _V V_var_s
+    _aview(vs_a, cnp.NPY_FLOAT64, 1, True, True, &V_var_s, "var_s")
     cdef double proj, rho, v_s, vs
     cdef bint all_along = True
     for i in range(k):
-        x0[i, 0] = seeds[i, 0]
-        x0[i, 1] = seeds[i, 1]
-        p0[i, 0, 0] = r[i, 0, 0]
-        p0[i, 0, 1] = r[i, 0, 1]
-        p0[i, 1, 0] = r[i, 1, 0]
-        p0[i, 1, 1] = r[i, 1, 1]
+        _pd2(V_x0, i, 0)[0] = _pd2(V_seeds, i, 0)[0]
+        _pd2(V_x0, i, 1)[0] = _pd2(V_seeds, i, 1)[0]
+        _pd3(V_p0, i, 0, 0)[0] = _pd3(V_r, i, 0, 0)[0]
+        _pd3(V_p0, i, 0, 1)[0] = _pd3(V_r, i, 0, 1)[0]
+        _pd3(V_p0, i, 1, 0)[0] = _pd3(V_r, i, 1, 0)[0]
+        _pd3(V_p0, i, 1, 1)[0] = _pd3(V_r, i, 1, 1)[0]
         if not with_rs:
-            p0[i, 2, 2] = var_speed
-            p0[i, 3, 3] = var_speed
-            var_s[i] = var_speed
+            _pd3(V_p0, i, 2, 2)[0] = var_speed
+            _pd3(V_p0, i, 3, 3)[0] = var_speed
+            _pd1(V_var_s, i)[0] = var_speed
             continue
-        proj = cy * seeds[i, 1] - sy * seeds[i, 0]
-        rho = hypot(seeds[i, 0], seeds[i, 1])
+        proj = cy * _pd2(V_seeds, i, 1)[0] - sy * _pd2(V_seeds, i, 0)[0]
+        rho = hypot(_pd2(V_seeds, i, 0)[0], _pd2(V_seeds, i, 1)[0])
         if fabs(proj) > 1.0:
-            v_s = seeds[i, 2] * rho / proj
+            v_s = _pd2(V_seeds, i, 2)[0] * rho / proj
             vs = var_along
         else:
             v_s = 0.0
             vs = var_speed
             all_along = False
-        var_s[i] = vs
-        x0[i, 2] = (-sy) * v_s
-        x0[i, 3] = cy * v_s
-        p0[i, 2, 2] = cy * cy * var_u + sy * sy * vs
-        p0[i, 3, 3] = sy * sy * var_u + cy * cy * vs
-        p0[i, 2, 3] = cy * sy * (var_u - vs)
-        p0[i, 3, 2] = p0[i, 2, 3]
+        _pd1(V_var_s, i)[0] = vs
+        _pd2(V_x0, i, 2)[0] = (-sy) * v_s
+        _pd2(V_x0, i, 3)[0] = cy * v_s
+        _pd3(V_p0, i, 2, 2)[0] = cy * cy * var_u + sy * sy * vs
+        _pd3(V_p0, i, 3, 3)[0] = sy * sy * var_u + cy * cy * vs
+        _pd3(V_p0, i, 2, 3)[0] = cy * sy * (var_u - vs)
+        _pd3(V_p0, i, 3, 2)[0] = _pd3(V_p0, i, 2, 3)[0]
     return x_a, p_a, vs_a, all_along

@@ -15,110 +15,145 @@ from libc.math cimport sqrt, hypot, fabs, rint, INFINITY
 
 import numpy as np
 
+cimport numpy as cnp
 
-cdef inline void _sort_by_seq(long long *ids, Py_ssize_t n, const long long[::1] seq) noexcept nogil:
+cnp.import_array()
+
+include "_views.pxi"
+
+
+cdef inline void _sort_by_seq(long long *ids, Py_ssize_t n, _V V_seq) noexcept nogil:
     """Insertion sort of ``ids`` by ``seq[id]`` (a handful of running tracks)."""
     cdef Py_ssize_t i, j
     cdef long long k
     for i in range(1, n):
         k = ids[i]
         j = i - 1
-        while j >= 0 and seq[ids[j]] > seq[k]:
+        while j >= 0 and _pll(V_seq, ids[j])[0] > _pll(V_seq, k)[0]:
             ids[j + 1] = ids[j]
             j -= 1
         ids[j + 1] = k
 
 
 @cython.cdivision(True)
-def yaw_add(double[:, ::1] acc, unsigned char[::1] live, long long[::1] seq, long long next_seq,
-            const long long[:] ids, const long long[:] age, const double[:] x, const double[:] y):
+def yaw_add(acc, live, seq, long long next_seq,
+            ids, age, x, y):
     """One frame of :meth:`YawEstimator.add` on the table: accumulates the confirmed tracks ``ids`` (with their
     ``age`` and position ``x``, ``y`` in m); a recycled id (its age dropped) and a running track not in ``ids``
     end. Returns ``(ended, next_seq)``: the ended tracks' sums (k, 7) in the order the reference votes (recycled
     ones in track order, then the others in insertion order) and the next insertion stamp; None, changing
     nothing, when an id does not fit the table (``id >= cap``: the caller grows it and calls again)."""
-    cdef Py_ssize_t n = ids.shape[0], cap = live.shape[0], i, j, k, n_end = 0, n_gone = 0
+    cdef _V V_acc
+    _aview(acc, cnp.NPY_FLOAT64, 2, True, True, &V_acc, "acc")
+    cdef _V V_live
+    _aview(live, cnp.NPY_UINT8, 1, True, True, &V_live, "live")
+    cdef _V V_seq
+    _aview(seq, cnp.NPY_LONGLONG, 1, True, True, &V_seq, "seq")
+    cdef _V V_ids
+    _aview(ids, cnp.NPY_LONGLONG, 1, False, False, &V_ids, "ids")
+    cdef _V V_age
+    _aview(age, cnp.NPY_LONGLONG, 1, False, False, &V_age, "age")
+    cdef _V V_x
+    _aview(x, cnp.NPY_FLOAT64, 1, False, False, &V_x, "x")
+    cdef _V V_y
+    _aview(y, cnp.NPY_FLOAT64, 1, False, False, &V_y, "y")
+    cdef Py_ssize_t n = V_ids.n[0], cap = V_live.n[0], i, j, k, n_end = 0, n_gone = 0
     cdef long long tid
     cdef double a, xi, yi
     for i in range(n):
-        if ids[i] < 0 or ids[i] >= cap:
+        if _pll(V_ids, i)[0] < 0 or _pll(V_ids, i)[0] >= cap:
             return None
     seen_a = np.zeros(cap, dtype=np.uint8)
-    cdef unsigned char[::1] seen = seen_a
+    cdef _V V_seen
+    _aview(seen_a, cnp.NPY_UINT8, 1, True, True, &V_seen, "seen")
     ended_a = np.empty((n + cap, 7))
-    cdef double[:, ::1] ended = ended_a
+    cdef _V V_ended
+    _aview(ended_a, cnp.NPY_FLOAT64, 2, True, True, &V_ended, "ended")
     gone_a = np.empty(cap, dtype=np.int64)
-    cdef long long[::1] gone = gone_a
+    cdef _V V_gone
+    _aview(gone_a, cnp.NPY_LONGLONG, 1, True, True, &V_gone, "gone")
     for i in range(n):
-        tid = ids[i]
-        a = <double>age[i]
-        xi = x[i]
-        yi = y[i]
-        if live[tid] and a < acc[tid, 6]:  # id recycled: the old track ended
+        tid = _pll(V_ids, i)[0]
+        a = <double>_pll(V_age, i)[0]
+        xi = _pd1(V_x, i)[0]
+        yi = _pd1(V_y, i)[0]
+        if _pu8(V_live, tid)[0] and a < _pd2(V_acc, tid, 6)[0]:  # id recycled: the old track ended
             for k in range(7):
-                ended[n_end, k] = acc[tid, k]
+                _pd2(V_ended, n_end, k)[0] = _pd2(V_acc, tid, k)[0]
             n_end += 1
             for k in range(7):
-                acc[tid, k] = 0.0
-        elif not live[tid]:
-            live[tid] = 1
-            seq[tid] = next_seq
+                _pd2(V_acc, tid, k)[0] = 0.0
+        elif not _pu8(V_live, tid)[0]:
+            _pu8(V_live, tid)[0] = 1
+            _pll(V_seq, tid)[0] = next_seq
             next_seq += 1
             for k in range(7):
-                acc[tid, k] = 0.0
-        acc[tid, 0] += 1.0
-        acc[tid, 1] += xi
-        acc[tid, 2] += yi
-        acc[tid, 3] += xi * xi
-        acc[tid, 4] += yi * yi
-        acc[tid, 5] += xi * yi
-        acc[tid, 6] = a
-        seen[tid] = 1
+                _pd2(V_acc, tid, k)[0] = 0.0
+        _pd2(V_acc, tid, 0)[0] += 1.0
+        _pd2(V_acc, tid, 1)[0] += xi
+        _pd2(V_acc, tid, 2)[0] += yi
+        _pd2(V_acc, tid, 3)[0] += xi * xi
+        _pd2(V_acc, tid, 4)[0] += yi * yi
+        _pd2(V_acc, tid, 5)[0] += xi * yi
+        _pd2(V_acc, tid, 6)[0] = a
+        _pu8(V_seen, tid)[0] = 1
     for j in range(cap):
-        if live[j] and not seen[j]:
-            gone[n_gone] = j
+        if _pu8(V_live, j)[0] and not _pu8(V_seen, j)[0]:
+            _pll(V_gone, n_gone)[0] = j
             n_gone += 1
     if n_gone > 1:
-        _sort_by_seq(&gone[0], n_gone, seq)
+        _sort_by_seq(<long long*>V_gone.data, n_gone, V_seq)
     for i in range(n_gone):
-        tid = gone[i]
+        tid = _pll(V_gone, i)[0]
         for k in range(7):
-            ended[n_end, k] = acc[tid, k]
+            _pd2(V_ended, n_end, k)[0] = _pd2(V_acc, tid, k)[0]
         n_end += 1
-        live[tid] = 0
+        _pu8(V_live, tid)[0] = 0
     return ended_a[:n_end], next_seq
 
 
 @cython.cdivision(True)
-def yaw_live_terms(const double[:, ::1] acc, const unsigned char[::1] live, const long long[::1] seq,
+def yaw_live_terms(acc, live, seq,
                    double min_len, double max_sd):
     """The running tracks that already vote (:meth:`YawEstimator._live_votes_small`'s test, in insertion order):
     ``(num, den, w)``, the vote being ``-0.5 atan2(num, den)`` (rad) and ``w`` its weight. ``min_len``:
     ``yaw_live_min_length_m`` (m); ``max_sd``: ``yaw_max_lateral_sd_m`` (m)."""
-    cdef Py_ssize_t cap = live.shape[0], j, i, n_live = 0, n_out = 0
+    cdef _V V_acc
+    _aview(acc, cnp.NPY_FLOAT64, 2, False, True, &V_acc, "acc")
+    cdef _V V_live
+    _aview(live, cnp.NPY_UINT8, 1, False, True, &V_live, "live")
+    cdef _V V_seq
+    _aview(seq, cnp.NPY_LONGLONG, 1, False, True, &V_seq, "seq")
+    cdef Py_ssize_t cap = V_live.n[0], j, i, n_live = 0, n_out = 0
     cdef long long tid
     cdef double a0, n, mx, my, cxx, cyy, cxy, half_tr, det, disc, major, minor, r, mn
     ids_a = np.empty(cap, dtype=np.int64)
-    cdef long long[::1] ids = ids_a
+    cdef _V V_ids
+    _aview(ids_a, cnp.NPY_LONGLONG, 1, True, True, &V_ids, "ids")
     for j in range(cap):
-        if live[j]:
-            ids[n_live] = j
+        if _pu8(V_live, j)[0]:
+            _pll(V_ids, n_live)[0] = j
             n_live += 1
     if n_live > 1:
-        _sort_by_seq(&ids[0], n_live, seq)
+        _sort_by_seq(<long long*>V_ids.data, n_live, V_seq)
     num_a = np.empty(n_live)
     den_a = np.empty(n_live)
     w_a = np.empty(n_live)
-    cdef double[::1] num = num_a, den = den_a, w = w_a
+    cdef _V V_num
+    _aview(num_a, cnp.NPY_FLOAT64, 1, True, True, &V_num, "num")
+    cdef _V V_den
+    _aview(den_a, cnp.NPY_FLOAT64, 1, True, True, &V_den, "den")
+    cdef _V V_w
+    _aview(w_a, cnp.NPY_FLOAT64, 1, True, True, &V_w, "w")
     for i in range(n_live):
-        tid = ids[i]
-        a0 = acc[tid, 0]
+        tid = _pll(V_ids, i)[0]
+        a0 = _pd2(V_acc, tid, 0)[0]
         n = a0 if a0 > 1.0 else 1.0
-        mx = acc[tid, 1] / n
-        my = acc[tid, 2] / n
-        cxx = acc[tid, 3] / n - mx * mx
-        cyy = acc[tid, 4] / n - my * my
-        cxy = acc[tid, 5] / n - mx * my
+        mx = _pd2(V_acc, tid, 1)[0] / n
+        my = _pd2(V_acc, tid, 2)[0] / n
+        cxx = _pd2(V_acc, tid, 3)[0] / n - mx * mx
+        cyy = _pd2(V_acc, tid, 4)[0] / n - my * my
+        cxy = _pd2(V_acc, tid, 5)[0] / n - mx * my
         half_tr = 0.5 * (cxx + cyy)
         det = cxx * cyy - cxy * cxy
         r = half_tr * half_tr - det
@@ -133,9 +168,9 @@ def yaw_live_terms(const double[:, ::1] acc, const unsigned char[::1] live, cons
             mn = minor
             if 0.01 > mn:
                 mn = 0.01
-            num[n_out] = 2.0 * cxy
-            den[n_out] = cyy - cxx
-            w[n_out] = a0 * major / mn
+            _pd1(V_num, n_out)[0] = 2.0 * cxy
+            _pd1(V_den, n_out)[0] = cyy - cxx
+            _pd1(V_w, n_out)[0] = a0 * major / mn
             n_out += 1
     return num_a[:n_out], den_a[:n_out], w_a[:n_out]
 
@@ -147,34 +182,39 @@ def track_kin(tuple tracks):
     reference's ``np.array`` of tuples; ``ids``, ``age`` (n,) int64."""
     cdef Py_ssize_t m = len(tracks), i, n = 0
     sel_a = np.empty(m, dtype=np.int64)
-    cdef long long[::1] sel = sel_a
+    cdef _V V_sel
+    _aview(sel_a, cnp.NPY_LONGLONG, 1, True, True, &V_sel, "sel")
     conf = []
     for i in range(m):
         t = tracks[i]
         if t.confirmed and t.track_id > 0:
             conf.append(t)
-            sel[n] = i
+            _pll(V_sel, n)[0] = i
             n += 1
     kin_a = np.empty((n, 6))
     ids_a = np.empty(n, dtype=np.int64)
     age_a = np.empty(n, dtype=np.int64)
-    cdef double[:, ::1] kin = kin_a
-    cdef long long[::1] ids = ids_a, age = age_a
+    cdef _V V_kin
+    _aview(kin_a, cnp.NPY_FLOAT64, 2, True, True, &V_kin, "kin")
+    cdef _V V_ids
+    _aview(ids_a, cnp.NPY_LONGLONG, 1, True, True, &V_ids, "ids")
+    cdef _V V_age
+    _aview(age_a, cnp.NPY_LONGLONG, 1, True, True, &V_age, "age")
     for i in range(n):
         t = conf[i]
-        ids[i] = t.track_id
-        age[i] = t.age_frames
-        kin[i, 0] = <double>ids[i]
-        kin[i, 1] = <double>age[i]
-        kin[i, 2] = t.x_m
-        kin[i, 3] = t.y_m
-        kin[i, 4] = t.vx_mps
-        kin[i, 5] = t.vy_mps
+        _pll(V_ids, i)[0] = t.track_id
+        _pll(V_age, i)[0] = t.age_frames
+        _pd2(V_kin, i, 0)[0] = <double>_pll(V_ids, i)[0]
+        _pd2(V_kin, i, 1)[0] = <double>_pll(V_age, i)[0]
+        _pd2(V_kin, i, 2)[0] = t.x_m
+        _pd2(V_kin, i, 3)[0] = t.y_m
+        _pd2(V_kin, i, 4)[0] = t.vx_mps
+        _pd2(V_kin, i, 5)[0] = t.vy_mps
     return conf, sel_a[:n], kin_a, ids_a, age_a
 
 
 @cython.cdivision(True)
-def road_lanes(const double[:, ::1] kin, double cy, double sy, const double[::1] centers, const double[::1] half_w,
+def road_lanes(kin, double cy, double sy, centers, half_w,
                double sure_k):
     """The road frame and the lanes of the tracks in ``kin`` (:func:`track_kin`) for a yaw of cos ``cy``, sin ``sy``:
     as Python lists, the along-road position ``s`` (m) and speed ``vs`` (m/s), the speed (m/s), the lane index
@@ -182,14 +222,20 @@ def road_lanes(const double[:, ::1] kin, double cy, double sy, const double[::1]
     -inf without lanes) and whether the lane is sure (inside it by ``sure_k`` x range; ``sure_k`` <= 0: any
     lane). The reference is the numpy code of ``TrafficMonitor.update`` with
     :func:`edge.traffic.lanes.assign_lanes_with_margin`."""
-    cdef Py_ssize_t n = kin.shape[0], nl = centers.shape[0], i, l, k
+    cdef _V V_kin
+    _aview(kin, cnp.NPY_FLOAT64, 2, False, True, &V_kin, "kin")
+    cdef _V V_centers
+    _aview(centers, cnp.NPY_FLOAT64, 1, False, True, &V_centers, "centers")
+    cdef _V V_half_w
+    _aview(half_w, cnp.NPY_FLOAT64, 1, False, True, &V_half_w, "half_w")
+    cdef Py_ssize_t n = V_kin.n[0], nl = V_centers.n[0], i, l, k
     cdef double x, y, vx, vy, u, d, dmin, m
     s_l, vs_l, sp_l, lane_l, mg_l, sure_l = [], [], [], [], [], []
     for i in range(n):
-        x = kin[i, 2]
-        y = kin[i, 3]
-        vx = kin[i, 4]
-        vy = kin[i, 5]
+        x = _pd2(V_kin, i, 2)[0]
+        y = _pd2(V_kin, i, 3)[0]
+        vx = _pd2(V_kin, i, 4)[0]
+        vy = _pd2(V_kin, i, 5)[0]
         u = x * cy + y * sy
         s_l.append(-x * sy + y * cy)
         vs_l.append(-vx * sy + vy * cy)
@@ -200,13 +246,13 @@ def road_lanes(const double[:, ::1] kin, double cy, double sy, const double[::1]
             sure_l.append(False)
             continue
         k = 0
-        dmin = fabs(u - centers[0])
+        dmin = fabs(u - _pd1(V_centers, 0)[0])
         for l in range(1, nl):
-            d = fabs(u - centers[l])
+            d = fabs(u - _pd1(V_centers, l)[0])
             if d < dmin:  # (argmin: the first of equal distances; NaN: numpy's argmin takes the first NaN)
                 dmin = d
                 k = l
-        m = half_w[k] - dmin
+        m = _pd1(V_half_w, k)[0] - dmin
         if not (m >= 0.0):
             k = -1
         lane_l.append(k)
@@ -232,9 +278,9 @@ MF_COLS = 2
 
 
 @cython.cdivision(True)
-def monitor_pass(tuple tracks, const long long[::1] sel, list conf, const long long[::1] ids, long long[:, ::1] mi,
-                 double[:, ::1] mf, list meters, meter_cls, list s, list vs, list speed, list lane_idx, list lane_sure,
-                 const long long[::1] lane_dir, ext, long long t_ns, long long dt_ns, tuple p, list accs,
+def monitor_pass(tuple tracks, sel, list conf, ids, mi,
+                 mf, list meters, meter_cls, list s, list vs, list speed, list lane_idx, list lane_sure,
+                 lane_dir, ext, long long t_ns, long long dt_ns, tuple p, list accs,
                  tuple class_names, list edges, track_cls, with_fn):
     """The per-track loop of :meth:`edge.traffic.TrafficMonitor.update` (its reference, ``_track_pass``) over the
     confirmed tracks ``conf`` (ids ``ids``) in one call, their memory in the tables ``mi`` (cap, M_COLS) int64 and
@@ -251,7 +297,17 @@ def monitor_pass(tuple tracks, const long long[::1] sel, list conf, const long l
     id, lane)`` in order, and the counting decisions left to the caller in track order: ``(0, j, lane)`` a new track
     to try ``_count_late`` for, ``(1, j, lane, tc_ns)`` a crossing to count unless the lane counted its vehicle.
     None, changing nothing, when an id does not fit the tables (the caller grows them and calls again)."""
-    cdef Py_ssize_t n = len(conf), cap = mi.shape[0], n_lanes = len(accs), j, i, k
+    cdef _V V_sel
+    _aview(sel, cnp.NPY_LONGLONG, 1, False, True, &V_sel, "sel")
+    cdef _V V_ids
+    _aview(ids, cnp.NPY_LONGLONG, 1, False, True, &V_ids, "ids")
+    cdef _V V_mi
+    _aview(mi, cnp.NPY_LONGLONG, 2, True, True, &V_mi, "mi")
+    cdef _V V_mf
+    _aview(mf, cnp.NPY_FLOAT64, 2, True, True, &V_mf, "mf")
+    cdef _V V_lane_dir
+    _aview(lane_dir, cnp.NPY_LONGLONG, 1, False, True, &V_lane_dir, "lane_dir")
+    cdef Py_ssize_t n = len(conf), cap = V_mi.n[0], n_lanes = len(accs), j, i, k
     cdef long long tid, age, hits, tc, t0
     cdef double sj, vsj, spj, s0, f, e, est, L
     cdef bint fresh, has_ext = ext is not None, crossed, against
@@ -262,41 +318,42 @@ def monitor_pass(tuple tracks, const long long[::1] sel, list conf, const long l
     cdef long long ww_frames = p[13], stopped_min_ns = p[14], min_frames = p[15], keep = p[16]
     cdef bint late_on = p[17], dir_only = p[18], once = p[19]
     for j in range(n):
-        if ids[j] < 0 or ids[j] >= cap:
+        if _pll(V_ids, j)[0] < 0 or _pll(V_ids, j)[0] >= cap:
             return None
     if has_ext:
         ext_v = ext
     sample_lists = [acc.samples for acc in accs]
     seen_a = np.zeros(cap, dtype=np.uint8)
-    cdef unsigned char[::1] seen = seen_a
+    cdef _V V_seen
+    _aview(seen_a, cnp.NPY_UINT8, 1, True, True, &V_seen, "seen")
     presence = [False] * n_lanes
     out = [None] * n
     events = []
     actions = []
     for j in range(n):
         tr = conf[j]
-        tid = ids[j]
-        seen[tid] = 1
+        tid = _pll(V_ids, j)[0]
+        _pu8(V_seen, tid)[0] = 1
         k = lane_idx[j]
         lane = k if k >= 0 else None
         age = tr.age_frames
         sj = s[j]
         vsj = vs[j]
         spj = speed[j]
-        fresh = not mi[tid, M_LIVE] or age < mi[tid, M_AGE]
+        fresh = not _pll_2(V_mi, tid, M_LIVE)[0] or age < _pll_2(V_mi, tid, M_AGE)[0]
         if fresh:
-            mi[tid, M_LIVE] = 1
-            mi[tid, M_AGE] = age
-            mi[tid, M_T] = t_ns
-            mi[tid, M_WRONG] = 0
-            mi[tid, M_WRONG_EMIT] = 0
-            mi[tid, M_HITS] = -1
-            mi[tid, M_STOP_VALID] = 0
-            mi[tid, M_STOP_SINCE] = 0
-            mi[tid, M_STOP_EMIT] = 0
-            mi[tid, M_COUNTED] = 0
-            mf[tid, 0] = sj
-            mf[tid, 1] = spj
+            _pll_2(V_mi, tid, M_LIVE)[0] = 1
+            _pll_2(V_mi, tid, M_AGE)[0] = age
+            _pll_2(V_mi, tid, M_T)[0] = t_ns
+            _pll_2(V_mi, tid, M_WRONG)[0] = 0
+            _pll_2(V_mi, tid, M_WRONG_EMIT)[0] = 0
+            _pll_2(V_mi, tid, M_HITS)[0] = -1
+            _pll_2(V_mi, tid, M_STOP_VALID)[0] = 0
+            _pll_2(V_mi, tid, M_STOP_SINCE)[0] = 0
+            _pll_2(V_mi, tid, M_STOP_EMIT)[0] = 0
+            _pll_2(V_mi, tid, M_COUNTED)[0] = 0
+            _pd2(V_mf, tid, 0)[0] = sj
+            _pd2(V_mf, tid, 1)[0] = spj
             meters[tid] = meter_cls(keep - 1)
         meter = meters[tid]
         if has_ext:
@@ -329,19 +386,19 @@ def monitor_pass(tuple tracks, const long long[::1] sel, list conf, const long l
             if lane is not None and late_on:
                 actions.append((0, j, k))
         else:
-            s0 = mf[tid, 0]
+            s0 = _pd2(V_mf, tid, 0)[0]
             crossed = (s0 - line) * (sj - line) < 0 or (sj == line and s0 != line)
-            against = dir_only and lane is not None and vsj * lane_dir[k] < 0
-            if crossed and lane is not None and not against and not (mi[tid, M_COUNTED] and once):
+            against = dir_only and lane is not None and vsj * _pll(V_lane_dir, k)[0] < 0
+            if crossed and lane is not None and not against and not (_pll_2(V_mi, tid, M_COUNTED)[0] and once):
                 f = (line - s0) / (sj - s0)
-                t0 = mi[tid, M_T]
+                t0 = _pll_2(V_mi, tid, M_T)[0]
                 tc = t0 + <long long>rint(f * <double>(t_ns - t0))
                 actions.append((1, j, k, tc))
-            mi[tid, M_AGE] = age
-            mf[tid, 0] = sj
-            mi[tid, M_T] = t_ns
-            if spj > mf[tid, 1]:  # max(max_speed, speed)
-                mf[tid, 1] = spj
+            _pll_2(V_mi, tid, M_AGE)[0] = age
+            _pd2(V_mf, tid, 0)[0] = sj
+            _pll_2(V_mi, tid, M_T)[0] = t_ns
+            if spj > _pd2(V_mf, tid, 1)[0]:  # max(max_speed, speed)
+                _pd2(V_mf, tid, 1)[0] = spj
         if lane is not None:
             if reach <= sj <= zone_hi:
                 sample_lists[k].append((t_ns, dt_ns, s[j], meter))
@@ -349,36 +406,36 @@ def monitor_pass(tuple tracks, const long long[::1] sel, list conf, const long l
                 if sj + L >= zone_lo:
                     presence[k] = True
             hits = tr.hits
-            if hits > mi[tid, M_HITS] and lane_sure[j]:
-                if vsj * lane_dir[k] < -ww_speed:
-                    mi[tid, M_WRONG] += 1
+            if hits > _pll_2(V_mi, tid, M_HITS)[0] and lane_sure[j]:
+                if vsj * _pll(V_lane_dir, k)[0] < -ww_speed:
+                    _pll_2(V_mi, tid, M_WRONG)[0] += 1
                 else:
-                    mi[tid, M_WRONG] = 0
-            if mi[tid, M_WRONG] >= ww_frames and not mi[tid, M_WRONG_EMIT]:
-                mi[tid, M_WRONG_EMIT] = 1
-                if not _same_wrong_way_driver(conf, ids, mi, s, vs, j, same_m, same_v):
+                    _pll_2(V_mi, tid, M_WRONG)[0] = 0
+            if _pll_2(V_mi, tid, M_WRONG)[0] >= ww_frames and not _pll_2(V_mi, tid, M_WRONG_EMIT)[0]:
+                _pll_2(V_mi, tid, M_WRONG_EMIT)[0] = 1
+                if not _same_wrong_way_driver(conf, V_ids, V_mi, s, vs, j, same_m, same_v):
                     events.append(("wrong_way", tid, lane))
-        if spj < stopped_speed and mf[tid, 1] >= moving_speed and lane is not None:
-            if not mi[tid, M_STOP_VALID]:
-                mi[tid, M_STOP_VALID] = 1
-                mi[tid, M_STOP_SINCE] = t_ns
-            if not mi[tid, M_STOP_EMIT] and t_ns - mi[tid, M_STOP_SINCE] >= stopped_min_ns:
-                mi[tid, M_STOP_EMIT] = 1
+        if spj < stopped_speed and _pd2(V_mf, tid, 1)[0] >= moving_speed and lane is not None:
+            if not _pll_2(V_mi, tid, M_STOP_VALID)[0]:
+                _pll_2(V_mi, tid, M_STOP_VALID)[0] = 1
+                _pll_2(V_mi, tid, M_STOP_SINCE)[0] = t_ns
+            if not _pll_2(V_mi, tid, M_STOP_EMIT)[0] and t_ns - _pll_2(V_mi, tid, M_STOP_SINCE)[0] >= stopped_min_ns:
+                _pll_2(V_mi, tid, M_STOP_EMIT)[0] = 1
                 events.append(("stopped_vehicle", tid, lane))
         elif spj >= moving_speed:
-            mi[tid, M_STOP_VALID] = 0
-            mi[tid, M_STOP_EMIT] = 0
+            _pll_2(V_mi, tid, M_STOP_VALID)[0] = 0
+            _pll_2(V_mi, tid, M_STOP_EMIT)[0] = 0
         elif spj >= stopped_speed:
-            mi[tid, M_STOP_VALID] = 0
-        mi[tid, M_HITS] = tr.hits
+            _pll_2(V_mi, tid, M_STOP_VALID)[0] = 0
+        _pll_2(V_mi, tid, M_HITS)[0] = tr.hits
         tcls = tr.cls
         if tcls is not None:
             cls_pub = tcls
         out[j] = tr if (tr.lane, tcls, tr.length_m) == (lane, cls_pub, length_pub) else _copy_with(
             tr, lane, cls_pub, length_pub, track_cls, with_fn)
     for i in range(cap):
-        if mi[i, M_LIVE] and not seen[i]:
-            mi[i, M_LIVE] = 0
+        if _pll_2(V_mi, i, M_LIVE)[0] and not _pu8(V_seen, i)[0]:
+            _pll_2(V_mi, i, M_LIVE)[0] = 0
             meters[i] = None
     frame = (t_ns, dt_ns)
     for acc in accs:
@@ -392,7 +449,7 @@ def monitor_pass(tuple tracks, const long long[::1] sel, list conf, const long l
             if t.length_m is not None:
                 pub[i] = _copy_with(t, t.lane, t.cls, None, track_cls, with_fn)
         for j in range(n):
-            pub[sel[j]] = out[j]
+            pub[_pll(V_sel, j)[0]] = out[j]
         published = tuple(pub)
     return published, presence, events, actions
 
@@ -410,7 +467,7 @@ cdef object _copy_with(tr, lane, cls, length, track_cls, with_fn):
     return out
 
 
-cdef bint _same_wrong_way_driver(list conf, const long long[::1] ids, long long[:, ::1] mi, list s, list vs,
+cdef bint _same_wrong_way_driver(list conf, _V V_ids, _V V_mi, list s, list vs,
                                  Py_ssize_t j, double same_m, double same_v):
     """TrafficMonitor._same_wrong_way_driver on the memo table (rows as they stand at track ``j``'s turn)."""
     cdef Py_ssize_t i
@@ -419,8 +476,9 @@ cdef bint _same_wrong_way_driver(list conf, const long long[::1] ids, long long[
     if same_v <= 0.0:
         return False
     for i in range(len(conf)):
-        tid = ids[i]
-        if (i != j and mi[tid, M_LIVE] and mi[tid, M_WRONG_EMIT] and conf[i].age_frames >= mi[tid, M_AGE]
+        tid = _pll(V_ids, i)[0]
+        if (i != j and _pll_2(V_mi, tid, M_LIVE)[0] and _pll_2(V_mi, tid, M_WRONG_EMIT)[0]
+                and conf[i].age_frames >= _pll_2(V_mi, tid, M_AGE)[0]
                 and fabs(<double>s[i] - sj) <= same_m and fabs(<double>vs[i] - vsj) <= same_v):
             return True
     return False
@@ -430,14 +488,18 @@ include "_pairwise.pxi"
 
 
 @cython.cdivision(True)
-def weighted_median(votes, const double[::1] live, const double[::1] w):
+def weighted_median(votes, live, w):
     """The start-up yaw estimate of :meth:`YawEstimator.estimate_rad` for up to 64 votes: the ended tracks'
     ``votes`` (rad, each weighted as the largest live weight, or 1) and the running tracks' ``live`` votes (rad)
     with weights ``w``. Returns ``(median, stderr)`` (rad): the weighted median (the first value, in stable order of
     value, whose cumulative weight reaches half the total) and ``_median_stderr``'s error, in the reference's
     operations and summation order; None for more than 64 votes or a NaN among them or their weights (the
     caller's numpy path)."""
-    cdef Py_ssize_t nv = len(votes), nl = live.shape[0], n = nv + nl, i, j
+    cdef _V V_live
+    _aview(live, cnp.NPY_FLOAT64, 1, False, True, &V_live, "live")
+    cdef _V V_w
+    _aview(w, cnp.NPY_FLOAT64, 1, False, True, &V_w, "w")
+    cdef Py_ssize_t nv = len(votes), nl = V_live.n[0], n = nv + nl, i, j
     cdef double top, x, wx, sw, mean, n_eff, var, d, half, acc
     if n > 64:
         return None
@@ -448,18 +510,18 @@ def weighted_median(votes, const double[::1] live, const double[::1] w):
     cdef int oi
     top = 1.0
     if nl:
-        top = w[0]
+        top = _pd1(V_w, 0)[0]
         for i in range(1, nl):
-            if w[i] > top:
-                top = w[i]
+            if _pd1(V_w, i)[0] > top:
+                top = _pd1(V_w, i)[0]
     i = 0
     for x in votes:
         v[i] = x
         wt[i] = top
         i += 1
     for j in range(nl):
-        v[nv + j] = live[j]
-        wt[nv + j] = w[j]
+        v[nv + j] = _pd1(V_live, j)[0]
+        wt[nv + j] = _pd1(V_w, j)[0]
     for i in range(n):
         if v[i] != v[i] or wt[i] != wt[i]:
             return None

@@ -75,3 +75,20 @@ def test_kernel_equals_reference_on_a_pipeline_run(monkeypatch):
     for f in frames(120):
         pipe.process(f, t)
     assert seen["calls"] > 50 and seen["kept"] > 20, seen
+
+
+def test_arrays_are_checked():
+    """The kernel reads its arrays through the numpy C API (edge/native/_views.pxi): another dtype or a strided
+    column where a contiguous one is needed is refused, as the typed memoryviews did."""
+    k = require_kernel("_aided")
+    state = np.zeros((3, 4))
+    sel = np.arange(3, dtype=np.int64)
+    r = np.ones(2, np.float32)
+    coef = np.ones(8)
+    k.predictions(state, sel, 0.03, r, r, 1.0, 0.0, 100.0, 1.0, 1.0, coef)
+    for i, bad in [(0, state.astype(np.float32)), (1, sel.astype(np.int32)), (3, np.ones(4, np.float32)[::2]),
+                   (10, np.ones(16)[::2])]:
+        args = [state, sel, 0.03, r, r, 1.0, 0.0, 100.0, 1.0, 1.0, coef]
+        args[i] = bad
+        with pytest.raises(ValueError):
+            k.predictions(*args)

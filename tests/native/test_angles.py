@@ -126,3 +126,25 @@ def test_kernel_equals_reference_on_recorded_snapshots(stem):
         n_frames += 1
         n_det += snaps.shape[0]
     assert n_frames > 100 and n_det > 200
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_kernel_equals_reference_on_flat_empty_and_nan_looks(seed):
+    """Looks whose angle spectrum is flat (one receive channel: every angle ties), nearly flat (ties after the
+    normalisation), empty (the 1e-30 floor) or NaN: the first largest angle as numpy's argmax, bit for bit."""
+    require_kernel("_angles")
+    rng = np.random.default_rng(900 + seed)
+    stage = _stage()
+    for n in (1, 3, 8):
+        snaps, bins, speeds = _random_snaps(rng, n)
+        i = rng.integers(0, n, 4)
+        snaps[i[0], 0] = 0
+        snaps[i[0], 0, 0] = 3.0 + 1.0j  # flat
+        snaps[i[1], 1] = 0
+        snaps[i[1], 1, :2] = (2.0, 1e-4j)  # nearly flat
+        snaps[i[2], 2] = 0  # empty
+        if seed % 2:
+            snaps[i[3], 3, 1] = np.nan  # NaN at every angle
+        outlier = np.float32(math.radians(4.0))
+        ref = stage.reference(snaps, outlier, bins, speeds)
+        _assert_same(stage.consensus(snaps, outlier, bins, speeds), ref)

@@ -137,3 +137,15 @@ def test_a_failing_track_extents_kernel_is_not_hidden():
         LanePipeline.track_extents(pipe, tracks, det)
     det.extra["body_extent_m"] = np.array([4.0, 5.0])  # float64: the numpy form, no call
     assert LanePipeline.track_extents(pipe, tracks, det).tolist() == [4.0]
+
+
+def test_arrays_are_checked():
+    """The kernels read their arrays through the numpy C API (edge/native/_views.pxi): float64, strided or non-array
+    columns are refused, as the typed memoryviews did."""
+    k = require_kernel("_faces")
+    f = np.arange(8, dtype=np.float32)
+    keep = np.ones(8, np.uint8)
+    k.near_faces(f, f, f, keep, 5.0, 1.0, 1.0, 1.0)
+    for bad in (f.astype(np.float64), np.arange(16, dtype=np.float32)[::2], f.tolist()):
+        with pytest.raises((ValueError, TypeError)):
+            k.near_faces(bad, f, f, keep, 5.0, 1.0, 1.0, 1.0)

@@ -40,7 +40,8 @@ def _cspec(rng, shape, scale=1.0):
 
 
 @settings(max_examples=25, deadline=None, derandomize=True)
-@given(n_rx=st.integers(1, 4), n_seg=st.integers(1, 4), n=st.sampled_from([8, 64, 256]), seed=st.integers(0, 2**16))
+@given(n_rx=st.integers(1, 4), n_seg=st.integers(1, 4), n=st.sampled_from([8, 64, 256, 7, 13]),
+       seed=st.integers(0, 2**16))
 def test_to_complex_equals_numpy(n_rx, n_seg, n, seed):
     k = require_kernel("_spectra")
     rng = np.random.default_rng(seed)
@@ -54,6 +55,22 @@ def test_to_complex_equals_numpy(n_rx, n_seg, n, seed):
     k.to_complex(i, q, w, out)
     assert np.array_equal(out, ref)
 
+
+
+def test_to_complex_refuses_other_arrays():
+    """The arrays are read through the numpy C API: other dtypes, shapes and layouts are refused."""
+    k = require_kernel("_spectra")
+    shape = (2, 3, 16)
+    i16 = lambda: np.zeros(shape, np.int16)  # noqa: E731
+    args = [i16(), i16(), np.ones(16, np.float32), np.empty(shape, np.complex64)]
+    k.to_complex(*args)
+    for j, bad in [(0, np.zeros(shape, np.int32)), (1, i16()[:, :, ::-1]), (2, np.ones(16, np.float64)),
+                   (2, np.ones(15, np.float32)), (3, np.empty(shape, np.complex128)), (3, np.empty((2, 3, 15), np.complex64)),
+                   (0, i16().tolist())]:
+        a = list(args)
+        a[j] = bad
+        with pytest.raises((ValueError, TypeError)):
+            k.to_complex(*a)
 
 @settings(max_examples=25, deadline=None, derandomize=True)
 @given(n_rx=st.integers(1, 4), n_seg=st.integers(1, 4), n=st.sampled_from([7, 64, 257]), seed=st.integers(0, 2**16),
@@ -221,3 +238,112 @@ def test_static_residue_equals_numpy(seed, n, learning):
     np.testing.assert_array_equal(got, want)
     assert n < 40 or 0 < got.sum() < n  # both answers occur
     assert k.static_residue(cmap._background, bins - n_bin - 1, power, floor, 2.5, 4.0) is None or n == 0
+
+
+def _maps(shape, rng, init_frames):
+    """A clutter map with the kernel and one without, in the same learnt state (previous frame, map, frame count)."""
+    from edge.lane.clutter import ClutterMap
+    from edge.pipelines.lane import LaneConfig
+
+    cfg = LaneConfig(clutter_map_init_frames=init_frames)
+    maps = [ClutterMap(cfg, shape, 0.033, [1.0, -1.0, 1.0, -1.0][: shape[1]]) for _ in range(2)]
+    prev, bg = _cspec(rng, shape), _cspec(rng, shape)
+    for m in maps:
+        m._prev, m._background[...] = prev.copy(), bg
+        m._map_init, m._map_frames = None, 200
+    maps[1].kernel = None
+    return maps
+
+
+@settings(max_examples=30, deadline=None, derandomize=True)
+@given(n_rx=st.integers(1, 5), n_seg=st.integers(1, 4), n=st.sampled_from([7, 16, 64, 257]),
+       seed=st.integers(0, 2**16), moving_share=st.floats(0.0, 0.5), held=st.booleans())
+def test_update_apply_power_equals_numpy(n_rx, n_seg, n, seed, moving_share, held):
+    """``ClutterMap.subtract`` with the fused kernel (update, static test, cells held by standing tracks,
+    subtraction, channel power) against its numpy form, bit for bit: the spectra, the map, the kept frame and the
+    padded power; one to five channels, bin counts with and without a remainder of four."""
+    from edge.lane.records import Feedback
+
+    rng = np.random.default_rng(seed)
+    shape, h = (n_rx, n_seg, n), min(5, n)
+    fast, ref = _maps(shape, rng, 16)
+    spec = fast._prev + _cspec(rng, shape, 0.05)
+    hot = rng.random((n_seg, n)) < moving_share
+    spec[:, hot] += _cspec(rng, (n_rx, int(hot.sum())), 3.0)
+    spec[:, :, ::6] = fast._prev[:, :, ::6]  # unchanged cells
+    cells = []
+    if held:  # a standing track's bins, wrapping around the segment's end
+        for k in range(n_seg):
+            cells.append((k, np.arange(n - 2, n + rng.integers(1, 5)) % n))
+    for m in (fast, ref):
+        m._standing_cells = lambda fb: cells
+    ppad = np.full((n_seg, n + 2 * h), np.nan, np.float32)
+    spec_k, spec_r = spec.copy(), spec.copy()
+    assert fast.subtract(spec_k, Feedback.none(), ppad, h) is True
+    assert ref.subtract(spec_r, Feedback.none(), None, h) is False
+    assert np.array_equal(spec_k.view(np.uint32), spec_r.view(np.uint32))
+    assert np.array_equal(fast.background.view(np.uint32), ref.background.view(np.uint32))
+    assert np.array_equal(fast._prev, spec) and np.array_equal(ref._prev, spec)
+    pw = _channel_power(spec_r)
+    assert np.array_equal(ppad.view(np.uint32), np.concatenate([pw[:, n - h:], pw, pw[:, :h]], axis=1).view(np.uint32))
+    if held:  # the held cells kept the map as it was
+        k0, idx = cells[0]
+        assert np.array_equal(ref.background[:, k0, idx], fast.background[:, k0, idx])
+
+
+def test_update_apply_power_refuses_other_arrays():
+    k = require_kernel("_spectra")
+    shape = (4, 2, 16)
+    c = lambda: np.zeros(shape, np.complex64)  # noqa: E731
+    f = lambda *s: np.zeros(s, np.float32)  # noqa: E731
+    args = [c(), c(), c(), 0.1, 8.0, 0.0025, None, f(2, 20), 2, f(2, 16), f(2, 16), f(16)]
+    k.update_apply_power(*args)
+    for i, bad in [(0, np.zeros(shape, np.complex128)), (1, c()[:, :, ::-1]), (2, c().T.copy().T),
+                   (6, np.zeros((2, 16), bool)), (7, f(2, 19)), (11, f(15))]:
+        a = list(args)
+        a[i] = bad
+        with pytest.raises((ValueError, TypeError)):
+            k.update_apply_power(*a)
+
+
+@pytest.mark.parametrize("n", [255, 256, 257, 1024, 4099])
+@pytest.mark.parametrize("pattern", ["random", "ties", "sample_large", "sample_small", "all_still"])
+def test_update_apply_power_median_equals_numpy(n, pattern):
+    """The fused kernel's segment median (a bracket from a sample of 64, Hoare's selection inside it, or on all the
+    values when the bracket misses) against numpy's: the static test alone (factor 1, no own-energy term) on exact
+    changes with ties and zeros, and with the sampled cells far above or below the others, so that the bracket
+    misses."""
+    from edge.lane.records import Feedback
+
+    rng = np.random.default_rng(n)
+    shape = (2, 3, n)
+    fast, ref = _maps(shape, rng, 16)
+    for m in (fast, ref):
+        m.config = type(m.config)(**{**m.config.__dict__, "clutter_map_static_factor": 1.0,
+                                     "clutter_map_static_rel": 0.0, "clutter_map_hold_speed_mps": 0.0})
+    # quantised spectra: every sum of squares exact, whatever the order of summation
+    prev = (np.round(_cspec(rng, shape) * 4) / 4).astype(np.complex64)
+    fast._prev, ref._prev = prev.copy(), prev.copy()
+    step = np.round(_cspec(rng, shape) * 2) / 2 if pattern == "ties" else np.round(_cspec(rng, shape) * 64) / 64
+    if pattern == "all_still":
+        step[:] = 0
+    sampled = np.zeros(n, bool)
+    if n >= 256:
+        sampled[np.arange(64) * (n // 64) + n // 128] = True
+    if pattern == "sample_large":  # the sampled cells change, the others stand still: the median is 0
+        step[:, :, ~sampled] = 0
+        step[:, :, sampled] *= 100
+    elif pattern == "sample_small":  # the sampled cells stand still, the others change
+        step[:, :, sampled] = 0
+    spec = (prev + step).astype(np.complex64)
+    h = 4
+    ppad = np.empty((shape[1], n + 2 * h), np.float32)
+    spec_k, spec_r = spec.copy(), spec.copy()
+    prev_bg = fast.background.copy()
+    assert fast.subtract(spec_k, Feedback.none(), ppad, h)
+    ref.subtract(spec_r, Feedback.none(), None, h)
+    assert np.array_equal(fast.background.view(np.uint32), ref.background.view(np.uint32))
+    assert np.array_equal(spec_k.view(np.uint32), spec_r.view(np.uint32))
+    # the held cells: those whose change exceeds the median (none when all stand still)
+    held = np.all(fast.background == prev_bg, axis=0) & np.any(spec != prev_bg, axis=0)
+    assert 0 < np.count_nonzero(held) < held.size or pattern == "all_still" or (pattern.startswith("sample") and n < 256)

@@ -1448,3 +1448,39 @@ def test_seed_states_on_tracker_frames_are_identical():
         tr.road_yaw_rad = 0.05 * math.sin(t_ns * 1e-9)
         tr.step(det, t_ns)
     assert seen[0] > 100
+
+
+def test_kernel_arrays_are_read_with_their_strides_and_checked():
+    """The kernels read their arrays through the numpy C API (edge/native/_views.pxi): strided columns give the same
+    bits as contiguous ones; another dtype, byte order, a read-only output column, a non-array, or a non-contiguous
+    array where the kernel needs a contiguous one are refused."""
+    rng = np.random.default_rng(5)
+    t, m = 12, 7
+    gated = rng.random((2 * t, 2 * m)) < 0.2
+    cols = [rng.integers(1, 50, 2 * t).astype(np.int32) for _ in range(3)] + [
+        rng.integers(0, 2**32, 2 * t, dtype=np.uint64).astype(np.uint32)]
+    age, hits = cols[0][::2].copy(), cols[1][::2].copy()
+    want = K.count_hits(np.ascontiguousarray(gated[::2, ::2]), age, hits, cols[2][::2].copy(), cols[3][::2].copy())
+    age_s, hits_s = cols[0].copy(), cols[1].copy()
+    got = K.count_hits(gated[::2, ::2], age_s[::2], hits_s[::2], cols[2][::2], cols[3][::2])
+    assert all(g.tobytes() == w.tobytes() for g, w in zip(got, want))
+    assert np.array_equal(age_s[::2], age) and np.array_equal(hits_s[::2], hits)
+    assert np.array_equal(age_s[1::2], cols[0][1::2])  # the rows between untouched
+    ok = [gated[::2, :m], age.copy(), hits.copy(), cols[2][::2], cols[3][::2]]
+    ro = age.copy()
+    ro.flags.writeable = False
+    for i, bad, err in [(1, age.astype(np.int64), ValueError), (3, cols[2][::2].astype(">i4"), ValueError),
+                        (1, ro, ValueError), (0, gated[::2, :m].tolist(), TypeError),
+                        (0, gated[::2, :m].astype(np.int8), ValueError), (4, cols[3][::2, None], ValueError)]:
+        args = list(ok)
+        args[i] = bad
+        with pytest.raises(err):
+            K.count_hits(*args)
+    # reach_m, pdx, pdy, pair and det must be contiguous (the former typed memoryviews' ``::1``)
+    x = rng.normal(0, 10, (t, 4))
+    vec = np.ones(2 * t)
+    pair = np.full(t, -1, np.int64)
+    run = np.zeros(t, np.int32)
+    K.duplicate_pairs(x, 1.0, 1.0, vec[:t], 1.0, vec[:t], vec[:t], 9.0, pair, pair, True, run, 3)
+    with pytest.raises(ValueError):
+        K.duplicate_pairs(x, 1.0, 1.0, vec[::2], 1.0, vec[:t], vec[:t], 9.0, pair, pair, True, run, 3)
