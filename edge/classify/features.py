@@ -15,8 +15,8 @@ Per frame and cluster (:class:`SignatureExtractor`, vectorised over every point 
 * beyond the paper, the cluster's *range extent*: the span in range of its cells within
   ``extent_level_db`` (20 dB) of its strongest cell and within ``extent_doppler_kmh`` of that cell's wrapped
   Doppler, the body's (a rotating wheel's micro-Doppler moves its cells in range through the range-Doppler
-  coupling, by 0.54 m per 10.7 km/h on the Distance2Go, so the span of all its cells grows with speed; that span
-  serves the tracker and the speed). Seen along the road, a body's scatterers spread
+  coupling, by 0.54 m per 10.7 km/h on the Distance2Go, so the span of all its cells grows with speed; the span
+  of all the cells still serves the tracker and the speed). Seen along the road, a body's scatterers spread
   over its length in range (motorcycle ~2 m, car ~4.5 m, truck/bus 7-12 m; the range resolution is
   0.75 m), which eq. 17's RCS quantity and eq. 18's Doppler spread do not tell apart: with the five
   features of eq. 19 alone, 3-fold CV of the k = 13 k-NN on the simulated reference set was 0.84
@@ -466,33 +466,34 @@ class SignatureExtractor(native.KernelUser):
         r_sum = np.bincount(lab, rng, minlength=L)
         ca = np.bincount(lab, amp * cos, minlength=L)
         sa = np.bincount(lab, amp * sin, minlength=L)
-        lo, hi = self._extent(lab, rng, amp, L)
+        peak = np.zeros(L, dtype=np.float32)
+        np.maximum.at(peak, lab, amp)
+        lo, hi = self._extent(lab, rng, amp, peak)
         if self.extent_cos > -1.0:
-            blo, bhi = self._extent(lab, rng, amp, L, self._near_peak_doppler(lab, amp, cos, sin, L))
+            blo, bhi = self._extent(lab, rng, amp, peak, self._near_peak_doppler(lab, amp, cos, sin, peak))
         else:
             blo, bhi = lo.copy(), hi.copy()
         return n, c, s, r_sum, ca, sa, lo, hi, blo, bhi
 
-    def _near_peak_doppler(self, lab, amp, cos, sin, L) -> np.ndarray:
+    def _near_peak_doppler(self, lab, amp, cos, sin, peak) -> np.ndarray:
         """Cells within ``extent_doppler_kmh`` of their cluster's strongest cell (the first of equals) on the
-        cylinder (float32 cos and sin of the cells' angles); every cell of a cluster without a positive amplitude."""
-        peak = np.zeros(L, dtype=np.float32)
-        np.maximum.at(peak, lab, amp)
+        cylinder (float32 cos and sin of the cells' angles; ``peak`` (L,) the clusters' largest amplitudes); every
+        cell of a cluster without a positive amplitude."""
+        L = peak.size
         at_peak = np.flatnonzero((amp == peak[lab]) & (amp > 0))
         ks, first = np.unique(lab[at_peak], return_index=True)
         pk = np.zeros(L, dtype=np.intp)
         pk[ks] = at_peak[first]
         return ((cos * cos[pk[lab]] + sin * sin[pk[lab]]) >= self.extent_cos) | (peak[lab] <= 0)
 
-    def _extent(self, lab, rng, amp, L, cells=None) -> tuple[np.ndarray, np.ndarray]:
-        """Range span of each cluster's cells within ``extent_level_db`` of its strongest cell (of those where
-        ``cells`` is true, when given)."""
+    def _extent(self, lab, rng, amp, peak, cells=None) -> tuple[np.ndarray, np.ndarray]:
+        """Range span of each cluster's cells within ``extent_level_db`` of its strongest cell (``peak`` (L,) the
+        clusters' largest amplitudes; of the cells where ``cells`` is true, when given)."""
+        L = peak.size
         lo = np.full(L, np.nan)
         hi = np.full(L, np.nan)
         if lab.size == 0:
             return lo, hi
-        peak = np.zeros(L, dtype=np.float32)
-        np.maximum.at(peak, lab, amp)
         strong = amp >= peak[lab] * np.float32(self.extent_ratio)
         if cells is not None:
             strong &= cells
