@@ -174,3 +174,31 @@ def test_glint_kernel_equals_reference_on_a_pipeline_run(monkeypatch, scenario):
     for f in frames(160):
         pipe.process(f, t)
     assert seen["calls"] > 50 and seen["dets"] > 300, seen
+
+
+def test_kernel_equals_reference_within_a_metre_of_the_largest_range():
+    """Detections just inside the kernel's range limit (span / period + mounting height), on roads turned by the
+    yaw, where some aliases still land in a lane of their direction and move."""
+    require_kernel("_unalias")
+    rng = np.random.default_rng(0)
+    stages = {h: _stage(dataclasses.replace(LaneConfig(), mounting_height_m=h)) for h in (1.0, 6.0, 8.0)}
+    moved = 0
+    for trial in range(300):
+        stage = stages[float(rng.choice([1.0, 6.0, 8.0]))]
+        cfg = stage.config
+        n_l = int(rng.integers(1, 7))
+        width = float(rng.choice([3.5, 3.75]))
+        c0 = float(rng.uniform(-6.0, 6.0))
+        centres = [c0 + (k - (n_l - 1) / 2) * width for k in range(n_l)]
+        lanes = tuple(Lane(c, width, (1 if c > c0 else -1) * (-1 if rng.random() < 0.3 else 1)) for c in centres)
+        fb = _feedback(lanes, float(rng.normal(0.0, 0.3)))
+        span, _ = stage.road.lane_arrays(lanes)
+        limit = np.float32(span / stage.period + cfg.mounting_height_m)
+        r = (limit - rng.uniform(0.0, 1.0, 64)).astype(np.float32)
+        r[0] = limit
+        v = rng.choice([-20.0, 15.0], r.size).astype(np.float32)
+        az = np.arcsin(rng.uniform(-1.0, 1.0, r.size)).astype(np.float32)
+        ref = stage.reference(r, v, az, fb)
+        _assert_same(stage.unalias(r, v, az, fb), ref)
+        moved += int((ref.view(np.int32) != az.view(np.int32)).sum())
+    assert moved > 0
