@@ -22,6 +22,17 @@ def _feedback(lanes, yaw: float) -> Feedback:
     return dataclasses.replace(fb, lanes=lanes, yaw_rad=yaw)
 
 
+def _random_road(rng, offset_m: float, against_p: float, yaw_sd: float):
+    """A road: lanes toward the radar on one side, away on the other, its middle up to ``offset_m`` off the radar's
+    axis, a lane against its side's direction with probability ``against_p``; and its feedback, yaw ~ N(0, yaw_sd)."""
+    n_l = int(rng.integers(1, 7))
+    width = float(rng.choice([3.5, 3.75]))
+    c0 = float(rng.uniform(-offset_m, offset_m))
+    centres = [c0 + (k - (n_l - 1) / 2) * width for k in range(n_l)]
+    lanes = tuple(Lane(c, width, (1 if c > c0 else -1) * (-1 if rng.random() < against_p else 1)) for c in centres)
+    return lanes, _feedback(lanes, float(rng.normal(0.0, yaw_sd)))
+
+
 def _stage(cfg):
     from hw_sim.scenario import load_scenario_for_eval
 
@@ -43,14 +54,7 @@ def test_kernel_equals_reference_on_random_detections(seed):
     assert stage.kernel is not None
     moved = 0
     for n in (1, 3, 10, 40, 80, 80, 80):
-        # a road: lanes toward the radar on one side, away on the other, its middle off the radar's axis, and now
-        # and then a lane against its side's direction
-        n_l = int(rng.integers(1, 7))
-        width = float(rng.choice([3.5, 3.75]))
-        c0 = float(rng.uniform(-3.0, 3.0))
-        centres = [c0 + (k - (n_l - 1) / 2) * width for k in range(n_l)]
-        lanes = tuple(Lane(c, width, (1 if c > c0 else -1) * (-1 if rng.random() < 0.1 else 1)) for c in centres)
-        fb = _feedback(lanes, float(rng.normal(0.0, 0.05)))
+        lanes, fb = _random_road(rng, 3.0, 0.1, 0.05)
         r = rng.uniform(0.5, 30.0, n).astype(np.float32)
         v = rng.choice([-20.0, -0.5, 0.0, 0.5, 15.0, np.float32(cfg.unalias_min_speed_mps)], n).astype(np.float32)
         az = rng.uniform(-1.2, 1.2, n).astype(np.float32)
@@ -186,12 +190,7 @@ def test_kernel_equals_reference_within_a_metre_of_the_largest_range():
     for trial in range(300):
         stage = stages[float(rng.choice([1.0, 6.0, 8.0]))]
         cfg = stage.config
-        n_l = int(rng.integers(1, 7))
-        width = float(rng.choice([3.5, 3.75]))
-        c0 = float(rng.uniform(-6.0, 6.0))
-        centres = [c0 + (k - (n_l - 1) / 2) * width for k in range(n_l)]
-        lanes = tuple(Lane(c, width, (1 if c > c0 else -1) * (-1 if rng.random() < 0.3 else 1)) for c in centres)
-        fb = _feedback(lanes, float(rng.normal(0.0, 0.3)))
+        lanes, fb = _random_road(rng, 6.0, 0.3, 0.3)
         span, _ = stage.road.lane_arrays(lanes)
         limit = np.float32(span / stage.period + cfg.mounting_height_m)
         r = (limit - rng.uniform(0.0, 1.0, 64)).astype(np.float32)
