@@ -30,11 +30,13 @@ vector of eq. 19 plus the extent,
 with unbiased variances over the frames where the track had a cluster. ``v_r`` is, in the paper
 (``classify.features.speed_feature = "range_rate"``), the radial speed from the displacement of the
 centroid's range between consecutive visible frames (km/h, divided by the real elapsed time, so a
-missed frame does not double a speed). By default (``"doppler"``, beyond the paper) it is each
+missed frame does not double a speed). With ``"doppler"`` (beyond the paper) it is each
 frame's wrapped Doppler of the cluster unaliased with the track's range rate
 (:class:`RadialSpeedEstimator`, fed through ``TrackFeatureAccumulator(vmax_kmh=...)``): the range
-displacement of a slow target is mostly centroid jitter (a pedestrian crossing the beam at 1.7 km/h
-read 10 km/h, like a slow motorcycle; docs/decisions/0021).
+displacement of a slow target is mostly centroid jitter (docs/decisions/0021). By default
+(``"event"``) an ended track's value is the mean magnitude of the frames its event speed is taken from,
+on the fitted alias (:meth:`RadialSpeedEstimator.event_speed_kmh`, docs/decisions/0032); live tracks
+keep ``"doppler"``.
 :meth:`TrackFeatureAccumulator.mean_radial_speed_kmh` is the least-squares slope of centroid range
 against time (km/h, positive receding). Weighted standardisation (eq. 20) lives in
 :func:`weighted_standardization`.
@@ -194,10 +196,11 @@ class FeatureConfig:
                   "range through the range-Doppler coupling); 0 = every cell", "min": 0.0, "max": 100.0},
     )
     speed_feature: str = field(
-        default="doppler",
+        default="event",
         metadata={"doc": "E(|v_r|) of eq. 19 from: range_rate = the centroid's range displacement between frames "
-                         "(paper), doppler = each frame's wrapped Doppler unaliased with the range rate (beyond the "
-                         "paper)", "choices": ("range_rate", "doppler")},
+                         "(paper), doppler = each frame's wrapped Doppler unaliased with the range rate, event = the "
+                         "frames of the ended track's event speed, on its alias (event_speed_alias; live tracks: "
+                         "doppler)", "choices": ("range_rate", "doppler", "event")},
     )
     event_speed: str = field(
         default="trimmed_mean",
@@ -383,7 +386,7 @@ class SignatureExtractor(native.KernelUser):
         #: power factor referring eq. 17 to the reference set's board (rcs_calibration_db; 1 at the datasheet C)
         self.rcs_factor = rcs_gain_factor(config.rcs_calibration_db)
         # TrackFeatureAccumulator(vmax_kmh=...): E(|v_r|) from the unaliased Doppler (speed_feature = "doppler")
-        self.speed_vmax_kmh = self.cylinder.vmax_kmh if config.speed_feature == "doppler" else None
+        self.speed_vmax_kmh = self.cylinder.vmax_kmh if config.speed_feature in ("doppler", "event") else None
         #: the compiled cluster sums (edge/native/_survsig.pyx), None: the numpy reference (:meth:`_sums`) runs
         self.kernel = native.load("_survsig")
         self._scratch = np.empty(0, dtype=np.int32)  # the kernel's cell grid, grown to the largest bin box seen
@@ -1074,7 +1077,7 @@ class RadialSpeedEstimator:
 
     def event_speed_kmh(self, alias: str = "history", statistic: str = "trimmed_mean", leading_edge_m: float = 0.0,
                         alias_edge_m: float = 3.0, alias_margin_kmh: float = 3.2, edge_limit_m: float = math.inf,
-                        alias_tol_m: float = 0.75, **cap) -> tuple[float, bool]:
+                        alias_tol_m: float = 0.75, abs_mean: bool = False, **cap) -> tuple:
         """The mean radial speed of the passage (km/h) and whether its alias is certain.
 
         ``alias = "history"``: one alias for the whole history (:meth:`history_alias` with ``alias_edge_m`` and
@@ -1083,7 +1086,8 @@ class RadialSpeedEstimator:
         latest :data:`FIT_MAX_FRAMES` frames; the speeds of the frames on its path, from three on); ``"frame"``: each frame's alias from the
         middle-half range rate (:meth:`speeds_kmh` with ``leading_edge_m``; certain from three frames on). ``statistic``: ``median`` or
         ``trimmed_mean`` (within ``v_max`` of the median) of the per-frame speeds left by the cap (``cap``: the
-        keywords of :meth:`capped_speeds_kmh`)."""
+        keywords of :meth:`capped_speeds_kmh`). With ``abs_mean``, a third value: the mean of those speeds'
+        magnitudes (the ``event`` speed feature; NaN when none)."""
         if alias == "history":
             v, _, certain = self.history_alias(alias_edge_m, alias_margin_kmh, edge_limit_m)
         elif alias == "fit":
@@ -1097,11 +1101,13 @@ class RadialSpeedEstimator:
         v = self._capped(v, cap.get("cap_range_m", 0.0), cap.get("cap_margin_kmh", 0.5), cap.get("cap_min_kmh", 13.0),
                          ranges if alias == "fit" else None)
         if not v.size:
-            return math.nan, False
+            return (math.nan, False, math.nan) if abs_mean else (math.nan, False)
         if statistic == "median":
-            return float(np.median(v)), certain
-        keep = np.abs(v - np.median(v)) <= self.vmax_kmh
-        return float(np.mean(v[keep])), certain
+            out = float(np.median(v))
+        else:
+            keep = np.abs(v - np.median(v)) <= self.vmax_kmh
+            out = float(np.mean(v[keep]))
+        return (out, certain, float(np.mean(np.abs(v)))) if abs_mean else (out, certain)
 
     def mean_abs_speed_kmh(self) -> float:
         """``float(np.mean(np.abs(self.speeds_kmh())))`` (the tracks' ``E(|v_r|)`` feature) with fewer numpy

@@ -807,9 +807,12 @@ class SurveillanceTracker:
             fc = self.extractor.config
             cap = {"cap_range_m": fc.event_speed_cap_range_m, "cap_margin_kmh": fc.event_speed_cap_margin_kmh,
                    "cap_min_kmh": fc.event_speed_cap_min_kmh}
-            v, certain = spd.event_speed_kmh(fc.event_speed_alias, fc.event_speed, fc.event_speed_leading_edge_m,
-                                             fc.event_speed_alias_edge_m, fc.event_speed_alias_margin_kmh,
-                                             self._edge_limit_m, fc.event_speed_alias_tol_m, **cap)
+            v, certain, v_abs = spd.event_speed_kmh(fc.event_speed_alias, fc.event_speed, fc.event_speed_leading_edge_m,
+                                                    fc.event_speed_alias_edge_m, fc.event_speed_alias_margin_kmh,
+                                                    self._edge_limit_m, fc.event_speed_alias_tol_m, abs_mean=True,
+                                                    **cap)
+            if fc.speed_feature == "event" and math.isfinite(v_abs):
+                x[4] = v_abs  # E(|v_r|) of the event speed's frames, on its alias
         if not math.isfinite(v):
             v, certain = acc.mean_radial_speed_kmh(), False
         if self.classifier is not None and np.all(np.isfinite(x)):

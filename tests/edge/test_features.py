@@ -451,6 +451,22 @@ def test_fit_alias_decides_a_long_body_entering_and_leaving_the_view_by_its_edge
                                                                                               abs=0.2)
 
 
+def test_event_speed_feature_is_on_the_fitted_alias_where_the_doppler_feature_is_a_step_slow():
+    """The ``event`` speed feature (mean |v| of the frames the event speed averages) of the long body above: on the
+    fitted alias, where the ``doppler`` feature (each frame on the centroid's middle-half rate) is one step slow."""
+    t, v_true, centroid, lo, hi = _long_body_passing()
+    est = _feed(RadialSpeedEstimator(VMAX), t, centroid, np.full(t.size, v_true), lo, hi)
+    assert est.mean_abs_speed_kmh() == pytest.approx(v_true - 2 * VMAX, abs=0.2)
+    v, certain, v_abs = est.event_speed_kmh("fit", edge_limit_m=21.0, abs_mean=True)
+    assert (v, certain) == est.event_speed_kmh("fit", edge_limit_m=21.0)
+    assert v_abs == pytest.approx(v_true, abs=0.2)
+    # approaching: the magnitude, not the signed speed
+    est = _feed(RadialSpeedEstimator(VMAX), t, centroid[::-1], np.full(t.size, -v_true), lo[::-1], hi[::-1])
+    v, _, v_abs = est.event_speed_kmh("fit", edge_limit_m=21.0, abs_mean=True)
+    assert v == pytest.approx(-v_true, abs=0.2) and v_abs == pytest.approx(v_true, abs=0.2)
+    assert math.isnan(RadialSpeedEstimator(VMAX).event_speed_kmh("fit", abs_mean=True)[2])  # no frames
+
+
 def test_fit_alias_of_a_short_fast_track():
     """A motorcycle receding at 36 km/h seen in five frames (2 m a frame) with a noisy centroid: right and certain;
     the same track approaching: right too."""

@@ -104,3 +104,41 @@ def test_a_speed_whose_fitted_alias_is_not_sure_is_published_as_not_available():
     unsure, events = published(20.0 + 5.35)
     assert unsure and all(math.isnan(t.radial_speed_mps) for t in unsure)
     assert len(events) == 1 and events[0].speed_uncertain
+
+
+def _body_points(lo, hi, v_kmh, amp=5.0):
+    """The cells of a body from range ``lo`` to ``hi`` (m), nine Doppler bins around its wrapped ``v_kmh``."""
+    from edge.classify.features import MapPoints
+    from tests.edge.survscene import N_BINS, RANGE_SPAN_M, VMAX, wrap
+
+    dr, dv = RANGE_SPAN_M / N_BINS, 2 * VMAX / N_BINS
+    rb = np.arange(int(round(lo / dr)), int(round(hi / dr)) + 1)
+    db = np.mod(int(round((wrap(v_kmh) + VMAX) / dv)) + np.arange(-4, 5), N_BINS)
+    r, d = (a.ravel() for a in np.meshgrid(rb, db, indexing="ij"))
+    return MapPoints((r * dr).astype(np.float32), (d * dv - VMAX).astype(np.float32),
+                     np.full(r.size, amp, np.float32), r.astype(np.int32), d.astype(np.int32),
+                     np.zeros(r.size, np.int32))
+
+
+@pytest.mark.parametrize("speed_feature", ["doppler", "event"])
+def test_the_event_speed_feature_is_the_event_speeds_alias_on_a_long_body(speed_feature):
+    """A 12 m body receding at 25 km/h from beside the radar (its rear stays at 6 m while its front moves out, then
+    the front is cut at 23.9 m): its centroid moves at about half the speed. The event speed, fitted to the edges, is
+    25 km/h; the ``event`` speed feature is on that alias, the ``doppler`` one (each frame's alias from the centroid's
+    middle-half rate) one step slow."""
+    from edge.classify.features import FeatureConfig
+    from edge.track.surveillance import SurveillanceTracker
+    from hal.waveform import d2g_frontend
+
+    st = SurveillanceTracker(d2g_frontend(), 2.0, classify=False,
+                             features=FeatureConfig(event_speed_alias="fit", speed_feature=speed_feature))
+    events = []
+    for n in range(24):
+        front = 7.0 + 25.0 / 3.6 * 0.2 * n
+        hi = min(front, 23.9)
+        events += st.update(int(n * 0.2e9), _body_points(min(max(front - 12.0, 6.0), hi - 0.5), hi, 25.0),
+                            seq=n).classifications
+    events += st.close()
+    assert len(events) == 1 and events[0].mean_radial_speed_kmh == pytest.approx(25.0, abs=0.5)
+    feature = events[0].features["abs_radial_speed_mean_kmh"]
+    assert feature == pytest.approx(25.0 if speed_feature == "event" else 25.0 - STEP, abs=1.0)
