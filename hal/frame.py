@@ -37,6 +37,12 @@ class RawFrame:
         out.imag = self.q
         return out
 
+    def clipped_samples(self) -> tuple[int, int]:
+        """``(clipped, total)``: the I and Q samples at the ADC's full scale (its smallest or largest code), and all."""
+        lo, hi = self.frontend.adc_min, self.frontend.adc_max
+        clipped = sum(int(np.count_nonzero((a <= lo) | (a >= hi))) for a in (np.asarray(self.i), np.asarray(self.q)))
+        return clipped, int(np.asarray(self.i).size + np.asarray(self.q).size)
+
     @property
     def waveform(self):
         return self.frontend.waveform

@@ -93,9 +93,9 @@ def measure_reflector(frames: Iterable, frontend, *, rcs_m2: float, range_m: flo
         a, r = reflector_amplitude(f.iq(), frontend, range_m=range_m, window_m=window_m, k_sf=k_sf)
         amps.append(a)
         where.append(r)
-        for rail in (np.asarray(f.i), np.asarray(f.q)):
-            clipped += int(np.count_nonzero((rail <= frontend.adc_min) | (rail >= frontend.adc_max)))
-            total += rail.size
+        c, n = f.clipped_samples()
+        clipped += c
+        total += n
     if len(amps) < 2:
         raise ValueError("the reflector measurement needs at least two frames")
     if clipped > max_clipped_fraction * total:

@@ -18,6 +18,7 @@ from typing import Any
 
 from edge.classify.knn import ColumnSelect, KnnConfig, WeightedKNN, knn_for
 from edge.classify.onnx_runtime import OnnxKnnClassifier
+from edge.classify.features import feature_setting_mismatches
 from edge.classify.reference import DEFAULT_CLASSES, load_reference_set
 
 log = logging.getLogger(__name__)
@@ -33,8 +34,10 @@ def build_classifier(config: Any, expected_classes: tuple[str, ...] | None = DEF
         ref = load_reference_set(kc.reference_set or None)
         log.info("classifier: numpy weighted k-NN, k=%d %s, %d reference vectors, features %s", kc.k, kc.metric,
                  len(ref), ",".join(kc.features))
+        _warn_feature_settings(ref.meta.get("classify.features", {}), config, kc.reference_set or "packaged default")
         return knn_for(ref, kc)
     model = OnnxKnnClassifier(oc.model or None, threads=oc.threads, expected_classes=expected_classes)
+    _warn_feature_settings(model.metadata.get("build", {}).get("classify.features", {}), config, str(model.path))
     origin = getattr(config, "origin", {})
     for key, mine in (("k", model.k), ("metric", model.metric), ("features", tuple(model.feature_names))):
         if f"classify.knn.{key}" in origin and getattr(kc, key) != mine:
@@ -42,6 +45,22 @@ def build_classifier(config: Any, expected_classes: tuple[str, ...] | None = DEF
                         "numpy to use classify.knn, or re-export the model)", key, getattr(kc, key), model.path, key,
                         mine)
     return ColumnSelect(model, model.feature_names)
+
+
+def feature_settings_check(recorded: dict, config: Any) -> list[str]:
+    """The ``classify.features`` settings that differ from those the classifier's reference set was built with
+    (:func:`edge.classify.features.feature_setting_mismatches`); empty when the configuration has no such section."""
+    section = getattr(config, "section", None)
+    if section is None:
+        return []
+    return feature_setting_mismatches(recorded or {}, section("classify.features"))
+
+
+def _warn_feature_settings(recorded: dict, config: Any, source: str) -> None:
+    bad = feature_settings_check(recorded, config)
+    if bad:
+        log.warning("classify.features differ from the settings the classifier's reference set (%s) was built with: "
+                    "%s; its classes will be off (rebuild the set and the model)", source, "; ".join(bad))
 
 
 def classifier_latency(config: Any, *, queries: int = 2000, batch: int = 1, seed: int = 0) -> dict[str, Any]:

@@ -51,7 +51,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -65,6 +65,8 @@ __all__ = [
     "FEATURE_NAMES",
     "ClusterSignatures",
     "distinct_among",
+    "feature_setting_mismatches",
+    "feature_settings",
     "FeatureConfig",
     "MapPoints",
     "RadialSpeedEstimator",
@@ -87,6 +89,20 @@ FEATURE_NAMES: tuple[str, ...] = (
     "abs_radial_speed_mean_kmh",
     "range_extent_m",
 )
+
+
+def feature_settings(config: "FeatureConfig") -> dict:
+    """The ``classify.features`` settings that shape the feature vector (all but the board's RCS calibration, which
+    refers a board to the reference set's), as a reference set records them."""
+    return {f.name: getattr(config, f.name) for f in fields(config) if not f.name.startswith("rcs_calibration")}
+
+
+def feature_setting_mismatches(recorded: dict, config: "FeatureConfig") -> list[str]:
+    """``"key = configured (the reference set's: recorded)"`` for each setting a reference set recorded
+    (:func:`feature_settings`) that the configuration sets otherwise; keys it did not record are not compared."""
+    mine = feature_settings(config)
+    return [f"{k} = {mine[k]!r} (the reference set's: {v!r})" for k, v in sorted(recorded.items())
+            if k in mine and mine[k] != v]
 
 
 def distinct_among(names, among=FEATURE_NAMES) -> bool:

@@ -57,7 +57,7 @@ def build_and_export(
 ) -> ExportResult:
     """Load ``reference`` (path, set, or ``None``/``""`` = the packaged default), drop classes, keep the
     ``features`` (names; None = all of the set's), fit the weighted k-NN with ``k``/``metric``/``weighting`` and
-    export it to ``out`` (its input: those features)."""
+    export it to ``out`` (its input: those features). ``build`` gains the set's recorded ``classify.features``."""
     from edge.classify.training import drop_classes
 
     ref = reference if isinstance(reference, ReferenceSet) else load_reference_set(reference or None)
@@ -66,6 +66,9 @@ def build_and_export(
     if features is not None:
         ref = ref.select(features)
     knn = WeightedKNN(ref.classes, k=k, metric=metric).fit(ref.features, ref.labels, weighting)
+    build = dict(build or {})
+    if "classify.features" in ref.meta:  # the feature settings the set was built with, for the check at start
+        build.setdefault("classify.features", ref.meta["classify.features"])
     return export_knn(knn, ref, out, weighting=weighting, build=build)
 
 

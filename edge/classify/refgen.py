@@ -72,7 +72,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from edge.classify.features import FEATURE_NAMES, FeatureConfig, MapPoints, SignatureExtractor, TrackFeatureAccumulator
+from edge.classify.features import (FEATURE_NAMES, FeatureConfig, MapPoints, SignatureExtractor, TrackFeatureAccumulator,
+                                    feature_settings)
 from edge.classify.reference import DEFAULT_CLASSES, ReferenceSet, default_reference_path, save_reference_set
 from hal.waveform import characteristics
 
@@ -322,10 +323,7 @@ def build_reference_set(
         "skipped_events": skipped,
         "pipeline.surveillance": {k: getattr(sc_cfg, k) for k in ("k_c", "k_sf", "th_rd", "n_range_fft",
                                                                   "n_doppler_fft")},
-        "classify.features": {"if_corner_hz": feat_cfg.if_corner_hz, "range_exponent": feat_cfg.range_exponent,
-                              "speed_feature": feat_cfg.speed_feature,
-                              "extent_level_db": feat_cfg.extent_level_db,
-                              "extent_percentile": feat_cfg.extent_percentile},
+        "classify.features": feature_settings(feat_cfg),
         "build_seconds": round(elapsed, 1),
         "command": REGENERATE_COMMAND,
     }

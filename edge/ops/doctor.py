@@ -131,8 +131,10 @@ class System:
                 else:
                     info["firmware"] = str(fw)
             try:
-                src.read_frame(timeout=3.0)
+                frame = src.read_frame(timeout=3.0)
                 info["frame"] = "received"
+                clipped, total = frame.clipped_samples()
+                info["clipped_fraction"] = clipped / total if total else 0.0
             except Exception as exc:  # noqa: BLE001 - reported, the check goes on
                 info["frame"] = f"none: {exc}"
             return info
@@ -272,10 +274,20 @@ def check_source(sys_: System, cfg: Any, open_board: bool) -> list[Check]:
     if eps:
         detail += "; endpoints " + ", ".join(f"{n}:{t}" for t, n in sorted(eps.items(), key=lambda kv: kv[1]))
     status = "ok" if str(info.get("frame", "")).startswith("received") else "warn"
-    out.append(Check("board", status, detail, "" if status == "ok" else
-                     "the board answers but sends no frames: check the USB cable/power, then unplug and replug",
-                     data=info))
+    fix = "" if status == "ok" else "the board answers but sends no frames: check the USB cable/power, then unplug and replug"
+    clipped = info.get("clipped_fraction")
+    if status == "ok" and clipped is not None and clipped > CLIPPED_SAMPLES_WARN:
+        status = "warn"
+        detail += f"; {clipped:.1%} of the frame's samples at the ADC's full scale"
+        fix = ("the board is saturated (clipped samples mix every echo with the others and with the TX->RX leakage: "
+               "ghost targets, wrong RCS): clear what stands close in front of the radome, check the radome and the "
+               "mounting; if an empty scene still clips, the board's gain is too high for this site")
+    out.append(Check("board", status, detail, fix, data=info))
     return out
+
+
+#: a board frame with more than this share of its samples at the ADC's full scale is saturated (as calibrate --rcs)
+CLIPPED_SAMPLES_WARN = 1e-4
 
 
 def check_modbus(sys_: System, cfg: Any) -> list[Check]:
@@ -418,10 +430,20 @@ def check_classifier(sys_: System, cfg: Any) -> list[Check]:
         return [Check("classifier", "fail", str(exc),
                       "set classify.onnx.model to a model made by `radar-edge export-onnx` with this version, "
                       "or leave it empty for the packaged default")]
-    return [Check("classifier", "ok",
-                  f"{clf.path.name}: k={clf.k} {clf.metric}, classes {', '.join(clf.classes)}, "
-                  f"{len(clf.feature_names)} features, reference {clf.reference_sha256[:12]}",
-                  data={"path": str(clf.path), "classes": list(clf.classes), "features": list(clf.feature_names)})]
+    detail = (f"{clf.path.name}: k={clf.k} {clf.metric}, classes {', '.join(clf.classes)}, "
+              f"{len(clf.feature_names)} features, reference {clf.reference_sha256[:12]}")
+    data = {"path": str(clf.path), "classes": list(clf.classes), "features": list(clf.feature_names)}
+    from edge.classify.classifier import feature_settings_check
+
+    recorded = (getattr(clf, "metadata", None) or {}).get("build", {}).get("classify.features", {})
+    bad = feature_settings_check(recorded, cfg)
+    if bad:
+        return [Check("classifier", "warn", f"{detail}; classify.features differ from its reference set's: "
+                      + "; ".join(bad), "set them as the model's reference set was built, or rebuild the set "
+                      "(edge.classify.refgen) and the model (radar-edge export-onnx)", data=data)]
+    if not recorded:
+        detail += " (no feature settings recorded: not compared)"
+    return [Check("classifier", "ok", detail, data=data)]
 
 
 def check_models(sys_: System, cfg: Any) -> list[Check]:

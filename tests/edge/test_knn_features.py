@@ -93,3 +93,36 @@ def test_packaged_set_classifies_better_without_the_circular_variance():
     sub = ref.select(DEFAULT_FEATURES)
     four = grid_search(sub.features, sub.labels, sub.classes, ks=[13], metrics=("euclidean",), score="accuracy")
     assert four.score >= six.score + 0.05, (four.score, six.score)
+
+
+@pytest.mark.parametrize("backend", ["onnx", "numpy"])
+def test_a_classifier_whose_reference_set_was_built_with_other_feature_settings_is_reported(tmp_path, caplog, backend):
+    """The set records the classify.features settings it was built with, the exported model carries them, and
+    build_classifier warns at start about each one the configuration sets otherwise."""
+    import dataclasses
+    import logging
+
+    from edge.classify.classifier import build_classifier
+    from edge.classify.features import FeatureConfig, feature_settings
+    from edge.classify.reference import save_reference_set
+
+    if backend == "onnx":
+        pytest.importorskip("onnx", reason="exporting needs the onnx extra (test dependency)")
+    from edge.classify.modelio import build_and_export
+
+    built = feature_settings(FeatureConfig(speed_feature="doppler"))
+    ref = _set()
+    ref = dataclasses.replace(ref, meta={**ref.meta, "classify.features": built})
+    npz = save_reference_set(ref, tmp_path / "ref.npz")
+    onnx = tmp_path / "m.onnx"
+    if backend == "onnx":
+        build_and_export(str(npz), onnx, k=13, metric="euclidean", features=DEFAULT_FEATURES)
+    common = {"classify.onnx.backend": backend, "classify.onnx.model": str(onnx), "classify.knn.reference_set": str(npz)}
+    with caplog.at_level(logging.WARNING, logger="edge.classify.classifier"):
+        build_classifier(load_config(env={}, overrides={**common, "classify.features.speed_feature": "doppler"}),
+                         expected_classes=None)
+    assert not caplog.records
+    with caplog.at_level(logging.WARNING, logger="edge.classify.classifier"):
+        build_classifier(load_config(env={}, overrides=common), expected_classes=None)
+    (rec,) = caplog.records
+    assert "speed_feature = 'event' (the reference set's: 'doppler')" in rec.getMessage()

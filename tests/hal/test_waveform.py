@@ -70,3 +70,19 @@ def test_schedule_longer_than_frame_is_refused():
     with pytest.raises(ValueError, match="longer than the frame"):
         Waveform("x", 24e9, (seg,), frame_period_s=0.01)
     assert math.isclose(Waveform("x", 24e9, (seg,), frame_period_s=0.05).n_chirps, 10)
+
+
+def test_clipped_samples_counts_both_rails_of_i_and_q():
+    import numpy as np
+
+    from hal.frame import RawFrame
+    from hal.waveform import d2g_frontend
+
+    fe = d2g_frontend()
+    i = np.zeros(fe.frame_shape, dtype=np.int16)
+    q = np.zeros(fe.frame_shape, dtype=np.int16)
+    i.flat[:3] = fe.adc_max
+    q.flat[-2:] = fe.adc_min
+    q.flat[5] = fe.adc_max - 1  # one code below full scale: not clipped
+    frame = RawFrame(seq=0, t_ns=0, i=i, q=q, frontend=fe)
+    assert frame.clipped_samples() == (5, 2 * i.size)

@@ -93,6 +93,16 @@ def test_missing_board_and_board_errors_have_fixes(tmp_path):
     assert _by_name(dr.check_source(silent, _cfg(), False), "board").status == "skipped"
 
 
+def test_a_board_whose_frame_clips_is_reported_saturated(tmp_path):
+    _dev(tmp_path, "/dev/radar-d2g")
+    clean = FakeSystem(tmp_path, uid=0, board={"board": "d2g", "frame": "received", "clipped_fraction": 0.0})
+    assert _by_name(dr.check_source(clean, _cfg(), True), "board").status == "ok"
+    hot = FakeSystem(tmp_path, uid=0, board={"board": "d2g", "frame": "received", "clipped_fraction": 0.39})
+    b = _by_name(dr.check_source(hot, _cfg(), True), "board")
+    assert b.status == "warn" and "39.0% of the frame's samples at the ADC's full scale" in b.detail
+    assert "saturated" in b.fix
+
+
 def test_auto_url_finds_the_board_by_id(tmp_path):
     target = _dev(tmp_path, "/dev/ttyACM0")
     link = tmp_path / "dev/serial/by-id/usb-Infineon_IFX_CDC-if00"
@@ -274,6 +284,7 @@ def test_board_check_against_the_emulated_distance2go():
     b = _by_name(checks, "board")
     assert b.status == "ok", b.detail
     assert "RBAS" in b.detail and b.data["frame"] == "received"
+    assert 0.0 <= b.data["clipped_fraction"] <= dr.CLIPPED_SAMPLES_WARN
     assert b.data["endpoints"]["RBAS"] >= 1
 
 
@@ -327,6 +338,18 @@ def test_classifier_check_on_the_packaged_model():
     (c,) = dr.check_classifier(System("/"), cfg)
     assert c.status == "ok", c.detail
     assert c.data["path"] == str(ox.default_model_path())
+    assert "not compared" not in c.detail  # the packaged model records its reference set's feature settings
+
+
+def test_classifier_check_warns_when_the_feature_settings_are_not_the_reference_sets():
+    pytest.importorskip("edge.classify.onnx_runtime", reason="the ONNX classifier is not in this build")
+    cfg = load_config(env={}, overrides={"classify.features.speed_feature": "doppler",
+                                         "classify.features.extent_percentile": 50.0,
+                                         "classify.features.rcs_calibration_db": 58.4})
+    (c,) = dr.check_classifier(System("/"), cfg)
+    assert c.status == "warn" and "export-onnx" in c.fix
+    assert "speed_feature = 'doppler'" in c.detail and "extent_percentile = 50.0" in c.detail
+    assert "rcs_calibration" not in c.detail  # a board's calibration is not a feature setting
 
 
 def test_service_unit_and_state(tmp_path):
