@@ -12,9 +12,10 @@ HELP = "check the installation: config, serial ports, board, CAN, Modbus, model,
 DESCRIPTION = """\
 Checks, in order: the configuration file; the radar source (the Distance2Go's serial port and its
 permissions for the service user, then the board itself: it is opened, its endpoint list read and
-one frame received); Modbus RTU (the RS-485 UART, not the serial console) and the Modbus TCP port;
+one frame received, a warning when its samples clip at the ADC's full scale); Modbus RTU (the RS-485 UART, not the serial console) and the Modbus TCP port;
 the CAN interface (up, bitrate as configured, bus state, restart-ms); the model files and their
-input schema; the recordings directory and its quota; the compiled kernels (a warning when the
+input schema (a warning when classify.features differ from those the model's reference set was
+built with); the recordings directory and its quota; the compiled kernels (a warning when the
 numpy fallback runs); the CPU temperature and throttling
 (`vcgencmd get_throttled`); clock synchronisation (timedatectl, chrony).
 
