@@ -6,6 +6,7 @@ Arrays are numpy; a record holds references, not copies (a stage must not write 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -62,9 +63,9 @@ class Spectra:
     #: h of ``power_padded``
     pad: int
 
-    @property
+    @cached_property
     def power(self) -> np.ndarray:
-        """(seg, bin) float32: non-coherent power over the channels (a view of ``power_padded``)."""
+        """(seg, bin) float32: non-coherent power over the channels (a view of ``power_padded``, made once)."""
         return self.power_padded[:, self.pad:self.power_padded.shape[1] - self.pad]
 
 
