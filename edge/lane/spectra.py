@@ -12,6 +12,9 @@ from edge.lane.clutter import ClutterMap
 from edge.lane.records import Feedback, Spectra
 from edge.types import FrontendInfo, RawFrame
 
+#: scipy.fft.fft as imported (SpectraStage calls its transform directly only while it is this one)
+_SCIPY_FFT = scipy.fft.fft
+
 
 class SpectraStage(native.KernelUser):
     """Windowed range FFT and clutter removal; keeps the frame's scratch buffers and the :class:`ClutterMap`."""
@@ -31,7 +34,7 @@ class SpectraStage(native.KernelUser):
         self._sq_sum = np.empty(frontend.frame_shape, dtype=np.float32)
         self.kernel = native.load("_spectra")  # compiled windowing and channel sum (edge/native); None: numpy
         #: with the kernels, scipy.fft's pocketfft transform called on :meth:`to_complex`'s buffer without
-        #: scipy.fft's dispatch (the same call, the same spectrum); None: ``scipy.fft.fft``
+        #: scipy.fft's dispatch (the same call, the same spectrum); None: ``scipy.fft.fft`` (:func:`direct_fft`)
         self._c2c = direct_fft() if self.kernel is not None else None
 
     def to_complex(self, frame: RawFrame) -> np.ndarray:
@@ -48,8 +51,10 @@ class SpectraStage(native.KernelUser):
 
     def __call__(self, iq: np.ndarray, feedback: Feedback) -> Spectra:
         """Range FFT of :meth:`to_complex`'s output (overwritten), clutter map subtracted, channel power."""
-        if iq is self._iq and self._c2c is not None:  # complex64, C-contiguous and aligned: its own buffer
-            spec = self._c2c(iq, (-1,), True, 0, iq, 1)  # what scipy.fft.fft(iq, axis=-1, overwrite_x=True, workers=1) calls
+        # its own buffer (complex64, C-contiguous, aligned) and scipy.fft.fft the one imported (not replaced, e.g. by
+        # a test that records the spectra): what scipy.fft.fft(iq, axis=-1, overwrite_x=True, workers=1) calls
+        if iq is self._iq and self._c2c is not None and scipy.fft.fft is _SCIPY_FFT:
+            spec = self._c2c(iq, (-1,), True, 0, iq, 1)
         else:
             spec = scipy.fft.fft(iq, axis=-1, overwrite_x=True, workers=1)  # (rx, seg, bin) complex64
         if self._post_scale:

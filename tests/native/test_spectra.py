@@ -409,3 +409,23 @@ def test_spectra_stage_direct_fft_equals_scipy_fft(frames):
         assert a.spec.tobytes() == b.spec.tobytes() and a.power_padded.tobytes() == b.power_padded.tobytes()
     with kernels(False):
         assert build_pipeline("lane", frames[0].frontend, load_config(env={})).spectra._c2c is None
+
+
+def test_spectra_stage_calls_a_replaced_scipy_fft(frames, monkeypatch):
+    """With scipy.fft.fft replaced in the stage's module (as tests/edge/lane_golden.py does to record the spectra),
+    the stage calls the replacement, not the transform directly."""
+    import types
+
+    import edge.lane.spectra as spectra_mod
+
+    pipe = _lane(frames, True)
+    assert pipe.spectra._c2c is not None
+    calls = []
+
+    def fft(*a, **kw):
+        calls.append(1)
+        return scipy.fft.fft(*a, **kw)
+
+    monkeypatch.setattr(spectra_mod, "scipy", types.SimpleNamespace(fft=types.SimpleNamespace(fft=fft)))
+    pipe.spectra(pipe.spectra.to_complex(frames[0]), pipe.feedback())
+    assert calls == [1]
