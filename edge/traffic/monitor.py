@@ -55,6 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge import native
+from edge.fastinit import one_dict_init
 from edge.traffic.calibration import Calibration, CalibrationError, CalibrationWriter, load_calibration
 from edge.traffic.config import TrafficConfig
 from edge.traffic.lanes import Lane, LaneLearner, YawEstimator, assign_lanes_with_margin, configured_lanes
@@ -66,6 +67,7 @@ log = logging.getLogger(__name__)
 __all__ = ["TrafficMonitor", "TrafficUpdate"]
 
 
+@one_dict_init
 @dataclass(frozen=True)
 class TrafficUpdate:
     tracks: tuple[TrackState, ...]
