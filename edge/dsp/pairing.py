@@ -39,6 +39,7 @@ from functools import cached_property
 
 import numpy as np
 
+from edge.fastinit import one_dict_init
 from hal.waveform import SPEED_OF_LIGHT_MPS
 
 
@@ -86,6 +87,7 @@ class PairingModel:
         return np.array([0, s0, s0 + s1, s0 + s1 + s2])
 
 
+@one_dict_init
 @dataclass(frozen=True)
 class Pairs:
     """Accepted pairings: indices into each segment's peak list and the refined range/speed."""

@@ -17,6 +17,7 @@ from edge.dsp.pairing import nearest_of_clusters
 from edge.lane.records import Angles, Feedback, PairList, Spectra
 from edge.lane.resolve import CellResolver, ResolverConfig
 from edge.lane.road import RoadFrame
+from edge.npc import count_nonzero
 from edge.types import FrontendInfo
 
 
@@ -94,8 +95,10 @@ class AngleStage(native.KernelUser):
             snaps = spec.reshape(spec.shape[0], -1).take(pk + self._seg_bin0, axis=1)  # (rx, n, seg)
             snaps = snaps.transpose(1, 2, 0) * self._inv_cal  # (n, seg, rx)
             az, aspec, kept, used = self.consensus(snaps, self._outlier_rad, pk, p_vel, p_rng)
-            if self._k_out is not None and pk.dtype == np.int64 and all(
-                    a.dtype == np.float32 for a in (p_rng, p_vel, pairs.residual_hz, az, noise, floor)):
+            f32 = np.float32
+            if (self._k_out is not None and pk.dtype == np.int64 and p_rng.dtype == f32 and p_vel.dtype == f32
+                    and pairs.residual_hz.dtype == f32 and az.dtype == f32 and noise.dtype == f32
+                    and floor.dtype == f32):
                 # (the kernel reads the arrays as np.ascontiguousarray gives them)
                 rng_k, vel_k, res_k, az_k, snr_k, looks_k, pair_k = self._k_out.finish(
                     spectra.power_padded, spectra.pad, noise, floor[0], pk, p_rng, p_vel, pairs.residual_hz, az, kept,
@@ -207,10 +210,10 @@ class ResolveStage:
         split, ang = self.resolver.step(rng, vel, a.looks, az)
         unresolved = self.resolver.two_sources
         for f in self.split_filters:
-            if not np.count_nonzero(split):  # (rare: asked once when nothing is split)
+            if not count_nonzero(split):  # (rare: asked once when nothing is split)
                 break
             split = f(split, rng, vel, az, ang, feedback)
-        if np.count_nonzero(split):  # each split detection becomes two, one per angle, half the power each
+        if count_nonzero(split):  # each split detection becomes two, one per angle, half the power each
             s_idx = split.nonzero()[0]
             az, snr_db, pair_of = az.copy(), snr_db.copy(), pair_of.copy()  # (the input record stays as it was)
             az[s_idx] = ang[s_idx, 0]

@@ -11,6 +11,7 @@ import numpy as np
 
 from edge import native
 from edge.lane.records import Feedback
+from edge.npc import count_nonzero
 
 _SEG4 = np.arange(4)  # the four segments, as an index
 _MEDIAN_MIN_FRAMES = 3  # frames from which their median stands for the static echo in static_residue
@@ -169,11 +170,11 @@ class ClutterMap(native.KernelUser):
         ``feedback`` and segment k, the bins of its body's range (beat a_k R) and one more each side."""
         cfg = self.config
         tr = feedback
-        if not np.count_nonzero(tr.confirmed):
+        if not count_nonzero(tr.confirmed):
             return []
         x = tr.track_state
         stop = tr.confirmed & tr.moved & (np.hypot(x[:, 2], x[:, 3]) < cfg.clutter_map_hold_speed_mps)
-        if not np.count_nonzero(stop):
+        if not count_nonzero(stop):
             return []
         h = cfg.mounting_height_m - cfg.target_height_m
         n = self.n_bins

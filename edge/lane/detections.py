@@ -58,7 +58,8 @@ class UnaliasByLane(native.KernelUser):
         """``az`` with the aliases moved (``az`` itself when none is): the compiled kernel when built, else
         :meth:`reference` (the same angles)."""
         k = self.kernel
-        if k is None or not all(a.dtype == np.float32 for a in (range_m, v_mps, az)):
+        f32 = np.float32
+        if k is None or not (range_m.dtype == f32 and v_mps.dtype == f32 and az.dtype == f32):
             return self.reference(range_m, v_mps, az, feedback)
         cfg = self.config
         lanes = feedback.lanes
@@ -262,8 +263,11 @@ class DetectionStage(native.KernelUser):
         detections. The compiled kernel after the direction filters when built and the columns are float32 (int32
         pairs), else :meth:`reference` (the same detections bit for bit)."""
         k = self.kernel
-        if (k is None or not all(type(v) is np.ndarray and v.dtype == np.float32
-                                 for v in (a.range_m, a.radial_speed_mps, a.az_rad, a.snr_db, a.residual_hz))
+        nd, f32 = np.ndarray, np.float32
+        rng, vel, az, snr, res = a.range_m, a.radial_speed_mps, a.az_rad, a.snr_db, a.residual_hz
+        if (k is None or not (type(rng) is nd and rng.dtype == f32 and type(vel) is nd and vel.dtype == f32
+                              and type(az) is nd and az.dtype == f32 and type(snr) is nd and snr.dtype == f32
+                              and type(res) is nd and res.dtype == f32)
                 or type(a.resolved_pair) is not np.ndarray or a.resolved_pair.dtype != np.int32
                 or not (a.unresolved_pair is None or (type(a.unresolved_pair) is np.ndarray
                                                       and a.unresolved_pair.dtype == bool))):

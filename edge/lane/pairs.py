@@ -13,6 +13,7 @@ import numpy as np
 from edge import native
 from edge.dsp.pairing import PairingModel, Pairs, pair_beats, refine_rows
 from edge.lane.records import Feedback, PairList, Peaks, Spectra
+from edge.npc import count_nonzero
 from edge.types import FrontendInfo
 
 _SEG4 = np.arange(4)  # the four segments, as an index
@@ -107,8 +108,8 @@ class PairStage(native.KernelUser):
             n_aided = a_rng.size
             if n_aided:
                 pk = np.concatenate([pk, a_bins])
-                p_rng, p_vel, p_res = (np.concatenate([u, w]) for u, w in ((p_rng, a_rng), (p_vel, a_vel),
-                                                                          (p_res, a_res)))
+                cat = np.concatenate
+                p_rng, p_vel, p_res = cat([p_rng, a_rng]), cat([p_vel, a_vel]), cat([p_res, a_res])
         return PairList(pk, p_rng, p_vel, p_res, pairs.n_candidates, pairs.n_ghosts, n_aided)
 
     def drop_static(self, pairs: Pairs, pk: np.ndarray, spectra: Spectra, floor: np.ndarray) -> tuple[Pairs, np.ndarray]:
@@ -117,7 +118,7 @@ class PairStage(native.KernelUser):
         posts leaves their negative images, and an up-chirp image of one post pairs with the down-chirp image of
         another at a speed proportional to their spacing)."""
         static = self.clutter.static_residue(pk, spectra.power, floor, self._static_ratio)
-        if not np.count_nonzero(static):
+        if not count_nonzero(static):
             return pairs, pk
         keep = ~static
         return Pairs(pairs.peak_index[keep], pairs.range_m[keep], pairs.radial_speed_mps[keep],
@@ -144,7 +145,7 @@ class PairStage(native.KernelUser):
         sel = tr.confirmed
         if cfg.aided_tentative_min_range_m > 0:  # far tentative tracks with a few hits search as well
             far = ~sel & tr.moved & (tr.hits >= cfg.aided_tentative_min_hits)  # moved: not static clutter
-            if np.count_nonzero(far):
+            if count_nonzero(far):
                 x = tr.track_state
                 far &= np.hypot(x[:, 0], x[:, 1]) >= cfg.aided_tentative_min_range_m
                 if cfg.aided_tentative_approaching:
@@ -164,7 +165,7 @@ class PairStage(native.KernelUser):
                 None if weak is None else tuple(weak[1]), pairs.peak_index, f_hat, self._aided_window_hz,
                 cfg.aided_min_segments)  # (the kernel takes float64 and int64 C-contiguous arrays, converting others)
             found, good = found.view(bool), good.view(bool)
-            if not np.count_nonzero(good):
+            if not count_nonzero(good):
                 return empty
             return self._aided_fit(found, fsel, good, r_hat, v_hat, f_hat, bsel)
         # all four segments at once: peaks in a (segment, peak) table padded with +inf, used peaks at +inf
@@ -196,7 +197,7 @@ class PairStage(native.KernelUser):
         found = np.minimum.reduce(d, axis=2) <= self._aided_window_hz  # the minimum is d at j
         fsel = np.where(found, table[seg, j], 0.0)
         good = np.add.reduce(found, axis=1) >= cfg.aided_min_segments
-        if not np.count_nonzero(good):
+        if not count_nonzero(good):
             return empty
         return self._aided_fit(found, fsel, good, r_hat, v_hat, f_hat, np.where(found, btab[seg, j], -1))
 

@@ -6,15 +6,19 @@ Arrays are numpy; a record holds references, not copies (a stage must not write 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
+
+from edge.fastinit import one_dict_init
 
 _NO_TRACKS = (np.zeros((0, 4)), np.zeros(0, bool), np.zeros(0, bool), np.zeros(0, np.int32))
 for _a in _NO_TRACKS:
     _a.flags.writeable = False
 
 
+@one_dict_init
 @dataclass(frozen=True, eq=False)
 class Feedback:
     """What detection takes from earlier frames: the tracks as the tracker left them, the lanes and the road's
@@ -51,6 +55,7 @@ class Feedback:
         return cls(None, *_NO_TRACKS)
 
 
+@one_dict_init
 @dataclass(frozen=True, eq=False)
 class Spectra:
     """Range spectra of one frame after the static-clutter map (Lim §III-A)."""
@@ -62,12 +67,13 @@ class Spectra:
     #: h of ``power_padded``
     pad: int
 
-    @property
+    @cached_property
     def power(self) -> np.ndarray:
-        """(seg, bin) float32: non-coherent power over the channels (a view of ``power_padded``)."""
+        """(seg, bin) float32: non-coherent power over the channels (a view of ``power_padded``, made once)."""
         return self.power_padded[:, self.pad:self.power_padded.shape[1] - self.pad]
 
 
+@one_dict_init
 @dataclass(frozen=True, eq=False)
 class Peaks:
     """OS-CFAR peaks of the four segments (Lim §III-A), each segment's in bin order (or by power when capped)."""
@@ -88,6 +94,7 @@ class Peaks:
     weak_bins: tuple[np.ndarray, ...] | None = None
 
 
+@one_dict_init
 @dataclass(frozen=True, eq=False)
 class PairList:
     """Four-segment pairings (Lim §III-A) and track-aided ones, one row each."""
@@ -106,6 +113,7 @@ class PairList:
     n_aided: int = 0
 
 
+@one_dict_init
 @dataclass(frozen=True, eq=False)
 class Angles:
     """Pairings with their angle (Lim §III-A), those whose segments agreed; after the resolver, a split one twice."""
@@ -127,6 +135,7 @@ class Angles:
     looks: np.ndarray | None = None
 
 
+@one_dict_init
 @dataclass(frozen=True, eq=False)
 class Candidates:
     """Detections on their way through the road-geometry filters (:mod:`edge.lane.detections`)."""

@@ -12,6 +12,9 @@ from edge.lane.clutter import ClutterMap
 from edge.lane.records import Feedback, Spectra
 from edge.types import FrontendInfo, RawFrame
 
+#: scipy.fft.fft as imported (SpectraStage calls its transform directly only while it is this one)
+_SCIPY_FFT = scipy.fft.fft
+
 
 class SpectraStage(native.KernelUser):
     """Windowed range FFT and clutter removal; keeps the frame's scratch buffers and the :class:`ClutterMap`."""
@@ -30,6 +33,9 @@ class SpectraStage(native.KernelUser):
         self._sq = np.empty(frontend.frame_shape + (2,), dtype=np.float32)  # |re|^2, |im|^2 scratch
         self._sq_sum = np.empty(frontend.frame_shape, dtype=np.float32)
         self.kernel = native.load("_spectra")  # compiled windowing and channel sum (edge/native); None: numpy
+        #: with the kernels, scipy.fft's pocketfft transform called on :meth:`to_complex`'s buffer without
+        #: scipy.fft's dispatch (the same call, the same spectrum); None: ``scipy.fft.fft`` (:func:`direct_fft`)
+        self._c2c = direct_fft() if self.kernel is not None else None
 
     def to_complex(self, frame: RawFrame) -> np.ndarray:
         """int16 I/Q -> (rx, seg, bin) complex64, windowed on the way (a buffer the stage keeps)."""
@@ -45,7 +51,12 @@ class SpectraStage(native.KernelUser):
 
     def __call__(self, iq: np.ndarray, feedback: Feedback) -> Spectra:
         """Range FFT of :meth:`to_complex`'s output (overwritten), clutter map subtracted, channel power."""
-        spec = scipy.fft.fft(iq, axis=-1, overwrite_x=True, workers=1)  # (rx, seg, bin) complex64
+        # its own buffer (complex64, C-contiguous, aligned) and scipy.fft.fft the one imported (not replaced, e.g. by
+        # a test that records the spectra): what scipy.fft.fft(iq, axis=-1, overwrite_x=True, workers=1) calls
+        if iq is self._iq and self._c2c is not None and scipy.fft.fft is _SCIPY_FFT:
+            spec = self._c2c(iq, (-1,), True, 0, iq, 1)
+        else:
+            spec = scipy.fft.fft(iq, axis=-1, overwrite_x=True, workers=1)  # (rx, seg, bin) complex64
         if self._post_scale:
             spec *= np.float32(1.0 / self.n_bins)
         # non-coherent sum over the channels, written into the middle of a circularly padded row per
@@ -66,3 +77,24 @@ class SpectraStage(native.KernelUser):
         ppad[:, :h] = ppad[:, n:n + h]
         ppad[:, n + h:] = ppad[:, h:2 * h]
         return Spectra(spec, ppad, h)
+
+
+def direct_fft():
+    """The transform that ``scipy.fft.fft(x, axis=-1, overwrite_x=True, workers=1)`` runs on an aligned complex64
+    array, ``c2c(x, (-1,), True, 0, x, 1)`` of scipy's pocketfft module, when this scipy has it and it gives
+    ``scipy.fft.fft``'s spectrum on a probe; else None."""
+    try:
+        from scipy.fft._pocketfft.pypocketfft import c2c
+    except ImportError:
+        return None
+    rng = np.random.default_rng(0)
+    probe = (rng.standard_normal((2, 3, 48)) + 1j * rng.standard_normal((2, 3, 48))).astype(np.complex64)
+    want = scipy.fft.fft(probe, axis=-1, workers=1)
+    try:
+        x = probe.copy()
+        got = c2c(x, (-1,), True, 0, x, 1)
+    except Exception:  # another signature
+        return None
+    if got is not x or got.dtype != want.dtype or got.tobytes() != want.tobytes():
+        return None
+    return c2c

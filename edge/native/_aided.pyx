@@ -15,6 +15,7 @@ cimport numpy as cnp
 cnp.import_array()
 
 include "_views.pxi"
+include "_alloc.pxi"
 
 
 @cython.boundscheck(False)
@@ -39,9 +40,9 @@ def predictions(state, sel, double dt, pair_r,
     cdef Py_ssize_t m = V_sel.n[0], p = V_pair_r.n[0], i, j, row, k = 0
     cdef double x, y, vx, vy, r, v
     cdef bint paired
-    r_arr = np.empty(m, np.float64)
-    v_arr = np.empty(m, np.float64)
-    f_arr = np.empty((m, 4), np.float64)
+    r_arr = _empty1(cnp.NPY_FLOAT64, m)
+    v_arr = _empty1(cnp.NPY_FLOAT64, m)
+    f_arr = _empty2(cnp.NPY_FLOAT64, m, 4)
     cdef _V V_ro
     _aview(r_arr, cnp.NPY_FLOAT64, 1, True, True, &V_ro, "ro")
     cdef _V V_vo

@@ -21,6 +21,7 @@ import numpy as np
 cnp.import_array()
 
 include "_arrays.pxi"
+include "_alloc.pxi"
 
 
 @cython.boundscheck(False)
@@ -62,13 +63,13 @@ def consensus(q_a, grid_a, outlier_a, peak_bins_obj, int shared_bins, int min_ag
         pb = <const long long *>_data2(peak_bins_obj, cnp.NPY_INT64, n, ns, False, "peak_bins")
     if g < 2:
         raise ValueError("the grid needs two angles or more")
-    spec_arr = np.zeros((n, g), np.float32)
+    spec_arr = _zeros2(cnp.NPY_FLOAT32, n, g)
     cdef float *spec = <float *>cnp.PyArray_DATA(<cnp.ndarray>spec_arr)
     az_arr = _new(cnp.NPY_FLOAT32, n)
     cdef float *az = <float *>cnp.PyArray_DATA(<cnp.ndarray>az_arr)
-    kept_arr = np.zeros((n, ns), np.uint8)
+    kept_arr = _zeros2(cnp.NPY_UINT8, n, ns)
     cdef unsigned char *kept = <unsigned char *>cnp.PyArray_DATA(<cnp.ndarray>kept_arr)
-    used_arr = np.zeros((n, ns), np.uint8)
+    used_arr = _zeros2(cnp.NPY_UINT8, n, ns)
     cdef unsigned char *used = <unsigned char *>cnp.PyArray_DATA(<cnp.ndarray>used_arr)
     cdef float *p = <float *>malloc((n * ns * g + 1) * sizeof(float))
     cdef float *outl = <float *>malloc((n + 1) * sizeof(float))

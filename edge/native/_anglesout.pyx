@@ -15,6 +15,7 @@ import numpy as np
 cnp.import_array()
 
 include "_arrays.pxi"
+include "_alloc.pxi"
 
 
 @cython.boundscheck(False)
@@ -87,7 +88,7 @@ def finish(power_padded_a, Py_ssize_t pad, noise_a, float floor0, pk_a, rng_a, v
     cdef float *a_az = <float *>cnp.PyArray_DATA(<cnp.ndarray>o_az)
     cdef float *a_snr = <float *>cnp.PyArray_DATA(<cnp.ndarray>o_snr)
     cdef int *a_pair = <int *>cnp.PyArray_DATA(<cnp.ndarray>o_pair)
-    o_looks = np.empty((m, ns, w // 2), np.complex64) if want_looks else None
+    o_looks = _empty3(cnp.NPY_COMPLEX64, m, ns, w // 2) if want_looks else None
     cdef float *looks = NULL
     cdef const float *sp
     cdef float *lp

@@ -14,6 +14,7 @@ cimport numpy as cnp
 cnp.import_array()
 
 include "_views.pxi"
+include "_alloc.pxi"
 
 include "_roadfilters.pxi"
 
@@ -35,10 +36,10 @@ def near_faces(rng, v, x, keep_in,
     cdef _V V_keep_in
     _aview(keep_in, cnp.NPY_UINT8, 1, False, True, &V_keep_in, "keep_in")
     cdef Py_ssize_t n = V_rng.n[0]
-    keep_arr = np.empty(n, np.uint8)
+    keep_arr = _empty1(cnp.NPY_UINT8, n)
     cdef _V V_keep
     _aview(keep_arr, cnp.NPY_UINT8, 1, True, True, &V_keep, "keep")
-    ext_arr = np.zeros(n, np.float32)
+    ext_arr = _zeros1(cnp.NPY_FLOAT32, n)
     cdef _V V_ext
     _aview(ext_arr, cnp.NPY_FLOAT32, 1, True, True, &V_ext, "ext")
     if n:
@@ -64,7 +65,7 @@ def track_extents(object tracks, d_range, d_speed, body,
     _aview(body, cnp.NPY_FLOAT32, 1, False, True, &V_body, "body")
     cdef Py_ssize_t nt = len(tracks), nd = V_d_range.n[0], i = 0, j, best
     cdef double tr, tv, dr, bd
-    out_arr = np.empty(nt)
+    out_arr = _empty1(cnp.NPY_FLOAT64, nt)
     cdef _V V_out
     _aview(out_arr, cnp.NPY_FLOAT64, 1, True, True, &V_out, "out")
     for t in tracks:

@@ -27,6 +27,7 @@ import numpy as np
 cnp.import_array()
 
 include "_arrays.pxi"
+include "_alloc.pxi"
 
 
 cdef inline int _nearest(const double *g, const int *k, int n, double p, double *dist) noexcept nogil:
@@ -119,7 +120,7 @@ def pair_frame(tuple freqs, coef_a, double min_range_m, double max_range_m, doub
                     and cnp.PyArray_TYPE(<cnp.ndarray>b) == cnp.NPY_INT64 and cnp.PyArray_DIM(<cnp.ndarray>b, 0) == nk[k]):
                 ok = False
     if ok:
-        pk = np.empty((n, 4), np.int64)
+        pk = _empty2(cnp.NPY_INT64, n, 4)
         o = <long long *>cnp.PyArray_DATA(<cnp.ndarray>pk)
         rows = <const long long *>cnp.PyArray_DATA(<cnp.ndarray>out[0])
         for k in range(4):
@@ -270,9 +271,9 @@ cdef tuple _pair_core(const double *f0, const double *f1, const double *f2, cons
         n_out = 0
         for i in range(n_keep):
             n_out += not ghost[i]
-        out = np.empty((n_out, 4), np.int64)
+        out = _empty2(cnp.NPY_INT64, n_out, 4)
         o = out
-        fm_arr = np.empty((n_out, 4), np.float64) if want_fm else None
+        fm_arr = _empty2(cnp.NPY_FLOAT64, n_out, 4) if want_fm else None
         if want_fm:
             fm = <double *>cnp.PyArray_DATA(<cnp.ndarray>fm_arr)
         n = 0
@@ -330,10 +331,14 @@ def aided_search(tuple freqs, tuple bins, tuple weak_freqs, tuple weak_bins, use
     cdef const long long *bw
     if len(freqs) != 4 or len(bins) != 4 or (weak_freqs is not None and (len(weak_freqs) != 4 or len(weak_bins) != 4)):
         raise ValueError("four segments needed")
-    found = np.zeros((m, 4), np.uint8)
-    fsel = np.zeros((m, 4), np.float64)
-    bsel = np.full((m, 4), -1, np.int64)
-    good = np.zeros(m, np.uint8)
+    found = _zeros2(cnp.NPY_UINT8, m, 4)
+    fsel = _zeros2(cnp.NPY_FLOAT64, m, 4)
+    bsel = _empty2(cnp.NPY_INT64, m, 4)  # np.full((m, 4), -1, np.int64)
+    cdef long long *bs0 = <long long *>cnp.PyArray_DATA(<cnp.ndarray>bsel)
+    cdef Py_ssize_t q
+    for q in range(4 * m):
+        bs0[q] = -1
+    good = _zeros1(cnp.NPY_UINT8, m)
     cdef unsigned char *fo = <unsigned char *>cnp.PyArray_DATA(<cnp.ndarray>found)
     cdef double *fs = <double *>cnp.PyArray_DATA(<cnp.ndarray>fsel)
     cdef long long *bs = <long long *>cnp.PyArray_DATA(<cnp.ndarray>bsel)

@@ -24,6 +24,7 @@ import numpy as np
 cnp.import_array()
 
 include "_arrays.pxi"
+include "_alloc.pxi"
 
 
 cdef struct Cand:
@@ -185,7 +186,7 @@ def eigvals(const float[:, :, ::1] cov):
     the tests)."""
     cdef Py_ssize_t k = cov.shape[0], i
     cdef int n_rx = cov.shape[1]
-    out = np.empty((k, n_rx), np.float64)
+    out = _empty2(cnp.NPY_FLOAT64, k, n_rx)
     cdef double[:, ::1] o = out
     cdef double *a = <double *>malloc(4 * n_rx * n_rx * sizeof(double) + 8)
     if a == NULL:
@@ -270,12 +271,15 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in, rng_a, 
     cdef float lateral
     cdef bint any_now, above, hint, two
 
-    split_arr = np.zeros(n, np.uint8)
+    split_arr = _zeros1(cnp.NPY_UINT8, n)
     cdef unsigned char *split = <unsigned char *>cnp.PyArray_DATA(<cnp.ndarray>split_arr)
-    two_arr = np.zeros(n, np.uint8)
+    two_arr = _zeros1(cnp.NPY_UINT8, n)
     cdef unsigned char *two_src = <unsigned char *>cnp.PyArray_DATA(<cnp.ndarray>two_arr)
-    ang_arr = np.full((n, 2), np.nan, np.float32)
+    ang_arr = _empty2(cnp.NPY_FLOAT32, n, 2)  # np.full((n, 2), np.nan, np.float32)
     cdef float *ang = <float *>cnp.PyArray_DATA(<cnp.ndarray>ang_arr)
+    cdef Py_ssize_t q
+    for q in range(2 * n):
+        ang[q] = <float>NAN
     # the followed cells' state, updated here (copies: the inputs stay as they were), and the new looks' products
     cdef double *crange = <double *>malloc((2 * m + 1) * sizeof(double))
     cdef double *cv = crange + m
@@ -518,7 +522,7 @@ def step(c_range_in, c_v_in, c_cov_in, c_n_in, c_misses_in, c_streak_in, rng_a, 
             n_out = max_cells
         o_range = _new(cnp.NPY_FLOAT64, n_out)
         o_v = _new(cnp.NPY_FLOAT64, n_out)
-        o_cov = np.empty((n_out, n_rx, n_rx), np.complex64)
+        o_cov = _empty3(cnp.NPY_COMPLEX64, n_out, n_rx, n_rx)
         o_n = _new(cnp.NPY_INT64, n_out)
         o_miss = _new(cnp.NPY_INT64, n_out)
         o_streak = _new(cnp.NPY_INT64, n_out)

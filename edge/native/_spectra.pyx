@@ -19,6 +19,7 @@ import numpy as np
 cnp.import_array()
 
 include "_arrays.pxi"
+include "_alloc.pxi"
 include "_views.pxi"
 
 
@@ -542,7 +543,7 @@ def static_residue(const float complex[:, :, :] ref, bins, power,
         for k in range(nseg):
             if _pll_2(V_bins, i, k)[0] < 0 or _pll_2(V_bins, i, k)[0] >= nb or _pll_2(V_bins, i, k)[0] >= V_power.n[1]:
                 return None
-    out_arr = np.empty(n, dtype=bool)
+    out_arr = _empty1(cnp.NPY_BOOL, n)
     cdef unsigned char[::1] out = out_arr.view(np.uint8)
     with nogil:
         for i in range(n):

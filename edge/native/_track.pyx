@@ -22,6 +22,7 @@ from libc.math cimport M_PI, pow, cos, sin
 cnp.import_array()
 
 include "_views.pxi"
+include "_alloc.pxi"
 
 
 cdef inline double _inv3(const double* a, double* out) noexcept nogil:
@@ -116,9 +117,9 @@ def innovations_each(z, zh, hph,
     cdef cnp.ndarray v_a = _view(None if buffers is None else buffers[0], nt, nm, n, 3)
     cdef cnp.ndarray s_a = _view(None if buffers is None else buffers[1], nt, nm, n, 4)
     cdef cnp.ndarray si_a = _view(None if buffers is None else buffers[2], nt, nm, n, 4)
-    cdef cnp.ndarray st_a = np.empty((nt, n, n))
-    cdef cnp.ndarray d2_a = np.empty((nt, nm))
-    cdef cnp.ndarray det_a = np.empty((nt, nm))
+    cdef cnp.ndarray st_a = _empty3(cnp.NPY_FLOAT64, nt, n, n)
+    cdef cnp.ndarray d2_a = _empty2(cnp.NPY_FLOAT64, nt, nm)
+    cdef cnp.ndarray det_a = _empty2(cnp.NPY_FLOAT64, nt, nm)
     cdef double* st = _f64(st_a)
     cdef double* v = _f64(v_a)
     cdef double* d2 = _f64(d2_a)
@@ -175,7 +176,7 @@ def quad_d2(const double[:, :, ::1] v, const double[:, :, ::1] s_inv):
     """(T, M) ``v' S_t^-1 v`` of innovations ``v`` (T, M, n) with one symmetric ``S_t^-1`` (T, n, n) per track:
     :func:`edge.track.pdaf._quad`, term for term. n = 2 or 3."""
     cdef Py_ssize_t nt = v.shape[0], nm = v.shape[1], n = v.shape[2], t, m
-    out_a = np.empty((nt, nm))
+    out_a = _empty2(cnp.NPY_FLOAT64, nt, nm)
     cdef double[:, ::1] out = out_a
     with nogil:
         for t in range(nt):
@@ -231,8 +232,8 @@ def duplicate_pairs(x, double merge_speed_mps, double merge_lateral_m,
             or V_x.n[1] < 4 or (resolved and (V_pair.n[0] != nt or V_det.n[0] != nt)):
         raise ValueError("duplicate_pairs: inconsistent shapes")
     # per pair candidate: the boxed ones (a, b, keep) and the state-test ones (a, b); their differences (4)
-    cdef cnp.ndarray bx_a = np.empty(5 * npairs + nt + 1, dtype=np.int64)  # scratch (freed however the call ends)
-    cdef cnp.ndarray rd_a = np.empty(4 * npairs + 1)
+    cdef cnp.ndarray bx_a = _empty1(cnp.NPY_INT64, 5 * npairs + nt + 1)  # scratch (freed however the call ends)
+    cdef cnp.ndarray rd_a = _empty1(cnp.NPY_FLOAT64, 4 * npairs + 1)
     cdef long long* bx = <long long*> cnp.PyArray_DATA(bx_a)
     cdef double* rd = _f64(rd_a)
     cdef long long* rx = bx + 3 * npairs
@@ -277,7 +278,7 @@ def duplicate_pairs(x, double merge_speed_mps, double merge_lateral_m,
                 rd[4 * nr + 3] = d3
                 nr += 1
     # the runs: one more frame in the box, else 0 (all 0 without a boxed pair); a boxed pair that lasted is kept
-    cdef cnp.ndarray run_a = np.empty(nt, dtype=np.int32)
+    cdef cnp.ndarray run_a = _empty1(cnp.NPY_INT32, nt)
     cdef cnp.int32_t* cr = <cnp.int32_t*> cnp.PyArray_DATA(run_a)
     for a in range(nt):
         cr[a] = <cnp.int32_t> (<cnp.uint32_t> _pi32(V_close_run, a)[0] + 1u) if (nb and run[a]) else 0
@@ -287,11 +288,11 @@ def duplicate_pairs(x, double merge_speed_mps, double merge_lateral_m,
             bx[2 * nk] = a
             bx[2 * nk + 1] = b
             nk += 1
-    cdef cnp.ndarray ka = np.empty(nk, dtype=np.int64)
-    cdef cnp.ndarray kb = np.empty(nk, dtype=np.int64)
-    cdef cnp.ndarray ra = np.empty(nr, dtype=np.int64)
-    cdef cnp.ndarray rb = np.empty(nr, dtype=np.int64)
-    cdef cnp.ndarray rdx = np.empty((nr, 4))
+    cdef cnp.ndarray ka = _empty1(cnp.NPY_INT64, nk)
+    cdef cnp.ndarray kb = _empty1(cnp.NPY_INT64, nk)
+    cdef cnp.ndarray ra = _empty1(cnp.NPY_INT64, nr)
+    cdef cnp.ndarray rb = _empty1(cnp.NPY_INT64, nr)
+    cdef cnp.ndarray rdx = _empty2(cnp.NPY_FLOAT64, nr, 4)
     for i in range(nk):
         (<cnp.int64_t*> cnp.PyArray_DATA(ka))[i] = bx[2 * i]
         (<cnp.int64_t*> cnp.PyArray_DATA(kb))[i] = bx[2 * i + 1]
@@ -378,8 +379,8 @@ def update_pairs(const double[:, ::1] xs, const double[:, :, ::1] ps, const doub
     if ps.shape[0] != nr or h.shape[0] != nr or v.shape[0] != npair or s_inv.shape[0] != npair \
             or w.shape[0] != npair or v.shape[1] != n or not 1 <= n <= 3:
         raise ValueError("update_pairs: inconsistent shapes")
-    cdef cnp.ndarray x_a = np.empty((nr, 4))
-    cdef cnp.ndarray p_a = np.empty((nr, 4, 4))
+    cdef cnp.ndarray x_a = _empty2(cnp.NPY_FLOAT64, nr, 4)
+    cdef cnp.ndarray p_a = _empty3(cnp.NPY_FLOAT64, nr, 4, 4)
     if nr:
         with nogil:
             _update_rows(&xs[0, 0], &ps[0, 0, 0], &h[0, 0, 0], nr, n, &rows[0] if npair else NULL, npair,
@@ -449,12 +450,12 @@ def pair_update(const double[:, ::1] xs, const double[:, :, ::1] ps, const doubl
             or (scaled and scale.shape[0] != npair) or ps.shape[0] != nr or h.shape[0] != nr or zh.shape[0] != nr \
             or r_track.shape[0] != nr:
         raise ValueError("pair_update: inconsistent shapes")
-    cdef cnp.ndarray v_a = np.empty((npair, n))
-    cdef cnp.ndarray d2_a = np.empty(npair)
-    cdef cnp.ndarray det_a = np.empty(npair)
-    cdef cnp.ndarray si_a = np.empty((npair, n, n))
-    cdef cnp.ndarray x_a = np.empty((nr, 4))
-    cdef cnp.ndarray p_a = np.empty((nr, 4, 4))
+    cdef cnp.ndarray v_a = _empty2(cnp.NPY_FLOAT64, npair, n)
+    cdef cnp.ndarray d2_a = _empty1(cnp.NPY_FLOAT64, npair)
+    cdef cnp.ndarray det_a = _empty1(cnp.NPY_FLOAT64, npair)
+    cdef cnp.ndarray si_a = _empty3(cnp.NPY_FLOAT64, npair, n, n)
+    cdef cnp.ndarray x_a = _empty2(cnp.NPY_FLOAT64, nr, 4)
+    cdef cnp.ndarray p_a = _empty3(cnp.NPY_FLOAT64, nr, 4, 4)
     if nr:
         with nogil:
             if npair:
@@ -498,10 +499,10 @@ def update_extent(v, s2_track, s_pair,
     cdef _V V_ext_var
     _aview(ext_var, cnp.NPY_FLOAT64, 1, False, True, &V_ext_var, "ext_var")
     cdef Py_ssize_t nt = V_beta.n[0], nm = V_beta.n[1], n = V_v.n[2], t, m, k
-    out_a = np.empty(nt)
+    out_a = _empty1(cnp.NPY_FLOAT64, nt)
     cdef _V V_out
     _aview(out_a, cnp.NPY_FLOAT64, 1, True, True, &V_out, "out")
-    buf_a = np.empty(max(nm, 1))
+    buf_a = _empty1(cnp.NPY_FLOAT64, max(nm, 1))
     cdef _V V_buf
     _aview(buf_a, cnp.NPY_FLOAT64, 1, True, True, &V_buf, "buf")
     cdef double wsum, m2, den, a, b, along, sample, u0, u1
@@ -576,10 +577,10 @@ def associate_each(d2, det_s, double gamma, double vol_factor,
         if cnp.PyArray_NDIM(pair_a) != 1 or cnp.PyArray_DIMS(pair_a)[0] != nm:
             raise ValueError("associate_each: one pair value per detection")
     cdef int sen_type = cnp.PyArray_TYPE(sen_a)
-    cdef cnp.ndarray beta_a = np.empty((nt, nm))
-    cdef cnp.ndarray beta0_a = np.empty(nt)
-    cdef cnp.ndarray gated_a = np.empty((nt, nm), dtype=bool)
-    cdef cnp.ndarray vol_a = np.empty(nt)
+    cdef cnp.ndarray beta_a = _empty2(cnp.NPY_FLOAT64, nt, nm)
+    cdef cnp.ndarray beta0_a = _empty1(cnp.NPY_FLOAT64, nt)
+    cdef cnp.ndarray gated_a = _empty2(cnp.NPY_BOOL, nt, nm)
+    cdef cnp.ndarray vol_a = _empty1(cnp.NPY_FLOAT64, nt)
     cdef double* beta = _f64(beta_a)
     cdef double* beta0 = _f64(beta0_a)
     cdef cnp.npy_bool* gated = <cnp.npy_bool*> cnp.PyArray_DATA(gated_a)
@@ -672,7 +673,7 @@ def near_tracks(const double[:, ::1] xt, const double[:, ::1] z, const double[::
     < merge_speed_mps``): the seed block of :meth:`edge.track.roles.initiate.SeedInitiator.initiate`, same
     arithmetic."""
     cdef Py_ssize_t nt = xt.shape[0], nm = z.shape[0], t, m
-    out_a = np.zeros(nm, dtype=bool)
+    out_a = _zeros1(cnp.NPY_BOOL, nm)
     cdef cnp.npy_bool[::1] out = out_a
     cdef double lat
     with nogil:
@@ -740,11 +741,11 @@ def imm_predict(xm, pm, mu,
             or (V_pi.n[0] != 1 and V_pi.n[0] != nt) or V_f.n[0] != 2 or V_q.n[0] != 2 or V_f.n[1] != 4 \
             or V_f.n[2] != 4 or V_q.n[1] != 4 or V_q.n[2] != 4:
         raise ValueError("imm_predict: inconsistent shapes")
-    cdef cnp.ndarray x_a = np.empty((nt, 4))
-    cdef cnp.ndarray p_a = np.empty((nt, 4, 4))
-    cdef cnp.ndarray xpm_a = np.empty((nt, 2, 4))
-    cdef cnp.ndarray ppm_a = np.empty((nt, 2, 4, 4))
-    cdef cnp.ndarray c_a = np.empty((nt, 2))
+    cdef cnp.ndarray x_a = _empty2(cnp.NPY_FLOAT64, nt, 4)
+    cdef cnp.ndarray p_a = _empty3(cnp.NPY_FLOAT64, nt, 4, 4)
+    cdef cnp.ndarray xpm_a = _empty3(cnp.NPY_FLOAT64, nt, 2, 4)
+    cdef cnp.ndarray ppm_a = _empty4(cnp.NPY_FLOAT64, nt, 2, 4, 4)
+    cdef cnp.ndarray c_a = _empty2(cnp.NPY_FLOAT64, nt, 2)
     cdef double* x = _f64(x_a)
     cdef double* p = _f64(p_a)
     cdef double* xpm = _f64(xpm_a)
@@ -861,8 +862,8 @@ def keep_model_into(f, q, double dt, double yaw, double tau, double q_across,
 def moment_match(const double[:, :, ::1] xm, const double[:, :, :, ::1] pm, const double[:, ::1] w):
     """:func:`edge.track.imm.moment_match` of all tracks -> ``x`` (T, 4), ``p`` (T, 4, 4); equal to rounding."""
     cdef Py_ssize_t nt = xm.shape[0], t
-    x_a = np.empty((nt, 4))
-    p_a = np.empty((nt, 4, 4))
+    x_a = _empty2(cnp.NPY_FLOAT64, nt, 4)
+    p_a = _empty3(cnp.NPY_FLOAT64, nt, 4, 4)
     cdef double[:, ::1] x = x_a
     cdef double[:, :, ::1] p = p_a
     with nogil:
@@ -912,8 +913,8 @@ def imm_mode_update(xs, ps, hm,
         for m in range(nm):
             npair += _pu8_2(V_gated, t, m)[0]
     # the pairs' rows, detections, weights and scales in one int64 and one float64 scratch array
-    cdef cnp.ndarray idx_a = np.empty(4 * npair, dtype=np.int64)
-    cdef cnp.ndarray ws_a = np.empty(4 * npair)
+    cdef cnp.ndarray idx_a = _empty1(cnp.NPY_INT64, 4 * npair)
+    cdef cnp.ndarray ws_a = _empty1(cnp.NPY_FLOAT64, 4 * npair)
     cdef long long* rows = <long long*> cnp.PyArray_DATA(idx_a)
     cdef long long* cols = rows + 2 * npair
     cdef double* w = _f64(ws_a)
@@ -936,14 +937,14 @@ def imm_mode_update(xs, ps, hm,
                         sc[q] = near_factor if a0 + a1 < 0.0 else 1.0
                 k += 1
     # the pairs' v, S^-1 (scratch), d2 and det, then the updates (pair_update's steps, without its arrays)
-    cdef cnp.ndarray pv_a = np.empty(2 * npair * (n + n * n + 2))
+    cdef cnp.ndarray pv_a = _empty1(cnp.NPY_FLOAT64, 2 * npair * (n + n * n + 2))
     cdef double* pv = _f64(pv_a)
     cdef double* psi = pv + 2 * npair * n
     cdef double* d2 = psi + 2 * npair * n * n
     cdef double* det = d2 + 2 * npair
-    cdef cnp.ndarray x_a = np.empty((2 * nt, 4))
-    cdef cnp.ndarray p_a = np.empty((2 * nt, 4, 4))
-    cdef cnp.ndarray lik_a = np.empty((nt, 2))
+    cdef cnp.ndarray x_a = _empty2(cnp.NPY_FLOAT64, 2 * nt, 4)
+    cdef cnp.ndarray p_a = _empty3(cnp.NPY_FLOAT64, 2 * nt, 4, 4)
+    cdef cnp.ndarray lik_a = _empty2(cnp.NPY_FLOAT64, nt, 2)
     cdef double* lik = _f64(lik_a)
     cdef double* dens
     cdef double c_norm = pow(2.0 * M_PI, n / 2.0)
@@ -1125,10 +1126,10 @@ def lateral_frame(age, double seed_var, lat0, lat_p0,
     cdef _V V_unresolved
     _aview(unresolved, cnp.NPY_BOOL, 1, False, False, &V_unresolved, "unresolved")
     cdef Py_ssize_t nt = V_beta.n[0], nm = V_beta.n[1], t, best
-    lat_a = np.empty((nt, 2))
-    lat_p_a = np.empty((nt, 2, 2))
-    cusum_a = np.empty(nt)
-    off_a = np.empty(nt, dtype=bool)
+    lat_a = _empty2(cnp.NPY_FLOAT64, nt, 2)
+    lat_p_a = _empty3(cnp.NPY_FLOAT64, nt, 2, 2)
+    cusum_a = _empty1(cnp.NPY_FLOAT64, nt)
+    off_a = _empty1(cnp.NPY_BOOL, nt)
     cdef _V V_x
     _aview(lat_a, cnp.NPY_FLOAT64, 2, True, True, &V_x, "x")
     cdef _V V_p
@@ -1189,7 +1190,7 @@ def publish_rows(const double[:, :] x, const double[:, :, :] p, const cnp.int64_
     call: ``(n, 15)`` float64 with the columns :data:`PUBLISH_COLUMNS` (``length_m`` is read where ``has_length`` is
     1). The same elementwise operations as the numpy reference (``lateral_blend``, ``hypot``, ``arctan2``, ``sqrt``,
     ``exp``; libm's): bit-identical."""
-    out_arr = np.empty((idx.shape[0], 15))
+    out_arr = _empty2(cnp.NPY_FLOAT64, idx.shape[0], 15)
     _publish_rows(x, p, idx, lat, lat_p, lat_cusum, ext_var, score, confirmed, smoother, cusum_threshold,
                   publish_length, confirmed_log_odds, out_arr)
     return out_arr
@@ -1296,11 +1297,11 @@ def measure_predict(xp, Py_ssize_t t, bint with_rs, ext_var, double rs_var):
     _aview(ext_var, cnp.NPY_FLOAT64, 1, False, False, &V_ext_var, "ext_var")
     cdef Py_ssize_t nrow = V_xp.n[0], i
     cdef int n = 3 if with_rs else 2
-    zh_arr = np.empty((nrow, n))
-    h_arr = np.zeros((nrow, n, 4))
-    r_arr = np.zeros((t, n, n))
-    u_arr = np.empty((t, 2))
-    w_arr = np.empty(t)
+    zh_arr = _empty2(cnp.NPY_FLOAT64, nrow, n)
+    h_arr = _zeros3(cnp.NPY_FLOAT64, nrow, n, 4)
+    r_arr = _zeros3(cnp.NPY_FLOAT64, t, n, n)
+    u_arr = _empty2(cnp.NPY_FLOAT64, t, 2)
+    w_arr = _empty1(cnp.NPY_FLOAT64, t)
     cdef _V V_zh
     _aview(zh_arr, cnp.NPY_FLOAT64, 2, True, True, &V_zh, "zh")
     cdef _V V_h
@@ -1361,7 +1362,7 @@ def snr_noise(z, snr_db, double lo_db, double hi_db, double range_var0,
     cdef _V V_snr_db
     _aview(snr_db, cnp.NPY_FLOAT64, 1, False, False, &V_snr_db, "snr_db")
     cdef Py_ssize_t m = V_z.n[0], i
-    out_arr = np.zeros((m, n, n))
+    out_arr = _zeros3(cnp.NPY_FLOAT64, m, n, n)
     cdef _V V_out
     _aview(out_arr, cnp.NPY_FLOAT64, 3, True, True, &V_out, "out")
     cdef double v, snr, var_r, var_az, r, rs, s, c, rr2
@@ -1411,7 +1412,7 @@ def moving_expired(x, p, history,
     cdef _V V_score
     _aview(score, cnp.NPY_FLOAT64, 1, False, False, &V_score, "score")
     cdef Py_ssize_t t = V_x.n[0], i
-    out_arr = np.zeros(t, np.uint8)
+    out_arr = _zeros1(cnp.NPY_UINT8, t)
     cdef _V V_out
     _aview(out_arr, cnp.NPY_UINT8, 1, True, True, &V_out, "out")
     cdef double v0, v1, num, d2v
@@ -1451,7 +1452,7 @@ def claimed_any(const double[:, :, ::1] v, const double[:, :, ::1] s, double gam
     gamma).any(axis=0)`` of :mod:`edge.track.pdaf` (the inverse of :func:`edge.track.smallmat.inv_det` and the terms
     of ``_quad``, bit-identical) in one pass: innovations ``v`` (T, M, n), one ``S`` (T, n, n) per track. n = 2, 3."""
     cdef Py_ssize_t nt = v.shape[0], nm = v.shape[1], n = v.shape[2]
-    out_a = np.zeros(nm, dtype=np.uint8)
+    out_a = _zeros1(cnp.NPY_UINT8, nm)
     cdef cnp.uint8_t[::1] out = out_a
     if n != 2 and n != 3:
         raise ValueError("claimed_any: n must be 2 or 3")
@@ -1474,7 +1475,7 @@ def claimed_any_polar(v, s_track, rr,
     cdef _V V_rr
     _aview(rr, cnp.NPY_FLOAT64, 3, False, True, &V_rr, "rr")
     cdef Py_ssize_t nt = V_v.n[0], nm = V_v.n[1], n = V_v.n[2], t, i, k
-    out_a = np.zeros(nm, dtype=np.uint8)
+    out_a = _zeros1(cnp.NPY_UINT8, nm)
     cdef _V V_out
     _aview(out_a, cnp.NPY_UINT8, 1, True, True, &V_out, "out")
     if n != 2 and n != 3:
@@ -1483,7 +1484,7 @@ def claimed_any_polar(v, s_track, rr,
         raise ValueError("claimed_any_polar: s_track must be (T, n, n) with v's T and n")
     if V_rr.n[0] != nt or V_rr.n[1] != 2 or V_rr.n[2] != 2:
         raise ValueError("claimed_any_polar: rr must be (T, 2, 2)")
-    s_a = np.empty((nt, n, n))
+    s_a = _empty3(cnp.NPY_FLOAT64, nt, n, n)
     cdef _V V_s
     _aview(s_a, cnp.NPY_FLOAT64, 3, True, True, &V_s, "s")
     for t in range(nt):
@@ -1532,8 +1533,8 @@ def polar_jacobian(xy, double var_r, double var_az):
     cdef Py_ssize_t nt = V_xy.n[0], t
     if V_xy.n[1] < 2:
         raise ValueError("polar_jacobian: xy needs the columns x, y")
-    j_a = np.empty((nt, 2, 2))
-    jd_a = np.empty((nt, 2, 2))
+    j_a = _empty3(cnp.NPY_FLOAT64, nt, 2, 2)
+    jd_a = _empty3(cnp.NPY_FLOAT64, nt, 2, 2)
     cdef _V V_j
     _aview(j_a, cnp.NPY_FLOAT64, 3, True, True, &V_j, "j")
     cdef _V V_jd
@@ -1615,9 +1616,9 @@ def mode_probabilities_match(c, lik, double floor,
     cdef Py_ssize_t nt = V_c.n[0], t
     if V_lik.n[0] != nt or V_xm.n[0] != nt or V_pm.n[0] != nt or V_c.n[1] != 2 or V_lik.n[1] != 2:
         raise ValueError("mode_probabilities_match: c, lik (T, 2), xm (T, 2, 4), pm (T, 2, 4, 4)")
-    mu_a = np.empty((nt, 2))
-    x_a = np.empty((nt, 4))
-    p_a = np.empty((nt, 4, 4))
+    mu_a = _empty2(cnp.NPY_FLOAT64, nt, 2)
+    x_a = _empty2(cnp.NPY_FLOAT64, nt, 4)
+    p_a = _empty3(cnp.NPY_FLOAT64, nt, 4, 4)
     cdef _V V_mu
     _aview(mu_a, cnp.NPY_FLOAT64, 2, True, True, &V_mu, "mu")
     cdef _V V_x
@@ -1666,8 +1667,8 @@ def reanchor_match(x, confirmed, hit,
         if _pu8(V_confirmed, t)[0] and not _pu8(V_hit, t)[0]:
             break
     else:
-        return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
-    cdef cnp.ndarray scratch = np.empty(2 * nt + nm + 1, dtype=np.int64)  # freed however the call ends
+        return _empty1(cnp.NPY_INT64, 0), _empty1(cnp.NPY_INT64, 0)
+    cdef cnp.ndarray scratch = _empty1(cnp.NPY_INT64, 2 * nt + nm + 1)  # freed however the call ends
     cdef cnp.int64_t* io = <cnp.int64_t*> cnp.PyArray_DATA(scratch)
     cdef cnp.int64_t* jo = io + nt
     cdef cnp.int64_t* free = jo + nt
@@ -1701,8 +1702,8 @@ def reanchor_match(x, confirmed, hit,
                 io[k] = t
                 jo[k] = arg
                 k += 1
-    cdef cnp.ndarray i_a = np.empty(k, dtype=np.int64)
-    cdef cnp.ndarray j_a = np.empty(k, dtype=np.int64)
+    cdef cnp.ndarray i_a = _empty1(cnp.NPY_INT64, k)
+    cdef cnp.ndarray j_a = _empty1(cnp.NPY_INT64, k)
     memcpy(cnp.PyArray_DATA(i_a), io, k * sizeof(cnp.int64_t))
     memcpy(cnp.PyArray_DATA(j_a), jo, k * sizeof(cnp.int64_t))
     return i_a, j_a
@@ -1724,10 +1725,10 @@ def delete_tests(x, p, misses, ext_var,
     cdef _V V_ext_var
     _aview(ext_var, cnp.NPY_FLOAT64, 1, False, False, &V_ext_var, "ext_var")
     cdef Py_ssize_t nt = V_x.n[0], t
-    dead_a = np.empty(nt, dtype=bool)
-    pdx_a = np.empty(nt)
-    pdy_a = np.empty(nt)
-    along_a = np.empty(nt)
+    dead_a = _empty1(cnp.NPY_BOOL, nt)
+    pdx_a = _empty1(cnp.NPY_FLOAT64, nt)
+    pdy_a = _empty1(cnp.NPY_FLOAT64, nt)
+    along_a = _empty1(cnp.NPY_FLOAT64, nt)
     cdef _V V_dead
     _aview(dead_a, cnp.NPY_BOOL, 1, True, True, &V_dead, "dead")
     cdef _V V_pdx
@@ -1811,8 +1812,8 @@ def measurements(x, y, snr, vr, rng, bint use_radial_speed, pair=None, unresolve
             i = n
     if i < n:
         return None
-    cdef cnp.ndarray z_a = np.empty((n, 3 if use_radial_speed else 2))
-    cdef cnp.ndarray snr_a = np.empty(n)
+    cdef cnp.ndarray z_a = _empty2(cnp.NPY_FLOAT64, n, 3 if use_radial_speed else 2)
+    cdef cnp.ndarray snr_a = _empty1(cnp.NPY_FLOAT64, n)
     cdef double* z = _f64(z_a)
     cdef double* s = _f64(snr_a)
     cdef Py_ssize_t nc = 3 if use_radial_speed else 2
@@ -1851,7 +1852,7 @@ cdef object _pair_column(object pair, int pair_type, Py_ssize_t n):
             k += 1
     if k == 0:
         return None
-    out = np.empty(n, dtype=np.int64)
+    out = _empty1(cnp.NPY_INT64, n)
     dst = <cnp.int64_t*> cnp.PyArray_DATA(out)
     for i in range(n):
         dst[i] = (<cnp.int32_t*> (src + i * stride))[0]
@@ -1893,9 +1894,9 @@ def seed_candidates(z, used, pair, bint has_pair,
     cdef _V V_ext_var
     _aview(ext_var, cnp.NPY_FLOAT64, 1, False, False, &V_ext_var, "ext_var")
     cdef Py_ssize_t nm = V_z.n[0], nt = V_xt.n[0], m, t, k = 0
-    resolved_a = np.zeros(nm, dtype=bool)
-    idx_a = np.empty(nm, dtype=np.int64)
-    box_a = np.empty((nt, 3))
+    resolved_a = _zeros1(cnp.NPY_BOOL, nm)
+    idx_a = _empty1(cnp.NPY_INT64, nm)
+    box_a = _empty2(cnp.NPY_FLOAT64, nt, 3)
     cdef _V V_resolved
     _aview(resolved_a, cnp.NPY_BOOL, 1, True, True, &V_resolved, "resolved")
     cdef _V V_idx
@@ -1949,8 +1950,8 @@ def carrying_pairs(beta, pair):
     cdef Py_ssize_t nt = V_beta.n[0], t, b
     if V_beta.n[1] == 0 or V_pair.n[0] != V_beta.n[1]:
         raise ValueError("carrying_pairs needs one pair value per detection and at least one detection")
-    pair_a = np.empty(nt, dtype=np.int64)
-    best_a = np.empty(nt, dtype=np.int64)
+    pair_a = _empty1(cnp.NPY_INT64, nt)
+    best_a = _empty1(cnp.NPY_INT64, nt)
     cdef _V V_pair_of
     _aview(pair_a, cnp.NPY_INT64, 1, True, True, &V_pair_of, "pair_of")
     cdef _V V_best
@@ -1981,9 +1982,9 @@ def count_hits(gated, age, hits,
     cdef Py_ssize_t nt = V_gated.n[0], nm = V_gated.n[1], t, m
     if V_age.n[0] != nt or V_hits.n[0] != nt or V_misses.n[0] != nt or V_history.n[0] != nt:
         raise ValueError("count_hits needs one row per track in every column")
-    hit_a = np.empty(nt, dtype=bool)
-    misses_a = np.empty(nt, dtype=np.int32)
-    history_a = np.empty(nt, dtype=np.uint32)
+    hit_a = _empty1(cnp.NPY_BOOL, nt)
+    misses_a = _empty1(cnp.NPY_INT32, nt)
+    history_a = _empty1(cnp.NPY_UINT32, nt)
     cdef _V V_hit
     _aview(hit_a, cnp.NPY_BOOL, 1, True, True, &V_hit, "hit")
     cdef _V V_mo
@@ -2293,7 +2294,7 @@ def publish_states(type cls, const double[:, :] x, const double[:, :, :] p, cons
     if cls.__new__ is not object.__new__:
         raise TypeError("publish_states: cls must be made by object.__new__")
     cdef Py_ssize_t n = idx.shape[0], k, i
-    num_arr = np.empty((n, 15))
+    num_arr = _empty2(cnp.NPY_FLOAT64, n, 15)
     cdef double[:, ::1] num = num_arr
     _publish_rows(x, p, idx, lat, lat_p, lat_cusum, ext_var, score, confirmed, smoother, cusum_threshold,
                   publish_length, confirmed_log_odds, num)
@@ -2392,7 +2393,7 @@ def publish_table(type cls, tr, bint tentative, long max_misses, bint smoother, 
             and _table_col(tr, "age", cnp.NPY_INT32, nt, 0, 0, &age)
             and _table_col(tr, "hits", cnp.NPY_INT32, nt, 0, 0, &hits)):
         return None
-    cdef cnp.ndarray rows_a = np.empty(nt, dtype=np.intp)  # scratch (freed however the call ends)
+    cdef cnp.ndarray rows_a = _empty1(cnp.NPY_INTP, nt)  # scratch (freed however the call ends)
     cdef Py_ssize_t* rows = <Py_ssize_t*> cnp.PyArray_DATA(rows_a)
     cdef bint blend = False, conf
     for i in range(nt):
@@ -2405,7 +2406,7 @@ def publish_table(type cls, tr, bint tentative, long max_misses, bint smoother, 
         return (), None
     cdef double p0 = _blend_p0(cusum_threshold) if smoother else 0.0
     cdef double num[15]
-    cdef cnp.ndarray mx_a = np.empty(n)
+    cdef cnp.ndarray mx_a = _empty1(cnp.NPY_FLOAT64, n)
     cdef double* mx = _f64(mx_a)
     cdef list out = []
     cdef dict d
@@ -2459,9 +2460,9 @@ def seed_states(seeds, r, bint with_rs, double cy, double sy, double var_u,
     cdef Py_ssize_t k = V_seeds.n[0], i
     if V_r.n[0] != k or V_r.n[1] < 2 or V_r.n[2] < 2 or V_seeds.n[1] < (3 if with_rs else 2):
         raise ValueError("seed_states: one r (2, 2) per seed, seeds with x, y[, radial speed]")
-    x_a = np.zeros((k, 4))
-    p_a = np.zeros((k, 4, 4))
-    vs_a = np.empty(k)
+    x_a = _zeros2(cnp.NPY_FLOAT64, k, 4)
+    p_a = _zeros3(cnp.NPY_FLOAT64, k, 4, 4)
+    vs_a = _empty1(cnp.NPY_FLOAT64, k)
     cdef _V V_x0
     _aview(x_a, cnp.NPY_FLOAT64, 2, True, True, &V_x0, "x0")
     cdef _V V_p0

@@ -20,6 +20,7 @@ cimport numpy as cnp
 cnp.import_array()
 
 include "_views.pxi"
+include "_alloc.pxi"
 
 
 cdef inline void _sort_by_seq(long long *ids, Py_ssize_t n, _V V_seq) noexcept nogil:
@@ -63,13 +64,13 @@ def yaw_add(acc, live, seq, long long next_seq,
     for i in range(n):
         if _pll(V_ids, i)[0] < 0 or _pll(V_ids, i)[0] >= cap:
             return None
-    seen_a = np.zeros(cap, dtype=np.uint8)
+    seen_a = _zeros1(cnp.NPY_UINT8, cap)
     cdef _V V_seen
     _aview(seen_a, cnp.NPY_UINT8, 1, True, True, &V_seen, "seen")
-    ended_a = np.empty((n + cap, 7))
+    ended_a = _empty2(cnp.NPY_FLOAT64, n + cap, 7)
     cdef _V V_ended
     _aview(ended_a, cnp.NPY_FLOAT64, 2, True, True, &V_ended, "ended")
-    gone_a = np.empty(cap, dtype=np.int64)
+    gone_a = _empty1(cnp.NPY_INT64, cap)
     cdef _V V_gone
     _aview(gone_a, cnp.NPY_LONGLONG, 1, True, True, &V_gone, "gone")
     for i in range(n):
@@ -127,7 +128,7 @@ def yaw_live_terms(acc, live, seq,
     cdef Py_ssize_t cap = V_live.n[0], j, i, n_live = 0, n_out = 0
     cdef long long tid
     cdef double a0, n, mx, my, cxx, cyy, cxy, half_tr, det, disc, major, minor, r, mn
-    ids_a = np.empty(cap, dtype=np.int64)
+    ids_a = _empty1(cnp.NPY_INT64, cap)
     cdef _V V_ids
     _aview(ids_a, cnp.NPY_LONGLONG, 1, True, True, &V_ids, "ids")
     for j in range(cap):
@@ -136,9 +137,9 @@ def yaw_live_terms(acc, live, seq,
             n_live += 1
     if n_live > 1:
         _sort_by_seq(<long long*>V_ids.data, n_live, V_seq)
-    num_a = np.empty(n_live)
-    den_a = np.empty(n_live)
-    w_a = np.empty(n_live)
+    num_a = _empty1(cnp.NPY_FLOAT64, n_live)
+    den_a = _empty1(cnp.NPY_FLOAT64, n_live)
+    w_a = _empty1(cnp.NPY_FLOAT64, n_live)
     cdef _V V_num
     _aview(num_a, cnp.NPY_FLOAT64, 1, True, True, &V_num, "num")
     cdef _V V_den
@@ -181,7 +182,7 @@ def track_kin(tuple tracks):
     indices in ``tracks``, ``kin`` (n, 6) float64 = track id, age (frames), x, y (m), vx, vy (m/s), as the
     reference's ``np.array`` of tuples; ``ids``, ``age`` (n,) int64."""
     cdef Py_ssize_t m = len(tracks), i, n = 0
-    sel_a = np.empty(m, dtype=np.int64)
+    sel_a = _empty1(cnp.NPY_INT64, m)
     cdef _V V_sel
     _aview(sel_a, cnp.NPY_LONGLONG, 1, True, True, &V_sel, "sel")
     conf = []
@@ -191,9 +192,9 @@ def track_kin(tuple tracks):
             conf.append(t)
             _pll(V_sel, n)[0] = i
             n += 1
-    kin_a = np.empty((n, 6))
-    ids_a = np.empty(n, dtype=np.int64)
-    age_a = np.empty(n, dtype=np.int64)
+    kin_a = _empty2(cnp.NPY_FLOAT64, n, 6)
+    ids_a = _empty1(cnp.NPY_INT64, n)
+    age_a = _empty1(cnp.NPY_INT64, n)
     cdef _V V_kin
     _aview(kin_a, cnp.NPY_FLOAT64, 2, True, True, &V_kin, "kin")
     cdef _V V_ids
@@ -323,7 +324,7 @@ def monitor_pass(tuple tracks, sel, list conf, ids, mi,
     if has_ext:
         ext_v = ext
     sample_lists = [acc.samples for acc in accs]
-    seen_a = np.zeros(cap, dtype=np.uint8)
+    seen_a = _zeros1(cnp.NPY_UINT8, cap)
     cdef _V V_seen
     _aview(seen_a, cnp.NPY_UINT8, 1, True, True, &V_seen, "seen")
     presence = [False] * n_lanes

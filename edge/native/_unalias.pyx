@@ -16,6 +16,7 @@ cimport numpy as cnp
 cnp.import_array()
 
 include "_views.pxi"
+include "_alloc.pxi"
 
 include "_roadfilters.pxi"
 
@@ -114,13 +115,13 @@ def glint(rng, v, az, x, y,
     cdef _V V_dirs
     _aview(dirs, cnp.NPY_FLOAT64, 1, False, True, &V_dirs, "dirs")
     cdef Py_ssize_t n = V_rng.n[0]
-    out_arr = np.zeros(n, np.uint8)
+    out_arr = _zeros1(cnp.NPY_UINT8, n)
     cdef _V V_out
     _aview(out_arr, cnp.NPY_UINT8, 1, True, True, &V_out, "out")
-    against_arr = np.zeros(n, np.uint8)
+    against_arr = _zeros1(cnp.NPY_UINT8, n)
     cdef _V V_against
     _aview(against_arr, cnp.NPY_UINT8, 1, True, True, &V_against, "against")
-    sin_arr = np.empty(n, np.float64)
+    sin_arr = _empty1(cnp.NPY_FLOAT64, n)
     cdef double[::1] s = sin_arr
     if n and V_centre.n[0]:
         _glint_core(<float*>V_rng.data, <float*>V_v.data, <float*>V_az.data, <float*>V_x.data, <float*>V_y.data,
@@ -128,7 +129,7 @@ def glint(rng, v, az, x, y,
                     V_centre.n[0], cos_yaw, sin_yaw, min_speed, margin, k_sigma, length, speed, beamwidth_sin,
                     <cnp.uint8_t*>V_against.data, &s[0], <cnp.uint8_t*>V_out.data)
     return out_arr
-    sin_arr = np.empty(n, np.float64)
+    sin_arr = _empty1(cnp.NPY_FLOAT64, n)
     cdef double[::1] s = sin_arr
     for j in range(n):
         s[j] = sin(<double>_pf1(V_az, j)[0])

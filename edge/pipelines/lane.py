@@ -41,6 +41,7 @@ from edge.lane.peaks import PeakStage
 from edge.lane.records import Feedback
 from edge.lane.road import RoadFrame
 from edge.lane.spectra import SpectraStage
+from edge.npc import count_nonzero
 from edge.pipeline import Pipeline, PipelineError, StageTimer
 from edge.types import Detections, FrameResult, FrontendInfo, RawFrame
 
@@ -321,7 +322,7 @@ class LanePipeline(native.KernelUser, Pipeline):
         with timer.stage("range_fft"):
             spectra = self.spectra(iq, fb)
         with timer.stage("cfar"):  # weak peaks only when a confirmed track may use them
-            peaks = self.peaks(spectra, self.peaks.aided_scale32 is not None and bool(np.count_nonzero(fb.confirmed)))
+            peaks = self.peaks(spectra, self.peaks.aided_scale32 is not None and bool(count_nonzero(fb.confirmed)))
         with timer.stage("pairing"):
             pairs = self.pairs(peaks, frame.t_ns, fb, spectra)
         with timer.stage("angle"):
@@ -346,9 +347,12 @@ class LanePipeline(native.KernelUser, Pipeline):
         if body is None:
             return None
         cols = (det.range_m, det.radial_speed_mps, body)
-        if self._k_faces is not None and all(isinstance(c, np.ndarray) and c.dtype == np.float32 and c.ndim == 1
-                                             and c.flags.c_contiguous for c in cols):
-            return self._k_faces.track_extents(tracks, *cols, _TRACK_DET_RANGE_M, _TRACK_DET_SPEED_MPS)
+        if self._k_faces is not None:
+            for c in cols:  # (a loop in this frame: no generator)
+                if not (isinstance(c, np.ndarray) and c.dtype == np.float32 and c.ndim == 1 and c.flags.c_contiguous):
+                    break
+            else:
+                return self._k_faces.track_extents(tracks, *cols, _TRACK_DET_RANGE_M, _TRACK_DET_SPEED_MPS)
         out = np.full(len(tracks), np.nan)
         if not len(det) or not len(tracks):
             return out
@@ -356,7 +360,7 @@ class LanePipeline(native.KernelUser, Pipeline):
         dr = np.abs(det.range_m[None, :].astype(np.float64) - tr[:, :1])
         near = (dr <= _TRACK_DET_RANGE_M) & (np.abs(det.radial_speed_mps[None, :] - tr[:, 1:]) <= _TRACK_DET_SPEED_MPS)
         hit = near.any(axis=1)
-        if np.count_nonzero(hit):
+        if count_nonzero(hit):
             j = np.where(near, dr, np.inf).argmin(axis=1)
             out[hit] = body[j[hit]]
         return out

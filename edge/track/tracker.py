@@ -24,6 +24,7 @@ import logging
 import numpy as np
 
 from edge import native
+from edge.npc import count_nonzero
 from edge.track import kalman
 from edge.track.config import PdafConfig
 from edge.track.roles import Frame, build_roles, resolved_pairs
@@ -80,7 +81,7 @@ class PdafTracker(native.KernelUser):
         self.last_t_ns = t_ns
         tr, n = self.tracks, meas.z.shape[1]
         used, mp, self.intermediates = np.zeros(meas.z.shape[0], dtype=bool), None, {}
-        if len(tr):
+        if tr.x.shape[0]:  # (len(tr) without its Python-level __len__)
             pred = self.predictor.predict(tr, dt_s, self.road_yaw_rad)
             mp = self.measurement_model.predict(pred, meas, tr.ext_var, self.associator.prune_gamma(n))
             hyp = self.associator.associate(meas, mp.inn, tr.confirmed, tr.hits)
@@ -103,7 +104,7 @@ class PdafTracker(native.KernelUser):
             dead = self.deleter.delete(tr, resolved_pairs(meas.pair, hyp.beta, self.kernel)) | expired
             for tid in tr.track_id[dead & tr.confirmed]:
                 self.ids.release(int(tid))
-            if np.count_nonzero(dead):
+            if count_nonzero(dead):
                 tr.keep(~dead, self.kernel)
             self.confirmer.confirm(tr, self.ids)  # after duplicates are gone: no id is spent on one
             self.intermediates = {"gated": hyp.gated, "beta0": hyp.beta0, "d2": mp.inn.d2}

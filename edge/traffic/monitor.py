@@ -55,6 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge import native
+from edge.fastinit import one_dict_init
 from edge.traffic.calibration import Calibration, CalibrationError, CalibrationWriter, load_calibration
 from edge.traffic.config import TrafficConfig
 from edge.traffic.lanes import Lane, LaneLearner, YawEstimator, assign_lanes_with_margin, configured_lanes
@@ -66,6 +67,7 @@ log = logging.getLogger(__name__)
 __all__ = ["TrafficMonitor", "TrafficUpdate"]
 
 
+@one_dict_init
 @dataclass(frozen=True)
 class TrafficUpdate:
     tracks: tuple[TrackState, ...]
@@ -297,11 +299,15 @@ class TrafficMonitor(native.KernelUser):
         ext = None
         if extent_m is not None and len(extent_m) == len(tracks):
             ext = np.ascontiguousarray(np.asarray(extent_m, dtype=np.float64)[sel])
+        accs, by_lane = [], stats.lanes  # stats.lane(k) for every lane, calling it only for a lane not yet seen
+        for k in range(n_lanes):
+            acc = by_lane.get(k)
+            accs.append(stats.lane(k) if acc is None else acc)
         while True:
             res = self._kernel.monitor_pass(
                 tracks, sel, conf, ids, self._mi, self._mf, self._meters, LengthMeter, s, vs, speed, lane_idx,
                 lane_sure, self._lane_arrays[3], ext, t_ns, dt_ns, self._pass_params(),
-                [stats.lane(k) for k in range(n_lanes)], stats.class_names, stats._edge_list, TrackState,
+                accs, stats.class_names, stats._edge_list, TrackState,
                 _with if _TRACK_POST_INIT else None)
             if res is not None:
                 break
@@ -325,8 +331,8 @@ class TrafficMonitor(native.KernelUser):
                     acc.add(Crossing(a[3], speed[j], float("nan"), conf[j].cls, meter))
                     self._mi[tid, _M_COUNTED] = 1
         closed = stats.tick(t_ns, n_lanes)
-        return TrafficUpdate(published, tuple(presence), closed,
-                             tuple(TrafficEvent(kind, tid, lane, t_ns) for kind, tid, lane in raw_events))
+        events = tuple(TrafficEvent(kind, tid, lane, t_ns) for kind, tid, lane in raw_events) if raw_events else ()
+        return TrafficUpdate(published, tuple(presence), closed, events)
 
     def update(self, tracks: tuple[TrackState, ...], t_ns: int, yaw_x_m: np.ndarray | None = None,
                extent_m: np.ndarray | None = None) -> TrafficUpdate:

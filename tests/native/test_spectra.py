@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.fft
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -347,3 +348,84 @@ def test_update_apply_power_median_equals_numpy(n, pattern):
     # the held cells: those whose change exceeds the median (none when all stand still)
     held = np.all(fast.background == prev_bg, axis=0) & np.any(spec != prev_bg, axis=0)
     assert 0 < np.count_nonzero(held) < held.size or pattern == "all_still" or (pattern.startswith("sample") and n < 256)
+
+
+@settings(max_examples=25, deadline=None, derandomize=True)
+@given(n_rx=st.integers(1, 4), n_seg=st.integers(1, 4), n=st.sampled_from([1, 2, 7, 48, 64, 1000, 1024]),
+       seed=st.integers(0, 2**16))
+def test_direct_fft_equals_scipy_fft(n_rx, n_seg, n, seed):
+    """The transform the spectra stage calls without scipy.fft's dispatch gives scipy.fft.fft's spectrum bit for bit,
+    in place."""
+    from edge.lane.spectra import direct_fft
+
+    c2c = direct_fft()
+    assert c2c is not None
+    x = _cspec(np.random.default_rng(seed), (n_rx, n_seg, n))
+    want = scipy.fft.fft(x.copy(), axis=-1, overwrite_x=True, workers=1)
+    y = x.copy()
+    got = c2c(y, (-1,), True, 0, y, 1)
+    assert got is y and got.dtype == want.dtype and got.shape == want.shape
+    assert got.tobytes() == want.tobytes()
+
+
+def test_direct_fft_declined_when_it_differs(monkeypatch):
+    """scipy's pocketfft ``c2c`` is not called directly when scipy.fft.fft's spectrum of the probe differs from its own,
+    or when the direct call fails."""
+    from scipy.fft._pocketfft import pypocketfft
+
+    from edge.lane.spectra import direct_fft
+
+    fft = scipy.fft.fft
+    monkeypatch.setattr(scipy.fft, "fft", lambda x, **kw: np.conj(fft(x, **kw)))  # another spectrum than c2c's
+    assert direct_fft() is None
+    monkeypatch.setattr(scipy.fft, "fft", fft)
+    assert direct_fft() is not None
+    real = pypocketfft.c2c
+
+    def fails_in_place(a, axes, forward, inorm, out, nthreads):  # refuses the call without dispatch only
+        if out is a:
+            raise TypeError("no")
+        return real(a, axes, forward, inorm, out, nthreads)
+
+    monkeypatch.setattr(pypocketfft, "c2c", fails_in_place)
+    assert direct_fft() is None
+
+
+def test_spectra_stage_direct_fft_equals_scipy_fft(frames):
+    """The stage's spectra with the direct transform and with scipy.fft.fft (``_c2c`` None, or an array other than the
+    stage's buffer) are the same bits, frame by frame; without the kernels the stage calls scipy.fft.fft."""
+    from edge.native.check import kernels
+
+    fast, ref = _lane(frames, True), _lane(frames, True)
+    ref.spectra._c2c = None
+    assert fast.spectra._c2c is not None
+    fb = ref.feedback()
+    for k, f in enumerate(frames[:13]):
+        iq = fast.spectra.to_complex(f)
+        if k == 12:  # not the stage's buffer: scipy.fft.fft
+            iq = iq.copy()
+        a = fast.spectra(iq, fb)
+        b = ref.spectra(ref.spectra.to_complex(f), fb)
+        assert a.spec.tobytes() == b.spec.tobytes() and a.power_padded.tobytes() == b.power_padded.tobytes()
+    with kernels(False):
+        assert build_pipeline("lane", frames[0].frontend, load_config(env={})).spectra._c2c is None
+
+
+def test_spectra_stage_calls_a_replaced_scipy_fft(frames, monkeypatch):
+    """With scipy.fft.fft replaced in the stage's module (as tests/edge/lane_golden.py does to record the spectra),
+    the stage calls the replacement, not the transform directly."""
+    import types
+
+    import edge.lane.spectra as spectra_mod
+
+    pipe = _lane(frames, True)
+    assert pipe.spectra._c2c is not None
+    calls = []
+
+    def fft(*a, **kw):
+        calls.append(1)
+        return scipy.fft.fft(*a, **kw)
+
+    monkeypatch.setattr(spectra_mod, "scipy", types.SimpleNamespace(fft=types.SimpleNamespace(fft=fft)))
+    pipe.spectra(pipe.spectra.to_complex(frames[0]), pipe.feedback())
+    assert calls == [1]

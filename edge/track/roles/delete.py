@@ -68,7 +68,7 @@ class TrackDeleter(native.KernelUser):
                 tracks.x, tracks.p, tracks.misses, tracks.ext_var, c.delete_after_misses, c.max_position_sigma_m,
                 self.fov.min_range_m, self.fov.max_range_m, math.radians(self.fov.max_azimuth_deg),
                 self.box.cfg.merge_along_m, self.box.cfg.merge_headway_s, self.box.cfg.merge_extent_factor)
-            return dead | self._duplicates_kernel(tracks, resolved, (pdx, pdy, along)) if len(tracks) >= 2 else dead
+            return dead | self._duplicates_kernel(tracks, resolved, (pdx, pdy, along)) if tracks.x.shape[0] >= 2 else dead
         rho = np.hypot(tracks.x[:, 0], tracks.x[:, 1])
         sig = np.sqrt(np.maximum(tracks.p[:, 0, 0], tracks.p[:, 1, 1]))
         dead = (tracks.misses >= c.delete_after_misses) | (sig > c.max_position_sigma_m)
@@ -175,7 +175,7 @@ class TrackDeleter(native.KernelUser):
         pairs, the same arithmetic); the 4x4 state test and the choice of the junior stay here. ``spread``: the
         position spreads and box half-lengths ``(pdx, pdy, along)`` if already computed (``delete_tests``)."""
         c, box = self.cfg, self.box.cfg
-        t = len(tracks)
+        t = tracks.x.shape[0]
         if spread is None:
             pdx, pdy = self._position_spread(tracks)
             along = self.box.along_m(tracks)

@@ -146,7 +146,7 @@ class SeedInitiator(native.KernelUser):
         cand = (~used | resolved) & (rho >= self.fov.min_range_m) & (rho <= self.fov.max_range_m)
         if meas.with_radial_speed:
             cand &= np.abs(z[:, 2]) >= c.seed_min_radial_speed_mps
-        if len(tracks) and np.count_nonzero(cand):
+        if tracks.x.shape[0] and np.count_nonzero(cand):
             cand &= ~self._near(tracks, meas, resolved)
         return cand.nonzero()[0], resolved
 

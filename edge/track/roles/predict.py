@@ -88,7 +88,7 @@ class ImmPredictor(native.KernelUser):
                                             c.q_along_m2ps3)
             self._cached = (dt_s, yaw_rad, f, q)
         pi = self.pi
-        far = c.imm_far_p_keep_to_manoeuvre < c.imm_p_keep_to_manoeuvre and len(tracks)
+        far = c.imm_far_p_keep_to_manoeuvre < c.imm_p_keep_to_manoeuvre and tracks.x.shape[0]
         if self.kernel is not None:  # switching, mixing, prediction and moment matching in one pass (to rounding)
             if far:  # the switching matrices of _far_switch, built in the kernel
                 xp, pp, xpm, ppm, cj = self.kernel.imm_predict(
