@@ -135,6 +135,8 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "vehicles off by an alias step whose event does not flag the speed as uncertain"),
         Metric("speed_mae_certain_kmh", "speed_abs_error_sum_certain_kmh", "speed_n_certain", "km/h",
                "|estimated - true| mean radial speed of the targets whose speed is not flagged uncertain"),
+        Metric("live_class_accuracy", "live_class_correct", "live_class_frames", "",
+               "published frames of matched tracks whose provisional class is the target's (frames with a class)"),
     ),
 }
 

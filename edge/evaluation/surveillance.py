@@ -36,6 +36,8 @@ Scoring:
   ``one_event_fraction`` is the share of tracked single-target passages that ended as exactly one event: one
   event matched to the target and no unmatched event overlapping its time in view (a fragment of the vehicle that
   matched nothing is still a second event of the passage).
+* **Live classes**: ``live_class_accuracy`` is the share of the published frames of tracks matched to a target,
+  among those with a provisional class (``TrackState.cls``), whose class is the target's.
 * **Confusion matrix**: ``matrix[i][j]`` = targets of true class ``labels[i]`` predicted as
   ``labels[j]``; the last column, ``missed``, counts targets without a track.
 
@@ -78,6 +80,7 @@ class _Instance:
     target: int | None = None
     range_err: list[float] = field(default_factory=list)
     meas: list[float | None] = field(default_factory=list)  # range of the cluster associated (None: coasting)
+    classes: list[str | None] = field(default_factory=list)  # the published provisional class per frame
 
 
 def _ratio(num: int, den: int) -> float | None:
@@ -125,6 +128,21 @@ def _tallies(targets: list[dict], truths: dict, hits: dict[int, np.ndarray], fal
 
 
 VEHICLE_CLASSES = ("car", "motorcycle", "truck")
+
+
+def _live_class_tallies(done: list[_Instance], truths: dict) -> dict:
+    """The published frames of tracks matched to a target that carry a provisional class, and those whose class is
+    the target's (``live_class_accuracy``: what a reader of the live outputs sees while the target is in view)."""
+    frames = correct = 0
+    for inst in done:
+        if inst.target is None:
+            continue
+        cls = truths[inst.target].cls
+        for c in inst.classes:
+            if c is not None:
+                frames += 1
+                correct += int(c == cls)
+    return {"live_class_frames": frames, "live_class_correct": correct}
 
 
 def _speed_and_passage_tallies(targets: list[dict], truths: dict, done: list[_Instance], views: list,
@@ -233,6 +251,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
             inst.frames.append(n)
             inst.ranges.append(float(ts.range_m))
             inst.meas.append(meas.get(ts.track_id))
+            inst.classes.append(ts.cls)
         close_events(res.classifications, n)
     close_events(pipe.flush(), n_frames)
     done.extend(open_inst.values())  # tracks that never produced an event (should not happen)
@@ -328,6 +347,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
     tallies = _tallies(targets, truths, hits, false_tracks, minutes, range_sq)
     alias_step_kmh = 2.0 * characteristics(fe).max_radial_speed_mps * 3.6  # 2 v_max
     tallies.update(_speed_and_passage_tallies(targets, truths, done, views, alias_step_kmh))
+    tallies.update(_live_class_tallies(done, truths))
     summ = timer.summary()
     report = {
         "scenario": scenario.name,
@@ -365,6 +385,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
                                                     tallies["vehicles_with_speed"]),
             "speed_mae_certain_kmh": _ratio(tallies["speed_abs_error_sum_certain_kmh"], tallies["speed_n_certain"]),
             "one_event_fraction": _ratio(tallies["single_passages_one_event"], tallies["single_passages_tracked"]),
+            "live_class_accuracy": _ratio(tallies["live_class_correct"], tallies["live_class_frames"]),
             "tallies": tallies,
         },
         "frame_time_ms": {

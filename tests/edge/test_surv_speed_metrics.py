@@ -142,3 +142,16 @@ def test_the_event_speed_feature_is_the_event_speeds_alias_on_a_long_body(speed_
     assert len(events) == 1 and events[0].mean_radial_speed_kmh == pytest.approx(25.0, abs=0.5)
     feature = events[0].features["abs_radial_speed_mean_kmh"]
     assert feature == pytest.approx(25.0 if speed_feature == "event" else 25.0 - STEP, abs=1.0)
+
+
+def test_live_class_tallies_count_the_matched_tracks_frames_with_a_class():
+    """Frames of matched tracks with a provisional class count; those of the target's class are right; frames
+    without a class and unmatched tracks do not count."""
+    from edge.evaluation.surveillance import _live_class_tallies
+
+    truths = {1: SimpleNamespace(cls="car"), 2: SimpleNamespace(cls="pedestrian")}
+    a = _Instance(10, frames=[0, 1, 2, 3], classes=[None, "truck", "car", "car"], target=1)
+    b = _Instance(11, frames=[5, 6], classes=["pedestrian", "car"], target=2)
+    stray = _Instance(12, frames=[7, 8], classes=["car", "car"])
+    assert _live_class_tallies([a, b, stray], truths) == {"live_class_frames": 5, "live_class_correct": 3}
+    assert _live_class_tallies([], truths) == {"live_class_frames": 0, "live_class_correct": 0}
