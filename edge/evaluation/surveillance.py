@@ -135,7 +135,7 @@ def _live_class_tallies(done: list[_Instance], truths: dict) -> dict:
     the target's (``live_class_accuracy``: what a reader of the live outputs sees while the target is in view)."""
     frames = correct = 0
     for inst in done:
-        if inst.target is None:
+        if inst.target not in truths:  # unmatched, or matched to a target without a truth row (as the targets' rows)
             continue
         cls = truths[inst.target].cls
         for c in inst.classes:

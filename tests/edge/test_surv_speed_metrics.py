@@ -153,5 +153,6 @@ def test_live_class_tallies_count_the_matched_tracks_frames_with_a_class():
     a = _Instance(10, frames=[0, 1, 2, 3], classes=[None, "truck", "car", "car"], target=1)
     b = _Instance(11, frames=[5, 6], classes=["pedestrian", "car"], target=2)
     stray = _Instance(12, frames=[7, 8], classes=["car", "car"])
-    assert _live_class_tallies([a, b, stray], truths) == {"live_class_frames": 5, "live_class_correct": 3}
+    no_row = _Instance(13, frames=[9], classes=["car"], target=3)  # a target in view that has no truth row
+    assert _live_class_tallies([a, b, stray, no_row], truths) == {"live_class_frames": 5, "live_class_correct": 3}
     assert _live_class_tallies([], truths) == {"live_class_frames": 0, "live_class_correct": 0}
