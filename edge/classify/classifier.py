@@ -16,9 +16,9 @@ from __future__ import annotations
 import logging
 from typing import Any
 
+from edge.classify.features import feature_setting_mismatches
 from edge.classify.knn import ColumnSelect, KnnConfig, WeightedKNN, knn_for
 from edge.classify.onnx_runtime import OnnxKnnClassifier
-from edge.classify.features import feature_setting_mismatches
 from edge.classify.reference import DEFAULT_CLASSES, load_reference_set
 
 log = logging.getLogger(__name__)
@@ -47,17 +47,8 @@ def build_classifier(config: Any, expected_classes: tuple[str, ...] | None = DEF
     return ColumnSelect(model, model.feature_names)
 
 
-def feature_settings_check(recorded: dict, config: Any) -> list[str]:
-    """The ``classify.features`` settings that differ from those the classifier's reference set was built with
-    (:func:`edge.classify.features.feature_setting_mismatches`); empty when the configuration has no such section."""
-    section = getattr(config, "section", None)
-    if section is None:
-        return []
-    return feature_setting_mismatches(recorded or {}, section("classify.features"))
-
-
 def _warn_feature_settings(recorded: dict, config: Any, source: str) -> None:
-    bad = feature_settings_check(recorded, config)
+    bad = feature_setting_mismatches(recorded, config.section("classify.features"))
     if bad:
         log.warning("classify.features differ from the settings the classifier's reference set (%s) was built with: "
                     "%s; its classes will be off (rebuild the set and the model)", source, "; ".join(bad))

@@ -401,7 +401,8 @@ class SignatureExtractor(native.KernelUser):
         self.extent_cos = np.float32(math.cos(gate) if 0.0 < gate < math.pi else -2.0)
         #: power factor referring eq. 17 to the reference set's board (rcs_calibration_db; 1 at the datasheet C)
         self.rcs_factor = rcs_gain_factor(config.rcs_calibration_db)
-        # TrackFeatureAccumulator(vmax_kmh=...): E(|v_r|) from the unaliased Doppler (speed_feature = "doppler")
+        # TrackFeatureAccumulator(vmax_kmh=...): E(|v_r|) from the unaliased Doppler (speed_feature = "doppler"; with
+        # "event", the live tracks' value and an ended track's without event-speed frames)
         self.speed_vmax_kmh = self.cylinder.vmax_kmh if config.speed_feature in ("doppler", "event") else None
         #: the compiled cluster sums (edge/native/_survsig.pyx), None: the numpy reference (:meth:`_sums`) runs
         self.kernel = native.load("_survsig")

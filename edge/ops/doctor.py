@@ -433,10 +433,10 @@ def check_classifier(sys_: System, cfg: Any) -> list[Check]:
     detail = (f"{clf.path.name}: k={clf.k} {clf.metric}, classes {', '.join(clf.classes)}, "
               f"{len(clf.feature_names)} features, reference {clf.reference_sha256[:12]}")
     data = {"path": str(clf.path), "classes": list(clf.classes), "features": list(clf.feature_names)}
-    from edge.classify.classifier import feature_settings_check
+    from edge.classify.features import feature_setting_mismatches
 
     recorded = (getattr(clf, "metadata", None) or {}).get("build", {}).get("classify.features", {})
-    bad = feature_settings_check(recorded, cfg)
+    bad = feature_setting_mismatches(recorded, cfg["classify.features"])
     if bad:
         return [Check("classifier", "warn", f"{detail}; classify.features differ from its reference set's: "
                       + "; ".join(bad), "set them as the model's reference set was built, or rebuild the set "
