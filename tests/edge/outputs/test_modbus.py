@@ -145,8 +145,9 @@ def test_single_reads_never_tear_and_the_tear_byte_detects_split_reads(tcp_sink,
         while not stop.is_set():
             seq += 1
             t = T0 + seq * PERIOD_NS
-            # every track's x encodes the frame: a record from another frame is recognisable
-            tracks = [tr.__class__(**{**tr.__dict__, "x_m": (seq % 200) / 10.0, "range_m": 10.0 + i})
+            # every track's x encodes the frame as the header counts it (16 bits, it wraps: this writer is
+            # unthrottled and a slow reader may see 65536 frames go by): a record from another frame is recognisable
+            tracks = [tr.__class__(**{**tr.__dict__, "x_m": ((seq & 0xFFFF) % 200) / 10.0, "range_m": 10.0 + i})
                       for i, tr in enumerate(make_tracks(rng, 14))]
             tcp_sink.publish(make_result(seq, t, tracks, (False,) * N_LANES), health(t, t, frames=seq))
 
@@ -173,8 +174,8 @@ def test_single_reads_never_tear_and_the_tear_byte_detects_split_reads(tcp_sink,
                 split_mismatch += 1
                 if rec[7] >> 8 == hdr & 0xFF:
                     # an 8-bit tear byte cannot tell frames 256 apart (8.5 s at 30 Hz; this writer is
-                    # unthrottled): a match is only allowed when the record's frame is hdr + 256 k
-                    assert any((hdr + 256 * k) % 200 == rec[2] for k in range(1, 26)), (hdr, rec)
+                    # unthrottled): a match is only allowed when the record's frame is hdr + 256 k (mod 2^16)
+                    assert any(((hdr + 256 * k) & 0xFFFF) % 200 == rec[2] for k in range(1, 256)), (hdr, rec)
         assert len(seen_frames) > 1  # the writer really ran while we read
     finally:
         stop.set()
