@@ -216,3 +216,19 @@ def test_a_walker_beside_a_car_keeps_its_own_event():
     st, _, events = run(AlphaBetaConfig(body_length_m=12.0), car_passing_a_walker, 16)
     assert st.body_parts == 0 and len(events) == 2
     assert sorted(round(e.mean_radial_speed_kmh) for e in events) == [4, 20]
+
+
+def car_passing_an_approaching_jogger(n):
+    """A car receding at 22.1 km/h from 12 m passes a jogger approaching at 10 km/h from 15 m (beyond passage_range_m)
+    at the same wrapped Doppler (0.7 km/h); the jogger is lost after eight frames."""
+    out = [(12.0 + 22.1 / 3.6 * T * n, 22.1, 400)]
+    if n <= 7:
+        out.append((15.0 - 10.0 / 3.6 * T * n, -10.0, 150))
+    return out
+
+
+def test_a_jogger_approaching_beside_a_receding_car_keeps_its_own_event():
+    # the body rule's "moving apart" guard: range rates of opposite sign, both beyond passage_speed_kmh
+    st, _, events = run(AlphaBetaConfig(body_length_m=12.0), car_passing_an_approaching_jogger, 16)
+    assert st.body_parts == 0 and len(events) == 2
+    assert sorted(round(e.mean_radial_speed_kmh) for e in events) == [-10, 22]
