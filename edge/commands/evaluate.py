@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
+from pathlib import Path
 
 from edge.commands.common import add_config_arguments, config_from_args, emit_json
 
@@ -24,7 +26,8 @@ With --corpus FILE instead of --scenario, runs every (run, seed, variant) of one
 (edge.evaluation.corpus: scenarios x variants x seeds, dev and holdout) in --jobs worker processes, and writes one
 JSON with each run's figures and tallies and the metrics pooled per variant and over all runs as ratios of sums,
 each with a 95 % cluster-bootstrap confidence interval over runs; --plot draws them as an SVG (surveillance:
-with each variant's confusion matrix)."""
+with each variant's confusion matrix); --targets writes every run's per-target rows as JSON lines, to list what
+failed where."""
 EPILOG = """\
 examples:
   radar-edge evaluate --scenario highway4 --json out/highway4.json
@@ -34,6 +37,7 @@ examples:
   radar-edge replay-traffic out/s5-tracks.npz --set traffic.count_late_max_m=0   # counting rules, in seconds
   radar-edge evaluate --corpus corpus/lane.toml --part dev --jobs 2 --json out/lane-dev.json --plot out/lane-dev.svg
   radar-edge evaluate --corpus corpus/surveillance.toml --part both --jobs 2 --json out/surv.json
+  radar-edge evaluate --corpus corpus/surveillance.toml --part dev --jobs 2 --json out/dev.json --targets out/dev.jsonl
 """
 
 
@@ -50,6 +54,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, default=None, help="limit the number of frames")
     p.add_argument("--events", type=int, default=None, help="number of events for event generators")
     p.add_argument("--json", metavar="OUT", help="write the report here (default: print it)")
+    p.add_argument("--targets", metavar="OUT.jsonl",
+                   help="--corpus: also write every run's target rows (truth, what was published, the errors) as JSON "
+                        "lines, each with its part, scenario, seed and variant (a single run's --json report has them)")
     p.add_argument("--record-tracks", metavar="FILE",
                    help="lane profile: also save the traffic layer's input (tracks per frame) and the true crossings "
                         "of the detection line, for radar-edge replay-traffic (about 17 MB for ten minutes of "
@@ -71,6 +78,10 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.corpus is not None:
         return run_corpus(args)
+    if args.targets is not None:
+        print("radar-edge evaluate: --targets applies to --corpus (a single run's --json report has its targets)",
+              file=sys.stderr)
+        return 2
     cfg = config_from_args(args)
     progress = not args.no_progress and sys.stderr.isatty()
     if progress and not available("tqdm"):
@@ -116,17 +127,32 @@ def run_corpus(args: argparse.Namespace) -> int:
         check_scenarios(corpus, part)
     results = {}
     for part in parts:
-        jobs = [dict(j, config=args.config, extra_set=list(args.set)) for j in corpus.jobs(part)]
+        jobs = [dict(j, config=args.config, extra_set=list(args.set), targets=bool(args.targets))
+                for j in corpus.jobs(part)]
         if not jobs:
             print(f"radar-edge evaluate: the corpus has no {part} runs", file=sys.stderr)
             return 2
         results[part] = run_jobs(jobs, args.jobs, progress=not args.no_progress, desc=f"corpus {part}")
+    if args.targets:
+        _write_targets(results, args.targets)
     doc = corpus_document(corpus, results, list(args.set))
     emit_json(doc, args.json)
     if args.plot:
         write_corpus_svg(doc, args.plot)
     print(console_table(doc), file=sys.stdout if args.json else sys.stderr)
     return 0
+
+
+def _write_targets(results: dict[str, list[dict]], path: str) -> None:
+    """Take the target rows out of the runs' records and write them to ``path``, one JSON line per target."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with out.open("w", encoding="utf-8") as fh:
+        for part, recs in results.items():
+            for rec in recs:
+                key = {"part": part, "scenario": rec["scenario"], "seed": rec["seed"], "variant": rec["variant"]}
+                for row in rec.pop("targets", None) or ():
+                    fh.write(json.dumps({**key, **row}) + "\n")
 
 
 def _num(v) -> str:

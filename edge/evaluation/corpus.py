@@ -388,6 +388,8 @@ def run_job(job: dict, cache: dict | None = None) -> dict:
            "figures": figures, "tallies": s["tallies"]}
     if isinstance(s.get("confusion_matrix"), dict):
         rec["confusion_matrix"] = s["confusion_matrix"]
+    if job.get("targets"):  # the run's target rows, for a failure list (evaluate --targets)
+        rec["targets"] = report["targets"]
     return rec
 
 

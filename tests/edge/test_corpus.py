@@ -376,3 +376,26 @@ def test_corpus_svg_draws_each_variants_confusion_matrix():
                if e.tag.endswith("rect") and "y" in e.attrib)
     doc["parts"]["dev"].pop("confusion_by_variant")
     assert float(ET.fromstring(corpus_svg(doc)).attrib["height"]) < height  # a lane document: no panels
+
+
+def test_targets_lists_every_runs_target_rows_beside_an_unchanged_document(tmp_path, capsys):
+    """--targets: one JSON line per target of every run, keyed by part, scenario, seed and variant; the corpus
+    document is the same with and without it."""
+    with_rows, without, rows = tmp_path / "a.json", tmp_path / "b.json", tmp_path / "t" / "rows.jsonl"
+    args = ["evaluate", "--corpus", str(SMOKE), "--part", "dev", "--jobs", "1", "--no-progress"]
+    assert main(args + ["--json", str(with_rows), "--targets", str(rows)]) == 0
+    assert main(args + ["--json", str(without)]) == 0
+    doc = json.loads(with_rows.read_text())
+    assert doc == json.loads(without.read_text())
+    lines = [json.loads(x) for x in rows.read_text().splitlines()]
+    runs = doc["parts"]["dev"]["runs"]
+    assert {(x["scenario"], x["seed"], x["variant"]) for x in lines} == {(r["scenario"], r["seed"], r["variant"])
+                                                                          for r in runs}
+    assert all(x["part"] == "dev" for x in lines)
+    for r in runs:  # every run's rows, once each: their frames in view are the run's tally
+        mine = [x for x in lines if (x["seed"], x["variant"]) == (r["seed"], r["variant"])]
+        assert len(mine) == len({x["id"] for x in mine}) > 0
+        assert sum(x["frames_in_view"] for x in mine) == r["tallies"]["vehicle_frames_in_view"]
+    capsys.readouterr()
+    assert main(["evaluate", "--scenario", "highway4", "--targets", str(rows)]) == 2
+    assert "--targets applies to --corpus" in capsys.readouterr().err
