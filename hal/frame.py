@@ -40,8 +40,8 @@ class RawFrame:
     def clipped_samples(self) -> tuple[int, int]:
         """``(clipped, total)``: the I and Q samples at the ADC's full scale (its smallest or largest code), and all."""
         lo, hi = self.frontend.adc_min, self.frontend.adc_max
-        clipped = sum(int(np.count_nonzero((a <= lo) | (a >= hi))) for a in (np.asarray(self.i), np.asarray(self.q)))
-        return clipped, int(np.asarray(self.i).size + np.asarray(self.q).size)
+        rails = (np.asarray(self.i), np.asarray(self.q))
+        return sum(int(np.count_nonzero((a <= lo) | (a >= hi))) for a in rails), sum(a.size for a in rails)
 
     @property
     def waveform(self):
