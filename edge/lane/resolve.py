@@ -139,7 +139,7 @@ class CellResolver(native.KernelUser):
         self._pair_index[i, j] = np.arange(i.size)
         # coarse search on every other grid angle, then the 3 x 3 fine neighbours of the best coarse pair
         self._coarse = np.flatnonzero((i % 2 == 0) & (j % 2 == 0))
-        # their features gathered once (gathering (2926, 16) rows every frame cost 80 us, 15 times the product);
+        # their features gathered once, not every frame;
         # used as the same transposed view as before (BLAS picks its kernel by the layout)
         self._coarse_feat = self._pair_feat[self._coarse]
         self._coarse_feat64 = self._coarse_feat.astype(np.float64)

@@ -114,8 +114,9 @@ class LaneConfig:
         "unit": "dB", "doc": "a four-segment pairing whose peak in every segment is no stronger than this over the "
                "static-clutter map's echo in its bin, noise allowed for, is the residue of static echoes (posts a "
                "vehicle shadows) and is dropped; 0 = off", "min": 0.0, "max": 20.0})
-    angle_step_deg: float = field(default=0.25, metadata={
-        "unit": "deg", "doc": "Bartlett grid step (refined by a parabola)", "min": 0.01, "max": 2.0})
+    angle_step_deg: float = field(default=0.5, metadata={
+        "unit": "deg", "doc": "angle grid step: the Bartlett maximum is refined by a parabola between grid angles, "
+               "the resolver's two angles lie on the grid", "min": 0.01, "max": 2.0})
     angle_max_deg: float = field(default=19.0, metadata={
         "unit": "deg", "doc": "Bartlett grid half-width (unambiguous sector of d = 1.5 lambda: 19.47 deg)",
         "min": 1.0, "max": 90.0})
