@@ -289,16 +289,14 @@ class TrafficMonitor(native.KernelUser):
                 cfg.count_late_max_m > 0, cfg.count_lane_direction_only, cfg.count_once_per_track))
         return self._params[1]
 
-    def _kernel_pass(self, tracks, conf, sel, ids, id_list, s, vs, speed, lane_idx, margin, lane_sure, extent_m,
+    def _kernel_pass(self, tracks, conf, sel, ids, id_list, s, vs, speed, lane_idx, margin, lane_sure, ext,
                      t_ns: int, dt_ns: int) -> TrafficUpdate:
         """The per-track part of :meth:`update` with the kernel (``_traffic.monitor_pass``); the counting decisions
-        that read and add the lanes' counted crossings stay here, in the reference's order."""
+        that read and add the lanes' counted crossings stay here, in the reference's order. ``ext``: the confirmed
+        tracks' body extents (m; None: not measured)."""
         stats = self.stats
         lanes = self.lanes
         n_lanes = len(lanes)
-        ext = None
-        if extent_m is not None and len(extent_m) == len(tracks):
-            ext = np.ascontiguousarray(np.asarray(extent_m, dtype=np.float64)[sel])
         accs, by_lane = [], stats.lanes  # stats.lane(k) for every lane, calling it only for a lane not yet seen
         for k in range(n_lanes):
             acc = by_lane.get(k)
@@ -345,7 +343,9 @@ class TrafficMonitor(native.KernelUser):
         kern = self._kernel
         if kern is not None:
             tracks = tuple(tracks)
-            conf, sel, kin, ids, age = kern.track_kin(tracks)
+            # (the motion model's x and the extents of the confirmed tracks gathered with the table when they are
+            # float64 arrays with a value per track; else None)
+            conf, sel, kin, ids, id_list, yaw_x_sel, ext_sel = kern.track_kin(tracks, yaw_x_m, extent_m, TrackState)
         else:
             sel = [k for k, t in enumerate(tracks) if t.confirmed and t.track_id > 0]
             conf = [tracks[k] for k in sel]
@@ -360,13 +360,17 @@ class TrafficMonitor(native.KernelUser):
                            dtype=np.float64).reshape(-1, 6)
             ids = kin[:, 0].astype(np.int64)
             age = kin[:, 1].astype(np.int64)
-        x, y, vx, vy = kin[:, 2], kin[:, 3], kin[:, 4], kin[:, 5]
+            x, y, vx, vy = kin[:, 2], kin[:, 3], kin[:, 4], kin[:, 5]
 
         # mounting yaw and lanes
         est = None
         yaw_sigma = 0.0  # the configured yaw is taken as measured when it is not estimated
         if cfg.estimate_yaw:
-            if yaw_x_m is not None and len(yaw_x_m) == len(tracks):
+            if kern is not None:
+                if yaw_x_sel is None and yaw_x_m is not None and len(yaw_x_m) == len(tracks):
+                    yaw_x_sel = np.asarray(yaw_x_m, dtype=np.float64)[sel]
+                self.yaw_estimator.add_table(kin, yaw_x_sel)
+            elif yaw_x_m is not None and len(yaw_x_m) == len(tracks):
                 self.yaw_estimator.add(ids, age, np.asarray(yaw_x_m, dtype=np.float64)[sel], y)
             else:
                 self.yaw_estimator.add(ids, age, x, y)
@@ -381,7 +385,7 @@ class TrafficMonitor(native.KernelUser):
                 if est is not None or self.saved_calibration is not None or (cfg.lane_mode == "learned" and self.lanes):
                     self._writer.submit(self.calibration())
         if cfg.lane_mode == "learned":
-            self.learner.add(x, y, vx, vy)
+            self.learner.add(kin[:, 2], kin[:, 3], kin[:, 4], kin[:, 5])
             if self._next_learn_ns is None or t_ns >= self._next_learn_ns:
                 yaw_ready = not cfg.estimate_yaw or est is not None or self.saved_calibration is not None
                 lanes = self.learner.learn(self.yaw_rad) if yaw_ready else ()
@@ -421,10 +425,12 @@ class TrafficMonitor(native.KernelUser):
                 sure &= margin >= cfg.wrong_way_lane_sigmas * lat_sigma * np.hypot(x, y)
             lane_sure = sure.tolist()
             lane_idx = lane_idx.tolist()
-        id_list = ids.tolist()
         if kern is not None:
+            if ext_sel is None and extent_m is not None and len(extent_m) == len(tracks):
+                ext_sel = np.ascontiguousarray(np.asarray(extent_m, dtype=np.float64)[sel])
             return self._kernel_pass(tracks, conf, sel, ids, id_list, s, vs, speed, lane_idx, margin, lane_sure,
-                                     extent_m, t_ns, dt_ns)
+                                     ext_sel, t_ns, dt_ns)
+        id_list = ids.tolist()
         presence = [False] * n_lanes
         ext = None
         if extent_m is not None and len(extent_m) == len(tracks):
