@@ -42,6 +42,16 @@ cdef extern from *:
     void Py_XDECREF(PyObject *o)
 
 
+cdef inline bint _eq(object a, object b) except -1:
+    """``a == b`` as a tuple's comparison takes it item by item (PyObject_RichCompareBool: identity first)."""
+    return a is b or a == b
+
+
+cdef inline bint _in_range(double lo, double x, double hi) noexcept:
+    """``lo <= x <= hi`` of Python floats."""
+    return lo <= x and x <= hi
+
+
 cdef inline object _ga(PyObject *d, object o, str name):
     """``o.<name>`` read from ``o``'s instance dict ``d`` (from ``_traffic_dict_of``): the same object as the
     attribute for an instance of a dataclass whose fields have no descriptors, skipping the type's attribute lookup;
@@ -525,6 +535,7 @@ cdef object _monitor_loop(tuple tracks, _V V_sel, list conf, _V V_ids, _V V_mi, 
             k = lane_idx[j]
             lane = k if k >= 0 else None
             age = _ga(d, tr, "age_frames")
+            hits_o = _ga(d, tr, "hits")  # (read once: the reference reads it twice, the same object)
             sj = s[j]
             vsj = vs[j]
             spj = speed[j]
@@ -546,7 +557,9 @@ cdef object _monitor_loop(tuple tracks, _V V_sel, list conf, _V V_ids, _V V_mi, 
             meter = meters[tid]
             if has_ext:
                 e = _pd1(V_ext, j)[0]
-                if r_lo <= _ga(d, tr, "range_m") <= r_hi and e == e:  # (not NaN): LengthMeter.add
+                rng = _ga(d, tr, "range_m")
+                if (_in_range(r_lo, rng, r_hi) if type(rng) is float else r_lo <= rng <= r_hi) and e == e:
+                    # (e not NaN): LengthMeter.add
                     meter.frames += 1
                     top = meter.top
                     if len(top) < keep:
@@ -593,7 +606,7 @@ cdef object _monitor_loop(tuple tracks, _V V_sel, list conf, _V V_ids, _V V_mi, 
                     L = length_pub if length_pub is not None else default_length
                     if sj + L >= zone_lo:
                         presence[k] = True
-                hits = _ga(d, tr, "hits")
+                hits = hits_o
                 if hits > _pll_2(V_mi, tid, M_HITS)[0] and lane_sure[j]:
                     if vsj * _pll(V_lane_dir, k)[0] < -ww_speed:
                         _pll_2(V_mi, tid, M_WRONG)[0] += 1
@@ -615,12 +628,16 @@ cdef object _monitor_loop(tuple tracks, _V V_sel, list conf, _V V_ids, _V V_mi, 
                 _pll_2(V_mi, tid, M_STOP_EMIT)[0] = 0
             elif spj >= stopped_speed:
                 _pll_2(V_mi, tid, M_STOP_VALID)[0] = 0
-            _pll_2(V_mi, tid, M_HITS)[0] = _ga(d, tr, "hits")
+            _pll_2(V_mi, tid, M_HITS)[0] = hits_o
             tcls = _ga(d, tr, "cls")
             if tcls is not None:
                 cls_pub = tcls
-            out[j] = tr if (_ga(d, tr, "lane"), tcls, _ga(d, tr, "length_m")) == (lane, cls_pub, length_pub) else _copy_with(
-                tr, lane, cls_pub, length_pub, track_cls, with_fn)
+            # (tr.lane, tr.cls, tr.length_m) == (lane, cls_pub, length_pub): the tuples' item by item comparison
+            if (_eq(_ga(d, tr, "lane"), lane) and _eq(tcls, cls_pub)
+                    and _eq(_ga(d, tr, "length_m"), length_pub)):
+                out[j] = tr
+            else:
+                out[j] = _copy_with(tr, lane, cls_pub, length_pub, track_cls, with_fn)
         finally:
             Py_XDECREF(d)
             d = NULL
@@ -652,12 +669,12 @@ cdef object _monitor_loop(tuple tracks, _V V_sel, list conf, _V V_ids, _V V_mi, 
 
 cdef extern from *:
     """
-    /* monitor._with's copy of a frozen dataclass instance without __post_init__: object.__new__(cls), its
-       __dict__ a copy of tr's (the same keys in the same order: what an empty dict updated from it holds) with
-       lane, cls and length_m replaced; set through PyObject_GenericSetDict, as object.__setattr__(o, "__dict__", d) */
+    /* monitor._with's copy of a frozen dataclass instance without __post_init__: a new instance of cls (its
+       tp_alloc, what object.__new__(cls) allocates; no __init__ runs in either), its __dict__ a copy of tr's (the
+       same keys in the same order: what an empty dict updated from it holds) with lane, cls and length_m
+       replaced, set through PyObject_GenericSetDict as object.__setattr__(o, "__dict__", d) does */
     static PyObject *_traffic_copy_with(PyObject *cls, PyObject *tr, PyObject *k_lane, PyObject *lane,
-                                        PyObject *k_cls, PyObject *clsv, PyObject *k_len, PyObject *length,
-                                        PyObject *no_args) {
+                                        PyObject *k_cls, PyObject *clsv, PyObject *k_len, PyObject *length) {
         PyObject *src, *d, *out;
         src = PyObject_GenericGetDict(tr, NULL);
         if (src == NULL) return NULL;
@@ -669,7 +686,7 @@ cdef extern from *:
             Py_DECREF(d);
             return NULL;
         }
-        out = PyBaseObject_Type.tp_new((PyTypeObject *)cls, no_args, NULL);
+        out = ((PyTypeObject *)cls)->tp_alloc((PyTypeObject *)cls, 0);
         if (out == NULL || PyObject_GenericSetDict(out, d, NULL) < 0) {
             Py_XDECREF(out);
             Py_DECREF(d);
@@ -680,14 +697,14 @@ cdef extern from *:
     }
     """
     object _traffic_copy_with(object cls, object tr, object k_lane, object lane, object k_cls, object clsv,
-                              object k_len, object length, object no_args)
+                              object k_len, object length)
 
 
 cdef object _copy_with(tr, lane, cls, length, track_cls, with_fn):
     """``monitor._with(tr, lane, cls, length)``."""
     if with_fn is not None:
         return with_fn(tr, lane, cls, length)
-    return _traffic_copy_with(track_cls, tr, "lane", lane, "cls", cls, "length_m", length, ())
+    return _traffic_copy_with(track_cls, tr, "lane", lane, "cls", cls, "length_m", length)
 
 
 cdef bint _same_wrong_way_driver(list conf, _V V_ids, _V V_mi, list s, list vs,
