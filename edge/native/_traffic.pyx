@@ -386,6 +386,37 @@ def track_kin(tuple tracks, yaw_x=None, extent=None, track_cls=None):
 
 
 @cython.cdivision(True)
+cdef inline void _road_lane(_V V_kin, Py_ssize_t i, double cy, double sy, _V V_centers, _V V_half_w, double sure_k,
+                            double *s, double *vs, double *sp, long long *lane, double *mg,
+                            unsigned char *sure) noexcept nogil:
+    """:func:`road_lanes` of row ``i`` of ``kin``."""
+    cdef Py_ssize_t nl = V_centers.n[0], l, k
+    cdef double x = _pd2(V_kin, i, 2)[0], y = _pd2(V_kin, i, 3)[0], vx = _pd2(V_kin, i, 4)[0]
+    cdef double vy = _pd2(V_kin, i, 5)[0], u, d, dmin, m
+    u = x * cy + y * sy
+    s[0] = -x * sy + y * cy
+    vs[0] = -vx * sy + vy * cy
+    sp[0] = hypot(vx, vy)
+    if nl == 0:
+        lane[0] = -1
+        mg[0] = -INFINITY
+        sure[0] = 0
+        return
+    k = 0
+    dmin = fabs(u - _pd1(V_centers, 0)[0])
+    for l in range(1, nl):
+        d = fabs(u - _pd1(V_centers, l)[0])
+        if d < dmin:  # (argmin: the first of equal distances; NaN: numpy's argmin takes the first NaN)
+            dmin = d
+            k = l
+    m = _pd1(V_half_w, k)[0] - dmin
+    if not (m >= 0.0):
+        k = -1
+    lane[0] = k
+    mg[0] = m
+    sure[0] = k >= 0 and (sure_k <= 0.0 or m >= sure_k * hypot(x, y))
+
+
 def road_lanes(kin, double cy, double sy, centers, half_w,
                double sure_k):
     """The road frame and the lanes of the tracks in ``kin`` (:func:`track_kin`) for a yaw of cos ``cy``, sin ``sy``:
@@ -394,42 +425,23 @@ def road_lanes(kin, double cy, double sy, centers, half_w,
     -inf without lanes) and whether the lane is sure (inside it by ``sure_k`` x range; ``sure_k`` <= 0: any
     lane). The reference is the numpy code of ``TrafficMonitor.update`` with
     :func:`edge.traffic.lanes.assign_lanes_with_margin`."""
-    cdef _V V_kin
+    cdef _V V_kin, V_centers, V_half_w
     _aview(kin, cnp.NPY_FLOAT64, 2, False, True, &V_kin, "kin")
-    cdef _V V_centers
     _aview(centers, cnp.NPY_FLOAT64, 1, False, True, &V_centers, "centers")
-    cdef _V V_half_w
     _aview(half_w, cnp.NPY_FLOAT64, 1, False, True, &V_half_w, "half_w")
-    cdef Py_ssize_t n = V_kin.n[0], nl = V_centers.n[0], i, l, k
-    cdef double x, y, vx, vy, u, d, dmin, m
+    cdef Py_ssize_t i
+    cdef double s, vs, sp, mg
+    cdef long long lane
+    cdef unsigned char sure
     s_l, vs_l, sp_l, lane_l, mg_l, sure_l = [], [], [], [], [], []
-    for i in range(n):
-        x = _pd2(V_kin, i, 2)[0]
-        y = _pd2(V_kin, i, 3)[0]
-        vx = _pd2(V_kin, i, 4)[0]
-        vy = _pd2(V_kin, i, 5)[0]
-        u = x * cy + y * sy
-        s_l.append(-x * sy + y * cy)
-        vs_l.append(-vx * sy + vy * cy)
-        sp_l.append(hypot(vx, vy))
-        if nl == 0:
-            lane_l.append(-1)
-            mg_l.append(-INFINITY)
-            sure_l.append(False)
-            continue
-        k = 0
-        dmin = fabs(u - _pd1(V_centers, 0)[0])
-        for l in range(1, nl):
-            d = fabs(u - _pd1(V_centers, l)[0])
-            if d < dmin:  # (argmin: the first of equal distances; NaN: numpy's argmin takes the first NaN)
-                dmin = d
-                k = l
-        m = _pd1(V_half_w, k)[0] - dmin
-        if not (m >= 0.0):
-            k = -1
-        lane_l.append(k)
-        mg_l.append(m)
-        sure_l.append(k >= 0 and (sure_k <= 0.0 or m >= sure_k * hypot(x, y)))
+    for i in range(V_kin.n[0]):
+        _road_lane(V_kin, i, cy, sy, V_centers, V_half_w, sure_k, &s, &vs, &sp, &lane, &mg, &sure)
+        s_l.append(s)
+        vs_l.append(vs)
+        sp_l.append(sp)
+        lane_l.append(lane)
+        mg_l.append(mg)
+        sure_l.append(<bint>sure)
     return s_l, vs_l, sp_l, lane_l, mg_l, sure_l
 
 
@@ -449,15 +461,27 @@ M_COLS = 10
 MF_COLS = 2
 
 
+cdef struct _Road:
+    # per confirmed track, road_lanes' values: along-road position (m), its speed (m/s), speed (m/s), lane margin
+    # (m), lane (-1: none), lane sure
+    double *s
+    double *vs
+    double *sp
+    double *mg
+    long long *lane
+    unsigned char *sure
+
+
 @cython.cdivision(True)
 def monitor_pass(tuple tracks, sel, list conf, ids, mi,
-                 mf, list meters, meter_cls, list s, list vs, list speed, list lane_idx, list lane_sure,
+                 mf, list meters, meter_cls, kin, double cy, double sy, centers, half_w, double sure_k,
                  lane_dir, ext, long long t_ns, long long dt_ns, tuple p, list accs,
                  tuple class_names, list edges, track_cls, with_fn):
     """The per-track loop of :meth:`edge.traffic.TrafficMonitor.update` (its reference, ``_track_pass``) over the
     confirmed tracks ``conf`` (ids ``ids``) in one call, their memory in the tables ``mi`` (cap, M_COLS) int64 and
     ``mf`` (cap, MF_COLS) float64 indexed by track id and ``meters`` (their LengthMeter objects, ``meter_cls``).
-    ``s``, ``vs``, ``speed``, ``lane_idx``, ``lane_sure``: :func:`road_lanes`'s; ``lane_dir``: +1/-1 per lane;
+    ``kin``, ``cy``, ``sy``, ``centers``, ``half_w``, ``sure_k``: the table and the road frame of :func:`road_lanes`,
+    whose values the pass computes for each track; ``lane_dir``: +1/-1 per lane;
     ``ext``: body extent per track (m, NaN: none) or None; ``t_ns``, ``dt_ns``: the frame's time and duration (ns);
     ``p``: the configuration's parameters (``TrafficMonitor._pass_params``); ``accs``: each lane's
     LaneAccumulator (presence samples and frames are appended); ``tracks``: all tracks, ``sel`` the indices of
@@ -467,7 +491,8 @@ def monitor_pass(tuple tracks, sel, list conf, ids, mi,
     Updates the tables, meters and lanes' samples; rows of ids not in ``ids`` end. Returns ``(published, presence,
     events, actions)``: the published tracks (a tuple like ``tracks``), a presence flag per lane, events ``(kind,
     id, lane)`` in order, and the counting decisions left to the caller in track order: ``(0, j, lane)`` a new track
-    to try ``_count_late`` for, ``(1, j, lane, tc_ns)`` a crossing to count unless the lane counted its vehicle.
+    to try ``_count_late`` for, ``(1, j, lane, tc_ns)`` a crossing to count unless the lane counted its vehicle, each
+    followed by the track's along-road position, speed, speed and lane margin (:func:`road_lanes`'s values).
     None, changing nothing, when an id does not fit the tables (the caller grows them and calls again)."""
     cdef _V V_sel
     _aview(sel, cnp.NPY_LONGLONG, 1, False, True, &V_sel, "sel")
@@ -479,10 +504,18 @@ def monitor_pass(tuple tracks, sel, list conf, ids, mi,
     _aview(mf, cnp.NPY_FLOAT64, 2, True, True, &V_mf, "mf")
     cdef _V V_lane_dir
     _aview(lane_dir, cnp.NPY_LONGLONG, 1, False, True, &V_lane_dir, "lane_dir")
+    cdef _V V_kin, V_centers, V_half_w
+    _aview(kin, cnp.NPY_FLOAT64, 2, False, True, &V_kin, "kin")
+    _aview(centers, cnp.NPY_FLOAT64, 1, False, True, &V_centers, "centers")
+    _aview(half_w, cnp.NPY_FLOAT64, 1, False, True, &V_half_w, "half_w")
     cdef Py_ssize_t n = len(conf), cap = V_mi.n[0], n_lanes = len(accs), j, i
     cdef bint has_ext = ext is not None
     cdef _V V_ext
     cdef unsigned char *seen
+    cdef char *buf
+    cdef _Road road
+    if V_kin.n[0] != n or V_ids.n[0] != n:
+        raise ValueError("kin, ids: one row per confirmed track needed")
     for j in range(n):
         if _pll(V_ids, j)[0] < 0 or _pll(V_ids, j)[0] >= cap:
             return None
@@ -491,29 +524,39 @@ def monitor_pass(tuple tracks, sel, list conf, ids, mi,
         if V_ext.n[0] != n:
             raise ValueError("ext: one value per confirmed track needed")
     sample_lists = [acc.samples for acc in accs]
-    seen = <unsigned char*>PyMem_Malloc(cap + 1)
-    if seen == NULL:
+    buf = <char*>PyMem_Malloc((n + 1) * (4 * sizeof(double) + sizeof(long long) + 1) + cap + 1)
+    if buf == NULL:
         raise MemoryError()
+    road.s = <double*>buf
+    road.vs = road.s + n + 1
+    road.sp = road.vs + n + 1
+    road.mg = road.sp + n + 1
+    road.lane = <long long*>(road.mg + n + 1)
+    road.sure = <unsigned char*>(road.lane + n + 1)
+    seen = road.sure + n + 1
     for i in range(cap):
         seen[i] = 0
+    for j in range(n):
+        _road_lane(V_kin, j, cy, sy, V_centers, V_half_w, sure_k, road.s + j, road.vs + j, road.sp + j,
+                   road.lane + j, road.mg + j, road.sure + j)
     presence = [False] * n_lanes
     events = []
     actions = []
     try:
-        published = _monitor_loop(tracks, V_sel, conf, V_ids, V_mi, V_mf, meters, meter_cls, s, vs, speed, lane_idx,
-                                  lane_sure, V_lane_dir, has_ext, V_ext, t_ns, dt_ns, p, accs, sample_lists,
-                                  class_names, edges, track_cls, with_fn, seen, presence, events, actions)
+        published = _monitor_loop(tracks, V_sel, conf, V_ids, V_mi, V_mf, meters, meter_cls, road, V_lane_dir,
+                                  has_ext, V_ext, t_ns, dt_ns, p, accs, sample_lists, class_names, edges, track_cls,
+                                  with_fn, seen, presence, events, actions)
     finally:
-        PyMem_Free(seen)
+        PyMem_Free(buf)
     return published, presence, events, actions
+
 
 
 @cython.cdivision(True)
 cdef object _monitor_loop(tuple tracks, _V V_sel, list conf, _V V_ids, _V V_mi, _V V_mf, list meters, meter_cls,
-                          list s, list vs, list speed, list lane_idx, list lane_sure, _V V_lane_dir, bint has_ext,
-                          _V V_ext, long long t_ns, long long dt_ns, tuple p, list accs, list sample_lists,
-                          tuple class_names, list edges, track_cls, with_fn, unsigned char *seen, list presence,
-                          list events, list actions):
+                          _Road road, _V V_lane_dir, bint has_ext, _V V_ext, long long t_ns, long long dt_ns, tuple p,
+                          list accs, list sample_lists, tuple class_names, list edges, track_cls, with_fn,
+                          unsigned char *seen, list presence, list events, list actions):
     """:func:`monitor_pass`'s loop (``seen``: a zeroed flag per table row); returns the published tracks."""
     cdef Py_ssize_t n = len(conf), cap = V_mi.n[0], j, i, k
     cdef long long tid, age, hits, tc, t0
@@ -532,13 +575,13 @@ cdef object _monitor_loop(tuple tracks, _V V_sel, list conf, _V V_ids, _V V_mi, 
         try:
             tid = _pll(V_ids, j)[0]
             seen[tid] = 1
-            k = lane_idx[j]
+            k = road.lane[j]
             lane = k if k >= 0 else None
             age = _ga(d, tr, "age_frames")
             hits_o = _ga(d, tr, "hits")  # (read once: the reference reads it twice, the same object)
-            sj = s[j]
-            vsj = vs[j]
-            spj = speed[j]
+            sj = road.s[j]
+            vsj = road.vs[j]
+            spj = road.sp[j]
             fresh = not _pll_2(V_mi, tid, M_LIVE)[0] or age < _pll_2(V_mi, tid, M_AGE)[0]
             if fresh:
                 _pll_2(V_mi, tid, M_LIVE)[0] = 1
@@ -585,7 +628,7 @@ cdef object _monitor_loop(tuple tracks, _V V_sel, list conf, _V V_ids, _V V_mi, 
                     cls_pub = "unknown"
             if fresh:
                 if lane is not None and late_on:
-                    actions.append((0, j, k))
+                    actions.append((0, j, k, sj, vsj, spj, road.mg[j]))
             else:
                 s0 = _pd2(V_mf, tid, 0)[0]
                 crossed = (s0 - line) * (sj - line) < 0 or (sj == line and s0 != line)
@@ -594,7 +637,7 @@ cdef object _monitor_loop(tuple tracks, _V V_sel, list conf, _V V_ids, _V V_mi, 
                     f = (line - s0) / (sj - s0)
                     t0 = _pll_2(V_mi, tid, M_T)[0]
                     tc = t0 + <long long>rint(f * <double>(t_ns - t0))
-                    actions.append((1, j, k, tc))
+                    actions.append((1, j, k, tc, sj, vsj, spj, road.mg[j]))
                 _pll_2(V_mi, tid, M_AGE)[0] = age
                 _pd2(V_mf, tid, 0)[0] = sj
                 _pll_2(V_mi, tid, M_T)[0] = t_ns
@@ -602,19 +645,19 @@ cdef object _monitor_loop(tuple tracks, _V V_sel, list conf, _V V_ids, _V V_mi, 
                     _pd2(V_mf, tid, 1)[0] = spj
             if lane is not None:
                 if reach <= sj <= zone_hi:
-                    sample_lists[k].append((t_ns, dt_ns, s[j], meter))
+                    sample_lists[k].append((t_ns, dt_ns, sj, meter))
                     L = length_pub if length_pub is not None else default_length
                     if sj + L >= zone_lo:
                         presence[k] = True
                 hits = hits_o
-                if hits > _pll_2(V_mi, tid, M_HITS)[0] and lane_sure[j]:
+                if hits > _pll_2(V_mi, tid, M_HITS)[0] and road.sure[j]:
                     if vsj * _pll(V_lane_dir, k)[0] < -ww_speed:
                         _pll_2(V_mi, tid, M_WRONG)[0] += 1
                     else:
                         _pll_2(V_mi, tid, M_WRONG)[0] = 0
                 if _pll_2(V_mi, tid, M_WRONG)[0] >= ww_frames and not _pll_2(V_mi, tid, M_WRONG_EMIT)[0]:
                     _pll_2(V_mi, tid, M_WRONG_EMIT)[0] = 1
-                    if not _same_wrong_way_driver(conf, V_ids, V_mi, s, vs, j, same_m, same_v):
+                    if not _same_wrong_way_driver(conf, V_ids, V_mi, road.s, road.vs, j, same_m, same_v):
                         events.append(("wrong_way", tid, lane))
             if spj < stopped_speed and _pd2(V_mf, tid, 1)[0] >= moving_speed and lane is not None:
                 if not _pll_2(V_mi, tid, M_STOP_VALID)[0]:
@@ -707,7 +750,7 @@ cdef object _copy_with(tr, lane, cls, length, track_cls, with_fn):
     return _traffic_copy_with(track_cls, tr, "lane", lane, "cls", cls, "length_m", length)
 
 
-cdef bint _same_wrong_way_driver(list conf, _V V_ids, _V V_mi, list s, list vs,
+cdef bint _same_wrong_way_driver(list conf, _V V_ids, _V V_mi, double *s, double *vs,
                                  Py_ssize_t j, double same_m, double same_v):
     """TrafficMonitor._same_wrong_way_driver on the memo table (rows as they stand at track ``j``'s turn)."""
     cdef Py_ssize_t i
@@ -719,7 +762,7 @@ cdef bint _same_wrong_way_driver(list conf, _V V_ids, _V V_mi, list s, list vs,
         tid = _pll(V_ids, i)[0]
         if (i != j and _pll_2(V_mi, tid, M_LIVE)[0] and _pll_2(V_mi, tid, M_WRONG_EMIT)[0]
                 and conf[i].age_frames >= _pll_2(V_mi, tid, M_AGE)[0]
-                and fabs(<double>s[i] - sj) <= same_m and fabs(<double>vs[i] - vsj) <= same_v):
+                and fabs(s[i] - sj) <= same_m and fabs(vs[i] - vsj) <= same_v):
             return True
     return False
 

@@ -132,6 +132,7 @@ class TrafficMonitor(native.KernelUser):
         self._mf = np.zeros((0, 2))
         self._meters: list[LengthMeter | None] = []
         self._params: tuple = (None, None)  # (config, the kernel's parameters from it)
+        self._accs: list = []  # each lane's accumulator (self.stats.lane(k)) for the kernel
         self._last_t_ns: int | None = None
         self._first_t_ns: int | None = None
         self._next_learn_ns: int | None = None
@@ -289,22 +290,23 @@ class TrafficMonitor(native.KernelUser):
                 cfg.count_late_max_m > 0, cfg.count_lane_direction_only, cfg.count_once_per_track))
         return self._params[1]
 
-    def _kernel_pass(self, tracks, conf, sel, ids, id_list, s, vs, speed, lane_idx, margin, lane_sure, ext,
+    def _kernel_pass(self, tracks, conf, sel, ids, id_list, kin, cy: float, sy: float, sure_k: float, ext,
                      t_ns: int, dt_ns: int) -> TrafficUpdate:
-        """The per-track part of :meth:`update` with the kernel (``_traffic.monitor_pass``); the counting decisions
-        that read and add the lanes' counted crossings stay here, in the reference's order. ``ext``: the confirmed
-        tracks' body extents (m; None: not measured)."""
+        """The per-track part of :meth:`update` with the kernel (``_traffic.monitor_pass``, the road frame and lanes
+        of ``_traffic.road_lanes`` included: ``cy``, ``sy`` the yaw's cosine and sine, ``sure_k`` the wrong-way gate);
+        the counting decisions that read and add the lanes' counted crossings stay here, in the reference's order.
+        ``ext``: the confirmed tracks' body extents (m; None: not measured)."""
         stats = self.stats
         lanes = self.lanes
         n_lanes = len(lanes)
-        accs, by_lane = [], stats.lanes  # stats.lane(k) for every lane, calling it only for a lane not yet seen
-        for k in range(n_lanes):
-            acc = by_lane.get(k)
-            accs.append(stats.lane(k) if acc is None else acc)
+        accs = self._accs  # stats.lane(k) of every lane (the accumulators are made once and never replaced)
+        if len(accs) != n_lanes:
+            accs = self._accs = [stats.lane(k) for k in range(n_lanes)]
+        params = self._params[1] if self._params[0] is self.config else self._pass_params()
         while True:
             res = self._kernel.monitor_pass(
-                tracks, sel, conf, ids, self._mi, self._mf, self._meters, LengthMeter, s, vs, speed, lane_idx,
-                lane_sure, self._lane_arrays[3], ext, t_ns, dt_ns, self._pass_params(),
+                tracks, sel, conf, ids, self._mi, self._mf, self._meters, LengthMeter, kin, cy, sy,
+                self._lane_arrays[1], self._lane_arrays[2], sure_k, self._lane_arrays[3], ext, t_ns, dt_ns, params,
                 accs, stats.class_names, stats._edge_list, TrackState,
                 _with if _TRACK_POST_INIT else None)
             if res is not None:
@@ -316,19 +318,20 @@ class TrafficMonitor(native.KernelUser):
             self._mi, self._mf = mi, mf
             self._meters.extend([None] * (cap - old))
         published, presence, raw_events, actions = res
-        for a in actions:  # (few: tracks born in a lane and crossings)
+        for a in actions:  # (few: tracks born in a lane and crossings; the track's s, vs, speed, margin last)
             j, k = a[1], a[2]
             tid = id_list[j]
             meter = self._meters[tid]
             if a[0] == 0:
-                self._mi[tid, _M_COUNTED] = self._count_late(conf[j], k, lanes[k].direction, s[j], vs[j], speed[j],
-                                                             meter, t_ns, float(margin[j]))
+                self._mi[tid, _M_COUNTED] = self._count_late(conf[j], k, lanes[k].direction, a[3], a[4], a[5],
+                                                             meter, t_ns, a[6])
             else:
                 acc = stats.lane(k)
                 if not self._same_vehicle(acc, a[3]):
-                    acc.add(Crossing(a[3], speed[j], float("nan"), conf[j].cls, meter))
+                    acc.add(Crossing(a[3], a[6], float("nan"), conf[j].cls, meter))
                     self._mi[tid, _M_COUNTED] = 1
-        closed = stats.tick(t_ns, n_lanes)
+        start = stats.start_ns  # (stats.tick returns () before the interval's end: not called then)
+        closed = () if start is not None and t_ns < start + stats.interval_ns else stats.tick(t_ns, n_lanes)
         events = tuple(TrafficEvent(kind, tid, lane, t_ns) for kind, tid, lane in raw_events) if raw_events else ()
         return TrafficUpdate(published, tuple(presence), closed, events)
 
@@ -410,26 +413,21 @@ class TrafficMonitor(native.KernelUser):
                 self._lane_arrays = (lanes, np.array([ln.center_m for ln in lanes], dtype=np.float64),
                                      0.5 * np.array([ln.width_m for ln in lanes], dtype=np.float64),
                                      np.array([ln.direction for ln in lanes], dtype=np.int64))
-            s, vs, speed, lane_idx, margin, lane_sure = kern.road_lanes(
-                kin, cy, sy, self._lane_arrays[1], self._lane_arrays[2],
-                cfg.wrong_way_lane_sigmas * lat_sigma if gated else -1.0)
-        else:
-            u, s_arr = x * cy + y * sy, -x * sy + y * cy
-            vs_arr = -vx * sy + vy * cy
-            # plain Python floats for the per-track loop (numpy scalars are slow one at a time)
-            s, vs = s_arr.tolist(), vs_arr.tolist()
-            speed = np.hypot(vx, vy).tolist()
-            lane_idx, margin = assign_lanes_with_margin(u, lanes)
-            sure = lane_idx >= 0
-            if gated:
-                sure &= margin >= cfg.wrong_way_lane_sigmas * lat_sigma * np.hypot(x, y)
-            lane_sure = sure.tolist()
-            lane_idx = lane_idx.tolist()
-        if kern is not None:
             if ext_sel is None and extent_m is not None and len(extent_m) == len(tracks):
                 ext_sel = np.ascontiguousarray(np.asarray(extent_m, dtype=np.float64)[sel])
-            return self._kernel_pass(tracks, conf, sel, ids, id_list, s, vs, speed, lane_idx, margin, lane_sure,
-                                     ext_sel, t_ns, dt_ns)
+            return self._kernel_pass(tracks, conf, sel, ids, id_list, kin, cy, sy,
+                                     cfg.wrong_way_lane_sigmas * lat_sigma if gated else -1.0, ext_sel, t_ns, dt_ns)
+        u, s_arr = x * cy + y * sy, -x * sy + y * cy
+        vs_arr = -vx * sy + vy * cy
+        # plain Python floats for the per-track loop (numpy scalars are slow one at a time)
+        s, vs = s_arr.tolist(), vs_arr.tolist()
+        speed = np.hypot(vx, vy).tolist()
+        lane_idx, margin = assign_lanes_with_margin(u, lanes)
+        sure = lane_idx >= 0
+        if gated:
+            sure &= margin >= cfg.wrong_way_lane_sigmas * lat_sigma * np.hypot(x, y)
+        lane_sure = sure.tolist()
+        lane_idx = lane_idx.tolist()
         id_list = ids.tolist()
         presence = [False] * n_lanes
         ext = None
