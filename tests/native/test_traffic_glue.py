@@ -6,6 +6,7 @@ tracks (``monitor_pass``), on random inputs and on the lane pipeline's own frame
 from __future__ import annotations
 
 import dataclasses
+import math
 import struct
 from types import SimpleNamespace
 
@@ -242,3 +243,41 @@ def test_copy_matches_with_on_a_track_of_the_dataclass_constructor():
         assert _track_items(_with(tracks[0], 1, None, None)) == _track_items(a.tracks[0])
         with pytest.raises(dataclasses.FrozenInstanceError):
             a.tracks[0].lane = 2
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_road_frame_and_lanes_equal_the_numpy_form(seed):
+    """``road_lanes`` (whose per-track core ``monitor_pass`` runs) against ``TrafficMonitor.update``'s numpy form:
+    along-road position and speed, speed, lane (nearest centre, first on ties, NaN), margin and the wrong-way gate,
+    bit for bit except a NaN's sign; no lanes; the gate off."""
+    from edge.traffic.lanes import Lane, assign_lanes_with_margin
+
+    k = require_kernel("_traffic")
+    rng = np.random.default_rng(seed)
+    for trial in range(80):
+        n = int(rng.integers(0, 25))
+        kin = np.column_stack([np.arange(n, dtype=np.float64), np.ones(n), rng.normal(0, 8, n), rng.uniform(0, 300, n),
+                               rng.normal(0, 2, n), rng.normal(0, 25, n)]).reshape(-1, 6)
+        if n and trial % 5 == 0:
+            kin[0, 2] = np.nan
+        if n > 1 and trial % 7 == 0:
+            kin[1, 2:4] = (0.0, 50.0)  # midway between two centres at yaw 0
+        lanes = () if trial % 9 == 0 else tuple(
+            Lane(c, w, d) for c, w, d in zip((-5.25, -1.75, 1.75, 5.25), rng.uniform(3.0, 4.0, 4), (-1, -1, 1, 1)))
+        yaw = 0.0 if trial % 7 == 0 else rng.normal(0, 0.05)
+        cy, sy = math.cos(yaw), math.sin(yaw)
+        sure_k = -1.0 if trial % 4 == 0 else rng.uniform(0.001, 0.02)
+        centres = np.array([ln.center_m for ln in lanes], dtype=np.float64)
+        half_w = 0.5 * np.array([ln.width_m for ln in lanes], dtype=np.float64)
+        got = k.road_lanes(kin, cy, sy, centres, half_w, sure_k)
+        x, y, vx, vy = kin[:, 2], kin[:, 3], kin[:, 4], kin[:, 5]
+        u, s_arr = x * cy + y * sy, -x * sy + y * cy
+        lane_idx, margin = assign_lanes_with_margin(u, lanes)
+        sure = lane_idx >= 0
+        if sure_k > 0.0:
+            sure &= margin >= sure_k * np.hypot(x, y)
+        want = (s_arr.tolist(), (-vx * sy + vy * cy).tolist(), np.hypot(vx, vy).tolist(), lane_idx.tolist(),
+                margin.tolist(), sure.tolist())
+        nan = ("f", b"nan")  # (a NaN position: the kernel's NaN may carry the other sign bit, as at 4a8a1cf)
+        same_nan = lambda v: [nan if isinstance(a, float) and a != a else _bits(a) for a in v]  # noqa: E731
+        assert [same_nan(g) for g in got] == [same_nan(w) for w in want], trial
