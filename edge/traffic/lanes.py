@@ -129,11 +129,28 @@ class YawEstimator(native.KernelUser):
                     raise ValueError("track ids are >= 0")
                 self._grow(int(ids.max()) + 1)  # an id beyond the table
             ended, self._next_seq = res
-            for row in ended.tolist():
+            for row in ended:
                 self._vote(row)
             self._n_live = ids.size  # (the running tracks are this frame's: the others ended)
             return
         self.add_reference(ids, age, x, y)
+
+    def add_table(self, kin: np.ndarray, x: np.ndarray | None = None) -> None:
+        """:meth:`add` of the traffic monitor's table ``kin`` (n, 6) float64 (track id, age, x, y, vx, vy;
+        ``edge.native._traffic.track_kin``); ``x``: the positions across the boresight to take instead of its x
+        column."""
+        if self._k is None:
+            self.add(kin[:, 0].astype(np.int64), kin[:, 1].astype(np.int64), kin[:, 2] if x is None else x, kin[:, 3])
+            return
+        while (res := self._k.yaw_add_kin(self._acc, self._live, self._seq, self._next_seq, kin, x)) is None:
+            ids = kin[:, 0]
+            if float(ids.min()) < 0:
+                raise ValueError("track ids are >= 0")
+            self._grow(int(ids.max()) + 1)  # an id beyond the table
+        ended, self._next_seq = res
+        for row in ended:
+            self._vote(row)
+        self._n_live = kin.shape[0]
 
     def add_reference(self, ids: np.ndarray, age: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
         """:meth:`add` in Python on the dict of sums (the kernel's reference)."""
@@ -242,12 +259,28 @@ class YawEstimator(native.KernelUser):
                 self._median = (self._n_voted, float(np.median(v)), _median_stderr(v, None))
             self._stderr = self._median[2]
             return self._median[1]
-        votes_l = list(self._votes)  # (Python floats)
         # start-up: the tracks that still run vote too; weighted median (ended tracks count as the best one)
+        if self._k is not None:  # live_votes_weighted and weighted_median in one call
+            code, a, b = self._k.yaw_startup(self._acc, self._live, self._seq, self._n_live, self._votes,
+                                             self.cfg.yaw_live_min_length_m, self.cfg.yaw_max_lateral_sd_m,
+                                             self.cfg.yaw_min_tracks, np.arctan2)
+            if code == 1:
+                self._stderr = b
+                return a
+            if code == 0:
+                self._stderr = None
+                return None
+            return self._estimate_startup(list(self._votes), a, b)  # (more than 64 votes or a NaN: numpy)
+        votes_l = list(self._votes)  # (Python floats)
         live, w = self.live_votes_weighted()
         if len(votes_l) + live.size < self.cfg.yaw_min_tracks:
             self._stderr = None
             return None
+        return self._estimate_startup(votes_l, live, w)
+
+    def _estimate_startup(self, votes_l: list[float], live: np.ndarray, w: np.ndarray) -> float:
+        """The start-up estimate's weighted median of the ended tracks' votes ``votes_l`` and the running tracks'
+        ``live`` with weights ``w`` (at least ``yaw_min_tracks`` votes)."""
         if self._k is not None and (res := self._k.weighted_median(self._votes, live, w)) is not None:
             self._stderr = res[1]
             return res[0]

@@ -132,6 +132,7 @@ class TrafficMonitor(native.KernelUser):
         self._mf = np.zeros((0, 2))
         self._meters: list[LengthMeter | None] = []
         self._params: tuple = (None, None)  # (config, the kernel's parameters from it)
+        self._accs: list = []  # each lane's accumulator (self.stats.lane(k)) for the kernel
         self._last_t_ns: int | None = None
         self._first_t_ns: int | None = None
         self._next_learn_ns: int | None = None
@@ -289,24 +290,23 @@ class TrafficMonitor(native.KernelUser):
                 cfg.count_late_max_m > 0, cfg.count_lane_direction_only, cfg.count_once_per_track))
         return self._params[1]
 
-    def _kernel_pass(self, tracks, conf, sel, ids, id_list, s, vs, speed, lane_idx, margin, lane_sure, extent_m,
+    def _kernel_pass(self, tracks, conf, sel, ids, id_list, kin, cy: float, sy: float, sure_k: float, ext,
                      t_ns: int, dt_ns: int) -> TrafficUpdate:
-        """The per-track part of :meth:`update` with the kernel (``_traffic.monitor_pass``); the counting decisions
-        that read and add the lanes' counted crossings stay here, in the reference's order."""
+        """The per-track part of :meth:`update` with the kernel (``_traffic.monitor_pass``, the road frame and lanes
+        of ``_traffic.road_lanes`` included: ``cy``, ``sy`` the yaw's cosine and sine, ``sure_k`` the wrong-way gate);
+        the counting decisions that read and add the lanes' counted crossings stay here, in the reference's order.
+        ``ext``: the confirmed tracks' body extents (m; None: not measured)."""
         stats = self.stats
         lanes = self.lanes
         n_lanes = len(lanes)
-        ext = None
-        if extent_m is not None and len(extent_m) == len(tracks):
-            ext = np.ascontiguousarray(np.asarray(extent_m, dtype=np.float64)[sel])
-        accs, by_lane = [], stats.lanes  # stats.lane(k) for every lane, calling it only for a lane not yet seen
-        for k in range(n_lanes):
-            acc = by_lane.get(k)
-            accs.append(stats.lane(k) if acc is None else acc)
+        accs = self._accs  # stats.lane(k) of every lane (the accumulators are made once and never replaced)
+        if len(accs) != n_lanes:
+            accs = self._accs = [stats.lane(k) for k in range(n_lanes)]
+        params = self._params[1] if self._params[0] is self.config else self._pass_params()
         while True:
             res = self._kernel.monitor_pass(
-                tracks, sel, conf, ids, self._mi, self._mf, self._meters, LengthMeter, s, vs, speed, lane_idx,
-                lane_sure, self._lane_arrays[3], ext, t_ns, dt_ns, self._pass_params(),
+                tracks, sel, conf, ids, self._mi, self._mf, self._meters, LengthMeter, kin, cy, sy,
+                self._lane_arrays[1], self._lane_arrays[2], sure_k, self._lane_arrays[3], ext, t_ns, dt_ns, params,
                 accs, stats.class_names, stats._edge_list, TrackState,
                 _with if _TRACK_POST_INIT else None)
             if res is not None:
@@ -318,19 +318,20 @@ class TrafficMonitor(native.KernelUser):
             self._mi, self._mf = mi, mf
             self._meters.extend([None] * (cap - old))
         published, presence, raw_events, actions = res
-        for a in actions:  # (few: tracks born in a lane and crossings)
+        for a in actions:  # (few: tracks born in a lane and crossings; the track's s, vs, speed, margin last)
             j, k = a[1], a[2]
             tid = id_list[j]
             meter = self._meters[tid]
             if a[0] == 0:
-                self._mi[tid, _M_COUNTED] = self._count_late(conf[j], k, lanes[k].direction, s[j], vs[j], speed[j],
-                                                             meter, t_ns, float(margin[j]))
+                self._mi[tid, _M_COUNTED] = self._count_late(conf[j], k, lanes[k].direction, a[3], a[4], a[5],
+                                                             meter, t_ns, a[6])
             else:
                 acc = stats.lane(k)
                 if not self._same_vehicle(acc, a[3]):
-                    acc.add(Crossing(a[3], speed[j], float("nan"), conf[j].cls, meter))
+                    acc.add(Crossing(a[3], a[6], float("nan"), conf[j].cls, meter))
                     self._mi[tid, _M_COUNTED] = 1
-        closed = stats.tick(t_ns, n_lanes)
+        start = stats.start_ns  # (stats.tick returns () before the interval's end: not called then)
+        closed = () if start is not None and t_ns < start + stats.interval_ns else stats.tick(t_ns, n_lanes)
         events = tuple(TrafficEvent(kind, tid, lane, t_ns) for kind, tid, lane in raw_events) if raw_events else ()
         return TrafficUpdate(published, tuple(presence), closed, events)
 
@@ -345,7 +346,9 @@ class TrafficMonitor(native.KernelUser):
         kern = self._kernel
         if kern is not None:
             tracks = tuple(tracks)
-            conf, sel, kin, ids, age = kern.track_kin(tracks)
+            # (the motion model's x and the extents of the confirmed tracks gathered with the table when they are
+            # float64 arrays with a value per track; else None)
+            conf, sel, kin, ids, id_list, yaw_x_sel, ext_sel = kern.track_kin(tracks, yaw_x_m, extent_m, TrackState)
         else:
             sel = [k for k, t in enumerate(tracks) if t.confirmed and t.track_id > 0]
             conf = [tracks[k] for k in sel]
@@ -360,13 +363,17 @@ class TrafficMonitor(native.KernelUser):
                            dtype=np.float64).reshape(-1, 6)
             ids = kin[:, 0].astype(np.int64)
             age = kin[:, 1].astype(np.int64)
-        x, y, vx, vy = kin[:, 2], kin[:, 3], kin[:, 4], kin[:, 5]
+            x, y, vx, vy = kin[:, 2], kin[:, 3], kin[:, 4], kin[:, 5]
 
         # mounting yaw and lanes
         est = None
         yaw_sigma = 0.0  # the configured yaw is taken as measured when it is not estimated
         if cfg.estimate_yaw:
-            if yaw_x_m is not None and len(yaw_x_m) == len(tracks):
+            if kern is not None:
+                if yaw_x_sel is None and yaw_x_m is not None and len(yaw_x_m) == len(tracks):
+                    yaw_x_sel = np.asarray(yaw_x_m, dtype=np.float64)[sel]
+                self.yaw_estimator.add_table(kin, yaw_x_sel)
+            elif yaw_x_m is not None and len(yaw_x_m) == len(tracks):
                 self.yaw_estimator.add(ids, age, np.asarray(yaw_x_m, dtype=np.float64)[sel], y)
             else:
                 self.yaw_estimator.add(ids, age, x, y)
@@ -381,7 +388,7 @@ class TrafficMonitor(native.KernelUser):
                 if est is not None or self.saved_calibration is not None or (cfg.lane_mode == "learned" and self.lanes):
                     self._writer.submit(self.calibration())
         if cfg.lane_mode == "learned":
-            self.learner.add(x, y, vx, vy)
+            self.learner.add(kin[:, 2], kin[:, 3], kin[:, 4], kin[:, 5])
             if self._next_learn_ns is None or t_ns >= self._next_learn_ns:
                 yaw_ready = not cfg.estimate_yaw or est is not None or self.saved_calibration is not None
                 lanes = self.learner.learn(self.yaw_rad) if yaw_ready else ()
@@ -406,25 +413,22 @@ class TrafficMonitor(native.KernelUser):
                 self._lane_arrays = (lanes, np.array([ln.center_m for ln in lanes], dtype=np.float64),
                                      0.5 * np.array([ln.width_m for ln in lanes], dtype=np.float64),
                                      np.array([ln.direction for ln in lanes], dtype=np.int64))
-            s, vs, speed, lane_idx, margin, lane_sure = kern.road_lanes(
-                kin, cy, sy, self._lane_arrays[1], self._lane_arrays[2],
-                cfg.wrong_way_lane_sigmas * lat_sigma if gated else -1.0)
-        else:
-            u, s_arr = x * cy + y * sy, -x * sy + y * cy
-            vs_arr = -vx * sy + vy * cy
-            # plain Python floats for the per-track loop (numpy scalars are slow one at a time)
-            s, vs = s_arr.tolist(), vs_arr.tolist()
-            speed = np.hypot(vx, vy).tolist()
-            lane_idx, margin = assign_lanes_with_margin(u, lanes)
-            sure = lane_idx >= 0
-            if gated:
-                sure &= margin >= cfg.wrong_way_lane_sigmas * lat_sigma * np.hypot(x, y)
-            lane_sure = sure.tolist()
-            lane_idx = lane_idx.tolist()
+            if ext_sel is None and extent_m is not None and len(extent_m) == len(tracks):
+                ext_sel = np.ascontiguousarray(np.asarray(extent_m, dtype=np.float64)[sel])
+            return self._kernel_pass(tracks, conf, sel, ids, id_list, kin, cy, sy,
+                                     cfg.wrong_way_lane_sigmas * lat_sigma if gated else -1.0, ext_sel, t_ns, dt_ns)
+        u, s_arr = x * cy + y * sy, -x * sy + y * cy
+        vs_arr = -vx * sy + vy * cy
+        # plain Python floats for the per-track loop (numpy scalars are slow one at a time)
+        s, vs = s_arr.tolist(), vs_arr.tolist()
+        speed = np.hypot(vx, vy).tolist()
+        lane_idx, margin = assign_lanes_with_margin(u, lanes)
+        sure = lane_idx >= 0
+        if gated:
+            sure &= margin >= cfg.wrong_way_lane_sigmas * lat_sigma * np.hypot(x, y)
+        lane_sure = sure.tolist()
+        lane_idx = lane_idx.tolist()
         id_list = ids.tolist()
-        if kern is not None:
-            return self._kernel_pass(tracks, conf, sel, ids, id_list, s, vs, speed, lane_idx, margin, lane_sure,
-                                     extent_m, t_ns, dt_ns)
         presence = [False] * n_lanes
         ext = None
         if extent_m is not None and len(extent_m) == len(tracks):
