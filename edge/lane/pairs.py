@@ -71,7 +71,7 @@ class PairStage(native.KernelUser):
             self.tol[1], self._near_tol[0], self._near_tol[1], near, cfg.pair_max_shared_peaks, _GHOST_SPEED_MPS,
             None if bins is None else tuple(bins))
         # (refine_pairs with the pairs' frequencies)
-        return refine_rows(rows, fm, self.model, n_cand, n_ghost), pk
+        return refine_rows(rows, fm, self.model, n_cand, n_ghost, self.kernel), pk
 
     def reference(self, freqs: tuple) -> Pairs:
         """The numpy pairing (the kernel's reference and fallback)."""

@@ -19,7 +19,7 @@ products go through BLAS, whose summation order the kernel could not match bit f
 
 cimport cython
 cimport numpy as cnp
-from libc.math cimport fabs
+from libc.math cimport fabs, sqrt
 from libc.stdlib cimport malloc, free
 
 import numpy as np
@@ -396,3 +396,33 @@ def aided_search(tuple freqs, tuple bins, tuple weak_freqs, tuple weak_bins, use
         cnt = fo[4 * i] + fo[4 * i + 1] + fo[4 * i + 2] + fo[4 * i + 3]
         go[i] = cnt >= min_segments
     return found, fsel, bsel, good
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def refine_finish(fm_a, sol_a, pred_a):
+    """Step 5 of the pairing after its two BLAS products (edge.dsp.pairing._refine, the reference): ``fm`` (n, 4) the
+    pairs' frequencies, ``sol = fm @ pinv_t`` (n, 2) and ``pred = sol @ matrix_t`` (n, 4), float64 C-contiguous.
+    Returns ``(range_m, v_mps, residual_hz)`` (n,) float32: ``sol``'s columns and ``sqrt(sum_k (pred - fm)^2 / 4)``,
+    the four squares added in segment order (numpy's reduction of four values)."""
+    cdef Py_ssize_t n = cnp.PyArray_DIM(<cnp.ndarray>fm_a, 0) if cnp.PyArray_Check(fm_a) else 0, i, k
+    cdef const double *fm = <const double *>_data2(fm_a, cnp.NPY_FLOAT64, n, 4, False, "fm")
+    cdef const double *sol = <const double *>_data2(sol_a, cnp.NPY_FLOAT64, n, 2, False, "sol")
+    cdef const double *pred = <const double *>_data2(pred_a, cnp.NPY_FLOAT64, n, 4, False, "pred")
+    r_arr = _empty1(cnp.NPY_FLOAT32, n)
+    v_arr = _empty1(cnp.NPY_FLOAT32, n)
+    e_arr = _empty1(cnp.NPY_FLOAT32, n)
+    cdef float *ro = <float *>cnp.PyArray_DATA(r_arr)
+    cdef float *vo = <float *>cnp.PyArray_DATA(v_arr)
+    cdef float *eo = <float *>cnp.PyArray_DATA(e_arr)
+    cdef double d, s
+    for i in range(n):
+        ro[i] = <float>sol[2 * i]
+        vo[i] = <float>sol[2 * i + 1]
+        d = pred[4 * i] - fm[4 * i]
+        s = d * d
+        for k in range(1, 4):
+            d = pred[4 * i + k] - fm[4 * i + k]
+            s = s + d * d
+        eo[i] = <float>sqrt(s / 4.0)
+    return r_arr, v_arr, e_arr

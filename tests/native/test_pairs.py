@@ -303,3 +303,34 @@ def test_aided_search_window_edge():
     np.testing.assert_array_equal(fsel, [[1024.0, 4096.0, 0.0, 0.0]])
     np.testing.assert_array_equal(bsel, [[3, 9, -1, -1]])
     assert good.tolist() == [1]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_refine_finish_equals_refine(seed):
+    """Step 5 with the kernel's tail (refine_rows with the kernel) against numpy's _refine: ranges, speeds and
+    residuals bit for bit, for pairs on the model and off it by up to a hundred bins."""
+    from edge.dsp import pairing
+
+    k = require_kernel("_pairs")
+    stage = _stage()
+    rng = np.random.default_rng(300 + seed)
+    n_pairs = 0
+    for n in (0, 1, 2, 3, 8, 50, 200):
+        idx = rng.integers(0, 10, (n, 4))
+        fm = stage.model.predict(rng.uniform(1.0, 400.0, n), rng.uniform(-50.0, 50.0, n))
+        fm = fm + rng.normal(0.0, 1.0, (n, 4)) * BIN_HZ * rng.choice([0.0, 0.01, 1.0, 100.0], (n, 1))
+        ref = pairing._refine(idx, fm, stage.model, 5, 2)
+        assert_same_pairs(pairing.refine_rows(idx, fm, stage.model, 5, 2, k), ref)
+        n_pairs += n
+    assert n_pairs > 200
+
+
+def test_refine_finish_checks_its_arrays():
+    k = require_kernel("_pairs")
+    fm = np.ones((3, 4))
+    sol = np.ones((3, 2))
+    k.refine_finish(fm, sol, fm)
+    for args in ((np.asfortranarray(fm), sol, fm), (fm, sol[:2], fm), (fm, sol, fm.astype(np.float32)),
+                 (fm, np.ones((3, 3)), fm)):
+        with pytest.raises(ValueError):
+            k.refine_finish(*args)
