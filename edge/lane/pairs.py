@@ -128,6 +128,13 @@ class PairStage(native.KernelUser):
         posts leaves their negative images, and an up-chirp image of one post pairs with the down-chirp image of
         another at a speed proportional to their spacing)."""
         static = self.clutter.static_residue(pk, spectra.power, floor, self._static_ratio)
+        if self.kernel is not None:  # the kept rows copied in one call (the same arrays as below)
+            out = self.kernel.drop_rows(static, (pairs.peak_index, pairs.range_m, pairs.radial_speed_mps,
+                                                 pairs.residual_hz, pk))
+            if out is None:
+                return pairs, pk
+            if out is not False:
+                return Pairs(out[0], out[1], out[2], out[3], pairs.n_candidates, pairs.n_ghosts), out[4]
         if not count_nonzero(static):
             return pairs, pk
         keep = ~static

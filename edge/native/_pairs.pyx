@@ -21,6 +21,7 @@ cimport cython
 cimport numpy as cnp
 from libc.math cimport fabs, sqrt
 from libc.stdlib cimport malloc, free
+from libc.string cimport memcpy
 
 import numpy as np
 
@@ -426,3 +427,55 @@ def refine_finish(fm_a, sol_a, pred_a):
             s = s + d * d
         eo[i] = <float>sqrt(s / 4.0)
     return r_arr, v_arr, e_arr
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def drop_rows(static, tuple cols):
+    """``tuple(c[~static] for c in cols)`` (edge.lane.pairs.PairStage.drop_static's reference): the rows of each
+    array of ``cols`` where ``static`` ((n,) bool or uint8) is False, copied in order into new C arrays of the same
+    dtype. None when no row is static (nothing to copy); False when ``static`` or an array of ``cols`` is not a
+    C-contiguous, aligned, native numpy array of ``n`` rows of a number type (the caller then indexes with numpy)."""
+    cdef Py_ssize_t n, i, j, m = 0, rowb, q, nd
+    cdef int t
+    cdef const unsigned char *st
+    cdef const char *src
+    cdef char *dst
+    cdef cnp.npy_intp dims[8]
+    if not cnp.PyArray_Check(static) or cnp.PyArray_NDIM(<cnp.ndarray>static) != 1:
+        return False
+    t = cnp.PyArray_TYPE(<cnp.ndarray>static)
+    if not ((t == cnp.NPY_BOOL or t == cnp.NPY_UINT8) and cnp.PyArray_ISCARRAY_RO(<cnp.ndarray>static)):
+        return False
+    n = cnp.PyArray_DIM(<cnp.ndarray>static, 0)
+    st = <const unsigned char *>cnp.PyArray_DATA(<cnp.ndarray>static)
+    for c in cols:
+        if not (cnp.PyArray_Check(c) and 1 <= cnp.PyArray_NDIM(<cnp.ndarray>c) <= 8
+                and cnp.PyArray_DIM(<cnp.ndarray>c, 0) == n and cnp.PyArray_ISCARRAY_RO(<cnp.ndarray>c)
+                and cnp.PyArray_ISNOTSWAPPED(<cnp.ndarray>c)):
+            return False
+        t = cnp.PyArray_TYPE(<cnp.ndarray>c)
+        if not (t <= cnp.NPY_CLONGDOUBLE and t != cnp.NPY_OBJECT):  # (the numbers: their type number is the dtype)
+            return False
+    for i in range(n):
+        m += st[i] == 0
+    if m == n:
+        return None
+    out = []
+    for c in cols:
+        nd = cnp.PyArray_NDIM(<cnp.ndarray>c)
+        rowb = cnp.PyArray_ITEMSIZE(<cnp.ndarray>c)
+        dims[0] = m
+        for j in range(1, nd):
+            dims[j] = cnp.PyArray_DIM(<cnp.ndarray>c, j)
+            rowb *= dims[j]
+        o = cnp.PyArray_EMPTY(<int>nd, dims, cnp.PyArray_TYPE(<cnp.ndarray>c), 0)
+        src = <const char *>cnp.PyArray_DATA(<cnp.ndarray>c)
+        dst = <char *>cnp.PyArray_DATA(<cnp.ndarray>o)
+        q = 0
+        for i in range(n):
+            if st[i] == 0:
+                memcpy(dst + q * rowb, src + i * rowb, rowb)
+                q += 1
+        out.append(o)
+    return tuple(out)
