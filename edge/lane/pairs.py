@@ -272,7 +272,8 @@ class PairStage(native.KernelUser):
         np.linalg.solve refuses (the reference then raises as before)."""
         k = self._k_aided_pred
         w, fs, nrm, rhs, masks = k.fit_prep(found, fsel, good, self._model_ab)
-        if masks & self.singular_masks():
+        sing = self._singular
+        if masks & (sing if sing is not None else self.singular_masks()):
             return None
         if _GESV is not None:
             sol = _GESV(nrm, rhs, signature="dd->d")[:, :, 0]
