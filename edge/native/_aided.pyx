@@ -76,13 +76,12 @@ def predictions(state, sel, double dt, pair_r,
 
 
 cdef inline bint _is_bool1(object a, Py_ssize_t n):
-    """``a`` is a 1-D bool or uint8 numpy array of ``n`` elements, aligned (any stride)."""
-    cdef int t
+    """``a`` is a 1-D bool numpy array of ``n`` elements (any stride; uint8 is not taken: the reference's ``~`` of
+    a uint8 column is its bitwise complement)."""
     if not cnp.PyArray_Check(a):
         return False
-    t = cnp.PyArray_TYPE(<cnp.ndarray>a)
     return (cnp.PyArray_NDIM(<cnp.ndarray>a) == 1 and cnp.PyArray_DIM(<cnp.ndarray>a, 0) == n
-            and (t == cnp.NPY_BOOL or t == cnp.NPY_UINT8))
+            and cnp.PyArray_TYPE(<cnp.ndarray>a) == cnp.NPY_BOOL)
 
 
 @cython.boundscheck(False)

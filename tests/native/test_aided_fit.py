@@ -75,11 +75,11 @@ def test_select_predictions_equals_selection_and_predictions(overrides):
             for a, b in zip(out, ref):
                 _same(a, b)
             n_kept += ref[0].size
-        if t % 5 == 0 and n:  # a strided state and bool columns of another layout
+        if t % 5 == 0 and n:  # a strided state and a strided bool column
             xs = np.zeros((n, 6))
             xs[:, :4] = x
             fb2 = Feedback(t_ns=0, track_state=xs[:, :4], confirmed=np.repeat(fb.confirmed, 2)[::2],
-                           moved=fb.moved.view(np.uint8), hits=fb.hits)
+                           moved=np.repeat(fb.moved, 3)[::3], hits=fb.hits)
             out2 = k.select_predictions(*_select_args(stage, fb2, dt, pairs))
             for a, b in zip(out2, out):
                 _same(a, b)
@@ -98,7 +98,8 @@ def test_select_predictions_declines_other_types():
                   hits=np.ones(4, np.int32))
     assert k.select_predictions(*_select_args(stage, fb, 0.0, pairs)) is not None
     for bad in (dict(track_state=x.astype(np.float32)), dict(track_state=x[:, :3]), dict(hits=np.ones(4)),
-                dict(confirmed=np.ones(4, np.int32)), dict(moved=np.ones(3, bool))):
+                dict(confirmed=np.ones(4, np.int32)), dict(moved=np.ones(3, bool)),
+                dict(moved=np.ones(4, np.uint8)), dict(confirmed=np.ones(4, np.uint8))):
         assert k.select_predictions(*_select_args(stage, dataclasses.replace(fb, **bad), 0.0, pairs)) is None
     p64 = dataclasses.replace(pairs, range_m=np.zeros(0), radial_speed_mps=np.zeros(0))
     assert k.select_predictions(*_select_args(stage, fb, 0.0, p64)) is None
