@@ -290,7 +290,7 @@ class DetectionStage(native.KernelUser):
             gc = self._glint_consts()
             if type(k_sigma) not in (int, float) or gc is None:
                 return self.reference(a, feedback)  # (AgainstLaneGlint.glint's condition for its kernel)
-            if k_sigma != self._k_sigma[0]:  # (the float32 of the same value)
+            if k_sigma != self._k_sigma[0] or not k_sigma:  # (the float32 of the same value; of 0 by its sign)
                 self._k_sigma = (k_sigma, np.float32(k_sigma))
             g_args = (*glint.lane_table(feedback.lanes), math.cos(feedback.yaw_rad), math.sin(feedback.yaw_rad),
                       gc[0], gc[1], self._k_sigma[1], gc[2], gc[3], glint.beamwidth_sin)
