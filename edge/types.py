@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from edge.fastinit import one_dict_init
 from hal.frame import RawFrame
 from hal.waveform import ChirpSegment, FrontendInfo, Waveform
 
@@ -33,6 +34,7 @@ __all__ = [
 _F32 = np.float32
 
 
+@one_dict_init
 @dataclass(frozen=True, eq=False)
 class Detections:
     """Detections of one frame, columnar (one row each); NaN where a quantity is not measured."""

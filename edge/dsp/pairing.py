@@ -356,11 +356,18 @@ def refine_pairs(idx: np.ndarray, f: tuple, model: PairingModel, n_cand: int, n_
     return _refine(idx, fm, model, n_cand, n_ghost)
 
 
-def refine_rows(idx: np.ndarray, fm: np.ndarray, model: PairingModel, n_cand: int, n_ghost: int) -> Pairs:
+def refine_rows(idx: np.ndarray, fm: np.ndarray, model: PairingModel, n_cand: int, n_ghost: int,
+                kernel=None) -> Pairs:
     """:func:`refine_pairs` given the accepted pairs' frequencies ``fm`` (n, 4) float64 (segment k's peak
-    ``idx[:, k]``), as the compiled pairing kernel returns them."""
+    ``idx[:, k]``), as the compiled pairing kernel returns them. With ``kernel`` (edge/native/_pairs.pyx; ``fm`` then a
+    C-contiguous float64 array), the two BLAS products stay here and the kernel's ``refine_finish`` does the rest
+    (:func:`_refine`'s values)."""
     if idx.shape[0] == 0:
         return _no_pairs(n_cand, n_ghost)
+    if kernel is not None:
+        sol = fm @ model.pinv_t
+        r, v, res = kernel.refine_finish(fm, sol, sol @ model.matrix_t)
+        return Pairs(idx, r, v, res, n_cand, n_ghost)
     return _refine(idx, fm, model, n_cand, n_ghost)
 
 

@@ -45,7 +45,9 @@ class UnaliasByLane(native.KernelUser):
         self._dz2 = dz * dz  # (m^2, float64)
         #: the compiled pass (edge/native/_unalias.pyx), None: :meth:`reference` runs
         self.kernel = native.load("_unalias")
-        self._k_lanes: tuple = (None, None)  # (lanes, their (centre, half width, direction) float64 arrays)
+        #: (lanes, the kernel's arguments of them: (centre, half width, direction) float64 arrays, the float32 speed
+        #: and range limits; the config they were made with)
+        self._k_lanes: tuple = (None, None, None)
 
     def __call__(self, c: Candidates, feedback: Feedback) -> Candidates:
         if not (feedback.lanes and c.range_m.size):
@@ -63,13 +65,13 @@ class UnaliasByLane(native.KernelUser):
             return self.reference(range_m, v_mps, az, feedback)
         cfg = self.config
         lanes = feedback.lanes
-        if self._k_lanes[0] is not lanes:  # the lanes change rarely (see RoadFrame)
-            self._k_lanes = (lanes, _lane_table(lanes))
-        span, _ = self.road.lane_arrays(lanes)
+        kl = self._k_lanes
+        if kl[0] is not lanes or kl[2] is not cfg:  # the lanes change rarely (see RoadFrame)
+            span, _ = self.road.lane_arrays(lanes)
+            kl = self._k_lanes = (lanes, _lane_table(lanes) + (
+                np.float32(cfg.unalias_min_speed_mps), np.float32(span / self.period + cfg.mounting_height_m)), cfg)
         out = k.unalias(np.ascontiguousarray(range_m), np.ascontiguousarray(v_mps), np.ascontiguousarray(az),
-                        *self._k_lanes[1], np.float32(cfg.unalias_min_speed_mps),
-                        np.float32(span / self.period + cfg.mounting_height_m), self.period, self._dz2,
-                        math.cos(feedback.yaw_rad), math.sin(feedback.yaw_rad))
+                        *kl[1], self.period, self._dz2, math.cos(feedback.yaw_rad), math.sin(feedback.yaw_rad))
         return az if out is None else out
 
     def reference(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, feedback: Feedback) -> np.ndarray:
@@ -257,6 +259,8 @@ class DetectionStage(native.KernelUser):
         #: the compiled stage after the direction filters (edge/native/_detect.pyx), None: :meth:`reference`
         self.kernel = native.load("_detect")
         self._k_dz = np.float32(cfg.mounting_height_m - cfg.target_height_m)  # (polar_to_ground's)
+        self._g_consts: tuple = (None, None)  # (config, its float32 glint arguments; see _glint_consts)
+        self._k_sigma: tuple = (None, None)  # (lane_sigmas x direction_sigma_rad, its float32)
 
     def __call__(self, a: Angles, feedback: Feedback) -> Detections:
         """The detections of ``a``: the direction filters, the ground projection and the filters of the projected
@@ -280,19 +284,16 @@ class DetectionStage(native.KernelUser):
                 glint = f
             else:
                 return self.reference(a, feedback)
-        cfg = self.config
         g_args = (None, None, None, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         if glint is not None and feedback.lanes:
             k_sigma = feedback.lane_sigmas * feedback.direction_sigma_rad
-            margin = cfg.cluster_against_lane_margin_m
-            if (type(k_sigma) not in (int, float) or type(margin) not in (int, float)
-                    or type(cfg.cluster_length_m) not in (int, float)
-                    or type(cfg.cluster_against_lane_speed_mps) not in (int, float)):
+            gc = self._glint_consts()
+            if type(k_sigma) not in (int, float) or gc is None:
                 return self.reference(a, feedback)  # (AgainstLaneGlint.glint's condition for its kernel)
+            if k_sigma != self._k_sigma[0] or not k_sigma:  # (the float32 of the same value; of 0 by its sign)
+                self._k_sigma = (k_sigma, np.float32(k_sigma))
             g_args = (*glint.lane_table(feedback.lanes), math.cos(feedback.yaw_rad), math.sin(feedback.yaw_rad),
-                      np.float32(cfg.unalias_min_speed_mps), np.float32(margin), np.float32(k_sigma),
-                      np.float32(cfg.cluster_length_m), np.float32(cfg.cluster_against_lane_speed_mps),
-                      glint.beamwidth_sin)
+                      gc[0], gc[1], self._k_sigma[1], gc[2], gc[3], glint.beamwidth_sin)
         c = Candidates(a.range_m, a.radial_speed_mps, a.az_rad, None, None, None)
         for f in self.direction_filters:
             c = f(c, feedback)
@@ -310,6 +311,19 @@ class DetectionStage(native.KernelUser):
         if unresolved is not None:
             extra["unresolved_pair"] = unresolved
         return Detections(rng, vel, az, snr, x, y, extra)
+
+    def _glint_consts(self) -> tuple | None:
+        """The glint's float32 arguments from the config (the unalias speed, the margin, the cluster length and
+        speed), made once per config; None when one is not a Python number (then the reference runs)."""
+        cfg = self.config
+        if self._g_consts[0] is not cfg:
+            margin = cfg.cluster_against_lane_margin_m
+            ok = (type(margin) in (int, float) and type(cfg.cluster_length_m) in (int, float)
+                  and type(cfg.cluster_against_lane_speed_mps) in (int, float))
+            self._g_consts = (cfg, (np.float32(cfg.unalias_min_speed_mps), np.float32(margin),
+                                    np.float32(cfg.cluster_length_m), np.float32(cfg.cluster_against_lane_speed_mps))
+                              if ok else None)
+        return self._g_consts[1]
 
     def reference(self, a: Angles, feedback: Feedback) -> Detections:
         """The numpy form of :meth:`__call__` (each filter's own kernel when built): the kernel's reference and

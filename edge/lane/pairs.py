@@ -16,6 +16,13 @@ from edge.lane.records import Feedback, PairList, Peaks, Spectra
 from edge.npc import count_nonzero
 from edge.types import FrontendInfo
 
+try:  # the gufunc that np.linalg.solve calls (LAPACK's dgesv per matrix), without its Python wrapper
+    from numpy.linalg import _umath_linalg
+
+    _GESV = _umath_linalg.solve
+except (ImportError, AttributeError):  # pragma: no cover - another numpy layout
+    _GESV = None
+
 _SEG4 = np.arange(4)  # the four segments, as an index
 
 #: speed difference (m/s) beyond which an accepted pair sharing peaks with others is a wrong pairing on one long
@@ -36,6 +43,9 @@ class PairStage(native.KernelUser):
         self.bin_hz = bin_hz  # (4,) Hz per FFT bin of each segment
         self.model = PairingModel.from_waveform(wf)
         self._model_ab = np.stack([self.model.a, self.model.b], axis=1)  # (4, 2): beat = a R + b v per segment
+        self._model_ab_t = self._model_ab.T  # (2, 4): the view _aided_fit multiplies by
+        self._bin_hz64 = np.ascontiguousarray(bin_hz, dtype=np.float64)  # (what f / bin_hz divides by)
+        self._singular = None  # bit b: np.linalg.solve refuses the normal matrix of the found segments b (lazily)
         self.tol = (cfg.pair_tolerance_bins * bin_hz[2], cfg.pair_tolerance_bins * bin_hz[3])
         self._near_tol = (cfg.pair_near_tolerance_bins * bin_hz[2], cfg.pair_near_tolerance_bins * bin_hz[3])
         self._aided_window_hz = cfg.aided_window_bins * bin_hz  # (4,)
@@ -71,7 +81,7 @@ class PairStage(native.KernelUser):
             self.tol[1], self._near_tol[0], self._near_tol[1], near, cfg.pair_max_shared_peaks, _GHOST_SPEED_MPS,
             None if bins is None else tuple(bins))
         # (refine_pairs with the pairs' frequencies)
-        return refine_rows(rows, fm, self.model, n_cand, n_ghost), pk
+        return refine_rows(rows, fm, self.model, n_cand, n_ghost, self.kernel), pk
 
     def reference(self, freqs: tuple) -> Pairs:
         """The numpy pairing (the kernel's reference and fallback)."""
@@ -118,6 +128,13 @@ class PairStage(native.KernelUser):
         posts leaves their negative images, and an up-chirp image of one post pairs with the down-chirp image of
         another at a speed proportional to their spacing)."""
         static = self.clutter.static_residue(pk, spectra.power, floor, self._static_ratio)
+        if self.kernel is not None:  # the kept rows copied in one call (the same arrays as below)
+            out = self.kernel.drop_rows(static, (pairs.peak_index, pairs.range_m, pairs.radial_speed_mps,
+                                                 pairs.residual_hz, pk))
+            if out is None:
+                return pairs, pk
+            if out is not False:
+                return Pairs(out[0], out[1], out[2], out[3], pairs.n_candidates, pairs.n_ghosts), out[4]
         if not count_nonzero(static):
             return pairs, pk
         keep = ~static
@@ -142,16 +159,31 @@ class PairStage(native.KernelUser):
         cfg = self.config
         tr = feedback
         empty = self._aided_empty
-        sel = tr.confirmed
-        if cfg.aided_tentative_min_range_m > 0:  # far tentative tracks with a few hits search as well
-            far = ~sel & tr.moved & (tr.hits >= cfg.aided_tentative_min_hits)  # moved: not static clutter
-            if count_nonzero(far):
-                x = tr.track_state
-                far &= np.hypot(x[:, 0], x[:, 1]) >= cfg.aided_tentative_min_range_m
-                if cfg.aided_tentative_approaching:
-                    far &= x[:, 0] * x[:, 2] + x[:, 1] * x[:, 3] < 0.0
-                sel = sel | far
-        sel = sel.nonzero()[0]
+        k_pred = self._k_aided_pred
+        if k_pred is not None and self.kernel is not None:  # selection, predictions, search and fit in kernels
+            if tr.t_ns is None:
+                return empty
+            dz = cfg.mounting_height_m - cfg.target_height_m
+            pred = k_pred.select_predictions(
+                tr.track_state, tr.confirmed, tr.moved, tr.hits, max((t_ns - tr.t_ns) * 1e-9, 0.0), pairs.range_m,
+                pairs.radial_speed_mps, dz * dz, cfg.min_range_m, cfg.max_range_m, cfg.aided_gate_m,
+                cfg.aided_gate_mps, self._coef, cfg.aided_tentative_min_range_m, cfg.aided_tentative_min_hits,
+                cfg.aided_tentative_approaching)
+            if pred is not None:  # (None: arrays of other types, the numpy selection below)
+                r_hat, v_hat, f_hat = pred
+                if not r_hat.size:
+                    return empty
+                found, fsel, bsel, good = self.kernel.aided_search(
+                    tuple(freqs), tuple(bins), None if weak is None else tuple(weak[0]),
+                    None if weak is None else tuple(weak[1]), pairs.peak_index, f_hat, self._aided_window_hz,
+                    cfg.aided_min_segments)
+                if not count_nonzero(good):
+                    return empty
+                out = self._aided_fit_kernel(found, fsel, good, r_hat, v_hat, f_hat, bsel)
+                if out is None:
+                    return self._aided_fit(found.view(bool), fsel, good.view(bool), r_hat, v_hat, f_hat, bsel)
+                return out
+        sel = self.aided_selection(tr)
         if sel.size == 0 or tr.t_ns is None:
             return empty
         dt = max((t_ns - tr.t_ns) * 1e-9, 0.0)
@@ -201,6 +233,21 @@ class PairStage(native.KernelUser):
             return empty
         return self._aided_fit(found, fsel, good, r_hat, v_hat, f_hat, np.where(found, btab[seg, j], -1))
 
+    def aided_selection(self, tr: Feedback) -> np.ndarray:
+        """Rows of ``tr``'s tracks that search for their own peaks (see :meth:`track_aided`): the confirmed ones,
+        and far tentative ones that moved and have a few hits (the reference of the kernel's selection)."""
+        cfg = self.config
+        sel = tr.confirmed
+        if cfg.aided_tentative_min_range_m > 0:  # far tentative tracks with a few hits search as well
+            far = ~sel & tr.moved & (tr.hits >= cfg.aided_tentative_min_hits)  # moved: not static clutter
+            if count_nonzero(far):
+                x = tr.track_state
+                far &= np.hypot(x[:, 0], x[:, 1]) >= cfg.aided_tentative_min_range_m
+                if cfg.aided_tentative_approaching:
+                    far &= x[:, 0] * x[:, 2] + x[:, 1] * x[:, 3] < 0.0
+                sel = sel | far
+        return sel.nonzero()[0]
+
     def _aided_fit(self, found, fsel, good, r_hat, v_hat, f_hat, bsel):
         """Least-squares range and speed of the tracks with enough peaks (``good``) from their found peaks
         (``found``, ``fsel`` (m, 4) Hz, ``bsel`` their bins), gated against the predictions; see track_aided."""
@@ -218,6 +265,38 @@ class PairStage(native.KernelUser):
         out_bins = np.where(found[g], bsel[g], np.rint(f_hat[g] / self.bin_hz).astype(np.int64) % self.n_bins)
         return (out_bins, sol[close, 0].astype(np.float32), sol[close, 1].astype(np.float32),
                 resid[close].astype(np.float32))
+
+    def _aided_fit_kernel(self, found, fsel, good, r_hat, v_hat, f_hat, bsel):
+        """:meth:`_aided_fit` by the kernels (edge/native/_aided.pyx ``fit_prep``, ``fit_finish``) around the same
+        LAPACK solve and BLAS product; ``found``, ``good`` bool or uint8. None when a normal matrix is one that
+        np.linalg.solve refuses (the reference then raises as before)."""
+        k = self._k_aided_pred
+        w, fs, nrm, rhs, masks = k.fit_prep(found, fsel, good, self._model_ab)
+        sing = self._singular
+        if masks & (sing if sing is not None else self.singular_masks()):
+            return None
+        if _GESV is not None:
+            sol = _GESV(nrm, rhs, signature="dd->d")[:, :, 0]
+        else:  # pragma: no cover
+            sol = np.linalg.solve(nrm, rhs)[:, :, 0]
+        cfg = self.config
+        return k.fit_finish(w, fs, sol, sol @ self._model_ab_t, good, found, bsel, r_hat, v_hat, f_hat,
+                            self._bin_hz64, self.n_bins, cfg.aided_gate_m, cfg.aided_gate_mps)
+
+    def singular_masks(self) -> int:
+        """Bit ``b`` set when the normal matrix of :meth:`_aided_fit` for the found segments ``b`` (bit k: segment
+        k) is one np.linalg.solve refuses as singular (it depends on the found segments only)."""
+        if self._singular is None:
+            bits = 0
+            for b in range(16):
+                w = np.array([[(b >> k) & 1 for k in range(4)]], np.float64)
+                nrm = np.einsum("mk,ki,kj->mij", w, self._model_ab, self._model_ab)
+                try:
+                    np.linalg.solve(nrm, np.zeros((1, 2, 1)))
+                except np.linalg.LinAlgError:
+                    bits |= 1 << b
+            self._singular = bits
+        return self._singular
 
     def aided_predictions(self, track_state: np.ndarray, sel: np.ndarray, dt: float, pairs) -> tuple | None:
         """``(range_m (m,), v_mps (m,), beats (m, 4))`` predicted at this frame for the tracks ``sel`` (rows of

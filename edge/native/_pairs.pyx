@@ -19,8 +19,9 @@ products go through BLAS, whose summation order the kernel could not match bit f
 
 cimport cython
 cimport numpy as cnp
-from libc.math cimport fabs
+from libc.math cimport fabs, sqrt
 from libc.stdlib cimport malloc, free
+from libc.string cimport memcpy
 
 import numpy as np
 
@@ -396,3 +397,85 @@ def aided_search(tuple freqs, tuple bins, tuple weak_freqs, tuple weak_bins, use
         cnt = fo[4 * i] + fo[4 * i + 1] + fo[4 * i + 2] + fo[4 * i + 3]
         go[i] = cnt >= min_segments
     return found, fsel, bsel, good
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def refine_finish(fm_a, sol_a, pred_a):
+    """Step 5 of the pairing after its two BLAS products (edge.dsp.pairing._refine, the reference): ``fm`` (n, 4) the
+    pairs' frequencies, ``sol = fm @ pinv_t`` (n, 2) and ``pred = sol @ matrix_t`` (n, 4), float64 C-contiguous.
+    Returns ``(range_m, v_mps, residual_hz)`` (n,) float32: ``sol``'s columns and ``sqrt(sum_k (pred - fm)^2 / 4)``,
+    the four squares added in segment order (numpy's reduction of four values)."""
+    cdef Py_ssize_t n = cnp.PyArray_DIM(<cnp.ndarray>fm_a, 0) if cnp.PyArray_Check(fm_a) else 0, i, k
+    cdef const double *fm = <const double *>_data2(fm_a, cnp.NPY_FLOAT64, n, 4, False, "fm")
+    cdef const double *sol = <const double *>_data2(sol_a, cnp.NPY_FLOAT64, n, 2, False, "sol")
+    cdef const double *pred = <const double *>_data2(pred_a, cnp.NPY_FLOAT64, n, 4, False, "pred")
+    r_arr = _empty1(cnp.NPY_FLOAT32, n)
+    v_arr = _empty1(cnp.NPY_FLOAT32, n)
+    e_arr = _empty1(cnp.NPY_FLOAT32, n)
+    cdef float *ro = <float *>cnp.PyArray_DATA(r_arr)
+    cdef float *vo = <float *>cnp.PyArray_DATA(v_arr)
+    cdef float *eo = <float *>cnp.PyArray_DATA(e_arr)
+    cdef double d, s
+    for i in range(n):
+        ro[i] = <float>sol[2 * i]
+        vo[i] = <float>sol[2 * i + 1]
+        d = pred[4 * i] - fm[4 * i]
+        s = d * d
+        for k in range(1, 4):
+            d = pred[4 * i + k] - fm[4 * i + k]
+            s = s + d * d
+        eo[i] = <float>sqrt(s / 4.0)
+    return r_arr, v_arr, e_arr
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def drop_rows(static, tuple cols):
+    """``tuple(c[~static] for c in cols)`` (edge.lane.pairs.PairStage.drop_static's reference): the rows of each
+    array of ``cols`` where ``static`` ((n,) bool or uint8) is False, copied in order into new C arrays of the same
+    dtype. None when no row is static (nothing to copy); False when ``static`` or an array of ``cols`` is not a
+    C-contiguous, aligned, native numpy array of ``n`` rows of a number type (the caller then indexes with numpy)."""
+    cdef Py_ssize_t n, i, j, m = 0, rowb, q, nd
+    cdef int t
+    cdef const unsigned char *st
+    cdef const char *src
+    cdef char *dst
+    cdef cnp.npy_intp dims[8]
+    if not cnp.PyArray_Check(static) or cnp.PyArray_NDIM(<cnp.ndarray>static) != 1:
+        return False
+    t = cnp.PyArray_TYPE(<cnp.ndarray>static)
+    if not ((t == cnp.NPY_BOOL or t == cnp.NPY_UINT8) and cnp.PyArray_ISCARRAY_RO(<cnp.ndarray>static)):
+        return False
+    n = cnp.PyArray_DIM(<cnp.ndarray>static, 0)
+    st = <const unsigned char *>cnp.PyArray_DATA(<cnp.ndarray>static)
+    for c in cols:
+        if not (cnp.PyArray_Check(c) and 1 <= cnp.PyArray_NDIM(<cnp.ndarray>c) <= 8
+                and cnp.PyArray_DIM(<cnp.ndarray>c, 0) == n and cnp.PyArray_ISCARRAY_RO(<cnp.ndarray>c)
+                and cnp.PyArray_ISNOTSWAPPED(<cnp.ndarray>c)):
+            return False
+        t = cnp.PyArray_TYPE(<cnp.ndarray>c)
+        if not (t <= cnp.NPY_CLONGDOUBLE and t != cnp.NPY_OBJECT):  # (the numbers: their type number is the dtype)
+            return False
+    for i in range(n):
+        m += st[i] == 0
+    if m == n:
+        return None
+    out = []
+    for c in cols:
+        nd = cnp.PyArray_NDIM(<cnp.ndarray>c)
+        rowb = cnp.PyArray_ITEMSIZE(<cnp.ndarray>c)
+        dims[0] = m
+        for j in range(1, nd):
+            dims[j] = cnp.PyArray_DIM(<cnp.ndarray>c, j)
+            rowb *= dims[j]
+        o = cnp.PyArray_EMPTY(<int>nd, dims, cnp.PyArray_TYPE(<cnp.ndarray>c), 0)
+        src = <const char *>cnp.PyArray_DATA(<cnp.ndarray>c)
+        dst = <char *>cnp.PyArray_DATA(<cnp.ndarray>o)
+        q = 0
+        for i in range(n):
+            if st[i] == 0:
+                memcpy(dst + q * rowb, src + i * rowb, rowb)
+                q += 1
+        out.append(o)
+    return tuple(out)

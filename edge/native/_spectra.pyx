@@ -520,31 +520,34 @@ from libc.math cimport sqrtf
 
 @cython.boundscheck(False)
 @cython.wraparound(False)
-def static_residue(const float complex[:, :, :] ref, bins, power,
-                   floor, float ratio, float noise_floors):
+def static_residue(ref, bins, power, floor, float ratio, float noise_floors):
     """:meth:`edge.lane.clutter.ClutterMap.static_residue` with the map's echo ``ref`` (rx, seg, bin): per pairing
     (``bins`` (n, seg)), whether in every segment the peak's amplitude ``sqrt(power)`` is at most
     ``sqrt(ratio * echo) + sqrt(noise_floors * floor)`` and the echo (its power summed over the channels in numpy's
     order) exceeds ``floor``. float32, one rounding per operation as numpy's. Returns (n,) bool; None when a bin
-    lies outside the map (the numpy form handles it)."""
+    lies outside the map (the numpy form handles it). ``ref`` complex64 of any strides, read through the numpy C API
+    as the other arrays."""
+    cdef _V V_ref
+    _aview(ref, cnp.NPY_COMPLEX64, 3, False, False, &V_ref, "ref")
     cdef _V V_bins
     _aview(bins, cnp.NPY_LONGLONG, 2, False, False, &V_bins, "bins")
     cdef _V V_power
     _aview(power, cnp.NPY_FLOAT32, 2, False, False, &V_power, "power")
     cdef _V V_floor
     _aview(floor, cnp.NPY_FLOAT32, 1, False, False, &V_floor, "floor")
-    cdef Py_ssize_t n = V_bins.n[0], nseg = V_bins.n[1], nrx = ref.shape[0], nb = ref.shape[2], i, k, c
+    cdef Py_ssize_t n = V_bins.n[0], nseg = V_bins.n[1], nrx = V_ref.n[0], nb = V_ref.n[2], i, k, c
     cdef long long b
     cdef float bg, re, im, bound
+    cdef const float *cell
     cdef bint ok
-    if nseg > ref.shape[1] or nseg > V_power.n[0] or nseg > V_floor.n[0]:
+    if nseg > V_ref.n[1] or nseg > V_power.n[0] or nseg > V_floor.n[0]:
         return None
     for i in range(n):
         for k in range(nseg):
             if _pll_2(V_bins, i, k)[0] < 0 or _pll_2(V_bins, i, k)[0] >= nb or _pll_2(V_bins, i, k)[0] >= V_power.n[1]:
                 return None
     out_arr = _empty1(cnp.NPY_BOOL, n)
-    cdef unsigned char[::1] out = out_arr.view(np.uint8)
+    cdef unsigned char *out = <unsigned char *>cnp.PyArray_DATA(out_arr)
     with nogil:
         for i in range(n):
             ok = True
@@ -552,8 +555,9 @@ def static_residue(const float complex[:, :, :] ref, bins, power,
                 b = _pll_2(V_bins, i, k)[0]
                 bg = 0.0
                 for c in range(nrx):
-                    re = ref[c, k, b].real
-                    im = ref[c, k, b].imag
+                    cell = <const float *>(V_ref.data + c * V_ref.s[0] + k * V_ref.s[1] + b * V_ref.s[2])
+                    re = cell[0]
+                    im = cell[1]
                     bg = bg + (re * re + im * im)
                 bound = sqrtf(ratio * bg) + sqrtf(noise_floors * _pf1(V_floor, k)[0])
                 if not (sqrtf(_pf2(V_power, k, b)[0]) <= bound and bg > _pf1(V_floor, k)[0]):

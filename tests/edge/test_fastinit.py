@@ -13,15 +13,17 @@ from edge.dsp.pairing import Pairs
 from edge.fastinit import one_dict_init
 from edge.lane.records import Angles, Candidates, Feedback, PairList, Peaks, Spectra
 from edge.traffic.monitor import TrafficUpdate
+from edge.types import Detections
 
-RECORDS = (Feedback, Spectra, Peaks, PairList, Angles, Candidates, Pairs, TrafficUpdate)
+RECORDS = (Feedback, Spectra, Peaks, PairList, Angles, Candidates, Pairs, TrafficUpdate, Detections)
 
 
 def _generated(cls):
     """``cls`` as the plain dataclass (its generated ``__init__``)."""
     params = cls.__dataclass_params__
     fields = [(f.name, f.type, dataclasses.field(default=f.default)) if f.default is not dataclasses.MISSING
-              else (f.name, f.type) for f in dataclasses.fields(cls)]
+              else (f.name, f.type, dataclasses.field(default_factory=f.default_factory))
+              if f.default_factory is not dataclasses.MISSING else (f.name, f.type) for f in dataclasses.fields(cls)]
     return dataclasses.make_dataclass("Ref" + cls.__name__, fields, frozen=True, eq=params.eq)
 
 
@@ -35,7 +37,7 @@ def test_same_signature_and_attributes(cls):
     got, want = inspect.signature(cls.__init__).parameters, inspect.signature(ref.__init__).parameters
     assert [(p.name, p.kind, p.default) for p in got.values()] == [(p.name, p.kind, p.default) for p in want.values()]
     fields = dataclasses.fields(cls)
-    required = [f for f in fields if f.default is dataclasses.MISSING]
+    required = [f for f in fields if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
     for n in sorted({len(required), len(fields)}):
         vals = _values(cls, n)
         a, b = cls(*vals), ref(*vals)
@@ -65,16 +67,36 @@ def test_refuses_what_it_cannot_reproduce():
         a: int
 
     @dataclasses.dataclass(frozen=True)
-    class Factory:
-        a: list = dataclasses.field(default_factory=list)
-
-    @dataclasses.dataclass(frozen=True)
     class Post:
         a: int
 
         def __post_init__(self):
             pass
 
-    for cls in (NotFrozen, Factory, Post):
+    @dataclasses.dataclass(frozen=True)
+    class KwOnly:
+        a: int = dataclasses.field(kw_only=True)
+
+    for cls in (NotFrozen, Post, KwOnly):
         with pytest.raises(TypeError):
             one_dict_init(cls)
+
+
+def test_a_default_factory_makes_a_new_value_each_time():
+    """A field with a default factory (Detections.extra): a new value from the factory when the argument is left
+    out, the argument itself when given, as the generated ``__init__`` does."""
+    calls = []
+
+    @one_dict_init
+    @dataclasses.dataclass(frozen=True)
+    class Factory:
+        a: int
+        b: dict = dataclasses.field(default_factory=lambda: calls.append(1) or {})
+
+    x, y = Factory(1), Factory(2)
+    assert x.b == {} and y.b == {} and x.b is not y.b and len(calls) == 2
+    given = {"k": 1}
+    assert Factory(3, given).b is given and Factory(a=4, b=given).b is given and len(calls) == 2
+    assert list(vars(x)) == ["a", "b"]
+    d = Detections(*[np.zeros(1, np.float32)] * 6)
+    assert d.extra == {} and Detections(*[np.zeros(1, np.float32)] * 6).extra is not d.extra

@@ -303,3 +303,97 @@ def test_aided_search_window_edge():
     np.testing.assert_array_equal(fsel, [[1024.0, 4096.0, 0.0, 0.0]])
     np.testing.assert_array_equal(bsel, [[3, 9, -1, -1]])
     assert good.tolist() == [1]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_refine_finish_equals_refine(seed):
+    """Step 5 with the kernel's tail (refine_rows with the kernel) against numpy's _refine: ranges, speeds and
+    residuals bit for bit, for pairs on the model and off it by up to a hundred bins."""
+    from edge.dsp import pairing
+
+    k = require_kernel("_pairs")
+    stage = _stage()
+    rng = np.random.default_rng(300 + seed)
+    n_pairs = 0
+    for n in (0, 1, 2, 3, 8, 50, 200):
+        idx = rng.integers(0, 10, (n, 4))
+        fm = stage.model.predict(rng.uniform(1.0, 400.0, n), rng.uniform(-50.0, 50.0, n))
+        fm = fm + rng.normal(0.0, 1.0, (n, 4)) * BIN_HZ * rng.choice([0.0, 0.01, 1.0, 100.0], (n, 1))
+        ref = pairing._refine(idx, fm, stage.model, 5, 2)
+        assert_same_pairs(pairing.refine_rows(idx, fm, stage.model, 5, 2, k), ref)
+        n_pairs += n
+    assert n_pairs > 200
+
+
+def test_refine_finish_checks_its_arrays():
+    k = require_kernel("_pairs")
+    fm = np.ones((3, 4))
+    sol = np.ones((3, 2))
+    k.refine_finish(fm, sol, fm)
+    for args in ((np.asfortranarray(fm), sol, fm), (fm, sol[:2], fm), (fm, sol, fm.astype(np.float32)),
+                 (fm, np.ones((3, 3)), fm)):
+        with pytest.raises(ValueError):
+            k.refine_finish(*args)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_drop_rows_equals_boolean_indexing(seed):
+    """The kept rows of drop_static's five arrays in one call, against numpy's ``a[~static]``: the same dtypes,
+    shapes and bytes; None when nothing is static; False for arrays it does not take."""
+    k = require_kernel("_pairs")
+    rng = np.random.default_rng(400 + seed)
+    for n in (1, 2, 5, 30):
+        cols = (rng.integers(0, 50, (n, 4)), rng.normal(0, 100, n).astype(np.float32),
+                rng.normal(0, 10, n).astype(np.float32), rng.random(n).astype(np.float32),
+                rng.integers(0, 256, (n, 4)))
+        for static in (rng.random(n) < 0.4, np.zeros(n, bool), np.ones(n, bool)):
+            for s_in in (static, static.view(np.uint8)):
+                out = k.drop_rows(s_in, cols)
+                if not static.any():
+                    assert out is None
+                    continue
+                assert len(out) == len(cols)
+                for a, c in zip(out, cols):
+                    want = c[~static]
+                    assert a.dtype == want.dtype and a.shape == want.shape and a.flags.c_contiguous
+                    assert a.tobytes() == want.tobytes()
+                    assert not np.shares_memory(a, c)
+        if n < 2:  # (one row is contiguous in any layout)
+            continue
+        static = np.arange(n) % 2 == 0
+        for bad in ((np.asfortranarray(np.ones((n, 4))),), (np.ones(n + 1),), (np.ones(2 * n)[::2],),
+                    (np.array(["x"] * n, object),), (np.ones(n, ">f4"),), ([1.0] * n,)):
+            assert k.drop_rows(static, cols + bad) is False
+        assert k.drop_rows(static.astype(np.int64), cols) is False
+
+
+def test_drop_static_with_the_kernel_equals_numpy(monkeypatch):
+    """drop_static of every frame of a seeded highway4-traffic run (150 frames; static residue dropped in most):
+    the kernel's rows are numpy's."""
+    require_kernel("_pairs")
+    from edge.pipeline import StageTimer
+    from tests.edge import lane_golden as g
+
+    pipe, frames = g.build("highway4-traffic", 1, 5.0)
+    stage = pipe.pairs
+    real = stage.drop_static
+    n = {"calls": 0, "dropped": 0}
+
+    def spy(pairs, pk, spectra, floor):
+        out = real(pairs, pk, spectra, floor)
+        k, stage.kernel = stage.kernel, None
+        try:
+            ref = real(pairs, pk, spectra, floor)
+        finally:
+            stage.kernel = k
+        assert_same_pairs(out[0], ref[0])
+        assert out[1].dtype == ref[1].dtype and out[1].tobytes() == ref[1].tobytes()
+        n["calls"] += 1
+        n["dropped"] += pk.shape[0] - ref[1].shape[0]
+        return out
+
+    monkeypatch.setattr(stage, "drop_static", spy)
+    t = StageTimer(16)
+    for f in frames(150):
+        pipe.process(f, t)
+    assert n["calls"] > 50 and n["dropped"] > 50, n

@@ -239,6 +239,14 @@ def test_static_residue_equals_numpy(seed, n, learning):
     np.testing.assert_array_equal(got, want)
     assert n < 40 or 0 < got.sum() < n  # both answers occur
     assert k.static_residue(cmap._background, bins - n_bin - 1, power, floor, 2.5, 4.0) is None or n == 0
+    # the map of other strides (read through the numpy C API, as the memoryview did): the same answer
+    wide = np.zeros((n_rx, n_seg, 2 * n_bin), np.complex64)
+    wide[:, :, ::2] = cmap._background
+    got2 = k.static_residue(wide[:, :, ::2], bins, power, floor, 2.5, 4.0)
+    want2 = k.static_residue(cmap._background, bins, power, floor, 2.5, 4.0)
+    assert got2.dtype == bool and got2.tobytes() == want2.tobytes()
+    with pytest.raises(ValueError):
+        k.static_residue(cmap._background.astype(np.complex128), bins, power, floor, 2.5, 4.0)
 
 
 def _maps(shape, rng, init_frames):
