@@ -19,6 +19,27 @@ include "_views.pxi"
 include "_alloc.pxi"
 
 
+@cython.cdivision(True)
+cdef inline bint _predict_unpaired(double x0, double y0, double vx, double vy, double dt, double dz2, double r_lo,
+                                   double r_hi, _V V_pair_r, _V V_pair_v, Py_ssize_t p, double gate_m,
+                                   double gate_mps, double *r_out, double *v_out) noexcept nogil:
+    """One track's prediction for :func:`predictions`: its range and radial speed ``dt`` later into ``r_out``,
+    ``v_out``; False when it lies outside ``r_lo``..``r_hi``, moves slower than 1 m/s radially, or a pairing of this
+    frame (``V_pair_r``, ``V_pair_v``, ``p`` of them) lies within the gates."""
+    cdef double x = x0 + vx * dt, y = y0 + vy * dt
+    cdef double r = sqrt(x * x + y * y + dz2)
+    cdef double v = (x * vx + y * vy) / r
+    cdef Py_ssize_t j
+    if not (r >= r_lo and r <= r_hi and fabs(v) >= 1.0):
+        return False
+    for j in range(p):
+        if fabs(<double>_pf1(V_pair_r, j)[0] - r) < gate_m and fabs(<double>_pf1(V_pair_v, j)[0] - v) < gate_mps:
+            return False
+    r_out[0] = r
+    v_out[0] = v
+    return True
+
+
 @cython.boundscheck(False)
 @cython.wraparound(False)
 @cython.cdivision(True)
@@ -39,8 +60,7 @@ def predictions(state, sel, double dt, pair_r,
     cdef _V V_coef
     _aview(coef, cnp.NPY_FLOAT64, 1, False, True, &V_coef, "coef")
     cdef Py_ssize_t m = V_sel.n[0], p = V_pair_r.n[0], i, j, row, k = 0
-    cdef double x, y, vx, vy, r, v
-    cdef bint paired
+    cdef double r, v
     r_arr = _empty1(cnp.NPY_FLOAT64, m)
     v_arr = _empty1(cnp.NPY_FLOAT64, m)
     f_arr = _empty2(cnp.NPY_FLOAT64, m, 4)
@@ -52,20 +72,9 @@ def predictions(state, sel, double dt, pair_r,
     _aview(f_arr, cnp.NPY_FLOAT64, 2, True, True, &V_fo, "fo")
     for i in range(m):
         row = _pll(V_sel, i)[0]
-        vx = _pd2(V_state, row, 2)[0]
-        vy = _pd2(V_state, row, 3)[0]
-        x = _pd2(V_state, row, 0)[0] + vx * dt
-        y = _pd2(V_state, row, 1)[0] + vy * dt
-        r = sqrt(x * x + y * y + dz2)
-        v = (x * vx + y * vy) / r
-        if not (r >= r_lo and r <= r_hi and fabs(v) >= 1.0):
-            continue
-        paired = False
-        for j in range(p):
-            if fabs(<double>_pf1(V_pair_r, j)[0] - r) < gate_m and fabs(<double>_pf1(V_pair_v, j)[0] - v) < gate_mps:
-                paired = True
-                break
-        if paired:
+        if not _predict_unpaired(_pd2(V_state, row, 0)[0], _pd2(V_state, row, 1)[0], _pd2(V_state, row, 2)[0],
+                                 _pd2(V_state, row, 3)[0], dt, dz2, r_lo, r_hi, V_pair_r, V_pair_v, p, gate_m,
+                                 gate_mps, &r, &v):
             continue
         _pd1(V_ro, k)[0] = r
         _pd1(V_vo, k)[0] = v
@@ -125,8 +134,8 @@ def select_predictions(state, confirmed, moved, hits, double dt, pair_r, pair_v,
     if V_coef.n[0] != 8:
         raise ValueError("coef needs 8 values")
     p = V_pair_r.n[0]
-    cdef double x0, y0, x, y, vx, vy, r, v, h
-    cdef bint paired, take
+    cdef double x0, y0, vx, vy, r, v, h
+    cdef bint take
     cdef double c[8]
     for j in range(8):
         c[j] = _pd1(V_coef, j)[0]
@@ -156,19 +165,7 @@ def select_predictions(state, confirmed, moved, hits, double dt, pair_r, pair_v,
                 take = not far_approaching or x0 * vx + y0 * vy < 0.0
         if not take:
             continue
-        # predictions()
-        x = x0 + vx * dt
-        y = y0 + vy * dt
-        r = sqrt(x * x + y * y + dz2)
-        v = (x * vx + y * vy) / r
-        if not (r >= r_lo and r <= r_hi and fabs(v) >= 1.0):
-            continue
-        paired = False
-        for j in range(p):
-            if fabs(<double>_pf1(V_pair_r, j)[0] - r) < gate_m and fabs(<double>_pf1(V_pair_v, j)[0] - v) < gate_mps:
-                paired = True
-                break
-        if paired:
+        if not _predict_unpaired(x0, y0, vx, vy, dt, dz2, r_lo, r_hi, V_pair_r, V_pair_v, p, gate_m, gate_mps, &r, &v):
             continue
         ro[k] = r
         vo[k] = v
