@@ -239,6 +239,11 @@ def yaw_live_terms(acc, live, seq,
     _aview(acc, cnp.NPY_FLOAT64, 2, False, True, &V_acc, "acc")
     _aview(live, cnp.NPY_UINT8, 1, False, True, &V_live, "live")
     _aview(seq, cnp.NPY_LONGLONG, 1, False, True, &V_seq, "seq")
+    return _live_term_arrays(V_acc, V_live, V_seq, min_len, max_sd)
+
+
+cdef tuple _live_term_arrays(_V V_acc, _V V_live, _V V_seq, double min_len, double max_sd):
+    """:func:`_live_terms` into new float64 arrays ``(num, den, w)`` of the running tracks that vote."""
     cdef Py_ssize_t cap = V_live.n[0], n_out, i
     cdef char *buf = <char*>PyMem_Malloc((cap + 1) * (sizeof(long long) + 3 * sizeof(double)))
     if buf == NULL:
@@ -271,29 +276,12 @@ def yaw_startup(acc, live, seq, Py_ssize_t n_live, votes, double min_len, double
     _aview(acc, cnp.NPY_FLOAT64, 2, False, True, &V_acc, "acc")
     _aview(live, cnp.NPY_UINT8, 1, False, True, &V_live, "live")
     _aview(seq, cnp.NPY_LONGLONG, 1, False, True, &V_seq, "seq")
-    cdef Py_ssize_t cap = V_live.n[0], n_out = 0, i
-    cdef char *buf
-    cdef long long *ids
-    cdef double *t
+    cdef Py_ssize_t n_out = 0, i
     if n_live:
-        buf = <char*>PyMem_Malloc((cap + 1) * (sizeof(long long) + 3 * sizeof(double)))
-        if buf == NULL:
-            raise MemoryError()
-        ids = <long long*>buf
-        t = <double*>(buf + (cap + 1) * sizeof(long long))
-        try:
-            n_out = _live_terms(V_acc, V_live, V_seq, min_len, max_sd, ids, t, t + cap + 1, t + 2 * (cap + 1))
-            if len(votes) + n_out < min_tracks:
-                return 0, None, None
-            num_a = _empty1(cnp.NPY_FLOAT64, n_out)
-            den_a = _empty1(cnp.NPY_FLOAT64, n_out)
-            w_a = _empty1(cnp.NPY_FLOAT64, n_out)
-            for i in range(n_out):
-                (<double*>cnp.PyArray_DATA(num_a))[i] = t[i]
-                (<double*>cnp.PyArray_DATA(den_a))[i] = t[cap + 1 + i]
-                (<double*>cnp.PyArray_DATA(w_a))[i] = t[2 * (cap + 1) + i]
-        finally:
-            PyMem_Free(buf)
+        num_a, den_a, w_a = _live_term_arrays(V_acc, V_live, V_seq, min_len, max_sd)
+        n_out = cnp.PyArray_DIM(<cnp.ndarray>num_a, 0)
+        if len(votes) + n_out < min_tracks:
+            return 0, None, None
         live_a = arctan2(num_a, den_a)  # (fresh C-contiguous arrays of n_out, as the reference's)
         _aview(live_a, cnp.NPY_FLOAT64, 1, True, True, &V_l, "live votes")
         for i in range(n_out):
