@@ -7,8 +7,9 @@ The numpy references are in :mod:`edge.track.pdaf` (``innovations_each``, ``maha
 :mod:`edge.track.kernels` when they are built.
 
 - :func:`innovations_each` and :func:`quad_d2` do the same float64 operations in the same order as the numpy
-  reference (the cofactor inverse of :func:`edge.track.smallmat.inv_det`, the quadratic form summed term after
-  term in the order i <= j): bit-identical on x86-64 (built without contraction into fused multiply-adds).
+  reference (``H P H'`` in the order of :func:`edge.track.pdaf.hph_product`, the cofactor inverse of
+  :func:`edge.track.smallmat.inv_det`, the quadratic form summed term after term in the order i <= j): bit-identical
+  on x86-64 (built without contraction into fused multiply-adds).
 - :func:`pair_update` (the per-hypothesis PDAF update over the validated pairs) replaces small matrix products
   that numpy hands to BLAS; it equals the reference to rounding (relative 1e-12 on states and covariances).
 """
@@ -67,6 +68,23 @@ cdef inline double _quad2(const double* si, const double* v) noexcept nogil:
     return acc
 
 
+cdef inline void _hph(_V V_h, _V V_p, Py_ssize_t t, Py_ssize_t n, double* out) noexcept nogil:
+    """``out`` (n, n) row-major = ``H_t P_t H_t'`` of ``h`` (T, n, 4), ``p`` (T, 4, 4) in the order of
+    :func:`edge.track.pdaf.hph_product`: ``HP`` summed over k = 0..3 left to right, then ``(HP) H'`` the same."""
+    cdef double hp[3][4]
+    cdef Py_ssize_t i, j
+    for i in range(n):
+        for j in range(4):
+            hp[i][j] = (((_pd3(V_h, t, i, 0)[0] * _pd3(V_p, t, 0, j)[0]
+                          + _pd3(V_h, t, i, 1)[0] * _pd3(V_p, t, 1, j)[0])
+                         + _pd3(V_h, t, i, 2)[0] * _pd3(V_p, t, 2, j)[0])
+                        + _pd3(V_h, t, i, 3)[0] * _pd3(V_p, t, 3, j)[0])
+    for i in range(n):
+        for j in range(n):
+            out[i * n + j] = (((hp[i][0] * _pd3(V_h, t, j, 0)[0] + hp[i][1] * _pd3(V_h, t, j, 1)[0])
+                               + hp[i][2] * _pd3(V_h, t, j, 2)[0]) + hp[i][3] * _pd3(V_h, t, j, 3)[0])
+
+
 cdef cnp.ndarray _view(object flat, Py_ssize_t t, Py_ssize_t m, Py_ssize_t n, int nd):
     """A C-contiguous float64 view (t, m, n) (``nd`` 3) or (t, m, n, n) (``nd`` 4) of the start of ``flat``, a
     writeable C-contiguous float64 vector at least that long; or a new array when ``flat`` is None."""
@@ -85,32 +103,34 @@ cdef cnp.ndarray _view(object flat, Py_ssize_t t, Py_ssize_t m, Py_ssize_t n, in
     return out
 
 
-def innovations_each(z, zh, hph,
+def innovations_each(z, zh, h, p,
                      r_track, rm, double lim, bint prune,
                      buffers=None):
     """``v`` (T, M, n), ``d2`` (T, M), ``s``, ``s_inv`` (T, M, n, n), ``det_s`` (T, M) and the track part ``st``
-    (T, n, n) of :func:`edge.track.pdaf.innovations_each` from ``z`` (M, n), ``z_hat`` (T, n), ``H P H'`` ``hph``
-    (T, n, n), the track's part of ``R`` ``r_track`` (T, n, n) and ``rm`` (M, n, n): ``st = 0.5 (a + a')`` with
-    ``a = hph + r_track``, as numpy. ``prune``: the exact pre-gate with threshold ``lim``
-    (``gamma (1 + margin)``): a pair with ``v_i^2 > lim (st_ii + rm_ii)`` in a component gets ``d2 = inf``,
-    ``S = S^-1 = 0``, ``|S| = 1``. n = 2 or 3. ``buffers``: three writeable C-contiguous float64 vectors whose
-    starts become ``v``, ``s`` and ``s_inv`` (every entry is written; :class:`edge.track.pdaf.PairBuffers`), or
-    None: new arrays."""
+    (T, n, n) of :func:`edge.track.pdaf.innovations_each` from ``z`` (M, n), ``z_hat`` (T, n), ``h`` (T, n, 4),
+    ``p`` (T, 4, 4), the track's part of ``R`` ``r_track`` (T, n, n) and ``rm`` (M, n, n): ``st = 0.5 (a + a')`` with
+    ``a = H P H' + r_track`` (``H P H'`` as :func:`edge.track.pdaf.hph_product`), as numpy. ``prune``: the exact
+    pre-gate with threshold ``lim`` (``gamma (1 + margin)``): a pair with ``v_i^2 > lim (st_ii + rm_ii)`` in a
+    component gets ``d2 = inf``, ``S = S^-1 = 0``, ``|S| = 1``. n = 2 or 3. ``buffers``: three writeable
+    C-contiguous float64 vectors whose starts become ``v``, ``s`` and ``s_inv`` (every entry is written;
+    :class:`edge.track.pdaf.PairBuffers`), or None: new arrays."""
     cdef _V V_z
     _aview(z, cnp.NPY_FLOAT64, 2, False, False, &V_z, "z")
     cdef _V V_zh
     _aview(zh, cnp.NPY_FLOAT64, 2, False, False, &V_zh, "zh")
-    cdef _V V_hph
-    _aview(hph, cnp.NPY_FLOAT64, 3, False, False, &V_hph, "hph")
+    cdef _V V_h
+    _aview(h, cnp.NPY_FLOAT64, 3, False, False, &V_h, "h")
+    cdef _V V_p
+    _aview(p, cnp.NPY_FLOAT64, 3, False, False, &V_p, "p")
     cdef _V V_r_track
     _aview(r_track, cnp.NPY_FLOAT64, 3, False, False, &V_r_track, "r_track")
     cdef _V V_rm
     _aview(rm, cnp.NPY_FLOAT64, 3, False, True, &V_rm, "rm")
     cdef Py_ssize_t nt = V_zh.n[0], nm = V_z.n[0], n = V_z.n[1]
     cdef Py_ssize_t t, m, i, j, nn = n * n, tm
-    if not 2 <= n <= 3 or V_zh.n[1] != n or V_hph.n[0] != nt or V_r_track.n[0] != nt or V_rm.n[0] != nm \
-            or V_hph.n[1] != n or V_hph.n[2] != n or V_r_track.n[1] != n or V_r_track.n[2] != n \
-            or V_rm.n[1] != n or V_rm.n[2] != n:
+    if not 2 <= n <= 3 or V_zh.n[1] != n or V_h.n[0] != nt or V_p.n[0] != nt or V_r_track.n[0] != nt \
+            or V_rm.n[0] != nm or V_h.n[1] != n or V_h.n[2] != 4 or V_p.n[1] != 4 or V_p.n[2] != 4 \
+            or V_r_track.n[1] != n or V_r_track.n[2] != n or V_rm.n[1] != n or V_rm.n[2] != n:
         raise ValueError("innovations_each: inconsistent shapes")
     if buffers is not None and len(buffers) != 3:
         raise ValueError("output buffer: three vectors (v, s, s_inv)")
@@ -133,12 +153,14 @@ def innovations_each(z, zh, hph,
     cdef double* vp
     cdef bint far
     cdef double inf = float("inf")
+    cdef double hph[9]
     with nogil:
         for t in range(nt):
+            _hph(V_h, V_p, t, n, hph)
             for i in range(n):
                 for j in range(n):
-                    st[(t * n + i) * n + j] = 0.5 * ((_pd3(V_hph, t, i, j)[0] + _pd3(V_r_track, t, i, j)[0])
-                                                     + (_pd3(V_hph, t, j, i)[0] + _pd3(V_r_track, t, j, i)[0]))
+                    st[(t * n + i) * n + j] = 0.5 * ((hph[i * n + j] + _pd3(V_r_track, t, i, j)[0])
+                                                     + (hph[j * n + i] + _pd3(V_r_track, t, j, i)[0]))
         for t in range(nt):
             stp = &st[t * nn]
             for m in range(nm):

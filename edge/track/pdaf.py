@@ -34,8 +34,8 @@ import scipy.special
 from edge.track.smallmat import inv_det
 
 __all__ = ["gate_threshold", "unit_ball_volume", "Innovations", "innovations", "mahalanobis_d2", "association_weights",
-           "combined_update", "InnovationsEach", "innovations_each", "PairBuffers", "gate_volume_each",
-           "PairInnovations",
+           "combined_update", "InnovationsEach", "hph_product", "innovations_each", "PairBuffers",
+           "gate_volume_each", "PairInnovations",
            "pair_innovations", "combined_update_pairs"]
 
 
@@ -260,11 +260,22 @@ class PairBuffers:
         return PairBuffers()
 
 
+def hph_product(h: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``H P H'`` (T, n, n) of ``h`` (T, n, 4) and ``p`` (T, 4, 4) without BLAS, in one fixed order of float64
+    operations that the kernels repeat: ``(HP)_ij = ((h_i0 p_0j + h_i1 p_1j) + h_i2 p_2j) + h_i3 p_3j``, then
+    ``(HPH')_ij = (((HP)_i0 h_j0 + (HP)_i1 h_j1) + (HP)_i2 h_j2) + (HP)_i3 h_j3``."""
+    hp = (h[:, :, 0, None] * p[:, None, 0, :] + h[:, :, 1, None] * p[:, None, 1, :]
+          + h[:, :, 2, None] * p[:, None, 2, :] + h[:, :, 3, None] * p[:, None, 3, :])  # (T, n, 4)
+    return (hp[:, :, None, 0] * h[:, None, :, 0] + hp[:, :, None, 1] * h[:, None, :, 1]
+            + hp[:, :, None, 2] * h[:, None, :, 2] + hp[:, :, None, 3] * h[:, None, :, 3])
+
+
 def innovations_each(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndarray, r_track: np.ndarray,
                      r_meas: np.ndarray, prune_gamma: float | None = None, kernel=None,
                      buffers: PairBuffers | None = None) -> InnovationsEach:
     """``z`` (M, n), ``z_hat`` (T, n), ``h`` (T, n, 4), ``p`` (T, 4, 4), ``r_track`` (T, n, n) the track's part of
-    ``R``, ``r_meas`` (M, n, n) each detection's part: ``S_tm = H_t P_t H_t' + r_track_t + r_meas_m``.
+    ``R``, ``r_meas`` (M, n, n) each detection's part: ``S_tm = H_t P_t H_t' + r_track_t + r_meas_m``
+    (``H P H'`` of :func:`hph_product`).
 
     ``prune_gamma``: an exact pre-gate. A marginal Mahalanobis distance never exceeds the joint one,
     ``v' S^-1 v >= v_i^2 / S_ii`` for every component ``i``, so a pair with ``v_i^2 > gamma S_ii`` in any component
@@ -276,15 +287,14 @@ def innovations_each(z: np.ndarray, z_hat: np.ndarray, h: np.ndarray, p: np.ndar
     determinant, ``d2``) in one pass with the same arithmetic (bit-identical); None: numpy. ``buffers``: the kernel
     writes ``v``, ``S`` and ``S^-1`` into these (:class:`PairBuffers`; the result's arrays are then views, valid until
     their next use)."""
-    hph = h @ p @ h.transpose(0, 2, 1)
     if kernel is not None and z.shape[1] in (2, 3):
         prune = prune_gamma is not None and z_hat.shape[0] * z.shape[0] >= _PREGATE_MIN_PAIRS
         lim = prune_gamma * (1.0 + _PREGATE_MARGIN) if prune else 0.0
         flat = None if buffers is None else buffers.flat(z_hat.shape[0], z.shape[0], z.shape[1])
-        v, d2, s, s_inv, det_s, st = kernel.innovations_each(z, z_hat, hph, r_track, np.ascontiguousarray(r_meas),
+        v, d2, s, s_inv, det_s, st = kernel.innovations_each(z, z_hat, h, p, r_track, np.ascontiguousarray(r_meas),
                                                              lim, prune, flat)
         return InnovationsEach(v, d2, s, s_inv, det_s, st)
-    st = hph + r_track
+    st = hph_product(h, p) + r_track
     st = 0.5 * (st + st.transpose(0, 2, 1))
     v = z[None, :, :] - z_hat[:, None, :]  # (T, M, n)
     if prune_gamma is not None and v.shape[0] * v.shape[1] >= _PREGATE_MIN_PAIRS:

@@ -75,8 +75,8 @@ def test_innovations_each_into_reused_buffers_is_bit_identical():
                 shared.append(np.shares_memory(got.s, buf.views(1, 1, 1)[1]))
     assert all(shared) and len(shared) >= 8
     assert copy.deepcopy(buf)._flat is None and pickle.loads(pickle.dumps(buf))._flat is None
-    args = (np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((4, 2, 2)), np.zeros((4, 2, 2)), np.zeros((3, 2, 2)), 1.0,
-            False)
+    args = (np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((4, 2, 4)), np.zeros((4, 4, 4)), np.zeros((4, 2, 2)),
+            np.zeros((3, 2, 2)), 1.0, False)
     for bad in ((np.zeros(23), np.zeros(48), np.zeros(48)), (np.zeros(24), np.zeros(47), np.zeros(48)),
                 (np.zeros(24), np.zeros(48), np.zeros(48, np.float32)), (np.zeros(24), np.zeros(96)[::2], np.zeros(48)),
                 (np.zeros(24), np.zeros(48))):
@@ -86,9 +86,48 @@ def test_innovations_each_into_reused_buffers_is_bit_identical():
     ro.flags.writeable = False
     with pytest.raises(ValueError, match="output buffer"):
         K.innovations_each(*args, (np.zeros(24), ro, np.zeros(48)))
-    with pytest.raises(ValueError, match="inconsistent shapes"):
-        K.innovations_each(np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((4, 2, 2)), np.zeros((3, 2, 2)),
-                           np.zeros((3, 2, 2)), 1.0, False)
+    for bad_h, bad_p in [(np.zeros((4, 2, 4)), np.zeros((3, 4, 4))), (np.zeros((4, 2, 3)), np.zeros((4, 4, 4))),
+                         (np.zeros((4, 3, 4)), np.zeros((4, 4, 4))), (np.zeros((4, 2, 4)), np.zeros((4, 4, 3)))]:
+        with pytest.raises(ValueError, match="inconsistent shapes"):
+            K.innovations_each(np.zeros((3, 2)), np.zeros((4, 2)), bad_h, bad_p, np.zeros((4, 2, 2)),
+                               np.zeros((3, 2, 2)), 1.0, False)
+
+
+def _track_part(h, p, r_track):
+    """The track part ``st`` of ``innovations_each``'s numpy reference: ``0.5 (a + a')``, ``a = H P H' + r_track``."""
+    from edge.track.pdaf import hph_product
+
+    a = hph_product(h, p) + r_track
+    return 0.5 * (a + a.transpose(0, 2, 1))
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("n", [2, 3])
+def test_hph_product_in_the_kernel_is_bit_identical(seed, n):
+    """``H P H'`` of ``innovations_each``'s kernel against :func:`edge.track.pdaf.hph_product` (through ``st``) on
+    random dense ``H`` and ``P`` of wide range (signs, zeros, signed zeros, inf, NaN), strided and in Fortran order;
+    the explicit product equals numpy's matmul to rounding."""
+    from edge.track.pdaf import hph_product
+
+    rng = np.random.default_rng(seed)
+    t = 50
+    h = rng.normal(0, 1, (t, 3, 4)) * 10.0 ** rng.integers(-6, 6, (t, 3, 4))
+    p = rng.normal(0, 1, (t, 4, 4)) * 10.0 ** rng.integers(-6, 6, (t, 4, 4))
+    h[rng.random(h.shape) < 0.2] = 0.0
+    h[rng.random(h.shape) < 0.05] = -0.0
+    p[rng.random(p.shape) < 0.1] = -0.0
+    hn, ha = h[:, :n], np.abs(h[:, :n])
+    bound = ha @ np.abs(p) @ ha.transpose(0, 2, 1)  # the sum of the terms' magnitudes
+    assert (np.abs(hph_product(hn, p) - hn @ p @ hn.transpose(0, 2, 1)) <= 1e-14 * bound).all()
+    h[3, 0, 1], p[4, 2, 2], p[5, 0, 3] = np.inf, np.nan, -np.inf
+    r_track = rng.normal(0, 1, (t, n, n))
+    z, zh, rm = rng.normal(0, 1, (2, n)), rng.normal(0, 1, (t, n)), np.zeros((2, n, n))
+    with np.errstate(invalid="ignore"):  # inf * 0
+        ref = _track_part(h[:, :n], p, r_track)
+    for hh, pp in [(h[:, :n], p), (np.ascontiguousarray(h[:, :n]), p[::-1].copy()[::-1]),
+                   (np.asfortranarray(h[:, :n]), np.asfortranarray(p))]:
+        st = K.innovations_each(z, zh, hh, pp, r_track, rm, 0.0, False)[5]
+        assert st.tobytes() == ref.tobytes()
 
 
 @settings(max_examples=60, deadline=None, derandomize=True)
@@ -804,7 +843,7 @@ def test_published_is_bit_identical(smoother, length, tentative, motion):
 def test_measurement_prediction_is_bit_identical(motion):
     """``MeasurementModel.predict`` (SNR noise model) from the ``measure_predict`` kernel against numpy on the
     tracker's own predictions each frame (30 vehicles with clutter): z_hat, H, the track's R, the modes' z_hat and H,
-    the heading kept for the extent update and the distances, all exactly equal."""
+    the heading kept for the extent update and the innovations (``S`` with its ``H P H'``), all exactly equal."""
     tr = PdafTracker(PdafConfig(motion_model=motion))
     mm = tr.measurement_model
     assert mm.kernel is K and mm.per_detection
@@ -821,7 +860,7 @@ def test_measurement_prediction_is_bit_identical(motion):
         for f in ("zh", "h", "r", "rm", "zhm", "hm"):
             a, b = getattr(out, f), getattr(ref, f)
             assert (a is None and b is None) or np.array_equal(a, b), f
-        assert np.array_equal(out.inn.d2, ref.inn.d2)
+        assert _same(out.inn, ref.inn)  # v, d2, S, S^-1, |S| and the track part (H P H' in the kernel)
         assert mm._head[0] is head_ref[0] and all(np.array_equal(a, b) for a, b in zip(mm._head[1], head_ref[1]))
         checked.append(len(pred.x) * (out.zh.shape[1] == 3))
         return out
