@@ -1485,18 +1485,20 @@ def claimed_any(const double[:, :, ::1] v, const double[:, :, ::1] s, double gam
     return out_a
 
 
-def claimed_any_polar(v, s_track, rr,
+def claimed_any_polar(v, s_track, xy, double var_r, double var_az,
                       double floor_var, double gamma):
-    """:func:`claimed_any` with ``S = s_track`` plus the converted polar noise ``rr`` (T, 2, 2) on its position block
-    and ``floor_var`` on that block's diagonal: the ``S`` of ``MeasurementModel.with_sensor`` (``s_track.copy()``,
-    then ``+= rr`` after ``rr``'s diagonal ``+= floor_var``), the same sums."""
+    """:func:`claimed_any` with ``S = s_track`` plus the converted polar noise ``rr`` (:func:`polar_noise` at the
+    ground points ``xy`` (T, >= 2; columns x, y) without its floor) on its position block and ``floor_var`` on that
+    block's diagonal: the ``S`` of ``MeasurementModel.with_sensor`` (``s_track.copy()``, then ``+= rr`` after
+    ``rr``'s diagonal ``+= floor_var``), the same operations."""
     cdef _V V_v
     _aview(v, cnp.NPY_FLOAT64, 3, False, True, &V_v, "v")
     cdef _V V_s_track
     _aview(s_track, cnp.NPY_FLOAT64, 3, False, True, &V_s_track, "s_track")
-    cdef _V V_rr
-    _aview(rr, cnp.NPY_FLOAT64, 3, False, True, &V_rr, "rr")
+    cdef _V V_xy
+    _aview(xy, cnp.NPY_FLOAT64, 2, False, False, &V_xy, "xy")
     cdef Py_ssize_t nt = V_v.n[0], nm = V_v.n[1], n = V_v.n[2], t, i, k
+    cdef double rr[4]
     out_a = _zeros1(cnp.NPY_UINT8, nm)
     cdef _V V_out
     _aview(out_a, cnp.NPY_UINT8, 1, True, True, &V_out, "out")
@@ -1504,17 +1506,18 @@ def claimed_any_polar(v, s_track, rr,
         raise ValueError("claimed_any_polar: n must be 2 or 3")
     if V_s_track.n[0] != nt or V_s_track.n[1] != n or V_s_track.n[2] != n:
         raise ValueError("claimed_any_polar: s_track must be (T, n, n) with v's T and n")
-    if V_rr.n[0] != nt or V_rr.n[1] != 2 or V_rr.n[2] != 2:
-        raise ValueError("claimed_any_polar: rr must be (T, 2, 2)")
+    if V_xy.n[0] != nt or V_xy.n[1] < 2:
+        raise ValueError("claimed_any_polar: xy must be (T, >= 2) with v's T")
     s_a = _empty3(cnp.NPY_FLOAT64, nt, n, n)
     cdef _V V_s
     _aview(s_a, cnp.NPY_FLOAT64, 3, True, True, &V_s, "s")
     for t in range(nt):
+        _polar_noise(_pd2(V_xy, t, 0)[0], _pd2(V_xy, t, 1)[0], var_r, var_az, rr)
         for i in range(n):
             for k in range(n):
                 if i < 2 and k < 2:
                     _pd3(V_s, t, i, k)[0] = _pd3(V_s_track, t, i, k)[0] + (
-                        (_pd3(V_rr, t, i, k)[0] + floor_var) if i == k else _pd3(V_rr, t, i, k)[0])
+                        (rr[2 * i + k] + floor_var) if i == k else rr[2 * i + k])
                 else:
                     _pd3(V_s, t, i, k)[0] = _pd3(V_s_track, t, i, k)[0]
     if nt:
@@ -1546,37 +1549,37 @@ cdef void _claimed(const double[:, :, ::1] v, const double* s, double gamma, cnp
                 out[m] = 1
 
 
-def polar_jacobian(xy, double var_r, double var_az):
-    """``kalman.polar_position_noise``'s factors at the ground points ``xy`` (T, >= 2; columns x, y): the Jacobian
-    ``j`` (T, 2, 2) and ``jd = j * [var_r, var_az]`` (each column scaled), the same operations (``jd @ j'`` is the
-    noise before its floor; that product stays numpy's). Returns ``(jd, j)``."""
+cdef inline void _polar_noise(double x, double y, double var_r, double var_az, double* rr) noexcept nogil:
+    """``rr`` (2, 2) row-major = ``J diag(var_r, var_az) J'`` at the ground point (x, y), the operations of
+    ``kalman.polar_position_noise`` before its floor: ``J`` as there, ``jd = J diag(d)``,
+    ``rr_ik = jd_i0 j_k0 + jd_i1 j_k1``."""
+    cdef double r = hypot(x, y)
+    cdef double rs = _np_max(r, 1e-6)
+    cdef double sn = x / rs, cs = y / rs
+    cdef double j00 = sn, j01 = r * cs, j10 = cs, j11 = (-r) * sn
+    cdef double jd00 = j00 * var_r, jd01 = j01 * var_az, jd10 = j10 * var_r, jd11 = j11 * var_az
+    rr[0] = jd00 * j00 + jd01 * j01
+    rr[1] = jd00 * j10 + jd01 * j11
+    rr[2] = jd10 * j00 + jd11 * j01
+    rr[3] = jd10 * j10 + jd11 * j11
+
+
+def polar_noise(xy, double var_r, double var_az, double floor_var):
+    """``kalman.polar_position_noise`` (T, 2, 2) at the ground points ``xy`` (T, >= 2; columns x, y) with the
+    variances ``var_r``, ``var_az`` and ``floor_var`` (the floor's variance) on the diagonal: the same operations."""
     cdef _V V_xy
     _aview(xy, cnp.NPY_FLOAT64, 2, False, False, &V_xy, "xy")
     cdef Py_ssize_t nt = V_xy.n[0], t
     if V_xy.n[1] < 2:
-        raise ValueError("polar_jacobian: xy needs the columns x, y")
-    j_a = _empty3(cnp.NPY_FLOAT64, nt, 2, 2)
-    jd_a = _empty3(cnp.NPY_FLOAT64, nt, 2, 2)
-    cdef _V V_j
-    _aview(j_a, cnp.NPY_FLOAT64, 3, True, True, &V_j, "j")
-    cdef _V V_jd
-    _aview(jd_a, cnp.NPY_FLOAT64, 3, True, True, &V_jd, "jd")
-    cdef double r, rs, sn, cs
+        raise ValueError("polar_noise: xy needs the columns x, y")
+    rr_a = _empty3(cnp.NPY_FLOAT64, nt, 2, 2)
+    cdef double* rr = _f64(rr_a)
     with nogil:
         for t in range(nt):
-            r = hypot(_pd2(V_xy, t, 0)[0], _pd2(V_xy, t, 1)[0])
-            rs = _np_max(r, 1e-6)
-            sn = _pd2(V_xy, t, 0)[0] / rs
-            cs = _pd2(V_xy, t, 1)[0] / rs
-            _pd3(V_j, t, 0, 0)[0] = sn
-            _pd3(V_j, t, 0, 1)[0] = r * cs
-            _pd3(V_j, t, 1, 0)[0] = cs
-            _pd3(V_j, t, 1, 1)[0] = (-r) * sn
-            _pd3(V_jd, t, 0, 0)[0] = _pd3(V_j, t, 0, 0)[0] * var_r
-            _pd3(V_jd, t, 0, 1)[0] = _pd3(V_j, t, 0, 1)[0] * var_az
-            _pd3(V_jd, t, 1, 0)[0] = _pd3(V_j, t, 1, 0)[0] * var_r
-            _pd3(V_jd, t, 1, 1)[0] = _pd3(V_j, t, 1, 1)[0] * var_az
-    return jd_a, j_a
+            _polar_noise(_pd2(V_xy, t, 0)[0], _pd2(V_xy, t, 1)[0], var_r, var_az, &rr[4 * t])
+            rr[4 * t] = rr[4 * t] + floor_var
+            rr[4 * t + 3] = rr[4 * t + 3] + floor_var
+    return rr_a
 
 
 def imm_seeded(mu, pm, p, Py_ssize_t k, double w,

@@ -74,7 +74,8 @@ def polar_position_noise(xy: np.ndarray, range_sigma_m: float, az_sigma_rad: flo
     """(T, 2, 2) covariance of a converted polar position measurement at ground points ``xy`` (T, 2).
 
     ``x = r sin(az)``, ``y = r cos(az)`` (Lim eq. 16); ``J = [[sin az, r cos az], [cos az, -r sin az]]``.
-    ``floor_sigma_m`` adds an isotropic variance (where on an extended vehicle the peak lands).
+    ``floor_sigma_m`` adds an isotropic variance (where on an extended vehicle the peak lands). The product
+    ``J diag(d) J'`` is summed without BLAS, in the kernels' order: ``(jd_i0 j_k0) + (jd_i1 j_k1)``, ``jd = J diag(d)``.
     """
     r = np.hypot(xy[:, 0], xy[:, 1])
     r_safe = np.maximum(r, 1e-6)
@@ -83,7 +84,8 @@ def polar_position_noise(xy: np.ndarray, range_sigma_m: float, az_sigma_rad: flo
     j[:, 0, 0], j[:, 0, 1] = s, r * c
     j[:, 1, 0], j[:, 1, 1] = c, -r * s
     d = np.array([range_sigma_m**2, az_sigma_rad**2])
-    rr = (j * d[None, None, :]) @ j.transpose(0, 2, 1)
+    jd = j * d[None, None, :]
+    rr = jd[:, :, None, 0] * j[:, None, :, 0] + jd[:, :, None, 1] * j[:, None, :, 1]
     rr[:, 0, 0] += floor_sigma_m**2
     rr[:, 1, 1] += floor_sigma_m**2
     return rr

@@ -1354,20 +1354,23 @@ def _polar_points(rng, t):
 
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("t", [0, 1, 7, 60])
-def test_polar_jacobian_is_identical(seed, t):
-    """``polar_jacobian``'s factors, multiplied by numpy and floored as ``kalman.polar_position_noise`` does, give that
-    function's noise bit for bit (NaN included), from strided states."""
+def test_polar_noise_is_identical(seed, t):
+    """``polar_noise`` gives ``kalman.polar_position_noise``'s noise bit for bit (NaN included), from strided states;
+    that function's explicit product equals numpy's matmul ``J diag(d) J'`` to rounding."""
     from edge.track import kalman
 
     rng = np.random.default_rng(seed)
     xp = _polar_points(rng, t)
     var_r, var_az, f = 0.3**2, math.radians(1.5)**2, 0.4
-    jd, j = K.polar_jacobian(xp, var_r, var_az)
-    rr = jd @ j.transpose(0, 2, 1)
-    rr[:, 0, 0] += f**2
-    rr[:, 1, 1] += f**2
+    rr = K.polar_noise(xp, var_r, var_az, f**2)
     want = kalman.polar_position_noise(xp[:, :2], 0.3, math.radians(1.5), f)
-    assert rr.shape == want.shape and rr.tobytes() == want.tobytes()
+    assert rr.shape == want.shape and rr.dtype == want.dtype and rr.tobytes() == want.tobytes()
+    r = np.hypot(xp[:, 0], xp[:, 1])
+    sn, cs = xp[:, 0] / np.maximum(r, 1e-6), xp[:, 1] / np.maximum(r, 1e-6)
+    j = np.stack([np.column_stack([sn, r * cs]), np.column_stack([cs, -r * sn])], axis=1)
+    blas = (j * np.array([var_r, var_az])) @ j.transpose(0, 2, 1) + f**2 * np.eye(2)
+    fin = np.isfinite(want).all(axis=(1, 2))
+    np.testing.assert_allclose(want[fin], blas[fin], rtol=1e-13, atol=1e-12)
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -1390,10 +1393,9 @@ def test_claimed_any_polar_is_identical(seed, t, m, n):
     v = rng.normal(0, 3.0, (t, m, n))
     s = mm.with_sensor(xp, s_track)
     d2 = mahalanobis_d2(v, s)
-    jd, j = K.polar_jacobian(xp, c.range_sigma_m**2, math.radians(c.azimuth_sigma_deg)**2)
-    rr = jd @ j.transpose(0, 2, 1)
     for gamma in [gate_threshold(0.999, n), 1e-3, np.inf] + ([float(np.median(d2))] if d2.size else []):
-        got = K.claimed_any_polar(v, s_track, rr, c.extent_sigma_m**2, gamma)
+        got = K.claimed_any_polar(v, s_track, xp, c.range_sigma_m**2, math.radians(c.azimuth_sigma_deg)**2,
+                                  c.extent_sigma_m**2, gamma)
         assert got.dtype == np.uint8
         assert np.array_equal(got, K.claimed_any(v, s, gamma))
         assert np.array_equal(got.view(bool), (d2 <= gamma).any(axis=0))

@@ -283,12 +283,12 @@ class SnrNoiseModel(MeasurementModel):
                                gamma: float) -> np.ndarray:
         if self.kernel is None or not constant or mp.inn.v.shape[2] not in (2, 3):
             return super().seed_exclusion_claimed(mp, xp, constant, gamma)
-        # the inverses, distances and the test in one kernel call, S as with_sensor's (bit-identical): the converted
-        # polar noise's factors from the kernel, their product numpy's (BLAS), as kalman.polar_position_noise
+        # the converted polar noise, the inverses, distances and the test in one kernel call, S as with_sensor's
+        # (bit-identical: kalman.polar_position_noise's operations)
         c = self.cfg
-        jd, j = self.kernel.polar_jacobian(xp, c.range_sigma_m**2, self._az_sigma_rad**2)
-        return self.kernel.claimed_any_polar(np.ascontiguousarray(mp.inn.v), np.ascontiguousarray(mp.inn.s_track),
-                                             jd @ j.transpose(0, 2, 1), c.extent_sigma_m**2, gamma).view(bool)
+        return self.kernel.claimed_any_polar(np.ascontiguousarray(mp.inn.v), np.ascontiguousarray(mp.inn.s_track), xp,
+                                             c.range_sigma_m**2, self._az_sigma_rad**2, c.extent_sigma_m**2,
+                                             gamma).view(bool)
 
     def state_update(self, xp, pp, mp: MeasurementPrediction, beta, beta0):
         """The PDAF posterior with one gain per hypothesis (:func:`edge.track.pdaf.combined_update`)."""
