@@ -276,6 +276,30 @@ cdef extern from *:
     static void ksp_apply_power(float *const *sp, float *const *bp, int n_rx, int n, float *pp) {
         int k = 0, r;
         ksp_v4 re, im, s0, s1, p = {0, 0, 0, 0};
+    #define KSP_APPLY_CHANNEL(s, b) do {                                                                 \
+            s0 = ksp_load(s + 2 * k) - ksp_load(b + 2 * k);                                              \
+            s1 = ksp_load(s + 2 * k + 4) - ksp_load(b + 2 * k + 4);                                      \
+            ksp_store(s + 2 * k, s0);                                                                    \
+            ksp_store(s + 2 * k + 4, s1);                                                                \
+            re = KSP_SHUF(s0, s1, 0, 2, 4, 6);                                                           \
+            im = KSP_SHUF(s0, s1, 1, 3, 5, 7);                                                           \
+        } while (0)
+        if (n_rx == 4) {  /* the SIMO board's four channels, unrolled */
+            float *s_0 = sp[0], *s_1 = sp[1], *s_2 = sp[2], *s_3 = sp[3];
+            const float *b_0 = bp[0], *b_1 = bp[1], *b_2 = bp[2], *b_3 = bp[3];
+            for (; k + 4 <= n; k += 4) {
+                KSP_APPLY_CHANNEL(s_0, b_0);
+                p = re * re + im * im;
+                KSP_APPLY_CHANNEL(s_1, b_1);
+                p = p + (re * re + im * im);
+                KSP_APPLY_CHANNEL(s_2, b_2);
+                p = p + (re * re + im * im);
+                KSP_APPLY_CHANNEL(s_3, b_3);
+                p = p + (re * re + im * im);
+                ksp_store(pp + k, p);
+            }
+        }
+    #undef KSP_APPLY_CHANNEL
         for (; k + 4 <= n; k += 4) {
             for (r = 0; r < n_rx; r++) {
                 float *s = sp[r] + 2 * k, *b = bp[r] + 2 * k;
