@@ -151,6 +151,7 @@ def _child(argv: list[str]) -> int:
 
     from edge.bench import _hooks
     from edge.commands.common import config_from_args
+    from edge.ops.heap import frozen_heap
     from edge.pipeline import StageTimer, build_pipeline
     from hal import open_radar
 
@@ -162,11 +163,19 @@ def _child(argv: list[str]) -> int:
     timer = StageTimer(16)
     hooks = _hooks(args.profile)
     fft = hooks.fft_bound(fe, cfg) if hasattr(hooks, "fft_bound") else None
-    for f in frames[: args.warmup]:
-        pipe.process(f, timer)
-        if fft is not None:
-            fft(f)
-    nxt = {"pipeline": args.warmup, "fft": args.warmup}
+    with frozen_heap():  # as the frame loop runs its frames
+        for f in frames[: args.warmup]:
+            pipe.process(f, timer)
+            if fft is not None:
+                fft(f)
+        _serve(pipe, fft, timer, frames, args.warmup)
+    pipe.close()
+    return 0
+
+
+def _serve(pipe, fft, timer, frames: list, warmup: int) -> None:
+    """Answer ``WHAT N`` requests on stdin: run the next N frames through the pipeline or the FFT bound."""
+    nxt = {"pipeline": warmup, "fft": warmup}
     print("ready", flush=True)
     for line in _lines():
         words = line.split()
@@ -182,8 +191,6 @@ def _child(argv: list[str]) -> int:
                 fft(f)
         nxt[what] = k + n
         print("done", flush=True)
-    pipe.close()
-    return 0
 
 
 if __name__ == "__main__":

@@ -61,7 +61,8 @@ class ClutterMap(native.KernelUser):
         self._background = np.zeros(frame_shape, dtype=np.complex64)  # (rx, seg, bin) static-clutter map
         self._diff = np.empty(frame_shape, dtype=np.complex64)  # clutter-map scratch
         self._map_frames = 0
-        self._prev = None  # the last frame's raw spectra (clutter_map_static_factor)
+        self._prev = None  # the last frame's raw spectra (of the segment that learns next, once started)
+        self._turn = 0  # the segment whose map learns next
         k_init = cfg.clutter_map_init_frames if self._alpha > 0 else 0
         self._map_init = np.zeros((k_init,) + tuple(frame_shape), np.complex64) if k_init > 1 else None
         self.kernel = native.load("_spectra")  # compiled update, static test and subtraction; None: numpy
@@ -94,23 +95,9 @@ class ClutterMap(native.KernelUser):
         # of a start instead of a minute (their wrong pairings made tracks hop along the rail);
         # initialising it with the first frame alone would leave that frame's vehicles' images
         alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
+        if self._map_init is None and self._prev is not None:
+            return self._learn_in_turn(spec, feedback, power_out, pad, alpha)
         k = self.kernel
-        if (k is not None and power_out is not None and cfg.clutter_map_static_factor > 0 and self._prev is not None
-                and self._map_init is None and spec.flags.c_contiguous and spec.shape[0] <= 16
-                and pad <= spec.shape[-1]):
-            # the update, _hold_moving, _hold_standing, the subtraction and the channel power in one pass
-            hold = None
-            if cfg.clutter_map_hold_speed_mps > 0:
-                cells = self._standing_cells(feedback)
-                if cells:
-                    hold = np.zeros(spec.shape[1:], np.uint8)
-                    for seg, idx in cells:
-                        hold[seg, idx] = 1
-            k.update_apply_power(spec, self._background, self._prev, alpha,
-                                 np.float32(cfg.clutter_map_static_factor), np.float32(cfg.clutter_map_static_rel ** 2),
-                                 hold, power_out, pad, self._change, self._own, self._work)
-            self._map_frames += 1
-            return True
         if k is not None and cfg.clutter_map_static_factor > 0 and self._prev is not None and spec.flags.c_contiguous:
             d = self._diff  # the update and _hold_moving in one kernel (edge/native/_spectra.pyx)
             k.update_hold_moving(spec, self._background, self._prev, d, alpha,
@@ -137,6 +124,54 @@ class ClutterMap(native.KernelUser):
                 self._background[...] = _median_of_frames(self._map_init)
                 self._map_init = None
         self._map_frames += 1
+        spec -= self._background
+        return False
+
+    def _learn_in_turn(self, spec: np.ndarray, feedback: Feedback, power_out: np.ndarray | None, pad: int,
+                       alpha_frame: np.float32) -> bool:
+        """:meth:`subtract` once the map has started: one segment's map learns this frame, in turn, with the weight
+        of as many frames as there are segments (``alpha_frame`` each); every segment is subtracted. The static test
+        compares that segment with the last frame, whose spectra of it were kept then."""
+        cfg = self.config
+        n_seg = spec.shape[1]
+        s = self._turn
+        nxt = (s + 1) % n_seg
+        alpha = np.float32(min(1.0, n_seg * float(alpha_frame)))
+        self._turn = nxt
+        self._map_frames += 1
+        k = self.kernel
+        if (k is not None and power_out is not None and cfg.clutter_map_static_factor > 0 and spec.flags.c_contiguous
+                and spec.shape[0] <= 16 and pad <= spec.shape[-1]):
+            hold = None
+            if cfg.clutter_map_hold_speed_mps > 0:
+                cells = [idx for seg, idx in self._standing_cells(feedback) if seg == s]
+                if cells:
+                    hold = np.zeros(spec.shape[1:], np.uint8)
+                    for idx in cells:
+                        hold[s, idx] = 1
+            k.update_apply_power(spec, self._background, self._prev, alpha,
+                                 np.float32(cfg.clutter_map_static_factor), np.float32(cfg.clutter_map_static_rel ** 2),
+                                 hold, power_out, pad, self._change, self._own, self._work, s, nxt)
+            return True
+        sp = spec[:, s]  # (rx, bin)
+        d = (sp - self._background[:, s]) * alpha
+        if cfg.clutter_map_static_factor > 0:  # _hold_moving's test on this segment
+            n_rx, n = sp.shape
+            dv = (sp - self._prev[:, s]).view(np.float32)
+            change = (dv * dv).reshape(n_rx, n, 2).sum(axis=(0, 2))  # sum over rx of |change|^2
+            med = np.partition(change, n // 2)[n // 2]
+            sv = sp.view(np.float32)
+            own = (sv * sv).reshape(n_rx, n, 2).sum(axis=(0, 2))
+            moving = change > med * np.float32(cfg.clutter_map_static_factor) + own * np.float32(
+                cfg.clutter_map_static_rel ** 2)
+            d[:, moving] = 0
+        if cfg.clutter_map_hold_speed_mps > 0:
+            for seg, idx in self._standing_cells(feedback):
+                if seg == s:
+                    d[:, idx] = 0
+        self._background[:, s] += d
+        self._prev[:, s] = sp
+        self._prev[:, nxt] = spec[:, nxt]
         spec -= self._background
         return False
 

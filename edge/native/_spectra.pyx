@@ -270,6 +270,67 @@ cdef extern from *:
             pp[k] = p;
         }
     }
+
+    /* ksp_update_apply for a segment whose map stands this frame: sp = sp - bp; pp = the channel sum of the new
+       |sp|^2. The same element-wise expressions, so the same bits. */
+    static void ksp_apply_power(float *const *sp, float *const *bp, int n_rx, int n, float *pp) {
+        int k = 0, r;
+        ksp_v4 re, im, s0, s1, p = {0, 0, 0, 0};
+    #define KSP_APPLY_CHANNEL(s, b) do {                                                                 \
+            s0 = ksp_load(s + 2 * k) - ksp_load(b + 2 * k);                                              \
+            s1 = ksp_load(s + 2 * k + 4) - ksp_load(b + 2 * k + 4);                                      \
+            ksp_store(s + 2 * k, s0);                                                                    \
+            ksp_store(s + 2 * k + 4, s1);                                                                \
+            re = KSP_SHUF(s0, s1, 0, 2, 4, 6);                                                           \
+            im = KSP_SHUF(s0, s1, 1, 3, 5, 7);                                                           \
+        } while (0)
+        if (n_rx == 4) {  /* the SIMO board's four channels, unrolled */
+            float *s_0 = sp[0], *s_1 = sp[1], *s_2 = sp[2], *s_3 = sp[3];
+            const float *b_0 = bp[0], *b_1 = bp[1], *b_2 = bp[2], *b_3 = bp[3];
+            for (; k + 4 <= n; k += 4) {
+                KSP_APPLY_CHANNEL(s_0, b_0);
+                p = re * re + im * im;
+                KSP_APPLY_CHANNEL(s_1, b_1);
+                p = p + (re * re + im * im);
+                KSP_APPLY_CHANNEL(s_2, b_2);
+                p = p + (re * re + im * im);
+                KSP_APPLY_CHANNEL(s_3, b_3);
+                p = p + (re * re + im * im);
+                ksp_store(pp + k, p);
+            }
+        }
+    #undef KSP_APPLY_CHANNEL
+        for (; k + 4 <= n; k += 4) {
+            for (r = 0; r < n_rx; r++) {
+                float *s = sp[r] + 2 * k, *b = bp[r] + 2 * k;
+                s0 = ksp_load(s) - ksp_load(b);
+                s1 = ksp_load(s + 4) - ksp_load(b + 4);
+                ksp_store(s, s0);
+                ksp_store(s + 4, s1);
+                re = KSP_SHUF(s0, s1, 0, 2, 4, 6);
+                im = KSP_SHUF(s0, s1, 1, 3, 5, 7);
+                if (r == 0)
+                    p = re * re + im * im;
+                else
+                    p = p + (re * re + im * im);
+            }
+            ksp_store(pp + k, p);
+        }
+        for (; k < n; k++) {
+            float q = 0;
+            for (r = 0; r < n_rx; r++) {
+                float *s = sp[r] + 2 * k, *b = bp[r] + 2 * k;
+                float sr = s[0] - b[0], si = s[1] - b[1];
+                s[0] = sr;
+                s[1] = si;
+                if (r == 0)
+                    q = sr * sr + si * si;
+                else
+                    q = q + (sr * sr + si * si);
+            }
+            pp[k] = q;
+        }
+    }
     """
     int KSP_MAX_RX
     void ksp_change_own(const float* const* sp, const float* const* pp, int n_rx, int n, float* cp,
@@ -281,6 +342,7 @@ cdef extern from *:
                         Py_ssize_t n) noexcept nogil
     void ksp_update_apply(float* const* sp, float* const* bp, float* const* pv, int n_rx, int n,
                           const float* keep, float alpha, float* pp) noexcept nogil
+    void ksp_apply_power(float* const* sp, float* const* bp, int n_rx, int n, float* pp) noexcept nogil
 
 
 def to_complex(i, q, w, out):
@@ -461,12 +523,14 @@ def apply_map_power(float complex[:, :, ::1] spec, float complex[:, :, ::1] back
 
 
 def update_apply_power(spec, background, prev, float alpha, float factor, float rel2, hold, ppad, Py_ssize_t h,
-                       change, own, work):
+                       change, own, work, Py_ssize_t seg=-1, Py_ssize_t keep_seg=-1):
     """:func:`update_hold_moving`, the update held where ``hold`` (seg, bin) uint8 is non-zero (None: nowhere), then
     :func:`apply_map_power`, in one pass over the cells: ``prev = spec``; ``d`` as there; ``background += d``;
     ``spec -= background``; the channel power of the result into ``ppad`` (seg, bin + 2 ``h``) float32, circularly
     padded. ``spec``, ``background``, ``prev`` (rx, seg, bin) complex64, C-contiguous (read through the numpy C
-    API); ``change``, ``own`` (seg, bin) and ``work`` (bin) float32 scratch."""
+    API); ``change``, ``own`` (seg, bin) and ``work`` (bin) float32 scratch. ``seg`` >= 0: only that segment's map
+    learns (and its ``prev`` is kept); the others are subtracted as they stand, and ``prev`` keeps segment
+    ``keep_seg``'s spectra as well (-1: none)."""
     cdef cnp.ndarray a = spec
     if not cnp.PyArray_Check(spec) or cnp.PyArray_NDIM(a) != 3:
         raise ValueError("update_apply_power: spec must be a (rx, seg, bin) complex64 array")
@@ -491,6 +555,8 @@ def update_apply_power(spec, background, prev, float alpha, float factor, float 
     cdef float* pp
     cdef float thr
     cdef unsigned int keep
+    if seg >= n_seg or keep_seg >= n_seg:
+        raise ValueError("update_apply_power: seg and keep_seg must be segments of spec (or -1)")
     with nogil:
         for s in range(n_seg):
             cp = ch0 + s * n
@@ -499,6 +565,16 @@ def update_apply_power(spec, background, prev, float alpha, float factor, float 
                 sps[r] = sp0 + 2 * (r * n_seg + s) * n
                 bps[r] = bp0 + 2 * (r * n_seg + s) * n
                 pvs[r] = pv0 + 2 * (r * n_seg + s) * n
+            pp = pp0 + s * (n + 2 * h)
+            if seg >= 0 and s != seg:  # this segment's map stands: kept spectra (the next to learn), subtraction
+                if s == keep_seg:
+                    for r in range(n_rx):
+                        memcpy(pvs[r], sps[r], 2 * n * sizeof(float))
+                ksp_apply_power(sps, bps, <int>n_rx, <int>n, pp + h)
+                for k in range(h):
+                    pp[k] = pp[n + k]
+                    pp[n + h + k] = pp[h + k]
+                continue
             ksp_change_own(<const float* const*>sps, <const float* const*>pvs, <int>n_rx, <int>n, cp, op)
             thr = ksp_select(cp, n, n // 2, wk) * factor
             for k in range(n):  # all bits where the cell stood still (its map learns), none where it moved
@@ -508,7 +584,6 @@ def update_apply_power(spec, background, prev, float alpha, float factor, float 
                 for k in range(n):
                     if hd[s * n + k]:
                         memset(&wk[k], 0, sizeof(float))
-            pp = pp0 + s * (n + 2 * h)
             ksp_update_apply(sps, bps, pvs, <int>n_rx, <int>n, wk, alpha, pp + h)
             for k in range(h):
                 pp[k] = pp[n + k]

@@ -268,36 +268,77 @@ def _maps(shape, rng, init_frames):
 @given(n_rx=st.integers(1, 5), n_seg=st.integers(1, 4), n=st.sampled_from([7, 16, 64, 257]),
        seed=st.integers(0, 2**16), moving_share=st.floats(0.0, 0.5), held=st.booleans())
 def test_update_apply_power_equals_numpy(n_rx, n_seg, n, seed, moving_share, held):
-    """``ClutterMap.subtract`` with the fused kernel (update, static test, cells held by standing tracks,
-    subtraction, channel power) against its numpy form, bit for bit: the spectra, the map, the kept frame and the
-    padded power; one to five channels, bin counts with and without a remainder of four."""
+    """``ClutterMap.subtract`` with the fused kernel (one segment's update in turn, its static test, cells held by
+    standing tracks, subtraction, channel power) against its numpy form, bit for bit, frame by frame until every
+    segment has learnt: the spectra, the map, the kept spectra and the padded power; one to five channels, bin counts
+    with and without a remainder of four."""
     from edge.lane.records import Feedback
 
     rng = np.random.default_rng(seed)
     shape, h = (n_rx, n_seg, n), min(5, n)
     fast, ref = _maps(shape, rng, 16)
-    spec = fast._prev + _cspec(rng, shape, 0.05)
-    hot = rng.random((n_seg, n)) < moving_share
-    spec[:, hot] += _cspec(rng, (n_rx, int(hot.sum())), 3.0)
-    spec[:, :, ::6] = fast._prev[:, :, ::6]  # unchanged cells
     cells = []
     if held:  # a standing track's bins, wrapping around the segment's end
         for k in range(n_seg):
             cells.append((k, np.arange(n - 2, n + rng.integers(1, 5)) % n))
     for m in (fast, ref):
         m._standing_cells = lambda fb: cells
-    ppad = np.full((n_seg, n + 2 * h), np.nan, np.float32)
-    spec_k, spec_r = spec.copy(), spec.copy()
-    assert fast.subtract(spec_k, Feedback.none(), ppad, h) is True
-    assert ref.subtract(spec_r, Feedback.none(), None, h) is False
-    assert np.array_equal(spec_k.view(np.uint32), spec_r.view(np.uint32))
-    assert np.array_equal(fast.background.view(np.uint32), ref.background.view(np.uint32))
-    assert np.array_equal(fast._prev, spec) and np.array_equal(ref._prev, spec)
-    pw = _channel_power(spec_r)
-    assert np.array_equal(ppad.view(np.uint32), np.concatenate([pw[:, n - h:], pw, pw[:, :h]], axis=1).view(np.uint32))
-    if held:  # the held cells kept the map as it was
-        k0, idx = cells[0]
-        assert np.array_equal(ref.background[:, k0, idx], fast.background[:, k0, idx])
+    last = fast._prev.copy()
+    for frame in range(n_seg + 1):
+        turn = fast._turn
+        assert turn == ref._turn == frame % n_seg
+        spec = last + _cspec(rng, shape, 0.05)
+        hot = rng.random((n_seg, n)) < moving_share
+        spec[:, hot] += _cspec(rng, (n_rx, int(hot.sum())), 3.0)
+        spec[:, :, ::6] = last[:, :, ::6]  # unchanged cells
+        bg_before = ref.background.copy()
+        ppad = np.full((n_seg, n + 2 * h), np.nan, np.float32)
+        spec_k, spec_r = spec.copy(), spec.copy()
+        assert fast.subtract(spec_k, Feedback.none(), ppad, h) is True
+        assert ref.subtract(spec_r, Feedback.none(), None, h) is False
+        assert np.array_equal(spec_k.view(np.uint32), spec_r.view(np.uint32))
+        assert np.array_equal(fast.background.view(np.uint32), ref.background.view(np.uint32))
+        others = np.arange(n_seg) != turn  # only the segment in turn learnt
+        assert np.array_equal(ref.background[:, others], bg_before[:, others])
+        for s in {turn, (turn + 1) % n_seg}:  # the kept spectra: this segment's and the next one's
+            assert np.array_equal(fast._prev[:, s], spec[:, s]) and np.array_equal(ref._prev[:, s], spec[:, s])
+        pw = _channel_power(spec_r)
+        assert np.array_equal(ppad.view(np.uint32),
+                              np.concatenate([pw[:, n - h:], pw, pw[:, :h]], axis=1).view(np.uint32))
+        if held:  # the held cells kept the map as it was
+            idx = cells[turn][1]
+            assert np.array_equal(ref.background[:, turn, idx], bg_before[:, turn, idx])
+        last = spec
+
+
+def test_map_learns_one_segment_a_frame_with_their_weight():
+    """Once started, each frame one segment learns, in turn, with the weight of as many frames as there are
+    segments (the running mean's weight while it warms up): on a static scene, the numpy form and the kernel."""
+    from edge.lane.clutter import ClutterMap
+    from edge.lane.records import Feedback
+    from edge.pipelines.lane import LaneConfig
+
+    shape, h = (4, 4, 64), 3
+    cfg = LaneConfig(clutter_map_init_frames=0)
+    scene = _cspec(np.random.default_rng(3), shape, 2.0)
+    for kernel in (True, False):
+        m = ClutterMap(cfg, shape, 0.033, [1.0, -1.0, 1.0, -1.0])
+        if not kernel:
+            m.kernel = None
+        m.subtract(scene.copy(), Feedback.none(), np.empty((4, 64 + 2 * h), np.float32) if kernel else None, h)
+        assert m._map_frames == 1 and m._turn == 0  # the first frame: every segment, weight 1/warm-up
+        w0 = 1.0 / cfg.clutter_map_warmup_frames
+        np.testing.assert_allclose(m.background, scene * w0, rtol=1e-5)
+        for frame in range(1, 9):
+            before = m.background.copy()
+            spec = scene.copy()
+            m.subtract(spec, Feedback.none(), np.empty((4, 64 + 2 * h), np.float32) if kernel else None, h)
+            s = (frame - 1) % 4
+            w = min(1.0, 4.0 / (frame + cfg.clutter_map_warmup_frames))
+            np.testing.assert_allclose(m.background[:, s], before[:, s] + w * (scene[:, s] - before[:, s]), rtol=1e-5)
+            others = np.arange(4) != s
+            assert np.array_equal(m.background[:, others], before[:, others])
+            assert np.array_equal(spec, scene - m.background)
 
 
 def test_update_apply_power_refuses_other_arrays():
@@ -313,6 +354,9 @@ def test_update_apply_power_refuses_other_arrays():
         a[i] = bad
         with pytest.raises((ValueError, TypeError)):
             k.update_apply_power(*a)
+    for seg, keep in [(2, -1), (0, 2)]:  # segments outside the spectra
+        with pytest.raises(ValueError):
+            k.update_apply_power(*args, seg, keep)
 
 
 @pytest.mark.parametrize("n", [255, 256, 257, 1024, 4099])
@@ -347,15 +391,21 @@ def test_update_apply_power_median_equals_numpy(n, pattern):
     spec = (prev + step).astype(np.complex64)
     h = 4
     ppad = np.empty((shape[1], n + 2 * h), np.float32)
-    spec_k, spec_r = spec.copy(), spec.copy()
-    prev_bg = fast.background.copy()
-    assert fast.subtract(spec_k, Feedback.none(), ppad, h)
-    ref.subtract(spec_r, Feedback.none(), None, h)
-    assert np.array_equal(fast.background.view(np.uint32), ref.background.view(np.uint32))
-    assert np.array_equal(spec_k.view(np.uint32), spec_r.view(np.uint32))
-    # the held cells: those whose change exceeds the median (none when all stand still)
-    held = np.all(fast.background == prev_bg, axis=0) & np.any(spec != prev_bg, axis=0)
-    assert 0 < np.count_nonzero(held) < held.size or pattern == "all_still" or (pattern.startswith("sample") and n < 256)
+    for seg in range(shape[1]):  # each segment in its turn, against the same last frame
+        for m in (fast, ref):
+            m._prev[:, seg] = prev[:, seg]
+            m._turn = seg
+        spec_k, spec_r = spec.copy(), spec.copy()
+        prev_bg = fast.background.copy()
+        assert fast.subtract(spec_k, Feedback.none(), ppad, h)
+        ref.subtract(spec_r, Feedback.none(), None, h)
+        assert np.array_equal(fast.background.view(np.uint32), ref.background.view(np.uint32))
+        assert np.array_equal(spec_k.view(np.uint32), spec_r.view(np.uint32))
+        # the held cells: those whose change exceeds the median (none when all stand still)
+        held = np.all(fast.background[:, seg] == prev_bg[:, seg], axis=0) & np.any(spec[:, seg] != prev_bg[:, seg],
+                                                                                    axis=0)
+        assert (0 < np.count_nonzero(held) < held.size or pattern == "all_still"
+                or (pattern.startswith("sample") and n < 256))
 
 
 @settings(max_examples=25, deadline=None, derandomize=True)
