@@ -45,7 +45,8 @@ def _median_of_frames(frames: np.ndarray) -> np.ndarray:
 
 
 class ClutterMap(native.KernelUser):
-    """The static-clutter map: (rx, seg, bin) complex64 background, learned per frame and subtracted in place.
+    """The static-clutter map: (rx, seg, bin) complex64 background, subtracted in place every frame; once started,
+    one chirp segment learns a frame, in turn (docs/decisions/0039).
 
     ``config`` is the lane profile's :class:`edge.pipelines.lane.LaneConfig` (``clutter_map_*``, mounting and
     target height); ``bins_per_m`` a static echo's FFT bins per metre of slant range in each segment (negative on

@@ -55,7 +55,8 @@ class LaneConfig:
         "doc": "range window applied before every FFT", "choices": ("hann", "hamming", "blackman", "kaiser", "boxcar")})
     clutter_map_time_s: float = field(default=20.0, metadata={
         "unit": "s", "doc": "time constant of the static-clutter map, an exponential average of each channel's complex "
-               "spectrum subtracted before detection (guard rails, gantries, poles, TX leakage); 0 = off",
+               "spectrum subtracted before detection (guard rails, gantries, poles, TX leakage; each chirp segment "
+               "learns in turn, one a frame); 0 = off",
         "min": 0.0, "max": 3600.0})
     clutter_map_hold_speed_mps: float = field(default=1.0, metadata={
         "unit": "m/s", "doc": "the clutter map is not updated in the range bins of a confirmed track that once moved and "
