@@ -14,7 +14,7 @@ from edge.lane.records import Feedback
 from edge.npc import count_nonzero
 
 _SEG4 = np.arange(4)  # the four segments, as an index
-_MEDIAN_MIN_FRAMES = 3  # frames from which their median stands for the static echo in static_residue
+_MEDIAN_MIN_FRAMES = 3  # while the map learns its first frames, from this many on it is their median
 #: noise power at a residue's peak that static_residue allows, in segment floors (median powers): exponential noise
 #: of mean floor / ln 2 exceeds it with probability 2^-4
 _NOISE_FLOORS = 4.0
@@ -40,8 +40,7 @@ def _median_of_frames(frames: np.ndarray) -> np.ndarray:
     last = np.isnan(v[:, -1])  # NaN sorts last
     if np.count_nonzero(last):
         m[last] = np.nan
-    m = m.reshape(frames.shape[1:] + (2,))
-    return m[..., 0] + 1j * m[..., 1]
+    return np.ascontiguousarray(m).view(np.complex64).reshape(frames.shape[1:])  # (re and im alternate)
 
 
 class ClutterMap(native.KernelUser):
@@ -67,6 +66,8 @@ class ClutterMap(native.KernelUser):
         k_init = cfg.clutter_map_init_frames if self._alpha > 0 else 0
         self._map_init = np.zeros((k_init,) + tuple(frame_shape), np.complex64) if k_init > 1 else None
         self.kernel = native.load("_spectra")  # compiled update, static test and subtraction; None: numpy
+        #: with the kernel, while the first frames are kept: each cell's real and imaginary parts so far, sorted
+        self._sorted = None
         if self.kernel is not None:
             self._change = np.empty(frame_shape[1:], np.float32)  # (seg, bin) scratch of the static test
             self._own = np.empty(frame_shape[1:], np.float32)
@@ -98,6 +99,8 @@ class ClutterMap(native.KernelUser):
         alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
         if self._map_init is None and self._prev is not None:
             return self._learn_in_turn(spec, feedback, power_out, pad, alpha)
+        if self._map_init is not None and self._map_frames + 1 >= _MEDIAN_MIN_FRAMES:
+            return self._subtract_median(spec)
         k = self.kernel
         if k is not None and cfg.clutter_map_static_factor > 0 and self._prev is not None and spec.flags.c_contiguous:
             d = self._diff  # the update and _hold_moving in one kernel (edge/native/_spectra.pyx)
@@ -121,12 +124,43 @@ class ClutterMap(native.KernelUser):
         self._background += d
         if self._map_init is not None:  # the first frames are kept; then the map is their median
             self._map_init[self._map_frames] = spec
+            self._insert_sorted(spec, None)
             if self._map_frames + 1 == self._map_init.shape[0]:
                 self._background[...] = _median_of_frames(self._map_init)
                 self._map_init = None
         self._map_frames += 1
         spec -= self._background
         return False
+
+    def _subtract_median(self, spec: np.ndarray) -> bool:
+        """:meth:`subtract` while the map learns its first frames, from the third on: the map is the median of the
+        frames so far, this one included, and is subtracted. (The compiled kernel keeps each cell's values sorted
+        as the frames come and takes the median from them: the same values, except that a median of zeros may carry
+        either sign.)"""
+        i = self._map_frames
+        self._map_init[i] = spec
+        if not self._insert_sorted(spec, self._background):
+            self._background[...] = _median_of_frames(self._map_init[:i + 1])
+        if self._prev is not None:  # the static test's last frame, once the map has started
+            np.copyto(self._prev, spec)
+        self._map_frames = i + 1
+        if self._map_frames == self._map_init.shape[0]:
+            self._map_init = None
+            self._sorted = None
+        spec -= self._background
+        return False
+
+    def _insert_sorted(self, spec: np.ndarray, out: np.ndarray | None) -> bool:
+        """With the kernel, add this frame (the ``_map_frames``-th kept) to each cell's sorted values, and write
+        their median to ``out`` when given; False (and no sorted values kept from now on) without the kernel."""
+        i = self._map_frames
+        if self.kernel is None or not spec.flags.c_contiguous or (self._sorted is None and i > 0):
+            self._sorted = None
+            return False
+        if self._sorted is None:
+            self._sorted = np.empty((2 * spec.size, self._map_init.shape[0]), np.float32)
+        self.kernel.median_insert(self._sorted, i, spec, out)
+        return True
 
     def _learn_in_turn(self, spec: np.ndarray, feedback: Feedback, power_out: np.ndarray | None, pad: int,
                        alpha_frame: np.float32) -> bool:
@@ -229,9 +263,7 @@ class ClutterMap(native.KernelUser):
         map holds an echo above the segment's noise ``floor`` (seg,): what is left of static echoes, not a moving
         body. While the map still learns its first frames (``clutter_map_init_frames``) the echo is their median so
         far, from the third on (of one or two frames a median is a moving body's echo as well)."""
-        ref = self._background
-        if self._map_init is not None and self._map_frames >= _MEDIAN_MIN_FRAMES:  # still learning: the frames' median
-            ref = _median_of_frames(self._map_init[:self._map_frames])
+        ref = self._background  # (while it learns its first frames, their median from the third on)
         if self.kernel is not None and bins.dtype == np.int64:
             out = self.kernel.static_residue(ref, bins, power, floor, ratio, _NOISE_FLOORS)
             if out is not None:

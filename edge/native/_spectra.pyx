@@ -590,7 +590,7 @@ def update_apply_power(spec, background, prev, float alpha, float factor, float 
                 pp[n + h + k] = pp[h + k]
 
 
-from libc.math cimport sqrtf
+from libc.math cimport sqrtf, NAN
 
 
 @cython.boundscheck(False)
@@ -639,3 +639,57 @@ def static_residue(ref, bins, power, floor, float ratio, float noise_floors):
                     ok = False
             out[i] = ok
     return out_arr
+
+
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def median_insert(buf, Py_ssize_t n, spec, out):
+    """The clutter map's median of its first frames, a frame at a time: insert the float32 parts of ``spec`` (any
+    shape, complex64, C-contiguous) into ``buf`` (2 ``spec.size``, K) float32, whose first ``n`` < K columns hold
+    each part's earlier values sorted ascending (NaN last); with ``out`` (complex64, ``spec``'s shape), write there
+    the median of the n + 1 values as ``edge.lane.clutter._median_of_frames`` gives it (the middle value, or the
+    float32 sum of the middle two halved; NaN where a value is NaN). Equal values keep their order of arrival, so
+    a median of zeros may carry another sign than numpy's sort gives it."""
+    cdef cnp.ndarray a = spec
+    if not cnp.PyArray_Check(spec) or cnp.PyArray_TYPE(a) != cnp.NPY_COMPLEX64 or not cnp.PyArray_IS_C_CONTIGUOUS(a):
+        raise ValueError("median_insert: spec must be a C-contiguous complex64 array")
+    cdef Py_ssize_t cells = 2 * cnp.PyArray_SIZE(a), k_max, c, j, m, h
+    cdef cnp.ndarray b = buf
+    if (not cnp.PyArray_Check(buf) or cnp.PyArray_NDIM(b) != 2 or cnp.PyArray_DIM(b, 0) != cells):
+        raise ValueError("median_insert: buf must be (2 spec.size, K) float32")
+    k_max = cnp.PyArray_DIM(b, 1)
+    if n < 0 or n >= k_max:
+        raise ValueError("median_insert: n must lie in [0, K)")
+    cdef float* bp = <float*>_data2(buf, cnp.NPY_FLOAT32, cells, k_max, True, "buf")
+    cdef const float* sp = <const float*>cnp.PyArray_DATA(a)
+    cdef float* op = NULL
+    cdef cnp.ndarray o
+    if out is not None:
+        o = out
+        if (not cnp.PyArray_Check(out) or cnp.PyArray_TYPE(o) != cnp.NPY_COMPLEX64
+                or not cnp.PyArray_IS_C_CONTIGUOUS(o) or 2 * cnp.PyArray_SIZE(o) != cells
+                or not cnp.PyArray_ISWRITEABLE(o)):
+            raise ValueError("median_insert: out must be a writeable C-contiguous complex64 array of spec's size")
+        op = <float*>cnp.PyArray_DATA(o)
+    cdef float x, t
+    cdef float* row
+    m = n + 1
+    h = m // 2
+    with nogil:
+        for c in range(cells):
+            row = bp + c * k_max
+            x = sp[c]
+            j = n
+            if x == x:  # a number goes before the greater values and the NaNs
+                while j > 0 and not (row[j - 1] <= x):
+                    row[j] = row[j - 1]
+                    j -= 1
+            row[j] = x
+            if op != NULL:
+                if row[m - 1] != row[m - 1]:
+                    op[c] = NAN
+                elif m % 2:
+                    op[c] = row[h]
+                else:
+                    t = row[h - 1] + row[h]
+                    op[c] = t * <float>0.5  # (halving is exact: numpy's float32 division by 2)
