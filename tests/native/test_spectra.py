@@ -209,11 +209,9 @@ def test_lane_pipeline_end_to_end_equal():
 
 @pytest.mark.parametrize("seed", range(8))
 @pytest.mark.parametrize("n", [0, 1, 9, 40])
-@pytest.mark.parametrize("learning", [False, True])
-def test_static_residue_equals_numpy(seed, n, learning):
+def test_static_residue_equals_numpy(seed, n):
     """``ClutterMap.static_residue`` with the kernel against its numpy form on random maps and pairings (peaks a
-    little above, at and below the bound, echoes at and below the floor; the map's first frames' median while it
-    learns): bit for bit."""
+    little above, at and below the bound, echoes at and below the floor): bit for bit."""
     from edge.lane.clutter import ClutterMap
     from edge.pipelines.lane import LaneConfig
 
@@ -222,9 +220,6 @@ def test_static_residue_equals_numpy(seed, n, learning):
     cmap = ClutterMap(LaneConfig(), (n_rx, n_seg, n_bin), 0.03, [1.0, -1.0, 1.0, -1.0])
     cmap._background[...] = _cspec(rng, (n_rx, n_seg, n_bin), 3.0)
     cmap._background[:, :, ::5] = 0  # no echo
-    if learning and cmap._map_init is not None:
-        cmap._map_init[:5] = _cspec(rng, (5, n_rx, n_seg, n_bin), 3.0)
-        cmap._map_frames = 5
     bins = rng.integers(0, n_bin, (n, n_seg)).astype(np.int64)
     floor = rng.uniform(1.0, 20.0, n_seg).astype(np.float32)
     power = rng.uniform(0.0, 400.0, (n_seg, n_bin + 8)).astype(np.float32)[:, 4:-4]  # a view, as Spectra.power
@@ -487,3 +482,67 @@ def test_spectra_stage_calls_a_replaced_scipy_fft(frames, monkeypatch):
     monkeypatch.setattr(spectra_mod, "scipy", types.SimpleNamespace(fft=types.SimpleNamespace(fft=fft)))
     pipe.spectra(pipe.spectra.to_complex(frames[0]), pipe.feedback())
     assert calls == [1]
+
+
+@pytest.mark.parametrize("shape", [(4, 4, 64), (1, 1, 3), (3, 2, 7)])
+def test_median_insert_equals_median_of_frames(shape):
+    """The first frames' median a frame at a time (``median_insert``) against ``_median_of_frames`` on all the
+    frames so far, bit for bit: odd and even counts, ties, NaN (the median NaN from then on), K values."""
+    from edge.lane.clutter import _median_of_frames
+
+    k = require_kernel("_spectra")
+    rng = np.random.default_rng(shape[-1])
+    n_frames = 16
+    fr = _cspec(rng, (n_frames,) + shape, 2.0)
+    fr[:, ..., 0] = np.floor(fr[:, ..., 0].real) + 0.5 + 1j * fr[:, ..., 0].imag  # ties among the frames, no zeros
+    fr[5, 0, 0, -1] = np.nan + 1j
+    buf = np.empty((2 * fr[0].size, n_frames), np.float32)
+    out = np.empty(shape, np.complex64)
+    for i in range(n_frames):
+        k.median_insert(buf, i, fr[i], out)
+        want = _median_of_frames(fr[:i + 1])
+        assert out.tobytes() == want.tobytes(), i
+        assert np.all(np.diff(buf[:, :i + 1], axis=1)[~np.isnan(buf[:, :i + 1]).any(axis=1)] >= 0)
+    assert np.isnan(out[0, 0, -1].real) and not np.isnan(out[0, 0, -1].imag)
+    k.median_insert(buf, 3, fr[0], None)  # without an output
+    for bad in [(buf, n_frames, fr[0], out), (buf, -1, fr[0], out), (buf[:-1], 0, fr[0], out),
+                (buf, 0, fr[0].astype(np.complex128), out), (buf, 0, fr[0], out[..., :-1]),
+                (buf, 0, fr[0][..., ::-1], out)]:
+        with pytest.raises(ValueError):
+            k.median_insert(*bad)
+
+
+@pytest.mark.parametrize("kernel", [True, False])
+def test_map_is_the_median_of_its_first_frames_from_the_third(kernel):
+    """While the map keeps its first frames (``clutter_map_init_frames``), from the third on it is their median so
+    far and is subtracted: a standing scene is gone from then on, and a body that crosses one frame leaves no
+    image; at the last kept frame the map is their median, and it learns in turn after."""
+    from edge.lane.clutter import ClutterMap, _median_of_frames
+    from edge.lane.records import Feedback
+    from edge.pipelines.lane import LaneConfig
+
+    shape, h = (4, 4, 64), 3
+    cfg = LaneConfig(clutter_map_init_frames=8)
+    rng = np.random.default_rng(11)
+    scene = _cspec(rng, shape, 5.0)
+    m = ClutterMap(cfg, shape, 0.033, [1.0, -1.0, 1.0, -1.0])
+    if not kernel:
+        m.kernel = None
+    kept = []
+    for i in range(10):
+        spec = scene + _cspec(rng, shape, 0.01)
+        if i == 4:
+            spec[:, :, 20] += 50.0  # a body in one frame
+        kept.append(spec.copy())
+        ppad = np.empty((4, 64 + 2 * h), np.float32)
+        m.subtract(spec, Feedback.none(), ppad if kernel else None, h)
+        if 2 <= i < 8:
+            want = _median_of_frames(np.array(kept))
+            assert np.array_equal(m.background, want)
+            body = np.abs(spec[:, :, 20])
+            rest = np.abs(np.delete(spec, 20, axis=2))
+            assert rest.max() < 0.1  # the scene gone
+            assert body.min() > 40.0 if i == 4 else body.max() < 0.1  # the body in its frame, no image after it
+        if i < 2:
+            assert np.abs(spec).max() > 1.0  # a running mean of one or two frames: the scene is still there
+    assert m._map_init is None and m._turn == 2  # started: the ninth and tenth frames learnt segments 0 and 1
