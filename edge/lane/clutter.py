@@ -15,19 +15,25 @@ from edge.npc import count_nonzero
 
 _SEG4 = np.arange(4)  # the four segments, as an index
 _MEDIAN_MIN_FRAMES = 3  # while the map learns its first frames, from this many on it is their median
+#: ... subtracted where the cell stood still: the span of its values over those frames without the k // 4 largest
+#: and smallest (k frames), in either part, at most this fraction of the median's amplitude (a static echo 20 dB
+#: over the noise spans about a third of its amplitude; a body passing through the cell in more than a quarter of
+#: the frames turns its phase from frame to frame and spans about twice its amplitude)
+_STILL_SPAN = 0.5
 #: noise power at a residue's peak that static_residue allows, in segment floors (median powers): exponential noise
 #: of mean floor / ln 2 exceeds it with probability 2^-4
 _NOISE_FLOORS = 4.0
 
 
-def _median_of_frames(frames: np.ndarray) -> np.ndarray:
+def _median_of_frames(frames: np.ndarray, span: np.ndarray | None = None) -> np.ndarray:
     """``np.median(z.real, axis=0) + 1j * np.median(z.imag, axis=0)`` of the complex64 spectra ``z`` (frames on the
     first axis) of the first frames: np.median's value (the middle element, or the mean of the middle two: their
     float32 sum halved; NaN where a NaN is among the values) from one sort of contiguous rows, each cell's real or
     imaginary part over the frames. np.median selects along the strided frame axis instead: 9 ms of CPU time for
     16 frames of 4 x 4 x 1024 bins on the development machine, in a single frame; the transpose and sort take
     1.5 ms. (Storing each frame straight into the transposed layout would spread the transpose over the first
-    frames, but its strided writes cost more than the copy.)"""
+    frames, but its strided writes cost more than the copy.) ``span`` (2 cells,) float32: also each part's span
+    without the k // 4 largest and smallest values (k frames)."""
     k = frames.shape[0]
     v = frames.view(np.float32).reshape(k, -1).T.copy()  # (cells x re/im, frames)
     v.sort(axis=1)
@@ -38,6 +44,10 @@ def _median_of_frames(frames: np.ndarray) -> np.ndarray:
         m = v[:, h - 1] + v[:, h]
         m /= 2
     last = np.isnan(v[:, -1])  # NaN sorts last
+    if span is not None:  # the inner span, NaN where a NaN is among the values
+        q = k // 4
+        span[...] = v[:, k - 1 - q] - v[:, q]
+        span[last] = np.nan
     if np.count_nonzero(last):
         m[last] = np.nan
     return np.ascontiguousarray(m).view(np.complex64).reshape(frames.shape[1:])  # (re and im alternate)
@@ -124,7 +134,7 @@ class ClutterMap(native.KernelUser):
         self._background += d
         if self._map_init is not None:  # the first frames are kept; then the map is their median
             self._map_init[self._map_frames] = spec
-            self._insert_sorted(spec, None)
+            self._insert_sorted(self._map_frames, spec, None)
             if self._map_frames + 1 == self._map_init.shape[0]:
                 self._background[...] = _median_of_frames(self._map_init)
                 self._map_init = None
@@ -139,27 +149,41 @@ class ClutterMap(native.KernelUser):
         either sign.)"""
         i = self._map_frames
         self._map_init[i] = spec
-        if not self._insert_sorted(spec, self._background):
-            self._background[...] = _median_of_frames(self._map_init[:i + 1])
         if self._prev is not None:  # the static test's last frame, once the map has started
             np.copyto(self._prev, spec)
         self._map_frames = i + 1
-        if self._map_frames == self._map_init.shape[0]:
+        last = self._map_frames == self._map_init.shape[0]
+        if not self._insert_sorted(i, spec, self._background, None if last else np.float32(_STILL_SPAN ** 2)):
+            kept = self._map_init[:i + 1]
+            span = np.empty(2 * spec.size, np.float32)
+            self._background[...] = _median_of_frames(kept, span)
+            if not last:
+                np.subtract(spec, self._background, out=spec, where=self._stood_still(span))
+        if last:  # the map is the median of all the kept frames, subtracted everywhere
             self._map_init = None
             self._sorted = None
-        spec -= self._background
+            spec -= self._background
         return False
 
-    def _insert_sorted(self, spec: np.ndarray, out: np.ndarray | None) -> bool:
-        """With the kernel, add this frame (the ``_map_frames``-th kept) to each cell's sorted values, and write
-        their median to ``out`` when given; False (and no sorted values kept from now on) without the kernel."""
-        i = self._map_frames
+    def _stood_still(self, span: np.ndarray) -> np.ndarray:
+        """(rx, seg, bin) bool: the cells whose kept frames' inner ``span`` (2 cells,) float32 (from
+        :func:`_median_of_frames`), in their real or imaginary part, is at most ``_STILL_SPAN`` times the amplitude of
+        the map (their median): what stood still in them."""
+        span = np.maximum(span[0::2], span[1::2])  # NaN if either is
+        med = self._background.view(np.float32).reshape(-1)
+        re, im = med[0::2], med[1::2]
+        return (span * span <= np.float32(_STILL_SPAN ** 2) * (re * re + im * im)).reshape(self._background.shape)
+
+    def _insert_sorted(self, i: int, spec: np.ndarray, out: np.ndarray | None, still2: np.float32 | None = None) -> bool:
+        """With the kernel, add this frame (the ``i``-th kept) to each cell's sorted values, write their median to
+        ``out`` when given, and with ``still2`` subtract it from ``spec`` where the cell stood still
+        (:meth:`_stood_still`); False (and no sorted values kept from now on) without the kernel."""
         if self.kernel is None or not spec.flags.c_contiguous or (self._sorted is None and i > 0):
             self._sorted = None
             return False
         if self._sorted is None:
             self._sorted = np.empty((2 * spec.size, self._map_init.shape[0]), np.float32)
-        self.kernel.median_insert(self._sorted, i, spec, out)
+        self.kernel.median_insert(self._sorted, i, spec, out, -1.0 if still2 is None else still2)
         return True
 
     def _learn_in_turn(self, spec: np.ndarray, feedback: Feedback, power_out: np.ndarray | None, pad: int,
