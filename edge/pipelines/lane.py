@@ -238,7 +238,7 @@ class LaneConfig:
     clutter_map_init_frames: int = field(default=16, metadata={
         "doc": "after this many frames the clutter map is replaced by the per-bin median of those frames (static "
                "returns removed exactly, vehicles passing through a bin left out), and from the third of them on it "
-               "is their median so far; 0 = running mean only",
+               "is their median so far, subtracted where the bin stood still; 0 = running mean only",
         "min": 0, "max": 256})
 
 
