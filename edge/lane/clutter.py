@@ -144,9 +144,9 @@ class ClutterMap(native.KernelUser):
 
     def _subtract_median(self, spec: np.ndarray) -> bool:
         """:meth:`subtract` while the map learns its first frames, from the third on: the map is the median of the
-        frames so far, this one included, and is subtracted. (The compiled kernel keeps each cell's values sorted
-        as the frames come and takes the median from them: the same values, except that a median of zeros may carry
-        either sign.)"""
+        frames so far, this one included, subtracted where the cell stood still (:meth:`_stood_still`), and
+        everywhere at the last kept frame. (The compiled kernel keeps each cell's values sorted as the frames come and
+        takes the median from them: the same values, except that a median of zeros may carry either sign.)"""
         i = self._map_frames
         self._map_init[i] = spec
         if self._prev is not None:  # the static test's last frame, once the map has started
@@ -214,16 +214,8 @@ class ClutterMap(native.KernelUser):
             return True
         sp = spec[:, s]  # (rx, bin)
         d = (sp - self._background[:, s]) * alpha
-        if cfg.clutter_map_static_factor > 0:  # _hold_moving's test on this segment
-            n_rx, n = sp.shape
-            dv = (sp - self._prev[:, s]).view(np.float32)
-            change = (dv * dv).reshape(n_rx, n, 2).sum(axis=(0, 2))  # sum over rx of |change|^2
-            med = np.partition(change, n // 2)[n // 2]
-            sv = sp.view(np.float32)
-            own = (sv * sv).reshape(n_rx, n, 2).sum(axis=(0, 2))
-            moving = change > med * np.float32(cfg.clutter_map_static_factor) + own * np.float32(
-                cfg.clutter_map_static_rel ** 2)
-            d[:, moving] = 0
+        if cfg.clutter_map_static_factor > 0:
+            d[:, self._moving(sp, self._prev[:, s])] = 0
         if cfg.clutter_map_hold_speed_mps > 0:
             for seg, idx in self._standing_cells(feedback):
                 if seg == s:
@@ -236,22 +228,29 @@ class ClutterMap(native.KernelUser):
 
     def _hold_moving(self, spec: np.ndarray, d: np.ndarray) -> None:
         """Zero the update ``d`` (rx, seg, bin) where the spectra changed since the last frame by more than noise
-        and phase noise explain: what moves stays out of the map. Keeps ``spec`` for the next frame."""
+        and phase noise explain (:meth:`_moving`): what moves stays out of the map. Keeps ``spec`` for the next
+        frame."""
         prev = self._prev
         if prev is None:
             self._prev = spec.copy()
             return
-        cfg = self.config
-        dv = np.subtract(spec, prev, out=prev).view(np.float32)
-        change = (dv * dv).reshape(spec.shape + (2,)).sum(axis=(0, 3))  # (seg, bin): sum over rx of |change|^2
-        n = change.shape[1]
-        med = np.partition(change, n // 2, axis=1)[:, n // 2]
-        sv = spec.view(np.float32)
-        own = (sv * sv).reshape(spec.shape + (2,)).sum(axis=(0, 3))
-        moving = change > med[:, None] * np.float32(cfg.clutter_map_static_factor) + own * np.float32(
-            cfg.clutter_map_static_rel ** 2)
-        d[:, moving] = 0
+        for s in range(spec.shape[1]):
+            d[:, s, self._moving(spec[:, s], prev[:, s])] = 0
         np.copyto(prev, spec)
+
+    def _moving(self, sp: np.ndarray, last: np.ndarray) -> np.ndarray:
+        """(bin,) bool: the bins of one segment's spectra ``sp`` (rx, bin) whose change since ``last``, summed over
+        the channels, exceeds ``clutter_map_static_factor`` times the segment's median change plus
+        ``clutter_map_static_rel``^2 times the bin's own energy."""
+        cfg = self.config
+        n_rx, n = sp.shape
+        dv = (sp - last).view(np.float32)
+        change = (dv * dv).reshape(n_rx, n, 2).sum(axis=(0, 2))  # sum over rx of |change|^2
+        med = np.partition(change, n // 2)[n // 2]
+        sv = sp.view(np.float32)
+        own = (sv * sv).reshape(n_rx, n, 2).sum(axis=(0, 2))
+        return change > med * np.float32(cfg.clutter_map_static_factor) + own * np.float32(
+            cfg.clutter_map_static_rel ** 2)
 
     def _hold_standing(self, d: np.ndarray, feedback: Feedback) -> None:
         """Zero the clutter-map update ``d`` (rx, seg, bin) in the range bins of stopped confirmed tracks
