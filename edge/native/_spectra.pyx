@@ -299,16 +299,9 @@ cdef extern from *:
                 ksp_store(pp + k, p);
             }
         }
-    #undef KSP_APPLY_CHANNEL
         for (; k + 4 <= n; k += 4) {
             for (r = 0; r < n_rx; r++) {
-                float *s = sp[r] + 2 * k, *b = bp[r] + 2 * k;
-                s0 = ksp_load(s) - ksp_load(b);
-                s1 = ksp_load(s + 4) - ksp_load(b + 4);
-                ksp_store(s, s0);
-                ksp_store(s + 4, s1);
-                re = KSP_SHUF(s0, s1, 0, 2, 4, 6);
-                im = KSP_SHUF(s0, s1, 1, 3, 5, 7);
+                KSP_APPLY_CHANNEL(sp[r], bp[r]);
                 if (r == 0)
                     p = re * re + im * im;
                 else
@@ -316,6 +309,7 @@ cdef extern from *:
             }
             ksp_store(pp + k, p);
         }
+    #undef KSP_APPLY_CHANNEL
         for (; k < n; k++) {
             float q = 0;
             for (r = 0; r < n_rx; r++) {
