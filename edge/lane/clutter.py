@@ -14,26 +14,20 @@ from edge.lane.records import Feedback
 from edge.npc import count_nonzero
 
 _SEG4 = np.arange(4)  # the four segments, as an index
-_MEDIAN_MIN_FRAMES = 3  # while the map learns its first frames, from this many on it is their median
-#: ... subtracted where the cell stood still: the span of its values over those frames without the k // 4 largest
-#: and smallest (k frames), in either part, at most this fraction of the median's amplitude (a static echo 20 dB
-#: over the noise spans about a third of its amplitude; a body passing through the cell in more than a quarter of
-#: the frames turns its phase from frame to frame and spans about twice its amplitude)
-_STILL_SPAN = 0.5
+_MEDIAN_MIN_FRAMES = 3  # frames from which their median stands for the static echo in static_residue
 #: noise power at a residue's peak that static_residue allows, in segment floors (median powers): exponential noise
 #: of mean floor / ln 2 exceeds it with probability 2^-4
 _NOISE_FLOORS = 4.0
 
 
-def _median_of_frames(frames: np.ndarray, span: np.ndarray | None = None) -> np.ndarray:
+def _median_of_frames(frames: np.ndarray) -> np.ndarray:
     """``np.median(z.real, axis=0) + 1j * np.median(z.imag, axis=0)`` of the complex64 spectra ``z`` (frames on the
     first axis) of the first frames: np.median's value (the middle element, or the mean of the middle two: their
     float32 sum halved; NaN where a NaN is among the values) from one sort of contiguous rows, each cell's real or
     imaginary part over the frames. np.median selects along the strided frame axis instead: 9 ms of CPU time for
     16 frames of 4 x 4 x 1024 bins on the development machine, in a single frame; the transpose and sort take
     1.5 ms. (Storing each frame straight into the transposed layout would spread the transpose over the first
-    frames, but its strided writes cost more than the copy.) ``span`` (2 cells,) float32: also each part's span
-    without the k // 4 largest and smallest values (k frames)."""
+    frames, but its strided writes cost more than the copy.)"""
     k = frames.shape[0]
     v = frames.view(np.float32).reshape(k, -1).T.copy()  # (cells x re/im, frames)
     v.sort(axis=1)
@@ -44,10 +38,6 @@ def _median_of_frames(frames: np.ndarray, span: np.ndarray | None = None) -> np.
         m = v[:, h - 1] + v[:, h]
         m /= 2
     last = np.isnan(v[:, -1])  # NaN sorts last
-    if span is not None:  # the inner span, NaN where a NaN is among the values
-        q = k // 4
-        span[...] = v[:, k - 1 - q] - v[:, q]
-        span[last] = np.nan
     if np.count_nonzero(last):
         m[last] = np.nan
     return np.ascontiguousarray(m).view(np.complex64).reshape(frames.shape[1:])  # (re and im alternate)
@@ -76,8 +66,10 @@ class ClutterMap(native.KernelUser):
         k_init = cfg.clutter_map_init_frames if self._alpha > 0 else 0
         self._map_init = np.zeros((k_init,) + tuple(frame_shape), np.complex64) if k_init > 1 else None
         self.kernel = native.load("_spectra")  # compiled update, static test and subtraction; None: numpy
-        #: with the kernel, while the first frames are kept: each cell's real and imaginary parts so far, sorted
+        #: with the kernel, while the first frames are kept: each cell's real and imaginary parts so far, sorted,
+        #: and their median
         self._sorted = None
+        self._init_median = np.empty(frame_shape, np.complex64) if self._map_init is not None else None
         if self.kernel is not None:
             self._change = np.empty(frame_shape[1:], np.float32)  # (seg, bin) scratch of the static test
             self._own = np.empty(frame_shape[1:], np.float32)
@@ -109,8 +101,6 @@ class ClutterMap(native.KernelUser):
         alpha = np.float32(max(self._alpha, 1.0 / (self._map_frames + cfg.clutter_map_warmup_frames)))
         if self._map_init is None and self._prev is not None:
             return self._learn_in_turn(spec, feedback, power_out, pad, alpha)
-        if self._map_init is not None and self._map_frames + 1 >= _MEDIAN_MIN_FRAMES:
-            return self._subtract_median(spec)
         k = self.kernel
         if k is not None and cfg.clutter_map_static_factor > 0 and self._prev is not None and spec.flags.c_contiguous:
             d = self._diff  # the update and _hold_moving in one kernel (edge/native/_spectra.pyx)
@@ -134,56 +124,27 @@ class ClutterMap(native.KernelUser):
         self._background += d
         if self._map_init is not None:  # the first frames are kept; then the map is their median
             self._map_init[self._map_frames] = spec
-            self._insert_sorted(self._map_frames, spec, None)
-            if self._map_frames + 1 == self._map_init.shape[0]:
-                self._background[...] = _median_of_frames(self._map_init)
-                self._map_init = None
+            # each cell's values sorted as they come (kernel); their median from the third frame (static_residue)
+            # and at the last
+            k, last = self._map_frames + 1, self._map_frames + 1 == self._map_init.shape[0]
+            sorted_ = self._insert_sorted(self._map_frames, spec,
+                                          self._init_median if k >= _MEDIAN_MIN_FRAMES or last else None)
+            if last:
+                self._background[...] = self._init_median if sorted_ else _median_of_frames(self._map_init)
+                self._map_init = self._sorted = self._init_median = None
         self._map_frames += 1
         spec -= self._background
         return False
 
-    def _subtract_median(self, spec: np.ndarray) -> bool:
-        """:meth:`subtract` while the map learns its first frames, from the third on: the map is the median of the
-        frames so far, this one included, subtracted where the cell stood still (:meth:`_stood_still`), and
-        everywhere at the last kept frame. (The compiled kernel keeps each cell's values sorted as the frames come and
-        takes the median from them: the same values, except that a median of zeros may carry either sign.)"""
-        i = self._map_frames
-        self._map_init[i] = spec
-        if self._prev is not None:  # the static test's last frame, once the map has started
-            np.copyto(self._prev, spec)
-        self._map_frames = i + 1
-        last = self._map_frames == self._map_init.shape[0]
-        if not self._insert_sorted(i, spec, self._background, None if last else np.float32(_STILL_SPAN ** 2)):
-            kept = self._map_init[:i + 1]
-            span = np.empty(2 * spec.size, np.float32)
-            self._background[...] = _median_of_frames(kept, span)
-            if not last:
-                np.subtract(spec, self._background, out=spec, where=self._stood_still(span))
-        if last:  # the map is the median of all the kept frames, subtracted everywhere
-            self._map_init = None
-            self._sorted = None
-            spec -= self._background
-        return False
-
-    def _stood_still(self, span: np.ndarray) -> np.ndarray:
-        """(rx, seg, bin) bool: the cells whose kept frames' inner ``span`` (2 cells,) float32 (from
-        :func:`_median_of_frames`), in their real or imaginary part, is at most ``_STILL_SPAN`` times the amplitude of
-        the map (their median): what stood still in them."""
-        span = np.maximum(span[0::2], span[1::2])  # NaN if either is
-        med = self._background.view(np.float32).reshape(-1)
-        re, im = med[0::2], med[1::2]
-        return (span * span <= np.float32(_STILL_SPAN ** 2) * (re * re + im * im)).reshape(self._background.shape)
-
-    def _insert_sorted(self, i: int, spec: np.ndarray, out: np.ndarray | None, still2: np.float32 | None = None) -> bool:
-        """With the kernel, add this frame (the ``i``-th kept) to each cell's sorted values, write their median to
-        ``out`` when given, and with ``still2`` subtract it from ``spec`` where the cell stood still
-        (:meth:`_stood_still`); False (and no sorted values kept from now on) without the kernel."""
+    def _insert_sorted(self, i: int, spec: np.ndarray, out: np.ndarray | None) -> bool:
+        """With the kernel, add this frame (the ``i``-th kept) to each cell's sorted values and write their median to
+        ``out`` when given; False (and no sorted values kept from now on) without the kernel."""
         if self.kernel is None or not spec.flags.c_contiguous or (self._sorted is None and i > 0):
             self._sorted = None
             return False
         if self._sorted is None:
             self._sorted = np.empty((2 * spec.size, self._map_init.shape[0]), np.float32)
-        self.kernel.median_insert(self._sorted, i, spec, out, -1.0 if still2 is None else still2)
+        self.kernel.median_insert(self._sorted, i, spec, out)
         return True
 
     def _learn_in_turn(self, spec: np.ndarray, feedback: Feedback, power_out: np.ndarray | None, pad: int,
@@ -286,7 +247,9 @@ class ClutterMap(native.KernelUser):
         map holds an echo above the segment's noise ``floor`` (seg,): what is left of static echoes, not a moving
         body. While the map still learns its first frames (``clutter_map_init_frames``) the echo is their median so
         far, from the third on (of one or two frames a median is a moving body's echo as well)."""
-        ref = self._background  # (while it learns its first frames, their median from the third on)
+        ref = self._background
+        if self._map_init is not None and self._map_frames >= _MEDIAN_MIN_FRAMES:  # still learning: the frames' median
+            ref = self._init_median if self._sorted is not None else _median_of_frames(self._map_init[:self._map_frames])
         if self.kernel is not None and bins.dtype == np.int64:
             out = self.kernel.static_residue(ref, bins, power, floor, ratio, _NOISE_FLOORS)
             if out is not None:

@@ -637,16 +637,13 @@ def static_residue(ref, bins, power, floor, float ratio, float noise_floors):
 
 @cython.boundscheck(False)
 @cython.wraparound(False)
-def median_insert(buf, Py_ssize_t n, spec, out, float still2=-1.0):
+def median_insert(buf, Py_ssize_t n, spec, out):
     """The clutter map's median of its first frames, a frame at a time: insert the float32 parts of ``spec`` (any
     shape, complex64, C-contiguous) into ``buf`` (2 ``spec.size``, K) float32, whose first ``n`` < K columns hold
     each part's earlier values sorted ascending (NaN last); with ``out`` (complex64, ``spec``'s shape), write there
     the median of the n + 1 values as ``edge.lane.clutter._median_of_frames`` gives it (the middle value, or the
     float32 sum of the middle two halved; NaN where a value is NaN). Equal values keep their order of arrival, so
-    a median of zeros may carry another sign than numpy's sort gives it. With ``out`` and ``still2`` >= 0, also
-    subtract the median from ``spec`` in the cells that stood still (``ClutterMap._stood_still``: the larger inner
-    span of the two parts, without the (n + 1) // 4 largest and smallest values, squared, at most ``still2`` times the
-    median's squared amplitude)."""
+    a median of zeros may carry another sign than numpy's sort gives it."""
     cdef cnp.ndarray a = spec
     if not cnp.PyArray_Check(spec) or cnp.PyArray_TYPE(a) != cnp.NPY_COMPLEX64 or not cnp.PyArray_IS_C_CONTIGUOUS(a):
         raise ValueError("median_insert: spec must be a C-contiguous complex64 array")
@@ -658,7 +655,7 @@ def median_insert(buf, Py_ssize_t n, spec, out, float still2=-1.0):
     if n < 0 or n >= k_max:
         raise ValueError("median_insert: n must lie in [0, K)")
     cdef float* bp = <float*>_data2(buf, cnp.NPY_FLOAT32, cells, k_max, True, "buf")
-    cdef float* sp = <float*>cnp.PyArray_DATA(a)
+    cdef const float* sp = <const float*>cnp.PyArray_DATA(a)
     cdef float* op = NULL
     cdef cnp.ndarray o
     if out is not None:
@@ -668,14 +665,10 @@ def median_insert(buf, Py_ssize_t n, spec, out, float still2=-1.0):
                 or not cnp.PyArray_ISWRITEABLE(o)):
             raise ValueError("median_insert: out must be a writeable C-contiguous complex64 array of spec's size")
         op = <float*>cnp.PyArray_DATA(o)
-    cdef bint gate = op != NULL and still2 >= 0
-    if gate and not cnp.PyArray_ISWRITEABLE(a):
-        raise ValueError("median_insert: spec must be writeable to subtract the median")
-    cdef float x, t, span_re = 0, span, re, im
+    cdef float x, t
     cdef float* row
     m = n + 1
     h = m // 2
-    cdef Py_ssize_t q = m // 4
     with nogil:
         for c in range(cells):
             row = bp + c * k_max
@@ -694,17 +687,3 @@ def median_insert(buf, Py_ssize_t n, spec, out, float still2=-1.0):
                 else:
                     t = row[h - 1] + row[h]
                     op[c] = t * <float>0.5  # (halving is exact: numpy's float32 division by 2)
-            if gate:
-                span = row[m - 1 - q] - row[q] if row[m - 1] == row[m - 1] else NAN
-                if c % 2 == 0:
-                    span_re = span
-                else:  # the cell's both parts: np.maximum of the spans (NaN if either is), then the test
-                    if span != span or span_re != span_re:
-                        span = NAN
-                    elif span_re > span:
-                        span = span_re
-                    re = op[c - 1]
-                    im = op[c]
-                    if span * span <= still2 * (re * re + im * im):
-                        sp[c - 1] = sp[c - 1] - re
-                        sp[c] = sp[c] - im

@@ -237,8 +237,7 @@ class LaneConfig:
                "of the traffic layer) run the same way", "min": 0.0, "max": 10.0})
     clutter_map_init_frames: int = field(default=16, metadata={
         "doc": "after this many frames the clutter map is replaced by the per-bin median of those frames (static "
-               "returns removed exactly, vehicles passing through a bin left out), and from the third of them on it "
-               "is their median so far, subtracted where the bin stood still; 0 = running mean only",
+               "returns removed exactly, vehicles passing through a bin left out); 0 = running mean only",
         "min": 0, "max": 256})
 
 
