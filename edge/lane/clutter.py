@@ -126,9 +126,10 @@ class ClutterMap(native.KernelUser):
             self._map_init[self._map_frames] = spec
             # each cell's values sorted as they come (kernel); their median from the third frame (static_residue)
             # and at the last
-            k, last = self._map_frames + 1, self._map_frames + 1 == self._map_init.shape[0]
+            kept = self._map_frames + 1
+            last = kept == self._map_init.shape[0]
             sorted_ = self._insert_sorted(self._map_frames, spec,
-                                          self._init_median if k >= _MEDIAN_MIN_FRAMES or last else None)
+                                          self._init_median if kept >= _MEDIAN_MIN_FRAMES or last else None)
             if last:
                 self._background[...] = self._init_median if sorted_ else _median_of_frames(self._map_init)
                 self._map_init = self._sorted = self._init_median = None
