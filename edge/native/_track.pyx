@@ -1407,6 +1407,31 @@ def snr_noise(z, snr_db, double lo_db, double hi_db, double range_var0,
     return out_arr
 
 
+cdef inline void _height_add(_V* r, Py_ssize_t i, Py_ssize_t n, double x, double y, double vr, double dz,
+                             double h_var) noexcept nogil:
+    """``r[i] += h_var g g'``, ``g = dz / rho^2 (-x, -y[, vr])`` (``rho`` at least 1 m; the speed row when n = 3):
+    :func:`edge.track.roles.measure.height_cov`'s operations."""
+    cdef double rho = hypot(x, y)
+    rho = rho if (rho >= 1.0 or rho != rho) else 1.0
+    cdef double k = dz / (rho * rho)
+    cdef double g0 = -x * k, g1 = -y * k
+    cdef double s0 = h_var * g0, s1 = h_var * g1
+    cdef double c = s0 * g1, g2
+    _pd3(r[0], i, 0, 0)[0] = _pd3(r[0], i, 0, 0)[0] + s0 * g0
+    _pd3(r[0], i, 0, 1)[0] = _pd3(r[0], i, 0, 1)[0] + c
+    _pd3(r[0], i, 1, 0)[0] = _pd3(r[0], i, 1, 0)[0] + c
+    _pd3(r[0], i, 1, 1)[0] = _pd3(r[0], i, 1, 1)[0] + s1 * g1
+    if n == 3:
+        g2 = vr * k
+        c = s0 * g2
+        _pd3(r[0], i, 0, 2)[0] = _pd3(r[0], i, 0, 2)[0] + c
+        _pd3(r[0], i, 2, 0)[0] = _pd3(r[0], i, 2, 0)[0] + c
+        c = s1 * g2
+        _pd3(r[0], i, 1, 2)[0] = _pd3(r[0], i, 1, 2)[0] + c
+        _pd3(r[0], i, 2, 1)[0] = _pd3(r[0], i, 2, 1)[0] + c
+        _pd3(r[0], i, 2, 2)[0] = _pd3(r[0], i, 2, 2)[0] + (h_var * g2) * g2
+
+
 def moving_expired(x, p, history,
                    age, misses, confirmed,
                    moved, score, double moving_gamma, double min_speed_mps,
@@ -1486,11 +1511,12 @@ def claimed_any(const double[:, :, ::1] v, const double[:, :, ::1] s, double gam
 
 
 def claimed_any_polar(v, s_track, xy, double var_r, double var_az,
-                      double floor_var, double gamma):
+                      double floor_var, double gamma, double dz=0.0, double h_var=0.0):
     """:func:`claimed_any` with ``S = s_track`` plus the converted polar noise ``rr`` (:func:`polar_noise` at the
     ground points ``xy`` (T, >= 2; columns x, y) without its floor) on its position block and ``floor_var`` on that
     block's diagonal: the ``S`` of ``MeasurementModel.with_sensor`` (``s_track.copy()``, then ``+= rr`` after
-    ``rr``'s diagonal ``+= floor_var``), the same operations."""
+    ``rr``'s diagonal ``+= floor_var``; with ``dz`` > 0 then the scatterer height's term at the states ``xy`` (T, 4),
+    ``measure.height_cov``), the same operations."""
     cdef _V V_v
     _aview(v, cnp.NPY_FLOAT64, 3, False, True, &V_v, "v")
     cdef _V V_s_track
@@ -1499,6 +1525,7 @@ def claimed_any_polar(v, s_track, xy, double var_r, double var_az,
     _aview(xy, cnp.NPY_FLOAT64, 2, False, False, &V_xy, "xy")
     cdef Py_ssize_t nt = V_v.n[0], nm = V_v.n[1], n = V_v.n[2], t, i, k
     cdef double rr[4]
+    cdef double x, y, vr, rs
     out_a = _zeros1(cnp.NPY_UINT8, nm)
     cdef _V V_out
     _aview(out_a, cnp.NPY_UINT8, 1, True, True, &V_out, "out")
@@ -1508,6 +1535,8 @@ def claimed_any_polar(v, s_track, xy, double var_r, double var_az,
         raise ValueError("claimed_any_polar: s_track must be (T, n, n) with v's T and n")
     if V_xy.n[0] != nt or V_xy.n[1] < 2:
         raise ValueError("claimed_any_polar: xy must be (T, >= 2) with v's T")
+    if dz > 0.0 and h_var > 0.0 and n == 3 and V_xy.n[1] < 4:
+        raise ValueError("claimed_any_polar: the height term with n = 3 needs the states (T, 4)")
     s_a = _empty3(cnp.NPY_FLOAT64, nt, n, n)
     cdef _V V_s
     _aview(s_a, cnp.NPY_FLOAT64, 3, True, True, &V_s, "s")
@@ -1520,6 +1549,14 @@ def claimed_any_polar(v, s_track, xy, double var_r, double var_az,
                         (rr[2 * i + k] + floor_var) if i == k else rr[2 * i + k])
                 else:
                     _pd3(V_s, t, i, k)[0] = _pd3(V_s_track, t, i, k)[0]
+        if dz > 0.0 and h_var > 0.0:
+            x, y = _pd2(V_xy, t, 0)[0], _pd2(V_xy, t, 1)[0]
+            vr = 0.0
+            if n == 3:
+                rs = hypot(x, y)
+                rs = rs if (rs >= 1e-3 or rs != rs) else 1e-3
+                vr = (x * _pd2(V_xy, t, 2)[0] + y * _pd2(V_xy, t, 3)[0]) / rs
+            _height_add(&V_s, t, n, x, y, vr, dz, h_var)
     if nt:
         _claimed(v, <double*>V_s.data, gamma, <cnp.uint8_t*>V_out.data if nm else NULL)
     return out_a

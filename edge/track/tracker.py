@@ -46,13 +46,15 @@ class PdafTracker(native.KernelUser):
     """Multi-target PDAF (or cheap JPDA) tracker of the lane profile; see the module docstring for the algorithm.
 
     ``road_yaw_rad`` (the road direction off the boresight, set by the lane pipeline from the traffic layer) is the
-    input besides the detections."""
+    input besides the detections. ``height_above_target_m``: the radar's height above the scatterer height the
+    detections were projected to the ground with (the measurement model's scatterer-height term; 0: none)."""
 
-    def __init__(self, config: PdafConfig | None = None) -> None:
+    def __init__(self, config: PdafConfig | None = None, height_above_target_m: float = 0.0) -> None:
         self.config = config or PdafConfig()
         roles = build_roles(self.config)
         self.predictor = roles.predictor
         self.measurement_model = roles.measurement_model
+        self.measurement_model.height_above_target_m = max(float(height_above_target_m), 0.0)
         self.associator = roles.associator
         self.updater = roles.updater
         self.initiator = roles.initiator

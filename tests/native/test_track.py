@@ -1373,38 +1373,43 @@ def test_polar_noise_is_identical(seed, t):
     np.testing.assert_allclose(want[fin], blas[fin], rtol=1e-13, atol=1e-12)
 
 
+@pytest.mark.parametrize("height", [0.0, 6.5])
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("t,m", [(30, 40), (5, 8), (1, 1), (3, 0), (0, 4)])
 @pytest.mark.parametrize("n", [2, 3])
-def test_claimed_any_polar_is_identical(seed, t, m, n):
+def test_claimed_any_polar_is_identical(seed, t, m, n, height):
     """``claimed_any_polar`` against ``claimed_any`` with the ``S`` of ``MeasurementModel.with_sensor`` and against
-    numpy's ``(mahalanobis_d2(v, S) <= gamma).any(axis=0)``, also at thresholds right at a pair's distance."""
+    numpy's ``(mahalanobis_d2(v, S) <= gamma).any(axis=0)``, also at thresholds right at a pair's distance; with the
+    radar ``height`` above the assumed scatterers, the scatterer height's term included."""
     from edge.track.config import MeasurementConfig, section
     from edge.track.roles.measure import SnrNoiseModel
 
     rng = np.random.default_rng(seed)
     mm = SnrNoiseModel(section(PdafConfig(), MeasurementConfig))
+    mm.height_above_target_m = height
     c = mm.cfg
+    dz, h_var = height, PdafConfig().seed_exclusion_height_sigma_m**2
     xp = _polar_points(rng, t)
     if t > 3:
         xp[3, 0] = 1.0  # no NaN here: a NaN S claims nothing either way, but the sweep below wants finite distances
     a = rng.normal(0, 1, (t, n, n))
     s_track = a @ a.swapaxes(-1, -2) + np.eye(n)
     v = rng.normal(0, 3.0, (t, m, n))
-    s = mm.with_sensor(xp, s_track)
+    s = mm.with_sensor(xp, s_track, h_var)
     d2 = mahalanobis_d2(v, s)
     for gamma in [gate_threshold(0.999, n), 1e-3, np.inf] + ([float(np.median(d2))] if d2.size else []):
         got = K.claimed_any_polar(v, s_track, xp, c.range_sigma_m**2, math.radians(c.azimuth_sigma_deg)**2,
-                                  c.extent_sigma_m**2, gamma)
+                                  c.extent_sigma_m**2, gamma, dz, h_var)
         assert got.dtype == np.uint8
         assert np.array_equal(got, K.claimed_any(v, s, gamma))
         assert np.array_equal(got.view(bool), (d2 <= gamma).any(axis=0))
 
 
-def test_seed_exclusion_claimed_on_tracker_frames_is_identical():
+@pytest.mark.parametrize("height", [0.0, 6.5])
+def test_seed_exclusion_claimed_on_tracker_frames_is_identical(height):
     """The tracker's claimed detections (constant-noise exclusion gate) with the kernels against the numpy form on
-    its own frames (30 vehicles with clutter)."""
-    tr = PdafTracker(PdafConfig())
+    its own frames (30 vehicles with clutter), with and without the scatterer height's term."""
+    tr = PdafTracker(PdafConfig(), height_above_target_m=height)
     mm = tr.measurement_model
     assert mm.kernel is K and tr.associator.cfg.seed_exclusion_noise == "constant"
     claimed, seen = tr.associator.claimed, [0, 0]

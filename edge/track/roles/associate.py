@@ -81,7 +81,8 @@ class PdaAssociator(native.KernelUser):
 
     def claimed(self, mp, xp: np.ndarray, measurement_model) -> np.ndarray:
         """(M,) detections inside some track's exclusion gate (they never seed): the association's distances, or
-        with ``seed_exclusion_noise = "constant"`` those of the constant noise model
+        with ``seed_exclusion_noise = "constant"`` those of the constant noise model with the scatterer height's term
         (:meth:`edge.track.roles.measure.MeasurementModel.seed_exclusion_d2`)."""
         return measurement_model.seed_exclusion_claimed(mp, xp, self.cfg.seed_exclusion_noise == "constant",
-                                                        self.exclusion_gamma[mp.zh.shape[1]])
+                                                        self.exclusion_gamma[mp.zh.shape[1]],
+                                                        self.cfg.seed_exclusion_height_sigma_m**2)

@@ -20,7 +20,7 @@ from edge.track import imm
 from edge.track.table import Measurements
 
 __all__ = ["MeasurementModel", "ConstantNoiseModel", "SnrNoiseModel", "MeasurementPrediction", "Prediction",
-           "heading", "extent_cov"]
+           "heading", "extent_cov", "height_cov"]
 
 
 @dataclass
@@ -70,6 +70,38 @@ def extent_cov(xp: np.ndarray, ext_var: np.ndarray, head: tuple[np.ndarray, np.n
     return ext_var[:, None, None] * (w[:, None, None] * uu + iso)
 
 
+def height_cov(r: np.ndarray, xy: np.ndarray, vr: np.ndarray | None, dz_m: float, var_m2: float) -> None:
+    """Add to ``r`` (K, n, n), in place, the rank-one noise of a scatterer's unknown height at the ground points ``xy``
+    (K, >= 2) with ground radial speeds ``vr`` (K,; None: n = 2). A scatterer ``dh`` above the assumed height
+    (``dz_m`` below the radar) appears ``dz_m dh / rho`` nearer and its radial speed ``vr dz_m dh / rho^2`` faster:
+    ``r += var_m2 g g'``, ``g = dz_m / rho^2 (-x, -y[, vr])``, ``rho`` at least 1 m. The kernels repeat these
+    operations."""
+    x, y = xy[:, 0], xy[:, 1]
+    rho = np.maximum(np.hypot(x, y), 1.0)
+    k = dz_m / (rho * rho)
+    g0, g1 = -x * k, -y * k
+    s0, s1 = var_m2 * g0, var_m2 * g1
+    c01 = s0 * g1
+    r[:, 0, 0] += s0 * g0
+    r[:, 0, 1] += c01
+    r[:, 1, 0] += c01
+    r[:, 1, 1] += s1 * g1
+    if vr is not None and r.shape[1] == 3:
+        g2 = vr * k
+        c02, c12 = s0 * g2, s1 * g2
+        r[:, 0, 2] += c02
+        r[:, 2, 0] += c02
+        r[:, 1, 2] += c12
+        r[:, 2, 1] += c12
+        r[:, 2, 2] += (var_m2 * g2) * g2
+
+
+def ground_radial_speed(xp: np.ndarray) -> np.ndarray:
+    """(T,) ground radial speed of the states ``xp`` (T, 4), as :func:`edge.track.kalman.measurement_prediction`."""
+    x, y = xp[:, 0], xp[:, 1]
+    return (x * xp[:, 2] + y * xp[:, 3]) / np.maximum(np.hypot(x, y), 1e-3)
+
+
 class MeasurementModel(native.KernelUser):
     """What both noise models share: ``z_hat``, ``H`` and the track's part of ``R`` at its prediction (the extent of
     an extended vehicle: ``extent_sigma_m`` across, the learned ``ext_var`` along its heading, isotropic below 1 m/s;
@@ -85,6 +117,9 @@ class MeasurementModel(native.KernelUser):
         self.kernel = native.load("_track")
         #: storage the kernel reuses frame to frame for the pairs' innovations (``v``, ``S``, ``S^-1``)
         self._pair_buffers = PairBuffers()
+        #: the radar's height above the assumed scatterer height (m; the lane pipeline sets it from the mounting):
+        #: it sizes the seed-exclusion noise's :func:`height_cov`; 0: no height term
+        self.height_above_target_m = 0.0
 
     @property
     def use_radial_speed(self) -> bool:
@@ -139,11 +174,16 @@ class MeasurementModel(native.KernelUser):
             r[:, 2, 2] = c.radial_speed_sigma_mps**2
         return zh, h, r
 
-    def with_sensor(self, xp: np.ndarray, r: np.ndarray) -> np.ndarray:
-        """``r`` of :meth:`at` with ``sensor=False`` plus the constant converted polar noise."""
+    def with_sensor(self, xp: np.ndarray, r: np.ndarray, height_var_m2: float = 0.0) -> np.ndarray:
+        """``r`` of :meth:`at` with ``sensor=False`` plus the constant converted polar noise and, with
+        ``height_var_m2`` > 0 and the radar above the assumed scatterers, the scatterer height's term
+        (:func:`height_cov` at the states ``xp``)."""
         c = self.cfg
         out = r.copy()
         out[:, :2, :2] += kalman.polar_position_noise(xp[:, :2], c.range_sigma_m, self._az_sigma_rad, c.extent_sigma_m)
+        if height_var_m2 > 0.0 and self.height_above_target_m > 0.0:
+            height_cov(out, xp, ground_radial_speed(xp) if out.shape[1] == 3 else None, self.height_above_target_m,
+                       height_var_m2)
         return out
 
     def predict(self, pred: Prediction, meas: Measurements, ext_var: np.ndarray,
@@ -184,15 +224,17 @@ class MeasurementModel(native.KernelUser):
         """Set ``mp.inn`` (and ``mp.inn_m`` where the noise model computes the modes' with it)."""
         raise NotImplementedError("a noise model: ConstantNoiseModel or SnrNoiseModel")
 
-    def seed_exclusion_d2(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool) -> np.ndarray:
+    def seed_exclusion_d2(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool,
+                          height_var_m2: float = 0.0) -> np.ndarray:
         """(T, M) squared distances of the seed-exclusion gate: the association's, or (``constant``) those under the
-        constant noise model (the same innovations, ``S`` = the track's part plus the constant sensor noise)."""
+        constant noise model (the same innovations, ``S`` = the track's part plus the constant sensor noise and the
+        scatterer height's term of variance ``height_var_m2``, :meth:`with_sensor`)."""
         return mp.inn.d2
 
     def seed_exclusion_claimed(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool,
-                               gamma: float) -> np.ndarray:
+                               gamma: float, height_var_m2: float = 0.0) -> np.ndarray:
         """(M,) detections with a squared distance of :meth:`seed_exclusion_d2` at most ``gamma`` to some track."""
-        return (self.seed_exclusion_d2(mp, xp, constant) <= gamma).any(axis=0)
+        return (self.seed_exclusion_d2(mp, xp, constant, height_var_m2) <= gamma).any(axis=0)
 
     def update_extent(self, xp, ext_var, inn: Innovations, beta: np.ndarray) -> np.ndarray:
         """Learn the along-heading spread from the weighted along-heading innovations of this frame:
@@ -274,21 +316,23 @@ class SnrNoiseModel(MeasurementModel):
         mp.inn = innovations_each(meas.z, mp.zh, mp.h, pred.p, mp.r, mp.rm, prune_gamma, self.kernel,
                                   self._pair_buffers)
 
-    def seed_exclusion_d2(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool) -> np.ndarray:
+    def seed_exclusion_d2(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool,
+                          height_var_m2: float = 0.0) -> np.ndarray:
         if not constant:
             return mp.inn.d2
-        return mahalanobis_d2(mp.inn.v, self.with_sensor(xp, mp.inn.s_track), self.kernel)
+        return mahalanobis_d2(mp.inn.v, self.with_sensor(xp, mp.inn.s_track, height_var_m2), self.kernel)
 
     def seed_exclusion_claimed(self, mp: MeasurementPrediction, xp: np.ndarray, constant: bool,
-                               gamma: float) -> np.ndarray:
+                               gamma: float, height_var_m2: float = 0.0) -> np.ndarray:
         if self.kernel is None or not constant or mp.inn.v.shape[2] not in (2, 3):
-            return super().seed_exclusion_claimed(mp, xp, constant, gamma)
-        # the converted polar noise, the inverses, distances and the test in one kernel call, S as with_sensor's
-        # (bit-identical: kalman.polar_position_noise's operations)
+            return super().seed_exclusion_claimed(mp, xp, constant, gamma, height_var_m2)
+        # the converted polar noise (and the height term), the inverses, distances and the test in one kernel call,
+        # S as with_sensor's (bit-identical: kalman.polar_position_noise's and height_cov's operations)
         c = self.cfg
+        dz = self.height_above_target_m if height_var_m2 > 0.0 else 0.0
         return self.kernel.claimed_any_polar(np.ascontiguousarray(mp.inn.v), np.ascontiguousarray(mp.inn.s_track), xp,
                                              c.range_sigma_m**2, self._az_sigma_rad**2, c.extent_sigma_m**2,
-                                             gamma).view(bool)
+                                             gamma, dz, height_var_m2).view(bool)
 
     def state_update(self, xp, pp, mp: MeasurementPrediction, beta, beta0):
         """The PDAF posterior with one gain per hypothesis (:func:`edge.track.pdaf.combined_update`)."""
