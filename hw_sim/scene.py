@@ -177,6 +177,9 @@ class GroundTruth:
     range_m: np.ndarray  # (n,) radar to reference point
     radial_speed_mps: np.ndarray  # (n,) positive receding
     az_rad: np.ndarray  # (n,) azimuth in the radar frame, positive to the right
+    #: (n,) share of each target's echo (its scatterers' RCS at this frame) that another vehicle's body shadows
+    #: (``Physics.shadowing``; 0 without it); None where not known (truth not made with the frame's scatterers)
+    shadowed_fraction: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.id.size)
@@ -207,6 +210,8 @@ class Scene:
     def __post_init__(self) -> None:
         self._phase: dict[int, np.ndarray] = {}
         self._glint: dict[int, tuple[np.ndarray, ...]] = {}
+        #: (t_s, {target id: shadowed share of its RCS}) of the last :meth:`scatterers` call, for :meth:`truth`
+        self._shadowed: tuple[float, dict[int, float]] | None = None
 
     def add_target(self, target: Target) -> None:
         if any(t.id == target.id for t in self.targets):
@@ -289,7 +294,13 @@ class Scene:
             t_out = np.nanmin(np.maximum(t1, t2), axis=1)
             hit |= (t_in < t_out) & (t_in < 1.0 - 1e-9) & (t_out > 0.0) & (out.target_index != k)
         if not hit.any():
+            self._shadowed = (t_s, {})
             return out
+        tot = np.bincount(out.target_index[out.target_index >= 0], weights=out.rcs_m2[out.target_index >= 0],
+                          minlength=len(self.targets))
+        veh_hit = hit & (out.target_index >= 0)
+        hid = np.bincount(out.target_index[veh_hit], weights=out.rcs_m2[veh_hit], minlength=len(self.targets))
+        self._shadowed = (t_s, {self.targets[k].id: float(hid[k] / tot[k]) for k in np.nonzero(hid)[0]})
         rcs = np.where(hit, out.rcs_m2 * 10.0 ** (-self.physics.shadow_loss_db / 10.0), out.rcs_m2)
         return ScattererSet(out.position_m, out.velocity_mps, rcs, out.phase_cycles, out.target_index)
 
@@ -368,6 +379,12 @@ class Scene:
         rel = self.pose.to_radar(pos)
         rng = np.linalg.norm(pos - self.pose.position, axis=1)
         los = (pos - self.pose.position) / np.maximum(rng, 1e-9)[:, None]
+        if not self.physics.shadowing:
+            shadowed = np.zeros(n)
+        elif self._shadowed is not None and self._shadowed[0] == t_s:  # the scatterers of this frame were made
+            shadowed = np.array([self._shadowed[1].get(tg.id, 0.0) for tg in act], dtype=np.float64)
+        else:
+            shadowed = None
         return GroundTruth(
             t_s=t_s,
             id=np.array([tg.id for tg in act], dtype=np.int32),
@@ -378,4 +395,5 @@ class Scene:
             range_m=rng,
             radial_speed_mps=np.einsum("ij,ij->i", los, vel),
             az_rad=np.arctan2(rel[:, 0], rel[:, 1]),
+            shadowed_fraction=shadowed,
         )

@@ -95,6 +95,9 @@ METRICS: dict[str, tuple[Metric, ...]] = {
     "lane": (
         Metric("detection_probability_separate", "separate_frames_tracked", "separate_frames_in_view", "",
                "tracked / in-view frames of vehicles sharing no range-Doppler cell and beam with another, 10-300 m"),
+        Metric("detection_probability_visible", "visible_frames_tracked", "visible_frames_in_view", "",
+               "the same over the frames where under half of the vehicle's echo is shadowed by another vehicle's body "
+               "(the truth's shadowed_fraction; = separate where the simulator does not shadow)"),
         Metric("detection_probability", "vehicle_frames_tracked", "vehicle_frames_in_view", "",
                "tracked / in-view frames of all vehicles"),
         Metric("false_tracks_per_min", "false_tracks", "minutes", "1/min",

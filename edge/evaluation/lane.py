@@ -40,6 +40,10 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   figure leaves the first seconds out, so start-up phantoms count; this one makes them visible;
 * ``lane_accuracy``: assigned pairs whose track lane equals the vehicle's true lane at that frame (per vehicle
   too, over its assigned frames);
+* ``visible_frames_*`` (tallies; the corpus's ``detection_probability_visible``): the separate vehicles' frames
+  where under ``SHADOWED_SHARE`` of the vehicle's echo is shadowed by another vehicle's body (the simulator's
+  ``GroundTruth.shadowed_fraction``, 20 dB of knife-edge loss), tracked and in view: what no radar at the mounting
+  sees is left out. Equal to the separate frames where the truth carries no shadowing;
 * ``detection_probability_by_overlap``: per class, the detection probability over the in-view frames where
   the vehicle is ``separate`` and where it is ``overlapping`` another vehicle, and the overlapping share:
   in at least ``OVERLAP_SEGMENTS`` of the four chirp segments its near face's beat frequency lies within
@@ -109,6 +113,7 @@ OVERLAP_SEGMENTS = 2  # ... in this many of the four segments (the pairing toler
 TALLY_RANGE_M = 200.0  # the pooled position error (summary ``tallies``) counts assigned frames within this ground range
 VEHICLE_RMSE_MIN_FRAMES = 10  # a vehicle's own position RMSE (tallies) needs this many assigned frames within it
 START_S = 30.0  # ``false_tracks_first_30s``: false tracks confirmed this soon after the (cold) start
+SHADOWED_SHARE = 0.5  # a vehicle-frame with this share of its echo shadowed by another body is not "visible"
 
 
 def _installer_config(config: Any, sc) -> tuple[Any, Any, Any]:
@@ -269,7 +274,8 @@ def _vehicle_rmse_tallies(acc: dict[int, "_TargetAcc"]) -> dict:
 
 
 def _tallies(acc: dict[int, "_TargetAcc"], pd_overlap: dict, false_eps: list, n_start: int, n_frames: int,
-             period: float, counts: dict, sq_200: list, lane_ok: int, lane_n: int) -> dict:
+             period: float, counts: dict, sq_200: list, lane_ok: int, lane_n: int,
+             visible: list[int] | None = None) -> dict:
     """The run's sums and counts behind its figures (module doc), so that runs pool as ratios of sums: every
     frame from the first on counts (a run starts with traffic already flowing, as after a power cut)."""
     sep = [v for (_, overlapping), v in pd_overlap.items() if not overlapping]
@@ -282,6 +288,9 @@ def _tallies(acc: dict[int, "_TargetAcc"], pd_overlap: dict, false_eps: list, n_
         # vehicles sharing no range-Doppler cell and beam with another (detection_probability_by_overlap), <= 300 m
         "separate_frames_in_view": int(sum(v[0] for v in sep)),
         "separate_frames_tracked": int(sum(v[1] for v in sep)),
+        # ... of those, the frames where less than SHADOWED_SHARE of the vehicle's echo is shadowed by another body
+        "visible_frames_in_view": int((visible or [0, 0])[0]),
+        "visible_frames_tracked": int((visible or [0, 0])[1]),
         "false_tracks": len(false_eps),
         # false confirmed tracks whose episode began in the first START_S seconds (start-up phantoms)
         "false_tracks_first_30s": sum(1 for ep in false_eps if ep[0] < n_start),
@@ -361,6 +370,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     bin_hz = np.array([sg.sample_rate_hz / sg.n_samples for sg in fe.waveform.segments])
     beamwidth = fe.waveform.wavelength_m / (fe.n_rx * fe.rx_spacing_m)
     pd_overlap: dict[tuple[str, bool], list[int]] = {}  # (class, overlapping) -> [in view, tracked]
+    visible = [0, 0]  # separate and not shadowed: [in view, tracked]
     # per-lane interval truth (edge.evaluation.lane_intervals) and the traffic layer's closed interval records
     class_edges, class_names = tuple(traffic_cfg.length_class_edges_m), tuple(traffic_cfg.length_class_names)
     itruth = LaneIntervalTruth(n_lanes, line, traffic_cfg.presence_zone_m, traffic_cfg.interval_s,
@@ -404,6 +414,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         gate = GATE_M + lengths
         overlap = _overlapping(pair_model, bin_hz, np.linalg.norm(ref_w - scene.pose.position, axis=1), lengths,
                                tr.radial_speed_mps[veh], tr.az_rad[veh], beamwidth)
+        shadowed = None if getattr(tr, "shadowed_fraction", None) is None else tr.shadowed_fraction[veh]
 
         # true crossings of the detection line by the reference points (world y along the road; lanes run along
         # y): the point the tracks follow, so a vehicle whose near face has crossed as the run ends (or had as it
@@ -461,9 +472,13 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             rb = pd_bins.setdefault(int(ground_rng[j] // RANGE_BIN_M), [0, 0, 0])
             rc = pd_cls_bins.setdefault((a.cls, int(ground_rng[j] // RANGE_BIN_M)), [0, 0, 0])
             ro = pd_overlap.setdefault((a.cls, bool(overlap[j])), [0, 0])
+            # separate and not mostly shadowed by another vehicle's body (the truth's shadowed_fraction)
+            rv = visible if not overlap[j] and not (shadowed is not None and shadowed[j] >= SHADOWED_SHARE) else None
             rb[0] += 1
             rc[0] += 1
             ro[0] += 1
+            if rv is not None:
+                rv[0] += 1
             a.lanes.append(int(lanes[j]))
             a.dir_true += float(tr.radial_speed_mps[veh[j]])
             if det_xy.shape[0] and np.min(np.linalg.norm(det_xy - ref[j], axis=1)) <= gate[j]:
@@ -476,6 +491,8 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             rb[2] += 1
             rc[2] += 1
             ro[1] += 1
+            if rv is not None:
+                rv[1] += 1
             t = tracks[k]
             if t.length_m is not None:
                 a.len_pub = t.length_m
@@ -631,7 +648,8 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         "confusion_matrix": None,
         "false_tracks_first_30s": sum(1 for ep in false_eps if ep[0] < n_start),
         # sums and counts behind the figures, for pooling runs as ratios of sums (edge.evaluation.corpus)
-        "tallies": _tallies(acc, pd_overlap, false_eps, n_start, n_frames, period, counts, sq_200, lane_ok, lane_n),
+        "tallies": _tallies(acc, pd_overlap, false_eps, n_start, n_frames, period, counts, sq_200, lane_ok, lane_n,
+                            visible),
     }
     if lane_dir:
         # per-lane interval statistics against the truth, and the lengths and classes of the vehicles that crossed

@@ -59,6 +59,15 @@ def test_smoke_corpus_json_pools_ratio_of_sums_and_does_not_depend_on_jobs(tmp_p
     # position RMSE over frames within 200 m, speed MAE: sensible magnitudes on this road
     assert 0.0 < part["pooled"]["all"]["position_rmse_m"]["value"] < 2.0
     assert 0.5 < part["pooled"]["all"]["detection_probability_separate"]["value"] <= 1.0
+    # visible = separate without the frames another body shadows: the same where the simulator does not shadow (v1)
+    for r in part["runs"]:
+        t = r["tallies"]
+        if r["variant"] == "v1":
+            assert (t["visible_frames_in_view"], t["visible_frames_tracked"]) == \
+                (t["separate_frames_in_view"], t["separate_frames_tracked"])
+        else:
+            assert 0 < t["visible_frames_in_view"] <= t["separate_frames_in_view"]
+            assert t["visible_frames_tracked"] <= t["separate_frames_tracked"]
 
     root = ET.parse(svg).getroot()
     texts = [t.text for t in root.iter("{http://www.w3.org/2000/svg}text")]

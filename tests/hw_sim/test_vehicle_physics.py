@@ -102,6 +102,30 @@ def test_shadowing_attenuates_a_car_behind_a_truck():
     assert car_beside_on == pytest.approx(car_beside_off)
 
 
+def _truth_shadowed(shadowing: bool, car_x: float, make_scatterers: bool = True):
+    ph = parse_physics({"shadowing": shadowing})
+    scene = Scene(POSE, seed=4, physics=ph)
+    rng = np.random.default_rng(5)
+    scene.add_target(make_vehicle(1, "truck", RoadTrajectory(-1.75, 150.0, -1, (0.0,), (25.0,)), lane=1, rng=rng,
+                                  length_m=14.0, physics=ph))
+    scene.add_target(make_vehicle(2, "car", RoadTrajectory(car_x, 175.0, -1, (0.0,), (25.0,)), lane=1, rng=rng,
+                                  length_m=4.5, physics=ph))
+    if make_scatterers:
+        scene.scatterers(0.0)
+    return scene.truth(0.0).shadowed_fraction
+
+
+def test_truth_reports_the_shadowed_share_of_each_echo():
+    """The truth of a frame carries the share of each target's echo that another body shadows (what the lane
+    evaluation's detection_probability_visible leaves out): the car behind the truck nearly all, the truck none,
+    a car beside the truck's lane none; zeros without shadowing; unknown when the frame's scatterers were not made."""
+    sh = _truth_shadowed(True, -1.75)
+    assert sh[0] == 0.0 and sh[1] > 0.9
+    assert np.array_equal(_truth_shadowed(True, 5.25), [0.0, 0.0])
+    assert np.array_equal(_truth_shadowed(False, -1.75), [0.0, 0.0])
+    assert _truth_shadowed(True, -1.75, make_scatterers=False) is None
+
+
 def test_physics_choices_are_checked():
     with pytest.raises(PhysicsError, match="glint"):
         parse_physics({"glint": "pink"})
