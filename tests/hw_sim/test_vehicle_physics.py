@@ -79,7 +79,8 @@ def test_distributed_rcs_puts_the_echo_centre_behind_the_near_face(kind, directi
         assert v.centre_size_m is not None and v.centre_size_m.shape == v.rcs_m2.shape
 
 
-def _truck_and_car(shadowing: bool, car_x: float):
+def _truck_and_car_scene(shadowing: bool, car_x: float) -> Scene:
+    """A 14 m truck receding in the lane at x = -1.75 m and a car 25 m further out at ``car_x``."""
     ph = parse_physics({"shadowing": shadowing})
     scene = Scene(POSE, seed=4, physics=ph)
     rng = np.random.default_rng(5)
@@ -87,7 +88,11 @@ def _truck_and_car(shadowing: bool, car_x: float):
                                   length_m=14.0, physics=ph))
     scene.add_target(make_vehicle(2, "car", RoadTrajectory(car_x, 175.0, -1, (0.0,), (25.0,)), lane=1, rng=rng,
                                   length_m=4.5, physics=ph))
-    s = scene.scatterers(0.0)
+    return scene
+
+
+def _truck_and_car(shadowing: bool, car_x: float):
+    s = _truck_and_car_scene(shadowing, car_x).scatterers(0.0)
     return s.rcs_m2[s.target_index == 0].sum(), s.rcs_m2[s.target_index == 1].sum()
 
 
@@ -103,13 +108,7 @@ def test_shadowing_attenuates_a_car_behind_a_truck():
 
 
 def _truth_shadowed(shadowing: bool, car_x: float, make_scatterers: bool = True):
-    ph = parse_physics({"shadowing": shadowing})
-    scene = Scene(POSE, seed=4, physics=ph)
-    rng = np.random.default_rng(5)
-    scene.add_target(make_vehicle(1, "truck", RoadTrajectory(-1.75, 150.0, -1, (0.0,), (25.0,)), lane=1, rng=rng,
-                                  length_m=14.0, physics=ph))
-    scene.add_target(make_vehicle(2, "car", RoadTrajectory(car_x, 175.0, -1, (0.0,), (25.0,)), lane=1, rng=rng,
-                                  length_m=4.5, physics=ph))
+    scene = _truck_and_car_scene(shadowing, car_x)
     if make_scatterers:
         scene.scatterers(0.0)
     return scene.truth(0.0).shadowed_fraction
