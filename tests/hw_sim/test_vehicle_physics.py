@@ -80,7 +80,7 @@ def test_distributed_rcs_puts_the_echo_centre_behind_the_near_face(kind, directi
 
 
 def _truck_and_car_scene(shadowing: bool, car_x: float) -> Scene:
-    """A 14 m truck receding in the lane at x = -1.75 m and a car 25 m further out at ``car_x``."""
+    """A 14 m truck 150 m out in the lane at x = -1.75 m and a car 25 m beyond it at ``car_x``, both at 25 m/s."""
     ph = parse_physics({"shadowing": shadowing})
     scene = Scene(POSE, seed=4, physics=ph)
     rng = np.random.default_rng(5)
