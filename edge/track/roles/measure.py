@@ -96,12 +96,6 @@ def height_cov(r: np.ndarray, xy: np.ndarray, vr: np.ndarray | None, dz_m: float
         r[:, 2, 2] += (var_m2 * g2) * g2
 
 
-def ground_radial_speed(xp: np.ndarray) -> np.ndarray:
-    """(T,) ground radial speed of the states ``xp`` (T, 4), as :func:`edge.track.kalman.measurement_prediction`."""
-    x, y = xp[:, 0], xp[:, 1]
-    return (x * xp[:, 2] + y * xp[:, 3]) / np.maximum(np.hypot(x, y), 1e-3)
-
-
 class MeasurementModel(native.KernelUser):
     """What both noise models share: ``z_hat``, ``H`` and the track's part of ``R`` at its prediction (the extent of
     an extended vehicle: ``extent_sigma_m`` across, the learned ``ext_var`` along its heading, isotropic below 1 m/s;
@@ -182,8 +176,8 @@ class MeasurementModel(native.KernelUser):
         out = r.copy()
         out[:, :2, :2] += kalman.polar_position_noise(xp[:, :2], c.range_sigma_m, self._az_sigma_rad, c.extent_sigma_m)
         if height_var_m2 > 0.0 and self.height_above_target_m > 0.0:
-            height_cov(out, xp, ground_radial_speed(xp) if out.shape[1] == 3 else None, self.height_above_target_m,
-                       height_var_m2)
+            vr = kalman.measurement_prediction(xp, True)[0][:, 2] if out.shape[1] == 3 else None
+            height_cov(out, xp, vr, self.height_above_target_m, height_var_m2)
         return out
 
     def predict(self, pred: Prediction, meas: Measurements, ext_var: np.ndarray,
