@@ -2069,14 +2069,24 @@ def count_hits(gated, age, hits,
     return hit_a, misses_a, history_a
 
 
+cdef inline double _height_speed_sd(_V V_x, Py_ssize_t r, double height_k) noexcept nogil:
+    """Confirmer.height_speed_sd of row ``r``: ``height_k |v_r| / rho^2``, ``rho`` at least 1 m."""
+    cdef double x = _pd2(V_x, r, 0)[0], y = _pd2(V_x, r, 1)[0]
+    cdef double rho = _np_max(hypot(x, y), 1.0)
+    cdef double vr = (x * _pd2(V_x, r, 2)[0] + y * _pd2(V_x, r, 3)[0]) / rho
+    return height_k * fabs(vr) / (rho * rho)
+
+
 def confirm_ready(x, history, confirmed,
                   moved, score, int mode, double score_confirm,
                   cnp.uint32_t mask_n, int confirm_m, double block_along_m, double merge_lateral_m,
-                  double merge_speed_mps, double block_lateral_m, double block_behind_m, double block_speed_mps):
+                  double merge_speed_mps, double block_lateral_m, double block_behind_m, double block_speed_mps,
+                  double height_k=0.0):
     """The rows that :meth:`edge.track.roles.confirm.Confirmer.confirm` confirms this frame, in row order (a list of
     int): tentative, moved and passing the test (``mode`` 0: M of N, 1: score, 2: either), and not blocked by a
-    confirmed track (``block_along_m`` > 0). The numpy reference's comparisons and arithmetic (``heading``'s libm
-    ``hypot``, ``np.maximum``): the same rows."""
+    confirmed track (``block_along_m`` > 0), its speed tests widened by ``height_k`` (m^2: the radar's height above
+    the assumed scatterers times twice their height sd; :meth:`Confirmer.height_speed_sd`). The numpy reference's
+    comparisons and arithmetic (``heading``'s libm ``hypot``, ``np.maximum``): the same rows."""
     cdef _V V_x
     _aview(x, cnp.NPY_FLOAT64, 2, False, False, &V_x, "x")
     cdef _V V_history
@@ -2093,7 +2103,7 @@ def confirm_ready(x, history, confirmed,
         raise ValueError("confirm_ready needs one row per track in every column and x of width 4")
     cdef list out = []
     cdef bint ok, any_confirmed = False, blocked
-    cdef double d0, d1, dv, sp, den
+    cdef double d0, d1, dv, sp, den, hr, hk, wide
     for r in range(nt):
         if _pu8(V_confirmed, r)[0]:
             any_confirmed = True
@@ -2110,6 +2120,7 @@ def confirm_ready(x, history, confirmed,
             continue
         if block_along_m > 0.0 and any_confirmed:
             blocked = False
+            hr = _height_speed_sd(V_x, r, height_k)
             for k in range(nt):
                 if not _pu8(V_confirmed, k)[0]:
                     continue
@@ -2121,8 +2132,11 @@ def confirm_ready(x, history, confirmed,
                 den = _np_max(sp, 1e-9)
                 dv = ((_pd2(V_x, r, 2)[0] - _pd2(V_x, k, 2)[0]) * (_pd2(V_x, k, 2)[0] / den)
                       + (_pd2(V_x, r, 3)[0] - _pd2(V_x, k, 3)[0]) * (_pd2(V_x, k, 3)[0] / den))
-                if ((fabs(d0) < merge_lateral_m and fabs(dv) < merge_speed_mps)
-                        or (fabs(d0) < block_lateral_m and d1 > block_behind_m and fabs(dv) < block_speed_mps)):
+                hk = _height_speed_sd(V_x, k, height_k)
+                wide = sqrt(hr * hr + hk * hk)
+                if ((fabs(d0) < merge_lateral_m and fabs(dv) < merge_speed_mps + wide)
+                        or (fabs(d0) < block_lateral_m and d1 > block_behind_m
+                            and fabs(dv) < block_speed_mps + wide)):
                     blocked = True
                     break
             if blocked:

@@ -48,11 +48,11 @@ class AssociationConfig:
                                                "constant (range_sigma_m, azimuth_sigma_deg; wider for strong "
                                                "detections between two unresolved vehicles) or snr",
                                    choices=("constant", "snr"))
-    seed_exclusion_height_sigma_m: float = _f(1.0, "sd of a vehicle scatterer's height about the pipeline's "
-                                                   "target_height_m (bumpers to truck roofs) in the constant exclusion "
-                                                   "noise: near the radar a scatterer higher up appears nearer and "
-                                                   "faster, and a track's own such detections seed no track",
-                                              "m", 0.0, 5.0)
+    scatterer_height_sigma_m: float = _f(1.0, "sd of a vehicle scatterer's height about the pipeline's "
+                                              "target_height_m (bumpers to truck roofs): near the radar a higher "
+                                              "scatterer appears nearer and faster, so the constant exclusion noise "
+                                              "and the confirm block's speed tests (2 sd) allow for it",
+                                         "m", 0.0, 5.0)
 
 
 @dataclass(frozen=True)

@@ -47,7 +47,8 @@ class PdafTracker(native.KernelUser):
 
     ``road_yaw_rad`` (the road direction off the boresight, set by the lane pipeline from the traffic layer) is the
     input besides the detections. ``height_above_target_m``: the radar's height above the scatterer height the
-    detections were projected to the ground with (the measurement model's scatterer-height term; 0: none)."""
+    detections were projected to the ground with (the scatterer-height terms of the measurement model and the
+    confirmer; 0: none)."""
 
     def __init__(self, config: PdafConfig | None = None, height_above_target_m: float = 0.0) -> None:
         self.config = config or PdafConfig()
@@ -59,6 +60,7 @@ class PdafTracker(native.KernelUser):
         self.updater = roles.updater
         self.initiator = roles.initiator
         self.confirmer = roles.confirmer
+        self.confirmer.height_above_target_m = self.measurement_model.height_above_target_m
         self.deleter = roles.deleter
         self.post_steps = roles.post_steps
         self._stateful = roles.stateful

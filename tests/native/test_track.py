@@ -1150,14 +1150,16 @@ def test_a_failing_measurements_kernel_is_not_hidden():
     assert Measurements.from_detections(wide, True, K).z.shape == (2, 3)  # the numpy form
 
 
+@pytest.mark.parametrize("height_m", [0.0, 6.5])
 @pytest.mark.parametrize("confirmation", ["m_of_n", "score", "either"])
-def test_confirming_is_identical(confirmation):
+def test_confirming_is_identical(confirmation, height_m):
     """The rows the confirmer confirms: the ``confirm_ready`` kernel against :meth:`Confirmer.confirming_numpy`, on
     the tracker's own tables each frame (30 vehicles with clutter) and on random tables with ties at every
-    threshold of the block test, NaN states and standing confirmed tracks."""
+    threshold of the block test, NaN states and standing confirmed tracks; without and with the radar's height
+    above the scatterers (the speed tests' height term)."""
     from types import SimpleNamespace
 
-    tr = PdafTracker(PdafConfig(confirmation=confirmation))
+    tr = PdafTracker(PdafConfig(confirmation=confirmation), height_above_target_m=height_m)
     conf = tr.confirmer
     assert conf.kernel is K
     seen = {"rows": 0, "frames": 0}
@@ -1388,7 +1390,7 @@ def test_claimed_any_polar_is_identical(seed, t, m, n, height):
     mm = SnrNoiseModel(section(PdafConfig(), MeasurementConfig))
     mm.height_above_target_m = height
     c = mm.cfg
-    dz, h_var = height, PdafConfig().seed_exclusion_height_sigma_m**2
+    dz, h_var = height, PdafConfig().scatterer_height_sigma_m**2
     xp = _polar_points(rng, t)
     if t > 3:
         xp[3, 0] = 1.0  # no NaN here: a NaN S claims nothing either way, but the sweep below wants finite distances

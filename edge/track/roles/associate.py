@@ -85,4 +85,4 @@ class PdaAssociator(native.KernelUser):
         (:meth:`edge.track.roles.measure.MeasurementModel.seed_exclusion_d2`)."""
         return measurement_model.seed_exclusion_claimed(mp, xp, self.cfg.seed_exclusion_noise == "constant",
                                                         self.exclusion_gamma[mp.zh.shape[1]],
-                                                        self.cfg.seed_exclusion_height_sigma_m**2)
+                                                        self.cfg.scatterer_height_sigma_m**2)

@@ -34,6 +34,10 @@ class Confirmer(native.KernelUser):
         self._score_drop = -score.confirm_threshold(cfg.score_true_reject_prob, cfg.score_false_confirm_prob)
         self._density = {n: score.false_density(cfg.score_false_density_m2, cfg.score_speed_span_mps, n) for n in (2, 3)}
         self._moving_gamma = gate_threshold(cfg.moving_prob, 2)
+        #: twice the sd of a scatterer's height (m): near the radar the block's speed test widens by its effect
+        self._height_2sd_m = 2.0 * assoc.scatterer_height_sigma_m
+        #: the radar's height above the assumed scatterers (m; the tracker sets it; 0: no height term)
+        self.height_above_target_m = 0.0
         #: the compiled ``edge.native._track`` for :meth:`moving_and_expired` (None: the numpy reference)
         self.kernel = native.load("_track")
 
@@ -86,7 +90,7 @@ class Confirmer(native.KernelUser):
                                          tracks.moved.view(np.uint8), tracks.score, mode, self._score_confirm,
                                          self._mask_n, c.confirm_m, c.confirm_block_along_m, box.merge_lateral_m,
                                          box.merge_speed_mps, c.confirm_block_lateral_m, c.confirm_block_behind_m,
-                                         c.confirm_block_speed_mps)
+                                         c.confirm_block_speed_mps, self.height_above_target_m * self._height_2sd_m)
 
     def confirming_numpy(self, tracks: TrackTable) -> np.ndarray:
         """:meth:`confirming` in numpy (the reference)."""
@@ -101,11 +105,25 @@ class Confirmer(native.KernelUser):
             u, _ = heading(xk)  # speed compared along the confirmed track's heading (a young track's
             dv = d[..., 2] * u[None, :, 0] + d[..., 3] * u[None, :, 1]  # lateral speed is still noise)
             along = np.abs(d[..., 1]) < c.confirm_block_along_m
-            blocked = (along & (((np.abs(d[..., 0]) < merge_lateral_m) & (np.abs(dv) < merge_speed_mps))
+            # the speed tests widen by the two tracks' radial-speed errors from scatterers 2 sd off the assumed
+            # height: two scatterers of one truck near the radar read speeds metres per second apart
+            hr = self.height_speed_sd(tracks.x.take(r, axis=0))
+            hk = self.height_speed_sd(xk)
+            wide = np.sqrt(hr[:, None] * hr[:, None] + hk[None, :] * hk[None, :])
+            adv = np.abs(dv)
+            blocked = (along & (((np.abs(d[..., 0]) < merge_lateral_m) & (adv < merge_speed_mps + wide))
                                 | ((np.abs(d[..., 0]) < c.confirm_block_lateral_m) & (d[..., 1] > c.confirm_block_behind_m)
-                                   & (np.abs(dv) < c.confirm_block_speed_mps)))).any(axis=1)
+                                   & (adv < c.confirm_block_speed_mps + wide)))).any(axis=1)
             ready[r[blocked]] = False
         return ready.nonzero()[0]
+
+    def height_speed_sd(self, x: np.ndarray) -> np.ndarray:
+        """(n,) the ground radial-speed error (m/s) of states ``x`` (n, >= 4) from a scatterer twice the height sd off
+        the assumed height: ``2 sigma_h dz |v_r| / rho^2`` (:func:`edge.track.roles.measure.height_cov`'s speed
+        term), ``rho`` at least 1 m."""
+        rho = np.maximum(np.hypot(x[:, 0], x[:, 1]), 1.0)
+        vr = (x[:, 0] * x[:, 2] + x[:, 1] * x[:, 3]) / rho
+        return (self.height_above_target_m * self._height_2sd_m) * np.abs(vr) / (rho * rho)
 
     def moving_and_expired(self, tracks: TrackTable) -> np.ndarray:
         """:meth:`update_moving`, then :meth:`tentative_expired`'s mask: one kernel call when it is built."""
