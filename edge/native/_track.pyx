@@ -2070,10 +2070,11 @@ def count_hits(gated, age, hits,
 
 
 cdef inline double _height_speed_sd(_V V_x, Py_ssize_t r, double height_k) noexcept nogil:
-    """Confirmer.height_speed_sd of row ``r``: ``height_k |v_r| / rho^2``, ``rho`` at least 1 m."""
-    cdef double x = _pd2(V_x, r, 0)[0], y = _pd2(V_x, r, 1)[0]
-    cdef double rho = _np_max(hypot(x, y), 1.0)
-    cdef double vr = (x * _pd2(V_x, r, 2)[0] + y * _pd2(V_x, r, 3)[0]) / rho
+    """Confirmer.height_speed_sd of row ``r``: ``height_k |v_r| / rho^2``, ``v_r`` as kalman.measurement_prediction
+    gives it, ``rho`` at least 1 m."""
+    cdef double x = _pd2(V_x, r, 0)[0], y = _pd2(V_x, r, 1)[0], h = hypot(x, y)
+    cdef double vr = (x * _pd2(V_x, r, 2)[0] + y * _pd2(V_x, r, 3)[0]) / _np_max(h, 1e-3)
+    cdef double rho = _np_max(h, 1.0)
     return height_k * fabs(vr) / (rho * rho)
 
 

@@ -8,7 +8,7 @@ import logging
 import numpy as np
 
 from edge import native
-from edge.track import score
+from edge.track import kalman, score
 from edge.track.config import AssociationConfig, ConfirmerConfig
 from edge.track.pdaf import Innovations, gate_threshold
 from edge.track.roles.box import SameVehicleBox
@@ -118,11 +118,11 @@ class Confirmer(native.KernelUser):
         return ready.nonzero()[0]
 
     def height_speed_sd(self, x: np.ndarray) -> np.ndarray:
-        """(n,) the ground radial-speed error (m/s) of states ``x`` (n, >= 4) from a scatterer twice the height sd off
+        """(n,) the ground radial-speed error (m/s) of states ``x`` (n, 4) from a scatterer twice the height sd off
         the assumed height: ``2 sigma_h dz |v_r| / rho^2`` (:func:`edge.track.roles.measure.height_cov`'s speed
-        term), ``rho`` at least 1 m."""
+        term: ``v_r`` the predicted measurement's, ``rho`` at least 1 m)."""
+        vr = kalman.measurement_prediction(x, True)[0][:, 2]
         rho = np.maximum(np.hypot(x[:, 0], x[:, 1]), 1.0)
-        vr = (x[:, 0] * x[:, 2] + x[:, 1] * x[:, 3]) / rho
         return (self.height_above_target_m * self._height_2sd_m) * np.abs(vr) / (rho * rho)
 
     def moving_and_expired(self, tracks: TrackTable) -> np.ndarray:
