@@ -90,7 +90,7 @@ class Confirmer(native.KernelUser):
                                          tracks.moved.view(np.uint8), tracks.score, mode, self._score_confirm,
                                          self._mask_n, c.confirm_m, c.confirm_block_along_m, box.merge_lateral_m,
                                          box.merge_speed_mps, c.confirm_block_lateral_m, c.confirm_block_behind_m,
-                                         c.confirm_block_speed_mps, self.height_above_target_m * self._height_2sd_m)
+                                         c.confirm_block_speed_mps, self.height_speed_k)
 
     def confirming_numpy(self, tracks: TrackTable) -> np.ndarray:
         """:meth:`confirming` in numpy (the reference)."""
@@ -117,13 +117,18 @@ class Confirmer(native.KernelUser):
             ready[r[blocked]] = False
         return ready.nonzero()[0]
 
+    @property
+    def height_speed_k(self) -> float:
+        """``2 sigma_h dz`` (m^2): the radar's height above the assumed scatterers times twice their height sd."""
+        return self.height_above_target_m * self._height_2sd_m
+
     def height_speed_sd(self, x: np.ndarray) -> np.ndarray:
         """(n,) the ground radial-speed error (m/s) of states ``x`` (n, 4) from a scatterer twice the height sd off
         the assumed height: ``2 sigma_h dz |v_r| / rho^2`` (:func:`edge.track.roles.measure.height_cov`'s speed
         term: ``v_r`` the predicted measurement's, ``rho`` at least 1 m)."""
         vr = kalman.measurement_prediction(x, True)[0][:, 2]
         rho = np.maximum(np.hypot(x[:, 0], x[:, 1]), 1.0)
-        return (self.height_above_target_m * self._height_2sd_m) * np.abs(vr) / (rho * rho)
+        return self.height_speed_k * np.abs(vr) / (rho * rho)
 
     def moving_and_expired(self, tracks: TrackTable) -> np.ndarray:
         """:meth:`update_moving`, then :meth:`tentative_expired`'s mask: one kernel call when it is built."""
