@@ -95,8 +95,9 @@ not coasting for more than ``publish_coasting_frames`` frames. The alpha-beta st
 wrapped map and only serves the association (Tavanti §II-D: with ``alpha = 0.19`` it lags a 40 km/h
 car by metres), so the published kinematics come from the measured clusters: ``radial_speed_mps``
 is the unaliased radial speed of the latest frame (wrapped Doppler + alias from the range rate; the
-filtered rate ``u_r`` until two frames exist) and ``range_m`` the last centroid's range moved on by
-that speed over the time since it was seen (never below 0). With ``classify.features.event_speed_alias =
+filtered rate ``u_r`` until two frames exist) and ``range_m`` the last centroid's range less the range-Doppler
+coupling of that speed (``v f_c / S``: 0.18 s on the Distance2Go's 1.5 ms up-chirp, 1.75 m at 35 km/h receding),
+moved on by that speed over the time since it was seen (never below 0). With ``classify.features.event_speed_alias =
 "history"`` (or ``"fit"``, fitted to the latest :data:`LIVE_FIT_FRAMES` frames and kept while certain for at most
 :data:`LIVE_REFIT_FRAMES`) the published speed is NaN (n/a on Modbus and CAN) while the alias of the track's history
 is not certain or the latest frame's speed is not on it. The Distance2Go has one
@@ -199,6 +200,9 @@ class SurveillanceTracker:
         # a receding body's far edge nearer the board's largest range than this is cut off (history alias)
         ch = characteristics(frontend)
         self._edge_limit_m = ch.max_unambiguous_range_m - self.extractor.config.event_speed_alias_edge_clip_m
+        # range-Doppler coupling: a radial speed v moves a chirp's beat by 2 v / lambda, its range by v f_c / S
+        seg = frontend.waveform.segments[0]
+        self._coupling_s = seg.f_start_hz / seg.slope_hz_per_s
         self.tracker = AlphaBetaTracker(tracking or AlphaBetaConfig(), self.cylinder)
         tc = self.tracker.config
         self.static_zones = (StaticZones(ch.range_resolution_m, ch.max_unambiguous_range_m, self.frame_period_s,
@@ -843,7 +847,8 @@ class SurveillanceTracker:
         spd = self._speed.get(tr.track_id)
         v_kmh = spd.current_radial_speed_kmh() if spd is not None else math.nan
         v = v_kmh / 3.6 if math.isfinite(v_kmh) else float(tr.state[5]) / self.frame_period_s
-        r = max(0.0, float(tr.last_measurement[2]) + v * (t_s - self._seen_t.get(tr.track_id, t_s)))
+        dt = t_s - self._seen_t.get(tr.track_id, t_s)
+        r = max(0.0, float(tr.last_measurement[2]) - self._coupling_s * v + v * dt)
         fc = self.extractor.config
         if fc.event_speed_alias in ("history", "fit"):
             # published only when its alias is sure: the history's alias is certain and the latest frame's speed is
