@@ -714,7 +714,8 @@ class FrameView:
     scatterers within 24 m and :data:`SEEN_HALF_SECTOR_DEG`; ``in_beam`` marks those with scatterers
     inside the half-power beam (:data:`VISIBLE_HALF_BEAM_DEG`), which define the truth statistics.
     ``range_m`` is the RCS/r^4-weighted range of the target's scatterers in the sector (where its
-    cluster's centroid should be), ``range_min_m``/``range_max_m`` their extent.
+    cluster's centroid should be), ``range_min_m``/``range_max_m`` their extent, and ``radial_speed_mps`` the radial
+    speed of those scatterers at the target's velocity, weighted alike (where its cluster's Doppler should be).
     """
 
     id: np.ndarray  # (n,) int
@@ -759,11 +760,15 @@ def frame_view(scene: Scene, t_s: float, half_sector_deg: float = SEEN_HALF_SECT
     np.maximum.at(rmax, idx, r)
     beam = np.bincount(idx, az[inv] <= VISIBLE_HALF_BEAM_DEG, minlength=u.size) > 0
     tr = scene.truth(t_s)
-    by_id = {int(i): float(v) for i, v in zip(tr.id, tr.radial_speed_mps)}
+    by_id = {int(i): v for i, v in zip(tr.id, tr.velocity_mps)}
     ids = np.array([scene.targets[j].id for j in u], dtype=int)
-    return FrameView(
-        ids, tuple(scene.targets[j].cls for j in u), wr, rmin, rmax, np.array([by_id[int(i)] for i in ids]), beam
-    )
+    # each scatterer's radial speed at its target's velocity (the body's motion, not a wheel's spin), weighted as the
+    # range: a long body whose reference point has passed the radar still shows its approaching rear
+    vel = np.array([by_id[int(i)] for i in ids]).reshape(-1, 3)[idx]
+    rel_w = sc.position_m[mov][inv] - scene.pose.position
+    vr = np.einsum("ij,ij->i", rel_w, vel) / np.maximum(r, 1e-9)
+    wv = np.bincount(idx, w * vr) / np.bincount(idx, w)
+    return FrameView(ids, tuple(scene.targets[j].cls for j in u), wr, rmin, rmax, wv, beam)
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,8 @@
 The scenario is synthesised frame by frame on the simulated Distance2Go and streamed through
 :class:`~edge.pipelines.surveillance.SurveillancePipeline` without pacing. Ground truth per target
 (:func:`hw_sim.events.event_truth`): class, direction and mean radial speed over the frames where the
-target has scatterers inside the beam (range <= 24 m, |azimuth| <= 21°; :func:`hw_sim.events.frame_view`).
+target has scatterers inside the beam (range <= 24 m, |azimuth| <= 21°; :func:`hw_sim.events.frame_view`); a frame's
+radial speed is that of the target's scatterers in view at its velocity, RCS/r^4-weighted as its range.
 
 Scoring:
 

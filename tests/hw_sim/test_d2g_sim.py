@@ -21,7 +21,7 @@ from hw_sim.events import (
 from hw_sim.pedestrian import Pedestrian
 from hw_sim.physics import parse_physics
 from hw_sim.scenario import EVENT_SCENARIOS, load_scenario
-from hw_sim.scene import LinearTrajectory, RadarPose, Scene
+from hw_sim.scene import LinearTrajectory, RadarPose, Scene, Target
 from hw_sim.simulator import FrameSimulator
 from hw_sim.synth import synthesize_if
 
@@ -174,3 +174,28 @@ def test_frame_view_sector_all_round_keeps_a_target_passing_beside_the_radar():
     assert len(frame_view(scene, 0.0)) == 0 and SEEN_HALF_SECTOR_DEG == 45.0
     fv = frame_view(scene, 0.0, 180.0)
     assert fv.id.tolist() == [7] and fv.range_max_m[0] < 6.0 and not fv.in_beam[0]
+
+
+def _body(offsets_y, x_m, y_m, vy_mps, height_m=1.0):
+    """One target of point scatterers ``offsets_y`` metres along its heading from its reference point, driving at
+    ``vy_mps`` along y on a line ``x_m`` beside a radar at ``height_m`` (scatterers at that height)."""
+    scene = Scene(pose=RadarPose(height_m=height_m), seed=1)
+    offs = np.array([[0.0, dy, 0.0] for dy in offsets_y])
+    scene.add_target(Target(1, "truck", LinearTrajectory((x_m, y_m, height_m), (0.0, vy_mps, 0.0)), offs,
+                            [10.0] * len(offsets_y)))
+    return scene
+
+
+def test_frame_view_speed_of_a_point_target_is_its_radial_speed():
+    scene = _body([0.0], 1.5, 12.0, -8.0)
+    fv, tr = frame_view(scene, 0.3), scene.truth(0.3)
+    assert fv.radial_speed_mps[0] == pytest.approx(float(tr.radial_speed_mps[0]), rel=1e-9)
+
+
+def test_frame_view_speed_is_the_visible_bodys_when_the_reference_point_has_passed_the_radar():
+    # an 11 m body approaching 2.5 m beside the radar: its front (the reference point) is 1 m past the radar and
+    # recedes, its rear 10 m ahead still approaches; the truth follows what the radar sees
+    scene = _body([0.0, -3.0, -6.0, -9.0, -11.0], 2.5, -1.0, -8.0)
+    fv, tr = frame_view(scene, 0.0), scene.truth(0.0)
+    assert float(tr.radial_speed_mps[0]) > 0
+    assert fv.id.tolist() == [1] and fv.radial_speed_mps[0] < -5.0
