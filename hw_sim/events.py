@@ -753,7 +753,8 @@ def frame_view(scene: Scene, t_s: float, half_sector_deg: float = SEEN_HALF_SECT
     w = sc.rcs_m2[mov][inv] / np.maximum(r, 0.5) ** 4
     u = np.unique(k)
     idx = np.searchsorted(u, k)
-    wr = np.bincount(idx, w * r) / np.bincount(idx, w)
+    wsum = np.bincount(idx, w)
+    wr = np.bincount(idx, w * r) / wsum
     rmin = np.full(u.size, np.inf)
     rmax = np.full(u.size, -np.inf)
     np.minimum.at(rmin, idx, r)
@@ -767,7 +768,7 @@ def frame_view(scene: Scene, t_s: float, half_sector_deg: float = SEEN_HALF_SECT
     vel = np.array([by_id[int(i)] for i in ids]).reshape(-1, 3)[idx]
     rel_w = sc.position_m[mov][inv] - scene.pose.position
     vr = np.einsum("ij,ij->i", rel_w, vel) / np.maximum(r, 1e-9)
-    wv = np.bincount(idx, w * vr) / np.bincount(idx, w)
+    wv = np.bincount(idx, w * vr) / wsum
     return FrameView(ids, tuple(scene.targets[j].cls for j in u), wr, rmin, rmax, wv, beam)
 
 
