@@ -33,13 +33,15 @@ class TrafficConfig:
     mounting_yaw_sigma_deg: float = field(
         default=1.0, metadata={"unit": "deg", "doc": "sd of the configured mounting yaw: until the yaw is estimated, "
                                                      "lane assignment at range r is uncertain by r x this across the "
-                                                     "road (the wrong-way gate; ignored with estimate_yaw off)",
+                                                     "road (the wrong-way gate; ignored with estimate_yaw off); the "
+                                                     "start-up alignment to configured lanes searches 5 sd about it",
                                "min": 0.0, "max": 45.0})
     estimate_yaw: bool = field(
         default=True, metadata={"doc": "estimate the mounting yaw from the direction of straight confirmed tracks"})
     yaw_min_tracks: int = field(
         default=5, metadata={"doc": "straight tracks needed before the yaw estimate is used (ended ones; at start-up "
-                                    "running ones count too, see yaw_live_min_length_m)", "min": 1, "max": 10000})
+                                    "running ones count too, see yaw_live_min_length_m; with configured lanes, the "
+                                    "alignment of this many tracks in lanes comes first, lanes.align_yaw)", "min": 1, "max": 10000})
     yaw_window_tracks: int = field(
         default=200, metadata={"doc": "most recent straight tracks the yaw is the median of", "min": 1, "max": 100000})
     yaw_min_track_length_m: float = field(
@@ -47,7 +49,8 @@ class TrafficConfig:
                                 "min": 1.0, "max": 1000.0})
     yaw_live_min_length_m: float = field(
         default=20.0, metadata={"unit": "m", "doc": "at start-up (fewer than yaw_min_tracks ended tracks), running "
-                                                    "tracks vote once they covered this distance",
+                                                    "tracks vote once they covered this distance (with configured "
+                                                    "lanes only while too few tracks are in lanes to align them)",
                                 "min": 1.0, "max": 1000.0})
     yaw_max_lateral_sd_m: float = field(
         default=0.8, metadata={"unit": "m", "doc": "a track whose positions scatter more than this across its "

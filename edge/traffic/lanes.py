@@ -13,7 +13,9 @@ track); when it ends, the principal axis of its position scatter is the directio
 that covered at least ``yaw_min_track_length_m`` with a small spread across that axis (no lane change)
 vote; the yaw is the median vote of the last ``yaw_window_tracks``. Until ``yaw_min_tracks`` tracks have
 ended, running tracks that already qualify vote too (otherwise a mis-aimed radar assigns lanes wrongly
-for the first tens of seconds).
+for the first tens of seconds). With configured lanes the start-up estimate is instead the yaw that puts the
+frame's confirmed tracks into the lanes of their direction of travel (:func:`align_yaw`): one frame of tracks
+fixes it to hundredths of a degree, where a direction needs tens of metres of each track.
 
 Lane learning: positions of confirmed tracks (between ``learn_min_range_m`` and ``learn_max_range_m``)
 go into a bounded ring buffer; a lateral histogram in the road frame, smoothed, gives one peak per
@@ -34,7 +36,7 @@ import numpy as np
 
 from edge import native
 
-__all__ = ["Lane", "to_road", "assign_lanes", "assign_lanes_with_margin", "YawEstimator", "LaneLearner", "configured_lanes"]
+__all__ = ["Lane", "to_road", "assign_lanes", "assign_lanes_with_margin", "align_yaw", "YawEstimator", "LaneLearner", "configured_lanes"]
 
 
 @dataclass(frozen=True)
@@ -84,6 +86,48 @@ def assign_lanes_with_margin(u: np.ndarray, lanes: tuple[Lane, ...]) -> tuple[np
 
 #: (lanes, their centres, their half widths) of the last call of :func:`assign_lanes_with_margin`
 _lane_arrays: tuple = (None, None, None)
+
+
+def align_yaw(x: np.ndarray, y: np.ndarray, heading: np.ndarray, lanes: tuple[Lane, ...], yaw0_rad: float,
+              half_window_rad: float, min_points: int) -> tuple[float, float] | None:
+    """The mounting yaw that puts the points ``(x, y)`` (m, the radar's ground plane) into configured lanes: within
+    ``yaw0_rad`` +- ``half_window_rad``, the yaw minimising the squared distance of each point to the nearest centre of
+    a lane of its direction of travel (``heading`` +1 away, -1 toward, 0 any), capped at that lane's half width
+    squared (a point off every lane costs the same wherever it is). Returns ``(yaw, sigma)`` (rad), sigma being the
+    points' rms distance inside their lanes over the root sum of their squared along-road distances; None when fewer
+    than ``min_points`` points lie inside a lane at that yaw."""
+    x, y, heading = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64), np.asarray(heading)
+    c = np.array([ln.center_m for ln in lanes], dtype=np.float64)
+    hw2 = (0.5 * np.array([ln.width_m for ln in lanes], dtype=np.float64)) ** 2
+    allowed = (heading[:, None] == 0) | (heading[:, None] == np.array([ln.direction for ln in lanes])[None, :])
+    keep = allowed.any(axis=1)
+    x, y, allowed = x[keep], y[keep], allowed[keep]
+    if x.size < min_points:
+        return None
+
+    def cost(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        u = x[None, :] * np.cos(g)[:, None] + y[None, :] * np.sin(g)[:, None]  # (G, N) across the road
+        d2 = np.where(allowed[None], np.minimum((u[:, :, None] - c) ** 2, hw2), np.inf).min(axis=2)
+        return d2.sum(axis=1), d2
+
+    # a grid whose neighbours move the farthest point by 0.1 m, then one refinement at a tenth of its step; equal
+    # costs go to the yaw nearest the configured one
+    step = 0.1 / max(float(np.abs(y).max()), 1.0)
+    n = int(math.ceil(half_window_rad / step))
+    offs = np.arange(-n, n + 1) * step
+    tot, _ = cost(yaw0_rad + offs)
+    best = offs[np.argmin(tot + 1e-9 * np.abs(offs))]
+    fine = best + np.arange(-10, 11) * (0.1 * step)
+    tot, d2 = cost(yaw0_rad + fine)
+    k = int(np.argmin(tot))
+    inside = d2[k] < np.minimum.reduce(np.where(allowed, hw2, np.inf), axis=1)
+    m = int(inside.sum())
+    if m < min_points:
+        return None
+    yaw = yaw0_rad + float(fine[k])
+    s = -x[inside] * math.sin(yaw) + y[inside] * math.cos(yaw)  # along the road: d(across)/d(yaw)
+    rms = math.sqrt(float(d2[k][inside].sum()) / max(m - 1, 1))
+    return yaw, rms / max(math.sqrt(float(np.dot(s, s))), 1e-9)
 
 
 #: up to this many running tracks the start-up votes are computed in plain Python

@@ -58,7 +58,8 @@ from edge import native
 from edge.fastinit import one_dict_init
 from edge.traffic.calibration import Calibration, CalibrationError, CalibrationWriter, load_calibration
 from edge.traffic.config import TrafficConfig
-from edge.traffic.lanes import Lane, LaneLearner, YawEstimator, assign_lanes_with_margin, configured_lanes
+from edge.traffic.lanes import (Lane, LaneLearner, YawEstimator, align_yaw, assign_lanes_with_margin,
+                                configured_lanes)
 from edge.traffic.stats import Crossing, IntervalStatistics, LengthMeter
 from edge.types import LaneStats, TrackState, TrafficEvent
 
@@ -120,6 +121,7 @@ class TrafficMonitor(native.KernelUser):
         self.yaw_estimator = YawEstimator(cfg)
         self._yaw_sigma_cfg = math.radians(cfg.mounting_yaw_sigma_deg)
         self.yaw_sigma_rad = 0.0 if not cfg.estimate_yaw else self._yaw_sigma_cfg
+        self._yaw_se: float | None = None  # standard error of this run's yaw estimate (None: none yet)
         self.learner = LaneLearner(cfg)
         self.stats = IntervalStatistics(cfg)
         self._memo: dict[int, _Memo] = {}
@@ -173,7 +175,7 @@ class TrafficMonitor(native.KernelUser):
         if saved is not None:
             se, votes = saved.yaw_stderr_rad, saved.yaw_votes
         else:
-            se, votes = self.yaw_estimator.stderr_rad, self.yaw_estimator.n_votes
+            se, votes = self._yaw_se, self.yaw_estimator.n_votes
             if se is None or not math.isfinite(se):
                 se = self._yaw_sigma_cfg
         return Calibration(self.yaw_rad, se, votes, self.config.lane_mode, tuple(self.lanes))
@@ -186,12 +188,12 @@ class TrafficMonitor(native.KernelUser):
             self._writer.close()
             self._writer = None
 
-    def _yaw_in_use(self, est: float | None) -> tuple[float, float]:
-        """(yaw, sigma) from this run's estimate ``est`` and the saved calibration: the saved one holds until
-        the estimate is more certain, or is dropped when the estimate says the radar was re-aimed."""
+    def _yaw_in_use(self, est: float | None, se: float | None) -> tuple[float, float]:
+        """(yaw, sigma) from this run's estimate ``est`` (its standard error ``se``) and the saved calibration: the
+        saved one holds until the estimate is more certain, or is dropped when the estimate says the radar was
+        re-aimed."""
         cfg = self.config
         saved = self.saved_calibration
-        se = self.yaw_estimator.stderr_rad if est is not None else None
         if saved is not None:
             settled = self.yaw_estimator.n_votes >= cfg.yaw_min_tracks
             if est is not None and settled and abs(est - saved.yaw_rad) > max(
@@ -374,11 +376,25 @@ class TrafficMonitor(native.KernelUser):
                     yaw_x_sel = np.asarray(yaw_x_m, dtype=np.float64)[sel]
                 self.yaw_estimator.add_table(kin, yaw_x_sel)
             elif yaw_x_m is not None and len(yaw_x_m) == len(tracks):
-                self.yaw_estimator.add(ids, age, np.asarray(yaw_x_m, dtype=np.float64)[sel], y)
+                yaw_x_sel = np.asarray(yaw_x_m, dtype=np.float64)[sel]
+                self.yaw_estimator.add(ids, age, yaw_x_sel, y)
             else:
+                yaw_x_sel = None
                 self.yaw_estimator.add(ids, age, x, y)
             est = self.yaw_estimator.estimate_rad()
-            self.yaw_rad, yaw_sigma = self._yaw_in_use(est)
+            se = self.yaw_estimator.stderr_rad if est is not None else None
+            if (cfg.lane_mode == "configured" and self.lanes and self.saved_calibration is None
+                    and self.yaw_estimator.n_votes < cfg.yaw_min_tracks):
+                # start-up with configured lanes: the yaw that puts this frame's tracks into them (lanes.align_yaw), at
+                # the motion model's positions as for the votes (the published ones follow the yaw assumed so far)
+                moving = np.abs(kin[:, 5]) >= cfg.moving_speed_mps
+                aligned = align_yaw(kin[:, 2] if yaw_x_sel is None else yaw_x_sel, kin[:, 3],
+                                    np.where(moving, np.sign(kin[:, 5]), 0.0), self.lanes,
+                                    math.radians(cfg.mounting_yaw_deg), 5.0 * self._yaw_sigma_cfg, cfg.yaw_min_tracks)
+                if aligned is not None:
+                    est, se = aligned
+            self._yaw_se = se
+            self.yaw_rad, yaw_sigma = self._yaw_in_use(est, se)
         self.yaw_sigma_rad = yaw_sigma
         if self._writer is not None:
             if self._next_save_ns is None:
