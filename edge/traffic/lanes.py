@@ -104,27 +104,40 @@ def align_yaw(x: np.ndarray, y: np.ndarray, heading: np.ndarray, lanes: tuple[La
     x, y, allowed = x[keep], y[keep], allowed[keep]
     if x.size < min_points:
         return None
+    cap = np.where(allowed, hw2[None, :], np.inf)  # (N, L) each point's cost cap per lane, inf: not its direction
+    # per lane: its centre, the points' caps and 0 / inf (of its direction or not), contiguous
+    per_lane = [(float(c[k]), np.ascontiguousarray(cap[:, k]), np.where(allowed[:, k], 0.0, np.inf))
+                for k in range(c.size)]
 
     def cost(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        u = x[None, :] * np.cos(g)[:, None] + y[None, :] * np.sin(g)[:, None]  # (G, N) across the road
-        d2 = np.where(allowed[None], np.minimum((u[:, :, None] - c) ** 2, hw2), np.inf).min(axis=2)
-        return d2.sum(axis=1), d2
+        u = np.multiply.outer(np.cos(g), x)
+        u += np.multiply.outer(np.sin(g), y)  # (G, N) across the road
+        best = np.full(u.shape, np.inf)
+        d2 = np.empty_like(u)
+        for ck, cap_k, off_k in per_lane:
+            np.subtract(u, ck, out=d2)
+            d2 *= d2
+            np.minimum(d2, cap_k, out=d2)
+            d2 += off_k
+            np.minimum(best, d2, out=best)
+        return best.sum(axis=1), best
 
-    # a grid whose neighbours move the farthest point by 0.1 m, then one refinement at a tenth of its step; equal
-    # costs go to the yaw nearest the configured one
-    step = 0.1 / max(float(np.abs(y).max()), 1.0)
+    # grids whose neighbours move the farthest point by 0.5, 0.05 and 0.005 m, each about the best of the one before;
+    # equal costs go to the yaw nearest the configured one
+    step = 0.5 / max(float(np.abs(y).max()), 1.0)
     n = int(math.ceil(half_window_rad / step))
     offs = np.arange(-n, n + 1) * step
-    tot, _ = cost(yaw0_rad + offs)
-    best = offs[np.argmin(tot + 1e-9 * np.abs(offs))]
-    fine = best + np.arange(-10, 11) * (0.1 * step)
-    tot, d2 = cost(yaw0_rad + fine)
-    k = int(np.argmin(tot))
-    inside = d2[k] < np.minimum.reduce(np.where(allowed, hw2, np.inf), axis=1)
+    for _ in range(3):
+        tot, d2 = cost(yaw0_rad + offs)
+        k = int(np.argmin(tot + 1e-9 * np.abs(offs)))
+        best = offs[k]
+        offs = best + np.arange(-10, 11) * (0.1 * step)
+        step *= 0.1
+    inside = d2[k] < cap.min(axis=1)
     m = int(inside.sum())
     if m < min_points:
         return None
-    yaw = yaw0_rad + float(fine[k])
+    yaw = yaw0_rad + float(best)
     s = -x[inside] * math.sin(yaw) + y[inside] * math.cos(yaw)  # along the road: d(across)/d(yaw)
     rms = math.sqrt(float(d2[k][inside].sum()) / max(m - 1, 1))
     return yaw, rms / max(math.sqrt(float(np.dot(s, s))), 1e-9)

@@ -65,6 +65,9 @@ from edge.types import LaneStats, TrackState, TrafficEvent
 
 log = logging.getLogger(__name__)
 
+#: the start-up alignment of the tracks to configured lanes (lanes.align_yaw) runs this often
+_ALIGN_EVERY_NS = 200_000_000
+
 __all__ = ["TrafficMonitor", "TrafficUpdate"]
 
 
@@ -122,6 +125,8 @@ class TrafficMonitor(native.KernelUser):
         self._yaw_sigma_cfg = math.radians(cfg.mounting_yaw_sigma_deg)
         self.yaw_sigma_rad = 0.0 if not cfg.estimate_yaw else self._yaw_sigma_cfg
         self._yaw_se: float | None = None  # standard error of this run's yaw estimate (None: none yet)
+        self._aligned: tuple[float, float] | None = None  # the last successful start-up alignment (yaw, sigma)
+        self._align_due_ns = -(2**62)  # when the next one is due
         self.learner = LaneLearner(cfg)
         self.stats = IntervalStatistics(cfg)
         self._memo: dict[int, _Memo] = {}
@@ -387,12 +392,17 @@ class TrafficMonitor(native.KernelUser):
                     and self.yaw_estimator.n_votes < cfg.yaw_min_tracks):
                 # start-up with configured lanes: the yaw that puts this frame's tracks into them (lanes.align_yaw), at
                 # the motion model's positions as for the votes (the published ones follow the yaw assumed so far)
-                moving = np.abs(kin[:, 5]) >= cfg.moving_speed_mps
-                aligned = align_yaw(kin[:, 2] if yaw_x_sel is None else yaw_x_sel, kin[:, 3],
-                                    np.where(moving, np.sign(kin[:, 5]), 0.0), self.lanes,
-                                    math.radians(cfg.mounting_yaw_deg), 5.0 * self._yaw_sigma_cfg, cfg.yaw_min_tracks)
-                if aligned is not None:
-                    est, se = aligned
+                # (every frame until the first succeeds, then five times a second: the yaw does not change between)
+                if t_ns >= self._align_due_ns:
+                    moving = np.abs(kin[:, 5]) >= cfg.moving_speed_mps
+                    aligned = align_yaw(kin[:, 2] if yaw_x_sel is None else yaw_x_sel, kin[:, 3],
+                                        np.where(moving, np.sign(kin[:, 5]), 0.0), self.lanes,
+                                        math.radians(cfg.mounting_yaw_deg), 5.0 * self._yaw_sigma_cfg, cfg.yaw_min_tracks)
+                    if aligned is not None:
+                        self._aligned = aligned
+                        self._align_due_ns = t_ns + _ALIGN_EVERY_NS
+                if self._aligned is not None:
+                    est, se = self._aligned
             self._yaw_se = se
             self.yaw_rad, yaw_sigma = self._yaw_in_use(est, se)
         self.yaw_sigma_rad = yaw_sigma
