@@ -104,10 +104,8 @@ def align_yaw(x: np.ndarray, y: np.ndarray, heading: np.ndarray, lanes: tuple[La
     x, y, allowed = x[keep], y[keep], allowed[keep]
     if x.size < min_points:
         return None
-    cap = np.where(allowed, hw2[None, :], np.inf)  # (N, L) each point's cost cap per lane, inf: not its direction
-    # per lane: its centre, the points' caps and 0 / inf (of its direction or not), contiguous
-    per_lane = [(float(c[k]), np.ascontiguousarray(cap[:, k]), np.where(allowed[:, k], 0.0, np.inf))
-                for k in range(c.size)]
+    # per lane: its centre, its half width squared (the cap) and per point 0, or inf where not of its direction
+    per_lane = [(float(c[k]), float(hw2[k]), np.where(allowed[:, k], 0.0, np.inf)) for k in range(c.size)]
 
     def cost(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         u = np.multiply.outer(np.cos(g), x)
@@ -133,7 +131,7 @@ def align_yaw(x: np.ndarray, y: np.ndarray, heading: np.ndarray, lanes: tuple[La
         best = offs[k]
         offs = best + np.arange(-10, 11) * (0.1 * step)
         step *= 0.1
-    inside = d2[k] < cap.min(axis=1)
+    inside = d2[k] < np.where(allowed, hw2, np.inf).min(axis=1)  # under the cap of its nearest lane
     m = int(inside.sum())
     if m < min_points:
         return None
