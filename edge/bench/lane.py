@@ -159,8 +159,7 @@ def peer(frontend: Any, config: Any) -> Callable[[Any], Any] | None:
         padded = np.concatenate([power[:, -half:], power, power[:, :half]], axis=1)
         windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1, axis=1)[:, :, ref_cols]
         noise = np.partition(windows, rank - 1, axis=-1)[..., rank - 1]
-        floor = np.median(power, axis=1, keepdims=True) * 10.0 ** (cfg.cfar_cap_db / 10.0)
-        return np.minimum(noise, floor) * scale
+        return noise * scale
 
     def angle(snaps: np.ndarray) -> tuple[float, int]:
         """Bartlett over the grid per segment and summed; ``snaps`` (4 seg, n_rx) calibrated."""

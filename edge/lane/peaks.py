@@ -1,6 +1,5 @@
-"""Stage 2, peaks (Lim §III-A): OS-CFAR per segment (Rohling), evaluated at the local maxima only, with the noise
-estimate capped over the segment's median; sub-bin interpolation by a parabola through the log-power; signed beat
-frequencies. Local maxima above a lower threshold (``aided_pfa``) are kept apart for the track-aided pairing."""
+"""Stage 2, peaks (Lim §III-A): OS-CFAR per segment (Rohling), evaluated at the local maxima only; sub-bin
+interpolation by a parabola through the log-power; signed beat frequencies. Local maxima above a lower threshold (``aided_pfa``) are kept apart for the track-aided pairing."""
 
 from __future__ import annotations
 
@@ -42,7 +41,6 @@ class PeakStage(native.KernelUser):
         if cfg.aided_pairing and 0 < cfg.aided_pfa and cfg.tracking:
             self.aided_scale32 = np.float32(min(os_cfar_scale(cfg.aided_pfa, self._n_ref, self._rank,
                                                               n_looks=frontend.n_rx), self.cfar_scale))
-        self._cap = np.float32(10.0 ** (cfg.cfar_cap_db / 10.0))
         self._ref_index = reference_index(n, cfg.cfar_train_cells, cfg.cfar_guard_cells)
         self.pad = cfg.cfar_train_cells + cfg.cfar_guard_cells  # circular padding of the power rows
         self._bin_shift = n.bit_length() - 1 if n & (n - 1) == 0 else None
@@ -83,7 +81,7 @@ class PeakStage(native.KernelUser):
         want_weak = bool(want_weak and self.aided_scale32 is not None)
         noise, thr = np.empty(power.shape, np.float32), np.empty(power.shape, np.float32)
         m_hit, m = k.select_frame(ppad, self._valid_u8, cfg.cfar_train_cells, cfg.cfar_guard_cells, self._rank,
-                                  self._k_comp, self._k_npad, floor, self._cap, self.scale32, self._k_aided, want_weak,
+                                  self._k_comp, self._k_npad, self.scale32, self._k_aided, want_weak,
                                   noise, thr, self._k_rows, self._k_cols, self._k_cells, self._k_counts,
                                   self._k_scratch)
         lg = np.log(self._k_cells[:m])  # numpy's float32 log, as the reference's (the cells are floored at 1e-30)
@@ -102,10 +100,8 @@ class PeakStage(native.KernelUser):
         # median per segment; the power is non-negative, so its float32 bit patterns as int32 sort like the
         # values and numpy selects int32 faster (the same element)
         floor = np.partition(power.view(np.int32), n // 2, axis=-1)[:, n // 2].view(np.float32)
-        cap = floor * self._cap  # (4,)
         if cfg.cfar_full_threshold:  # the whole threshold curve, for plots
             _, _, noise = os_cfar(power, self._ref_index, self._rank, self.cfar_scale)
-            noise = np.minimum(noise, cap[:, None])
             thr = noise * self.scale32
             rows, cols = np.nonzero(local_maxima(power, (power > thr) & self.valid))
             cells = np.stack([ppad[rows, cols + h + o] for o in (-1, 0, 1)], axis=1)
@@ -123,7 +119,6 @@ class PeakStage(native.KernelUser):
             else:
                 rows, cols = np.divmod(flat, n)
             nz, cells = os_cfar_at_padded(ppad, rows, cols, cfg.cfar_train_cells, cfg.cfar_guard_cells, self._rank)
-            np.minimum(nz, cap[rows], out=nz)
             hit = cells[:, 1] > nz * self.scale32
             noise = self._nan_rows.copy()  # (np.full's value; NaN away from local maxima; published)
             noise.reshape(-1)[flat] = nz

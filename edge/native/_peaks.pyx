@@ -5,7 +5,7 @@ detected and weak (track-aided) peaks, and the parabolic sub-bin interpolation t
 
 The selection rules are those of the numpy reference (PeakStage.reference): a local maximum is strictly above its
 left neighbour and at least its right one; the noise estimate is the ``rank``-th smallest of the ``2 n_train``
-reference cells (Rohling's OS-CFAR), capped at ``cap`` per segment; a peak is detected when its power exceeds
+reference cells (Rohling's OS-CFAR); a peak is detected when its power exceeds
 ``noise * scale`` (float32 arithmetic, as numpy's). The logarithm of the interpolation is left to the caller (numpy's
 float32 ``log``, so the frequencies equal the reference's bit for bit).
 """
@@ -197,8 +197,7 @@ cdef bint _is_fixed(const int *comp, Py_ssize_t ncomp, int n_train, int rank, in
 
 
 cdef Py_ssize_t _select_core(const float *ppad, const unsigned char *valid, int n_seg, int n, int n_train,
-                             int n_guard, int rank, const int *comp, int ncomp, int npad, const float *cap,
-                             float scale, float aided_scale, bint want_weak, float *noise, long *rows, long *cols,
+                             int n_guard, int rank, const int *comp, int ncomp, int npad, float scale, float aided_scale, bint want_weak, float *noise, long *rows, long *cols,
                              float *cells, unsigned char *is_hit, float *scratch) noexcept nogil:
     """:func:`select` on raw pointers (C-contiguous rows: ``ppad`` (n_seg, n + 2 half), ``valid`` and ``noise``
     (n_seg, n), ``cells`` (m, 3), ``comp`` (ncomp, 2)); returns m."""
@@ -232,8 +231,6 @@ cdef Py_ssize_t _select_core(const float *ppad, const unsigned char *valid, int 
         c = cols[k]
         row = ppad + r * w + half
         nz = scratch[k]
-        if cap[r] < nz:
-            nz = cap[r]
         noise[r * n + c] = nz
         p = row[c]
         if p > nz * scale:
@@ -256,12 +253,12 @@ cdef Py_ssize_t _select_core(const float *ppad, const unsigned char *valid, int 
 @cython.boundscheck(False)
 @cython.wraparound(False)
 def select(const float[:, ::1] ppad, const unsigned char[:, ::1] valid, int n_train, int n_guard, int rank,
-           const int[:, ::1] comp, int npad, const float[::1] cap, float scale, float aided_scale, bint want_weak,
+           const int[:, ::1] comp, int npad, float scale, float aided_scale, bint want_weak,
            float[:, ::1] noise, long[::1] rows, long[::1] cols, float[:, ::1] cells, unsigned char[::1] is_hit,
            float[::1] scratch):
     """Local maxima of the padded power rows ``ppad`` (seg, n + 2 half), ``half = n_train + n_guard``, inside
     ``valid`` (seg, n): their OS-CFAR noise (the ``rank``-th smallest reference cell by the network ``comp`` over
-    ``npad`` inputs, :func:`rank_network`; capped at ``cap`` per segment; written into ``noise`` (seg, n), which
+    ``npad`` inputs, :func:`rank_network`; written into ``noise`` (seg, n), which
     the caller filled with NaN), and those that are detected (power > noise * scale) or, with ``want_weak``,
     weak (not detected, power > noise * aided_scale). Writes per kept maximum, in (segment, bin) order, its
     ``rows``, ``cols``, its power and two neighbours floored at 1e-30 into ``cells`` (m, 3), and ``is_hit`` (1
@@ -275,7 +272,7 @@ def select(const float[:, ::1] ppad, const unsigned char[:, ::1] valid, int n_tr
         return 0
     with nogil:
         m = _select_core(&ppad[0, 0], &valid[0, 0], n_seg, n, n_train, n_guard, rank, &comp[0, 0], comp.shape[0],
-                         npad, &cap[0], scale, aided_scale, want_weak, &noise[0, 0], &rows[0], &cols[0],
+                         npad, scale, aided_scale, want_weak, &noise[0, 0], &rows[0], &cols[0],
                          &cells[0, 0], &is_hit[0], &scratch[0])
     return m
 
@@ -311,27 +308,25 @@ def interpolate(const float[:, ::1] lg, const long[::1] rows, const long[::1] co
 
 @cython.boundscheck(False)
 @cython.wraparound(False)
-def select_frame(ppad_a, valid_a, int n_train, int n_guard, int rank, comp_a, int npad, floor_a, float cap_factor,
-                 float scale, float aided_scale, bint want_weak, noise_a, thr_a, rows_a, cols_a, cells_a, counts_a,
+def select_frame(ppad_a, valid_a, int n_train, int n_guard, int rank, comp_a, int npad, float scale, float aided_scale, bint want_weak, noise_a, thr_a, rows_a, cols_a, cells_a, counts_a,
                  scratch_a):
-    """:func:`select` for the stage (edge.lane.peaks.PeakStage), the arrays read through the numpy C API. The cap is
-    ``floor_a`` (seg,) float32 (any stride) times ``cap_factor``; ``noise_a`` (seg, n) is filled with NaN first and
+    """:func:`select` for the stage (edge.lane.peaks.PeakStage), the arrays read through the numpy C API.
+    ``noise_a`` (seg, n) is filled with NaN first and
     ``thr_a`` (seg, n) gets noise * scale everywhere. The kept maxima come with the detected ones first, then the
     weak ones, each in (segment, bin) order; ``counts_a`` (2 seg,) int64 gets their numbers per segment (detected,
     then weak). Returns ``(m_hit, m)``."""
-    cdef Py_ssize_t n_seg = len(valid_a), n, ncomp = len(comp_a), cap_m = len(rows_a), i, j, w, m, fstep
+    cdef Py_ssize_t n_seg = len(valid_a), n, ncomp = len(comp_a), cap_m = len(rows_a), i, j, w, m
     if n_seg == 0:
         return 0, 0
     n = len(valid_a[0])
     if npad > KDET_MAX_PAD or npad < 2 * n_train or rank < 1 or rank > 2 * n_train or KDET_LANES != 8:
         raise ValueError("reference window too large or rank out of range")
-    if n_seg > 64 or cap_m < n_seg * (n // 2 + 1):
-        raise ValueError("too many segments, or rows_a cannot hold every local maximum")
+    if cap_m < n_seg * (n // 2 + 1):
+        raise ValueError("rows_a cannot hold every local maximum")
     cdef const float *ppad = <const float *>_data2(ppad_a, cnp.NPY_FLOAT32, n_seg, n + 2 * (n_train + n_guard),
                                                    False, "ppad")
     cdef const unsigned char *valid = <const unsigned char *>_data2(valid_a, cnp.NPY_UINT8, n_seg, n, False, "valid")
     cdef const int *comp = <const int *>_data2(comp_a, cnp.NPY_INT32, ncomp, 2, False, "comp")
-    cdef const float *floor = <const float *>_strided(floor_a, cnp.NPY_FLOAT32, n_seg, &fstep, "floor")
     cdef float *noise = <float *>_data2(noise_a, cnp.NPY_FLOAT32, n_seg, n, True, "noise")
     cdef float *thr = <float *>_data2(thr_a, cnp.NPY_FLOAT32, n_seg, n, True, "thr")
     cdef long *rows = <long *>_data(rows_a, cnp.NPY_INT64, cap_m, True, "rows")
@@ -339,7 +334,6 @@ def select_frame(ppad_a, valid_a, int n_train, int n_guard, int rank, comp_a, in
     cdef float *cells = <float *>_data2(cells_a, cnp.NPY_FLOAT32, cap_m, 3, True, "cells")
     cdef long long *counts = <long long *>_data(counts_a, cnp.NPY_INT64, 2 * n_seg, True, "counts")
     cdef float *scratch = <float *>_data(scratch_a, cnp.NPY_FLOAT32, cap_m, True, "scratch")
-    cdef float cap[64]
     cdef unsigned char *hit = <unsigned char *>malloc(cap_m + 1)
     cdef long *wr = <long *>malloc((2 * cap_m + 1) * sizeof(long))
     cdef float *wc = <float *>malloc((3 * cap_m + 1) * sizeof(float))
@@ -347,11 +341,9 @@ def select_frame(ppad_a, valid_a, int n_train, int n_guard, int rank, comp_a, in
         free(hit); free(wr); free(wc)
         raise MemoryError()
     with nogil:
-        for i in range(n_seg):
-            cap[i] = floor[i * fstep] * cap_factor
         for i in range(n_seg * n):
             noise[i] = NAN
-        m = _select_core(ppad, valid, <int>n_seg, <int>n, n_train, n_guard, rank, comp, <int>ncomp, npad, cap, scale,
+        m = _select_core(ppad, valid, <int>n_seg, <int>n, n_train, n_guard, rank, comp, <int>ncomp, npad, scale,
                          aided_scale, want_weak, noise, rows, cols, cells, hit, scratch)
         for i in range(n_seg * n):
             thr[i] = noise[i] * scale

@@ -84,9 +84,6 @@ class LaneConfig:
     cfar_rank_fraction: float = field(default=0.75, metadata={
         "doc": "rank of the ordered statistic as a fraction of the reference cells (Rohling: 3/4)",
         "min": 0.05, "max": 1.0})
-    cfar_cap_db: float = field(default=9.0, metadata={
-        "unit": "dB", "doc": "the OS-CFAR noise estimate is capped at the segment's median power plus this, so "
-               "echoes filling the reference window cannot mask themselves", "min": 0.0, "max": 100.0})
     cfar_full_threshold: bool = field(default=False, metadata={
         "doc": "compute the OS-CFAR threshold at every bin (for plots); off: only at local maxima (the same "
                "detections), other bins read NaN"})

@@ -44,23 +44,25 @@ def summary(scenario: str, seed: int, frames: int | None) -> dict:
 
 #: measured (both machine kinds of the module docstring agreed to 1e-5 m and 1e-5 km/h; the discrete figures equal)
 MEASURED = {
-    "highway4": dict(detection_probability=0.9754, false_tracks=0, lane_accuracy=1.0, position_rmse_m_mean=0.0607,
-                     position_rmse_m_max=0.0925, speed_mae_kmh=0.0808, count_error_per_lane=[0, 0, 0, 0],
+    "highway4": dict(detection_probability=0.9735, false_tracks=0, lane_accuracy=1.0, position_rmse_m_mean=0.0612,
+                     position_rmse_m_max=0.0930, speed_mae_kmh=0.0802, count_error_per_lane=[0, 0, 0, 0],
                      id_switches=0),
-    "highway4-traffic": dict(detection_probability=0.9595, false_tracks=1, lane_accuracy=0.9565,
-                             position_rmse_m_mean=0.2337, position_rmse_m_max=0.5979, speed_mae_kmh=0.2255,
-                             count_error_per_lane=[0, 0, 0, 0], id_switches=2),
-    "wrong-way": dict(detection_probability=0.9801, false_tracks=0, lane_accuracy=1.0, position_rmse_m_mean=0.1412,
-                      position_rmse_m_max=0.1544, speed_mae_kmh=0.1189, count_error_per_lane=[0, 0, 0, 0],
-                      id_switches=0, wrong_way_delay_s=7.392),
+    "highway4-traffic": dict(detection_probability=0.9290, false_tracks=0, lane_accuracy=1.0,
+                             position_rmse_m_mean=0.1970, position_rmse_m_max=0.3755, speed_mae_kmh=0.2336,
+                             count_error_per_lane=[0, 0, 0, 0], id_switches=1),
+    "wrong-way": dict(detection_probability=0.9602, false_tracks=0, lane_accuracy=1.0, position_rmse_m_mean=0.1354,
+                      position_rmse_m_max=0.1488, speed_mae_kmh=0.1291, count_error_per_lane=[0, 0, 0, 0],
+                      id_switches=0, wrong_way_delay_s=7.359),
 }
 
 #: bands: (min detection probability, max false tracks, min lane accuracy, max mean / worst vehicle's position
-#: RMSE (m), max speed MAE (km/h), max summed |count error|, max id switches)
+#: RMSE (m), max speed MAE (km/h), max summed |count error|, max id switches). The OS-CFAR without its cap (decision
+#: 0049) costs `v1`'s dense traffic 0.03 of detection probability (its trucks' evenly spaced scatterers fill the
+#: reference window), the wrong-way scene 0.02; their bands moved with those measurements.
 BANDS = {
     "highway4": (0.95, 0, 0.99, 0.09, 0.14, 0.13, 0, 1),
-    "highway4-traffic": (0.94, 2, 0.94, 0.30, 0.80, 0.30, 1, 4),
-    "wrong-way": (0.95, 0, 0.99, 0.20, 0.22, 0.17, 0, 1),
+    "highway4-traffic": (0.91, 2, 0.94, 0.30, 0.80, 0.30, 1, 4),
+    "wrong-way": (0.945, 0, 0.99, 0.20, 0.22, 0.17, 0, 1),
 }
 
 
@@ -82,7 +84,7 @@ def test_lane_figures_stay_in_their_bands(run):
 def test_the_wrong_way_driver_is_alarmed_in_time():
     ww = summary(*RUNS[2])["wrong_way"]
     assert (ww["drivers"], ww["correct"], ww["false"], ww["missed"]) == (1, 1, 0, 0), ww
-    # 7.39 s measured: the alarm needs the track confirmed against its lane for traffic.wrong_way_* frames; half a
+    # 7.36 s measured: the alarm needs the track confirmed against its lane for traffic.wrong_way_* frames; half a
     # second (15 frames) later is a regression
     assert ww["delay_s"][0] <= MEASURED["wrong-way"]["wrong_way_delay_s"] + 0.5, ww
 

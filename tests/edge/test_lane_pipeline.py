@@ -276,12 +276,14 @@ def _against_lane_track_frames(tmp_path, overrides, seed=3, n=180):
 def test_a_trucks_angle_glint_in_the_other_carriageway_is_dropped(tmp_path):
     """Two scatterers of a truck's body in one range cell in antiphase pull the 4-element Bartlett peak up to a
     beamwidth aside: at 45-60 m the approaching truck shows up 5-6 m beside itself, in a receding lane, at its own
-    speed. Without pipeline.lane.cluster_against_lane_speed_mps those detections confirm a track driving against
-    that lane (a wrong-way alarm on highway4-traffic seeds 5, 7015, 7016); with it they are dropped."""
-    off_tracks, off_dets = _against_lane_track_frames(tmp_path, {"pipeline.lane.cluster_against_lane_speed_mps": "0"})
+    speed. No track may drive against that lane (a wrong-way alarm on highway4-traffic seeds 5, 7015, 7016).
+
+    With the OS-CFAR noise estimate capped (before decision 0049) the glint gave 20+ detections here and, without
+    pipeline.lane.cluster_against_lane_speed_mps, a confirmed track against the lane. Uncapped, the truck's weak body
+    peaks are not detected: 4 such detections with the rule or without, and no track either way; the rule's own
+    behaviour is tested on hand-made detections below."""
     on_tracks, on_dets = _against_lane_track_frames(tmp_path, {})
-    assert off_tracks > 20 and off_dets > 20  # the glint and its ghost track are there...
-    assert on_tracks == 0 and on_dets < off_dets / 2  # ...and gone (left: glints with no near face detected)
+    assert on_tracks == 0 and on_dets <= 10, (on_tracks, on_dets)
 
 
 def test_against_lane_glint_rule_keeps_other_vehicles():
