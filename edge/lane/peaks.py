@@ -1,5 +1,6 @@
 """Stage 2, peaks (Lim §III-A): OS-CFAR per segment (Rohling), evaluated at the local maxima only; sub-bin
-interpolation by a parabola through the log-power; signed beat frequencies. Local maxima above a lower threshold (``aided_pfa``) are kept apart for the track-aided pairing."""
+interpolation by a parabola through the log-power; signed beat frequencies. Local maxima above a lower threshold
+(``aided_pfa``) are kept apart for the track-aided pairing."""
 
 from __future__ import annotations
 

@@ -42,25 +42,6 @@ cdef inline void *_data2(object a, int typenum, Py_ssize_t n0, Py_ssize_t n1, bi
     return cnp.PyArray_DATA(arr)
 
 
-cdef inline void *_strided(object a, int typenum, Py_ssize_t n, Py_ssize_t *step, str name) except NULL:
-    """Data pointer of the 1-D read-only numpy array ``a`` of ``typenum`` and ``n`` elements, aligned and native, of
-    any stride; ``step`` receives the stride in elements."""
-    cdef cnp.ndarray arr
-    cdef Py_ssize_t itemsize, st
-    if not cnp.PyArray_Check(a):
-        raise TypeError(f"{name}: a numpy array is needed, not {type(a).__name__}")
-    arr = <cnp.ndarray>a
-    itemsize = cnp.PyArray_ITEMSIZE(arr)
-    st = cnp.PyArray_STRIDE(arr, 0) if cnp.PyArray_NDIM(arr) == 1 else 0
-    if not (cnp.PyArray_NDIM(arr) == 1 and cnp.PyArray_DIM(arr, 0) == n
-            and cnp.PyArray_EquivTypenums(cnp.PyArray_TYPE(arr), typenum)
-            and cnp.PyArray_ISALIGNED(arr) and cnp.PyArray_ISNOTSWAPPED(arr) and st % itemsize == 0):
-        raise ValueError(f"{name}: ({n},) {cnp.PyArray_DescrFromType(typenum)} aligned, native array needed, got "
-                         f"{a.dtype} {a.shape}")
-    step[0] = st // itemsize
-    return cnp.PyArray_DATA(arr)
-
-
 cdef inline void *_data3(object a, int typenum, Py_ssize_t n0, Py_ssize_t n1, Py_ssize_t n2, bint writable,
                          str name) except NULL:
     """:func:`_data` of a 3-D ``(n0, n1, n2)`` array."""
