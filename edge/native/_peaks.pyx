@@ -5,8 +5,8 @@ detected and weak (track-aided) peaks, and the parabolic sub-bin interpolation t
 
 The selection rules are those of the numpy reference (PeakStage.reference): a local maximum is strictly above its
 left neighbour and at least its right one; the noise estimate is the ``rank``-th smallest of the ``2 n_train``
-reference cells (Rohling's OS-CFAR); a peak is detected when its power exceeds
-``noise * scale`` (float32 arithmetic, as numpy's). The logarithm of the interpolation is left to the caller (numpy's
+reference cells (Rohling's OS-CFAR); a peak is detected when its power exceeds ``noise * scale`` (float32
+arithmetic, as numpy's). The logarithm of the interpolation is left to the caller (numpy's
 float32 ``log``, so the frequencies equal the reference's bit for bit).
 """
 
@@ -197,8 +197,9 @@ cdef bint _is_fixed(const int *comp, Py_ssize_t ncomp, int n_train, int rank, in
 
 
 cdef Py_ssize_t _select_core(const float *ppad, const unsigned char *valid, int n_seg, int n, int n_train,
-                             int n_guard, int rank, const int *comp, int ncomp, int npad, float scale, float aided_scale, bint want_weak, float *noise, long *rows, long *cols,
-                             float *cells, unsigned char *is_hit, float *scratch) noexcept nogil:
+                             int n_guard, int rank, const int *comp, int ncomp, int npad, float scale,
+                             float aided_scale, bint want_weak, float *noise, long *rows, long *cols, float *cells,
+                             unsigned char *is_hit, float *scratch) noexcept nogil:
     """:func:`select` on raw pointers (C-contiguous rows: ``ppad`` (n_seg, n + 2 half), ``valid`` and ``noise``
     (n_seg, n), ``cells`` (m, 3), ``comp`` (ncomp, 2)); returns m."""
     cdef int half = n_train + n_guard, r, c, nb
@@ -258,11 +259,11 @@ def select(const float[:, ::1] ppad, const unsigned char[:, ::1] valid, int n_tr
            float[::1] scratch):
     """Local maxima of the padded power rows ``ppad`` (seg, n + 2 half), ``half = n_train + n_guard``, inside
     ``valid`` (seg, n): their OS-CFAR noise (the ``rank``-th smallest reference cell by the network ``comp`` over
-    ``npad`` inputs, :func:`rank_network`; written into ``noise`` (seg, n), which
-    the caller filled with NaN), and those that are detected (power > noise * scale) or, with ``want_weak``,
-    weak (not detected, power > noise * aided_scale). Writes per kept maximum, in (segment, bin) order, its
-    ``rows``, ``cols``, its power and two neighbours floored at 1e-30 into ``cells`` (m, 3), and ``is_hit`` (1
-    detected, 0 weak); ``rows``, ``cols`` and ``scratch`` must hold every local maximum (seg * (n / 2 + 1)).
+    ``npad`` inputs, :func:`rank_network`; written into ``noise`` (seg, n), which the caller filled with NaN), and
+    those that are detected (power > noise * scale) or, with ``want_weak``, weak (not detected, power > noise *
+    aided_scale). Writes per kept maximum, in (segment, bin) order, its ``rows``, ``cols``, its power and two
+    neighbours floored at 1e-30 into ``cells`` (m, 3), and ``is_hit`` (1 detected, 0 weak); ``rows``, ``cols`` and
+    ``scratch`` must hold every local maximum (seg * (n / 2 + 1)).
     Returns m."""
     cdef int n_seg = valid.shape[0], n = valid.shape[1]
     if npad > KDET_MAX_PAD or npad < 2 * n_train or rank < 1 or rank > 2 * n_train or KDET_LANES != 8:
@@ -308,13 +309,12 @@ def interpolate(const float[:, ::1] lg, const long[::1] rows, const long[::1] co
 
 @cython.boundscheck(False)
 @cython.wraparound(False)
-def select_frame(ppad_a, valid_a, int n_train, int n_guard, int rank, comp_a, int npad, float scale, float aided_scale, bint want_weak, noise_a, thr_a, rows_a, cols_a, cells_a, counts_a,
-                 scratch_a):
-    """:func:`select` for the stage (edge.lane.peaks.PeakStage), the arrays read through the numpy C API.
-    ``noise_a`` (seg, n) is filled with NaN first and
-    ``thr_a`` (seg, n) gets noise * scale everywhere. The kept maxima come with the detected ones first, then the
-    weak ones, each in (segment, bin) order; ``counts_a`` (2 seg,) int64 gets their numbers per segment (detected,
-    then weak). Returns ``(m_hit, m)``."""
+def select_frame(ppad_a, valid_a, int n_train, int n_guard, int rank, comp_a, int npad, float scale,
+                 float aided_scale, bint want_weak, noise_a, thr_a, rows_a, cols_a, cells_a, counts_a, scratch_a):
+    """:func:`select` for the stage (edge.lane.peaks.PeakStage), the arrays read through the numpy C API. ``noise_a``
+    (seg, n) is filled with NaN first and ``thr_a`` (seg, n) gets noise * scale everywhere. The kept maxima come with
+    the detected ones first, then the weak ones, each in (segment, bin) order; ``counts_a`` (2 seg,) int64 gets their
+    numbers per segment (detected, then weak). Returns ``(m_hit, m)``."""
     cdef Py_ssize_t n_seg = len(valid_a), n, ncomp = len(comp_a), cap_m = len(rows_a), i, j, w, m
     if n_seg == 0:
         return 0, 0
