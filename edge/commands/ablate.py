@@ -18,7 +18,7 @@ metric the table gives the pooled baseline (ratio of sums over runs), the pooled
 a rule whose removal moves no figure beyond its interval is not earning its keep on this corpus."""
 EPILOG = """\
 examples:
-  radar-edge ablate --corpus corpus/lane.toml --part dev --rule pipeline.lane.cluster_against_lane_speed_mps=0 --jobs 2
+  radar-edge ablate --corpus corpus/lane.toml --part dev --rule pipeline.lane.unalias_by_lane=false --jobs 2
   radar-edge ablate --corpus corpus/lane.toml --rules corpus/lane-rules.toml --jobs 2 --json out/ablation.json
 """
 

@@ -6,9 +6,9 @@ A rule is a name and the configuration changes that switch it off (``SECTION.KEY
 file (TOML) lists them::
 
     [[rule]]
-    name = "glint-rule"                                          # required, unique
-    set = ["pipeline.lane.cluster_against_lane_speed_mps=0"]     # required, non-empty
-    description = "drop angle glint in a lane of the other direction"
+    name = "unalias-by-lane"                                     # required, unique
+    set = ["pipeline.lane.unalias_by_lane=false"]                # required, non-empty
+    description = "move grating-lobe aliases back into a lane of their direction"
 
 Pooling and intervals as in :mod:`edge.evaluation.corpus`: ratios of sums over runs; each bootstrap resample
 draws (scenario, seed) clusters with replacement and applies the same draw to the baseline and the ablated runs,

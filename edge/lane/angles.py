@@ -13,7 +13,6 @@ import numpy as np
 from edge import native
 from edge.dsp.angle import bartlett_consensus, beamform, steering_matrix
 from edge.dsp.geometry import polar_to_ground
-from edge.dsp.pairing import nearest_of_clusters
 from edge.lane.records import Angles, Feedback, PairList, Spectra
 from edge.lane.resolve import CellResolver, ResolverConfig
 from edge.lane.road import RoadFrame
@@ -128,8 +127,7 @@ class AngleStage(native.KernelUser):
 class SplitStraddlesLanes:
     """Keeps a split whose two directions lie in adjacent lanes with their midpoint within
     ``resolve_boundary_fraction`` of the lane spacing from the boundary between them (two vehicles side by side;
-    a truck's two sides straddle the centre of one lane), and with ``resolve_same_direction`` both lanes carrying
-    the cell's direction of travel (two vehicles in one range-speed cell move the same way). Only with lanes."""
+    a truck's two sides straddle the centre of one lane). Only with lanes."""
 
     def __init__(self, config, road: RoadFrame) -> None:
         self.config = config
@@ -139,9 +137,9 @@ class SplitStraddlesLanes:
                  feedback: Feedback) -> np.ndarray:
         if not feedback.lanes:
             return split
-        return split & self.straddles(range_m, v_mps, ang, feedback)
+        return split & self.straddles(range_m, ang, feedback)
 
-    def straddles(self, range_m: np.ndarray, v_mps: np.ndarray, ang: np.ndarray, feedback: Feedback) -> np.ndarray:
+    def straddles(self, range_m: np.ndarray, ang: np.ndarray, feedback: Feedback) -> np.ndarray:
         """(n,) bool: the two directions ``ang`` (n, 2) of each cell lie in adjacent lanes about their boundary."""
         cfg = self.config
         lanes = feedback.lanes
@@ -156,33 +154,7 @@ class SplitStraddlesLanes:
         spacing = np.abs(centres[hi] - centres[lo])
         mid = (u[:, 0] + u[:, 1]) / 2  # u.mean(axis=1): the sum of the two, halved
         ok &= np.abs(mid - boundary) <= cfg.resolve_boundary_fraction * spacing
-        if cfg.resolve_same_direction:
-            _, dirs = self.road.lane_arrays(lanes)
-            sign = np.sign(v_mps)
-            ok &= (dirs[lo] == sign) & (dirs[hi] == sign)
         return ok
-
-
-class SplitNotBody:
-    """Drops a split whose cell lies behind a nearer detection of the same vehicle (``resolve_skip_bodies``): up to
-    ``cluster_length_m`` nearer, within ``cluster_speed_mps`` in radial speed and ``cluster_lateral_m`` across of the
-    cell's own (unsplit) position. Such a cell is the vehicle's body (two sides, or a side and the far face, in one
-    range bin, which the 4-element array cannot resolve); two vehicles side by side are both nearest detections."""
-
-    def __init__(self, config) -> None:
-        self.config = config
-
-    def __call__(self, split: np.ndarray, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, ang: np.ndarray,
-                 feedback: Feedback) -> np.ndarray:
-        return split & ~self.is_body(range_m, v_mps, az, split)
-
-    def is_body(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, split: np.ndarray) -> np.ndarray:
-        """(n,) bool: split detections behind a nearer detection of their own vehicle."""
-        cfg = self.config
-        x, _ = polar_to_ground(range_m, az, cfg.mounting_height_m, cfg.target_height_m)
-        behind = ~nearest_of_clusters(range_m, v_mps, x, length_m=cfg.cluster_length_m,
-                                      speed_mps=cfg.cluster_speed_mps, lateral_m=cfg.cluster_lateral_m)
-        return split & behind
 
 
 class ResolveStage:
@@ -201,8 +173,7 @@ class ResolveStage:
                            follow_direction=cfg.resolve_follow_direction),
             steer, grid, wf.frame_period_s, frontend.rx_spacing_m / wf.wavelength_m, kernel=native.load("_resolve"))
         # checks of a split, in order (each narrows the split mask)
-        self.split_filters: tuple = (SplitStraddlesLanes(cfg, road),) + (
-            (SplitNotBody(cfg),) if cfg.resolve_skip_bodies else ())
+        self.split_filters: tuple = (SplitStraddlesLanes(cfg, road),)
 
     def __call__(self, a: Angles, feedback: Feedback) -> Angles:
         rng, vel, res, az, snr_db, pair_of = (a.range_m, a.radial_speed_mps, a.residual_hz, a.az_rad, a.snr_db,

@@ -3,8 +3,7 @@ road-geometry filters, each a small object switched by its ``pipeline.lane`` key
 
 * :class:`UnaliasByLane` (before the projection): a grating-lobe alias moved back into a lane of its direction;
 * :class:`NearFaces`: a vehicle's body (detections behind its near face at its speed) dropped; the body's length
-  measured;
-* :class:`AgainstLaneGlint`: angle glint of a vehicle's body in a lane of the other direction dropped.
+  measured.
 
 A filter is called as ``filter(candidates, feedback) -> candidates`` (:class:`edge.lane.records.Candidates`)."""
 
@@ -162,87 +161,6 @@ class NearFaces(native.KernelUser):
         return far - near
 
 
-class AgainstLaneGlint(native.KernelUser):
-    """Angle glint of a vehicle's body: a kept detection moving against the lane it lies in (faster than
-    ``unalias_min_speed_mps``) with a kept detection not against its lane up to ``cluster_length_m`` nearer, within
-    ``cluster_against_lane_speed_mps`` in radial speed and a beamwidth (lambda / (N d) in sin az) in angle, is
-    dropped. Only where the direction is sure: the lanes ``cluster_against_lane_margin_m`` plus
-    ``feedback.lane_sigmas`` x range x ``feedback.direction_sigma_rad`` to either side run the same way."""
-
-    def __init__(self, frontend: FrontendInfo, config, road: RoadFrame) -> None:
-        self.config = config
-        self.road = road
-        # Rayleigh width lambda / (N d) in sin(az)
-        self.beamwidth_sin = frontend.waveform.wavelength_m / frontend.rx_spacing_m / frontend.n_rx
-        #: the compiled pass (edge/native/_unalias.pyx, ``glint``), None: :meth:`reference` runs
-        self.kernel = native.load("_unalias")
-        self._k_lanes: tuple = (None, None)  # (lanes, their (centre, half width, direction) float64 arrays)
-
-    def __call__(self, c: Candidates, feedback: Feedback) -> Candidates:
-        if not feedback.lanes or c.keep.sum() <= 1:
-            return c
-        keep = c.keep & ~self.glint(c.range_m, c.radial_speed_mps, c.az_rad, c.x_m, c.y_m, c.keep, feedback)
-        return Candidates(c.range_m, c.radial_speed_mps, c.az_rad, c.x_m, c.y_m, keep, c.body_extent_m)
-
-    def glint(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, x: np.ndarray, y: np.ndarray,
-              keep: np.ndarray, feedback: Feedback) -> np.ndarray:
-        """(n,) bool: the kept detections that are glint of a nearer vehicle's body. The compiled kernel when built,
-        else :meth:`reference` (the same mask)."""
-        cfg = self.config
-        k_sigma = feedback.lane_sigmas * feedback.direction_sigma_rad
-        margin = cfg.cluster_against_lane_margin_m
-        if (self.kernel is None or not all(a.dtype == np.float32 for a in (range_m, v_mps, az, x, y))
-                or type(k_sigma) not in (int, float) or type(margin) not in (int, float)
-                or type(cfg.cluster_length_m) not in (int, float)
-                or type(cfg.cluster_against_lane_speed_mps) not in (int, float)):
-            return self.reference(range_m, v_mps, az, x, y, keep, feedback)  # (the reference's float32 rounding
-            # of Python scalars, NEP 50, is what the kernel reproduces)
-        out = self.kernel.glint(np.ascontiguousarray(range_m), np.ascontiguousarray(v_mps), np.ascontiguousarray(az),
-                                np.ascontiguousarray(x), np.ascontiguousarray(y),
-                                np.ascontiguousarray(keep).view(np.uint8), *self.lane_table(feedback.lanes),
-                                math.cos(feedback.yaw_rad), math.sin(feedback.yaw_rad),
-                                np.float32(cfg.unalias_min_speed_mps), np.float32(margin), np.float32(k_sigma),
-                                np.float32(cfg.cluster_length_m), np.float32(cfg.cluster_against_lane_speed_mps),
-                                self.beamwidth_sin)
-        return out.view(bool)
-
-    def lane_table(self, lanes) -> tuple:
-        """The kernels' arrays of ``lanes`` (:func:`_lane_table`), kept while the lanes are the same object (they
-        change rarely, see RoadFrame)."""
-        if self._k_lanes[0] is not lanes:
-            self._k_lanes = (lanes, _lane_table(lanes))
-        return self._k_lanes[1]
-
-    def reference(self, range_m: np.ndarray, v_mps: np.ndarray, az: np.ndarray, x: np.ndarray, y: np.ndarray,
-                  keep: np.ndarray, feedback: Feedback) -> np.ndarray:
-        """The numpy form of :meth:`glint` (the kernel's reference and fallback)."""
-        cfg = self.config
-        lanes = feedback.lanes
-        _, dirs = self.road.lane_arrays(lanes)
-        u = self.road.across_road(x, y, feedback.yaw_rad)
-        against = keep & (dirs[assign_lanes(u, lanes)] * v_mps < -np.float32(cfg.unalias_min_speed_mps))
-        out = np.zeros(range_m.shape, bool)
-        if not np.count_nonzero(against):
-            return out
-        sigma = feedback.direction_sigma_rad
-        idx = against.nonzero()[0]
-        half = cfg.cluster_against_lane_margin_m + feedback.lane_sigmas * sigma * range_m[idx]
-        # both sides in one assignment (u - half is u + (-half) bit for bit)
-        ui = u[idx]
-        sides = dirs[assign_lanes(np.concatenate([ui - half, ui + half]), lanes)].reshape(2, -1) * v_mps[idx]
-        against[idx] &= (sides < -np.float32(cfg.unalias_min_speed_mps)).all(axis=0)
-        if not np.count_nonzero(against):
-            return out
-        idx = against.nonzero()[0]
-        own = keep & ~against
-        r = range_m[idx, None] - range_m[None, :]  # > 0: the other one nearer
-        sin_az = np.sin(az.astype(np.float64))
-        out[idx] = (own[None, :] & (r > 0) & (r <= cfg.cluster_length_m)
-                    & (np.abs(v_mps[idx, None] - v_mps[None, :]) <= cfg.cluster_against_lane_speed_mps)
-                    & (np.abs(sin_az[idx, None] - sin_az[None, :]) <= self.beamwidth_sin)).any(axis=1)
-        return out
-
-
 class DetectionStage(native.KernelUser):
     """Ground-plane geometry and the road-geometry filters, as configured."""
 
@@ -254,13 +172,9 @@ class DetectionStage(native.KernelUser):
         self.filters: tuple = ()
         if cfg.cluster_length_m > 0:
             self.filters += (NearFaces(cfg),)
-            if cfg.cluster_against_lane_speed_mps > 0:
-                self.filters += (AgainstLaneGlint(frontend, cfg, road),)
         #: the compiled stage after the direction filters (edge/native/_detect.pyx), None: :meth:`reference`
         self.kernel = native.load("_detect")
         self._k_dz = np.float32(cfg.mounting_height_m - cfg.target_height_m)  # (polar_to_ground's)
-        self._g_consts: tuple = (None, None)  # (config, its float32 glint arguments; see _glint_consts)
-        self._k_sigma: tuple = (None, None)  # (lane_sigmas x direction_sigma_rad, its float32)
 
     def __call__(self, a: Angles, feedback: Feedback) -> Detections:
         """The detections of ``a``: the direction filters, the ground projection and the filters of the projected
@@ -276,24 +190,12 @@ class DetectionStage(native.KernelUser):
                 or not (a.unresolved_pair is None or (type(a.unresolved_pair) is np.ndarray
                                                       and a.unresolved_pair.dtype == bool))):
             return self.reference(a, feedback)
-        glint = faces = None
+        faces = None
         for f in self.filters:
-            if type(f) is NearFaces and faces is None and glint is None and f.kernel is not None:
+            if type(f) is NearFaces and faces is None and f.kernel is not None:
                 faces = f
-            elif type(f) is AgainstLaneGlint and faces is not None and glint is None and f.kernel is not None:
-                glint = f
             else:
                 return self.reference(a, feedback)
-        g_args = (None, None, None, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        if glint is not None and feedback.lanes:
-            k_sigma = feedback.lane_sigmas * feedback.direction_sigma_rad
-            gc = self._glint_consts()
-            if type(k_sigma) not in (int, float) or gc is None:
-                return self.reference(a, feedback)  # (AgainstLaneGlint.glint's condition for its kernel)
-            if k_sigma != self._k_sigma[0] or not k_sigma:  # (the float32 of the same value; of 0 by its sign)
-                self._k_sigma = (k_sigma, np.float32(k_sigma))
-            g_args = (*glint.lane_table(feedback.lanes), math.cos(feedback.yaw_rad), math.sin(feedback.yaw_rad),
-                      gc[0], gc[1], self._k_sigma[1], gc[2], gc[3], glint.beamwidth_sin)
         c = Candidates(a.range_m, a.radial_speed_mps, a.az_rad, None, None, None)
         for f in self.direction_filters:
             c = f(c, feedback)
@@ -303,27 +205,13 @@ class DetectionStage(native.KernelUser):
         f_args = faces._k_args if faces is not None else (0.0, 0.0, 0.0, 0.0)  # (NearFaces' float32 arguments)
         rng, vel, az, snr, x, y, res, pair, body, unresolved = k.finish(
             c.range_m, c.radial_speed_mps, az, np.sin(az), np.cos(az), a.snr_db, a.residual_hz, a.resolved_pair,
-            a.unresolved_pair, self._k_dz, faces is not None, *f_args, glint is not None and bool(feedback.lanes),
-            *g_args)
+            a.unresolved_pair, self._k_dz, faces is not None, *f_args)
         extra = {"pair_residual_hz": res, "resolved_pair": pair}
         if body is not None:
             extra["body_extent_m"] = body
         if unresolved is not None:
             extra["unresolved_pair"] = unresolved
         return Detections(rng, vel, az, snr, x, y, extra)
-
-    def _glint_consts(self) -> tuple | None:
-        """The glint's float32 arguments from the config (the unalias speed, the margin, the cluster length and
-        speed), made once per config; None when one is not a Python number (then the reference runs)."""
-        cfg = self.config
-        if self._g_consts[0] is not cfg:
-            margin = cfg.cluster_against_lane_margin_m
-            ok = (type(margin) in (int, float) and type(cfg.cluster_length_m) in (int, float)
-                  and type(cfg.cluster_against_lane_speed_mps) in (int, float))
-            self._g_consts = (cfg, (np.float32(cfg.unalias_min_speed_mps), np.float32(margin),
-                                    np.float32(cfg.cluster_length_m), np.float32(cfg.cluster_against_lane_speed_mps))
-                              if ok else None)
-        return self._g_consts[1]
 
     def reference(self, a: Angles, feedback: Feedback) -> Detections:
         """The numpy form of :meth:`__call__` (each filter's own kernel when built): the kernel's reference and

@@ -39,11 +39,6 @@ class Feedback:
     lanes: tuple[Any, ...] = ()
     #: the road's direction off the boresight (rad), the traffic layer's estimate
     yaw_rad: float = 0.0
-    #: standard deviation (rad) of a track's direction across the road: the yaw's and the tracks' azimuth
-    #: uncertainty combined (edge.traffic: wrong-way test)
-    direction_sigma_rad: float = 0.0
-    #: lane-assignment margin in standard deviations (traffic.wrong_way_lane_sigmas)
-    lane_sigmas: float = 0.0
 
     @property
     def n_tracks(self) -> int:

@@ -2,8 +2,7 @@
 # distutils: extra_compile_args = -ffp-contract=off
 """Detection-stage kernel (edge.lane.detections.DetectionStage after the direction filters, whose numpy reference is
 DetectionStage.reference): the ground projection from numpy's sin and cos of the angles (eq. 16), the near faces and
-the body lengths (NearFaces), the against-lane glint (AgainstLaneGlint) and the kept rows of every output column, in
-one call. The arrays are read through the numpy C API (_arrays.pxi), not typed memoryviews. float32 as the reference,
+the body lengths (NearFaces) and the kept rows of every output column, in one call. The arrays are read through the numpy C API (_arrays.pxi), not typed memoryviews. float32 as the reference,
 one rounding per operation."""
 
 cimport cython
@@ -35,17 +34,13 @@ cdef object _take(object a, int typenum, Py_ssize_t itemsize, const unsigned cha
 @cython.wraparound(False)
 @cython.cdivision(True)
 def finish(rng_a, vel_a, az_a, sin_a, cos_a, snr_a, res_a, pair_a, unresolved_a, float dz,
-           bint faces, float length, float speed, float lateral, float dz2,
-           bint glint, centre_a, half_w_a, dirs_a, double cos_yaw, double sin_yaw, float min_speed, float margin,
-           float k_sigma, float g_length, float g_speed, double beamwidth_sin):
+           bint faces, float length, float speed, float lateral, float dz2):
     """``rng_a``, ``vel_a``, ``az_a``, ``snr_a``, ``res_a`` (n,) float32 (m, m/s, rad, dB, Hz), ``sin_a``, ``cos_a``
     (n,) float32 numpy's sin and cos of ``az_a``, ``pair_a`` (n,) int32 resolved pairs, ``unresolved_a`` (n,) bool
     or None. ``dz``: the height difference (m, float32). With ``faces``: NearFaces (``length``, ``speed``,
-    ``lateral``, ``dz2`` its float32 squared height difference); with ``glint`` also AgainstLaneGlint (lanes
-    ``centre_a``, ``half_w_a``, ``dirs_a`` (L >= 1,) float64 as edge/native/_unalias.pyx's ``glint``, and its
-    other arguments). Returns the kept detections' ``(range, v, az, snr, x, y, residual, resolved_pair,
+    ``lateral``, ``dz2`` its float32 squared height difference). Returns the kept detections' ``(range, v, az, snr, x, y, residual, resolved_pair,
     body_extent or None, unresolved_pair or None)``: the given arrays themselves when every detection is kept."""
-    cdef Py_ssize_t n = len(rng_a), i, m, n_lanes = 0
+    cdef Py_ssize_t n = len(rng_a), i, m
     cdef const float *rng = <const float *>_data(rng_a, cnp.NPY_FLOAT32, n, False, "rng")
     cdef const float *vel = <const float *>_data(vel_a, cnp.NPY_FLOAT32, n, False, "vel")
     cdef const float *az = <const float *>_data(az_a, cnp.NPY_FLOAT32, n, False, "az")
@@ -56,16 +51,6 @@ def finish(rng_a, vel_a, az_a, sin_a, cos_a, snr_a, res_a, pair_a, unresolved_a,
     _data(pair_a, cnp.NPY_INT32, n, False, "resolved_pair")
     if unresolved_a is not None:
         _data(unresolved_a, cnp.NPY_BOOL, n, False, "unresolved_pair")
-    cdef const double *centre = NULL
-    cdef const double *half_w = NULL
-    cdef const double *dirs = NULL
-    if glint:
-        n_lanes = len(centre_a)
-        if n_lanes < 1 or not faces:
-            raise ValueError("glint needs lanes and the near faces")
-        centre = <const double *>_data(centre_a, cnp.NPY_FLOAT64, n_lanes, False, "centre")
-        half_w = <const double *>_data(half_w_a, cnp.NPY_FLOAT64, n_lanes, False, "half_w")
-        dirs = <const double *>_data(dirs_a, cnp.NPY_FLOAT64, n_lanes, False, "dirs")
     cdef cnp.ndarray x_arr = _new(cnp.NPY_FLOAT32, n)
     cdef cnp.ndarray y_arr = _new(cnp.NPY_FLOAT32, n)
     cdef float *x = <float *>cnp.PyArray_DATA(x_arr)
@@ -73,14 +58,11 @@ def finish(rng_a, vel_a, az_a, sin_a, cos_a, snr_a, res_a, pair_a, unresolved_a,
     cdef float rc, t, dd = dz * dz
     body_arr = None
     cdef float *body = NULL
-    cdef unsigned char *buf = <unsigned char *>malloc(4 * n + 8 * n + 16)
+    cdef unsigned char *buf = <unsigned char *>malloc(2 * n + 1)
     if buf == NULL:
         raise MemoryError()
     cdef unsigned char *keep = buf
     cdef unsigned char *ones = buf + n
-    cdef unsigned char *against = buf + 2 * n
-    cdef unsigned char *out = buf + 3 * n
-    cdef double *s = <double *>(buf + ((4 * n + 7) // 8) * 8)
     try:
         for i in range(n):  # polar_to_ground: x = r sin az, y = sqrt(max((r cos az)^2 - dz^2, 0))
             x[i] = rng[i] * sn[i]
@@ -100,15 +82,6 @@ def finish(rng_a, vel_a, az_a, sin_a, cos_a, snr_a, res_a, pair_a, unresolved_a,
         m = 0
         for i in range(n):
             m += keep[i]
-        if glint and m > 1:
-            for i in range(n):
-                out[i] = 0
-            if _glint_core(rng, vel, az, x, y, keep, n, centre, half_w, dirs, n_lanes, cos_yaw, sin_yaw,
-                           min_speed, margin, k_sigma, g_length, g_speed, beamwidth_sin, against, s, out):
-                m = 0
-                for i in range(n):
-                    keep[i] = keep[i] and not out[i]
-                    m += keep[i]
         if m == n:
             return rng_a, vel_a, az_a, snr_a, x_arr, y_arr, res_a, pair_a, body_arr, unresolved_a
         return (_take(rng_a, cnp.NPY_FLOAT32, 4, keep, n, m), _take(vel_a, cnp.NPY_FLOAT32, 4, keep, n, m),

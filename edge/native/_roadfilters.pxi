@@ -1,6 +1,6 @@
-# The road-geometry filters' loops on raw pointers, shared by _faces (near_faces), _unalias (unalias, glint) and
-# _detect (the detection stage after the projection) (`include "_roadfilters.pxi"`). Float arithmetic as the numpy
-# references (edge.lane.detections), one rounding per operation.
+# The road-geometry filters' loops on raw pointers, shared by _faces (near_faces), _unalias (unalias) and _detect
+# (the detection stage after the projection) (`include "_roadfilters.pxi"`). Float arithmetic as the numpy references
+# (edge.lane.detections), one rounding per operation.
 
 from libc.math cimport sin, sqrt, sqrtf, fabs, fabsf, NAN
 
@@ -49,45 +49,3 @@ cdef void _near_faces_core(const float *rng, const float *v, const float *x, con
         t = fr * fr - dz2 - x2
         far = sqrtf(t if (t >= 0 or t != t) else <float>0)
         ext[i] = far - near
-
-
-cdef bint _glint_core(const float *rng, const float *v, const float *az, const float *x, const float *y,
-                      const unsigned char *keep, Py_ssize_t n, const double *centre, const double *half_w,
-                      const double *dirs, Py_ssize_t n_lanes, double cos_yaw, double sin_yaw, float min_speed,
-                      float margin, float k_sigma, float length, float speed, double beamwidth_sin,
-                      unsigned char *against, double *s, unsigned char *out) noexcept nogil:
-    """AgainstLaneGlint.glint: ``out`` (n, zeroed by the caller) 1 for the kept detections that are glint of a
-    nearer body; ``against`` (n) and ``s`` (n) scratch. Returns whether any detection is against its lane."""
-    cdef Py_ssize_t i, j
-    cdef double u, sv
-    cdef float half, dr
-    cdef bint any_against = False
-    cdef double neg = -<double>min_speed
-    for i in range(n):
-        against[i] = 0
-        if not keep[i]:
-            continue
-        sv = <double>v[i]
-        u = <double>x[i] * cos_yaw + <double>y[i] * sin_yaw
-        if not (_lane_dir_p(u, centre, half_w, dirs, n_lanes) * sv < neg):
-            continue
-        half = margin + k_sigma * rng[i]
-        if (_lane_dir_p(u - <double>half, centre, half_w, dirs, n_lanes) * sv < neg
-                and _lane_dir_p(u + <double>half, centre, half_w, dirs, n_lanes) * sv < neg):
-            against[i] = 1
-            any_against = True
-    if not any_against:
-        return False
-    for j in range(n):
-        s[j] = sin(<double>az[j])
-    for i in range(n):
-        if not against[i]:
-            continue
-        for j in range(n):
-            if not keep[j] or against[j]:
-                continue
-            dr = rng[i] - rng[j]
-            if dr > 0 and dr <= length and fabsf(v[i] - v[j]) <= speed and fabs(s[i] - s[j]) <= beamwidth_sin:
-                out[i] = 1
-                break
-    return True

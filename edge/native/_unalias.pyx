@@ -16,8 +16,6 @@ cimport numpy as cnp
 cnp.import_array()
 
 include "_views.pxi"
-include "_alloc.pxi"
-
 include "_roadfilters.pxi"
 
 
@@ -81,67 +79,5 @@ def unalias(rng, v, az, centre,
                     out_arr = np.array(az, np.float32)
                     out = out_arr
                 out[i] = <float>asin(alt)
-                break
-    return out_arr
-
-
-@cython.boundscheck(False)
-@cython.wraparound(False)
-@cython.cdivision(True)
-def glint(rng, v, az, x, y,
-          keep, centre, half_w, dirs,
-          double cos_yaw, double sin_yaw, float min_speed, float margin, float k_sigma, float length, float speed,
-          double beamwidth_sin):
-    """edge.lane.detections.AgainstLaneGlint.glint in one pass. ``rng``, ``v``, ``az``, ``x``, ``y`` (n,) float32
-    (m, m/s, rad, m, m); ``keep`` (n,) uint8; lanes as :func:`unalias`; ``min_speed`` (m/s); the direction margin
-    ``margin + k_sigma * range`` (m, float32 as the reference's); ``length`` (m), ``speed`` (m/s), ``beamwidth_sin``
-    the gates to a nearer vehicle. Returns (n,) uint8: the kept detections that are glint of a nearer body."""
-    cdef _V V_rng
-    _aview(rng, cnp.NPY_FLOAT32, 1, False, True, &V_rng, "rng")
-    cdef _V V_v
-    _aview(v, cnp.NPY_FLOAT32, 1, False, True, &V_v, "v")
-    cdef _V V_az
-    _aview(az, cnp.NPY_FLOAT32, 1, False, True, &V_az, "az")
-    cdef _V V_x
-    _aview(x, cnp.NPY_FLOAT32, 1, False, True, &V_x, "x")
-    cdef _V V_y
-    _aview(y, cnp.NPY_FLOAT32, 1, False, True, &V_y, "y")
-    cdef _V V_keep
-    _aview(keep, cnp.NPY_UINT8, 1, False, True, &V_keep, "keep")
-    cdef _V V_centre
-    _aview(centre, cnp.NPY_FLOAT64, 1, False, True, &V_centre, "centre")
-    cdef _V V_half_w
-    _aview(half_w, cnp.NPY_FLOAT64, 1, False, True, &V_half_w, "half_w")
-    cdef _V V_dirs
-    _aview(dirs, cnp.NPY_FLOAT64, 1, False, True, &V_dirs, "dirs")
-    cdef Py_ssize_t n = V_rng.n[0]
-    out_arr = _zeros1(cnp.NPY_UINT8, n)
-    cdef _V V_out
-    _aview(out_arr, cnp.NPY_UINT8, 1, True, True, &V_out, "out")
-    against_arr = _zeros1(cnp.NPY_UINT8, n)
-    cdef _V V_against
-    _aview(against_arr, cnp.NPY_UINT8, 1, True, True, &V_against, "against")
-    sin_arr = _empty1(cnp.NPY_FLOAT64, n)
-    cdef double[::1] s = sin_arr
-    if n and V_centre.n[0]:
-        _glint_core(<float*>V_rng.data, <float*>V_v.data, <float*>V_az.data, <float*>V_x.data, <float*>V_y.data,
-                    <cnp.uint8_t*>V_keep.data, n, <double*>V_centre.data, <double*>V_half_w.data, <double*>V_dirs.data,
-                    V_centre.n[0], cos_yaw, sin_yaw, min_speed, margin, k_sigma, length, speed, beamwidth_sin,
-                    <cnp.uint8_t*>V_against.data, &s[0], <cnp.uint8_t*>V_out.data)
-    return out_arr
-    sin_arr = _empty1(cnp.NPY_FLOAT64, n)
-    cdef double[::1] s = sin_arr
-    for j in range(n):
-        s[j] = sin(<double>_pf1(V_az, j)[0])
-    for i in range(n):
-        if not _pu8(V_against, i)[0]:
-            continue
-        for j in range(n):
-            if not _pu8(V_keep, j)[0] or _pu8(V_against, j)[0]:
-                continue
-            dr = _pf1(V_rng, i)[0] - _pf1(V_rng, j)[0]
-            if (dr > 0 and dr <= length and fabsf(_pf1(V_v, i)[0] - _pf1(V_v, j)[0]) <= speed
-                    and fabs(s[i] - s[j]) <= beamwidth_sin):
-                _pu8(V_out, i)[0] = 1
                 break
     return out_arr

@@ -26,7 +26,6 @@ pairing counts (``n_aided_pairs`` from tracks), ``angle_spectrum``. Detections c
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -191,11 +190,6 @@ class LaneConfig:
     resolve_follow_direction: bool = field(default=True, metadata={
         "doc": "steer a cell's covariance memory along with its vehicle's direction (sin(az) scales with 1/range) "
                "before adding a frame"})
-    resolve_skip_bodies: bool = field(default=True, metadata={
-        "doc": "no split of a cell behind a nearer detection of the same vehicle (within cluster_length_m, "
-               "cluster_speed_mps, cluster_lateral_m): its body, which the 4-element array cannot resolve"})
-    resolve_same_direction: bool = field(default=True, metadata={
-        "doc": "with lanes, a split is kept only if both its lanes carry the cell's direction of travel"})
     calibration_gain: tuple[float, ...] = field(default=(1.0, 1.0, 1.0, 1.0), metadata={
         "doc": "per-channel amplitude of the receive paths (divided out before the angle estimate)",
         "min": 1e-3, "max": 1e3})
@@ -225,13 +219,6 @@ class LaneConfig:
     unalias_min_speed_mps: float = field(default=1.0, metadata={
         "unit": "m/s", "doc": "radial speed below which a detection's direction of travel is unknown",
         "min": 0.0, "max": 50.0})
-    cluster_against_lane_speed_mps: float = field(default=0.3, metadata={
-        "unit": "m/s", "doc": "with lanes, a detection moving against its lane up to cluster_length_m behind a "
-               "nearer detection within this radial speed and a beamwidth is dropped (angle glint of a vehicle's "
-               "body); 0 = off", "min": 0.0, "max": 10.0})
-    cluster_against_lane_margin_m: float = field(default=1.0, metadata={
-        "unit": "m", "doc": "... only where the lanes this far to either side (plus the wrong-way lane uncertainty "
-               "of the traffic layer) run the same way", "min": 0.0, "max": 10.0})
     clutter_map_init_frames: int = field(default=16, metadata={
         "doc": "after this many frames the clutter map is replaced by the per-bin median of those frames (static "
                "returns removed exactly, vehicles passing through a bin left out); 0 = running mean only",
@@ -306,10 +293,7 @@ class LanePipeline(native.KernelUser, Pipeline):
         if self.tracker is None:
             return Feedback.none()
         tr, traffic = self.tracker.tracks, self.traffic
-        tcfg = traffic.config
-        return Feedback(self.tracker.last_t_ns, tr.x, tr.confirmed, tr.moved, tr.hits, traffic.lanes, traffic.yaw_rad,
-                        math.hypot(traffic.yaw_sigma_rad, math.radians(tcfg.wrong_way_azimuth_sigma_deg)),
-                        tcfg.wrong_way_lane_sigmas)
+        return Feedback(self.tracker.last_t_ns, tr.x, tr.confirmed, tr.moved, tr.hits, traffic.lanes, traffic.yaw_rad)
 
     def detect(self, frame: RawFrame, timer: StageTimer,
                feedback: Feedback | None = None) -> tuple[Detections, dict[str, Any]]:

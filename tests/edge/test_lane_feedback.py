@@ -9,8 +9,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from edge.lane.angles import SplitNotBody, SplitStraddlesLanes
-from edge.lane.detections import AgainstLaneGlint, NearFaces, UnaliasByLane
+from edge.lane.angles import SplitStraddlesLanes
+from edge.lane.detections import NearFaces, UnaliasByLane
 from edge.lane.records import Feedback
 from edge.pipeline import StageTimer
 from edge.pipelines.lane import LaneConfig, LanePipeline
@@ -70,12 +70,10 @@ def _kinds(p: LanePipeline) -> set[type]:
 @pytest.mark.parametrize("override,gone", [
     ({}, set()),
     ({"unalias_by_lane": False}, {UnaliasByLane}),
-    ({"cluster_against_lane_speed_mps": 0.0}, {AgainstLaneGlint}),
-    ({"cluster_length_m": 0.0}, {NearFaces, AgainstLaneGlint}),
-    ({"resolve_skip_bodies": False}, {SplitNotBody}),
-    ({"resolve_pairs": False}, {SplitNotBody, SplitStraddlesLanes}),
+    ({"cluster_length_m": 0.0}, {NearFaces}),
+    ({"resolve_pairs": False}, {SplitStraddlesLanes}),
 ])
 def test_each_road_geometry_filter_is_switched_by_its_config_key(override, gone):
-    every = {UnaliasByLane, NearFaces, AgainstLaneGlint, SplitNotBody, SplitStraddlesLanes}
+    every = {UnaliasByLane, NearFaces, SplitStraddlesLanes}
     p = LanePipeline(FE, dataclasses.replace(LaneConfig(), **override), None, None)
     assert _kinds(p) == every - gone

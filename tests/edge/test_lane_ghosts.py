@@ -1,9 +1,5 @@
-"""Ghosts beside vehicles from the side-by-side resolver (edge.lane.resolve) and the rules that refuse them.
-
-A range-speed cell that lies behind a nearer detection of the same vehicle is that vehicle's body (its two
-sides, or a side and its far face, in one range bin): the two-source fit of its rank-two covariance put one
-direction 3-4 m beside the vehicle, in the next lane (highway4-traffic seed 31). And two vehicles in one cell
-move the same way: a split across the median (lanes of opposite directions) is not two vehicles.
+"""Ghosts beside vehicles from the side-by-side resolver (edge.lane.resolve) and the checks that refuse them: a
+split is kept only when its two directions lie in adjacent lanes about the boundary between them.
 """
 
 from __future__ import annotations
@@ -29,65 +25,25 @@ def _az(x_m: float, range_m: float, cfg: LaneConfig = LaneConfig()) -> float:
     return math.asin(x_m / range_m)
 
 
-def _is_body(pipe, rng, vel, az, split):
-    from edge.lane.angles import SplitNotBody
-
-    return SplitNotBody(pipe.config).is_body(rng, vel, az, split)
-
-
-def _straddles(pipe, r, v, ang):
+def _straddles(pipe, r, ang):
     from edge.lane.angles import SplitStraddlesLanes
 
     (rule,) = [f for f in pipe.resolve.split_filters if isinstance(f, SplitStraddlesLanes)]
-    return rule.straddles(r, v, ang, pipe.feedback())
+    return rule.straddles(r, ang, pipe.feedback())
 
 
-def test_split_cell_behind_the_near_face_of_its_vehicle_is_its_body():
+def test_a_split_is_kept_only_about_the_boundary_of_two_adjacent_lanes():
     pipe = _pipe()
-    # 0: a truck's near face at 50 m in lane 0; 1: a cell 12 m behind it at its speed (its far end);
-    # 2: the same range at another speed (another vehicle); 3: the same range and speed two lanes over;
-    # 4: a cell nearer than the near face (nothing nearer at its speed)
-    rng = np.array([50.0, 62.0, 62.0, 62.0, 45.0], np.float32)
-    vel = np.array([-23.0, -23.3, -27.0, -23.3, -23.0], np.float32)
-    az = np.array([_az(-5.25, 50.0), _az(-4.6, 62.0), _az(-4.6, 62.0), _az(1.75, 62.0), _az(-5.25, 45.0)],
-                  np.float32)
-    split = np.array([False, True, True, True, True])
-    body = _is_body(pipe, rng, vel, az, split)
-    assert body.tolist() == [False, True, False, False, False]
-    # only split detections are judged
-    assert not _is_body(pipe, rng, vel, az, np.array([False, False, True, True, True])).any()
-
-
-def test_a_body_cell_is_not_split_and_side_by_side_cells_still_are():
-    """The rule in the pipeline: with ``resolve_skip_bodies`` the split of a body cell is undone (the
-    resolver's own test is not involved: the decision is made on its output)."""
-    on, off = _pipe(), _pipe(resolve_skip_bodies=False)
-    rng = np.array([50.0, 62.0], np.float32)
-    vel = np.array([-23.0, -23.3], np.float32)
-    az = np.array([_az(-5.25, 50.0), _az(-4.6, 62.0)], np.float32)
-    split = np.array([False, True])
-    assert on.config.resolve_skip_bodies and not off.config.resolve_skip_bodies
-    assert (split & ~_is_body(on, rng, vel, az, split)).tolist() == [False, False]
-    # two cars side by side at one range are the nearest detections of both: their cell is split
-    rng2 = np.array([62.0], np.float32)
-    vel2 = np.array([25.0], np.float32)
-    az2 = np.array([_az(3.5, 62.0)], np.float32)
-    assert not _is_body(on, rng2, vel2, az2, np.array([True])).any()
-
-
-def test_split_across_lanes_of_opposite_directions_is_refused():
-    pipe = _pipe()
-    assert pipe.traffic is not None and len(pipe.traffic.lanes) == 4  # toward, toward, away, away
-    r = np.array([40.0, 40.0, 40.0], np.float32)
-    ang = np.stack([np.arcsin(np.array([-1.75, 1.75, -5.25]) / 40.0),
-                    np.arcsin(np.array([1.75, 5.25, -1.75]) / 40.0)], axis=1).astype(np.float32)
-    receding = np.array([20.0, 20.0, 20.0], np.float32)
-    approaching = -receding
-    # lanes 1|2 straddle the median: never; lanes 2|3 (away) only for a receding cell; 0|1 (toward) only approaching
-    assert _straddles(pipe, r, receding, ang).tolist() == [False, True, False]
-    assert _straddles(pipe, r, approaching, ang).tolist() == [False, False, True]
-    off = _pipe(resolve_same_direction=False)
-    assert _straddles(off, r, receding, ang).tolist() == [True, True, True]
+    assert pipe.traffic is not None and len(pipe.traffic.lanes) == 4  # centres -5.25, -1.75, 1.75, 5.25 m
+    r = np.array([40.0] * 5, np.float32)
+    #        lanes 1|2         lanes 2|3        lanes 0|1          lanes 0|2 (not adjacent)  both in lane 2
+    pairs = [(-1.75, 1.75), (1.75, 5.25), (-5.25, -1.75), (-5.25, 1.75), (1.2, 2.4)]
+    ang = np.arcsin(np.array(pairs) / 40.0).astype(np.float32)
+    assert _straddles(pipe, r, ang).tolist() == [True, True, True, False, False]
+    # lanes 1|2 both times; the midpoint must lie within resolve_boundary_fraction (0.25) of the lane spacing
+    # (0.875 m) of their boundary: 1.15 m off it, refused; 0.75 m, kept
+    off = np.arcsin(np.array([(-0.2, 2.5), (-0.5, 2.0)]) / 40.0).astype(np.float32)
+    assert _straddles(pipe, r[:2], off).tolist() == [False, True]
 
 
 # --- the resolver's memory follows the direction of its vehicle -----------------------------------------------

@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from edge.lane.detections import AgainstLaneGlint, UnaliasByLane
+from edge.lane.detections import UnaliasByLane
 from edge.lane.records import Feedback
 from edge.lane.road import RoadFrame
 from edge.pipelines.lane import LaneConfig
@@ -99,81 +99,6 @@ def test_kernel_equals_reference_on_a_pipeline_run(monkeypatch, scenario):
         return out
 
     monkeypatch.setattr(un, "unalias", both)
-    t = StageTimer(16)
-    for f in frames(160):
-        pipe.process(f, t)
-    assert seen["calls"] > 50 and seen["dets"] > 300, seen
-
-
-def _glint_stage(cfg):
-    from hw_sim.scenario import load_scenario_for_eval
-
-    fe = load_scenario_for_eval("highway4-traffic").sim_board().frontend
-    return AgainstLaneGlint(fe, cfg, RoadFrame())
-
-
-@pytest.mark.parametrize("seed", range(20))
-def test_glint_kernel_equals_reference_on_random_detections(seed):
-    """Vehicles with glint beside them: detections a lane or two across at the same range and speed, some against
-    their lane's direction; values on the gates' edges; NaN angles."""
-    require_kernel("_unalias")
-    rng = np.random.default_rng(100 + seed)
-    cfg = LaneConfig()
-    stage = _glint_stage(cfg)
-    assert stage.kernel is not None
-    n_glint = 0
-    for n in (2, 5, 20, 60, 60):
-        n_l = int(rng.integers(2, 7))
-        width = 3.5
-        c0 = float(rng.uniform(-3.0, 3.0))
-        centres = [c0 + (k - (n_l - 1) / 2) * width for k in range(n_l)]
-        lanes = tuple(Lane(c, width, 1 if c > c0 else -1) for c in centres)
-        fb = dataclasses.replace(Feedback.none(), lanes=lanes, yaw_rad=float(rng.normal(0.0, 0.03)),
-                                 direction_sigma_rad=float(rng.choice([0.0, 0.01, 0.03])),
-                                 lane_sigmas=float(rng.choice([1.0, 2.0, 3.0])))
-        n_veh = max(1, n // 4)
-        veh = rng.integers(0, n_veh, n)
-        r = (rng.uniform(5.0, 150.0, n_veh)[veh]
-             + rng.choice([0.0, 1.0, np.float32(cfg.cluster_length_m), 20.0], n)).astype(np.float32)
-        v = (rng.choice([-25.0, 20.0], n_veh)[veh]
-             + rng.choice([0.0, 0.3, cfg.cluster_against_lane_speed_mps], n)).astype(np.float32)
-        u = (rng.choice(centres, n_veh)[veh] + rng.choice([0.0, 1.0, 3.5, -3.5, 7.0], n)).astype(np.float64)
-        az = np.arcsin(np.clip(u / r, -1.0, 1.0)).astype(np.float32)
-        if n > 3:
-            az[rng.integers(0, n)] = np.nan
-        from edge.dsp.geometry import polar_to_ground
-
-        x, y = polar_to_ground(r, az, cfg.mounting_height_m, cfg.target_height_m)
-        keep = rng.random(n) < 0.9
-        ref = stage.reference(r, v, az, x, y, keep, fb)
-        out = stage.glint(r, v, az, x, y, keep, fb)
-        assert out.dtype == ref.dtype == bool
-        np.testing.assert_array_equal(out, ref)
-        n_glint += int(ref.sum())
-    assert n_glint > 0
-
-
-@pytest.mark.parametrize("scenario", ["highway4-traffic", "wrong-way-traffic"])
-def test_glint_kernel_equals_reference_on_a_pipeline_run(monkeypatch, scenario):
-    require_kernel("_unalias")
-    from edge.pipeline import StageTimer
-    from tests.edge import lane_golden as g
-
-    pipe, frames = g.build(scenario, 1, 5.0)
-    gl = [f for f in pipe.detections.filters if isinstance(f, AgainstLaneGlint)][0]
-    assert gl.kernel is not None
-    seen = {"calls": 0, "dets": 0}
-    real = gl.glint
-
-    def both(*a):
-        out = real(*a)
-        np.testing.assert_array_equal(out, gl.reference(*a))
-        seen["calls"] += 1
-        seen["dets"] += a[0].size
-        return out
-
-    monkeypatch.setattr(gl, "glint", both)
-    pipe.detections.kernel = None  # the filters one by one (edge/native/_detect.pyx would run the glint fused)
     t = StageTimer(16)
     for f in frames(160):
         pipe.process(f, t)
