@@ -2,8 +2,8 @@
 # distutils: extra_compile_args = -ffp-contract=off
 """Detection-stage kernel (edge.lane.detections.DetectionStage after the direction filters, whose numpy reference is
 DetectionStage.reference): the ground projection from numpy's sin and cos of the angles (eq. 16), the near faces and
-the body lengths (NearFaces) and the kept rows of every output column, in one call. The arrays are read through the numpy C API (_arrays.pxi), not typed memoryviews. float32 as the reference,
-one rounding per operation."""
+the body lengths (NearFaces) and the kept rows of every output column, in one call. The arrays are read through the
+numpy C API (_arrays.pxi), not typed memoryviews. float32 as the reference, one rounding per operation."""
 
 cimport cython
 cimport numpy as cnp
@@ -38,8 +38,9 @@ def finish(rng_a, vel_a, az_a, sin_a, cos_a, snr_a, res_a, pair_a, unresolved_a,
     """``rng_a``, ``vel_a``, ``az_a``, ``snr_a``, ``res_a`` (n,) float32 (m, m/s, rad, dB, Hz), ``sin_a``, ``cos_a``
     (n,) float32 numpy's sin and cos of ``az_a``, ``pair_a`` (n,) int32 resolved pairs, ``unresolved_a`` (n,) bool
     or None. ``dz``: the height difference (m, float32). With ``faces``: NearFaces (``length``, ``speed``,
-    ``lateral``, ``dz2`` its float32 squared height difference). Returns the kept detections' ``(range, v, az, snr, x, y, residual, resolved_pair,
-    body_extent or None, unresolved_pair or None)``: the given arrays themselves when every detection is kept."""
+    ``lateral``, ``dz2`` its float32 squared height difference). Returns the kept detections' ``(range, v, az, snr,
+    x, y, residual, resolved_pair, body_extent or None, unresolved_pair or None)``: the given arrays themselves when
+    every detection is kept."""
     cdef Py_ssize_t n = len(rng_a), i, m
     cdef const float *rng = <const float *>_data(rng_a, cnp.NPY_FLOAT32, n, False, "rng")
     cdef const float *vel = <const float *>_data(vel_a, cnp.NPY_FLOAT32, n, False, "vel")
