@@ -28,7 +28,7 @@ examples:
   radar-edge evaluate --scenario highway4-traffic --seed 5 --record-tracks out/s5-tracks.npz --json out/s5.json
   radar-edge replay-traffic out/s5-tracks.npz                                  # the evaluation's counts again
   radar-edge replay-traffic out/s5-tracks.npz --set traffic.count_late_max_m=0 --json out/s5-no-late.json
-  radar-edge replay-traffic out/s*-tracks.npz --set traffic.count_same_vehicle_s=0.5   # several runs, one table
+  radar-edge replay-traffic out/s*-tracks.npz --set traffic.count_late_match_s=0.5   # several runs, one table
 """
 
 

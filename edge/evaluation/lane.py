@@ -426,7 +426,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         for j, i in enumerate(ids):
             s_prev = prev_s.get(int(i))
             # in the lane's direction of travel: the volume the traffic layer counts (a wrong-way driver is an
-            # event, traffic.count_lane_direction_only)
+            # event)
             if (s_prev is not None and (s_prev - line) * (ref_y[j] - line) < 0 and 0 <= lanes[j] < n_lanes
                     and (ref_y[j] - s_prev) * lane_dir[lanes[j]] > 0):
                 true_cross.append((int(lanes[j]), float(f.t_s), int(i), tr.cls[veh[j]]))

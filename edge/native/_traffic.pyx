@@ -555,7 +555,7 @@ cdef object _monitor_loop(tuple tracks, _V V_sel, list conf, _V V_ids, _V V_mi, 
     cdef double reach = p[6], ww_speed = p[7], stopped_speed = p[8], moving_speed = p[9], same_m = p[10]
     cdef double same_v = p[11], length_min_m = p[12]
     cdef long long ww_frames = p[13], stopped_min_ns = p[14], min_frames = p[15], keep = p[16]
-    cdef bint late_on = p[17], dir_only = p[18], once = p[19]
+    cdef bint late_on = p[17], once = p[18]
     out = [None] * n
     for j in range(n):
         tr = conf[j]
@@ -620,7 +620,7 @@ cdef object _monitor_loop(tuple tracks, _V V_sel, list conf, _V V_ids, _V V_mi, 
             else:
                 s0 = _pd2(V_mf, tid, 0)[0]
                 crossed = (s0 - line) * (sj - line) < 0 or (sj == line and s0 != line)
-                against = dir_only and lane is not None and vsj * _pll(V_lane_dir, k)[0] < 0
+                against = lane is not None and vsj * _pll(V_lane_dir, k)[0] < 0
                 if crossed and lane is not None and not against and not (_pll_2(V_mi, tid, M_COUNTED)[0] and once):
                     f = (line - s0) / (sj - s0)
                     t0 = _pll_2(V_mi, tid, M_T)[0]

@@ -131,11 +131,6 @@ class TrafficConfig:
         default=("motorcycle", "car", "truck"),
         metadata={"doc": "names of the length classes (one more than the edges; the Modbus and CAN class counts "
                          "group motorcycle, car, truck and bus, anything else counts as other)"})
-    count_same_vehicle_s: float = field(
-        default=0.4, metadata={"unit": "s", "doc": "a crossing this close in time to a counted one in the same lane is "
-                                                   "that vehicle, whatever its speed (ghost tracks of a truck's body "
-                                                   "cross with it); 0 = off",
-                               "min": 0.0, "max": 5.0})
     count_late_max_m: float = field(
         default=30.0, metadata={"unit": "m", "doc": "a confirmed track first seen up to this far past the detection "
                                                     "line, in its lane's direction, is counted at its crossing time "
@@ -160,9 +155,6 @@ class TrafficConfig:
     count_once_per_track: bool = field(
         default=True, metadata={"doc": "a track is counted at the detection line once, also if it moves back behind "
                                        "the line and crosses it again"})
-    count_lane_direction_only: bool = field(
-        default=True, metadata={"doc": "the volume counts only tracks crossing the detection line in their lane's "
-                                       "direction of travel (a wrong-way driver is an event instead)"})
     wrong_way_min_speed_mps: float = field(
         default=3.0, metadata={"unit": "m/s", "doc": "against the lane direction at least this fast is wrong-way",
                                "min": 0.1, "max": 100.0})

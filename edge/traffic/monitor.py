@@ -19,11 +19,10 @@ learned). Only confirmed tracks are used. Per-track memory is keyed by ``track_i
 id is recycled (its ``age_frames`` drops).
 
 Counting (volume at the detection line, one count per vehicle however its tracks behave): a confirmed track
-crossing the line in its lane's direction of travel is counted at the interpolated crossing time, unless a
-crossing was counted in the lane less than ``count_same_vehicle_s`` before or after (a truck body's ghost
-tracks cross with it, at another speed), or the track was counted already (``count_once_per_track``: a track that jumped back behind the
-line and crossed it again is still one vehicle). A track crossing against its lane's direction (a receding
-truck's ghost drifting into the approaching lanes) is not counted; a wrong-way driver is an event. A track
+crossing the line in its lane's direction of travel is counted at the interpolated crossing time, unless the
+track was counted already (``count_once_per_track``: a track that jumped back behind the line and crossed it
+again is still one vehicle). The volume is the lane's direction of travel: a track crossing against it is not
+counted, a wrong-way driver is an event. A track
 first seen up to ``count_late_max_m`` past the line counts its vehicle at the crossing time extrapolated back
 at its along-road speed, unless a crossing of about that time and speed was counted in the lane
 (``count_late_match_*``: the same vehicle's earlier track), and not if that time lies before the monitor's
@@ -229,13 +228,6 @@ class TrafficMonitor(native.KernelUser):
         (what the outputs reserve at start)."""
         return len(self.lanes) or len(self.config.lane_centers_m)
 
-    def _same_vehicle(self, acc, tc_ns: int) -> bool:
-        """A crossing at ``tc_ns`` is a vehicle already counted in the lane: within ``count_same_vehicle_s`` of a
-        counted crossing whatever its speed (two vehicles of one lane are never that close; the ghost tracks of a
-        truck's body cross right with it at v +- 5-8 m/s)."""
-        near_ns = int(self.config.count_same_vehicle_s * 1e9)
-        return any(abs(tc_ns - c.t_ns) < near_ns for c in acc.recent)
-
     @staticmethod
     def _counted_near(recent, t_ns: int, speed_mps: float, tol_ns: int, dv_mps: float) -> bool:
         """One of the counted crossings ``recent`` lies within ``tol_ns`` of ``t_ns`` and ``dv_mps`` of its speed."""
@@ -262,8 +254,8 @@ class TrafficMonitor(native.KernelUser):
         if self._first_t_ns is None or tc <= self._first_t_ns:  # crossed before the monitor started
             return False
         acc = self.stats.lane(lane)
-        if self._same_vehicle(acc, tc) or self._counted_near(
-                acc.recent, tc, speed_mps, int(cfg.count_late_match_s * 1e9), cfg.count_late_match_speed_mps):
+        if self._counted_near(acc.recent, tc, speed_mps, int(cfg.count_late_match_s * 1e9),
+                              cfg.count_late_match_speed_mps):
             return False
         acc.add(Crossing(tc, speed_mps, float("nan"), tr.cls, meter))
         return True
@@ -294,7 +286,7 @@ class TrafficMonitor(native.KernelUser):
                 cfg.wrong_way_min_speed_mps, cfg.stopped_speed_mps, cfg.moving_speed_mps, cfg.wrong_way_same_driver_m,
                 cfg.wrong_way_same_driver_speed_mps, cfg.length_min_m, cfg.wrong_way_min_frames,
                 int(cfg.stopped_min_s * 1e9), cfg.length_min_frames, cfg.length_outliers + 1,
-                cfg.count_late_max_m > 0, cfg.count_lane_direction_only, cfg.count_once_per_track))
+                cfg.count_late_max_m > 0, cfg.count_once_per_track))
         return self._params[1]
 
     def _kernel_pass(self, tracks, conf, sel, ids, id_list, kin, cy: float, sy: float, sure_k: float, ext,
@@ -333,10 +325,8 @@ class TrafficMonitor(native.KernelUser):
                 self._mi[tid, _M_COUNTED] = self._count_late(conf[j], k, lanes[k].direction, a[3], a[4], a[5],
                                                              meter, t_ns, a[6])
             else:
-                acc = stats.lane(k)
-                if not self._same_vehicle(acc, a[3]):
-                    acc.add(Crossing(a[3], a[6], float("nan"), conf[j].cls, meter))
-                    self._mi[tid, _M_COUNTED] = 1
+                stats.lane(k).add(Crossing(a[3], a[6], float("nan"), conf[j].cls, meter))
+                self._mi[tid, _M_COUNTED] = 1
         start = stats.start_ns  # (stats.tick returns () before the interval's end: not called then)
         closed = () if start is not None and t_ns < start + stats.interval_ns else stats.tick(t_ns, n_lanes)
         events = tuple(TrafficEvent(kind, tid, lane, t_ns) for kind, tid, lane in raw_events) if raw_events else ()
@@ -491,17 +481,13 @@ class TrafficMonitor(native.KernelUser):
                 # detection line crossing (either direction), time interpolated
                 s0, s1 = memo.s_m, s[j]
                 crossed = (s0 - line) * (s1 - line) < 0 or (s1 == line and s0 != line)
-                # the volume counts vehicles travelling in the lane's direction: the ghost of a receding truck
-                # drifting into the approaching lanes is not one (a wrong-way driver is reported as an event)
-                against = cfg.count_lane_direction_only and lane is not None and vs[j] * lanes[k].direction < 0
-                c_lane = lane
-                if crossed and c_lane is not None and not against and not (memo.counted and cfg.count_once_per_track):
+                # the volume counts vehicles travelling in the lane's direction (a wrong-way driver is an event)
+                against = lane is not None and vs[j] * lanes[k].direction < 0
+                if crossed and lane is not None and not against and not (memo.counted and cfg.count_once_per_track):
                     f = (line - s0) / (s1 - s0)
                     tc = memo.t_ns + int(round(f * (t_ns - memo.t_ns)))
-                    acc = stats.lane(c_lane)
-                    if not self._same_vehicle(acc, tc):
-                        acc.add(Crossing(tc, speed[j], float("nan"), tr.cls, meter))
-                        memo.counted = True
+                    stats.lane(lane).add(Crossing(tc, speed[j], float("nan"), tr.cls, meter))
+                    memo.counted = True
                 memo.age, memo.s_m, memo.t_ns = tr.age_frames, s1, t_ns
                 memo.max_speed_mps = max(memo.max_speed_mps, speed[j])
             if lane is not None:

@@ -58,10 +58,10 @@ def test_replay_with_other_settings(recorded):
     # shorter statistics intervals close more of them but count the same crossings
     short = replay_traffic(log, _traffic(log, interval_s=1.0))["counts"]
     assert short == base
-    # every lane's direction reversed: no vehicle drives its lane's way, so none is counted (count_lane_direction_only)
+    # every lane's direction reversed: no vehicle drives its lane's way, so none is counted
     # and the approaching and receding vehicles raise wrong-way alarms
     flipped = tuple("away" if d == "toward" else "toward" for d in log.meta["traffic"]["lane_directions"])
-    out = replay_traffic(log, _traffic(log, lane_directions=flipped, count_lane_direction_only=True))
+    out = replay_traffic(log, _traffic(log, lane_directions=flipped))
     assert out["counts"]["volume_measured_per_lane"] == [0, 0, 0, 0]
     assert len(out["counts"]["count_mismatches"]["missed"]) == sum(base["volume_true_per_lane"])
     assert any(e["kind"] == "wrong_way" for e in out["events"])
