@@ -25,7 +25,8 @@ the evaluation corpus) as above; ``"wide"`` (for reference sets) draws cars 3.5-
 
 Under the default ``[physics]`` (:mod:`hw_sim.physics`) the pedestrian is the Boulic et al. 1990 walker
 (:class:`hw_sim.pedestrian.BoulicPedestrian`, ``gait``), vehicle panels (bumpers, doors, tailgate) have a flat
-plate's aspect lobe over a diffuse floor (``vehicle_lobes``), wheels turn (``wheels``: rim and tread points, 0
+plate's aspect lobe over a diffuse floor, its specular peak set so that the panel's mean over aspect is its share of
+the target's RCS (``vehicle_lobes``), wheels turn (``wheels``: rim and tread points, 0
 to 2v), and the site adds parked cars, a denser fence, a wall and swaying trees (``site_clutter = "urban"``,
 the ``[[d2g_site]]`` table); ``preset = "v1"`` restores the rigid isotropic bodies and the seven objects.
 
@@ -235,6 +236,19 @@ def plate_lobe(cos_inc: np.ndarray, length_m: np.ndarray) -> np.ndarray:
     return np.where(c > 0.0, np.maximum(g, LOBE_FLOOR), 0.1 * LOBE_FLOOR)
 
 
+#: incidence angles (rad) over which a panel's aspect-mean gain is taken: 0-90 deg in 0.01 deg steps
+_MEAN_INCIDENCE_RAD = np.radians(np.linspace(0.0, 90.0, 9001))
+
+
+def panel_mean_gain(length_m: np.ndarray) -> np.ndarray:
+    """Mean of :func:`plate_lobe` over incidence angles 0-90 deg (uniform in angle) for panels of effective flat
+    length ``length_m``: the share of its specular peak that a panel returns on average over the aspects it
+    faces the radar from."""
+    L = np.asarray(length_m, dtype=float).reshape(-1, 1)
+    c = np.cos(_MEAN_INCIDENCE_RAD)[None, :]
+    return plate_lobe(c, L).mean(axis=1)
+
+
 @dataclass
 class SiteVehicle(Target):
     """A surveillance-site vehicle body with aspect lobes on its panels and/or rotating wheels.
@@ -320,7 +334,13 @@ def site_vehicle(cls: str, off: np.ndarray, rcs: np.ndarray, aux: np.random.Gene
     if physics.vehicle_lobes:
         normals = np.zeros((off.shape[0], 3))
         normals[:body_n] = panel_normals(cls, off[:body_n])
-        kw.update(normals=normals, panel_m=aux.uniform(*PANEL_LENGTH_M, off.shape[0]))
+        panel_m = aux.uniform(*PANEL_LENGTH_M, off.shape[0])
+        # a target's RCS is its mean over aspect, as measured RCS figures are: a panel's share is its aspect-mean,
+        # so its specular peak is that share over the lobe's mean gain (the lobe redistributes the echo over
+        # aspect instead of removing it)
+        panel = np.any(normals != 0.0, axis=1)
+        rcs[panel] /= panel_mean_gain(panel_m[panel])
+        kw.update(normals=normals, panel_m=panel_m)
     kw.update(offsets_m=off, rcs_m2=rcs)
     return kw
 
