@@ -22,11 +22,11 @@ Counting (volume at the detection line, one count per vehicle however its tracks
 crossing the line in its lane's direction of travel is counted at the interpolated crossing time, unless the
 track was counted already (``count_once_per_track``: a track that jumped back behind the line and crossed it
 again is still one vehicle). The volume is the lane's direction of travel: a track crossing against it is not
-counted, a wrong-way driver is an event. A track
-first seen up to ``count_late_max_m`` past the line counts its vehicle at the crossing time extrapolated back
-at its along-road speed, unless a crossing of about that time and speed was counted in the lane
-(``count_late_match_*``: the same vehicle's earlier track), and not if that time lies before the monitor's
-first frame. No ground truth is used: the rules rest on what one vehicle's tracks can look like.
+counted, a wrong-way driver is an event. A track first seen up to ``count_late_max_m`` past the line counts its
+vehicle at the crossing time extrapolated back at its along-road speed, unless a crossing of about that time and
+speed was counted in the lane (``count_late_match_*``: the same vehicle's earlier track), and not if that time lies
+before the monitor's first frame. No ground truth is used: the rules rest on what one vehicle's tracks can look
+like.
 
 Lengths and classes: each confirmed track's length is measured from the body extents the lane pipeline finds
 behind its detections (``update(..., extent_m=...)``; :class:`edge.traffic.stats.LengthMeter`); the tracks returned

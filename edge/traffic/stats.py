@@ -4,9 +4,9 @@ A track *crosses* the line when its along-road distance ``s`` changes side of ``
 between two frames; the crossing time is interpolated linearly. Per lane and interval:
 
 - ``volume``: crossings, one per vehicle (:class:`edge.traffic.TrafficMonitor` decides what is counted: only
-  crossings in the lane's direction of travel, one per track; a track first seen up to ``count_late_max_m`` past the line -- its
-  vehicle crossed untracked -- is counted at the crossing time extrapolated back unless it matches a counted
-  crossing, so a vehicle whose track is lost at the line and re-born after it is counted once);
+  crossings in the lane's direction of travel, one per track; a track first seen up to ``count_late_max_m`` past
+  the line -- its vehicle crossed untracked -- is counted at the crossing time extrapolated back unless it matches
+  a counted crossing, so a vehicle whose track is lost at the line and re-born after it is counted once);
 - ``mean_speed_kmh`` / ``speed_p85_kmh``: arithmetic mean and 85th percentile (linear
   interpolation, ``numpy.percentile``) of the speeds at crossing (time-mean spot speed);
 - ``headway_s``: mean time between the crossing of a vehicle and the crossing of the one before it
