@@ -112,6 +112,8 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "each vehicle's own position RMSE within 200 m, mean over vehicles (10+ assigned frames)"),
         Metric("speed_mae_kmh", "speed_abs_error_sum_kmh", "speed_n", "km/h", "|track speed - speed|"),
         Metric("lane_accuracy", "lane_correct", "lane_assigned", "", "assigned frames in the true lane"),
+        Metric("lane_accuracy_keeping", "lane_keeping_correct", "lane_keeping_assigned", "",
+               "the same over the frames of vehicles outside a lane change"),
         Metric("id_switches_per_min", "id_switches", "minutes", "1/min", "track id changes along a vehicle"),
     ),
     "surveillance": (

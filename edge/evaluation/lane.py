@@ -39,7 +39,9 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   the pipeline cold with traffic already on the road (the traffic generator populates it before t = 0), and no
   figure leaves the first seconds out, so start-up phantoms count; this one makes them visible;
 * ``lane_accuracy``: assigned pairs whose track lane equals the vehicle's true lane at that frame (per vehicle
-  too, over its assigned frames);
+  too, over its assigned frames); ``lane_accuracy_keeping`` and ``lane_accuracy_changing``: the same over the
+  frames of vehicles outside and inside a lane change (the simulator's 4 s lateral move; the true lane switches
+  when the vehicle crosses the boundary, halfway through it);
 * ``visible_frames_*`` (tallies; the corpus's ``detection_probability_visible``): the separate vehicles' frames
   where under ``SHADOWED_SHARE`` of the vehicle's echo is shadowed by another vehicle's body (the simulator's
   ``GroundTruth.shadowed_fraction``, 20 dB of knife-edge loss), tracked and in view: what no radar at the mounting
@@ -273,9 +275,18 @@ def _vehicle_rmse_tallies(acc: dict[int, "_TargetAcc"]) -> dict:
     return {"position_vehicle_rmse_sum_m": total, "position_vehicles": n}
 
 
+def _changing_lanes(target: Any, t_s: float) -> bool:
+    """Whether ``target`` is inside one of its lane changes at ``t_s`` (the simulator's half-cosine lateral move,
+    :class:`hw_sim.vehicles.RoadTrajectory`; a target without a road trajectory never changes lanes)."""
+    for t0, dur, _ in getattr(getattr(target, "trajectory", None), "lane_changes", ()):
+        if t0 <= t_s <= t0 + dur:
+            return True
+    return False
+
+
 def _tallies(acc: dict[int, "_TargetAcc"], pd_overlap: dict, false_eps: list, n_start: int, n_frames: int,
              period: float, counts: dict, sq_200: list, lane_ok: int, lane_n: int,
-             visible: list[int] | None = None) -> dict:
+             visible: list[int] | None = None, lane_keep: list[int] | None = None) -> dict:
     """The run's sums and counts behind its figures (module doc), so that runs pool as ratios of sums: every
     frame from the first on counts (a run starts with traffic already flowing, as after a power cut)."""
     sep = [v for (_, overlapping), v in pd_overlap.items() if not overlapping]
@@ -305,6 +316,9 @@ def _tallies(acc: dict[int, "_TargetAcc"], pd_overlap: dict, false_eps: list, n_
         "speed_n": int(sum(len(a.spd_err) for a in acc.values())),
         "lane_correct": int(lane_ok),
         "lane_assigned": int(lane_n),
+        # the same over the frames of vehicles outside a lane change (_changing_lanes)
+        "lane_keeping_correct": int((lane_keep or [0, 0])[0]),
+        "lane_keeping_assigned": int((lane_keep or [0, 0])[1]),
     }
 
 
@@ -351,6 +365,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     episodes: dict[int, list[int]] = {}  # track id -> [start frame, last frame, frames, assigned frames]
     closed_eps: list[list[int]] = []
     lane_ok = lane_n = 0
+    lane_keep = [0, 0]  # lane_ok and lane_n over the frames of vehicles outside a lane change (_changing_lanes)
     sq_200 = [0.0, 0]  # position squared error (m^2) summed over assigned frames within TALLY_RANGE_M, and their number
     range_bins: dict[int, list[float]] = {}
     pd_bins: dict[int, list[int]] = {}  # range bin -> [in view, detected, tracked]
@@ -521,6 +536,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             ok = int(t.lane is not None and t.lane == lanes[j])
             lane_ok += ok
             a.lane_ok += ok
+            if not _changing_lanes(by_id[int(i)], f.t_s):
+                lane_keep[0] += ok
+                lane_keep[1] += 1
 
         t_rng = np.hypot(tpos[:, 0], tpos[:, 1])
         t_in_view = (t_rng >= MIN_RANGE_M) & (t_rng <= MAX_RANGE_M) & (np.abs(np.arctan2(tpos[:, 0], tpos[:, 1])) <= half_fov)
@@ -601,6 +619,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
                                  for ep in closed_eps if ep[2] > 0 and ep[3] < 0.5 * ep[2]],
         "id_switches": int(sum(a.switches for a in acc.values())),
         "lane_accuracy": lane_ok / lane_n if lane_n else None,
+        "lane_accuracy_keeping": lane_keep[0] / lane_keep[1] if lane_keep[1] else None,
+        "lane_accuracy_changing": ((lane_ok - lane_keep[0]) / (lane_n - lane_keep[1]) if lane_n > lane_keep[1]
+                                   else None),
         "count_error_per_lane": counts["count_error_per_lane"],
         "volume_true_per_lane": counts["volume_true_per_lane"],
         "volume_measured_per_lane": counts["volume_measured_per_lane"],
@@ -649,7 +670,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         "false_tracks_first_30s": sum(1 for ep in false_eps if ep[0] < n_start),
         # sums and counts behind the figures, for pooling runs as ratios of sums (edge.evaluation.corpus)
         "tallies": _tallies(acc, pd_overlap, false_eps, n_start, n_frames, period, counts, sq_200, lane_ok, lane_n,
-                            visible),
+                            visible, lane_keep),
     }
     if lane_dir:
         # per-lane interval statistics against the truth, and the lengths and classes of the vehicles that crossed

@@ -231,3 +231,29 @@ def test_stopped_vehicle_alarms_are_scored_against_the_truth():
     assert 4.5 <= sv["delay_s"][0] < 6.0 and abs(sv["alarm_range_m"][0] - 118.0) < 3.0
     s = evaluate(load_scenario("stop-and-go"), config=load_config(env={}))["summary"]
     assert s["stopped_vehicle"]["vehicles"] == 0 and s["stopped_vehicle"]["alarms"] == 0
+
+
+def test_lane_accuracy_is_split_into_lane_keeping_and_lane_changing_frames():
+    """``crossing``: two cars change lanes across each other from 2 to 5 s of a 6 s run. The frames inside
+    those 3 s count as lane changing, the others as lane keeping; together they are the lane accuracy's frames."""
+    from edge.evaluation.lane import _changing_lanes
+    from hw_sim.vehicles import RoadTrajectory
+
+    traj = RoadTrajectory(0.0, 50.0, -1, (0.0,), (25.0,), lane_changes=((2.0, 3.0, 3.5),))
+    veh = type("V", (), {"trajectory": traj})()
+    assert [_changing_lanes(veh, t) for t in (1.99, 2.0, 3.5, 5.0, 5.01)] == [False, True, True, True, False]
+    assert not _changing_lanes(object(), 3.0)  # no road trajectory: never changing lanes
+
+    rep = evaluate(load_scenario("crossing", V1), seed=3, config=load_config(env={}))
+    s, tl = rep["summary"], rep["summary"]["tallies"]
+    assert 0 < tl["lane_keeping_assigned"] < tl["lane_assigned"]
+    n_change = tl["lane_assigned"] - tl["lane_keeping_assigned"]
+    assert s["lane_accuracy_keeping"] == pytest.approx(tl["lane_keeping_correct"] / tl["lane_keeping_assigned"])
+    assert s["lane_accuracy_changing"] * n_change + tl["lane_keeping_correct"] == pytest.approx(tl["lane_correct"])
+    # both cars are assigned through their lane changes (3 s of 33 ms frames each, less the evaluated gaps)
+    assert n_change >= 150
+    # a scene without lane changes: every assigned frame is a lane-keeping one
+    rep = evaluate(load_scenario("highway4", V1), seed=11, frames=60, config=load_config(env={}))
+    tl = rep["summary"]["tallies"]
+    assert tl["lane_keeping_assigned"] == tl["lane_assigned"] > 0
+    assert rep["summary"]["lane_accuracy_changing"] is None
