@@ -41,7 +41,8 @@ class TrafficConfig:
     yaw_min_tracks: int = field(
         default=5, metadata={"doc": "straight tracks needed before the yaw estimate is used (ended ones; at start-up "
                                     "running ones count too, see yaw_live_min_length_m; with configured lanes, the "
-                                    "alignment of this many tracks in lanes comes first, lanes.align_yaw)", "min": 1, "max": 10000})
+                                    "alignment of this many tracks in lanes comes first, lanes.align_yaw, until the "
+                                    "ended tracks' directions are at least as certain)", "min": 1, "max": 10000})
     yaw_window_tracks: int = field(
         default=200, metadata={"doc": "most recent straight tracks the yaw is the median of", "min": 1, "max": 100000})
     yaw_min_track_length_m: float = field(

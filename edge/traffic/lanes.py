@@ -15,7 +15,8 @@ vote; the yaw is the median vote of the last ``yaw_window_tracks``. Until ``yaw_
 ended, running tracks that already qualify vote too (otherwise a mis-aimed radar assigns lanes wrongly
 for the first tens of seconds). With configured lanes the start-up estimate is instead the yaw that puts the
 frame's confirmed tracks into the lanes of their direction of travel (:func:`align_yaw`): one frame of tracks
-fixes it to hundredths of a degree, where a direction needs tens of metres of each track.
+fixes it to hundredths of a degree, where a direction needs tens of metres of each track. It holds until the
+ended tracks' median direction has a standard error no larger than the alignment's sigma.
 
 Lane learning: positions of confirmed tracks (between ``learn_min_range_m`` and ``learn_max_range_m``)
 go into a bounded ring buffer; a lateral histogram in the road frame, smoothed, gives one peak per
@@ -300,7 +301,7 @@ class YawEstimator(native.KernelUser):
             half_tr, det = 0.5 * (cxx + cyy), cxx * cyy - cxy * cxy
             disc = sqrt(max(half_tr * half_tr - det, 0.0))
             major, minor = half_tr + disc, max(half_tr - disc, 0.0)
-            if a0 >= 3 and sqrt(major * 12.0) >= min_len and sqrt(minor) <= max_sd:
+            if a0 >= 3 and sqrt(max(major, 0.0) * 12.0) >= min_len and sqrt(minor) <= max_sd:
                 num.append(2.0 * cxy)
                 den.append(cyy - cxx)
                 ws.append(a0 * major / max(minor, 0.01))

@@ -126,6 +126,7 @@ class TrafficMonitor(native.KernelUser):
         self._yaw_se: float | None = None  # standard error of this run's yaw estimate (None: none yet)
         self._aligned: tuple[float, float] | None = None  # the last successful start-up alignment (yaw, sigma)
         self._align_due_ns = -(2**62)  # when the next one is due
+        self._handed_over = False  # the ended tracks' directions gave a yaw more certain than the alignment's
         self.learner = LaneLearner(cfg)
         self.stats = IntervalStatistics(cfg)
         self._memo: dict[int, _Memo] = {}
@@ -378,11 +379,20 @@ class TrafficMonitor(native.KernelUser):
                 self.yaw_estimator.add(ids, age, x, y)
             est = self.yaw_estimator.estimate_rad()
             se = self.yaw_estimator.stderr_rad if est is not None else None
-            if (cfg.lane_mode == "configured" and self.lanes and self.saved_calibration is None
-                    and self.yaw_estimator.n_votes < cfg.yaw_min_tracks):
+            settled = self.yaw_estimator.n_votes >= cfg.yaw_min_tracks
+            aligning = (cfg.lane_mode == "configured" and bool(self.lanes) and self.saved_calibration is None
+                        and not self._handed_over)
+            if aligning and settled and (self._aligned is None or se <= self._aligned[1]):
+                self._handed_over, aligning = True, False  # the ended tracks' directions are the more certain yaw
+                if self._aligned is not None:
+                    log.info("mounting yaw from the tracks' directions now (%.3f +- %.3f deg; in lanes "
+                             "%.3f +- %.3f deg)", math.degrees(est), math.degrees(se),
+                             *(math.degrees(a) for a in self._aligned))
+            if aligning:
                 # start-up with configured lanes: the yaw that puts this frame's tracks into them (lanes.align_yaw), at
                 # the motion model's positions as for the votes (the published ones follow the yaw assumed so far)
-                # (every frame until the first succeeds, then five times a second: the yaw does not change between)
+                # (every frame until the first succeeds, then five times a second: the yaw does not change between),
+                # until the ended tracks' directions give a yaw at least as certain
                 if t_ns >= self._align_due_ns:
                     moving = np.abs(kin[:, 5]) >= cfg.moving_speed_mps
                     aligned = align_yaw(kin[:, 2] if yaw_x_sel is None else yaw_x_sel, kin[:, 3],
@@ -391,7 +401,7 @@ class TrafficMonitor(native.KernelUser):
                     if aligned is not None:
                         self._aligned = aligned
                         self._align_due_ns = t_ns + _ALIGN_EVERY_NS
-                if self._aligned is not None:
+                if self._aligned is not None and (not settled or se > self._aligned[1]):
                     est, se = self._aligned
             self._yaw_se = se
             self.yaw_rad, yaw_sigma = self._yaw_in_use(est, se)

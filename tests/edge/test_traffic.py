@@ -610,3 +610,53 @@ def test_configured_lanes_are_right_from_the_first_frames_on_a_misaimed_radar():
     assert math.degrees(mon.yaw_rad) == pytest.approx(3.0, abs=0.1)
     assert mon.yaw_sigma_rad < math.radians(0.1)
     assert [t.lane for t in upd.tracks] == lane.tolist()
+
+
+def test_the_start_up_alignment_holds_until_the_tracks_directions_are_as_certain():
+    """Configured lanes, a radar yawed 0.3 deg. Eight vehicles stand in their lanes at 50-260 m (0.3 m off their
+    centres), so the alignment puts the yaw within a few hundredths of a degree. Five tracks beside them end after
+    62 m on lines 1-2 deg off the road (straight enough to vote): the median of five such votes is a degree off,
+    with a standard error of tenths of a degree, and the alignment's yaw holds. Then 200 tracks end on lines
+    0.35 deg off the boresight, 0.05 deg from the alignment's yaw, and their median, now the more certain, takes
+    over."""
+    yaw0 = math.radians(0.3)
+    cfg = TrafficConfig(yaw_min_tracks=5)
+    mon = TrafficMonitor(cfg)
+    rng = np.random.default_rng(5)
+    lane = np.arange(8) % 4
+    x0, y0 = _world_to_radar(np.array(LANES_X)[lane] + rng.normal(0.0, 0.3, 8), np.linspace(50.0, 260.0, 8), yaw0)
+    steady = [(k + 1, x0[k], y0[k], 25.0 * LANES_DIR[lane[k]]) for k in range(8)]
+    t = 0
+
+    def frame(moving):
+        nonlocal t
+        tracks = [_ts(i, x, y, 0.0, vy, 50) for i, x, y, vy in steady] + moving
+        mon.update(tuple(tracks), t)
+        t += DT_NS
+
+    for _ in range(5):
+        frame([])
+    assert math.degrees(mon.yaw_rad) == pytest.approx(0.3, abs=0.1)  # aligned
+    # five tracks in lane 2 (away) on slanted lines, one after the other
+    for i, drift_m in enumerate((1.0, 1.5, 2.0, 1.2, 1.8)):
+        for k in range(26):
+            s = 100.0 + 2.5 * k
+            x, y = _world_to_radar(1.75 + drift_m * (s - 100.0) / 62.5, s, yaw0)
+            frame([_ts(100 + i, x, y, 0.0, 25.0, k + 3)])
+    frame([])
+    assert mon.yaw_estimator.n_votes == 5
+    votes = mon.yaw_estimator.estimate_rad()
+    assert abs(math.degrees(votes) - 0.3) > 1.0 and mon.yaw_estimator.stderr_rad > math.radians(0.1)
+    assert math.degrees(mon.yaw_rad) == pytest.approx(0.3, abs=0.1)  # the alignment holds
+    # 200 straight tracks, ten at a time, on lines 0.35 deg off the boresight
+    for batch in range(20):
+        for k in range(26):
+            moving = []
+            for j in range(10):
+                s = 60.0 + 10.0 * j + 2.5 * k
+                x, y = _world_to_radar(1.75 + rng.normal(0.0, 0.02), s, math.radians(0.35))
+                moving.append(_ts(1000 + 10 * batch + j, x, y, 0.0, 25.0, k + 3))
+            frame(moving)
+    frame([])
+    assert mon.yaw_estimator.n_votes == 200
+    assert math.degrees(mon.yaw_rad) == pytest.approx(0.35, abs=0.005)  # the directions took over
