@@ -106,6 +106,8 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "false tracks begun in the first 30 s after the cold start, per minute of those 30 s"),
         Metric("count_error_per_lane", "count_abs_error", "count_true", "",
                "sum over lanes of |measured - true| volume / true volume"),
+        Metric("count_error_either_lane", "count_abs_error_either", "count_true", "",
+               "the same, a vehicle straddling two lanes at the detection line counted right in either"),
         Metric("position_rmse_m", "position_sq_error_sum_m2", "position_n", "m",
                "position error of assigned frames within 200 m (eq. 20 pooled over frames)", sqrt=True),
         Metric("position_rmse_vehicle_m", "position_vehicle_rmse_sum_m", "position_vehicles", "m",
@@ -385,7 +387,8 @@ def run_job(job: dict, cache: dict | None = None) -> dict:
                           **kw)
     s = report["summary"]
     figures = {k: v for k, v in s.items() if isinstance(v, (int, float, str, bool)) or v is None}
-    for k in ("count_error_per_lane", "volume_true_per_lane", "volume_measured_per_lane"):
+    for k in ("count_error_per_lane", "volume_true_per_lane", "volume_measured_per_lane",
+              "volume_measured_either_per_lane"):
         if isinstance(s.get(k), list):
             figures[k] = s[k]
     rec = {"run": job["run"], "scenario": job["scenario"], "seed": job["seed"], "variant": job["variant"],

@@ -4,9 +4,13 @@
 * measured volume per lane: the volumes of the traffic layer's closed intervals plus the crossings of the open
   one (:meth:`CountTally.add_frame`, :meth:`CountTally.close`);
 * counted crossings ``(lane, t_s, speed km/h)``: as the traffic layer appends them to each lane's recent ones;
-* true crossings ``(lane, t_s, vehicle id, class)``: of the vehicles' reference points, found by the caller;
+* true crossings ``(lane, t_s, vehicle id, class[, either lane])``: of the vehicles' reference points, found by the
+  caller; ``either lane`` (-1: none) is the neighbouring lane the vehicle's body straddles into at the line;
 * ``count_mismatches``: per lane, the two lists matched one-to-one by time (at most ``COUNT_MATCH_S`` apart), the
-  unmatched true ones ``missed`` and the unmatched counted ones ``extra``.
+  unmatched true ones ``missed`` and the unmatched counted ones ``extra``; ``straddling``: the missed crossings of
+  straddling vehicles that were counted in the lane they straddle into (an extra there within ``COUNT_MATCH_S``);
+* ``volume_measured_either_per_lane``: the measured volumes with those counts given back to the true lane (a
+  loop detector under a straddling vehicle may count it in either lane), for ``count_abs_error_either``.
 """
 
 from __future__ import annotations
@@ -20,10 +24,13 @@ COUNT_MATCH_S = 2.0  # a counted crossing this close in time to a true one in th
 
 
 def count_mismatches(true_cross: list, meas_cross: list, n_lanes: int) -> dict:
-    """``{"missed": [...], "extra": [...]}``: true crossings (lane, t_s, vehicle id, class) and counted ones
-    (lane, t_s, speed km/h) left over when each lane's two lists are matched one-to-one minimising the time
-    differences, pairs further apart than ``COUNT_MATCH_S`` not allowed."""
-    missed, extra = [], []
+    """``{"missed": [...], "extra": [...], "straddling": [...]}``: true crossings (lane, t_s, vehicle id, class[,
+    either lane]) and counted ones (lane, t_s, speed km/h) left over when each lane's two lists are matched
+    one-to-one minimising the time differences, pairs further apart than ``COUNT_MATCH_S`` not allowed. Then each
+    missed crossing with an ``either lane``, earliest first, takes the extra of that lane nearest in time within
+    ``COUNT_MATCH_S``: the two leave ``missed`` and ``extra`` for ``straddling`` (the true crossing with the lane and
+    time it was counted at)."""
+    missed, extra, alt = [], [], []
     for k in range(n_lanes):
         t_true = [c for c in true_cross if c[0] == k]
         t_meas = [c for c in meas_cross if c[0] == k]
@@ -33,11 +40,24 @@ def count_mismatches(true_cross: list, meas_cross: list, n_lanes: int) -> dict:
         r, c = linear_sum_assignment(cost) if cost.size else (np.zeros(0, int), np.zeros(0, int))
         ok = cost[r, c] < 1e6
         mt, mm = set(r[ok].tolist()), set(c[ok].tolist())
-        missed += [{"lane": k, "t_s": round(x[1], 3), "vehicle_id": x[2], "class": x[3]}
-                   for n, x in enumerate(t_true) if n not in mt]
-        extra += [{"lane": k, "t_s": round(x[1], 3), "speed_kmh": round(x[2], 1)}
+        for n, x in enumerate(t_true):
+            if n not in mt:
+                missed.append({"lane": k, "t_s": round(x[1], 3), "vehicle_id": x[2], "class": x[3]})
+                alt.append((x[4] if len(x) > 4 else -1, x[1]))
+        extra += [(x[1], {"lane": k, "t_s": round(x[1], 3), "speed_kmh": round(x[2], 1)})
                   for n, x in enumerate(t_meas) if n not in mm]
-    return {"missed": missed, "extra": extra}
+    straddling, still_missed = [], []
+    for n in sorted(range(len(missed)), key=lambda n: alt[n][1]):
+        lane_b, t = alt[n]
+        cand = [j for j, (te, e) in enumerate(extra) if e["lane"] == lane_b != missed[n]["lane"]
+                and abs(te - t) <= COUNT_MATCH_S]
+        if cand:
+            j = min(cand, key=lambda j: abs(extra[j][0] - t))
+            straddling.append({**missed[n], "counted_lane": lane_b, "counted_t_s": extra.pop(j)[1]["t_s"]})
+        else:
+            still_missed.append(n)
+    return {"missed": [missed[n] for n in sorted(still_missed)], "extra": [e for _, e in extra],
+            "straddling": straddling}
 
 
 class CountTally:
@@ -74,12 +94,18 @@ class CountTally:
                 self.measured[k] += len(la.crossings)
 
     def summary(self, true_cross: list) -> dict:
-        """The count figures of the evaluation report against ``true_cross`` ``[(lane, t_s, vehicle id, class)]``
-        (lanes outside ``0..n_lanes - 1`` already left out)."""
+        """The count figures of the evaluation report against ``true_cross`` ``[(lane, t_s, vehicle id, class[,
+        either lane])]`` (lanes outside ``0..n_lanes - 1`` already left out)."""
         true_volume = np.bincount(np.array([c[0] for c in true_cross], dtype=np.int64), minlength=self.n_lanes)
+        mism = count_mismatches(true_cross, self.counted, self.n_lanes)
+        either = self.measured.copy()
+        for s in mism["straddling"]:  # counted in the lane the vehicle straddled into: given back to its own
+            either[s["counted_lane"]] -= 1
+            either[s["lane"]] += 1
         return {
             "count_error_per_lane": [int(m - t) for m, t in zip(self.measured, true_volume)],
             "volume_true_per_lane": [int(v) for v in true_volume[: self.n_lanes]],
             "volume_measured_per_lane": [int(v) for v in self.measured],
-            "count_mismatches": count_mismatches(true_cross, self.counted, self.n_lanes),
+            "volume_measured_either_per_lane": [int(v) for v in either],
+            "count_mismatches": mism,
         }

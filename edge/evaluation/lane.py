@@ -55,7 +55,9 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   of where the misses come from (the headline ``detection_probability`` counts every frame);
 * ``count_error_per_lane``: measured volume at the traffic layer's detection line (closed intervals
   plus the open one) minus the true number of reference points crossing it in the lane's direction of travel
-  (a wrong-way driver is an event, not volume), per lane;
+  (a wrong-way driver is an event, not volume), per lane; ``volume_measured_either_per_lane``: the measured
+  volumes with a vehicle whose body straddles a lane boundary at the line (reference point and width against the
+  lanes) counted right in either of the two lanes, as a loop under it may count it (``count_abs_error_either``);
 * ``wrong_way``: the ``wrong_way`` alarms scored against the truth (scenarios with ``[[lane]]`` tables):
   ``drivers`` = vehicles in view driving against their lane's direction faster than 3 m/s for 15 frames,
   ``correct`` = alarms whose track followed such a vehicle when raised, ``false`` = the other alarms,
@@ -284,6 +286,18 @@ def _changing_lanes(target: Any, t_s: float) -> bool:
     return False
 
 
+def _straddled_lane(x_m: float, width_m: float, lane: int, lanes: list) -> int:
+    """The lane of ``lane``'s direction beside it that a body ``width_m`` wide centred at lateral ``x_m`` reaches
+    into (-1: none; ``lanes`` the scenario's): a loop detector under it may count it in either lane."""
+    if not 0 <= lane < len(lanes):
+        return -1
+    for k, ln in enumerate(lanes):
+        if (k != lane and ln.direction == lanes[lane].direction
+                and abs(x_m - ln.center_x_m) < 0.5 * (width_m + ln.width_m)):
+            return k
+    return -1
+
+
 def _tallies(acc: dict[int, "_TargetAcc"], pd_overlap: dict, false_eps: list, n_start: int, n_frames: int,
              period: float, counts: dict, sq_200: list, lane_ok: int, lane_n: int,
              visible: list[int] | None = None, lane_keep: list[int] | None = None) -> dict:
@@ -308,6 +322,9 @@ def _tallies(acc: dict[int, "_TargetAcc"], pd_overlap: dict, false_eps: list, n_
         "id_switches": int(sum(a.switches for a in acc.values())),
         "count_true": int(sum(true_v)),
         "count_abs_error": int(sum(abs(m - t) for m, t in zip(meas_v, true_v))),
+        # the same, a vehicle straddling two lanes at the line counted right in either (counting.count_mismatches)
+        "count_abs_error_either": int(sum(abs(m - t) for m, t in zip(
+            counts.get("volume_measured_either_per_lane", meas_v), true_v))),
         # position error of assigned frames within TALLY_RANGE_M ground range
         "position_sq_error_sum_m2": float(sq_200[0]),
         "position_n": int(sq_200[1]),
@@ -372,7 +389,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     pd_cls_bins: dict[tuple[str, int], list[int]] = {}  # (class, range bin) -> [in view, detected, tracked]
     tally = CountTally(n_lanes)  # what the traffic layer counted at its detection line
     prev_s: dict[int, float] = {}
-    true_cross: list[tuple[int, float, int, str]] = []  # (lane, t_s, vehicle id, class)
+    true_cross: list[tuple[int, float, int, str, int]] = []  # (lane, t_s, vehicle id, class, _straddled_lane)
     events: list[dict] = []
     # wrong-way scoring: the scenario's lane directions (+1 away from the radar), the vehicle each event's
     # track followed when it was raised
@@ -444,7 +461,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             # event)
             if (s_prev is not None and (s_prev - line) * (ref_y[j] - line) < 0 and 0 <= lanes[j] < n_lanes
                     and (ref_y[j] - s_prev) * lane_dir[lanes[j]] > 0):
-                true_cross.append((int(lanes[j]), float(f.t_s), int(i), tr.cls[veh[j]]))
+                true_cross.append((int(lanes[j]), float(f.t_s), int(i), tr.cls[veh[j]],
+                                   _straddled_lane(float(ref_w[j, 0]), float(getattr(by_id[int(i)], "width_m", 0.0)),
+                                                   int(lanes[j]), sc.lanes)))
             prev_s[int(i)] = float(ref_y[j])
 
         tracks = [t for t in res.tracks if t.confirmed and t.track_id > 0]
@@ -625,8 +644,10 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         "count_error_per_lane": counts["count_error_per_lane"],
         "volume_true_per_lane": counts["volume_true_per_lane"],
         "volume_measured_per_lane": counts["volume_measured_per_lane"],
+        "volume_measured_either_per_lane": counts["volume_measured_either_per_lane"],
         # which crossings make the count errors: per lane, true and counted crossings matched one-to-one by time
-        # (within COUNT_MATCH_S); the unmatched ones, for diagnosis (counts of the open interval included)
+        # (within COUNT_MATCH_S); the unmatched ones, for diagnosis (counts of the open interval included), and the
+        # straddling vehicles counted in the lane they straddled into
         "count_mismatches": counts["count_mismatches"],
         "rmse_by_range_m": {f"{int(k * RANGE_BIN_M)}-{int((k + 1) * RANGE_BIN_M)}": float(math.sqrt(np.mean(v)))
                             for k, v in sorted(range_bins.items())},
@@ -674,7 +695,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     }
     if lane_dir:
         # per-lane interval statistics against the truth, and the lengths and classes of the vehicles that crossed
-        crossed = {i for _, _, i, _ in true_cross}
+        crossed = {c[2] for c in true_cross}
         summary["intervals"] = score_intervals(interval_records, itruth.intervals(), itruth.t0_s or 0.0,
                                                traffic_cfg.interval_s, class_names)
         summary["vehicle_lengths"] = score_vehicles(

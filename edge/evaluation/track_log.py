@@ -29,6 +29,8 @@ File format (version 1): a numpy ``.npz`` (no pickled objects), columns one row 
 ``motion_x_m``     ``(N,)`` float64: the tracker's motion-model ``x`` per track (the yaw estimator's input)
 ``true_lane``, ``true_t_s``, ``true_vehicle``, ``true_class``
                    the true crossings of the detection line: lane, time (s), vehicle id, class
+``true_either_lane``  the lane a vehicle straddling into it at the line may be counted in instead (int64, -1 =
+                   none; absent in logs written before it)
 =================  =========================================================================================
 """
 
@@ -121,6 +123,8 @@ class TrackLogRecorder:
             "true_vehicle": np.array([c[2] for c in true_cross], dtype=np.int64),
             "true_class": np.array([c[3] for c in true_cross], dtype=str),
         }
+        if true_cross and len(true_cross[0]) > 4:
+            cols["true_either_lane"] = np.array([c[4] for c in true_cross], dtype=np.int64)
         for key, dtype in _TRACK_COLUMNS.items():
             parts = [c[key] for c in self._chunks]
             cols[key] = np.concatenate(parts) if parts else np.zeros(0, dtype=dtype)
@@ -143,10 +147,14 @@ class TrackLog:
         return int(self.cols["frame_t_ns"].size)
 
     @property
-    def true_crossings(self) -> list[tuple[int, float, int, str]]:
+    def true_crossings(self) -> list[tuple]:
+        """``(lane, t_s, vehicle id, class)``, and the lane a straddling vehicle may be counted in instead (-1:
+        none) where the log has it."""
         c = self.cols
-        return list(zip(c["true_lane"].tolist(), c["true_t_s"].tolist(), c["true_vehicle"].tolist(),
-                        c["true_class"].tolist()))
+        cols = [c["true_lane"].tolist(), c["true_t_s"].tolist(), c["true_vehicle"].tolist(), c["true_class"].tolist()]
+        if "true_either_lane" in c:
+            cols.append(c["true_either_lane"].tolist())
+        return list(zip(*cols))
 
     def frame_tracks(self) -> Iterator[tuple[int, tuple[TrackState, ...], np.ndarray | None]]:
         """Per frame ``(t_ns, tracks, motion_x_m or None)``, as the traffic layer was given them (one frame's
