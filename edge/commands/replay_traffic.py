@@ -92,9 +92,9 @@ def _replay_one(args: argparse.Namespace, path: str) -> dict:
     print(f"true volume per lane      {new['volume_true_per_lane']}")
     print(f"count error per lane      recorded {_fmt(rec['count_error_per_lane'])} -> replayed "
           f"{_fmt(new['count_error_per_lane'])}")
-    for kind in ("missed", "extra"):
-        items = new["count_mismatches"][kind]
-        was = len(rec["count_mismatches"][kind])
+    for kind in ("missed", "extra", "straddling"):
+        items = new["count_mismatches"].get(kind, [])
+        was = len(rec.get("count_mismatches", {}).get(kind, []))
         print(f"{kind:<6} {len(items)} (recorded {was})" + (": " if items else ""))
         for it in items:
             print("    " + ", ".join(f"{k}={v}" for k, v in it.items()))
