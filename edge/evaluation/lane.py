@@ -78,7 +78,10 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   false tracks, in all and in the first 30 s, and the minutes; true volume and the sum of |measured - true| over
   lanes; squared position error and its frame count within ``TALLY_RANGE_M`` (200 m), and the sum of the vehicles'
   own position RMSEs there with their number (vehicles with ``VEHICLE_RMSE_MIN_FRAMES`` assigned frames or more:
-  each vehicle weighs the same, a far motorcycle as much as a near truck); |speed error| sum and count;
+  each vehicle weighs the same, a far motorcycle as much as a near truck); the squared position error in the road
+  frame over the same frames (``position_road_sq_error_sum_m2``: the track turned by the traffic layer's yaw in use,
+  the truth by the mounting's, so that a turn of the board's boresight, which the yaw estimate takes up, cancels);
+  |speed error| sum and count;
   lane-correct and lane-assigned frames), so that the evaluation corpus (:mod:`edge.evaluation.corpus`) pools runs
   as ratios of sums;
 * ``count_mismatches``: the true crossings left unmatched (``missed``) and the counted ones left unmatched
@@ -286,6 +289,17 @@ def _changing_lanes(target: Any, t_s: float) -> bool:
     return False
 
 
+def _road_sq_error(track_xy, true_xy, yaw_in_use: float, yaw_true: float) -> float:
+    """Squared distance (m^2) between a track and its vehicle in the road frame: the track's ground position turned
+    by the yaw the traffic layer uses, the vehicle's by the mounting's true yaw (both in the traffic layer's
+    convention: across = x cos + y sin, along = -x sin + y cos)."""
+    ct, st, cv, sv = math.cos(yaw_in_use), math.sin(yaw_in_use), math.cos(yaw_true), math.sin(yaw_true)
+    x, y, xv, yv = float(track_xy[0]), float(track_xy[1]), float(true_xy[0]), float(true_xy[1])
+    du = (x * ct + y * st) - (xv * cv + yv * sv)
+    ds = (-x * st + y * ct) - (-xv * sv + yv * cv)
+    return du * du + ds * ds
+
+
 def _straddled_lane(x_m: float, width_m: float, lane: int, lanes: list) -> int:
     """The lane of ``lane``'s direction beside it that a body ``width_m`` wide centred at lateral ``x_m`` reaches
     into (-1: none; ``lanes`` the scenario's): a loop detector under it may count it in either lane."""
@@ -328,6 +342,7 @@ def _tallies(acc: dict[int, "_TargetAcc"], pd_overlap: dict, false_eps: list, n_
         # position error of assigned frames within TALLY_RANGE_M ground range
         "position_sq_error_sum_m2": float(sq_200[0]),
         "position_n": int(sq_200[1]),
+        "position_road_sq_error_sum_m2": float(sq_200[2]),
         **_vehicle_rmse_tallies(acc),
         "speed_abs_error_sum_kmh": float(sum(sum(a.spd_err) for a in acc.values())),
         "speed_n": int(sum(len(a.spd_err) for a in acc.values())),
@@ -383,7 +398,9 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
     closed_eps: list[list[int]] = []
     lane_ok = lane_n = 0
     lane_keep = [0, 0]  # lane_ok and lane_n over the frames of vehicles outside a lane change (_changing_lanes)
-    sq_200 = [0.0, 0]  # position squared error (m^2) summed over assigned frames within TALLY_RANGE_M, and their number
+    sq_200 = [0.0, 0, 0.0]  # position squared error (m^2) summed over assigned frames within TALLY_RANGE_M, their
+    # number, and the squared error summed in the road frame (_tallies)
+    yaw_true = math.radians(scene.pose.yaw_deg)
     range_bins: dict[int, list[float]] = {}
     pd_bins: dict[int, list[int]] = {}  # range bin -> [in view, detected, tracked]
     pd_cls_bins: dict[tuple[str, int], list[int]] = {}  # (class, range bin) -> [in view, detected, tracked]
@@ -421,6 +438,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         frame = RawFrame(n, int(round(f.t_s * 1e9)), f.i, f.q, fe, f.truth)
         c1 = time.thread_time()
         res = pipe.process(frame, timer)
+        yaw_in_use = pipe.traffic.yaw_rad if pipe.traffic is not None else math.radians(traffic_cfg.mounting_yaw_deg)
         t2 = time.perf_counter()
         cpu_ms[n] = (time.thread_time() - c1) * 1e3
         sim_ms[n], frame_ms[n] = (t1 - t0) * 1e3, (t2 - t1) * 1e3
@@ -545,6 +563,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
             if ground_rng[j] <= TALLY_RANGE_M:
                 sq_200[0] += e2
                 sq_200[1] += 1
+                sq_200[2] += _road_sq_error(tpos[k], ref[j], yaw_in_use, yaw_true)
             a.spd_err.append(abs(t.speed_mps * 3.6 - speed_kmh[j]))
             a.vr_true.append(float(tr.radial_speed_mps[veh[j]]) * 3.6)
             a.vr_est.append(t.radial_speed_mps * 3.6)

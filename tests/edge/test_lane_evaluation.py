@@ -293,3 +293,23 @@ def test_lane_accuracy_is_split_into_lane_keeping_and_lane_changing_frames():
     tl = rep["summary"]["tallies"]
     assert tl["lane_keeping_assigned"] == tl["lane_assigned"] > 0
     assert rep["summary"]["lane_accuracy_changing"] is None
+
+
+def test_road_frame_error_cancels_a_turn_the_yaw_estimate_took_up():
+    """A board whose boresight is turned by b puts every track turned by b; the traffic layer's yaw estimate reads
+    mounting yaw + b. In the road frame the turn cancels; with the yaw the truth has, the error is the plain one."""
+    import math
+
+    import numpy as np
+
+    from edge.evaluation.lane import _road_sq_error
+
+    yaw, b = math.radians(3.0), math.radians(0.2)
+    truth = np.array([4.0, 150.0])
+    turned = np.array([[math.cos(b), math.sin(b)], [-math.sin(b), math.cos(b)]]).T @ truth  # truth turned by b
+    # the traffic layer's convention: across = x cos + y sin; a point turned by b reads across = ... of yaw + b
+    assert _road_sq_error(turned, truth, yaw + b, yaw) == pytest.approx(0.0, abs=1e-18)
+    plain = float(np.sum((turned - truth) ** 2))
+    assert plain > 0.25  # 0.2 deg at 150 m: 0.52 m
+    assert _road_sq_error(turned, truth, yaw, yaw) == pytest.approx(plain)
+    assert _road_sq_error(truth + [0.3, -0.4], truth, yaw, yaw) == pytest.approx(0.25)
