@@ -123,8 +123,7 @@ def run_corpus(args: argparse.Namespace) -> int:
     config_from_args(args)  # a bad --config or --set stops here, before any worker starts
     corpus = load_corpus(args.corpus)
     parts = ("dev", "holdout") if args.part == "both" else (args.part,)
-    for part in parts:
-        check_scenarios(corpus, part)
+    check_scenarios(corpus, parts)
     results = {}
     for part in parts:
         jobs = [dict(j, config=args.config, extra_set=list(args.set), targets=bool(args.targets))

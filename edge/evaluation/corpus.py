@@ -313,10 +313,10 @@ def load_corpus(path: str | Path) -> Corpus:
     return parse_corpus(read_toml(path, "corpus file"), str(path))
 
 
-def check_scenarios(corpus: Corpus, part: str) -> None:
-    """Load every (scenario, variant) of ``part`` once with its patch, and every variant's settings: unknown
-    scenarios, bad patches or settings and scenarios of the other profile stop the corpus before any worker
-    starts."""
+def check_scenarios(corpus: Corpus, part: str | tuple[str, ...]) -> None:
+    """Load every (scenario, variant) of ``part`` (one part or several) once with its patch, and every variant's
+    settings: unknown scenarios, bad patches or settings and scenarios of the other profile stop the corpus before
+    any worker starts."""
     from edge.pipeline import BOARD_PROFILE
     from hw_sim.physics import PhysicsError
     from hw_sim.scenario import ScenarioError, load_scenario_for_eval
@@ -329,7 +329,7 @@ def check_scenarios(corpus: Corpus, part: str) -> None:
         except ConfigError as exc:
             raise CorpusError(f"{corpus.source}: variant {v.name!r}: {exc}") from exc
     done = set()
-    for j in corpus.jobs(part):
+    for j in [j for p in ((part,) if isinstance(part, str) else part) for j in corpus.jobs(p)]:
         key = (j["scenario"], j["variant"])
         if key in done:
             continue

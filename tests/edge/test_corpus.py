@@ -271,9 +271,10 @@ def test_shipped_corpora_parse(name):
     from edge.evaluation.corpus import check_scenarios, load_corpus
 
     c = load_corpus(REPO / "corpus" / name)
-    for part in ("dev", "holdout") if name != "lane-ablation.toml" else ("holdout",):
+    parts = ("dev", "holdout") if name != "lane-ablation.toml" else ("holdout",)
+    for part in parts:
         assert c.jobs(part)
-        check_scenarios(c, part)
+    check_scenarios(c, parts)  # each (scenario, variant) loaded once for both parts
 
 
 @pytest.mark.parametrize("lo, hi", [(0.75, 0.851), (0.0, 0.0), (0.0012, 0.0034), (3.0, 250.0), (-2.0, 0.5)])
