@@ -86,7 +86,8 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   as ratios of sums;
 * ``count_mismatches``: the true crossings left unmatched (``missed``) and the counted ones left unmatched
   (``extra``) when each lane's two lists are matched one-to-one by time (at most
-  ``edge.evaluation.counting.COUNT_MATCH_S`` apart).
+  ``edge.evaluation.counting.COUNT_MATCH_S`` apart), and the straddling vehicles counted in the lane they
+  straddled into (``straddling``, out of the other two).
 """
 
 from __future__ import annotations
@@ -438,10 +439,10 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         frame = RawFrame(n, int(round(f.t_s * 1e9)), f.i, f.q, fe, f.truth)
         c1 = time.thread_time()
         res = pipe.process(frame, timer)
-        yaw_in_use = pipe.traffic.yaw_rad if pipe.traffic is not None else math.radians(traffic_cfg.mounting_yaw_deg)
         t2 = time.perf_counter()
         cpu_ms[n] = (time.thread_time() - c1) * 1e3
         sim_ms[n], frame_ms[n] = (t1 - t0) * 1e3, (t2 - t1) * 1e3
+        yaw_in_use = pipe.traffic.yaw_rad if pipe.traffic is not None else math.radians(traffic_cfg.mounting_yaw_deg)
         new_events = res.events
         for ev in new_events:
             events.append({"kind": ev.kind, "track_id": ev.track_id, "lane": ev.lane, "t_s": round(f.t_s, 3)})
