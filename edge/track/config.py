@@ -255,7 +255,8 @@ class ReanchorConfig:
     reanchor_min_m: float = _f(1.0, "... and at least this much nearer", "m", 0.0, 100.0)
     reanchor_receding_only: bool = _f(True, "only receding tracks re-anchor (an approaching track is on its near "
                                             "face from afar)")
-    reanchor_speed_mps: float = _f(1.0, "radial-speed difference within which the detection is the track's vehicle",
+    reanchor_speed_mps: float = _f(1.0, "radial-speed difference within which the detection is the track's vehicle "
+                                        "(near the radar wider by the scatterer height's speed error, 2 sd)",
                                    "m/s", 0.0, 20.0)
 
 

@@ -1087,9 +1087,11 @@ def test_imm_predict_takes_strided_tracks():
 
 @pytest.mark.parametrize("seed", range(6))
 @pytest.mark.parametrize("receding_only", [True, False])
-def test_reanchor_match_is_identical(seed, receding_only):
+@pytest.mark.parametrize("height_above_m", [0.0, 5.0])
+def test_reanchor_match_is_identical(seed, receding_only, height_above_m):
     """Re-anchoring's matches (missed confirmed tracks and their nearest unclaimed detection) from the kernel equal
-    the numpy reference ``Reanchor.matches``, on frames built so that many tracks have candidates."""
+    the numpy reference ``Reanchor.matches``, on frames built so that many tracks have candidates, with and without
+    the scatterer height's widening of the speed test."""
     from dataclasses import replace
     from types import SimpleNamespace
 
@@ -1100,33 +1102,35 @@ def test_reanchor_match_is_identical(seed, receding_only):
     cfg = replace(ReanchorConfig(), reanchor_receding_only=receding_only)
     if cfg.reanchor_m <= 0:
         cfg = replace(cfg, reanchor_m=8.0)
-    role = Reanchor(cfg, SameVehicleBox(SameVehicleConfig(), 1.0), None)
+    role = Reanchor(cfg, SameVehicleBox(SameVehicleConfig(), 1.0), SimpleNamespace(height_above_target_m=height_above_m),
+                    2.0)
+    k = role.height_speed_k
+    assert k == 2.0 * height_above_m
     rng = np.random.default_rng(seed)
-    t, m = 40, 30
-    x = np.column_stack([rng.normal(0, 3, t), rng.uniform(10, 200, t), rng.normal(0, 0.3, t), rng.normal(0, 20, t)])
-    near = rng.integers(0, t, m)  # detections a little nearer than some track, at its radial speed
+    t, m = 60, 80
+    # ranges from under the mounting, where the widening is metres per second, to far away
+    x = np.column_stack([rng.normal(0, 3, t), rng.uniform(8, 80, t), rng.normal(0, 0.3, t), rng.normal(0, 20, t)])
+    near = rng.integers(0, t, m)  # detections a little nearer than some track, at about its radial speed
     rho = np.hypot(x[near, 0], x[near, 1])
     vr = (x[near, 0] * x[near, 2] + x[near, 1] * x[near, 3]) / rho
     back = rng.uniform(-1.0, cfg.reanchor_m + 2.0, m)
     z = np.column_stack([x[near, 0] * (rho - back) / rho + rng.normal(0, 0.5, m), x[near, 1] * (rho - back) / rho,
-                         vr + rng.normal(0, 0.5, m)])
+                         vr + rng.normal(0, 3.0 if height_above_m else 0.5, m)])
     z[:4] = z[4:8]  # equally near duplicates: the first wins
     tracks = SimpleNamespace(x=x, confirmed=rng.uniform(size=t) < 0.8)
     gated = rng.uniform(size=(t, m)) < 0.005
     frame = SimpleNamespace(meas=SimpleNamespace(z=z), hyp=SimpleNamespace(gated=gated),
                             hit=gated.any(axis=1) | (rng.uniform(size=t) < 0.2))
     ref = role.matches(tracks, frame)
-    i, j = K.reanchor_match(x, tracks.confirmed, frame.hit, gated, z, cfg.reanchor_speed_mps, receding_only,
-                            cfg.reanchor_min_m, cfg.reanchor_m, role.box.cfg.merge_lateral_m)
+    args = (receding_only, cfg.reanchor_min_m, cfg.reanchor_m, role.box.cfg.merge_lateral_m, k)
+    i, j = K.reanchor_match(x, tracks.confirmed, frame.hit, gated, z, cfg.reanchor_speed_mps, *args)
     assert ref is not None and ref[0].size >= 2  # the frame exercises the matching
     assert np.array_equal(i, ref[0]) and np.array_equal(j, ref[1]) and i.dtype == j.dtype == np.int64
     # strided columns give the same rows; no missed confirmed track: empty int64 rows
     i2, j2 = K.reanchor_match(np.repeat(x, 2, axis=1)[:, ::2], tracks.confirmed, frame.hit, gated,
-                              np.repeat(z, 2, axis=0)[::2], cfg.reanchor_speed_mps, receding_only, cfg.reanchor_min_m,
-                              cfg.reanchor_m, role.box.cfg.merge_lateral_m)
+                              np.repeat(z, 2, axis=0)[::2], cfg.reanchor_speed_mps, *args)
     assert np.array_equal(i2, i) and np.array_equal(j2, j)
-    i0, j0 = K.reanchor_match(x, tracks.confirmed, np.ones(t, bool), gated, z, cfg.reanchor_speed_mps,
-                              receding_only, cfg.reanchor_min_m, cfg.reanchor_m, role.box.cfg.merge_lateral_m)
+    i0, j0 = K.reanchor_match(x, tracks.confirmed, np.ones(t, bool), gated, z, cfg.reanchor_speed_mps, *args)
     assert i0.shape == j0.shape == (0,) and i0.dtype == j0.dtype == np.int64
 
 

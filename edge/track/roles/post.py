@@ -134,11 +134,16 @@ class LateralSmoother(native.KernelUser):
 class Reanchor(native.KernelUser):
     """A confirmed track that missed moves to the nearest unclaimed detection between ``reanchor_min_m`` and
     ``reanchor_m`` nearer, in line with it (``merge_lateral_m``) and at its radial speed: the near face of the
-    vehicle whose body the track sat on. The detection is claimed (no seed)."""
+    vehicle whose body the track sat on. The detection is claimed (no seed). The speed test widens, as the confirm
+    block's does, by the ground radial-speed error of scatterers two height sd off the assumed height at the track
+    and at the detection (:meth:`speed_widening`)."""
 
-    def __init__(self, cfg: ReanchorConfig, box: SameVehicleBox, measurement_model: MeasurementModel) -> None:
+    def __init__(self, cfg: ReanchorConfig, box: SameVehicleBox, measurement_model: MeasurementModel | None,
+                 height_2sd_m: float = 0.0) -> None:
         self.cfg, self.box = cfg, box
         self.measurement_model = measurement_model
+        #: twice the sd of a scatterer's height (m; ``scatterer_height_sigma_m``)
+        self.height_2sd_m = float(height_2sd_m)
         #: the compiled matching (``edge.native._track``), or None: numpy (:meth:`matches`)
         self.kernel = native.load("_track")
 
@@ -151,7 +156,7 @@ class Reanchor(native.KernelUser):
             c = self.cfg
             i, j = self.kernel.reanchor_match(tr.x, tr.confirmed, frame.hit, frame.hyp.gated, meas.z,
                                               c.reanchor_speed_mps, c.reanchor_receding_only, c.reanchor_min_m,
-                                              c.reanchor_m, self.box.cfg.merge_lateral_m)
+                                              c.reanchor_m, self.box.cfg.merge_lateral_m, self.height_speed_k)
             if i.size == 0:
                 return None
         else:
@@ -170,6 +175,23 @@ class Reanchor(native.KernelUser):
         used[j] = True
         return i
 
+    @property
+    def height_speed_k(self) -> float:
+        """``2 sigma_h dz`` (m^2): the radar's height above the assumed scatterers (the measurement model's) times
+        twice their height sd; 0 without a measurement model."""
+        mm = self.measurement_model
+        return 0.0 if mm is None else mm.height_above_target_m * self.height_2sd_m
+
+    @staticmethod
+    def speed_widening(k: float, vr_t: np.ndarray, rho_t: np.ndarray, rho_z: np.ndarray) -> np.ndarray:
+        """(k, f) the speed test's widening (m/s) for tracks of ground radial speed ``vr_t`` and range ``rho_t``
+        (k,) and detections at ranges ``rho_z`` (f,): ``hypot`` of ``k |v_r| / rho^2`` at each (``rho`` at least
+        1 m, :func:`edge.track.roles.measure.height_cov`'s speed term for the track's speed)."""
+        kv = k * np.abs(vr_t)
+        rt, rz = np.maximum(rho_t, 1.0), np.maximum(rho_z, 1.0)
+        ht, hz = kv / (rt * rt), kv[:, None] / (rz * rz)[None, :]
+        return np.sqrt(ht[:, None] * ht[:, None] + hz * hz)
+
     def matches(self, tracks: TrackTable, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None:
         """The numpy reference of the matching: rows ``(i, j)`` of the tracks that move and their detections, or
         None."""
@@ -185,12 +207,14 @@ class Reanchor(native.KernelUser):
         st, z = tr.x.take(miss, axis=0), meas.z.take(free, axis=0)
         rho_t = np.maximum(np.hypot(st[:, 0], st[:, 1]), 1e-3)
         vr_t = (st[:, 0] * st[:, 2] + st[:, 1] * st[:, 3]) / rho_t
-        ok = np.abs(vr_t[:, None] - z[None, :, 2]) < c.reanchor_speed_mps
+        rho_z = np.hypot(z[:, 0], z[:, 1])
+        ok = np.abs(vr_t[:, None] - z[None, :, 2]) < c.reanchor_speed_mps + self.speed_widening(
+            self.height_speed_k, vr_t, rho_t, rho_z)
         if c.reanchor_receding_only:  # an approaching track is on its near face from afar
             ok &= (vr_t > 0.0)[:, None]
         if not ok.any():  # the usual frame: no unclaimed detection at a missed track's radial speed
             return None
-        nearer = rho_t[:, None] - np.hypot(z[:, 0], z[:, 1])[None, :]  # (k, f) > 0: the detection is nearer
+        nearer = rho_t[:, None] - rho_z[None, :]  # (k, f) > 0: the detection is nearer
         ok &= ((nearer > c.reanchor_min_m) & (nearer <= c.reanchor_m)
                & (np.abs(st[:, 0, None] - z[None, :, 0]) < self.box.cfg.merge_lateral_m))
         has = ok.any(axis=1)
