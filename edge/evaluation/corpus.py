@@ -104,6 +104,8 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "confirmed false tracks per minute, from the cold start on"),
         Metric("false_tracks_first_30s_per_min", "false_tracks_first_30s", "minutes_first_30s", "1/min",
                "false tracks begun in the first 30 s after the cold start, per minute of those 30 s"),
+        Metric("false_tracks_near_per_min", "false_tracks_near", "minutes", "1/min",
+               "false tracks begun within 25 m ground range of the radar, per minute"),
         Metric("count_error_per_lane", "count_abs_error", "count_true", "",
                "sum over lanes of |measured - true| volume / true volume"),
         Metric("count_error_either_lane", "count_abs_error_either", "count_true", "",

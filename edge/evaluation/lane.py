@@ -38,6 +38,8 @@ Definitions (all in the radar's ground frame: x lateral, y along the boresight's
   ``false_tracks_first_30s``: those whose episode began in the first ``START_S`` (30) seconds. Every run starts
   the pipeline cold with traffic already on the road (the traffic generator populates it before t = 0), and no
   figure leaves the first seconds out, so start-up phantoms count; this one makes them visible;
+  ``false_tracks_near``: those whose episode began within ``NEAR_M`` (25 m) ground range of the radar, where
+  vehicles pass under or beside the mounting (phantoms near the radar);
 * ``lane_accuracy``: assigned pairs whose track lane equals the vehicle's true lane at that frame (per vehicle
   too, over its assigned frames); ``lane_accuracy_keeping`` and ``lane_accuracy_changing``: the same over the
   frames of vehicles outside and inside a lane change (the simulator's 4 s lateral move; the true lane switches
@@ -121,6 +123,7 @@ OVERLAP_SEGMENTS = 2  # ... in this many of the four segments (the pairing toler
 TALLY_RANGE_M = 200.0  # the pooled position error (summary ``tallies``) counts assigned frames within this ground range
 VEHICLE_RMSE_MIN_FRAMES = 10  # a vehicle's own position RMSE (tallies) needs this many assigned frames within it
 START_S = 30.0  # ``false_tracks_first_30s``: false tracks confirmed this soon after the (cold) start
+NEAR_M = 25.0  # ``false_tracks_near``: false tracks confirmed within this ground range of the radar
 SHADOWED_SHARE = 0.5  # a vehicle-frame with this share of its echo shadowed by another body is not "visible"
 
 
@@ -313,6 +316,12 @@ def _straddled_lane(x_m: float, width_m: float, lane: int, lanes: list) -> int:
     return -1
 
 
+def _near_count(false_eps: list) -> int:
+    """The false-track episodes (``[first frame, last frame, frames, assigned frames, id, x_m, y_m]``, the position
+    where the episode began) that began within ``NEAR_M`` ground range of the radar."""
+    return sum(1 for ep in false_eps if math.hypot(ep[5], ep[6]) < NEAR_M)
+
+
 def _tallies(acc: dict[int, "_TargetAcc"], pd_overlap: dict, false_eps: list, n_start: int, n_frames: int,
              period: float, counts: dict, sq_200: list, lane_ok: int, lane_n: int,
              visible: list[int] | None = None, lane_keep: list[int] | None = None) -> dict:
@@ -334,6 +343,8 @@ def _tallies(acc: dict[int, "_TargetAcc"], pd_overlap: dict, false_eps: list, n_
         "false_tracks": len(false_eps),
         # false confirmed tracks whose episode began in the first START_S seconds (start-up phantoms)
         "false_tracks_first_30s": sum(1 for ep in false_eps if ep[0] < n_start),
+        # ... and those whose episode began within NEAR_M of the radar
+        "false_tracks_near": _near_count(false_eps),
         "id_switches": int(sum(a.switches for a in acc.values())),
         "count_true": int(sum(true_v)),
         "count_abs_error": int(sum(abs(m - t) for m, t in zip(meas_v, true_v))),
@@ -709,6 +720,7 @@ def evaluate(sc, *, seed: int | None = None, frames: int | None = None, events: 
         "classification_accuracy": None,
         "confusion_matrix": None,
         "false_tracks_first_30s": sum(1 for ep in false_eps if ep[0] < n_start),
+        "false_tracks_near": _near_count(false_eps),
         # sums and counts behind the figures, for pooling runs as ratios of sums (edge.evaluation.corpus)
         "tallies": _tallies(acc, pd_overlap, false_eps, n_start, n_frames, period, counts, sq_200, lane_ok, lane_n,
                             visible, lane_keep),

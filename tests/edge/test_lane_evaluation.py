@@ -9,7 +9,7 @@ from pathlib import Path
 
 from edge.cli import main
 from edge.config import load_config
-from edge.evaluation.lane import _TargetAcc, _rmse_within, _vehicle_rmse_tallies, evaluate
+from edge.evaluation.lane import NEAR_M, _TargetAcc, _near_count, _rmse_within, _vehicle_rmse_tallies, evaluate
 from hw_sim.scenario import load_scenario
 
 V1 = {"physics": {"preset": "v1"}}  # the v1 instrument (hw_sim.physics.PRESETS)
@@ -313,3 +313,13 @@ def test_road_frame_error_cancels_a_turn_the_yaw_estimate_took_up():
     assert plain > 0.25  # 0.2 deg at 150 m: 0.52 m
     assert _road_sq_error(turned, truth, yaw, yaw) == pytest.approx(plain)
     assert _road_sq_error(truth + [0.3, -0.4], truth, yaw, yaw) == pytest.approx(0.25)
+
+
+def test_false_tracks_near_the_radar_are_those_begun_within_near_m():
+    """``false_tracks_near`` counts the false-track episodes by the ground range where they began (x, y), not
+    where they ended or their frame."""
+    ep = lambda x, y, first=0: [first, first + 10, 11, 0, 1, x, y]  # noqa: E731
+    assert NEAR_M == 25.0
+    eps = [ep(0.6, 16.0), ep(-3.0, 24.8, first=900), ep(18.0, 18.0), ep(0.0, 25.0), ep(1.0, 140.0)]
+    assert _near_count(eps) == 2  # 16.0 m and 24.98 m; 25.46 m, 25.0 m and 140 m are not near
+    assert _near_count([]) == 0
