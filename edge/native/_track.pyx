@@ -1705,12 +1705,13 @@ def mode_probabilities_match(c, lik, double floor,
 
 def reanchor_match(x, confirmed, hit,
                    gated, z, double speed_mps, bint receding_only,
-                   double min_m, double max_m, double lateral_m, double height_k=0.0):
+                   double min_m, double max_m, double lateral_m, double height_k=0.0,
+                   double min_range_m=0.0):
     """The matches of ``edge.track.roles.post.Reanchor.run`` (the same operations): each confirmed track that
     missed (``confirmed``, ``hit`` (T,)) and the nearest detection no track validated (``gated`` (T, M)) that lies
     between ``min_m`` (exclusive) and ``max_m`` nearer than the track in ground range, within ``lateral_m`` across
-    and ``speed_mps`` in radial speed, widened by ``Reanchor.speed_widening`` of ``height_k`` (``receding_only``:
-    receding tracks only); ``x`` (T, 4), ``z`` (M, 3) ->
+    and ``speed_mps`` in radial speed, widened by ``Reanchor.speed_widening`` of ``height_k``, the detection at
+    least ``min_range_m`` out (``receding_only``: receding tracks only); ``x`` (T, 4), ``z`` (M, 3) ->
     track rows ``i`` and detection rows ``j`` (int64, tracks in row order; the first of equally near)."""
     cdef _V V_x
     _aview(x, cnp.NPY_FLOAT64, 2, False, False, &V_x, "x")
@@ -1760,6 +1761,8 @@ def reanchor_match(x, confirmed, hit,
                 if not free[m]:
                     continue
                 rz = hypot(_pd2(V_z, m, 0)[0], _pd2(V_z, m, 1)[0])
+                if not (rz >= min_range_m):
+                    continue
                 hz = kv / (_np_max(rz, 1.0) * _np_max(rz, 1.0))
                 if not (fabs(vr_t - _pd2(V_z, m, 2)[0]) < speed_mps + sqrt(ht * ht + hz * hz)):
                     continue

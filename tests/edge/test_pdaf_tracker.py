@@ -384,24 +384,28 @@ def test_only_receding_tracks_reanchor(v_mps, receding_only, jumps):
 
 
 
-@pytest.mark.parametrize("height_above_m,jumps", [(5.0, True), (0.0, False)])
-def test_a_receding_track_reanchors_under_the_mounting_despite_the_height_speed_error(height_above_m, jumps):
+@pytest.mark.parametrize("height_above_m,rear_y_m,jumps", [(5.0, 6.7, True), (0.0, 6.7, False), (5.0, 1.2, False)])
+def test_a_receding_track_reanchors_under_the_mounting_despite_the_height_speed_error(height_above_m, rear_y_m,
+                                                                                        jumps):
     """A truck leaves from under the mounting front first: its track sits on the front, and the rear that comes
-    into view 15 m nearer reads a ground radial speed 2.5 m/s off, the error of a scatterer 0.8 m off the assumed
-    height there. With the radar 5 m above the scatterers the re-anchoring's speed test widens by that error (as
-    the confirm block's does) and the track moves to the rear; without the height term it does not."""
+    into view nearer reads a ground radial speed 2.5 m/s off, the error of a scatterer under a metre off the
+    assumed height there. With the radar 5 m above the scatterers the re-anchoring's speed test widens by that
+    error (as the confirm block's does) and the track moves to the rear; without the height term it does not, nor
+    to a detection under the mounting, short of the range where tracks live (``min_range_m``)."""
     tr = PdafTracker(scene_config(), height_above_target_m=height_above_m)
-    x, v, y0 = 0.6, 28.0, 6.0
+    x, v = 0.6, 28.0
     dt = FRAME_NS * 1e-9
+    n = 20 if rear_y_m > 5.0 else 12
+    y0 = rear_y_m + 15.0 - v * n * dt
 
     def det(y: float, dv: float = 0.0) -> Detections:
         r = float(np.hypot(x, y))
         return Detections.from_polar([r], [v * y / r + dv], [np.arctan2(x, y)], [25.0])
 
-    for k in range(20):
+    for k in range(n):
         out = tr.step(det(y0 + v * k * dt), k * FRAME_NS)
     (before,) = [o for o in out if o.confirmed]
-    y_pred = y0 + v * 20 * dt
-    out = tr.step(det(y_pred - 15.0, 2.5), 20 * FRAME_NS)
+    y_pred = y0 + v * n * dt
+    out = tr.step(det(rear_y_m, 2.5), n * FRAME_NS)
     (after,) = [o for o in out if o.track_id == before.track_id]
-    assert abs(after.y_m - (y_pred - 15.0)) < 1.0 if jumps else abs(after.y_m - y_pred) < 1.0
+    assert abs(after.y_m - rear_y_m) < 1.0 if jumps else abs(after.y_m - y_pred) < 1.0

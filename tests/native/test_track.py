@@ -1121,8 +1121,9 @@ def test_reanchor_match_is_identical(seed, receding_only, height_above_m):
     gated = rng.uniform(size=(t, m)) < 0.005
     frame = SimpleNamespace(meas=SimpleNamespace(z=z), hyp=SimpleNamespace(gated=gated),
                             hit=gated.any(axis=1) | (rng.uniform(size=t) < 0.2))
+    role.min_range_m = 3.0  # some detections lie nearer: they never match
     ref = role.matches(tracks, frame)
-    args = (receding_only, cfg.reanchor_min_m, cfg.reanchor_m, role.box.cfg.merge_lateral_m, k)
+    args = (receding_only, cfg.reanchor_min_m, cfg.reanchor_m, role.box.cfg.merge_lateral_m, k, role.min_range_m)
     i, j = K.reanchor_match(x, tracks.confirmed, frame.hit, gated, z, cfg.reanchor_speed_mps, *args)
     assert ref is not None and ref[0].size >= 2  # the frame exercises the matching
     assert np.array_equal(i, ref[0]) and np.array_equal(j, ref[1]) and i.dtype == j.dtype == np.int64

@@ -59,7 +59,7 @@ def build_roles(cfg: PdafConfig) -> Roles:
         stateful.append(post[-1])
     reanchor = section(cfg, ReanchorConfig)
     if reanchor.reanchor_m > 0:
-        post.append(Reanchor(reanchor, box, mm, 2.0 * assoc.scatterer_height_sigma_m))
+        post.append(Reanchor(reanchor, box, mm, 2.0 * assoc.scatterer_height_sigma_m, fov.min_range_m))
     return Roles(predictor, mm, associator, updater,
                  SeedInitiator(section(cfg, InitiatorConfig), fov, box, mm, predictor),
                  Confirmer(section(cfg, ConfirmerConfig), assoc, box),

@@ -136,14 +136,17 @@ class Reanchor(native.KernelUser):
     ``reanchor_m`` nearer, in line with it (``merge_lateral_m``) and at its radial speed: the near face of the
     vehicle whose body the track sat on. The detection is claimed (no seed). The speed test widens, as the confirm
     block's does, by the ground radial-speed error of scatterers two height sd off the assumed height at the track
-    and at the detection (:meth:`speed_widening`)."""
+    and at the detection (:meth:`speed_widening`). The detection lies where tracks live (``min_range_m`` on):
+    under the mounting its ground radial speed means nothing."""
 
     def __init__(self, cfg: ReanchorConfig, box: SameVehicleBox, measurement_model: MeasurementModel | None,
-                 height_2sd_m: float = 0.0) -> None:
+                 height_2sd_m: float = 0.0, min_range_m: float = 0.0) -> None:
         self.cfg, self.box = cfg, box
         self.measurement_model = measurement_model
         #: twice the sd of a scatterer's height (m; ``scatterer_height_sigma_m``)
         self.height_2sd_m = float(height_2sd_m)
+        #: the field of view's ground range where tracks begin to live (m)
+        self.min_range_m = float(min_range_m)
         #: the compiled matching (``edge.native._track``), or None: numpy (:meth:`matches`)
         self.kernel = native.load("_track")
 
@@ -156,7 +159,8 @@ class Reanchor(native.KernelUser):
             c = self.cfg
             i, j = self.kernel.reanchor_match(tr.x, tr.confirmed, frame.hit, frame.hyp.gated, meas.z,
                                               c.reanchor_speed_mps, c.reanchor_receding_only, c.reanchor_min_m,
-                                              c.reanchor_m, self.box.cfg.merge_lateral_m, self.height_speed_k)
+                                              c.reanchor_m, self.box.cfg.merge_lateral_m, self.height_speed_k,
+                                              self.min_range_m)
             if i.size == 0:
                 return None
         else:
@@ -210,6 +214,7 @@ class Reanchor(native.KernelUser):
         rho_z = np.hypot(z[:, 0], z[:, 1])
         ok = np.abs(vr_t[:, None] - z[None, :, 2]) < c.reanchor_speed_mps + self.speed_widening(
             self.height_speed_k, vr_t, rho_t, rho_z)
+        ok &= (rho_z >= self.min_range_m)[None, :]
         if c.reanchor_receding_only:  # an approaching track is on its near face from afar
             ok &= (vr_t > 0.0)[:, None]
         if not ok.any():  # the usual frame: no unclaimed detection at a missed track's radial speed
