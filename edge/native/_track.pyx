@@ -1706,12 +1706,13 @@ def mode_probabilities_match(c, lik, double floor,
 def reanchor_match(x, confirmed, hit,
                    gated, z, double speed_mps, bint receding_only,
                    double min_m, double max_m, double lateral_m, double height_k=0.0,
-                   double min_range_m=0.0):
+                   double min_range_m=0.0, double height_k_slow=-1.0):
     """The matches of ``edge.track.roles.post.Reanchor.run`` (the same operations): each confirmed track that
     missed (``confirmed``, ``hit`` (T,)) and the nearest detection no track validated (``gated`` (T, M)) that lies
     between ``min_m`` (exclusive) and ``max_m`` nearer than the track in ground range, within ``lateral_m`` across
-    and ``speed_mps`` in radial speed, widened by ``Reanchor.speed_widening`` of ``height_k``, the detection at
-    least ``min_range_m`` out (``receding_only``: receding tracks only); ``x`` (T, 4), ``z`` (M, 3) ->
+    and ``speed_mps`` in radial speed, widened by ``Reanchor.speed_widening`` of ``height_k`` for a faster
+    detection and of ``height_k_slow`` (< 0: ``height_k``) for a slower one, the detection at least
+    ``min_range_m`` out (``receding_only``: receding tracks only); ``x`` (T, 4), ``z`` (M, 3) ->
     track rows ``i`` and detection rows ``j`` (int64, tracks in row order; the first of equally near)."""
     cdef _V V_x
     _aview(x, cnp.NPY_FLOAT64, 2, False, False, &V_x, "x")
@@ -1736,8 +1737,10 @@ def reanchor_match(x, confirmed, hit,
     cdef cnp.int64_t* io = <cnp.int64_t*> cnp.PyArray_DATA(scratch)
     cdef cnp.int64_t* jo = io + nt
     cdef cnp.int64_t* free = jo + nt
-    cdef double rho_t, vr_t, nearer, best, kv, rt, rz, ht, hz
+    cdef double rho_t, vr_t, nearer, best, kv, kvs, av, rt, rz, rz2, ht, hz, hzs, sgn, faster
     cdef Py_ssize_t arg
+    if height_k_slow < 0.0:
+        height_k_slow = height_k
     with nogil:
         for m in range(nm):
             free[m] = 1
@@ -1752,9 +1755,12 @@ def reanchor_match(x, confirmed, hit,
             vr_t = (_pd2(V_x, t, 0)[0] * _pd2(V_x, t, 2)[0] + _pd2(V_x, t, 1)[0] * _pd2(V_x, t, 3)[0]) / rho_t
             if receding_only and not (vr_t > 0.0):
                 continue
-            kv = height_k * fabs(vr_t)
+            av = fabs(vr_t)
+            kv = height_k * av
+            kvs = height_k_slow * av
             rt = _np_max(rho_t, 1.0)
             ht = kv / (rt * rt)
+            sgn = -1.0 if vr_t < 0.0 else 1.0
             arg = -1
             best = -INFINITY
             for m in range(nm):
@@ -1763,8 +1769,11 @@ def reanchor_match(x, confirmed, hit,
                 rz = hypot(_pd2(V_z, m, 0)[0], _pd2(V_z, m, 1)[0])
                 if not (rz >= min_range_m):
                     continue
-                hz = kv / (_np_max(rz, 1.0) * _np_max(rz, 1.0))
-                if not (fabs(vr_t - _pd2(V_z, m, 2)[0]) < speed_mps + sqrt(ht * ht + hz * hz)):
+                rz2 = _np_max(rz, 1.0) * _np_max(rz, 1.0)
+                hz = kv / rz2
+                hzs = kvs / rz2
+                faster = sgn * (_pd2(V_z, m, 2)[0] - vr_t)
+                if not (faster < speed_mps + sqrt(ht * ht + hz * hz) and -faster < speed_mps + sqrt(ht * ht + hzs * hzs)):
                     continue
                 nearer = rho_t - rz
                 if (nearer > min_m and nearer <= max_m and fabs(_pd2(V_x, t, 0)[0] - _pd2(V_z, m, 0)[0]) < lateral_m

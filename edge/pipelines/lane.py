@@ -265,7 +265,8 @@ class LanePipeline(native.KernelUser, Pipeline):
             from edge.track import PdafConfig, PdafTracker
             from edge.traffic import TrafficConfig, TrafficMonitor
 
-            self.tracker = PdafTracker(track_config or PdafConfig(), cfg.mounting_height_m - cfg.target_height_m)
+            self.tracker = PdafTracker(track_config or PdafConfig(), cfg.mounting_height_m - cfg.target_height_m,
+                                       cfg.target_height_m)
             self.traffic = TrafficMonitor(traffic_config or TrafficConfig())
         #: the compiled ``edge.native._faces`` for :meth:`track_extents` (None: its numpy form)
         self._k_faces = native.load("_faces")

@@ -48,14 +48,16 @@ class PdafTracker(native.KernelUser):
     ``road_yaw_rad`` (the road direction off the boresight, set by the lane pipeline from the traffic layer) is the
     input besides the detections. ``height_above_target_m``: the radar's height above the scatterer height the
     detections were projected to the ground with (the scatterer-height terms of the measurement model and the
-    confirmer; 0: none)."""
+    confirmer; 0: none); ``target_height_m``: that scatterer height above the road (None: unknown)."""
 
-    def __init__(self, config: PdafConfig | None = None, height_above_target_m: float = 0.0) -> None:
+    def __init__(self, config: PdafConfig | None = None, height_above_target_m: float = 0.0,
+                 target_height_m: float | None = None) -> None:
         self.config = config or PdafConfig()
         roles = build_roles(self.config)
         self.predictor = roles.predictor
         self.measurement_model = roles.measurement_model
         self.measurement_model.height_above_target_m = max(float(height_above_target_m), 0.0)
+        self.measurement_model.target_height_m = None if target_height_m is None else max(float(target_height_m), 0.0)
         self.associator = roles.associator
         self.updater = roles.updater
         self.initiator = roles.initiator

@@ -384,15 +384,20 @@ def test_only_receding_tracks_reanchor(v_mps, receding_only, jumps):
 
 
 
-@pytest.mark.parametrize("height_above_m,rear_y_m,jumps", [(5.0, 6.7, True), (0.0, 6.7, False), (5.0, 1.2, False)])
+@pytest.mark.parametrize("height_above_m,rear_y_m,dv_mps,jumps", [
+    (5.0, 6.7, 2.5, True),    # the rear's higher scatterer reads faster: the widened test passes it
+    (0.0, 6.7, 2.5, False),   # without the height term it does not
+    (5.0, 1.2, 2.5, False),   # under the mounting, short of the range where tracks live
+    (5.0, 6.7, -4.0, False),  # 4 m/s slower: a scatterer would have to lie below the road
+])
 def test_a_receding_track_reanchors_under_the_mounting_despite_the_height_speed_error(height_above_m, rear_y_m,
-                                                                                        jumps):
+                                                                                        dv_mps, jumps):
     """A truck leaves from under the mounting front first: its track sits on the front, and the rear that comes
-    into view nearer reads a ground radial speed 2.5 m/s off, the error of a scatterer under a metre off the
-    assumed height there. With the radar 5 m above the scatterers the re-anchoring's speed test widens by that
-    error (as the confirm block's does) and the track moves to the rear; without the height term it does not, nor
-    to a detection under the mounting, short of the range where tracks live (``min_range_m``)."""
-    tr = PdafTracker(scene_config(), height_above_target_m=height_above_m)
+    into view nearer reads a ground radial speed metres per second faster, as a scatterer above the assumed height
+    0.5 m over the road does there. With the radar 5 m above that height the re-anchoring's speed test widens by
+    that error (as the confirm block's does) and the track moves to the rear; without the height term it does not,
+    nor to a detection under the mounting (``min_range_m``), nor to one slower than a scatterer on the road reads."""
+    tr = PdafTracker(scene_config(), height_above_target_m=height_above_m, target_height_m=0.5)
     x, v = 0.6, 28.0
     dt = FRAME_NS * 1e-9
     n = 20 if rear_y_m > 5.0 else 12
@@ -406,6 +411,6 @@ def test_a_receding_track_reanchors_under_the_mounting_despite_the_height_speed_
         out = tr.step(det(y0 + v * k * dt), k * FRAME_NS)
     (before,) = [o for o in out if o.confirmed]
     y_pred = y0 + v * n * dt
-    out = tr.step(det(rear_y_m, 2.5), n * FRAME_NS)
+    out = tr.step(det(rear_y_m, dv_mps), n * FRAME_NS)
     (after,) = [o for o in out if o.track_id == before.track_id]
     assert abs(after.y_m - rear_y_m) < 1.0 if jumps else abs(after.y_m - y_pred) < 1.0

@@ -1087,8 +1087,8 @@ def test_imm_predict_takes_strided_tracks():
 
 @pytest.mark.parametrize("seed", range(6))
 @pytest.mark.parametrize("receding_only", [True, False])
-@pytest.mark.parametrize("height_above_m", [0.0, 5.0])
-def test_reanchor_match_is_identical(seed, receding_only, height_above_m):
+@pytest.mark.parametrize("height_above_m,target_height_m", [(0.0, None), (5.0, None), (5.0, 0.5)])
+def test_reanchor_match_is_identical(seed, receding_only, height_above_m, target_height_m):
     """Re-anchoring's matches (missed confirmed tracks and their nearest unclaimed detection) from the kernel equal
     the numpy reference ``Reanchor.matches``, on frames built so that many tracks have candidates, with and without
     the scatterer height's widening of the speed test."""
@@ -1102,10 +1102,10 @@ def test_reanchor_match_is_identical(seed, receding_only, height_above_m):
     cfg = replace(ReanchorConfig(), reanchor_receding_only=receding_only)
     if cfg.reanchor_m <= 0:
         cfg = replace(cfg, reanchor_m=8.0)
-    role = Reanchor(cfg, SameVehicleBox(SameVehicleConfig(), 1.0), SimpleNamespace(height_above_target_m=height_above_m),
-                    2.0)
-    k = role.height_speed_k
-    assert k == 2.0 * height_above_m
+    role = Reanchor(cfg, SameVehicleBox(SameVehicleConfig(), 1.0),
+                    SimpleNamespace(height_above_target_m=height_above_m, target_height_m=target_height_m), 2.0)
+    k, k_slow = role.height_speed_k
+    assert k == 2.0 * height_above_m and k_slow == (k if target_height_m is None else target_height_m * height_above_m)
     rng = np.random.default_rng(seed)
     t, m = 60, 80
     # ranges from under the mounting, where the widening is metres per second, to far away
@@ -1123,7 +1123,8 @@ def test_reanchor_match_is_identical(seed, receding_only, height_above_m):
                             hit=gated.any(axis=1) | (rng.uniform(size=t) < 0.2))
     role.min_range_m = 3.0  # some detections lie nearer: they never match
     ref = role.matches(tracks, frame)
-    args = (receding_only, cfg.reanchor_min_m, cfg.reanchor_m, role.box.cfg.merge_lateral_m, k, role.min_range_m)
+    args = (receding_only, cfg.reanchor_min_m, cfg.reanchor_m, role.box.cfg.merge_lateral_m, k, role.min_range_m,
+            k_slow)
     i, j = K.reanchor_match(x, tracks.confirmed, frame.hit, gated, z, cfg.reanchor_speed_mps, *args)
     assert ref is not None and ref[0].size >= 2  # the frame exercises the matching
     assert np.array_equal(i, ref[0]) and np.array_equal(j, ref[1]) and i.dtype == j.dtype == np.int64

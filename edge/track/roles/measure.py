@@ -114,6 +114,9 @@ class MeasurementModel(native.KernelUser):
         #: the radar's height above the assumed scatterer height (m; the lane pipeline sets it from the mounting):
         #: it sizes the seed-exclusion noise's :func:`height_cov`; 0: no height term
         self.height_above_target_m = 0.0
+        #: the assumed scatterer height above the road (m; the lane pipeline sets it; None: unknown): no scatterer
+        #: lies lower, which bounds how much slower than its vehicle a detection near the radar reads
+        self.target_height_m: float | None = None
 
     @property
     def use_radial_speed(self) -> bool:

@@ -136,8 +136,9 @@ class Reanchor(native.KernelUser):
     ``reanchor_m`` nearer, in line with it (``merge_lateral_m``) and at its radial speed: the near face of the
     vehicle whose body the track sat on. The detection is claimed (no seed). The speed test widens, as the confirm
     block's does, by the ground radial-speed error of scatterers two height sd off the assumed height at the track
-    and at the detection (:meth:`speed_widening`). The detection lies where tracks live (``min_range_m`` on):
-    under the mounting its ground radial speed means nothing."""
+    and at the detection (:meth:`speed_widening`): above it a scatterer reads faster, below it slower, but no lower
+    than the road (the measurement model's ``target_height_m``). The detection lies where tracks live
+    (``min_range_m`` on): under the mounting its ground radial speed means nothing."""
 
     def __init__(self, cfg: ReanchorConfig, box: SameVehicleBox, measurement_model: MeasurementModel | None,
                  height_2sd_m: float = 0.0, min_range_m: float = 0.0) -> None:
@@ -157,10 +158,11 @@ class Reanchor(native.KernelUser):
         tr = tracks
         if self.kernel is not None:  # the same tests in one pass (identical)
             c = self.cfg
+            k_fast, k_slow = self.height_speed_k
             i, j = self.kernel.reanchor_match(tr.x, tr.confirmed, frame.hit, frame.hyp.gated, meas.z,
                                               c.reanchor_speed_mps, c.reanchor_receding_only, c.reanchor_min_m,
-                                              c.reanchor_m, self.box.cfg.merge_lateral_m, self.height_speed_k,
-                                              self.min_range_m)
+                                              c.reanchor_m, self.box.cfg.merge_lateral_m, k_fast,
+                                              self.min_range_m, k_slow)
             if i.size == 0:
                 return None
         else:
@@ -180,20 +182,29 @@ class Reanchor(native.KernelUser):
         return i
 
     @property
-    def height_speed_k(self) -> float:
-        """``2 sigma_h dz`` (m^2): the radar's height above the assumed scatterers (the measurement model's) times
-        twice their height sd; 0 without a measurement model."""
+    def height_speed_k(self) -> tuple[float, float]:
+        """``dz dh`` (m^2) for a detection faster and slower than its track: the radar's height above the assumed
+        scatterers (the measurement model's) times twice their height sd, and times the lesser of that and the
+        assumed height itself (no scatterer lies below the road; the model's ``target_height_m``, None: no bound);
+        zeros without a measurement model."""
         mm = self.measurement_model
-        return 0.0 if mm is None else mm.height_above_target_m * self.height_2sd_m
+        if mm is None:
+            return 0.0, 0.0
+        below = getattr(mm, "target_height_m", None)
+        dh_slow = self.height_2sd_m if below is None else min(self.height_2sd_m, max(float(below), 0.0))
+        return mm.height_above_target_m * self.height_2sd_m, mm.height_above_target_m * dh_slow
 
     @staticmethod
-    def speed_widening(k: float, vr_t: np.ndarray, rho_t: np.ndarray, rho_z: np.ndarray) -> np.ndarray:
+    def speed_widening(k: float, vr_t: np.ndarray, rho_t: np.ndarray, rho_z: np.ndarray,
+                       k_track: float | None = None) -> np.ndarray:
         """(k, f) the speed test's widening (m/s) for tracks of ground radial speed ``vr_t`` and range ``rho_t``
-        (k,) and detections at ranges ``rho_z`` (f,): ``hypot`` of ``k |v_r| / rho^2`` at each (``rho`` at least
-        1 m, :func:`edge.track.roles.measure.height_cov`'s speed term for the track's speed)."""
-        kv = k * np.abs(vr_t)
+        (k,) and detections at ranges ``rho_z`` (f,): ``hypot`` of ``k |v_r| / rho^2`` at each (``k_track`` at the
+        track, default ``k``; ``rho`` at least 1 m, :func:`edge.track.roles.measure.height_cov`'s speed term for
+        the track's speed)."""
+        av = np.abs(vr_t)
+        kv, kt = k * av, (k if k_track is None else k_track) * av
         rt, rz = np.maximum(rho_t, 1.0), np.maximum(rho_z, 1.0)
-        ht, hz = kv / (rt * rt), kv[:, None] / (rz * rz)[None, :]
+        ht, hz = kt / (rt * rt), kv[:, None] / (rz * rz)[None, :]
         return np.sqrt(ht[:, None] * ht[:, None] + hz * hz)
 
     def matches(self, tracks: TrackTable, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None:
@@ -212,8 +223,10 @@ class Reanchor(native.KernelUser):
         rho_t = np.maximum(np.hypot(st[:, 0], st[:, 1]), 1e-3)
         vr_t = (st[:, 0] * st[:, 2] + st[:, 1] * st[:, 3]) / rho_t
         rho_z = np.hypot(z[:, 0], z[:, 1])
-        ok = np.abs(vr_t[:, None] - z[None, :, 2]) < c.reanchor_speed_mps + self.speed_widening(
-            self.height_speed_k, vr_t, rho_t, rho_z)
+        k_fast, k_slow = self.height_speed_k
+        faster = np.where(vr_t < 0.0, -1.0, 1.0)[:, None] * (z[None, :, 2] - vr_t[:, None])  # (k, f) m/s
+        ok = ((faster < c.reanchor_speed_mps + self.speed_widening(k_fast, vr_t, rho_t, rho_z))
+              & (-faster < c.reanchor_speed_mps + self.speed_widening(k_slow, vr_t, rho_t, rho_z, k_fast)))
         ok &= (rho_z >= self.min_range_m)[None, :]
         if c.reanchor_receding_only:  # an approaching track is on its near face from afar
             ok &= (vr_t > 0.0)[:, None]
