@@ -1773,7 +1773,8 @@ def reanchor_match(x, confirmed, hit,
                 hz = kv / rz2
                 hzs = kvs / rz2
                 faster = sgn * (_pd2(V_z, m, 2)[0] - vr_t)
-                if not (faster < speed_mps + sqrt(ht * ht + hz * hz) and -faster < speed_mps + sqrt(ht * ht + hzs * hzs)):
+                if not (faster < speed_mps + sqrt(ht * ht + hz * hz)
+                        and -faster < speed_mps + sqrt(ht * ht + hzs * hzs)):
                     continue
                 nearer = rho_t - rz
                 if (nearer > min_m and nearer <= max_m and fabs(_pd2(V_x, t, 0)[0] - _pd2(V_z, m, 0)[0]) < lateral_m
