@@ -190,7 +190,7 @@ class Reanchor(native.KernelUser):
         mm = self.measurement_model
         if mm is None:
             return 0.0, 0.0
-        below = getattr(mm, "target_height_m", None)
+        below = mm.target_height_m
         dh_slow = self.height_2sd_m if below is None else min(self.height_2sd_m, max(float(below), 0.0))
         return mm.height_above_target_m * self.height_2sd_m, mm.height_above_target_m * dh_slow
 
