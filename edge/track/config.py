@@ -51,8 +51,8 @@ class AssociationConfig:
     scatterer_height_sigma_m: float = _f(1.0, "sd of a vehicle scatterer's height about the pipeline's "
                                               "target_height_m (bumpers to truck roofs): near the radar a higher "
                                               "scatterer appears nearer and faster, so the constant exclusion noise, "
-                                              "the confirm block's and the re-anchoring's speed tests (2 sd) allow "
-                                              "for it",
+                                              "the confirm block's and the re-anchoring's speed tests (2 sd) and the "
+                                              "seeds' least range allow for it",
                                          "m", 0.0, 5.0)
 
 

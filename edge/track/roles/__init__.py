@@ -61,6 +61,7 @@ def build_roles(cfg: PdafConfig) -> Roles:
     if reanchor.reanchor_m > 0:
         post.append(Reanchor(reanchor, box, mm, 2.0 * assoc.scatterer_height_sigma_m, fov.min_range_m))
     return Roles(predictor, mm, associator, updater,
-                 SeedInitiator(section(cfg, InitiatorConfig), fov, box, mm, predictor),
+                 SeedInitiator(section(cfg, InitiatorConfig), fov, box, mm, predictor,
+                               assoc.scatterer_height_sigma_m),
                  Confirmer(section(cfg, ConfirmerConfig), assoc, box),
                  TrackDeleter(section(cfg, DeleterConfig), fov, box), tuple(post), tuple(stateful))

@@ -25,12 +25,15 @@ class SeedInitiator(native.KernelUser):
     """Seeds from the detections outside every track's exclusion gate and same-vehicle box, moving, in the field of
     view; of one frame's candidates within one merge box the strongest seeds. With a radial speed the seed moves
     along the road (``road_yaw_rad`` off the boresight): its speed along the road from the radial speed (sd
-    ``init_along_speed_sigma_mps``), ``init_lateral_speed_sigma_mps`` across it."""
+    ``init_along_speed_sigma_mps``), ``init_lateral_speed_sigma_mps`` across it. ``height_sigma_m``: the sd of a
+    scatterer's height; with the radar above the assumed height (the measurement model's ``height_above_target_m``)
+    a detection too near the radar for its speed to be known does not seed (:meth:`_speed_known`)."""
 
     def __init__(self, cfg: InitiatorConfig, fov: FieldOfViewConfig, box: SameVehicleBox,
-                 measurement_model: MeasurementModel, predictor=None) -> None:
+                 measurement_model: MeasurementModel, predictor=None, height_sigma_m: float = 0.0) -> None:
         self.cfg, self.fov, self.box = cfg, fov, box
         self.meas_model = measurement_model
+        self.height_sigma_m = max(float(height_sigma_m), 0.0)
         self.predictor = predictor  # told of new rows (its per-model state), if any
         #: the compiled seed block (``edge.native._track``), or None: numpy
         self.kernel = native.load("_track")
@@ -41,6 +44,8 @@ class SeedInitiator(native.KernelUser):
         c, box = self.cfg, self.box
         z = meas.z
         idx, resolved = self.candidates(tracks, meas, used)
+        if idx.size and meas.with_radial_speed:
+            idx = self._speed_known(idx, meas.z)
         if idx.size == 0:
             return 0
         # one seed per vehicle: drop a candidate when a stronger one lies in its merge box
@@ -80,6 +85,19 @@ class SeedInitiator(native.KernelUser):
         if self.predictor is not None:
             self.predictor.seeded(tracks, k, road_yaw_rad, var_s)
         return k
+
+    def _speed_known(self, idx: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """The candidates whose speed the scatterer height leaves within two sds of a seed's speed: a scatterer one
+        sd (``height_sigma_m``) above the assumed height reads ``|vr| dz / rho^2`` faster (``dz`` the radar's height
+        above the assumed scatterers), so near the radar a detection seeds only when that is at most twice
+        ``init_along_speed_sigma_mps``."""
+        dz = self.meas_model.height_above_target_m
+        if dz <= 0.0 or self.height_sigma_m <= 0.0:
+            return idx
+        zc = z.take(idx, axis=0)
+        rho2 = zc[:, 0] * zc[:, 0] + zc[:, 1] * zc[:, 1]
+        return idx.compress(dz * self.height_sigma_m * np.abs(zc[:, 2])
+                            <= 2.0 * self.cfg.init_along_speed_sigma_mps * rho2)
 
     def seed_states(self, seeds: np.ndarray, r: np.ndarray, road_yaw_rad: float, with_radial_speed: bool):
         """New tracks at the seeds (k, n) with position noise ``r`` (k, 2, 2): ``(x0, p0, var_s)``, ``var_s`` the seeds'
