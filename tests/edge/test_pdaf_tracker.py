@@ -451,7 +451,7 @@ def test_a_truck_rear_from_under_the_mounting_confirms_at_its_speed():
     def first_confirmed_speed(known: bool) -> float:
         tr = PdafTracker(scene_config(), height_above_target_m=6.0, target_height_m=0.5)
         if not known:
-            tr.initiator._speed_known = lambda idx, z: idx
+            tr.initiator._speed_known = lambda zc: None
         dt = FRAME_NS * 1e-9
         for k in range(60):
             y = 4.0 + 30.0 * k * dt

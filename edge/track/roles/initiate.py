@@ -44,12 +44,15 @@ class SeedInitiator(native.KernelUser):
         c, box = self.cfg, self.box
         z = meas.z
         idx, resolved = self.candidates(tracks, meas, used)
-        if idx.size and meas.with_radial_speed:
-            idx = self._speed_known(idx, meas.z)
         if idx.size == 0:
             return 0
-        # one seed per vehicle: drop a candidate when a stronger one lies in its merge box
         zc = z.take(idx, axis=0)
+        known = self._speed_known(zc) if meas.with_radial_speed else None
+        if known is not None and not known.all():
+            idx, zc = idx.compress(known), zc.compress(known, axis=0)
+            if idx.size == 0:
+                return 0
+        # one seed per vehicle: drop a candidate when a stronger one lies in its merge box
         if idx.size == 1:  # one candidate: nothing to merge
             seed_idx = idx
         elif idx.size <= _SEED_MERGE_PLAIN_MAX:  # a handful: the same comparisons on Python floats, pair by pair
@@ -86,18 +89,16 @@ class SeedInitiator(native.KernelUser):
             self.predictor.seeded(tracks, k, road_yaw_rad, var_s)
         return k
 
-    def _speed_known(self, idx: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """The candidates whose speed the scatterer height leaves within two sds of a seed's speed: a scatterer one
-        sd (``height_sigma_m``) above the assumed height reads ``|vr| dz / rho^2`` faster (``dz`` the radar's height
-        above the assumed scatterers), so near the radar a detection seeds only when that is at most twice
-        ``init_along_speed_sigma_mps``."""
+    def _speed_known(self, zc: np.ndarray) -> np.ndarray | None:
+        """(K,) which candidates ``zc`` (K, 3) have a speed the scatterer height leaves within two sds of a seed's
+        (None: no height term): a scatterer one sd (``height_sigma_m``) above the assumed height reads
+        ``|vr| dz / rho^2`` faster (``dz`` the radar's height above the assumed scatterers), so near the radar a
+        detection seeds only when that is at most twice ``init_along_speed_sigma_mps``."""
         dz = self.meas_model.height_above_target_m
         if dz <= 0.0 or self.height_sigma_m <= 0.0:
-            return idx
-        zc = z.take(idx, axis=0)
+            return None
         rho2 = zc[:, 0] * zc[:, 0] + zc[:, 1] * zc[:, 1]
-        return idx.compress(dz * self.height_sigma_m * np.abs(zc[:, 2])
-                            <= 2.0 * self.cfg.init_along_speed_sigma_mps * rho2)
+        return dz * self.height_sigma_m * np.abs(zc[:, 2]) <= 2.0 * self.cfg.init_along_speed_sigma_mps * rho2
 
     def seed_states(self, seeds: np.ndarray, r: np.ndarray, road_yaw_rad: float, with_radial_speed: bool):
         """New tracks at the seeds (k, n) with position noise ``r`` (k, 2, 2): ``(x0, p0, var_s)``, ``var_s`` the seeds'
