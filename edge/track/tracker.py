@@ -48,7 +48,8 @@ class PdafTracker(native.KernelUser):
     ``road_yaw_rad`` (the road direction off the boresight, set by the lane pipeline from the traffic layer) is the
     input besides the detections. ``height_above_target_m``: the radar's height above the scatterer height the
     detections were projected to the ground with (the scatterer-height terms of the measurement model, the
-    confirmer and re-anchoring; 0: none); ``target_height_m``: that scatterer height above the road (None: unknown)."""
+    initiator, the confirmer and re-anchoring; 0: none); ``target_height_m``: that scatterer height above the road
+    (None: unknown)."""
 
     def __init__(self, config: PdafConfig | None = None, height_above_target_m: float = 0.0,
                  target_height_m: float | None = None) -> None:
