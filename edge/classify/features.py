@@ -264,7 +264,8 @@ class FeatureConfig:
     event_speed_alias_edge_clip_m: float = field(
         default=3.0,
         metadata={"unit": "m", "doc": "fit and history alias: a far edge within this of the board's largest range "
-                                      "(where the beat leaves the sampled band) is left out", "min": 0.0, "max": 30.0},
+                                      "(where the beat leaves the sampled band) is left out; fit: that frame's "
+                                      "centroid counts as a lower bound of the range", "min": 0.0, "max": 30.0},
     )
     event_speed_alias_tol_m: float = field(
         default=0.75,
@@ -726,10 +727,11 @@ def plain_median(values) -> float:
 
 def fit_candidates_reference(t: np.ndarray, vw: np.ndarray, refs: np.ndarray, obs: list[np.ndarray], period: float,
                              static_kmh: float, tol2: float, vmax_kmh: float,
-                             margin2: float) -> tuple[int, bool, np.ndarray]:
+                             margin2: float, lower: np.ndarray | None = None) -> tuple[int, bool, np.ndarray]:
     """The candidate search of :meth:`RadialSpeedEstimator.fit_alias` (numpy reference of the ``_aliasfit`` kernel):
     ``(best, rivals_clear, on_path)``, the index of the least-cost candidate of ``refs``, whether every rival costs
-    at least ``margin2`` more, and the best candidate's frames on its path."""
+    at least ``margin2`` more, and the best candidate's frames on its path. ``lower`` (observables, frames) bool:
+    where an observable is only a lower bound of the body's range, a frame nearer than the path costs nothing."""
     n = t.size
     # every candidate at once: (candidates, frames)
     speeds = vw[None, :] + period * np.round((refs[:, None] - vw[None, :]) / period)
@@ -742,7 +744,7 @@ def fit_candidates_reference(t: np.ndarray, vw: np.ndarray, refs: np.ndarray, ob
     moving |= (moving.sum(axis=1) < 3)[:, None]
     costs = np.zeros(refs.size)
     frame_e2 = np.full(speeds.shape, tol2)  # per frame: the best fit of the observables (on the path below tol2)
-    for x in obs:
+    for k, x in enumerate(obs):
         ok = np.isfinite(x)[None, :] & moving
         res = np.where(ok, x[None, :] - path, np.nan)
         m_ok = ok.sum(axis=1)
@@ -751,7 +753,10 @@ def fit_candidates_reference(t: np.ndarray, vw: np.ndarray, refs: np.ndarray, ob
             off = res
         else:
             off = np.nanquantile(np.where(m_ok[:, None] > 0, res, 0.0), np.linspace(0.0, 1.0, 48), axis=1).T
-        e2 = np.minimum((res[:, None, :] - off[:, :, None]) ** 2, tol2)  # (candidates, offsets, frames)
+        d = res[:, None, :] - off[:, :, None]  # (candidates, offsets, frames)
+        if lower is not None and lower[k].any():
+            d = np.where(lower[k][None, None, :], np.maximum(d, 0.0), d)
+        e2 = np.minimum(d ** 2, tol2)
         e2 = np.where(ok[:, None, :], e2, tol2)
         c = np.where(np.isfinite(off), e2.sum(axis=2), np.inf)  # frames not usable cost an outlier's
         b = np.argmin(c, axis=1)
@@ -1033,7 +1038,8 @@ class RadialSpeedEstimator:
         centroid and, for a body whose median range extent is at least ``edge_m``, also its near and far edges:
         while a long body enters or leaves the view one of its ends moves at its speed and its centroid lags
         (more of it comes into view every frame). A far edge beyond ``edge_limit_m`` (cut off at the board's
-        largest range) is left out. A frame whose ``|u|`` is below ``static_kmh`` does not vote for that candidate
+        largest range) is left out, and in such a frame the centroid is only a lower bound of the body's range: a
+        path beyond it costs nothing there (the body's far part is not in the map). A frame whose ``|u|`` is below ``static_kmh`` does not vote for that candidate
         when at least three others move under it: static clutter a track held has zero Doppler and no range rate,
         and says nothing of a mover's alias (a target crossing the beam at zero radial speed keeps its frames). The
         candidate of least total cost wins; it is *certain* when at least three frames lie on its path
@@ -1061,6 +1067,10 @@ class RadialSpeedEstimator:
         obs = [r]
         if edge_m > 0 and np.count_nonzero(known) >= 3 and plain_median(extent[known].tolist()) >= edge_m:
             obs += [np.where(known, lo, np.nan), np.where(known & (hi <= edge_limit_m), hi, np.nan)]
+        # a cluster whose far edge lies beyond edge_limit_m is cut off at the board's largest range: its centroid
+        # is nearer than the body's, a lower bound only
+        lower = np.zeros((len(obs), n), dtype=np.uint8)
+        lower[0] = known & (hi > edge_limit_m)
         rates = [float(around_kmh)] if math.isfinite(around_kmh) else []
         doppler = np.abs(vw) >= static_kmh  # frames not at zero Doppler (of a track that held clutter a while)
         for x in obs if not rates else ():
@@ -1082,12 +1092,12 @@ class RadialSpeedEstimator:
         kernel = native.load("_aliasfit") if n <= 48 else None
         if kernel is not None:
             on = np.empty(n, dtype=np.uint8)
-            best, clear = kernel.fit_candidates(t, vw, refs, np.array(obs), period, static_kmh, tol2, self.vmax_kmh,
-                                                margin_frames * tol2, on)
+            best, clear = kernel.fit_candidates(t, vw, refs, np.array(obs), lower, period, static_kmh, tol2,
+                                                self.vmax_kmh, margin_frames * tol2, on)
             on_path = on.view(np.bool_)
         else:
             best, clear, on_path = fit_candidates_reference(t, vw, refs, obs, period, static_kmh, tol2, self.vmax_kmh,
-                                                            margin_frames * tol2)
+                                                            margin_frames * tol2, lower.view(np.bool_))
         rho = float(refs[best])
         certain = n >= 3 and int(np.count_nonzero(on_path)) >= 3 and clear
         return self.dealias(vw, rho), rho, certain, on_path

@@ -36,14 +36,17 @@ cdef double _median(double *d, Py_ssize_t k) noexcept nogil:
     return ((0.0 + d[k // 2 - 1]) + d[k // 2]) / 2.0
 
 
-cdef double _offset_cost(const double *res, const unsigned char *ok, double off, double tol2, double *e2,
-                         Py_ssize_t n) noexcept nogil:
-    """Each frame's cost ``min((res - off)^2, tol2)`` (``tol2`` where not usable) into ``e2``; their pairwise sum."""
+cdef double _offset_cost(const double *res, const unsigned char *ok, const unsigned char *low, double off,
+                         double tol2, double *e2, Py_ssize_t n) noexcept nogil:
+    """Each frame's cost ``min((res - off)^2, tol2)`` (``tol2`` where not usable; 0 where ``low`` and ``res < off``:
+    a lower bound nearer than the path) into ``e2``; their pairwise sum."""
     cdef Py_ssize_t i
     cdef double d
     for i in range(n):
         if ok[i]:
             d = res[i] - off
+            if low[i] and d < 0.0:
+                d = 0.0
             d = d * d
             e2[i] = d if d < tol2 else tol2
         else:
@@ -53,10 +56,11 @@ cdef double _offset_cost(const double *res, const unsigned char *ok, double off,
 
 @cython.cdivision(True)
 def fit_candidates(const double[::1] t, const double[::1] vw, const double[::1] refs, const double[:, ::1] obs,
-                   double period, double static_kmh, double tol2, double vmax, double margin2,
+                   const unsigned char[:, ::1] lower, double period, double static_kmh, double tol2, double vmax, double margin2,
                    unsigned char[::1] on_path):
     """The best candidate of ``refs`` for frames at times ``t`` (s) with wrapped Doppler ``vw`` (km/h) and the
-    observables ``obs`` (rows of ranges in m, NaN where not observed): ``(best, rivals_clear)``. ``on_path`` (n,)
+    observables ``obs`` (rows of ranges in m, NaN where not observed; ``lower``, of the same shape, nonzero where
+    one is only a lower bound of the body's range): ``(best, rivals_clear)``. ``on_path`` (n,)
     gets the best candidate's frames on its path; ``rivals_clear`` is whether every candidate that gives most of
     those frames another alias costs at least ``margin2`` (m^2) more. Candidates as in the reference: each frame
     unaliased to the alias nearest the candidate, the path integrated over the frames (trapezoids, km/h to m/s),
@@ -66,7 +70,8 @@ def fit_candidates(const double[::1] t, const double[::1] vw, const double[::1] 
     cdef Py_ssize_t n = t.shape[0], C = refs.shape[0], K = obs.shape[0]
     cdef Py_ssize_t c, i, j, k, bj, best, m_ok, n_mov, mine_n
     cdef double ref, cost, cj, bc, gap, med
-    if n < 1 or n > 48 or C < 1 or vw.shape[0] != n or obs.shape[1] != n or on_path.shape[0] != n:
+    if (n < 1 or n > 48 or C < 1 or vw.shape[0] != n or obs.shape[1] != n or on_path.shape[0] != n
+            or lower.shape[0] != K or lower.shape[1] != n):
         raise ValueError("fit_candidates: 1 to 48 frames, one value of each per frame, and candidates")
     cdef double *speeds = <double *> malloc(C * n * sizeof(double))
     cdef double *costs = <double *> malloc(C * sizeof(double))
@@ -117,11 +122,11 @@ def fit_candidates(const double[::1] t, const double[::1] vw, const double[::1] 
                 bc = INFINITY
                 for j in range(n):  # argmin: the first least cost
                     if ok[j]:
-                        cj = _offset_cost(res, ok, res[j], tol2, e2, n)
+                        cj = _offset_cost(res, ok, &lower[k, 0], res[j], tol2, e2, n)
                         if cj < bc:
                             bc = cj
                             bj = j
-                cost += _offset_cost(res, ok, res[bj], tol2, e2, n)  # e2: the best offset's frames
+                cost += _offset_cost(res, ok, &lower[k, 0], res[bj], tol2, e2, n)  # e2: the best offset's frames
                 for i in range(n):
                     if e2[i] < fe2[i]:
                         fe2[i] = e2[i]

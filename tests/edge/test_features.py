@@ -245,6 +245,7 @@ def test_map_points_from_map():
 
 # --- radial speed (de-aliased Doppler) -------------------------------------------------------------
 
+from edge.classify import features  # noqa: E402
 from edge.classify.features import RadialSpeedEstimator  # noqa: E402
 
 
@@ -446,9 +447,44 @@ def test_fit_alias_decides_a_long_body_entering_and_leaving_the_view_by_its_edge
     speeds, ref, _, _ = est.fit_alias(3.0, 0.75, 21.0)
     np.testing.assert_allclose(speeds, v_true, atol=1e-6)
     assert abs(ref - v_true) <= VMAX
-    # the edges decide it: the centroid alone, moving at about half the speed, fits the alias one step slow
-    assert est.event_speed_kmh("fit", alias_edge_m=0.0, edge_limit_m=21.0)[0] == pytest.approx(v_true - 2 * VMAX,
-                                                                                              abs=0.2)
+    # the centroid alone, moving at about half the speed, fits the alias one step slow when nothing says where the
+    # body is cut off; with the largest range, its frames cut off there are lower bounds and it fits the speed
+    assert est.event_speed_kmh("fit", alias_edge_m=0.0)[0] == pytest.approx(v_true - 2 * VMAX, abs=0.2)
+    assert est.event_speed_kmh("fit", alias_edge_m=0.0, edge_limit_m=21.0)[0] == pytest.approx(v_true, abs=0.2)
+
+
+def _entering_at_the_largest_range(rng, v_true=-20.0, length=8.0, clip=23.9):
+    """A van approaching at ``v_true`` from beyond the board's largest range: while its far part is beyond
+    ``clip`` the cluster is cut there and its centroid lies nearer than the body's (noisy ranges and Doppler)."""
+    n = int(rng.integers(6, 12))
+    t = np.arange(n) * 0.2
+    near = 23.0 + v_true / 3.6 * t
+    hi = np.minimum(near + length, clip)
+    lo = np.minimum(near, hi - 0.75)
+    centroid = 0.5 * (lo + hi) + rng.normal(0.0, 0.35, n)
+    lo = lo + rng.normal(0.0, 0.35, n)
+    hi = np.minimum(hi + rng.normal(0.0, 0.2, n), clip)
+    return t, centroid, v_true + rng.normal(0.0, 0.3, n), lo, hi
+
+
+def test_fit_alias_takes_a_centroid_cut_off_at_the_largest_range_as_a_lower_bound(monkeypatch):
+    """Frames whose far edge lies beyond ``edge_limit_m`` (the body cut off where the beat leaves the band): a path
+    beyond their centroid costs nothing. Without that, a van entering the view approaching is often one step slow."""
+    monkeypatch.setattr(features.native, "load", lambda name: None)  # the numpy reference, patched below
+    rng = np.random.default_rng(7)
+    cases = [_entering_at_the_largest_range(rng) for _ in range(100)]
+
+    def off_by_a_step():
+        n = 0
+        for t, c, v, lo, hi in cases:
+            est = _feed(RadialSpeedEstimator(VMAX), t, c, v, lo, hi)
+            n += abs(est.event_speed_kmh("fit", edge_limit_m=21.0)[0] - float(np.mean(v))) > VMAX
+        return n
+
+    assert off_by_a_step() <= 3
+    real = features.fit_candidates_reference
+    monkeypatch.setattr(features, "fit_candidates_reference", lambda *a, **k: real(*a[:9]))  # no lower bounds
+    assert off_by_a_step() >= 15  # 24 of 100
 
 
 def test_event_speed_feature_is_on_the_fitted_alias_where_the_doppler_feature_is_a_step_slow():

@@ -54,9 +54,11 @@ def test_kernel_equals_reference_on_random_candidates(seed):
             x[rng.random(n) < 0.2] = np.nan
         refs = float(rng.uniform(-VMAX, VMAX)) + 2 * VMAX / 4 * np.arange(int(rng.integers(1, 40)))
         period, tol2, margin2 = 2 * VMAX, 0.75 ** 2, 0.75 ** 2 * float(rng.choice([0.0, 1.0, 2.5]))
-        want = fit_candidates_reference(t, vw, refs, obs, period, 1.5, tol2, VMAX, margin2)
+        lower = np.zeros((len(obs), n), dtype=np.uint8)
+        lower[0] = rng.random(n) < float(rng.choice([0.0, 0.3]))  # frames where the centroid is a lower bound
+        want = fit_candidates_reference(t, vw, refs, obs, period, 1.5, tol2, VMAX, margin2, lower.view(bool))
         on = np.empty(n, dtype=np.uint8)
-        best, clear = kernel.fit_candidates(t, vw, refs, np.array(obs), period, 1.5, tol2, VMAX, margin2, on)
+        best, clear = kernel.fit_candidates(t, vw, refs, np.array(obs), lower, period, 1.5, tol2, VMAX, margin2, on)
         assert (best, clear) == want[:2]
         np.testing.assert_array_equal(on.view(bool), want[2])
         ties += int(np.count_nonzero(np.isin(obs[0], obs[0][~np.isnan(obs[0])][:1])) > 1)
@@ -69,7 +71,7 @@ def test_fit_alias_with_and_without_the_kernel(seed, monkeypatch):
     rng = np.random.default_rng(100 + seed)
     histories = [_history(rng, int(rng.integers(2, 60))) for _ in range(60)]
     calls = [dict(last_frames=0), dict(last_frames=25), dict(last_frames=25, around_kmh=float(rng.uniform(-60, 60))),
-             dict(edge_m=0.0, margin_frames=2.0)]
+             dict(edge_m=0.0, margin_frames=2.0), dict(edge_limit_m=21.0), dict(last_frames=25, edge_limit_m=21.0)]
     fast = [[h.fit_alias(**c) for c in calls] for h in histories]
     real_load = native.load
     monkeypatch.setattr(features.native, "load", lambda name: None if name == "_aliasfit" else real_load(name))
@@ -88,5 +90,6 @@ def test_refuses_more_frames_than_the_offsets_cover():
     kernel = require_kernel("_aliasfit")
     n = 49
     with pytest.raises(ValueError):
-        kernel.fit_candidates(np.arange(n, dtype=float), np.zeros(n), np.zeros(3), np.zeros((1, n)), 10.7, 1.5,
-                              0.5625, VMAX, 0.5625, np.empty(n, dtype=np.uint8))
+        kernel.fit_candidates(np.arange(n, dtype=float), np.zeros(n), np.zeros(3), np.zeros((1, n)),
+                              np.zeros((1, n), dtype=np.uint8), 10.7, 1.5, 0.5625, VMAX, 0.5625,
+                              np.empty(n, dtype=np.uint8))
