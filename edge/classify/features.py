@@ -1039,12 +1039,12 @@ class RadialSpeedEstimator:
         while a long body enters or leaves the view one of its ends moves at its speed and its centroid lags
         (more of it comes into view every frame). A far edge beyond ``edge_limit_m`` (cut off at the board's
         largest range) is left out, and in such a frame the centroid is only a lower bound of the body's range: a
-        path beyond it costs nothing there (the body's far part is not in the map). A frame whose ``|u|`` is below ``static_kmh`` does not vote for that candidate
-        when at least three others move under it: static clutter a track held has zero Doppler and no range rate,
-        and says nothing of a mover's alias (a target crossing the beam at zero radial speed keeps its frames). The
-        candidate of least total cost wins; it is *certain* when at least three frames lie on its path
-        and every candidate that gives most of those frames another alias costs at least ``margin_frames`` outlier
-        frames more. ``on_path`` marks the frames on the winner's path (the target's; the others are outliers).
+        path beyond it costs nothing there (the body's far part is not in the map). A frame whose ``|u|`` is below
+        ``static_kmh`` does not vote for that candidate when at least three others move under it: static clutter a
+        track held has zero Doppler and no range rate, and says nothing of a mover's alias (a target crossing the
+        beam at zero radial speed keeps its frames). The candidate of least total cost wins; it is *certain* when
+        at least three frames lie on its path and every candidate that gives most of those frames another alias
+        costs at least ``margin_frames`` outlier frames more. ``on_path`` marks the frames on the winner's path (the target's; the others are outliers).
         ``last_frames`` > 0: the latest frames only; ``around_kmh``: the window around this speed instead of the
         range rates (a live track's current speed). Empty speeds and NaN below two frames."""
         n = len(self._t)

@@ -56,8 +56,8 @@ cdef double _offset_cost(const double *res, const unsigned char *ok, const unsig
 
 @cython.cdivision(True)
 def fit_candidates(const double[::1] t, const double[::1] vw, const double[::1] refs, const double[:, ::1] obs,
-                   const unsigned char[:, ::1] lower, double period, double static_kmh, double tol2, double vmax, double margin2,
-                   unsigned char[::1] on_path):
+                   const unsigned char[:, ::1] lower, double period, double static_kmh, double tol2, double vmax,
+                   double margin2, unsigned char[::1] on_path):
     """The best candidate of ``refs`` for frames at times ``t`` (s) with wrapped Doppler ``vw`` (km/h) and the
     observables ``obs`` (rows of ranges in m, NaN where not observed; ``lower``, of the same shape, nonzero where
     one is only a lower bound of the body's range): ``(best, rivals_clear)``. ``on_path`` (n,)
