@@ -1044,9 +1044,10 @@ class RadialSpeedEstimator:
         track held has zero Doppler and no range rate, and says nothing of a mover's alias (a target crossing the
         beam at zero radial speed keeps its frames). The candidate of least total cost wins; it is *certain* when
         at least three frames lie on its path and every candidate that gives most of those frames another alias
-        costs at least ``margin_frames`` outlier frames more. ``on_path`` marks the frames on the winner's path (the target's; the others are outliers).
-        ``last_frames`` > 0: the latest frames only; ``around_kmh``: the window around this speed instead of the
-        range rates (a live track's current speed). Empty speeds and NaN below two frames."""
+        costs at least ``margin_frames`` outlier frames more. ``on_path`` marks the frames on the winner's path
+        (the target's; the others are outliers). ``last_frames`` > 0: the latest frames only; ``around_kmh``: the
+        window around this speed instead of the range rates (a live track's current speed). Empty speeds and NaN
+        below two frames."""
         n = len(self._t)
         if n < 2:
             return np.zeros(0), math.nan, False, np.zeros(0, dtype=bool)
