@@ -216,7 +216,7 @@ class AlphaBetaConfig:
     static_zone_time_s: float = field(
         default=60.0,
         metadata={"unit": "s", "doc": "beyond the paper: time constant of the share of frames with a slow cluster "
-                                      "per range cell (edge.track.static_zones); a slow cluster in a cell whose "
+                                      "over a range cell (edge.track.static_zones); a slow cluster in a cell whose "
                                       "share reaches static_zone_occupancy is site clutter and feeds no track; 0 = off",
                   "min": 0.0, "max": 3600.0},
     )

@@ -75,8 +75,8 @@ measured on multi-random dev seeds (field docs):
 * *merge guard needs another target* (``merge_other_required``): an enlarged cluster holds a track on
   its prediction only when another track is near it; an approaching car growing six-fold alone is
   itself, not a merge.
-* *static zones* (``static_zone_*``, :mod:`edge.track.static_zones`): a slow cluster in a range cell where
-  slow clusters keep coming back (swaying foliage) is site clutter: it starts and feeds no track.
+* *static zones* (``static_zone_*``, :mod:`edge.track.static_zones`): a slow cluster in a range cell that
+  slow clusters keep covering (swaying foliage) is site clutter: it starts and feeds no track.
 
 *Fragments* (``fragment_gap_m``, ``fragment_link_fraction``; off by default, see the field's doc for
 the measurements): a truck passing beside the radar spans
@@ -280,7 +280,9 @@ class SurveillanceTracker:
         if self.static_zones is not None:  # slow clusters where something stands: site clutter, no track
             k = np.flatnonzero(valid).tolist()
             standing = self.static_zones.update(np.asarray(sig.range_m)[k].tolist(),
-                                                np.asarray(sig.doppler_kmh)[k].tolist())
+                                                np.asarray(sig.doppler_kmh)[k].tolist(),
+                                                np.asarray(sig.range_lo_m)[k].tolist(),
+                                                np.asarray(sig.range_hi_m)[k].tolist())
             if standing:
                 valid = valid.copy()
                 valid[[k[i] for i in standing]] = False

@@ -42,11 +42,35 @@ def test_a_slow_cluster_that_stays_becomes_a_zone_after_its_share_reaches_the_oc
     assert z.update([15.0, 8.1], [0.0, -1.9]) == [1]
 
 
+def test_a_bush_whose_centroid_wanders_across_a_cell_boundary_counts_in_every_cell_it_spans():
+    # the bush's cells span 7.3-8.4 m in every frame it is found; its centroid falls on either side of 7.5 m
+    def first_zone(spans: bool) -> int | None:
+        z = _zones()
+        for n in range(600):
+            seen = n % 2 == 0
+            r = 7.4 if n % 4 == 0 else 7.9
+            args = ([r], [0.4], [7.3], [8.4]) if spans else ([r], [0.4])
+            out = z.update(*args) if seen else z.update([], [])
+            if out == [0]:
+                return n
+        return None
+
+    w = 1.0 - math.exp(-PERIOD / 60.0)
+    with_spans, centroid_only = first_zone(True), first_zone(False)
+    # spanned: every cell sees the bush in half the frames, as a bush that keeps its cell (0.5 (1 - (1 - w)^n) = 0.1)
+    assert with_spans is not None and abs(with_spans - math.log(0.8) / math.log(1.0 - w)) <= 4
+    # by the centroid alone each cell sees it in a quarter of the frames (0.25 (1 - (1 - w)^n) = 0.1): more than twice
+    # as long
+    assert centroid_only is not None and abs(centroid_only - math.log(0.6) / math.log(1.0 - w)) <= 4
+
+
 def test_a_walker_crossing_the_beam_makes_no_zone():
     z = _zones()
-    # a walker crossing at 6 m: slow (radial speed near zero) at one range for 6 s, a new cell when its range moves
+    # a walker crossing at 6 m: slow (radial speed near zero) at one range for 6 s, a new cell when its range moves;
+    # its cells span half a metre around its centroid
     for n in range(30):
-        assert z.update([6.0 + 0.01 * n], [0.3]) == []
+        r = 6.0 + 0.01 * n
+        assert z.update([r], [0.3], [r - 0.25], [r + 0.25]) == []
     assert z.zones_m() == []
     # a vehicle crossing a range cell with its wrapped Doppler near zero (an alias) for a frame or two neither
     for n in range(300):
