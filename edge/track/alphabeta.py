@@ -303,6 +303,12 @@ class AlphaBetaConfig:
                          "cluster is a candidate too, judged at its latest cluster; false = only tracks started "
                          "after it"},
     )
+    vehicle_by_class: bool = field(
+        default=True,
+        metadata={"doc": "beyond the paper: the body rule (body_length_m) also takes a track slower than "
+                         "rigid_min_speed_kmh for a vehicle when the classifier reads its features so far as one "
+                         "(a truck at about an alias step of radial speed)"},
+    )
     body_length_m: float = field(
         default=12.0,
         metadata={"unit": "m", "doc": "beyond the paper: a track that ends while a vehicle's track lives (at least "

@@ -71,7 +71,9 @@ measured on multi-random dev seeds (field docs):
 * *body parts* (``body_length_m``, ``body_gap_m``, ``body_doppler_kmh``, ``body_rate_kmh``): a track that ends while
   a vehicle's track lives, whose clusters were near that track's (centres within ``body_length_m``) at its wrapped
   Doppler, adjacent (extents within ``body_gap_m``) or moving at its range rate, is a part of that body (a truck's
-  front, body and rear split by DBSCAN): its frames join the living track, one event for the passage;
+  front, body and rear split by DBSCAN): its frames join the living track, one event for the passage; a vehicle's
+  track is one at least ``rigid_min_speed_kmh`` fast or, with ``vehicle_by_class``, one the classifier reads as a
+  vehicle from its features so far (a truck at about an alias step of radial speed, whose Doppler reads near zero);
 * *merge guard needs another target* (``merge_other_required``): an enlarged cluster holds a track on
   its prediction only when another track is near it; an approaching car growing six-fold alone is
   itself, not a merge.
@@ -622,7 +624,8 @@ class SurveillanceTracker:
             if tid == tr.track_id or other is None or len(other) < 2 or tid not in self._log:
                 continue
             rate_y = _finite_or_zero(other.range_rate_kmh())
-            if not max(abs(rate_y), abs(_finite_or_zero(other.mean_radial_speed_kmh()))) >= cfg.rigid_min_speed_kmh:
+            if not (max(abs(rate_y), abs(_finite_or_zero(other.mean_radial_speed_kmh()))) >= cfg.rigid_min_speed_kmh
+                    or self._vehicle_by_class(tid)):
                 continue
             if rate_x * rate_y < 0 and min(abs(rate_x), abs(rate_y)) >= cfg.passage_speed_kmh:
                 continue  # moving apart: two targets crossing each other
@@ -641,6 +644,20 @@ class SurveillanceTracker:
             if d <= cfg.body_length_m and abs(float(np.median(dw))) <= cfg.body_doppler_kmh and together and d < best_d:
                 best, best_d = tid, d
         return best
+
+    def _vehicle_by_class(self, track_id: int) -> bool:
+        """``vehicle_by_class``: the classifier reads the track's features so far (at least
+        ``doppler_range_rate_frames`` frames) as a vehicle."""
+        cfg = self.tracker.config
+        acc = self._acc.get(track_id)
+        if (not cfg.vehicle_by_class or self.classifier is None or acc is None
+                or acc.n < max(2, cfg.doppler_range_rate_frames)):
+            return False
+        x = acc.features()
+        if not np.all(np.isfinite(x)):
+            return False
+        k = int(self.classifier.predict(x[None, :])[0])
+        return self.classifier.classes[k] != "pedestrian"
 
     def _own_frames(self, track_id: int) -> int:
         """Frames with signatures of the track (its own clusters, and those of tracks it absorbed)."""

@@ -232,3 +232,49 @@ def test_a_jogger_approaching_beside_a_receding_car_keeps_its_own_event():
     st, _, events = run(AlphaBetaConfig(body_length_m=12.0), car_passing_an_approaching_jogger, 16)
     assert st.body_parts == 0 and len(events) == 2
     assert sorted(round(e.mean_radial_speed_kmh) for e in events) == [-10, 22]
+
+
+class _ByExtent:
+    """A stand-in for the k-NN: a vehicle (truck) when the range extent feature is at least 1.5 m, else a pedestrian."""
+
+    classes = ("car", "pedestrian", "truck", "motorcycle")
+
+    def predict(self, x):
+        return np.where(np.asarray(x)[:, 5] >= 1.5, 2, 1)
+
+    def predict_proba(self, x):
+        p = np.zeros((len(x), 4))
+        p[np.arange(len(x)), self.predict(x)] = 1.0
+        return p
+
+
+def slow_truck_front_and_rear(n, v=10.5):
+    """A truck receding at ``v`` km/h, about one alias step (wrapped Doppler -0.2 km/h): its front (a long cluster)
+    from frame 0 on, a rear part 4.5 m behind from frame 2 to frame 9 at a Doppler 2 km/h higher."""
+    r = 4.0 + v / 3.6 * T * n
+    out = [(r, v, 900)]
+    if 2 <= n <= 9:
+        out.append((r + 4.5, v + 2.0, 150))
+    return out
+
+
+def run_classified(cfg, scene, frames):
+    st = SurveillanceTracker(FE, 2.0, tracking=cfg, knn=_ByExtent())
+    events = []
+    for n in range(frames):
+        bl = [blob(r, v, c, k) for k, (r, v, c) in enumerate(scene(n))]
+        events.extend(st.update(int(n * T * 1e9), points(*bl), seq=n).classifications)
+    events.extend(st.close())
+    return st, events
+
+
+@pytest.mark.parametrize("by_class, events_expected", [(True, 1), (False, 2)])
+def test_a_truck_slower_than_the_speed_floor_is_a_vehicle_by_its_class(by_class, events_expected):
+    st, events = run_classified(AlphaBetaConfig(vehicle_by_class=by_class), slow_truck_front_and_rear, 16)
+    assert len(events) == events_expected
+    assert st.body_parts == (1 if by_class else 0)
+
+
+def test_walkers_the_classifier_reads_as_pedestrians_stay_apart():
+    st, events = run_classified(AlphaBetaConfig(vehicle_by_class=True), walkers_side_by_side, 20)
+    assert len(events) == 2 and st.body_parts == st.passages == st.rigid_merges == 0
