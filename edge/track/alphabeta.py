@@ -312,9 +312,10 @@ class AlphaBetaConfig:
     body_length_m: float = field(
         default=12.0,
         metadata={"unit": "m", "doc": "beyond the paper: a track that ends while a vehicle's track lives (at least "
-                                      "rigid_min_speed_kmh, or see vehicle_by_class) joins it when their clusters' centres lie within this "
-                                      "range at a wrapped Doppler within body_doppler_kmh, adjacent (body_gap_m) or "
-                                      "at one range rate (body_rate_kmh); 0 = off", "min": 0.0, "max": 30.0},
+                                      "rigid_min_speed_kmh, or see vehicle_by_class) joins it when their clusters' "
+                                      "centres lie within this range at a wrapped Doppler within body_doppler_kmh, "
+                                      "adjacent (body_gap_m) or at one range rate (body_rate_kmh); 0 = off",
+                  "min": 0.0, "max": 30.0},
     )
     body_gap_m: float = field(
         default=2.5,
