@@ -134,6 +134,8 @@ class D2GSource(RadarSource):
             _positive, 10.5, "silence in s after the board reported a framing error (its input timeout is 10 s)"
         ),
         "baud": Option(int, 115200, "serial baud rate (no effect on the USB virtual port)"),
+        "tx_power": Option(int, None, "TX power level 0..max_tx_power (7 on the Distance2Go = full power); default: "
+                                      "leave the board's (radar-edge calibrate --headroom picks it)"),
     }
 
     def __init__(
@@ -147,9 +149,13 @@ class D2GSource(RadarSource):
         backoff_max_s: float = 0.5,
         quiet_s: float = 10.5,
         baud: int = 115200,
+        tx_power: int | None = None,
         clock: Any = None,
     ) -> None:
         self._clock = clock or MonotonicClock()
+        if tx_power is not None and tx_power < 0:
+            raise SourceUrlError(f"tx_power={tx_power} must be 0 or more")
+        self.tx_power = tx_power
         super().__init__(clock_ns=self._clock.now_ns)
         if not target:
             raise SourceUrlError("d2g:// needs a port path or 'auto', e.g. d2g:///dev/ttyACM0 or d2g://auto")
@@ -368,11 +374,20 @@ class D2GSource(RadarSource):
         if fm is not None:
             payloads, _ = self._exchange(fm, cl.request(fm, Rfmc.GET_CONFIGURATION), "FMCW configuration")
             ramp = self._reply(payloads, fm, Rfmc.CONFIGURATION, cl.FmcwConfig.parse, "FMCW configuration")
+            wanted = ramp
             if ramp.direction != 0:  # 21 chirps is odd: alternating ramps are impossible, use up-chirps
-                ramp = dataclasses.replace(ramp, direction=0)
-                self._exchange(fm, cl.encode_payload(fm, ramp.encode()), "set FMCW direction")
+                wanted = dataclasses.replace(wanted, direction=0)
+            if self.tx_power is not None and ramp.tx_power != self.tx_power:
+                if info is not None and self.tx_power > info.max_tx_power:
+                    raise D2GConfigError(f"tx_power={self.tx_power}: the board's levels are 0..{info.max_tx_power}")
+                wanted = dataclasses.replace(wanted, tx_power=self.tx_power)
+            if wanted != ramp:
+                ramp = wanted
+                self._exchange(fm, cl.encode_payload(fm, ramp.encode()), "set FMCW direction and TX power")
             self.telemetry["fmcw"] = ramp
             self._check_ramp(ramp)
+        elif self.tx_power is not None:
+            raise D2GConfigError("tx_power is set, but the board has no FMCW endpoint (RFMC) to set it on")
         self.telemetry.pop("min_interval_us", None)
         self._exchange(ep, cl.encode_payload(ep, self.frame_format.encode()), "set frame format")
         announced = self.telemetry.get("min_interval_us")  # from the announcements after SET_FRAME_FORMAT

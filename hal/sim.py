@@ -4,7 +4,8 @@ Options: ``scenario`` (built-in name or path to a TOML file), ``seed``, ``realti
 free-runs on the host clock, a late reader sees the newest frame and counts the ones it missed;
 0: frames come back to back as fast as they are read, stamped on the board's timeline: time of
 opening + frame counter x period), ``loop`` (restart the scenario at its end
-instead of ending the source), ``frames`` (stop after this many; default: the scenario's duration).
+instead of ending the source), ``frames`` (stop after this many; default: the scenario's duration), ``tx_power``
+(``sim://d2g`` only: the board's TX power level 0..7, as ``d2g://`` sets it; default: the scenario's, else 7).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ class SimSource(RadarSource):
         "realtime": Option(parse_bool, True, "1 = free-running board on the host clock, 0 = as fast as read"),
         "loop": Option(parse_bool, False, "restart the scenario when it ends"),
         "frames": Option(int, 0, "stop after this many frames (0 = the scenario's duration)"),
+        "tx_power": Option(int, None, "sim://d2g: TX power level 0..7 (default: the scenario's, else 7 = full)"),
     }
 
     def __init__(
@@ -37,6 +39,7 @@ class SimSource(RadarSource):
         realtime: bool = True,
         loop: bool = False,
         frames: int = 0,
+        tx_power: int | None = None,
         clock: Any = None,
     ) -> None:
         from hw_sim.boards import board_for  # lazy: only simulated backends need hw_sim
@@ -54,6 +57,14 @@ class SimSource(RadarSource):
         self.paces_itself = realtime
         self.loop = loop
         self.max_frames = frames
+        if tx_power is not None:
+            from hw_sim.boards import D2G_MAX_TX_POWER
+
+            if board != "d2g":
+                raise SourceUrlError(f"tx_power is a Distance2Go setting; sim://{board} has none")
+            if not 0 <= tx_power <= D2G_MAX_TX_POWER:
+                raise SourceUrlError(f"tx_power={tx_power} out of range 0..{D2G_MAX_TX_POWER}")
+        self.tx_power = tx_power
         self._sim = None
         self._scenario = None
 
@@ -90,6 +101,10 @@ class SimSource(RadarSource):
         seed = sc.seed if self.seed_opt is None else self.seed_opt
         self.seed = seed
         self._board = sc.sim_board()
+        if self.tx_power is not None:
+            from hw_sim.boards import board_for, with_tx_power
+
+            self._board = with_tx_power(board_for(sc.board, sc.physics), self.tx_power)
         self._sim = FrameSimulator(self._board, sc.build_scene(seed), seed)
         period = self.frontend.waveform.frame_period_s
         self._scenario_frames = max(1, int(round(sc.duration_s / period)))

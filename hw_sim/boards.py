@@ -56,3 +56,23 @@ def apply_physics(board: SimBoard, name: str, physics: Physics) -> SimBoard:
     if radio is board.radio and road is None and receiver is None:
         return board
     return dataclasses.replace(board, radio=radio, road=road, receiver=receiver)
+
+
+#: the Distance2Go's TX power levels: RFMC SET_CONFIGURATION ``tx_power`` 0..``max_tx_power`` (7, full power, the
+#: D2G firmware's default)
+D2G_MAX_TX_POWER = 7
+#: output power per level, as the simulated firmware reports it (RBAS TX power: 1000 * level - 2000 mdBm)
+D2G_TX_POWER_STEP_DB = 1.0
+
+
+def with_tx_power(board: SimBoard, level: int) -> SimBoard:
+    """The Distance2Go ``board`` transmitting at TX power ``level`` (0..:data:`D2G_MAX_TX_POWER`): every echo and
+    the TX->RX leakage (:attr:`hw_sim.radio.RadioModel.tx_backoff_db`) fall by :data:`D2G_TX_POWER_STEP_DB` a level
+    below the full power; the receiver noise does not."""
+    level = int(level)
+    if not 0 <= level <= D2G_MAX_TX_POWER:
+        raise ValueError(f"TX power level {level} out of range 0..{D2G_MAX_TX_POWER}")
+    backoff = (D2G_MAX_TX_POWER - level) * D2G_TX_POWER_STEP_DB
+    if backoff == board.radio.tx_backoff_db:
+        return board
+    return dataclasses.replace(board, radio=dataclasses.replace(board.radio, tx_backoff_db=backoff))

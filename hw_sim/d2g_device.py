@@ -56,6 +56,7 @@ import numpy as np
 
 from hal import comlib as cl
 from hal.comlib import Ep0, Radx, Rbas, Rfmc
+from hw_sim.boards import D2G_MAX_TX_POWER, board_for, with_tx_power
 
 log = logging.getLogger(__name__)
 
@@ -134,14 +135,14 @@ class D2GFirmware:
             int(round(seg.f_start_hz / 1e3)),
             int(round((seg.f_start_hz + seg.bandwidth_hz) / 1e3)),
             power_on_direction,
-            7,
+            D2G_MAX_TX_POWER,
         )
         self.device_info = cl.DeviceInfo(
             min_rf_khz=23_900_000,
             max_rf_khz=24_300_000,
             n_tx=1,
             n_rx=1,
-            max_tx_power=7,
+            max_tx_power=D2G_MAX_TX_POWER,
             n_temp_sensors=1,
             hw_major=1,
             hw_minor=1,
@@ -466,7 +467,9 @@ class D2GEmulator:
             raise ValueError(f"scenario {sc.name!r} is for board {sc.board!r}, not the Distance2Go")
         self.scenario = sc
         self.seed = sc.seed if seed is None else seed
-        board = sc.sim_board()
+        # the board at full TX power: the firmware's TX power level (RFMC configuration) applies on top, frame by frame
+        self._board_full_power = board_for(sc.board, sc.physics)
+        board = self._board_full_power
         self._sim = FrameSimulator(board, sc.build_scene(self.seed), self.seed)
         self._sim_shape = board.frontend.frame_shape
         self.quiet_s = quiet_s
@@ -499,6 +502,7 @@ class D2GEmulator:
     # --- frames ----------------------------------------------------------------------------------
     def _frame(self, scene_index: int, fmt: cl.FrameFormat) -> tuple[np.ndarray, np.ndarray]:
         if (1, fmt.chirps_per_frame, fmt.samples_per_chirp) == self._sim_shape:
+            self._sim.board = with_tx_power(self._board_full_power, self.fw.fmcw.tx_power)
             f = self._sim.frame(scene_index)
             return f.i, f.q
         # another format than the board model: receiver noise only

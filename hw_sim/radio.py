@@ -76,6 +76,9 @@ class RadioModel:
     #: unit-to-unit / radome / temperature offset of the receive chain (dB): scales every echo and the
     #: leakage (:meth:`signal_counts_gain`), not the thermal noise
     gain_offset_db: float = 0.0
+    #: TX output power set below ``tx_power_dbm`` (dB; the board's TX power level, :func:`hw_sim.boards.with_tx_power`):
+    #: scales every echo and the TX->RX leakage alike, not the noise
+    tx_backoff_db: float = 0.0
 
     def noise_power_w(self, bandwidth_hz: float) -> float:
         return BOLTZMANN * T0_K * bandwidth_hz * 10.0 ** ((self.noise_figure_db + self.if_excess_noise_db) / 10.0)
@@ -96,8 +99,8 @@ class RadioModel:
         return self.noise_rms_counts / math.sqrt(self.noise_power_w(bandwidth_hz) / 2.0)
 
     def signal_counts_gain(self, bandwidth_hz: float) -> float:
-        """:meth:`counts_per_sqrt_w` with the board's gain offset: the gain echoes and leakage see."""
-        return self.counts_per_sqrt_w(bandwidth_hz) * 10.0 ** (self.gain_offset_db / 20.0)
+        """:meth:`counts_per_sqrt_w` with the board's gain offset and TX back-off: the gain echoes and leakage see."""
+        return self.counts_per_sqrt_w(bandwidth_hz) * 10.0 ** ((self.gain_offset_db - self.tx_backoff_db) / 20.0)
 
 
 #: Lim et al. Table 1 antennas and TX power. Elevation beamwidths are not given in the paper; the

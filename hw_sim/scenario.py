@@ -16,6 +16,7 @@ Schema (every key optional unless marked; units in names)::
     yaw_deg = 0.0                # boresight heading, clockwise from +y
     tilt_deg = 1.0               # downward tilt of the boresight
     occluded_behind = false      # on an overpass's face: the deck hides everything behind it
+    tx_power = 7                 # Distance2Go only: the board's TX power level 0..7 (7 = full power, the default)
 
     [[lane]]                     # road lanes (ground truth and lane statistics)
     center_x_m = -5.25
@@ -101,12 +102,15 @@ class Scenario:
     raw: dict[str, Any] = field(default_factory=dict)
     source: str = ""
     physics: Physics = field(default_factory=Physics)
+    #: the Distance2Go's TX power level (``[radar] tx_power``); None: the board's full power
+    tx_power: int | None = None
 
     def sim_board(self):
-        """The simulated board this scenario runs on, with its ``[physics]`` choices applied."""
-        from hw_sim.boards import board_for
+        """The simulated board this scenario runs on, with its ``[physics]`` choices and TX power level applied."""
+        from hw_sim.boards import board_for, with_tx_power
 
-        return board_for(self.board, self.physics)
+        board = board_for(self.board, self.physics)
+        return board if self.tx_power is None else with_tx_power(board, self.tx_power)
 
     def build_scene(self, seed: int | None = None) -> Scene:
         """A fresh, deterministic :class:`Scene` for ``seed`` (defaults to the scenario's)."""
@@ -206,6 +210,14 @@ def parse_scenario(raw: dict[str, Any], source: str = "<string>") -> Scenario:
         tilt_deg=_num(r, "tilt_deg", 0.0, w),
         occluded_behind=_bool(r, "occluded_behind", w),
     )
+    tx_power = r.get("tx_power")
+    if tx_power is not None:
+        from hw_sim.boards import D2G_MAX_TX_POWER
+
+        if board != "d2g":
+            raise ScenarioError(f"{source}: radar.tx_power is a Distance2Go setting (board {board!r} has none)")
+        if isinstance(tx_power, bool) or not isinstance(tx_power, int) or not 0 <= tx_power <= D2G_MAX_TX_POWER:
+            raise ScenarioError(f"{source}: radar.tx_power must be an integer 0..{D2G_MAX_TX_POWER}")
     lanes = []
     for n, ln in enumerate(raw.get("lane", [])):
         d = ln.get("direction", "toward")
@@ -231,6 +243,7 @@ def parse_scenario(raw: dict[str, Any], source: str = "<string>") -> Scenario:
         raw=raw,
         source=source,
         physics=physics,
+        tx_power=tx_power,
     )
     sc.build_scene()  # validate targets and generators now, not mid-run
     return sc

@@ -83,6 +83,41 @@ def test_frames_are_bit_identical_to_sim_d2g():
     assert len({f.seq for f in frames}) == 6
 
 
+def test_tx_power_option_sets_the_board_and_scales_its_frames():
+    scenario, seed = "tavanti-test1", 3
+    with D2GEmulator(scenario, seed=seed) as emu:
+        assert emu.fw.fmcw.tx_power == 7  # power-on: full power
+        with open_radar(_url(emu, "tx_power=1")) as src:
+            frames = [src.read_frame(timeout=5.0) for _ in range(4)]
+            assert emu.fw.fmcw.tx_power == 1 and src.telemetry["fmcw"].tx_power == 1
+    with open_radar(f"sim://d2g?scenario={scenario}&seed={seed}&realtime=0&tx_power=1") as sim:
+        ref = {}
+        while len(ref) <= frames[-1].seq:
+            f = sim.read_frame(timeout=None)
+            ref[f.seq] = f
+    for f in frames:
+        assert np.array_equal(f.i, ref[f.seq].i) and np.array_equal(f.q, ref[f.seq].q), f.seq
+    with open_radar(f"sim://d2g?scenario={scenario}&seed={seed}&realtime=0") as sim:
+        full = sim.read_frame(timeout=None)
+    # 6 dB less TX power: the leakage-dominated samples halve (the noise does not scale)
+    ratio = np.abs(ref[0].i.astype(float)).max() / np.abs(full.i.astype(float)).max()
+    assert ratio == pytest.approx(10 ** (-6 / 20), rel=0.02)
+
+
+def test_tx_power_beyond_the_board_is_a_configuration_error():
+    with D2GEmulator("tavanti-test1", seed=1) as emu:
+        with pytest.raises(D2GConfigError, match="0..7"):
+            with open_radar(_url(emu, "tx_power=8")) as src:
+                src.read_frame(timeout=5.0)
+
+
+def test_sim_tx_power_option_is_checked():
+    with pytest.raises(SourceUrlError, match="Distance2Go"):
+        open_radar("sim://simo?tx_power=3")
+    with pytest.raises(SourceUrlError, match="0..7"):
+        open_radar("sim://d2g?tx_power=9")
+
+
 def test_slow_host_counts_dropped_frames_and_temperature_telemetry():
     clock = SteppedClock()
     with D2GEmulator("tavanti-test1", seed=1, clock=clock) as emu, open_radar(_url(emu)) as src:

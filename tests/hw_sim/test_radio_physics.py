@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from hw_sim import D2G_BOARD, SIMO_BOARD, FrameSimulator, RadarPose, board_for, load_scenario
+from hw_sim.boards import D2G_MAX_TX_POWER, D2G_TX_POWER_STEP_DB, with_tx_power
 from hw_sim.physics import Physics, parse_physics
+from hw_sim.scenario import ScenarioError
 from hw_sim.radio import KRAUS_DEG2, SPHERE_DEG2, elevation_beamwidth_deg
 from hw_sim.scene import ScattererSet
 from hw_sim.synth import clipped_fraction, quantize, synthesize_if
@@ -319,6 +321,42 @@ def test_gain_offset_scales_signal_and_leakage_not_noise(name, offset_db):
     n0 = synthesize_if(base, pose, empty, 0.0, np.random.default_rng(1), leakage=False)
     n1 = synthesize_if(off, pose, empty, 0.0, np.random.default_rng(1), leakage=False)
     assert np.array_equal(n0, n1)
+
+
+@pytest.mark.parametrize("level", [0, 3, 6])
+def test_tx_power_level_scales_signal_and_leakage_not_noise(level):
+    base = board_for("d2g", _v1())
+    low = with_tx_power(base, level)
+    s = _scat([[0.5, 12.0, 0.5]], rcs=2.0)
+    pose = RadarPose(height_m=1.0)
+    x0 = synthesize_if(base, pose, s, 0.0, np.random.default_rng(0), noise=False)
+    x1 = synthesize_if(low, pose, s, 0.0, np.random.default_rng(0), noise=False)
+    expect = -(D2G_MAX_TX_POWER - level) * D2G_TX_POWER_STEP_DB
+    assert 20 * math.log10(np.linalg.norm(x1) / np.linalg.norm(x0)) == pytest.approx(expect, abs=1e-9)
+    empty = _scat(np.zeros((0, 3)))
+    l0 = synthesize_if(base, pose, empty, 0.0, np.random.default_rng(1), noise=False)  # the leakage alone
+    l1 = synthesize_if(low, pose, empty, 0.0, np.random.default_rng(1), noise=False)
+    assert 20 * math.log10(np.linalg.norm(l1) / np.linalg.norm(l0)) == pytest.approx(expect, abs=1e-9)
+    n0 = synthesize_if(base, pose, empty, 0.0, np.random.default_rng(1), leakage=False)
+    n1 = synthesize_if(low, pose, empty, 0.0, np.random.default_rng(1), leakage=False)
+    assert np.array_equal(n0, n1)
+    # a board 6 dB hot at level 1 makes the frames of the nominal board at full power
+    hot = with_tx_power(board_for("d2g", _v1(gain_offset_db=6.0)), 1)
+    x2 = synthesize_if(hot, pose, s, 0.0, np.random.default_rng(0), noise=False)
+    x3 = synthesize_if(base, pose, s, 0.0, np.random.default_rng(0), noise=False)
+    assert np.allclose(x2, x3, rtol=1e-9, atol=1e-9)
+    with pytest.raises(ValueError, match="0..7"):
+        with_tx_power(base, 8)
+
+
+def test_scenario_tx_power_is_a_d2g_radar_setting():
+    sc = load_scenario("tavanti-test1", {"radar": {"tx_power": 2}})
+    assert sc.tx_power == 2 and sc.sim_board().radio.tx_backoff_db == pytest.approx(5 * D2G_TX_POWER_STEP_DB)
+    assert load_scenario("tavanti-test1").sim_board().radio.tx_backoff_db == 0.0
+    with pytest.raises(ScenarioError, match="tx_power"):
+        load_scenario("tavanti-test1", {"radar": {"tx_power": 9}})
+    with pytest.raises(ScenarioError, match="Distance2Go"):
+        load_scenario("highway4", {"radar": {"tx_power": 3}})
 
 
 # --- mounting -------------------------------------------------------------------------------------------
