@@ -202,6 +202,13 @@ class D2GSource(RadarSource):
         return self._frontend
 
     @property
+    def max_tx_power(self) -> int | None:
+        """The highest TX power level of the ``tx_power`` option, as the board's device info reports it (None before
+        the session is configured or when the board did not report it)."""
+        info = self.telemetry.get("device")
+        return None if info is None else int(info.max_tx_power)
+
+    @property
     def corrupted_frames(self) -> int:
         """Frame requests that ended without a valid frame (``stats.malformed_frames``)."""
         return self.stats.malformed_frames

@@ -82,6 +82,15 @@ class SimSource(RadarSource):
         return self._board.frontend
 
     @property
+    def max_tx_power(self) -> int | None:
+        """The highest TX power level of the ``tx_power`` option (the Distance2Go's 7; None: the board has none)."""
+        if self.board_name != "d2g":
+            return None
+        from hw_sim.boards import D2G_MAX_TX_POWER
+
+        return D2G_MAX_TX_POWER
+
+    @property
     def scenario(self):
         return self._scenario
 

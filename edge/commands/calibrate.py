@@ -9,7 +9,8 @@ import sys
 from edge.commands.common import add_config_arguments, config_from_args, emit_json
 
 NAME = "calibrate"
-HELP = "derive the surveillance threshold th_RD (empty scene) or the RCS constant C (--rcs: a corner reflector)"
+HELP = ("derive the surveillance threshold th_RD (empty scene), the RCS constant C (--rcs: a corner reflector) or "
+        "the TX power level that keeps the ADC off its rails (--headroom)")
 DESCRIPTION = """\
 Tavanti et al. set th_RD from radar frames taken with no moving target in view: every frame goes
 through the IIR clutter/leakage canceller and the range-Doppler map, the largest map amplitude of
@@ -42,7 +43,15 @@ as a car's. Procedure:
   3. store the printed settings in the installation's configuration ([classify.features]
      rcs_calibration_db, rcs_calibration_sd_db, rcs_calibration_source = "measured");
      `radar-edge doctor` shows them. Without a measurement the datasheet value stands
-     (rcs_calibration_source = "datasheet", several dB of unit spread)."""
+     (rcs_calibration_source = "datasheet", several dB of unit spread).
+
+With --headroom, first of all on a Distance2Go (its TX->RX leakage sits at about two thirds of the
+12-bit ADC's full scale on a nominal board, so a board a few dB hot clips on it and every echo with
+it; C cannot be measured on a clipping board): with the scene empty, the board's TX power levels are
+tried from the highest down (the source URL's tx_power option, 1 dB a level), --frames frames each,
+and the highest level at which no sample clips and the largest |I| or |Q| stays within
+--max-full-scale of full scale (default 0.8: 2 dB for the leakage's drift and the echoes on top) is
+printed as the source URL to install. Measure C (--rcs) at that level: C includes the TX power."""
 EPILOG = """\
 examples:
   radar-edge calibrate                                   # simulated empty site (sim://d2g, empty-d2g)
@@ -51,6 +60,9 @@ examples:
 
   radar-edge calibrate --rcs                             # simulated reflector (sim://d2g, reflector-d2g)
   radar-edge calibrate --rcs --source d2g:///dev/ttyACM0 --range-m 6 --reflector-edge-m 0.15 --json c.json
+
+  radar-edge calibrate --headroom                        # simulated empty site at each TX power level
+  radar-edge calibrate --headroom --source d2g:///dev/ttyACM0 --frames 20
 
 then use the result:  radar-edge run --set pipeline.surveillance.th_rd=VALUE   (or [pipeline.surveillance]
 th_rd = VALUE in the configuration file)
@@ -66,6 +78,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, default=50, help="frames to use (default: 50 = 10 s)")
     p.add_argument("--rcs", action="store_true", help="measure the RCS calibration constant C from a corner reflector "
                    "(procedure above) instead of th_RD")
+    p.add_argument("--headroom", action="store_true", help="pick the Distance2Go's TX power level: the highest at which "
+                   "the ADC does not clip on an empty scene (procedure above)")
+    p.add_argument("--max-full-scale", type=float, default=0.8,
+                   help="--headroom: largest |I| or |Q| allowed, as a fraction of the ADC's full scale (default 0.8)")
     p.add_argument("--range-m", type=float, default=5.0, help="--rcs: the reflector's range, tape-measured (m; default 5)")
     p.add_argument("--range-sd-m", type=float, default=0.05, help="--rcs: uncertainty (1 sd) of --range-m (m; default 0.05)")
     p.add_argument("--reflector-edge-m", type=float, default=0.10,
@@ -123,8 +139,12 @@ def run(args: argparse.Namespace) -> int:
 
     if args.frames < 2:
         raise ValueError("--frames must be at least 2")
+    if args.rcs and args.headroom:
+        raise ValueError("--rcs and --headroom are two steps: pick the TX power level first, then measure C at it")
     if args.rcs:
         return run_rcs(args)
+    if args.headroom:
+        return run_headroom(args)
     args.source = args.source or DEFAULT_SOURCE
     cfg = config_from_args(args)
     sc = cfg.section("pipeline.surveillance")
@@ -181,3 +201,84 @@ def run_rcs(args: argparse.Namespace) -> int:
         emit_json(res, args.json)
     sys.stdout.flush()
     return 0
+
+
+def with_tx_power(url: str, level: int) -> str:
+    """``url`` with its ``tx_power`` option set to ``level`` (any other option kept)."""
+    from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
+
+    parts = urlsplit(url)
+    query = [(k, v) for k, v in parse_qsl(parts.query, keep_blank_values=True) if k != "tx_power"]
+    query.append(("tx_power", str(int(level))))
+    return urlunsplit(parts._replace(query=urlencode(query, safe="/:")))
+
+
+def adc_headroom(frames) -> dict:
+    """Over ``frames`` (:class:`~edge.types.RawFrame`): the largest |I| or |Q| in counts, its fraction of the ADC's
+    full scale, and the fraction of the samples at full scale (clipped)."""
+    import numpy as np
+
+    peak = clipped = total = n = 0
+    full = None
+    for f in frames:
+        c, t = f.clipped_samples()
+        clipped, total, n = clipped + c, total + t, n + 1
+        peak = max(peak, int(np.max(np.abs(np.asarray(f.i, dtype=np.int32)))),
+                   int(np.max(np.abs(np.asarray(f.q, dtype=np.int32)))))
+        full = max(f.frontend.adc_max, -f.frontend.adc_min)
+    if n == 0:
+        raise ValueError("no frames were read")
+    return {"frames": n, "peak_counts": peak, "full_scale_counts": full, "peak_fraction": peak / full,
+            "clipped_fraction": clipped / total}
+
+
+def pick_tx_power(measure, max_level: int, max_full_scale: float) -> dict:
+    """The highest TX power level, from ``max_level`` down to 0, whose :func:`adc_headroom` (``measure(level)``)
+    shows no clipped sample and a peak within ``max_full_scale`` of full scale; ``level`` None when none does."""
+    tried = []
+    for level in range(int(max_level), -1, -1):
+        h = dict(measure(level), level=level)
+        tried.append(h)
+        if h["clipped_fraction"] == 0.0 and h["peak_fraction"] <= max_full_scale:
+            return {"level": level, "max_level": int(max_level), "max_full_scale": max_full_scale, "levels": tried}
+    return {"level": None, "max_level": int(max_level), "max_full_scale": max_full_scale, "levels": tried}
+
+
+def run_headroom(args: argparse.Namespace) -> int:
+    """``--headroom``: the TX power level to install (:func:`pick_tx_power` over the source at each level)."""
+    import itertools
+
+    from hal import open_radar
+
+    source = args.source or DEFAULT_SOURCE
+    if not 0.0 < args.max_full_scale <= 1.0:
+        raise ValueError("--max-full-scale must be in (0, 1]")
+    with open_radar(source) as src:
+        max_level = getattr(src, "max_tx_power", None)
+    if max_level is None:
+        print(f"radar-edge calibrate: {source} has no TX power setting (--headroom is for the Distance2Go)",
+              file=sys.stderr)
+        return 2
+
+    def measure(level: int) -> dict:
+        with open_radar(with_tx_power(source, level)) as src:
+            h = adc_headroom(itertools.islice(iter(src), args.skip, args.skip + args.frames))
+        print(f"TX power level {level}: peak {h['peak_counts']} of {h['full_scale_counts']} counts "
+              f"({h['peak_fraction']:.0%}), clipped {h['clipped_fraction']:.2%} of the samples")
+        return h
+
+    res = pick_tx_power(measure, max_level, args.max_full_scale)
+    res["source"] = source
+    if res["level"] is None:
+        print(f"no TX power level keeps the ADC within {args.max_full_scale:.0%} of full scale: the receive chain "
+              "itself is saturated (check the radome and what stands in front of the antennas)")
+        code = 1
+    else:
+        res["url"] = with_tx_power(source, res["level"])
+        print(f"install TX power level {res['level']} of {max_level}: source.url = \"{res['url']}\"")
+        print(f"then measure C at that level: radar-edge calibrate --rcs --source \"{res['url']}\" ...")
+        code = 0
+    if args.json:
+        emit_json(res, args.json)
+    sys.stdout.flush()
+    return code
