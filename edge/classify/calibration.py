@@ -101,7 +101,7 @@ def measure_reflector(frames: Iterable, frontend, *, rcs_m2: float, range_m: flo
     if clipped > max_clipped_fraction * total:
         raise ValueError(f"the ADC clips on {clipped / total:.1%} of the samples (full scale): a clipped echo reads "
                          "low, so C cannot be measured; move the reflector farther or use a smaller one (if the "
-                         "TX->RX leakage alone clips, the board is saturated at any target)")
+                         "TX->RX leakage alone clips, lower the board's TX power level first: radar-edge calibrate --headroom)")
     a = np.asarray(amps)
     beat = 2.0 * abs(seg.slope_hz_per_s) * range_m / SPEED_OF_LIGHT_MPS
     comp = float(if_highpass_compensation(beat, if_corner_hz))

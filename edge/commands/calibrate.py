@@ -204,13 +204,10 @@ def run_rcs(args: argparse.Namespace) -> int:
 
 
 def with_tx_power(url: str, level: int) -> str:
-    """``url`` with its ``tx_power`` option set to ``level`` (any other option kept)."""
-    from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
-
-    parts = urlsplit(url)
-    query = [(k, v) for k, v in parse_qsl(parts.query, keep_blank_values=True) if k != "tx_power"]
-    query.append(("tx_power", str(int(level))))
-    return urlunsplit(parts._replace(query=urlencode(query, safe="/:")))
+    """``url`` with its ``tx_power`` option set to ``level`` (any other option kept as written)."""
+    base, _, query = url.partition("?")
+    opts = [o for o in query.split("&") if o and o.split("=", 1)[0] != "tx_power"]
+    return f"{base}?{'&'.join(opts + [f'tx_power={int(level)}'])}"
 
 
 def adc_headroom(frames) -> dict:

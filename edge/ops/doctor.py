@@ -281,7 +281,9 @@ def check_source(sys_: System, cfg: Any, open_board: bool) -> list[Check]:
         detail += f"; {clipped:.1%} of the frame's samples at the ADC's full scale"
         fix = ("the board is saturated (clipped samples mix every echo with the others and with the TX->RX leakage: "
                "ghost targets, wrong RCS): clear what stands close in front of the radome, check the radome and the "
-               "mounting; if an empty scene still clips, the board's gain is too high for this site")
+               "mounting; if an empty scene still clips, the board's gain is too high for this site: lower its TX power "
+               "level (radar-edge calibrate --headroom prints the source URL's tx_power), then measure C at it "
+               "(calibrate --rcs)")
     out.append(Check("board", status, detail, fix, data=info))
     return out
 

@@ -304,24 +304,40 @@ def test_shipped_lane_rules_parse_and_each_switch_changes_a_default():
             assert getattr(off.section(section), field) != getattr(base.section(section), field), r.name
 
 
-def test_calibrated_surveillance_corpus_carries_each_boards_measured_c():
-    # the calibrated corpus runs the surveillance corpus's seeds and gain offsets, each board with the C that
-    # `radar-edge calibrate --rcs` measures at its offset (the datasheet C where the measurement clips)
+def test_calibrated_surveillance_corpus_carries_each_boards_measured_c(tmp_path):
+    # the calibrated corpus runs the surveillance corpus's seeds and gain offsets, each board at the TX power level
+    # `radar-edge calibrate --headroom` picks on the empty site at its offset and with the C that `calibrate --rcs`
+    # measures there (C follows the offset less the TX back-off, 1 dB a level)
+    import itertools
+    from importlib import resources
+
     from edge.classify.calibration import DATASHEET_C_DB
+    from edge.commands.calibrate import adc_headroom, pick_tx_power
     from edge.evaluation.corpus import load_corpus
+    from hal import open_radar
 
     plain = load_corpus(REPO / "corpus" / "surveillance.toml")
     cal = load_corpus(REPO / "corpus" / "surveillance-calibrated.toml")
     key = lambda j: (j["part"], j["scenario"], j["seed"], j["events"])  # noqa: E731
     for part in ("dev", "holdout"):
         assert {key(j) for j in cal.jobs(part)} == {key(j) for j in plain.jobs(part)}
-    for v in cal.variants:
+    empty = resources.files("hw_sim").joinpath("scenarios", "empty-d2g.toml").read_text(encoding="utf-8")
+    levels = {}
+    for k, v in enumerate(cal.variants):
         off = v.patch.get("physics", {}).get("gain_offset_db", 0.0)
+        level = v.patch.get("radar", {}).get("tx_power", 7)
+        levels[off] = level
+        site = tmp_path / f"empty-{k}.toml"
+        site.write_text(empty + f"\n[physics]\ngain_offset_db = {off}\n", encoding="utf-8")
+
+        def measure(lv, site=site):
+            with open_radar(f"sim://d2g?scenario={site}&realtime=0&tx_power={lv}") as src:
+                return adc_headroom(itertools.islice(iter(src), 3))
+
+        assert pick_tx_power(measure, 7, 0.8)["level"] == level, v.name
         c = [float(s.split("=")[1]) for s in v.set if s.startswith("classify.features.rcs_calibration_db=")]
-        if off < 6.0:
-            assert c and c[0] - DATASHEET_C_DB == pytest.approx(off, abs=0.05)
-        else:
-            assert not c
+        assert c and c[0] - DATASHEET_C_DB == pytest.approx(off - (7 - level), abs=0.05), v.name
+    assert levels == {-6.0: 7, -3.0: 7, 0.0: 7, 3.0: 5, 6.0: 2}
 
 
 def test_surveillance_corpus_varies_mounting_gait_population_and_clutter():

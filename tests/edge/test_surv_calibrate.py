@@ -15,8 +15,9 @@ from edge.dsp.range_doppler import RangeDopplerProcessor
 from hal import open_radar
 
 
-def _frames(n: int, seed: int = 1, scenario: str = "empty-d2g"):
-    src = open_radar(f"sim://d2g?scenario={scenario}&realtime=0&seed={seed}")
+def _frames(n: int, seed: int = 1, scenario: str = "empty-d2g", tx_power: int | None = None):
+    extra = "" if tx_power is None else f"&tx_power={tx_power}"
+    src = open_radar(f"sim://d2g?scenario={scenario}&realtime=0&seed={seed}{extra}")
     src.open()
     try:
         return list(itertools.islice(iter(src), n)), src.frontend
@@ -74,14 +75,15 @@ def test_calibrate_needs_two_frames():
 # --- --rcs: the RCS calibration constant C from a corner reflector (issue 31) -------------------------------------
 
 
-def _reflector_frames(gain_offset_db: float, tmp_path, n: int = 12):
-    """Frames of the simulated reflector site (hw_sim reflector-d2g) on a board ``gain_offset_db`` off."""
+def _reflector_frames(gain_offset_db: float, tmp_path, n: int = 12, tx_power: int | None = None):
+    """Frames of the simulated reflector site (hw_sim reflector-d2g) on a board ``gain_offset_db`` off (at TX power
+    level ``tx_power``; None: full power)."""
     from importlib import resources
 
     text = resources.files("hw_sim").joinpath("scenarios", "reflector-d2g.toml").read_text(encoding="utf-8")
     path = tmp_path / f"reflector-{'m' if gain_offset_db < 0 else 'p'}{abs(gain_offset_db):g}.toml"
     path.write_text(text + f"\n[physics]\ngain_offset_db = {gain_offset_db}\n", encoding="utf-8")
-    return _frames(n, scenario=str(path))
+    return _frames(n, scenario=str(path), tx_power=tx_power)
 
 
 def test_trihedral_rcs_is_4_pi_a4_over_3_lambda2():
@@ -153,3 +155,83 @@ def test_calibration_constant_refers_eq17_to_the_reference_board():
     assert np.all(np.isfinite(a.rcs)) and np.all(a.rcs > 0)
     np.testing.assert_array_equal(b.extent_m, a.extent_m)
     np.testing.assert_array_equal(b.circular_variance, a.circular_variance)
+
+
+# --- TX power headroom (calibrate --headroom) ------------------------------------------------------------
+
+
+def _hot_empty_site(tmp_path, offset_db: float) -> str:
+    """empty-d2g on a board ``offset_db`` hotter, as a scenario file."""
+    from importlib import resources
+
+    text = resources.files("hw_sim").joinpath("scenarios", "empty-d2g.toml").read_text(encoding="utf-8")
+    path = tmp_path / f"empty-d2g-hot{int(offset_db)}.toml"
+    path.write_text(text + f"\n[physics]\ngain_offset_db = {offset_db}\n", encoding="utf-8")
+    return str(path)
+
+
+def test_with_tx_power_sets_or_replaces_the_url_option():
+    assert calibrate.with_tx_power("d2g:///dev/ttyACM0", 3) == "d2g:///dev/ttyACM0?tx_power=3"
+    assert (calibrate.with_tx_power("sim://d2g?scenario=/tmp/a.toml&tx_power=7&realtime=0", 2)
+            == "sim://d2g?scenario=/tmp/a.toml&realtime=0&tx_power=2")
+
+
+def test_pick_tx_power_takes_the_highest_level_off_the_rails():
+    peaks = {7: (1.0, 0.4), 6: (1.0, 0.01), 5: (0.93, 0.0), 4: (0.79, 0.0), 3: (0.7, 0.0)}
+    seen = []
+
+    def measure(level):
+        seen.append(level)
+        frac, clipped = peaks[level]
+        return {"peak_fraction": frac, "clipped_fraction": clipped}
+
+    res = calibrate.pick_tx_power(measure, 7, 0.8)
+    assert res["level"] == 4 and seen == [7, 6, 5, 4]
+    assert [h["level"] for h in res["levels"]] == [7, 6, 5, 4]
+    res = calibrate.pick_tx_power(lambda level: {"peak_fraction": 1.0, "clipped_fraction": 0.1}, 2, 0.8)
+    assert res["level"] is None and len(res["levels"]) == 3
+
+
+def test_headroom_keeps_a_nominal_board_at_full_power_and_backs_a_hot_one_off(tmp_path, capsys):
+    from edge.classify.calibration import DATASHEET_C_DB, measure_reflector
+
+    p = argparse.ArgumentParser()
+    calibrate.add_arguments(p)
+    out = tmp_path / "h.json"
+    assert calibrate.run(p.parse_args(["--headroom", "--frames", "3", "--json", str(out)])) == 0
+    res = json.loads(out.read_text())
+    assert res["level"] == 7 and len(res["levels"]) == 1
+    assert 0.5 < res["levels"][0]["peak_fraction"] <= 0.8  # the nominal board's leakage: about two thirds
+    # a board 6 dB hot clips at full power; the level picked keeps it off the rails, 1 dB a level
+    src = f"sim://d2g?scenario={_hot_empty_site(tmp_path, 6.0)}&realtime=0"
+    assert calibrate.run(p.parse_args(["--headroom", "--frames", "3", "--source", src, "--json", str(out)])) == 0
+    res = json.loads(out.read_text())
+    assert res["levels"][0]["clipped_fraction"] > 0.2
+    assert res["level"] == 2 and res["url"].endswith("tx_power=2")
+    assert res["levels"][-1]["clipped_fraction"] == 0.0 and res["levels"][-1]["peak_fraction"] <= 0.8
+    assert "install TX power level 2 of 7" in capsys.readouterr().out
+    # C measured on the reflector at that level: no clipping, and it reads the board's +6 dB less the 5 dB back-off
+    frames, fe = _reflector_frames(6.0, tmp_path, tx_power=2)
+    c = measure_reflector(frames, fe, rcs_m2=2.69, range_m=5.0)
+    assert c["clipped_fraction"] == 0.0
+    assert c["c_db"] - DATASHEET_C_DB == pytest.approx(6.0 - 5.0, abs=0.2)
+
+
+def test_headroom_over_d2g_reads_the_levels_from_the_board(tmp_path, capsys):
+    from tests.hal.d2g_emulator import emulated_d2g_url
+
+    p = argparse.ArgumentParser()
+    calibrate.add_arguments(p)
+    with emulated_d2g_url("empty-d2g", 1) as url:
+        assert calibrate.run(p.parse_args(["--headroom", "--frames", "2", "--source", url])) == 0
+    assert "install TX power level 7 of 7" in capsys.readouterr().out
+
+
+def test_headroom_needs_a_board_with_a_tx_power_setting(capsys):
+    p = argparse.ArgumentParser()
+    calibrate.add_arguments(p)
+    assert calibrate.run(p.parse_args(["--headroom", "--frames", "2", "--source",
+                                       "sim://simo?scenario=highway4&realtime=0"])) == 2
+    assert "no TX power setting" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="two steps"):
+        calibrate.run(p.parse_args(["--headroom", "--rcs"]))
