@@ -30,12 +30,17 @@ for as long as it takes; then frames run as usual.
 ``errors`` in the health and the summary counts pipeline failures, source faults the loop saw, and
 the faults the source handled itself (link faults, malformed frames and resynchronisations it
 counts in ``source.stats``); ``reconnects`` counts the loop's and the source's own reconnects.
+
+``adc_clipped_fraction`` in the health is the share of I and Q samples at the ADC's full scale over one frame a
+second for the last ten seconds (a board that clips on its TX->RX leakage, or on a target pressed against the
+radome); the outputs show it as *degraded* above :data:`hal.frame.SATURATED_FRACTION`.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Protocol
 
@@ -52,6 +57,10 @@ from hal.clock import MonotonicClock
 from hal.errors import DeviceError, RadarError, SourceClosedError, SourceTimeoutError
 
 log = logging.getLogger(__name__)
+
+#: the loop samples one frame's ADC saturation this often (ns), and keeps the last ADC_CHECK_FRAMES of them
+ADC_CHECK_PERIOD_NS = 1_000_000_000
+ADC_CHECK_FRAMES = 10
 
 
 class Sink(Protocol):
@@ -141,6 +150,9 @@ class FrameLoop:
         self._last_frame_ns = 0
         self._last_health_ns = 0
         self._state = "starting"
+        # ADC saturation, sampled on one frame a second: (clipped, total) samples of the last ADC_CHECK_FRAMES
+        self._adc_checks: deque[tuple[int, int]] = deque(maxlen=ADC_CHECK_FRAMES)
+        self._adc_check_ns: int | None = None
         self.tick_times_ns: list[int] = []  # loop-paced tick times of the last run (bounded)
 
     # --- control -----------------------------------------------------------------------------
@@ -167,7 +179,14 @@ class FrameLoop:
             frame_p99_ms=p99,
             budget_ms=self.budget_ms,
             state=self._state,
+            adc_clipped_fraction=self.adc_clipped_fraction,
         )
+
+    @property
+    def adc_clipped_fraction(self) -> float | None:
+        """Share of the samples at the ADC's full scale over the last :data:`ADC_CHECK_FRAMES` sampled frames."""
+        total = sum(n for _, n in self._adc_checks)
+        return sum(c for c, _ in self._adc_checks) / total if total else None
 
     @property
     def errors(self) -> int:
@@ -247,6 +266,9 @@ class FrameLoop:
                     continue
 
                 t_rx = clk.now_ns()
+                if self._adc_check_ns is None or t_rx - self._adc_check_ns >= ADC_CHECK_PERIOD_NS:
+                    self._adc_check_ns = t_rx
+                    self._adc_checks.append(frame.clipped_samples())
                 if self.pace == "source" and frame.t_ns and t_rx - frame.t_ns > self.period_ns:
                     self.counters.dropped_frames += 1  # stale: waited more than a period
                     continue

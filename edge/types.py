@@ -210,3 +210,5 @@ class LoopHealth:
     frame_p99_ms: float
     budget_ms: float
     state: str = "running"  # "starting" | "running" | "stalled" | "fault" | "stopped"
+    #: share of the I and Q samples at the ADC's full scale over the frames sampled lately (None: none sampled yet)
+    adc_clipped_fraction: float | None = None

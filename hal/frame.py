@@ -9,6 +9,10 @@ import numpy as np
 
 from hal.waveform import FrontendInfo
 
+#: a frame with more than this share of its I and Q samples at the ADC's full scale is saturated (doctor, the frame
+#: loop's degraded status, calibrate --rcs)
+SATURATED_FRACTION = 1e-4
+
 
 @dataclass(frozen=True, eq=False)
 class RawFrame:

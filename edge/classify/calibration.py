@@ -24,6 +24,7 @@ import numpy as np
 import scipy.fft
 import scipy.signal
 
+from hal.frame import SATURATED_FRACTION
 from hal.waveform import SPEED_OF_LIGHT_MPS
 
 #: C of a Distance2Go built to its datasheet (Tavanti Table I and the BGT24MTR11 data: P_t 11 dBm, 12 dBi TX and RX
@@ -78,7 +79,7 @@ def reflector_amplitude(iq: np.ndarray, frontend, *, range_m: float, window_m: f
 
 def measure_reflector(frames: Iterable, frontend, *, rcs_m2: float, range_m: float, range_sd_m: float = 0.05,
                       if_corner_hz: float = 1000.0, window_m: float = 0.75, k_sf: float = 3.0,
-                      max_clipped_fraction: float = 1e-4) -> dict:
+                      max_clipped_fraction: float = SATURATED_FRACTION) -> dict:
     """C (dB) from frames of a static corner reflector of RCS ``rcs_m2`` on boresight at ``range_m`` (tape-measured,
     1 sd ``range_sd_m``), with its uncertainty: the frames' spread over sqrt(N) and the range's 40 log10 term,
     in quadrature. Refused (ValueError) when more than ``max_clipped_fraction`` of the samples sit at the ADC's

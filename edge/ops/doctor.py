@@ -26,6 +26,8 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 from urllib.parse import urlsplit
 
+from hal.frame import SATURATED_FRACTION
+
 log = logging.getLogger(__name__)
 
 SERVICE_USER = "radar-edge"
@@ -289,7 +291,7 @@ def check_source(sys_: System, cfg: Any, open_board: bool) -> list[Check]:
 
 
 #: a board frame with more than this share of its samples at the ADC's full scale is saturated (as calibrate --rcs)
-CLIPPED_SAMPLES_WARN = 1e-4
+CLIPPED_SAMPLES_WARN = SATURATED_FRACTION
 
 
 def check_modbus(sys_: System, cfg: Any) -> list[Check]:

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterable
 
 from edge.outputs.state import ALARM_NO_PUBLISH, ALARMS, LOOP_STATES, MAX_LANES, Snapshot, finite
+from hal.frame import SATURATED_FRACTION
 
 MAP_MAGIC = 0x5452  # "TR"
 MAP_VERSION = 0x0100  # 1.0
@@ -124,7 +125,8 @@ IDENT = Block("identification", 0, 16, (
 
 STATUS = Block("status", 16, 32, (
     _r("status_bits", 0, "bits", "bit0 radar OK (frames arrive), 1 tracking running, 2 CAN up, 3 time synced "
-       "(not measured: 0), 4 degraded (not measured: 0), 7 configuration applied that needs a restart, "
+       "(not measured: 0), 4 degraded: the ADC saturates (over 0.01 % of the samples at full scale over the last 10 s; "
+       "radar-edge calibrate --headroom), 7 configuration applied that needs a restart, "
        "8 lane statistics stale, 9 fail-safe presence active, 10 configuration writes enabled, 15 any fault", na=False),
     _r("alarm", 1, "u16", "active alarm: " + ", ".join(f"{k} {v}" for k, v in ALARMS.items()), na=False),
     _r("uptime_s", 2, "u32", "seconds since the outputs started", "s", na=False),
@@ -423,6 +425,8 @@ class ImageBuilder:
         bits |= snap.failsafe_presence << ST_FAILSAFE
         bits |= self.links.writes_enabled << ST_WRITES_ENABLED
         bits |= snap.fault << ST_ANY_FAULT
+        clipped = h.adc_clipped_fraction
+        bits |= (not snap.fault and clipped is not None and clipped > SATURATED_FRACTION) << ST_DEGRADED
         since = (snap.t_ns - snap.frame_t_ns) / 1e9 if snap.frame_seq >= 0 and snap.frame_t_ns else None
         last_ls = next((ls for ls in snap.lane_stats if ls is not None), None)
         end_unix = None if not snap.interval_end_ns else now_unix - (snap.t_ns - snap.interval_end_ns) / 1e9

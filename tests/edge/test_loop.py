@@ -329,3 +329,34 @@ def test_missing_device_stop_policy_duration_and_stop_while_waiting():
     loop_ref["loop"] = loop
     s = loop.run()
     assert s.frames == 0 and s.stop_reason == "stopped"
+
+
+class ClippingSource(FakeSource):
+    """Frames whose I rail sits at the ADC's full scale for half of its samples in frames ``clipping``."""
+
+    def __init__(self, clock, n_frames, clipping):
+        super().__init__(clock, n_frames)
+        self.clipping = clipping
+
+    def _read_raw(self, timeout_s):
+        raw = super()._read_raw(timeout_s)
+        if raw.seq in self.clipping:
+            i = np.zeros(self._fe.frame_shape, dtype=np.int16)
+            i[..., : i.shape[-1] // 2] = self._fe.adc_max
+            return RawRead(seq=raw.seq, i=i, q=raw.q)
+        return raw
+
+
+def test_health_carries_the_adc_saturation_of_one_frame_a_second_over_ten_seconds():
+    clk = FakeClock()
+    src = ClippingSource(clk, 200, clipping=range(50, 100))  # 200 ms frames: clipping from 10 s to 20 s
+    sink = RecordingSink()
+    loop = FrameLoop(src, ScriptedPipeline(clk, lambda n: 20.0), LoopConfig(), sinks=[sink], clock=clk, pace="loop")
+    loop.run(max_frames=200)
+    frac = [h.adc_clipped_fraction for h in sink.health[:-1]]  # the last is the stop heartbeat
+    assert frac[0] == 0.0 and max(frac[:50]) == 0.0
+    # one frame in five is sampled (frames 0, 5, 10, ...), the last ten of them kept
+    assert frac[50] == pytest.approx(0.25 / 10, rel=1e-6)  # the first clipping frame sampled, among ten
+    assert frac[99] == pytest.approx(0.25)  # ten seconds of clipping: a quarter of the samples
+    # it shows until the sample of frame 145 pushes out that of frame 95, the last clipping one sampled
+    assert [k for k, f in enumerate(frac) if f > 0] == list(range(50, 145))

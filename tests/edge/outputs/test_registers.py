@@ -306,3 +306,15 @@ def test_docs_give_addresses_as_mbpoll_and_a_plc_type_them():
     assert "| +0 | 0 | 1 | 30001 | 40001 | magic |" in doc
     assert "| +4 | 2004 | 2005 | 32005 | 42005 | interval_s |" in doc
     assert "`mbpoll -m tcp -p 5020 -t 3 -r 1 -1 127.0.0.1`" in doc
+
+
+@pytest.mark.parametrize("clipped, degraded", [(None, False), (0.0, False), (5e-5, False), (2e-4, True), (0.41, True)])
+def test_status_degraded_bit_follows_the_adc_saturation(clipped, degraded):
+    import dataclasses
+
+    st_ = OutputState(1)
+    b = R.ImageBuilder(1, wall_clock=lambda: 0.0, temperature=lambda: None)
+    h = dataclasses.replace(health(T0, T0), adc_clipped_fraction=clipped)
+    bits = _decode_instance(b.build(st_.update(make_result(1, T0), h)), R.STATUS)["status_bits"]
+    assert bool(bits & (1 << R.ST_DEGRADED)) == degraded
+    assert bits & (1 << R.ST_RADAR_OK) and not bits & (1 << R.ST_ANY_FAULT)  # degraded is no fault
