@@ -147,3 +147,42 @@ def test_running_instance_rtu_and_can_across_processes(tmp_path):
         for s in (rtu_socat, can_socat):
             s.terminate()
             s.wait(5)
+
+
+def _status_after_frames(extra, n_frames=3):
+    """Start `radar-edge run` with ``extra`` arguments; the status block once ``n_frames`` frames were served."""
+    proc = _start(extra)
+    try:
+        port = None
+        for line in proc.stderr:
+            m = re.search(r"Modbus TCP listening on 127\.0\.0\.1:(\d+)", line)
+            if m:
+                port = int(m.group(1))
+                break
+        assert port is not None, f"radar-edge run did not start Modbus TCP (exit {proc.wait(10)})"
+        c = ModbusTcpClient("127.0.0.1", port=port, timeout=2, retries=0)
+        assert c.connect()
+        try:
+            while True:  # each request waits for the server: no sleeps
+                st = R.decode_block(R.STATUS, c.read_input_registers(R.STATUS.base, count=R.STATUS.size,
+                                                                     device_id=1).registers)
+                if st["loop_state"] == 1 and st["frame_counter"] >= n_frames:
+                    return st
+                assert proc.poll() is None
+        finally:
+            c.close()
+    finally:
+        _stop(proc)
+
+
+def test_a_board_clipping_on_its_leakage_reads_degraded_until_its_tx_power_is_lowered(tmp_path):
+    from importlib import resources
+
+    text = resources.files("hw_sim").joinpath("scenarios", "empty-d2g.toml").read_text(encoding="utf-8")
+    hot = tmp_path / "empty-d2g-hot6.toml"
+    hot.write_text(text + "\n[physics]\ngain_offset_db = 6.0\n", encoding="utf-8")
+    st = _status_after_frames(["--source", f"sim://d2g?scenario={hot}&realtime=0&loop=1"])
+    assert st["status_bits"] & (1 << R.ST_DEGRADED) and st["status_bits"] & (1 << R.ST_RADAR_OK)
+    assert st["alarm"] == 0  # degraded, not a fault
+    st = _status_after_frames(["--source", f"sim://d2g?scenario={hot}&realtime=0&loop=1&tx_power=2"])
+    assert not st["status_bits"] & (1 << R.ST_DEGRADED) and st["status_bits"] & (1 << R.ST_RADAR_OK)
