@@ -45,13 +45,13 @@ as a car's. Procedure:
      `radar-edge doctor` shows them. Without a measurement the datasheet value stands
      (rcs_calibration_source = "datasheet", several dB of unit spread).
 
-With --headroom, first of all on a Distance2Go (its TX->RX leakage sits at about two thirds of the
-12-bit ADC's full scale on a nominal board, so a board a few dB hot clips on it and every echo with
-it; C cannot be measured on a clipping board): with the scene empty, the board's TX power levels are
-tried from the highest down (the source URL's tx_power option, 1 dB a level), --frames frames each,
-and the highest level at which no sample clips and the largest |I| or |Q| stays within
---max-full-scale of full scale (default 0.8: 2 dB for the leakage's drift and the echoes on top) is
-printed as the source URL to install. Measure C (--rcs) at that level: C includes the TX power."""
+With --headroom, the first step on site with a Distance2Go: its TX->RX leakage uses about two thirds
+of the 12-bit ADC's full scale on a nominal unit, so a unit a few dB hotter clips on it, and every
+echo with it (C cannot be measured on a clipping board). With the scene empty, the board's TX power
+levels are tried from the highest down (the source URL's tx_power option), --frames frames each; the
+highest level at which no sample clips and the largest |I| or |Q| stays within --max-full-scale of
+full scale (default 0.8: 2 dB for the leakage's drift and the echoes on top) is printed as the
+source URL to install. Measure C (--rcs) at that level: C includes the TX power."""
 EPILOG = """\
 examples:
   radar-edge calibrate                                   # simulated empty site (sim://d2g, empty-d2g)
