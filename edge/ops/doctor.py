@@ -126,6 +126,9 @@ class System:
             if eps:
                 info["endpoints"] = dict(eps)
             tel = getattr(src, "telemetry", None)
+            level = getattr(tel.get("fmcw"), "tx_power", None) if isinstance(tel, dict) else getattr(src, "tx_power", None)
+            if level is not None and getattr(src, "max_tx_power", None) is not None:
+                info["tx_power"] = f"{int(level)} of {int(src.max_tx_power)}"
             if isinstance(tel, dict) and tel.get("firmware") is not None:
                 fw = tel["firmware"]
                 if all(hasattr(fw, a) for a in ("major", "minor", "build")):
@@ -137,6 +140,11 @@ class System:
                 info["frame"] = "received"
                 clipped, total = frame.clipped_samples()
                 info["clipped_fraction"] = clipped / total if total else 0.0
+                import numpy as np
+
+                full = max(fe.adc_max, -fe.adc_min)
+                peak = max(int(np.max(np.abs(np.asarray(a, dtype=np.int32)))) for a in (frame.i, frame.q))
+                info["adc_peak_fraction"] = peak / full
             except Exception as exc:  # noqa: BLE001 - reported, the check goes on
                 info["frame"] = f"none: {exc}"
             return info
@@ -275,6 +283,10 @@ def check_source(sys_: System, cfg: Any, open_board: bool) -> list[Check]:
         detail += f"; firmware {info['firmware']}"
     if eps:
         detail += "; endpoints " + ", ".join(f"{n}:{t}" for t, n in sorted(eps.items(), key=lambda kv: kv[1]))
+    if info.get("tx_power"):
+        detail += f"; TX power level {info['tx_power']}"
+    if info.get("adc_peak_fraction") is not None:
+        detail += f"; ADC peak {info['adc_peak_fraction']:.0%} of full scale"
     status = "ok" if str(info.get("frame", "")).startswith("received") else "warn"
     fix = "" if status == "ok" else "the board answers but sends no frames: check the USB cable/power, then unplug and replug"
     clipped = info.get("clipped_fraction")

@@ -286,6 +286,14 @@ def test_board_check_against_the_emulated_distance2go():
     assert "RBAS" in b.detail and b.data["frame"] == "received"
     assert 0.0 <= b.data["clipped_fraction"] <= dr.CLIPPED_SAMPLES_WARN
     assert b.data["endpoints"]["RBAS"] >= 1
+    # the installer reads the TX power level and how much of the ADC's range the frame used (the nominal board's
+    # leakage: about two thirds)
+    assert "TX power level 7 of 7" in b.detail
+    assert 0.5 < b.data["adc_peak_fraction"] < 0.8 and "ADC peak" in b.detail
+    with emulated_d2g_url(tx_power=2) as url:
+        b = _by_name(dr.check_source(System("/", user="root"), load_config(env={}, overrides={"source.url": url}),
+                                     True), "board")
+    assert "TX power level 2 of 7" in b.detail and b.data["adc_peak_fraction"] < 0.45
 
 
 class _FakeOnnxModule:
