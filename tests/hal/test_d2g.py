@@ -69,17 +69,23 @@ def test_session_configures_the_board_and_discovers_endpoints():
         assert emu.fw.trigger_us == 0  # close stops the trigger
 
 
-def test_frames_are_bit_identical_to_sim_d2g():
-    scenario, seed = "tavanti-test1", 3
-    with emulated_d2g_url(scenario, seed) as url, open_radar(url) as src:
-        frames = [src.read_frame(timeout=5.0) for _ in range(6)]
-    with open_radar(f"sim://d2g?scenario={scenario}&seed={seed}&realtime=0") as sim:
+def _assert_as_sim_d2g(frames, scenario, seed, extra=""):
+    """``frames`` (from the emulator) are bit-identical to ``sim://d2g``'s frames of the same numbers."""
+    with open_radar(f"sim://d2g?scenario={scenario}&seed={seed}&realtime=0{extra}") as sim:
         ref = {}
         while len(ref) <= frames[-1].seq:
             f = sim.read_frame(timeout=None)
             ref[f.seq] = f
     for f in frames:
         assert np.array_equal(f.i, ref[f.seq].i) and np.array_equal(f.q, ref[f.seq].q), f.seq
+    return ref
+
+
+def test_frames_are_bit_identical_to_sim_d2g():
+    scenario, seed = "tavanti-test1", 3
+    with emulated_d2g_url(scenario, seed) as url, open_radar(url) as src:
+        frames = [src.read_frame(timeout=5.0) for _ in range(6)]
+    _assert_as_sim_d2g(frames, scenario, seed)
     assert len({f.seq for f in frames}) == 6
 
 
@@ -90,13 +96,7 @@ def test_tx_power_option_sets_the_board_and_scales_its_frames():
         with open_radar(_url(emu, "tx_power=1")) as src:
             frames = [src.read_frame(timeout=5.0) for _ in range(4)]
             assert emu.fw.fmcw.tx_power == 1 and src.telemetry["fmcw"].tx_power == 1
-    with open_radar(f"sim://d2g?scenario={scenario}&seed={seed}&realtime=0&tx_power=1") as sim:
-        ref = {}
-        while len(ref) <= frames[-1].seq:
-            f = sim.read_frame(timeout=None)
-            ref[f.seq] = f
-    for f in frames:
-        assert np.array_equal(f.i, ref[f.seq].i) and np.array_equal(f.q, ref[f.seq].q), f.seq
+    ref = _assert_as_sim_d2g(frames, scenario, seed, "&tx_power=1")
     with open_radar(f"sim://d2g?scenario={scenario}&seed={seed}&realtime=0") as sim:
         full = sim.read_frame(timeout=None)
     # 6 dB less TX power: the leakage-dominated samples halve (the noise does not scale)
