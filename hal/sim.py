@@ -110,10 +110,10 @@ class SimSource(RadarSource):
         seed = sc.seed if self.seed_opt is None else self.seed_opt
         self.seed = seed
         self._board = sc.sim_board()
-        if self.tx_power is not None:
-            from hw_sim.boards import board_for, with_tx_power
+        if self.tx_power is not None:  # the URL's level instead of the scenario's
+            from hw_sim.boards import with_tx_power
 
-            self._board = with_tx_power(board_for(sc.board, sc.physics), self.tx_power)
+            self._board = with_tx_power(self._board, self.tx_power)
         self._sim = FrameSimulator(self._board, sc.build_scene(seed), seed)
         period = self.frontend.waveform.frame_period_s
         self._scenario_frames = max(1, int(round(sc.duration_s / period)))

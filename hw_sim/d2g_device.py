@@ -56,7 +56,7 @@ import numpy as np
 
 from hal import comlib as cl
 from hal.comlib import Ep0, Radx, Rbas, Rfmc
-from hw_sim.boards import D2G_MAX_TX_POWER, board_for, with_tx_power
+from hw_sim.boards import D2G_MAX_TX_POWER, with_tx_power
 
 log = logging.getLogger(__name__)
 
@@ -467,9 +467,8 @@ class D2GEmulator:
             raise ValueError(f"scenario {sc.name!r} is for board {sc.board!r}, not the Distance2Go")
         self.scenario = sc
         self.seed = sc.seed if seed is None else seed
-        # the board at full TX power: the firmware's TX power level (RFMC configuration) applies on top, frame by frame
-        self._board_full_power = board_for(sc.board, sc.physics)
-        board = self._board_full_power
+        # the firmware's TX power level (RFMC configuration) sets the board's, frame by frame
+        board = self._board = sc.sim_board()
         self._sim = FrameSimulator(board, sc.build_scene(self.seed), self.seed)
         self._sim_shape = board.frontend.frame_shape
         self.quiet_s = quiet_s
@@ -502,7 +501,7 @@ class D2GEmulator:
     # --- frames ----------------------------------------------------------------------------------
     def _frame(self, scene_index: int, fmt: cl.FrameFormat) -> tuple[np.ndarray, np.ndarray]:
         if (1, fmt.chirps_per_frame, fmt.samples_per_chirp) == self._sim_shape:
-            self._sim.board = with_tx_power(self._board_full_power, self.fw.fmcw.tx_power)
+            self._sim.board = with_tx_power(self._board, self.fw.fmcw.tx_power)
             f = self._sim.frame(scene_index)
             return f.i, f.q
         # another format than the board model: receiver noise only
