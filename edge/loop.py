@@ -55,6 +55,7 @@ from edge.types import FrameResult, LoopHealth
 from hal.base import RadarSource
 from hal.clock import MonotonicClock
 from hal.errors import DeviceError, RadarError, SourceClosedError, SourceTimeoutError
+from hal.frame import SATURATED_FRACTION
 
 log = logging.getLogger(__name__)
 
@@ -153,6 +154,7 @@ class FrameLoop:
         # ADC saturation, sampled on one frame a second: (clipped, total) samples of the last ADC_CHECK_FRAMES
         self._adc_checks: deque[tuple[int, int]] = deque(maxlen=ADC_CHECK_FRAMES)
         self._adc_check_ns: int | None = None
+        self._adc_saturated = False
         self.tick_times_ns: list[int] = []  # loop-paced tick times of the last run (bounded)
 
     # --- control -----------------------------------------------------------------------------
@@ -181,6 +183,18 @@ class FrameLoop:
             state=self._state,
             adc_clipped_fraction=self.adc_clipped_fraction,
         )
+
+    def _note_saturation(self) -> None:
+        """Log when the ADC starts and stops saturating (the outputs' degraded status)."""
+        clipped = self.adc_clipped_fraction
+        saturated = clipped is not None and clipped > SATURATED_FRACTION
+        if saturated and not self._adc_saturated:
+            log.warning("the ADC saturates: %.2f %% of the samples at full scale over the last %d s "
+                        "(a Distance2Go that clips on its TX->RX leakage: radar-edge calibrate --headroom)",
+                        100.0 * clipped, len(self._adc_checks))
+        elif self._adc_saturated and not saturated:
+            log.info("the ADC no longer saturates")
+        self._adc_saturated = saturated
 
     @property
     def adc_clipped_fraction(self) -> float | None:
@@ -269,6 +283,7 @@ class FrameLoop:
                 if self._adc_check_ns is None or t_rx - self._adc_check_ns >= ADC_CHECK_PERIOD_NS:
                     self._adc_check_ns = t_rx
                     self._adc_checks.append(frame.clipped_samples())
+                    self._note_saturation()
                 if self.pace == "source" and frame.t_ns and t_rx - frame.t_ns > self.period_ns:
                     self.counters.dropped_frames += 1  # stale: waited more than a period
                     continue

@@ -347,7 +347,8 @@ class ClippingSource(FakeSource):
         return raw
 
 
-def test_health_carries_the_adc_saturation_of_one_frame_a_second_over_ten_seconds():
+def test_health_carries_the_adc_saturation_of_one_frame_a_second_over_ten_seconds(caplog):
+    caplog.set_level("INFO", logger="edge.loop")
     clk = FakeClock()
     src = ClippingSource(clk, 200, clipping=range(50, 100))  # 200 ms frames: clipping from 10 s to 20 s
     sink = RecordingSink()
@@ -360,3 +361,6 @@ def test_health_carries_the_adc_saturation_of_one_frame_a_second_over_ten_second
     assert frac[99] == pytest.approx(0.25)  # ten seconds of clipping: a quarter of the samples
     # it shows until the sample of frame 145 pushes out that of frame 95, the last clipping one sampled
     assert [k for k, f in enumerate(frac) if f > 0] == list(range(50, 145))
+    # the log says so once when it starts and once when it ends
+    msgs = [r.getMessage() for r in caplog.records if "ADC" in r.getMessage()]
+    assert len(msgs) == 2 and msgs[0].startswith("the ADC saturates: 2.50 %") and msgs[1] == "the ADC no longer saturates"
