@@ -47,6 +47,11 @@ class RawFrame:
         rails = (np.asarray(self.i), np.asarray(self.q))
         return sum(int(np.count_nonzero((a <= lo) | (a >= hi))) for a in rails), sum(a.size for a in rails)
 
+    def peak_counts(self) -> tuple[int, int]:
+        """``(peak, full_scale)``: the largest |I| or |Q| of the frame and the ADC's full scale, in counts."""
+        peak = max(int(np.max(np.abs(np.asarray(a, dtype=np.int32)))) for a in (self.i, self.q))
+        return peak, max(self.frontend.adc_max, -self.frontend.adc_min)
+
     @property
     def waveform(self):
         return self.frontend.waveform

@@ -213,16 +213,13 @@ def with_tx_power(url: str, level: int) -> str:
 def adc_headroom(frames) -> dict:
     """Over ``frames`` (:class:`~edge.types.RawFrame`): the largest |I| or |Q| in counts, its fraction of the ADC's
     full scale, and the fraction of the samples at full scale (clipped)."""
-    import numpy as np
-
     peak = clipped = total = n = 0
     full = None
     for f in frames:
         c, t = f.clipped_samples()
         clipped, total, n = clipped + c, total + t, n + 1
-        peak = max(peak, int(np.max(np.abs(np.asarray(f.i, dtype=np.int32)))),
-                   int(np.max(np.abs(np.asarray(f.q, dtype=np.int32)))))
-        full = max(f.frontend.adc_max, -f.frontend.adc_min)
+        p, full = f.peak_counts()
+        peak = max(peak, p)
     if n == 0:
         raise ValueError("no frames were read")
     return {"frames": n, "peak_counts": peak, "full_scale_counts": full, "peak_fraction": peak / full,

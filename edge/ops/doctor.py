@@ -140,10 +140,7 @@ class System:
                 info["frame"] = "received"
                 clipped, total = frame.clipped_samples()
                 info["clipped_fraction"] = clipped / total if total else 0.0
-                import numpy as np
-
-                full = max(fe.adc_max, -fe.adc_min)
-                peak = max(int(np.max(np.abs(np.asarray(a, dtype=np.int32)))) for a in (frame.i, frame.q))
+                peak, full = frame.peak_counts()
                 info["adc_peak_fraction"] = peak / full
             except Exception as exc:  # noqa: BLE001 - reported, the check goes on
                 info["frame"] = f"none: {exc}"

@@ -25,14 +25,19 @@ def _frames(n: int, seed: int = 1, scenario: str = "empty-d2g", tx_power: int | 
         src.close()
 
 
-def _v1_empty_site(tmp_path) -> str:
-    """empty-d2g on the v1 instrument (seven point objects, no swaying foliage), as a scenario file."""
+def _site_file(tmp_path, scenario: str, name: str, physics: str) -> str:
+    """The built-in ``scenario`` with a ``[physics]`` table of ``physics`` lines, as the scenario file ``name``."""
     from importlib import resources
 
-    text = resources.files("hw_sim").joinpath("scenarios", "empty-d2g.toml").read_text(encoding="utf-8")
-    path = tmp_path / "empty-d2g-v1.toml"
-    path.write_text(text + '\n[physics]\npreset = "v1"\n', encoding="utf-8")
+    text = resources.files("hw_sim").joinpath("scenarios", f"{scenario}.toml").read_text(encoding="utf-8")
+    path = tmp_path / f"{name}.toml"
+    path.write_text(text + f"\n[physics]\n{physics}\n", encoding="utf-8")
     return str(path)
+
+
+def _v1_empty_site(tmp_path) -> str:
+    """empty-d2g on the v1 instrument (seven point objects, no swaying foliage), as a scenario file."""
+    return _site_file(tmp_path, "empty-d2g", "empty-d2g-v1", 'preset = "v1"')
 
 
 def test_threshold_is_mean_of_maxima_plus_margin_and_empty_scene_gives_no_cluster(tmp_path):
@@ -78,12 +83,9 @@ def test_calibrate_needs_two_frames():
 def _reflector_frames(gain_offset_db: float, tmp_path, n: int = 12, tx_power: int | None = None):
     """Frames of the simulated reflector site (hw_sim reflector-d2g) on a board ``gain_offset_db`` off (at TX power
     level ``tx_power``; None: full power)."""
-    from importlib import resources
-
-    text = resources.files("hw_sim").joinpath("scenarios", "reflector-d2g.toml").read_text(encoding="utf-8")
-    path = tmp_path / f"reflector-{'m' if gain_offset_db < 0 else 'p'}{abs(gain_offset_db):g}.toml"
-    path.write_text(text + f"\n[physics]\ngain_offset_db = {gain_offset_db}\n", encoding="utf-8")
-    return _frames(n, scenario=str(path), tx_power=tx_power)
+    name = f"reflector-{'m' if gain_offset_db < 0 else 'p'}{abs(gain_offset_db):g}"
+    path = _site_file(tmp_path, "reflector-d2g", name, f"gain_offset_db = {gain_offset_db}")
+    return _frames(n, scenario=path, tx_power=tx_power)
 
 
 def test_trihedral_rcs_is_4_pi_a4_over_3_lambda2():
@@ -162,12 +164,7 @@ def test_calibration_constant_refers_eq17_to_the_reference_board():
 
 def _hot_empty_site(tmp_path, offset_db: float) -> str:
     """empty-d2g on a board ``offset_db`` hotter, as a scenario file."""
-    from importlib import resources
-
-    text = resources.files("hw_sim").joinpath("scenarios", "empty-d2g.toml").read_text(encoding="utf-8")
-    path = tmp_path / f"empty-d2g-hot{int(offset_db)}.toml"
-    path.write_text(text + f"\n[physics]\ngain_offset_db = {offset_db}\n", encoding="utf-8")
-    return str(path)
+    return _site_file(tmp_path, "empty-d2g", f"empty-d2g-hot{int(offset_db)}", f"gain_offset_db = {offset_db}")
 
 
 def test_with_tx_power_sets_or_replaces_the_url_option():
