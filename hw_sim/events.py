@@ -733,9 +733,10 @@ class FrameView:
     radar can see is judged on the scatterers, not on the reference point. Rows are the targets with
     scatterers within 24 m and :data:`SEEN_HALF_SECTOR_DEG`; ``in_beam`` marks those with scatterers
     inside the half-power beam (:data:`VISIBLE_HALF_BEAM_DEG`), which define the truth statistics.
-    ``range_m`` is the RCS/r^4-weighted range of the target's scatterers in the sector (where its
-    cluster's centroid should be), ``range_min_m``/``range_max_m`` their extent, and ``radial_speed_mps`` the radial
-    speed of those scatterers at the target's velocity, weighted alike (where its cluster's Doppler should be).
+    ``range_m`` is the range of the target's scatterers in the sector weighted by their echo power (radar
+    equation with the antenna patterns, road bounce; where its cluster's centroid should be),
+    ``range_min_m``/``range_max_m`` their extent, and ``radial_speed_mps`` the radial speed of those scatterers at the
+    target's velocity, weighted alike (where its cluster's Doppler should be).
     """
 
     id: np.ndarray  # (n,) int
@@ -750,10 +751,12 @@ class FrameView:
         return int(self.id.size)
 
 
-def frame_view(scene: Scene, t_s: float, half_sector_deg: float = SEEN_HALF_SECTOR_DEG) -> FrameView:
+def frame_view(scene: Scene, t_s: float, half_sector_deg: float = SEEN_HALF_SECTOR_DEG, board: Any = None) -> FrameView:
     """What of the scene is in the Distance2Go's view at ``t_s`` (see :class:`FrameView`); rows are the
     targets with scatterers within 24 m and ``half_sector_deg`` of boresight (180 = all round: the
-    board's sidelobe floor sees a target passing beside it, or just behind it, at a few metres)."""
+    board's sidelobe floor sees a target passing beside it, or just behind it, at a few metres). ``board`` (a
+    :class:`hw_sim.synth.SimBoard`; default :data:`hw_sim.boards.D2G_BOARD`) weights the scatterers by their echo
+    power (:func:`hw_sim.synth.echo_power_w`)."""
     sc = scene.scatterers(t_s, np.random.default_rng(0))
     tix = sc.target_index
     site = np.array([tg.cls == "clutter" for tg in scene.targets] + [True])  # [-1]: static clutter
@@ -769,8 +772,12 @@ def frame_view(scene: Scene, t_s: float, half_sector_deg: float = SEEN_HALF_SECT
     if k.size == 0:
         z = np.zeros(0)
         return FrameView(np.zeros(0, dtype=int), (), z, z, z, z, np.zeros(0, dtype=bool))
+    if board is None:
+        from hw_sim.boards import D2G_BOARD as board
+    from hw_sim.synth import echo_power_w
+
     r = rng[inv]
-    w = sc.rcs_m2[mov][inv] / np.maximum(r, 0.5) ** 4
+    w = echo_power_w(board, scene.pose, sc.position_m[mov][inv], sc.rcs_m2[mov][inv])
     u = np.unique(k)
     idx = np.searchsorted(u, k)
     wsum = np.bincount(idx, w)

@@ -89,6 +89,25 @@ def synthesize_if(
     return out
 
 
+def echo_power_w(board: SimBoard, pose: RadarPose, position_m: np.ndarray, rcs_m2: np.ndarray) -> np.ndarray:
+    """Each scatterer's echo power at the ADC input (W) at one instant, as the synthesis makes it: the radar
+    equation with the board's antenna patterns, the IF high-pass at its beat frequency and, when the board has a
+    road, the road bounce. It is what weights a target's scatterers in its cluster."""
+    wf = board.frontend.waveform
+    rel = pose.to_radar(np.asarray(position_m, dtype=np.float64))
+    rng_m = np.linalg.norm(rel, axis=-1)
+    az = np.arctan2(rel[..., 0], rel[..., 1])
+    el = np.arctan2(rel[..., 2], np.hypot(rel[..., 0], rel[..., 1]))
+    p_w = board.radio.received_power_w(np.asarray(rcs_m2, dtype=np.float64), rng_m, az, el, wf.wavelength_m)
+    if board.radio.if_highpass_hz > 0:
+        f_b = abs(wf.segments[0].slope_hz_per_s) * 2.0 * rng_m / SPEED_OF_LIGHT_MPS
+        p_w = p_w * (f_b * f_b / (f_b * f_b + board.radio.if_highpass_hz**2))
+    if board.road is not None:
+        bounce = road_bounce_factor(board.radio, board.road, pose.position, pose.rotation(), position_m, wf.wavelength_m)
+        p_w = p_w * np.abs(bounce) ** 2
+    return p_w
+
+
 def _synthesize_if_reference(board, pose, scat, t_frame_s, rng, noise, leakage, chirp_phase):
     """The reference synthesis (one exponential per scatterer, element and sample); see synthesize_if."""
     fe = board.frontend

@@ -221,7 +221,7 @@ def build_reference_set(
     def frames_of(event: int, cls_out: list[str]):
         for n in range(event * per_slot, (event + 1) * per_slot):
             if frames == "passage":
-                fv = frame_view(scene, n * period, passage_half_sector_deg)
+                fv = frame_view(scene, n * period, passage_half_sector_deg, board)
                 if len(fv) == 0:
                     continue
                 if fv.in_beam.any():
@@ -275,7 +275,7 @@ def build_reference_set(
 
         def view(n: int):
             if n not in views:
-                views[n] = frame_view(scene, n * period)
+                views[n] = frame_view(scene, n * period, board=board)
             return views[n]
 
         mine = [(ev, hist) for ev, hist in evs if _matches_target(hist, ids, view)]

@@ -4,7 +4,8 @@ The scenario is synthesised frame by frame on the simulated Distance2Go and stre
 :class:`~edge.pipelines.surveillance.SurveillancePipeline` without pacing. Ground truth per target
 (:func:`hw_sim.events.event_truth`): class, direction and mean radial speed over the frames where the
 target has scatterers inside the beam (range <= 24 m, |azimuth| <= 21°; :func:`hw_sim.events.frame_view`); a frame's
-radial speed is that of the target's scatterers in view at its velocity, RCS/r^4-weighted as its range.
+radial speed is that of the target's scatterers in view at its velocity, weighted by their echo power on the
+scenario's board (the radar equation with its antenna patterns; :func:`hw_sim.synth.echo_power_w`) as its range.
 
 Scoring:
 
@@ -19,7 +20,7 @@ Scoring:
   estimated mean radial speed and direction; a target without an instance is *missed* (its predicted
   class is null and it counts as an error, as in Tavanti Table VI). ``tracked_fraction`` = visible
   frames with a matched confirmed track / visible frames; ``position_rmse_m`` = range RMSE of the
-  matched track against the RCS/r^4-weighted range of the target's scatterers (the Distance2Go
+  matched track against the echo-power-weighted range of the target's scatterers (the Distance2Go
   measures no azimuth: range only); ``speed_mae_kmh`` = |estimated -
   true| mean radial speed. ``n_tracks`` > 1 means the target's track split (counted in ``id_switches``).
 * **Detection probability before tracking** (Tavanti §III-D-3: 70/84/88/92 %): visible (target,
@@ -236,7 +237,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
         t0 = time.perf_counter_ns()
         res = pipe.process(raw, timer)
         frame_ms[n] = (time.perf_counter_ns() - t0) / 1e6
-        fv = frame_view(scene, f.t_s)
+        fv = frame_view(scene, f.t_s, board=board)
         views.append(fv)
         det_r = np.asarray(res.detections.range_m, dtype=float)
         for tid, lo, hi in zip(fv.id[fv.in_beam], fv.range_min_m[fv.in_beam], fv.range_max_m[fv.in_beam]):

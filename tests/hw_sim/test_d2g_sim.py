@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import Counter
 
@@ -205,3 +206,37 @@ def test_frame_view_speed_is_the_visible_bodys_when_the_reference_point_has_pass
     fv, tr = frame_view(scene, 0.0), scene.truth(0.0)
     assert float(tr.radial_speed_mps[0]) > 0
     assert fv.id.tolist() == [1] and fv.radial_speed_mps[0] < -5.0
+
+
+def test_frame_view_weights_scatterers_by_their_echo_power():
+    """Two scatterers of one body, equal RCS at 10 m, one on boresight and one 30 deg off it: the one off
+    boresight comes back 2 x 12 (30/42)^2 = 12.2 dB weaker through the Distance2Go's 42 deg beams, so the truth's
+    speed lies near the boresight one's (-8 m/s), not halfway to the other's (-6.93 m/s)."""
+    scene = Scene(pose=RadarPose(height_m=1.0), seed=1)
+    off = np.array([[0.0, 0.0, 0.0], [-5.0, 10.0 - 10.0 * math.cos(math.radians(30.0)), 0.0]])
+    scene.add_target(Target(1, "truck", LinearTrajectory((0.0, 10.0, 1.0), (0.0, -8.0, 0.0)), off, [10.0, 10.0]))
+    fv = frame_view(scene, 0.0)
+    w = 10.0 ** (-2.4 * (30.0 / 42.0) ** 2)
+    v_off = -8.0 * math.cos(math.radians(30.0))
+    assert fv.radial_speed_mps[0] == pytest.approx((-8.0 + w * v_off) / (1.0 + w), abs=1e-6)
+    assert fv.range_m[0] == pytest.approx(10.0, abs=1e-9)
+
+
+def test_echo_power_is_the_synthesised_echo():
+    """``echo_power_w`` (the truth's weights) is the power the synthesis gives a scatterer: a board with the road
+    bounce and the IF high-pass, one scatterer 0.5 m above the road, 1.5 m beside and 6 m ahead of the radar."""
+    from hw_sim.scene import ScattererSet
+    from hw_sim.synth import echo_power_w
+
+    board = dataclasses.replace(load_scenario("tavanti-test1").sim_board(), receiver=None)
+    assert board.road is not None and board.radio.if_highpass_hz > 0
+    pose = RadarPose(height_m=1.0)
+    pos = np.array([[1.5, 6.0, 0.5]])
+    scat = ScattererSet(position_m=pos, velocity_mps=np.array([[0.0, -3.0, 0.0]]), rcs_m2=np.array([2.0]),
+                        target_index=np.array([0]), phase_cycles=np.array([0.0]))
+    x = synthesize_if(board, pose, scat, 0.0, np.random.default_rng(0), noise=False, leakage=False)
+    counts = board.radio.signal_counts_gain(board.reference_bandwidth_hz())
+    expected = math.sqrt(float(echo_power_w(board, pose, pos, scat.rcs_m2)[0])) * counts
+    assert float(np.abs(x[0, 0, :]).mean()) == pytest.approx(expected, rel=2e-3)
+    free = dataclasses.replace(board, road=None)
+    assert abs(float(echo_power_w(free, pose, pos, scat.rcs_m2)[0]) / float(echo_power_w(board, pose, pos, scat.rcs_m2)[0]) - 1.0) > 0.05
