@@ -19,7 +19,8 @@ Scoring:
 * **Per target**: the matched instance with the most frames gives ``predicted_class``, the
   estimated mean radial speed and direction; a target without an instance is *missed* (its predicted
   class is null and it counts as an error, as in Tavanti Table VI). ``tracked_fraction`` = visible
-  frames with a matched confirmed track / visible frames; ``position_rmse_m`` = range RMSE of the
+  frames with a matched confirmed track / visible frames; ``detected_frames`` = visible frames with a cluster
+  within :data:`MATCH_RANGE_M` of it before tracking; ``position_rmse_m`` = range RMSE of the
   matched track against the echo-power-weighted range of the target's scatterers (the Distance2Go
   measures no azimuth: range only); ``speed_mae_kmh`` = |estimated -
   true| mean radial speed. ``n_tracks`` > 1 means the target's track split (counted in ``id_switches``).
@@ -296,6 +297,7 @@ def evaluate(scenario: Any, *, seed: int | None, frames: int | None, events: int
         row = {
             "id": tid, "event": t.event, "class": t.cls, "lane": None,
             "tracked_fraction": len(tracked_frames & vis_frames) / max(1, len(vis_frames)),
+            "detected_frames": int(np.sum(det_hits.get(tid, []))),
             "position_rmse_m": None, "speed_mae_kmh": None, "predicted_class": None,
             "class_probability": None, "direction_true": t.direction, "direction_est": None,
             "mean_radial_speed_kmh_true": round(t.mean_radial_speed_kmh, 3), "mean_radial_speed_kmh_est": None,

@@ -53,6 +53,17 @@ def test_report_has_design_keys(test3):
     json.dumps(r)  # serialisable
 
 
+def test_target_rows_detected_frames_add_up_to_the_detection_probability(test3):
+    rows = test3["targets"]
+    assert all(0 <= t["detected_frames"] <= t["visible_frames"] for t in rows)
+    assert any(t["detected_frames"] < t["visible_frames"] for t in rows)
+    det, vis = sum(t["detected_frames"] for t in rows), sum(t["visible_frames"] for t in rows)
+    assert det / vis == pytest.approx(test3["summary"]["detection_probability"], rel=1e-12)
+    for t in rows:
+        assert t["detected_frames"] / t["visible_frames"] == pytest.approx(
+            test3["summary"]["detection_probability_per_class"][t["class"]], rel=1e-12)
+
+
 def test_tavanti_test3_tracks_direction_speed(test3):
     """Jogger approaching at -7.4 km/h, motorcycle departing at ~25 km/h: Table X."""
     by = {t["class"]: t for t in test3["targets"]}
