@@ -734,7 +734,7 @@ class FrameView:
     scatterers within 24 m and :data:`SEEN_HALF_SECTOR_DEG`; ``in_beam`` marks those with scatterers
     inside the half-power beam (:data:`VISIBLE_HALF_BEAM_DEG`), which define the truth statistics.
     ``range_m`` is the range of the target's scatterers in the sector weighted by their echo power (radar
-    equation with the antenna patterns, road bounce; where its cluster's centroid should be),
+    equation with the antenna patterns, IF high-pass, road bounce; where its cluster's centroid should be),
     ``range_min_m``/``range_max_m`` their extent, and ``radial_speed_mps`` the radial speed of those scatterers at the
     target's velocity, weighted alike (where its cluster's Doppler should be).
     """
