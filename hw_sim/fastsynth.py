@@ -27,6 +27,7 @@ import numpy as np
 from hal.waveform import SPEED_OF_LIGHT_MPS
 from hw_sim.radio import road_bounce_factor
 from hw_sim.scene import RadarPose, ScattererSet
+from hw_sim.synth import radar_polar
 
 
 def synthesize_if_fast(board, pose: RadarPose, scat: ScattererSet, t_frame_s: float, rng: np.random.Generator,
@@ -50,10 +51,7 @@ def synthesize_if_fast(board, pose: RadarPose, scat: ScattererSet, t_frame_s: fl
     counts_gain = board.radio.signal_counts_gain(board.reference_bandwidth_hz())
 
     if scat.rcs_m2.size:
-        rel = pose.to_radar(scat.position_m)
-        rng_m = np.linalg.norm(rel, axis=1)
-        az = np.arctan2(rel[:, 0], rel[:, 1])
-        el = np.arctan2(rel[:, 2], np.hypot(rel[:, 0], rel[:, 1]))
+        rng_m, az, el = radar_polar(pose, scat.position_m)
         amp = np.sqrt(board.radio.received_power_w(scat.rcs_m2, rng_m, az, el, lam)) * counts_gain
         keep = amp > 1e-3 * board.radio.noise_rms_counts
         pos0, vel, amp, ph0 = scat.position_m[keep], scat.velocity_mps[keep], amp[keep], scat.phase_cycles[keep]

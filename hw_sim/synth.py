@@ -89,15 +89,19 @@ def synthesize_if(
     return out
 
 
+def radar_polar(pose: RadarPose, position_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Range (m), azimuth and elevation (rad) in the radar's frame of world points ``position_m`` (..., 3)."""
+    rel = pose.to_radar(position_m)
+    return (np.linalg.norm(rel, axis=-1), np.arctan2(rel[..., 0], rel[..., 1]),
+            np.arctan2(rel[..., 2], np.hypot(rel[..., 0], rel[..., 1])))
+
+
 def echo_power_w(board: SimBoard, pose: RadarPose, position_m: np.ndarray, rcs_m2: np.ndarray) -> np.ndarray:
     """Each scatterer's echo power at the ADC input (W) at one instant, as the synthesis makes it: the radar
     equation with the board's antenna patterns, the IF high-pass at its beat frequency and, when the board has a
     road, the road bounce. It is what weights a target's scatterers in its cluster."""
     wf = board.frontend.waveform
-    rel = pose.to_radar(np.asarray(position_m, dtype=np.float64))
-    rng_m = np.linalg.norm(rel, axis=-1)
-    az = np.arctan2(rel[..., 0], rel[..., 1])
-    el = np.arctan2(rel[..., 2], np.hypot(rel[..., 0], rel[..., 1]))
+    rng_m, az, el = radar_polar(pose, np.asarray(position_m, dtype=np.float64))
     p_w = board.radio.received_power_w(np.asarray(rcs_m2, dtype=np.float64), rng_m, az, el, wf.wavelength_m)
     if board.radio.if_highpass_hz > 0:
         f_b = abs(wf.segments[0].slope_hz_per_s) * 2.0 * rng_m / SPEED_OF_LIGHT_MPS
@@ -125,10 +129,7 @@ def _synthesize_if_reference(board, pose, scat, t_frame_s, rng, noise, leakage, 
 
     k = scat.rcs_m2.size
     if k:
-        rel = pose.to_radar(scat.position_m)
-        rng_m = np.linalg.norm(rel, axis=1)
-        az = np.arctan2(rel[:, 0], rel[:, 1])
-        el = np.arctan2(rel[:, 2], np.hypot(rel[:, 0], rel[:, 1]))
+        rng_m, az, el = radar_polar(pose, scat.position_m)
         p_w = board.radio.received_power_w(scat.rcs_m2, rng_m, az, el, lam)
         amp = np.sqrt(p_w) * counts_gain  # (K,)
         if board.radio.if_highpass_hz > 0:  # first-order IF high-pass before the ADC, at the beat frequency
