@@ -328,6 +328,12 @@ class AlphaBetaConfig:
                   "Dopplers (on the +-v_max circle) of the frames paired (a car's front and rear passing beside the "
                   "radar are seen at aspects 3-4 km/h apart)", "min": 0.0, "max": 100.0},
     )
+    body_overlap_any_doppler: bool = field(
+        default=True,
+        metadata={"doc": "see body_length_m: a part whose cluster extents overlap the vehicle's in most frames paired "
+                         "joins it at any wrapped Doppler (a vehicle beside the radar is seen at aspects whose radial "
+                         "speeds differ by up to its speed; its wheels at 0-2 times it); false = body_doppler_kmh always"},
+    )
     body_rate_kmh: float = field(
         default=6.0,
         metadata={"unit": "km/h", "doc": "see body_length_m: largest difference of the two tracks' Theil-Sen range "

@@ -73,7 +73,12 @@ measured on multi-random dev seeds (field docs):
   Doppler, adjacent (extents within ``body_gap_m``) or moving at its range rate, is a part of that body (a truck's
   front, body and rear split by DBSCAN): its frames join the living track, one event for the passage; a vehicle's
   track is one at least ``rigid_min_speed_kmh`` fast or, with ``vehicle_by_class``, one the classifier reads as a
-  vehicle from its features so far (a truck at about an alias step of radial speed, whose Doppler reads near zero);
+  vehicle from its features so far (a truck at about an alias step of radial speed, whose Doppler reads near zero).
+  With ``body_overlap_any_doppler``, a part whose extents overlap the vehicle's in most of the frames both were seen
+  in joins at any wrapped Doppler (beside the radar a body's parts are seen at aspects whose radial speeds differ by
+  up to its speed, and its wheels at 0-2 times it). The pairing covers at least half of the ending track's frames, or
+  it is a *handover*: a younger vehicle track, seen beside it before its last cluster, that took the body over, paired
+  in half of its frames since; a handover needs overlapping extents (a vehicle following another moves at its rate);
 * *merge guard needs another target* (``merge_other_required``): an enlarged cluster holds a track on
   its prediction only when another track is near it; an approaching car growing six-fold alone is
   itself, not a merge.
@@ -624,8 +629,7 @@ class SurveillanceTracker:
             if tid == tr.track_id or other is None or len(other) < 2 or tid not in self._log:
                 continue
             rate_y = _finite_or_zero(other.range_rate_kmh())
-            if not (max(abs(rate_y), abs(_finite_or_zero(other.mean_radial_speed_kmh()))) >= cfg.rigid_min_speed_kmh
-                    or self._vehicle_by_class(tid)):
+            if not self._is_vehicle(tid, other):
                 continue
             if rate_x * rate_y < 0 and min(abs(rate_x), abs(rate_y)) >= cfg.passage_speed_kmh:
                 continue  # moving apart: two targets crossing each other
@@ -633,17 +637,38 @@ class SurveillanceTracker:
             dt = np.abs(t_x[:, None] - t_y[None, :])
             k = np.argmin(dt, axis=1)
             near = dt[np.arange(t_x.size), k] <= dt_max
-            if np.count_nonzero(near) < max(1, near.size // 2):
+            n_near = np.count_nonzero(near)
+            # paired in at least half of tr's frames; or a *handover*: a younger part, seen beside tr before tr's last
+            # cluster, that took the body over, paired in at least half of tr's frames since it appeared
+            handover = (n_near < max(1, t_x.size // 2) and t_y[0] < t_x[-1]
+                        and n_near >= max(1, np.count_nonzero(t_x >= t_y[0] - dt_max) // 2))
+            if n_near < max(1, t_x.size // 2) and not handover:
                 continue
             d = float(np.median(np.abs(r_x[near] - r_y[k[near]])))
             lo_y, hi_y = other.extents()
             gap = np.maximum(0.0, np.maximum(lo_x[near] - hi_y[k[near]], lo_y[k[near]] - hi_x[near]))
-            gap = float(np.median(np.where(np.isfinite(gap), gap, np.abs(r_x[near] - r_y[k[near]]))))
+            gap_n = np.where(np.isfinite(gap), gap, np.abs(r_x[near] - r_y[k[near]]))
+            gap = float(np.median(gap_n))
+            # extents overlapping in most of the frames both were seen in (not paired across frames: a body moves)
+            same = dt[np.arange(t_x.size), k][near] <= 0.5 * self.frame_period_s
+            overlap = bool(same.any()) and float(np.median(gap_n[same])) <= 0.0
             dw = (w_x[near] - other.wrapped()[k[near]] + 0.5 * period) % period - 0.5 * period
-            together = gap <= cfg.body_gap_m or abs(rate_x - rate_y) <= cfg.body_rate_kmh
-            if d <= cfg.body_length_m and abs(float(np.median(dw))) <= cfg.body_doppler_kmh and together and d < best_d:
+            # a younger part that took the body over must overlap it: a vehicle following another moves at its rate
+            together = (gap <= 0.0 if handover else
+                        gap <= cfg.body_gap_m or abs(rate_x - rate_y) <= cfg.body_rate_kmh)
+            # inside the body's range extent (gap 0 in most paired frames) any Doppler is the body's: a vehicle's parts
+            # beside the radar are seen at aspects whose radial speeds differ by up to its speed, its wheels at 0-2 v
+            doppler_ok = abs(float(np.median(dw))) <= cfg.body_doppler_kmh or (cfg.body_overlap_any_doppler and overlap)
+            if d <= cfg.body_length_m and doppler_ok and together and d < best_d:
                 best, best_d = tid, d
         return best
+
+    def _is_vehicle(self, track_id: int, spd: RadialSpeedEstimator) -> bool:
+        """Is ``track_id`` a vehicle's track, for the body rule: its range rate or mean radial speed is at least
+        ``rigid_min_speed_kmh``, or :meth:`_vehicle_by_class`."""
+        v = (spd.range_rate_kmh(), spd.mean_radial_speed_kmh())
+        fast = max(abs(_finite_or_zero(x)) for x in v) >= self.tracker.config.rigid_min_speed_kmh
+        return fast or self._vehicle_by_class(track_id)
 
     def _vehicle_by_class(self, track_id: int) -> bool:
         """``vehicle_by_class``: the classifier reads the track's features so far (at least

@@ -117,11 +117,15 @@ def car_passing_beside_the_radar(n):
     return out
 
 
-@pytest.mark.parametrize("max_frames, events_expected", [(8, 1), (0, 2)])
-def test_the_part_seen_beside_the_radar_joins_the_departing_vehicle(max_frames, events_expected):
-    st, _, events = run(AlphaBetaConfig(passage_max_frames=max_frames), car_passing_beside_the_radar, 24)
+@pytest.mark.parametrize("max_frames, any_doppler, events_expected", [(8, False, 1), (0, False, 2), (0, True, 1)])
+def test_the_part_seen_beside_the_radar_joins_the_departing_vehicle(max_frames, any_doppler, events_expected):
+    # without the passage rule, the body rule joins the part only when its extent touching the body's is enough
+    # (body_overlap_any_doppler: its radial speed beside the radar is far from the body's)
+    cfg = AlphaBetaConfig(passage_max_frames=max_frames, body_overlap_any_doppler=any_doppler)
+    st, _, events = run(cfg, car_passing_beside_the_radar, 24)
     assert len(events) == events_expected
     assert st.passages == (1 if max_frames else 0)
+    assert st.body_parts == (1 if any_doppler and not max_frames else 0)
     if max_frames:
         (ev,) = events
         assert ev.mean_radial_speed_kmh == pytest.approx(16.5, abs=1.0)  # the part's frames add no speed
@@ -278,3 +282,75 @@ def test_a_truck_slower_than_the_speed_floor_is_a_vehicle_by_its_class(by_class,
 def test_walkers_the_classifier_reads_as_pedestrians_stay_apart():
     st, events = run_classified(AlphaBetaConfig(vehicle_by_class=True), walkers_side_by_side, 20)
     assert len(events) == 2 and st.body_parts == st.passages == st.rigid_merges == 0
+
+
+def truck_body_and_wheels(n, v=20.0):
+    """A truck receding at ``v`` km/h from 10 m: its body (a 2.8 m long cluster) from frame 0 on, and from frame 2 to
+    frame 9 a part inside the body's range extent, 1 m nearer, at a wrapped Doppler 5.2 km/h lower (a wheel, or the
+    body seen at another aspect)."""
+    r = 10.0 + v / 3.6 * T * n
+    out = [(r, v, 900)]
+    if 2 <= n <= 9:
+        out.append((r - 1.0, v - 5.2, 100))
+    return out
+
+
+@pytest.mark.parametrize("any_doppler, events_expected", [(True, 1), (False, 2)])
+def test_a_part_inside_the_bodys_extent_joins_it_at_any_doppler(any_doppler, events_expected):
+    st, _, events = run(AlphaBetaConfig(body_overlap_any_doppler=any_doppler), truck_body_and_wheels, 16)
+    assert len(events) == events_expected
+    assert st.body_parts == (1 if any_doppler else 0)
+    if any_doppler:
+        (ev,) = events
+        assert ev.mean_radial_speed_kmh == pytest.approx(20.0, abs=1.0)
+
+
+def body_taken_over_by_its_front(n, v=20.0):
+    """A truck receding at ``v`` km/h from 10 m: its rear part is seen from frame 0 to frame 11, its front part, 1 m
+    farther and overlapping it at a Doppler 5 km/h higher, from frame 8 on (the younger track takes the body over)."""
+    r = 10.0 + v / 3.6 * T * n
+    out = []
+    if n <= 11:
+        out.append((r, v, 400))
+    if n >= 8:
+        out.append((r + 1.0, v + 5.0, 400))
+    return out
+
+
+def test_a_body_track_that_ends_hands_its_frames_to_the_younger_part_that_took_over():
+    st, _, events = run(AlphaBetaConfig(), body_taken_over_by_its_front, 20)
+    assert st.body_parts == 1 and len(events) == 1
+    assert events[0].start_ns == 0  # the event spans the older part's frames
+
+
+def car_leaves_then_motorcycle_arrives(n):
+    """A car approaching at 33 km/h is seen from frame 0 to frame 9 (it leaves the view beside the radar); a
+    motorcycle approaching at the same speed appears at 17 m in frame 11, after the car's last cluster."""
+    out = []
+    if n <= 9:
+        out.append((20.0 - 33.0 / 3.6 * T * n, -33.0, 400))
+    if 11 <= n <= 19:
+        out.append((17.0 - 33.0 / 3.6 * T * (n - 11), -33.0, 200))
+    return out
+
+
+def test_a_vehicle_that_appears_after_another_left_is_not_its_part():
+    st, _, events = run(AlphaBetaConfig(), car_leaves_then_motorcycle_arrives, 20)
+    assert st.body_parts == 0 and len(events) == 2
+
+
+def car_followed_by_a_motorcycle(n, v=-20.0):
+    """A car approaching at 20 km/h from 26 m, seen until frame 15 (it leaves the view beside the radar); a motorcycle
+    6 m behind it at the same speed from frame 12 on (they move at one range rate, not as one body)."""
+    r = 26.0 + v / 3.6 * T * n
+    out = []
+    if n <= 15:
+        out.append((r, v, 400))
+    if n >= 12:
+        out.append((r + 6.0, v, 200))
+    return out
+
+
+def test_a_vehicle_following_another_at_its_speed_does_not_take_it_over():
+    st, _, events = run(AlphaBetaConfig(), car_followed_by_a_motorcycle, 26)
+    assert st.body_parts == 0 and len(events) == 2
