@@ -56,7 +56,7 @@ The packaged default ``edge/data/reference_set.npz`` (the one the surveillance p
     PYTHONPATH=. python -c "from edge.classify.refgen import write_default; write_default()"
 
 which is ``build_reference_set(**PACKAGED_BUILD)``: 150 tracked events per class on the physical defaults, each on
-a board between -6 and +6 dB of gain, vehicles from the wide population (569 references; about 15 to 20 minutes on the
+a board between -6 and +6 dB of gain, vehicles from the wide population (568 references; about 15 to 20 minutes on the
 development machine, 45 under load). It replaced a set of 250 thresholded passages per class built on the
 simulator's ``v1`` instrument; docs/decisions/0016 has the dev figures that chose it. Afterwards rebuild the packaged
 ONNX model: ``radar-edge export-onnx --out edge/data/knn_default.onnx``. The seeds used by evaluations and tests
