@@ -330,8 +330,8 @@ class AlphaBetaConfig:
     )
     body_overlap_any_doppler: bool = field(
         default=True,
-        metadata={"doc": "see body_length_m: a part whose cluster extents overlap the vehicle's in most frames paired "
-                         "joins it at any wrapped Doppler (a vehicle beside the radar is seen at aspects whose radial "
+        metadata={"doc": "see body_length_m: a part whose cluster extents overlap the vehicle's in most frames both were "
+                         "seen in joins it at any wrapped Doppler (a vehicle beside the radar is seen at aspects whose radial "
                          "speeds differ by up to its speed; its wheels at 0-2 times it); false = body_doppler_kmh always"},
     )
     body_rate_kmh: float = field(

@@ -629,7 +629,8 @@ class SurveillanceTracker:
             if tid == tr.track_id or other is None or len(other) < 2 or tid not in self._log:
                 continue
             rate_y = _finite_or_zero(other.range_rate_kmh())
-            if not self._is_vehicle(tid, other):
+            if not (max(abs(rate_y), abs(_finite_or_zero(other.mean_radial_speed_kmh()))) >= cfg.rigid_min_speed_kmh
+                    or self._vehicle_by_class(tid)):
                 continue
             if rate_x * rate_y < 0 and min(abs(rate_x), abs(rate_y)) >= cfg.passage_speed_kmh:
                 continue  # moving apart: two targets crossing each other
@@ -653,22 +654,16 @@ class SurveillanceTracker:
             same = dt[np.arange(t_x.size), k][near] <= 0.5 * self.frame_period_s
             overlap = bool(same.any()) and float(np.median(gap_n[same])) <= 0.0
             dw = (w_x[near] - other.wrapped()[k[near]] + 0.5 * period) % period - 0.5 * period
-            # a younger part that took the body over must overlap it: a vehicle following another moves at its rate
+            # a younger part that took the body over must touch it (median gap 0): a vehicle following another moves
+            # at its rate
             together = (gap <= 0.0 if handover else
                         gap <= cfg.body_gap_m or abs(rate_x - rate_y) <= cfg.body_rate_kmh)
-            # inside the body's range extent (gap 0 in most paired frames) any Doppler is the body's: a vehicle's parts
-            # beside the radar are seen at aspects whose radial speeds differ by up to its speed, its wheels at 0-2 v
+            # inside the body's range extent any Doppler is the body's: a vehicle's parts beside the radar are seen at
+            # aspects whose radial speeds differ by up to its speed, its wheels at 0-2 v
             doppler_ok = abs(float(np.median(dw))) <= cfg.body_doppler_kmh or (cfg.body_overlap_any_doppler and overlap)
             if d <= cfg.body_length_m and doppler_ok and together and d < best_d:
                 best, best_d = tid, d
         return best
-
-    def _is_vehicle(self, track_id: int, spd: RadialSpeedEstimator) -> bool:
-        """Is ``track_id`` a vehicle's track, for the body rule: its range rate or mean radial speed is at least
-        ``rigid_min_speed_kmh``, or :meth:`_vehicle_by_class`."""
-        v = (spd.range_rate_kmh(), spd.mean_radial_speed_kmh())
-        fast = max(abs(_finite_or_zero(x)) for x in v) >= self.tracker.config.rigid_min_speed_kmh
-        return fast or self._vehicle_by_class(track_id)
 
     def _vehicle_by_class(self, track_id: int) -> bool:
         """``vehicle_by_class``: the classifier reads the track's features so far (at least
