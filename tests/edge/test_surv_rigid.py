@@ -119,8 +119,8 @@ def car_passing_beside_the_radar(n):
 
 @pytest.mark.parametrize("max_frames, any_doppler, events_expected", [(8, False, 1), (0, False, 2), (0, True, 1)])
 def test_the_part_seen_beside_the_radar_joins_the_departing_vehicle(max_frames, any_doppler, events_expected):
-    # without the passage rule, the body rule joins the part only when its extent touching the body's is enough
-    # (body_overlap_any_doppler: its radial speed beside the radar is far from the body's)
+    # without the passage rule the body rule joins the part, whose extent touches the body's, only with
+    # body_overlap_any_doppler: beside the radar its radial speed is far from the body's
     cfg = AlphaBetaConfig(passage_max_frames=max_frames, body_overlap_any_doppler=any_doppler)
     st, _, events = run(cfg, car_passing_beside_the_radar, 24)
     assert len(events) == events_expected
