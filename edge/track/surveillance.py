@@ -637,7 +637,8 @@ class SurveillanceTracker:
             t_y, r_y = other.history()
             dt = np.abs(t_x[:, None] - t_y[None, :])
             k = np.argmin(dt, axis=1)
-            near = dt[np.arange(t_x.size), k] <= dt_max
+            dt_k = dt[np.arange(t_x.size), k]
+            near = dt_k <= dt_max
             n_near = np.count_nonzero(near)
             # paired in at least half of tr's frames; or a *handover*: a younger part, seen beside tr before tr's last
             # cluster, that took the body over, paired in at least half of tr's frames since it appeared
@@ -651,7 +652,7 @@ class SurveillanceTracker:
             gap_n = np.where(np.isfinite(gap), gap, np.abs(r_x[near] - r_y[k[near]]))
             gap = float(np.median(gap_n))
             # extents overlapping in most of the frames both were seen in (not paired across frames: a body moves)
-            same = dt[np.arange(t_x.size), k][near] <= 0.5 * self.frame_period_s
+            same = dt_k[near] <= 0.5 * self.frame_period_s
             overlap = bool(same.any()) and float(np.median(gap_n[same])) <= 0.0
             dw = (w_x[near] - other.wrapped()[k[near]] + 0.5 * period) % period - 0.5 * period
             # a younger part that took the body over must touch it (median gap 0): a vehicle following another moves
