@@ -297,6 +297,14 @@ class AlphaBetaConfig:
         default=2.5,
         metadata={"unit": "km/h", "doc": "see passage_speed_kmh", "min": 0.0, "max": 100.0},
     )
+    continuation_hold_frames: int = field(
+        default=10,
+        metadata={"unit": "frames", "doc": "see continuation_speed_kmh: an ended track faster than "
+                                           "static_zone_speed_kmh waits this long, its id kept, for the one track "
+                                           "in view to continue it, when it is the only track waiting (a target "
+                                           "fading for longer than max_missed_frames); 0 = no wait",
+                  "min": 0, "max": 1000},
+    )
     continuation_same_frame: bool = field(
         default=True,
         metadata={"doc": "see continuation_speed_kmh: a track started in the very frame of the ended track's last "
@@ -588,6 +596,8 @@ class AlphaBetaTracker:
         #: centroid's cluster (merged with the track it went to)? Such a frame is neither a hit nor a miss:
         #: the track coasts on its prediction without counting towards N_u (at most merge_max_frames in a row)
         self.occlusion_test = None
+        #: True: the ids of tracks that end (not of dropped ones) stay taken until the owner releases them
+        self.keep_ended_ids = False
 
     def step(self, t_ns: int, centroids: np.ndarray, predicted: np.ndarray | None = None) -> TrackerStep:
         """Process the centroids ``(n, 3)`` of one frame (already on the cylinder, or projected here).
@@ -656,7 +666,7 @@ class AlphaBetaTracker:
                 else:
                     keep.append(tr)
             self.tracks = keep
-            for tr in ended + dropped:
+            for tr in (dropped if self.keep_ended_ids else ended + dropped):
                 self.ids.release(tr.track_id)
         created: list[int] = []
         free = [j for j in range(cen.shape[0]) if j not in used_cols and j not in absorbed]

@@ -56,7 +56,10 @@ measured on multi-random dev seeds (field docs):
 * *continuation* (``continuation_speed_kmh``): a track that ends although a track started after its
   last cluster lies where its speed (or range rate) in its direction takes it hands its frames to that
   track -- one event, features and mean speed over the whole passage -- instead of being classified on
-  its own (a motorcycle accelerating in radial speed past the radar outruns its prediction).
+  its own (a motorcycle accelerating in radial speed past the radar outruns its prediction). With
+  ``continuation_hold_frames``, a moving track that nothing continues yet waits that long, its id kept,
+  and joins the one confirmed track in view if that track continues it while no other track waits (a
+  walker fading below th_RD for longer than ``max_missed_frames``); its event comes after the wait;
 
 * *rigid bodies* (``rigid_*``): a car passing 3 m beside the radar shows its front and rear as two
   clusters with one Doppler, each with a track; a younger track whose cluster stays within
@@ -211,6 +214,8 @@ class SurveillanceTracker:
         seg = frontend.waveform.segments[0]
         self._coupling_s = seg.f_start_hz / seg.slope_hz_per_s
         self.tracker = AlphaBetaTracker(tracking or AlphaBetaConfig(), self.cylinder)
+        self.tracker.keep_ended_ids = self.tracker.config.continuation_hold_frames > 0
+        self._held: dict[int, tuple[AlphaBetaTrack, int]] = {}  # ended track id -> (track, last frame it waits)
         tc = self.tracker.config
         self.static_zones = (StaticZones(ch.range_resolution_m, ch.max_unambiguous_range_m, self.frame_period_s,
                                          tc.static_zone_time_s, tc.static_zone_speed_kmh, tc.static_zone_occupancy)
@@ -310,9 +315,11 @@ class SurveillanceTracker:
             centroids = sig.centroid[valid]
         self._shared: dict[int, list[int]] = {}  # centroid index -> ids of the tracks hidden in it by its span
         tstep = self.tracker.step(t_ns, centroids, predicted=p)
+        t_s = t_ns * 1e-9 if seq is None else int(seq) * self.frame_period_s
+        frame_key = int(round(t_s / self.frame_period_s))
         out: list[ClassifiedEvent] = []
         alive = {tr.track_id for tr in self.tracker.tracks} - set(tstep.created)
-        out.extend(self._end_tracks(tstep.ended, tstep.dropped, alive))
+        out.extend(self._end_tracks(tstep.ended, tstep.dropped, alive, frame_key))
         for tid in tstep.created:
             self._size[tid] = deque(maxlen=self.tracker.config.merge_history_frames)
             self._merged_run[tid] = 0
@@ -323,8 +330,6 @@ class SurveillanceTracker:
             if cfg_t.fragment_gap_m > 0 or cfg_t.continuation_speed_kmh > 0:  # united with a fragment's or
                 self._log[tid] = SignatureLog()  # an earlier track's rows; else never read
             self._links[tid] = {}
-        t_s = t_ns * 1e-9 if seq is None else int(seq) * self.frame_period_s
-        frame_key = int(round(t_s / self.frame_period_s))
         recorded: list[tuple[int, int]] = []
         n_aid = self.tracker.config.doppler_range_rate_frames
         by_id = {tr.track_id: tr for tr in self.tracker.tracks}
@@ -378,6 +383,8 @@ class SurveillanceTracker:
         self._link(recorded, points)
         if self.tracker.config.rigid_min_speed_kmh > 0:
             self._rigid_merge(recorded, sig)
+        if self._held:
+            out.extend(self._resolve_held(frame_key))
         seg = self.segmenter.step(t_ns, level)
         if seg.ended or seg.discarded:
             out.extend(self._close_tracks())
@@ -393,8 +400,48 @@ class SurveillanceTracker:
 
     # ------------------------------------------------------------------------------------------
     def _close_tracks(self) -> list[ClassifiedEvent]:
+        held = [self._finish(tr) for tr, _ in self._held.values()]
+        for tid in self._held:
+            self.tracker.ids.release(tid)
+        self._held = {}
         ended, dropped = self.tracker.close_all()
-        return self._end_tracks(ended, dropped, set())
+        return held + self._end_tracks(ended, dropped, set())
+
+    def _resolve_held(self, frame: int) -> list[ClassifiedEvent]:
+        """Held tracks (``continuation_hold_frames``): one whose wait is over is classified. While a single
+        track waits and a single confirmed track lives, it joins that track if that track continues it
+        (:meth:`_successor`): with other targets in view a target's successor is ambiguous (two walkers in step)."""
+        tracks = self.tracker.tracks
+        alone = (len(self._held) == 1 and len(tracks) == 1
+                 and tracks[0].seen_frames >= self.tracker.config.min_seen_frames)
+        out: list[ClassifiedEvent] = []
+        for tid, (tr, last) in list(self._held.items()):
+            succ = self._successor(tr, {tracks[0].track_id}) if alone else None
+            if succ is not None:
+                self._continue(tr, succ)
+            elif frame >= last:
+                out.append(self._finish(tr))
+            else:
+                continue
+            del self._held[tid]
+            self.tracker.ids.release(tid)
+        return out
+
+    def _moving(self, track_id: int) -> bool:
+        """Is the track's mean radial speed above ``static_zone_speed_kmh``? A standing echo's successor
+        would be any later track at its range."""
+        spd = self._speed.get(track_id)
+        v = spd.mean_radial_speed_kmh() if spd is not None and len(spd) else math.nan
+        return abs(v) > self.tracker.config.static_zone_speed_kmh
+
+    def _continue(self, tr: AlphaBetaTrack, succ: int) -> None:
+        """The ended track ``tr`` is the target of the living track ``succ``: its rows and speeds join it."""
+        tid = tr.track_id
+        self._log[succ].extend(self._log[tid])
+        self._speed[succ].prepend(self._speed[tid])
+        self._start_ns[succ] = self._start_ns.get(tid, int(tr.created_ns))
+        self.continued += 1
+        self._forget(tid, counted=False)
 
     def _link(self, recorded: list[tuple[int, int]], points: MapPoints) -> None:
         """Count a link between every two tracks of this frame whose clusters' range extents come
@@ -495,11 +542,12 @@ class SurveillanceTracker:
         self._forget(gone, counted=False)
         log.debug("track %d merged into track %d (one rigid body)", gone, keep)
 
-    def _end_tracks(self, ended, dropped, alive: set[int]) -> list[ClassifiedEvent]:
+    def _end_tracks(self, ended, dropped, alive: set[int], frame: int | None = None) -> list[ClassifiedEvent]:
         """Classify the ``ended`` tracks and forget the ``dropped`` ones, except fragments: a track
         linked (:meth:`_link`) in at least ``fragment_link_fraction`` of its own frames to a track that
         is still ``alive``, or that ends in this batch with more frames, hands its signature rows to
-        that track (the one it is linked to most) instead."""
+        that track (the one it is linked to most) instead. With ``continuation_hold_frames`` and a
+        ``frame``, an ended track that would be classified waits that long for a successor instead."""
         cfg = self.tracker.config
         batch = sorted([(tr, True) for tr in ended] + [(tr, False) for tr in dropped],
                        key=lambda e: (self._acc[e[0].track_id].n if e[0].track_id in self._acc else 0))
@@ -509,6 +557,11 @@ class SurveillanceTracker:
         for tr, is_ended in batch:
             tid = tr.track_id
             later.discard(tid)
+            # a moving dropped track (coasting below th_v) that carries the rows of tracks that ended before it (a
+            # continuation, a passage, a part) is classified as they would have been; its id is free already
+            carries = not is_ended and tid in self._start_ns and self._moving(tid)
+            held_id = is_ended and self.tracker.keep_ended_ids
+            is_ended = is_ended or carries
             partner = None
             if cfg.fragment_gap_m > 0 and tid in self._links:
                 own = max(1, self._acc[tid].n)
@@ -531,19 +584,19 @@ class SurveillanceTracker:
                 self.body_parts += 1
                 self._forget(tid, counted=False)
             elif is_ended and (succ := self._successor(tr, alive)) is not None:
-                self._log[succ].extend(self._log[tid])
-                self._speed[succ].prepend(self._speed[tid])
-                self._start_ns[succ] = self._start_ns.get(tid, int(tr.created_ns))
-                self.continued += 1
-                self._forget(tid, counted=False)
+                self._continue(tr, succ)
             elif is_ended and self._own_frames(tid) < 2:
                 # seen often enough, but nearly every frame merged with or shared by another target's
                 # cluster: no features to classify (eq. 19 needs two frames), dropped
                 self._forget(tid)
+            elif held_id and frame is not None and self._moving(tid):
+                self._held[tid] = (tr, frame + cfg.continuation_hold_frames)
             elif is_ended:
                 out.append(self._finish(tr))
             else:
                 self._forget(tid)
+            if held_id and tid not in self._held:
+                self.tracker.ids.release(tid)
         return out
 
     def _created_ns(self, track_id: int) -> int:
