@@ -17,13 +17,22 @@ FE = d2g_frontend()
 T = 0.2
 
 
-def run(cfg, scene, frames, events_cfg=None):
-    """Feed ``scene(n) -> list of (range, v, cells)`` for ``frames`` frames; -> (tracker, ids per frame, events)."""
-    st = SurveillanceTracker(FE, 2.0, tracking=cfg, events=events_cfg, classify=False)
-    ids, events = [], []
+def tracker(cfg, events_cfg=None):
+    return SurveillanceTracker(FE, 2.0, tracking=cfg, events=events_cfg, classify=False)
+
+
+def feed(st, scene, frames):
+    """Feed ``scene(n) -> list of (range, v, cells)`` to ``st`` for ``frames`` frames; yields each frame's step."""
     for n in range(frames):
         bl = [blob(r, v, c, k) for k, (r, v, c) in enumerate(scene(n))]
-        step = st.update(int(n * T * 1e9), points(*bl), seq=n)
+        yield st.update(int(n * T * 1e9), points(*bl), seq=n)
+
+
+def run(cfg, scene, frames, events_cfg=None):
+    """Feed ``scene`` for ``frames`` frames, then close; -> (tracker, ids per frame, events)."""
+    st = tracker(cfg, events_cfg)
+    ids, events = [], []
+    for step in feed(st, scene, frames):
         ids.append({t.track_id for t in st.tracker.tracks})
         events.extend(step.classifications)
     events.extend(st.close())
@@ -265,10 +274,7 @@ def slow_truck_front_and_rear(n, v=10.5):
 
 def run_classified(cfg, scene, frames):
     st = SurveillanceTracker(FE, 2.0, tracking=cfg, knn=_ByExtent())
-    events = []
-    for n in range(frames):
-        bl = [blob(r, v, c, k) for k, (r, v, c) in enumerate(scene(n))]
-        events.extend(st.update(int(n * T * 1e9), points(*bl), seq=n).classifications)
+    events = [ev for step in feed(st, scene, frames) for ev in step.classifications]
     events.extend(st.close())
     return st, events
 
@@ -396,11 +402,8 @@ def test_the_hold_joins_no_track_that_the_walk_does_not_reach():
 def test_a_dropped_track_that_carries_an_ended_one_is_classified():
     # the faded walker's second track took the first one's rows; were it dropped now (coasting below th_v),
     # the passage would still give its event, from the first track's start
-    st = SurveillanceTracker(FE, 2.0, tracking=AlphaBetaConfig(continuation_hold_frames=10), events=LONG_EVENT,
-                             classify=False)
-    for n in range(24):
-        step = st.update(int(n * T * 1e9), points(*[blob(r, v, c, k) for k, (r, v, c) in enumerate(walker_fading(n))]),
-                         seq=n)
+    st = tracker(AlphaBetaConfig(continuation_hold_frames=10), LONG_EVENT)
+    for step in feed(st, walker_fading, 24):
         assert not step.classifications
     assert st.continued == 1
     (tr,) = st.tracker.tracks
@@ -416,11 +419,9 @@ def test_a_standing_echo_is_not_held():
     def bush(n):
         return [(8.0, 0.5 if n % 2 else -0.5, 80)] if n <= 9 or n >= 20 else []
 
-    st = SurveillanceTracker(FE, 2.0, tracking=AlphaBetaConfig(continuation_hold_frames=10, static_zone_time_s=0.0),
-                             events=LONG_EVENT, classify=False)
+    st = tracker(AlphaBetaConfig(continuation_hold_frames=10, static_zone_time_s=0.0), LONG_EVENT)
     published = []
-    for n in range(36):
-        step = st.update(int(n * T * 1e9), points(*[blob(r, v, c, k) for k, (r, v, c) in enumerate(bush(n))]), seq=n)
+    for n, step in enumerate(feed(st, bush, 36)):
         published.extend(n for _ in step.classifications)
     published.extend(36 for _ in st.close())
     assert published == [16, 36] and st.continued == 0  # the first when it ended (9 + max_missed_frames)
@@ -439,10 +440,9 @@ def test_the_hold_joins_nothing_while_another_target_is_in_view():
 def test_a_dropped_standing_track_that_carries_another_gives_no_event():
     # a swaying bush's track that took an earlier bush track's rows (a continuation) and is dropped: site clutter,
     # forgotten as before; the same bookkeeping on a walker gives its event (previous test)
-    st = SurveillanceTracker(FE, 2.0, tracking=AlphaBetaConfig(static_zone_time_s=0.0), events=LONG_EVENT,
-                             classify=False)
-    for n in range(8):
-        st.update(int(n * T * 1e9), points(blob(8.0, 0.5 if n % 2 else -0.5, 80, 0)), seq=n)
+    st = tracker(AlphaBetaConfig(static_zone_time_s=0.0), LONG_EVENT)
+    for _ in feed(st, lambda n: [(8.0, 0.5 if n % 2 else -0.5, 80)], 8):
+        pass
     (tr,) = st.tracker.tracks
     st._start_ns[tr.track_id] = 0  # as a continuation sets it
     st.tracker.tracks = []
