@@ -274,8 +274,9 @@ class AlphaBetaConfig:
         default=8,
         metadata={"unit": "frames", "doc": "beyond the paper: a track that ends with at most this many frames, one "
                                            "within passage_range_m, joins a living vehicle track whose cluster was "
-                                           "within rigid_length_m of its own within passage_gap_frames (the vehicle "
-                                           "beside the radar); 0 = off", "min": 0, "max": 1000},
+                                           "within rigid_length_m of its own within passage_gap_frames, their "
+                                           "extents within body_gap_m in most of its frames (the vehicle beside "
+                                           "the radar); 0 = off", "min": 0, "max": 1000},
     )
     passage_range_m: float = field(
         default=8.0,
@@ -302,7 +303,8 @@ class AlphaBetaConfig:
         metadata={"unit": "frames", "doc": "see continuation_speed_kmh: an ended track faster than "
                                            "static_zone_speed_kmh waits this long, its id kept, for the one track "
                                            "in view to continue it, when it is the only track waiting (a target "
-                                           "fading for longer than max_missed_frames); 0 = no wait",
+                                           "fading for longer than max_missed_frames), and for the parts seen "
+                                           "beside it that end later (see body_length_m); 0 = no wait",
                   "min": 0, "max": 1000},
     )
     continuation_same_frame: bool = field(
@@ -313,14 +315,15 @@ class AlphaBetaConfig:
     )
     vehicle_by_class: bool = field(
         default=True,
-        metadata={"doc": "beyond the paper: the body rule (body_length_m) also takes a track slower than "
-                         "rigid_min_speed_kmh for a vehicle when the classifier reads its features so far as one "
-                         "(a truck at about an alias step of radial speed)"},
+        metadata={"doc": "beyond the paper: the body and passage rules (body_length_m, passage_max_frames) also "
+                         "take a track slower than rigid_min_speed_kmh for a vehicle when the classifier reads its "
+                         "features so far as one (a truck at about an alias step of radial speed)"},
     )
     body_length_m: float = field(
         default=12.0,
-        metadata={"unit": "m", "doc": "beyond the paper: a track that ends while a vehicle's track lives (at least "
-                                      "rigid_min_speed_kmh, or see vehicle_by_class) joins it when their clusters' "
+        metadata={"unit": "m", "doc": "beyond the paper: a track that ends while a vehicle's track lives or waits "
+                                      "(continuation_hold_frames; at least rigid_min_speed_kmh, or see "
+                                      "vehicle_by_class) joins it when their clusters' "
                                       "centres lie within this range at a wrapped Doppler within body_doppler_kmh, "
                                       "adjacent (body_gap_m) or at one range rate (body_rate_kmh); 0 = off",
                   "min": 0.0, "max": 30.0},

@@ -68,9 +68,10 @@ measured on multi-random dev seeds (field docs):
   for ``rigid_frames`` frames, is merged into it (signatures united, no event of its own), and a track
   started later where that part was joins at once;
 * *passage beside the radar* (``passage_*``): a short track (at most ``passage_max_frames`` frames,
-  near the radar, slow or at the vehicle's speed) next to a live vehicle track in place and time is
-  that vehicle seen while it passes beside the radar, its Doppler near zero: its signatures join the
-  vehicle's (Tavanti Test 1's departing car);
+  near the radar, slow or at the vehicle's speed) next to a live vehicle track in place and time, its extents within
+  ``body_gap_m`` of the vehicle's in most of the frames paired in time, is that vehicle seen while it passes beside
+  the radar, its Doppler near zero: its signatures join the vehicle's (Tavanti Test 1's departing car); the vehicle
+  is one at least ``rigid_min_speed_kmh`` fast or, with ``vehicle_by_class``, one the classifier reads as a vehicle;
 * *body parts* (``body_length_m``, ``body_gap_m``, ``body_doppler_kmh``, ``body_rate_kmh``): a track that ends while
   a vehicle's track lives, whose clusters were near that track's (centres within ``body_length_m``) at its wrapped
   Doppler, adjacent (extents within ``body_gap_m``) or moving at its range rate, is a part of that body (a truck's
@@ -81,7 +82,10 @@ measured on multi-random dev seeds (field docs):
   in joins at any wrapped Doppler (beside the radar a body's parts are seen at aspects whose radial speeds differ by
   up to its speed, and its wheels at 0-2 times it). The pairing covers at least half of the ending track's frames, or
   it is a *handover*: a younger vehicle track, seen beside it before its last cluster, that took the body over, paired
-  in half of its frames since; a handover needs overlapping extents (a vehicle following another moves at its rate);
+  in half of its frames since; a handover needs overlapping extents (a vehicle following another moves at its rate).
+  A track held by ``continuation_hold_frames`` whose last cluster came after the ending track's first one is also
+  a candidate; its extents must overlap the part's in most of the frames both were seen in (a vehicle's far end
+  cut off at the board's largest range outlives the body's track);
 * *merge guard needs another target* (``merge_other_required``): an enlarged cluster holds a track on
   its prediction only when another track is near it; an approaching car growing six-fold alone is
   itself, not a merge.
@@ -579,7 +583,7 @@ class SurveillanceTracker:
                                            self._start_ns.get(tid, int(tr.created_ns)))
                 self.passages += 1
                 self._forget(tid, counted=False)
-            elif is_ended and (body := self._body_partner(tr, alive | later)) is not None:
+            elif is_ended and (body := self._body_partner(tr, alive | later, self._held_beside(tid))) is not None:
                 self._join(body, tid, int(tr.created_ns))
                 self.body_parts += 1
                 self._forget(tid, counted=False)
@@ -599,6 +603,15 @@ class SurveillanceTracker:
                 self.tracker.ids.release(tid)
         return out
 
+    def _held_beside(self, track_id: int) -> set[int]:
+        """Held tracks (``continuation_hold_frames``) whose last cluster came after the first one of ``track_id``:
+        seen beside it, they may be the body it is a part of."""
+        spd = self._speed.get(track_id)
+        if not self._held or spd is None or not len(spd):
+            return set()
+        t0 = spd.first()[0]
+        return {h for h in self._held if h in self._speed and len(self._speed[h]) and self._speed[h].last()[0] >= t0}
+
     def _created_ns(self, track_id: int) -> int:
         for t in self.tracker.tracks:
             if t.track_id == track_id:
@@ -609,10 +622,12 @@ class SurveillanceTracker:
         """The vehicle track whose passage beside the radar the short ending track ``tr`` saw, or None
         (``passage_max_frames``, ``passage_range_m``, ``passage_gap_frames`` with ``rigid_min_speed_kmh``
         and ``rigid_length_m``): ``tr`` has at most ``passage_max_frames`` frames of its own, one of
-        them within ``passage_range_m``; the host is alive, at least ``rigid_min_speed_kmh`` fast, and one of
-        its clusters lies within ``rigid_length_m`` of one of ``tr``'s at most ``passage_gap_frames``
-        frames apart; ``tr``'s mean radial speed is within ``passage_speed_kmh`` of zero (beside the
-        radar) or within ``passage_same_speed_kmh`` of the host's. The closest such pair picks the host."""
+        them within ``passage_range_m``; the host is alive, at least ``rigid_min_speed_kmh`` fast (or, with
+        ``vehicle_by_class``, read as a vehicle), one of its clusters lies within ``rigid_length_m`` of one of
+        ``tr``'s at most ``passage_gap_frames`` frames apart, and the median gap between their extents over ``tr``'s
+        frames paired in time is at most ``body_gap_m``; ``tr``'s mean radial speed is within ``passage_speed_kmh``
+        of zero (beside the radar) or within ``passage_same_speed_kmh`` of the host's. The closest such pair picks
+        the host."""
         cfg = self.tracker.config
         if cfg.passage_max_frames <= 0 or cfg.rigid_min_speed_kmh <= 0 or not alive:
             return None
@@ -622,6 +637,7 @@ class SurveillanceTracker:
         t_x, r_x = spd.history()
         if not float(np.min(r_x)) <= cfg.passage_range_m:
             return None
+        lo_x, hi_x = spd.extents()
         n_aid = max(2, cfg.doppler_range_rate_frames)
         dt_max = (cfg.passage_gap_frames + 0.5) * self.frame_period_s
         v_x = spd.mean_radial_speed_kmh()
@@ -633,7 +649,7 @@ class SurveillanceTracker:
             if other is None or tid not in self._log or len(other) < n_aid:
                 continue
             v_y = other.current_radial_speed_kmh()
-            if not abs(v_y) >= cfg.rigid_min_speed_kmh:
+            if not (abs(v_y) >= cfg.rigid_min_speed_kmh or self._vehicle_by_class(tid)):
                 continue
             # beside the radar the part's radial speed is small; otherwise it is the host's own (one body):
             # another vehicle passing the other way, or a fast one seen for a few frames, is neither
@@ -644,6 +660,15 @@ class SurveillanceTracker:
             if not near.any():
                 continue
             d = float(np.min(np.where(near, np.abs(r_x[:, None] - r_y[None, :]), np.inf)))
+            # a part of the host's body touches its extent in most of the frames paired in time; a walker the
+            # vehicle passes comes near it for a frame or two only
+            k = np.argmin(np.abs(t_x[:, None] - t_y[None, :]), axis=1)
+            paired = near[np.arange(t_x.size), k]
+            lo_y, hi_y = other.extents()
+            gap = np.maximum(0.0, np.maximum(lo_x - hi_y[k], lo_y[k] - hi_x))[paired]
+            gap = np.where(np.isfinite(gap), gap, np.abs(r_x - r_y[k])[paired])
+            if not float(np.median(gap)) <= cfg.body_gap_m:
+                continue
             if d <= cfg.rigid_length_m and d < best_d:
                 best, best_d = tid, d
         return best
@@ -657,14 +682,17 @@ class SurveillanceTracker:
             self._speed[keep].merge(self._speed[gone])
         own = self._start_ns.get(keep)
         if own is None:
+            held = self._held.get(keep)
             own = next((int(t.created_ns) for t in self.tracker.tracks if t.track_id == keep),
-                       self._batch_created.get(keep, gone_created_ns))
+                       int(held[0].created_ns) if held is not None else self._batch_created.get(keep, gone_created_ns))
         self._start_ns[keep] = min(own, self._start_ns.get(gone, gone_created_ns))
 
-    def _body_partner(self, tr: AlphaBetaTrack, candidates: set[int]) -> int | None:
+    def _body_partner(self, tr: AlphaBetaTrack, candidates: set[int], held: frozenset[int] | set[int] = frozenset()) -> int | None:
         """The track of the vehicle whose body the ending track ``tr`` is a part of (``body_length_m``,
-        ``body_doppler_kmh``, ``passage_gap_frames``, ``rigid_min_speed_kmh``), or None; the nearest in range wins."""
+        ``body_doppler_kmh``, ``passage_gap_frames``, ``rigid_min_speed_kmh``), or None; the nearest in range wins.
+        ``held``: ended tracks waiting for a successor, also candidates; their extents must touch ``tr``'s."""
         cfg = self.tracker.config
+        candidates = candidates | held
         if cfg.body_length_m <= 0 or not candidates:
             return None
         spd = self._speed.get(tr.track_id)
@@ -710,7 +738,7 @@ class SurveillanceTracker:
             dw = (w_x[near] - other.wrapped()[k[near]] + 0.5 * period) % period - 0.5 * period
             # a younger part that took the body over must touch it (median gap 0): a vehicle following another moves
             # at its rate
-            together = (gap <= 0.0 if handover else
+            together = (overlap if tid in held else gap <= 0.0 if handover else
                         gap <= cfg.body_gap_m or abs(rate_x - rate_y) <= cfg.body_rate_kmh)
             # inside the body's range extent any Doppler is the body's: a vehicle's parts beside the radar are seen at
             # aspects whose radial speeds differ by up to its speed, its wheels at 0-2 v

@@ -447,3 +447,87 @@ def test_a_dropped_standing_track_that_carries_another_gives_no_event():
     st._start_ns[tr.track_id] = 0  # as a continuation sets it
     st.tracker.tracks = []
     assert st._end_tracks((), (tr,), set(), 8) == []
+
+
+def slow_truck_passing_beside_the_radar(n, v=10.5):
+    """A truck departing at ``v`` km/h (below rigid_min_speed_kmh, about one alias step): its near end seen beside
+    the radar (frames 0-4, at about 3 m with a small radial speed), and from frame 2 on its receding body, a long
+    cluster from 4.5 m on."""
+    out = []
+    if n <= 4:
+        out.append((3.0 + 0.05 * n, 1.0, 150))
+    if n >= 2:
+        out.append((4.5 + v / 3.6 * T * (n - 2), v, 900))
+    return out
+
+
+@pytest.mark.parametrize("by_class, events_expected", [(True, 1), (False, 2)])
+def test_a_slow_truck_is_the_host_of_its_passage_part_by_its_class(by_class, events_expected):
+    # the part beside the radar joins a host slower than the speed floor when the classifier reads the host as a
+    # vehicle (vehicle_by_class, as for the body rule)
+    cfg = AlphaBetaConfig(vehicle_by_class=by_class, body_length_m=0.0)
+    st, events = run_classified(cfg, slow_truck_passing_beside_the_radar, 24)
+    assert len(events) == events_expected
+    assert st.passages == (1 if by_class else 0)
+
+
+def car_passing_a_crossing_walker(n):
+    """A walker crossing the beam 5.8 m from the radar (radial speed about 0) in frames 0-7, while a car approaches
+    at -15 km/h from 16 m: the car's cluster comes within 6 m of the walker's only in the walker's last frames."""
+    out = [(16.0 - 15.0 / 3.6 * T * n, -15.0, 400)]
+    if n <= 7:
+        out.append((5.8 + 0.02 * n, 0.3, 120))
+    return out
+
+
+def test_a_walker_crossing_as_a_car_approaches_is_not_its_passage_part():
+    # a part of a vehicle's body touches its extent in most frames; the walker comes near the car in two
+    st, _, events = run(AlphaBetaConfig(body_length_m=0.0), car_passing_a_crossing_walker, 20)
+    assert st.passages == 0 and len(events) == 2
+    # with the extent test wide open, the nearness of one frame pair would still join it (the rule before)
+    st, _, events = run(AlphaBetaConfig(body_length_m=0.0, body_gap_m=30.0), car_passing_a_crossing_walker, 20)
+    assert st.passages == 1 and len(events) == 1
+
+
+def car_leaving_the_band(n, v=20.0):
+    """A car receding at ``v`` km/h, 3 m long, seen from 14 m until it leaves the map at 24 m (frame 11); from frame 9
+    its far end is a second cluster 1.2 m behind its body (their extents touch), seen until frame 12 (the body's cluster is gone by then)."""
+    r = 14.0 + v / 3.6 * T * n
+    out = []
+    if n <= 10:
+        out.append((r, v, 300))
+    if 9 <= n <= 12:
+        out.append((r + 1.2, v, 100))
+    return out
+
+
+@pytest.mark.parametrize("hold, events_expected", [(10, 1), (0, 2)])
+def test_a_far_part_that_outlives_its_vehicles_track_joins_it_while_it_waits(hold, events_expected):
+    # the body's track ends first and waits (continuation_hold_frames); the far part, seen beside it, then ends
+    # and joins it, so the passage is one event from the body's first frame
+    st, _, events = run(AlphaBetaConfig(continuation_hold_frames=hold, rigid_min_speed_kmh=0.0), car_leaving_the_band,
+                        30, LONG_EVENT)
+    assert len(events) == events_expected
+    assert st.body_parts == (1 if hold else 0)
+    if hold:
+        (ev,) = events
+        assert ev.start_ns == 0 and ev.mean_radial_speed_kmh == pytest.approx(20.0, abs=1.5)
+
+
+def motorcycle_following_a_car_out(n, v=15.0):
+    """A car receding at ``v`` km/h from 8 m, seen until frame 10, and a motorcycle 4 m behind it at the same speed,
+    seen from frame 10 to 16: it follows the car at its rate, and their clusters never touch."""
+    r = 8.0 + v / 3.6 * T * n
+    out = []
+    if n <= 10:
+        out.append((r, v, 300))
+    if 10 <= n <= 16:
+        out.append((r - 4.0, v, 100))
+    return out
+
+
+def test_a_vehicle_following_a_waiting_track_out_keeps_its_own_event():
+    # a waiting track takes a part only if their extents touch; one vehicle following another moves at its rate
+    st, _, events = run(AlphaBetaConfig(continuation_hold_frames=10, rigid_min_speed_kmh=0.0),
+                        motorcycle_following_a_car_out, 30, LONG_EVENT)
+    assert st.body_parts == 0 and len(events) == 2
