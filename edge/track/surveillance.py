@@ -180,6 +180,16 @@ def _finite_or_zero(x: float) -> float:
     return x if math.isfinite(x) else 0.0
 
 
+def _extent_gaps(x: tuple[np.ndarray, np.ndarray, np.ndarray], other: RadialSpeedEstimator, k: np.ndarray) -> np.ndarray:
+    """Range gap (m, 0 where they overlap) between the extents of each of a track's frames ``x`` = (centroid, near,
+    far edge) and those of frame ``k`` of the ``other`` track's history; the centroids' distance where an extent is
+    not known."""
+    r_x, lo_x, hi_x = x
+    r_y, (lo_y, hi_y) = other.history()[1], other.extents()
+    gap = np.maximum(0.0, np.maximum(lo_x - hi_y[k], lo_y[k] - hi_x))
+    return np.where(np.isfinite(gap), gap, np.abs(r_x - r_y[k]))
+
+
 def _within(d0: float, d1: float, d2: float, radius: float) -> bool | None:
     """Is ``float(np.linalg.norm([d0, d1, d2])) <= radius``? Decided in plain Python when the squared norm lies
     clearly on one side of ``radius**2`` (numpy's dot product may sum it in another order, a few units in the last
@@ -664,9 +674,7 @@ class SurveillanceTracker:
             # vehicle passes comes near it for a frame or two only
             k = np.argmin(np.abs(t_x[:, None] - t_y[None, :]), axis=1)
             paired = near[np.arange(t_x.size), k]
-            lo_y, hi_y = other.extents()
-            gap = np.maximum(0.0, np.maximum(lo_x - hi_y[k], lo_y[k] - hi_x))[paired]
-            gap = np.where(np.isfinite(gap), gap, np.abs(r_x - r_y[k])[paired])
+            gap = _extent_gaps((r_x, lo_x, hi_x), other, k)[paired]
             if not float(np.median(gap)) <= cfg.body_gap_m:
                 continue
             if d <= cfg.rigid_length_m and d < best_d:
@@ -728,9 +736,7 @@ class SurveillanceTracker:
             if n_near < max(1, t_x.size // 2) and not handover:
                 continue
             d = float(np.median(np.abs(r_x[near] - r_y[k[near]])))
-            lo_y, hi_y = other.extents()
-            gap = np.maximum(0.0, np.maximum(lo_x[near] - hi_y[k[near]], lo_y[k[near]] - hi_x[near]))
-            gap_n = np.where(np.isfinite(gap), gap, np.abs(r_x[near] - r_y[k[near]]))
+            gap_n = _extent_gaps((r_x, lo_x, hi_x), other, k)[near]
             gap = float(np.median(gap_n))
             # extents overlapping in most of the frames both were seen in (not paired across frames: a body moves)
             same = dt_k[near] <= 0.5 * self.frame_period_s
