@@ -180,7 +180,8 @@ def _finite_or_zero(x: float) -> float:
     return x if math.isfinite(x) else 0.0
 
 
-def _extent_gaps(x: tuple[np.ndarray, np.ndarray, np.ndarray], other: RadialSpeedEstimator, k: np.ndarray) -> np.ndarray:
+def _extent_gaps(x: tuple[np.ndarray, np.ndarray, np.ndarray], other: RadialSpeedEstimator,
+                 k: np.ndarray) -> np.ndarray:
     """Range gap (m, 0 where they overlap) between the extents of each of a track's frames ``x`` = (centroid, near,
     far edge) and those of frame ``k`` of the ``other`` track's history; the centroids' distance where an extent is
     not known."""
@@ -692,10 +693,12 @@ class SurveillanceTracker:
         if own is None:
             held = self._held.get(keep)
             own = next((int(t.created_ns) for t in self.tracker.tracks if t.track_id == keep),
-                       int(held[0].created_ns) if held is not None else self._batch_created.get(keep, gone_created_ns))
+                       int(held[0].created_ns) if held is not None
+                       else self._batch_created.get(keep, gone_created_ns))
         self._start_ns[keep] = min(own, self._start_ns.get(gone, gone_created_ns))
 
-    def _body_partner(self, tr: AlphaBetaTrack, candidates: set[int], held: frozenset[int] | set[int] = frozenset()) -> int | None:
+    def _body_partner(self, tr: AlphaBetaTrack, candidates: set[int],
+                      held: frozenset[int] | set[int] = frozenset()) -> int | None:
         """The track of the vehicle whose body the ending track ``tr`` is a part of (``body_length_m``,
         ``body_doppler_kmh``, ``passage_gap_frames``, ``rigid_min_speed_kmh``), or None; the nearest in range wins.
         ``held``: ended tracks waiting for a successor, also candidates; their extents must touch ``tr``'s."""

@@ -491,7 +491,8 @@ def test_a_walker_crossing_as_a_car_approaches_is_not_its_passage_part():
 
 def car_leaving_the_band(n, v=20.0):
     """A car receding at ``v`` km/h, 3 m long, seen from 14 m until it leaves the map at 24 m (frame 11); from frame 9
-    its far end is a second cluster 1.2 m behind its body (their extents touch), seen until frame 12 (the body's cluster is gone by then)."""
+    its far end is a second cluster 1.2 m behind its body (their extents touch), seen until frame 12, when the body's
+    cluster is gone."""
     r = 14.0 + v / 3.6 * T * n
     out = []
     if n <= 10:
@@ -505,8 +506,8 @@ def car_leaving_the_band(n, v=20.0):
 def test_a_far_part_that_outlives_its_vehicles_track_joins_it_while_it_waits(hold, events_expected):
     # the body's track ends first and waits (continuation_hold_frames); the far part, seen beside it, then ends
     # and joins it, so the passage is one event from the body's first frame
-    st, _, events = run(AlphaBetaConfig(continuation_hold_frames=hold, rigid_min_speed_kmh=0.0), car_leaving_the_band,
-                        30, LONG_EVENT)
+    cfg = AlphaBetaConfig(continuation_hold_frames=hold, rigid_min_speed_kmh=0.0)
+    st, _, events = run(cfg, car_leaving_the_band, 30, LONG_EVENT)
     assert len(events) == events_expected
     assert st.body_parts == (1 if hold else 0)
     if hold:
