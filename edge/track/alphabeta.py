@@ -303,8 +303,8 @@ class AlphaBetaConfig:
         metadata={"unit": "frames", "doc": "see continuation_speed_kmh: an ended track faster than "
                                            "static_zone_speed_kmh waits this long, its id kept, for the one track "
                                            "in view to continue it, when it is the only track waiting (a target "
-                                           "fading for longer than max_missed_frames), and for the parts seen "
-                                           "beside it that end later (see body_length_m); 0 = no wait",
+                                           "fading for longer than max_missed_frames), and for its parts that end "
+                                           "later; 0 = no wait",
                   "min": 0, "max": 1000},
     )
     continuation_same_frame: bool = field(
@@ -322,8 +322,7 @@ class AlphaBetaConfig:
     body_length_m: float = field(
         default=12.0,
         metadata={"unit": "m", "doc": "beyond the paper: a track that ends while a vehicle's track lives or waits "
-                                      "(continuation_hold_frames; at least rigid_min_speed_kmh, or see "
-                                      "vehicle_by_class) joins it when their clusters' "
+                                      "(at least rigid_min_speed_kmh; see vehicle_by_class) joins it if their clusters' "
                                       "centres lie within this range at a wrapped Doppler within body_doppler_kmh, "
                                       "adjacent (body_gap_m) or at one range rate (body_rate_kmh); 0 = off",
                   "min": 0.0, "max": 30.0},
