@@ -180,13 +180,12 @@ def _finite_or_zero(x: float) -> float:
     return x if math.isfinite(x) else 0.0
 
 
-def _extent_gaps(x: tuple[np.ndarray, np.ndarray, np.ndarray], other: RadialSpeedEstimator,
+def _extent_gaps(x: tuple[np.ndarray, np.ndarray, np.ndarray], y: tuple[np.ndarray, np.ndarray, np.ndarray],
                  k: np.ndarray) -> np.ndarray:
     """Range gap (m, 0 where they overlap) between the extents of each of a track's frames ``x`` = (centroid, near,
-    far edge) and those of frame ``k`` of the ``other`` track's history; the centroids' distance where an extent is
-    not known."""
-    r_x, lo_x, hi_x = x
-    r_y, (lo_y, hi_y) = other.history()[1], other.extents()
+    far edge) and those of frame ``k`` of another track's ``y``; the centroids' distance where an extent is not
+    known."""
+    (r_x, lo_x, hi_x), (r_y, lo_y, hi_y) = x, y
     gap = np.maximum(0.0, np.maximum(lo_x - hi_y[k], lo_y[k] - hi_x))
     return np.where(np.isfinite(gap), gap, np.abs(r_x - r_y[k]))
 
@@ -667,15 +666,16 @@ class SurveillanceTracker:
             if not (abs(v_x) <= cfg.passage_speed_kmh or abs(v_x - v_y) <= cfg.passage_same_speed_kmh):
                 continue
             t_y, r_y = other.history()
-            near = np.abs(t_x[:, None] - t_y[None, :]) <= dt_max
+            dt = np.abs(t_x[:, None] - t_y[None, :])
+            near = dt <= dt_max
             if not near.any():
                 continue
             d = float(np.min(np.where(near, np.abs(r_x[:, None] - r_y[None, :]), np.inf)))
             # a part of the host's body touches its extent in most of the frames paired in time; a walker the
             # vehicle passes comes near it for a frame or two only
-            k = np.argmin(np.abs(t_x[:, None] - t_y[None, :]), axis=1)
+            k = np.argmin(dt, axis=1)
             paired = near[np.arange(t_x.size), k]
-            gap = _extent_gaps((r_x, lo_x, hi_x), other, k)[paired]
+            gap = _extent_gaps((r_x, lo_x, hi_x), (r_y, *other.extents()), k)[paired]
             if not float(np.median(gap)) <= cfg.body_gap_m:
                 continue
             if d <= cfg.rigid_length_m and d < best_d:
@@ -739,7 +739,7 @@ class SurveillanceTracker:
             if n_near < max(1, t_x.size // 2) and not handover:
                 continue
             d = float(np.median(np.abs(r_x[near] - r_y[k[near]])))
-            gap_n = _extent_gaps((r_x, lo_x, hi_x), other, k)[near]
+            gap_n = _extent_gaps((r_x, lo_x, hi_x), (r_y, *other.extents()), k)[near]
             gap = float(np.median(gap_n))
             # extents overlapping in most of the frames both were seen in (not paired across frames: a body moves)
             same = dt_k[near] <= 0.5 * self.frame_period_s
