@@ -12,7 +12,8 @@ range-Doppler map reaches ``th_RD``) and ends when it stays below it. Two guards
   level), so a target fading for a frame or two keeps its event open.
 
 The segmenter is a small state machine fed one level per frame; it never looks ahead. The
-surveillance tracker closes every open track when a confirmed event ends.
+surveillance tracker closes every open track when a confirmed event ends (a track already waiting for its
+successor waits on).
 """
 
 from __future__ import annotations

@@ -59,7 +59,8 @@ measured on multi-random dev seeds (field docs):
   its own (a motorcycle accelerating in radial speed past the radar outruns its prediction). With
   ``continuation_hold_frames``, a moving track that nothing continues yet waits that long, its id kept,
   and joins the one confirmed track in view if that track continues it while no other track waits (a
-  walker fading below th_RD for longer than ``max_missed_frames``); its event comes after the wait;
+  walker fading below th_RD for longer than ``max_missed_frames``); its event comes after the wait, which the
+  end of the passage's echo (the event segmenter) does not cut short;
 
 * *rigid bodies* (``rigid_*``): a car passing 3 m beside the radar shows its front and rear as two
   clusters with one Doppler, each with a track; a younger track whose cluster stays within
@@ -400,8 +401,8 @@ class SurveillanceTracker:
         if self._held:
             out.extend(self._resolve_held(frame_key))
         seg = self.segmenter.step(t_ns, level)
-        if seg.ended or seg.discarded:
-            out.extend(self._close_tracks())
+        if seg.ended or seg.discarded:  # the echo's end closes the live tracks; held ones wait out their hold
+            out.extend(self._close_tracks(keep_held=True))
         tracks = tuple(self._track_state(tr, t_s) for tr in self.tracker.confirmed())
         done_ids = {ev.track_id for ev in out}
         inter = {"centroids": centroids, "cluster_labels": labels, "level": level, "merged_tracks": merged,
@@ -413,11 +414,15 @@ class SurveillanceTracker:
         return tuple(self._close_tracks())
 
     # ------------------------------------------------------------------------------------------
-    def _close_tracks(self) -> list[ClassifiedEvent]:
-        held = [self._finish(tr) for tr, _ in self._held.values()]
-        for tid in self._held:
-            self.tracker.ids.release(tid)
-        self._held = {}
+    def _close_tracks(self, keep_held: bool = False) -> list[ClassifiedEvent]:
+        """End every live track; also classify the held ones unless ``keep_held`` (a target that faded for longer than
+        the segment's release may come back within their hold)."""
+        held = []
+        if not keep_held:
+            held = [self._finish(tr) for tr, _ in self._held.values()]
+            for tid in self._held:
+                self.tracker.ids.release(tid)
+            self._held = {}
         ended, dropped = self.tracker.close_all()
         return held + self._end_tracks(ended, dropped, set())
 

@@ -391,6 +391,17 @@ def test_a_walker_that_fades_longer_than_a_track_lives_is_one_event_with_the_hol
         assert st.tracker.ids._used == set()  # every id released at the end
 
 
+@pytest.mark.parametrize("hold, n_events", [(0, 2), (10, 1)])
+def test_a_walker_that_fades_past_the_end_of_the_echo_is_one_event_with_the_hold(hold, n_events):
+    # the default release: 7 quiet frames end the passage's echo (frame 16) while the walker's track waits; the
+    # wait outlives that end, and the track the walker starts again at frame 20 continues it
+    st, _, events = run(AlphaBetaConfig(continuation_hold_frames=hold), walker_fading, 36)
+    assert st.segmenter.events == 2  # the echo ended and started again
+    assert len(events) == n_events and st.continued == (1 if hold else 0)
+    assert events[0].start_ns == 0
+    assert st.tracker.ids._used == set()
+
+
 def test_the_hold_joins_no_track_that_the_walk_does_not_reach():
     # the same walker seen again 6 m beyond where 4.5 km/h takes it: another target; the held track is
     # classified when its wait ends, before the second one
